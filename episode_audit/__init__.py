@@ -1,0 +1,49 @@
+"""episode-audit: auditable reinforcement-learning episodes.
+
+Record every step of a Gymnasium environment — seed, action, observation, reward and its named
+terms, ``terminated`` / ``truncated``, and why each episode ended — to an MCAP evidence file;
+read it back as Arrow tables.
+
+>>> import episode_audit
+>>> episode_audit.FORMAT_VERSION
+'1.0'
+"""
+
+from ._version import __version__
+from .errors import (
+    ConfigurationError,
+    CorruptEvidenceError,
+    EpisodeAuditError,
+    EvidenceError,
+    NotEvidenceError,
+    RecorderError,
+    ReplayError,
+    UnsupportedVersionError,
+)
+from .format import FORMAT_VERSION
+from .outcomes import Ending, EndingRules, RewardTerms
+from .reader import EPISODE_COLUMNS, EpisodeEvidence, Evidence, open_evidence
+from .recorder import RecordEvidence
+from .records import RunInfo
+
+__all__ = [
+    "ConfigurationError",
+    "CorruptEvidenceError",
+    "EPISODE_COLUMNS",
+    "Ending",
+    "EndingRules",
+    "EpisodeAuditError",
+    "EpisodeEvidence",
+    "Evidence",
+    "EvidenceError",
+    "FORMAT_VERSION",
+    "NotEvidenceError",
+    "RecordEvidence",
+    "RecorderError",
+    "ReplayError",
+    "RewardTerms",
+    "RunInfo",
+    "UnsupportedVersionError",
+    "__version__",
+    "open_evidence",
+]

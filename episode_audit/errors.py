@@ -1,0 +1,67 @@
+"""The exception tree of episode-audit.
+
+Every error the library raises on purpose derives from :class:`EpisodeAuditError`::
+
+    EpisodeAuditError
+    ├── EvidenceError              an evidence file cannot be read as evidence
+    │   ├── NotEvidenceError       not an MCAP file, or an MCAP file without our metadata
+    │   ├── CorruptEvidenceError   damaged beyond the torn tail a crash leaves
+    │   └── UnsupportedVersionError written by a newer major format version
+    ├── RecorderError              the recorder was misused (e.g. stepping after close)
+    ├── ConfigurationError         a wrong argument or option
+    └── ReplayError                an episode cannot be replayed (no env, no seed or RNG state)
+
+Messages say what was expected, what was found, and what to do.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+
+__all__ = [
+    "ConfigurationError",
+    "CorruptEvidenceError",
+    "EpisodeAuditError",
+    "EvidenceError",
+    "NotEvidenceError",
+    "RecorderError",
+    "ReplayError",
+    "UnsupportedVersionError",
+]
+
+
+class EpisodeAuditError(Exception):
+    """Base class of every error episode-audit raises on purpose."""
+
+
+class EvidenceError(EpisodeAuditError):
+    """An evidence file cannot be read; the message names the file and the problem."""
+
+    def __init__(self, path: str | PathLike[str], problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class NotEvidenceError(EvidenceError):
+    """The file is not an MCAP file, or not one written by episode-audit."""
+
+
+class CorruptEvidenceError(EvidenceError):
+    """The file is damaged in a way a crash cannot explain (bad bytes before the torn tail)."""
+
+
+class UnsupportedVersionError(EvidenceError):
+    """The file was written by a newer major version of the format than this reader knows."""
+
+
+class RecorderError(EpisodeAuditError):
+    """The recorder was misused, e.g. stepped after ``close()``."""
+
+
+class ConfigurationError(EpisodeAuditError):
+    """An argument or option is wrong; the message says what was expected."""
+
+
+class ReplayError(EpisodeAuditError):
+    """An episode cannot be replayed: no environment can be built, or no seed / RNG state."""

@@ -1,0 +1,126 @@
+"""Names and constants of the evidence file format (see ``docs/format.md``).
+
+This module is the single place where topics, encodings, metadata names and column names are
+spelled; every other module imports them from here.
+
+>>> FORMAT_VERSION
+'1.0'
+>>> TOPIC_STEPS
+'episode_audit/steps'
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+__all__ = [
+    "ARROW_ENCODING",
+    "COL_ACTION",
+    "COL_EPISODE",
+    "COL_INFO",
+    "COL_LABEL",
+    "COL_NOTES",
+    "COL_OBSERVATION",
+    "COL_OUTCOME",
+    "COL_REWARD",
+    "COL_STEP",
+    "COL_TERMINATED",
+    "COL_TERMS",
+    "COL_TIME",
+    "COL_TRUNCATED",
+    "FORMAT_MAJOR",
+    "FORMAT_VERSION",
+    "JSON_ENCODING",
+    "JSONSCHEMA_ENCODING",
+    "MCAP_PROFILE",
+    "METADATA_RUN",
+    "METADATA_RUN_END",
+    "OUTCOMES",
+    "OUTCOME_ERROR",
+    "OUTCOME_FAILURE",
+    "OUTCOME_INCOMPLETE",
+    "OUTCOME_SUCCESS",
+    "OUTCOME_TRUNCATED",
+    "REASON_EXTERNAL",
+    "REASON_TIME_LIMIT",
+    "SCHEMA_EPISODE_END",
+    "SCHEMA_EPISODE_START",
+    "SCHEMA_RESET_BLOCK",
+    "SCHEMA_STEP_BLOCK",
+    "TOPIC_EPISODE_END",
+    "TOPIC_EPISODE_START",
+    "TOPIC_RESETS",
+    "TOPIC_STEPS",
+    "UNLABELED",
+    "format_major",
+]
+
+FORMAT_VERSION: Final = "1.0"
+"""Version of the format this package writes. Readers refuse a newer *major* version."""
+FORMAT_MAJOR: Final = 1
+
+MCAP_PROFILE: Final = "episode_audit"
+"""MCAP header profile of every evidence file."""
+
+ARROW_ENCODING: Final = "application/vnd.apache.arrow.stream"
+"""Message (and schema) encoding of columnar blocks: one Arrow IPC stream per message."""
+JSON_ENCODING: Final = "json"
+JSONSCHEMA_ENCODING: Final = "jsonschema"
+
+TOPIC_STEPS: Final = "episode_audit/steps"
+TOPIC_RESETS: Final = "episode_audit/resets"
+TOPIC_EPISODE_START: Final = "episode_audit/episode_start"
+TOPIC_EPISODE_END: Final = "episode_audit/episode_end"
+
+SCHEMA_STEP_BLOCK: Final = "episode_audit.StepBlock"
+SCHEMA_RESET_BLOCK: Final = "episode_audit.ResetBlock"
+SCHEMA_EPISODE_START: Final = "episode_audit.EpisodeStart"
+SCHEMA_EPISODE_END: Final = "episode_audit.EpisodeEnd"
+
+METADATA_RUN: Final = "episode_audit.run"
+METADATA_RUN_END: Final = "episode_audit.run_end"
+
+# Columns of step blocks (reset blocks use episode, time_ns, observation, info, notes).
+COL_EPISODE: Final = "episode"
+COL_STEP: Final = "step"
+COL_TIME: Final = "time_ns"
+COL_ACTION: Final = "action"
+COL_OBSERVATION: Final = "observation"
+COL_REWARD: Final = "reward"
+COL_TERMS: Final = "terms"
+COL_TERMINATED: Final = "terminated"
+COL_TRUNCATED: Final = "truncated"
+COL_OUTCOME: Final = "outcome"
+COL_LABEL: Final = "label"
+COL_INFO: Final = "info"
+COL_NOTES: Final = "notes"
+
+OUTCOME_SUCCESS: Final = "success"
+OUTCOME_FAILURE: Final = "failure"
+OUTCOME_TRUNCATED: Final = "truncated"
+OUTCOME_INCOMPLETE: Final = "incomplete"
+OUTCOME_ERROR: Final = "error"
+OUTCOMES: Final = (
+    OUTCOME_SUCCESS,
+    OUTCOME_FAILURE,
+    OUTCOME_TRUNCATED,
+    OUTCOME_INCOMPLETE,
+    OUTCOME_ERROR,
+)
+UNLABELED: Final = "unlabeled"
+REASON_TIME_LIMIT: Final = "time_limit"
+REASON_EXTERNAL: Final = "external"
+
+
+def format_major(version: str) -> int:
+    """Return the major number of a ``"MAJOR.MINOR"`` format version string.
+
+    >>> format_major("1.3")
+    1
+
+    Raises ``ValueError`` when the string is not of that form.
+    """
+    major, _, minor = version.partition(".")
+    if not major.isdigit() or (minor and not minor.isdigit()):
+        raise ValueError(f"expected a version like '1.0', found {version!r}")
+    return int(major)

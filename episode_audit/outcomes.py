@@ -1,0 +1,182 @@
+"""Where reward terms, success, failure labels and truncation reasons come from.
+
+:class:`RewardTerms` says how a step's named reward terms are read from ``info``;
+:class:`EndingRules` turns a final step's ``terminated`` / ``truncated`` / ``info`` into one
+outcome of the taxonomy (``success``, ``failure``, ``truncated``; ``incomplete`` and ``error``
+are decided by the recorder).
+
+>>> RewardTerms().extract({"reward_dist": -0.2, "reward_ctrl": -0.1, "x": 3})
+{'reward_dist': -0.2, 'reward_ctrl': -0.1}
+>>> EndingRules().classify(True, False, {"success": True}, time_limit_hit=False)
+Ending(outcome='success', failure_label=None, truncation_reason=None)
+>>> EndingRules().classify(False, True, {}, time_limit_hit=True)
+Ending(outcome='truncated', failure_label=None, truncation_reason='time_limit')
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+from . import format as fmt
+from .errors import ConfigurationError
+
+__all__ = ["Ending", "EndingRules", "RewardTerms"]
+
+TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
+
+
+@dataclass(frozen=True)
+class RewardTerms:
+    """How the named reward terms of a step are found in its ``info``.
+
+    ``source`` is one of:
+
+    - ``"auto"`` (default): ``info["reward_terms"]`` when it is a mapping, else every
+      ``info["reward_*"]`` key (Gymnasium MuJoCo v5 style), else no terms;
+    - a sequence of info keys, e.g. ``("reward_forward", "reward_ctrl")``;
+    - a callable ``info -> {name: value}``;
+    - ``None``: record no terms.
+
+    ``constants`` declares terms an environment adds outside its info (e.g. a constant survival
+    bonus): ``check`` adds them to every step's terms sum; they are not written per step.
+    """
+
+    source: str | Sequence[str] | TermsFn | None = "auto"
+    constants: Mapping[str, float] = field(default_factory=dict)
+    prefix: str = "reward_"
+    dict_key: str = "reward_terms"
+
+    def __post_init__(self) -> None:
+        src = self.source
+        if isinstance(src, str) and src != "auto":
+            raise ConfigurationError(
+                f"reward terms source: expected 'auto', a list of info keys, a callable or None, "
+                f"actually: {src!r}"
+            )
+        for name, value in self.constants.items():
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigurationError(
+                    f"constant reward term {name!r}: expected a finite number, actually: {value!r}"
+                )
+
+    def extract(self, info: Mapping[str, Any]) -> dict[str, Any] | None:
+        """Return the step's terms (values not yet validated), or ``None`` when it has none."""
+        src = self.source
+        if src == "auto":
+            terms = info.get(self.dict_key)
+            if terms is not None:
+                return dict(terms)
+            if not info:
+                return None
+            prefix = self.prefix
+            found = {k: v for k, v in info.items() if k.startswith(prefix)}
+            return found or None
+        if src is None:
+            return None
+        if callable(src):
+            out = src(info)
+            return None if out is None else dict(out)
+        return {k: info[k] for k in src if k in info} or None
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-able description for the run metadata."""
+        src = self.source
+        if callable(src) and not isinstance(src, str):
+            kind: Any = f"callable:{getattr(src, '__qualname__', type(src).__name__)}"
+        elif src is None or isinstance(src, str):
+            kind = src
+        else:
+            kind = list(src)
+        return {"source": kind, "constants": dict(self.constants)}
+
+
+class Ending(NamedTuple):
+    """The outcome of an episode that ended by ``terminated`` or ``truncated``."""
+
+    outcome: str
+    failure_label: str | None
+    truncation_reason: str | None
+
+
+SuccessFn = Callable[[Mapping[str, Any]], bool]
+FailureFn = Callable[[Mapping[str, Any]], str | None]
+
+
+@dataclass(frozen=True)
+class EndingRules:
+    """How success, failure labels and truncation reasons are read from the final ``info``.
+
+    Defaults follow the conventions of SB3 and Gymnasium-Robotics: ``info["success"]`` or
+    ``info["is_success"]`` for success, ``info["failure"]`` for a failure label (a string; any
+    other truthy value means a failure without a label), ``info["truncation_reason"]`` for an
+    env-given truncation reason. ``success_fn`` / ``failure_fn`` replace the key lookups.
+
+    A terminated episode is a ``success`` when the success predicate holds, else a ``failure``
+    (``unlabeled`` when no label is given). A truncated, not terminated, episode is
+    ``truncated`` with the env-given reason, else ``time_limit`` when Gymnasium's TimeLimit
+    fired, else ``external``. When both flags are set, the task ending counts and the
+    truncation reason is kept beside it.
+    """
+
+    success_keys: Sequence[str] = ("success", "is_success")
+    failure_key: str = "failure"
+    truncation_reason_key: str = "truncation_reason"
+    success_fn: SuccessFn | None = None
+    failure_fn: FailureFn | None = None
+
+    def is_success(self, info: Mapping[str, Any]) -> bool:
+        """Whether the success predicate holds for this final ``info``."""
+        if self.success_fn is not None:
+            return bool(self.success_fn(info))
+        for key in self.success_keys:
+            value = info.get(key)
+            if value is not None:
+                return bool(value)
+        return False
+
+    def failure_label(self, info: Mapping[str, Any]) -> str:
+        """The failure label of a terminal failure (``unlabeled`` when none is given)."""
+        if self.failure_fn is not None:
+            label = self.failure_fn(info)
+        else:
+            label = info.get(self.failure_key)
+        if isinstance(label, str) and label:
+            return label
+        return fmt.UNLABELED
+
+    def truncation_reason(self, info: Mapping[str, Any], *, time_limit_hit: bool) -> str:
+        """The reason a truncated episode was cut off."""
+        reason = info.get(self.truncation_reason_key)
+        if isinstance(reason, str) and reason:
+            return reason
+        return fmt.REASON_TIME_LIMIT if time_limit_hit else fmt.REASON_EXTERNAL
+
+    def classify(
+        self, terminated: bool, truncated: bool, info: Mapping[str, Any], *, time_limit_hit: bool
+    ) -> Ending:
+        """Classify a final step (at least one of the flags must be set)."""
+        reason = self.truncation_reason(info, time_limit_hit=time_limit_hit) if truncated else None
+        if terminated:
+            if self.is_success(info):
+                return Ending(fmt.OUTCOME_SUCCESS, None, reason)
+            return Ending(fmt.OUTCOME_FAILURE, self.failure_label(info), reason)
+        if truncated:
+            return Ending(fmt.OUTCOME_TRUNCATED, None, reason)
+        raise ConfigurationError("classify() needs terminated or truncated to be set")
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-able description for the run metadata."""
+        return {
+            "success_keys": list(self.success_keys),
+            "failure_key": self.failure_key,
+            "truncation_reason_key": self.truncation_reason_key,
+            "success_fn": _fn_name(self.success_fn),
+            "failure_fn": _fn_name(self.failure_fn),
+        }
+
+
+def _fn_name(fn: Callable[..., Any] | None) -> str | None:
+    return None if fn is None else getattr(fn, "__qualname__", type(fn).__name__)

@@ -1,0 +1,195 @@
+"""Run metadata and per-episode records: their fields, JSON Schemas and (de)serialization.
+
+:class:`RunInfo` is what an evidence file says about its run (stored as the
+``episode_audit.run`` MCAP metadata record, every value a string, JSON where structured).
+:data:`EPISODE_SCHEMA` is the JSON Schema of the per-episode JSON messages.
+
+>>> to_json({"a": 1.5, "b": float("nan")})
+b'{"a":1.5,"b":"nan"}'
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import format as fmt
+
+__all__ = ["EPISODE_SCHEMA", "RunInfo", "to_json", "to_jsonable"]
+
+
+def to_jsonable(value: Any) -> Any:
+    """Convert numpy scalars/arrays, tuples and non-finite floats into plain JSON values.
+
+    Non-finite floats become the strings ``"nan"``, ``"inf"``, ``"-inf"``; anything else that
+    JSON cannot hold raises ``TypeError``.
+
+    >>> to_jsonable({"x": np.float32(0.5), "y": (1, np.int64(2)), "z": np.arange(2)})
+    {'x': 0.5, 'y': [1, 2], 'z': [0, 1]}
+    """
+    if value is None or isinstance(value, (bool, str, int)):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else str(value)
+    if isinstance(value, np.generic):
+        return to_jsonable(value.item())
+    if isinstance(value, np.ndarray):
+        return to_jsonable(value.tolist())
+    if isinstance(value, Mapping):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_jsonable(v) for v in value]
+    raise TypeError(f"{type(value).__name__} is not JSON-serializable")
+
+
+def _numpy_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-serializable")
+
+
+def to_json(value: Any) -> bytes:
+    """Compact UTF-8 JSON of ``value`` after :func:`to_jsonable`.
+
+    The common case (plain values, numpy scalars, no NaN) takes ``json.dumps`` directly.
+    """
+    try:
+        text = json.dumps(value, separators=(",", ":"), allow_nan=False, default=_numpy_default)
+    except (ValueError, TypeError):
+        text = json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)
+    return text.encode()
+
+
+_NUM = {"type": "number"}
+_NUM_OR_STR = {"type": ["number", "string"]}
+_OPT_STR = {"type": ["string", "null"]}
+
+EPISODE_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": fmt.SCHEMA_EPISODE_END,
+    "description": "One record per episode, written when the episode ends (or at close/error).",
+    "type": "object",
+    "required": ["episode", "outcome", "length", "return", "start_time_ns", "end_time_ns"],
+    "properties": {
+        "episode": {"type": "integer", "description": "episode index in the file"},
+        "env_index": {"type": "integer", "description": "sub-env index (vector envs), else 0"},
+        "agent": {**_OPT_STR, "description": "agent name (multi-agent streams), else null"},
+        "seed": {"type": ["integer", "null"], "description": "seed passed to reset()"},
+        "rng_state": {
+            "type": ["object", "null"],
+            "description": "np_random bit-generator state captured before an unseeded reset",
+        },
+        "options": {"type": ["object", "null"], "description": "options passed to reset()"},
+        "outcome": {"enum": list(fmt.OUTCOMES)},
+        "failure_label": _OPT_STR,
+        "truncation_reason": _OPT_STR,
+        "terminated": {"type": "boolean"},
+        "truncated": {"type": "boolean"},
+        "length": {"type": "integer", "description": "steps recorded in the episode"},
+        "return": {**_NUM_OR_STR, "description": "sum of rewards ('nan'/'inf' if non-finite)"},
+        "term_totals": {"type": "object", "additionalProperties": _NUM_OR_STR},
+        "start_time_ns": {"type": "integer"},
+        "end_time_ns": {"type": "integer"},
+        "error": {
+            "type": ["object", "null"],
+            "properties": {
+                "type": {"type": "string"},
+                "message": {"type": "string"},
+                "during": {"enum": ["reset", "step"]},
+            },
+        },
+        "notes": {"type": "integer", "description": "steps of this episode with recorder notes"},
+    },
+}
+
+RESET_COLUMNS_DOC = (
+    "episode, env_index, time_ns, seed, rng_state, options, observation, info, notes"
+)
+
+
+@dataclass
+class RunInfo:
+    """What an evidence file says about its run (the ``episode_audit.run`` metadata record)."""
+
+    format_version: str
+    writer: str
+    env_id: str | None
+    env_spec: dict[str, Any] | None
+    observation_space: dict[str, Any]
+    action_space: dict[str, Any]
+    reward_terms: dict[str, Any]
+    ending_rules: dict[str, Any]
+    versions: dict[str, str]
+    platform: str
+    command_line: list[str]
+    start_time: str
+    tags: dict[str, str] = field(default_factory=dict)
+    recorder: dict[str, Any] = field(default_factory=dict)
+    layout: dict[str, Any] = field(default_factory=lambda: {"kind": "single", "num_envs": 1})
+
+    _JSON_FIELDS = (
+        "env_spec",
+        "observation_space",
+        "action_space",
+        "reward_terms",
+        "ending_rules",
+        "versions",
+        "command_line",
+        "tags",
+        "recorder",
+        "layout",
+    )
+
+    def to_metadata(self) -> dict[str, str]:
+        """Encode as an MCAP metadata map (string values; structured values as JSON)."""
+        out: dict[str, str] = {}
+        for key, value in asdict(self).items():
+            if key in self._JSON_FIELDS:
+                out[key] = to_json(value).decode()
+            elif value is not None:
+                out[key] = str(value)
+        return out
+
+    @classmethod
+    def from_metadata(cls, data: Mapping[str, str]) -> RunInfo:
+        """Decode an MCAP metadata map. Raises ``ValueError`` naming the bad or missing key."""
+        kwargs: dict[str, Any] = {}
+        for name in cls.__dataclass_fields__:
+            if name.startswith("_"):
+                continue
+            raw = data.get(name)
+            if raw is None:
+                if name in ("env_id", "env_spec"):
+                    kwargs[name] = None
+                    continue
+                if name in ("tags", "recorder", "layout"):
+                    continue
+                raise ValueError(f"run metadata lacks the key {name!r}")
+            if name in cls._JSON_FIELDS:
+                try:
+                    kwargs[name] = json.loads(raw)
+                except json.JSONDecodeError as exc:
+                    raise ValueError(
+                        f"run metadata key {name!r} is not valid JSON: {exc}"
+                    ) from None
+            else:
+                kwargs[name] = raw
+        info = cls(**kwargs)
+        for name, kind in (
+            ("observation_space", dict),
+            ("action_space", dict),
+            ("versions", dict),
+            ("command_line", list),
+            ("tags", dict),
+            ("layout", dict),
+        ):
+            if not isinstance(getattr(info, name), kind):
+                raise ValueError(f"run metadata key {name!r}: expected a JSON {kind.__name__}")
+        return info
