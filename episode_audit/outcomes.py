@@ -20,10 +20,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
+import gymnasium as gym
+from gymnasium.wrappers import TimeLimit
+
 from . import format as fmt
 from .errors import ConfigurationError
 
-__all__ = ["Ending", "EndingRules", "RewardTerms"]
+__all__ = ["Ending", "EndingRules", "RewardTerms", "find_time_limit", "time_limit_hit"]
 
 TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
 
@@ -180,3 +183,22 @@ class EndingRules:
 
 def _fn_name(fn: Callable[..., Any] | None) -> str | None:
     return None if fn is None else getattr(fn, "__qualname__", type(fn).__name__)
+
+
+def find_time_limit(env: Any) -> TimeLimit[Any, Any] | None:
+    """The outermost Gymnasium ``TimeLimit`` wrapper around ``env``, if any."""
+    current = env
+    while isinstance(current, gym.Wrapper):
+        if isinstance(current, TimeLimit):
+            return current
+        current = current.env
+    return None
+
+
+def time_limit_hit(time_limit: TimeLimit[Any, Any] | None) -> bool:
+    """Whether ``time_limit`` has reached its maximum number of steps in this episode."""
+    if time_limit is None:
+        return False
+    elapsed = getattr(time_limit, "_elapsed_steps", None)
+    limit = getattr(time_limit, "_max_episode_steps", None)
+    return elapsed is not None and limit is not None and elapsed >= limit

@@ -32,6 +32,7 @@ from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Sche
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from . import format as fmt
+from .columns import TERMS_TYPE
 from .errors import (
     CorruptEvidenceError,
     EvidenceError,
@@ -50,7 +51,6 @@ MAX_JSON_BYTES = 1 << 20
 
 _MAGIC = b"\x89MCAP0\r\n"
 
-_TERMS_TYPE = pa.map_(pa.string(), pa.float64())
 EPISODE_SCHEMA = pa.schema(
     [
         pa.field("episode", pa.int64(), nullable=False),
@@ -66,7 +66,7 @@ EPISODE_SCHEMA = pa.schema(
         pa.field("truncated", pa.bool_()),
         pa.field("length", pa.int64(), nullable=False),
         pa.field("return", pa.float64()),
-        pa.field("term_totals", _TERMS_TYPE),
+        pa.field("term_totals", TERMS_TYPE),
         pa.field("start_time_ns", pa.int64()),
         pa.field("end_time_ns", pa.int64()),
         pa.field("error_type", pa.string()),

@@ -28,12 +28,12 @@ import gymnasium as gym
 import numpy as np
 import pyarrow as pa
 from gymnasium.envs.registration import EnvSpec
-from gymnasium.wrappers import TimeLimit
 
 from . import format as fmt
 from ._version import __version__
+from .columns import TERMS_TYPE, bool_column, terms_column
 from .errors import ConfigurationError, RecorderError
-from .outcomes import EndingRules, RewardTerms, TermsFn
+from .outcomes import EndingRules, RewardTerms, TermsFn, find_time_limit, time_limit_hit
 from .records import EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
 from .seeding import capture_rng_state
 from .spaces import ColumnBuffer, SpaceCodec, codec_for, describe_space
@@ -42,7 +42,6 @@ from .writer import EvidenceWriter
 __all__ = ["RecordEvidence", "library_versions"]
 
 _INT64_MAX = 2**63 - 1
-_TERMS_TYPE = pa.map_(pa.string(), pa.float64())
 _NOTE_LIMIT = 300
 
 
@@ -261,7 +260,7 @@ class RecordEvidence(
 
         self._obs_codec = codec_for(env.observation_space, digest_min_bytes=digest_min_bytes)
         self._act_codec = codec_for(env.action_space)
-        self._time_limit = self._find_time_limit(env)
+        self._time_limit = find_time_limit(env)
         self._unwrapped = env.unwrapped
 
         step_schema = pa.schema(
@@ -272,7 +271,7 @@ class RecordEvidence(
                 self._act_codec.field(fmt.COL_ACTION),
                 self._obs_codec.field(fmt.COL_OBSERVATION),
                 pa.field(fmt.COL_REWARD, pa.float64(), nullable=False),
-                pa.field(fmt.COL_TERMS, _TERMS_TYPE),
+                pa.field(fmt.COL_TERMS, TERMS_TYPE),
                 pa.field(fmt.COL_TERMINATED, pa.bool_(), nullable=False),
                 pa.field(fmt.COL_TRUNCATED, pa.bool_(), nullable=False),
                 pa.field(fmt.COL_OUTCOME, pa.string()),
@@ -373,23 +372,6 @@ class RecordEvidence(
         return self.env.spec
 
     # ------------------------------------------------------------------ helpers
-
-    @staticmethod
-    def _find_time_limit(env: gym.Env[Any, Any]) -> TimeLimit[Any, Any] | None:
-        current: Any = env
-        while isinstance(current, gym.Wrapper):
-            if isinstance(current, TimeLimit):
-                return current
-            current = current.env
-        return None
-
-    def _time_limit_hit(self) -> bool:
-        tl = self._time_limit
-        if tl is None:
-            return False
-        elapsed = getattr(tl, "_elapsed_steps", None)
-        limit = getattr(tl, "_max_episode_steps", None)
-        return elapsed is not None and limit is not None and elapsed >= limit
 
     def _check_open(self) -> None:
         if self._closed:
@@ -599,7 +581,7 @@ class RecordEvidence(
         info: Mapping[str, Any],
     ) -> None:
         ending = self._rules.classify(
-            bool(terminated), bool(truncated), info, time_limit_hit=self._time_limit_hit()
+            bool(terminated), bool(truncated), info, time_limit_hit=time_limit_hit(self._time_limit)
         )
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
@@ -746,9 +728,9 @@ class RecordEvidence(
                 block.act.finish(),
                 block.obs.finish(),
                 pa.array(np.fromiter(reward, dtype=np.float64, count=n)),
-                _terms_column(terms),
-                _bool_column(terminated),
-                _bool_column(truncated),
+                terms_column(terms),
+                bool_column(terminated),
+                bool_column(truncated),
                 pa.array(outcome, pa.string()),
                 pa.array(label, pa.string()),
                 info,
@@ -827,44 +809,6 @@ class RecordEvidence(
                 ResourceWarning,
                 stacklevel=2,
             )
-
-
-def _bool_column(flags: Sequence[Any]) -> pa.Array:
-    try:
-        return pa.array(np.fromiter(flags, dtype=np.bool_, count=len(flags)))
-    except Exception:  # flags the slow path has already normalised cannot get here
-        return pa.array([bool(f) for f in flags], pa.bool_())
-
-
-def _terms_column(rows: Sequence[dict[str, Any] | None]) -> pa.Array:
-    n = len(rows)
-    if all(t is None for t in rows):
-        return pa.nulls(n, _TERMS_TYPE)
-    offsets = np.zeros(n + 1, dtype=np.int32)
-    keys: list[str] = []
-    values: list[Any] = []
-    mask = np.zeros(n, dtype=np.bool_)
-    for i, terms in enumerate(rows):
-        if terms is None:
-            mask[i] = True
-        else:
-            keys.extend(terms)
-            values.extend(terms.values())
-        offsets[i + 1] = len(keys)
-    try:
-        numbers = np.asarray(values, dtype=np.float64)
-    except Exception:
-        numbers = np.array([_as_float(v) for v in values], dtype=np.float64)
-    return pa.MapArray.from_arrays(
-        pa.array(offsets), pa.array(keys, pa.string()), pa.array(numbers), mask=pa.array(mask)
-    )
-
-
-def _as_float(value: Any) -> float:
-    try:
-        return float(value)
-    except Exception:
-        return math.nan
 
 
 def _recordable_seed(seed: Any, notes: list[str]) -> int | None:

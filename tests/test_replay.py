@@ -1,0 +1,142 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import pytest
+
+from episode_audit import RecordEvidence
+from episode_audit.errors import ConfigurationError
+from episode_audit.replay import load_callable, replay
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def record_random(
+    path: Path, env_id: str, episodes: int, *, max_episode_steps: int | None = None
+) -> Path:
+    """Record `episodes` random episodes; every third reset is unseeded."""
+    kwargs: dict[str, Any] = {}
+    if max_episode_steps is not None:
+        kwargs["max_episode_steps"] = max_episode_steps
+    with RecordEvidence(gym.make(env_id, **kwargs), path) as env:
+        env.action_space.seed(123)
+        for e in range(episodes):
+            env.reset(seed=None if e % 3 == 2 else 1000 + e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(env.action_space.sample())
+                done = term or trunc
+    return path
+
+
+def test_cartpole_replays_identically_including_unseeded_resets(tmp_path: Path) -> None:
+    path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 24, max_episode_steps=15)
+    result = replay([path])
+    assert [e.status for e in result.episodes] == ["identical"] * 24, result.episodes
+    assert result.ok
+    assert sum(e.steps for e in result.episodes) > 24
+
+
+@pytest.mark.parametrize(("env_id", "limit"), [("Reacher-v5", None), ("HalfCheetah-v5", 60)])
+def test_mujoco_replays_identically(tmp_path: Path, env_id: str, limit: int | None) -> None:
+    pytest.importorskip("mujoco")
+    path = record_random(tmp_path / "mj.mcap", env_id, 21, max_episode_steps=limit)
+    result = replay([path])
+    assert result.count("identical") == 21, [e for e in result.episodes if e.status != "identical"]
+
+
+def make_heavier_cartpole(**kwargs: Any) -> gym.Env[Any, Any]:
+    env = gym.make("CartPole-v1", **kwargs)
+    env.unwrapped.masspole = 0.3  # type: ignore[attr-defined]
+    env.unwrapped.total_mass = env.unwrapped.masspole + env.unwrapped.masscart  # type: ignore[attr-defined]
+    env.unwrapped.polemass_length = env.unwrapped.masspole * env.unwrapped.length  # type: ignore[attr-defined]
+    return env
+
+
+def test_changed_env_diverges_and_names_step_and_field(tmp_path: Path) -> None:
+    path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 2)
+    result = replay([path], env_factory=make_heavier_cartpole)
+    assert not result.ok
+    first = result.episodes[0]
+    assert first.status == "diverged"
+    assert first.divergence is not None
+    assert first.divergence.field == "observation"
+    assert first.divergence.step == 0
+    assert first.divergence.max_abs_diff is not None and first.divergence.max_abs_diff > 0
+    assert "step 0: observation expected" in first.divergence.describe()
+
+
+def test_atol_tolerates_small_differences(tmp_path: Path) -> None:
+    path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 1, max_episode_steps=3)
+    result = replay(
+        [path], env_factory=lambda: make_heavier_cartpole(max_episode_steps=3), atol=1.0
+    )
+    assert result.ok
+
+
+def test_episode_selection(tmp_path: Path) -> None:
+    path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 5)
+    result = replay([path], episodes=[1, 3])
+    assert [e.episode for e in result.episodes] == [1, 3]
+
+
+EVIL_RECORDER = """
+import pathlib, sys, gymnasium as gym
+here = pathlib.Path(sys.argv[1])
+(here / "evil_module_for_test.py").write_text(
+    "import pathlib\\n"
+    f"pathlib.Path({str(here / 'IMPORTED')!r}).write_text('yes')\\n"
+    "from gymnasium.envs.classic_control import CartPoleEnv as Env\\n"
+)
+sys.path.insert(0, str(here))
+gym.register("EvilTest-v0", entry_point="evil_module_for_test:Env", max_episode_steps=5)
+from episode_audit import RecordEvidence
+with RecordEvidence(gym.make("EvilTest-v0"), here / "evil.mcap") as env:
+    env.reset(seed=1)
+    for _ in range(5):
+        env.step(0)
+(here / "IMPORTED").unlink()
+"""
+
+
+def test_replay_never_imports_a_module_named_in_the_file(tmp_path: Path) -> None:
+    subprocess.run([sys.executable, "-c", EVIL_RECORDER, str(tmp_path)], check=True, cwd=REPO)
+    assert not (tmp_path / "IMPORTED").exists()
+    sys.path.insert(0, str(tmp_path))
+    try:
+        result = replay([tmp_path / "evil.mcap"])
+        assert "evil_module_for_test" not in sys.modules
+        assert not (tmp_path / "IMPORTED").exists()
+        (episode,) = result.episodes
+        assert episode.status == "not_replayable"
+        assert episode.reason is not None and "--trust-entry-points" in episode.reason
+        trusted = replay([tmp_path / "evil.mcap"], trust_entry_points=True)
+        assert (tmp_path / "IMPORTED").exists()
+        assert trusted.episodes[0].status == "identical"
+    finally:
+        sys.path.remove(str(tmp_path))
+        sys.modules.pop("evil_module_for_test", None)
+
+
+def test_load_callable_errors() -> None:
+    with pytest.raises(ConfigurationError, match="expected MODULE:CALLABLE"):
+        load_callable("nocolon")
+    with pytest.raises(ConfigurationError, match="cannot load 'no_such_module_xyz:f'"):
+        load_callable("no_such_module_xyz:f")
+
+
+def test_replay_in_a_fresh_process(tmp_path: Path) -> None:
+    path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 4)
+    script = textwrap.dedent(
+        f"""
+        from episode_audit.replay import replay
+        r = replay([{str(path)!r}])
+        assert r.count("identical") == 4, r
+        """
+    )
+    subprocess.run([sys.executable, "-c", script], check=True, cwd=REPO)
