@@ -206,6 +206,11 @@ class Evidence:
             schema = pa.schema([schema.field(c) for c in columns])
         return schema.empty_table()
 
+    @property
+    def steps_schema(self) -> pa.Schema:
+        """The Arrow schema of the steps table (from the file, even when it has no steps)."""
+        return self._topic_schema(fmt.TOPIC_STEPS)
+
     def _topic_schema(self, topic: str) -> pa.Schema:
         for channel in self._channels.values():
             if channel.topic == topic and channel.schema_id in self._schemas:

@@ -1,0 +1,112 @@
+"""Export evidence to Parquet for pandas, polars and DuckDB.
+
+For each input file ``run.mcap``, :func:`export` writes ``run.steps.parquet`` (one row per step)
+and adds its episodes to ``episodes.parquet`` (one row per episode, all files together). Both carry
+a ``file`` column naming the evidence file. Steps are streamed block by block, so memory stays flat.
+Output names come from the input paths only, never from file content.
+
+Query every file at once with DuckDB: ``SELECT * FROM read_parquet('out/*.steps.parquet',
+union_by_name=true)``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from .errors import ConfigurationError
+from .reader import open_evidence
+
+__all__ = ["ExportResult", "export"]
+
+
+@dataclass
+class ExportResult:
+    """What :func:`export` wrote."""
+
+    episodes_file: Path
+    steps_files: list[Path] = field(default_factory=list)
+    episodes: int = 0
+    steps: int = 0
+
+
+def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:
+    table = pa.Table.from_batches([batch]) if isinstance(batch, pa.RecordBatch) else batch
+    return table.add_column(0, "file", pa.array([name] * table.num_rows, pa.string()))
+
+
+def export(
+    paths: Iterable[str | os.PathLike[str]],
+    out_dir: str | os.PathLike[str],
+    *,
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> ExportResult:
+    """Write the steps and episodes of ``paths`` as Parquet files into ``out_dir``.
+
+    Existing output files are not replaced unless ``overwrite=True``.
+
+    >>> import tempfile, pathlib, gymnasium as gym
+    >>> from episode_audit import RecordEvidence
+    >>> tmp = pathlib.Path(tempfile.mkdtemp())
+    >>> with RecordEvidence(gym.make("CartPole-v1"), tmp / "run.mcap") as env:
+    ...     _ = env.reset(seed=0)
+    ...     _ = env.step(0)
+    >>> result = export([tmp / "run.mcap"], tmp / "out")
+    >>> pq.read_table(result.steps_files[0]).column("file").to_pylist() == [str(tmp / "run.mcap")]
+    True
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = ExportResult(out / "episodes.parquet")
+    targets: list[Path] = [result.episodes_file]
+    sources = [Path(p) for p in paths]
+    used: set[str] = set()
+    names: list[str] = []
+    for source in sources:
+        stem = source.stem
+        name = stem
+        k = 1
+        while name in used:
+            k += 1
+            name = f"{stem}-{k}"
+        used.add(name)
+        names.append(name)
+        targets.append(out / f"{name}.steps.parquet")
+    if not overwrite:
+        existing = [t for t in targets if t.exists()]
+        if existing:
+            raise ConfigurationError(
+                f"{existing[0]}: exists; pass --overwrite to replace exported files"
+            )
+    episode_tables: list[pa.Table] = []
+    for source, name in zip(sources, names, strict=True):
+        ev = open_evidence(source)
+        label = str(source)
+        episode_tables.append(_with_file(ev.episodes(), label))
+        target = out / f"{name}.steps.parquet"
+        writer: pq.ParquetWriter | None = None
+        try:
+            for batch in ev.iter_step_batches():
+                table = _with_file(batch, label)
+                if writer is None:
+                    writer = pq.ParquetWriter(target, table.schema, compression="zstd")
+                writer.write_table(table)
+                result.steps += table.num_rows
+                if progress is not None:
+                    progress(table.num_rows)
+        finally:
+            if writer is not None:
+                writer.close()
+        if writer is None:  # no steps at all: still write an empty, typed file
+            pq.write_table(_with_file(ev.steps_schema.empty_table(), label), target)
+        result.steps_files.append(target)
+    episodes = pa.concat_tables(episode_tables) if episode_tables else pa.table({})
+    pq.write_table(episodes, result.episodes_file, compression="zstd")
+    result.episodes = episodes.num_rows
+    return result
