@@ -9,6 +9,7 @@ read it back as Arrow tables.
 '1.0'
 """
 
+from . import tasks as _tasks  # noqa: F401 - registers the reference tasks' Gymnasium ids
 from ._version import __version__
 from .errors import (
     ConfigurationError,

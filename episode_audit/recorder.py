@@ -20,6 +20,7 @@ import platform
 import sys
 import time
 import weakref
+from array import array
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 from typing import Any, SupportsFloat
@@ -31,7 +32,7 @@ from gymnasium.envs.registration import EnvSpec
 
 from . import format as fmt
 from ._version import __version__
-from .columns import TERMS_TYPE, bool_column, terms_column
+from .columns import TERMS_TYPE, terms_column
 from .errors import ConfigurationError, RecorderError
 from .outcomes import EndingRules, RewardTerms, TermsFn, find_time_limit, time_limit_hit
 from .records import EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
@@ -118,13 +119,43 @@ class _Episode:
 
 
 class _Block:
-    """Column buffers of the steps (and resets) not yet written."""
+    """Column buffers of the steps (and resets) not yet written.
 
-    def __init__(self, obs_codec: SpaceCodec, act_codec: SpaceCodec) -> None:
+    Per step only ``times`` and ``rewards`` grow (C arrays, no Python objects); the episode and
+    step index columns are rebuilt at flush time from ``segments``, and flags, terms, outcomes,
+    info and notes are kept sparsely, by row.
+    """
+
+    __slots__ = (
+        "act",
+        "ends",
+        "flags",
+        "info",
+        "notes",
+        "obs",
+        "reset_info",
+        "reset_notes",
+        "reset_obs",
+        "resets",
+        "rewards",
+        "segments",
+        "terms",
+        "times",
+    )
+
+    def __init__(
+        self, obs_codec: SpaceCodec, act_codec: SpaceCodec, episode: _Episode | None
+    ) -> None:
         self.obs: ColumnBuffer = obs_codec.new_buffer()
         self.act: ColumnBuffer = act_codec.new_buffer()
-        # (episode, step, monotonic ns, reward, terminated, truncated, terms or None)
-        self.rows: list[tuple[int, int, int, float, Any, Any, dict[str, Any] | None]] = []
+        self.times = array("q")  # monotonic ns of each step
+        self.rewards = array("d")
+        # (first row, episode index, step index of that row): a new one at every reset
+        self.segments: list[tuple[int, int, int]] = []
+        if episode is not None:
+            self.segments.append((0, episode.index, episode.steps))
+        self.flags: dict[int, tuple[bool, bool]] = {}  # rows with terminated or truncated set
+        self.terms: dict[int, dict[str, Any]] = {}
         self.ends: dict[int, tuple[str, str | None]] = {}
         self.info: dict[int, dict[str, Any]] = {}
         self.notes: dict[int, list[str]] = {}
@@ -354,8 +385,8 @@ class RecordEvidence(
             self._writer.abandon()
             raise
 
-        self._block = _Block(self._obs_codec, self._act_codec)
         self._episode: _Episode | None = None
+        self._block = _Block(self._obs_codec, self._act_codec, None)
         self._next_episode = 0
         self._last_flush = self._clock()
         self._closed = False
@@ -407,6 +438,7 @@ class RecordEvidence(
                 recorded_options = {"repr": _short(options)}
         episode = _Episode(index, recorded_seed, rng_state, recorded_options, self._clock())
         self._episode = episode
+        self._block.segments.append((len(self._block.times), index, 0))
         try:
             obs, info = self.env.reset(seed=seed, options=options)
         except Exception as exc:
@@ -482,17 +514,20 @@ class RecordEvidence(
             self._record_step_slow(result, action)
             return result
         now = self._clock()
-        block.rows.append((episode.index, episode.steps, now, r, terminated, truncated, terms))
+        row = len(block.times)
+        block.times.append(now)
+        block.rewards.append(r)
         episode.steps += 1
         episode.ret += r
         episode.end_ns = now
         if terms is not None:
+            block.terms[row] = terms
             totals = episode.totals
             for key, number in checked:
                 totals[key] = totals.get(key, 0.0) + number
         if terminated or truncated:
-            self._end_by_flags(episode, block, len(block.rows) - 1, terminated, truncated, info)
-        if len(block.rows) >= self._block_steps or now - self._last_flush >= self._flush_ns:
+            self._end_by_flags(episode, block, row, terminated, truncated, info)
+        if row + 1 >= self._block_steps or now - self._last_flush >= self._flush_ns:
             self._flush()
         return result
 
@@ -507,7 +542,7 @@ class RecordEvidence(
         block = self._block
         # The fast path may have appended the observation and/or action before bailing out:
         # roll back to the committed row count so every column stays aligned.
-        rows = len(block.rows)
+        rows = len(block.times)
         block.obs.truncate(rows)
         block.act.truncate(rows)
         notes: list[str] = []
@@ -552,7 +587,12 @@ class RecordEvidence(
         if episode.ended:
             notes.append(_note("step_after_end", f"episode {episode.index} had already ended"))
         now = self._clock()
-        block.rows.append((episode.index, episode.steps, now, r, terminated, truncated, terms))
+        block.times.append(now)
+        block.rewards.append(r)
+        if terms is not None:
+            block.terms[rows] = terms
+        if terminated or truncated:
+            block.flags[rows] = (terminated, truncated)
         episode.steps += 1
         episode.ret += r
         episode.end_ns = now
@@ -568,7 +608,7 @@ class RecordEvidence(
                 truncated,
                 info if isinstance(info, Mapping) else {},
             )
-        if len(block.rows) >= self._block_steps or now - self._last_flush >= self._flush_ns:
+        if len(block.times) >= self._block_steps or now - self._last_flush >= self._flush_ns:
             self._flush()
 
     def _end_by_flags(
@@ -585,6 +625,7 @@ class RecordEvidence(
         )
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
+        block.flags[row] = (bool(terminated), bool(truncated))
         self._end_episode(
             episode,
             ending.outcome,
@@ -631,6 +672,7 @@ class RecordEvidence(
         self._next_episode += 1
         episode = _Episode(index, None, None, None, self._clock())
         self._episode = episode
+        self._block.segments.append((len(self._block.times), index, 0))
         notes.append(
             _note("stepped_before_reset", "the env was stepped before reset(); not replayable")
         )
@@ -707,14 +749,17 @@ class RecordEvidence(
 
     def _flush(self) -> None:
         block = self._block
-        self._block = _Block(self._obs_codec, self._act_codec)
+        self._block = _Block(self._obs_codec, self._act_codec, self._episode)
         offset = self._wall_offset
-        if block.rows:
-            n = len(block.rows)
-            episode, step, mono, reward, terminated, truncated, terms = zip(
-                *block.rows, strict=True
-            )
-            times = np.fromiter(mono, dtype=np.int64, count=n) + offset
+        n = len(block.times)
+        if n:
+            times = np.frombuffer(block.times, dtype=np.int64) + offset
+            episode, step = _index_columns(block.segments, n)
+            terminated = np.zeros(n, dtype=np.bool_)
+            truncated = np.zeros(n, dtype=np.bool_)
+            for row, (term, trunc) in block.flags.items():
+                terminated[row] = term
+                truncated[row] = trunc
             outcome: list[str | None] = [None] * n
             label: list[str | None] = [None] * n
             for row, (out, lab) in block.ends.items():
@@ -722,15 +767,15 @@ class RecordEvidence(
                 label[row] = lab
             info = _info_column(n, block.info, block.notes)
             columns = [
-                pa.array(np.fromiter(episode, dtype=np.int64, count=n)),
-                pa.array(np.fromiter(step, dtype=np.int64, count=n)),
+                pa.array(episode),
+                pa.array(step),
                 pa.array(times),
                 block.act.finish(),
                 block.obs.finish(),
-                pa.array(np.fromiter(reward, dtype=np.float64, count=n)),
-                terms_column(terms),
-                bool_column(terminated),
-                bool_column(truncated),
+                pa.array(np.frombuffer(block.rewards, dtype=np.float64)),
+                terms_column(n, block.terms),
+                pa.array(terminated),
+                pa.array(truncated),
                 pa.array(outcome, pa.string()),
                 pa.array(label, pa.string()),
                 info,
@@ -809,6 +854,19 @@ class RecordEvidence(
                 ResourceWarning,
                 stacklevel=2,
             )
+
+
+def _index_columns(
+    segments: Sequence[tuple[int, int, int]], n: int
+) -> tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]:
+    """Episode and step index per row, from the block's (first row, episode, first step) list."""
+    if not segments or segments[0][0] != 0:
+        segments = [(0, -1, 0), *segments]  # rows before any reset: no episode
+    starts = np.array([s[0] for s in segments], dtype=np.int64)
+    lengths = np.diff(np.append(starts, n))
+    episode = np.repeat(np.array([s[1] for s in segments], dtype=np.int64), lengths)
+    first = np.repeat(np.array([s[2] for s in segments], dtype=np.int64) - starts, lengths)
+    return episode, np.arange(n, dtype=np.int64) + first
 
 
 def _recordable_seed(seed: Any, notes: list[str]) -> int | None:

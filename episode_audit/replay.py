@@ -393,7 +393,9 @@ class _EpisodeRunner:
                 Divergence(i, "reward", repr(exp_r[i]), repr(got_r[i]), float(diff_r[i]))
             )
         if self.terms_rule is not None:
-            got_terms = terms_column(terms).to_pylist()
+            got_terms = terms_column(
+                len(terms), {i: t for i, t in enumerate(terms) if t is not None}
+            ).to_pylist()
             exp_terms = expected.column(fmt.COL_TERMS).to_pylist()
             for i, (a, b) in enumerate(zip(exp_terms, got_terms, strict=True)):
                 if not _terms_equal(a, b, self.atol):

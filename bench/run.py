@@ -1,0 +1,244 @@
+"""episode-audit benchmarks, reported as ratios against a baseline measured in the same run.
+
+    python bench/run.py                 # everything (a few minutes on 2 cores)
+    python bench/run.py record check    # a selection
+
+Targets (docs/benchmarks.md): recording overhead <= 1.15x on CartPole-v1 and <= 1.02x on
+Reacher-v5 / HalfCheetah-v5; <= 32 bytes per CartPole step; recorder memory flat (<= 64 MB
+growth) over a 1 M-step episode; check >= 5 M steps/s; replay <= 1.05x bare stepping.
+Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from episode_audit import RecordEvidence, open_evidence
+
+RESULTS = Path(__file__).resolve().parent / "results"
+TMP = Path(tempfile.mkdtemp(prefix="episode-audit-bench-"))
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def actions_for(env_id: str, n: int, seed: int = 0) -> list[Any]:
+    space = gym.make(env_id).action_space
+    space.seed(seed)
+    return [space.sample() for _ in range(n)]
+
+
+def run_steps(env: gym.Env[Any, Any], actions: list[Any]) -> float:
+    """Seconds to step through `actions`, resetting (seeded) at episode ends."""
+    env.reset(seed=0)
+    episode = 0
+    gc.collect()
+    start = time.perf_counter()
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            episode += 1
+            env.reset(seed=episode)
+    return time.perf_counter() - start
+
+
+def bench_record(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
+    """Interleaved bare/recorded runs over the same actions; median of per-round ratios."""
+    actions = actions_for(env_id, steps)
+    warm = RecordEvidence(gym.make(env_id), TMP / f"warm-{env_id}.mcap", overwrite=True)
+    run_steps(warm, actions[: min(steps, 5000)])
+    warm.close()
+    ratios, bare_t, rec_t = [], [], []
+    size = 0
+    for r in range(rounds):
+        bare = run_steps(gym.make(env_id), actions)
+        path = TMP / f"{env_id}-{r}.mcap"
+        env = RecordEvidence(gym.make(env_id), path, overwrite=True)
+        recorded = run_steps(env, actions)
+        t0 = time.perf_counter()
+        env.close()
+        recorded += time.perf_counter() - t0
+        size = path.stat().st_size
+        ratios.append(recorded / bare)
+        bare_t.append(bare)
+        rec_t.append(recorded)
+    return {
+        "env": env_id,
+        "steps": steps,
+        "rounds": rounds,
+        "bare_us_per_step": statistics.median(bare_t) / steps * 1e6,
+        "recorded_us_per_step": statistics.median(rec_t) / steps * 1e6,
+        "ratio_median": statistics.median(ratios),
+        "ratios": [round(x, 4) for x in ratios],
+        "bytes_per_step": size / steps,
+    }
+
+
+class Endless(gym.Env[np.ndarray, np.ndarray]):
+    """A cheap env that never ends by itself (for the long-episode memory benchmark)."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        return self.np_random.uniform(-1, 1, 4).astype(np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        obs = self.np_random.uniform(-1, 1, 4).astype(np.float32)
+        return obs, 1.0, False, False, {"reward_terms": {"alive": 1.0}}
+
+
+def bench_memory(steps: int) -> dict[str, Any]:
+    """RSS growth of a recorder over one `steps`-long episode."""
+    env = RecordEvidence(Endless(), TMP / "memory.mcap", overwrite=True)
+    env.reset(seed=0)
+    gc.collect()
+    samples = []
+    base = rss_mb()
+    for i in range(steps):
+        env.step(i & 1)
+        if i % (steps // 20) == 0:
+            samples.append(rss_mb() - base)
+    env.close()
+    return {
+        "steps": steps,
+        "rss_growth_mb_samples": [round(s, 1) for s in samples],
+        "rss_growth_mb_max": max(samples),
+    }
+
+
+def big_cartpole_file(steps: int) -> Path:
+    path = TMP / f"cartpole-{steps}.mcap"
+    if path.exists():
+        return path
+    space = gym.make("CartPole-v1").action_space
+    space.seed(0)
+    env = RecordEvidence(gym.make("CartPole-v1"), path)
+    env.reset(seed=0)
+    episode = 0
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(space.sample())
+        if terminated or truncated:
+            episode += 1
+            env.reset(seed=None if episode % 2 else episode)
+    env.close()
+    return path
+
+
+def bench_check(steps: int, rounds: int) -> dict[str, Any]:
+    from episode_audit.check import check
+
+    path = big_cartpole_file(steps)
+    times = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        result = check([path])
+        times.append(time.perf_counter() - t0)
+    best = statistics.median(times)
+    return {
+        "steps": result.steps,
+        "seconds_median": best,
+        "steps_per_second": result.steps / best,
+        "findings": len(result.findings),
+    }
+
+
+def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
+    """Replay time vs stepping the bare env with the same actions (and the same resets)."""
+    from episode_audit.replay import replay
+
+    path = TMP / f"replay-{env_id}.mcap"
+    space = gym.make(env_id).action_space
+    space.seed(1)
+    with RecordEvidence(gym.make(env_id), path, overwrite=True) as env:
+        for e in range(episodes):
+            env.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(space.sample())
+                done = term or trunc
+    ev = open_evidence(path)
+    codec = ev.action_codec
+    assert codec is not None
+    episodes_actions = [
+        codec.decode(ev.episode(e).steps.column("action").combine_chunks()) for e in range(episodes)
+    ]
+    ratios, bare_t, rep_t = [], [], []
+    for _ in range(rounds):
+        bare_env = gym.make(env_id)
+        gc.collect()
+        t0 = time.perf_counter()
+        for e, actions in enumerate(episodes_actions):
+            bare_env.reset(seed=e)
+            for a in actions:
+                bare_env.step(a)
+        bare = time.perf_counter() - t0
+        gc.collect()
+        t0 = time.perf_counter()
+        result = replay([path])
+        rep = time.perf_counter() - t0
+        assert result.count("identical") == episodes, result
+        ratios.append(rep / bare)
+        bare_t.append(bare)
+        rep_t.append(rep)
+    steps = sum(len(a) for a in episodes_actions)
+    return {
+        "env": env_id,
+        "episodes": episodes,
+        "steps": steps,
+        "bare_seconds": statistics.median(bare_t),
+        "replay_seconds": statistics.median(rep_t),
+        "ratio_median": statistics.median(ratios),
+    }
+
+
+BENCHES: dict[str, Callable[[], Any]] = {
+    "record": lambda: [
+        bench_record("CartPole-v1", 200_000, 7),
+        bench_record("Reacher-v5", 30_000, 7),
+        bench_record("HalfCheetah-v5", 30_000, 7),
+    ],
+    "memory": lambda: bench_memory(1_000_000),
+    "check": lambda: bench_check(1_000_000, 5),
+    "replay": lambda: [bench_replay("CartPole-v1", 200, 5), bench_replay("Reacher-v5", 40, 5)],
+}
+
+
+def main(argv: list[str]) -> int:
+    wanted = argv or list(BENCHES)
+    unknown = [w for w in wanted if w not in BENCHES]
+    if unknown:
+        print(f"unknown benchmark(s) {unknown}; choose from {list(BENCHES)}", file=sys.stderr)
+        return 2
+    results: dict[str, Any] = {
+        "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0]}
+    }
+    for name in wanted:
+        print(f"== {name}", flush=True)
+        results[name] = BENCHES[name]()
+        print(json.dumps(results[name], indent=2), flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "latest.json").write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,895 @@
+"""Check evidence files: pure functions from evidence to findings.
+
+- :func:`check` opens evidence files and checks each one into a :class:`CheckResult`.
+- :func:`check_evidence` checks one open :class:`~episode_audit.reader.Evidence`.
+- :class:`Finding` is one problem (or remark) with a stable ``code``, a severity and a location.
+
+Steps are checked a block at a time with ``pyarrow.compute`` and numpy over whole columns; no
+Python code runs per step. Per-episode results are merged across blocks, so an episode that
+spans several blocks gets one finding naming its first offending step.
+
+Finding codes (``episode`` / ``step`` locate the first occurrence; messages give counts):
+
+===============================  ========  ======================================================
+code                             severity  meaning
+===============================  ========  ======================================================
+``terms_sum_mismatch``           error     a step's reward differs from the sum of its terms plus
+                                           the declared constant terms by more than
+                                           ``atol + rtol * |reward|``; one per episode, naming
+                                           the first such step, how many and the worst residual
+``missing_terms``                warning   steps without reward terms (one per file, with the
+                                           count); an error with ``require_terms``
+``nonfinite_reward``             error     NaN or infinite rewards (one per episode)
+``nonfinite_term``               error     NaN or infinite reward terms (one per episode)
+``observation_out_of_space``     error     observations outside the observation space (one per
+                                           episode; reset observations have no step)
+``action_out_of_space``          error     actions outside the action space (one per episode)
+``observation_space_unchecked``  note      the observation space could not be rebuilt from the
+                                           file, so observations were not checked
+``action_space_unchecked``       note      the same for actions
+``step_after_end``               error     rows of an episode after the row that carries its
+                                           outcome, or rows the recorder noted as stepped after
+                                           the episode had ended (one per episode)
+``terminated_and_truncated``     note      episodes that ended with both flags set; the task
+                                           ending (success or failure) counts (one per file)
+``unlabeled_failure``            warning   failures without a label (one per file)
+``incomplete_episode``           warning   episodes whose recording stopped before they ended,
+                                           or that a torn file cut off (one per file)
+``error_episode``                error     the environment raised during the episode (one per
+                                           episode, with the exception type and message)
+``length_mismatch``              error     an episode record's length differs from the number
+                                           of its step rows (up to its outcome row)
+``recorder_note:<code>``         warning   steps or resets the recorder annotated with a note
+                                           ``<code>`` (e.g. ``observation_invalid``,
+                                           ``term_not_numeric``, ``info_unserializable``,
+                                           ``reward_not_numeric``); one per episode and code
+``file_unfinished``              warning   the writer did not finish the file (crash, kill); the
+                                           message says what the reader dropped
+``not_replayable``               warning   episodes with neither a reset seed nor an RNG state
+                                           (one per file, listing up to five)
+``missing_env_spec``             warning   the file has no environment spec to rebuild the env
+``format_version``               note      the file was written with an older format version
+===============================  ========  ======================================================
+
+Example:
+    >>> import tempfile, pathlib, gymnasium as gym
+    >>> from episode_audit import RecordEvidence
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "run.mcap"
+    >>> with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=5), path) as env:
+    ...     _ = env.reset(seed=1)
+    ...     for _ in range(5):
+    ...         _ = env.step(0)
+    >>> result = check([path])
+    >>> result.ok, result.episodes, result.steps
+    (True, 1, 5)
+    >>> [(f.severity, f.code) for f in result.findings]
+    [('warning', 'missing_terms')]
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from . import format as fmt
+from .reader import Evidence, open_evidence
+from .spaces import SpaceCodec
+
+__all__ = ["CheckResult", "Finding", "Severity", "check", "check_evidence"]
+
+Severity = Literal["error", "warning", "note"]
+_SEVERITY_RANK: dict[str, int] = {"error": 0, "warning": 1, "note": 2}
+
+TERMS_SUM_MISMATCH = "terms_sum_mismatch"
+MISSING_TERMS = "missing_terms"
+NONFINITE_REWARD = "nonfinite_reward"
+NONFINITE_TERM = "nonfinite_term"
+OBSERVATION_OUT_OF_SPACE = "observation_out_of_space"
+ACTION_OUT_OF_SPACE = "action_out_of_space"
+OBSERVATION_SPACE_UNCHECKED = "observation_space_unchecked"
+ACTION_SPACE_UNCHECKED = "action_space_unchecked"
+STEP_AFTER_END = "step_after_end"
+TERMINATED_AND_TRUNCATED = "terminated_and_truncated"
+UNLABELED_FAILURE = "unlabeled_failure"
+INCOMPLETE_EPISODE = "incomplete_episode"
+ERROR_EPISODE = "error_episode"
+LENGTH_MISMATCH = "length_mismatch"
+RECORDER_NOTE = "recorder_note"
+FILE_UNFINISHED = "file_unfinished"
+NOT_REPLAYABLE = "not_replayable"
+MISSING_ENV_SPEC = "missing_env_spec"
+FORMAT_VERSION = "format_version"
+
+_STEP_COLUMNS = [
+    fmt.COL_EPISODE,
+    fmt.COL_STEP,
+    fmt.COL_ACTION,
+    fmt.COL_OBSERVATION,
+    fmt.COL_REWARD,
+    fmt.COL_TERMS,
+    fmt.COL_OUTCOME,
+    fmt.COL_NOTES,
+]
+_LIST_LIMIT = 5
+
+_IntArray = npt.NDArray[np.int64]
+_BoolArray = npt.NDArray[np.bool_]
+_FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One thing :func:`check` found in an evidence file.
+
+    ``episode`` and ``step`` locate the first occurrence (``None`` for a file-level finding, and
+    ``step`` is ``None`` for episode-level ones and reset observations).
+
+    >>> Finding("error", "nonfinite_reward", "reward nan at step 3", "run.mcap", 0, 3).to_dict()
+    {'severity': 'error', 'code': 'nonfinite_reward', 'message': 'reward nan at step 3', \
+'file': 'run.mcap', 'episode': 0, 'step': 3}
+    """
+
+    severity: Severity
+    code: str
+    message: str
+    file: str
+    episode: int | None = None
+    step: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the finding as a JSON-able dict (keys as the dataclass fields, in order)."""
+        return {
+            "severity": self.severity,
+            "code": self.code,
+            "message": self.message,
+            "file": self.file,
+            "episode": self.episode,
+            "step": self.step,
+        }
+
+
+@dataclass
+class CheckResult:
+    """The findings of :func:`check` over some files, with what was checked.
+
+    :meth:`to_dict` returns this JSON shape (stable; new keys may be added, none removed)::
+
+        {
+          "ok": bool,                    # no error-severity findings
+          "files": [str, ...],           # the files checked, in the order given
+          "episodes": int,               # episodes checked, over all files
+          "steps": int,                  # step rows checked, over all files
+          "counts": {"error": int, "warning": int, "note": int},
+          "findings": [                  # ordered by file, then location
+            {"severity": "error" | "warning" | "note", "code": str, "message": str,
+             "file": str, "episode": int | null, "step": int | null},
+            ...
+          ]
+        }
+    """
+
+    findings: list[Finding]
+    files: list[str]
+    episodes: int
+    steps: int
+
+    def _count(self, severity: str) -> int:
+        return sum(1 for f in self.findings if f.severity == severity)
+
+    @property
+    def errors(self) -> int:
+        """Number of error-severity findings."""
+        return self._count("error")
+
+    @property
+    def warnings(self) -> int:
+        """Number of warning-severity findings."""
+        return self._count("warning")
+
+    @property
+    def notes(self) -> int:
+        """Number of note-severity findings."""
+        return self._count("note")
+
+    @property
+    def ok(self) -> bool:
+        """Whether no finding has error severity."""
+        return self.errors == 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the result in the JSON shape documented on the class."""
+        return {
+            "ok": self.ok,
+            "files": list(self.files),
+            "episodes": self.episodes,
+            "steps": self.steps,
+            "counts": {"error": self.errors, "warning": self.warnings, "note": self.notes},
+            "findings": [f.to_dict() for f in self.findings],
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# Per-episode accumulation across blocks
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Hit:
+    """First occurrence, count and worst value of one kind of problem in one episode."""
+
+    step: int | None
+    count: int
+    worst: float = 0.0
+    detail: str = ""
+
+
+@dataclass
+class _Hits:
+    """Per (code, episode, at reset): the merged :class:`_Hit` over every block."""
+
+    by_key: dict[tuple[str, int, bool], _Hit] = field(default_factory=dict)
+
+    def add(
+        self,
+        code: str,
+        episodes: _IntArray,
+        first_steps: list[int | None],
+        counts: _IntArray,
+        worst: _FloatArray | None = None,
+        details: list[str] | None = None,
+    ) -> None:
+        """Merge one block's per-episode results (earlier blocks keep their first step)."""
+        table = self.by_key
+        worst_list = None if worst is None else worst.tolist()
+        for i, (episode, count) in enumerate(zip(episodes.tolist(), counts.tolist(), strict=True)):
+            key = (code, episode, first_steps[i] is None)
+            hit = table.get(key)
+            w = 0.0 if worst_list is None else worst_list[i]
+            if hit is None:
+                detail = "" if details is None else details[i]
+                table[key] = _Hit(first_steps[i], count, w, detail)
+            else:
+                hit.count += count
+                if w > hit.worst or math.isnan(w):
+                    hit.worst = w
+
+
+def _first_per_episode(
+    episode: _IntArray, mask: _BoolArray, values: _FloatArray | None = None
+) -> tuple[_IntArray, _IntArray, _IntArray, _FloatArray | None]:
+    """Group the rows in ``mask`` by episode.
+
+    Return the episodes (ascending), the row of each one's first hit, its number of hits and,
+    given ``values``, the largest value over its hits.
+    """
+    rows = np.flatnonzero(mask)
+    eps = episode[rows]
+    if eps.size and not (eps[1:] >= eps[:-1]).all():
+        rows = rows[np.argsort(eps, kind="stable")]  # stable: first hits stay first
+        eps = episode[rows]
+    starts = np.flatnonzero(np.r_[True, eps[1:] != eps[:-1]]) if eps.size else rows
+    counts = np.diff(np.r_[starts, eps.size]).astype(np.int64)
+    largest = None if values is None else np.maximum.reduceat(values[rows], starts)
+    return eps[starts], rows[starts], counts, largest
+
+
+def _counts_per_episode(episode: _IntArray) -> tuple[_IntArray, _IntArray]:
+    """Return (episodes, rows per episode) of one block."""
+    if episode.size == 0:
+        return episode, episode
+    low = int(episode.min())
+    span = int(episode.max()) - low
+    if 0 <= span <= 4 * episode.size:
+        counts = np.bincount(episode - low, minlength=span + 1)
+        present = np.flatnonzero(counts)
+        return present.astype(np.int64) + low, counts[present].astype(np.int64)
+    uniq, counts = np.unique(episode, return_counts=True)
+    return uniq, counts.astype(np.int64)
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _number(value: float) -> str:
+    return f"{value:.9g}"
+
+
+def _listing(indices: list[int]) -> str:
+    shown = ", ".join(str(i) for i in indices[:_LIST_LIMIT])
+    more = len(indices) - _LIST_LIMIT
+    return shown + (f" and {more} more" if more > 0 else "")
+
+
+# --------------------------------------------------------------------------------------------
+# The checker of one file
+# --------------------------------------------------------------------------------------------
+
+
+class _FileCheck:
+    """Checks one open evidence file; :meth:`run` returns its findings."""
+
+    def __init__(
+        self,
+        ev: Evidence,
+        *,
+        atol: float,
+        rtol: float,
+        require_terms: bool,
+        progress: Callable[[int], None] | None,
+    ) -> None:
+        self.ev = ev
+        self.file = str(ev.path)
+        self.atol = float(atol)
+        self.rtol = float(rtol)
+        self.require_terms = require_terms
+        self.progress = progress
+        constants = (ev.run.reward_terms or {}).get("constants") or {}
+        self.constants: dict[str, float] = {
+            str(k): float(v) for k, v in constants.items() if isinstance(v, (int, float))
+        }
+        self.constant_sum = math.fsum(self.constants.values())
+        self.findings: list[Finding] = []
+        self.hits = _Hits()
+        self.steps = 0
+        self.episodes = 0
+        self.missing_terms = 0
+        self.first_missing: tuple[int, int] | None = None
+        self.ended: set[int] = set()
+        self.max_ended: int | None = None
+        self.count_parts: list[tuple[_IntArray, _IntArray]] = []
+        self.obs_codec: SpaceCodec | None = ev.observation_codec
+        self.act_codec: SpaceCodec | None = ev.action_codec
+
+    def finding(
+        self,
+        severity: Severity,
+        code: str,
+        message: str,
+        episode: int | None = None,
+        step: int | None = None,
+    ) -> None:
+        self.findings.append(Finding(severity, code, message, self.file, episode, step))
+
+    # ------------------------------------------------------------------ driver
+
+    def run(self) -> list[Finding]:
+        self.check_file()
+        self.check_codecs()
+        for batch in self.ev.iter_step_batches(columns=_STEP_COLUMNS):
+            self.check_block(batch)
+            self.steps += batch.num_rows
+            if self.progress is not None:
+                self.progress(batch.num_rows)
+        self.check_resets()
+        self.check_episodes()
+        self.report_hits()
+        self.report_missing_terms()
+        self.findings.sort(
+            key=lambda f: (
+                -1 if f.episode is None else f.episode,
+                -1 if f.step is None else f.step,
+                _SEVERITY_RANK[f.severity],
+                f.code,
+            )
+        )
+        return self.findings
+
+    # ------------------------------------------------------------------ file level
+
+    def check_file(self) -> None:
+        ev = self.ev
+        if not ev.finished:
+            why = ev.torn or "no run-end record"
+            self.finding(
+                "warning",
+                FILE_UNFINISHED,
+                f"the writer did not finish the file ({why}); complete chunks were read",
+            )
+        if ev.run.env_spec is None:
+            notes = [str(n) for n in (ev.run.recorder or {}).get("notes") or []]
+            why = f" ({'; '.join(notes)})" if notes else ""
+            self.finding(
+                "warning",
+                MISSING_ENV_SPEC,
+                f"no environment spec recorded{why}: replay needs an env factory",
+            )
+        version = ev.run.format_version
+        if _version_tuple(version) < _version_tuple(fmt.FORMAT_VERSION):
+            self.finding(
+                "note",
+                FORMAT_VERSION,
+                f"written with format {version}, older than the current {fmt.FORMAT_VERSION}",
+            )
+
+    def check_codecs(self) -> None:
+        if self.obs_codec is None:
+            self.finding(
+                "note",
+                OBSERVATION_SPACE_UNCHECKED,
+                "the observation space cannot be rebuilt from the file; observations "
+                "were not checked against it",
+            )
+        if self.act_codec is None:
+            self.finding(
+                "note",
+                ACTION_SPACE_UNCHECKED,
+                "the action space cannot be rebuilt from the file; actions were not checked "
+                "against it",
+            )
+
+    # ------------------------------------------------------------------ steps
+
+    def check_block(self, batch: pa.RecordBatch) -> None:
+        n = batch.num_rows
+        if n == 0:
+            return
+        episode: _IntArray = batch.column(fmt.COL_EPISODE).to_numpy(zero_copy_only=False)
+        step: _IntArray = batch.column(fmt.COL_STEP).to_numpy(zero_copy_only=False)
+        reward: _FloatArray = batch.column(fmt.COL_REWARD).to_numpy(zero_copy_only=False)
+        present, counts = _counts_per_episode(episode)
+        after_end = self.check_endings(batch, episode, present)
+        self.check_rewards(batch, episode, step, reward)
+        self.check_space(fmt.COL_OBSERVATION, batch.column(fmt.COL_OBSERVATION), episode, step)
+        self.check_space(fmt.COL_ACTION, batch.column(fmt.COL_ACTION), episode, step)
+        noted_after_end = self.check_notes(batch.column(fmt.COL_NOTES), episode, step)
+        if noted_after_end is not None:
+            after_end = after_end | noted_after_end if after_end is not None else noted_after_end
+        if after_end is not None and after_end.any():
+            eps, first, hits, _ = _first_per_episode(episode, after_end)
+            self.hits.add(STEP_AFTER_END, eps, step[first].tolist(), hits)
+            present, counts = _counts_per_episode(episode[~after_end])
+        self.count_parts.append((present, counts))
+
+    def check_endings(
+        self, batch: pa.RecordBatch, episode: _IntArray, present: _IntArray
+    ) -> _BoolArray | None:
+        """Record which episodes ended; return the rows after an episode's outcome row.
+
+        ``present`` holds the block's episodes in ascending order.
+        """
+        outcome = batch.column(fmt.COL_OUTCOME)
+        n = batch.num_rows
+        after: _BoolArray | None = None
+        if self.max_ended is not None and present[0] <= self.max_ended:
+            seen = [e for e in present.tolist() if e in self.ended]
+            if seen:
+                after = np.isin(episode, np.array(seen, dtype=np.int64))
+        if outcome.null_count == n:
+            return after
+        end_rows = np.flatnonzero(pc.is_valid(outcome).to_numpy(zero_copy_only=False))
+        end_eps = episode[end_rows]
+        self.ended.update(end_eps.tolist())
+        top = int(end_eps.max())
+        self.max_ended = top if self.max_ended is None else max(self.max_ended, top)
+        # The usual layout: each episode's rows are contiguous and its outcome row is its last,
+        # so the row after an outcome row (if any) belongs to another episode.
+        following = end_rows + 1
+        following[following == n] = end_rows[following == n]
+        if not (episode[following] == end_eps)[following != end_rows].any() and bool(
+            (episode[1:] >= episode[:-1]).all()
+        ):
+            return after
+        uniq_eps, first = np.unique(end_eps, return_index=True)
+        end_pos = end_rows[first]
+        k = np.minimum(np.searchsorted(uniq_eps, episode), uniq_eps.size - 1)
+        within = (uniq_eps[k] == episode) & (np.arange(n) > end_pos[k])
+        if within.any():
+            after = within if after is None else after | within
+        return after
+
+    def check_rewards(
+        self,
+        batch: pa.RecordBatch,
+        episode: _IntArray,
+        step: _IntArray,
+        reward: _FloatArray,
+    ) -> None:
+        finite_reward = np.isfinite(reward)
+        bad_reward = ~finite_reward
+        if bad_reward.any():
+            eps, first, counts, _ = _first_per_episode(episode, bad_reward)
+            details = [f"reward {_number(r)}" for r in reward[first].tolist()]
+            self.hits.add(NONFINITE_REWARD, eps, step[first].tolist(), counts, details=details)
+
+        terms = batch.column(fmt.COL_TERMS)
+        n = batch.num_rows
+        if terms.null_count:
+            missing = pc.is_null(terms).to_numpy(zero_copy_only=False)
+            count = int(missing.sum())
+            if self.first_missing is None and count:
+                row = int(np.argmax(missing))
+                self.first_missing = (int(episode[row]), int(step[row]))
+            self.missing_terms += count
+            if count == n:
+                return
+            has_terms = ~missing
+        else:
+            has_terms = np.ones(n, dtype=np.bool_)
+
+        offsets: _IntArray = terms.offsets.to_numpy(zero_copy_only=False).astype(np.int64)
+        lo, hi = int(offsets[0]), int(offsets[-1])
+        values: _FloatArray = terms.items.slice(lo, hi - lo).to_numpy(zero_copy_only=False)
+        starts = offsets[:-1] - lo
+        lengths = np.diff(offsets)
+        empty = lengths == 0
+        padded = np.append(values, 0.0)
+        sums: _FloatArray = np.add.reduceat(padded, starts)
+        sums[empty] = 0.0
+        nonfinite_values = ~np.isfinite(values)
+        if nonfinite_values.any():
+            bad_per_row = np.add.reduceat(np.append(nonfinite_values, False), starts)
+            bad_per_row[empty] = 0
+            bad_term = (bad_per_row > 0) & has_terms
+        else:
+            bad_term = None
+        if bad_term is not None and bad_term.any():
+            eps, first, counts, _ = _first_per_episode(episode, bad_term)
+            keys = terms.keys
+            details = []
+            for row in first.tolist():
+                start, stop = int(offsets[row]), int(offsets[row + 1])
+                segment = values[start - lo : stop - lo]
+                j = int(np.flatnonzero(~np.isfinite(segment))[0])
+                details.append(f"term {keys[start + j].as_py()!r} is {_number(segment[j])}")
+            self.hits.add(NONFINITE_TERM, eps, step[first].tolist(), counts, details=details)
+
+        expected = sums + self.constant_sum
+        with np.errstate(invalid="ignore", over="ignore"):
+            residual = np.abs(reward - expected)
+            tolerance = self.atol + self.rtol * np.abs(reward)
+            mismatch = has_terms & finite_reward & (residual > tolerance)
+        if bad_term is not None:
+            mismatch &= ~bad_term
+        if not mismatch.any():
+            return
+        eps, first, counts, worst = _first_per_episode(episode, mismatch, residual)
+        constants = f" + constants {_number(self.constant_sum)}" if self.constants else ""
+        details = [
+            f"reward {_number(r)} != terms sum {_number(s)}{constants} (residual {d:.3g})"
+            for r, s, d in zip(
+                reward[first].tolist(), sums[first].tolist(), residual[first].tolist(), strict=True
+            )
+        ]
+        self.hits.add(
+            TERMS_SUM_MISMATCH, eps, step[first].tolist(), counts, worst=worst, details=details
+        )
+
+    def check_space(
+        self, column: str, array: pa.Array, episode: _IntArray, step: _IntArray | None
+    ) -> None:
+        """Check a column against its space (``step`` is ``None`` for reset observations)."""
+        codec = self.obs_codec if column == fmt.COL_OBSERVATION else self.act_codec
+        if codec is None:
+            return
+        try:
+            inside = codec.contains(array)
+        except (TypeError, ValueError, pa.ArrowException) as exc:
+            self.unchecked(column, f"{type(exc).__name__}: {exc}")
+            return
+        outside = ~inside
+        if not outside.any():
+            return
+        code = OBSERVATION_OUT_OF_SPACE if column == fmt.COL_OBSERVATION else ACTION_OUT_OF_SPACE
+        eps, first, counts, _ = _first_per_episode(episode, outside)
+        details = []
+        for row in first.tolist():
+            try:
+                value = codec.decode(array.slice(row, 1))[0]
+            except Exception as exc:  # a value contains() judged but decode cannot show
+                value = f"<{type(exc).__name__}>"
+            details.append(_short(value))
+        first_steps: list[int | None] = (
+            [None] * len(details) if step is None else step[first].tolist()
+        )
+        self.hits.add(code, eps, first_steps, counts, details=details)
+
+    def unchecked(self, column: str, why: str) -> None:
+        code = (
+            OBSERVATION_SPACE_UNCHECKED if column == fmt.COL_OBSERVATION else ACTION_SPACE_UNCHECKED
+        )
+        if column == fmt.COL_OBSERVATION:
+            self.obs_codec = None
+        else:
+            self.act_codec = None
+        self.finding("note", code, f"{column}s were not checked against their space: {why}")
+
+    def check_notes(
+        self, notes: pa.Array, episode: _IntArray, step: _IntArray | None
+    ) -> _BoolArray | None:
+        """Turn recorder notes into per-episode hits; return the rows noted ``step_after_end``."""
+        n = len(notes)
+        if notes.null_count == n:
+            return None
+        encoded = pc.dictionary_encode(notes)
+        size = len(encoded.dictionary)
+        indices = encoded.indices.fill_null(size).to_numpy(zero_copy_only=False)
+        by_code: dict[str, list[tuple[int, str]]] = {}
+        for slot, text in enumerate(encoded.dictionary.to_pylist()):
+            for note in _parse_notes(text):
+                code, _, message = note.partition(":")
+                by_code.setdefault(code.strip(), []).append((slot, message.strip()))
+        after_end: _BoolArray | None = None
+        for code, slots in by_code.items():
+            in_slot = np.zeros(size + 1, dtype=np.bool_)
+            message_of: dict[int, str] = {}
+            for slot, message in slots:
+                in_slot[slot] = True
+                message_of.setdefault(slot, message)
+            mask = in_slot[indices]
+            if code == STEP_AFTER_END and step is not None:
+                after_end = mask
+                continue
+            eps, first, counts, _ = _first_per_episode(episode, mask)
+            details = [message_of[int(indices[row])] for row in first.tolist()]
+            first_steps: list[int | None] = (
+                [None] * len(details) if step is None else step[first].tolist()
+            )
+            self.hits.add(f"{RECORDER_NOTE}:{code}", eps, first_steps, counts, details=details)
+        return after_end
+
+    # ------------------------------------------------------------------ resets and episodes
+
+    def check_resets(self) -> None:
+        resets = self.ev.resets()
+        if resets.num_rows == 0:
+            return
+        episode: _IntArray = resets.column(fmt.COL_EPISODE).to_numpy()
+        if fmt.COL_OBSERVATION in resets.column_names:
+            obs = resets.column(fmt.COL_OBSERVATION).combine_chunks()
+            self.check_space(fmt.COL_OBSERVATION, obs, episode, None)
+        if fmt.COL_NOTES in resets.column_names:
+            self.check_notes(resets.column(fmt.COL_NOTES).combine_chunks(), episode, None)
+
+    def check_episodes(self) -> None:
+        table = self.ev.episodes()
+        self.episodes = table.num_rows
+        if table.num_rows == 0:
+            return
+        rows = table.select(
+            [
+                "episode",
+                "outcome",
+                "failure_label",
+                "terminated",
+                "truncated",
+                "length",
+                "seed",
+                "rng_state",
+                "error_type",
+                "error_message",
+                "error_during",
+                "ended",
+            ]
+        )
+        episode: _IntArray = rows.column("episode").to_numpy()
+        outcome = rows.column("outcome")
+        length: _IntArray = rows.column("length").to_numpy()
+
+        def listed(mask: Any) -> list[int]:
+            return [int(e) for e in episode[np.asarray(mask, dtype=np.bool_)]]
+
+        both = pc.fill_null(pc.and_(rows.column("terminated"), rows.column("truncated")), False)
+        both_eps = listed(both.to_numpy(zero_copy_only=False))
+        if both_eps:
+            self.finding(
+                "note",
+                TERMINATED_AND_TRUNCATED,
+                f"{len(both_eps)} episode(s) ended with both terminated and truncated set; "
+                f"the task ending counts (episodes {_listing(both_eps)})",
+                both_eps[0],
+            )
+
+        is_failure = pc.equal(outcome, fmt.OUTCOME_FAILURE)
+        unlabeled = pc.and_(is_failure, pc.equal(rows.column("failure_label"), fmt.UNLABELED))
+        unlabeled_eps = listed(pc.fill_null(unlabeled, False).to_numpy(zero_copy_only=False))
+        if unlabeled_eps:
+            failures = int(pc.sum(is_failure).as_py() or 0)
+            self.finding(
+                "warning",
+                UNLABELED_FAILURE,
+                f"{len(unlabeled_eps)} of {failures} failure(s) have no label "
+                f"(episodes {_listing(unlabeled_eps)})",
+                unlabeled_eps[0],
+            )
+
+        ended = rows.column("ended").to_numpy(zero_copy_only=False)
+        incomplete = pc.equal(outcome, fmt.OUTCOME_INCOMPLETE).to_numpy(zero_copy_only=False)
+        incomplete_eps = listed(incomplete)
+        if incomplete_eps:
+            cut = int((incomplete & ~ended).sum())
+            torn = f", {cut} of them cut off by the torn end of the file" if cut else ""
+            self.finding(
+                "warning",
+                INCOMPLETE_EPISODE,
+                f"{len(incomplete_eps)} episode(s) stopped before they ended{torn} "
+                f"(episodes {_listing(incomplete_eps)})",
+                incomplete_eps[0],
+            )
+
+        errors = pc.equal(outcome, fmt.OUTCOME_ERROR).to_numpy(zero_copy_only=False)
+        if errors.any():
+            for record in rows.filter(pa.array(errors)).to_pylist():
+                during = record["error_during"] or "step"
+                where = (
+                    "during reset" if during == "reset" else f"while taking step {record['length']}"
+                )
+                self.finding(
+                    "error",
+                    ERROR_EPISODE,
+                    f"the environment raised {record['error_type'] or 'an exception'} "
+                    f"{where}: {record['error_message'] or ''}",
+                    int(record["episode"]),
+                    None if during == "reset" else int(record["length"]),
+                )
+
+        self.check_lengths(episode, length, ended)
+
+        seedless = pc.and_(pc.is_null(rows.column("seed")), pc.is_null(rows.column("rng_state")))
+        seedless_eps = listed(seedless.to_numpy(zero_copy_only=False))
+        if seedless_eps:
+            self.finding(
+                "warning",
+                NOT_REPLAYABLE,
+                f"{len(seedless_eps)} episode(s) have neither a reset seed nor an RNG state "
+                f"and cannot be replayed (episodes {_listing(seedless_eps)})",
+                seedless_eps[0],
+            )
+
+    def check_lengths(self, episode: _IntArray, length: _IntArray, ended: _BoolArray) -> None:
+        if self.count_parts:
+            eps = np.concatenate([p[0] for p in self.count_parts])
+            counts = np.concatenate([p[1] for p in self.count_parts])
+            uniq, inverse = np.unique(eps, return_inverse=True)
+            totals = np.bincount(inverse, weights=counts).astype(np.int64)
+        else:
+            uniq = totals = np.zeros(0, dtype=np.int64)
+        if uniq.size:
+            k = np.minimum(np.searchsorted(uniq, episode), uniq.size - 1)
+            counted = np.where(uniq[k] == episode, totals[k], 0)
+        else:
+            counted = np.zeros_like(episode)
+        wrong = ended & (counted != length)
+        for e, n, c in zip(
+            episode[wrong].tolist(), length[wrong].tolist(), counted[wrong].tolist(), strict=True
+        ):
+            self.finding(
+                "error",
+                LENGTH_MISMATCH,
+                f"the episode record says {n} steps, the file holds {c} step rows "
+                "up to its outcome",
+                e,
+            )
+
+    # ------------------------------------------------------------------ reporting
+
+    def report_missing_terms(self) -> None:
+        if not self.missing_terms:
+            return
+        source = (self.ev.run.reward_terms or {}).get("source")
+        severity: Severity = "error" if self.require_terms else "warning"
+        episode, step = self.first_missing or (None, None)
+        self.finding(
+            severity,
+            MISSING_TERMS,
+            f"{self.missing_terms} of {self.steps} steps have no reward terms "
+            f"(terms source {source!r}); their rewards cannot be checked against terms",
+            episode,
+            step,
+        )
+
+    def report_hits(self) -> None:
+        for (code, episode, _), hit in self.hits.by_key.items():
+            self.findings.append(self.hit_finding(code, episode, hit))
+
+    def hit_finding(self, code: str, episode: int, hit: _Hit) -> Finding:
+        where = "at reset" if hit.step is None else f"at step {hit.step}"
+        n = hit.count
+        severity: Severity = "error"
+        if code == TERMS_SUM_MISMATCH:
+            message = (
+                f"{hit.detail} {where}; {n} step(s) of the episode mismatch, worst residual "
+                f"{hit.worst:.3g} (tolerance {self.atol:g} + {self.rtol:g}*|reward|)"
+            )
+        elif code in (NONFINITE_REWARD, NONFINITE_TERM):
+            message = f"{hit.detail} {where}; {n} step(s) of the episode"
+        elif code in (OBSERVATION_OUT_OF_SPACE, ACTION_OUT_OF_SPACE):
+            noun = "observation" if code == OBSERVATION_OUT_OF_SPACE else "action"
+            message = f"{noun} outside its space {where}: {hit.detail}; {n} row(s) of the episode"
+        elif code == STEP_AFTER_END:
+            message = f"{n} step(s) recorded after the episode ended, first {where}"
+        else:  # recorder notes
+            severity = "warning"
+            noted = code.partition(":")[2]
+            message = f"recorder noted {noted} {where} ({n} time(s) in the episode): {hit.detail}"
+        return Finding(severity, code, message, self.file, episode, hit.step)
+
+
+def _parse_notes(text: str) -> list[str]:
+    try:
+        notes = json.loads(text)
+    except (TypeError, ValueError):
+        return [f"notes_unreadable: {_short(text)}"]
+    if isinstance(notes, str):
+        return [notes]
+    if not isinstance(notes, list):
+        return [f"notes_unreadable: {_short(notes)}"]
+    return [str(n) for n in notes]
+
+
+def _version_tuple(version: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(p) for p in version.split("."))
+    except ValueError:
+        return (0,)
+
+
+# --------------------------------------------------------------------------------------------
+# Public API
+# --------------------------------------------------------------------------------------------
+
+
+def _check_options(atol: float, rtol: float) -> None:
+    from .errors import ConfigurationError
+
+    for name, value in (("atol", atol), ("rtol", rtol)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+            raise ConfigurationError(f"{name}: expected a finite number >= 0, actually: {value!r}")
+
+
+def check_evidence(
+    ev: Evidence,
+    *,
+    atol: float = 1e-6,
+    rtol: float = 1e-6,
+    require_terms: bool = False,
+) -> list[Finding]:
+    """Check one open evidence file and return its findings (see the module docstring).
+
+    A step's terms match its reward when ``|reward - (sum(terms) + sum(constants))| <= atol +
+    rtol * |reward|``, the constants being those declared in the file
+    (``ev.run.reward_terms["constants"]``). With ``require_terms`` steps without terms are an
+    error instead of a warning.
+    """
+    _check_options(atol, rtol)
+    return _FileCheck(ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=None).run()
+
+
+def check(
+    paths: Iterable[str | os.PathLike[str]],
+    *,
+    atol: float = 1e-6,
+    rtol: float = 1e-6,
+    require_terms: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> CheckResult:
+    """Open and check each evidence file; return every finding with what was checked.
+
+    An unreadable file raises :class:`~episode_audit.errors.EvidenceError` (a torn file is
+    readable: it gets a ``file_unfinished`` finding). ``progress`` is called after each block of
+    steps with the number of steps in that block.
+    """
+    _check_options(atol, rtol)
+    findings: list[Finding] = []
+    files: list[str] = []
+    episodes = steps = 0
+    for path in paths:
+        ev = open_evidence(path)
+        files.append(str(ev.path))
+        checker = _FileCheck(
+            ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=progress
+        )
+        findings.extend(checker.run())
+        episodes += checker.episodes
+        steps += checker.steps
+    return CheckResult(findings, files, episodes, steps)

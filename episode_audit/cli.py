@@ -1,0 +1,493 @@
+"""The ``episode-audit`` command: a thin Typer layer over the library.
+
+Exit codes (as linters use them): 0 clean, 1 findings / divergence / gate missed,
+2 usage error or unreadable input. Expected failures print one line on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from . import __version__
+from .errors import ConfigurationError, EpisodeAuditError, EvidenceError
+from .render import OutputFormat, safe
+
+app = typer.Typer(
+    name="episode-audit",
+    help=(
+        "Record, replay and audit reinforcement-learning episodes kept as MCAP evidence files."
+        "\n\n"
+        "Exit codes: 0 clean, 1 findings / divergence / gate missed, 2 usage error or "
+        "unreadable input."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+EXIT_CLEAN, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
+
+
+def _stdout() -> Console:
+    # Plain output when not a terminal: no colour, and wide enough for CI logs.
+    return Console(highlight=False, width=None if sys.stdout.isatty() else 200)
+
+
+def _stderr() -> Console:
+    return Console(stderr=True, highlight=False)
+
+
+def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
+    """Print one line on stderr and exit."""
+    _stderr().print(f"episode-audit: error: {safe(message)}", markup=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def collect(paths: Sequence[Path]) -> list[Path]:
+    """Files as given and ``*.mcap`` files under directories (recursively, sorted)."""
+    out: list[Path] = []
+    for path in paths:
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*.mcap") if p.is_file())
+            if not found:
+                fail(f"{path}: no *.mcap files in this directory")
+            out.extend(found)
+        elif path.exists():
+            out.append(path)
+        else:
+            fail(f"{path}: no such file or directory")
+    return out
+
+
+@contextmanager
+def progress_bar(description: str, total: int | None) -> Iterator[Callable[[int], None]]:
+    """A Rich progress bar on stderr when it is a terminal; a no-op otherwise."""
+    console = _stderr()
+    if not console.is_terminal:
+        yield lambda n: None
+        return
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(description, total=total)
+        yield lambda n: bar.advance(task, n)
+
+
+def emit(output: Any) -> None:
+    """Print a renderable (table format) or text (markdown / JSON) on stdout."""
+    console = _stdout()
+    if isinstance(output, str):
+        console.print(output, markup=False, highlight=False, soft_wrap=True)
+    else:
+        console.print(output)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"episode-audit {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main_options(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_version, is_eager=True, help="Show the version and exit."
+        ),
+    ] = False,
+) -> None:
+    """Record, replay and audit reinforcement-learning episodes."""
+
+
+FormatOption = Annotated[
+    str,
+    typer.Option("--format", "-f", help="Output format: table, markdown (CI summaries) or json."),
+]
+PathsArgument = Annotated[
+    list[Path], typer.Argument(help="Evidence files, or directories searched for *.mcap.")
+]
+
+
+def _format(value: str) -> OutputFormat:
+    if value not in ("table", "markdown", "json"):
+        fail(f"--format: expected table, markdown or json, got {value!r}")
+    return value  # type: ignore[return-value]
+
+
+def _steps_total(paths: Sequence[Path]) -> int | None:
+    from .reader import open_evidence
+
+    total = 0
+    for path in paths:
+        try:
+            run_end = open_evidence(path).run_end
+        except EvidenceError:
+            return None
+        if not run_end or not str(run_end.get("steps", "")).isdigit():
+            return None
+        total += int(run_end["steps"])
+    return total
+
+
+# ----------------------------------------------------------------------------- check
+
+
+@app.command()
+def check(
+    paths: PathsArgument,
+    atol: Annotated[float, typer.Option(help="Absolute tolerance of the terms-sum check.")] = 1e-6,
+    rtol: Annotated[
+        float, typer.Option(help="Relative tolerance (times |reward|) of the terms-sum check.")
+    ] = 1e-6,
+    require_terms: Annotated[
+        bool, typer.Option("--require-terms", help="Steps without reward terms are errors.")
+    ] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="Warnings also fail (exit 1).")] = False,
+    output: FormatOption = "table",
+) -> None:
+    """Check integrity and consistency: terms sum to reward, endings labelled, nothing missing."""
+    from .check import CheckResult
+    from .check import check as run_check
+    from .render import check_output
+
+    fmt = _format(output)
+    files = collect(paths)
+    merged = CheckResult(findings=[], files=[], episodes=0, steps=0)
+    unreadable = 0
+    with progress_bar("checking", _steps_total(files)) as advance:
+        for path in files:
+            try:
+                result = run_check(
+                    [path], atol=atol, rtol=rtol, require_terms=require_terms, progress=advance
+                )
+            except EpisodeAuditError as exc:
+                _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+                unreadable += 1
+                continue
+            merged.findings.extend(result.findings)
+            merged.files.extend(result.files)
+            merged.episodes += result.episodes
+            merged.steps += result.steps
+    emit(check_output(merged, fmt))
+    if unreadable:
+        raise typer.Exit(EXIT_USAGE)
+    if merged.errors or (strict and merged.warnings):
+        raise typer.Exit(EXIT_FINDINGS)
+
+
+# ----------------------------------------------------------------------------- replay
+
+
+@app.command()
+def replay(
+    paths: PathsArgument,
+    episode: Annotated[
+        list[int] | None, typer.Option("--episode", "-e", help="Replay only these episodes.")
+    ] = None,
+    atol: Annotated[
+        float, typer.Option(help="Tolerance for numeric comparisons (0: exact, the default).")
+    ] = 0.0,
+    env_factory: Annotated[
+        str | None,
+        typer.Option(help="MODULE:CALLABLE that returns the environment to replay in."),
+    ] = None,
+    import_: Annotated[
+        list[str] | None,
+        typer.Option("--import", help="Import MODULE first (e.g. a package that registers envs)."),
+    ] = None,
+    trust_entry_points: Annotated[
+        bool,
+        typer.Option(
+            "--trust-entry-points",
+            help="Allow importing the entry point named inside the file (trusted files only).",
+        ),
+    ] = False,
+    output: FormatOption = "table",
+) -> None:
+    """Re-run episodes from their recorded seed / RNG state and compare them step by step."""
+    from .render import replay_output
+    from .replay import ReplayResult
+    from .replay import replay as run_replay
+
+    fmt = _format(output)
+    files = collect(paths)
+    merged = ReplayResult()
+    unreadable = 0
+    with progress_bar("replaying", _steps_total(files) if episode is None else None) as advance:
+        for path in files:
+            try:
+                result = run_replay(
+                    [path],
+                    episodes=episode,
+                    atol=atol,
+                    env_factory=env_factory,
+                    imports=import_ or (),
+                    trust_entry_points=trust_entry_points,
+                    progress=advance,
+                )
+            except ConfigurationError as exc:
+                fail(str(exc))
+            except EpisodeAuditError as exc:
+                _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+                unreadable += 1
+                continue
+            merged.episodes.extend(result.episodes)
+            merged.version_differences.update(result.version_differences)
+    emit(replay_output(merged, fmt))
+    if unreadable:
+        raise typer.Exit(EXIT_USAGE)
+    if not merged.ok:
+        raise typer.Exit(EXIT_FINDINGS)
+
+
+# ----------------------------------------------------------------------------- report
+
+
+def _parse_failure_rates(values: Sequence[str]) -> tuple[float | None, dict[str, float]]:
+    overall: float | None = None
+    by_label: dict[str, float] = {}
+    for value in values:
+        label, sep, rate = value.rpartition("=")
+        try:
+            number = float(rate)
+        except ValueError:
+            fail(f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r}")
+        if not 0.0 <= number <= 1.0:
+            fail(f"--max-failure-rate: expected a rate between 0 and 1, got {rate!r}")
+        if sep:
+            by_label[label] = number
+        else:
+            overall = number
+    return overall, by_label
+
+
+def _rate_option(name: str, value: float | None) -> float | None:
+    if value is not None and not 0.0 <= value <= 1.0:
+        fail(f"{name}: expected a rate between 0 and 1, got {value}")
+    return value
+
+
+@app.command()
+def report(
+    paths: PathsArgument,
+    by: Annotated[
+        str, typer.Option(help="Group by: file, env, label, all, or tag:NAME (e.g. tag:policy).")
+    ] = "file",
+    min_success_rate: Annotated[
+        float | None, typer.Option(help="Gate: fail (exit 1) if a group's success rate is lower.")
+    ] = None,
+    max_failure_rate: Annotated[
+        list[str] | None,
+        typer.Option(help="Gate: RATE overall, or LABEL=RATE for one failure label (repeatable)."),
+    ] = None,
+    max_truncation_rate: Annotated[
+        float | None, typer.Option(help="Gate: fail if a group's truncation rate is higher.")
+    ] = None,
+    fail_on_incentive_warning: Annotated[
+        bool,
+        typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
+    ] = False,
+    output: FormatOption = "table",
+) -> None:
+    """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
+    from .render import report_output
+    from .report import Gates
+    from .report import report as run_report
+
+    fmt = _format(output)
+    if by not in ("file", "env", "label", "all") and not (by.startswith("tag:") and len(by) > 4):
+        fail(f"--by: expected file, env, label, all or tag:NAME, got {by!r}")
+    overall, by_label = _parse_failure_rates(max_failure_rate or [])
+    gates = Gates(
+        min_success_rate=_rate_option("--min-success-rate", min_success_rate),
+        max_failure_rate=overall,
+        max_failure_rate_by_label=by_label,
+        max_truncation_rate=_rate_option("--max-truncation-rate", max_truncation_rate),
+        fail_on_incentive_warning=fail_on_incentive_warning,
+    )
+    files = collect(paths)
+    readable: list[Path] = []
+    unreadable = 0
+    from .reader import open_evidence
+
+    for path in files:
+        try:
+            open_evidence(path)
+            readable.append(path)
+        except EpisodeAuditError as exc:
+            _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+            unreadable += 1
+    if not readable:
+        raise typer.Exit(EXIT_USAGE)
+    try:
+        result = run_report(readable, by=by, gates=gates)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    emit(report_output(result, fmt))
+    if unreadable:
+        raise typer.Exit(EXIT_USAGE)
+    if not result.passed:
+        raise typer.Exit(EXIT_FINDINGS)
+
+
+# ----------------------------------------------------------------------------- show
+
+
+def _parse_slice(value: str | None) -> tuple[int | None, int | None]:
+    if value is None:
+        return None, None
+    start, sep, stop = value.partition(":")
+    try:
+        a = int(start) if start else None
+        b = int(stop) if stop else None
+    except ValueError:
+        fail(f"--steps: expected A:B (e.g. 0:50), got {value!r}")
+    if not sep:
+        fail(f"--steps: expected A:B (e.g. 0:50), got {value!r}")
+    return a, b
+
+
+@app.command()
+def show(
+    path: Annotated[Path, typer.Argument(help="An evidence file.")],
+    episode: Annotated[
+        int | None, typer.Option("--episode", "-e", help="Show this episode's steps.")
+    ] = None,
+    steps: Annotated[
+        str | None, typer.Option(help="Slice of steps A:B (with --episode), e.g. 0:50.")
+    ] = None,
+    output: FormatOption = "table",
+) -> None:
+    """Summarize a file (run metadata, versions, env spec, episodes), or one episode's steps."""
+    from .reader import open_evidence
+    from .show import episode_output, summary_output
+
+    fmt = _format(output)
+    start, stop = _parse_slice(steps)
+    if steps is not None and episode is None:
+        fail("--steps needs --episode N")
+    if not path.exists():
+        fail(f"{path}: no such file or directory")
+    try:
+        ev = open_evidence(path)
+        if episode is None:
+            emit(summary_output(ev, fmt))
+        else:
+            emit(episode_output(ev, episode, start, stop, fmt))
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+
+
+# ----------------------------------------------------------------------------- export
+
+
+@app.command()
+def export(
+    paths: PathsArgument,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Directory for the Parquet files.")],
+    overwrite: Annotated[bool, typer.Option(help="Replace existing exported files.")] = False,
+) -> None:
+    """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
+    from .export import export as run_export
+
+    files = collect(paths)
+    try:
+        with progress_bar("exporting", _steps_total(files)) as advance:
+            result = run_export(files, out, overwrite=overwrite, progress=advance)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    emit(
+        f"wrote {result.episodes} episodes to {result.episodes_file} and {result.steps} steps "
+        f"to {len(result.steps_files)} *.steps.parquet file(s) in {out}"
+    )
+
+
+# ----------------------------------------------------------------------------- record
+
+
+@app.command()
+def record(
+    env_id: Annotated[str, typer.Argument(help="A registered Gymnasium id, e.g. CartPole-v1.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The evidence file to write.")],
+    policy: Annotated[
+        str,
+        typer.Option(
+            help="random, scripted or hacker (reference tasks), or MODULE:CALLABLE taking "
+            "(env, seed) and returning obs -> action."
+        ),
+    ] = "random",
+    episodes: Annotated[int, typer.Option(help="Number of episodes.", min=1)] = 10,
+    seed: Annotated[int, typer.Option(help="Seed of the first episode (then seed+1, ...).")] = 0,
+    env_kwargs: Annotated[
+        str | None,
+        typer.Option(
+            help="Keyword arguments for gym.make as JSON, e.g. '{\"proxy_reward\": true}'."
+        ),
+    ] = None,
+    max_episode_steps: Annotated[
+        int | None, typer.Option(help="Override the registered time limit.")
+    ] = None,
+    tag: Annotated[
+        list[str] | None, typer.Option(help="Run tag KEY=VALUE (repeatable), e.g. policy=ppo.")
+    ] = None,
+    import_: Annotated[
+        list[str] | None, typer.Option("--import", help="Import MODULE first (registers envs).")
+    ] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing file.")] = False,
+) -> None:
+    """Record episodes of a Gymnasium environment with a built-in or given policy."""
+    from .recording import record_episodes
+
+    kwargs: dict[str, Any] = {}
+    if env_kwargs:
+        try:
+            kwargs = json.loads(env_kwargs)
+        except json.JSONDecodeError as exc:
+            fail(f"--env-kwargs: not valid JSON ({exc.msg})")
+        if not isinstance(kwargs, dict):
+            fail("--env-kwargs: expected a JSON object")
+    tags: dict[str, str] = {}
+    for item in tag or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            fail(f"--tag: expected KEY=VALUE, got {item!r}")
+        tags[key] = value
+    try:
+        with progress_bar(f"recording {env_id}", episodes) as advance:
+            summary = record_episodes(
+                env_id,
+                out,
+                policy=policy,
+                episodes=episodes,
+                seed=seed,
+                env_kwargs=kwargs,
+                max_episode_steps=max_episode_steps,
+                tags=tags,
+                imports=import_ or (),
+                overwrite=overwrite,
+                on_episode=lambda: advance(1),
+            )
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    emit(summary)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()

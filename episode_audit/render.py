@@ -1,0 +1,261 @@
+r"""Render audit results as Rich tables, Markdown (for CI job summaries) or JSON.
+
+Every string that comes from an evidence file (labels, messages, env ids, tags) is made safe
+before display: cells are ``rich.text.Text`` objects (never parsed as markup), and control
+characters such as ANSI escapes are shown as escape sequences (``\x1b``), not interpreted.
+
+>>> safe("[red]x[/red]\x1b[2J")
+'[red]x[/red]\\x1b[2J'
+>>> print(markdown_table(["a", "b"], [["1", "x|y"]]))
+| a | b |
+| --- | --- |
+| 1 | x\|y |
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any, Literal
+
+import numpy as np
+from rich import box
+from rich.console import Group, RenderableType
+from rich.table import Table
+from rich.text import Text
+
+from .check import CheckResult
+from .replay import ReplayResult
+from .report import GroupReport, Report
+
+__all__ = [
+    "OutputFormat",
+    "check_output",
+    "fmt_number",
+    "markdown_table",
+    "replay_output",
+    "report_output",
+    "safe",
+    "table",
+    "to_json",
+]
+
+OutputFormat = Literal["table", "markdown", "json"]
+Output = RenderableType | str
+
+
+def safe(value: Any) -> str:
+    """``str(value)`` with control characters written as escapes (no ANSI, no newlines)."""
+    text = str(value)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def fmt_number(value: float | None, digits: int = 3) -> str:
+    """A compact number for tables; ``-`` for missing."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if isinstance(value, (int, np.integer)):
+        return str(value)
+    return f"{value:.{digits}g}" if abs(value) < 1e5 else f"{value:.3e}"
+
+
+def _rate(rate: float | None) -> str:
+    return "-" if rate is None else f"{rate:.1%}"
+
+
+def table(title: str | None, headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> Table:
+    """A Rich table whose cells are plain text (file content is never parsed as markup)."""
+    out = Table(title=title, box=box.SIMPLE_HEAD, title_justify="left", pad_edge=False)
+    for header in headers:
+        out.add_column(header, overflow="fold")
+    for row in rows:
+        out.add_row(*(Text(safe(cell)) for cell in row))
+    return out
+
+
+def markdown_table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A GitHub-flavoured Markdown table (pipes escaped), pasteable into a CI job summary."""
+
+    def cell(value: Any) -> str:
+        return safe(value).replace("|", "\\|")
+
+    lines = [
+        "| " + " | ".join(cell(h) for h in headers) + " |",
+        "| " + " | ".join("---" for _ in headers) + " |",
+    ]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def to_json(data: Any) -> str:
+    """Stable, indented JSON (keys in insertion order, non-finite floats as strings)."""
+    from .records import to_jsonable
+
+    return json.dumps(to_jsonable(data), indent=2, allow_nan=False)
+
+
+# ----------------------------------------------------------------------------- check
+
+
+def check_output(result: CheckResult, output: OutputFormat) -> Output:
+    """Findings of ``check`` in the requested format."""
+    if output == "json":
+        return to_json(result.to_dict())
+    headers = ["severity", "file", "episode", "step", "code", "message"]
+    rows = [
+        [
+            f.severity,
+            f.file,
+            "-" if f.episode is None else f.episode,
+            "-" if f.step is None else f.step,
+            f.code,
+            f.message,
+        ]
+        for f in result.findings
+    ]
+    summary = (
+        f"{len(result.files)} file(s), {result.episodes} episodes, {result.steps} steps: "
+        f"{result.errors} error(s), {result.warnings} warning(s), {result.notes} note(s)"
+    )
+    if output == "markdown":
+        body = markdown_table(headers, rows) if rows else "_no findings_"
+        return f"### episode-audit check\n\n{summary}\n\n{body}\n"
+    parts: list[RenderableType] = []
+    if rows:
+        parts.append(table("Findings", headers, rows))
+    parts.append(Text(summary))
+    return Group(*parts)
+
+
+# ----------------------------------------------------------------------------- replay
+
+
+def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
+    """Replay results: one row per episode that was not identical, plus a summary."""
+    if output == "json":
+        return to_json(result.to_dict())
+    headers = ["file", "episode", "status", "steps", "where", "detail"]
+    rows = []
+    for e in result.episodes:
+        if e.status == "identical":
+            continue
+        d = e.divergence
+        where = "-" if d is None else ("reset" if d.step is None else f"step {d.step}")
+        detail = d.describe() if d is not None else (e.reason or "")
+        rows.append([e.file, e.episode, e.status, e.steps, where, detail])
+    summary = (
+        f"{result.count('identical')} identical, {result.count('diverged')} diverged, "
+        f"{result.count('not_replayable')} not replayable"
+    )
+    versions = [
+        [file, lib, recorded, current]
+        for file, diffs in result.version_differences.items()
+        for lib, (recorded, current) in diffs.items()
+    ]
+    version_headers = ["file", "library", "recorded", "current"]
+    if output == "markdown":
+        parts = [f"### episode-audit replay\n\n{summary}\n"]
+        if rows:
+            parts.append(markdown_table(headers, rows) + "\n")
+        if versions and result.count("diverged"):
+            parts.append("Library versions differ from the recording:\n\n")
+            parts.append(markdown_table(version_headers, versions) + "\n")
+        return "\n".join(parts)
+    out: list[RenderableType] = []
+    if rows:
+        out.append(table("Episodes that did not replay identically", headers, rows))
+    if versions and result.count("diverged"):
+        out.append(table("Library versions differ from the recording", version_headers, versions))
+    out.append(Text(summary))
+    return Group(*out)
+
+
+# ----------------------------------------------------------------------------- report
+
+
+def _counts(counts: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) or "-"
+
+
+def _mean_std(mean: float | None, std: float | None) -> str:
+    if mean is None:
+        return "-"
+    return f"{fmt_number(mean)} ± {fmt_number(std or 0.0)}"
+
+
+def _group_row(g: GroupReport) -> list[str]:
+    ci = "" if g.success_ci is None else f" [{g.success_ci.low:.2f}, {g.success_ci.high:.2f}]"
+    return [
+        g.key,
+        str(g.episodes),
+        f"{g.success} ({_rate(g.success_rate)}{ci})",
+        f"{sum(g.failures.values())} ({_rate(g.failure_rate)})",
+        _counts(g.failures),
+        f"{sum(g.truncations.values())} ({_rate(g.truncation_rate)})",
+        _counts(g.truncations),
+        str(g.incomplete),
+        str(g.errors),
+        str(g.terminated_and_truncated),
+        _mean_std(g.return_mean, g.return_std),
+        _mean_std(g.length_mean, g.length_std),
+    ]
+
+
+REPORT_HEADERS = [
+    "group",
+    "episodes",
+    "success (95% CI)",
+    "failure",
+    "failure labels",
+    "truncated",
+    "truncation reasons",
+    "incomplete",
+    "error",
+    "term.+trunc.",
+    "return",
+    "length",
+]
+
+
+def report_output(result: Report, output: OutputFormat) -> Output:
+    """The success / failure / truncation table, term breakdown, warnings and gates."""
+    if output == "json":
+        return to_json(result.to_dict())
+    rows = [_group_row(g) for g in result.groups]
+    term_rows = [
+        [g.key, outcome, term, fmt_number(value)]
+        for g in result.groups
+        for outcome, terms in sorted(g.term_means.items())
+        for term, value in sorted(terms.items())
+    ]
+    term_headers = ["group", "outcome", "term", "mean total per episode"]
+    warnings = [[w.group, w.code, w.message] for g in result.groups for w in g.warnings]
+    warning_headers = ["group", "warning", "why"]
+    gates = [[r.gate, r.group, "pass" if r.passed else "FAIL", r.message] for r in result.gates]
+    gate_headers = ["gate", "group", "result", "detail"]
+    if output == "markdown":
+        parts = [
+            f"### episode-audit report (by {result.by})\n",
+            markdown_table(REPORT_HEADERS, rows) + "\n",
+        ]
+        if term_rows:
+            parts += [
+                "#### Reward terms by outcome\n",
+                markdown_table(term_headers, term_rows) + "\n",
+            ]
+        if warnings:
+            parts += ["#### Incentive warnings\n", markdown_table(warning_headers, warnings) + "\n"]
+        if gates:
+            parts += ["#### Gates\n", markdown_table(gate_headers, gates) + "\n"]
+        return "\n".join(parts)
+    out: list[RenderableType] = [table(f"Outcomes (by {result.by})", REPORT_HEADERS, rows)]
+    if term_rows:
+        out.append(table("Reward terms by outcome", term_headers, term_rows))
+    if warnings:
+        out.append(table("Incentive warnings", warning_headers, warnings))
+    if gates:
+        out.append(table("Gates", gate_headers, gates))
+    return Group(*out)
