@@ -11,6 +11,7 @@ read it back as Arrow tables.
 
 from . import tasks as _tasks  # noqa: F401 - registers the reference tasks' Gymnasium ids
 from ._version import __version__
+from .check import CheckResult, Finding, check
 from .errors import (
     ConfigurationError,
     CorruptEvidenceError,
@@ -21,13 +22,17 @@ from .errors import (
     ReplayError,
     UnsupportedVersionError,
 )
+from .export import export
 from .format import FORMAT_VERSION
 from .outcomes import Ending, EndingRules, RewardTerms
 from .reader import EPISODE_COLUMNS, EpisodeEvidence, Evidence, open_evidence
 from .recorder import RecordEvidence
 from .records import RunInfo
+from .replay import ReplayResult, replay
+from .report import Gates, Report, report
 
 __all__ = [
+    "CheckResult",
     "ConfigurationError",
     "CorruptEvidenceError",
     "EPISODE_COLUMNS",
@@ -38,13 +43,21 @@ __all__ = [
     "Evidence",
     "EvidenceError",
     "FORMAT_VERSION",
+    "Finding",
+    "Gates",
     "NotEvidenceError",
     "RecordEvidence",
     "RecorderError",
     "ReplayError",
+    "ReplayResult",
+    "Report",
     "RewardTerms",
     "RunInfo",
     "UnsupportedVersionError",
     "__version__",
+    "check",
+    "export",
     "open_evidence",
+    "replay",
+    "report",
 ]

@@ -401,7 +401,9 @@ def show(
 def export(
     paths: PathsArgument,
     out: Annotated[Path, typer.Option("--out", "-o", help="Directory for the Parquet files.")],
-    overwrite: Annotated[bool, typer.Option(help="Replace existing exported files.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace existing exported files.")
+    ] = False,
 ) -> None:
     """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
     from .export import export as run_export
@@ -449,7 +451,9 @@ def record(
     import_: Annotated[
         list[str] | None, typer.Option("--import", help="Import MODULE first (registers envs).")
     ] = None,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing file.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace an existing file.")
+    ] = False,
 ) -> None:
     """Record episodes of a Gymnasium environment with a built-in or given policy."""
     from .recording import record_episodes
@@ -485,7 +489,7 @@ def record(
             )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    emit(summary)
+    emit(str(summary))
 
 
 def main() -> None:

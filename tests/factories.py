@@ -1,0 +1,17 @@
+"""Env factories the CLI tests pass as --env-factory MODULE:CALLABLE."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+
+
+def heavy_cartpole() -> gym.Env[Any, Any]:
+    """CartPole with a heavier pole: same reset, different dynamics."""
+    env = gym.make("CartPole-v1")
+    cp: Any = env.unwrapped
+    cp.masspole = 0.3
+    cp.total_mass = cp.masspole + cp.masscart
+    cp.polemass_length = cp.masspole * cp.length
+    return env
