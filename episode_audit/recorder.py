@@ -465,9 +465,10 @@ class RecordEvidence(
         except (ValueError, TypeError) as exc:
             block.reset_obs.append_null()
             notes.append(_note("observation_invalid", f"reset observation: {exc}"))
-        kept = self._kept_info(info, notes)
-        if kept:
-            block.reset_info[row] = kept
+        if self._track_info or type(info) is not dict:
+            kept = self._kept_info(info, notes)
+            if kept:
+                block.reset_info[row] = kept
         block.resets.append((episode.index, episode.start_ns, episode.seed, rng_json, options_json))
         if notes:
             block.reset_notes[row] = notes
@@ -873,6 +874,8 @@ def _recordable_seed(seed: Any, notes: list[str]) -> int | None:
     """The seed as an int64 for the file, or ``None`` (with a note) when it does not fit."""
     if seed is None:
         return None
+    if type(seed) is int and 0 <= seed <= _INT64_MAX:
+        return seed
     try:
         value = int(seed)
     except (TypeError, ValueError):

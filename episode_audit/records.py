@@ -55,13 +55,16 @@ def _numpy_default(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not JSON-serializable")
 
 
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_numpy_default)
+
+
 def to_json(value: Any) -> bytes:
     """Compact UTF-8 JSON of ``value`` after :func:`to_jsonable`.
 
     The common case (plain values, numpy scalars, no NaN) takes ``json.dumps`` directly.
     """
     try:
-        text = json.dumps(value, separators=(",", ":"), allow_nan=False, default=_numpy_default)
+        text = _ENCODER.encode(value)
     except (ValueError, TypeError):
         text = json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)
     return text.encode()
