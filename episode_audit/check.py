@@ -6,7 +6,8 @@
 
 Steps are checked a block at a time with ``pyarrow.compute`` and numpy over whole columns; no
 Python code runs per step. Per-episode results are merged across blocks, so an episode that
-spans several blocks gets one finding naming its first offending step.
+spans several blocks gets one finding naming its first offending step. Each file is read once:
+the pass over its steps also keeps its resets and episode records for the checks that follow.
 
 Finding codes (``episode`` / ``step`` locate the first occurrence; messages give counts):
 
@@ -366,6 +367,8 @@ class _FileCheck:
     def run(self) -> list[Finding]:
         self.check_file()
         self.check_codecs()
+        # One pass over the file: streaming the steps also keeps the reset blocks and the
+        # episode records, so check_resets() and check_episodes() read no chunk again.
         for batch in self.ev.iter_step_batches(columns=_STEP_COLUMNS):
             self.check_block(batch)
             self.steps += batch.num_rows

@@ -10,26 +10,49 @@ summary: it is scanned linearly, every complete chunk is kept, and :attr:`Eviden
 memory: chunks are read one at a time, and a single episode is read from the chunks its time range
 covers.
 
+Chunks are read by this module's own chunk reader, not record by record through ``mcap``: the
+chunk record's declared sizes are checked against :data:`MAX_RECORD_BYTES` before anything is
+decompressed, the decompressed records are checked against the chunk's CRC, and they are split
+with :mod:`struct`, building objects only for the messages asked for. While the caller works on
+one chunk, a worker thread reads and decompresses the next few (zstd, lz4 and CRC release the
+GIL); at most :data:`READ_AHEAD` chunks are in flight.
+
+One pass over a file is enough for everything: :meth:`Evidence.scan` yields what each chunk
+holds (step blocks, reset blocks, episode records), and any complete pass over the steps
+(``scan``, :meth:`Evidence.iter_step_batches`, :meth:`Evidence.steps`) also keeps the reset
+blocks and the episode records (up to :data:`KEEP_LIMIT` bytes), so a following
+:meth:`Evidence.resets` or :meth:`Evidence.episodes` reads nothing again. Both tables are
+cached. The episodes of a finished file come from their end records alone, without decoding a
+step block; only episodes without an end record (cut off in a torn file) are counted from their
+steps. A finished file's episodes are those with an end record or a reset row.
+
 Every error raised on purpose is an :class:`~episode_audit.errors.EvidenceError` naming the file.
 """
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
+import struct
 import zlib
+from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from io import BytesIO
+from itertools import pairwise
 from pathlib import Path
 from typing import IO, Any
 
 import pyarrow as pa
 import pyarrow.compute as pc
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.records import Channel, Chunk, Footer, Header, Metadata, Schema
+from mcap.stream_reader import StreamReader
 
 from . import format as fmt
 from .columns import TERMS_TYPE
@@ -42,14 +65,42 @@ from .errors import (
 from .records import RunInfo
 from .spaces import SpaceCodec, codec_for, space_from_description
 
-__all__ = ["EPISODE_COLUMNS", "Evidence", "EpisodeEvidence", "open_evidence"]
+__all__ = ["EPISODE_COLUMNS", "ChunkContents", "EpisodeEvidence", "Evidence", "open_evidence"]
 
 MAX_RECORD_BYTES = 1 << 30
 """Largest MCAP record (and decompressed chunk) the reader accepts: 1 GiB."""
 MAX_JSON_BYTES = 1 << 20
 """Largest JSON episode record or metadata value the reader accepts: 1 MiB."""
+READ_AHEAD = 4
+"""Most chunks read and decompressed ahead of the one being worked on."""
+READ_AHEAD_BYTES = 256 << 20
+"""Most decompressed bytes read ahead (one chunk is always allowed, however large)."""
+KEEP_LIMIT = 256 << 20
+"""Most bytes of reset blocks and episode records a pass over the steps keeps for later."""
 
 _MAGIC = b"\x89MCAP0\r\n"
+
+# MCAP record layout (https://mcap.dev/spec): opcode u8, record length u64, then the body.
+_OP_SCHEMA = 0x03
+_OP_CHANNEL = 0x04
+_OP_MESSAGE = 0x05
+_OP_CHUNK = 0x06
+_RECORD_HEAD = struct.Struct("<BQ")
+# Chunk body: message start time, message end time, uncompressed size, uncompressed CRC, and the
+# compression string's length; then the string, the records' length (u64) and the records.
+_CHUNK_HEAD = struct.Struct("<QQQII")
+_U64 = struct.Struct("<Q")
+# Message body: channel id u16, sequence u32, log time u64, publish time u64, then the data.
+_MESSAGE_HEAD = struct.Struct("<H4xQ8x")
+_THREADED_MIN_CHUNKS = 3
+# Blocks are read in place from the decompressed chunk, at any offset: buffers that are not
+# aligned for their type are copied (compute kernels and numpy want them aligned).
+_IPC_OPTIONS = pa.ipc.IpcReadOptions(ensure_alignment=pa.ipc.Alignment.DataTypeSpecific)
+_NOTHING = (False, False, False)
+
+# What a message is to the reader, by its channel's topic.
+_STEPS, _RESETS, _ENDS, _OTHER = 0, 1, 2, -1
+_SLOTS = {fmt.TOPIC_STEPS: _STEPS, fmt.TOPIC_RESETS: _RESETS, fmt.TOPIC_EPISODE_END: _ENDS}
 
 EPISODE_SCHEMA = pa.schema(
     [
@@ -79,6 +130,8 @@ EPISODE_SCHEMA = pa.schema(
 EPISODE_COLUMNS: tuple[str, ...] = tuple(EPISODE_SCHEMA.names)
 """Columns of :meth:`Evidence.episodes`; ``ended`` is False for episodes a torn file cut off."""
 
+_RESET_START_COLUMNS = ["episode", "env_index", fmt.COL_TIME, "seed", "rng_state", "options"]
+
 
 @dataclass(frozen=True)
 class _ChunkRef:
@@ -87,6 +140,111 @@ class _ChunkRef:
     end_time: int
     compressed_size: int
     uncompressed_size: int
+
+
+@dataclass(frozen=True)
+class _RawChunk:
+    """A chunk record's fields, checked, with its still compressed records."""
+
+    compression: str
+    uncompressed_size: int
+    uncompressed_crc: int
+    data: bytes | memoryview
+
+
+@dataclass
+class _Chunk:
+    """The wanted messages of one chunk: step blocks parsed, the rest as raw bytes."""
+
+    ref: _ChunkRef
+    steps: list[tuple[int, pa.RecordBatch]]
+    resets: list[tuple[int, bytes]]
+    records: list[bytes]
+
+
+@dataclass(frozen=True)
+class ChunkContents:
+    """What one chunk of an evidence file holds, as :meth:`Evidence.scan` yields it.
+
+    Attributes:
+        offset: The chunk's byte offset in the file.
+        steps: Its step blocks, in recording order (empty when not asked for).
+        resets: Its reset blocks (empty when not asked for).
+        episode_records: Its episode-end records, raw JSON bytes (empty when not asked for).
+    """
+
+    offset: int
+    steps: list[pa.RecordBatch]
+    resets: list[pa.RecordBatch]
+    episode_records: list[bytes]
+
+
+@dataclass
+class _StepStats:
+    """Per episode: step rows, summed reward and the last block's latest time."""
+
+    lengths: dict[int, int] = field(default_factory=dict)
+    returns: dict[int, float] = field(default_factory=dict)
+    last_time: dict[int, int] = field(default_factory=dict)
+
+    def add(self, batch: pa.RecordBatch) -> None:
+        grouped = (
+            pa.table(
+                {
+                    "e": batch.column(fmt.COL_EPISODE),
+                    "r": batch.column(fmt.COL_REWARD),
+                    "t": batch.column(fmt.COL_TIME),
+                }
+            )
+            .group_by("e")
+            .aggregate([("r", "count"), ("r", "sum"), ("t", "max")])
+        )
+        lengths, returns, last_time = self.lengths, self.returns, self.last_time
+        for e, n, s, t in zip(  # noqa: B905 - equal-length columns of one table
+            grouped.column("e").to_pylist(),
+            grouped.column("r_count").to_pylist(),
+            grouped.column("r_sum").to_pylist(),
+            grouped.column("t_max").to_pylist(),
+        ):
+            lengths[e] = lengths.get(e, 0) + n
+            returns[e] = returns.get(e, 0.0) + (s or 0.0)
+            last_time[e] = t
+
+
+@dataclass
+class _Gathered:
+    """What a complete pass keeps for :meth:`Evidence.resets` and :meth:`Evidence.episodes`.
+
+    With a ``limit``, a pass that was not asked for them stops keeping anything once they
+    exceed it (a later call then reads the file again); their own pass keeps everything.
+    """
+
+    stats: _StepStats | None = None
+    limit: int | None = None
+    resets: list[bytes] = field(default_factory=list)
+    records: list[bytes] = field(default_factory=list)
+    size: int = 0
+    dropped: bool = False
+
+    def add(self, chunk: _Chunk) -> None:
+        if self.dropped:
+            return
+        for _, data in chunk.resets:
+            self.resets.append(data)
+            self.size += len(data)
+        for data in chunk.records:
+            self.records.append(data)
+            self.size += len(data)
+        if self.limit is not None and self.size > self.limit:
+            self.dropped = True
+            self.resets, self.records, self.stats = [], [], None
+            return
+        if self.stats is not None:
+            try:
+                for _, batch in chunk.steps:
+                    self.stats.add(batch)
+            except Exception:
+                self.stats = None  # counted again, with its error, if episodes() needs it
 
 
 @dataclass
@@ -123,6 +281,9 @@ class Evidence:
     _chunks: list[_ChunkRef] = field(repr=False)
     _channels: dict[int, Channel] = field(repr=False)
     _episodes_cache: pa.Table | None = field(default=None, repr=False)
+    _resets_cache: pa.Table | None = field(default=None, repr=False)
+    _gathered: _Gathered | None = field(default=None, repr=False)
+    _stats: _StepStats | None = field(default=None, repr=False)
 
     # --------------------------------------------------------------- raw access
 
@@ -132,52 +293,131 @@ class Evidence:
         except OSError as exc:
             raise EvidenceError(self.path, f"cannot open: {exc.strerror}") from None
 
-    def _read_chunk(self, f: IO[bytes], ref: _ChunkRef) -> list[Any]:
-        f.seek(ref.offset + 1 + 8)
-        try:
-            chunk = Chunk.read(ReadDataStream(f))
-            return _chunk_records(chunk, self.path, ref.offset)
-        except EvidenceError:
-            raise
-        except Exception as exc:
-            raise CorruptEvidenceError(
-                self.path, f"chunk at byte {ref.offset} is unreadable ({type(exc).__name__})"
-            ) from None
-
-    def _messages(
-        self, topics: Iterable[str], *, start_time: int | None = None
-    ) -> Iterator[tuple[str, Message]]:
-        wanted = set(topics)
+    def _decoded(
+        self, refs: Sequence[_ChunkRef], *, ahead: bool
+    ) -> Iterator[tuple[_ChunkRef, bytes]]:
+        """Yield each chunk's decompressed records (with ``ahead``, read ahead in a thread)."""
+        path = self.path
         with self._open() as f:
-            for ref in self._chunks:
-                if start_time is not None and ref.end_time < start_time:
-                    continue
-                for record in self._read_chunk(f, ref):
-                    if isinstance(record, Channel):
-                        self._channels.setdefault(record.id, record)
-                    elif isinstance(record, Message):
-                        channel = self._channels.get(record.channel_id)
-                        if channel is None:
-                            raise CorruptEvidenceError(
-                                self.path,
-                                f"message on unknown channel {record.channel_id} "
-                                f"in chunk at byte {ref.offset}",
-                            )
-                        if channel.topic in wanted:
-                            yield channel.topic, record
+            if not ahead or len(refs) < _THREADED_MIN_CHUNKS:
+                for ref in refs:
+                    yield ref, _decompress(_read_chunk_record(f, ref, path), path, ref.offset)
+                return
+            # One worker: it alone touches ``f``, one chunk after the other.
+            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="episode-audit-read")
+            pending: deque[tuple[_ChunkRef, Future[bytes]]] = deque()
+            in_flight = 0  # decompressed bytes pending
+            try:
+                for ref in refs:
+                    while pending and (
+                        len(pending) >= READ_AHEAD
+                        or in_flight + ref.uncompressed_size > READ_AHEAD_BYTES
+                    ):
+                        done, future = pending.popleft()
+                        in_flight -= done.uncompressed_size
+                        yield done, future.result()
+                    pending.append((ref, pool.submit(_read_and_decompress, f, ref, path)))
+                    in_flight += ref.uncompressed_size
+                while pending:
+                    done, future = pending.popleft()
+                    yield done, future.result()
+            finally:
+                for _, future in pending:
+                    future.cancel()
+                pool.shutdown(wait=True)
 
-    def _batches(
-        self, topic: str, *, start_time: int | None = None
-    ) -> Iterator[tuple[int, pa.RecordBatch]]:
-        for _, message in self._messages([topic], start_time=start_time):
-            yield message.log_time, _arrow_batch(message.data, self.path, topic)
+    def _read(
+        self,
+        *,
+        steps: bool,
+        resets: bool,
+        records: bool,
+        start_time: int | None = None,
+        ahead: bool = True,
+    ) -> Iterator[_Chunk]:
+        """Yield the wanted messages of every chunk (from ``start_time`` on), in file order.
+
+        With ``ahead`` (for whole-file passes) a worker thread reads and decompresses the next
+        chunks while the caller works on this one.
+        """
+        refs = [r for r in self._chunks if start_time is None or r.end_time >= start_time]
+        route = {cid: _SLOTS.get(ch.topic, _OTHER) for cid, ch in self._channels.items()}
+        wanted = (steps, resets, records)
+        path = self.path
+        for ref, data in self._decoded(refs, ahead=ahead):
+            channels: list[Channel] = []
+            messages = _split(data, path, ref.offset, route, wanted, channels, None)
+            for channel in channels:
+                self._channels.setdefault(channel.id, channel)
+            chunk = _Chunk(ref, [], [], [])
+            for slot, log_time, view in messages:
+                if slot == _STEPS:
+                    chunk.steps.append((log_time, _arrow_batch(view, path, fmt.TOPIC_STEPS)))
+                elif slot == _RESETS:
+                    chunk.resets.append((log_time, view.tobytes()))
+                else:
+                    chunk.records.append(view.tobytes())
+            yield chunk
+
+    def _pass(
+        self,
+        *,
+        steps: bool,
+        resets: bool = False,
+        records: bool = False,
+        keep_all: bool = False,
+    ) -> Iterator[_Chunk]:
+        """Read every chunk once; a complete pass also keeps resets and episode records.
+
+        They are kept by the first complete pass only, and (unless ``keep_all``) only up to
+        :data:`KEEP_LIMIT` bytes.
+        """
+        gather = None
+        if self._gathered is None:
+            stats = _StepStats() if steps and not self.finished else None
+            gather = _Gathered(stats, None if keep_all else KEEP_LIMIT)
+        keep = gather is not None
+        for chunk in self._read(steps=steps, resets=resets or keep, records=records or keep):
+            if gather is not None:
+                gather.add(chunk)
+            yield chunk
+        if gather is not None and not gather.dropped:
+            self._gathered = gather
+            if gather.stats is not None:
+                self._stats = gather.stats
+
+    def scan(
+        self, *, steps: bool = True, resets: bool = True, episode_records: bool = True
+    ) -> Iterator[ChunkContents]:
+        """Read each chunk once and yield what it holds, in file order.
+
+        Leave out what you do not need: a chunk's step blocks are only decoded with ``steps``.
+        Episode records are raw JSON bytes, as written (see :meth:`episodes` for the table).
+        A complete scan also fills the caches of :meth:`resets` and :meth:`episodes`.
+        """
+        path = self.path
+        for chunk in self._pass(steps=steps, resets=resets, records=episode_records):
+            yield ChunkContents(
+                chunk.ref.offset,
+                [batch for _, batch in chunk.steps] if steps else [],
+                [_arrow_batch(data, path, fmt.TOPIC_RESETS) for _, data in chunk.resets]
+                if resets
+                else [],
+                list(chunk.records) if episode_records else [],
+            )
 
     # --------------------------------------------------------------- steps
 
     def iter_step_batches(self, columns: Sequence[str] | None = None) -> Iterator[pa.RecordBatch]:
-        """Yield the steps block by block (one record batch per written block)."""
-        for _, batch in self._batches(fmt.TOPIC_STEPS):
-            yield batch if columns is None else batch.select(list(columns))
+        """Yield the steps block by block (one record batch per written block).
+
+        Each chunk is read once; the pass also keeps what :meth:`resets` and :meth:`episodes`
+        need, so calling them afterwards reads nothing again.
+        """
+        selected = None if columns is None else list(columns)
+        for chunk in self._pass(steps=True):
+            for _, batch in chunk.steps:
+                yield batch if selected is None else batch.select(selected)
 
     def steps(
         self,
@@ -200,7 +440,12 @@ class Evidence:
         self, parts: list[pa.RecordBatch], topic: str, columns: Sequence[str] | None
     ) -> pa.Table:
         if parts:
-            return pa.Table.from_batches(parts)
+            try:
+                return pa.Table.from_batches(parts)
+            except pa.ArrowInvalid as exc:
+                raise CorruptEvidenceError(
+                    self.path, f"blocks on {topic} do not share one schema: {str(exc)[:200]}"
+                ) from None
         schema = self._topic_schema(topic)
         if columns is not None:
             schema = pa.schema([schema.field(c) for c in columns])
@@ -221,120 +466,75 @@ class Evidence:
     def _schemas(self) -> dict[int, pa.Schema]:
         return getattr(self, "_schema_cache", {})
 
+    def _gather(self) -> _Gathered:
+        """Reset blocks and episode records, from the last complete pass or a new one."""
+        if self._gathered is None:
+            # A torn file's episodes need counts from its steps: count them in the same pass.
+            for _ in self._pass(steps=not self.finished, keep_all=True):
+                pass
+        assert self._gathered is not None
+        return self._gathered
+
     def resets(self) -> pa.Table:
-        """One row per reset: episode, seed, rng_state (JSON), options (JSON), observation."""
-        parts = [batch for _, batch in self._batches(fmt.TOPIC_RESETS)]
-        return self._table(parts, fmt.TOPIC_RESETS, None)
+        """One row per reset: episode, seed, rng_state (JSON), options (JSON), observation.
+
+        The table is read once and cached.
+        """
+        if self._resets_cache is None:
+            gathered = self._gather()
+            parts = [_arrow_batch(data, self.path, fmt.TOPIC_RESETS) for data in gathered.resets]
+            self._resets_cache = self._table(parts, fmt.TOPIC_RESETS, None)
+            gathered.resets = []
+        return self._resets_cache
 
     # --------------------------------------------------------------- episodes
 
     def episodes(self) -> pa.Table:
-        """One row per episode (see :data:`EPISODE_COLUMNS`), including cut-off ones."""
+        """One row per episode (see :data:`EPISODE_COLUMNS`), including cut-off ones.
+
+        The table is read once and cached. An episode with an end record takes every value
+        from it; one without (cut off by a torn file) is counted from its reset row and steps.
+        """
         if self._episodes_cache is None:
             self._episodes_cache = self._build_episodes()
         return self._episodes_cache
 
     def _build_episodes(self) -> pa.Table:
-        ended: dict[int, dict[str, Any]] = {}
-        starts: dict[int, dict[str, Any]] = {}
-        lengths: dict[int, int] = {}
-        returns: dict[int, float] = {}
-        last_time: dict[int, int] = {}
-        topics = [fmt.TOPIC_EPISODE_END, fmt.TOPIC_RESETS, fmt.TOPIC_STEPS]
-        for topic, message in self._messages(topics):
-            if topic == fmt.TOPIC_EPISODE_END:
-                record = _episode_record(message.data, self.path)
-                ended[int(record["episode"])] = record
-            elif topic == fmt.TOPIC_RESETS:
-                batch = _arrow_batch(message.data, self.path, topic)
-                cols = batch.select(
-                    ["episode", "env_index", fmt.COL_TIME, "seed", "rng_state", "options"]
-                )
-                for row in cols.to_pylist():
-                    starts[int(row["episode"])] = row
-            else:
-                batch = _arrow_batch(message.data, self.path, topic)
-                episode = batch.column(fmt.COL_EPISODE)
-                grouped = (
-                    pa.table(
-                        {
-                            "e": episode,
-                            "r": batch.column(fmt.COL_REWARD),
-                            "t": batch.column(fmt.COL_TIME),
-                        }
-                    )
-                    .group_by("e")
-                    .aggregate([("r", "count"), ("r", "sum"), ("t", "max")])
-                )
-                for e, n, s, t in zip(  # noqa: B905 - equal-length columns of one table
-                    grouped.column("e").to_pylist(),
-                    grouped.column("r_count").to_pylist(),
-                    grouped.column("r_sum").to_pylist(),
-                    grouped.column("t_max").to_pylist(),
-                ):
-                    lengths[e] = lengths.get(e, 0) + n
-                    returns[e] = returns.get(e, 0.0) + (s or 0.0)
-                    last_time[e] = t
-        rows: list[dict[str, Any]] = []
-        for index in sorted(set(ended) | set(starts) | set(lengths)):
-            start = starts.get(index, {})
-            if index in ended:
-                rec = ended[index]
-                error = rec.get("error") or {}
-                rows.append(
-                    {
-                        "episode": index,
-                        "env_index": rec.get("env_index", 0),
-                        "agent": rec.get("agent"),
-                        "seed": rec.get("seed"),
-                        "rng_state": _json_or_none(rec.get("rng_state")),
-                        "options": _json_or_none(rec.get("options")),
-                        "outcome": rec["outcome"],
-                        "failure_label": rec.get("failure_label"),
-                        "truncation_reason": rec.get("truncation_reason"),
-                        "terminated": bool(rec.get("terminated", False)),
-                        "truncated": bool(rec.get("truncated", False)),
-                        "length": int(rec["length"]),
-                        "return": _number(rec.get("return")),
-                        "term_totals": [
-                            (str(k), _number(v)) for k, v in (rec.get("term_totals") or {}).items()
-                        ],
-                        "start_time_ns": rec.get("start_time_ns"),
-                        "end_time_ns": rec.get("end_time_ns"),
-                        "error_type": error.get("type"),
-                        "error_message": error.get("message"),
-                        "error_during": error.get("during"),
-                        "notes": rec.get("notes", 0),
-                        "ended": True,
-                    }
-                )
-            else:
-                rows.append(
-                    {
-                        "episode": index,
-                        "env_index": start.get("env_index", 0),
-                        "agent": None,
-                        "seed": start.get("seed"),
-                        "rng_state": start.get("rng_state"),
-                        "options": start.get("options"),
-                        "outcome": fmt.OUTCOME_INCOMPLETE,
-                        "length": lengths.get(index, 0),
-                        "return": returns.get(index, 0.0),
-                        "term_totals": None,
-                        "start_time_ns": start.get(fmt.COL_TIME),
-                        "end_time_ns": last_time.get(index, start.get(fmt.COL_TIME)),
-                        "terminated": False,
-                        "truncated": False,
-                        "notes": None,
-                        "ended": False,
-                    }
-                )
-        try:
-            return pa.Table.from_pylist(rows, schema=EPISODE_SCHEMA)
-        except (pa.ArrowException, TypeError, ValueError) as exc:
-            raise CorruptEvidenceError(
-                self.path, f"episode records have wrong types: {exc}"
-            ) from None
+        gathered = self._gather()
+        columns = _end_record_columns(gathered.records, self.path)
+        ended = set(columns["episode"])
+        starts = self._starts(self.resets(), ended)
+        stats = _StepStats()
+        if not self.finished or any(index not in ended for index in starts):
+            stats = self._step_stats()
+        table = _episode_table(self.path, columns, starts, stats)
+        gathered.records = []
+        return table
+
+    def _starts(self, resets: pa.Table, ended: set[int]) -> dict[int, Any]:
+        """Reset rows (the last one of each episode) of the episodes without an end record.
+
+        Every reset episode is a key; the value is None for those with an end record.
+        """
+        if resets.num_rows == 0:
+            return {}
+        episodes = resets.column(fmt.COL_EPISODE).to_pylist()
+        starts: dict[int, Any] = dict.fromkeys(episodes)
+        rows = [i for i, e in enumerate(episodes) if e not in ended]
+        if rows:
+            picked = resets.select(_RESET_START_COLUMNS).take(pa.array(rows, pa.int64()))
+            for row in picked.to_pylist():
+                starts[int(row["episode"])] = row
+        return starts
+
+    def _step_stats(self) -> _StepStats:
+        if self._stats is None:
+            stats = _StepStats()
+            for chunk in self._read(steps=True, resets=False, records=False):
+                for _, batch in chunk.steps:
+                    stats.add(batch)
+            self._stats = stats
+        return self._stats
 
     def episode(self, index: int) -> EpisodeEvidence:
         """One episode, read from the chunks its time range covers only."""
@@ -353,19 +553,30 @@ class Evidence:
         end = record.get("end_time_ns") if record.get("ended") else None
         parts: list[pa.RecordBatch] = []
         key = pa.scalar(index, pa.int64())
-        for log_time, batch in self._batches(fmt.TOPIC_STEPS, start_time=start):
-            rows = batch.filter(pc.equal(batch.column(fmt.COL_EPISODE), key))
-            if rows.num_rows:
-                parts.append(rows)
-            if end is not None and log_time >= end:
-                break
         reset = None
-        for log_time, batch in self._batches(fmt.TOPIC_RESETS, start_time=start):
-            rows = batch.filter(pc.equal(batch.column(fmt.COL_EPISODE), key))
-            if rows.num_rows:
-                reset = rows.to_pylist()[0]
-                break
-            if start is not None and log_time > start:
+        steps_done = resets_done = False
+        path = self.path
+        for chunk in self._read(
+            steps=True, resets=True, records=False, start_time=start, ahead=False
+        ):
+            for log_time, batch in [] if steps_done else chunk.steps:
+                rows = batch.filter(pc.equal(batch.column(fmt.COL_EPISODE), key))
+                if rows.num_rows:
+                    parts.append(rows)
+                if end is not None and log_time >= end:
+                    steps_done = True
+                    break
+            for log_time, data in [] if resets_done else chunk.resets:
+                batch = _arrow_batch(data, path, fmt.TOPIC_RESETS)
+                rows = batch.filter(pc.equal(batch.column(fmt.COL_EPISODE), key))
+                if rows.num_rows:
+                    reset = rows.to_pylist()[0]
+                    resets_done = True
+                    break
+                if start is not None and log_time > start:
+                    resets_done = True
+                    break
+            if steps_done and resets_done:
                 break
         return EpisodeEvidence(record, self._table(parts, fmt.TOPIC_STEPS, None), reset)
 
@@ -404,7 +615,219 @@ class Evidence:
         return None
 
 
-# ------------------------------------------------------------------- decoding helpers
+# ------------------------------------------------------------------- chunks
+
+
+def _damaged(path: Path, offset: int, why: str) -> CorruptEvidenceError:
+    return CorruptEvidenceError(path, f"chunk at byte {offset} is damaged ({why})")
+
+
+def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Path) -> _RawChunk:
+    """Read and check the chunk record at ``ref.offset`` (its records still compressed)."""
+    offset = ref.offset
+    try:
+        f.seek(offset)
+        head = f.read(_RECORD_HEAD.size)
+        if len(head) < _RECORD_HEAD.size:
+            raise _damaged(path, offset, "the file ends inside it")
+        opcode, length = _RECORD_HEAD.unpack(head)
+        if opcode != _OP_CHUNK:
+            raise _damaged(path, offset, f"opcode {opcode:#04x} where a chunk record should be")
+        if length > MAX_RECORD_BYTES:
+            raise CorruptEvidenceError(
+                path,
+                f"chunk at byte {offset} declares a record of {length} bytes "
+                f"(limit {MAX_RECORD_BYTES})",
+            )
+        body = f.read(length)
+    except OSError as exc:
+        raise EvidenceError(path, f"cannot read chunk at byte {offset}: {exc}") from None
+    if len(body) < length:
+        raise _damaged(path, offset, "the file ends inside it")
+    try:
+        _, _, size, crc, name_length = _CHUNK_HEAD.unpack_from(body, 0)
+        pos = _CHUNK_HEAD.size + name_length
+        compression = body[_CHUNK_HEAD.size : pos].decode("utf-8")
+        (records_length,) = _U64.unpack_from(body, pos)
+    except (struct.error, UnicodeDecodeError):
+        raise _damaged(path, offset, "its header is cut off or garbled") from None
+    pos += _U64.size
+    if pos + records_length > len(body):
+        raise _damaged(
+            path, offset, f"its records ({records_length} bytes) overrun the {length}-byte record"
+        )
+    view = memoryview(body)[pos : pos + records_length]
+    return _raw_chunk(compression, size, crc, view, path, offset)
+
+
+def _raw_chunk(
+    compression: str, size: int, crc: int, data: bytes | memoryview, path: Path, offset: int
+) -> _RawChunk:
+    if size > MAX_RECORD_BYTES:
+        raise CorruptEvidenceError(
+            path,
+            f"chunk at byte {offset} declares {size} uncompressed bytes (limit {MAX_RECORD_BYTES})",
+        )
+    if compression not in ("", "zstd", "lz4"):
+        raise CorruptEvidenceError(
+            path, f"chunk at byte {offset} uses unknown compression {compression!r}"
+        )
+    return _RawChunk(compression, size, crc, data)
+
+
+def _decompress(raw: _RawChunk, path: Path, offset: int) -> bytes:
+    """Decompress a chunk's records to exactly their declared size and check their CRC."""
+    size = raw.uncompressed_size
+    try:
+        if raw.compression == "zstd":
+            declared = zstandard.frame_content_size(raw.data)
+            if declared not in (-1, size):
+                raise _damaged(
+                    path, offset, f"its zstd frame declares {declared} bytes, the chunk {size}"
+                )
+            data = (
+                zstandard.ZstdDecompressor().decompress(raw.data, max_output_size=size)
+                if size
+                else b""
+            )
+        elif raw.compression == "lz4":
+            decompressor = _lz4_frame(path).LZ4FrameDecompressor()
+            data = decompressor.decompress(raw.data, max_length=size) if size else b""
+            if size and not decompressor.eof:
+                raise _damaged(path, offset, f"its lz4 frame holds more than {size} bytes")
+        else:
+            data = bytes(raw.data)
+    except EvidenceError:
+        raise
+    except Exception as exc:
+        raise _damaged(path, offset, f"{type(exc).__name__}: {str(exc)[:120]}") from None
+    if len(data) != size:
+        raise _damaged(path, offset, f"it holds {len(data)} bytes, not the declared {size}")
+    if raw.uncompressed_crc and zlib.crc32(data) != raw.uncompressed_crc:
+        raise _damaged(path, offset, "CRC mismatch")
+    return data
+
+
+def _read_and_decompress(f: IO[bytes], ref: _ChunkRef, path: Path) -> bytes:
+    return _decompress(_read_chunk_record(f, ref, path), path, ref.offset)
+
+
+def _lz4_frame(path: Path) -> Any:
+    try:
+        return importlib.import_module("lz4.frame")
+    except ImportError:
+        raise EvidenceError(
+            path, "the file is lz4-compressed: reading it needs the lz4 package"
+        ) from None
+
+
+def _split(
+    data: bytes,
+    path: Path,
+    offset: int,
+    route: dict[int, int] | None,
+    wanted: tuple[bool, bool, bool],
+    channels: list[Channel],
+    schemas: list[Schema] | None,
+) -> list[tuple[int, int, memoryview]]:
+    """Split a chunk's decompressed records; return (slot, log time, data) of wanted messages.
+
+    ``route`` maps channel ids to slots and learns the chunk's own Channel records (appended to
+    ``channels``); a message on a channel it does not know is an error. With ``route`` None
+    messages are skipped (channel discovery). Schema records go to ``schemas`` when given.
+    """
+    view = memoryview(data)
+    end = len(data)
+    out: list[tuple[int, int, memoryview]] = []
+    append = out.append
+    record_head = _RECORD_HEAD.unpack_from
+    message_head = _MESSAGE_HEAD.unpack_from
+    keep = (False, *wanted)  # indexed by slot + 1: _OTHER, _STEPS, _RESETS, _ENDS
+    pos = 0
+    try:
+        while pos < end:
+            opcode, length = record_head(data, pos)
+            body = pos + 9
+            stop = body + length
+            if stop > end:
+                raise _damaged(
+                    path, offset, f"a record at {pos} of {length} bytes overruns its {end} bytes"
+                )
+            if opcode == _OP_MESSAGE:
+                if route is not None:
+                    if length < 22:
+                        raise _damaged(path, offset, f"a message at {pos} is {length} bytes")
+                    channel_id, log_time = message_head(data, body)
+                    slot = route.get(channel_id)
+                    if slot is None:
+                        raise CorruptEvidenceError(
+                            path,
+                            f"message on unknown channel {channel_id} in chunk at byte {offset}",
+                        )
+                    if keep[slot + 1]:
+                        append((slot, log_time, view[body + 22 : stop]))
+            elif opcode == _OP_CHANNEL:
+                channel = _inner_record(Channel, data[body:stop], path, offset, pos)
+                channels.append(channel)
+                if route is not None:
+                    route.setdefault(channel.id, _SLOTS.get(channel.topic, _OTHER))
+            elif opcode == _OP_SCHEMA and schemas is not None:
+                schemas.append(_inner_record(Schema, data[body:stop], path, offset, pos))
+            pos = stop
+    except struct.error:
+        raise _damaged(path, offset, f"a record header at {pos} is cut off") from None
+    return out
+
+
+class _Exact(BytesIO):
+    """A stream whose reads return exactly what was asked for, or raise."""
+
+    def read(self, size: int | None = -1) -> bytes:
+        data = super().read(size)
+        if size is not None and size >= 0 and len(data) != size:
+            raise EOFError(f"{size} bytes asked for, {len(data)} left")
+        return data
+
+
+def _inner_record(kind: Any, body: bytes, path: Path, offset: int, pos: int) -> Any:
+    """Read a Channel or Schema record from its body (trailing bytes are allowed, per MCAP)."""
+    try:
+        return kind.read(ReadDataStream(_Exact(body)))
+    except Exception as exc:
+        raise _damaged(
+            path,
+            offset,
+            f"the {kind.__name__} record at {pos} is unreadable ({type(exc).__name__})",
+        ) from None
+
+
+def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordBatch:
+    try:
+        reader = pa.ipc.open_stream(pa.py_buffer(data), options=_IPC_OPTIONS)
+        batch = reader.read_next_batch()
+        batch.validate(full=True)
+    except (pa.ArrowException, StopIteration, ValueError, OSError) as exc:
+        raise CorruptEvidenceError(
+            path, f"a block on {topic} is not a valid Arrow stream: {exc}"
+        ) from None
+    return batch
+
+
+# ------------------------------------------------------------------- episode records
+
+# Configured as json.loads's own decoder; scan_once(text, index) -> (value, end index).
+_SCAN_ONCE: Any = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
+_COMPACT = json.JSONEncoder(separators=(",", ":"))  # as json.dumps(..., separators=(",", ":"))
+_OUTCOMES = frozenset(fmt.OUTCOMES)
+_NO_ERROR: dict[str, Any] = {}
+_NO_TERMS: tuple[tuple[str, float], ...] = ()
+_GROUP = 128  # end records parsed at a time (few parsed objects alive: less GC work)
+_SPLIT_VALUE = "\x00episode-audit:split\x00"
+_SPLIT = f",{_COMPACT.encode(_SPLIT_VALUE)},"
+
+
+class _Irregular(Exception):
+    """The fast parse cannot vouch for a record: parse them one by one instead."""
 
 
 def _number(value: Any) -> float | None:
@@ -428,6 +851,10 @@ def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
         record = json.loads(data)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CorruptEvidenceError(path, f"episode record is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise CorruptEvidenceError(
+            path, "episode record is not valid JSON: nested too deeply"
+        ) from None
     if not isinstance(record, dict):
         raise CorruptEvidenceError(path, "episode record is not a JSON object")
     for key, kind in (("episode", int), ("outcome", str), ("length", int)):
@@ -442,35 +869,201 @@ def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
     return record
 
 
-def _arrow_batch(data: bytes, path: Path, topic: str) -> pa.RecordBatch:
-    try:
-        reader = pa.ipc.open_stream(data)
-        batch = reader.read_next_batch()
-        batch.validate(full=True)
-    except (pa.ArrowException, StopIteration, ValueError, OSError) as exc:
-        raise CorruptEvidenceError(
-            path, f"a block on {topic} is not a valid Arrow stream: {exc}"
-        ) from None
-    return batch
+def _end_record_columns(records: list[bytes], path: Path) -> dict[str, list[Any]]:
+    """Parse and check the episode end records; return their columns, in file order.
+
+    Records are parsed :data:`_GROUP` at a time, each group from one string, and turned into
+    column values at once (so few parsed objects are alive at a time). Whenever the fast parse
+    cannot vouch for giving exactly what ``json.loads`` of each record would (non-ASCII bytes,
+    whitespace around a record, anything invalid or unexpected), the group is parsed record by
+    record with the checks and error messages of :func:`_episode_record`.
+    """
+    columns: dict[str, list[Any]] = {name: [] for name in EPISODE_COLUMNS}
+    for first in range(0, len(records), _GROUP):
+        group = records[first : first + _GROUP]
+        try:
+            parsed = _parse_joined(group)
+        except _Irregular:
+            parsed = [_episode_record(data, path) for data in group]
+        for name, values in _record_columns(parsed).items():
+            columns[name].extend(values)
+    return columns
 
 
-def _chunk_records(chunk: Chunk, path: Path, offset: int) -> list[Any]:
-    if chunk.uncompressed_size > MAX_RECORD_BYTES:
-        raise CorruptEvidenceError(
-            path,
-            f"chunk at byte {offset} declares {chunk.uncompressed_size} uncompressed bytes "
-            f"(limit {MAX_RECORD_BYTES})",
-        )
-    if chunk.compression not in ("", "zstd", "lz4"):
-        raise CorruptEvidenceError(
-            path, f"chunk at byte {offset} uses unknown compression {chunk.compression!r}"
-        )
+def _parse_joined(records: list[bytes]) -> list[dict[str, Any]]:
+    if any(len(data) > MAX_JSON_BYTES for data in records):
+        raise _Irregular
+    blob = b"\n".join(records)
+    if not blob.isascii():
+        raise _Irregular
+    # ASCII: byte and character offsets agree, and json.loads would decode each record as UTF-8.
+    text = blob.decode("ascii")
+    scan = _SCAN_ONCE
+    parsed: list[dict[str, Any]] = []
+    append = parsed.append
+    pos = 0
     try:
-        return breakup_chunk(chunk, validate_crc=True)
-    except Exception as exc:
-        raise CorruptEvidenceError(
-            path, f"chunk at byte {offset} is damaged ({type(exc).__name__}: {str(exc)[:120]})"
-        ) from None
+        for data in records:
+            stop = pos + len(data)
+            # A record that starts with "{" and parses as one value up to its last byte is
+            # what json.loads parses it to: the scanner stops at the object's closing brace.
+            if not data.startswith(b"{"):
+                raise _Irregular
+            record, end = scan(text, pos)
+            if end != stop:
+                raise _Irregular
+            append(record)
+            pos = stop + 1
+    except (StopIteration, ValueError, RecursionError):
+        raise _Irregular from None
+    types = {type(r.get("episode")) for r in parsed} | {type(r.get("length")) for r in parsed}
+    if parsed and types != {int}:
+        raise _Irregular
+    if not all(type(r.get("outcome")) is str and r["outcome"] in _OUTCOMES for r in parsed):
+        raise _Irregular
+    return parsed
+
+
+def _record_columns(recs: list[dict[str, Any]]) -> dict[str, list[Any]]:
+    """The episodes-table values of checked end records (as the rows of ``from_pylist``).
+
+    A record with a value that cannot be converted gets an :class:`_Unconvertible` in its
+    ``ended`` column: it is an error only if no later record of its episode replaces it.
+    """
+    try:
+        return _columns_of(recs)
+    except (AttributeError, TypeError, ValueError):
+        pass
+    columns: dict[str, list[Any]] = {name: [] for name in EPISODE_COLUMNS}
+    for r in recs:
+        try:
+            one = _columns_of([r])
+        except (AttributeError, TypeError, ValueError) as exc:
+            one = _columns_of([{k: r[k] for k in ("episode", "outcome", "length")}])
+            one["ended"] = [_Unconvertible(f"{type(exc).__name__}: {exc}")]
+        for name, values in one.items():
+            columns[name].extend(values)
+    return columns
+
+
+def _columns_of(recs: list[dict[str, Any]]) -> dict[str, list[Any]]:
+    errors = [r.get("error") or _NO_ERROR for r in recs]
+    return {
+        "episode": [r["episode"] for r in recs],
+        "env_index": [r.get("env_index", 0) for r in recs],
+        "agent": [r.get("agent") for r in recs],
+        "seed": [r.get("seed") for r in recs],
+        "rng_state": _json_column([r.get("rng_state") for r in recs]),
+        "options": _json_column([r.get("options") for r in recs]),
+        "outcome": [r["outcome"] for r in recs],
+        "failure_label": [r.get("failure_label") for r in recs],
+        "truncation_reason": [r.get("truncation_reason") for r in recs],
+        "terminated": [bool(r.get("terminated", False)) for r in recs],
+        "truncated": [bool(r.get("truncated", False)) for r in recs],
+        "length": [r["length"] for r in recs],
+        "return": [v if type(v) is float else _number(v) for v in [r.get("return") for r in recs]],
+        "term_totals": [
+            [(str(k), _number(v)) for k, v in t.items()] if t else _NO_TERMS
+            for t in [r.get("term_totals") for r in recs]
+        ],
+        "start_time_ns": [r.get("start_time_ns") for r in recs],
+        "end_time_ns": [r.get("end_time_ns") for r in recs],
+        "error_type": [e.get("type") for e in errors],
+        "error_message": [e.get("message") for e in errors],
+        "error_during": [e.get("during") for e in errors],
+        "notes": [r.get("notes", 0) for r in recs],
+        "ended": [True] * len(recs),
+    }
+
+
+@dataclass(frozen=True)
+class _Unconvertible:
+    """In place of an end record whose values could not be converted (why)."""
+
+    why: str
+
+
+def _episode_table(
+    path: Path, columns: dict[str, list[Any]], starts: dict[int, Any], stats: _StepStats
+) -> pa.Table:
+    """Order the end records' columns by episode and add the episodes that have none."""
+    episodes = columns["episode"]
+    increasing = all(a < b for a, b in pairwise(episodes))
+    ended = set(episodes)
+    missing = (starts.keys() | stats.lengths.keys()) - ended
+    if missing or not increasing:
+        position = {e: i for i, e in enumerate(episodes)}  # a later duplicate wins
+        order = sorted(ended | missing)
+        source = [position.get(e, -1) for e in order]
+        for name, values in columns.items():
+            values.append(None)  # what -1 picks, overwritten below
+            columns[name] = [values[i] for i in source]
+        for pos, index in enumerate(order):
+            if index in missing:
+                for name, value in _incomplete_row(index, starts.get(index), stats).items():
+                    columns[name][pos] = value
+    for kept in columns["ended"]:
+        if isinstance(kept, _Unconvertible):
+            raise CorruptEvidenceError(path, f"episode records have wrong types: {kept.why}")
+    try:
+        return pa.Table.from_arrays(
+            [columns[name] for name in EPISODE_COLUMNS], schema=EPISODE_SCHEMA
+        )
+    except (pa.ArrowException, TypeError, ValueError) as exc:
+        raise CorruptEvidenceError(path, f"episode records have wrong types: {exc}") from None
+
+
+def _incomplete_row(index: int, start: dict[str, Any] | None, stats: _StepStats) -> dict[str, Any]:
+    """The row of an episode without an end record: from its reset row and its steps."""
+    start = start or {}
+    return {
+        "episode": index,
+        "env_index": start.get("env_index", 0),
+        "agent": None,
+        "seed": start.get("seed"),
+        "rng_state": start.get("rng_state"),
+        "options": start.get("options"),
+        "outcome": fmt.OUTCOME_INCOMPLETE,
+        "failure_label": None,
+        "truncation_reason": None,
+        "terminated": False,
+        "truncated": False,
+        "length": stats.lengths.get(index, 0),
+        "return": stats.returns.get(index, 0.0),
+        "term_totals": None,
+        "start_time_ns": start.get(fmt.COL_TIME),
+        "end_time_ns": stats.last_time.get(index, start.get(fmt.COL_TIME)),
+        "error_type": None,
+        "error_message": None,
+        "error_during": None,
+        "notes": None,
+        "ended": False,
+    }
+
+
+def _json_column(values: list[Any]) -> list[str | None]:
+    """``_json_or_none`` of each value, all encoded in one call.
+
+    The values are encoded as one JSON array with a sentinel string between them, and the text
+    split at ``,<sentinel>,``. Inside an encoded value a quote after a comma always opens a
+    string, so the separator occurs there only where a list holds the sentinel string itself
+    (not first, not last); then the count is off and each value is encoded alone.
+    """
+    present = [v for v in values if v is not None]
+    if not present:
+        return [None] * len(values)
+    encode = _COMPACT.encode
+    texts: list[str | None] = []
+    if len(present) > 1:
+        spaced: list[Any] = [_SPLIT_VALUE] * (2 * len(present) - 1)
+        spaced[::2] = present
+        texts = list(encode(spaced)[1:-1].split(_SPLIT))
+    if len(texts) != len(present):
+        texts = [encode(v) for v in present]
+    if len(present) == len(values):
+        return texts
+    it = iter(texts)
+    return [None if v is None else next(it) for v in values]
 
 
 # ------------------------------------------------------------------- opening
@@ -547,7 +1140,7 @@ def _schemas_of(schemas: Iterable[Schema]) -> dict[int, pa.Schema]:
         if schema.encoding == fmt.ARROW_ENCODING:
             try:
                 out[schema.id] = pa.ipc.read_schema(pa.py_buffer(schema.data))
-            except pa.ArrowException:
+            except (pa.ArrowException, OSError, ValueError):
                 continue
     return out
 
@@ -634,11 +1227,17 @@ def _open_linear(f: IO[bytes], path: Path) -> Evidence:
                 )
             )
             if not channels:
-                for inner in _chunk_records(record, path, start):
-                    if isinstance(inner, Channel):
-                        channels[inner.id] = inner
-                    elif isinstance(inner, Schema):
-                        schemas.append(inner)
+                raw = _raw_chunk(
+                    record.compression,
+                    record.uncompressed_size,
+                    record.uncompressed_crc,
+                    record.data,
+                    path,
+                    start,
+                )
+                found: list[Channel] = []
+                _split(_decompress(raw, path, start), path, start, None, _NOTHING, found, schemas)
+                channels.update((channel.id, channel) for channel in found)
         elif isinstance(record, Channel):
             channels[record.id] = record
         elif isinstance(record, Schema):

@@ -1,4 +1,4 @@
-"""`episode_audit.__all__` is exactly the public surface, sorted, and everything in it is documented."""
+"""`episode_audit.__all__` is exactly the public surface, sorted; every export is documented."""
 
 from __future__ import annotations
 

@@ -1,12 +1,18 @@
 from __future__ import annotations
 
+import json
+import random
+import struct
+import zlib
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
-from mcap.writer import Writer
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
 from episode_audit import (
     CorruptEvidenceError,
@@ -17,6 +23,7 @@ from episode_audit import (
     open_evidence,
 )
 from episode_audit import format as fmt
+from episode_audit import reader as reader_module
 
 
 def _record(path: Path, episodes: int = 4, block_steps: int = 16) -> Path:
@@ -167,3 +174,477 @@ def test_tables_are_arrow(recorded: Path) -> None:
     assert isinstance(ev.episodes(), pa.Table)
     assert isinstance(ev.steps(), pa.Table)
     assert isinstance(ev.resets(), pa.Table)
+
+
+# --------------------------------------------------------------------------- fast chunk reader
+
+
+def _rewrite(
+    src: Path,
+    dst: Path,
+    *,
+    compression: CompressionType = CompressionType.NONE,
+    chunk_size: int = 4096,
+    end_records: list[bytes] | None = None,
+) -> Path:
+    """Copy an evidence file through mcap's own reader and writer (records kept in order).
+
+    With ``end_records`` the episode records are replaced by those (written after the rest).
+    """
+    with open(src, "rb") as f:
+        mcap = make_reader(f)
+        header = mcap.get_header()
+        summary = mcap.get_summary()
+        assert summary is not None
+        metadata = {m.name: dict(m.metadata) for m in mcap.iter_metadata()}
+        messages = [(c, m) for _, c, m in mcap.iter_messages(log_time_order=False)]
+    with open(dst, "wb") as out:
+        writer = Writer(out, chunk_size=chunk_size, compression=compression)
+        writer.start(profile=header.profile, library="test")
+        for sid in sorted(summary.schemas):
+            s = summary.schemas[sid]
+            assert writer.register_schema(s.name, s.encoding, s.data) == sid
+        for cid in sorted(summary.channels):
+            c = summary.channels[cid]
+            new = writer.register_channel(c.topic, c.message_encoding, c.schema_id, c.metadata)
+            assert new == cid
+        writer.add_metadata(fmt.METADATA_RUN, metadata[fmt.METADATA_RUN])
+        ends = [cid for cid, c in summary.channels.items() if c.topic == fmt.TOPIC_EPISODE_END]
+        last = 0
+        for channel, message in messages:
+            last = max(last, message.log_time)
+            if end_records is not None and channel.topic == fmt.TOPIC_EPISODE_END:
+                continue
+            writer.add_message(
+                channel.id, message.log_time, message.data, message.publish_time, message.sequence
+            )
+        for i, data in enumerate(end_records or []):
+            writer.add_message(ends[0], last + 1 + i, data, last + 1 + i, 0)
+        writer.add_metadata(fmt.METADATA_RUN_END, metadata[fmt.METADATA_RUN_END])
+        writer.finish()
+    return dst
+
+
+def _mcap_messages(path: Path) -> list[tuple[str, int, bytes]]:
+    """(topic, log time, data) of every message, in file order, as mcap's own reader sees it."""
+    with open(path, "rb") as f:
+        return [
+            (c.topic, m.log_time, m.data)
+            for _, c, m in make_reader(f).iter_messages(log_time_order=False)
+        ]
+
+
+def _split_file(path: Path) -> list[tuple[str, int, bytes]]:
+    """The same, from the fast chunk reader and splitter."""
+    ev = open_evidence(path)
+    topic_of = {0: fmt.TOPIC_STEPS, 1: fmt.TOPIC_RESETS, 2: fmt.TOPIC_EPISODE_END}
+    route = {cid: reader_module._SLOTS.get(c.topic, -1) for cid, c in ev._channels.items()}
+    out = []
+    with open(path, "rb") as f:
+        for ref in ev._chunks:
+            raw = reader_module._read_chunk_record(f, ref, path)
+            data = reader_module._decompress(raw, path, ref.offset)
+            messages = reader_module._split(data, path, ref.offset, route, (True,) * 3, [], None)
+            out.extend((topic_of[slot], t, view.tobytes()) for slot, t, view in messages)
+    return out
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_splitter_equals_mcaps_own_reader(recorded: Path, tmp_path: Path, compression: str) -> None:
+    path = recorded
+    if compression != "zstd":
+        kind = CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE
+        path = _rewrite(recorded, tmp_path / f"{compression}.mcap", compression=kind)
+    expected = _mcap_messages(path)
+    assert len(expected) > 10
+    assert _split_file(path) == expected
+    # and the public single pass yields the same blocks and records, chunk by chunk
+    ev = open_evidence(path)
+    contents = list(ev.scan())
+    assert len(contents) == len(ev._chunks)
+    steps = [b for c in contents for b in c.steps]
+    assert pa.Table.from_batches(steps).equals(open_evidence(recorded).steps())
+    assert pa.Table.from_batches([b for c in contents for b in c.resets]).equals(
+        open_evidence(recorded).resets()
+    )
+    records = [r for c in contents for r in c.episode_records]
+    assert records == [d for t, _, d in expected if t == fmt.TOPIC_EPISODE_END]
+    assert ev.episodes().equals(open_evidence(recorded).episodes())
+
+
+def _patched(data: bytes, at: int, value: bytes) -> bytearray:
+    out = bytearray(data)
+    out[at : at + len(value)] = value
+    return out
+
+
+def _uncompressed_chunk(path: Path, index: int) -> tuple[int, int, int]:
+    """(chunk offset, offset of its records in the file, their length) of an uncompressed file."""
+    ref = open_evidence(path)._chunks[index]
+    data = path.read_bytes()
+    name_length = struct.unpack_from("<I", data, ref.offset + 9 + 28)[0]
+    at = ref.offset + 9 + 32 + name_length
+    (length,) = struct.unpack_from("<Q", data, at)
+    return ref.offset, at + 8, length
+
+
+@pytest.mark.parametrize("fix_crc", [True, False])
+@pytest.mark.parametrize(
+    ("which", "new_length", "why"),
+    [
+        (1, 1 << 40, "overruns"),  # a record claims more bytes than the chunk holds
+        (0, 5, "is 5 bytes"),  # a message too short for its own header
+    ],
+)
+def test_corrupted_record_length_is_corruption(
+    recorded: Path, tmp_path: Path, fix_crc: bool, which: int, new_length: int, why: str
+) -> None:
+    plain = _rewrite(recorded, tmp_path / "plain.mcap")
+    offset, records_at, records_length = _uncompressed_chunk(plain, 1)
+    data = plain.read_bytes()
+    # find the message records of the chunk and corrupt the length of the chosen one
+    pos, found = records_at, []
+    while pos < records_at + records_length:
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        if opcode == 0x05:
+            found.append(pos)
+        pos += 9 + length
+    bad = _patched(data, found[which] + 1, struct.pack("<Q", new_length))
+    crc_at = offset + 9 + 24
+    crc = zlib.crc32(bad[records_at : records_at + records_length]) if fix_crc else 0
+    bad[crc_at : crc_at + 4] = struct.pack("<I", crc)
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(bytes(bad))
+    ev = open_evidence(path)
+    with pytest.raises(CorruptEvidenceError, match=rf"bad\.mcap: chunk at byte {offset} .*{why}"):
+        ev.steps()
+    with pytest.raises(CorruptEvidenceError, match=rf"chunk at byte {offset}"):
+        open_evidence(path).episodes()
+
+
+def test_crc_mismatch_and_bad_sizes_are_corruption(recorded: Path, tmp_path: Path) -> None:
+    plain = _rewrite(recorded, tmp_path / "plain.mcap")
+    offset, records_at, _ = _uncompressed_chunk(plain, 1)
+    data = plain.read_bytes()
+    cases = {
+        "crc.mcap": (_patched(data, records_at + 40, b"\xff"), "CRC mismatch"),
+        "size.mcap": (
+            _patched(data, offset + 9 + 16, struct.pack("<Q", 7)),
+            "holds .* bytes, not the declared 7",
+        ),
+        "huge.mcap": (
+            _patched(data, offset + 9 + 16, struct.pack("<Q", 1 << 50)),
+            "declares 1125899906842624 uncompressed bytes",
+        ),
+    }
+    for name, (bad, why) in cases.items():
+        path = tmp_path / name
+        path.write_bytes(bytes(bad))
+        with pytest.raises(CorruptEvidenceError, match=rf"{name}: chunk at byte {offset} .*{why}"):
+            open_evidence(path).steps()
+
+
+def test_zstd_frame_larger_than_the_chunk_says_is_refused_before_decompressing(
+    recorded: Path, tmp_path: Path
+) -> None:
+    ev = open_evidence(recorded)
+    ref = ev._chunks[1]
+    bad = _patched(recorded.read_bytes(), ref.offset + 9 + 16, struct.pack("<Q", 100))
+    path = tmp_path / "frame.mcap"
+    path.write_bytes(bytes(bad))
+    with pytest.raises(CorruptEvidenceError, match=r"zstd frame declares \d+ bytes, the chunk 100"):
+        open_evidence(path).steps()
+
+
+def test_split_raises_only_corruption_on_garbage(recorded: Path) -> None:
+    path = recorded
+    ev = open_evidence(path)
+    with open(path, "rb") as f:
+        ref = ev._chunks[0]
+        data = reader_module._decompress(
+            reader_module._read_chunk_record(f, ref, path), path, ref.offset
+        )
+    route = {cid: reader_module._SLOTS.get(c.topic, -1) for cid, c in ev._channels.items()}
+    rng = random.Random(0)
+    outcomes = set()
+    for case in range(400):
+        mutated = bytearray(data[: rng.randrange(len(data) + 1)] if case % 2 else data)
+        for _ in range(rng.randrange(1, 4)):
+            at = rng.randrange(len(mutated)) if mutated else 0
+            mutated[at : at + 1] = bytes([rng.randrange(256)])
+        try:
+            reader_module._split(bytes(mutated), path, 7, dict(route), (True,) * 3, [], [])
+            outcomes.add("ok")
+        except CorruptEvidenceError as exc:
+            assert "chunk at byte 7" in str(exc) and "run.mcap" in str(exc)
+            outcomes.add("corrupt")
+    assert outcomes == {"ok", "corrupt"}
+    for garbage in (b"\x05", b"\x05\x00\x00", b"\x05" + struct.pack("<Q", 3) + b"abc"):
+        with pytest.raises(CorruptEvidenceError, match="chunk at byte 7 is damaged"):
+            reader_module._split(garbage, path, 7, dict(route), (True,) * 3, [], [])
+
+
+# --------------------------------------------------------------------------- one pass, caches
+
+
+def _count_chunk_reads(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    reads: list[int] = []
+    original = reader_module._read_chunk_record
+
+    def counting(f: Any, ref: Any, path: Path) -> Any:
+        reads.append(ref.offset)
+        return original(f, ref, path)
+
+    monkeypatch.setattr(reader_module, "_read_chunk_record", counting)
+    return reads
+
+
+def _count_decodes(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    topics: list[str] = []
+    original = reader_module._arrow_batch
+
+    def counting(data: Any, path: Path, topic: str) -> Any:
+        topics.append(topic)
+        return original(data, path, topic)
+
+    monkeypatch.setattr(reader_module, "_arrow_batch", counting)
+    return topics
+
+
+def test_check_reads_each_chunk_once(recorded: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from episode_audit import check
+
+    expected = check([recorded]).to_dict()
+    reads = _count_chunk_reads(monkeypatch)
+    assert check([recorded]).to_dict() == expected
+    assert sorted(reads) == sorted(r.offset for r in open_evidence(recorded)._chunks)
+
+
+def test_episodes_and_resets_are_cached(recorded: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    ev = open_evidence(recorded)
+    reads = _count_chunk_reads(monkeypatch)
+    episodes, resets = ev.episodes(), ev.resets()
+    n = len(reads)
+    assert n == len(ev._chunks)  # one pass for both
+    assert ev.episodes() is episodes and ev.resets() is resets
+    assert len(reads) == n
+
+
+def test_episodes_of_a_finished_file_decode_no_step_block(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    expected = open_evidence(recorded).episodes()
+    topics = _count_decodes(monkeypatch)
+    ev = open_evidence(recorded)
+    assert ev.episodes().equals(expected)
+    assert fmt.TOPIC_STEPS not in topics
+    assert 0 < topics.count(fmt.TOPIC_RESETS) <= len(ev._chunks)
+
+
+def test_a_pass_over_the_steps_keeps_resets_and_episodes_within_a_limit(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ev = open_evidence(recorded)
+    reads = _count_chunk_reads(monkeypatch)
+    list(ev.iter_step_batches())
+    ev.resets()
+    ev.episodes()
+    assert len(reads) == len(ev._chunks)
+    monkeypatch.setattr(reader_module, "KEEP_LIMIT", 100)
+    reads.clear()
+    ev = open_evidence(recorded)
+    for _ in ev._pass(steps=True):  # what iter_step_batches does, with the limit patched
+        pass
+    assert ev._gathered is None
+    ev.episodes()
+    assert len(reads) == 2 * len(ev._chunks)
+
+
+def test_torn_file_episodes_are_counted_from_steps_in_one_pass(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    full = open_evidence(recorded)
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(recorded.read_bytes()[: full._chunks[-3].offset + 20])
+    ev = open_evidence(torn)
+    assert not ev.finished
+    reads = _count_chunk_reads(monkeypatch)
+    steps = ev.steps()
+    episodes = ev.episodes()
+    assert len(reads) == len(ev._chunks)  # counted during the pass over the steps
+    resets = {r["episode"]: r for r in ev.resets().to_pylist()}
+    full_rows = {r["episode"]: r for r in full.episodes().to_pylist()}
+    cut = 0
+    for row in episodes.to_pylist():
+        mine = steps.filter(pc.equal(steps["episode"], row["episode"]))
+        if row["ended"]:
+            assert row == full_rows[row["episode"]]
+            continue
+        cut += 1
+        reset = resets[row["episode"]]
+        assert row["outcome"] == "incomplete" and row["term_totals"] is None
+        assert row["length"] == mine.num_rows
+        assert row["return"] == sum(mine["reward"].to_pylist())
+        assert row["start_time_ns"] == reset["time_ns"]
+        assert row["end_time_ns"] == max(mine["time_ns"].to_pylist(), default=reset["time_ns"])
+        assert (row["seed"], row["rng_state"]) == (reset["seed"], reset["rng_state"])
+    assert cut == 1
+    # and the same without a pass over the steps first (one pass of its own)
+    reads.clear()
+    assert open_evidence(torn).episodes().equals(episodes)
+    assert len(reads) == len(ev._chunks)
+
+
+# --------------------------------------------------------------------------- episode records
+
+
+def _reference_episodes(records: list[bytes]) -> pa.Table:
+    """The episodes table of a finished file, row by row, as the reader always built it."""
+    ended: dict[int, dict[str, Any]] = {}
+    for data in records:
+        record = json.loads(data)
+        ended[record["episode"]] = record
+
+    def number(v: Any) -> float | None:
+        return None if v is None else float(v)
+
+    def text(v: Any) -> str | None:
+        return None if v is None else json.dumps(v, separators=(",", ":"))
+
+    rows = []
+    for index in sorted(ended):
+        rec = ended[index]
+        error = rec.get("error") or {}
+        rows.append(
+            {
+                "episode": index,
+                "env_index": rec.get("env_index", 0),
+                "agent": rec.get("agent"),
+                "seed": rec.get("seed"),
+                "rng_state": text(rec.get("rng_state")),
+                "options": text(rec.get("options")),
+                "outcome": rec["outcome"],
+                "failure_label": rec.get("failure_label"),
+                "truncation_reason": rec.get("truncation_reason"),
+                "terminated": bool(rec.get("terminated", False)),
+                "truncated": bool(rec.get("truncated", False)),
+                "length": int(rec["length"]),
+                "return": number(rec.get("return")),
+                "term_totals": [
+                    (str(k), number(v)) for k, v in (rec.get("term_totals") or {}).items()
+                ],
+                "start_time_ns": rec.get("start_time_ns"),
+                "end_time_ns": rec.get("end_time_ns"),
+                "error_type": error.get("type"),
+                "error_message": error.get("message"),
+                "error_during": error.get("during"),
+                "notes": rec.get("notes", 0),
+                "ended": True,
+            }
+        )
+    return pa.Table.from_pylist(rows, schema=reader_module.EPISODE_SCHEMA)
+
+
+def _odd_records(count: int) -> list[bytes]:
+    """Episode records the fast path must hand over to the record-by-record one, and others."""
+    sentinel = reader_module._SPLIT_VALUE
+    records = []
+    for i in range(count):
+        record: dict[str, Any] = {
+            "episode": i,
+            "env_index": 0,
+            "seed": None if i % 2 else i,
+            "outcome": ["success", "failure", "truncated", "incomplete", "error"][i % 5],
+            "terminated": i % 3 == 0,
+            "truncated": i % 4 == 0,
+            "length": i,
+            "return": [1.5, "nan", "-inf", 2, None][i % 5],
+            "term_totals": {} if i % 2 else {"a": 0.25, "b": "nan", "c": None},
+            "start_time_ns": 10 * i,
+            "end_time_ns": 10 * i + 5,
+            "error": {"type": "ValueError", "message": 'bad "x"\n', "during": "step"}
+            if i % 5 == 4
+            else None,
+            "notes": i % 2,
+            "rng_state": {"state": {"state": 2**127 + i, "inc": 3}, "f": [0.1, 1e300]}
+            if i % 3
+            else None,
+        }
+        if i % 7 == 0:
+            record["options"] = {"x": [1, sentinel, 2], "y": "é"}  # sentinel, non-ASCII
+        if i % 11 == 0:
+            del record["env_index"], record["notes"]
+        data = json.dumps(record, separators=(",", ":")).encode()
+        if i == 40:
+            data = b" " + data + b"\n"  # whitespace json.loads accepts
+        if i == 49:
+            data = json.dumps(record, ensure_ascii=False).encode()  # UTF-8, spaces
+        records.append(data)
+    # a duplicate (the later one wins), out of order
+    records.insert(30, records[60].replace(b'"length":60', b'"length":61'))
+    records.append(records[5].replace(b'"length":5', b'"length":6'))
+    return records
+
+
+def test_episode_records_match_the_row_by_row_reading(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ev = open_evidence(recorded)
+    records = [r for c in ev.scan(steps=False) for r in c.episode_records]
+    assert ev.episodes().equals(_reference_episodes(records))
+    odd = _odd_records(300)
+    path = _rewrite(recorded, tmp_path / "odd.mcap", end_records=odd)
+    one_by_one: list[bytes] = []
+    original = reader_module._episode_record
+
+    def counting(data: bytes, path: Path) -> Any:
+        one_by_one.append(data)
+        return original(data, path)
+
+    monkeypatch.setattr(reader_module, "_episode_record", counting)
+    table = open_evidence(path).episodes()
+    assert 0 < len(one_by_one) < len(odd)  # the groups with odd records only
+    assert repr(table.to_pylist()) == repr(_reference_episodes(odd).to_pylist())
+    lengths = table.column("length").to_pylist()
+    assert (lengths[5], lengths[60]) == (6, 60)  # the later of two records of an episode wins
+
+
+@pytest.mark.parametrize(
+    ("record", "message"),
+    [
+        (b'{"episode":1,"outcome":"success"', "episode record is not valid JSON"),
+        (b'{"episode":1,"outcome":"success","length":1}{}', "episode record is not valid JSON"),
+        (b'[{"episode":1}]', "episode record is not a JSON object"),
+        (b'{"episode":true,"outcome":"success","length":1}', "lacks 'episode' of type int"),
+        (b'{"episode":1,"outcome":"success"}', "lacks 'length' of type int"),
+        (b'{"episode":1,"outcome":"won","length":1}', "unknown outcome 'won'"),
+        (b'{"episode":1,"outcome":"success","length":1,"seed":"s"}', "have wrong types"),
+        (b'{"episode":1,"outcome":"success","length":1,"return":"x"}', "have wrong types"),
+        (b'{"episode":1,"outcome":"success","length":1,"error":[1]}', "have wrong types"),
+        (b'{"episode":1,"outcome":"success","length":1,"x":"' + b"y" * (1 << 20) + b'"}', "1 MiB"),
+    ],
+)
+def test_bad_episode_records_are_corruption(
+    recorded: Path, tmp_path: Path, record: bytes, message: str
+) -> None:
+    good = [r for c in open_evidence(recorded).scan(steps=False) for r in c.episode_records]
+    record = record.replace(b'"episode":1,', b'"episode":99,')
+    path = _rewrite(recorded, tmp_path / "bad.mcap", end_records=[*good, record, *good])
+    with pytest.raises(CorruptEvidenceError, match=rf"bad\.mcap: .*{message}"):
+        open_evidence(path).episodes()
+
+
+def test_a_replaced_record_with_wrong_types_is_no_error(recorded: Path, tmp_path: Path) -> None:
+    good = [r for c in open_evidence(recorded).scan(steps=False) for r in c.episode_records]
+    bad = b'{"episode":0,"outcome":"success","length":1,"return":"x","error":[1]}'
+    path = _rewrite(recorded, tmp_path / "replaced.mcap", end_records=[bad, *good])
+    assert open_evidence(path).episodes().equals(open_evidence(recorded).episodes())
+
+
+def test_json_column_splits_one_encoding_and_falls_back() -> None:
+    values = [None, {"a": [1, 2.5]}, "s", None, [1, reader_module._SPLIT_VALUE, 2], 3]
+    assert reader_module._json_column(values) == [
+        None if v is None else json.dumps(v, separators=(",", ":")) for v in values
+    ]
+    assert reader_module._json_column([None, None]) == [None, None]
+    assert reader_module._json_column([{"x": 1}]) == ['{"x":1}']
