@@ -43,12 +43,12 @@ __all__ = [
     "OUTCOME_TRUNCATED",
     "REASON_EXTERNAL",
     "REASON_TIME_LIMIT",
+    "SCHEMA_EPISODE_BLOCK",
     "SCHEMA_EPISODE_END",
-    "SCHEMA_EPISODE_START",
     "SCHEMA_RESET_BLOCK",
     "SCHEMA_STEP_BLOCK",
     "TOPIC_EPISODE_END",
-    "TOPIC_EPISODE_START",
+    "TOPIC_EPISODES",
     "TOPIC_RESETS",
     "TOPIC_STEPS",
     "UNLABELED",
@@ -69,13 +69,14 @@ JSONSCHEMA_ENCODING: Final = "jsonschema"
 
 TOPIC_STEPS: Final = "episode_audit/steps"
 TOPIC_RESETS: Final = "episode_audit/resets"
-TOPIC_EPISODE_START: Final = "episode_audit/episode_start"
 TOPIC_EPISODE_END: Final = "episode_audit/episode_end"
+TOPIC_EPISODES: Final = "episode_audit/episodes"
+"""Arrow blocks of the same episode records as ``TOPIC_EPISODE_END``, for fast machine reads."""
 
 SCHEMA_STEP_BLOCK: Final = "episode_audit.StepBlock"
 SCHEMA_RESET_BLOCK: Final = "episode_audit.ResetBlock"
-SCHEMA_EPISODE_START: Final = "episode_audit.EpisodeStart"
 SCHEMA_EPISODE_END: Final = "episode_audit.EpisodeEnd"
+SCHEMA_EPISODE_BLOCK: Final = "episode_audit.EpisodeBlock"
 
 METADATA_RUN: Final = "episode_audit.run"
 METADATA_RUN_END: Final = "episode_audit.run_end"

@@ -45,6 +45,7 @@ from itertools import pairwise
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import zstandard
@@ -55,13 +56,13 @@ from mcap.records import Channel, Chunk, Footer, Header, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from . import format as fmt
-from .columns import TERMS_TYPE
 from .errors import (
     CorruptEvidenceError,
     EvidenceError,
     NotEvidenceError,
     UnsupportedVersionError,
 )
+from .records import EPISODE_ARROW_SCHEMA as EPISODE_SCHEMA
 from .records import RunInfo
 from .spaces import SpaceCodec, codec_for, space_from_description
 
@@ -101,32 +102,9 @@ _NOTHING = (False, False, False)
 # What a message is to the reader, by its channel's topic.
 _STEPS, _RESETS, _ENDS, _OTHER = 0, 1, 2, -1
 _SLOTS = {fmt.TOPIC_STEPS: _STEPS, fmt.TOPIC_RESETS: _RESETS, fmt.TOPIC_EPISODE_END: _ENDS}
+# Files with Arrow episode blocks: read those, skip the JSON copies of the same records.
+_ARROW_SLOTS = {fmt.TOPIC_STEPS: _STEPS, fmt.TOPIC_RESETS: _RESETS, fmt.TOPIC_EPISODES: _ENDS}
 
-EPISODE_SCHEMA = pa.schema(
-    [
-        pa.field("episode", pa.int64(), nullable=False),
-        pa.field("env_index", pa.int64()),
-        pa.field("agent", pa.string()),
-        pa.field("seed", pa.int64()),
-        pa.field("rng_state", pa.string()),
-        pa.field("options", pa.string()),
-        pa.field("outcome", pa.string(), nullable=False),
-        pa.field("failure_label", pa.string()),
-        pa.field("truncation_reason", pa.string()),
-        pa.field("terminated", pa.bool_()),
-        pa.field("truncated", pa.bool_()),
-        pa.field("length", pa.int64(), nullable=False),
-        pa.field("return", pa.float64()),
-        pa.field("term_totals", TERMS_TYPE),
-        pa.field("start_time_ns", pa.int64()),
-        pa.field("end_time_ns", pa.int64()),
-        pa.field("error_type", pa.string()),
-        pa.field("error_message", pa.string()),
-        pa.field("error_during", pa.string()),
-        pa.field("notes", pa.int64()),
-        pa.field("ended", pa.bool_(), nullable=False),
-    ]
-)
 EPISODE_COLUMNS: tuple[str, ...] = tuple(EPISODE_SCHEMA.names)
 """Columns of :meth:`Evidence.episodes`; ``ended`` is False for episodes a torn file cut off."""
 
@@ -170,7 +148,9 @@ class ChunkContents:
         offset: The chunk's byte offset in the file.
         steps: Its step blocks, in recording order (empty when not asked for).
         resets: Its reset blocks (empty when not asked for).
-        episode_records: Its episode-end records, raw JSON bytes (empty when not asked for).
+        episode_records: Its episode records, raw: Arrow IPC episode blocks for files that have
+            them (topic ``episode_audit/episodes``), else JSON end records (empty when not
+            asked for).
     """
 
     offset: int
@@ -326,6 +306,13 @@ class Evidence:
                     future.cancel()
                 pool.shutdown(wait=True)
 
+    @property
+    def _slots(self) -> dict[str, int]:
+        """Topic -> slot; episode records come from Arrow blocks when the file has them."""
+        if any(ch.topic == fmt.TOPIC_EPISODES for ch in self._channels.values()):
+            return _ARROW_SLOTS
+        return _SLOTS
+
     def _read(
         self,
         *,
@@ -341,12 +328,13 @@ class Evidence:
         chunks while the caller works on this one.
         """
         refs = [r for r in self._chunks if start_time is None or r.end_time >= start_time]
-        route = {cid: _SLOTS.get(ch.topic, _OTHER) for cid, ch in self._channels.items()}
+        slots = self._slots
+        route = {cid: slots.get(ch.topic, _OTHER) for cid, ch in self._channels.items()}
         wanted = (steps, resets, records)
         path = self.path
         for ref, data in self._decoded(refs, ahead=ahead):
             channels: list[Channel] = []
-            messages = _split(data, path, ref.offset, route, wanted, channels, None)
+            messages = _split(data, path, ref.offset, route, wanted, channels, None, slots)
             for channel in channels:
                 self._channels.setdefault(channel.id, channel)
             chunk = _Chunk(ref, [], [], [])
@@ -392,7 +380,8 @@ class Evidence:
         """Read each chunk once and yield what it holds, in file order.
 
         Leave out what you do not need: a chunk's step blocks are only decoded with ``steps``.
-        Episode records are raw JSON bytes, as written (see :meth:`episodes` for the table).
+        Episode records are raw, as written (see :class:`ChunkContents`; :meth:`episodes`
+        gives the table).
         A complete scan also fills the caches of :meth:`resets` and :meth:`episodes`.
         """
         path = self.path
@@ -501,9 +490,20 @@ class Evidence:
 
     def _build_episodes(self) -> pa.Table:
         gathered = self._gather()
-        columns = _end_record_columns(gathered.records, self.path)
-        ended = set(columns["episode"])
-        starts = self._starts(self.resets(), ended)
+        if self._slots is _ARROW_SLOTS:
+            table = _episode_blocks(gathered.records, self.path)
+            episodes = table.column("episode").to_numpy()
+            ended = set(episodes.tolist())
+            starts = self._starts(self.resets(), ended)
+            increasing = bool((episodes[1:] > episodes[:-1]).all())
+            if self.finished and increasing and all(i in ended for i in starts):
+                gathered.records = []
+                return table  # the common case: the blocks are the table
+            columns = {name: table.column(name).to_pylist() for name in EPISODE_COLUMNS}
+        else:
+            columns = _end_record_columns(gathered.records, self.path)
+            ended = set(columns["episode"])
+            starts = self._starts(self.resets(), ended)
         stats = _StepStats()
         if not self.finished or any(index not in ended for index in starts):
             stats = self._step_stats()
@@ -729,6 +729,7 @@ def _split(
     wanted: tuple[bool, bool, bool],
     channels: list[Channel],
     schemas: list[Schema] | None,
+    slots: dict[str, int] = _SLOTS,
 ) -> list[tuple[int, int, memoryview]]:
     """Split a chunk's decompressed records; return (slot, log time, data) of wanted messages.
 
@@ -770,7 +771,7 @@ def _split(
                 channel = _inner_record(Channel, data[body:stop], path, offset, pos)
                 channels.append(channel)
                 if route is not None:
-                    route.setdefault(channel.id, _SLOTS.get(channel.topic, _OTHER))
+                    route.setdefault(channel.id, slots.get(channel.topic, _OTHER))
             elif opcode == _OP_SCHEMA and schemas is not None:
                 schemas.append(_inner_record(Schema, data[body:stop], path, offset, pos))
             pos = stop
@@ -867,6 +868,23 @@ def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
             path, f"episode record has unknown outcome {record['outcome']!r}"
         )
     return record
+
+
+def _episode_blocks(blocks: list[bytes], path: Path) -> pa.Table:
+    """The episode Arrow blocks as one table of :data:`EPISODE_SCHEMA` (``ended`` all true)."""
+    block_schema = pa.schema([f for f in EPISODE_SCHEMA if f.name != "ended"])
+    batches = []
+    for data in blocks:
+        batch = _arrow_batch(data, path, fmt.TOPIC_EPISODES)
+        if batch.schema.names != block_schema.names:
+            raise CorruptEvidenceError(path, "an episode block does not have the episode columns")
+        try:
+            batches.append(batch.cast(block_schema))
+        except (pa.ArrowException, TypeError, ValueError) as exc:
+            raise CorruptEvidenceError(path, f"an episode block has wrong types: {exc}") from None
+    table = pa.Table.from_batches(batches, schema=block_schema).combine_chunks()
+    ended = pa.array(np.ones(table.num_rows, dtype=np.bool_))
+    return table.append_column(EPISODE_SCHEMA.field("ended"), ended)
 
 
 def _end_record_columns(records: list[bytes], path: Path) -> dict[str, list[Any]]:

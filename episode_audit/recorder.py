@@ -35,7 +35,7 @@ from ._version import __version__
 from .columns import TERMS_TYPE, terms_column
 from .errors import ConfigurationError, RecorderError
 from .outcomes import EndingRules, RewardTerms, TermsFn, find_time_limit, time_limit_hit
-from .records import EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
+from .records import EPISODE_ARROW_SCHEMA, EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
 from .seeding import capture_rng_state
 from .spaces import ColumnBuffer, SpaceCodec, codec_for, describe_space
 from .writer import EvidenceWriter
@@ -326,6 +326,8 @@ class RecordEvidence(
         )
         self._step_schema = step_schema
         self._reset_schema = reset_schema
+        self._episode_schema = pa.schema([f for f in EPISODE_ARROW_SCHEMA if f.name != "ended"])
+        self._pending_episodes: list[tuple[dict[str, Any], bytes | None]] = []
 
         spec_json: dict[str, Any] | None = None
         spec_note: str | None = None
@@ -379,6 +381,9 @@ class RecordEvidence(
             )
             self._episodes_channel = self._writer.register_json_channel(
                 fmt.TOPIC_EPISODE_END, fmt.SCHEMA_EPISODE_END, EPISODE_SCHEMA
+            )
+            self._episode_blocks_channel = self._writer.register_arrow_channel(
+                fmt.TOPIC_EPISODES, fmt.SCHEMA_EPISODE_BLOCK, self._episode_schema, {"agent": ""}
             )
             self._writer.flush()
         except BaseException:
@@ -741,10 +746,61 @@ class RecordEvidence(
                 "message": str(exc)[:2000],
                 "during": during,
             }
-        # rng_state is already JSON (made once at reset): splice it in, do not re-encode.
-        data = to_json(record)[:-1] + b',"rng_state":' + (episode.rng_json or b"null") + b"}"
-        self._writer.write_json(self._episodes_channel, data, end_ns + self._wall_offset)
+        # Encoded and written at the next flush, all together (see _write_episodes).
+        self._pending_episodes.append((record, episode.rng_json))
         self._counts["episodes"] += 1
+
+    def _write_episodes(self) -> None:
+        """Write the episodes ended since the last flush: JSON messages and one Arrow block."""
+        pending = self._pending_episodes
+        if not pending:
+            return
+        self._pending_episodes = []
+        write_json = self._writer.write_json
+        channel = self._episodes_channel
+        options: list[str | None] = []
+        for record, rng_json in pending:
+            # rng_state is already JSON (made once at reset): splice it in, do not re-encode.
+            data = to_json(record)[:-1] + b',"rng_state":' + (rng_json or b"null") + b"}"
+            write_json(channel, data, record["end_time_ns"])
+            opts = record["options"]
+            options.append(None if opts is None else to_json(opts).decode())
+        records = [r for r, _ in pending]
+
+        def col(name: str) -> list[Any]:
+            return [r[name] for r in records]
+
+        errors = [r["error"] or {} for r in records]
+        n = len(records)
+        columns = {
+            "episode": col("episode"),
+            "env_index": col("env_index"),
+            "agent": col("agent"),
+            "seed": col("seed"),
+            "rng_state": [None if j is None else j.decode() for _, j in pending],
+            "options": options,
+            "outcome": col("outcome"),
+            "failure_label": col("failure_label"),
+            "truncation_reason": col("truncation_reason"),
+            "terminated": col("terminated"),
+            "truncated": col("truncated"),
+            "length": col("length"),
+            "return": col("return"),
+            "start_time_ns": col("start_time_ns"),
+            "end_time_ns": col("end_time_ns"),
+            "error_type": [e.get("type") for e in errors],
+            "error_message": [e.get("message") for e in errors],
+            "error_during": [e.get("during") for e in errors],
+            "notes": col("notes"),
+        }
+        arrays = [
+            terms_column(n, dict(enumerate(col("term_totals"))))
+            if name == "term_totals"
+            else pa.array(columns[name], self._episode_schema.field(name).type)
+            for name in self._episode_schema.names
+        ]
+        batch = pa.RecordBatch.from_arrays(arrays, schema=self._episode_schema)
+        self._writer.write_batch(self._episode_blocks_channel, batch, records[-1]["end_time_ns"])
 
     # ------------------------------------------------------------------ flushing
 
@@ -803,6 +859,7 @@ class RecordEvidence(
             ]
             batch = pa.RecordBatch.from_arrays(columns, schema=self._reset_schema)
             self._writer.write_batch(self._resets_channel, batch, int(times[-1]))
+        self._write_episodes()
         self._writer.flush()
         self._last_flush = self._clock()
 
