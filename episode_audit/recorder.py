@@ -129,6 +129,7 @@ class _Block:
     __slots__ = (
         "act",
         "ends",
+        "episodes",
         "flags",
         "info",
         "notes",
@@ -139,7 +140,10 @@ class _Block:
         "resets",
         "rewards",
         "segments",
-        "terms",
+        "term_counts",
+        "term_keys",
+        "term_rows",
+        "term_vals",
         "times",
     )
 
@@ -150,12 +154,18 @@ class _Block:
         self.act: ColumnBuffer = act_codec.new_buffer()
         self.times = array("q")  # monotonic ns of each step
         self.rewards = array("d")
-        # (first row, episode index, step index of that row): a new one at every reset
-        self.segments: list[tuple[int, int, int]] = []
+        # (first row, episode index, step index of that row, counted): a new one at every
+        # reset; rows of a segment that is not counted were stepped after their episode ended.
+        self.segments: list[tuple[int, int, int, bool]] = []
+        self.episodes: dict[int, _Episode] = {}
         if episode is not None:
-            self.segments.append((0, episode.index, episode.steps))
+            self.add_segment(0, episode, episode.steps, not episode.ended)
         self.flags: dict[int, tuple[bool, bool]] = {}  # rows with terminated or truncated set
-        self.terms: dict[int, dict[str, Any]] = {}
+        # reward terms, flat: for each row that has terms, its row, count, keys and values
+        self.term_rows = array("q")
+        self.term_counts = array("q")
+        self.term_keys: list[Any] = []
+        self.term_vals = array("d")
         self.ends: dict[int, tuple[str, str | None]] = {}
         self.info: dict[int, dict[str, Any]] = {}
         self.notes: dict[int, list[str]] = {}
@@ -164,6 +174,21 @@ class _Block:
         self.resets: list[tuple[int, int, int | None, str | None, str | None]] = []
         self.reset_info: dict[int, dict[str, Any]] = {}
         self.reset_notes: dict[int, list[str]] = {}
+
+    def add_segment(self, row: int, episode: _Episode, first_step: int, counted: bool) -> None:
+        self.segments.append((row, episode.index, first_step, counted))
+        self.episodes[episode.index] = episode
+
+    def next_step_index(self) -> int:
+        """The step index the next row of the last segment's episode gets."""
+        row, _, first, _ = self.segments[-1]
+        return first + len(self.times) - row
+
+    def add_terms(self, row: int, keys: Any, values: list[float]) -> None:
+        self.term_rows.append(row)
+        self.term_counts.append(len(values))
+        self.term_keys.extend(keys)
+        self.term_vals.extend(values)
 
 
 def _info_column(
@@ -286,6 +311,9 @@ class RecordEvidence(
         self._keep_all_info = info_keys == "all"
         self._track_info = bool(self._keep_all_info or self._info_keys)
         self._extract_terms = self._terms_rule.extract
+        self._terms_auto = self._terms_rule.source == "auto"
+        self._terms_dict_key = self._terms_rule.dict_key
+        self._terms_prefix = self._terms_rule.prefix
         self._block_steps = int(block_steps)
         self._flush_ns = int(flush_every_s * 1e9)
 
@@ -327,7 +355,7 @@ class RecordEvidence(
         self._step_schema = step_schema
         self._reset_schema = reset_schema
         self._episode_schema = pa.schema([f for f in EPISODE_ARROW_SCHEMA if f.name != "ended"])
-        self._pending_episodes: list[tuple[dict[str, Any], bytes | None]] = []
+        self._pending_episodes: list[tuple[_Episode, dict[str, Any]]] = []
 
         spec_json: dict[str, Any] | None = None
         spec_note: str | None = None
@@ -443,7 +471,7 @@ class RecordEvidence(
                 recorded_options = {"repr": _short(options)}
         episode = _Episode(index, recorded_seed, rng_state, recorded_options, self._clock())
         self._episode = episode
-        self._block.segments.append((len(self._block.times), index, 0))
+        self._block.add_segment(len(self._block.times), episode, 0, True)
         try:
             obs, info = self.env.reset(seed=seed, options=options)
         except Exception as exc:
@@ -501,36 +529,36 @@ class RecordEvidence(
         except Exception as exc:
             self._on_step_error(exc)
             raise
-        # The hot path: plain appends only. Anything unusual goes to _record_step_slow.
+        # The hot path: appends only; lengths, returns and term totals are derived at flush.
+        # Anything unusual goes to _record_step_slow.
         try:
             obs, reward, terminated, truncated, info = result
             episode = self._episode
-            block = self._block
-            r = float(reward)
-            terms = self._extract_terms(info) if info else None
-            if terms is not None:
-                checked = [(k, float(v)) for k, v in terms.items() if k.__class__ is str]
-                if len(checked) != len(terms):
-                    raise TypeError("reward term names must be strings")
             if episode is None or episode.ended or self._track_info:
                 raise LookupError  # not the common case: take the slow path
+            block = self._block
+            terms = None
+            if info:
+                if self._terms_auto:
+                    terms = info.get(self._terms_dict_key)
+                    if terms is None:
+                        prefix = self._terms_prefix
+                        terms = {k: v for k, v in info.items() if k.startswith(prefix)} or None
+                else:
+                    terms = self._extract_terms(info)
+            if terms is not None:
+                values = [float(v) for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
                 raise LookupError  # a value was cast: note it on the slow path
+            block.rewards.append(reward)  # type: ignore[arg-type]  # may raise: slow path
         except Exception:
             self._record_step_slow(result, action)
             return result
-        now = self._clock()
         row = len(block.times)
-        block.times.append(now)
-        block.rewards.append(r)
-        episode.steps += 1
-        episode.ret += r
-        episode.end_ns = now
         if terms is not None:
-            block.terms[row] = terms
-            totals = episode.totals
-            for key, number in checked:
-                totals[key] = totals.get(key, 0.0) + number
+            block.add_terms(row, terms, values)
+        now = self._clock()
+        block.times.append(now)  # commits the row
         if terminated or truncated:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
         if row + 1 >= self._block_steps or now - self._last_flush >= self._flush_ns:
@@ -551,6 +579,7 @@ class RecordEvidence(
         rows = len(block.times)
         block.obs.truncate(rows)
         block.act.truncate(rows)
+        del block.rewards[rows:]
         notes: list[str] = []
         try:
             obs, reward, terminated, truncated, info = result
@@ -571,7 +600,7 @@ class RecordEvidence(
                 )
             )
             terminated = truncated = False
-        r, terms = self._slow_values(episode, reward, info, notes)
+        r, terms = self._slow_values(reward, info, notes)
         try:
             cast = block.obs.append(obs)
             if cast is not None:
@@ -592,16 +621,22 @@ class RecordEvidence(
                 block.info[rows] = kept
         if episode.ended:
             notes.append(_note("step_after_end", f"episode {episode.index} had already ended"))
-        now = self._clock()
-        block.times.append(now)
+            last = block.segments[-1] if block.segments else None
+            if last is None or last[1] != episode.index or last[3]:
+                # rows after the end keep the episode's step numbering but are not counted
+                first = (
+                    block.next_step_index()
+                    if last is not None and last[1] == episode.index
+                    else episode.steps
+                )
+                block.add_segment(rows, episode, first, False)
         block.rewards.append(r)
         if terms is not None:
-            block.terms[rows] = terms
+            block.add_terms(rows, terms, list(terms.values()))
         if terminated or truncated:
             block.flags[rows] = (terminated, truncated)
-        episode.steps += 1
-        episode.ret += r
-        episode.end_ns = now
+        now = self._clock()
+        block.times.append(now)  # commits the row
         if notes:
             block.notes[rows] = notes
             episode.notes += 1
@@ -642,7 +677,7 @@ class RecordEvidence(
         )
 
     def _slow_values(
-        self, episode: _Episode, reward: Any, info: Any, notes: list[str]
+        self, reward: Any, info: Any, notes: list[str]
     ) -> tuple[float, dict[str, float] | None]:
         """Per-value handling of a reward and terms the fast path could not take."""
         try:
@@ -661,16 +696,13 @@ class RecordEvidence(
         if raw is None:
             return r, None
         terms: dict[str, float] = {}
-        totals = episode.totals
         for key, value in raw.items():
             try:
                 number = float(value)
             except Exception:
                 number = math.nan
                 notes.append(_note("term_not_numeric", f"term {key!r} is {_short(value)}"))
-            name = key if isinstance(key, str) else str(key)
-            terms[name] = number
-            totals[name] = totals.get(name, 0.0) + number
+            terms[key if isinstance(key, str) else str(key)] = number
         return r, terms
 
     def _implicit_episode(self, notes: list[str]) -> _Episode:
@@ -678,7 +710,7 @@ class RecordEvidence(
         self._next_episode += 1
         episode = _Episode(index, None, None, None, self._clock())
         self._episode = episode
-        self._block.segments.append((len(self._block.times), index, 0))
+        self._block.add_segment(len(self._block.times), episode, 0, True)
         notes.append(
             _note("stepped_before_reset", "the env was stepped before reset(); not replayable")
         )
@@ -718,44 +750,51 @@ class RecordEvidence(
         truncated: bool = False,
         error: tuple[BaseException, str] | None = None,
     ) -> None:
+        """Mark the episode ended; its record is written at the next flush (see _flush)."""
         episode.ended = True
-        end_ns = episode.end_ns if error is None else self._clock()
-        record: dict[str, Any] = {
-            "episode": episode.index,
-            "env_index": 0,
-            "agent": None,
-            "seed": episode.seed,
-            "options": episode.options,
+        ending: dict[str, Any] = {
             "outcome": outcome,
             "failure_label": failure_label,
             "truncation_reason": truncation_reason,
             "terminated": terminated,
             "truncated": truncated,
+            "error": None,
+        }
+        if error is not None:
+            exc, during = error
+            ending["error"] = {
+                "type": type(exc).__qualname__,
+                "message": str(exc)[:2000],
+                "during": during,
+            }
+            ending["error_ns"] = self._clock()
+        self._pending_episodes.append((episode, ending))
+        self._counts["episodes"] += 1
+
+    def _episode_record(self, episode: _Episode, ending: dict[str, Any]) -> dict[str, Any]:
+        end_ns = ending.pop("error_ns", episode.end_ns)
+        return {
+            "episode": episode.index,
+            "env_index": 0,
+            "agent": None,
+            "seed": episode.seed,
+            "options": episode.options,
+            **ending,
             "length": episode.steps,
             "return": episode.ret,
             "term_totals": episode.totals,
             "start_time_ns": episode.start_ns + self._wall_offset,
             "end_time_ns": end_ns + self._wall_offset,
-            "error": None,
             "notes": episode.notes,
         }
-        if error is not None:
-            exc, during = error
-            record["error"] = {
-                "type": type(exc).__qualname__,
-                "message": str(exc)[:2000],
-                "during": during,
-            }
-        # Encoded and written at the next flush, all together (see _write_episodes).
-        self._pending_episodes.append((record, episode.rng_json))
-        self._counts["episodes"] += 1
 
     def _write_episodes(self) -> None:
         """Write the episodes ended since the last flush: JSON messages and one Arrow block."""
-        pending = self._pending_episodes
-        if not pending:
+        ended = self._pending_episodes
+        if not ended:
             return
         self._pending_episodes = []
+        pending = [(self._episode_record(ep, ending), ep.rng_json) for ep, ending in ended]
         write_json = self._writer.write_json
         channel = self._episodes_channel
         options: list[str | None] = []
@@ -806,12 +845,16 @@ class RecordEvidence(
 
     def _flush(self) -> None:
         block = self._block
+        n = len(block.times)
+        # Derive what the hot path did not keep: episode lengths, returns, end times, term
+        # totals (before the next block starts counting from them).
+        if n:
+            episode, step = _index_columns(block.segments, n)
+            terms = _apply_block(block, n, episode)
         self._block = _Block(self._obs_codec, self._act_codec, self._episode)
         offset = self._wall_offset
-        n = len(block.times)
         if n:
             times = np.frombuffer(block.times, dtype=np.int64) + offset
-            episode, step = _index_columns(block.segments, n)
             terminated = np.zeros(n, dtype=np.bool_)
             truncated = np.zeros(n, dtype=np.bool_)
             for row, (term, trunc) in block.flags.items():
@@ -830,7 +873,7 @@ class RecordEvidence(
                 block.act.finish(),
                 block.obs.finish(),
                 pa.array(np.frombuffer(block.rewards, dtype=np.float64)),
-                terms_column(n, block.terms),
+                terms,
                 pa.array(terminated),
                 pa.array(truncated),
                 pa.array(outcome, pa.string()),
@@ -915,16 +958,72 @@ class RecordEvidence(
 
 
 def _index_columns(
-    segments: Sequence[tuple[int, int, int]], n: int
+    segments: Sequence[tuple[int, int, int, bool]], n: int
 ) -> tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]:
-    """Episode and step index per row, from the block's (first row, episode, first step) list."""
+    """Episode and step index per row, from the block's segments."""
     if not segments or segments[0][0] != 0:
-        segments = [(0, -1, 0), *segments]  # rows before any reset: no episode
+        segments = [(0, -1, 0, False), *segments]  # rows before any reset: no episode
     starts = np.array([s[0] for s in segments], dtype=np.int64)
     lengths = np.diff(np.append(starts, n))
     episode = np.repeat(np.array([s[1] for s in segments], dtype=np.int64), lengths)
     first = np.repeat(np.array([s[2] for s in segments], dtype=np.int64) - starts, lengths)
     return episode, np.arange(n, dtype=np.int64) + first
+
+
+def _apply_block(
+    block: _Block, n: int, episode_col: np.ndarray[Any, np.dtype[np.int64]]
+) -> pa.Array:
+    """Add a block's rows to its episodes (length, return, end time, term totals).
+
+    Returns the block's ``terms`` column. Rows stepped after an episode ended are not counted.
+    """
+    rewards = np.frombuffer(block.rewards, dtype=np.float64)
+    segments = block.segments
+    counted = np.zeros(n, dtype=np.bool_)
+    for i, (start, index, _, live) in enumerate(segments):
+        end = segments[i + 1][0] if i + 1 < len(segments) else n
+        if end > start and live:
+            ep = block.episodes[index]
+            ep.steps += end - start
+            ep.ret += float(np.add.reduce(rewards[start:end]))
+            ep.end_ns = block.times[end - 1]
+            counted[start:end] = True
+    if not block.term_rows:
+        return pa.nulls(n, TERMS_TYPE)
+    rows = np.frombuffer(block.term_rows, dtype=np.int64)
+    counts = np.frombuffer(block.term_counts, dtype=np.int64)
+    values = np.frombuffer(block.term_vals, dtype=np.float64)
+    keys = block.term_keys
+    try:
+        key_array = pa.array(keys, pa.string())
+    except (pa.ArrowException, TypeError, ValueError):
+        keys = [k if isinstance(k, str) else str(k) for k in keys]
+        key_array = pa.array(keys, pa.string())
+    per_value = np.repeat(rows, counts)
+    keep = counted[per_value]
+    totals = (
+        pa.table({"e": pa.array(episode_col[per_value]), "k": key_array, "v": pa.array(values)})
+        .filter(pa.array(keep))
+        .group_by(["e", "k"], use_threads=False)
+        .aggregate([("v", "sum")])
+    )
+    for e, k, v in zip(
+        totals.column("e").to_pylist(),
+        totals.column("k").to_pylist(),
+        totals.column("v_sum").to_pylist(),
+        strict=True,
+    ):
+        ep_totals = block.episodes[e].totals
+        ep_totals[k] = ep_totals.get(k, 0.0) + v
+    row_counts = np.zeros(n, dtype=np.int64)
+    row_counts[rows] = counts
+    offsets = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(row_counts, out=offsets[1:])
+    valid = np.zeros(n, dtype=np.bool_)
+    valid[rows] = True
+    return pa.MapArray.from_arrays(
+        pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
+    )
 
 
 def _recordable_seed(seed: Any, notes: list[str]) -> int | None:
