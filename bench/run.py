@@ -218,7 +218,7 @@ BENCHES: dict[str, Callable[[], Any]] = {
     ],
     "memory": lambda: bench_memory(1_000_000),
     "check": lambda: bench_check(1_000_000, 5),
-    "replay": lambda: [bench_replay("CartPole-v1", 200, 5), bench_replay("Reacher-v5", 40, 5)],
+    "replay": lambda: [bench_replay("CartPole-v1", 1000, 5), bench_replay("Reacher-v5", 100, 5)],
 }
 
 

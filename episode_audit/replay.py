@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import os
+from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
@@ -240,178 +242,270 @@ class _EpisodeRunner:
     def not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(str(self.ev.path), index, "not_replayable", steps, reason=reason)
 
-    def run(self, record: dict[str, Any]) -> EpisodeReplay:
-        index = int(record["episode"])
-        if self.obs_codec is None or self.act_codec is None:
-            return self.not_replayable(index, 0, "the file's spaces cannot be rebuilt")
-        seed = record.get("seed")
-        rng_state = record.get("rng_state")
-        if seed is None and rng_state is None:
-            return self.not_replayable(index, 0, "no seed or RNG state recorded for its reset")
-        episode = self.ev.episode(index)
-        steps = episode.steps
-        n = steps.num_rows
-        if episode.reset is None:
-            return self.not_replayable(index, n, "its reset row is missing (torn file)")
-        options = json.loads(record["options"]) if record.get("options") else None
-        try:
-            if seed is not None:
-                obs, _ = self.env.reset(seed=int(seed), options=options)
-            else:
-                restore_rng_state(self.env, json.loads(str(rng_state)))
-                obs, _ = self.env.reset(options=options)
-        except Exception as exc:
-            return self._diverged(
-                index, 0, Divergence(None, "reset", "a reset", f"{type(exc).__name__}: {exc}")
-            )
-        expected_reset = pa.array([episode.reset[fmt.COL_OBSERVATION]], self.obs_codec.arrow_type)
-        got_reset = self._encode(self.obs_codec, [obs])
-        found = _compare_values(self.obs_codec, expected_reset, got_reset, self.atol)
-        if found is not None:
-            _, diff = found
-            return self._diverged(
-                index,
-                0,
-                Divergence(
-                    None,
-                    "reset_observation",
-                    _short(self.obs_codec.decode(expected_reset)[0]),
-                    _short(obs),
-                    diff,
-                ),
-            )
-        return self._step_through(index, record, steps)
-
-    @staticmethod
-    def _encode(codec: SpaceCodec, values: Sequence[Any]) -> pa.Array:
-        buffer = codec.new_buffer()
-        for value in values:
-            try:
-                buffer.append(value)
-            except (TypeError, ValueError):
-                buffer.append_null()
-        return buffer.finish()
-
     def _diverged(self, index: int, steps: int, divergence: Divergence) -> EpisodeReplay:
         return EpisodeReplay(str(self.ev.path), index, "diverged", steps, divergence)
 
-    def _step_through(self, index: int, record: dict[str, Any], steps: pa.Table) -> EpisodeReplay:
-        assert self.obs_codec is not None
-        assert self.act_codec is not None
-        n = steps.num_rows
-        actions = self.act_codec.decode(steps.column(fmt.COL_ACTION).combine_chunks())
-        obs_buffer = self.obs_codec.new_buffer()
-        rewards: list[float] = []
-        terms: list[dict[str, Any] | None] = []
-        terminated: list[bool] = []
-        truncated: list[bool] = []
-        extract = self.terms_rule.extract if self.terms_rule is not None else None
-        env_step = self.env.step
-        progress = self.progress
-        last_info: Any = {}
-        crash: Divergence | None = None
-        for i, action in enumerate(actions):
-            if action is None:
-                crash = Divergence(i, "action", "a recorded action", "null (not recordable)")
-                break
-            try:
-                obs, reward, term, trunc, info = env_step(action)
-            except Exception as exc:
-                crash = Divergence(i, "step", "a step", f"{type(exc).__name__}: {exc}")
-                break
-            try:
-                obs_buffer.append(obs)
-            except (TypeError, ValueError):
-                obs_buffer.append_null()
-            rewards.append(float(reward))
-            terms.append(extract(info) if extract is not None and info else None)
-            terminated.append(bool(term))
-            truncated.append(bool(trunc))
-            last_info = info
-            if progress is not None and i % 1024 == 1023:
-                progress(1024)
-            if (term or trunc) and i < n - 1:
-                break
-        if progress is not None:
-            progress(len(rewards) % 1024)
-        done = len(rewards)
-        expected = steps.slice(0, done)
-        first = self._first_difference(
-            expected, obs_buffer.finish(), rewards, terms, terminated, truncated
-        )
-        if first is not None:
-            return self._diverged(index, first.step or 0, first)
-        if crash is not None:
-            return self._diverged(index, done, crash)
-        if done < n:
-            return self._diverged(
-                index,
-                done,
-                Divergence(done, "length", f"{n} steps", f"the episode ended after {done}"),
-            )
-        outcome = self._outcome_difference(record, terminated, truncated, last_info)
-        if outcome is not None:
-            return self._diverged(index, done, outcome)
-        return EpisodeReplay(str(self.ev.path), index, "identical", done)
+    def run_all(
+        self,
+        records: list[dict[str, Any]],
+        steps: pa.Table,
+        rows: dict[int, tuple[int, int]],
+        reset_rows: dict[int, int],
+        resets: pa.Table,
+    ) -> list[EpisodeReplay]:
+        """Replay ``records`` (in file order): step every episode, then compare in one pass.
 
-    def _first_difference(
+        Stepping collects the replayed values of all episodes into whole-file buffers; the
+        comparison then runs over whole columns at once, and the first mismatching step of
+        each episode is looked up from the mismatch positions.
+        """
+        obs_codec, act_codec = self.obs_codec, self.act_codec
+        done: dict[int, EpisodeReplay] = {}
+        if obs_codec is None or act_codec is None:
+            for r in records:
+                index = int(r["episode"])
+                done[index] = self.not_replayable(index, 0, "the file's spaces cannot be rebuilt")
+            return [done[int(r["episode"])] for r in records]
+        action_col = steps.column(fmt.COL_ACTION).combine_chunks()
+        actions: Any
+        if pa.types.is_integer(action_col.type) and action_col.null_count == 0:
+            actions = action_col.to_numpy()  # numpy ints, as Discrete.sample() gives
+        else:
+            actions = act_codec.decode(action_col)
+        reset_obs = resets.column(fmt.COL_OBSERVATION).combine_chunks() if resets.num_rows else None
+        got_obs = obs_codec.new_buffer()
+        got_reset = obs_codec.new_buffer()
+        rewards = array("d")
+        terminated = array("b")
+        truncated = array("b")
+        terms: dict[int, dict[str, Any]] = {}
+        extract = self.terms_rule.extract if self.terms_rule is not None else None
+        take: list[np.ndarray[Any, Any]] = []
+        reset_take: list[int] = []
+        # per replayed episode: record, first row in the got buffers, recorded rows, rows run,
+        # a crash divergence, the last info
+        plan: list[tuple[dict[str, Any], int, int, int, Divergence | None, Any]] = []
+        env_step = self.env.step
+        append_obs = got_obs.append
+        progress = self.progress
+        for record in records:
+            index = int(record["episode"])
+            start, count = rows.get(index, (0, 0))
+            seed = record.get("seed")
+            rng_state = record.get("rng_state")
+            at = reset_rows.get(index)
+            if seed is None and rng_state is None:
+                done[index] = self.not_replayable(
+                    index, 0, "no seed or RNG state recorded for its reset"
+                )
+                continue
+            if at is None or reset_obs is None:
+                done[index] = self.not_replayable(
+                    index, count, "its reset row is missing (torn file)"
+                )
+                continue
+            options = json.loads(record["options"]) if record.get("options") else None
+            try:
+                if seed is not None:
+                    obs, _ = self.env.reset(seed=int(seed), options=options)
+                else:
+                    restore_rng_state(self.env, json.loads(str(rng_state)))
+                    obs, _ = self.env.reset(options=options)
+            except Exception as exc:
+                done[index] = self._diverged(
+                    index, 0, Divergence(None, "reset", "a reset", f"{type(exc).__name__}: {exc}")
+                )
+                continue
+            _append(got_reset, obs)
+            reset_take.append(at)
+            first = len(rewards)
+            crash: Divergence | None = None
+            last_info: Any = {}
+            ran = 0
+            for row in range(start, start + count):
+                action = actions[row]
+                if action is None:
+                    crash = Divergence(ran, "action", "a recorded action", "null (not recordable)")
+                    break
+                try:
+                    obs, reward, term, trunc, info = env_step(action)
+                except Exception as exc:
+                    crash = Divergence(ran, "step", "a step", f"{type(exc).__name__}: {exc}")
+                    break
+                try:
+                    append_obs(obs)
+                except (TypeError, ValueError):
+                    got_obs.append_null()
+                try:
+                    rewards.append(reward)  # type: ignore[arg-type]
+                except TypeError:
+                    rewards.append(math.nan)
+                terminated.append(bool(term))
+                truncated.append(bool(trunc))
+                if extract is not None and info:
+                    found = extract(info)
+                    if found is not None:
+                        terms[len(rewards) - 1] = found
+                last_info = info
+                ran += 1
+                if (term or trunc) and ran < count:
+                    break
+            for _ in range(count - ran):  # keep rows aligned with the evidence
+                got_obs.append_null()
+                rewards.append(math.nan)
+                terminated.append(0)
+                truncated.append(0)
+            take.append(np.arange(start, start + count))
+            plan.append((record, first, count, ran, crash, last_info))
+            if progress is not None:
+                progress(count)
+        if plan:
+            expected = steps.take(pa.array(np.concatenate(take))) if take else steps.slice(0, 0)
+            self._got_obs = got_obs.finish()
+            bad, field_masks = self._mismatches(
+                expected, self._got_obs, rewards, terms, terminated, truncated
+            )
+            assert reset_obs is not None
+            reset_equal, reset_diff = obs_codec.compare(
+                reset_obs.take(pa.array(reset_take, pa.int64())), got_reset.finish(), atol=self.atol
+            )
+            for k, (record, first, count, ran, crash, info) in enumerate(plan):
+                index = int(record["episode"])
+                if not reset_equal[k]:
+                    exp = obs_codec.decode(reset_obs.slice(reset_take[k], 1))[0]
+                    done[index] = self._diverged(
+                        index,
+                        0,
+                        Divergence(
+                            None,
+                            "reset_observation",
+                            _short(exp),
+                            "a different one",
+                            float(reset_diff[k]),
+                        ),
+                    )
+                    continue
+                done[index] = self._verdict(
+                    record,
+                    first,
+                    count,
+                    ran,
+                    crash,
+                    info,
+                    bad,
+                    field_masks,
+                    expected,
+                    rewards,
+                    terms,
+                    terminated,
+                    truncated,
+                )
+        return [done[int(r["episode"])] for r in records]
+
+    def _mismatches(
         self,
         expected: pa.Table,
         got_obs: pa.Array,
-        rewards: list[float],
-        terms: list[dict[str, Any] | None],
-        terminated: list[bool],
-        truncated: list[bool],
-    ) -> Divergence | None:
+        rewards: array[float],
+        terms: dict[int, dict[str, Any]],
+        terminated: array[int],
+        truncated: array[int],
+    ) -> tuple[
+        np.ndarray[Any, Any], list[tuple[str, np.ndarray[Any, Any], np.ndarray[Any, Any] | None]]
+    ]:
+        """Rows that differ in any field, and per field (name, equal mask, abs diff)."""
         assert self.obs_codec is not None
-        if not rewards:
-            return None
-        candidates: list[Divergence] = []
-        exp_obs = expected.column(fmt.COL_OBSERVATION).combine_chunks()
-        equal, diffs = self.obs_codec.compare(exp_obs, got_obs, atol=self.atol)
-        bad = np.flatnonzero(~equal)
-        if bad.size:
-            i = int(bad[0])
-            candidates.append(
-                Divergence(
-                    i,
-                    "observation",
-                    _short(self.obs_codec.decode(exp_obs.slice(i, 1))[0]),
-                    _short(self.obs_codec.decode(got_obs.slice(i, 1))[0]),
-                    float(diffs[i]),
-                )
-            )
+        n = expected.num_rows
+        obs_equal, obs_diff = self.obs_codec.compare(
+            expected.column(fmt.COL_OBSERVATION).combine_chunks(), got_obs, atol=self.atol
+        )
         exp_r = expected.column(fmt.COL_REWARD).to_numpy()
-        got_r = np.asarray(rewards, dtype=np.float64)
+        got_r = np.frombuffer(rewards, dtype=np.float64) if n else np.zeros(0)
         with np.errstate(invalid="ignore"):
             diff_r = np.abs(exp_r - got_r)
             same_r = (exp_r == got_r) | (np.isnan(exp_r) & np.isnan(got_r)) | (diff_r <= self.atol)
-        bad = np.flatnonzero(~same_r)
-        if bad.size:
-            i = int(bad[0])
-            candidates.append(
-                Divergence(i, "reward", repr(exp_r[i]), repr(got_r[i]), float(diff_r[i]))
-            )
+        fields: list[tuple[str, np.ndarray[Any, Any], np.ndarray[Any, Any] | None]] = [
+            ("observation", obs_equal, obs_diff),
+            ("reward", same_r, diff_r),
+        ]
         if self.terms_rule is not None:
-            got_terms = terms_column(
-                len(terms), {i: t for i, t in enumerate(terms) if t is not None}
-            ).to_pylist()
-            exp_terms = expected.column(fmt.COL_TERMS).to_pylist()
-            for i, (a, b) in enumerate(zip(exp_terms, got_terms, strict=True)):
-                if not _terms_equal(a, b, self.atol):
-                    candidates.append(
-                        Divergence(i, "terms", _short(dict(a or [])), _short(dict(b or [])))
-                    )
-                    break
+            fields.append(("terms", self._terms_equal(expected, terms, n), None))
         for name, got in ((fmt.COL_TERMINATED, terminated), (fmt.COL_TRUNCATED, truncated)):
             exp = expected.column(name).to_numpy(zero_copy_only=False)
-            bad = np.flatnonzero(exp != np.asarray(got, dtype=np.bool_))
-            if bad.size:
-                i = int(bad[0])
-                candidates.append(Divergence(i, name, str(bool(exp[i])), str(got[i])))
-        if not candidates:
-            return None
-        return min(candidates, key=lambda d: d.step if d.step is not None else -1)
+            fields.append((name, exp == np.frombuffer(got, dtype=np.int8).astype(np.bool_), None))
+        ok = np.ones(n, dtype=np.bool_)
+        for _, equal, _ in fields:
+            ok &= equal
+        return np.flatnonzero(~ok), fields
+
+    def _terms_equal(
+        self, expected: pa.Table, terms: dict[int, dict[str, Any]], n: int
+    ) -> np.ndarray[Any, Any]:
+        exp = expected.column(fmt.COL_TERMS).combine_chunks()
+        got = terms_column(n, terms)
+        if exp.null_count == n and got.null_count == n:
+            return np.ones(n, dtype=np.bool_)
+        equal = np.ones(n, dtype=np.bool_)
+        for i, (a, b) in enumerate(zip(exp.to_pylist(), got.to_pylist(), strict=True)):
+            if not _terms_equal(a, b, self.atol):
+                equal[i] = False
+        return equal
+
+    def _verdict(
+        self,
+        record: dict[str, Any],
+        first: int,
+        count: int,
+        ran: int,
+        crash: Divergence | None,
+        info: Any,
+        bad: np.ndarray[Any, Any],
+        fields: list[tuple[str, np.ndarray[Any, Any], np.ndarray[Any, Any] | None]],
+        expected: pa.Table,
+        rewards: array[float],
+        terms: dict[int, dict[str, Any]],
+        terminated: array[int],
+        truncated: array[int],
+    ) -> EpisodeReplay:
+        assert self.obs_codec is not None
+        index = int(record["episode"])
+        pos = int(np.searchsorted(bad, first))
+        if pos < bad.size and bad[pos] < first + ran:
+            row = int(bad[pos])
+            step = row - first
+            for name, equal, diff in fields:
+                if equal[row]:
+                    continue
+                d = None if diff is None else float(diff[row])
+                if name == "observation":
+                    col = expected.column(fmt.COL_OBSERVATION)
+                    exp_v = _short(self.obs_codec.decode(col.slice(row, 1).combine_chunks())[0])
+                    got_v = _short(self.obs_codec.decode(self._got_obs.slice(row, 1))[0])
+                elif name == "reward":
+                    exp_v = repr(expected.column(fmt.COL_REWARD)[row].as_py())
+                    got_v = repr(rewards[row])
+                elif name == "terms":
+                    exp_v = _short(dict(expected.column(fmt.COL_TERMS)[row].as_py() or []))
+                    got_v = _short(terms.get(row, {}))
+                else:
+                    got_flags = terminated if name == fmt.COL_TERMINATED else truncated
+                    exp_v = str(expected.column(name)[row].as_py())
+                    got_v = str(bool(got_flags[row]))
+                return self._diverged(index, step, Divergence(step, name, exp_v, got_v, d))
+        if crash is not None:
+            return self._diverged(index, ran, crash)
+        if ran < count:
+            return self._diverged(
+                index,
+                ran,
+                Divergence(ran, "length", f"{count} steps", f"the episode ended after {ran}"),
+            )
+        flags_t = [bool(x) for x in terminated[first : first + ran]]
+        flags_u = [bool(x) for x in truncated[first : first + ran]]
+        outcome = self._outcome_difference(record, flags_t, flags_u, info)
+        if outcome is not None:
+            return self._diverged(index, ran, outcome)
+        return EpisodeReplay(str(self.ev.path), index, "identical", ran)
 
     def _outcome_difference(
         self, record: dict[str, Any], terminated: list[bool], truncated: list[bool], info: Any
@@ -444,6 +538,13 @@ class _EpisodeRunner:
         return None
 
 
+def _append(buffer: Any, value: Any) -> None:
+    try:
+        buffer.append(value)
+    except (TypeError, ValueError):
+        buffer.append_null()
+
+
 def _fmt_outcome(outcome: str, label: str | None, reason: str | None) -> str:
     parts = [outcome] + [p for p in (label, reason) if p]
     return "/".join(parts)
@@ -471,6 +572,22 @@ def _compare_values(
     if bad.size == 0:
         return None
     return int(bad[0]), float(diffs[int(bad[0])])
+
+
+def _row_ranges(episode: np.ndarray[Any, Any]) -> dict[int, tuple[int, int]]:
+    """(first row, row count) of each episode; a single env's episodes are contiguous runs."""
+    if episode.size == 0:
+        return {}
+    starts = np.flatnonzero(np.diff(episode)) + 1
+    firsts = np.concatenate([[0], starts])
+    counts = np.diff(np.append(firsts, episode.size))
+    out: dict[int, tuple[int, int]] = {}
+    for first, count in zip(firsts.tolist(), counts.tolist(), strict=True):
+        index = int(episode[first])
+        if index in out:  # not contiguous (never written so): fall back to the first run
+            continue
+        out[index] = (first, count)
+    return out
 
 
 def replay_evidence(
@@ -508,7 +625,13 @@ def replay_evidence(
         ]
     try:
         runner = _EpisodeRunner(ev, env, atol=atol, progress=progress)
-        return [runner.run(r) for r in records]
+        # One pass over the file: every selected episode's rows, then slices per episode.
+        wanted_rows = None if episodes is None else [int(r["episode"]) for r in records]
+        steps = ev.steps(episodes=wanted_rows).combine_chunks()
+        rows = _row_ranges(steps.column(fmt.COL_EPISODE).to_numpy())
+        resets = ev.resets()
+        reset_rows = {int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())}
+        return runner.run_all(records, steps, rows, reset_rows, resets)
     finally:
         env.close()
 
