@@ -799,8 +799,11 @@ class RecordEvidence(
         channel = self._episodes_channel
         options: list[str | None] = []
         for record, rng_json in pending:
-            # rng_state is already JSON (made once at reset): splice it in, do not re-encode.
-            data = to_json(record)[:-1] + b',"rng_state":' + (rng_json or b"null") + b"}"
+            # Optional fields that are null are left out (the JSON Schema marks them optional).
+            # rng_state is already JSON (made once at reset): spliced in, not re-encoded.
+            data = to_json({k: v for k, v in record.items() if v is not None})
+            if rng_json is not None:
+                data = data[:-1] + b',"rng_state":' + rng_json + b"}"
             write_json(channel, data, record["end_time_ns"])
             opts = record["options"]
             options.append(None if opts is None else to_json(opts).decode())

@@ -79,7 +79,10 @@ _OPT_STR = {"type": ["string", "null"]}
 EPISODE_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": fmt.SCHEMA_EPISODE_END,
-    "description": "One record per episode, written when the episode ends (or at close/error).",
+    "description": (
+        "One record per episode, written when the episode ends (or at close/error). "
+        "Optional fields that are null may be left out."
+    ),
     "type": "object",
     "required": ["episode", "outcome", "length", "return", "start_time_ns", "end_time_ns"],
     "properties": {
