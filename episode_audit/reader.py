@@ -1321,6 +1321,8 @@ def _open_linear(f: IO[bytes], path: Path) -> Evidence:
             OSError,
             MemoryError,
         ) as exc:
+            if start >= size:  # stopped at a record boundary: nothing to drop
+                break
             torn = (
                 f"torn at byte {start} of {size}: the last {size - start} bytes "
                 f"({type(exc).__name__}) were dropped"

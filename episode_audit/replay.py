@@ -356,7 +356,9 @@ class _EpisodeRunner:
                 terminated.append(0)
                 truncated.append(0)
             take.append(np.arange(start, start + count))
-            plan.append((record, first, count, ran, crash, last_info))
+            # the TimeLimit state belongs to this episode: read it now, not after the others
+            hit = time_limit_hit(self.time_limit)
+            plan.append((record, first, count, ran, crash, (last_info, hit)))
             if progress is not None:
                 progress(count)
         if plan:
@@ -502,13 +504,19 @@ class _EpisodeRunner:
             )
         flags_t = [bool(x) for x in terminated[first : first + ran]]
         flags_u = [bool(x) for x in truncated[first : first + ran]]
-        outcome = self._outcome_difference(record, flags_t, flags_u, info)
+        last_info, hit = info
+        outcome = self._outcome_difference(record, flags_t, flags_u, last_info, hit)
         if outcome is not None:
             return self._diverged(index, ran, outcome)
         return EpisodeReplay(str(self.ev.path), index, "identical", ran)
 
     def _outcome_difference(
-        self, record: dict[str, Any], terminated: list[bool], truncated: list[bool], info: Any
+        self,
+        record: dict[str, Any],
+        terminated: list[bool],
+        truncated: list[bool],
+        info: Any,
+        hit_time_limit: bool,
     ) -> Divergence | None:
         if (
             self.rules is None
@@ -527,7 +535,7 @@ class _EpisodeRunner:
             term,
             trunc,
             info if isinstance(info, Mapping) else {},
-            time_limit_hit=time_limit_hit(self.time_limit),
+            time_limit_hit=hit_time_limit,
         )
         want = (record["outcome"], record.get("failure_label"), record.get("truncation_reason"))
         got = (ending.outcome, ending.failure_label, ending.truncation_reason)

@@ -140,3 +140,23 @@ def test_replay_in_a_fresh_process(tmp_path: Path) -> None:
         """
     )
     subprocess.run([sys.executable, "-c", script], check=True, cwd=REPO)
+
+
+def test_outcomes_replay_per_episode_when_endings_alternate(tmp_path: Path) -> None:
+    """A time-limit truncation followed by a termination: each outcome is judged on its own."""
+    path = tmp_path / "mixed.mcap"
+    outcomes: list[str] = []
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=12), path) as env:
+        env.action_space.seed(3)
+        for e in range(60):
+            env.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(env.action_space.sample())
+                done = term or trunc
+            outcomes.append("truncated" if trunc and not term else "failure")
+            if "truncated" in outcomes and outcomes[-1] == "failure" and len(outcomes) > 2:
+                break
+    assert "truncated" in outcomes[:-1] and outcomes[-1] == "failure"
+    result = replay([path])
+    assert result.ok, [e for e in result.episodes if e.status != "identical"]
