@@ -491,13 +491,7 @@ class RecordEvidence(
         row = len(block.resets)
         rng_json = None if episode.rng_json is None else episode.rng_json.decode()
         options_json = None if episode.options is None else to_json(episode.options).decode()
-        try:
-            cast = block.reset_obs.append(obs)
-            if cast is not None:
-                notes.append(_note("observation_cast", cast))
-        except (ValueError, TypeError) as exc:
-            block.reset_obs.append_null()
-            notes.append(_note("observation_invalid", f"reset observation: {exc}"))
+        _append_noted(block.reset_obs, obs, "observation", notes, "reset observation: ")
         if self._track_info or type(info) is not dict:
             kept = self._kept_info(info, notes)
             if kept:
@@ -601,20 +595,8 @@ class RecordEvidence(
             )
             terminated = truncated = False
         r, terms = self._slow_values(reward, info, notes)
-        try:
-            cast = block.obs.append(obs)
-            if cast is not None:
-                notes.append(_note("observation_cast", cast))
-        except (ValueError, TypeError) as exc:
-            block.obs.append_null()
-            notes.append(_note("observation_invalid", str(exc)))
-        try:
-            cast = block.act.append(action)
-            if cast is not None:
-                notes.append(_note("action_cast", cast))
-        except (ValueError, TypeError) as exc:
-            block.act.append_null()
-            notes.append(_note("action_invalid", str(exc)))
+        _append_noted(block.obs, obs, "observation", notes)
+        _append_noted(block.act, action, "action", notes)
         if self._track_info:
             kept = self._kept_info(info, notes)
             if kept:
@@ -1027,6 +1009,20 @@ def _apply_block(
     return pa.MapArray.from_arrays(
         pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
     )
+
+
+def _append_noted(
+    buffer: ColumnBuffer, value: Any, what: str, notes: list[str], context: str = ""
+) -> None:
+    """Append ``value``; a cast or a value that does not fit (stored as null) gets a note."""
+    try:
+        cast = buffer.append(value)
+    except (ValueError, TypeError) as exc:
+        buffer.append_null()
+        notes.append(_note(f"{what}_invalid", f"{context}{exc}"))
+        return
+    if cast is not None:
+        notes.append(_note(f"{what}_cast", cast))
 
 
 def _recordable_seed(seed: Any, notes: list[str]) -> int | None:
