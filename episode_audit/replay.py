@@ -31,6 +31,7 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from . import format as fmt
 from .columns import terms_column
@@ -56,6 +57,8 @@ Status = Literal["identical", "diverged", "not_replayable"]
 EnvFactory = Callable[[], gym.Env[Any, Any]]
 
 _TRUSTED_WRAPPER_PREFIX = "gymnasium.wrappers"
+REPLAY_WINDOW_ROWS = 65_536
+"""Replay compares this many steps (of whole episodes) at a time, so memory stays bounded."""
 
 
 @dataclass(frozen=True)
@@ -633,13 +636,47 @@ def replay_evidence(
         ]
     try:
         runner = _EpisodeRunner(ev, env, atol=atol, progress=progress)
-        # One pass over the file: every selected episode's rows, then slices per episode.
-        wanted_rows = None if episodes is None else [int(r["episode"]) for r in records]
-        steps = ev.steps(episodes=wanted_rows).combine_chunks()
-        rows = _row_ranges(steps.column(fmt.COL_EPISODE).to_numpy())
         resets = ev.resets()
         reset_rows = {int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())}
-        return runner.run_all(records, steps, rows, reset_rows, resets)
+        by_index = {int(r["episode"]): r for r in records}
+        selected = None if episodes is None else pa.array(sorted(by_index), pa.int64())
+        results: dict[int, EpisodeReplay] = {}
+
+        def run(table: pa.Table) -> None:
+            rows = _row_ranges(table.column(fmt.COL_EPISODE).to_numpy())
+            batch = [by_index[e] for e in rows if e in by_index and e not in results]
+            for result in runner.run_all(batch, table, rows, reset_rows, resets):
+                results[result.episode] = result
+
+        # One pass over the file, in windows of whole episodes (memory stays bounded): the
+        # rows of a single env's episodes are contiguous, so all but the last run are complete.
+        window: list[pa.RecordBatch] = []
+        held = 0
+        for batch in ev.iter_step_batches():
+            if selected is not None:
+                batch = batch.filter(pc.is_in(batch.column(fmt.COL_EPISODE), selected))
+            window.append(batch)
+            held += batch.num_rows
+            if held >= REPLAY_WINDOW_ROWS:
+                table = pa.Table.from_batches(window).combine_chunks()
+                episode = table.column(fmt.COL_EPISODE).to_numpy()
+                cut = (
+                    int(np.flatnonzero(episode != episode[-1])[-1]) + 1
+                    if (episode != episode[-1]).any()
+                    else 0
+                )
+                if cut:
+                    run(table.slice(0, cut))
+                    window = table.slice(cut).to_batches()
+                    held = table.num_rows - cut
+        if window:
+            run(pa.Table.from_batches(window).combine_chunks())
+        rest = [r for r in records if int(r["episode"]) not in results]  # no rows at all
+        if rest:
+            empty = ev.steps_schema.empty_table()
+            for result in runner.run_all(rest, empty, {}, reset_rows, resets):
+                results[result.episode] = result
+        return [results[int(r["episode"])] for r in records]
     finally:
         env.close()
 

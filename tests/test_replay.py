@@ -160,3 +160,27 @@ def test_outcomes_replay_per_episode_when_endings_alternate(tmp_path: Path) -> N
     assert "truncated" in outcomes[:-1] and outcomes[-1] == "failure"
     result = replay([path])
     assert result.ok, [e for e in result.episodes if e.status != "identical"]
+
+
+@pytest.mark.parametrize("window", [1, 7, 50])
+def test_replay_streams_in_windows_of_whole_episodes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, window: int
+) -> None:
+    # the package exports the function `replay`; the module is reached through sys.modules
+    replay_module = sys.modules["episode_audit.replay"]
+
+    path = tmp_path / "cp.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path, block_steps=16) as env:
+        env.action_space.seed(0)
+        for e in range(12):
+            env.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(env.action_space.sample())
+                done = term or trunc
+        env.reset(seed=99)  # an episode with no steps: closed as incomplete
+    monkeypatch.setattr(replay_module, "REPLAY_WINDOW_ROWS", window)
+    result = replay([path])
+    assert [e.episode for e in result.episodes] == list(range(13))
+    assert result.count("identical") == 13, [e for e in result.episodes if e.status != "identical"]
+    assert replay([path], episodes=[3, 11]).count("identical") == 2
