@@ -5,7 +5,8 @@
   outcome to an MCAP evidence file (see ``docs/format.md``).
 
 The hot path only appends to column buffers; rows are turned into Arrow blocks when a block is
-full, at least every ``flush_every_s`` seconds (checked on each step), and on ``close()``.
+full, when ``flush_every_s`` has passed (checked on each step and reset), on ``flush()`` and on
+``close()``. Episode records are written at those flushes too.
 A bad value from the environment (a non-numeric reward or term, an observation that does not fit
 its space, an info value JSON cannot hold) is recorded and noted, never raised into the training
 loop. The wrapper raises only for misuse, e.g. stepping after ``close()``.
@@ -121,9 +122,10 @@ class _Episode:
 class _Block:
     """Column buffers of the steps (and resets) not yet written.
 
-    Per step only ``times`` and ``rewards`` grow (C arrays, no Python objects); the episode and
-    step index columns are rebuilt at flush time from ``segments``, and flags, terms, outcomes,
-    info and notes are kept sparsely, by row.
+    Per step only the observation and action buffers and the ``times`` / ``rewards`` C arrays
+    grow (plus the flat ``term_*`` arrays when the step has reward terms); the episode and step
+    index columns, episode lengths, returns and term totals are derived at flush time from
+    ``segments``; flags, outcomes, info and notes are kept sparsely, by row.
     """
 
     __slots__ = (
