@@ -937,10 +937,6 @@ def _number(value: Any) -> float | None:
     return float(value)
 
 
-def _json_or_none(value: Any) -> str | None:
-    return None if value is None else json.dumps(value, separators=(",", ":"))
-
-
 def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
     if len(data) > MAX_JSON_BYTES:
         raise CorruptEvidenceError(
