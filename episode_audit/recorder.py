@@ -88,6 +88,7 @@ class _Episode:
         "index",
         "notes",
         "options",
+        "options_json",
         "ret",
         "rng_json",
         "rng_state",
@@ -110,6 +111,7 @@ class _Episode:
         self.rng_state = rng_state
         self.rng_json: bytes | None = None if rng_state is None else to_json(rng_state)
         self.options = options
+        self.options_json: str | None = None if options is None else to_json(options).decode()
         self.start_ns = start_ns
         self.end_ns = start_ns
         self.steps = 0
@@ -313,9 +315,6 @@ class RecordEvidence(
         self._keep_all_info = info_keys == "all"
         self._track_info = bool(self._keep_all_info or self._info_keys)
         self._extract_terms = self._terms_rule.extract
-        self._terms_auto = self._terms_rule.source == "auto"
-        self._terms_dict_key = self._terms_rule.dict_key
-        self._terms_prefix = self._terms_rule.prefix
         self._block_steps = int(block_steps)
         self._flush_ns = int(flush_every_s * 1e9)
 
@@ -492,13 +491,14 @@ class RecordEvidence(
         block = self._block
         row = len(block.resets)
         rng_json = None if episode.rng_json is None else episode.rng_json.decode()
-        options_json = None if episode.options is None else to_json(episode.options).decode()
         _append_noted(block.reset_obs, obs, "observation", notes, "reset observation: ")
         if self._track_info or type(info) is not dict:
             kept = self._kept_info(info, notes)
             if kept:
                 block.reset_info[row] = kept
-        block.resets.append((episode.index, episode.start_ns, episode.seed, rng_json, options_json))
+        block.resets.append(
+            (episode.index, episode.start_ns, episode.seed, rng_json, episode.options_json)
+        )
         if notes:
             block.reset_notes[row] = notes
             episode.notes += 1
@@ -533,15 +533,7 @@ class RecordEvidence(
             if episode is None or episode.ended or self._track_info:
                 raise LookupError  # not the common case: take the slow path
             block = self._block
-            terms = None
-            if info:
-                if self._terms_auto:
-                    terms = info.get(self._terms_dict_key)
-                    if terms is None:
-                        prefix = self._terms_prefix
-                        terms = {k: v for k, v in info.items() if k.startswith(prefix)} or None
-                else:
-                    terms = self._extract_terms(info)
+            terms = self._extract_terms(info) if info else None
             if terms is not None:
                 values = [float(v) for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
@@ -781,7 +773,6 @@ class RecordEvidence(
         pending = [(self._episode_record(ep, ending), ep.rng_json) for ep, ending in ended]
         write_json = self._writer.write_json
         channel = self._episodes_channel
-        options: list[str | None] = []
         for record, rng_json in pending:
             # Optional fields that are null are left out (the JSON Schema marks them optional).
             # rng_state is already JSON (made once at reset): spliced in, not re-encoded.
@@ -789,8 +780,6 @@ class RecordEvidence(
             if rng_json is not None:
                 data = data[:-1] + b',"rng_state":' + rng_json + b"}"
             write_json(channel, data, record["end_time_ns"])
-            opts = record["options"]
-            options.append(None if opts is None else to_json(opts).decode())
         records = [r for r, _ in pending]
 
         def col(name: str) -> list[Any]:
@@ -804,7 +793,7 @@ class RecordEvidence(
             "agent": col("agent"),
             "seed": col("seed"),
             "rng_state": [None if j is None else j.decode() for _, j in pending],
-            "options": options,
+            "options": [ep.options_json for ep, _ in ended],
             "outcome": col("outcome"),
             "failure_label": col("failure_label"),
             "truncation_reason": col("truncation_reason"),

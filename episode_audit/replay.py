@@ -41,7 +41,6 @@ from .reader import Evidence, open_evidence
 from .recorder import library_versions
 from .records import RunInfo
 from .seeding import restore_rng_state
-from .spaces import SpaceCodec
 
 __all__ = [
     "Divergence",
@@ -573,16 +572,6 @@ def _terms_equal(a: Any, b: Any, atol: float) -> bool:
             continue
         return False
     return True
-
-
-def _compare_values(
-    codec: SpaceCodec, expected: pa.Array, got: pa.Array, atol: float
-) -> tuple[int, float] | None:
-    equal, diffs = codec.compare(expected, got, atol=atol)
-    bad = np.flatnonzero(~equal)
-    if bad.size == 0:
-        return None
-    return int(bad[0]), float(diffs[int(bad[0])])
 
 
 def _row_ranges(episode: np.ndarray[Any, Any]) -> dict[int, tuple[int, int]]:

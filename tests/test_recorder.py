@@ -455,3 +455,30 @@ def test_sigkill_mid_run_keeps_every_flushed_step(tmp_path: Path) -> None:
     assert (
         episodes.filter(pa.compute.equal(episodes["ended"], True)).num_rows >= episodes.num_rows - 1
     )
+
+
+def test_reset_options_are_recorded_once_and_used_by_replay(tmp_path: Path) -> None:
+    import json
+
+    from mcap.reader import make_reader
+
+    from episode_audit import format as fmt
+    from episode_audit import replay
+
+    path = tmp_path / "options.mcap"
+    options = {"low": -0.01, "high": 0.01}
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=5), path) as env:
+        env.reset(seed=4, options=options)
+        for _ in range(5):
+            env.step(0)
+    ev = open_evidence(path)
+    assert json.loads(ev.resets()["options"][0].as_py()) == options
+    assert json.loads(ev.episodes()["options"][0].as_py()) == options
+    with open(path, "rb") as f:
+        (record,) = [
+            json.loads(m.data)
+            for _, c, m in make_reader(f).iter_messages()
+            if c.topic == fmt.TOPIC_EPISODE_END
+        ]
+    assert record["options"] == options
+    assert replay([path]).count("identical") == 1
