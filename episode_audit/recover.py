@@ -85,8 +85,8 @@ class RecoveryResult:
         source: The torn input file (unchanged).
         output: The finished file written.
         already_finished: The input was finished: it was copied unchanged.
-        chunks: Complete chunks copied.
-        messages: Messages copied.
+        chunks: Complete chunks copied (0 for a finished input, copied as a whole).
+        messages: Messages copied (0 for a finished input).
         episodes: Episodes in the output (with or without an end record).
         steps: Step rows in the output.
         cut_off_episodes: Episodes without an end record (the kill cut them off): ``incomplete``.
@@ -148,7 +148,8 @@ class RecoveryResult:
             f"{self.steps} steps in {self.chunks} chunks"
         )
         if not self.lost:
-            return f"{kept}; nothing lost (the writer had not finished the file)"
+            tail = f"; dropped {self.dropped}" if self.dropped_bytes else ""
+            return f"{kept}; nothing lost (the writer had not finished the file{tail})"
         return f"{kept}; dropped: {self.dropped}"
 
 
@@ -180,8 +181,10 @@ def recover(
                 shutil.copyfile(src, tmp)
             except OSError as exc:
                 raise ConfigurationError(f"{tmp}: cannot write: {exc.strerror}") from None
+            lengths = ev.episodes()["length"]
+            steps = int(pc.sum(lengths).as_py() or 0)
             size = src.stat().st_size
-            result = RecoveryResult(src, dst, True, len(ev._chunks), 0, 0, 0, (), 0, None, size)
+            result = RecoveryResult(src, dst, True, 0, 0, len(lengths), steps, (), 0, None, size)
         else:
             episodes = ev.episodes()
             cut = tuple(episodes.filter(pc.invert(episodes["ended"]))["episode"].to_pylist())

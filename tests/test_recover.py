@@ -130,6 +130,8 @@ def test_cuts_at_other_offsets(recorded: Path, tmp_path: Path, where: str) -> No
         "summary": ("schema", False, len(chunks)),
     }[where]
     assert (result.dropped_record, result.data_dropped, result.chunks) == expected
+    if where == "header":  # torn before the first block: no step schema in the file
+        assert open_evidence(torn).steps(columns=["episode", "reward"]).num_rows == 0
     # close() ended every episode before its last chunk: a cut after it loses nothing
     assert result.lost == (where in ("first chunk",))
 
@@ -144,6 +146,15 @@ def test_killed_during_close_loses_nothing(recorded: Path, tmp_path: Path) -> No
     assert fixed.run_end is not None
     assert fixed.run_end["dropped"] == "nothing" and fixed.run_end["cut_off_episodes"] == "[]"
     assert fixed.run_end["end_time"] == open_evidence(recorded).run_end["end_time"]  # type: ignore[index]
+
+
+def test_a_file_without_its_closing_magic_is_unfinished(recorded: Path, tmp_path: Path) -> None:
+    torn = torn_copy(recorded, tmp_path, recorded.stat().st_size - 8)  # killed before the magic
+    ev = open_evidence(torn)
+    assert not ev.finished and ev.torn is not None and "closing magic" in ev.torn
+    result = recover(torn, tmp_path / "out.mcap")
+    assert not result.lost and not result.already_finished and result.dropped_bytes == 0
+    assert_recovered_like(torn, tmp_path / "out.mcap", result.messages)
 
 
 def test_cli_exit_1_says_what_was_dropped(recorded: Path, tmp_path: Path) -> None:
@@ -218,6 +229,8 @@ def test_finished_file_is_copied_unchanged(recorded: Path, tmp_path: Path) -> No
     code, out, _ = run("recover", str(recorded), "-o", str(tmp_path / "copy.mcap"))
     assert code == 0 and "already finished: copied unchanged" in out
     assert (tmp_path / "copy.mcap").read_bytes() == recorded.read_bytes()
+    copied = recover(recorded, tmp_path / "copy2.mcap")
+    assert copied.already_finished and copied.steps == open_evidence(recorded).steps().num_rows
     # a recovered file is finished too
     chunks, _ = layout(recorded)
     torn = torn_copy(recorded, tmp_path, chunks[2][0] + 40)
