@@ -431,7 +431,7 @@ def recover(
         bool, typer.Option("--overwrite", help="Replace an existing output file (never the input).")
     ] = False,
 ) -> None:
-    """Rewrite a torn file as a finished, indexed one; exit 1 if its torn tail held data."""
+    """Rewrite a torn file as a finished, indexed one; exit 1 if anything was or may be lost."""
     from .recover import recover as run_recover
 
     if not path.exists():

@@ -95,6 +95,9 @@ class RecoveryResult:
         dropped_record: The kind of MCAP record cut off at the torn end (``chunk``,
             ``message index``, ``metadata``, ...), ``None`` if the file ended between records.
         dropped_at: The byte offset where the dropped tail starts (the input's size if none).
+        closing: The torn file holds the recorder's run-end record: ``close()`` had flushed
+            every step before the kill. Without it the recorder died mid-run, and the steps it
+            took after its last flush (at most ``flush_every_s``) are in no file.
     """
 
     source: Path
@@ -108,6 +111,7 @@ class RecoveryResult:
     dropped_bytes: int
     dropped_record: str | None
     dropped_at: int
+    closing: bool = True
 
     @property
     def data_dropped(self) -> bool:
@@ -116,8 +120,12 @@ class RecoveryResult:
 
     @property
     def lost(self) -> bool:
-        """Whether anything was lost: a partial chunk dropped, or episodes cut off."""
-        return self.data_dropped or bool(self.cut_off_episodes)
+        """Whether anything was or may have been lost.
+
+        A partial chunk, cut-off episodes, or the steps after the last flush of a recorder
+        killed before ``close()``.
+        """
+        return self.data_dropped or bool(self.cut_off_episodes) or not self.closing
 
     @property
     def dropped(self) -> str:
@@ -134,6 +142,8 @@ class RecoveryResult:
                 else ""
             )
             parts.append(f"episode(s) {shown}{more} had no end record: recorded as incomplete")
+        if not self.closing:
+            parts.append("the recorder was killed before close(): steps after its last flush")
         return "; ".join(parts) if parts else "nothing"
 
     def summary(self) -> str:
@@ -262,6 +272,7 @@ def _rewrite(
             dropped,
             kind,
             end.size - dropped,
+            old_run_end is not None,
         )
         last = (old_run_end or {}).get("end_time")
         writer.finish(

@@ -299,6 +299,8 @@ def judge(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
         between_calls = plan.mode == "step" or (plan.mode == "flush" and plan.write == 1)
         if between_calls and result.data_dropped:
             verdict.problems.append(f"recover dropped data after a clean cut: {result.dropped}")
+        if plan.mode != "close" and not result.lost:
+            verdict.problems.append(f"a kill mid-run recovered as nothing lost: {result.summary()}")
         if verdict.closed and (result.lost or not result.already_finished):
             verdict.problems.append(f"recover of a finished file: {result.summary()}")
     except EpisodeAuditError as exc:

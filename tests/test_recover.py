@@ -132,8 +132,9 @@ def test_cuts_at_other_offsets(recorded: Path, tmp_path: Path, where: str) -> No
     assert (result.dropped_record, result.data_dropped, result.chunks) == expected
     if where == "header":  # torn before the first block: no step schema in the file
         assert open_evidence(torn).steps(columns=["episode", "reward"]).num_rows == 0
-    # close() ended every episode before its last chunk: a cut after it loses nothing
-    assert result.lost == (where in ("first chunk",))
+    # only a cut after close() wrote the run-end record (before the summary) loses nothing
+    assert result.lost == (where != "summary")
+    assert result.closing == (where == "summary")
 
 
 def test_killed_during_close_loses_nothing(recorded: Path, tmp_path: Path) -> None:
