@@ -28,6 +28,7 @@ from .outcomes import Ending, EndingRules, RewardTerms
 from .reader import EPISODE_COLUMNS, EpisodeEvidence, Evidence, open_evidence
 from .recorder import RecordEvidence
 from .records import RunInfo
+from .recover import RecoveryResult, recover
 from .replay import ReplayResult, replay
 from .report import Gates, Report, report
 
@@ -48,6 +49,7 @@ __all__ = [
     "NotEvidenceError",
     "RecordEvidence",
     "RecorderError",
+    "RecoveryResult",
     "ReplayError",
     "ReplayResult",
     "Report",
@@ -58,6 +60,7 @@ __all__ = [
     "check",
     "export",
     "open_evidence",
+    "recover",
     "replay",
     "report",
 ]

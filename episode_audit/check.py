@@ -46,6 +46,8 @@ code                             severity  meaning
                                            ``reward_not_numeric``); one per episode and code
 ``file_unfinished``              warning   the writer did not finish the file (crash, kill); the
                                            message says what the reader dropped
+``file_recovered``               warning   the file was rewritten by ``episode-audit recover``
+                                           from a torn file; the message says what was dropped
 ``not_replayable``               warning   episodes with neither a reset seed nor an RNG state
                                            (one per file, listing up to five)
 ``missing_env_spec``             warning   the file has no environment spec to rebuild the env
@@ -106,6 +108,7 @@ ERROR_EPISODE = "error_episode"
 LENGTH_MISMATCH = "length_mismatch"
 RECORDER_NOTE = "recorder_note"
 FILE_UNFINISHED = "file_unfinished"
+FILE_RECOVERED = "file_recovered"
 NOT_REPLAYABLE = "not_replayable"
 MISSING_ENV_SPEC = "missing_env_spec"
 FORMAT_VERSION = "format_version"
@@ -398,6 +401,13 @@ class _FileCheck:
                 "warning",
                 FILE_UNFINISHED,
                 f"the writer did not finish the file ({why}); complete chunks were read",
+            )
+        elif (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED:
+            dropped = (ev.run_end or {}).get("dropped") or "not recorded"
+            self.finding(
+                "warning",
+                FILE_RECOVERED,
+                f"recovered from a torn file (the writer did not finish it); dropped: {dropped}",
             )
         if ev.run.env_spec is None:
             notes = [str(n) for n in (ev.run.recorder or {}).get("notes") or []]

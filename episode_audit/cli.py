@@ -420,6 +420,31 @@ def export(
     )
 
 
+# ----------------------------------------------------------------------------- recover
+
+
+@app.command()
+def recover(
+    path: Annotated[Path, typer.Argument(help="A torn evidence file (left by a killed recorder).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The finished file to write.")],
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace an existing output file (never the input).")
+    ] = False,
+) -> None:
+    """Rewrite a torn file as a finished, indexed one; exit 1 if anything was or may be lost."""
+    from .recover import recover as run_recover
+
+    if not path.exists():
+        fail(f"{path}: no such file or directory")
+    try:
+        result = run_recover(path, out, overwrite=overwrite)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    emit(result.summary())
+    if result.lost:
+        raise typer.Exit(EXIT_FINDINGS)
+
+
 # ----------------------------------------------------------------------------- record
 
 

@@ -43,6 +43,8 @@ __all__ = [
     "OUTCOME_TRUNCATED",
     "REASON_EXTERNAL",
     "REASON_TIME_LIMIT",
+    "RUN_STATUS_FINISHED",
+    "RUN_STATUS_RECOVERED",
     "SCHEMA_EPISODE_BLOCK",
     "SCHEMA_EPISODE_END",
     "SCHEMA_RESET_BLOCK",
@@ -80,6 +82,9 @@ SCHEMA_EPISODE_BLOCK: Final = "episode_audit.EpisodeBlock"
 
 METADATA_RUN: Final = "episode_audit.run"
 METADATA_RUN_END: Final = "episode_audit.run_end"
+# The run-end record's ``status``: written by the recorder's close(), or by recovery.
+RUN_STATUS_FINISHED: Final = "finished"
+RUN_STATUS_RECOVERED: Final = "recovered"
 
 # Columns of step blocks (reset blocks use episode, time_ns, observation, info, notes).
 COL_EPISODE: Final = "episode"

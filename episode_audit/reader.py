@@ -52,7 +52,7 @@ import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Footer, Header, Metadata, Schema
+from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from . import format as fmt
@@ -66,7 +66,16 @@ from .records import EPISODE_ARROW_SCHEMA as EPISODE_SCHEMA
 from .records import RunInfo
 from .spaces import SpaceCodec, codec_for, space_from_description
 
-__all__ = ["EPISODE_COLUMNS", "ChunkContents", "EpisodeEvidence", "Evidence", "open_evidence"]
+__all__ = [
+    "EPISODE_COLUMNS",
+    "ChunkContents",
+    "ChunkRecords",
+    "EpisodeEvidence",
+    "Evidence",
+    "FileEnd",
+    "iter_records",
+    "open_evidence",
+]
 
 MAX_RECORD_BYTES = 1 << 30
 """Largest MCAP record (and decompressed chunk) the reader accepts: 1 GiB."""
@@ -449,6 +458,8 @@ class Evidence:
                 ) from None
         schema = self._topic_schema(topic)
         if columns is not None:
+            if not schema.names:  # torn before its first block: the file never named a type
+                schema = pa.schema([pa.field(c, pa.null()) for c in columns])
             schema = pa.schema([schema.field(c) for c in columns])
         return schema.empty_table()
 
@@ -1317,6 +1328,9 @@ def _open_linear(f: IO[bytes], path: Path) -> Evidence:
             OSError,
             MemoryError,
         ) as exc:
+            if start >= size and footer:  # the closing magic bytes were never written
+                torn = f"ends at byte {size} without the closing magic: the writer did not finish"
+                break
             if start >= size:  # stopped at a record boundary: nothing to drop
                 break
             torn = (
@@ -1369,3 +1383,155 @@ def _open_linear(f: IO[bytes], path: Path) -> Evidence:
     ev = Evidence(path, run, finished, run_end, None if finished else torn, chunks, channels)
     ev._schema_cache = _schemas_of(schemas)  # type: ignore[attr-defined]
     return ev
+
+
+# ------------------------------------------------------------------- raw records (recovery)
+
+_OP_HEADER = 0x01
+_OP_FOOTER = 0x02
+_OP_METADATA = 0x0C
+_OP_DATA_END = 0x0F
+_FULL_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+
+
+@dataclass(frozen=True)
+class ChunkRecords:
+    """One complete chunk as :func:`iter_records` yields it.
+
+    Attributes:
+        offset: The chunk record's byte offset in the file.
+        records: Its Schema, Channel and Message records (``mcap.records`` types), in order.
+    """
+
+    offset: int
+    records: list[Schema | Channel | Message]
+
+
+@dataclass(frozen=True)
+class FileEnd:
+    """Where the readable part of a file ends, as the last item of :func:`iter_records`.
+
+    Attributes:
+        offset: The byte offset just after the last complete record read.
+        size: The file's size; ``size - offset`` bytes were not read (a torn tail).
+        cut_opcode: The MCAP opcode of the record cut off at ``offset`` (``None`` when nothing
+            was cut, or when the tail is too short to hold one).
+        footer: Whether the walk reached the footer (the writer finished the file).
+    """
+
+    offset: int
+    size: int
+    cut_opcode: int | None
+    footer: bool
+
+
+def iter_records(
+    path: str | os.PathLike[str],
+) -> Iterator[Header | Metadata | Schema | Channel | Message | ChunkRecords | FileEnd]:
+    """Walk a file's data section record by record, in file order (what recovery copies).
+
+    Yields the Header, Metadata records, each complete chunk's records (decompressed and
+    CRC-checked: damage inside a complete chunk raises
+    :class:`~episode_audit.errors.CorruptEvidenceError`), records written outside chunks, and
+    last a :class:`FileEnd`. The walk stops at the footer or at the first record that is cut
+    off or unreadable (the torn tail a killed writer leaves); summary records are skipped.
+    """
+    p = Path(path)
+    try:
+        f = open(p, "rb")  # noqa: SIM115
+    except OSError as exc:
+        raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
+    with f:
+        size = os.fstat(f.fileno()).st_size
+        if f.read(len(_MAGIC)) != _MAGIC:
+            raise NotEvidenceError(p, "not an MCAP file (wrong magic bytes)")
+        pos = len(_MAGIC)
+        summary = False
+        while True:
+            head = f.read(_RECORD_HEAD.size)
+            if len(head) < _RECORD_HEAD.size:
+                yield FileEnd(pos, size, head[0] if head else None, False)
+                return
+            opcode, length = _RECORD_HEAD.unpack(head)
+            stop = pos + _RECORD_HEAD.size + length
+            if length > MAX_RECORD_BYTES or stop > size:
+                yield FileEnd(pos, size, opcode, False)
+                return
+            if opcode == _OP_CHUNK and not summary:
+                raw = _read_chunk_record(f, _ChunkRef(pos, 0, 0, 0, 0), p)
+                yield ChunkRecords(pos, _chunk_records(_decompress(raw, p, pos), p, pos))
+            else:
+                body = f.read(length)
+                if opcode == _OP_FOOTER:
+                    yield FileEnd(stop, size, None, True)
+                    return
+                if opcode == _OP_DATA_END:
+                    summary = True
+                elif not summary and opcode in _TOP_LEVEL:
+                    try:
+                        yield _top_level(opcode, body)
+                    except _Unreadable:
+                        yield FileEnd(pos, size, opcode, False)
+                        return
+            pos = stop
+            f.seek(pos)
+
+
+class _Unreadable(Exception):
+    """A complete top-level record whose body does not parse: the walk stops there."""
+
+
+_TOP_LEVEL = frozenset({_OP_HEADER, _OP_METADATA, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE})
+
+
+def _top_level(opcode: int, body: bytes) -> Header | Metadata | Schema | Channel | Message:
+    try:
+        if opcode == _OP_MESSAGE:
+            return _message(body, 0, len(body))
+        kind: Any = {
+            _OP_HEADER: Header,
+            _OP_METADATA: Metadata,
+            _OP_SCHEMA: Schema,
+            _OP_CHANNEL: Channel,
+        }[opcode]
+        record: Header | Metadata | Schema | Channel = kind.read(ReadDataStream(_Exact(body)))
+        return record
+    except Exception:
+        raise _Unreadable from None
+
+
+def _message(data: bytes, body: int, stop: int) -> Message:
+    channel_id, sequence, log_time, publish_time = _FULL_MESSAGE_HEAD.unpack_from(data, body)
+    return Message(
+        channel_id=channel_id,
+        log_time=log_time,
+        data=data[body + _FULL_MESSAGE_HEAD.size : stop],
+        publish_time=publish_time,
+        sequence=sequence,
+    )
+
+
+def _chunk_records(data: bytes, path: Path, offset: int) -> list[Schema | Channel | Message]:
+    """Every Schema, Channel and Message record of a decompressed chunk, in order."""
+    out: list[Schema | Channel | Message] = []
+    pos, end = 0, len(data)
+    try:
+        while pos < end:
+            opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+            body = pos + _RECORD_HEAD.size
+            stop = body + length
+            if stop > end:
+                raise _damaged(
+                    path, offset, f"a record at {pos} of {length} bytes overruns its {end} bytes"
+                )
+            if opcode == _OP_MESSAGE:
+                if length < _FULL_MESSAGE_HEAD.size:
+                    raise _damaged(path, offset, f"a message at {pos} is {length} bytes")
+                out.append(_message(data, body, stop))
+            elif opcode in (_OP_SCHEMA, _OP_CHANNEL):
+                kind = Schema if opcode == _OP_SCHEMA else Channel
+                out.append(_inner_record(kind, data[body:stop], path, offset, pos))
+            pos = stop
+    except struct.error:
+        raise _damaged(path, offset, f"a record header at {pos} is cut off") from None
+    return out

@@ -31,6 +31,9 @@ def summarize(ev: Evidence) -> dict[str, Any]:
         "file": str(ev.path),
         "finished": ev.finished,
         "torn": ev.torn,
+        "recovered": (ev.run_end or {}).get("dropped", "not recorded")
+        if (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED
+        else None,
         "format_version": run.format_version,
         "writer": run.writer,
         "env_id": run.env_id,
@@ -55,6 +58,8 @@ def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
     if output == "json":
         return to_json(data)
     status = "finished" if data["finished"] else f"UNFINISHED ({data['torn']})"
+    if data["recovered"] is not None:
+        status = f"recovered from a torn file (dropped: {data['recovered']})"
     rows = [
         ["file", data["file"]],
         ["status", status],

@@ -140,6 +140,43 @@ class EvidenceWriter:
             )
         )
 
+    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """Register an MCAP schema as given (recovery copies them); returns its id."""
+        self._check_open()
+        return int(self._writer.register_schema(name=name, encoding=encoding, data=data))
+
+    def register_channel(
+        self,
+        topic: str,
+        message_encoding: str,
+        schema_id: int,
+        metadata: Mapping[str, str] | None = None,
+    ) -> int:
+        """Register an MCAP channel as given (recovery copies them); returns its id."""
+        self._check_open()
+        return int(
+            self._writer.register_channel(
+                topic=topic,
+                message_encoding=message_encoding,
+                schema_id=schema_id,
+                metadata=dict(metadata or {}),
+            )
+        )
+
+    def write_message(
+        self, channel_id: int, data: bytes, log_time: int, publish_time: int, sequence: int
+    ) -> None:
+        """Write one message with its own times and sequence number (recovery copies them)."""
+        self._check_open()
+        self._writer.add_message(
+            channel_id=channel_id,
+            log_time=log_time,
+            data=data,
+            publish_time=publish_time,
+            sequence=sequence,
+        )
+        self._messages += 1
+
     def write_batch(self, channel_id: int, batch: pa.RecordBatch, log_time: int) -> int:
         """Write one record batch as a self-contained Arrow IPC stream; returns its byte size."""
         self._check_open()

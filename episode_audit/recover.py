@@ -1,0 +1,389 @@
+"""Recover a torn evidence file: rewrite it as a finished, indexed MCAP file.
+
+A recorder killed before ``close()`` leaves a file without summary, footer or run-end record,
+and perhaps a partial record at its end. :func:`recover` copies everything before the torn end —
+the run metadata, every complete chunk with its schemas, channels and messages (times and
+sequence numbers kept), chunk by chunk — into a new file through
+:class:`~episode_audit.writer.EvidenceWriter`, which adds the message and chunk indexes, the
+summary and the footer, and a run-end record with ``status=recovered`` saying what was dropped.
+
+The input is never changed. The output is written to a temporary file next to ``out`` and
+renamed into place only when it is finished, so a crash during recovery loses nothing; an
+existing ``out`` is never replaced unless ``overwrite=True``, and never by the input itself.
+A file that is already finished is copied unchanged.
+
+>>> import tempfile, pathlib, gymnasium as gym, numpy as np
+>>> from episode_audit import RecordEvidence
+>>> d = pathlib.Path(tempfile.mkdtemp())
+>>> env = RecordEvidence(gym.make("Pendulum-v1"), d / "run.mcap", block_steps=8)
+>>> _ = env.reset(seed=0)
+>>> for _ in range(20):
+...     _ = env.step(np.zeros(1, np.float32))
+>>> data = (d / "run.mcap").read_bytes()   # 16 steps flushed; as a killed process leaves it
+>>> _ = (d / "torn.mcap").write_bytes(data[:-10])
+>>> env.close()
+>>> result = recover(d / "torn.mcap", d / "fixed.mcap")
+>>> result.lost, result.steps, result.cut_off_episodes
+(True, 16, (0,))
+>>> open_evidence(d / "fixed.mcap").run_end["status"]
+'recovered'
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.compute as pc
+from mcap.records import Channel, Header, Message, Metadata, Schema
+
+from . import format as fmt
+from ._version import __version__
+from .errors import ConfigurationError, CorruptEvidenceError
+from .reader import ChunkRecords, FileEnd, iter_records, open_evidence
+from .writer import EvidenceWriter
+
+__all__ = ["RecoveryResult", "recover"]
+
+# MCAP record kinds by opcode (https://mcap.dev/spec), to say what was cut off.
+_RECORD_NAMES = {
+    0x01: "header",
+    0x02: "footer",
+    0x03: "schema",
+    0x04: "channel",
+    0x05: "message",
+    0x06: "chunk",
+    0x07: "message index",
+    0x08: "chunk index",
+    0x09: "attachment",
+    0x0A: "attachment index",
+    0x0B: "statistics",
+    0x0C: "metadata",
+    0x0D: "metadata index",
+    0x0E: "summary offset",
+    0x0F: "data end",
+}
+# Cut records that hold no evidence: indexes and summary records (rebuilt by the writer),
+# metadata (after the run metadata, which a file must have to be evidence at all, the only
+# metadata written is the run-end record, which recovery writes anew), and schema and channel
+# records outside chunks (the summary's copies).
+_NOT_DATA = frozenset({0x02, 0x03, 0x04, 0x07, 0x08, 0x0A, 0x0B, 0x0C, 0x0D, 0x0E, 0x0F})
+
+
+@dataclass(frozen=True)
+class RecoveryResult:
+    """What :func:`recover` wrote and what it had to drop.
+
+    Attributes:
+        source: The torn input file (unchanged).
+        output: The finished file written.
+        already_finished: The input was finished: it was copied unchanged.
+        chunks: Complete chunks copied (0 for a finished input, copied as a whole).
+        messages: Messages copied (0 for a finished input).
+        episodes: Episodes in the output (with or without an end record).
+        steps: Step rows in the output.
+        cut_off_episodes: Episodes without an end record (the kill cut them off): ``incomplete``.
+        dropped_bytes: Bytes of the torn tail not copied (a partial record, or an unfinished
+            summary).
+        dropped_record: The kind of MCAP record cut off at the torn end (``chunk``,
+            ``message index``, ``metadata``, ...), ``None`` if the file ended between records.
+        dropped_at: The byte offset where the dropped tail starts (the input's size if none).
+        closing: The torn file holds the recorder's run-end record: ``close()`` had flushed
+            every step before the kill. Without it the recorder died mid-run, and the steps it
+            took after its last flush (at most ``flush_every_s``) are in no file.
+    """
+
+    source: Path
+    output: Path
+    already_finished: bool
+    chunks: int
+    messages: int
+    episodes: int
+    steps: int
+    cut_off_episodes: tuple[int, ...]
+    dropped_bytes: int
+    dropped_record: str | None
+    dropped_at: int
+    closing: bool = True
+
+    @property
+    def data_dropped(self) -> bool:
+        """Whether the dropped tail held evidence (a partial chunk, message or attachment)."""
+        return self.dropped_record is not None and self.dropped_record not in _NOT_DATA_NAMES
+
+    @property
+    def lost(self) -> bool:
+        """Whether anything was or may have been lost.
+
+        A partial chunk, cut-off episodes, or the steps after the last flush of a recorder
+        killed before ``close()``.
+        """
+        return self.data_dropped or bool(self.cut_off_episodes) or not self.closing
+
+    @property
+    def dropped(self) -> str:
+        """What the recovery dropped or marked, in words (``nothing`` when nothing)."""
+        parts = []
+        if self.dropped_bytes:
+            what = f"a partial {self.dropped_record} record" if self.dropped_record else "bytes"
+            parts.append(f"the last {self.dropped_bytes} bytes ({what} at byte {self.dropped_at})")
+        if self.cut_off_episodes:
+            shown = ", ".join(str(e) for e in self.cut_off_episodes[:5])
+            more = (
+                f" and {len(self.cut_off_episodes) - 5} more"
+                if len(self.cut_off_episodes) > 5
+                else ""
+            )
+            parts.append(f"episode(s) {shown}{more} had no end record: recorded as incomplete")
+        if not self.closing:
+            parts.append("the recorder was killed before close(): steps after its last flush")
+        return "; ".join(parts) if parts else "nothing"
+
+    def summary(self) -> str:
+        """One line for people: what was written, and what was dropped."""
+        if self.already_finished:
+            return (
+                f"{self.source} is already finished: copied unchanged to {self.output} "
+                f"(nothing to recover)"
+            )
+        kept = (
+            f"recovered {self.source} -> {self.output}: {self.episodes} episodes, "
+            f"{self.steps} steps in {self.chunks} chunks"
+        )
+        if not self.lost:
+            tail = f"; dropped {self.dropped}" if self.dropped_bytes else ""
+            return f"{kept}; nothing lost (the writer had not finished the file{tail})"
+        return f"{kept}; dropped: {self.dropped}"
+
+
+_NOT_DATA_NAMES = frozenset(_RECORD_NAMES[op] for op in _NOT_DATA)
+
+
+def recover(
+    path: str | os.PathLike[str], out: str | os.PathLike[str], *, overwrite: bool = False
+) -> RecoveryResult:
+    """Rewrite the evidence file ``path`` as a finished, indexed file ``out``.
+
+    Every complete chunk is kept, with the run metadata; the torn tail is dropped; the run-end
+    record has ``status=recovered`` and says what was dropped (see ``docs/format.md``).
+    Episodes without an end record stay ``incomplete`` (``ended`` false), as a reader of the
+    torn file sees them. A finished input is copied unchanged.
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
+    (without ``overwrite``) or cannot be created, and
+    :class:`~episode_audit.errors.EvidenceError` (and its subclasses) when the input is not
+    readable evidence.
+    """
+    src, dst = Path(path), Path(out)
+    _check_paths(src, dst, overwrite)
+    ev = open_evidence(src)
+    tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
+    try:
+        if ev.finished:
+            try:
+                shutil.copyfile(src, tmp)
+            except OSError as exc:
+                raise ConfigurationError(f"{tmp}: cannot write: {exc.strerror}") from None
+            lengths = ev.episodes()["length"]
+            steps = int(pc.sum(lengths).as_py() or 0)
+            size = src.stat().st_size
+            result = RecoveryResult(src, dst, True, 0, 0, len(lengths), steps, (), 0, None, size)
+        else:
+            episodes = ev.episodes()
+            cut = tuple(episodes.filter(pc.invert(episodes["ended"]))["episode"].to_pylist())
+            result = _rewrite(src, tmp, dst, episodes.num_rows, cut)
+            check = open_evidence(tmp)
+            if not check.finished:  # pragma: no cover - the writer finished it just now
+                raise CorruptEvidenceError(tmp, f"the recovered file is unfinished: {check.torn}")
+        _fsync(tmp)
+        _publish(tmp, dst, overwrite)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return result
+
+
+def _check_paths(src: Path, dst: Path, overwrite: bool) -> None:
+    same = src.resolve() == dst.resolve()
+    if not same and dst.exists() and src.exists():
+        same = os.path.samefile(src, dst)
+    if same:
+        raise ConfigurationError(
+            f"{dst}: the output is the input; recovery never rewrites a file in place — "
+            "choose another output path"
+        )
+    if dst.is_dir():
+        raise ConfigurationError(f"{dst}: is a directory; give the output file's path")
+    if dst.exists() and not overwrite:
+        raise ConfigurationError(
+            f"{dst}: file exists; recovery never overwrites it — choose another path or pass "
+            "--overwrite"
+        )
+
+
+def _rewrite(
+    src: Path, tmp: Path, dst: Path, episodes: int, cut_off: tuple[int, ...]
+) -> RecoveryResult:
+    """Copy ``src``'s complete records into the new file ``tmp`` and finish it."""
+    records = iter_records(src)
+    header = next(records)
+    if not isinstance(header, Header):  # open_evidence found one: the walk does too
+        raise CorruptEvidenceError(src, "the first record is not an MCAP header")
+    writer = EvidenceWriter(tmp, library=header.library)
+    try:
+        copy = _Copy(src, writer)
+        end: FileEnd | None = None
+        old_run_end: dict[str, str] | None = None
+        for item in records:
+            if isinstance(item, FileEnd):
+                end = item
+            elif isinstance(item, Metadata):
+                if item.name == fmt.METADATA_RUN_END:
+                    old_run_end = dict(item.metadata)
+                else:
+                    writer.add_metadata(item.name, item.metadata)
+            elif isinstance(item, ChunkRecords):
+                for record in item.records:
+                    copy.record(record)
+                writer.flush()
+                copy.chunks += 1
+            elif not isinstance(item, Header):
+                copy.record(item)
+        assert end is not None  # iter_records always ends with one
+        dropped = end.size - end.offset if not end.footer else 0
+        kind = None
+        if dropped and end.cut_opcode is not None:
+            kind = _RECORD_NAMES.get(end.cut_opcode, f"unknown (opcode {end.cut_opcode:#04x})")
+        result = RecoveryResult(
+            src,
+            dst,
+            False,
+            copy.chunks,
+            copy.messages,
+            episodes,
+            copy.steps,
+            cut_off,
+            dropped,
+            kind,
+            end.size - dropped,
+            old_run_end is not None,
+        )
+        last = (old_run_end or {}).get("end_time")
+        writer.finish(
+            {
+                "status": fmt.RUN_STATUS_RECOVERED,
+                "episodes": str(episodes),
+                "steps": str(copy.steps),
+                "blocks": str(copy.blocks),
+                "end_time": last or _iso(copy.last_time),
+                "recovered_from": str(src),
+                "recovered_by": f"episode-audit {__version__}",
+                "recovered_time": datetime.now(timezone.utc).isoformat(),
+                "dropped": result.dropped,
+                "dropped_bytes": str(dropped),
+                "cut_off_episodes": json.dumps(list(cut_off)),
+            }
+        )
+    except BaseException:
+        writer.abandon()
+        raise
+    return result
+
+
+class _Copy:
+    """Schemas, channels and messages copied so far, with the old-to-new id maps."""
+
+    def __init__(self, src: Path, writer: EvidenceWriter) -> None:
+        self.src = src
+        self.writer = writer
+        self.schemas: dict[int, int] = {0: 0}
+        self.channels: dict[int, int] = {}
+        self.steps_channels: set[int] = set()
+        self.chunks = self.messages = self.steps = self.blocks = 0
+        self.last_time = 0
+
+    def record(self, record: object) -> None:
+        writer = self.writer
+        if isinstance(record, Message):
+            channel = self.channels.get(record.channel_id)
+            if channel is None:
+                raise CorruptEvidenceError(
+                    self.src, f"a message on unknown channel {record.channel_id}"
+                )
+            writer.write_message(
+                channel, record.data, record.log_time, record.publish_time, record.sequence
+            )
+            self.messages += 1
+            self.last_time = max(self.last_time, record.log_time)
+            if channel in self.steps_channels:
+                self.steps += _rows(record.data, self.src)
+                self.blocks += 1
+        elif isinstance(record, Schema) and record.id not in self.schemas:
+            self.schemas[record.id] = writer.register_schema(
+                record.name, record.encoding, record.data
+            )
+        elif isinstance(record, Channel) and record.id not in self.channels:
+            schema = self.schemas.get(record.schema_id)
+            if schema is None:
+                raise CorruptEvidenceError(
+                    self.src, f"channel {record.topic!r} names unknown schema {record.schema_id}"
+                )
+            new = writer.register_channel(
+                record.topic, record.message_encoding, schema, record.metadata
+            )
+            self.channels[record.id] = new
+            if record.topic == fmt.TOPIC_STEPS:
+                self.steps_channels.add(new)
+
+
+def _rows(data: bytes, src: Path) -> int:
+    try:
+        return int(pa.ipc.open_stream(pa.py_buffer(data)).read_next_batch().num_rows)
+    except (pa.ArrowException, StopIteration, OSError) as exc:
+        raise CorruptEvidenceError(
+            src, f"a block on {fmt.TOPIC_STEPS} is not a valid Arrow stream: {exc}"
+        ) from None
+
+
+def _iso(time_ns: int) -> str:
+    return datetime.fromtimestamp(time_ns / 1e9, timezone.utc).isoformat()
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _publish(tmp: Path, dst: Path, overwrite: bool) -> None:
+    """Move the finished ``tmp`` to ``dst`` atomically; never over a file unless asked."""
+    link: Callable[[Path, Path], None] = os.replace if overwrite else os.link
+    try:
+        link(tmp, dst)
+    except FileExistsError:
+        raise ConfigurationError(
+            f"{dst}: file exists; recovery never overwrites it — choose another path or pass "
+            "--overwrite"
+        ) from None
+    except OSError as exc:
+        if overwrite or dst.exists():
+            raise ConfigurationError(f"{dst}: cannot write: {exc.strerror}") from None
+        os.replace(tmp, dst)  # a file system without hard links
+    try:
+        fd = os.open(dst.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

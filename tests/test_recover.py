@@ -1,0 +1,291 @@
+from __future__ import annotations
+
+import hashlib
+import json
+import struct
+from pathlib import Path
+
+import gymnasium as gym
+import pyarrow as pa
+import pyarrow.compute as pc
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+from typer.testing import CliRunner
+
+from episode_audit import (
+    ConfigurationError,
+    CorruptEvidenceError,
+    NotEvidenceError,
+    RecordEvidence,
+    open_evidence,
+    recover,
+)
+from episode_audit.cli import app
+from tests import kill_harness
+
+runner = CliRunner()
+
+
+def run(*args: str) -> tuple[int, str, str]:
+    result = runner.invoke(app, list(args))
+    if result.exception and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished CartPole file: 6 seeded episodes, a chunk every 32 steps."""
+    path = tmp_path_factory.mktemp("rec") / "run.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path, block_steps=32, flush_every_s=3600) as env:
+        env.action_space.seed(0)
+        for seed in range(6):
+            env.reset(seed=seed)
+            done = False
+            while not done:
+                _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+                done = terminated or truncated
+    return path
+
+
+def layout(path: Path) -> tuple[list[tuple[int, int]], int]:
+    """(chunk offset, chunk length) of every chunk, and where the summary starts (mcap's view)."""
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        chunks = sorted((c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes)
+    data = path.read_bytes()  # the footer: opcode, length, summary start, ...; then the magic
+    opcode, _, summary_start = struct.unpack_from("<BQQ", data, len(data) - 8 - 29)
+    assert opcode == 0x02
+    return chunks, summary_start
+
+
+def torn_copy(recorded: Path, directory: Path, cut: int) -> Path:
+    torn = directory / f"torn-{cut}.mcap"
+    torn.write_bytes(recorded.read_bytes()[:cut])
+    return torn
+
+
+def assert_recovered_like(torn: Path, out: Path, messages: int) -> None:
+    """The output is a finished, indexed MCAP holding what a reader of the torn file sees."""
+    with open(out, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.message_count == messages
+        run_end = {m.name: m.metadata for m in reader.iter_metadata()}["episode_audit.run_end"]
+        blocks = [m.data for _, _, m in reader.iter_messages(topics=["episode_audit/steps"])]
+    assert run_end["status"] == "recovered" and int(run_end["blocks"]) == len(blocks)
+    assert sum(pa.ipc.open_stream(b).read_all().num_rows for b in blocks) == int(run_end["steps"])
+    before, after = open_evidence(torn), open_evidence(out)
+    assert not before.finished and after.finished and after.torn is None
+    assert after.run_end is not None and after.run_end["status"] == "recovered"
+    assert after.run.to_metadata() == before.run.to_metadata()
+    assert after.episodes().equals(before.episodes())
+    assert after.steps().equals(before.steps())
+    assert after.resets().equals(before.resets())
+    assert int(run_end["steps"]) == before.steps().num_rows
+    assert int(run_end["episodes"]) == before.episodes().num_rows
+
+
+def test_cut_inside_a_chunk_drops_it_and_says_so(recorded: Path, tmp_path: Path) -> None:
+    chunks, _ = layout(recorded)
+    offset, length = chunks[-3]
+    torn = torn_copy(recorded, tmp_path, offset + length // 2)
+    source = torn.read_bytes()
+    result = recover(torn, tmp_path / "out.mcap")
+    assert torn.read_bytes() == source  # the input is never changed
+    assert result.data_dropped and result.lost and not result.already_finished
+    assert result.dropped_record == "chunk" and result.dropped_at == offset
+    assert result.dropped_bytes == length // 2
+    assert result.chunks == len(chunks) - 3
+    cut = open_evidence(torn).episodes()
+    assert result.cut_off_episodes == tuple(
+        cut.filter(pc.invert(cut["ended"]))["episode"].to_pylist()
+    )
+    assert len(result.cut_off_episodes) == 1
+    assert f"the last {result.dropped_bytes} bytes (a partial chunk record" in result.summary()
+    assert_recovered_like(torn, tmp_path / "out.mcap", result.messages)
+
+
+@pytest.mark.parametrize("where", ["header", "first chunk", "message index", "summary"])
+def test_cuts_at_other_offsets(recorded: Path, tmp_path: Path, where: str) -> None:
+    chunks, summary_start = layout(recorded)
+    first, (last, last_length) = chunks[0], chunks[-1]
+    cut = {
+        "header": first[0],  # header and run metadata only: no chunk yet
+        "first chunk": first[0] + first[1] - 1,
+        "message index": last + last_length + 5,  # after close()'s last chunk
+        "summary": summary_start + 7,
+    }[where]
+    torn = torn_copy(recorded, tmp_path, cut)
+    result = recover(torn, tmp_path / "out.mcap")
+    assert_recovered_like(torn, tmp_path / "out.mcap", result.messages)
+    expected = {
+        "header": (None, False, 0),
+        "first chunk": ("chunk", True, 0),
+        "message index": ("message index", False, len(chunks)),
+        "summary": ("schema", False, len(chunks)),
+    }[where]
+    assert (result.dropped_record, result.data_dropped, result.chunks) == expected
+    if where == "header":  # torn before the first block: no step schema in the file
+        assert open_evidence(torn).steps(columns=["episode", "reward"]).num_rows == 0
+    # only a cut after close() wrote the run-end record (before the summary) loses nothing
+    assert result.lost == (where != "summary")
+    assert result.closing == (where == "summary")
+
+
+def test_killed_during_close_loses_nothing(recorded: Path, tmp_path: Path) -> None:
+    _, summary_start = layout(recorded)
+    torn = torn_copy(recorded, tmp_path, summary_start)  # run-end record and data end written
+    code, out, _ = run("recover", str(torn), "-o", str(tmp_path / "out.mcap"))
+    assert code == 0, out
+    assert "nothing lost (the writer had not finished the file)" in out
+    fixed = open_evidence(tmp_path / "out.mcap")
+    assert fixed.run_end is not None
+    assert fixed.run_end["dropped"] == "nothing" and fixed.run_end["cut_off_episodes"] == "[]"
+    assert fixed.run_end["end_time"] == open_evidence(recorded).run_end["end_time"]  # type: ignore[index]
+
+
+def test_a_file_without_its_closing_magic_is_unfinished(recorded: Path, tmp_path: Path) -> None:
+    torn = torn_copy(recorded, tmp_path, recorded.stat().st_size - 8)  # killed before the magic
+    ev = open_evidence(torn)
+    assert not ev.finished and ev.torn is not None and "closing magic" in ev.torn
+    result = recover(torn, tmp_path / "out.mcap")
+    assert not result.lost and not result.already_finished and result.dropped_bytes == 0
+    assert_recovered_like(torn, tmp_path / "out.mcap", result.messages)
+
+
+def test_cli_exit_1_says_what_was_dropped(recorded: Path, tmp_path: Path) -> None:
+    chunks, _ = layout(recorded)
+    torn = torn_copy(recorded, tmp_path, chunks[2][0] + 40)
+    code, out, err = run("recover", str(torn), "--out", str(tmp_path / "out.mcap"))
+    assert code == 1 and err == ""
+    assert "dropped: the last" in out and "(a partial chunk record at byte" in out
+    assert "had no end record: recorded as incomplete" in out
+
+
+def test_cli_refuses_to_overwrite_and_never_writes_in_place(recorded: Path, tmp_path: Path) -> None:
+    chunks, _ = layout(recorded)
+    torn = torn_copy(recorded, tmp_path, chunks[2][0] + 40)
+    digest = hashlib.sha256(torn.read_bytes()).hexdigest()
+    code, _, err = run("recover", str(torn), "-o", str(torn), "--overwrite")
+    assert code == 2 and "the output is the input" in err
+    existing = tmp_path / "existing.mcap"
+    existing.write_bytes(b"keep me")
+    code, _, err = run("recover", str(torn), "-o", str(existing))
+    assert code == 2 and "file exists" in err and "--overwrite" in err
+    assert existing.read_bytes() == b"keep me"
+    code, _, _ = run("recover", str(torn), "-o", str(existing), "--overwrite")
+    assert code == 1 and open_evidence(existing).finished
+    assert hashlib.sha256(torn.read_bytes()).hexdigest() == digest
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing.mcap", torn.name]
+
+
+def test_cli_exit_2_for_what_is_not_evidence(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    text = tmp_path / "notes.mcap"
+    text.write_text("not mcap")
+    other = tmp_path / "other.mcap"
+    with open(other, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="test")
+        writer.finish()
+    for path, why in [
+        (empty, "the file is empty"),
+        (text, "not an MCAP file"),
+        (other, "not evidence"),
+        (tmp_path / "missing.mcap", "no such file"),
+    ]:
+        code, out, err = run("recover", str(path), "-o", str(tmp_path / "out.mcap"))
+        assert code == 2 and why in err and out == "", (path, err)
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "out.mcap").exists()
+    with pytest.raises(NotEvidenceError, match="not an MCAP file"):
+        recover(text, tmp_path / "out.mcap")
+    with pytest.raises(ConfigurationError, match="is a directory"):
+        recover(text, tmp_path)
+
+
+def test_damage_inside_a_complete_chunk_is_an_error_and_leaves_nothing(
+    recorded: Path, tmp_path: Path
+) -> None:
+    chunks, _ = layout(recorded)
+    data = bytearray(recorded.read_bytes()[: chunks[-2][0]])
+    offset, length = chunks[1]
+    data[offset + length - 20] ^= 0xFF  # inside the compressed records
+    torn = tmp_path / "damaged.mcap"
+    torn.write_bytes(bytes(data))
+    with pytest.raises(CorruptEvidenceError, match=f"chunk at byte {offset} is damaged"):
+        recover(torn, tmp_path / "out.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.mcap"]  # no temp file left
+    code, _, err = run("recover", str(torn), "-o", str(tmp_path / "out.mcap"))
+    assert code == 2 and "damaged" in err
+
+
+def test_finished_file_is_copied_unchanged(recorded: Path, tmp_path: Path) -> None:
+    code, out, _ = run("recover", str(recorded), "-o", str(tmp_path / "copy.mcap"))
+    assert code == 0 and "already finished: copied unchanged" in out
+    assert (tmp_path / "copy.mcap").read_bytes() == recorded.read_bytes()
+    copied = recover(recorded, tmp_path / "copy2.mcap")
+    assert copied.already_finished and copied.steps == open_evidence(recorded).steps().num_rows
+    # a recovered file is finished too
+    chunks, _ = layout(recorded)
+    torn = torn_copy(recorded, tmp_path, chunks[2][0] + 40)
+    recover(torn, tmp_path / "once.mcap")
+    again = recover(tmp_path / "once.mcap", tmp_path / "twice.mcap")
+    assert again.already_finished and not again.lost
+
+
+def test_audit_commands_agree_on_a_torn_file_and_its_recovery(
+    recorded: Path, tmp_path: Path
+) -> None:
+    chunks, _ = layout(recorded)
+    torn = torn_copy(recorded, tmp_path, chunks[4][0] + 40)
+    fixed = tmp_path / "fixed.mcap"
+    assert recover(torn, fixed).lost
+
+    def output(command: str, path: Path, *extra: str) -> tuple[int, object]:
+        code, out, _ = run(command, str(path), "--format", "json", *extra)
+        return code, json.loads(out.replace(str(path), "FILE"))
+
+    code, torn_check = output("check", torn)
+    assert code == 0
+    code, fixed_check = output("check", fixed)
+    assert code == 0
+    swapped = {"file_unfinished": "file_recovered"}
+    assert [
+        (f["severity"], swapped.get(f["code"], f["code"]), f["episode"], f["step"])
+        for f in torn_check["findings"]  # type: ignore[index]
+    ] == [
+        (f["severity"], f["code"], f["episode"], f["step"])
+        for f in fixed_check["findings"]  # type: ignore[index]
+    ]
+    assert "incomplete_episode" in {f["code"] for f in fixed_check["findings"]}  # type: ignore[index]
+    assert output("report", torn) == output("report", fixed)
+    assert output("replay", torn) == output("replay", fixed)
+    code, replayed = output("replay", fixed)
+    assert code == 0 and replayed["summary"]["identical"] >= 3  # type: ignore[index]
+    code, torn_show = output("show", torn)
+    assert code == 0
+    code, fixed_show = output("show", fixed)
+    assert code == 0
+    for data in (torn_show, fixed_show):
+        for key in ("finished", "torn", "recovered"):
+            data.pop(key)  # type: ignore[attr-defined]
+    assert torn_show == fixed_show
+    episode = str(open_evidence(torn).episodes()["episode"][-1].as_py())
+    assert output("show", torn, "-e", episode) == output("show", fixed, "-e", episode)
+    code, text, _ = run("show", str(fixed))
+    assert "recovered from a torn file (dropped: the last" in text
+
+
+def test_kill_sample(tmp_path: Path) -> None:
+    """A few kills of the crash harness (make test-long runs over a hundred)."""
+    verdicts = kill_harness.run(8, tmp_path, seed=11, scale=0.3)
+    assert {v.plan.mode for v in verdicts} == set(kill_harness.MODES)
+    assert [(v.plan, v.problems) for v in verdicts if v.problems] == []
+    assert all(v.in_file >= v.flushed for v in verdicts)
