@@ -532,6 +532,8 @@ class RecordEvidence(
             episode = self._episode
             if episode is None or episode.ended or self._track_info:
                 raise LookupError  # not the common case: take the slow path
+            if not isinstance(info, dict):
+                raise LookupError  # noted (info_not_dict) on the slow path
             block = self._block
             terms = self._extract_terms(info) if info else None
             if terms is not None:
