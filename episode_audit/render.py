@@ -254,6 +254,9 @@ def report_output(result: Report, output: OutputFormat) -> Output:
     warning_headers = ["group", "warning", "why"]
     gates = [[r.gate, r.group, "pass" if r.passed else "FAIL", r.message] for r in result.gates]
     gate_headers = ["gate", "group", "result", "detail"]
+    unfinished = [[name, why] for name, why in result.unfinished]
+    unfinished_title = "Unfinished files (still being written, or torn): counts so far"
+    unfinished_headers = ["file", "why"]
     if output == "markdown":
         parts = [
             f"### episode-audit report (by {result.by})\n",
@@ -268,6 +271,11 @@ def report_output(result: Report, output: OutputFormat) -> Output:
             parts += ["#### Incentive warnings\n", markdown_table(warning_headers, warnings) + "\n"]
         if gates:
             parts += ["#### Gates\n", markdown_table(gate_headers, gates) + "\n"]
+        if unfinished:
+            parts += [
+                f"#### {unfinished_title}\n",
+                markdown_table(unfinished_headers, unfinished) + "\n",
+            ]
         return "\n".join(parts)
     out: list[RenderableType] = [table(f"Outcomes (by {result.by})", REPORT_HEADERS, rows)]
     if term_rows:
@@ -276,4 +284,6 @@ def report_output(result: Report, output: OutputFormat) -> Output:
         out.append(table("Incentive warnings", warning_headers, warnings))
     if gates:
         out.append(table("Gates", gate_headers, gates))
+    if unfinished:
+        out.append(table(unfinished_title, unfinished_headers, unfinished))
     return Group(*out)
