@@ -537,7 +537,8 @@ class RecordEvidence(
             block = self._block
             terms = self._extract_terms(info) if info else None
             if terms is not None:
-                values = [float(v) for v in terms.values()]
+                # __float__, not float(): a str such as "1.5" is not a number (slow path)
+                values = [v.__float__() for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
                 raise LookupError  # a value was cast: note it on the slow path
             block.rewards.append(reward)  # type: ignore[arg-type]  # may raise: slow path
@@ -659,7 +660,7 @@ class RecordEvidence(
     ) -> tuple[float, dict[str, float] | None]:
         """Per-value handling of a reward and terms the fast path could not take."""
         try:
-            r = float(reward)
+            r = _number(reward)
         except Exception:
             r = math.nan
             notes.append(_note("reward_not_numeric", f"reward {_short(reward)}"))
@@ -676,7 +677,7 @@ class RecordEvidence(
         terms: dict[str, float] = {}
         for key, value in raw.items():
             try:
-                number = float(value)
+                number = _number(value)
             except Exception:
                 number = math.nan
                 notes.append(_note("term_not_numeric", f"term {key!r} is {_short(value)}"))
@@ -1002,6 +1003,13 @@ def _apply_block(
     return pa.MapArray.from_arrays(
         pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
     )
+
+
+def _number(value: Any) -> float:
+    """``float(value)`` for numbers only: text such as ``"1.5"`` raises ``TypeError``."""
+    if isinstance(value, (str, bytes, bytearray)):
+        raise TypeError(f"{type(value).__name__} is not a number")
+    return float(value)
 
 
 def _append_noted(
