@@ -534,6 +534,8 @@ class RecordEvidence(
                 raise LookupError  # not the common case: take the slow path
             if not isinstance(info, dict):
                 raise LookupError  # noted (info_not_dict) on the slow path
+            # both flags' truth values, here: one without any (an array) takes the slow path
+            running = (not terminated) & (not truncated)
             block = self._block
             terms = self._extract_terms(info) if info else None
             if terms is not None:
@@ -550,7 +552,7 @@ class RecordEvidence(
             block.add_terms(row, terms, values)
         now = self._clock()
         block.times.append(now)  # commits the row
-        if terminated or truncated:
+        if not running:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
         if row + 1 >= self._block_steps or now - self._last_flush >= self._flush_ns:
             self._flush()
