@@ -42,8 +42,9 @@ def rewrite(
     run: RunEdit | None = None,
     steps: BatchEdit | None = None,
     resets: BatchEdit | None = None,
+    episodes: BatchEdit | None = None,
 ) -> Path:
-    """Copy an evidence file, editing its run metadata and / or its step and reset blocks."""
+    """Copy an evidence file, editing its run metadata and / or its Arrow blocks."""
     with open(src, "rb") as f:
         reader = make_reader(f)
         header = reader.get_header()
@@ -51,7 +52,7 @@ def rewrite(
         assert summary is not None
         metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         messages = [(c, m) for _, c, m in reader.iter_messages(log_time_order=False)]
-    edits = {fmt.TOPIC_STEPS: steps, fmt.TOPIC_RESETS: resets}
+    edits = {fmt.TOPIC_STEPS: steps, fmt.TOPIC_RESETS: resets, fmt.TOPIC_EPISODES: episodes}
     with open(dst, "wb") as out:
         writer = Writer(out)
         writer.start(profile=header.profile, library=header.library)
