@@ -495,7 +495,10 @@ class _FileCheck:
         self.check_codecs()
         # One pass over the file: streaming the steps also keeps the reset blocks and the
         # episode records, so check_resets() and check_episodes() read no chunk again.
-        for batch in self.ev.iter_step_batches(columns=_STEP_COLUMNS):
+        # info is optional to the checks (files may have been made by other tools)
+        optional = {fmt.COL_INFO} - set(self.ev.steps_schema.names)
+        columns = [c for c in _STEP_COLUMNS if c not in optional]
+        for batch in self.ev.iter_step_batches(columns=columns):
             self.check_block(batch)
             self.steps += batch.num_rows
             if self.progress is not None:
