@@ -52,6 +52,12 @@ code                             severity  meaning
                                            (one per file, listing up to five)
 ``missing_env_spec``             warning   the file has no environment spec to rebuild the env
 ``format_version``               note      the file was written with an older format version
+``terms_keys_changed``           note      the set of reward-term names changed from one step to
+                                           the next within an episode (one per file: how many
+                                           episodes, the first change and the names added and
+                                           removed); steps without terms are not compared
+``info_keys_changed``            note      the same for the info keys the recorder kept
+                                           (``info_keys``); only steps with kept info compare
 ===============================  ========  ======================================================
 
 Example:
@@ -71,7 +77,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Callable, Iterable
@@ -85,6 +90,7 @@ import pyarrow.compute as pc
 
 from . import format as fmt
 from .reader import Evidence, open_evidence
+from .records import from_json
 from .spaces import SpaceCodec
 
 __all__ = ["CheckResult", "Finding", "Severity", "check", "check_evidence"]
@@ -112,6 +118,8 @@ FILE_RECOVERED = "file_recovered"
 NOT_REPLAYABLE = "not_replayable"
 MISSING_ENV_SPEC = "missing_env_spec"
 FORMAT_VERSION = "format_version"
+TERMS_KEYS_CHANGED = "terms_keys_changed"
+INFO_KEYS_CHANGED = "info_keys_changed"
 
 _STEP_COLUMNS = [
     fmt.COL_EPISODE,
@@ -121,9 +129,11 @@ _STEP_COLUMNS = [
     fmt.COL_REWARD,
     fmt.COL_TERMS,
     fmt.COL_OUTCOME,
+    fmt.COL_INFO,
     fmt.COL_NOTES,
 ]
 _LIST_LIMIT = 5
+_HASH_MASK = (1 << 64) - 1
 
 _IntArray = npt.NDArray[np.int64]
 _BoolArray = npt.NDArray[np.bool_]
@@ -300,6 +310,120 @@ def _counts_per_episode(episode: _IntArray) -> tuple[_IntArray, _IntArray]:
     return uniq, counts.astype(np.int64)
 
 
+class _KeySets:
+    """Per episode, the key set of its previous step; counts the steps where it changed.
+
+    A key set is summarised by a 64-bit signature (the wrapping sum of one hash per name), so a
+    block is compared with numpy; names are looked up only for the first change in the file.
+    """
+
+    def __init__(self, code: str, noun: str) -> None:
+        self.code = code
+        self.noun = noun
+        self.carry: dict[int, tuple[int, int]] = {}  # episode -> (signature, row) of last step
+        self.carry_names: Callable[[int], list[str]] | None = None
+        self.changed: set[int] = set()
+        self.first: tuple[int, int, list[str], list[str]] | None = None
+
+    def add(
+        self,
+        episode: _IntArray,
+        step: _IntArray,
+        signature: npt.NDArray[np.uint64],
+        mask: _BoolArray,
+        names: Callable[[int], list[str]],
+    ) -> None:
+        """Compare the rows in ``mask`` (``names(row)`` gives a row's keys, for messages)."""
+        rows = np.flatnonzero(mask)
+        if rows.size == 0:
+            return
+        eps = episode[rows]
+        if not (eps[1:] >= eps[:-1]).all():
+            order = np.argsort(eps, kind="stable")
+            rows, eps = rows[order], eps[order]
+        sig = signature[rows]
+        boundary = eps[1:] != eps[:-1]
+        first_of = np.concatenate(([True], boundary))
+        previous = np.concatenate((sig[:1], sig[:-1]))
+        changed = ~first_of & (sig != previous)
+        from_carry: dict[int, int] = {}
+        if self.carry:
+            for i in np.flatnonzero(first_of).tolist():
+                before = self.carry.get(int(eps[i]))
+                if before is not None and before[0] != int(sig[i]):
+                    changed[i] = True
+                    from_carry[i] = before[1]
+        if changed.any():
+            hit = np.flatnonzero(changed)
+            self.changed.update(eps[hit].tolist())
+            if self.first is None:
+                i = int(hit[0])
+                old = (
+                    self.carry_names(from_carry[i])
+                    if i in from_carry and self.carry_names is not None
+                    else names(int(rows[i - 1]))
+                )
+                self.first = (int(eps[i]), int(step[rows[i]]), old, names(int(rows[i])))
+        last = np.concatenate((boundary, [True]))
+        self.carry = dict(
+            zip(
+                eps[last].tolist(),
+                zip(sig[last].tolist(), rows[last].tolist(), strict=True),
+                strict=True,
+            )
+        )
+        self.carry_names = names
+
+    def finding(self, file: str) -> Finding | None:
+        if self.first is None:
+            return None
+        episode, step, old, new = self.first
+        eps = sorted(self.changed)
+        added = sorted(set(new) - set(old))
+        removed = sorted(set(old) - set(new))
+        return Finding(
+            "note",
+            self.code,
+            f"{self.noun} keys changed between steps in {len(eps)} episode(s) (episodes "
+            f"{_listing(eps)}); first at step {step} of episode {episode}: added {added}, "
+            f"removed {removed}",
+            file,
+            episode,
+            step,
+        )
+
+
+def _signatures(names: list[list[str] | None]) -> tuple[npt.NDArray[np.uint64], _BoolArray]:
+    """A key-set signature per entry, and whether the entry has keys at all."""
+    sig = np.zeros(len(names), dtype=np.uint64)
+    has = np.zeros(len(names), dtype=np.bool_)
+    for i, keys in enumerate(names):
+        if keys:
+            sig[i] = sum(hash(k) & _HASH_MASK for k in keys) & _HASH_MASK
+            has[i] = True
+    return sig, has
+
+
+def _same_names_every_row(keys: pa.Array, rows: int, width: int) -> bool:
+    """Whether ``rows`` rows of ``width`` keys each repeat the first row's keys, in order.
+
+    The usual case, checked on the string buffers (one ``memcmp``), not string by string.
+    """
+    if keys.type != pa.string() or keys.null_count:
+        return False
+    start = keys.offset
+    bounds = np.frombuffer(keys.buffers()[1], dtype=np.int32)[start : start + len(keys) + 1]
+    lo, hi = int(bounds[0]), int(bounds[-1])
+    row = int(bounds[width]) - lo
+    if hi - lo != row * rows:
+        return False
+    sizes = np.diff(bounds).reshape(rows, width)
+    if not bool((sizes == sizes[0]).all()):
+        return False
+    data = np.frombuffer(keys.buffers()[2], dtype=np.uint8, count=hi - lo, offset=lo)
+    return bool((data.reshape(rows, row) == data[:row]).all())
+
+
 def _short(value: Any, limit: int = 60) -> str:
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -354,6 +478,8 @@ class _FileCheck:
         self.count_parts: list[tuple[_IntArray, _IntArray]] = []
         self.obs_codec: SpaceCodec | None = ev.observation_codec
         self.act_codec: SpaceCodec | None = ev.action_codec
+        self.term_keys = _KeySets(TERMS_KEYS_CHANGED, "reward-term")
+        self.info_keys = _KeySets(INFO_KEYS_CHANGED, "info")
 
     def finding(
         self,
@@ -372,7 +498,10 @@ class _FileCheck:
         self.check_codecs()
         # One pass over the file: streaming the steps also keeps the reset blocks and the
         # episode records, so check_resets() and check_episodes() read no chunk again.
-        for batch in self.ev.iter_step_batches(columns=_STEP_COLUMNS):
+        # info is optional to the checks (files may have been made by other tools)
+        optional = {fmt.COL_INFO} - set(self.ev.steps_schema.names)
+        columns = [c for c in _STEP_COLUMNS if c not in optional]
+        for batch in self.ev.iter_step_batches(columns=columns):
             self.check_block(batch)
             self.steps += batch.num_rows
             if self.progress is not None:
@@ -381,6 +510,10 @@ class _FileCheck:
         self.check_episodes()
         self.report_hits()
         self.report_missing_terms()
+        for tracker in (self.term_keys, self.info_keys):
+            found = tracker.finding(self.file)
+            if found is not None:
+                self.findings.append(found)
         self.findings.sort(
             key=lambda f: (
                 -1 if f.episode is None else f.episode,
@@ -453,6 +586,9 @@ class _FileCheck:
         present, counts = _counts_per_episode(episode)
         after_end = self.check_endings(batch, episode, present)
         self.check_rewards(batch, episode, step, reward)
+        self.check_term_keys(batch.column(fmt.COL_TERMS), episode, step)
+        if fmt.COL_INFO in batch.schema.names:
+            self.check_info_keys(batch.column(fmt.COL_INFO), episode, step)
         self.check_space(fmt.COL_OBSERVATION, batch.column(fmt.COL_OBSERVATION), episode, step)
         self.check_space(fmt.COL_ACTION, batch.column(fmt.COL_ACTION), episode, step)
         noted_after_end = self.check_notes(batch.column(fmt.COL_NOTES), episode, step)
@@ -577,6 +713,60 @@ class _FileCheck:
         self.hits.add(
             TERMS_SUM_MISMATCH, eps, step[first].tolist(), counts, worst=worst, details=details
         )
+
+    def check_term_keys(self, terms: pa.Array, episode: _IntArray, step: _IntArray) -> None:
+        """Track the set of reward-term names from step to step (``terms_keys_changed``)."""
+        if terms.null_count == len(terms):
+            return
+        offsets: _IntArray = terms.offsets.to_numpy(zero_copy_only=False).astype(np.int64)
+        lo, hi = int(offsets[0]), int(offsets[-1])
+        if hi == lo:
+            return
+        keys = terms.keys.slice(lo, hi - lo)
+        lengths = np.diff(offsets)
+
+        def names(row: int) -> list[str]:
+            return sorted(
+                str(k) for k in keys[offsets[row] - lo : offsets[row + 1] - lo].to_pylist()
+            )
+
+        n = len(terms)
+        width = int(lengths[0])
+        uniform = terms.null_count == 0 and width and bool((lengths == width).all())
+        if uniform and (n == 1 or _same_names_every_row(keys, n, width)):
+            sig, _ = _signatures([names(0)])
+            every = np.ones(n, dtype=np.bool_)
+            self.term_keys.add(episode, step, np.full(n, sig[0], np.uint64), every, names)
+            return
+        encoded = pc.dictionary_encode(keys)
+        weights, _ = _signatures([[k] for k in encoded.dictionary.to_pylist()])
+        per_value = weights[encoded.indices.to_numpy(zero_copy_only=False)]
+        signature = np.add.reduceat(np.append(per_value, np.uint64(0)), offsets[:-1] - lo)
+        mask = (lengths > 0) & pc.is_valid(terms).to_numpy(zero_copy_only=False)
+        self.term_keys.add(episode, step, signature.astype(np.uint64), mask, names)
+
+    def check_info_keys(self, info: pa.Array, episode: _IntArray, step: _IntArray) -> None:
+        """Track the set of kept info keys from step to step (``info_keys_changed``)."""
+        if info.null_count == len(info):
+            return
+        encoded = pc.dictionary_encode(info)
+        distinct: list[list[str] | None] = []
+        for text in encoded.dictionary.to_pylist():
+            try:
+                value = from_json(text, "info")
+            except ValueError:
+                value = None
+            distinct.append(sorted(str(k) for k in value) if isinstance(value, dict) else None)
+        sig, has = _signatures(distinct)
+        size = len(distinct)
+        indices = encoded.indices.fill_null(size).to_numpy(zero_copy_only=False)
+        signature = np.append(sig, np.uint64(0))[indices]
+        mask = np.append(has, False)[indices]
+
+        def names(row: int) -> list[str]:
+            return distinct[int(indices[row])] or []
+
+        self.info_keys.add(episode, step, signature, mask, names)
 
     def check_space(
         self, column: str, array: pa.Array, episode: _IntArray, step: _IntArray | None
@@ -830,7 +1020,7 @@ class _FileCheck:
 
 def _parse_notes(text: str) -> list[str]:
     try:
-        notes = json.loads(text)
+        notes = from_json(text, "notes")
     except (TypeError, ValueError):
         return [f"notes_unreadable: {_short(text)}"]
     if isinstance(notes, str):

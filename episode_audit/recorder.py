@@ -532,10 +532,15 @@ class RecordEvidence(
             episode = self._episode
             if episode is None or episode.ended or self._track_info:
                 raise LookupError  # not the common case: take the slow path
+            if not isinstance(info, dict):
+                raise LookupError  # noted (info_not_dict) on the slow path
+            # both flags' truth values, here: one without any (an array) takes the slow path
+            running = (not terminated) & (not truncated)
             block = self._block
             terms = self._extract_terms(info) if info else None
             if terms is not None:
-                values = [float(v) for v in terms.values()]
+                # __float__, not float(): a str such as "1.5" is not a number (slow path)
+                values = [v.__float__() for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
                 raise LookupError  # a value was cast: note it on the slow path
             block.rewards.append(reward)  # type: ignore[arg-type]  # may raise: slow path
@@ -547,7 +552,7 @@ class RecordEvidence(
             block.add_terms(row, terms, values)
         now = self._clock()
         block.times.append(now)  # commits the row
-        if terminated or truncated:
+        if not running:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
         if row + 1 >= self._block_steps or now - self._last_flush >= self._flush_ns:
             self._flush()
@@ -657,7 +662,7 @@ class RecordEvidence(
     ) -> tuple[float, dict[str, float] | None]:
         """Per-value handling of a reward and terms the fast path could not take."""
         try:
-            r = float(reward)
+            r = _number(reward)
         except Exception:
             r = math.nan
             notes.append(_note("reward_not_numeric", f"reward {_short(reward)}"))
@@ -674,7 +679,7 @@ class RecordEvidence(
         terms: dict[str, float] = {}
         for key, value in raw.items():
             try:
-                number = float(value)
+                number = _number(value)
             except Exception:
                 number = math.nan
                 notes.append(_note("term_not_numeric", f"term {key!r} is {_short(value)}"))
@@ -1000,6 +1005,13 @@ def _apply_block(
     return pa.MapArray.from_arrays(
         pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
     )
+
+
+def _number(value: Any) -> float:
+    """``float(value)`` for numbers only: text such as ``"1.5"`` raises ``TypeError``."""
+    if isinstance(value, (str, bytes, bytearray)):
+        raise TypeError(f"{type(value).__name__} is not a number")
+    return float(value)
 
 
 def _append_noted(

@@ -22,7 +22,18 @@ import pyarrow as pa
 from . import format as fmt
 from .columns import TERMS_TYPE
 
-__all__ = ["EPISODE_ARROW_SCHEMA", "EPISODE_SCHEMA", "RunInfo", "to_json", "to_jsonable"]
+__all__ = [
+    "EPISODE_ARROW_SCHEMA",
+    "EPISODE_SCHEMA",
+    "MAX_JSON_TEXT",
+    "RunInfo",
+    "from_json",
+    "to_json",
+    "to_jsonable",
+]
+
+MAX_JSON_TEXT = 1 << 20
+"""Largest JSON text from a file that :func:`from_json` parses: 1 MiB (as the reader's cap)."""
 
 
 def to_jsonable(value: Any) -> Any:
@@ -47,6 +58,33 @@ def to_jsonable(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [to_jsonable(v) for v in value]
     raise TypeError(f"{type(value).__name__} is not JSON-serializable")
+
+
+def from_json(text: str | bytes, what: str, limit: int = MAX_JSON_TEXT) -> Any:
+    """Parse JSON that came from a file, bounded in size and nesting.
+
+    Raises ``ValueError`` naming ``what`` when the text is too large, too deeply nested or not
+    JSON (never ``RecursionError``, and nothing over ``limit`` is parsed).
+
+    >>> from_json('{"a": [1, 2]}', "info")
+    {'a': [1, 2]}
+    >>> from_json("[" * 100_000, "notes")
+    Traceback (most recent call last):
+    ...
+    ValueError: notes is nested too deeply to be JSON episode-audit wrote
+    >>> from_json("x" * 20, "notes", limit=10)
+    Traceback (most recent call last):
+    ...
+    ValueError: notes is 20 bytes of JSON, more than the limit of 10
+    """
+    if len(text) > limit:
+        raise ValueError(f"{what} is {len(text)} bytes of JSON, more than the limit of {limit}")
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError(f"{what} is nested too deeply to be JSON episode-audit wrote") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{what} is not valid JSON: {exc}") from None
 
 
 def _numpy_default(value: Any) -> Any:
@@ -207,12 +245,7 @@ class RunInfo:
                     continue
                 raise ValueError(f"run metadata lacks the key {name!r}")
             if name in cls._JSON_FIELDS:
-                try:
-                    kwargs[name] = json.loads(raw)
-                except json.JSONDecodeError as exc:
-                    raise ValueError(
-                        f"run metadata key {name!r} is not valid JSON: {exc}"
-                    ) from None
+                kwargs[name] = from_json(raw, f"run metadata key {name!r}")
             else:
                 kwargs[name] = raw
         info = cls(**kwargs)

@@ -1,8 +1,11 @@
 r"""Render audit results as Rich tables, Markdown (for CI job summaries) or JSON.
 
-Every string that comes from an evidence file (labels, messages, env ids, tags) is made safe
-before display: cells are ``rich.text.Text`` objects (never parsed as markup), and control
-characters such as ANSI escapes are shown as escape sequences (``\x1b``), not interpreted.
+Every string that comes from an evidence file (labels, messages, env ids, tags, term names) is
+made safe before display: table titles, headers and cells are ``rich.text.Text`` objects (never
+parsed as markup), and control characters such as ANSI escapes are shown as escape sequences
+(``\x1b``), not interpreted. In Markdown, backslashes, pipes, backticks, ``<``, ``>``, ``&``
+and a ``]`` that would close a link text are backslash-escaped, so a value can neither break a
+table row nor become a link, a code span or HTML.
 
 >>> safe("[red]x[/red]\x1b[2J")
 '[red]x[/red]\\x1b[2J'
@@ -10,6 +13,8 @@ characters such as ANSI escapes are shown as escape sequences (``\x1b``), not in
 | a | b |
 | --- | --- |
 | 1 | x\|y |
+>>> markdown_text("[a](x) <b>|`c`")
+'[a\\](x) \\<b\\>\\|\\`c\\`'
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ __all__ = [
     "check_output",
     "fmt_number",
     "markdown_table",
+    "markdown_text",
     "replay_output",
     "report_output",
     "safe",
@@ -67,20 +73,32 @@ def _rate(rate: float | None) -> str:
 
 
 def table(title: str | None, headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> Table:
-    """A Rich table whose cells are plain text (file content is never parsed as markup)."""
-    out = Table(title=title, box=box.SIMPLE_HEAD, title_justify="left", pad_edge=False)
+    """A Rich table of plain text: title, headers and cells are never parsed as markup."""
+    out = Table(
+        title=None if title is None else Text(safe(title), style="table.title"),
+        box=box.SIMPLE_HEAD,
+        title_justify="left",
+        pad_edge=False,
+    )
     for header in headers:
-        out.add_column(header, overflow="fold")
+        out.add_column(Text(safe(header), style="table.header"), overflow="fold")
     for row in rows:
         out.add_row(*(Text(safe(cell)) for cell in row))
     return out
 
 
-def markdown_table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
-    """A GitHub-flavoured Markdown table (pipes escaped), pasteable into a CI job summary."""
+_MARKDOWN_ESCAPES = str.maketrans({c: "\\" + c for c in "\\|`<>&"})
 
-    def cell(value: Any) -> str:
-        return safe(value).replace("|", "\\|")
+
+def markdown_text(value: Any) -> str:
+    """``safe(value)`` for Markdown: one line, shown literally (no link, code span or HTML)."""
+    text = safe(value).translate(_MARKDOWN_ESCAPES)
+    return text.replace("](", "\\](").replace("][", "\\][") if "]" in text else text
+
+
+def markdown_table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A GitHub-flavoured Markdown table (cells escaped), pasteable into a CI job summary."""
+    cell = markdown_text
 
     lines = [
         "| " + " | ".join(cell(h) for h in headers) + " |",
@@ -236,6 +254,9 @@ def report_output(result: Report, output: OutputFormat) -> Output:
     warning_headers = ["group", "warning", "why"]
     gates = [[r.gate, r.group, "pass" if r.passed else "FAIL", r.message] for r in result.gates]
     gate_headers = ["gate", "group", "result", "detail"]
+    unfinished = [[name, why] for name, why in result.unfinished]
+    unfinished_title = "Unfinished files (still being written, or torn): counts so far"
+    unfinished_headers = ["file", "why"]
     if output == "markdown":
         parts = [
             f"### episode-audit report (by {result.by})\n",
@@ -250,6 +271,11 @@ def report_output(result: Report, output: OutputFormat) -> Output:
             parts += ["#### Incentive warnings\n", markdown_table(warning_headers, warnings) + "\n"]
         if gates:
             parts += ["#### Gates\n", markdown_table(gate_headers, gates) + "\n"]
+        if unfinished:
+            parts += [
+                f"#### {unfinished_title}\n",
+                markdown_table(unfinished_headers, unfinished) + "\n",
+            ]
         return "\n".join(parts)
     out: list[RenderableType] = [table(f"Outcomes (by {result.by})", REPORT_HEADERS, rows)]
     if term_rows:
@@ -258,4 +284,6 @@ def report_output(result: Report, output: OutputFormat) -> Output:
         out.append(table("Incentive warnings", warning_headers, warnings))
     if gates:
         out.append(table("Gates", gate_headers, gates))
+    if unfinished:
+        out.append(table(unfinished_title, unfinished_headers, unfinished))
     return Group(*out)

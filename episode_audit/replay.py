@@ -39,7 +39,7 @@ from .errors import ConfigurationError, ReplayError
 from .outcomes import EndingRules, RewardTerms, find_time_limit, time_limit_hit
 from .reader import Evidence, open_evidence
 from .recorder import library_versions
-from .records import RunInfo
+from .records import RunInfo, from_json
 from .seeding import restore_rng_state
 
 __all__ = [
@@ -159,11 +159,7 @@ def build_env(
     if not env_id:
         raise ReplayError("the file names no env id; pass --env-factory MODULE:CALLABLE")
     wrappers = [w for w in spec.get("additional_wrappers") or [] if isinstance(w, Mapping)]
-    foreign = [
-        str(w.get("entry_point"))
-        for w in wrappers
-        if not str(w.get("entry_point", "")).startswith(_TRUSTED_WRAPPER_PREFIX)
-    ]
+    foreign = [str(w.get("entry_point")) for w in wrappers if not _gymnasium_wrapper(w)]
     if ":" not in env_id and env_id in gym.registry and (not foreign or trust_entry_points):
         kwargs = dict(spec.get("kwargs") or {})
         if "max_episode_steps" in spec:
@@ -172,6 +168,10 @@ def build_env(
             env = gym.make(env_id, **kwargs)
             for wrapper in wrappers:
                 cls = load_callable(str(wrapper["entry_point"]))
+                if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
+                    raise ReplayError(
+                        f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
+                    )
                 env = cls(env, **(wrapper.get("kwargs") or {}))
         except (TypeError, ValueError, gym.error.Error) as exc:
             raise ReplayError(f"cannot make {env_id!r} with the recorded kwargs: {exc}") from None
@@ -192,6 +192,13 @@ def build_env(
         "registers it, --env-factory MODULE:CALLABLE, or --trust-entry-points to import "
         f"{entry!r} named in the file"
     )
+
+
+def _gymnasium_wrapper(wrapper: Mapping[str, Any]) -> bool:
+    """Whether a recorded wrapper's entry point is a plain name in ``gymnasium.wrappers``."""
+    module, sep, attr = str(wrapper.get("entry_point", "")).partition(":")
+    inside = module == _TRUSTED_WRAPPER_PREFIX or module.startswith(_TRUSTED_WRAPPER_PREFIX + ".")
+    return bool(sep) and inside and attr.isidentifier() and not attr.startswith("_")
 
 
 def _short(value: Any) -> str:
@@ -306,12 +313,17 @@ class _EpisodeRunner:
                     index, count, "its reset row is missing (torn file)"
                 )
                 continue
-            options = json.loads(record["options"]) if record.get("options") else None
+            try:
+                options = from_json(record["options"], "options") if record.get("options") else None
+                state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
+            except ValueError as exc:
+                done[index] = self.not_replayable(index, count, f"its reset record: {exc}")
+                continue
             try:
                 if seed is not None:
                     obs, _ = self.env.reset(seed=int(seed), options=options)
                 else:
-                    restore_rng_state(self.env, json.loads(str(rng_state)))
+                    restore_rng_state(self.env, state)
                     obs, _ = self.env.reset(options=options)
             except Exception as exc:
                 done[index] = self._diverged(

@@ -257,13 +257,19 @@ class Report:
              "warnings": [{"code": str, "message": str}]},
             ...
           ],
-          "gates": [{"gate": str, "group": str, "passed": bool, "message": str}, ...]
+          "gates": [{"gate": str, "group": str, "passed": bool, "message": str}, ...],
+          "unfinished": [{"file": str, "why": str}, ...]   # files still being written or torn
         }
+
+    An unfinished file (its writer is still running, or was killed) is reported with what was
+    flushed so far; ``unfinished`` names it, so a rate over a live file is never mistaken for
+    a final one.
     """
 
     by: str
     groups: list[GroupReport]
     gates: list[GateResult]
+    unfinished: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
@@ -280,6 +286,7 @@ class Report:
                 {"gate": g.gate, "group": g.group, "passed": g.passed, "message": g.message}
                 for g in self.gates
             ],
+            "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
         }
 
 
@@ -707,6 +714,8 @@ def report_tables(
     ``name`` is the group key for ``by="file"``. See :func:`report` for ``by`` and ``gates``.
     """
     _check_by(by)
+    sources = list(sources)
+    unfinished = [(name, ev.torn or "no run-end record") for name, ev in sources if not ev.finished]
     episodes, terms = _collect(sources, by)
     groups: list[GroupReport] = []
     if episodes.num_rows:
@@ -715,7 +724,7 @@ def report_tables(
             rows = episodes.filter(pc.equal(episodes.column("key"), key))
             group_terms = terms.filter(pc.equal(terms.column("key"), key))
             groups.append(_group(key, rows, group_terms))
-    return Report(by, groups, _gates(gates, groups) if gates is not None else [])
+    return Report(by, groups, _gates(gates, groups) if gates is not None else [], unfinished)
 
 
 def report(

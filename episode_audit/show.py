@@ -17,7 +17,7 @@ from rich.text import Text
 from . import format as fmt
 from .errors import EvidenceError
 from .reader import Evidence
-from .render import OutputFormat, fmt_number, markdown_table, safe, table, to_json
+from .render import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
 
 __all__ = ["episode_output", "episode_rows", "summarize", "summary_output"]
 
@@ -78,9 +78,11 @@ def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
     ]
     spec = to_json(data["env_spec"]) if data["env_spec"] is not None else "-"
     if output == "markdown":
+        block = safe_block(spec)
+        fence = "`" * max(3, _longest_backtick_run(block) + 1)
         return (
             markdown_table(["field", "value"], rows)
-            + f"\n\nEnv spec:\n\n```json\n{safe_block(spec)}\n```\n"
+            + f"\n\nEnv spec:\n\n{fence}json\n{block}\n{fence}\n"
         )
     return Group(table("Evidence file", ["field", "value"], rows), Text("env spec: " + spec))
 
@@ -88,6 +90,14 @@ def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
 def safe_block(text: str) -> str:
     """Text for a fenced code block: control characters escaped line by line."""
     return "\n".join(safe(line) for line in text.splitlines())
+
+
+def _longest_backtick_run(text: str) -> int:
+    longest = run = 0
+    for c in text:
+        run = run + 1 if c == "`" else 0
+        longest = max(longest, run)
+    return longest
 
 
 def _cell(value: Any) -> str:
@@ -170,5 +180,5 @@ def episode_output(
     if output == "json":
         return to_json({"episode": record, "columns": headers, "rows": rows})
     if output == "markdown":
-        return f"### {safe(title)}\n\n" + markdown_table(headers, rows) + "\n"
+        return f"### {markdown_text(title)}\n\n" + markdown_table(headers, rows) + "\n"
     return table(title, headers, rows)

@@ -486,3 +486,18 @@ def test_grouping_keeps_recording_order_for_interleaved_rows() -> None:
     assert first.tolist() == [1, 0, 4]
     assert counts.tolist() == [1, 3, 1]
     assert largest is not None and largest.tolist() == [2.0, 3.0, 1.0]
+
+
+def test_step_blocks_without_an_info_column_are_checked(tmp_path: Path) -> None:
+    from tests.hostile import rewrite
+
+    source = tmp_path / "with_info.mcap"
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=3), source) as env:
+        env.reset(seed=0)
+        for _ in range(3):
+            env.step(0)
+    other = rewrite(source, tmp_path / "no_info.mcap", steps=lambda b: b.drop_columns(["info"]))
+    assert "info" not in open_evidence(other).steps_schema.names
+    result = check([other])
+    assert (result.ok, result.steps) == (True, 3)
+    assert [f.code for f in result.findings] == [f.code for f in check([source]).findings]

@@ -1,0 +1,451 @@
+"""Misbehaving environments: the training loop keeps running (or sees only the env's own
+exception), the file stays valid, the recorded values are what the env returned, and ``check``
+flags each case with its own code."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from episode_audit import RecordEvidence, check, open_evidence
+from episode_audit.check import Finding
+from tests.envs import ScriptedEnv
+
+ZEROS = np.zeros(2, np.float32)
+
+
+def loop(env: gym.Env[Any, Any], episodes: int = 2, steps: int = 4) -> list[tuple[Any, ...]]:
+    """A user's training loop: resets with seeds, steps, returns every step's 5-tuple."""
+    results = []
+    for e in range(episodes):
+        env.reset(seed=e)
+        for _ in range(steps):
+            result = env.step(env.action_space.sample())
+            results.append(result)
+            if result[2] or result[3]:
+                break
+    return results
+
+
+def assert_valid(path: Path) -> None:
+    """Finished for episode-audit, and readable end to end by mcap's own indexed reader."""
+    assert open_evidence(path).finished
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_summary() is not None
+        assert sum(1 for _ in reader.iter_messages()) > 0
+
+
+def findings(path: Path, code: str) -> list[Finding]:
+    return [f for f in check([path]).findings if f.code == code]
+
+
+def steps_of(path: Path) -> list[dict[str, Any]]:
+    return open_evidence(path).steps().to_pylist()
+
+
+def scripted(path: Path, step_fn: Any, reset_fn: Any = None, **kwargs: Any) -> RecordEvidence:
+    env = RecordEvidence(ScriptedEnv(step_fn=step_fn, reset_fn=reset_fn), path, **kwargs)
+    env.action_space.seed(0)
+    return env
+
+
+# ---------------------------------------------------------------------------------- exceptions
+
+
+def test_env_raising_in_step_reraises_the_same_exception_and_the_loop_goes_on(
+    tmp_path: Path,
+) -> None:
+    boom = RuntimeError("simulator exploded")
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        if env.t == 3 and env.raise_once:
+            env.raise_once = False
+            raise boom
+        return ZEROS, 1.0, env.t == 4, False, {}
+
+    path = tmp_path / "step.mcap"
+    inner = ScriptedEnv(step_fn=step)
+    inner.raise_once = True  # type: ignore[attr-defined]
+    with RecordEvidence(inner, path) as env:
+        env.reset(seed=0)
+        env.step(0)
+        env.step(0)
+        with pytest.raises(RuntimeError) as raised:
+            env.step(0)
+        assert raised.value is boom
+        assert len(loop(env, episodes=1)) == 4  # the user's loop carries on
+    assert_valid(path)
+    first, second = open_evidence(path).episodes().to_pylist()
+    assert (first["outcome"], first["length"], first["error_type"], first["error_message"]) == (
+        "error",
+        2,
+        "RuntimeError",
+        "simulator exploded",
+    )
+    assert second["outcome"] == "failure" and second["length"] == 4
+    assert findings(path, "error_episode") == [
+        Finding(
+            "error",
+            "error_episode",
+            "the environment raised RuntimeError while taking step 2: simulator exploded",
+            str(path),
+            0,
+            2,
+        )
+    ]
+
+
+def test_env_raising_in_reset_reraises_the_same_exception_and_the_loop_goes_on(
+    tmp_path: Path,
+) -> None:
+    boom = ValueError("bad reset")
+
+    def reset(env: ScriptedEnv) -> tuple[Any, ...]:
+        if env.np_random_seed == 13:
+            raise boom
+        return ZEROS, {}
+
+    path = tmp_path / "reset.mcap"
+    with scripted(path, None, reset) as env:
+        with pytest.raises(ValueError, match="bad reset") as raised:
+            env.reset(seed=13)
+        assert raised.value is boom
+        assert len(loop(env, episodes=1)) == 4
+    assert_valid(path)
+    first, second = open_evidence(path).episodes().to_pylist()
+    assert (first["outcome"], first["error_during"], first["length"]) == ("error", "reset", 0)
+    assert second["outcome"] == "incomplete"
+    (finding,) = findings(path, "error_episode")
+    assert finding == Finding(
+        "error",
+        "error_episode",
+        "the environment raised ValueError during reset: bad reset",
+        str(path),
+        0,
+        None,
+    )
+
+
+def test_keyboard_interrupt_in_step_is_not_swallowed_and_the_episode_stays_incomplete(
+    tmp_path: Path,
+) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        if env.t == 2:
+            raise KeyboardInterrupt
+        return ZEROS, 1.0, False, False, {}
+
+    path = tmp_path / "interrupt.mcap"
+    env = scripted(path, step)
+    env.reset(seed=0)
+    env.step(0)
+    with pytest.raises(KeyboardInterrupt):
+        env.step(0)
+    env.close()
+    assert_valid(path)
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    assert (episode["outcome"], episode["length"]) == ("incomplete", 1)
+    assert [f.code for f in findings(path, "incomplete_episode")] == ["incomplete_episode"]
+
+
+def test_env_raising_in_close_still_finishes_the_file(tmp_path: Path) -> None:
+    class BadClose(ScriptedEnv):
+        def close(self) -> None:
+            raise OSError("display gone")
+
+    path = tmp_path / "close.mcap"
+    env = RecordEvidence(BadClose(), path)
+    loop(env, episodes=1)
+    with pytest.raises(OSError, match="display gone"):
+        env.close()
+    assert_valid(path)
+    assert open_evidence(path).episodes().num_rows == 1
+
+
+# ---------------------------------------------------------------------------------- rewards
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_nonfinite_reward_from_a_real_wrapper_is_kept_and_flagged(
+    tmp_path: Path, bad: float
+) -> None:
+    path = tmp_path / "reward.mcap"
+    inner = gym.wrappers.TransformReward(gym.make("CartPole-v1"), lambda r: bad if r else r)
+    with RecordEvidence(inner, path) as env:
+        env.action_space.seed(0)
+        results = loop(env, episodes=2, steps=3)
+    assert all(r[1] is bad for r in results)  # the env's value reached the loop untouched
+    assert_valid(path)
+    rewards = [s["reward"] for s in steps_of(path)]
+    assert len(rewards) == 6
+    assert all(math.isnan(r) for r in rewards) if math.isnan(bad) else rewards == [bad] * 6
+    found = findings(path, "nonfinite_reward")
+    assert [(f.severity, f.episode, f.step) for f in found] == [("error", 0, 0), ("error", 1, 0)]
+    assert found[0].message == f"reward {bad} at step 0; 3 step(s) of the episode"
+
+
+@pytest.mark.parametrize("bad", ["one", "1.5", None, [1.0, 2.0]])
+def test_non_numeric_reward_is_recorded_as_nan_and_noted(tmp_path: Path, bad: Any) -> None:
+    path = tmp_path / "reward.mcap"
+    with scripted(path, lambda e, a: (ZEROS, bad if e.t == 2 else 1.0, False, False, {})) as env:
+        results = loop(env, episodes=1)
+    assert results[1][1] is bad
+    assert_valid(path)
+    steps = steps_of(path)
+    assert [s["reward"] for s in steps][::2] == [1.0, 1.0]
+    assert math.isnan(steps[1]["reward"])
+    assert steps[1]["notes"] == f'["reward_not_numeric: reward {bad!r}"]'
+    (noted,) = findings(path, "recorder_note:reward_not_numeric")
+    assert noted == Finding(
+        "warning",
+        "recorder_note:reward_not_numeric",
+        f"recorder noted reward_not_numeric at step 1 (1 time(s) in the episode): reward {bad!r}",
+        str(path),
+        0,
+        1,
+    )
+    assert [(f.episode, f.step) for f in findings(path, "nonfinite_reward")] == [(0, 1)]
+
+
+# ---------------------------------------------------------------------------------- reward terms
+
+
+@pytest.mark.parametrize("bad", ["x", "2.0", None, {"nested": 1}])
+def test_non_numeric_reward_term_is_recorded_as_nan_and_noted(tmp_path: Path, bad: Any) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return ZEROS, 1.0, False, False, {"reward_terms": {"a": bad, "b": 1.0}}
+
+    path = tmp_path / "term.mcap"
+    with scripted(path, step) as env:
+        loop(env, episodes=1, steps=2)
+    assert_valid(path)
+    terms = dict(steps_of(path)[0]["terms"])
+    assert math.isnan(terms["a"]) and terms["b"] == 1.0
+    (noted,) = findings(path, "recorder_note:term_not_numeric")
+    assert noted.message == (
+        f"recorder noted term_not_numeric at step 0 (2 time(s) in the episode): term 'a' is {bad!r}"
+    )
+    (nonfinite,) = findings(path, "nonfinite_term")
+    assert nonfinite.message == "term 'a' is nan at step 0; 2 step(s) of the episode"
+    assert findings(path, "terms_sum_mismatch") == []  # a NaN term is not also a mismatch
+
+
+def test_nan_reward_term_is_kept_and_flagged(tmp_path: Path) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        a = math.nan if env.t == 3 else 0.5
+        return ZEROS, 1.0, False, False, {"reward_terms": {"a": a, "b": 0.5}}
+
+    path = tmp_path / "term.mcap"
+    with scripted(path, step) as env:
+        loop(env, episodes=1)
+    assert_valid(path)
+    steps = steps_of(path)
+    assert math.isnan(dict(steps[2]["terms"])["a"]) and steps[2]["notes"] is None
+    message = "term 'a' is nan at step 2; 1 step(s) of the episode"
+    expected = Finding("error", "nonfinite_term", message, str(path), 0, 2)
+    assert findings(path, "nonfinite_term") == [expected]
+    assert findings(path, "terms_sum_mismatch") == []
+
+
+# ---------------------------------------------------------------------------------- observations
+
+
+def test_observation_outside_its_space_is_kept_exactly_and_flagged(tmp_path: Path) -> None:
+    outside = np.array([5.0, -7.5], np.float32)
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return (outside if env.t == 2 else ZEROS), 0.0, False, False, {}
+
+    path = tmp_path / "obs.mcap"
+    with scripted(path, step, lambda e: (outside, {})) as env:
+        loop(env, episodes=1)
+    assert_valid(path)
+    assert steps_of(path)[1]["observation"] == [5.0, -7.5]
+    found = findings(path, "observation_out_of_space")
+    assert [(f.episode, f.step) for f in found] == [(0, None), (0, 1)]  # reset, then step 1
+    assert found[1].message == (
+        "observation outside its space at step 1: array([ 5. , -7.5], dtype=float32); "
+        "1 row(s) of the episode"
+    )
+
+
+def test_observation_of_the_wrong_dtype_from_a_real_wrapper_is_cast_and_noted(
+    tmp_path: Path,
+) -> None:
+    base = gym.make("CartPole-v1")
+    inner = gym.wrappers.TransformObservation(
+        base, lambda obs: obs.astype(np.float64), base.observation_space
+    )
+    path = tmp_path / "dtype.mcap"
+    with RecordEvidence(inner, path) as env:
+        env.action_space.seed(0)
+        results = loop(env, episodes=1, steps=3)
+    assert results[0][0].dtype == np.float64  # the loop got the env's own observation
+    assert_valid(path)
+    recorded = [np.array(s["observation"], np.float32) for s in steps_of(path)]
+    for got, (obs, *_) in zip(recorded, results, strict=True):
+        assert np.array_equal(got, obs.astype(np.float32))  # cast to the space's dtype
+    at_reset, at_steps = findings(path, "recorder_note:observation_cast")
+    assert (at_reset.step, at_steps.step) == (None, 0)
+    assert at_steps.message == (
+        "recorder noted observation_cast at step 0 (3 time(s) in the episode): "
+        "dtype float64 cast to float32"
+    )
+
+
+def test_observation_of_the_wrong_shape_is_null_and_noted(tmp_path: Path) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return (np.zeros(3, np.float32) if env.t == 1 else ZEROS), 0.0, False, False, {}
+
+    path = tmp_path / "shape.mcap"
+    with scripted(path, step) as env:
+        loop(env, episodes=1)
+    assert_valid(path)
+    steps = steps_of(path)
+    assert steps[0]["observation"] is None and steps[1]["observation"] == [0.0, 0.0]
+    (noted,) = findings(path, "recorder_note:observation_invalid")
+    assert (noted.episode, noted.step) == (0, 0)
+    assert noted.message.endswith("Expect shape (2,), actually: shape (3,) (ndarray)")
+
+
+# ---------------------------------------------------------------------------------- info
+
+
+@pytest.mark.parametrize("info", [None, [], ["a"], "text", (1, 2)])
+def test_non_dict_info_is_noted_and_an_ending_with_it_does_not_raise(
+    tmp_path: Path, info: Any
+) -> None:
+    path = tmp_path / "info.mcap"
+    with scripted(path, lambda e, a: (ZEROS, 1.0, e.t == 3, False, info)) as env:
+        results = loop(env, episodes=2)
+    assert all(r[4] is info for r in results)
+    assert_valid(path)
+    assert [e["outcome"] for e in open_evidence(path).episodes().to_pylist()] == ["failure"] * 2
+    notes = [s["notes"] for s in steps_of(path)]
+    assert notes == [f'["info_not_dict: info is a {type(info).__name__}"]'] * 6
+    found = findings(path, "recorder_note:info_not_dict")
+    assert [(f.episode, f.step, f.severity) for f in found] == [
+        (0, 0, "warning"),
+        (1, 0, "warning"),
+    ]
+
+
+def test_info_keys_changing_between_steps_are_recorded_and_noted(tmp_path: Path) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        info: dict[str, Any] = {"x": env.t}
+        if env.t >= 3:
+            info["contact"] = True
+        if env.t == 4:
+            del info["x"]
+        return ZEROS, 1.0, False, False, info
+
+    path = tmp_path / "keys.mcap"
+    with scripted(path, step, info_keys="all") as env:
+        loop(env, episodes=2)
+    assert_valid(path)
+    assert [s["info"] for s in steps_of(path)][:4] == [
+        '{"x":1}',
+        '{"x":2}',
+        '{"x":3,"contact":true}',
+        '{"contact":true}',
+    ]
+    assert findings(path, "info_keys_changed") == [
+        Finding(
+            "note",
+            "info_keys_changed",
+            "info keys changed between steps in 2 episode(s) (episodes 0, 1); first at step 2 "
+            "of episode 0: added ['contact'], removed []",
+            str(path),
+            0,
+            2,
+        )
+    ]
+    assert check([path]).ok  # a note, not an error
+
+
+def test_reward_term_names_changing_between_steps_are_recorded_and_noted(tmp_path: Path) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        terms = {"progress": 0.5, "ctrl": 0.5} if env.t < 4 else {"progress": 0.5, "bonus": 0.5}
+        return ZEROS, 1.0, False, False, {"reward_terms": terms}
+
+    path = tmp_path / "terms.mcap"
+    # one step per block: the change is found across block boundaries too
+    with scripted(path, step, block_steps=1) as env:
+        loop(env, episodes=1, steps=5)
+    assert_valid(path)
+    assert [sorted(dict(s["terms"])) for s in steps_of(path)][2:4] == [
+        ["ctrl", "progress"],
+        ["bonus", "progress"],
+    ]
+    assert findings(path, "terms_keys_changed") == [
+        Finding(
+            "note",
+            "terms_keys_changed",
+            "reward-term keys changed between steps in 1 episode(s) (episodes 0); first at "
+            "step 3 of episode 0: added ['bonus'], removed ['ctrl']",
+            str(path),
+            0,
+            3,
+        )
+    ]
+    assert findings(path, "terms_sum_mismatch") == []
+
+
+def test_reset_info_without_the_step_keys_is_not_a_change(tmp_path: Path) -> None:
+    """Gymnasium MuJoCo v5: the reset info lacks the step info's reward_* keys (Minari #191)."""
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return ZEROS, 1.0, False, False, {"reward_run": 0.75, "reward_ctrl": 0.25, "x": 1}
+
+    path = tmp_path / "mujoco_like.mcap"
+    with scripted(path, step, lambda e: (ZEROS, {"x": 0}), info_keys="all") as env:
+        loop(env, episodes=2)
+    assert_valid(path)
+    codes = {f.code for f in check([path]).findings}
+    assert not codes & {"terms_keys_changed", "info_keys_changed", "terms_sum_mismatch"}
+
+
+# ---------------------------------------------------------------------------------- related
+
+
+def test_old_four_tuple_step_api_is_noted_not_raised(tmp_path: Path) -> None:
+    path = tmp_path / "old_api.mcap"
+    with scripted(path, lambda e, a: (ZEROS, 1.0, False, {})) as env:
+        env.reset(seed=0)
+        assert env.step(0) == (ZEROS, 1.0, False, {})  # handed back untouched
+    assert_valid(path)
+    (noted,) = findings(path, "recorder_note:step_result_invalid")
+    assert noted.message.startswith(
+        "recorder noted step_result_invalid at step 0 (1 time(s) in the episode): "
+        "step() returned (array([0., 0.], dtype=float32), 1.0, False, {})"
+    )
+
+
+def test_flags_that_are_not_booleans_are_noted(tmp_path: Path) -> None:
+    flags = np.array([True, False])
+    path = tmp_path / "flags.mcap"
+    with scripted(path, lambda e, a: (ZEROS, 1.0, flags, False, {})) as env:
+        env.reset(seed=0)
+        env.step(0)
+    assert_valid(path)
+    (noted,) = findings(path, "recorder_note:flags_not_bool")
+    assert (noted.episode, noted.step) == (0, 0)
+    assert steps_of(path)[0]["terminated"] is False
+
+
+def test_action_outside_its_space_is_kept_and_flagged(tmp_path: Path) -> None:
+    path = tmp_path / "action.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=0)
+        env.step(1)
+        with pytest.raises(AssertionError):  # CartPole's own check: its exception, re-raised
+            env.step(7)
+    assert_valid(path)
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    assert (episode["outcome"], episode["error_type"]) == ("error", "AssertionError")

@@ -1,0 +1,417 @@
+"""The trust model of docs/security.md, one test per rule: an evidence file is data, never code."""
+
+from __future__ import annotations
+
+import ast
+import json
+import pickle
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pyarrow as pa
+import pytest
+from typer.testing import CliRunner
+
+from episode_audit import RecordEvidence, check, export, open_evidence, replay, report
+from episode_audit import format as fmt
+from episode_audit.cli import app
+from episode_audit.errors import CorruptEvidenceError
+from episode_audit.reader import MAX_JSON_BYTES
+from tests.envs import ScriptedEnv
+from tests.hostile import HOSTILE, PIECES, replace_column, rewrite
+
+PACKAGE = Path(__file__).resolve().parents[1] / "episode_audit"
+runner = CliRunner()
+
+
+def cli(*args: str) -> tuple[int, str, str]:
+    result = runner.invoke(app, list(args))
+    if result.exception and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+# ----------------------------------------------------------------------- rule 1: no code from data
+
+_FORBIDDEN_MODULES = {"pickle", "cPickle", "_pickle", "marshal", "shelve", "dill", "cloudpickle"}
+_FORBIDDEN_CALLS = {"eval", "exec", "compile", "__import__"}
+# import_module calls whose argument is not a constant: the user's --import / --env-factory /
+# --policy (command-line arguments and library arguments), never a string read from a file.
+_DYNAMIC_IMPORTS_ALLOWED = {("replay.py", "load_callable"), ("replay.py", "replay")}
+_DYNAMIC_IMPORTS_ALLOWED |= {("recording.py", "record_episodes")}
+
+
+def _enclosing_functions(tree: ast.AST) -> dict[ast.AST, str]:
+    owner: dict[ast.AST, str] = {}
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for inner in ast.walk(node):
+                owner.setdefault(inner, node.name)
+    return owner
+
+
+def test_the_package_never_unpickles_evals_or_imports_what_it_reads() -> None:
+    problems: list[str] = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        owner = _enclosing_functions(tree)
+        for node in ast.walk(tree):
+            where = f"{path.relative_to(PACKAGE)}:{getattr(node, 'lineno', '?')}"
+            if isinstance(node, ast.Import):
+                names = {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                names = {(node.module or "").split(".")[0]}
+            else:
+                names = set()
+            if names & _FORBIDDEN_MODULES:
+                problems.append(f"{where}: imports {sorted(names & _FORBIDDEN_MODULES)}")
+            if not isinstance(node, ast.Call):
+                continue
+            func = node.func
+            name = func.id if isinstance(func, ast.Name) else getattr(func, "attr", "")
+            if name in _FORBIDDEN_CALLS:
+                problems.append(f"{where}: calls {name}()")
+            if name in ("load", "loads") and any(
+                k.arg == "allow_pickle" for k in node.keywords
+            ):  # numpy's np.load(allow_pickle=True)
+                problems.append(f"{where}: {name}(allow_pickle=...)")
+            if name == "import_module" and not (
+                node.args and isinstance(node.args[0], ast.Constant)
+            ):
+                key = (path.name, owner.get(node, ""))
+                if key not in _DYNAMIC_IMPORTS_ALLOWED:
+                    problems.append(f"{where}: import_module of a computed name in {key[1]}()")
+    assert problems == []
+
+
+class _Touch:
+    """Unpickling this creates ``marker``: evidence that something unpickled file content."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (Path.touch, (self.marker,))
+
+
+CANARY = """
+from pathlib import Path
+Path(__file__).with_name("IMPORTED").touch()
+def make(*args, **kwargs):
+    raise RuntimeError("canary called")
+"""
+
+
+@pytest.fixture
+def canary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """An importable module that leaves a marker file when imported; returns the marker."""
+    (tmp_path / "ea_canary_module.py").write_text(CANARY)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield tmp_path / "IMPORTED"
+    sys.modules.pop("ea_canary_module", None)
+
+
+def test_a_file_naming_pickles_and_modules_imports_and_unpickles_nothing(
+    tmp_path: Path, canary: Path
+) -> None:
+    payload = pickle.dumps(_Touch(tmp_path / "UNPICKLED")).hex()
+    source = tmp_path / "plain.mcap"
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=5), source) as env:
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(0)
+
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["entry_point"] = "ea_canary_module:make"
+        spec["additional_wrappers"] = [
+            {"name": "W", "entry_point": "ea_canary_module:make", "kwargs": {}},
+            {"name": "V", "entry_point": "gymnasium.wrappers.common:np.load", "kwargs": {}},
+        ]
+        space = {"type": "Custom", "class": "ea_canary_module.Space", "repr": payload}
+        terms = {"source": "callable:ea_canary_module.make", "constants": {}}
+        return {
+            **meta,
+            "env_id": "ea_canary_module:Evil-v0",
+            "env_spec": json.dumps(spec),
+            "observation_space": json.dumps(space),
+            "reward_terms": json.dumps(terms),
+            "tags": json.dumps({"pickle": payload}),
+            "pickle": payload,
+        }
+
+    def steps(batch: pa.RecordBatch) -> pa.RecordBatch:
+        i = batch.schema.get_field_index(fmt.COL_INFO)
+        pickled = {b"ARROW:extension:name": b"arrow.py_extension_type"}
+        pickled[b"ARROW:extension:metadata"] = bytes.fromhex(payload)
+        field = batch.schema.field(i).with_metadata(pickled)
+        return batch.set_column(i, field, pa.array([payload] * batch.num_rows, pa.string()))
+
+    evil = rewrite(source, tmp_path / "evil.mcap", run=run, steps=steps)
+    ev = open_evidence(evil)
+    ev.steps()
+    check([evil])
+    report([evil], by="env")
+    export([evil], tmp_path / "out")
+    (episode,) = replay([evil]).episodes
+    assert episode.status == "not_replayable" and "--trust-entry-points" in (episode.reason or "")
+    for fmt_ in ("table", "markdown", "json"):
+        assert cli("show", str(evil), "--format", fmt_)[0] == 0
+        assert cli("show", str(evil), "--episode", "0", "--format", fmt_)[0] == 0
+    assert "ea_canary_module" not in sys.modules
+    assert not canary.exists()
+    assert not (tmp_path / "UNPICKLED").exists()
+
+
+# ----------------------------------------------------------------------- rule 2: replay's imports
+
+
+def test_replay_never_builds_wrappers_named_in_a_file_that_are_not_gymnasiums(
+    tmp_path: Path, canary: Path
+) -> None:
+    """A registered env id whose recorded wrappers are outside ``gymnasium.wrappers``.
+
+    (The file-named entry point itself: tests/test_replay.py
+    ``test_replay_never_imports_a_module_named_in_the_file``, with and without the flag.)
+    """
+    source = tmp_path / "plain.mcap"
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=3), source) as env:
+        env.reset(seed=0)
+        for _ in range(3):
+            env.step(0)
+    for entry in ("ea_canary_module:make", "gymnasium.wrappers.common:np.save"):
+
+        def run(meta: dict[str, str], entry: str = entry) -> dict[str, str]:
+            spec = json.loads(meta["env_spec"])
+            spec["additional_wrappers"] = [{"name": "W", "entry_point": entry, "kwargs": {}}]
+            return {**meta, "env_spec": json.dumps(spec)}
+
+        evil = rewrite(source, tmp_path / f"evil-{len(entry)}.mcap", run=run)
+        (episode,) = replay([evil]).episodes
+        assert episode.status == "not_replayable"
+        assert f"wrappers from outside Gymnasium ({entry})" in (episode.reason or "")
+        code, out, _ = cli("replay", str(evil), "--format", "json")
+        assert code == 0 and json.loads(out)["summary"]["not_replayable"] == 1
+    assert "ea_canary_module" not in sys.modules and not canary.exists()
+
+
+# ----------------------------------------------------------------------- rule 3: escaping
+
+
+@pytest.fixture(scope="module")
+def hostile_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Hostile strings in every place a file carries text: env id, spec, tags, term names,
+    failure labels, truncation reasons, error messages, recorder notes and kept info."""
+    tmp = tmp_path_factory.mktemp("hostile")
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        if env.np_random_seed == 2:
+            raise RuntimeError(HOSTILE)
+        info = {"reward_terms": {HOSTILE: 1.0}, "failure": HOSTILE, HOSTILE: HOSTILE}
+        info["truncation_reason"] = HOSTILE
+        reward = HOSTILE if env.t == 1 else 1.0
+        return (
+            np.zeros(2, np.float32),
+            reward,
+            env.t == 2 and env.np_random_seed == 0,
+            (env.t == 2 and env.np_random_seed == 1),
+            info,
+        )
+
+    source = tmp / "source.mcap"
+    tags = {"policy": HOSTILE, HOSTILE: "value"}
+    with RecordEvidence(ScriptedEnv(step_fn=step), source, tags=tags, info_keys="all") as env:
+        for seed in (0, 1, 2):
+            env.reset(seed=seed)
+            try:
+                for _ in range(2):
+                    env.step(0)
+            except RuntimeError:
+                pass
+
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = {"id": HOSTILE, "entry_point": HOSTILE, "kwargs": {HOSTILE: HOSTILE}}
+        return {**meta, "env_id": HOSTILE, "env_spec": json.dumps(spec), "writer": HOSTILE}
+
+    return rewrite(source, tmp / "hostile.mcap", run=run)
+
+
+OUTPUTS = [
+    ("show",),
+    ("show", "--episode", "0"),
+    ("report", "--by", "file"),
+    ("report", "--by", "env"),
+    ("report", "--by", "tag:policy"),
+    ("report", "--by", "label"),
+    ("check",),
+    ("replay",),
+]
+
+
+def _cells(line: str) -> list[str]:
+    """Split a GitHub-flavoured Markdown table row on its unescaped pipes."""
+    cells, current, escaped = [], "", False
+    for c in line.strip()[1:-1]:
+        if escaped:
+            current += c
+            escaped = False
+        elif c == "\\":
+            current += c
+            escaped = True
+        elif c == "|":
+            cells.append(current)
+            current = ""
+        else:
+            current += c
+    return [*cells, current]
+
+
+@pytest.mark.parametrize("command", OUTPUTS, ids=" ".join)
+def test_strings_from_files_print_literally_in_tables(
+    hostile_file: Path, command: tuple[str]
+) -> None:
+    code, out, err = cli(command[0], str(hostile_file), *command[1:], "--format", "table")
+    assert code in (0, 1), err
+    assert "\x1b" not in out and "\x07" not in out and "\x1b" not in err
+    flat = re.sub(r"\s+", "", out)  # Rich folds long cells over lines
+    for piece in PIECES:
+        assert re.sub(r"\s+", "", piece) in flat, piece
+
+
+@pytest.mark.parametrize("command", OUTPUTS, ids=" ".join)
+def test_strings_from_files_cannot_break_markdown(hostile_file: Path, command: tuple[str]) -> None:
+    code, out, err = cli(command[0], str(hostile_file), *command[1:], "--format", "markdown")
+    assert code in (0, 1), err
+    assert "\x1b" not in out and "\x07" not in out
+    assert "\\x1b[31mz" in out
+    prose = re.sub(r"^(`{3,})json\n.*?^\1$", "", out, flags=re.M | re.S)  # minus code blocks
+    assert "<b>" not in prose.replace("\\<b\\>", "")  # no raw HTML
+    assert "`c`" not in prose.replace("\\`c\\`", "")  # no code span
+    header_cells = None
+    for line in out.splitlines():
+        if not line.startswith("|"):
+            header_cells = None
+            continue
+        if header_cells is None:
+            header_cells = len(_cells(line))
+        assert len(_cells(line)) == header_cells, line
+    assert HOSTILE.split("\n")[0].replace("|", "") not in out  # never unescaped
+
+
+def test_json_output_round_trips_hostile_strings(hostile_file: Path) -> None:
+    code, out, _ = cli("report", str(hostile_file), "--by", "label", "--format", "json")
+    assert code == 0 and "\x1b" not in out
+    keys = {g["key"] for g in json.loads(out)["groups"]}
+    assert HOSTILE in keys  # exact, escaped only by JSON
+
+
+def test_error_lines_on_stderr_are_escaped(tmp_path: Path) -> None:
+    bad = tmp_path / f"{HOSTILE.replace('/', '_').replace(chr(10), '_')}.mcap"
+    bad.write_bytes(b"not evidence")
+    code, _, err = cli("check", str(bad))
+    assert code == 2 and "\x1b" not in err and "\\x1b[31mz" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+# ----------------------------------------------------------------------- rule 4: output paths
+
+
+def test_output_paths_never_come_from_file_content(tmp_path: Path) -> None:
+    source = tmp_path / "in" / "run.mcap"
+    source.parent.mkdir()
+    tags = {"policy": "../../escaped", "../../x": "../../y"}
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=3), source, tags=tags) as env:
+        env.reset(seed=0)
+        for _ in range(3):
+            env.step(0)
+
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        return {**meta, "env_id": "../../../escaped", "writer": "/tmp/escaped"}
+
+    evil = rewrite(source, tmp_path / "in" / "evil.mcap", run=run)
+    before = {p for p in tmp_path.rglob("*")}
+    out = tmp_path / "deep" / "out"
+    code, _, err = cli("export", str(evil), str(source), "--out", str(out))
+    assert code == 0, err
+    created = {p for p in tmp_path.rglob("*")} - before
+    assert {p.relative_to(tmp_path).as_posix() for p in created if p.is_file()} == {
+        "deep/out/episodes.parquet",
+        "deep/out/evil.steps.parquet",
+        "deep/out/run.steps.parquet",
+    }
+
+
+# ----------------------------------------------------------------------- rule 5: bounded sizes
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("plain") / "plain.mcap"
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=4), path) as env:
+        env.reset(seed=0)
+        for _ in range(4):
+            env.step(0)
+        env.reset()
+    return path
+
+
+def test_a_huge_metadata_value_is_refused(plain: Path, tmp_path: Path) -> None:
+    huge = json.dumps({"policy": "x" * MAX_JSON_BYTES})
+    evil = rewrite(plain, tmp_path / "huge.mcap", run=lambda m: {**m, "tags": huge})
+    with pytest.raises(CorruptEvidenceError, match="run metadata value exceeds the 1 MiB limit"):
+        open_evidence(evil)
+    code, _, err = cli("report", str(evil))
+    assert code == 2 and "exceeds the 1 MiB limit" in err and len(err.splitlines()) == 1
+
+
+def test_deeply_nested_metadata_is_refused_not_a_recursion_error(
+    plain: Path, tmp_path: Path
+) -> None:
+    deep = "[" * 200_000 + "]" * 200_000
+    evil = rewrite(plain, tmp_path / "deep.mcap", run=lambda m: {**m, "command_line": deep})
+    with pytest.raises(CorruptEvidenceError, match="'command_line' is nested too deeply"):
+        open_evidence(evil)
+    code, _, err = cli("show", str(evil))
+    assert code == 2 and "nested too deeply" in err
+
+
+@pytest.mark.parametrize(
+    ("notes", "expected"),
+    [
+        ("[" * 100_000, "notes_unreadable"),
+        (json.dumps(["x" * MAX_JSON_BYTES]), "notes_unreadable"),
+    ],
+    ids=["deep", "huge"],
+)
+def test_hostile_step_cells_are_bounded_in_check(
+    plain: Path, tmp_path: Path, notes: str, expected: str
+) -> None:
+    def steps(batch: pa.RecordBatch) -> pa.RecordBatch:
+        batch = replace_column(batch, fmt.COL_NOTES, [notes] * batch.num_rows)
+        return replace_column(batch, fmt.COL_INFO, [notes] * batch.num_rows)
+
+    evil = rewrite(plain, tmp_path / "cells.mcap", steps=steps)
+    found = [f for f in check([evil]).findings if f.code == f"recorder_note:{expected}"]
+    assert [(f.episode, f.step) for f in found] == [(0, 0)]
+    assert len(found[0].message) < 300
+
+
+def test_hostile_reset_json_is_not_replayable_not_a_crash(plain: Path, tmp_path: Path) -> None:
+    deep = "[" * 100_000
+
+    def episodes(batch: pa.RecordBatch) -> pa.RecordBatch:
+        batch = replace_column(batch, "rng_state", [None, deep][: batch.num_rows])
+        return replace_column(batch, "options", [deep, None][: batch.num_rows])
+
+    evil = rewrite(plain, tmp_path / "rng.mcap", episodes=episodes)
+    result = replay([evil])
+    assert [(e.status, e.reason) for e in result.episodes] == [
+        ("not_replayable", "its reset record: options is nested too deeply to be JSON "
+         "episode-audit wrote"),
+        ("not_replayable", "its reset record: rng_state is nested too deeply to be JSON "
+         "episode-audit wrote"),
+    ]  # fmt: skip
