@@ -343,6 +343,11 @@ def test_output_paths_never_come_from_file_content(tmp_path: Path) -> None:
         "deep/out/evil.steps.parquet",
         "deep/out/run.steps.parquet",
     }
+    before = {p for p in tmp_path.rglob("*")}
+    code, _, err = cli("recover", str(evil), "-o", str(tmp_path / "deep" / "fixed.mcap"))
+    assert code == 0, err
+    created = {p for p in tmp_path.rglob("*")} - before
+    assert {p.relative_to(tmp_path).as_posix() for p in created} == {"deep/fixed.mcap"}
 
 
 # ----------------------------------------------------------------------- rule 5: bounded sizes
