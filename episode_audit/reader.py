@@ -946,22 +946,41 @@ def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordB
         raise CorruptEvidenceError(
             path, f"a block on {topic} is not a valid Arrow stream: {_one_line(exc)}"
         ) from None
-    required = _REQUIRED.get(topic)
-    if required is not None:
-        schema = batch.schema
-        if not schema.equals(_CHECKED.get(topic, _NO_SCHEMA)):
-            problem = _columns_problem(schema, required)
-            if problem is not None:
-                raise CorruptEvidenceError(
-                    path, f"a block on {topic} does not have the expected columns: {problem}"
-                )
-            _CHECKED[topic] = schema
+    schema = batch.schema
+    if not schema.equals(_CHECKED.get(topic, _NO_SCHEMA)):
+        try:
+            _decode_names(schema)
+        except ValueError:
+            raise CorruptEvidenceError(
+                path, f"a block on {topic} has column names that are not UTF-8"
+            ) from None
+        required = _REQUIRED.get(topic)
+        problem = None if required is None else _columns_problem(schema, required)
+        if problem is not None:
+            raise CorruptEvidenceError(
+                path, f"a block on {topic} does not have the expected columns: {problem}"
+            )
+        _CHECKED[topic] = schema
+    if topic in _NOT_NULL:
         for name in _NOT_NULL[topic]:
             if batch.column(name).null_count:
                 raise CorruptEvidenceError(
                     path, f"a block on {topic} has nulls in its {name!r} column"
                 )
     return batch
+
+
+def _decode_names(fields: Iterable[pa.Field]) -> None:
+    """Decode every field name, nested ones too (``UnicodeDecodeError`` if one is not UTF-8)."""
+    for f in fields:
+        f.name  # noqa: B018 - pyarrow decodes the name here
+        kind = f.type
+        if isinstance(kind, (pa.StructType, pa.UnionType)):
+            _decode_names(kind.field(i) for i in range(kind.num_fields))
+        elif isinstance(kind, pa.MapType):
+            _decode_names((kind.key_field, kind.item_field))
+        elif isinstance(kind, (pa.ListType, pa.LargeListType, pa.FixedSizeListType)):
+            _decode_names((kind.value_field,))
 
 
 def _one_line(exc: BaseException, limit: int = 200) -> str:

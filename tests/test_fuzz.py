@@ -485,3 +485,36 @@ def test_fuzz_long(corpus: dict[str, Path]) -> None:
     )
     print(f"fuzz: {time.monotonic() - start:.0f} s with {workers} workers")
     _assert_clean(summary, count)
+
+
+def test_column_names_that_are_not_utf8_are_corruption(
+    bases: dict[str, bytes], tmp_path: Path
+) -> None:
+    def change(model: fuzzing.Model) -> None:
+        block = model.messages[model.on(fuzzing.fmt.TOPIC_EPISODES)[0]]
+        data = bytearray(block.data)
+        at = data.find(b"failure_label")
+        data[at : at + 2] = b"\xd8A"  # same length, not UTF-8
+        block.data = bytes(data)
+
+    path = tmp_path / "names.mcap"
+    path.write_bytes(_model_case(bases, change))
+    with pytest.raises(EvidenceError, match=r"names\.mcap: .* column names that are not UTF-8"):
+        open_evidence(path).episodes()
+
+
+def test_a_recorded_env_spec_of_wrong_shape_is_not_replayable(
+    bases: dict[str, bytes], tmp_path: Path
+) -> None:
+    from episode_audit import replay
+
+    def change(model: fuzzing.Model) -> None:
+        spec = json.loads(model.run()["env_spec"])
+        spec["kwargs"] = 5
+        model.run()["env_spec"] = json.dumps(spec)
+
+    path = tmp_path / "spec.mcap"
+    path.write_bytes(_model_case(bases, change))
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert "cannot make 'CartPole-v1' with the recorded kwargs" in result.episodes[0].reason
