@@ -234,4 +234,6 @@ class RunInfo:
         for name in ("versions", "tags"):
             if not all(isinstance(v, str) for v in getattr(info, name).values()):
                 raise ValueError(f"run metadata key {name!r}: expected string values")
+        if not all(isinstance(v, str) for v in info.command_line):
+            raise ValueError("run metadata key 'command_line': expected a list of strings")
         return info

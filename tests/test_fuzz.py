@@ -224,6 +224,7 @@ def test_a_block_with_another_schema_than_the_file_declares_is_corruption(
         ("reward_terms", "1.5", r"'reward_terms': expected a JSON dict"),
         ("env_spec", '"CartPole"', r"'env_spec': expected a JSON dict"),
         ("tags", '{"a": 1}', r"'tags': expected string values"),
+        ("command_line", "[[1]]", r"'command_line': expected a list of strings"),
         ("versions", "[" * 100_000 + "]" * 100_000, r"nested too deeply"),
         ("command_line", "x" * ((1 << 20) + 1), r"exceeds the 1 MiB limit"),
         ("format_version", "3.1", r"format 3\.1, newer than this reader"),
