@@ -130,6 +130,22 @@ def _format(value: str) -> OutputFormat:
     return value  # type: ignore[return-value]
 
 
+def _readable(files: Sequence[Path]) -> tuple[list[Path], int]:
+    """The files that open as evidence; one stderr line for each that does not."""
+    from .reader import open_evidence
+
+    readable: list[Path] = []
+    unreadable = 0
+    for path in files:
+        try:
+            open_evidence(path)
+            readable.append(path)
+        except EpisodeAuditError as exc:
+            _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+            unreadable += 1
+    return readable, unreadable
+
+
 def _steps_total(paths: Sequence[Path]) -> int | None:
     from .reader import open_evidence
 
@@ -321,18 +337,7 @@ def report(
         max_truncation_rate=_rate_option("--max-truncation-rate", max_truncation_rate),
         fail_on_incentive_warning=fail_on_incentive_warning,
     )
-    files = collect(paths)
-    readable: list[Path] = []
-    unreadable = 0
-    from .reader import open_evidence
-
-    for path in files:
-        try:
-            open_evidence(path)
-            readable.append(path)
-        except EpisodeAuditError as exc:
-            _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
-            unreadable += 1
+    readable, unreadable = _readable(collect(paths))
     if not readable:
         raise typer.Exit(EXIT_USAGE)
     try:
@@ -408,7 +413,9 @@ def export(
     """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
     from .export import export as run_export
 
-    files = collect(paths)
+    files, unreadable = _readable(collect(paths))
+    if not files:
+        raise typer.Exit(EXIT_USAGE)
     try:
         with progress_bar("exporting", _steps_total(files)) as advance:
             result = run_export(files, out, overwrite=overwrite, progress=advance)
@@ -418,6 +425,8 @@ def export(
         f"wrote {result.episodes} episodes to {result.episodes_file} and {result.steps} steps "
         f"to {len(result.steps_files)} *.steps.parquet file(s) in {out}"
     )
+    if unreadable:
+        raise typer.Exit(EXIT_USAGE)
 
 
 # ----------------------------------------------------------------------------- recover

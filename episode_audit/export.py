@@ -100,9 +100,13 @@ def export(
                 result.steps += table.num_rows
                 if progress is not None:
                     progress(table.num_rows)
-        finally:
+        except BaseException:
             if writer is not None:
                 writer.close()
+                target.unlink(missing_ok=True)  # no half-written file that looks complete
+            raise
+        if writer is not None:
+            writer.close()
         if writer is None:  # no steps at all: still write an empty, typed file
             pq.write_table(_with_file(ev.steps_schema.empty_table(), label), target)
         result.steps_files.append(target)

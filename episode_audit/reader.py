@@ -34,6 +34,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import stat
 import struct
 import zlib
 from collections import deque
@@ -56,6 +57,7 @@ from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Sche
 from mcap.stream_reader import StreamReader
 
 from . import format as fmt
+from .columns import TERMS_TYPE
 from .errors import (
     CorruptEvidenceError,
     EvidenceError,
@@ -351,6 +353,9 @@ class Evidence:
         wanted = (steps, resets, records)
         want = frozenset(c for c, slot in route.items() if slot != _OTHER and wanted[slot])
         path = self.path
+        # Every step block has the schema the file declares for them (or, if it declares
+        # none, the first block's): a reader streaming blocks can rely on one schema.
+        expected = self._declared_schema(fmt.TOPIC_STEPS)
         for ref, (data, positions) in self._decoded(refs, ahead=ahead, want=want):
             channels: list[Channel] = []
             messages = _split(
@@ -361,7 +366,16 @@ class Evidence:
             chunk = _Chunk(ref, [], [], [])
             for slot, log_time, view in messages:
                 if slot == _STEPS:
-                    chunk.steps.append((log_time, _arrow_batch(view, path, fmt.TOPIC_STEPS)))
+                    batch = _arrow_batch(view, path, fmt.TOPIC_STEPS)
+                    if expected is None:
+                        expected = batch.schema
+                    elif not batch.schema.equals(expected):
+                        raise CorruptEvidenceError(
+                            path,
+                            f"a step block in the chunk at byte {ref.offset} does not have the "
+                            "schema of the others (or the one the file declares)",
+                        )
+                    chunk.steps.append((log_time, batch))
                 elif slot == _RESETS:
                     chunk.resets.append((log_time, view.tobytes()))
                 else:
@@ -468,11 +482,28 @@ class Evidence:
         """The Arrow schema of the steps table (from the file, even when it has no steps)."""
         return self._topic_schema(fmt.TOPIC_STEPS)
 
-    def _topic_schema(self, topic: str) -> pa.Schema:
+    def _declared_schema(self, topic: str) -> pa.Schema | None:
+        """The schema the file's Schema record declares for ``topic``, if any (unchecked)."""
         for channel in self._channels.values():
             if channel.topic == topic and channel.schema_id in self._schemas:
                 return self._schemas[channel.schema_id]
-        return pa.schema([])
+        return None
+
+    def _topic_schema(self, topic: str) -> pa.Schema:
+        """The topic's schema as its Schema record declares it (checked like its blocks).
+
+        A file without the topic's channel or schema (torn before any block) gets the
+        required columns, the space columns null-typed.
+        """
+        schema = self._declared_schema(topic)
+        if schema is None:
+            return _minimal_schema(topic)
+        problem = _columns_problem(schema, _REQUIRED[topic])
+        if problem is not None:
+            raise CorruptEvidenceError(
+                self.path, f"the schema of {topic} does not have the expected columns: {problem}"
+            )
+        return schema
 
     @property
     def _schemas(self) -> dict[int, pa.Schema]:
@@ -662,6 +693,8 @@ def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Path) -> _RawChunk:
                 f"chunk at byte {offset} declares a record of {length} bytes "
                 f"(limit {MAX_RECORD_BYTES})",
             )
+        if offset + _RECORD_HEAD.size + length > os.fstat(f.fileno()).st_size:
+            raise _damaged(path, offset, f"its {length}-byte record runs past the end of the file")
         body = f.read(length)
     except OSError as exc:
         raise EvidenceError(path, f"cannot read chunk at byte {offset}: {exc}") from None
@@ -912,15 +945,200 @@ def _inner_record(kind: Any, body: bytes, path: Path, offset: int, pos: int) -> 
 
 
 def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordBatch:
+    """Decode one block; check its framing, its data and (steps, resets) its columns."""
+    problem = _ipc_problem(data)
+    if problem is not None:
+        raise CorruptEvidenceError(path, f"a block on {topic} {problem}")
     try:
         reader = pa.ipc.open_stream(pa.py_buffer(data), options=_IPC_OPTIONS)
         batch = reader.read_next_batch()
         batch.validate(full=True)
-    except (pa.ArrowException, StopIteration, ValueError, OSError) as exc:
+    except (pa.ArrowException, StopIteration, ValueError, OSError, MemoryError) as exc:
         raise CorruptEvidenceError(
-            path, f"a block on {topic} is not a valid Arrow stream: {exc}"
+            path, f"a block on {topic} is not a valid Arrow stream: {_one_line(exc)}"
         ) from None
+    schema = batch.schema
+    if not schema.equals(_CHECKED.get(topic, _NO_SCHEMA)):
+        try:
+            _decode_names(schema)
+        except ValueError:
+            raise CorruptEvidenceError(
+                path, f"a block on {topic} has column names that are not UTF-8"
+            ) from None
+        required = _REQUIRED.get(topic)
+        problem = None if required is None else _columns_problem(schema, required)
+        if problem is not None:
+            raise CorruptEvidenceError(
+                path, f"a block on {topic} does not have the expected columns: {problem}"
+            )
+        _CHECKED[topic] = schema
+    if topic in _NOT_NULL:
+        for name in _NOT_NULL[topic]:
+            if batch.column(name).null_count:
+                raise CorruptEvidenceError(
+                    path, f"a block on {topic} has nulls in its {name!r} column"
+                )
     return batch
+
+
+def _decode_names(fields: Iterable[pa.Field]) -> None:
+    """Decode every field name, nested ones too (``UnicodeDecodeError`` if one is not UTF-8)."""
+    for f in fields:
+        f.name  # noqa: B018 - pyarrow decodes the name here
+        kind = f.type
+        if isinstance(kind, (pa.StructType, pa.UnionType)):
+            _decode_names(kind.field(i) for i in range(kind.num_fields))
+        elif isinstance(kind, pa.MapType):
+            _decode_names((kind.key_field, kind.item_field))
+        elif isinstance(kind, (pa.ListType, pa.LargeListType, pa.FixedSizeListType)):
+            _decode_names((kind.value_field,))
+
+
+def _one_line(exc: BaseException, limit: int = 200) -> str:
+    """An exception's message on one line, cut to ``limit`` characters."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+# Columns a block must have, with their types (None: any type; the space decides). Files of
+# the same major version may add columns; these are the ones the readers rely on.
+_REQUIRED: dict[str, dict[str, pa.DataType | None]] = {
+    fmt.TOPIC_STEPS: {
+        fmt.COL_EPISODE: pa.int64(),
+        fmt.COL_STEP: pa.int64(),
+        fmt.COL_TIME: pa.int64(),
+        fmt.COL_ACTION: None,
+        fmt.COL_OBSERVATION: None,
+        fmt.COL_REWARD: pa.float64(),
+        fmt.COL_TERMS: TERMS_TYPE,
+        fmt.COL_TERMINATED: pa.bool_(),
+        fmt.COL_TRUNCATED: pa.bool_(),
+        fmt.COL_OUTCOME: pa.string(),
+        fmt.COL_LABEL: pa.string(),
+        fmt.COL_INFO: pa.string(),
+        fmt.COL_NOTES: pa.string(),
+    },
+    fmt.TOPIC_RESETS: {
+        fmt.COL_EPISODE: pa.int64(),
+        "env_index": pa.int64(),
+        fmt.COL_TIME: pa.int64(),
+        "seed": pa.int64(),
+        "rng_state": pa.string(),
+        "options": pa.string(),
+        fmt.COL_OBSERVATION: None,
+        fmt.COL_INFO: pa.string(),
+        fmt.COL_NOTES: pa.string(),
+    },
+}
+_NOT_NULL: dict[str, tuple[str, ...]] = {
+    fmt.TOPIC_STEPS: (fmt.COL_EPISODE, fmt.COL_STEP, fmt.COL_TIME),
+    fmt.TOPIC_RESETS: (fmt.COL_EPISODE, "env_index", fmt.COL_TIME),
+}
+_NO_SCHEMA = pa.schema([])
+_CHECKED: dict[str, pa.Schema] = {}
+"""The last block schema found good, per topic (blocks of one file share their schema)."""
+
+
+def _columns_problem(schema: pa.Schema, required: dict[str, pa.DataType | None]) -> str | None:
+    """What is wrong with a block schema's columns, or None."""
+    for name, kind in required.items():
+        found = schema.get_all_field_indices(name)
+        if len(found) != 1:
+            return f"{name!r} is {'missing' if not found else 'there twice'}"
+        actual = schema.field(found[0]).type
+        if kind is not None and not actual.equals(kind):
+            return f"{name!r} is {actual}, expected {kind}"
+    return None
+
+
+def _minimal_schema(topic: str) -> pa.Schema:
+    """The required columns of ``topic`` (null-typed space columns): a file without blocks."""
+    return pa.schema(
+        [(name, pa.null() if kind is None else kind) for name, kind in _REQUIRED[topic].items()]
+    )
+
+
+_I32 = struct.Struct("<i")
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_I64 = struct.Struct("<q")
+_IPC_SCHEMA, _IPC_DICTIONARY, _IPC_RECORD_BATCH = 1, 2, 3
+
+
+def _ipc_problem(data: bytes | memoryview) -> str | None:
+    """Refuse what our blocks never hold and what could inflate: compressed or dictionary bodies.
+
+    Walks the Arrow IPC stream's framing up to its first record batch, reading each message's
+    flatbuffer header by hand (an IPC body may be LZ4/ZSTD-compressed, buffer by buffer, with
+    declared sizes that pyarrow would allocate before any check). Returns None when fine; a
+    stream cut short is left to pyarrow to report.
+    """
+    end = len(data)
+    pos = 0
+    try:
+        while pos + 8 <= end:
+            (size,) = _I32.unpack_from(data, pos)
+            if size == -1:  # continuation marker, then the metadata size
+                (size,) = _I32.unpack_from(data, pos + 4)
+                pos += 8
+            else:
+                pos += 4
+            if size <= 0 or pos + size > end:
+                return None  # end of stream, or cut short: pyarrow says which
+            kind, body_length, compressed = _ipc_message(data, pos, size)
+            if kind == _IPC_DICTIONARY:
+                return "holds an Arrow dictionary batch (blocks never do)"
+            if compressed:
+                return "uses Arrow IPC body compression (blocks never do)"
+            if kind == _IPC_RECORD_BATCH:
+                return None
+            if kind != _IPC_SCHEMA or body_length < 0:
+                return (
+                    f"is not a valid Arrow stream: an IPC message of type {kind} before its batch"
+                )
+            pos += size + body_length
+    except (struct.error, IndexError):
+        return "is not a valid Arrow stream: its message headers are cut off or garbled"
+    return None
+
+
+def _ipc_message(data: bytes | memoryview, start: int, size: int) -> tuple[int, int, bool]:
+    """(header type, body length, body compressed) of the Message flatbuffer at ``start``.
+
+    Message: version (field 0), header_type (1), header (2), bodyLength (3). The header is a
+    RecordBatch (compression: field 3) or a DictionaryBatch (data: field 1, a RecordBatch).
+    """
+    stop = start + size
+
+    def table(at: int) -> tuple[int, int, int]:
+        vtable = at - _I32.unpack_from(data, at)[0]
+        if not start <= vtable < stop or not start <= at < stop:
+            raise IndexError("flatbuffer offset outside the message")
+        return at, vtable, _U16.unpack_from(data, vtable)[0]
+
+    def field_at(t: tuple[int, int, int], index: int) -> int:
+        """A field's position, 0 when absent."""
+        at, vtable, vsize = t
+        slot = 4 + 2 * index
+        offset = _U16.unpack_from(data, vtable + slot)[0] if slot + 2 <= vsize else 0
+        return at + offset if offset else 0
+
+    def child(t: tuple[int, int, int], index: int) -> tuple[int, int, int] | None:
+        at = field_at(t, index)
+        return table(at + _U32.unpack_from(data, at)[0]) if at else None
+
+    root = table(start + _U32.unpack_from(data, start)[0])
+    kind_at = field_at(root, 1)
+    kind = data[kind_at] if kind_at else 0
+    length_at = field_at(root, 3)
+    body_length = _I64.unpack_from(data, length_at)[0] if length_at else 0
+    header = child(root, 2)
+    if kind == _IPC_DICTIONARY and header is not None:
+        header = child(header, 1)
+    compressed = kind in (_IPC_RECORD_BATCH, _IPC_DICTIONARY) and (
+        header is not None and child(header, 3) is not None
+    )
+    return kind, body_length, compressed
 
 
 # ------------------------------------------------------------------- episode records
@@ -929,6 +1147,7 @@ def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordB
 _SCAN_ONCE: Any = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
 _COMPACT = json.JSONEncoder(separators=(",", ":"))  # as json.dumps(..., separators=(",", ":"))
 _OUTCOMES = frozenset(fmt.OUTCOMES)
+_OUTCOME_ARRAY = pa.array(fmt.OUTCOMES, pa.string())
 _NO_ERROR: dict[str, Any] = {}
 _NO_TERMS: tuple[tuple[str, float], ...] = ()
 _GROUP = 128  # end records parsed at a time (few parsed objects alive: less GC work)
@@ -988,6 +1207,16 @@ def _episode_blocks(blocks: list[bytes], path: Path) -> pa.Table:
         except (pa.ArrowException, TypeError, ValueError) as exc:
             raise CorruptEvidenceError(path, f"an episode block has wrong types: {exc}") from None
     table = pa.Table.from_batches(batches, schema=block_schema).combine_chunks()
+    for name in ("episode", "outcome", "length"):
+        if table.column(name).null_count:
+            raise CorruptEvidenceError(path, f"an episode block has nulls in its {name!r} column")
+    unknown = pc.filter(
+        table.column("outcome"), pc.invert(pc.is_in(table.column("outcome"), _OUTCOME_ARRAY))
+    )
+    if len(unknown):
+        raise CorruptEvidenceError(
+            path, f"an episode block has unknown outcome {unknown[0].as_py()!r}"
+        )
     ended = pa.array(np.ones(table.num_rows, dtype=np.bool_))
     return table.append_column(EPISODE_SCHEMA.field("ended"), ended)
 
@@ -1055,13 +1284,13 @@ def _record_columns(recs: list[dict[str, Any]]) -> dict[str, list[Any]]:
     """
     try:
         return _columns_of(recs)
-    except (AttributeError, TypeError, ValueError):
+    except (AttributeError, TypeError, ValueError, OverflowError):
         pass
     columns: dict[str, list[Any]] = {name: [] for name in EPISODE_COLUMNS}
     for r in recs:
         try:
             one = _columns_of([r])
-        except (AttributeError, TypeError, ValueError) as exc:
+        except (AttributeError, TypeError, ValueError, OverflowError) as exc:
             one = _columns_of([{k: r[k] for k in ("episode", "outcome", "length")}])
             one["ended"] = [_Unconvertible(f"{type(exc).__name__}: {exc}")]
         for name, values in one.items():
@@ -1132,8 +1361,10 @@ def _episode_table(
         return pa.Table.from_arrays(
             [columns[name] for name in EPISODE_COLUMNS], schema=EPISODE_SCHEMA
         )
-    except (pa.ArrowException, TypeError, ValueError) as exc:
-        raise CorruptEvidenceError(path, f"episode records have wrong types: {exc}") from None
+    except (pa.ArrowException, TypeError, ValueError, OverflowError) as exc:
+        raise CorruptEvidenceError(
+            path, f"episode records have wrong types: {_one_line(exc)}"
+        ) from None
 
 
 def _incomplete_row(index: int, start: dict[str, Any] | None, stats: _StepStats) -> dict[str, Any]:
@@ -1206,6 +1437,8 @@ def open_evidence(path: str | os.PathLike[str]) -> Evidence:
     """
     p = Path(path)
     try:
+        if not stat.S_ISREG(os.stat(p).st_mode):
+            raise NotEvidenceError(p, "not a regular file")
         f = open(p, "rb")  # noqa: SIM115
     except OSError as exc:
         raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
@@ -1253,7 +1486,9 @@ def _parse_run(
     try:
         run = RunInfo.from_metadata(raw)
     except (ValueError, TypeError) as exc:
-        raise CorruptEvidenceError(path, str(exc)) from None
+        raise CorruptEvidenceError(path, _one_line(exc)) from None
+    except RecursionError:
+        raise CorruptEvidenceError(path, "run metadata is nested too deeply") from None
     return run, metadata.get(fmt.METADATA_RUN_END)
 
 

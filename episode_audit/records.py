@@ -252,11 +252,21 @@ class RunInfo:
         for name, kind in (
             ("observation_space", dict),
             ("action_space", dict),
+            ("reward_terms", dict),
+            ("ending_rules", dict),
             ("versions", dict),
             ("command_line", list),
             ("tags", dict),
+            ("recorder", dict),
             ("layout", dict),
         ):
             if not isinstance(getattr(info, name), kind):
                 raise ValueError(f"run metadata key {name!r}: expected a JSON {kind.__name__}")
+        if info.env_spec is not None and not isinstance(info.env_spec, dict):
+            raise ValueError("run metadata key 'env_spec': expected a JSON dict")
+        for name in ("versions", "tags"):
+            if not all(isinstance(v, str) for v in getattr(info, name).values()):
+                raise ValueError(f"run metadata key {name!r}: expected string values")
+        if not all(isinstance(v, str) for v in info.command_line):
+            raise ValueError("run metadata key 'command_line': expected a list of strings")
         return info

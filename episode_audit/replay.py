@@ -158,13 +158,14 @@ def build_env(
     env_id = run.env_id
     if not env_id:
         raise ReplayError("the file names no env id; pass --env-factory MODULE:CALLABLE")
-    wrappers = [w for w in spec.get("additional_wrappers") or [] if isinstance(w, Mapping)]
+    recorded = spec.get("additional_wrappers") or []
+    wrappers = [w for w in recorded if isinstance(w, Mapping)] if isinstance(recorded, list) else []
     foreign = [str(w.get("entry_point")) for w in wrappers if not _gymnasium_wrapper(w)]
     if ":" not in env_id and env_id in gym.registry and (not foreign or trust_entry_points):
-        kwargs = dict(spec.get("kwargs") or {})
-        if "max_episode_steps" in spec:
-            kwargs["max_episode_steps"] = spec["max_episode_steps"]
         try:
+            kwargs = dict(spec.get("kwargs") or {})
+            if "max_episode_steps" in spec:
+                kwargs["max_episode_steps"] = spec["max_episode_steps"]
             env = gym.make(env_id, **kwargs)
             for wrapper in wrappers:
                 cls = load_callable(str(wrapper["entry_point"]))
@@ -173,7 +174,9 @@ def build_env(
                         f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
                     )
                 env = cls(env, **(wrapper.get("kwargs") or {}))
-        except (TypeError, ValueError, gym.error.Error) as exc:
+        except ConfigurationError:
+            raise
+        except Exception as exc:  # the env's own code, given what the file recorded
             raise ReplayError(f"cannot make {env_id!r} with the recorded kwargs: {exc}") from None
         return env
     entry = spec.get("entry_point")
