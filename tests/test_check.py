@@ -12,7 +12,13 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
 
-from episode_audit import ConfigurationError, EvidenceError, RecordEvidence, open_evidence
+from episode_audit import (
+    ConfigurationError,
+    CorruptEvidenceError,
+    EvidenceError,
+    RecordEvidence,
+    open_evidence,
+)
 from episode_audit.check import CheckResult, Finding, check, check_evidence
 from episode_audit.reader import Evidence
 from tests.envs import ScriptedEnv
@@ -488,7 +494,8 @@ def test_grouping_keeps_recording_order_for_interleaved_rows() -> None:
     assert largest is not None and largest.tolist() == [2.0, 3.0, 1.0]
 
 
-def test_step_blocks_without_an_info_column_are_checked(tmp_path: Path) -> None:
+def test_step_blocks_without_an_info_column_are_refused(tmp_path: Path) -> None:
+    # Every column of docs/format.md's step block is required (later versions only add).
     from tests.hostile import rewrite
 
     source = tmp_path / "with_info.mcap"
@@ -497,7 +504,5 @@ def test_step_blocks_without_an_info_column_are_checked(tmp_path: Path) -> None:
         for _ in range(3):
             env.step(0)
     other = rewrite(source, tmp_path / "no_info.mcap", steps=lambda b: b.drop_columns(["info"]))
-    assert "info" not in open_evidence(other).steps_schema.names
-    result = check([other])
-    assert (result.ok, result.steps) == (True, 3)
-    assert [f.code for f in result.findings] == [f.code for f in check([source]).findings]
+    with pytest.raises(CorruptEvidenceError, match=r"no_info\.mcap: .*'info' is missing"):
+        check([other])
