@@ -30,6 +30,7 @@ from .recorder import RecordEvidence
 from .records import RunInfo
 from .replay import ReplayResult, replay
 from .report import Gates, Report, report
+from .vector import RecordVectorEvidence, ResetRngInfo
 
 __all__ = [
     "CheckResult",
@@ -47,10 +48,12 @@ __all__ = [
     "Gates",
     "NotEvidenceError",
     "RecordEvidence",
+    "RecordVectorEvidence",
     "RecorderError",
     "ReplayError",
     "ReplayResult",
     "Report",
+    "ResetRngInfo",
     "RewardTerms",
     "RunInfo",
     "UnsupportedVersionError",

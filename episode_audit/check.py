@@ -47,7 +47,8 @@ code                             severity  meaning
 ``file_unfinished``              warning   the writer did not finish the file (crash, kill); the
                                            message says what the reader dropped
 ``not_replayable``               warning   episodes with neither a reset seed nor an RNG state
-                                           (one per file, listing up to five)
+                                           (one per file, listing up to five); or a vector
+                                           file whose vector env had no sub-envs
 ``missing_env_spec``             warning   the file has no environment spec to rebuild the env
 ``format_version``               note      the file was written with an older format version
 ===============================  ========  ======================================================
@@ -407,6 +408,10 @@ class _FileCheck:
                 MISSING_ENV_SPEC,
                 f"no environment spec recorded{why}: replay needs an env factory",
             )
+        layout = ev.run.layout or {}
+        if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
+            why = layout.get("replay_note") or "the vector env had no sub-envs"
+            self.finding("warning", NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
         version = ev.run.format_version
         if _version_tuple(version) < _version_tuple(fmt.FORMAT_VERSION):
             self.finding(
