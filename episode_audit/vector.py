@@ -227,6 +227,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             for i in range(n)
         ]
         self._file.start()
+        self._steppers = [stream.step for stream in self._streams]
         self._obs_space = env.observation_space
         self._act_space = env.action_space
         # NEXT_STEP: the sub-envs whose next step is their autoreset, and their RNG states.
@@ -399,7 +400,6 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
 
     def _record_step(self, actions: Any, result: tuple[Any, ...]) -> None:
         obs, rewards, terminated, truncated, infos = result
-        streams = self._streams
         obs_rows = list(iterate(self._obs_space, obs))
         act_rows = list(iterate(self._act_space, actions))
         reward_list = np.asarray(rewards, dtype=np.float64).tolist()
@@ -410,10 +410,44 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         ended = term | trunc
         mode = self._mode
         resetting = self._autoreset if mode is AutoresetMode.NEXT_STEP else None
+        if (
+            not infos
+            and resetting is None
+            and (mode is not AutoresetMode.SAME_STEP or not ended.any())
+        ):
+            # The common step: every sub-env stepped, no info: one plain row per stream.
+            for stepper, action, row, reward, te, tr in zip(
+                self._steppers, act_rows, obs_rows, reward_list, term_list, trunc_list, strict=True
+            ):
+                stepper(action, (row, reward, te, tr, _EMPTY))
+        else:
+            self._record_step_slow(obs_rows, act_rows, reward_list, term_list, trunc_list, infos)
+        if mode is AutoresetMode.NEXT_STEP:
+            if ended.any():
+                self._autoreset = ended
+                if not self._rng_in_info:
+                    self._pending_rng = self._capture(np.flatnonzero(ended).tolist())
+            else:
+                self._autoreset = None
+
+    def _record_step_slow(
+        self,
+        obs_rows: list[Any],
+        act_rows: list[Any],
+        reward_list: list[float],
+        term_list: list[bool],
+        trunc_list: list[bool],
+        infos: Mapping[str, Any],
+    ) -> None:
+        """A step with info, autoresets or (SAME_STEP) ended episodes: sub-env by sub-env."""
+        streams = self._streams
+        mode = self._mode
+        autoreset = self._autoreset if mode is AutoresetMode.NEXT_STEP else None
+        resetting = [False] * self._n if autoreset is None else autoreset.tolist()
         now = self._file.clock()
         for i in range(self._n):
             info = _sub_info(infos, i) if infos else _EMPTY
-            if resetting is not None and resetting[i]:
+            if resetting[i]:
                 # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
                 rng = self._rng_from_info(info)
                 if rng is None:
@@ -421,7 +455,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 self._streams[i].end_open()
                 self._begin(i, None, None, rng, obs_rows[i], info, now)
                 continue
-            if mode is AutoresetMode.SAME_STEP and ended[i]:
+            if mode is AutoresetMode.SAME_STEP and (term_list[i] or trunc_list[i]):
                 final = info.get("final_info")
                 step_info = final if isinstance(final, Mapping) else _EMPTY
                 final_obs = infos["final_obs"][i] if "final_obs" in infos else obs_rows[i]
@@ -443,13 +477,6 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             streams[i].step(
                 act_rows[i], (obs_rows[i], reward_list[i], term_list[i], trunc_list[i], info)
             )
-        if mode is AutoresetMode.NEXT_STEP:
-            if ended.any():
-                self._autoreset = ended
-                if not self._rng_in_info:
-                    self._pending_rng = self._capture(np.flatnonzero(ended).tolist())
-            else:
-                self._autoreset = None
 
     def _on_step_error(self, exc: Exception) -> None:
         try:

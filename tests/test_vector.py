@@ -184,6 +184,8 @@ def test_cli_check_report_replay_on_a_vector_file(tmp_path: Path) -> None:
     assert replayed.exit_code == 0, replayed.output
     summary = json.loads(replayed.stdout)["summary"]
     assert summary["diverged"] == summary["not_replayable"] == 0 and summary["identical"] > 300
+    shown = runner.invoke(app, ["show", str(path)])
+    assert shown.exit_code == 0 and "vector: 4 sub-envs (SyncVectorEnv, NextStep)" in shown.stdout
 
 
 def test_same_step_async_without_the_rng_wrapper_says_why(tmp_path: Path) -> None:
