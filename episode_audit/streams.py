@@ -28,7 +28,7 @@ import sys
 import time
 import weakref
 from array import array
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from typing import Any, Protocol
 
@@ -258,6 +258,7 @@ class _Block:
         "info",
         "notes",
         "obs",
+        "pending",
         "reset_info",
         "reset_notes",
         "reset_obs",
@@ -298,6 +299,12 @@ class _Block:
         self.resets: list[tuple[int, int, int | None, str | None, str | None, int | None]] = []
         self.reset_info: dict[int, dict[str, Any]] = {}
         self.reset_notes: dict[int, list[str]] = {}
+        # rows a batching recorder has taken but not yet handed over with Stream.extend
+        self.pending = 0
+
+    def rows(self) -> int:
+        """Rows of the block, counting the ``pending`` ones not yet handed over."""
+        return len(self.times) + self.pending
 
     def add_segment(self, row: int, episode: _Episode, first_step: int, counted: bool) -> None:
         self.segments.append((row, episode.index, first_step, counted))
@@ -306,7 +313,7 @@ class _Block:
     def next_step_index(self) -> int:
         """The step index the next row of the last segment's episode gets."""
         row, _, first, _ = self.segments[-1]
-        return first + len(self.times) - row
+        return first + self.rows() - row
 
     def add_terms(self, row: int, keys: Any, values: list[float]) -> None:
         self.term_rows.append(row)
@@ -394,6 +401,8 @@ class EvidenceFile:
         self._episode_schema = pa.schema(fields)
         self.pending: list[tuple[_Episode, dict[str, Any]]] = []
         self.streams: list[Stream] = []
+        # called first by every flush (a batching recorder hands over its rows)
+        self.before_flush: list[Callable[[], None]] = []
         self.writer = EvidenceWriter(
             path, library=f"episode-audit {__version__}", fsync=fsync, overwrite=overwrite
         )
@@ -576,6 +585,8 @@ class EvidenceFile:
 
     def flush(self) -> None:
         """Write every stream's pending rows and the ended episodes' records, in one chunk."""
+        for hook in self.before_flush:
+            hook()
         for stream in self.streams:
             stream.write_blocks()
         self._write_episodes()
@@ -737,7 +748,7 @@ class Stream:
             game,
         )
         self.episode = episode
-        self.block.add_segment(len(self.block.times), episode, 0, True)
+        self.block.add_segment(self.block.rows(), episode, 0, True)
         return episode
 
     def record_reset(self, episode: _Episode, obs: Any, info: Any, notes: list[str]) -> None:
@@ -858,6 +869,31 @@ class Stream:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
         if row + 1 >= self._block_steps or now - file.last_flush >= file.flush_ns:
             file.flush()
+
+    def extend(self, obs: Any, actions: Any, rewards: Any, times: Any) -> None:
+        """Hand over all rows taken in a batch since the last call (numpy arrays, a row each).
+
+        A batching recorder (the vector recorder) counts the rows it takes in ``block.pending``
+        so episode boundaries and endings (:meth:`begin`, :meth:`end_step`) land on the right
+        rows, and hands them over before the block is written. Values are already checked to
+        need no coercion; a buffer that cannot take them at once gets them row by row.
+        """
+        block = self.block
+        for buffer, values in ((block.obs, obs), (block.act, actions)):
+            if not buffer.extend(values):
+                for value in values:
+                    buffer.append(value)
+        block.rewards.frombytes(np.ascontiguousarray(rewards, dtype=np.float64).tobytes())
+        block.times.frombytes(np.ascontiguousarray(times, dtype=np.int64).tobytes())
+        block.pending = 0
+
+    def end_step(
+        self, row: int, terminated: bool, truncated: bool, info: Mapping[str, Any]
+    ) -> None:
+        """End the open episode by the flags of its step at ``row`` (a batched row)."""
+        episode = self.episode
+        if episode is not None and not episode.ended:
+            self._end_by_flags(episode, self.block, row, terminated, truncated, info)
 
     def _record_step_slow(self, result: Any, action: Any) -> None:
         """Record a step the fast path declined; never raises into the training loop."""

@@ -56,6 +56,16 @@ from .streams import EvidenceFile, RecorderSettings, Stream, note, run_info
 __all__ = ["RecordVectorEvidence", "ResetRngInfo"]
 
 _EMPTY: dict[str, Any] = {}
+_BATCH_STEPS = 256  # vector steps batched before their rows are handed to the streams
+
+
+def _fits(values: Any, shape: tuple[int, ...], dtype: Any) -> bool:
+    """Whether a batch can be stored as it is (exact shape; dtype, or any signed int for int)."""
+    return (
+        type(values) is np.ndarray
+        and values.shape == shape
+        and (values.dtype == dtype or (dtype.kind == "i" and values.dtype.kind == "i"))
+    )
 
 
 class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
@@ -189,6 +199,8 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             )
             notes.append(self._no_rng_note)
         self._rng_in_info = False
+        # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
+        self._sync_unwrapped = [] if self._sync is None else [e.unwrapped for e in self._sync.envs]
         if self._mode is AutoresetMode.SAME_STEP and self._sync is not None and install_rng_info:
             for i, sub in enumerate(self._sync.envs):
                 if not _has_rng_info(sub):
@@ -227,7 +239,28 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             for i in range(n)
         ]
         self._file.start()
-        self._steppers = [stream.step for stream in self._streams]
+        self._file.before_flush.append(self._on_flush)
+        # Batched rows (steps without info): whole vector steps, handed over by _drain.
+        single_obs, single_act = obs_space, act_space
+        self._obs_shape = (n, *(single_obs.shape or ()))
+        self._act_shape = (n, *(single_act.shape or ()))
+        self._obs_dtype = single_obs.dtype
+        self._act_dtype = single_act.dtype
+        self._batchable = (
+            not settings.track_info
+            and self._obs_dtype is not None
+            and self._act_dtype is not None
+            and obs_codec.new_buffer().extend(np.zeros((0, *self._obs_shape[1:]), self._obs_dtype))
+            and act_codec.new_buffer().extend(np.zeros((0, *self._act_shape[1:]), self._act_dtype))
+        )
+        self._pcount = np.zeros(n, dtype=np.int64)
+        self._p_obs: list[np.ndarray[Any, Any]] = []
+        self._p_act: list[np.ndarray[Any, Any]] = []
+        self._p_rew: list[np.ndarray[Any, Any]] = []
+        self._p_time: list[int] = []
+        self._p_mask: list[np.ndarray[Any, Any] | None] = []
+        self._since_flush = 0
+        self._block_steps = settings.block_steps
         self._obs_space = env.observation_space
         self._act_space = env.action_space
         # NEXT_STEP: the sub-envs whose next step is their autoreset, and their RNG states.
@@ -263,7 +296,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         if not indices:
             return {}
         if self._sync is not None:
-            envs = self._sync.envs
+            envs = self._sync_unwrapped
             return {i: capture_rng_state(envs[i]) for i in indices}
         if self._async is not None:
             try:
@@ -360,6 +393,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 rng = states.get(i)
                 if seeds[i] is None:
                     rng = self._rng_from_info(info) or rng
+                self._streams[i].block.pending = int(self._pcount[i])
                 self._streams[i].end_open()
                 self._begin(i, seeds[i], recorded_options, rng, rows[i], info, start)
             if self._autoreset is not None:
@@ -378,6 +412,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         self, i: int, seed: Any, options: Any, rng: dict[str, Any] | None, exc: Exception
     ) -> None:
         stream = self._streams[i]
+        stream.block.pending = int(self._pcount[i])
         stream.end_open()
         notes: list[str] = []
         stream.begin(seed, options, rng, notes)
@@ -400,28 +435,29 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
 
     def _record_step(self, actions: Any, result: tuple[Any, ...]) -> None:
         obs, rewards, terminated, truncated, infos = result
-        obs_rows = list(iterate(self._obs_space, obs))
-        act_rows = list(iterate(self._act_space, actions))
-        reward_list = np.asarray(rewards, dtype=np.float64).tolist()
         term = np.asarray(terminated, dtype=np.bool_)
         trunc = np.asarray(truncated, dtype=np.bool_)
-        term_list = term.tolist()
-        trunc_list = trunc.tolist()
         ended = term | trunc
         mode = self._mode
         resetting = self._autoreset if mode is AutoresetMode.NEXT_STEP else None
         if (
-            not infos
-            and resetting is None
+            self._batchable
+            and not infos
             and (mode is not AutoresetMode.SAME_STEP or not ended.any())
+            and _fits(obs, self._obs_shape, self._obs_dtype)
+            and _fits(actions, self._act_shape, self._act_dtype)
         ):
-            # The common step: every sub-env stepped, no info: one plain row per stream.
-            for stepper, action, row, reward, te, tr in zip(
-                self._steppers, act_rows, obs_rows, reward_list, term_list, trunc_list, strict=True
-            ):
-                stepper(action, (row, reward, te, tr, _EMPTY))
+            self._batch_step(obs, actions, rewards, term, trunc, ended, resetting)
         else:
-            self._record_step_slow(obs_rows, act_rows, reward_list, term_list, trunc_list, infos)
+            self._drain()
+            self._record_step_slow(
+                list(iterate(self._obs_space, obs)),
+                list(iterate(self._act_space, actions)),
+                np.asarray(rewards, dtype=np.float64).tolist(),
+                term.tolist(),
+                trunc.tolist(),
+                infos,
+            )
         if mode is AutoresetMode.NEXT_STEP:
             if ended.any():
                 self._autoreset = ended
@@ -429,6 +465,77 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                     self._pending_rng = self._capture(np.flatnonzero(ended).tolist())
             else:
                 self._autoreset = None
+
+    def _batch_step(
+        self,
+        obs: np.ndarray[Any, Any],
+        actions: np.ndarray[Any, Any],
+        rewards: Any,
+        term: np.ndarray[Any, np.dtype[np.bool_]],
+        trunc: np.ndarray[Any, np.dtype[np.bool_]],
+        ended: np.ndarray[Any, np.dtype[np.bool_]],
+        resetting: np.ndarray[Any, np.dtype[np.bool_]] | None,
+    ) -> None:
+        """A step without info: keep the whole batch; hand rows to the streams in bulk later.
+
+        Only episode boundaries are handled per sub-env: the NEXT_STEP autoresets (reset rows)
+        and the endings (their rows are counted in each block's ``pending``).
+        """
+        file = self._file
+        now = file.clock()
+        if resetting is None:
+            self._pcount += 1
+        else:
+            self._pcount += ~resetting
+        self._p_obs.append(obs.copy())
+        self._p_act.append(actions.copy())
+        self._p_rew.append(np.array(rewards, dtype=np.float64))
+        self._p_time.append(now)
+        self._p_mask.append(None if resetting is None else ~resetting)
+        streams = self._streams
+        if resetting is not None:
+            for i in np.flatnonzero(resetting).tolist():
+                # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
+                streams[i].block.pending = int(self._pcount[i])
+                rng = self._pending_rng.pop(i, None)
+                streams[i].end_open()
+                self._begin(i, None, None, rng, obs[i], _EMPTY, now)
+            ended = ended & ~resetting
+        if ended.any():
+            for i in np.flatnonzero(ended).tolist():
+                block = streams[i].block
+                block.pending = int(self._pcount[i])
+                streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), _EMPTY)
+        self._since_flush += 1
+        if self._since_flush >= self._block_steps or now - file.last_flush >= file.flush_ns:
+            file.flush()
+        elif len(self._p_obs) >= _BATCH_STEPS:
+            self._drain()
+
+    def _drain(self) -> None:
+        """Hand the batched rows over to each sub-env's stream (before any other row)."""
+        if not self._p_obs:
+            return
+        obs = np.stack(self._p_obs)
+        act = np.stack(self._p_act)
+        rew = np.stack(self._p_rew)
+        times = np.array(self._p_time, dtype=np.int64)
+        masks = self._p_mask
+        self._p_obs, self._p_act, self._p_rew, self._p_time, self._p_mask = [], [], [], [], []
+        self._pcount[:] = 0
+        if all(m is None for m in masks):
+            for i, stream in enumerate(self._streams):
+                stream.extend(obs[:, i], act[:, i], rew[:, i], times)
+            return
+        everyone = np.ones(self._n, dtype=np.bool_)
+        stepped = np.stack([everyone if m is None else m for m in masks])
+        for i, stream in enumerate(self._streams):
+            rows = stepped[:, i]
+            stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
+
+    def _on_flush(self) -> None:
+        self._drain()
+        self._since_flush = 0
 
     def _record_step_slow(
         self,
