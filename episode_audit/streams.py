@@ -416,6 +416,7 @@ class EvidenceFile:
         self.started = False
         self.next_episode = 0
         self.last_flush = self.clock()
+        self.flush_at = self.last_flush + self.flush_ns  # when flush_every_s will have passed
         self.closed = False
         self.counts = {"episodes": 0, "steps": 0, "blocks": 0}
         self._warned = False
@@ -490,7 +491,7 @@ class EvidenceFile:
 
     def due(self) -> bool:
         """Whether ``flush_every_s`` has passed since the last flush."""
-        return self.clock() - self.last_flush >= self.flush_ns
+        return self.clock() >= self.flush_at
 
     def trouble(self, exc: Exception) -> None:
         """Something failed inside the recorder itself: warn once, keep the loop running."""
@@ -592,6 +593,7 @@ class EvidenceFile:
         self._write_episodes()
         self.writer.flush()
         self.last_flush = self.clock()
+        self.flush_at = self.last_flush + self.flush_ns
 
     def close(self) -> None:
         """End every open episode as ``incomplete``, flush, and finish the file.
@@ -642,6 +644,7 @@ class Stream:
     ) -> None:
         settings = file.settings
         self.file = file
+        self._clock = file.clock
         self.env_index = env_index
         self.agent = agent
         self._obs_codec = obs_codec
@@ -862,13 +865,12 @@ class Stream:
         row = len(block.times)
         if terms is not None:
             block.add_terms(row, terms, values)
-        file = self.file
-        now = file.clock()
+        now = self._clock()
         block.times.append(now)  # commits the row
         if terminated or truncated:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
-        if row + 1 >= self._block_steps or now - file.last_flush >= file.flush_ns:
-            file.flush()
+        if row + 1 >= self._block_steps or now >= self.file.flush_at:
+            self.file.flush()
 
     def extend(self, obs: Any, actions: Any, rewards: Any, times: Any) -> None:
         """Hand over all rows taken in a batch since the last call (numpy arrays, a row each).
@@ -968,7 +970,7 @@ class Stream:
                 truncated,
                 info if isinstance(info, Mapping) else {},
             )
-        if len(block.times) >= self._block_steps or now - file.last_flush >= file.flush_ns:
+        if len(block.times) >= self._block_steps or now >= file.flush_at:
             file.flush()
 
     def _limit_hit(self, block: _Block) -> bool:

@@ -507,7 +507,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 block.pending = int(self._pcount[i])
                 streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), _EMPTY)
         self._since_flush += 1
-        if self._since_flush >= self._block_steps or now - file.last_flush >= file.flush_ns:
+        if self._since_flush >= self._block_steps or now >= file.flush_at:
             file.flush()
         elif len(self._p_obs) >= _BATCH_STEPS:
             self._drain()

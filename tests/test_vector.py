@@ -8,6 +8,7 @@ actions), and every sub-env episode is replayed on its own.
 from __future__ import annotations
 
 import json
+import warnings
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -346,3 +347,30 @@ def test_batched_rows_equal_the_row_by_row_ones(tmp_path: Path) -> None:
         max(b.num_rows for b in open_evidence(tmp_path / "batched.mcap").scan() for b in b.steps)
         <= 50
     )
+
+
+def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path) -> None:
+    from gymnasium.utils.env_checker import check_env, data_equivalence
+
+    for mode in ("NextStep", "SameStep"):
+
+        def make(mode: str = mode) -> Any:
+            return gym.make_vec(
+                "CartPole-v1", 3, vectorization_mode="sync", vector_kwargs={"autoreset_mode": mode}
+            )
+
+        bare = make()
+        rec = RecordVectorEvidence(make(), tmp_path / f"{mode}.mcap")
+        assert data_equivalence(bare.reset(seed=2), rec.reset(seed=2))
+        for action in np.random.default_rng(1).integers(0, 2, size=(120, 3)):
+            got, want = rec.step(action), bare.step(action)
+            info = dict(got[4])
+            # SAME_STEP: the sub-envs' ResetRngInfo adds its one key to the autoresets' info
+            info.pop("episode_audit.rng_state", None)
+            info.pop("_episode_audit.rng_state", None)
+            assert data_equivalence(got[:4], want[:4]) and data_equivalence(info, want[4])
+        rec.close()
+        bare.close()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(ResetRngInfo(gym.make("CartPole-v1")), skip_render_check=True)
