@@ -5,7 +5,8 @@
 
 Targets (docs/benchmarks.md): recording overhead <= 1.15x on CartPole-v1 and <= 1.02x on
 Reacher-v5 / HalfCheetah-v5; <= 32 bytes per CartPole step; recorder memory flat (<= 64 MB
-growth) over a 1 M-step episode; check >= 5 M steps/s; replay <= 1.05x bare stepping.
+growth) over a 1 M-step episode; check >= 5 M steps/s; replay <= 1.05x bare stepping; vector
+recording overhead per sub-env step no worse than the single-env recorder's (CartPole x8, Sync).
 Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
 """
 
@@ -25,7 +26,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from episode_audit import RecordEvidence, open_evidence
+from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TMP = Path(tempfile.mkdtemp(prefix="episode-audit-bench-"))
@@ -88,6 +89,58 @@ def bench_record(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
         "ratio_median": statistics.median(ratios),
         "ratios": [round(x, 4) for x in ratios],
         "bytes_per_step": size / steps,
+    }
+
+
+def run_vector(envs: Any, actions: np.ndarray[Any, Any]) -> float:
+    """Seconds to step a vector env through `actions` (one row per vector step), autoresetting."""
+    envs.reset(seed=0)
+    gc.collect()
+    start = time.perf_counter()
+    for action in actions:
+        envs.step(action)
+    return time.perf_counter() - start
+
+
+def bench_vector(num_envs: int, steps: int, rounds: int, mode: str = "sync") -> dict[str, Any]:
+    """Per-sub-env-step overhead of RecordVectorEvidence on a vector CartPole-v1 (interleaved)."""
+    actions = np.random.default_rng(0).integers(0, 2, size=(steps, num_envs))
+
+    def make() -> Any:
+        return gym.make_vec("CartPole-v1", num_envs, vectorization_mode=mode)
+
+    warm = RecordVectorEvidence(make(), TMP / "warm-vector.mcap", overwrite=True)
+    run_vector(warm, actions[: min(steps, 1000)])
+    warm.close()
+    ratios, bare_t, rec_t = [], [], []
+    size = 0
+    for r in range(rounds):
+        envs = make()
+        bare = run_vector(envs, actions)
+        envs.close()
+        path = TMP / f"vector-{r}.mcap"
+        rec = RecordVectorEvidence(make(), path, overwrite=True)
+        recorded = run_vector(rec, actions)
+        t0 = time.perf_counter()
+        rec.close()
+        recorded += time.perf_counter() - t0
+        size = path.stat().st_size
+        ratios.append(recorded / bare)
+        bare_t.append(bare)
+        rec_t.append(recorded)
+    sub_steps = steps * num_envs
+    return {
+        "env": f"CartPole-v1 x{num_envs} ({mode})",
+        "vector_steps": steps,
+        "rounds": rounds,
+        "bare_us_per_sub_env_step": statistics.median(bare_t) / sub_steps * 1e6,
+        "recorded_us_per_sub_env_step": statistics.median(rec_t) / sub_steps * 1e6,
+        "overhead_us_per_sub_env_step": statistics.median(
+            [(rt - bt) / sub_steps * 1e6 for rt, bt in zip(rec_t, bare_t, strict=True)]
+        ),
+        "ratio_median": statistics.median(ratios),
+        "ratios": [round(x, 4) for x in ratios],
+        "bytes_per_sub_env_step": size / sub_steps,
     }
 
 
@@ -216,6 +269,7 @@ BENCHES: dict[str, Callable[[], Any]] = {
         bench_record("Reacher-v5", 30_000, 7),
         bench_record("HalfCheetah-v5", 30_000, 7),
     ],
+    "vector": lambda: bench_vector(8, 25_000, 7),
     "memory": lambda: bench_memory(1_000_000),
     "check": lambda: bench_check(1_000_000, 5),
     "replay": lambda: [bench_replay("CartPole-v1", 1000, 5), bench_replay("Reacher-v5", 100, 5)],

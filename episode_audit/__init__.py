@@ -31,6 +31,7 @@ from .records import RunInfo
 from .recover import RecoveryResult, recover
 from .replay import ReplayResult, replay
 from .report import Gates, Report, report
+from .vector import RecordVectorEvidence, ResetRngInfo
 
 __all__ = [
     "CheckResult",
@@ -48,11 +49,13 @@ __all__ = [
     "Gates",
     "NotEvidenceError",
     "RecordEvidence",
+    "RecordVectorEvidence",
     "RecorderError",
     "RecoveryResult",
     "ReplayError",
     "ReplayResult",
     "Report",
+    "ResetRngInfo",
     "RewardTerms",
     "RunInfo",
     "UnsupportedVersionError",

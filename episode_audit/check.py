@@ -49,7 +49,8 @@ code                             severity  meaning
 ``file_recovered``               warning   the file was rewritten by ``episode-audit recover``
                                            from a torn file; the message says what was dropped
 ``not_replayable``               warning   episodes with neither a reset seed nor an RNG state
-                                           (one per file, listing up to five)
+                                           (one per file, listing up to five); or a vector
+                                           file whose vector env had no sub-envs
 ``missing_env_spec``             warning   the file has no environment spec to rebuild the env
 ``format_version``               note      the file was written with an older format version
 ``terms_keys_changed``           note      the set of reward-term names changed from one step to
@@ -550,6 +551,10 @@ class _FileCheck:
                 MISSING_ENV_SPEC,
                 f"no environment spec recorded{why}: replay needs an env factory",
             )
+        layout = ev.run.layout or {}
+        if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
+            why = layout.get("replay_note") or "the vector env had no sub-envs"
+            self.finding("warning", NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
         version = ev.run.format_version
         if _version_tuple(version) < _version_tuple(fmt.FORMAT_VERSION):
             self.finding(

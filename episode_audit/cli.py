@@ -303,7 +303,10 @@ def _rate_option(name: str, value: float | None) -> float | None:
 def report(
     paths: PathsArgument,
     by: Annotated[
-        str, typer.Option(help="Group by: file, env, label, all, or tag:NAME (e.g. tag:policy).")
+        str,
+        typer.Option(
+            help="Group by: file, env, env_index, label, all, or tag:NAME (e.g. tag:policy)."
+        ),
     ] = "file",
     min_success_rate: Annotated[
         float | None, typer.Option(help="Gate: fail (exit 1) if a group's success rate is lower.")
@@ -323,12 +326,12 @@ def report(
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
     from .render import report_output
-    from .report import Gates
+    from .report import BY_KEYS, Gates
     from .report import report as run_report
 
     fmt = _format(output)
-    if by not in ("file", "env", "label", "all") and not (by.startswith("tag:") and len(by) > 4):
-        fail(f"--by: expected file, env, label, all or tag:NAME, got {by!r}")
+    if by not in BY_KEYS and not (by.startswith("tag:") and len(by) > 4):
+        fail(f"--by: expected file, env, env_index, label, all or tag:NAME, got {by!r}")
     overall, by_label = _parse_failure_rates(max_failure_rate or [])
     gates = Gates(
         min_success_rate=_rate_option("--min-success-rate", min_success_rate),

@@ -30,6 +30,7 @@ __all__ = [
     "COL_TRUNCATED",
     "FORMAT_MAJOR",
     "FORMAT_VERSION",
+    "INFO_RNG_STATE",
     "JSON_ENCODING",
     "JSONSCHEMA_ENCODING",
     "MCAP_PROFILE",
@@ -79,6 +80,9 @@ SCHEMA_STEP_BLOCK: Final = "episode_audit.StepBlock"
 SCHEMA_RESET_BLOCK: Final = "episode_audit.ResetBlock"
 SCHEMA_EPISODE_END: Final = "episode_audit.EpisodeEnd"
 SCHEMA_EPISODE_BLOCK: Final = "episode_audit.EpisodeBlock"
+
+INFO_RNG_STATE: Final = "episode_audit.rng_state"
+"""Reset-info key where ``ResetRngInfo`` puts the RNG state before an unseeded reset (JSON)."""
 
 METADATA_RUN: Final = "episode_audit.run"
 METADATA_RUN_END: Final = "episode_audit.run_end"

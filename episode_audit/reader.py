@@ -121,7 +121,18 @@ _ARROW_SLOTS = {fmt.TOPIC_STEPS: _STEPS, fmt.TOPIC_RESETS: _RESETS, fmt.TOPIC_EP
 EPISODE_COLUMNS: tuple[str, ...] = tuple(EPISODE_SCHEMA.names)
 """Columns of :meth:`Evidence.episodes`; ``ended`` is False for episodes a torn file cut off."""
 
-_RESET_START_COLUMNS = ["episode", "env_index", fmt.COL_TIME, "seed", "rng_state", "options"]
+_RESET_START_COLUMNS = [
+    "episode",
+    "env_index",
+    "agent",
+    "game",
+    fmt.COL_TIME,
+    "seed",
+    "rng_state",
+    "options",
+]
+# Columns every episode block has (those of format 1.0's first files); ``game`` is optional.
+_BLOCK_BASE = pa.schema([f for f in EPISODE_SCHEMA if f.name not in ("ended", "game")])
 
 
 @dataclass(frozen=True)
@@ -154,6 +165,7 @@ class _Chunk:
     steps: list[tuple[int, pa.RecordBatch]]
     resets: list[tuple[int, bytes]]
     records: list[bytes]
+    step_channels: list[int] = field(default_factory=list)  # channel id of each step block
 
 
 @dataclass(frozen=True)
@@ -364,7 +376,7 @@ class Evidence:
             for channel in channels:
                 self._channels.setdefault(channel.id, channel)
             chunk = _Chunk(ref, [], [], [])
-            for slot, log_time, view in messages:
+            for slot, log_time, view, channel_id in messages:
                 if slot == _STEPS:
                     batch = _arrow_batch(view, path, fmt.TOPIC_STEPS)
                     if expected is None:
@@ -376,6 +388,7 @@ class Evidence:
                             "schema of the others (or the one the file declares)",
                         )
                     chunk.steps.append((log_time, batch))
+                    chunk.step_channels.append(channel_id)
                 elif slot == _RESETS:
                     chunk.resets.append((log_time, view.tobytes()))
                 else:
@@ -437,11 +450,26 @@ class Evidence:
 
         Each chunk is read once; the pass also keeps what :meth:`resets` and :meth:`episodes`
         need, so calling them afterwards reads nothing again.
+
+        Every episode's rows come out contiguous and in step order. In a multi-stream file
+        (vector sub-envs, agents) the streams' blocks interleave in the file, so there the
+        batches are regrouped: an episode's rows are held until its stream moves on to its next
+        episode (or the file ends), then yielded with the other episodes completed in the same
+        chunk. Memory is then bounded by the longest open episode of each stream.
         """
         selected = None if columns is None else list(columns)
-        for chunk in self._pass(steps=True):
-            for _, batch in chunk.steps:
-                yield batch if selected is None else batch.select(selected)
+        batches: Iterable[pa.RecordBatch]
+        if self.multi_stream:
+            batches = _contiguous(self._pass(steps=True))
+        else:
+            batches = (batch for chunk in self._pass(steps=True) for _, batch in chunk.steps)
+        for batch in batches:
+            yield batch if selected is None else batch.select(selected)
+
+    @property
+    def multi_stream(self) -> bool:
+        """Whether the file has more than one step stream (vector sub-envs, agents)."""
+        return sum(ch.topic == fmt.TOPIC_STEPS for ch in self._channels.values()) > 1
 
     def steps(
         self,
@@ -576,7 +604,8 @@ class Evidence:
         starts: dict[int, Any] = dict.fromkeys(episodes)
         rows = [i for i, e in enumerate(episodes) if e not in ended]
         if rows:
-            picked = resets.select(_RESET_START_COLUMNS).take(pa.array(rows, pa.int64()))
+            present = [c for c in _RESET_START_COLUMNS if c in resets.column_names]
+            picked = resets.select(present).take(pa.array(rows, pa.int64()))
             for row in picked.to_pylist():
                 starts[int(row["episode"])] = row
         return starts
@@ -610,6 +639,8 @@ class Evidence:
         reset = None
         steps_done = resets_done = False
         path = self.path
+        # A flush writes every stream's blocks into one chunk: the episode's last row is in the
+        # first chunk with a block that ends at or after the episode (in any stream).
         for chunk in self._read(
             steps=True, resets=True, records=False, start_time=start, ahead=False
         ):
@@ -619,7 +650,6 @@ class Evidence:
                     parts.append(rows)
                 if end is not None and log_time >= end:
                     steps_done = True
-                    break
             for log_time, data in [] if resets_done else chunk.resets:
                 batch = _arrow_batch(data, path, fmt.TOPIC_RESETS)
                 rows = batch.filter(pc.equal(batch.column(fmt.COL_EPISODE), key))
@@ -667,6 +697,52 @@ class Evidence:
 
     def __exit__(self, *exc: object) -> None:
         return None
+
+
+# ------------------------------------------------------------------- multi-stream order
+
+
+def _contiguous(chunks: Iterable[_Chunk]) -> Iterator[pa.RecordBatch]:
+    """The step blocks of a multi-stream file, regrouped so every episode's rows are contiguous.
+
+    A stream's own rows are in order and its episodes follow one another, so an episode is
+    complete once its stream shows a row of another episode (or the file ends). Complete
+    episodes are yielded at the end of each chunk, those of one schema as one batch.
+    """
+    open_: dict[int, tuple[int, list[pa.RecordBatch]]] = {}  # channel -> (episode, parts)
+    for chunk in chunks:
+        done: list[pa.RecordBatch] = []
+        for (_, batch), channel in zip(chunk.steps, chunk.step_channels, strict=True):
+            if batch.num_rows == 0:
+                continue
+            episode = batch.column(fmt.COL_EPISODE).to_numpy(zero_copy_only=False)
+            starts = [0, *(np.flatnonzero(episode[1:] != episode[:-1]) + 1).tolist()]
+            stops = [*starts[1:], batch.num_rows]
+            for start, stop in zip(starts, stops, strict=True):
+                index = int(episode[start])
+                part = batch.slice(start, stop - start)
+                current = open_.get(channel)
+                if current is not None and current[0] == index:
+                    current[1].append(part)
+                    continue
+                if current is not None:
+                    done.extend(current[1])
+                open_[channel] = (index, [part])
+        yield from _joined(done)
+    rest = sorted(open_.values(), key=lambda item: item[0])
+    yield from _joined([part for _, parts in rest for part in parts])
+
+
+def _joined(parts: list[pa.RecordBatch]) -> Iterator[pa.RecordBatch]:
+    """``parts`` as few batches as possible: consecutive parts of one schema are joined."""
+    group: list[pa.RecordBatch] = []
+    for part in parts:
+        if group and not part.schema.equals(group[0].schema):
+            yield pa.concat_batches(group) if len(group) > 1 else group[0]
+            group = []
+        group.append(part)
+    if group:
+        yield pa.concat_batches(group) if len(group) > 1 else group[0]
 
 
 # ------------------------------------------------------------------- chunks
@@ -837,7 +913,7 @@ def _split(
     schemas: list[Schema] | None,
     slots: dict[str, int] = _SLOTS,
     positions: list[int] | None = None,
-) -> list[tuple[int, int, memoryview]]:
+) -> list[tuple[int, int, memoryview, int]]:
     """Split a chunk's decompressed records; return (slot, log time, data) of wanted messages.
 
     ``route`` maps channel ids to slots and learns the chunk's own Channel records (appended to
@@ -846,7 +922,7 @@ def _split(
     """
     view = memoryview(data)
     end = len(data)
-    out: list[tuple[int, int, memoryview]] = []
+    out: list[tuple[int, int, memoryview, int]] = []
     append = out.append
     record_head = _RECORD_HEAD.unpack_from
     message_head = _MESSAGE_HEAD.unpack_from
@@ -877,7 +953,7 @@ def _split(
                             f"message on unknown channel {channel_id} in chunk at byte {offset}",
                         )
                     if keep[slot + 1]:
-                        append((slot, log_time, view[body + 22 : stop]))
+                        append((slot, log_time, view[body + 22 : stop], channel_id))
             elif opcode == _OP_CHANNEL:
                 channel = _inner_record(Channel, data[body:stop], path, offset, pos)
                 channels.append(channel)
@@ -897,13 +973,13 @@ def _split_indexed(
     route: dict[int, int],
     keep: tuple[bool, ...],
     positions: list[int],
-) -> list[tuple[int, int, memoryview]] | None:
+) -> list[tuple[int, int, memoryview, int]] | None:
     """The wanted messages at the offsets a chunk's message index gave (no full walk).
 
     ``None`` when anything does not add up; the caller then walks every record.
     """
     end = len(data)
-    out: list[tuple[int, int, memoryview]] = []
+    out: list[tuple[int, int, memoryview, int]] = []
     try:
         for pos in positions:
             opcode, length = _RECORD_HEAD.unpack_from(data, pos)
@@ -916,7 +992,7 @@ def _split_indexed(
             if slot is None:
                 return None
             if keep[slot + 1]:
-                out.append((slot, log_time, view[body + 22 : stop]))
+                out.append((slot, log_time, view[body + 22 : stop], channel_id))
     except struct.error:
         return None
     return out
@@ -1195,17 +1271,35 @@ def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
 
 
 def _episode_blocks(blocks: list[bytes], path: Path) -> pa.Table:
-    """The episode Arrow blocks as one table of :data:`EPISODE_SCHEMA` (``ended`` all true)."""
+    """The episode Arrow blocks as one table of :data:`EPISODE_SCHEMA` (``ended`` all true).
+
+    Blocks hold at least the columns of format 1.0's first files (:data:`_BLOCK_BASE`); the
+    optional ``game`` column is null when a block lacks it; other columns are ignored.
+    """
     block_schema = pa.schema([f for f in EPISODE_SCHEMA if f.name != "ended"])
+    base = _BLOCK_BASE.names
     batches = []
     for data in blocks:
         batch = _arrow_batch(data, path, fmt.TOPIC_EPISODES)
-        if batch.schema.names != block_schema.names:
+        names = batch.schema.names
+        if names[: len(base)] != base:
             raise CorruptEvidenceError(path, "an episode block does not have the episode columns")
-        try:
-            batches.append(batch.cast(block_schema))
-        except (pa.ArrowException, TypeError, ValueError) as exc:
-            raise CorruptEvidenceError(path, f"an episode block has wrong types: {exc}") from None
+        # Types are compared, never cast: a cast (or a null column made to fill in) allocates
+        # for the row count a block declares, which a hostile block can make huge.
+        present = [n for n in block_schema.names if n in names]
+        for name in present:
+            actual, expected = batch.schema.field(name).type, block_schema.field(name).type
+            if not actual.equals(expected):
+                raise CorruptEvidenceError(
+                    path,
+                    f"an episode block has wrong types: {name!r} is {actual}, expected {expected}",
+                )
+        if names != block_schema.names:
+            game = batch.column("game") if "game" in names else pa.nulls(batch.num_rows, pa.int64())
+            batch = pa.RecordBatch.from_arrays(
+                [*batch.select(base).columns, game], schema=block_schema
+            )
+        batches.append(batch)
     table = pa.Table.from_batches(batches, schema=block_schema).combine_chunks()
     for name in ("episode", "outcome", "length"):
         if table.column(name).null_count:
@@ -1324,6 +1418,7 @@ def _columns_of(recs: list[dict[str, Any]]) -> dict[str, list[Any]]:
         "error_message": [e.get("message") for e in errors],
         "error_during": [e.get("during") for e in errors],
         "notes": [r.get("notes", 0) for r in recs],
+        "game": [r.get("game") for r in recs],
         "ended": [True] * len(recs),
     }
 
@@ -1373,7 +1468,7 @@ def _incomplete_row(index: int, start: dict[str, Any] | None, stats: _StepStats)
     return {
         "episode": index,
         "env_index": start.get("env_index", 0),
-        "agent": None,
+        "agent": start.get("agent"),
         "seed": start.get("seed"),
         "rng_state": start.get("rng_state"),
         "options": start.get("options"),
@@ -1391,6 +1486,7 @@ def _incomplete_row(index: int, start: dict[str, Any] | None, stats: _StepStats)
         "error_message": None,
         "error_during": None,
         "notes": None,
+        "game": start.get("game"),
         "ended": False,
     }
 

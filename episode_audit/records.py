@@ -152,6 +152,10 @@ EPISODE_SCHEMA: dict[str, Any] = {
             },
         },
         "notes": {"type": "integer", "description": "steps of this episode with recorder notes"},
+        "game": {
+            "type": ["integer", "null"],
+            "description": "multi-agent files: the joint reset (game) of this agent-episode",
+        },
     },
 }
 
@@ -177,10 +181,12 @@ EPISODE_ARROW_SCHEMA = pa.schema(
         pa.field("error_message", pa.string()),
         pa.field("error_during", pa.string()),
         pa.field("notes", pa.int64()),
+        pa.field("game", pa.int64()),
         pa.field("ended", pa.bool_(), nullable=False),
     ]
 )
-"""Arrow schema of the episodes table; episode blocks hold every column but ``ended``.
+"""Arrow schema of the episodes table; episode blocks hold every column but ``ended`` (and
+``game`` unless the file records games: PettingZoo files).
 
 ``rng_state`` and ``options`` are compact JSON text; ``term_totals`` maps term -> total.
 """

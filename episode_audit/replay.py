@@ -605,6 +605,22 @@ def _row_ranges(episode: np.ndarray[Any, Any]) -> dict[int, tuple[int, int]]:
     return out
 
 
+def _layout_not_replayable(layout: Mapping[str, Any]) -> str | None:
+    """Why a file's layout cannot be replayed episode by episode, or ``None`` if it can.
+
+    A vector file's episodes replay one by one in a single sub-env rebuilt from the recorded
+    sub-env spec, unless the vector env had no sub-envs (a ``vector_entry_point`` env).
+    """
+    kind = layout.get("kind", "single")
+    if kind == "single":
+        return None
+    if kind == "vector":
+        if layout.get("sub_envs", True):
+            return None
+        return str(layout.get("replay_note") or "the vector env had no sub-envs")
+    return f"layout {kind!r} is not replayable yet"
+
+
 def replay_evidence(
     ev: Evidence,
     *,
@@ -620,15 +636,10 @@ def replay_evidence(
     if episodes is not None:
         wanted = set(episodes)
         records = [r for r in records if r["episode"] in wanted]
-    if ev.run.layout.get("kind", "single") != "single":
+    why_not = _layout_not_replayable(ev.run.layout)
+    if why_not is not None:
         return [
-            EpisodeReplay(
-                str(ev.path),
-                int(r["episode"]),
-                "not_replayable",
-                0,
-                reason=f"layout {ev.run.layout.get('kind')!r} is not replayable yet",
-            )
+            EpisodeReplay(str(ev.path), int(r["episode"]), "not_replayable", 0, reason=why_not)
             for r in records
         ]
     try:

@@ -242,7 +242,7 @@ class Report:
     Non-finite numbers are written as the strings ``"nan"``, ``"inf"``, ``"-inf"``::
 
         {
-          "by": str,                 # "file", "env", "tag:NAME", "label" or "all"
+          "by": str,                 # "file", "env", "env_index", "tag:NAME", "label" or "all"
           "passed": bool,            # every gate passed for every group
           "groups": [                # sorted by key
             {"key": str, "episodes": int, "ended": int,
@@ -295,11 +295,15 @@ class Report:
 # --------------------------------------------------------------------------------------------
 
 
+BY_KEYS = ("file", "env", "env_index", "label", "all")
+"""The ``by`` groupings besides ``tag:NAME``."""
+
+
 def _check_by(by: str) -> None:
-    if by in ("file", "env", "label", "all") or (by.startswith("tag:") and len(by) > 4):
+    if by in BY_KEYS or (by.startswith("tag:") and len(by) > 4):
         return
     raise ConfigurationError(
-        f"by: expected 'file', 'env', 'tag:NAME', 'label' or 'all', actually: {by!r}"
+        f"by: expected 'file', 'env', 'tag:NAME', 'label', 'all' or 'env_index', actually: {by!r}"
     )
 
 
@@ -353,6 +357,8 @@ def _collect(sources: Iterable[tuple[str, Evidence]], by: str) -> tuple[pa.Table
             key = pa.array(["all"] * n, pa.string())
         elif by == "label":
             key = _label_keys(table)
+        elif by == "env_index":  # vector files: one group per sub-env index
+            key = pc.cast(table.column("env_index"), pa.string()).combine_chunks()
         else:
             value = (ev.run.tags or {}).get(by[4:])
             key = pa.array([NONE_KEY if value is None else str(value)] * n, pa.string())
@@ -735,7 +741,8 @@ def report(
 ) -> Report:
     """Open evidence files and report their episodes, grouped, with gates checked per group.
 
-    ``by`` is ``"file"``, ``"env"`` (the run's env id), ``"tag:NAME"`` (a run tag such as
+    ``by`` is ``"file"``, ``"env"`` (the run's env id), ``"env_index"`` (a vector env's
+    sub-env index, ``"0"`` for single envs), ``"tag:NAME"`` (a run tag such as
     ``policy`` or ``checkpoint``; ``"(none)"`` when a file lacks it), ``"label"`` (the failure
     label; successes as ``"(success)"``, truncations as ``"(truncated:REASON)"``, and
     ``"(incomplete)"`` / ``"(error)"``) or ``"all"``. Torn files count the episodes they hold

@@ -49,7 +49,20 @@ def summarize(ev: Evidence) -> dict[str, Any]:
         "platform": run.platform,
         "command_line": run.command_line,
         "env_spec": run.env_spec,
+        "layout": run.layout,
     }
+
+
+def _layout_text(layout: dict[str, Any]) -> str:
+    """``single``, or e.g. ``vector: 8 sub-envs (SyncVectorEnv, NextStep)``."""
+    kind = str(layout.get("kind", "single"))
+    if kind == "single":
+        return kind
+    parts = [f"{layout.get('num_envs', '?')} sub-envs"] if kind == "vector" else []
+    if layout.get("agents"):
+        parts.append("agents " + ", ".join(str(a) for a in layout["agents"]))
+    extra = [str(layout[k]) for k in ("vector_class", "autoreset_mode") if layout.get(k)]
+    return f"{kind}: {', '.join(parts)}" + (f" ({', '.join(extra)})" if extra else "")
 
 
 def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
@@ -66,6 +79,7 @@ def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
         ["format", data["format_version"]],
         ["writer", data["writer"]],
         ["env id", data["env_id"] or "-"],
+        ["layout", _layout_text(data["layout"])],
         ["started", data["start_time"]],
         ["tags", ", ".join(f"{k}={v}" for k, v in data["tags"].items()) or "-"],
         ["episodes", data["episodes"]],

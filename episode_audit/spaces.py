@@ -119,6 +119,14 @@ class ColumnBuffer(abc.ABC):
     def truncate(self, length: int) -> None:
         """Drop the rows from ``length`` on (undoes the children of a failed struct append)."""
 
+    def extend(self, values: Any) -> bool:
+        """Add many rows at once when they need no coercion; ``False`` (nothing added) if not.
+
+        ``values`` is a numpy array of rows (a batch, e.g. a vector env's observations). Buffers
+        that cannot take a batch as it is return ``False``; the caller then appends row by row.
+        """
+        return False
+
 
 def _null_mask_array(length: int, nulls: list[int]) -> _BoolArray | None:
     """Return the mask (True = null) of a buffer's rows, or None when no row is null."""
@@ -272,6 +280,20 @@ class _ArrayBuffer(ColumnBuffer):
         self._nulls.append(n)
         self._n = n + 1
 
+    def extend(self, values: Any) -> bool:
+        """Add rows of exactly this buffer's shape and dtype (see :meth:`ColumnBuffer.extend`)."""
+        if not (
+            type(values) is np.ndarray
+            and values.shape[1:] == self._shape
+            and values.dtype == self._dtype
+        ):
+            return False
+        n, k = self._n, len(values)
+        self._reserve(n + k)
+        self._data[n : n + k] = values
+        self._n = n + k
+        return True
+
     def __len__(self) -> int:
         return self._n
 
@@ -389,6 +411,16 @@ class _IntBuffer(ColumnBuffer):
         self._data[n] = 0
         self._nulls.append(n)
         self._n = n + 1
+
+    def extend(self, values: Any) -> bool:
+        """Add signed integers (a 1-D numpy array; see :meth:`ColumnBuffer.extend`)."""
+        if not (type(values) is np.ndarray and values.ndim == 1 and values.dtype.kind == "i"):
+            return False
+        n, k = self._n, len(values)
+        self._reserve(n + k)
+        self._data[n : n + k] = values
+        self._n = n + k
+        return True
 
     def __len__(self) -> int:
         return self._n

@@ -250,7 +250,7 @@ def _split_file(path: Path) -> list[tuple[str, int, bytes]]:
             raw = reader_module._read_chunk_record(f, ref, path)
             data = reader_module._decompress(raw, path, ref.offset)
             messages = reader_module._split(data, path, ref.offset, route, (True,) * 3, [], None)
-            out.extend((topic_of[slot], t, view.tobytes()) for slot, t, view in messages)
+            out.extend((topic_of[slot], t, view.tobytes()) for slot, t, view, _ in messages)
     return out
 
 

@@ -482,3 +482,12 @@ def test_reset_options_are_recorded_once_and_used_by_replay(tmp_path: Path) -> N
         ]
     assert record["options"] == options
     assert replay([path]).count("identical") == 1
+
+
+def test_the_wrapped_env_passes_gymnasiums_env_checker(tmp_path: Path) -> None:
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "different from the unwrapped version", inf bounds
+        with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "checked.mcap") as env:
+            check_env(env, skip_render_check=True)

@@ -984,3 +984,31 @@ def test_ipc_round_trip_through_a_file(tmp_path: Path) -> None:
         table = pa.ipc.open_stream(source).read_all()
     for value, got in zip(values, codec.decode(table.column("observation")), strict=True):
         assert_same(space, value, got)
+
+
+@pytest.mark.parametrize(
+    ("space", "batch", "refused"),
+    [
+        (spaces.Box(-1, 1, (3,), np.float32), np.arange(12, dtype=np.float32).reshape(4, 3), None),
+        (
+            spaces.Box(-1, 1, (2, 2), np.float64),
+            np.zeros((3, 2, 2)),
+            np.zeros((3, 2, 2), np.float32),
+        ),
+        (spaces.Discrete(5), np.array([4, 0, 2], np.int32), np.array([1.0, 2.0])),
+        (spaces.Dict({"a": spaces.Discrete(2)}), np.zeros(2, np.int64), None),
+    ],
+)
+def test_extend_takes_a_batch_as_it_is_or_nothing(
+    space: spaces.Space[Any], batch: np.ndarray[Any, Any], refused: np.ndarray[Any, Any] | None
+) -> None:
+    codec = codec_for(space)
+    one_by_one, at_once = codec.new_buffer(), codec.new_buffer()
+    if not at_once.extend(batch):
+        assert isinstance(space, spaces.Dict) and len(at_once) == 0  # no batch form: row by row
+        return
+    for row in batch:
+        assert one_by_one.append(row) is None
+    assert at_once.finish().equals(one_by_one.finish())
+    if refused is not None:
+        assert not at_once.extend(refused) and len(at_once) == 0  # a cast is never silent

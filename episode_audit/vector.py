@@ -1,0 +1,637 @@
+"""Record a ``gymnasium.vector.VectorEnv``: one episode stream per sub-env, in one evidence file.
+
+- :class:`RecordVectorEvidence` — a ``gymnasium.vector.VectorWrapper`` over any vector env
+  (``SyncVectorEnv``, ``AsyncVectorEnv``, ``gym.make_vec``) in any autoreset mode.
+- :class:`ResetRngInfo` — a small sub-env wrapper that puts the env's RNG state from just before
+  an unseeded reset into the reset's info, for the one case the recorder cannot read it from
+  outside (``SAME_STEP`` autoreset on an ``AsyncVectorEnv``).
+
+Autoreset modes (https://farama.org/Vector-Autoreset-Mode):
+
+- ``NEXT_STEP`` (default): the step after a sub-env's episode ended is a reset (reward 0, flags
+  False, action ignored). It is recorded as the **reset row** of the sub-env's next episode, never
+  as a step. Nothing touches the sub-env between the step that ended its episode and that reset,
+  so its RNG state read right after the ending step (``envs[i]`` of a ``SyncVectorEnv``;
+  ``get_attr("np_random")`` of an ``AsyncVectorEnv``, once for the step, whatever the number of
+  ended sub-envs) is exactly the state the reset draws from.
+- ``SAME_STEP``: the reset runs inside ``step()``; the ending step's observation and info are
+  read from ``info["final_obs"]`` / ``info["final_info"]``. The RNG state before that reset
+  cannot be read from outside afterwards: the recorder wraps each sub-env of a ``SyncVectorEnv``
+  in :class:`ResetRngInfo` (in place, at construction); for an ``AsyncVectorEnv`` pass
+  ``gym.make_vec(..., wrappers=[ResetRngInfo])``. Without it those episodes are recorded as not
+  replayable, with a note saying why (``check`` reports it).
+- ``DISABLED``: the user resets ended sub-envs with ``reset(options={"reset_mask": mask})``;
+  the recorder captures the RNG state of the masked unseeded sub-envs before the reset.
+
+``reset(seed=s)`` seeds sub-env ``i`` with ``s + i`` (a list seeds each in turn), and each
+episode records its own seed. A vector env built from a ``vector_entry_point`` (CartPole's own
+``CartPoleVectorEnv``, which ``gym.make_vec`` picks by default) has no sub-envs: it is recorded
+the same way, but its episodes are marked not replayable on their own.
+
+Per step the recorder does per sub-env what :class:`~episode_audit.RecordEvidence` does per step
+(append to column buffers); per-sub-env info dicts are only built when the vector info is not
+empty. Wrap the vector env itself (innermost): replay rebuilds one sub-env from its spec.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
+from gymnasium.vector.utils import iterate
+
+from . import format as fmt
+from .outcomes import EndingRules, RewardTerms, TermsFn
+from .records import to_json
+from .seeding import capture_rng_state
+from .spaces import codec_for, describe_space
+from .streams import EvidenceFile, RecorderSettings, Stream, note, run_info
+
+__all__ = ["RecordVectorEvidence", "ResetRngInfo"]
+
+_EMPTY: dict[str, Any] = {}
+_BATCH_STEPS = 256  # vector steps batched before their rows are handed to the streams
+
+
+def _fits(values: Any, shape: tuple[int, ...], dtype: Any) -> bool:
+    """Whether a batch can be stored as it is (exact shape; dtype, or any signed int for int)."""
+    return (
+        type(values) is np.ndarray
+        and values.shape == shape
+        and (values.dtype == dtype or (dtype.kind == "i" and values.dtype.kind == "i"))
+    )
+
+
+class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
+    """Put the env's RNG state from just before an unseeded ``reset()`` into its info.
+
+    The state (``env.unwrapped.np_random.bit_generator.state``) goes to
+    ``info["episode_audit.rng_state"]`` as JSON text. :class:`RecordVectorEvidence` reads it to make
+    episodes that a vector env resets by itself replayable on their own. The wrapper changes
+    nothing else, and it is invisible in the env's spec (replay does not need it).
+
+    >>> import gymnasium as gym
+    >>> env = ResetRngInfo(gym.make("CartPole-v1"))
+    >>> _, info = env.reset(seed=1)
+    >>> "episode_audit.rng_state" in info
+    False
+    >>> _, info = env.reset()
+    >>> sorted(json.loads(info["episode_audit.rng_state"]))
+    ['bit_generator', 'has_uint32', 'state', 'uinteger']
+    """
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """Reset the env; an unseeded reset's info gains the RNG state it started from."""
+        state = capture_rng_state(self.env) if seed is None else None
+        obs, info = self.env.reset(seed=seed, options=options)
+        if state is not None:
+            info = {**info, fmt.INFO_RNG_STATE: to_json(state).decode()}
+        return obs, info
+
+    @property
+    def spec(self) -> Any:  # type: ignore[override]
+        """The wrapped env's spec: this wrapper only observes."""
+        return self.env.spec
+
+
+def _sub_info(infos: Mapping[str, Any], i: int) -> dict[str, Any]:
+    """Sub-env ``i``'s info from a vector info dict (values ``infos[k][i]`` where ``_k`` is set)."""
+    out: dict[str, Any] = {}
+    for key, value in infos.items():
+        mask = infos.get(f"_{key}")
+        if mask is None or not mask[i]:
+            continue
+        out[key] = _sub_info(value, i) if isinstance(value, Mapping) else value[i]
+    return out
+
+
+def _autoreset_mode(env: VectorEnv[Any, Any, Any]) -> AutoresetMode:
+    mode = env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+    if isinstance(mode, AutoresetMode):
+        return mode
+    try:
+        return AutoresetMode(mode)
+    except ValueError:
+        return AutoresetMode.NEXT_STEP
+
+
+class RecordVectorEvidence(gym.vector.VectorWrapper):
+    """Record every sub-env episode of a vector env to one MCAP evidence file.
+
+    Each sub-env is a stream of its own (its index is the episodes' ``env_index``); an episode
+    stores its reset seed or the sub-env's RNG state before the reset, so every sub-env episode,
+    those an autoreset started included, can be replayed on its own by rebuilding one sub-env
+    (see the module docstring for how each autoreset mode is handled and why).
+
+    Example:
+        >>> import tempfile, pathlib, gymnasium as gym
+        >>> from episode_audit import RecordVectorEvidence, open_evidence
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "vec.mcap"
+        >>> envs = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync", max_episode_steps=3)
+        >>> with RecordVectorEvidence(envs, path) as envs:
+        ...     _ = envs.reset(seed=5)
+        ...     for _ in range(4):  # 3 steps, then the autoreset step
+        ...         _ = envs.step(envs.action_space.sample())
+        >>> ep = open_evidence(path).episodes().to_pylist()
+        >>> [(e["env_index"], e["seed"], e["outcome"], e["length"]) for e in ep[:2]]
+        [(0, 5, 'truncated', 3), (1, 6, 'truncated', 3)]
+
+    Args:
+        env: The vector env to record (wrap it directly: replay rebuilds one sub-env).
+        path: The evidence file to create (never overwritten unless ``overwrite=True``).
+        install_rng_info: For a ``SyncVectorEnv`` in ``SAME_STEP`` mode, wrap its sub-envs in
+            :class:`ResetRngInfo` in place (default), so autoreset episodes are replayable.
+        tags, reward_terms, constant_terms, ending_rules, info_keys, digest_min_bytes,
+        block_steps, flush_every_s, fsync, overwrite, command_line: as for
+            :class:`~episode_audit.RecordEvidence` (``block_steps`` counts rows per sub-env).
+    """
+
+    def __init__(
+        self,
+        env: VectorEnv[Any, Any, Any],
+        path: str | os.PathLike[str],
+        *,
+        tags: Mapping[str, str] | None = None,
+        reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None = "auto",
+        constant_terms: Mapping[str, float] | None = None,
+        ending_rules: EndingRules | None = None,
+        info_keys: Sequence[str] | str = (),
+        digest_min_bytes: int | None = None,
+        block_steps: int = 8192,
+        flush_every_s: float = 1.0,
+        fsync: bool = False,
+        overwrite: bool = False,
+        command_line: Sequence[str] | None = None,
+        install_rng_info: bool = True,
+    ) -> None:
+        super().__init__(env)
+        settings = RecorderSettings(
+            reward_terms=reward_terms,
+            constant_terms=constant_terms,
+            ending_rules=ending_rules,
+            info_keys=info_keys,
+            digest_min_bytes=digest_min_bytes,
+            block_steps=block_steps,
+            flush_every_s=flush_every_s,
+        )
+        base = env.unwrapped
+        self._mode = _autoreset_mode(env)
+        self._sync = base if isinstance(base, SyncVectorEnv) else None
+        self._async = base if isinstance(base, AsyncVectorEnv) else None
+        self._sub_envs = self._sync is not None or self._async is not None
+        n = int(env.num_envs)
+        self._n = n
+        sub_spec = self._sub_spec(env)
+        notes: list[str] = []
+        self._no_rng_note: str | None = None
+        if not self._sub_envs:
+            self._no_rng_note = (
+                f"{type(base).__name__} has no sub-envs (a vector_entry_point env): its episodes "
+                "cannot be replayed on their own"
+            )
+            notes.append(self._no_rng_note)
+        self._rng_in_info = False
+        # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
+        self._sync_unwrapped = [] if self._sync is None else [e.unwrapped for e in self._sync.envs]
+        if self._mode is AutoresetMode.SAME_STEP and self._sync is not None and install_rng_info:
+            for i, sub in enumerate(self._sync.envs):
+                if not _has_rng_info(sub):
+                    self._sync.envs[i] = ResetRngInfo(sub)
+            self._rng_in_info = True
+        obs_space, act_space = env.single_observation_space, env.single_action_space
+        layout: dict[str, Any] = {
+            "kind": "vector",
+            "num_envs": n,
+            "agents": [],
+            "autoreset_mode": self._mode.value,
+            "vector_class": type(base).__name__,
+            "sub_envs": self._sub_envs,
+        }
+        if self._no_rng_note:
+            layout["replay_note"] = self._no_rng_note
+        self.run_info = run_info(
+            settings=settings,
+            spec=sub_spec,
+            observation_space=describe_space(obs_space),
+            action_space=describe_space(act_space),
+            tags=tags,
+            command_line=command_line,
+            layout=layout,
+            notes=notes,
+        )
+        self._file = EvidenceFile(
+            path, self.run_info, settings, fsync=fsync, overwrite=overwrite, owner=self
+        )
+        self.path = self._file.path
+        obs_codec = codec_for(obs_space, digest_min_bytes=digest_min_bytes)
+        act_codec = codec_for(act_space)
+        max_steps = getattr(sub_spec, "max_episode_steps", None)
+        self._streams: list[Stream] = [
+            self._file.add_stream(obs_codec, act_codec, env_index=i, max_episode_steps=max_steps)
+            for i in range(n)
+        ]
+        self._file.start()
+        self._file.before_flush.append(self._on_flush)
+        # Batched rows (steps without info): whole vector steps, handed over by _drain.
+        single_obs, single_act = obs_space, act_space
+        self._obs_shape = (n, *(single_obs.shape or ()))
+        self._act_shape = (n, *(single_act.shape or ()))
+        self._obs_dtype = single_obs.dtype
+        self._act_dtype = single_act.dtype
+        self._batchable = (
+            not settings.track_info
+            and self._obs_dtype is not None
+            and self._act_dtype is not None
+            and obs_codec.new_buffer().extend(np.zeros((0, *self._obs_shape[1:]), self._obs_dtype))
+            and act_codec.new_buffer().extend(np.zeros((0, *self._act_shape[1:]), self._act_dtype))
+        )
+        self._pcount = np.zeros(n, dtype=np.int64)
+        self._p_obs: list[np.ndarray[Any, Any]] = []
+        self._p_act: list[np.ndarray[Any, Any]] = []
+        self._p_rew: list[np.ndarray[Any, Any]] = []
+        self._p_time: list[int] = []
+        self._p_mask: list[np.ndarray[Any, Any] | None] = []
+        self._since_flush = 0
+        self._block_steps = settings.block_steps
+        self._obs_space = env.observation_space
+        self._act_space = env.action_space
+        # NEXT_STEP: the sub-envs whose next step is their autoreset, and their RNG states.
+        self._autoreset: np.ndarray[Any, np.dtype[np.bool_]] | None = None
+        self._pending_rng: dict[int, dict[str, Any] | None] = {}
+        self._closed = False
+
+    # ------------------------------------------------------------------ setup helpers
+
+    def _sub_spec(self, env: VectorEnv[Any, Any, Any]) -> Any:
+        """The spec of one sub-env (what replay rebuilds), or ``None``."""
+        try:
+            if self._sync is not None:
+                return self._sync.envs[0].spec
+            if self._async is not None:
+                return self._async.get_attr("spec")[0]
+        except Exception:
+            return None
+        spec = env.spec
+        if spec is None:
+            return None
+        kwargs = {
+            k: v
+            for k, v in spec.kwargs.items()
+            if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")
+        }
+        return dataclasses.replace(spec, kwargs=kwargs)
+
+    # ------------------------------------------------------------------ RNG states
+
+    def _capture(self, indices: Sequence[int]) -> dict[int, dict[str, Any] | None]:
+        """The RNG states of sub-envs ``indices`` now (``None`` where unknown)."""
+        if not indices:
+            return {}
+        if self._sync is not None:
+            envs = self._sync_unwrapped
+            return {i: capture_rng_state(envs[i]) for i in indices}
+        if self._async is not None:
+            try:
+                generators = self._async.get_attr("np_random")
+            except Exception:
+                return dict.fromkeys(indices)
+            out: dict[int, dict[str, Any] | None] = {}
+            for i in indices:
+                try:
+                    state = generators[i].bit_generator.state
+                    out[i] = state if isinstance(state, dict) else None
+                except Exception:
+                    out[i] = None
+            return out
+        return dict.fromkeys(indices)
+
+    def _rng_from_info(self, info: Mapping[str, Any]) -> dict[str, Any] | None:
+        """The state :class:`ResetRngInfo` put in a reset info (then it is always used)."""
+        text = info.get(fmt.INFO_RNG_STATE)
+        if not isinstance(text, str):
+            return None
+        try:
+            state = json.loads(text)
+        except ValueError:
+            return None
+        if not isinstance(state, dict):
+            return None
+        self._rng_in_info = True  # the sub-envs report it: no need to read it from outside
+        return state
+
+    def _begin(
+        self,
+        i: int,
+        seed: int | None,
+        options: Any,
+        rng_state: dict[str, Any] | None,
+        obs: Any,
+        info: Mapping[str, Any],
+        start_ns: int,
+        why_no_rng: str | None = None,
+    ) -> None:
+        """Begin sub-env ``i``'s next episode and record its reset row."""
+        stream = self._streams[i]
+        notes: list[str] = []
+        if seed is None and rng_state is None:
+            notes.append(
+                note("rng_state_unavailable", why_no_rng or self._no_rng_note or "no np_random")
+            )
+        episode = stream.begin(seed, options, rng_state, notes, start_ns=start_ns)
+        stream.record_reset(episode, obs, info, notes)
+
+    # ------------------------------------------------------------------ gymnasium API
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[Any, dict[str, Any]]:
+        """Reset the vector env (or the sub-envs of ``options["reset_mask"]``) and record it."""
+        file = self._file
+        file.check_open()
+        n = self._n
+        mask = None
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"]).astype(bool).reshape(-1)
+        indices = list(range(n)) if mask is None or mask.size != n else np.flatnonzero(mask)
+        indices = [int(i) for i in indices]
+        if seed is None or not self._sub_envs:
+            seeds: list[Any] = [None] * n
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(n)]
+        else:
+            seeds = list(seed) + [None] * max(0, n - len(seed))
+        recorded_options = (
+            None
+            if options is None
+            else ({k: v for k, v in options.items() if k != "reset_mask"} or None)
+        )
+        unseeded = [i for i in indices if seeds[i] is None]
+        states = {} if self._rng_in_info else self._capture(unseeded)
+        start = file.clock()
+        try:
+            obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
+        except Exception as exc:
+            for i in indices:
+                self._begin_failed(i, seeds[i], recorded_options, states.get(i), exc)
+            file.flush()
+            raise
+        try:
+            rows = list(iterate(self._obs_space, obs))
+            for i in indices:
+                info = _sub_info(infos, i) if infos else _EMPTY
+                rng = states.get(i)
+                if seeds[i] is None:
+                    rng = self._rng_from_info(info) or rng
+                self._streams[i].block.pending = int(self._pcount[i])
+                self._streams[i].end_open()
+                self._begin(i, seeds[i], recorded_options, rng, rows[i], info, start)
+            if self._autoreset is not None:
+                self._autoreset[indices] = False
+                if not self._autoreset.any():
+                    self._autoreset = None
+            for i in indices:
+                self._pending_rng.pop(i, None)
+            if file.due():
+                file.flush()
+        except Exception as exc:  # never break the training loop over recording trouble
+            file.trouble(exc)
+        return obs, infos
+
+    def _begin_failed(
+        self, i: int, seed: Any, options: Any, rng: dict[str, Any] | None, exc: Exception
+    ) -> None:
+        stream = self._streams[i]
+        stream.block.pending = int(self._pcount[i])
+        stream.end_open()
+        notes: list[str] = []
+        stream.begin(seed, options, rng, notes)
+        stream.end_error(exc, "reset")
+
+    def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
+        """Step every sub-env and record each sub-env's step; the results are returned untouched."""
+        if self._closed:
+            self._file.check_open()
+        try:
+            result = self.env.step(actions)
+        except Exception as exc:
+            self._on_step_error(exc)
+            raise
+        try:
+            self._record_step(actions, result)
+        except Exception as exc:  # never break the training loop over recording trouble
+            self._file.trouble(exc)
+        return result
+
+    def _record_step(self, actions: Any, result: tuple[Any, ...]) -> None:
+        obs, rewards, terminated, truncated, infos = result
+        term = np.asarray(terminated, dtype=np.bool_)
+        trunc = np.asarray(truncated, dtype=np.bool_)
+        ended = term | trunc
+        mode = self._mode
+        resetting = self._autoreset if mode is AutoresetMode.NEXT_STEP else None
+        if (
+            self._batchable
+            and not infos
+            and (mode is not AutoresetMode.SAME_STEP or not ended.any())
+            and _fits(obs, self._obs_shape, self._obs_dtype)
+            and _fits(actions, self._act_shape, self._act_dtype)
+        ):
+            self._batch_step(obs, actions, rewards, term, trunc, ended, resetting)
+        else:
+            self._drain()
+            self._record_step_slow(
+                list(iterate(self._obs_space, obs)),
+                list(iterate(self._act_space, actions)),
+                np.asarray(rewards, dtype=np.float64).tolist(),
+                term.tolist(),
+                trunc.tolist(),
+                infos,
+            )
+        if mode is AutoresetMode.NEXT_STEP:
+            if ended.any():
+                self._autoreset = ended
+                if not self._rng_in_info:
+                    self._pending_rng = self._capture(np.flatnonzero(ended).tolist())
+            else:
+                self._autoreset = None
+
+    def _batch_step(
+        self,
+        obs: np.ndarray[Any, Any],
+        actions: np.ndarray[Any, Any],
+        rewards: Any,
+        term: np.ndarray[Any, np.dtype[np.bool_]],
+        trunc: np.ndarray[Any, np.dtype[np.bool_]],
+        ended: np.ndarray[Any, np.dtype[np.bool_]],
+        resetting: np.ndarray[Any, np.dtype[np.bool_]] | None,
+    ) -> None:
+        """A step without info: keep the whole batch; hand rows to the streams in bulk later.
+
+        Only episode boundaries are handled per sub-env: the NEXT_STEP autoresets (reset rows)
+        and the endings (their rows are counted in each block's ``pending``).
+        """
+        file = self._file
+        now = file.clock()
+        if resetting is None:
+            self._pcount += 1
+        else:
+            self._pcount += ~resetting
+        self._p_obs.append(obs.copy())
+        self._p_act.append(actions.copy())
+        self._p_rew.append(np.array(rewards, dtype=np.float64))
+        self._p_time.append(now)
+        self._p_mask.append(None if resetting is None else ~resetting)
+        streams = self._streams
+        if resetting is not None:
+            for i in np.flatnonzero(resetting).tolist():
+                # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
+                streams[i].block.pending = int(self._pcount[i])
+                rng = self._pending_rng.pop(i, None)
+                streams[i].end_open()
+                self._begin(i, None, None, rng, obs[i], _EMPTY, now)
+            ended = ended & ~resetting
+        if ended.any():
+            for i in np.flatnonzero(ended).tolist():
+                block = streams[i].block
+                block.pending = int(self._pcount[i])
+                streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), _EMPTY)
+        self._since_flush += 1
+        if self._since_flush >= self._block_steps or now >= file.flush_at:
+            file.flush()
+        elif len(self._p_obs) >= _BATCH_STEPS:
+            self._drain()
+
+    def _drain(self) -> None:
+        """Hand the batched rows over to each sub-env's stream (before any other row)."""
+        if not self._p_obs:
+            return
+        obs = np.stack(self._p_obs)
+        act = np.stack(self._p_act)
+        rew = np.stack(self._p_rew)
+        times = np.array(self._p_time, dtype=np.int64)
+        masks = self._p_mask
+        self._p_obs, self._p_act, self._p_rew, self._p_time, self._p_mask = [], [], [], [], []
+        self._pcount[:] = 0
+        if all(m is None for m in masks):
+            for i, stream in enumerate(self._streams):
+                stream.extend(obs[:, i], act[:, i], rew[:, i], times)
+            return
+        everyone = np.ones(self._n, dtype=np.bool_)
+        stepped = np.stack([everyone if m is None else m for m in masks])
+        for i, stream in enumerate(self._streams):
+            rows = stepped[:, i]
+            stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
+
+    def _on_flush(self) -> None:
+        self._drain()
+        self._since_flush = 0
+
+    def _record_step_slow(
+        self,
+        obs_rows: list[Any],
+        act_rows: list[Any],
+        reward_list: list[float],
+        term_list: list[bool],
+        trunc_list: list[bool],
+        infos: Mapping[str, Any],
+    ) -> None:
+        """A step with info, autoresets or (SAME_STEP) ended episodes: sub-env by sub-env."""
+        streams = self._streams
+        mode = self._mode
+        autoreset = self._autoreset if mode is AutoresetMode.NEXT_STEP else None
+        resetting = [False] * self._n if autoreset is None else autoreset.tolist()
+        now = self._file.clock()
+        for i in range(self._n):
+            info = _sub_info(infos, i) if infos else _EMPTY
+            if resetting[i]:
+                # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
+                rng = self._rng_from_info(info)
+                if rng is None:
+                    rng = self._pending_rng.pop(i, None)
+                self._streams[i].end_open()
+                self._begin(i, None, None, rng, obs_rows[i], info, now)
+                continue
+            if mode is AutoresetMode.SAME_STEP and (term_list[i] or trunc_list[i]):
+                final = info.get("final_info")
+                step_info = final if isinstance(final, Mapping) else _EMPTY
+                final_obs = infos["final_obs"][i] if "final_obs" in infos else obs_rows[i]
+                streams[i].step(
+                    act_rows[i],
+                    (final_obs, reward_list[i], term_list[i], trunc_list[i], step_info),
+                )
+                reset_info = {k: v for k, v in info.items() if k not in ("final_info", "final_obs")}
+                rng = self._rng_from_info(reset_info)
+                why = (
+                    None
+                    if rng is not None
+                    else "SAME_STEP autoreset ran inside step(): the sub-env's RNG state before it "
+                    "cannot be read from outside; wrap the sub-envs in episode_audit.ResetRngInfo "
+                    "(gym.make_vec(..., wrappers=[ResetRngInfo])) to make such episodes replayable"
+                )
+                self._begin(i, None, None, rng, obs_rows[i], reset_info, now, why)
+                continue
+            streams[i].step(
+                act_rows[i], (obs_rows[i], reward_list[i], term_list[i], trunc_list[i], info)
+            )
+
+    def _on_step_error(self, exc: Exception) -> None:
+        try:
+            for stream in self._streams:
+                stream.end_error(exc, "step")
+            self._file.flush()
+        except Exception as trouble:
+            self._file.trouble(trouble)
+
+    def flush(self) -> None:
+        """Write everything recorded so far to the file now."""
+        self._file.check_open()
+        self._file.flush()
+
+    def close(self, **kwargs: Any) -> None:
+        """Finish the evidence file (open episodes are recorded as ``incomplete``) and close.
+
+        Safe to call more than once. The vector env is closed even if finishing fails.
+        """
+        if getattr(self, "_closed", True):
+            return
+        self._closed = True
+        try:
+            self._file.close()
+        finally:
+            self.env.close(**kwargs)
+
+    def __enter__(self) -> RecordVectorEvidence:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if not getattr(self, "_closed", True):
+            import warnings
+
+            warnings.warn(
+                f"episode-audit: RecordVectorEvidence for {getattr(self, 'path', '?')} was not "
+                "closed; call close() or use it as a context manager",
+                ResourceWarning,
+                stacklevel=2,
+            )
+
+
+def _has_rng_info(env: Any) -> bool:
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, ResetRngInfo):
+            return True
+        env = env.env
+    return False

@@ -1,0 +1,376 @@
+"""Vector-env recording (vector.py): the issue's acceptance, per autoreset mode, Sync and Async.
+
+A vector CartPole-v1 with 4 sub-envs is recorded for 2 000 steps in each mode; its episodes are
+compared with the same sub-envs stepped by hand (independent envs seeded s + i, the same
+actions), and every sub-env episode is replayed on its own.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pyarrow.compute as pc
+import pytest
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from typer.testing import CliRunner
+
+from episode_audit import (
+    RecorderError,
+    RecordVectorEvidence,
+    ResetRngInfo,
+    check,
+    open_evidence,
+    replay,
+    report,
+)
+from episode_audit.cli import app
+from episode_audit.vector import _sub_info
+
+N = 4
+STEPS = 2000
+SEED = 11
+MODES = [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP, AutoresetMode.DISABLED]
+KINDS = ["sync", "async"]
+
+
+def _actions() -> np.ndarray[Any, Any]:
+    return np.random.default_rng(0).integers(0, 2, size=(STEPS, N))
+
+
+def _record(path: Path, kind: str, mode: AutoresetMode, **make: Any) -> Path:
+    envs = gym.make_vec(
+        "CartPole-v1",
+        N,
+        vectorization_mode=kind,
+        vector_kwargs={"autoreset_mode": mode},
+        **make,
+    )
+    actions = _actions()
+    with RecordVectorEvidence(envs, path, block_steps=300) as rec:
+        rec.reset(seed=SEED)
+        for t in range(STEPS):
+            _, _, term, trunc, _ = rec.step(actions[t])
+            if mode is AutoresetMode.DISABLED and (term | trunc).any():
+                rec.reset(options={"reset_mask": term | trunc})
+    return path
+
+
+def _by_hand(mode: AutoresetMode) -> dict[int, list[tuple[int, float, bool]]]:
+    """(length, return, ended) of every episode of each sub-env, stepped as its own env."""
+    actions = _actions()
+    out: dict[int, list[tuple[int, float, bool]]] = {}
+    for i in range(N):
+        env = gym.make("CartPole-v1")
+        env.reset(seed=SEED + i)
+        episodes: list[tuple[int, float, bool]] = []
+        length, ret, autoreset_next = 0, 0.0, False
+        for t in range(STEPS):
+            if autoreset_next:  # NEXT_STEP: this vector step only resets the sub-env
+                env.reset()
+                autoreset_next = False
+                continue
+            _, reward, term, trunc, _ = env.step(int(actions[t, i]))
+            length, ret = length + 1, ret + float(reward)
+            if term or trunc:
+                episodes.append((length, ret, True))
+                length, ret = 0, 0.0
+                if mode is AutoresetMode.NEXT_STEP:
+                    autoreset_next = True
+                else:
+                    env.reset()
+        if not autoreset_next:  # the episode begun last, cut off by close()
+            episodes.append((length, ret, False))
+        out[i] = episodes
+        env.close()
+    return out
+
+
+@pytest.fixture(
+    scope="module",
+    params=[(k, m) for k in KINDS for m in MODES],
+    ids=lambda p: f"{p[0]}-{p[1].value}",
+)
+def recorded(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[str, AutoresetMode, Path]:
+    kind, mode = request.param
+    # Async SAME_STEP: the sub-envs report their RNG state before each autoreset themselves.
+    make = {"wrappers": [ResetRngInfo]} if (kind, mode) == ("async", mode.SAME_STEP) else {}
+    path = tmp_path_factory.mktemp("vec") / f"{kind}-{mode.value}.mcap"
+    return kind, mode, _record(path, kind, mode, **make)
+
+
+def test_episodes_equal_the_sub_envs_stepped_by_hand(
+    recorded: tuple[str, AutoresetMode, Path],
+) -> None:
+    _, mode, path = recorded
+    ev = open_evidence(path)
+    assert ev.finished and ev.multi_stream
+    assert ev.run.layout["kind"] == "vector" and ev.run.layout["num_envs"] == N
+    assert ev.run.layout["autoreset_mode"] == mode.value
+    assert ev.run.env_id == "CartPole-v1"  # the sub-env, what replay rebuilds
+    episodes = ev.episodes()
+    hand = _by_hand(mode)
+    for i in range(N):
+        mine = episodes.filter(pc.equal(episodes["env_index"], i)).to_pylist()
+        got = [(e["length"], e["return"], e["outcome"] != "incomplete") for e in mine]
+        assert got == hand[i], f"sub-env {i}"
+        assert mine[0]["seed"] == SEED + i
+        assert all(e["seed"] is None and e["rng_state"] for e in mine[1:])
+    assert sum(len(h) for h in hand.values()) == episodes.num_rows > 300
+
+
+def test_no_phantom_reset_steps(recorded: tuple[str, AutoresetMode, Path]) -> None:
+    _, mode, path = recorded
+    ev = open_evidence(path)
+    steps = ev.steps(columns=["episode", "step", "reward", "terminated", "truncated"])
+    # CartPole pays 1 for every real step; an autoreset step would be a row with reward 0.
+    assert pc.all(pc.equal(steps["reward"], 1.0)).as_py()
+    hand_steps = sum(n for eps in _by_hand(mode).values() for n, _, _ in eps)
+    assert steps.num_rows == hand_steps
+    expected = STEPS * N - (hand_steps if mode is AutoresetMode.NEXT_STEP else STEPS * N)
+    # NEXT_STEP: every vector step a sub-env spent resetting is a reset row, not a step row
+    resets = ev.resets()
+    if mode is AutoresetMode.NEXT_STEP:
+        assert resets.num_rows == N + expected
+    else:
+        assert resets.num_rows == ev.episodes().num_rows
+    assert sorted(resets["episode"].to_pylist()) == ev.episodes()["episode"].to_pylist()
+    ends = pc.or_(steps["terminated"], steps["truncated"]).to_numpy(zero_copy_only=False)
+    episode = steps["episode"].to_numpy()
+    last = np.append(episode[1:] != episode[:-1], True)
+    assert not (ends & ~last).any()  # nothing recorded after an episode's end
+
+
+def test_every_sub_env_episode_replays_identically_on_its_own(
+    recorded: tuple[str, AutoresetMode, Path],
+) -> None:
+    _, _, path = recorded
+    result = replay([path])
+    statuses = Counter(e.status for e in result.episodes)
+    assert statuses == {"identical": open_evidence(path).episodes().num_rows}, [
+        (e.episode, e.reason) for e in result.episodes if e.status != "identical"
+    ][:3]
+
+
+def test_check_and_report_by_env_index(recorded: tuple[str, AutoresetMode, Path]) -> None:
+    _, _, path = recorded
+    codes = {f.code for f in check([path]).findings}
+    assert codes <= {"unlabeled_failure", "missing_terms", "incomplete_episode"}, codes
+    grouped = report([path], by="env_index")
+    assert [g.key for g in grouped.groups] == [str(i) for i in range(N)]
+    episodes = open_evidence(path).episodes()
+    assert [g.episodes for g in grouped.groups] == [
+        episodes.filter(pc.equal(episodes["env_index"], i)).num_rows for i in range(N)
+    ]
+
+
+def test_cli_check_report_replay_on_a_vector_file(tmp_path: Path) -> None:
+    path = _record(tmp_path / "cli.mcap", "sync", AutoresetMode.NEXT_STEP)
+    runner = CliRunner()
+    checked = runner.invoke(app, ["check", str(path), "--format", "json"])
+    assert checked.exit_code in (0, 1), checked.output
+    codes = {f["code"] for f in json.loads(checked.stdout)["findings"]}
+    assert codes <= {"unlabeled_failure", "missing_terms", "incomplete_episode"}
+    reported = runner.invoke(app, ["report", str(path), "--by", "env_index", "--format", "json"])
+    assert reported.exit_code == 0, reported.output
+    assert [g["key"] for g in json.loads(reported.stdout)["groups"]] == ["0", "1", "2", "3"]
+    replayed = runner.invoke(app, ["replay", str(path), "--format", "json"])
+    assert replayed.exit_code == 0, replayed.output
+    summary = json.loads(replayed.stdout)["summary"]
+    assert summary["diverged"] == summary["not_replayable"] == 0 and summary["identical"] > 300
+    shown = runner.invoke(app, ["show", str(path)])
+    assert shown.exit_code == 0 and "vector: 4 sub-envs (SyncVectorEnv, NextStep)" in shown.stdout
+
+
+def test_same_step_async_without_the_rng_wrapper_says_why(tmp_path: Path) -> None:
+    path = tmp_path / "no-rng.mcap"
+    envs = gym.make_vec(
+        "CartPole-v1",
+        2,
+        vectorization_mode="async",
+        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP},
+        max_episode_steps=5,
+    )
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=3)
+        for _ in range(12):
+            rec.step(np.zeros(2, dtype=np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [e["seed"] for e in episodes[:2]] == [3, 4]
+    autoreset = episodes[2:]
+    assert autoreset and all(e["seed"] is None and e["rng_state"] is None for e in autoreset)
+    findings = check([path]).findings
+    why = [f.message for f in findings if f.code == "recorder_note:rng_state_unavailable"]
+    assert why and "SAME_STEP" in why[0] and "ResetRngInfo" in why[0]
+    assert any(f.code == "not_replayable" for f in findings)
+    statuses = {e.episode: e.status for e in replay([path]).episodes}
+    assert statuses[0] == statuses[1] == "identical"
+    assert {statuses[e["episode"]] for e in autoreset} == {"not_replayable"}
+
+
+def test_sync_same_step_wraps_the_sub_envs_in_place(tmp_path: Path) -> None:
+    envs = gym.make_vec(
+        "CartPole-v1", 2, vectorization_mode="sync", vector_kwargs={"autoreset_mode": "SameStep"}
+    )
+    with RecordVectorEvidence(envs, tmp_path / "w.mcap") as rec:
+        assert isinstance(rec.unwrapped, SyncVectorEnv)
+        assert all(isinstance(e, ResetRngInfo) for e in rec.unwrapped.envs)
+        rec.reset(seed=0)
+    assert open_evidence(tmp_path / "w.mcap").run.env_spec["additional_wrappers"] == []
+
+
+def test_vector_entry_point_env_is_recorded_but_not_replayable(tmp_path: Path) -> None:
+    path = tmp_path / "native.mcap"
+    envs = gym.make_vec("CartPole-v1", 3)  # CartPoleVectorEnv: no sub-envs
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(60):
+            rec.step(rec.action_space.sample())
+    ev = open_evidence(path)
+    assert ev.run.layout["vector_class"] == "CartPoleVectorEnv"
+    assert ev.run.layout["sub_envs"] is False
+    episodes = ev.episodes()
+    assert episodes.num_rows >= 3 and pc.all(pc.equal(ev.steps()["reward"], 1.0)).as_py()
+    findings = check([path]).findings
+    (file_level,) = [f for f in findings if f.code == "not_replayable" and f.episode is None]
+    assert "CartPoleVectorEnv has no sub-envs" in file_level.message
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert "no sub-envs" in (result.episodes[0].reason or "")
+
+
+class _Scored(gym.Env[np.ndarray, np.int64]):
+    """Pays named terms; succeeds after 3 steps when the action is 1, fails when it is 0."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return self.np_random.uniform(-1, 1, 2).astype(np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        done = self.t >= 3
+        info: dict[str, Any] = {"reward_terms": {"alive": 1.0, "bonus": 0.5 * int(action)}}
+        if done:
+            info["success" if action else "failure"] = True if action else "fell"
+        obs = self.np_random.uniform(-1, 1, 2).astype(np.float32)
+        return obs, 1.0 + 0.5 * int(action), done, False, info
+
+
+def test_terms_and_endings_come_from_each_sub_envs_info(tmp_path: Path) -> None:
+    path = tmp_path / "scored.mcap"
+    for mode in ("NextStep", "SameStep"):
+        envs = SyncVectorEnv([_Scored, _Scored], autoreset_mode=mode)
+        with RecordVectorEvidence(envs, path, overwrite=True, ending_rules=None) as rec:
+            rec.reset(seed=1)
+            for _ in range(8):
+                rec.step(np.array([1, 0]))
+        episodes = open_evidence(path).episodes().to_pylist()
+        ended = [e for e in episodes if e["outcome"] != "incomplete"]
+        assert {(e["env_index"], e["outcome"], e["failure_label"]) for e in ended} == {
+            (0, "success", None),
+            (1, "failure", "fell"),
+        }, mode
+        for e in ended:
+            bonus = 1.5 if e["env_index"] == 0 else 0.0
+            assert dict(e["term_totals"]) == {"alive": 3.0, "bonus": bonus}
+        # an unregistered env has no spec to rebuild it from; nothing else is wrong
+        assert {f.code for f in check([path]).findings} <= {
+            "incomplete_episode",
+            "missing_env_spec",
+        }
+
+
+def test_sub_info_picks_one_sub_envs_values() -> None:
+    infos = {
+        "a": np.array([1.0, 2.0]),
+        "_a": np.array([True, False]),
+        "d": {"x": np.array([0, 7]), "_x": np.array([False, True])},
+        "_d": np.array([False, True]),
+    }
+    assert _sub_info(infos, 0) == {"a": 1.0}
+    assert _sub_info(infos, 1) == {"d": {"x": 7}}
+
+
+def test_misuse_raises_and_bad_input_does_not(tmp_path: Path) -> None:
+    envs = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync")
+    rec = RecordVectorEvidence(envs, tmp_path / "m.mcap")
+    rec.reset(seed=0)
+    rec.close()
+    rec.close()  # twice is fine
+    with pytest.raises(RecorderError, match="closed"):
+        rec.step(np.zeros(2, dtype=np.int64))
+    with pytest.raises(Exception, match="file exists"):
+        RecordVectorEvidence(gym.make_vec("CartPole-v1", 2), tmp_path / "m.mcap")
+
+
+def test_batched_rows_equal_the_row_by_row_ones(tmp_path: Path) -> None:
+    """Steps without info are kept as whole batches; info_keys forces the per-row path."""
+    tables = []
+    for name, info_keys in (("batched", ()), ("rows", "all")):
+        path = tmp_path / f"{name}.mcap"
+        envs = gym.make_vec("CartPole-v1", N, vectorization_mode="sync")
+        actions = _actions()[:700]
+        with RecordVectorEvidence(envs, path, block_steps=50, info_keys=info_keys) as rec:
+            rec.reset(seed=SEED)
+            for t, action in enumerate(actions):
+                rec.step(action)
+                if t == 333:
+                    rec.flush()
+        ev = open_evidence(path)
+        keep = ["episode", "step", "action", "observation", "reward", "terminated", "truncated"]
+        tables.append(
+            (
+                ev.steps(columns=[*keep, "outcome", "label"]),
+                ev.episodes().drop_columns(["start_time_ns", "end_time_ns"]),
+                ev.resets().select(["episode", "env_index", "seed", "rng_state", "observation"]),
+            )
+        )
+    (steps_a, eps_a, resets_a), (steps_b, eps_b, resets_b) = tables
+    # the same rows (the reader's episode order follows the flushes, which differ)
+    order = [("episode", "ascending"), ("step", "ascending")]
+    assert steps_a.sort_by(order).equals(steps_b.sort_by(order))
+    assert eps_a.equals(eps_b)
+    assert resets_a.sort_by("episode").equals(resets_b.sort_by("episode"))
+    # blocks of at most block_steps rows per sub-env
+    assert (
+        max(b.num_rows for b in open_evidence(tmp_path / "batched.mcap").scan() for b in b.steps)
+        <= 50
+    )
+
+
+def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path) -> None:
+    from gymnasium.utils.env_checker import check_env, data_equivalence
+
+    for mode in ("NextStep", "SameStep"):
+
+        def make(mode: str = mode) -> Any:
+            return gym.make_vec(
+                "CartPole-v1", 3, vectorization_mode="sync", vector_kwargs={"autoreset_mode": mode}
+            )
+
+        bare = make()
+        rec = RecordVectorEvidence(make(), tmp_path / f"{mode}.mcap")
+        assert data_equivalence(bare.reset(seed=2), rec.reset(seed=2))
+        for action in np.random.default_rng(1).integers(0, 2, size=(120, 3)):
+            got, want = rec.step(action), bare.step(action)
+            info = dict(got[4])
+            # SAME_STEP: the sub-envs' ResetRngInfo adds its one key to the autoresets' info
+            info.pop("episode_audit.rng_state", None)
+            info.pop("_episode_audit.rng_state", None)
+            assert data_equivalence(got[:4], want[:4]) and data_equivalence(info, want[4])
+        rec.close()
+        bare.close()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(ResetRngInfo(gym.make("CartPole-v1")), skip_render_check=True)
