@@ -28,9 +28,15 @@ episode records its own seed. A vector env built from a ``vector_entry_point`` (
 ``CartPoleVectorEnv``, which ``gym.make_vec`` picks by default) has no sub-envs: it is recorded
 the same way, but its episodes are marked not replayable on their own.
 
-Per step the recorder does per sub-env what :class:`~episode_audit.RecordEvidence` does per step
-(append to column buffers); per-sub-env info dicts are only built when the vector info is not
-empty. Wrap the vector env itself (innermost): replay rebuilds one sub-env from its spec.
+The hot path is batched: a vector step without info (and, in ``SAME_STEP`` mode, without an
+ending) keeps copies of the batch arrays (observations, actions, rewards) and one time; every
+256 vector steps, and at each flush, each sub-env's rows are handed to its stream in bulk. Only
+episode boundaries (autoresets, endings) are handled per sub-env when they happen, at the rows
+they will have. Steps with info (e.g. MuJoCo ``reward_*`` terms), or with values that need a cast,
+are recorded sub-env by sub-env as :class:`~episode_audit.RecordEvidence` records a step, with
+per-sub-env info dicts taken from the vector info (``info[k][i]`` where ``info["_k"][i]``).
+
+Wrap the vector env itself (innermost): replay rebuilds one sub-env from its spec.
 """
 
 from __future__ import annotations
@@ -253,18 +259,19 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             and obs_codec.new_buffer().extend(np.zeros((0, *self._obs_shape[1:]), self._obs_dtype))
             and act_codec.new_buffer().extend(np.zeros((0, *self._act_shape[1:]), self._act_dtype))
         )
-        self._pcount = np.zeros(n, dtype=np.int64)
+        self._p_len = 0  # vector steps batched
+        self._p_skip = [0] * n  # of those, the ones each sub-env spent resetting (no row)
         self._p_obs: list[np.ndarray[Any, Any]] = []
         self._p_act: list[np.ndarray[Any, Any]] = []
         self._p_rew: list[np.ndarray[Any, Any]] = []
         self._p_time: list[int] = []
-        self._p_mask: list[np.ndarray[Any, Any] | None] = []
+        self._p_mask: list[list[int]] = []  # per batched step: the sub-envs that only reset
         self._since_flush = 0
         self._block_steps = settings.block_steps
         self._obs_space = env.observation_space
         self._act_space = env.action_space
         # NEXT_STEP: the sub-envs whose next step is their autoreset, and their RNG states.
-        self._autoreset: np.ndarray[Any, np.dtype[np.bool_]] | None = None
+        self._resetting: list[int] = []
         self._pending_rng: dict[int, dict[str, Any] | None] = {}
         self._closed = False
 
@@ -393,13 +400,12 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 rng = states.get(i)
                 if seeds[i] is None:
                     rng = self._rng_from_info(info) or rng
-                self._streams[i].block.pending = int(self._pcount[i])
+                self._streams[i].block.pending = self._pending_rows(i)
                 self._streams[i].end_open()
                 self._begin(i, seeds[i], recorded_options, rng, rows[i], info, start)
-            if self._autoreset is not None:
-                self._autoreset[indices] = False
-                if not self._autoreset.any():
-                    self._autoreset = None
+            if self._resetting:
+                done = set(indices)
+                self._resetting = [i for i in self._resetting if i not in done]
             for i in indices:
                 self._pending_rng.pop(i, None)
             if file.due():
@@ -412,7 +418,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         self, i: int, seed: Any, options: Any, rng: dict[str, Any] | None, exc: Exception
     ) -> None:
         stream = self._streams[i]
-        stream.block.pending = int(self._pcount[i])
+        stream.block.pending = self._pending_rows(i)
         stream.end_open()
         notes: list[str] = []
         stream.begin(seed, options, rng, notes)
@@ -437,17 +443,18 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         obs, rewards, terminated, truncated, infos = result
         term = np.asarray(terminated, dtype=np.bool_)
         trunc = np.asarray(truncated, dtype=np.bool_)
-        ended = term | trunc
+        ended = (term | trunc).tolist()
+        ends = [i for i, e in enumerate(ended) if e] if True in ended else []
         mode = self._mode
-        resetting = self._autoreset if mode is AutoresetMode.NEXT_STEP else None
+        resetting = self._resetting  # NEXT_STEP: the sub-envs this step only resets
         if (
             self._batchable
             and not infos
-            and (mode is not AutoresetMode.SAME_STEP or not ended.any())
+            and (mode is not AutoresetMode.SAME_STEP or not ends)
             and _fits(obs, self._obs_shape, self._obs_dtype)
             and _fits(actions, self._act_shape, self._act_dtype)
         ):
-            self._batch_step(obs, actions, rewards, term, trunc, ended, resetting)
+            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting)
         else:
             self._drain()
             self._record_step_slow(
@@ -459,12 +466,9 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 infos,
             )
         if mode is AutoresetMode.NEXT_STEP:
-            if ended.any():
-                self._autoreset = ended
-                if not self._rng_in_info:
-                    self._pending_rng = self._capture(np.flatnonzero(ended).tolist())
-            else:
-                self._autoreset = None
+            self._resetting = ends
+            if ends and not self._rng_in_info:
+                self._pending_rng = self._capture(ends)
 
     def _batch_step(
         self,
@@ -473,44 +477,47 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         rewards: Any,
         term: np.ndarray[Any, np.dtype[np.bool_]],
         trunc: np.ndarray[Any, np.dtype[np.bool_]],
-        ended: np.ndarray[Any, np.dtype[np.bool_]],
-        resetting: np.ndarray[Any, np.dtype[np.bool_]] | None,
+        ends: list[int],
+        resetting: list[int],
     ) -> None:
         """A step without info: keep the whole batch; hand rows to the streams in bulk later.
 
         Only episode boundaries are handled per sub-env: the NEXT_STEP autoresets (reset rows)
-        and the endings (their rows are counted in each block's ``pending``).
+        and the endings (at the rows they will have: each block's ``pending`` counts the rows
+        batched for it).
         """
         file = self._file
         now = file.clock()
-        if resetting is None:
-            self._pcount += 1
-        else:
-            self._pcount += ~resetting
         self._p_obs.append(obs.copy())
         self._p_act.append(actions.copy())
         self._p_rew.append(np.array(rewards, dtype=np.float64))
         self._p_time.append(now)
-        self._p_mask.append(None if resetting is None else ~resetting)
-        streams = self._streams
-        if resetting is not None:
-            for i in np.flatnonzero(resetting).tolist():
+        self._p_mask.append(resetting)
+        self._p_len += 1
+        if resetting or ends:
+            streams, skipped, pending = self._streams, self._p_skip, self._p_len
+            for i in resetting:
                 # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
-                streams[i].block.pending = int(self._pcount[i])
+                skipped[i] += 1
+                streams[i].block.pending = pending - skipped[i]
                 rng = self._pending_rng.pop(i, None)
                 streams[i].end_open()
                 self._begin(i, None, None, rng, obs[i], _EMPTY, now)
-            ended = ended & ~resetting
-        if ended.any():
-            for i in np.flatnonzero(ended).tolist():
+            for i in ends:
+                if resetting and i in resetting:
+                    continue  # a reset step has no flags (Gymnasium clears them)
                 block = streams[i].block
-                block.pending = int(self._pcount[i])
+                block.pending = pending - skipped[i]
                 streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), _EMPTY)
         self._since_flush += 1
         if self._since_flush >= self._block_steps or now >= file.flush_at:
             file.flush()
-        elif len(self._p_obs) >= _BATCH_STEPS:
+        elif self._p_len >= _BATCH_STEPS:
             self._drain()
+
+    def _pending_rows(self, i: int) -> int:
+        """Rows batched for sub-env ``i`` and not yet handed to its stream."""
+        return self._p_len - self._p_skip[i]
 
     def _drain(self) -> None:
         """Hand the batched rows over to each sub-env's stream (before any other row)."""
@@ -522,13 +529,16 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         times = np.array(self._p_time, dtype=np.int64)
         masks = self._p_mask
         self._p_obs, self._p_act, self._p_rew, self._p_time, self._p_mask = [], [], [], [], []
-        self._pcount[:] = 0
-        if all(m is None for m in masks):
+        self._p_len = 0
+        if not any(self._p_skip):
             for i, stream in enumerate(self._streams):
                 stream.extend(obs[:, i], act[:, i], rew[:, i], times)
             return
-        everyone = np.ones(self._n, dtype=np.bool_)
-        stepped = np.stack([everyone if m is None else m for m in masks])
+        self._p_skip = [0] * self._n
+        stepped = np.ones((len(masks), self._n), dtype=np.bool_)
+        for t, skipped in enumerate(masks):
+            if skipped:
+                stepped[t, skipped] = False
         for i, stream in enumerate(self._streams):
             rows = stepped[:, i]
             stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
@@ -549,12 +559,11 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         """A step with info, autoresets or (SAME_STEP) ended episodes: sub-env by sub-env."""
         streams = self._streams
         mode = self._mode
-        autoreset = self._autoreset if mode is AutoresetMode.NEXT_STEP else None
-        resetting = [False] * self._n if autoreset is None else autoreset.tolist()
+        resetting = set(self._resetting)
         now = self._file.clock()
         for i in range(self._n):
             info = _sub_info(infos, i) if infos else _EMPTY
-            if resetting[i]:
+            if i in resetting:
                 # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
                 rng = self._rng_from_info(info)
                 if rng is None:

@@ -374,3 +374,39 @@ def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path) -> Non
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         check_env(ResetRngInfo(gym.make("CartPole-v1")), skip_render_check=True)
+
+
+class _Breaks(gym.Env[np.ndarray, np.int64]):
+    """Raises on its 5th step."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        if self.t == 5:
+            raise RuntimeError("motor on fire")
+        return np.zeros(2, np.float32), 1.0, False, False, {}
+
+
+def test_an_env_error_ends_the_open_episodes_and_reraises(tmp_path: Path) -> None:
+    path = tmp_path / "broken.mcap"
+    rec = RecordVectorEvidence(SyncVectorEnv([_Breaks, _Breaks]), path)
+    rec.reset(seed=[4, None])
+    for _ in range(4):
+        rec.step(np.zeros(2, dtype=np.int64))
+    with pytest.raises(RuntimeError, match="motor on fire"):
+        rec.step(np.zeros(2, dtype=np.int64))
+    rec.close()
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["env_index"], e["seed"], e["outcome"], e["length"]) for e in episodes] == [
+        (0, 4, "error", 4),
+        (1, None, "error", 4),
+    ]
+    assert episodes[1]["rng_state"] is not None  # seed list: sub-env 1 reset unseeded
+    assert episodes[0]["error_message"] == "motor on fire"
