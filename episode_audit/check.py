@@ -400,7 +400,8 @@ class _FileCheck:
                 FILE_UNFINISHED,
                 f"the writer did not finish the file ({why}); complete chunks were read",
             )
-        if ev.run.env_spec is None:
+        layout = ev.run.layout or {}
+        if ev.run.env_spec is None and not layout.get("env_module"):  # PettingZoo: a module
             notes = [str(n) for n in (ev.run.recorder or {}).get("notes") or []]
             why = f" ({'; '.join(notes)})" if notes else ""
             self.finding(
@@ -408,7 +409,6 @@ class _FileCheck:
                 MISSING_ENV_SPEC,
                 f"no environment spec recorded{why}: replay needs an env factory",
             )
-        layout = ev.run.layout or {}
         if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
             why = layout.get("replay_note") or "the vector env had no sub-envs"
             self.finding("warning", NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
