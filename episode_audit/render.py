@@ -238,7 +238,7 @@ def report_output(result: Report, output: OutputFormat) -> Output:
     gate_headers = ["gate", "group", "result", "detail"]
     if output == "markdown":
         parts = [
-            f"### episode-audit report (by {result.by})\n",
+            f"### episode-audit report (by {result.by}{_unit(result)})\n",
             markdown_table(REPORT_HEADERS, rows) + "\n",
         ]
         if term_rows:
@@ -251,7 +251,9 @@ def report_output(result: Report, output: OutputFormat) -> Output:
         if gates:
             parts += ["#### Gates\n", markdown_table(gate_headers, gates) + "\n"]
         return "\n".join(parts)
-    out: list[RenderableType] = [table(f"Outcomes (by {result.by})", REPORT_HEADERS, rows)]
+    out: list[RenderableType] = [
+        table(f"Outcomes (by {result.by}{_unit(result)})", REPORT_HEADERS, rows)
+    ]
     if term_rows:
         out.append(table("Reward terms by outcome", term_headers, term_rows))
     if warnings:
@@ -259,3 +261,8 @@ def report_output(result: Report, output: OutputFormat) -> Output:
     if gates:
         out.append(table("Gates", gate_headers, gates))
     return Group(*out)
+
+
+def _unit(result: Report) -> str:
+    """``", games"`` when a report counts PettingZoo games instead of episodes."""
+    return ", games" if result.unit == "game" else ""
