@@ -22,6 +22,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import warnings
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
@@ -74,7 +75,9 @@ def build_pettingzoo_env(
             )
         kwargs = layout.get("env_kwargs") or {}
         try:
-            module = importlib.import_module(module_name)
+            with warnings.catch_warnings():  # PettingZoo 1.27 deprecates importing env modules
+                warnings.simplefilter("ignore", DeprecationWarning)
+                module = importlib.import_module(module_name)
             make = getattr(module, "parallel_env" if parallel else "env")
             env = make(**kwargs)
         except Exception as exc:
