@@ -371,8 +371,10 @@ class RecordParallelEvidence(BaseParallelWrapper):  # type: ignore[misc]
     """Record every agent of a PettingZoo ``ParallelEnv`` to one MCAP evidence file.
 
     Example:
-        >>> import tempfile, pathlib
-        >>> from pettingzoo.classic import rps_v2
+        >>> import tempfile, pathlib, warnings
+        >>> with warnings.catch_warnings():  # PettingZoo 1.27 deprecates env modules
+        ...     warnings.simplefilter("ignore", DeprecationWarning)
+        ...     from pettingzoo.classic import rps_v2
         >>> from episode_audit import RecordParallelEvidence, open_evidence
         >>> path = pathlib.Path(tempfile.mkdtemp()) / "rps.mcap"
         >>> with RecordParallelEvidence(rps_v2.parallel_env(max_cycles=3), path) as env:
@@ -524,8 +526,10 @@ class RecordAECEvidence(BaseWrapper):  # type: ignore[misc]
     from ``last()``'s cumulative reward.
 
     Example:
-        >>> import tempfile, pathlib
-        >>> from pettingzoo.classic import tictactoe_v3
+        >>> import tempfile, pathlib, warnings
+        >>> with warnings.catch_warnings():  # PettingZoo 1.27 deprecates env modules
+        ...     warnings.simplefilter("ignore", DeprecationWarning)
+        ...     from pettingzoo.classic import tictactoe_v3
         >>> from episode_audit import RecordAECEvidence, open_evidence
         >>> path = pathlib.Path(tempfile.mkdtemp()) / "ttt.mcap"
         >>> with RecordAECEvidence(tictactoe_v3.env(), path) as env:
