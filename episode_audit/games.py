@@ -47,7 +47,8 @@ def game_outcome(outcomes: list[str]) -> str:
 def game_table(episodes: pa.Table) -> pa.Table:
     """One row per game of an episodes table (columns as :meth:`Evidence.episodes`).
 
-    ``episode`` holds the game index; episodes without a game are left out.
+    ``episode`` and ``game`` hold the game index, ``agent`` is null; episodes without a game
+    are left out.
     """
     if "game" not in episodes.column_names:
         return episodes.schema.empty_table()
@@ -89,6 +90,8 @@ def game_table(episodes: pa.Table) -> pa.Table:
         name: pa.array([r[name] for r in rows], episodes.schema.field(name).type) for name in _NAMES
     }
     columns["term_totals"] = terms_column(len(rows), totals)
+    columns["env_index"] = pa.array([0] * len(rows), pa.int64())
+    columns["agent"] = pa.nulls(len(rows), pa.string())
     return pa.table(columns)
 
 

@@ -19,9 +19,7 @@ def test_readme_python_example_runs(tmp_path: Path) -> None:
     assert len(blocks) == 2  # Gymnasium, PettingZoo
     for block in blocks:
         assert len(block.strip().splitlines()) <= 15
-        subprocess.run(
-            [sys.executable, "-c", block], cwd=tmp_path, check=True, capture_output=True
-        )
+        subprocess.run([sys.executable, "-c", block], cwd=tmp_path, check=True, capture_output=True)
 
 
 def test_readme_quick_start_is_two_commands() -> None:

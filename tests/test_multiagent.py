@@ -336,3 +336,5 @@ def test_cli_report_by_agent_games_check_replay(tmp_path: Path) -> None:
     assert checked.exit_code in (0, 1)  # warnings (unlabeled failures) are findings
     assert json.loads(checked.output)["counts"]["error"] == 0
     assert report([path], by="agent").groups[0].episodes == 2
+    (by_index,) = report([path], by="env_index", games=True).groups
+    assert (by_index.key, by_index.episodes) == ("0", 2)
