@@ -367,7 +367,75 @@ _ARGS_DOC = """
 """
 
 
-class RecordParallelEvidence(BaseParallelWrapper):  # type: ignore[misc]
+class _Recording:
+    """What both wrappers share: the recording's setup, ``flush()``, ``close()``, ``with``."""
+
+    env: Any
+    _rec: _Agents
+    _closed: bool
+
+    def _record_to(
+        self,
+        env: Any,
+        path: str | os.PathLike[str],
+        kind: str,
+        settings: RecorderSettings,
+        *,
+        env_module: str | None,
+        env_kwargs: Mapping[str, Any] | None,
+        tags: Mapping[str, str] | None,
+        fsync: bool,
+        overwrite: bool,
+        command_line: Sequence[str] | None,
+    ) -> None:
+        self._rec = _Agents(
+            env,
+            path,
+            kind,
+            env_module=env_module,
+            env_kwargs=env_kwargs,
+            tags=tags,
+            settings=settings,
+            digest_min_bytes=settings.digest_min_bytes,
+            fsync=fsync,
+            overwrite=overwrite,
+            command_line=command_line,
+            owner=self,
+        )
+        self.run_info = self._rec.run_info
+        self.path = self._rec.path
+        self._closed = False
+
+    def _before_close(self) -> None:
+        """Called by :meth:`close` before the file is finished."""
+
+    def flush(self) -> None:
+        """Write everything recorded so far to the file now (open AEC rows stay open)."""
+        self._rec.file.check_open()
+        self._rec.file.flush()
+
+    def close(self) -> None:
+        """Finish the evidence file (open episodes become ``incomplete``) and close the env.
+
+        Safe to call more than once. The env is closed even if finishing fails.
+        """
+        if getattr(self, "_closed", True):
+            return
+        self._closed = True
+        try:
+            self._before_close()
+            self._rec.file.close()
+        finally:
+            self.env.close()
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class RecordParallelEvidence(_Recording, BaseParallelWrapper):  # type: ignore[misc]
     """Record every agent of a PettingZoo ``ParallelEnv`` to one MCAP evidence file.
 
     Example:
@@ -408,32 +476,26 @@ class RecordParallelEvidence(BaseParallelWrapper):  # type: ignore[misc]
         command_line: Sequence[str] | None = None,
     ) -> None:
         super().__init__(env)
-        settings = _settings(
-            reward_terms,
-            constant_terms,
-            ending_rules,
-            info_keys,
-            digest_min_bytes,
-            block_steps,
-            flush_every_s,
-        )
-        self._rec = _Agents(
+        self._record_to(
             env,
             path,
             KIND_PARALLEL,
+            _settings(
+                reward_terms,
+                constant_terms,
+                ending_rules,
+                info_keys,
+                digest_min_bytes,
+                block_steps,
+                flush_every_s,
+            ),
             env_module=env_module,
             env_kwargs=env_kwargs,
             tags=tags,
-            settings=settings,
-            digest_min_bytes=digest_min_bytes,
             fsync=fsync,
             overwrite=overwrite,
             command_line=command_line,
-            owner=self,
         )
-        self.run_info = self._rec.run_info
-        self.path = self._rec.path
-        self._closed = False
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
@@ -497,29 +559,8 @@ class RecordParallelEvidence(BaseParallelWrapper):  # type: ignore[misc]
             rec.file.trouble(exc)
         return result  # type: ignore[no-any-return]
 
-    def flush(self) -> None:
-        """Write everything recorded so far to the file now."""
-        self._rec.file.check_open()
-        self._rec.file.flush()
 
-    def close(self) -> None:
-        """Finish the evidence file (open episodes become ``incomplete``) and close the env."""
-        if getattr(self, "_closed", True):
-            return
-        self._closed = True
-        try:
-            self._rec.file.close()
-        finally:
-            self.env.close()
-
-    def __enter__(self) -> RecordParallelEvidence:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class RecordAECEvidence(BaseWrapper):  # type: ignore[misc]
+class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
     """Record every agent turn of a PettingZoo ``AECEnv`` to one MCAP evidence file.
 
     Rewards are taken from ``env.rewards`` after every step (see :class:`AECTurns`), never
@@ -565,35 +606,28 @@ class RecordAECEvidence(BaseWrapper):  # type: ignore[misc]
         command_line: Sequence[str] | None = None,
     ) -> None:
         super().__init__(env)
-        settings = _settings(
-            reward_terms,
-            constant_terms,
-            ending_rules,
-            info_keys,
-            digest_min_bytes,
-            block_steps,
-            flush_every_s,
-        )
-        # Set through __dict__: BaseWrapper forwards unknown public names to the env.
-        self._rec = _Agents(
+        self._record_to(
             env,
             path,
             KIND_AEC,
+            _settings(
+                reward_terms,
+                constant_terms,
+                ending_rules,
+                info_keys,
+                digest_min_bytes,
+                block_steps,
+                flush_every_s,
+            ),
             env_module=env_module,
             env_kwargs=env_kwargs,
             tags=tags,
-            settings=settings,
-            digest_min_bytes=digest_min_bytes,
             fsync=fsync,
             overwrite=overwrite,
             command_line=command_line,
-            owner=self,
         )
-        self.run_info = self._rec.run_info
-        self.path = self._rec.path
         self._begun: dict[Any, Any] = {}
         self._turns = AECTurns(env, self._on_reset, self._on_row)
-        self._closed = False
 
     def _on_reset(self, agent: str, obs: Any, info: Any) -> None:
         rec = self._rec
@@ -665,25 +699,6 @@ class RecordAECEvidence(BaseWrapper):  # type: ignore[misc]
         except Exception as exc:  # never break the training loop over recording trouble
             rec.file.trouble(exc)
 
-    def flush(self) -> None:
-        """Write everything recorded so far to the file now (open rows stay open)."""
-        self._rec.file.check_open()
-        self._rec.file.flush()
-
-    def close(self) -> None:
-        """Close the open rows, finish the evidence file and close the env."""
-        if getattr(self, "_closed", True):
-            return
-        self._closed = True
-        try:
-            if self._rec.game >= 0:
-                self._cut()
-            self._rec.file.close()
-        finally:
-            self.env.close()
-
-    def __enter__(self) -> RecordAECEvidence:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def _before_close(self) -> None:
+        if self._rec.game >= 0:
+            self._cut()
