@@ -48,7 +48,9 @@ __all__ = [
     "Finding",
     "Gates",
     "NotEvidenceError",
+    "RecordAECEvidence",
     "RecordEvidence",
+    "RecordParallelEvidence",
     "RecordVectorEvidence",
     "RecorderError",
     "RecoveryResult",
@@ -67,3 +69,15 @@ __all__ = [
     "replay",
     "report",
 ]
+
+# The PettingZoo recorders import pettingzoo (optional): loaded on first access.
+_LAZY = {"RecordAECEvidence": "multiagent", "RecordParallelEvidence": "multiagent"}
+
+
+def __getattr__(name: str) -> object:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'episode_audit' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(f".{module}", __name__), name)

@@ -543,7 +543,8 @@ class _FileCheck:
                 FILE_RECOVERED,
                 f"recovered from a torn file (the writer did not finish it); dropped: {dropped}",
             )
-        if ev.run.env_spec is None:
+        layout = ev.run.layout or {}
+        if ev.run.env_spec is None and not layout.get("env_module"):  # PettingZoo: a module
             notes = [str(n) for n in (ev.run.recorder or {}).get("notes") or []]
             why = f" ({'; '.join(notes)})" if notes else ""
             self.finding(
@@ -551,7 +552,6 @@ class _FileCheck:
                 MISSING_ENV_SPEC,
                 f"no environment spec recorded{why}: replay needs an env factory",
             )
-        layout = ev.run.layout or {}
         if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
             why = layout.get("replay_note") or "the vector env had no sub-envs"
             self.finding("warning", NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")

@@ -305,9 +305,17 @@ def report(
     by: Annotated[
         str,
         typer.Option(
-            help="Group by: file, env, env_index, label, all, or tag:NAME (e.g. tag:policy)."
+            help="Group by: file, env, env_index, agent, label, all, or tag:NAME (e.g. tag:policy)."
         ),
     ] = "file",
+    games: Annotated[
+        bool,
+        typer.Option(
+            "--games",
+            help="PettingZoo files: count whole games (outcome derived from the agents') "
+            "instead of agent-episodes.",
+        ),
+    ] = False,
     min_success_rate: Annotated[
         float | None, typer.Option(help="Gate: fail (exit 1) if a group's success rate is lower.")
     ] = None,
@@ -331,7 +339,9 @@ def report(
 
     fmt = _format(output)
     if by not in BY_KEYS and not (by.startswith("tag:") and len(by) > 4):
-        fail(f"--by: expected file, env, env_index, label, all or tag:NAME, got {by!r}")
+        fail(f"--by: expected file, env, env_index, agent, label, all or tag:NAME, got {by!r}")
+    if games and by == "agent":
+        fail("--games cannot be grouped --by agent: a game has many agents")
     overall, by_label = _parse_failure_rates(max_failure_rate or [])
     gates = Gates(
         min_success_rate=_rate_option("--min-success-rate", min_success_rate),
@@ -344,7 +354,7 @@ def report(
     if not readable:
         raise typer.Exit(EXIT_USAGE)
     try:
-        result = run_report(readable, by=by, gates=gates)
+        result = run_report(readable, by=by, gates=gates, games=games)
     except EpisodeAuditError as exc:
         fail(str(exc))
     emit(report_output(result, fmt))

@@ -259,7 +259,7 @@ def report_output(result: Report, output: OutputFormat) -> Output:
     unfinished_headers = ["file", "why"]
     if output == "markdown":
         parts = [
-            f"### episode-audit report (by {result.by})\n",
+            f"### episode-audit report (by {result.by}{_unit(result)})\n",
             markdown_table(REPORT_HEADERS, rows) + "\n",
         ]
         if term_rows:
@@ -277,7 +277,9 @@ def report_output(result: Report, output: OutputFormat) -> Output:
                 markdown_table(unfinished_headers, unfinished) + "\n",
             ]
         return "\n".join(parts)
-    out: list[RenderableType] = [table(f"Outcomes (by {result.by})", REPORT_HEADERS, rows)]
+    out: list[RenderableType] = [
+        table(f"Outcomes (by {result.by}{_unit(result)})", REPORT_HEADERS, rows)
+    ]
     if term_rows:
         out.append(table("Reward terms by outcome", term_headers, term_rows))
     if warnings:
@@ -287,3 +289,8 @@ def report_output(result: Report, output: OutputFormat) -> Output:
     if unfinished:
         out.append(table(unfinished_title, unfinished_headers, unfinished))
     return Group(*out)
+
+
+def _unit(result: Report) -> str:
+    """``", games"`` when a report counts PettingZoo games instead of episodes."""
+    return ", games" if result.unit == "game" else ""

@@ -631,6 +631,17 @@ def replay_evidence(
     progress: Callable[[int], None] | None = None,
 ) -> list[EpisodeReplay]:
     """Replay the episodes of one open evidence file (see :func:`replay`)."""
+    if str(ev.run.layout.get("kind", "")).startswith("pettingzoo_"):
+        from .replay_agents import replay_agents_evidence  # imports pettingzoo
+
+        return replay_agents_evidence(
+            ev,
+            episodes=episodes,
+            atol=atol,
+            env_factory=env_factory,
+            trust_entry_points=trust_entry_points,
+            progress=progress,
+        )
     table = ev.episodes()
     records = table.to_pylist()
     if episodes is not None:

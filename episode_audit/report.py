@@ -242,7 +242,8 @@ class Report:
     Non-finite numbers are written as the strings ``"nan"``, ``"inf"``, ``"-inf"``::
 
         {
-          "by": str,                 # "file", "env", "env_index", "tag:NAME", "label" or "all"
+          "by": str,                 # "file", "env", "env_index", "agent", "tag:NAME", "label"
+                                     # or "all"
           "passed": bool,            # every gate passed for every group
           "groups": [                # sorted by key
             {"key": str, "episodes": int, "ended": int,
@@ -259,6 +260,7 @@ class Report:
           ],
           "gates": [{"gate": str, "group": str, "passed": bool, "message": str}, ...],
           "unfinished": [{"file": str, "why": str}, ...]   # files still being written or torn
+          "unit": str                # "episode", or "game" (PettingZoo games, games=True)
         }
 
     An unfinished file (its writer is still running, or was killed) is reported with what was
@@ -270,6 +272,7 @@ class Report:
     groups: list[GroupReport]
     gates: list[GateResult]
     unfinished: list[tuple[str, str]] = field(default_factory=list)
+    unit: str = "episode"
 
     @property
     def passed(self) -> bool:
@@ -287,6 +290,7 @@ class Report:
                 for g in self.gates
             ],
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
+            "unit": self.unit,
         }
 
 
@@ -295,7 +299,7 @@ class Report:
 # --------------------------------------------------------------------------------------------
 
 
-BY_KEYS = ("file", "env", "env_index", "label", "all")
+BY_KEYS = ("file", "env", "env_index", "agent", "label", "all")
 """The ``by`` groupings besides ``tag:NAME``."""
 
 
@@ -303,7 +307,8 @@ def _check_by(by: str) -> None:
     if by in BY_KEYS or (by.startswith("tag:") and len(by) > 4):
         return
     raise ConfigurationError(
-        f"by: expected 'file', 'env', 'tag:NAME', 'label', 'all' or 'env_index', actually: {by!r}"
+        f"by: expected 'file', 'env', 'tag:NAME', 'label', 'all', 'env_index' or 'agent', "
+        f"actually: {by!r}"
     )
 
 
@@ -340,12 +345,21 @@ _EPISODE_FIELDS = [
 ]
 
 
-def _collect(sources: Iterable[tuple[str, Evidence]], by: str) -> tuple[pa.Table, pa.Table]:
-    """Return (episodes, terms): one row per episode, one row per (episode, term) total."""
+def _collect(
+    sources: Iterable[tuple[str, Evidence]], by: str, games: bool = False
+) -> tuple[pa.Table, pa.Table]:
+    """Return (episodes, terms): one row per episode, one row per (episode, term) total.
+
+    With ``games``, one row per game of a PettingZoo file instead (see :mod:`.games`).
+    """
     parts: list[pa.Table] = []
     term_parts: list[pa.Table] = []
     for name, ev in sources:
         table = ev.episodes()
+        if games:
+            from .games import game_table
+
+            table = game_table(table)
         n = table.num_rows
         if n == 0:
             continue
@@ -359,6 +373,10 @@ def _collect(sources: Iterable[tuple[str, Evidence]], by: str) -> tuple[pa.Table
             key = _label_keys(table)
         elif by == "env_index":  # vector files: one group per sub-env index
             key = pc.cast(table.column("env_index"), pa.string()).combine_chunks()
+        elif by == "agent":  # PettingZoo files: one group per agent
+            if games:
+                raise ConfigurationError("by='agent' and games=True: a game has many agents")
+            key = pc.fill_null(table.column("agent"), NONE_KEY).combine_chunks()
         else:
             value = (ev.run.tags or {}).get(by[4:])
             key = pa.array([NONE_KEY if value is None else str(value)] * n, pa.string())
@@ -714,15 +732,17 @@ def report_tables(
     *,
     by: str = "file",
     gates: Gates | None = None,
+    games: bool = False,
 ) -> Report:
     """Report the episodes of opened evidence files, given as ``(name, evidence)`` pairs.
 
-    ``name`` is the group key for ``by="file"``. See :func:`report` for ``by`` and ``gates``.
+    ``name`` is the group key for ``by="file"``. See :func:`report` for ``by``, ``gates`` and
+    ``games``.
     """
     _check_by(by)
     sources = list(sources)
     unfinished = [(name, ev.torn or "no run-end record") for name, ev in sources if not ev.finished]
-    episodes, terms = _collect(sources, by)
+    episodes, terms = _collect(sources, by, games)
     groups: list[GroupReport] = []
     if episodes.num_rows:
         keys = sorted(set(episodes.column("key").to_pylist()))
@@ -730,7 +750,13 @@ def report_tables(
             rows = episodes.filter(pc.equal(episodes.column("key"), key))
             group_terms = terms.filter(pc.equal(terms.column("key"), key))
             groups.append(_group(key, rows, group_terms))
-    return Report(by, groups, _gates(gates, groups) if gates is not None else [], unfinished)
+    return Report(
+        by,
+        groups,
+        _gates(gates, groups) if gates is not None else [],
+        unfinished,
+        "game" if games else "episode",
+    )
 
 
 def report(
@@ -738,16 +764,20 @@ def report(
     *,
     by: str = "file",
     gates: Gates | None = None,
+    games: bool = False,
 ) -> Report:
     """Open evidence files and report their episodes, grouped, with gates checked per group.
 
     ``by`` is ``"file"``, ``"env"`` (the run's env id), ``"env_index"`` (a vector env's
-    sub-env index, ``"0"`` for single envs), ``"tag:NAME"`` (a run tag such as
+    sub-env index, ``"0"`` for single envs), ``"agent"`` (a PettingZoo agent; ``"(none)"``
+    for single-agent files), ``"tag:NAME"`` (a run tag such as
     ``policy`` or ``checkpoint``; ``"(none)"`` when a file lacks it), ``"label"`` (the failure
     label; successes as ``"(success)"``, truncations as ``"(truncated:REASON)"``, and
     ``"(incomplete)"`` / ``"(error)"``) or ``"all"``. Torn files count the episodes they hold
     (cut-off ones as incomplete). An unreadable file raises
-    :class:`~episode_audit.errors.EvidenceError`.
+    :class:`~episode_audit.errors.EvidenceError`. With ``games``, PettingZoo files are
+    counted by game instead of by agent-episode, each game's outcome derived from its agents'
+    by the rule of :mod:`episode_audit.games` (files without games then count nothing).
 
     Example:
         >>> import tempfile, pathlib, gymnasium as gym
@@ -767,4 +797,4 @@ def report(
     """
     _check_by(by)
     opened = [(str(p), open_evidence(p)) for p in paths]
-    return report_tables(opened, by=by, gates=gates)
+    return report_tables(opened, by=by, gates=gates, games=games)

@@ -1,4 +1,4 @@
-"""The docs stay true to the code: README's Python example runs as written."""
+"""The docs stay true to the code: README's Python examples run as written."""
 
 from __future__ import annotations
 
@@ -15,9 +15,11 @@ REPO = Path(__file__).resolve().parents[1]
 def test_readme_python_example_runs(tmp_path: Path) -> None:
     pytest.importorskip("mujoco")
     text = (REPO / "README.md").read_text()
-    (block,) = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert len(block.strip().splitlines()) <= 15
-    subprocess.run([sys.executable, "-c", block], cwd=tmp_path, check=True, capture_output=True)
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert len(blocks) == 2  # Gymnasium, PettingZoo
+    for block in blocks:
+        assert len(block.strip().splitlines()) <= 15
+        subprocess.run([sys.executable, "-c", block], cwd=tmp_path, check=True, capture_output=True)
 
 
 def test_readme_quick_start_is_two_commands() -> None:

@@ -385,7 +385,7 @@ def test_report_to_dict_is_stable_json(tmp_path: Path) -> None:
         env.step(0)
     result = report([nan], by="all", gates=Gates(min_success_rate=0.5))
     data = json.loads(json.dumps(result.to_dict(), allow_nan=False))
-    assert list(data) == ["by", "passed", "groups", "gates", "unfinished"]
+    assert list(data) == ["by", "passed", "groups", "gates", "unfinished", "unit"]
     assert data["by"] == "all" and data["passed"] is True
     (group,) = data["groups"]
     assert group["key"] == "all"

@@ -1,0 +1,704 @@
+"""Record PettingZoo environments: one episode stream per agent, games of agent-episodes.
+
+- :class:`RecordParallelEvidence` — a PettingZoo ``BaseParallelWrapper`` over a ``ParallelEnv``.
+- :class:`RecordAECEvidence` — a PettingZoo ``BaseWrapper`` over an ``AECEnv``.
+
+This is the only module that imports ``pettingzoo`` (``episode_audit`` imports it lazily, so
+PettingZoo stays optional). Layout (``docs/format.md``, "PettingZoo files"): every agent of
+``possible_agents`` is a stream; a joint ``reset()`` starts a *game*, one episode per agent
+(file-global episode indices, ``agent`` set, ``game`` = the game index), so ``check``'s
+per-episode rules apply to each agent unchanged.
+
+Parallel API: row ``t`` of an agent is its action at parallel step ``t`` and what that step
+returned for it (observation, reward, terminated, truncated, info). An agent that leaves
+mid-game ends its episode with its flags; an agent that appears mid-game begins its episode
+(reset row = the observation it first appears with) in the same game.
+
+AEC API (:class:`AECTurns`): row ``k`` of agent X is X's ``k``-th action. Its reward is the sum of
+``env.rewards[X]`` over every ``step()`` from that action until X's next turn (the next time X is
+``agent_selection``, live or dead), so X's return is the sum of ``env.rewards[X]`` over all
+steps — what PettingZoo reported, never ``last()``'s cumulative reward summed again (which
+double counts). Observation, flags and info of the row are X's at its next turn. X's reset row
+is its observation at its first turn. Dead steps (``step(None)`` for a terminated/truncated X) are
+not actions: they close X's last row; replay performs them itself. Rewards X receives before its
+first action are added to its first row (noted ``reward_before_first_turn``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import math
+import os
+import re
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from pettingzoo import AECEnv, ParallelEnv
+from pettingzoo.utils.wrappers import BaseParallelWrapper, BaseWrapper
+
+from .errors import ConfigurationError
+from .outcomes import EndingRules, RewardTerms, TermsFn
+from .records import to_jsonable
+from .seeding import capture_rng_state
+from .spaces import codec_for, describe_space
+from .streams import EvidenceFile, RecorderSettings, Stream, note, run_info
+
+__all__ = [
+    "AECTurns",
+    "RecordAECEvidence",
+    "RecordParallelEvidence",
+    "env_module_of",
+    "is_pettingzoo_module",
+]
+
+KIND_PARALLEL = "pettingzoo_parallel"
+KIND_AEC = "pettingzoo_aec"
+_MODULE_PATTERN = re.compile(r"^pettingzoo\.[a-z_]+\.[a-z0-9_]+_v\d+$")
+
+RowFn = Callable[[str, Any, tuple[Any, float, bool, bool, Any], list[str]], None]
+ResetFn = Callable[[str, Any, Any], None]
+
+
+def is_pettingzoo_module(name: str) -> bool:
+    """Whether ``name`` is one of PettingZoo's own versioned env modules (safe to import).
+
+    It must look like ``pettingzoo.<family>.<name>_v<N>`` and resolve to a file inside the
+    installed ``pettingzoo`` package.
+
+    >>> is_pettingzoo_module("pettingzoo.classic.tictactoe_v3")
+    True
+    >>> is_pettingzoo_module("os.path"), is_pettingzoo_module("pettingzoo.classic.nope_v1")
+    (False, False)
+    """
+    if not _MODULE_PATTERN.match(name):
+        return False
+    try:
+        spec = importlib.util.find_spec(name)
+        root = importlib.util.find_spec("pettingzoo")
+    except (ImportError, ValueError):
+        return False
+    if spec is None or spec.origin is None or root is None or root.origin is None:
+        return False
+    package = Path(root.origin).resolve().parent
+    return package in Path(spec.origin).resolve().parents
+
+
+def env_module_of(env: Any) -> str | None:
+    """The PettingZoo env module (``pettingzoo.classic.tictactoe_v3``) ``env`` was made by.
+
+    Found from the unwrapped env's class module (the family) and ``metadata["name"]``
+    (``tictactoe_v3``); ``None`` when that does not name one of PettingZoo's own modules.
+    """
+    base = getattr(env, "unwrapped", env)
+    name = (getattr(base, "metadata", None) or {}).get("name")
+    parts = type(base).__module__.split(".")
+    if not isinstance(name, str) or len(parts) < 2 or parts[0] != "pettingzoo":
+        return None
+    module = f"pettingzoo.{parts[1]}.{name}"
+    return module if is_pettingzoo_module(module) else None
+
+
+def _float(value: Any, notes: list[str], agent: str) -> float:
+    try:
+        return float(value)
+    except Exception:
+        notes.append(note("reward_not_numeric", f"agent {agent!r}: reward {value!r}"))
+        return math.nan
+
+
+class AECTurns:
+    """Per-agent turn accounting of an AEC env (see the module docstring).
+
+    Call :meth:`begin` after ``reset()``, :meth:`turn` just before each ``step(action)``,
+    :meth:`stepped` just after it and :meth:`finish` when the game is cut (next reset, close).
+    ``on_reset(agent, obs, info)`` is called at an agent's first turn; ``on_row(agent, action,
+    (obs, reward, terminated, truncated, info), notes)`` when one of its rows closes. The
+    recorder and the replay share this class, so they account turns identically.
+    """
+
+    def __init__(self, env: Any, on_reset: ResetFn, on_row: RowFn) -> None:
+        self.env = env
+        self.on_reset = on_reset
+        self.on_row = on_row
+        self.pending: dict[str, list[Any]] = {}  # agent -> [action, reward, notes]
+        self.early: dict[str, float] = {}  # rewards received before the first action
+        self.started: set[str] = set()
+        self.expected: list[str] = []
+
+    def begin(self, agents: Sequence[str]) -> None:
+        """A new game began with ``agents``."""
+        self.pending = {}
+        self.early = {}
+        self.started = set()
+        self.expected = list(agents)
+
+    def _start(self, agent: str) -> None:
+        if agent in self.started:
+            return
+        self.started.add(agent)
+        env = self.env
+        live = agent in env.agents
+        obs = env.observe(agent) if live else None
+        self.on_reset(agent, obs, env.infos.get(agent, {}) if live else {})
+
+    def _close(self, agent: str) -> None:
+        row = self.pending.pop(agent, None)
+        if row is None:
+            return
+        action, reward, notes = row
+        env = self.env
+        if agent in env.agents:
+            obs = env.observe(agent)
+            term = env.terminations.get(agent, False)
+            trunc = env.truncations.get(agent, False)
+            info = env.infos.get(agent, {})
+        else:
+            obs, term, trunc, info = None, False, False, {}
+        self.on_row(agent, action, (obs, reward, term, trunc, info), notes)
+
+    def turn(self, action: Any) -> bool:
+        """Account for ``step(action)`` about to run; return whether it is a dead step."""
+        env = self.env
+        agent = env.agent_selection
+        self._start(agent)
+        self._close(agent)
+        dead = bool(env.terminations.get(agent, False) or env.truncations.get(agent, False))
+        if not dead:
+            notes: list[str] = []
+            reward = self.early.pop(agent, 0.0)
+            if reward:
+                notes.append(
+                    note(
+                        "reward_before_first_turn",
+                        f"{reward!r} received before agent {agent!r} first acted; "
+                        "added to its first step",
+                    )
+                )
+            self.pending[agent] = [action, reward, notes]
+        return dead
+
+    def stepped(self) -> None:
+        """Add the rewards the step just produced (``env.rewards``) to each agent's open row."""
+        for agent, value in self.env.rewards.items():
+            row = self.pending.get(agent)
+            if row is not None:
+                row[1] += _float(value, row[2], agent)
+            elif agent not in self.started and value:
+                self.early[agent] = self.early.get(agent, 0.0) + _float(value, [], agent)
+
+    def finish(self) -> None:
+        """Close every open row and start every agent still without a reset row."""
+        for agent in self.expected:
+            self._start(agent)
+        for agent in list(self.pending):
+            self._close(agent)
+
+
+class _Agents:
+    """The recording state shared by both wrappers: the file, one stream per agent, games."""
+
+    def __init__(
+        self,
+        env: Any,
+        path: str | os.PathLike[str],
+        kind: str,
+        *,
+        env_module: str | None,
+        env_kwargs: Mapping[str, Any] | None,
+        tags: Mapping[str, str] | None,
+        settings: RecorderSettings,
+        digest_min_bytes: int | None,
+        fsync: bool,
+        overwrite: bool,
+        command_line: Sequence[str] | None,
+        owner: Any,
+    ) -> None:
+        agents = [str(a) for a in env.possible_agents]
+        if not agents:
+            raise ConfigurationError("the env has no possible_agents; nothing to record")
+        obs_desc = describe_space(env.observation_space(env.possible_agents[0]))
+        act_desc = describe_space(env.action_space(env.possible_agents[0]))
+        for agent in env.possible_agents[1:]:
+            if (
+                describe_space(env.observation_space(agent)) != obs_desc
+                or describe_space(env.action_space(agent)) != act_desc
+            ):
+                raise ConfigurationError(
+                    f"agent {agent!r} has other observation/action spaces than "
+                    f"{env.possible_agents[0]!r}; agents with different spaces are not "
+                    "supported yet (record them in separate files)"
+                )
+        module = env_module if env_module is not None else env_module_of(env)
+        base = env.unwrapped
+        name = (getattr(base, "metadata", None) or {}).get("name")
+        layout_notes: list[str] = []
+        kwargs_json: Any = None
+        if env_kwargs is not None:
+            try:
+                kwargs_json = to_jsonable(dict(env_kwargs))
+            except (TypeError, ValueError) as exc:
+                raise ConfigurationError(f"env_kwargs: not JSON-serializable ({exc})") from None
+        else:
+            layout_notes.append("env_kwargs not given: replay builds the env with its defaults")
+        if module is None:
+            layout_notes.append(
+                "the env module is unknown: replay needs --env-factory MODULE:CALLABLE"
+            )
+        layout: dict[str, Any] = {
+            "kind": kind,
+            "num_envs": 1,
+            "agents": agents,
+            "env_module": module,
+            "env_name": name if isinstance(name, str) else type(base).__name__,
+            "env_kwargs": kwargs_json,
+            "max_cycles": getattr(base, "max_cycles", None),
+            "notes": layout_notes,
+        }
+        info = run_info(
+            settings=settings,
+            spec=None,
+            observation_space=obs_desc,
+            action_space=act_desc,
+            tags=tags,
+            command_line=command_line,
+            layout=layout,
+        )
+        self.run_info = dataclasses.replace(info, env_id=layout["env_name"])
+        self.file = EvidenceFile(
+            path,
+            self.run_info,
+            settings,
+            fsync=fsync,
+            overwrite=overwrite,
+            games=True,
+            owner=owner,
+        )
+        self.path = self.file.path
+        obs_codec = codec_for(
+            env.observation_space(env.possible_agents[0]), digest_min_bytes=digest_min_bytes
+        )
+        act_codec = codec_for(env.action_space(env.possible_agents[0]))
+        max_cycles = layout["max_cycles"] if isinstance(layout["max_cycles"], int) else None
+        self.streams: dict[Any, Stream] = {
+            agent: self.file.add_stream(
+                obs_codec, act_codec, agent=str(agent), max_episode_steps=max_cycles
+            )
+            for agent in env.possible_agents
+        }
+        self.file.start()
+        self.unwrapped = base
+        self.game = -1
+        self.seed: Any = None
+        self.options: Any = None
+        self.rng: dict[str, Any] | None = None
+        self.in_game: set[Any] = set()
+
+    def new_game(self, seed: Any, options: Any) -> None:
+        """End every open episode (``incomplete``) and note what the coming reset uses."""
+        for stream in self.streams.values():
+            stream.end_open()
+        self.game += 1
+        self.seed = seed
+        self.options = options
+        self.rng = capture_rng_state(self.unwrapped) if seed is None else None
+        self.in_game = set()
+
+    def begin(self, agent: Any) -> Any:
+        """Begin ``agent``'s episode of the current game; return it (``None`` if not recorded)."""
+        stream = self.streams.get(agent)
+        if stream is None or agent in self.in_game:
+            return None
+        self.in_game.add(agent)
+        notes: list[str] = []
+        return stream.begin(self.seed, self.options, self.rng, notes, game=self.game), notes
+
+    def reset_row(self, agent: Any, begun: Any, obs: Any, info: Any) -> None:
+        if begun is None:
+            return
+        episode, notes = begun
+        self.streams[agent].record_reset(episode, obs, info, notes)
+
+    def error(self, exc: Exception, during: str) -> None:
+        try:
+            for stream in self.streams.values():
+                stream.end_error(exc, during)
+            self.file.flush()
+        except Exception as trouble:
+            self.file.trouble(trouble)
+
+
+def _settings(
+    reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None,
+    constant_terms: Mapping[str, float] | None,
+    ending_rules: EndingRules | None,
+    info_keys: Sequence[str] | str,
+    digest_min_bytes: int | None,
+    block_steps: int,
+    flush_every_s: float,
+) -> RecorderSettings:
+    return RecorderSettings(
+        reward_terms=reward_terms,
+        constant_terms=constant_terms,
+        ending_rules=ending_rules,
+        info_keys=info_keys,
+        digest_min_bytes=digest_min_bytes,
+        block_steps=block_steps,
+        flush_every_s=flush_every_s,
+    )
+
+
+_ARGS_DOC = """
+    Args:
+        env: The PettingZoo env to record (every agent must share one observation space and
+            one action space).
+        path: The evidence file to create (never overwritten unless ``overwrite=True``).
+        env_module: The module replay builds the env from (default: found from the env, e.g.
+            ``pettingzoo.classic.tictactoe_v3``; replay imports it only if it is one of
+            PettingZoo's own modules, else it needs ``--env-factory``).
+        env_kwargs: The keyword arguments the env was made with (JSON-serializable); replay
+            passes them to the module's ``env()`` / ``parallel_env()``. PettingZoo does not
+            keep them, so without this replay uses the env's defaults.
+        tags, reward_terms, constant_terms, ending_rules, info_keys, digest_min_bytes,
+        block_steps, flush_every_s, fsync, overwrite, command_line: as for
+            :class:`~episode_audit.RecordEvidence` (reward terms and endings are read from
+            each agent's own info).
+"""
+
+
+class _Recording:
+    """What both wrappers share: the recording's setup, ``flush()``, ``close()``, ``with``."""
+
+    env: Any
+    _rec: _Agents
+    _closed: bool
+
+    def _record_to(
+        self,
+        env: Any,
+        path: str | os.PathLike[str],
+        kind: str,
+        settings: RecorderSettings,
+        *,
+        env_module: str | None,
+        env_kwargs: Mapping[str, Any] | None,
+        tags: Mapping[str, str] | None,
+        fsync: bool,
+        overwrite: bool,
+        command_line: Sequence[str] | None,
+    ) -> None:
+        self._rec = _Agents(
+            env,
+            path,
+            kind,
+            env_module=env_module,
+            env_kwargs=env_kwargs,
+            tags=tags,
+            settings=settings,
+            digest_min_bytes=settings.digest_min_bytes,
+            fsync=fsync,
+            overwrite=overwrite,
+            command_line=command_line,
+            owner=self,
+        )
+        self.run_info = self._rec.run_info
+        self.path = self._rec.path
+        self._closed = False
+
+    def _before_close(self) -> None:
+        """Called by :meth:`close` before the file is finished."""
+
+    def flush(self) -> None:
+        """Write everything recorded so far to the file now (open AEC rows stay open)."""
+        self._rec.file.check_open()
+        self._rec.file.flush()
+
+    def close(self) -> None:
+        """Finish the evidence file (open episodes become ``incomplete``) and close the env.
+
+        Safe to call more than once. The env is closed even if finishing fails.
+        """
+        if getattr(self, "_closed", True):
+            return
+        self._closed = True
+        try:
+            self._before_close()
+            self._rec.file.close()
+        finally:
+            self.env.close()
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class RecordParallelEvidence(_Recording, BaseParallelWrapper):  # type: ignore[misc]
+    """Record every agent of a PettingZoo ``ParallelEnv`` to one MCAP evidence file.
+
+    Example:
+        >>> import tempfile, pathlib, warnings
+        >>> with warnings.catch_warnings():  # PettingZoo 1.27 deprecates env modules
+        ...     warnings.simplefilter("ignore", DeprecationWarning)
+        ...     from pettingzoo.classic import rps_v2
+        >>> from episode_audit import RecordParallelEvidence, open_evidence
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "rps.mcap"
+        >>> with RecordParallelEvidence(rps_v2.parallel_env(max_cycles=3), path) as env:
+        ...     _ = env.reset(seed=1)
+        ...     while env.agents:
+        ...         _ = env.step({agent: 1 for agent in env.agents})
+        >>> rows = open_evidence(path).episodes().to_pylist()
+        >>> [(r["agent"], r["game"], r["length"], r["outcome"]) for r in rows]
+        [('player_0', 0, 3, 'truncated'), ('player_1', 0, 3, 'truncated')]
+    """
+
+    __doc__ = (__doc__ or "") + _ARGS_DOC
+
+    def __init__(
+        self,
+        env: ParallelEnv,
+        path: str | os.PathLike[str],
+        *,
+        env_module: str | None = None,
+        env_kwargs: Mapping[str, Any] | None = None,
+        tags: Mapping[str, str] | None = None,
+        reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None = "auto",
+        constant_terms: Mapping[str, float] | None = None,
+        ending_rules: EndingRules | None = None,
+        info_keys: Sequence[str] | str = (),
+        digest_min_bytes: int | None = None,
+        block_steps: int = 8192,
+        flush_every_s: float = 1.0,
+        fsync: bool = False,
+        overwrite: bool = False,
+        command_line: Sequence[str] | None = None,
+    ) -> None:
+        super().__init__(env)
+        self._record_to(
+            env,
+            path,
+            KIND_PARALLEL,
+            _settings(
+                reward_terms,
+                constant_terms,
+                ending_rules,
+                info_keys,
+                digest_min_bytes,
+                block_steps,
+                flush_every_s,
+            ),
+            env_module=env_module,
+            env_kwargs=env_kwargs,
+            tags=tags,
+            fsync=fsync,
+            overwrite=overwrite,
+            command_line=command_line,
+        )
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[Any, Any], dict[Any, dict[str, Any]]]:
+        """Reset the env (a new game) and record every agent's reset row."""
+        rec = self._rec
+        rec.file.check_open()
+        rec.new_game(seed, options)
+        try:
+            obs, infos = self.env.reset(seed=seed, options=options)
+        except Exception as exc:
+            for agent in self.env.possible_agents:
+                rec.begin(agent)
+            rec.error(exc, "reset")
+            raise
+        try:
+            self._join(obs, infos)
+            if rec.file.due():
+                rec.file.flush()
+        except Exception as exc:  # never break the training loop over recording trouble
+            rec.file.trouble(exc)
+        return obs, infos
+
+    def _join(self, obs: Mapping[Any, Any], infos: Mapping[Any, Any]) -> None:
+        """Begin the episodes of the agents that are live now and have none in this game."""
+        rec = self._rec
+        for agent in self.env.agents:
+            if agent not in rec.in_game:
+                begun = rec.begin(agent)
+                rec.reset_row(agent, begun, obs.get(agent), infos.get(agent, {}))
+
+    def step(self, actions: dict[Any, Any]) -> tuple[Any, Any, Any, Any, Any]:
+        """Step the env and record each acting agent's step; results are returned untouched."""
+        rec = self._rec
+        if self._closed:
+            rec.file.check_open()
+        try:
+            result = self.env.step(actions)
+        except Exception as exc:
+            rec.error(exc, "step")
+            raise
+        try:
+            obs, rewards, terminated, truncated, infos = result
+            streams = rec.streams
+            for agent, action in actions.items():
+                stream = streams.get(agent)
+                if stream is None or agent not in rec.in_game:
+                    continue
+                stream.step(
+                    action,
+                    (
+                        obs.get(agent),
+                        rewards.get(agent, math.nan),
+                        terminated.get(agent, False),
+                        truncated.get(agent, False),
+                        infos.get(agent, {}),
+                    ),
+                )
+            self._join(obs, infos)
+        except Exception as exc:  # never break the training loop over recording trouble
+            rec.file.trouble(exc)
+        return result  # type: ignore[no-any-return]
+
+
+class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
+    """Record every agent turn of a PettingZoo ``AECEnv`` to one MCAP evidence file.
+
+    Rewards are taken from ``env.rewards`` after every step (see :class:`AECTurns`), never
+    from ``last()``'s cumulative reward.
+
+    Example:
+        >>> import tempfile, pathlib, warnings
+        >>> with warnings.catch_warnings():  # PettingZoo 1.27 deprecates env modules
+        ...     warnings.simplefilter("ignore", DeprecationWarning)
+        ...     from pettingzoo.classic import tictactoe_v3
+        >>> from episode_audit import RecordAECEvidence, open_evidence
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "ttt.mcap"
+        >>> with RecordAECEvidence(tictactoe_v3.env(), path) as env:
+        ...     env.reset(seed=0)
+        ...     for move in [0, 3, 1, 4, 2]:  # player_1 completes the top row
+        ...         env.step(move)
+        ...     for agent in env.agent_iter():
+        ...         env.step(None)  # dead steps
+        >>> rows = open_evidence(path).episodes().to_pylist()
+        >>> [(r["agent"], r["length"], r["return"]) for r in rows]
+        [('player_1', 3, 1.0), ('player_2', 2, -1.0)]
+    """
+
+    __doc__ = (__doc__ or "") + _ARGS_DOC
+
+    def __init__(
+        self,
+        env: AECEnv,
+        path: str | os.PathLike[str],
+        *,
+        env_module: str | None = None,
+        env_kwargs: Mapping[str, Any] | None = None,
+        tags: Mapping[str, str] | None = None,
+        reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None = "auto",
+        constant_terms: Mapping[str, float] | None = None,
+        ending_rules: EndingRules | None = None,
+        info_keys: Sequence[str] | str = (),
+        digest_min_bytes: int | None = None,
+        block_steps: int = 8192,
+        flush_every_s: float = 1.0,
+        fsync: bool = False,
+        overwrite: bool = False,
+        command_line: Sequence[str] | None = None,
+    ) -> None:
+        super().__init__(env)
+        self._record_to(
+            env,
+            path,
+            KIND_AEC,
+            _settings(
+                reward_terms,
+                constant_terms,
+                ending_rules,
+                info_keys,
+                digest_min_bytes,
+                block_steps,
+                flush_every_s,
+            ),
+            env_module=env_module,
+            env_kwargs=env_kwargs,
+            tags=tags,
+            fsync=fsync,
+            overwrite=overwrite,
+            command_line=command_line,
+        )
+        self._begun: dict[Any, Any] = {}
+        self._turns = AECTurns(env, self._on_reset, self._on_row)
+
+    def _on_reset(self, agent: str, obs: Any, info: Any) -> None:
+        rec = self._rec
+        begun = self._begun.pop(agent, None)
+        if begun is None and agent not in rec.in_game:
+            begun = rec.begin(agent)  # an agent that appeared mid-game
+        rec.reset_row(agent, begun, obs, info)
+
+    def _on_row(
+        self, agent: str, action: Any, result: tuple[Any, float, bool, bool, Any], notes: list[str]
+    ) -> None:
+        stream = self._rec.streams.get(agent)
+        if stream is None:
+            return
+        if notes and stream.episode is not None:
+            # notes of the accounting itself go to the row about to be written
+            stream.block.notes.setdefault(len(stream.block.times), []).extend(notes)
+            stream.episode.notes += 1
+        stream.step(action, result)
+
+    def _cut(self) -> None:
+        """Close the open rows of the current game with the env's state now."""
+        try:
+            self._turns.finish()
+        except Exception as exc:
+            self._rec.file.trouble(exc)
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
+        """Reset the env (a new game); each agent's reset row is written at its first turn."""
+        rec = self._rec
+        rec.file.check_open()
+        if rec.game >= 0:
+            self._cut()
+        rec.new_game(seed, options)
+        try:
+            self.env.reset(seed=seed, options=options)
+        except Exception as exc:
+            for agent in self.env.possible_agents:
+                rec.begin(agent)
+            rec.error(exc, "reset")
+            raise
+        try:
+            agents = list(self.env.agents)
+            self._begun = {agent: rec.begin(agent) for agent in agents}
+            self._turns.begin(agents)
+            if rec.file.due():
+                rec.file.flush()
+        except Exception as exc:  # never break the training loop over recording trouble
+            rec.file.trouble(exc)
+
+    def step(self, action: Any) -> None:
+        """Step the env for ``agent_selection`` and account the turn (see :class:`AECTurns`)."""
+        rec = self._rec
+        if self._closed:
+            rec.file.check_open()
+        try:
+            self._turns.turn(action)
+        except Exception as exc:
+            rec.file.trouble(exc)
+        try:
+            self.env.step(action)
+        except Exception as exc:
+            rec.error(exc, "step")
+            raise
+        try:
+            self._turns.stepped()
+            if rec.file.due():
+                rec.file.flush()
+        except Exception as exc:  # never break the training loop over recording trouble
+            rec.file.trouble(exc)
+
+    def _before_close(self) -> None:
+        if self._rec.game >= 0:
+            self._cut()

@@ -1,0 +1,436 @@
+"""Replay PettingZoo evidence files game by game and compare every agent's episode.
+
+A game (the agent-episodes of one joint reset) is the unit of replay: the env is rebuilt, reset
+with the game's seed (or RNG state) and driven with the recorded actions — in the Parallel API
+every live agent's next recorded action per step; in the AEC API the next recorded action of
+``agent_selection``, with dead steps (``step(None)``) performed by the replay itself. Rows are
+accounted exactly as the recorder did (:class:`~episode_audit.multiagent.AECTurns`), then each
+agent's episode is compared with its evidence: reset observation, observations, rewards,
+reward terms, ``terminated``, ``truncated``, length and outcome.
+
+How the env is built, safely (PettingZoo has no id registry):
+
+1. ``env_factory`` (``"module:callable"`` or a callable) given by the user; else
+2. the recorded ``env_module`` when it is one of PettingZoo's own env modules
+   (``pettingzoo.<family>.<name>_v<N>`` resolving inside the installed ``pettingzoo``
+   package), calling its ``env()`` (AEC) or ``parallel_env()`` with the recorded ``env_kwargs``;
+3. any other recorded module only with ``trust_entry_points=True``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import warnings
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+import pyarrow as pa
+
+from . import format as fmt
+from .errors import ReplayError
+from .reader import Evidence
+from .replay import (
+    Divergence,
+    EpisodeReplay,
+    _row_ranges,
+    _rules_of,
+    _short,
+    _terms_equal,
+    load_callable,
+)
+from .seeding import restore_rng_state
+
+__all__ = ["build_pettingzoo_env", "replay_agents_evidence"]
+
+KINDS = ("pettingzoo_parallel", "pettingzoo_aec")
+
+
+def build_pettingzoo_env(
+    layout: Mapping[str, Any],
+    *,
+    env_factory: str | Callable[[], Any] | None = None,
+    trust_entry_points: bool = False,
+) -> Any:
+    """Build the PettingZoo env a file was recorded from (see the module docstring)."""
+    from pettingzoo import AECEnv, ParallelEnv
+
+    from .multiagent import KIND_PARALLEL, is_pettingzoo_module
+
+    parallel = layout.get("kind") == KIND_PARALLEL
+    want = ParallelEnv if parallel else AECEnv
+    api = "ParallelEnv" if parallel else "AECEnv"
+    if env_factory is not None:
+        factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
+        env = factory()
+    else:
+        module_name = layout.get("env_module")
+        if not isinstance(module_name, str) or not module_name:
+            raise ReplayError("the file names no PettingZoo env module; pass --env-factory")
+        if not is_pettingzoo_module(module_name) and not trust_entry_points:
+            raise ReplayError(
+                f"env module {module_name!r} is not one of PettingZoo's own; pass "
+                "--env-factory MODULE:CALLABLE, or --trust-entry-points to import it"
+            )
+        kwargs = layout.get("env_kwargs") or {}
+        try:
+            with warnings.catch_warnings():  # PettingZoo 1.27 deprecates importing env modules
+                warnings.simplefilter("ignore", DeprecationWarning)
+                module = importlib.import_module(module_name)
+            make = getattr(module, "parallel_env" if parallel else "env")
+            env = make(**kwargs)
+        except Exception as exc:
+            raise ReplayError(
+                f"cannot make {module_name} with the recorded kwargs {kwargs!r}: "
+                f"{type(exc).__name__}: {exc}"
+            ) from None
+    if not isinstance(env, want):
+        raise ReplayError(f"the env factory returned {type(env).__name__}, not a PettingZoo {api}")
+    return env
+
+
+class _Game:
+    """The replayed rows of one game, per agent."""
+
+    def __init__(self) -> None:
+        self.reset: dict[str, Any] = {}
+        self.rows: dict[str, list[tuple[Any, Any, float, bool, bool, Any]]] = {}
+        self.crash: tuple[str | None, str] | None = None
+
+    def on_reset(self, agent: str, obs: Any, info: Any) -> None:
+        self.reset.setdefault(str(agent), obs)
+
+    def on_row(
+        self, agent: str, action: Any, result: tuple[Any, float, bool, bool, Any], _: Any = None
+    ) -> None:
+        obs, reward, term, trunc, info = result
+        self.rows.setdefault(str(agent), []).append(
+            (action, obs, _number(reward), bool(term), bool(trunc), info)
+        )
+
+
+def _number(value: Any) -> float:
+    try:
+        return float(value)
+    except Exception:
+        return math.nan
+
+
+def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int) -> None:
+    from .multiagent import AECTurns
+
+    turns = AECTurns(env, game.on_reset, game.on_row)
+    turns.begin(list(env.agents))
+    for _ in range(limit):
+        if not env.agents:
+            break
+        agent = env.agent_selection
+        dead = env.terminations.get(agent, False) or env.truncations.get(agent, False)
+        queue = queues.get(str(agent), [])
+        if not dead and not queue:
+            break  # the recording stopped here
+        action = None if dead else queue.pop(0)
+        turns.turn(action)
+        try:
+            env.step(action)
+        except Exception as exc:
+            game.crash = (str(agent), f"{type(exc).__name__}: {exc}")
+            return
+        turns.stepped()
+    turns.finish()
+
+
+def _run_parallel(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int) -> None:
+    obs, infos = game.reset.pop("__reset__")
+    for agent in env.agents:
+        game.on_reset(agent, obs.get(agent), infos.get(agent, {}))
+    for _ in range(limit):
+        live = list(env.agents)
+        if not live or any(not queues.get(str(a)) for a in live):
+            break  # the game is over, or the recording stopped here
+        actions = {agent: queues[str(agent)].pop(0) for agent in live}
+        try:
+            obs, rewards, term, trunc, infos = env.step(actions)
+        except Exception as exc:
+            game.crash = (None, f"{type(exc).__name__}: {exc}")
+            return
+        for agent, action in actions.items():
+            game.on_row(
+                agent,
+                action,
+                (
+                    obs.get(agent),
+                    rewards.get(agent, math.nan),
+                    term.get(agent, False),
+                    trunc.get(agent, False),
+                    infos.get(agent, {}),
+                ),
+            )
+        for agent in env.agents:
+            if str(agent) not in game.reset:
+                game.on_reset(agent, obs.get(agent), infos.get(agent, {}))
+
+
+def replay_agents_evidence(
+    ev: Evidence,
+    *,
+    episodes: Iterable[int] | None = None,
+    atol: float = 0.0,
+    env_factory: str | Callable[[], Any] | None = None,
+    trust_entry_points: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> list[EpisodeReplay]:
+    """Replay the (selected) agent-episodes of a PettingZoo file, whole games at a time."""
+    path = str(ev.path)
+    records = ev.episodes().to_pylist()
+    if episodes is not None:
+        wanted = set(episodes)
+        records = [r for r in records if r["episode"] in wanted]
+
+    def all_not(reason: str) -> list[EpisodeReplay]:
+        return [
+            EpisodeReplay(path, int(r["episode"]), "not_replayable", 0, reason=reason)
+            for r in records
+        ]
+
+    obs_codec, act_codec = ev.observation_codec, ev.action_codec
+    if obs_codec is None or act_codec is None:
+        return all_not("the file's spaces cannot be rebuilt")
+    layout = ev.run.layout or {}
+    try:
+        env = build_pettingzoo_env(
+            layout, env_factory=env_factory, trust_entry_points=trust_entry_points
+        )
+    except ReplayError as exc:
+        return all_not(str(exc))
+    aec = layout.get("kind") == "pettingzoo_aec"
+    rules, terms_rule = _rules_of(ev.run)
+    max_cycles = layout.get("max_cycles")
+    all_records = ev.episodes().to_pylist()
+    games: dict[int, dict[str, dict[str, Any]]] = {}
+    for r in all_records:
+        if r.get("game") is not None and r.get("agent") is not None:
+            games.setdefault(int(r["game"]), {})[str(r["agent"])] = r
+    steps = ev.steps()
+    rows = _row_ranges(steps.column(fmt.COL_EPISODE).to_numpy())
+    resets = ev.resets()
+    reset_at = {int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())}
+    done: dict[int, EpisodeReplay] = {}
+    try:
+        for record in records:
+            index = int(record["episode"])
+            if index in done:
+                continue
+            members = games.get(int(record["game"])) if record.get("game") is not None else None
+            if not members:
+                done[index] = EpisodeReplay(
+                    path, index, "not_replayable", 0, reason="it belongs to no game"
+                )
+                continue
+            for result in _replay_game(
+                env,
+                aec,
+                members,
+                steps,
+                rows,
+                resets,
+                reset_at,
+                obs_codec,
+                act_codec,
+                rules,
+                terms_rule,
+                max_cycles if isinstance(max_cycles, int) else None,
+                atol,
+                path,
+            ):
+                done[result.episode] = result
+                if progress is not None:
+                    progress(result.steps)
+    finally:
+        env.close()
+    return [done[int(r["episode"])] for r in records if int(r["episode"]) in done]
+
+
+def _replay_game(
+    env: Any,
+    aec: bool,
+    members: dict[str, dict[str, Any]],
+    steps: pa.Table,
+    rows: dict[int, tuple[int, int]],
+    resets: pa.Table,
+    reset_at: dict[int, int],
+    obs_codec: Any,
+    act_codec: Any,
+    rules: Any,
+    terms_rule: Any,
+    max_cycles: int | None,
+    atol: float,
+    path: str,
+) -> list[EpisodeReplay]:
+    first = next(iter(members.values()))
+    seed, rng_state = first.get("seed"), first.get("rng_state")
+    if seed is None and rng_state is None:
+        return [
+            EpisodeReplay(
+                path,
+                int(r["episode"]),
+                "not_replayable",
+                0,
+                reason="no seed or RNG state recorded for its game's reset",
+            )
+            for r in members.values()
+        ]
+    queues: dict[str, list[Any]] = {}
+    for agent, r in members.items():
+        start, count = rows.get(int(r["episode"]), (0, 0))
+        queues[agent] = (
+            act_codec.decode(steps.column(fmt.COL_ACTION).slice(start, count).combine_chunks())
+            if count
+            else []
+        )
+    options = json.loads(first["options"]) if first.get("options") else None
+    game = _Game()
+    limit = sum(len(q) for q in queues.values()) + 2 * len(members) + 2
+    try:
+        if seed is None:
+            restore_rng_state(env, json.loads(str(rng_state)))
+        out = env.reset(seed=None if seed is None else int(seed), options=options)
+        if aec:
+            _run_aec(env, game, queues, limit)
+        else:
+            game.reset["__reset__"] = out
+            _run_parallel(env, game, queues, limit)
+    except Exception as exc:
+        game.crash = (None, f"{type(exc).__name__}: {exc}")
+    results = []
+    for agent, r in members.items():
+        results.append(
+            _compare(
+                agent,
+                r,
+                game,
+                steps,
+                rows,
+                resets,
+                reset_at,
+                obs_codec,
+                rules,
+                terms_rule,
+                max_cycles,
+                atol,
+                path,
+            )
+        )
+    return results
+
+
+def _compare(
+    agent: str,
+    record: dict[str, Any],
+    game: _Game,
+    steps: pa.Table,
+    rows: dict[int, tuple[int, int]],
+    resets: pa.Table,
+    reset_at: dict[int, int],
+    obs_codec: Any,
+    rules: Any,
+    terms_rule: Any,
+    max_cycles: int | None,
+    atol: float,
+    path: str,
+) -> EpisodeReplay:
+    index = int(record["episode"])
+    start, count = rows.get(index, (0, 0))
+    got = game.rows.get(agent, [])
+
+    def diverged(step: int | None, divergence: Divergence) -> EpisodeReplay:
+        return EpisodeReplay(path, index, "diverged", 0 if step is None else step, divergence)
+
+    at = reset_at.get(index)
+    if at is not None and agent in game.reset:
+        expected = resets.column(fmt.COL_OBSERVATION).slice(at, 1).combine_chunks()
+        equal, diff = obs_codec.compare(expected, obs_codec.encode([game.reset[agent]]), atol=atol)
+        if not equal[0]:
+            return diverged(
+                None,
+                Divergence(
+                    None,
+                    "reset_observation",
+                    _short(obs_codec.decode(expected)[0]),
+                    _short(game.reset[agent]),
+                    float(diff[0]),
+                ),
+            )
+    n = min(count, len(got))
+    if n:
+        exp = steps.slice(start, n)
+        obs_equal, obs_diff = obs_codec.compare(
+            exp.column(fmt.COL_OBSERVATION).combine_chunks(),
+            obs_codec.encode([g[1] for g in got[:n]]),
+            atol=atol,
+        )
+        exp_r = exp.column(fmt.COL_REWARD).to_numpy()
+        exp_t = exp.column(fmt.COL_TERMINATED).to_pylist()
+        exp_u = exp.column(fmt.COL_TRUNCATED).to_pylist()
+        exp_terms = exp.column(fmt.COL_TERMS).to_pylist()
+        for k in range(n):
+            _, obs, reward, term, trunc, info = got[k]
+            if not obs_equal[k]:
+                exp_obs = obs_codec.decode(
+                    exp.column(fmt.COL_OBSERVATION).slice(k, 1).combine_chunks()
+                )[0]
+                return diverged(
+                    k,
+                    Divergence(k, "observation", _short(exp_obs), _short(obs), float(obs_diff[k])),
+                )
+            e = float(exp_r[k])
+            if not (e == reward or (e != e and reward != reward) or abs(e - reward) <= atol):
+                return diverged(k, Divergence(k, "reward", repr(e), repr(reward), abs(e - reward)))
+            if terms_rule is not None and isinstance(info, Mapping):
+                found = terms_rule.extract(info)
+                mine = None if found is None else [(str(a), _number(b)) for a, b in found.items()]
+                if not _terms_equal(exp_terms[k], mine, atol):
+                    return diverged(
+                        k,
+                        Divergence(
+                            k, "terms", _short(dict(exp_terms[k] or [])), _short(dict(mine or []))
+                        ),
+                    )
+            if exp_t[k] != term:
+                return diverged(k, Divergence(k, fmt.COL_TERMINATED, str(exp_t[k]), str(term)))
+            if exp_u[k] != trunc:
+                return diverged(k, Divergence(k, fmt.COL_TRUNCATED, str(exp_u[k]), str(trunc)))
+    if game.crash is not None and (game.crash[0] in (None, agent)) and len(got) < count:
+        return diverged(len(got), Divergence(len(got), "step", "a step", game.crash[1]))
+    if len(got) != count:
+        return diverged(
+            n,
+            Divergence(n, "length", f"{count} steps", f"{len(got)} in the replayed game"),
+        )
+    if (
+        rules is not None
+        and count
+        and record["outcome"] not in (fmt.OUTCOME_INCOMPLETE, fmt.OUTCOME_ERROR)
+    ):
+        _, _, _, term, trunc, info = got[-1]
+        if term or trunc:
+            ending = rules.classify(
+                term,
+                trunc,
+                info if isinstance(info, Mapping) else {},
+                time_limit_hit=max_cycles is not None and count >= max_cycles,
+            )
+            want = (record["outcome"], record.get("failure_label"), record.get("truncation_reason"))
+            have = (ending.outcome, ending.failure_label, ending.truncation_reason)
+            if want != have:
+                return diverged(
+                    count - 1,
+                    Divergence(
+                        count - 1,
+                        "outcome",
+                        "/".join(p for p in want if p),
+                        "/".join(p for p in have if p),
+                    ),
+                )
+    return EpisodeReplay(path, index, "identical", count)

@@ -1,0 +1,340 @@
+"""PettingZoo recording (multiagent.py), replay (replay_agents.py) and reporting.
+
+Real PettingZoo envs: tictactoe and connect four (AEC, action masks), rock-paper-scissors and
+knights-archers-zombies (Parallel; KAZ agents die and leave mid-game). Ground truth comes from a
+twin env stepped by hand with the same seed and actions, summing what PettingZoo reported in
+``env.rewards`` after every step.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from pettingzoo import AECEnv
+from typer.testing import CliRunner
+
+from episode_audit import (
+    ConfigurationError,
+    RecordAECEvidence,
+    RecordParallelEvidence,
+    check,
+    open_evidence,
+    replay,
+    report,
+)
+from episode_audit.cli import app
+from episode_audit.games import game_outcome
+from episode_audit.multiagent import env_module_of
+
+with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
+    warnings.simplefilter("ignore", DeprecationWarning)
+    from pettingzoo.butterfly import knights_archers_zombies_v11 as kaz
+    from pettingzoo.classic import connect_four_v3, rps_v2, tictactoe_v3
+    from pettingzoo.test import api_test, parallel_api_test
+
+SEEDS = [0, 1, 2, 3]
+KAZ_KWARGS = {"max_cycles": 300, "max_zombies": 6}
+KAZ_SEEDS = [1, 2]  # in game 1 (seed 1) archer_0 dies 5 steps before the others
+
+
+def _returns(path: Path) -> dict[tuple[int, str], float]:
+    return {
+        (r["game"], r["agent"]): r["return"] for r in open_evidence(path).episodes().to_pylist()
+    }
+
+
+# ------------------------------------------------------------------------------- AEC
+
+
+def _play_aec(env: Any, seed: int) -> list[Any]:
+    """A game with random legal actions (action masks); returns the actions, dead steps as None."""
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    actions: list[Any] = []
+    for _agent in env.agent_iter():
+        obs, _, term, trunc, _ = env.last()
+        if term or trunc:
+            action = None
+        else:
+            action = int(rng.choice(np.flatnonzero(obs["action_mask"])))
+        actions.append(action)
+        env.step(action)
+    return actions
+
+
+def _aec_truth(make: Any, seed: int, actions: list[Any]) -> dict[str, float]:
+    """Per-agent sums of ``env.rewards`` over every step of a twin env."""
+    env = make()
+    env.reset(seed=seed)
+    total: dict[str, float] = defaultdict(float)
+    for action in actions:
+        env.step(action)
+        for agent, reward in env.rewards.items():
+            total[agent] += float(reward)
+    return dict(total)
+
+
+@pytest.mark.parametrize("module", [tictactoe_v3, connect_four_v3])
+def test_aec_games_returns_replay_and_check(tmp_path: Path, module: Any) -> None:
+    path = tmp_path / "aec.mcap"
+    played = {}
+    with RecordAECEvidence(module.env(), path) as env:
+        for game, seed in enumerate(SEEDS):
+            played[game] = (seed, _play_aec(env, seed))
+    ev = open_evidence(path)
+    assert ev.run.layout["kind"] == "pettingzoo_aec"
+    assert ev.run.layout["env_module"] == module.__name__
+    returns = _returns(path)
+    for game, (seed, actions) in played.items():
+        truth = _aec_truth(module.env, seed, actions)
+        for agent, total in truth.items():
+            assert returns[(game, agent)] == total
+    # each agent's rows sum to its return; its rows are its live actions
+    steps = ev.steps(columns=["episode", "reward", "action"])
+    for record in ev.episodes().to_pylist():
+        mine = steps.filter(steps.column("episode").to_numpy() == record["episode"])
+        assert sum(mine.column("reward").to_pylist()) == record["return"]
+        assert record["length"] == mine.num_rows
+        assert record["outcome"] in ("success", "failure")  # every game ends by the rules
+    result = replay([path])
+    assert result.count("identical") == 2 * len(SEEDS), result.to_dict()
+    assert check([path]).errors == 0
+
+
+def test_tictactoe_loser_reward_arrives_on_the_winners_move(tmp_path: Path) -> None:
+    path = tmp_path / "ttt.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), path) as env:
+        env.reset(seed=0)
+        for move in [0, 3, 1, 4, 2]:  # player_1 takes the top row on its third move
+            env.step(move)
+        for _ in env.agent_iter():
+            env.step(None)
+    ev = open_evidence(path)
+    rows = {r["agent"]: r for r in ev.episodes().to_pylist()}
+    assert (rows["player_1"]["return"], rows["player_2"]["return"]) == (1.0, -1.0)
+    loser = ev.episode(rows["player_2"]["episode"]).steps
+    # player_2's last row: its move 4, the -1 that player_1's winning move gave it, terminated
+    assert loser.column("action").to_pylist() == [3, 4]
+    assert loser.column("reward").to_pylist() == [0.0, -1.0]
+    assert loser.column("terminated").to_pylist() == [False, True]
+
+
+class _Everyone(AECEnv):  # type: ignore[misc]
+    """Three agents take turns; every step pays every agent ``step index`` (for the test only).
+
+    ``last()``'s cumulative reward of an agent is the sum since it last acted, so a recorder
+    that adds it up after every step double counts.
+    """
+
+    metadata = {"name": "everyone_v0"}
+
+    def __init__(self) -> None:
+        super().__init__()
+        from gymnasium.spaces import Box, Discrete
+
+        self.possible_agents = ["a", "b", "c"]
+        self._obs = Box(0.0, 100.0, (1,), np.float32)
+        self._act = Discrete(2)
+
+    def observation_space(self, agent: str) -> Any:
+        return self._obs
+
+    def action_space(self, agent: str) -> Any:
+        return self._act
+
+    def observe(self, agent: str) -> Any:
+        return np.array([self.t], dtype=np.float32)
+
+    def reset(self, seed: int | None = None, options: Any = None) -> None:
+        self.agents = list(self.possible_agents)
+        self.t = 0
+        self.rewards = dict.fromkeys(self.agents, 0.0)
+        self._cumulative_rewards = dict.fromkeys(self.agents, 0.0)
+        self.terminations = dict.fromkeys(self.agents, False)
+        self.truncations = dict.fromkeys(self.agents, False)
+        self.infos: dict[str, dict[str, Any]] = {a: {} for a in self.agents}
+        self.agent_selection = "a"
+
+    def step(self, action: Any) -> None:
+        agent = self.agent_selection
+        if self.terminations[agent] or self.truncations[agent]:
+            self._was_dead_step(action)
+            return
+        self._cumulative_rewards[agent] = 0.0
+        self.t += 1
+        self.rewards = dict.fromkeys(self.agents, float(self.t))
+        if self.t >= 7:
+            self.truncations = dict.fromkeys(self.agents, True)
+        self.agent_selection = self.agents[(self.agents.index(agent) + 1) % len(self.agents)]
+        self._accumulate_rewards()
+
+
+def test_aec_cumulative_reward_is_not_double_counted(tmp_path: Path) -> None:
+    path = tmp_path / "everyone.mcap"
+    truth: dict[str, float] = defaultdict(float)
+    naive: dict[str, float] = defaultdict(float)
+    with RecordAECEvidence(_Everyone(), path) as env:
+        env.reset(seed=0)
+        for _agent in env.agent_iter():
+            _, _, term, trunc, _ = env.last()
+            env.step(None if term or trunc else 1)
+            for a, reward in env.rewards.items():
+                truth[a] += reward
+            for a in env.agents:  # a last()-after-every-step recorder, for every agent
+                naive[a] += env._cumulative_rewards[a]
+    returns = {r["agent"]: r["return"] for r in open_evidence(path).episodes().to_pylist()}
+    assert returns == dict(truth) == {"a": 28.0, "b": 28.0, "c": 28.0}
+    assert dict(naive) != dict(truth)  # the env tells the two apart
+    assert open_evidence(path).episodes().column("truncated").to_pylist() == [True] * 3
+    # the 7 steps are a's turns 1, 4, 7 and b's 2, 5 and c's 3, 6
+    assert open_evidence(path).episodes().column("length").to_pylist() == [3, 2, 2]
+
+
+@pytest.mark.filterwarnings("ignore:Observation numpy array is all zeros:UserWarning")
+def test_aec_api_test_passes_on_the_wrapped_env(tmp_path: Path) -> None:
+    with RecordAECEvidence(tictactoe_v3.env(), tmp_path / "api.mcap") as env:
+        api_test(env, num_cycles=100)
+    assert check([tmp_path / "api.mcap"]).errors == 0
+    seeded = [r for r in replay([tmp_path / "api.mcap"]).episodes if r.status != "not_replayable"]
+    assert seeded and all(r.status == "identical" for r in seeded)
+
+
+# ------------------------------------------------------------------------------- Parallel
+
+
+def _play_parallel(env: Any, seed: int) -> list[dict[str, Any]]:
+    env.reset(seed=seed)
+    for agent in env.possible_agents:
+        env.action_space(agent).seed(seed)
+    joint = []
+    while env.agents:
+        actions = {a: env.action_space(a).sample() for a in env.agents}
+        joint.append(actions)
+        env.step(actions)
+    return joint
+
+
+def test_kaz_agents_leave_mid_game_returns_and_replay(tmp_path: Path) -> None:
+    path = tmp_path / "kaz.mcap"
+    played = {}
+    with RecordParallelEvidence(kaz.parallel_env(**KAZ_KWARGS), path, env_kwargs=KAZ_KWARGS) as env:
+        for game, seed in enumerate(KAZ_SEEDS):
+            played[game] = (seed, _play_parallel(env, seed))
+    returns = _returns(path)
+    left_early = 0
+    for game, (seed, joint) in played.items():
+        twin = kaz.parallel_env(**KAZ_KWARGS)
+        twin.reset(seed=seed)
+        truth: dict[str, float] = defaultdict(float)
+        lengths: dict[str, int] = defaultdict(int)
+        for actions in joint:
+            _, rewards, _, _, _ = twin.step(actions)
+            for agent in actions:
+                truth[agent] += float(rewards[agent])
+                lengths[agent] += 1
+        assert {a: returns[(game, a)] for a in truth} == dict(truth)
+        left_early += sum(n < len(joint) for n in lengths.values())
+    assert left_early > 0  # agents died and left before their game ended
+    rows = open_evidence(path).episodes().to_pylist()
+    assert {r["outcome"] for r in rows} <= {"failure", "truncated"}
+    assert all(r["game"] in (0, 1) for r in rows)
+    result = replay([path])
+    assert result.count("identical") == len(rows), result.to_dict()
+    assert check([path]).errors == 0
+
+
+def test_parallel_api_test_passes_on_the_wrapped_envs(tmp_path: Path) -> None:
+    with RecordParallelEvidence(
+        kaz.parallel_env(max_cycles=40), tmp_path / "kaz.mcap", env_kwargs={"max_cycles": 40}
+    ) as env:
+        parallel_api_test(env, num_cycles=50)
+    with RecordParallelEvidence(rps_v2.parallel_env(), tmp_path / "rps.mcap") as env:
+        parallel_api_test(env, num_cycles=20)
+    assert check([tmp_path / "kaz.mcap", tmp_path / "rps.mcap"]).errors == 0
+
+
+def test_replay_reports_where_a_game_diverged(tmp_path: Path) -> None:
+    path = tmp_path / "rps.mcap"
+    with RecordParallelEvidence(
+        rps_v2.parallel_env(max_cycles=5), path, env_kwargs={"max_cycles": 5}
+    ) as env:
+        env.reset(seed=3)
+        while env.agents:
+            env.step({a: 2 for a in env.agents})
+    result = replay([path], env_factory=lambda: rps_v2.parallel_env(max_cycles=3))
+    (first, _second) = result.episodes
+    assert first.status == "diverged" and first.divergence is not None
+    assert (first.divergence.step, first.divergence.field) == (2, "truncated")
+    assert replay([path]).count("identical") == 2  # built from the recorded kwargs
+
+
+def test_replay_builds_only_pettingzoo_modules_without_trust(tmp_path: Path) -> None:
+    path = tmp_path / "ttt.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), path, env_module="os") as env:
+        _play_aec(env, 0)
+    (r1, _r2) = replay([path]).episodes
+    assert r1.status == "not_replayable"
+    assert r1.reason is not None and "not one of PettingZoo's own" in r1.reason
+    assert replay([path], env_factory=tictactoe_v3.env).count("identical") == 2
+    wrong = replay([path], env_factory=rps_v2.parallel_env).episodes  # a ParallelEnv
+    assert [r.status for r in wrong] == ["not_replayable"] * 2
+    assert wrong[0].reason is not None and "not a PettingZoo AECEnv" in wrong[0].reason
+    assert env_module_of(connect_four_v3.env()) == "pettingzoo.classic.connect_four_v3"
+
+
+class _TwoSpaces(_Everyone):
+    def action_space(self, agent: str) -> Any:
+        from gymnasium.spaces import Discrete
+
+        return Discrete(3) if agent == "b" else self._act
+
+
+def test_different_agent_spaces_are_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigurationError, match="different spaces are not supported yet"):
+        RecordAECEvidence(_TwoSpaces(), tmp_path / "x.mcap")
+    assert not (tmp_path / "x.mcap").exists()
+
+
+# ------------------------------------------------------------------------------- report, CLI
+
+
+def test_game_outcome_rule() -> None:
+    assert game_outcome(["success", "success"]) == "success"
+    assert game_outcome(["success", "truncated"]) == "truncated"
+    assert game_outcome(["truncated", "failure", "success"]) == "failure"
+    assert game_outcome(["failure", "incomplete"]) == "incomplete"
+    assert game_outcome(["incomplete", "error"]) == "error"
+
+
+def test_cli_report_by_agent_games_check_replay(tmp_path: Path) -> None:
+    path = tmp_path / "kaz.mcap"
+    with RecordParallelEvidence(kaz.parallel_env(**KAZ_KWARGS), path, env_kwargs=KAZ_KWARGS) as env:
+        for seed in SEEDS[:2]:
+            _play_parallel(env, seed)
+    runner = CliRunner()
+    by_agent = runner.invoke(app, ["report", str(path), "--by", "agent", "-f", "json"])
+    assert by_agent.exit_code == 0, by_agent.output
+    data = json.loads(by_agent.output)
+    assert [g["key"] for g in data["groups"]] == ["archer_0", "archer_1", "knight_0", "knight_1"]
+    assert all(g["episodes"] == 2 for g in data["groups"]) and data["unit"] == "episode"
+    games = runner.invoke(app, ["report", str(path), "--games", "-f", "json"])
+    assert games.exit_code == 0, games.output
+    game_data = json.loads(games.output)
+    assert game_data["unit"] == "game" and game_data["groups"][0]["episodes"] == 2
+    refused = runner.invoke(app, ["report", str(path), "--games", "--by", "agent"])
+    assert refused.exit_code == 2
+    replayed = runner.invoke(app, ["replay", str(path), "-f", "json"])
+    assert replayed.exit_code == 0, replayed.output
+    assert json.loads(replayed.output)["summary"]["identical"] == 8
+    checked = runner.invoke(app, ["check", str(path), "-f", "json"])
+    assert checked.exit_code in (0, 1)  # warnings (unlabeled failures) are findings
+    assert json.loads(checked.output)["counts"]["error"] == 0
+    assert report([path], by="agent").groups[0].episodes == 2
+    (by_index,) = report([path], by="env_index", games=True).groups
+    assert (by_index.key, by_index.episodes) == ("0", 2)
