@@ -43,6 +43,20 @@ _FORBIDDEN_CALLS = {"eval", "exec", "compile", "__import__"}
 # --policy (command-line arguments and library arguments), never a string read from a file.
 _DYNAMIC_IMPORTS_ALLOWED = {("replay.py", "load_callable"), ("replay.py", "replay")}
 _DYNAMIC_IMPORTS_ALLOWED |= {("recording.py", "record_episodes")}
+# The package's own lazy attributes (a fixed table of its own modules), and PettingZoo replay,
+# which imports a module named in a file only after is_pettingzoo_module() found it inside the
+# installed pettingzoo package (or with --trust-entry-points); test_multiagent pins both paths.
+_DYNAMIC_IMPORTS_ALLOWED |= {("__init__.py", "__getattr__")}
+_DYNAMIC_IMPORTS_ALLOWED |= {("replay_agents.py", "build_pettingzoo_env")}
+
+
+def _is_re(func: ast.expr) -> bool:
+    """``re.compile(...)``: a regular expression, not code."""
+    return (
+        isinstance(func, ast.Attribute)
+        and isinstance(func.value, ast.Name)
+        and func.value.id == "re"
+    )
 
 
 def _enclosing_functions(tree: ast.AST) -> dict[ast.AST, str]:
@@ -73,7 +87,7 @@ def test_the_package_never_unpickles_evals_or_imports_what_it_reads() -> None:
                 continue
             func = node.func
             name = func.id if isinstance(func, ast.Name) else getattr(func, "attr", "")
-            if name in _FORBIDDEN_CALLS:
+            if name in _FORBIDDEN_CALLS and not (name == "compile" and _is_re(func)):
                 problems.append(f"{where}: calls {name}()")
             if name in ("load", "loads") and any(
                 k.arg == "allow_pickle" for k in node.keywords
@@ -85,7 +99,7 @@ def test_the_package_never_unpickles_evals_or_imports_what_it_reads() -> None:
                 key = (path.name, owner.get(node, ""))
                 if key not in _DYNAMIC_IMPORTS_ALLOWED:
                     problems.append(f"{where}: import_module of a computed name in {key[1]}()")
-    assert problems == []
+    assert problems == [], "\n".join(problems)
 
 
 class _Touch:
