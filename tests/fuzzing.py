@@ -144,7 +144,15 @@ def build_corpus(directory: Path) -> dict[str, Path]:
     BOMB_DIR = directory
     out = {
         name: directory / f"{name}.mcap"
-        for name in ("cartpole", "terms", "cartpole_plain", "terms_torn", "cartpole_torn")
+        for name in (
+            "cartpole",
+            "terms",
+            "cartpole_plain",
+            "terms_torn",
+            "cartpole_torn",
+            "vector",
+            "agents",
+        )
     }
     if all(p.exists() for p in out.values()):
         return out
@@ -175,7 +183,33 @@ def build_corpus(directory: Path) -> dict[str, Path]:
         shutil.copyfile(scratch, out[name])
         env.close()
         scratch.unlink()
+    _record_multi_stream(out["vector"], out["agents"])
     return out
+
+
+def _record_multi_stream(vector: Path, agents: Path) -> None:
+    """A vector-env file (3 sub-envs, autoresets) and a PettingZoo AEC file (6 games)."""
+    import warnings
+
+    from episode_audit import RecordAECEvidence, RecordVectorEvidence
+
+    with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.classic import tictactoe_v3
+
+    envs = gym.make_vec("CartPole-v1", 3, vectorization_mode="sync")
+    with RecordVectorEvidence(envs, vector, block_steps=16, command_line=["fuzz"]) as envs:
+        envs.reset(seed=0)
+        envs.action_space.seed(0)
+        for _ in range(60):
+            envs.step(envs.action_space.sample())
+    with RecordAECEvidence(tictactoe_v3.env(), agents, block_steps=4, command_line=["fuzz"]) as env:
+        for game in range(6):
+            env.reset(seed=game)
+            for agent in env.agent_iter():
+                obs, _, terminated, truncated, _ = env.last()
+                mask = obs["action_mask"]
+                env.step(None if terminated or truncated else env.action_space(agent).sample(mask))
 
 
 # ----------------------------------------------------------------------------- layout

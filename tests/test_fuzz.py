@@ -142,7 +142,7 @@ def test_random_bytes_raise_only_library_errors(tmp_path: Path, noise: bytes, ma
 @settings(PROFILE, max_examples=80)
 @given(
     kind=st.sampled_from(sorted(fuzzing.MODEL_MUTATIONS)),
-    base=st.sampled_from(["cartpole", "terms", "terms_torn"]),
+    base=st.sampled_from(["cartpole", "terms", "terms_torn", "vector", "agents"]),
     seed=st.integers(0, 10**6),
 )
 def test_semantic_mutations_raise_only_library_errors(
