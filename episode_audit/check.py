@@ -997,8 +997,29 @@ class _FileCheck:
         )
 
     def report_hits(self) -> None:
-        for (code, episode, _), hit in self.hits.by_key.items():
-            self.findings.append(self.hit_finding(code, episode, hit))
+        # A recorder note repeated across many episodes (e.g. every autoreset of a vector env)
+        # is one finding naming the episodes, not one per episode.
+        repeated: dict[tuple[str, bool, str], list[tuple[int, _Hit]]] = {}
+        for (code, episode, at_reset), hit in self.hits.by_key.items():
+            if code.startswith(RECORDER_NOTE + ":"):
+                repeated.setdefault((code, at_reset, hit.detail), []).append((episode, hit))
+        for (code, episode, at_reset), hit in self.hits.by_key.items():
+            group = repeated.get((code, at_reset, hit.detail))
+            if group is None or len(group) <= _LIST_LIMIT:
+                self.findings.append(self.hit_finding(code, episode, hit))
+            elif group[0][0] == episode:
+                self.findings.append(self.note_summary(code, group))
+
+    def note_summary(self, code: str, group: list[tuple[int, _Hit]]) -> Finding:
+        episodes = sorted(e for e, _ in group)
+        first_episode, first = min(group, key=lambda item: item[0])
+        where = "at reset" if first.step is None else "on steps"
+        message = (
+            f"recorder noted {code.partition(':')[2]} {where} in {len(episodes)} episodes "
+            f"(episodes {_listing(episodes)}; {sum(h.count for _, h in group)} time(s) in all): "
+            f"{first.detail}"
+        )
+        return Finding("warning", code, message, self.file, first_episode, first.step)
 
     def hit_finding(self, code: str, episode: int, hit: _Hit) -> Finding:
         where = "at reset" if hit.step is None else f"at step {hit.step}"

@@ -506,3 +506,24 @@ def test_step_blocks_without_an_info_column_are_refused(tmp_path: Path) -> None:
     other = rewrite(source, tmp_path / "no_info.mcap", steps=lambda b: b.drop_columns(["info"]))
     with pytest.raises(CorruptEvidenceError, match=r"no_info\.mcap: .*'info' is missing"):
         check([other])
+
+
+class _TextReward(gym.Wrapper[Any, Any, Any, Any]):
+    def step(self, action: Any) -> Any:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, str(reward), terminated, truncated, info
+
+
+def test_a_note_repeated_in_many_episodes_is_one_finding(tmp_path: Path) -> None:
+    path = tmp_path / "text_reward.mcap"
+    with RecordEvidence(_TextReward(gym.make("CartPole-v1", max_episode_steps=2)), path) as env:
+        for seed in range(7):
+            env.reset(seed=seed)
+            env.step(0)
+            env.step(0)
+    noted = [f for f in check([path]).findings if f.code == "recorder_note:reward_not_numeric"]
+    assert [(f.episode, f.step) for f in noted] == [(0, 0)]
+    assert noted[0].message.startswith(
+        "recorder noted reward_not_numeric on steps in 7 episodes "
+        "(episodes 0, 1, 2, 3, 4 and 2 more; 14 time(s) in all): reward '1.0'"
+    )
