@@ -685,11 +685,18 @@ class Evidence:
             digest = (
                 self.run.recorder.get("digest_min_bytes") if name == "observation_space" else None
             )
+            column = fmt.COL_OBSERVATION if name == "observation_space" else fmt.COL_ACTION
             try:
                 space = space_from_description(getattr(self.run, name))
-                cache[name] = codec_for(space, digest_min_bytes=digest)
+                codec: SpaceCodec | None = codec_for(space, digest_min_bytes=digest)
+                stored = self.steps_schema.field(column).type
+                if codec is not None and not (
+                    pa.types.is_null(stored) or codec.field(column).type.equals(stored)
+                ):
+                    codec = None  # the description does not describe the column: do not decode
             except Exception:
-                cache[name] = None
+                codec = None
+            cache[name] = codec
         return cache[name]
 
     def __enter__(self) -> Evidence:

@@ -275,4 +275,14 @@ class RunInfo:
                 raise ValueError(f"run metadata key {name!r}: expected string values")
         if not all(isinstance(v, str) for v in info.command_line):
             raise ValueError("run metadata key 'command_line': expected a list of strings")
+        constants = info.reward_terms.get("constants")
+        if constants is not None and not (
+            isinstance(constants, dict)
+            and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in constants.values()
+            )
+        ):
+            raise ValueError(
+                "run metadata key 'reward_terms': expected 'constants' to map term names to numbers"
+            )
         return info

@@ -30,7 +30,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from episode_audit import EvidenceError, open_evidence
+from episode_audit import EvidenceError, check, open_evidence
 from episode_audit.cli import app
 
 HERE = Path(__file__).resolve().parent
@@ -222,6 +222,8 @@ def test_a_block_with_another_schema_than_the_file_declares_is_corruption(
     [
         ("recorder", "[]", r"'recorder': expected a JSON dict"),
         ("reward_terms", "1.5", r"'reward_terms': expected a JSON dict"),
+        ("reward_terms", '{"constants": "x"}', r"'constants' to map term names to numbers"),
+        ("reward_terms", '{"constants": {"a": true}}', r"'constants' to map term names to numbers"),
         ("env_spec", '"CartPole"', r"'env_spec': expected a JSON dict"),
         ("tags", '{"a": 1}', r"'tags': expected string values"),
         ("command_line", "[[1]]", r"'command_line': expected a list of strings"),
@@ -519,3 +521,19 @@ def test_a_recorded_env_spec_of_wrong_shape_is_not_replayable(
     result = replay([path])
     assert {e.status for e in result.episodes} == {"not_replayable"}
     assert "cannot make 'CartPole-v1' with the recorded kwargs" in result.episodes[0].reason
+
+
+def test_a_space_description_that_does_not_fit_its_column_is_not_decoded(
+    bases: dict[str, bytes], tmp_path: Path
+) -> None:
+    """Found by the long harness: a Tuple description with no spaces over a Tuple column."""
+
+    def change(model: fuzzing.Model) -> None:
+        model.run()["action_space"] = '{"type": "Tuple", "spaces": []}'
+
+    path = tmp_path / "misfit.mcap"
+    path.write_bytes(_model_case(bases, change, base="terms"))
+    ev = open_evidence(path)
+    assert ev.action_codec is None
+    result = check([path])
+    assert "action_space_unchecked" in {f.code for f in result.findings}
