@@ -35,6 +35,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import pettingzoo
 from pettingzoo import AECEnv, ParallelEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper, BaseWrapper
 
@@ -49,8 +50,11 @@ __all__ = [
     "AECTurns",
     "RecordAECEvidence",
     "RecordParallelEvidence",
+    "env_id_of",
     "env_module_of",
     "is_pettingzoo_module",
+    "is_registered",
+    "make_registered",
 ]
 
 KIND_PARALLEL = "pettingzoo_parallel"
@@ -98,6 +102,89 @@ def env_module_of(env: Any) -> str | None:
         return None
     module = f"pettingzoo.{parts[1]}.{name}"
     return module if is_pettingzoo_module(module) else None
+
+
+def _registry(kind: str) -> Mapping[str, Any] | None:
+    """PettingZoo's env registry for a layout ``kind`` (``None`` before PettingZoo 1.27)."""
+    name = "parallel_registry" if kind == KIND_PARALLEL else "aec_registry"
+    registry = getattr(pettingzoo, name, None)
+    return registry if isinstance(registry, Mapping) else None
+
+
+def _entry_module(spec: Any) -> str | None:
+    entry = getattr(spec, "entry_point", None)
+    if isinstance(entry, str):
+        return entry.partition(":")[0]
+    module = getattr(entry, "__module__", None)
+    return module if isinstance(module, str) else None
+
+
+def env_id_of(env: Any, kind: str) -> str | None:
+    """The id under which PettingZoo's registry makes ``env`` (``classic/tictactoe-v3``).
+
+    ``kind`` picks the registry (``pettingzoo_aec``: ``pettingzoo.aec_registry``, else
+    ``parallel_registry``). The id is that of the one registered spec whose entry point lives in
+    the module of the unwrapped env's class and whose name and version are the env's
+    ``metadata["name"]`` (``tictactoe_v3``); ``None`` when there is no such spec, or more than
+    one, or PettingZoo has no registry (before 1.27).
+
+    >>> import pettingzoo
+    >>> env = pettingzoo.make("aec", "classic/tictactoe-v3")
+    >>> env_id_of(env, "pettingzoo_aec"), env_id_of(env, "pettingzoo_parallel")
+    ('classic/tictactoe-v3', None)
+    """
+    registry = _registry(kind)
+    base = getattr(env, "unwrapped", env)
+    name = (getattr(base, "metadata", None) or {}).get("name")
+    if registry is None or not isinstance(name, str):
+        return None
+    wanted = re.sub(r"_v(?=\d+$)", "-v", name)
+    module = type(base).__module__
+    found = [
+        str(env_id)
+        for env_id, spec in registry.items()
+        if str(env_id).rpartition("/")[2] == wanted and _entry_module(spec) == module
+    ]
+    return found[0] if len(found) == 1 else None
+
+
+def is_registered(kind: str, env_id: str) -> bool:
+    """Whether ``env_id`` is registered, exactly, in this process's PettingZoo ``kind`` registry.
+
+    A dictionary lookup: nothing is imported. ``False`` before PettingZoo 1.27 (no registry).
+
+    >>> is_registered("pettingzoo_parallel", "classic/rps-v2")
+    True
+    >>> is_registered("pettingzoo_parallel", "classic/tictactoe-v3")  # an AEC-only env
+    False
+    """
+    registry = _registry(kind)
+    return registry is not None and env_id in registry
+
+
+def make_registered(kind: str, env_id: str, kwargs: Mapping[str, Any]) -> Any:
+    """``pettingzoo.make("parallel" | "aec", env_id, **kwargs)`` (PettingZoo 1.27+)."""
+    return pettingzoo.make("parallel" if kind == KIND_PARALLEL else "aec", env_id, **kwargs)
+
+
+def _checked_env_id(env_id: str, kind: str) -> str:
+    """The registered id ``env_id`` names (``classic/tictactoe`` -> ``classic/tictactoe-v3``)."""
+    find = getattr(pettingzoo, "spec", None)
+    if _registry(kind) is None or find is None:
+        raise ConfigurationError(
+            f"env_id={env_id!r}: this PettingZoo ({getattr(pettingzoo, '__version__', '?')}) "
+            "has no env registry (PettingZoo 1.27+); leave env_id out"
+        )
+    try:
+        spec = find("parallel" if kind == KIND_PARALLEL else "aec", env_id)
+    except Exception as exc:
+        api = "parallel" if kind == KIND_PARALLEL else "AEC"
+        raise ConfigurationError(
+            f"env_id={env_id!r} is not registered in PettingZoo's {api} registry "
+            f"({type(exc).__name__}); register it with pettingzoo.register() first, "
+            "or leave env_id out"
+        ) from None
+    return str(spec.id)
 
 
 def _float(value: Any, notes: list[str], agent: str) -> float:
@@ -205,6 +292,7 @@ class _Agents:
         path: str | os.PathLike[str],
         kind: str,
         *,
+        env_id: str | None,
         env_module: str | None,
         env_kwargs: Mapping[str, Any] | None,
         tags: Mapping[str, str] | None,
@@ -231,6 +319,7 @@ class _Agents:
                     "supported yet (record them in separate files)"
                 )
         module = env_module if env_module is not None else env_module_of(env)
+        registry_id = env_id_of(env, kind) if env_id is None else _checked_env_id(env_id, kind)
         base = env.unwrapped
         name = (getattr(base, "metadata", None) or {}).get("name")
         layout_notes: list[str] = []
@@ -242,14 +331,15 @@ class _Agents:
                 raise ConfigurationError(f"env_kwargs: not JSON-serializable ({exc})") from None
         else:
             layout_notes.append("env_kwargs not given: replay builds the env with its defaults")
-        if module is None:
+        if module is None and registry_id is None:
             layout_notes.append(
-                "the env module is unknown: replay needs --env-factory MODULE:CALLABLE"
+                "the env id and module are unknown: replay needs --env-factory MODULE:CALLABLE"
             )
         layout: dict[str, Any] = {
             "kind": kind,
             "num_envs": 1,
             "agents": agents,
+            "env_id": registry_id,
             "env_module": module,
             "env_name": name if isinstance(name, str) else type(base).__name__,
             "env_kwargs": kwargs_json,
@@ -354,12 +444,16 @@ _ARGS_DOC = """
         env: The PettingZoo env to record (every agent must share one observation space and
             one action space).
         path: The evidence file to create (never overwritten unless ``overwrite=True``).
+        env_id: The id replay makes the env with, ``pettingzoo.make(api, env_id, **env_kwargs)``
+            (PettingZoo 1.27+; must be registered, an unversioned id is recorded as the version
+            it resolves to). Default: found in PettingZoo's registry (see
+            :func:`env_id_of`), else none.
         env_module: The module replay builds the env from (default: found from the env, e.g.
-            ``pettingzoo.classic.tictactoe_v3``; replay imports it only if it is one of
-            PettingZoo's own modules, else it needs ``--env-factory``).
+            ``pettingzoo.classic.tictactoe_v3``; replay uses it when the file's ``env_id`` is not
+            registered, importing it only if it is one of PettingZoo's own modules).
         env_kwargs: The keyword arguments the env was made with (JSON-serializable); replay
-            passes them to the module's ``env()`` / ``parallel_env()``. PettingZoo does not
-            keep them, so without this replay uses the env's defaults.
+            passes them to ``pettingzoo.make`` or the module's ``env()`` / ``parallel_env()``.
+            PettingZoo does not keep them, so without this replay uses the env's defaults.
         tags, reward_terms, constant_terms, ending_rules, info_keys, digest_min_bytes,
         block_steps, flush_every_s, fsync, overwrite, command_line: as for
             :class:`~episode_audit.RecordEvidence` (reward terms and endings are read from
@@ -381,6 +475,7 @@ class _Recording:
         kind: str,
         settings: RecorderSettings,
         *,
+        env_id: str | None,
         env_module: str | None,
         env_kwargs: Mapping[str, Any] | None,
         tags: Mapping[str, str] | None,
@@ -392,6 +487,7 @@ class _Recording:
             env,
             path,
             kind,
+            env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,
             tags=tags,
@@ -461,6 +557,7 @@ class RecordParallelEvidence(_Recording, BaseParallelWrapper):  # type: ignore[m
         env: ParallelEnv,
         path: str | os.PathLike[str],
         *,
+        env_id: str | None = None,
         env_module: str | None = None,
         env_kwargs: Mapping[str, Any] | None = None,
         tags: Mapping[str, str] | None = None,
@@ -489,6 +586,7 @@ class RecordParallelEvidence(_Recording, BaseParallelWrapper):  # type: ignore[m
                 block_steps,
                 flush_every_s,
             ),
+            env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,
             tags=tags,
@@ -591,6 +689,7 @@ class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
         env: AECEnv,
         path: str | os.PathLike[str],
         *,
+        env_id: str | None = None,
         env_module: str | None = None,
         env_kwargs: Mapping[str, Any] | None = None,
         tags: Mapping[str, str] | None = None,
@@ -619,6 +718,7 @@ class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
                 block_steps,
                 flush_every_s,
             ),
+            env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,
             tags=tags,

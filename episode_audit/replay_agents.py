@@ -8,13 +8,17 @@ accounted exactly as the recorder did (:class:`~episode_audit.multiagent.AECTurn
 agent's episode is compared with its evidence: reset observation, observations, rewards,
 reward terms, ``terminated``, ``truncated``, length and outcome.
 
-How the env is built, safely (PettingZoo has no id registry):
+How the env is built, safely:
 
 1. ``env_factory`` (``"module:callable"`` or a callable) given by the user; else
-2. the recorded ``env_module`` when it is one of PettingZoo's own env modules
+2. the recorded ``env_id`` when it is registered in this process's PettingZoo registry
+   (PettingZoo 1.27+, the AEC or Parallel one by the file's kind), made with
+   ``pettingzoo.make(api, env_id, **env_kwargs)``; an id that is not registered is not used
+   and imports nothing; else
+3. the recorded ``env_module`` when it is one of PettingZoo's own env modules
    (``pettingzoo.<family>.<name>_v<N>`` resolving inside the installed ``pettingzoo``
    package), calling its ``env()`` (AEC) or ``parallel_env()`` with the recorded ``env_kwargs``;
-3. any other recorded module only with ``trust_entry_points=True``.
+4. any other recorded module only with ``trust_entry_points=True``.
 """
 
 from __future__ import annotations
@@ -56,24 +60,42 @@ def build_pettingzoo_env(
     """Build the PettingZoo env a file was recorded from (see the module docstring)."""
     from pettingzoo import AECEnv, ParallelEnv
 
-    from .multiagent import KIND_PARALLEL, is_pettingzoo_module
+    from .multiagent import KIND_PARALLEL, is_pettingzoo_module, is_registered, make_registered
 
-    parallel = layout.get("kind") == KIND_PARALLEL
+    kind = str(layout.get("kind"))
+    parallel = kind == KIND_PARALLEL
     want = ParallelEnv if parallel else AECEnv
     api = "ParallelEnv" if parallel else "AECEnv"
+    env_id = layout.get("env_id")
+    kwargs = layout.get("env_kwargs") or {}
     if env_factory is not None:
         factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
         env = factory()
+    elif isinstance(env_id, str) and is_registered(kind, env_id):
+        try:
+            env = make_registered(kind, env_id, kwargs)
+        except Exception as exc:
+            raise ReplayError(
+                f"cannot make {env_id} with the recorded kwargs {kwargs!r}: "
+                f"{type(exc).__name__}: {exc}"
+            ) from None
     else:
+        unknown_id = (
+            f"env id {env_id!r} is not registered in this process's PettingZoo "
+            f"{'parallel' if parallel else 'AEC'} registry and "
+            if isinstance(env_id, str)
+            else ""
+        )
         module_name = layout.get("env_module")
         if not isinstance(module_name, str) or not module_name:
-            raise ReplayError("the file names no PettingZoo env module; pass --env-factory")
+            raise ReplayError(
+                f"{unknown_id}the file names no PettingZoo env module; pass --env-factory"
+            )
         if not is_pettingzoo_module(module_name) and not trust_entry_points:
             raise ReplayError(
-                f"env module {module_name!r} is not one of PettingZoo's own; pass "
+                f"{unknown_id}env module {module_name!r} is not one of PettingZoo's own; pass "
                 "--env-factory MODULE:CALLABLE, or --trust-entry-points to import it"
             )
-        kwargs = layout.get("env_kwargs") or {}
         try:
             with warnings.catch_warnings():  # PettingZoo 1.27 deprecates importing env modules
                 warnings.simplefilter("ignore", DeprecationWarning)

@@ -9,12 +9,14 @@ twin env stepped by hand with the same seed and actions, summing what PettingZoo
 from __future__ import annotations
 
 import json
+import sys
 import warnings
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pettingzoo
 import pytest
 from pettingzoo import AECEnv
 from typer.testing import CliRunner
@@ -30,7 +32,8 @@ from episode_audit import (
 )
 from episode_audit.cli import app
 from episode_audit.games import game_outcome
-from episode_audit.multiagent import env_module_of
+from episode_audit.multiagent import env_id_of, env_module_of
+from tests.hostile import rewrite
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
     warnings.simplefilter("ignore", DeprecationWarning)
@@ -41,6 +44,12 @@ with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (f
 SEEDS = [0, 1, 2, 3]
 KAZ_KWARGS = {"max_cycles": 300, "max_zombies": 6}
 KAZ_SEEDS = [1, 2]  # in game 1 (seed 1) archer_0 dies 5 steps before the others
+REGISTRY_IDS = {
+    tictactoe_v3: "classic/tictactoe-v3",
+    connect_four_v3: "classic/connect_four-v3",
+    rps_v2: "classic/rps-v2",
+    kaz: "butterfly/knights_archers_zombies-v11",
+}
 
 
 def _returns(path: Path) -> dict[tuple[int, str], float]:
@@ -90,6 +99,7 @@ def test_aec_games_returns_replay_and_check(tmp_path: Path, module: Any) -> None
     ev = open_evidence(path)
     assert ev.run.layout["kind"] == "pettingzoo_aec"
     assert ev.run.layout["env_module"] == module.__name__
+    assert ev.run.layout["env_id"] == REGISTRY_IDS[module]
     returns = _returns(path)
     for game, (seed, actions) in played.items():
         truth = _aec_truth(module.env, seed, actions)
@@ -241,6 +251,7 @@ def test_kaz_agents_leave_mid_game_returns_and_replay(tmp_path: Path) -> None:
         assert {a: returns[(game, a)] for a in truth} == dict(truth)
         left_early += sum(n < len(joint) for n in lengths.values())
     assert left_early > 0  # agents died and left before their game ended
+    assert open_evidence(path).run.layout["env_id"] == REGISTRY_IDS[kaz]
     rows = open_evidence(path).episodes().to_pylist()
     assert {r["outcome"] for r in rows} <= {"failure", "truncated"}
     assert all(r["game"] in (0, 1) for r in rows)
@@ -274,10 +285,20 @@ def test_replay_reports_where_a_game_diverged(tmp_path: Path) -> None:
     assert replay([path]).count("identical") == 2  # built from the recorded kwargs
 
 
+def _with_layout(src: Path, dst: Path, **changes: Any) -> Path:
+    """Copy an evidence file with some of its layout keys changed (as a hand edit would)."""
+
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        return {**meta, "layout": json.dumps({**json.loads(meta["layout"]), **changes})}
+
+    return rewrite(src, dst, run=run)
+
+
 def test_replay_builds_only_pettingzoo_modules_without_trust(tmp_path: Path) -> None:
-    path = tmp_path / "ttt.mcap"
-    with RecordAECEvidence(tictactoe_v3.env(), path, env_module="os") as env:
+    recorded = tmp_path / "recorded.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), recorded, env_module="os") as env:
         _play_aec(env, 0)
+    path = _with_layout(recorded, tmp_path / "ttt.mcap", env_id=None)  # as before PettingZoo 1.27
     (r1, _r2) = replay([path]).episodes
     assert r1.status == "not_replayable"
     assert r1.reason is not None and "not one of PettingZoo's own" in r1.reason
@@ -286,6 +307,120 @@ def test_replay_builds_only_pettingzoo_modules_without_trust(tmp_path: Path) -> 
     assert [r.status for r in wrong] == ["not_replayable"] * 2
     assert wrong[0].reason is not None and "not a PettingZoo AECEnv" in wrong[0].reason
     assert env_module_of(connect_four_v3.env()) == "pettingzoo.classic.connect_four_v3"
+
+
+def test_replay_makes_a_registered_id_without_importing_the_deprecated_module(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ttt, rps = tmp_path / "ttt.mcap", tmp_path / "rps.mcap"
+    with RecordAECEvidence(pettingzoo.make("aec", "classic/tictactoe-v3"), ttt) as env:
+        _play_aec(env, 0)
+    made = pettingzoo.make("parallel", "classic/rps-v2", max_cycles=4)
+    with RecordParallelEvidence(made, rps, env_kwargs={"max_cycles": 4}) as penv:
+        _play_parallel(penv, 1)
+    assert open_evidence(ttt).run.layout["env_id"] == "classic/tictactoe-v3"
+    assert open_evidence(rps).run.layout["env_id"] == "classic/rps-v2"
+    for module in ("pettingzoo.classic.tictactoe_v3", "pettingzoo.classic.rps_v2"):
+        monkeypatch.delitem(sys.modules, module, raising=False)  # replay by module imports it
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        assert replay([ttt, rps]).count("identical") == 4
+    assert "pettingzoo.classic.tictactoe_v3" not in sys.modules
+    assert "pettingzoo.classic.rps_v2" not in sys.modules
+
+
+PZ_CANARY = """
+from pathlib import Path
+Path(__file__).with_name("IMPORTED").touch()
+def env(**kwargs):
+    raise RuntimeError("canary called")
+"""
+
+
+def test_an_unregistered_id_imports_nothing_and_is_not_replayable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "ea_pz_canary.py").write_text(PZ_CANARY)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    recorded = tmp_path / "recorded.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), recorded) as env:
+        _play_aec(env, 0)
+    cases = {
+        "evil/canary-v1": "ea_pz_canary",  # an id nobody registered, a module outside PettingZoo
+        "classic/tictactoe-v99": None,  # a version this PettingZoo does not have, no module
+    }
+    for env_id, module in cases.items():
+        path = _with_layout(
+            recorded, tmp_path / f"{len(env_id)}.mcap", env_id=env_id, env_module=module
+        )
+        results = replay([path]).episodes
+        assert [r.status for r in results] == ["not_replayable"] * 2
+        reason = results[0].reason or ""
+        assert f"env id {env_id!r} is not registered in this process's PettingZoo AEC" in reason
+        if module is None:
+            assert "the file names no PettingZoo env module; pass --env-factory" in reason
+        else:
+            assert "'ea_pz_canary' is not one of PettingZoo's own" in reason
+        code = CliRunner().invoke(app, ["replay", str(path), "-f", "json"]).exit_code
+        assert code == 0  # not replayable is not a finding
+    assert "ea_pz_canary" not in sys.modules and not (tmp_path / "IMPORTED").exists()
+    assert not pettingzoo.aec_registry.keys() & cases.keys()  # nothing was registered either
+
+
+def test_explicit_env_id_is_resolved_and_checked(tmp_path: Path) -> None:
+    path = tmp_path / "ttt.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), path, env_id="classic/tictactoe") as env:
+        _play_aec(env, 0)
+    assert open_evidence(path).run.layout["env_id"] == "classic/tictactoe-v3"  # the version
+    with pytest.raises(ConfigurationError, match="'classic/nope-v1' is not registered in Petti"):
+        RecordAECEvidence(tictactoe_v3.env(), tmp_path / "x.mcap", env_id="classic/nope-v1")
+    with pytest.raises(ConfigurationError, match="not registered in PettingZoo's parallel regi"):
+        # tictactoe has no parallel API
+        RecordParallelEvidence(
+            rps_v2.parallel_env(), tmp_path / "x.mcap", env_id="classic/tictactoe-v3"
+        )
+    assert not (tmp_path / "x.mcap").exists()
+    assert env_id_of(tictactoe_v3.env(), "pettingzoo_parallel") is None
+    assert env_id_of(_Everyone(), "pettingzoo_aec") is None  # not registered
+
+
+def test_an_id_the_user_registered_is_recorded_and_replayed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    spec = pettingzoo.EnvSpec(id="tests/everyone-v0", entry_point=_Everyone)
+    monkeypatch.setitem(pettingzoo.aec_registry, spec.id, spec)
+    path = tmp_path / "everyone.mcap"
+    with RecordAECEvidence(_Everyone(), path) as env:
+        env.reset(seed=0)
+        for _agent in env.agent_iter():
+            _, _, term, trunc, _ = env.last()
+            env.step(None if term or trunc else 1)
+    layout = open_evidence(path).run.layout
+    assert (layout["env_id"], layout["env_module"], layout["notes"][1:]) == (
+        "tests/everyone-v0",
+        None,
+        [],  # no "replay needs --env-factory": the id suffices
+    )
+    assert replay([path]).count("identical") == 3
+    monkeypatch.delitem(pettingzoo.aec_registry, spec.id)  # a process that did not register it
+    (first, *_) = replay([path]).episodes
+    assert first.status == "not_replayable"
+    assert "'tests/everyone-v0' is not registered" in (first.reason or "")
+
+
+def test_pettingzoo_without_a_registry_records_and_replays_by_module(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for name in ("aec_registry", "parallel_registry", "spec", "make"):  # as PettingZoo < 1.27
+        monkeypatch.delattr(pettingzoo, name)
+    path = tmp_path / "ttt.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), path) as env:
+        _play_aec(env, 0)
+    layout = open_evidence(path).run.layout
+    assert (layout["env_id"], layout["env_module"]) == (None, "pettingzoo.classic.tictactoe_v3")
+    assert replay([path]).count("identical") == 2
+    with pytest.raises(ConfigurationError, match=r"has no env registry \(PettingZoo 1.27\+\)"):
+        RecordAECEvidence(tictactoe_v3.env(), tmp_path / "x.mcap", env_id="classic/tictactoe-v3")
 
 
 class _TwoSpaces(_Everyone):
