@@ -33,7 +33,7 @@ pytest: $(STAMP)
 test: lint typecheck pytest
 
 test-long: $(STAMP)
-	$(BIN)/python -m pytest -q -m slow
+	$(BIN)/python -m pytest -q -s -m slow  # -s: the harnesses print their figures
 
 bench: $(STAMP)
 	$(BIN)/python bench/run.py
