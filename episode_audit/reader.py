@@ -883,6 +883,8 @@ def _message_positions(
             if channel_id not in want:
                 continue
             pos = offset - start
+            if not 0 <= pos <= len(region) - _RECORD_HEAD.size:
+                return None
             opcode, length = _RECORD_HEAD.unpack_from(region, pos)
             body = pos + _RECORD_HEAD.size
             if opcode != _OP_MESSAGE_INDEX or body + length > len(region):
@@ -895,7 +897,7 @@ def _message_positions(
                 if at >= size:
                     return None
                 positions.append(at)
-    except struct.error:
+    except (struct.error, OverflowError):
         return None
     positions.sort()
     return positions

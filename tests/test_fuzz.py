@@ -537,3 +537,17 @@ def test_a_space_description_that_does_not_fit_its_column_is_not_decoded(
     assert ev.action_codec is None
     result = check([path])
     assert "action_space_unchecked" in {f.code for f in result.findings}
+
+
+@pytest.mark.parametrize(
+    ("base", "kind", "seed"),
+    [
+        ("vector", "flip", 1003681),  # a message-index offset past ssize_t: OverflowError
+        ("agents", "metadata", 1004207),  # reward_terms.constants not a dict: AttributeError
+        ("terms", "metadata", 1000116),  # a Tuple description over another column: TypeError
+    ],
+)
+def test_inputs_the_long_harness_found(
+    bases: dict[str, bytes], tmp_path: Path, base: str, kind: str, seed: int
+) -> None:
+    _drive_bytes(fuzzing.mutate(bases[base], kind, seed), tmp_path, cli=["check", "show"])
