@@ -68,7 +68,8 @@ class RecordEvidence(
         info_keys: Info keys to keep per step as JSON: a list of keys, or ``"all"``.
         digest_min_bytes: Store observation arrays of at least this many bytes as a 16-byte
             BLAKE2b digest instead of losslessly (for large images); ``None`` keeps all.
-        block_steps: Steps per columnar block.
+        block_steps: Steps per columnar block (fewer when rows are large, so that the chunk
+            of one flush stays under 256 MiB uncompressed).
         flush_every_s: Flush at least this often (checked on every step and reset).
         fsync: ``fsync`` the file on every flush.
         overwrite: Allow replacing an existing file.

@@ -359,6 +359,26 @@ class _Owner(Protocol):
     def close(self) -> None: ...
 
 
+CHUNK_TARGET_BYTES = 256 << 20
+"""Largest uncompressed chunk the recorder aims for: a flush comes after at most this many
+bytes of step rows over every stream, whatever ``block_steps`` says (large image observations),
+so files stay well inside the reader's 1 GiB record cap (``reader.MAX_RECORD_BYTES``)."""
+
+_OTHER_COLUMNS_BYTES = 64  # episode, step, time, reward, flags, offsets of a step row
+
+
+def _type_bytes(kind: pa.DataType) -> int:
+    """Bytes of one value of ``kind`` (a guess of 64 for variable-size types)."""
+    if pa.types.is_fixed_size_list(kind):
+        return int(kind.list_size) * _type_bytes(kind.value_type)
+    if pa.types.is_struct(kind):
+        return sum(_type_bytes(kind.field(i).type) for i in range(kind.num_fields))
+    try:
+        return max(1, int(kind.bit_width) // 8)
+    except ValueError:
+        return 64
+
+
 class EvidenceFile:
     """One evidence file being recorded: run metadata, episode channels, flushes, close.
 
@@ -429,6 +449,8 @@ class EvidenceFile:
 
         Call once, after the last :meth:`add_stream`; the channels of a single-stream file are
         then numbered as they always were (steps, resets, episode records, episode blocks).
+        ``block_steps`` is lowered here when the streams' rows are so large that a chunk would
+        outgrow :data:`CHUNK_TARGET_BYTES`.
         """
         if self.started:
             raise RecorderError(f"{self.path}: the evidence file is already started")
@@ -444,6 +466,15 @@ class EvidenceFile:
         except BaseException:
             writer.abandon()
             raise
+        row_bytes = sum(
+            _type_bytes(s._obs_codec.field("o").type)
+            + _type_bytes(s._act_codec.field("a").type)
+            + _OTHER_COLUMNS_BYTES
+            for s in self.streams
+        )
+        self.block_steps = max(1, min(self.block_steps, CHUNK_TARGET_BYTES // max(1, row_bytes)))
+        for stream in self.streams:
+            stream._block_steps = self.block_steps
         self.started = True
 
     def add_stream(

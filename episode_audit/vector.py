@@ -267,7 +267,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         self._p_time: list[int] = []
         self._p_mask: list[list[int]] = []  # per batched step: the sub-envs that only reset
         self._since_flush = 0
-        self._block_steps = settings.block_steps
+        self._block_steps = self._file.block_steps  # capped by start() for big rows
         self._obs_space = env.observation_space
         self._act_space = env.action_space
         # NEXT_STEP: the sub-envs whose next step is their autoreset, and their RNG states.

@@ -13,6 +13,7 @@ import pyarrow.compute as pc
 import pytest
 from mcap.reader import make_reader
 
+import episode_audit.streams as streams
 from episode_audit import RecorderError, RecordEvidence, check, open_evidence
 from episode_audit import format as fmt
 from episode_audit.outcomes import find_time_limit
@@ -220,3 +221,41 @@ def test_single_env_files_keep_their_layout(tmp_path: Path) -> None:
         fmt.TOPIC_EPISODE_END,
         fmt.TOPIC_EPISODES,
     ]
+
+
+class _BigObservations(gym.Env[Any, int]):
+    """100 000 float32 per observation: 400 kB a row."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (100_000,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> tuple[Any, dict[str, Any]]:
+        super().reset(seed=seed)
+        return self.observation_space.sample(), {}
+
+    def step(self, action: int) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        return self.observation_space.sample(), 1.0, False, False, {}
+
+
+def test_large_rows_make_smaller_blocks_than_block_steps(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Blocks are sized so one flush's chunk stays under the target (the reader refuses
+    # records over 1 GiB); here the target is 2 MiB, so 5 rows of 400 kB per block.
+    monkeypatch.setattr(streams, "CHUNK_TARGET_BYTES", 2 << 20)
+    path = tmp_path / "big.mcap"
+    with RecordEvidence(_BigObservations(), path, flush_every_s=3600.0) as env:
+        env.reset(seed=0)
+        for _ in range(12):
+            env.step(0)
+    ev = open_evidence(path)
+    sizes = [batch.num_rows for batch in ev.iter_step_batches()]
+    assert sum(sizes) == 12
+    assert ev.run.recorder["block_steps"] == 8192  # as configured
+    with open(path, "rb") as f:
+        blocks = [
+            pa.ipc.open_stream(m.data).read_all().num_rows
+            for _, c, m in make_reader(f).iter_messages()
+            if c.topic == "episode_audit/steps"
+        ]
+    assert blocks == [5, 5, 2]
