@@ -2,7 +2,8 @@
 
 For each input file ``run.mcap``, :func:`export` writes ``run.steps.parquet`` (one row per step)
 and adds its episodes to ``episodes.parquet`` (one row per episode, all files together). Both carry
-a ``file`` column naming the evidence file. Steps are streamed block by block, so memory stays flat.
+a ``file`` column naming the evidence file; steps of vector and PettingZoo files also carry their
+episode's ``env_index`` and ``agent``. Steps are streamed block by block, so memory stays flat.
 Output names come from the input paths only, never from file content.
 
 Query every file at once with DuckDB: ``SELECT * FROM read_parquet('out/*.steps.parquet',
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from .errors import ConfigurationError
@@ -38,6 +40,15 @@ class ExportResult:
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:
     table = pa.Table.from_batches([batch]) if isinstance(batch, pa.RecordBatch) else batch
     return table.add_column(0, "file", pa.array([name] * table.num_rows, pa.string()))
+
+
+def _with_stream(
+    table: pa.Table, episodes: pa.Table, env_index: pa.Array, agent: pa.Array
+) -> pa.Table:
+    """Add each step's ``env_index`` and ``agent`` (from its episode) after ``file``."""
+    where = pc.index_in(table.column("episode"), value_set=episodes.column("episode"))
+    table = table.add_column(1, "env_index", pc.take(env_index, where))
+    return table.add_column(2, "agent", pc.take(agent, where))
 
 
 def export(
@@ -88,12 +99,19 @@ def export(
     for source, name in zip(sources, names, strict=True):
         ev = open_evidence(source)
         label = str(source)
-        episode_tables.append(_with_file(ev.episodes(), label))
+        episodes = ev.episodes()
+        episode_tables.append(_with_file(episodes, label))
+        # Vector and PettingZoo files: each step row names its sub-env and agent too.
+        multi = (ev.run.layout or {}).get("kind", "single") != "single"
+        env_index = episodes.column("env_index").combine_chunks()
+        agent = episodes.column("agent").combine_chunks()
         target = out / f"{name}.steps.parquet"
         writer: pq.ParquetWriter | None = None
         try:
             for batch in ev.iter_step_batches():
                 table = _with_file(batch, label)
+                if multi:
+                    table = _with_stream(table, episodes, env_index, agent)
                 if writer is None:
                     writer = pq.ParquetWriter(target, table.schema, compression="zstd")
                 writer.write_table(table)

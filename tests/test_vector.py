@@ -171,6 +171,24 @@ def test_check_and_report_by_env_index(recorded: tuple[str, AutoresetMode, Path]
     ]
 
 
+def test_exported_steps_name_their_sub_env(
+    recorded: tuple[str, AutoresetMode, Path], tmp_path: Path
+) -> None:
+    import pyarrow.parquet as pq
+
+    from episode_audit import export
+
+    _, _, path = recorded
+    result = export([path], tmp_path / "out")
+    steps = pq.read_table(result.steps_files[0])
+    episodes = pq.read_table(result.episodes_file)
+    assert steps.column_names[:3] == ["file", "env_index", "agent"]
+    owner = dict(zip(episodes["episode"].to_pylist(), episodes["env_index"].to_pylist()))
+    assert [owner[e] for e in steps["episode"].to_pylist()] == steps["env_index"].to_pylist()
+    assert set(steps["env_index"].to_pylist()) == {0, 1, 2, 3}
+    assert steps["agent"].null_count == steps.num_rows
+
+
 def test_cli_check_report_replay_on_a_vector_file(tmp_path: Path) -> None:
     path = _record(tmp_path / "cli.mcap", "sync", AutoresetMode.NEXT_STEP)
     runner = CliRunner()
