@@ -65,6 +65,24 @@ RowFn = Callable[[str, Any, tuple[Any, float, bool, bool, Any], list[str]], None
 ResetFn = Callable[[str, Any, Any], None]
 
 
+def agent_result(
+    agent: Any,
+    obs: Mapping[Any, Any],
+    rewards: Mapping[Any, Any],
+    terminated: Mapping[Any, Any],
+    truncated: Mapping[Any, Any],
+    infos: Mapping[Any, Any],
+) -> tuple[Any, Any, Any, Any, Any]:
+    """One agent's share of a Parallel ``step()`` result, as a Gymnasium 5-tuple."""
+    return (
+        obs.get(agent),
+        rewards.get(agent, math.nan),
+        terminated.get(agent, False),
+        truncated.get(agent, False),
+        infos.get(agent, {}),
+    )
+
+
 def is_pettingzoo_module(name: str) -> bool:
     """Whether ``name`` is one of PettingZoo's own versioned env modules (safe to import).
 
@@ -642,16 +660,7 @@ class RecordParallelEvidence(_Recording, BaseParallelWrapper):  # type: ignore[m
                 stream = streams.get(agent)
                 if stream is None or agent not in rec.in_game:
                     continue
-                stream.step(
-                    action,
-                    (
-                        obs.get(agent),
-                        rewards.get(agent, math.nan),
-                        terminated.get(agent, False),
-                        truncated.get(agent, False),
-                        infos.get(agent, {}),
-                    ),
-                )
+                stream.step(action, agent_result(agent, obs, rewards, terminated, truncated, infos))
             self._join(obs, infos)
         except Exception as exc:  # never break the training loop over recording trouble
             rec.file.trouble(exc)

@@ -164,6 +164,8 @@ def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int) ->
 
 
 def _run_parallel(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int) -> None:
+    from .multiagent import agent_result
+
     obs, infos = game.reset.pop("__reset__")
     for agent in env.agents:
         game.on_reset(agent, obs.get(agent), infos.get(agent, {}))
@@ -178,17 +180,7 @@ def _run_parallel(env: Any, game: _Game, queues: dict[str, list[Any]], limit: in
             game.crash = (None, f"{type(exc).__name__}: {exc}")
             return
         for agent, action in actions.items():
-            game.on_row(
-                agent,
-                action,
-                (
-                    obs.get(agent),
-                    rewards.get(agent, math.nan),
-                    term.get(agent, False),
-                    trunc.get(agent, False),
-                    infos.get(agent, {}),
-                ),
-            )
+            game.on_row(agent, action, agent_result(agent, obs, rewards, term, trunc, infos))
         for agent in env.agents:
             if str(agent) not in game.reset:
                 game.on_reset(agent, obs.get(agent), infos.get(agent, {}))

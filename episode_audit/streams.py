@@ -466,15 +466,10 @@ class EvidenceFile:
         except BaseException:
             writer.abandon()
             raise
-        row_bytes = sum(
-            _type_bytes(s._obs_codec.field("o").type)
-            + _type_bytes(s._act_codec.field("a").type)
-            + _OTHER_COLUMNS_BYTES
-            for s in self.streams
-        )
+        row_bytes = sum(stream.row_bytes for stream in self.streams)
         self.block_steps = max(1, min(self.block_steps, CHUNK_TARGET_BYTES // max(1, row_bytes)))
         for stream in self.streams:
-            stream._block_steps = self.block_steps
+            stream.cap_block_steps(self.block_steps)
         self.started = True
 
     def add_stream(
@@ -687,6 +682,12 @@ class Stream:
         self._keep_all_info = settings.keep_all_info
         self._track_info = settings.track_info
         self._block_steps = settings.block_steps
+        self.row_bytes = (
+            _type_bytes(obs_codec.field("o").type)
+            + _type_bytes(act_codec.field("a").type)
+            + _OTHER_COLUMNS_BYTES
+        )
+        """Estimated bytes of one step row (for sizing blocks)."""
         self._time_limit = time_limit
         self._max_steps = max_episode_steps
         self._step_schema = pa.schema(
@@ -872,6 +873,10 @@ class Stream:
         file.pending.append((episode, ending))
         file.counts["episodes"] += 1
 
+    def cap_block_steps(self, rows: int) -> None:
+        """Write a block after at most ``rows`` rows (the file sizes blocks of large rows)."""
+        self._block_steps = min(self._block_steps, rows)
+
     # ------------------------------------------------------------------ steps
 
     def step(self, action: Any, result: Any) -> None:
@@ -881,10 +886,8 @@ class Stream:
         try:
             obs, reward, terminated, truncated, info = result
             episode = self.episode
-            if episode is None or episode.ended or self._track_info:
-                raise LookupError  # not the common case: take the slow path
-            if not isinstance(info, dict):
-                raise LookupError  # noted (info_not_dict) on the slow path
+            if episode is None or episode.ended or self._track_info or not isinstance(info, dict):
+                raise LookupError  # not the common case (or an info to note): the slow path
             # both flags' truth values, here: one without any (an array) takes the slow path
             running = (not terminated) & (not truncated)
             block = self.block
