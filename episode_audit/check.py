@@ -90,6 +90,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from . import format as fmt
+from .columns import null_mask
 from .reader import Evidence, open_evidence
 from .records import from_json
 from .spaces import SpaceCodec
@@ -297,10 +298,13 @@ def _first_per_episode(
     return eps[starts], rows[starts], counts, largest
 
 
-def _counts_per_episode(episode: _IntArray) -> tuple[_IntArray, _IntArray]:
-    """Return (episodes, rows per episode) of one block."""
+def _counts_per_episode(episode: _IntArray, ordered: bool = False) -> tuple[_IntArray, _IntArray]:
+    """Return (episodes, rows per episode) of one block (``ordered``: it never decreases)."""
     if episode.size == 0:
         return episode, episode
+    if ordered:
+        starts = np.flatnonzero(np.r_[True, episode[1:] != episode[:-1]])
+        return episode[starts], np.diff(np.r_[starts, episode.size]).astype(np.int64)
     low = int(episode.min())
     span = int(episode.max()) - low
     if 0 <= span <= 4 * episode.size:
@@ -588,8 +592,9 @@ class _FileCheck:
         episode: _IntArray = batch.column(fmt.COL_EPISODE).to_numpy(zero_copy_only=False)
         step: _IntArray = batch.column(fmt.COL_STEP).to_numpy(zero_copy_only=False)
         reward: _FloatArray = batch.column(fmt.COL_REWARD).to_numpy(zero_copy_only=False)
-        present, counts = _counts_per_episode(episode)
-        after_end = self.check_endings(batch, episode, present)
+        ordered = bool((episode[1:] >= episode[:-1]).all())  # the usual layout
+        present, counts = _counts_per_episode(episode, ordered)
+        after_end = self.check_endings(batch, episode, present, ordered)
         self.check_rewards(batch, episode, step, reward)
         self.check_term_keys(batch.column(fmt.COL_TERMS), episode, step)
         if fmt.COL_INFO in batch.schema.names:
@@ -602,15 +607,16 @@ class _FileCheck:
         if after_end is not None and after_end.any():
             eps, first, hits, _ = _first_per_episode(episode, after_end)
             self.hits.add(STEP_AFTER_END, eps, step[first].tolist(), hits)
-            present, counts = _counts_per_episode(episode[~after_end])
+            present, counts = _counts_per_episode(episode[~after_end], ordered)
         self.count_parts.append((present, counts))
 
     def check_endings(
-        self, batch: pa.RecordBatch, episode: _IntArray, present: _IntArray
+        self, batch: pa.RecordBatch, episode: _IntArray, present: _IntArray, ordered: bool
     ) -> _BoolArray | None:
         """Record which episodes ended; return the rows after an episode's outcome row.
 
-        ``present`` holds the block's episodes in ascending order.
+        ``present`` holds the block's episodes in ascending order; ``ordered`` says whether
+        ``episode`` never decreases.
         """
         outcome = batch.column(fmt.COL_OUTCOME)
         n = batch.num_rows
@@ -621,7 +627,7 @@ class _FileCheck:
                 after = np.isin(episode, np.array(seen, dtype=np.int64))
         if outcome.null_count == n:
             return after
-        end_rows = np.flatnonzero(pc.is_valid(outcome).to_numpy(zero_copy_only=False))
+        end_rows = np.flatnonzero(~null_mask(outcome))
         end_eps = episode[end_rows]
         self.ended.update(end_eps.tolist())
         top = int(end_eps.max())
@@ -630,9 +636,7 @@ class _FileCheck:
         # so the row after an outcome row (if any) belongs to another episode.
         following = end_rows + 1
         following[following == n] = end_rows[following == n]
-        if not (episode[following] == end_eps)[following != end_rows].any() and bool(
-            (episode[1:] >= episode[:-1]).all()
-        ):
+        if ordered and not (episode[following] == end_eps)[following != end_rows].any():
             return after
         uniq_eps, first = np.unique(end_eps, return_index=True)
         end_pos = end_rows[first]
@@ -659,7 +663,7 @@ class _FileCheck:
         terms = batch.column(fmt.COL_TERMS)
         n = batch.num_rows
         if terms.null_count:
-            missing = pc.is_null(terms).to_numpy(zero_copy_only=False)
+            missing = null_mask(terms)
             count = int(missing.sum())
             if self.first_missing is None and count:
                 row = int(np.argmax(missing))
@@ -747,7 +751,7 @@ class _FileCheck:
         weights, _ = _signatures([[k] for k in encoded.dictionary.to_pylist()])
         per_value = weights[encoded.indices.to_numpy(zero_copy_only=False)]
         signature = np.add.reduceat(np.append(per_value, np.uint64(0)), offsets[:-1] - lo)
-        mask = (lengths > 0) & pc.is_valid(terms).to_numpy(zero_copy_only=False)
+        mask = (lengths > 0) & ~null_mask(terms)
         self.term_keys.add(episode, step, signature.astype(np.uint64), mask, names)
 
     def check_info_keys(self, info: pa.Array, episode: _IntArray, step: _IntArray) -> None:
@@ -885,7 +889,8 @@ class _FileCheck:
         length: _IntArray = rows.column("length").to_numpy()
 
         def listed(mask: Any) -> list[int]:
-            return [int(e) for e in episode[np.asarray(mask, dtype=np.bool_)]]
+            listing: list[int] = episode[np.asarray(mask, dtype=np.bool_)].tolist()
+            return listing
 
         both = pc.fill_null(pc.and_(rows.column("terminated"), rows.column("truncated")), False)
         both_eps = listed(both.to_numpy(zero_copy_only=False))

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-__all__ = ["TERMS_TYPE", "terms_column"]
+__all__ = ["TERMS_TYPE", "null_mask", "terms_column"]
 
 TERMS_TYPE = pa.map_(pa.string(), pa.float64())
 """Arrow type of the ``terms`` column: term name -> value, null when a step has no terms."""
@@ -45,6 +45,30 @@ def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
     return pa.MapArray.from_arrays(
         pa.array(offsets), pa.array(keys, pa.string()), pa.array(numbers), mask=pa.array(~valid)
     )
+
+
+def null_mask(array: pa.Array) -> np.ndarray[Any, np.dtype[np.bool_]]:
+    """Per row, whether it is null (a writable numpy bool array).
+
+    Read from the validity bitmap, several times faster than ``array.is_null().to_numpy()``.
+
+    >>> null_mask(pa.array([1, None, 3])).tolist()
+    [False, True, False]
+    """
+    n = len(array)
+    mask: np.ndarray[Any, np.dtype[np.bool_]]
+    if pa.types.is_union(array.type):  # no validity bitmap: a row is null when its child's is
+        return np.array(array.is_null().to_numpy(zero_copy_only=False), dtype=np.bool_)
+    if array.null_count == 0:
+        return np.zeros(n, dtype=np.bool_)
+    if array.null_count == n:
+        return np.ones(n, dtype=np.bool_)
+    bitmap = array.buffers()[0]
+    start = array.offset
+    bits = np.frombuffer(bitmap, dtype=np.uint8, count=(start + n + 7) // 8)
+    valid = np.unpackbits(bits, bitorder="little")[start : start + n]
+    mask = valid == 0
+    return mask
 
 
 def _as_float(value: Any) -> float:

@@ -38,7 +38,7 @@ import stat
 import struct
 import zlib
 from collections import deque
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from io import BytesIO
@@ -58,6 +58,11 @@ from mcap.stream_reader import StreamReader
 
 from . import format as fmt
 from .columns import TERMS_TYPE
+
+try:  # zlib-ng's CRC-32 (the same checksum) runs ~4x faster than the system zlib's
+    from zlib_ng.zlib_ng import crc32 as _crc32
+except ImportError:  # pragma: no cover - a platform without zlib-ng wheels
+    from zlib import crc32 as _crc32
 from .errors import (
     CorruptEvidenceError,
     EvidenceError,
@@ -132,7 +137,8 @@ _RESET_START_COLUMNS = [
     "options",
 ]
 # Columns every episode block has (those of format 1.0's first files); ``game`` is optional.
-_BLOCK_BASE = pa.schema([f for f in EPISODE_SCHEMA if f.name not in ("ended", "game")])
+_BLOCK_SCHEMA = pa.schema([f for f in EPISODE_SCHEMA if f.name != "ended"])
+_BLOCK_BASE = pa.schema([f for f in _BLOCK_SCHEMA if f.name != "game"])
 
 
 @dataclass(frozen=True)
@@ -225,12 +231,20 @@ class _Gathered:
 
     With a ``limit``, a pass that was not asked for them stops keeping anything once they
     exceed it (a later call then reads the file again); their own pass keeps everything.
+
+    With a ``path``, reset blocks and episode Arrow blocks are decoded as they come (while
+    the read-ahead thread decompresses the next chunks) rather than all at the end. A block
+    that fails to decode is kept as bytes, and so is every block after it: decoding them
+    later raises the error where it did before, when :meth:`Evidence.resets` or
+    :meth:`Evidence.episodes` is called.
     """
 
     stats: _StepStats | None = None
     limit: int | None = None
-    resets: list[bytes] = field(default_factory=list)
-    records: list[bytes] = field(default_factory=list)
+    path: Path | None = None
+    arrow_records: bool = False
+    resets: list[pa.RecordBatch | bytes] = field(default_factory=list)
+    records: list[pa.RecordBatch | bytes] = field(default_factory=list)
     size: int = 0
     dropped: bool = False
 
@@ -238,10 +252,11 @@ class _Gathered:
         if self.dropped:
             return
         for _, data in chunk.resets:
-            self.resets.append(data)
+            self.resets.append(self._decoded(data, self.resets, _reset_block))
             self.size += len(data)
         for data in chunk.records:
-            self.records.append(data)
+            decode = _episode_part if self.arrow_records else None
+            self.records.append(self._decoded(data, self.records, decode))
             self.size += len(data)
         if self.limit is not None and self.size > self.limit:
             self.dropped = True
@@ -253,6 +268,19 @@ class _Gathered:
                     self.stats.add(batch)
             except Exception:
                 self.stats = None  # counted again, with its error, if episodes() needs it
+
+    def _decoded(
+        self,
+        data: bytes,
+        kept: list[pa.RecordBatch | bytes],
+        decode: Callable[[bytes, Path], pa.RecordBatch] | None,
+    ) -> pa.RecordBatch | bytes:
+        if decode is None or self.path is None or (kept and isinstance(kept[-1], bytes)):
+            return data
+        try:
+            return decode(data, self.path)
+        except EvidenceError:
+            return data
 
 
 @dataclass
@@ -411,7 +439,12 @@ class Evidence:
         gather = None
         if self._gathered is None:
             stats = _StepStats() if steps and not self.finished else None
-            gather = _Gathered(stats, None if keep_all else KEEP_LIMIT)
+            gather = _Gathered(
+                stats,
+                None if keep_all else KEEP_LIMIT,
+                self.path,
+                arrow_records=self._slots is _ARROW_SLOTS,
+            )
         keep = gather is not None
         for chunk in self._read(steps=steps, resets=resets or keep, records=records or keep):
             if gather is not None:
@@ -553,7 +586,10 @@ class Evidence:
         """
         if self._resets_cache is None:
             gathered = self._gather()
-            parts = [_arrow_batch(data, self.path, fmt.TOPIC_RESETS) for data in gathered.resets]
+            parts = [
+                data if isinstance(data, pa.RecordBatch) else _reset_block(data, self.path)
+                for data in gathered.resets
+            ]
             self._resets_cache = self._table(parts, fmt.TOPIC_RESETS, None)
             gathered.resets = []
         return self._resets_cache
@@ -575,15 +611,19 @@ class Evidence:
         if self._slots is _ARROW_SLOTS:
             table = _episode_blocks(gathered.records, self.path)
             episodes = table.column("episode").to_numpy()
+            increasing = bool((episodes[1:] > episodes[:-1]).all())
+            if self.finished and increasing:
+                reset = self.resets().column(fmt.COL_EPISODE).to_numpy()
+                if bool(np.isin(reset, episodes).all()):
+                    gathered.records = []
+                    return table  # the common case: the blocks are the table
             ended = set(episodes.tolist())
             starts = self._starts(self.resets(), ended)
-            increasing = bool((episodes[1:] > episodes[:-1]).all())
-            if self.finished and increasing and all(i in ended for i in starts):
-                gathered.records = []
-                return table  # the common case: the blocks are the table
             columns = {name: table.column(name).to_pylist() for name in EPISODE_COLUMNS}
         else:
-            columns = _end_record_columns(gathered.records, self.path)
+            columns = _end_record_columns(
+                gathered.records, self.path
+            )  # JSON records: kept as bytes
             ended = set(columns["episode"])
             starts = self._starts(self.resets(), ended)
         stats = _StepStats()
@@ -842,7 +882,7 @@ def _decompress(raw: _RawChunk, path: Path, offset: int) -> bytes:
         raise _damaged(path, offset, f"{type(exc).__name__}: {str(exc)[:120]}") from None
     if len(data) != size:
         raise _damaged(path, offset, f"it holds {len(data)} bytes, not the declared {size}")
-    if raw.uncompressed_crc and zlib.crc32(data) != raw.uncompressed_crc:
+    if raw.uncompressed_crc and _crc32(data) != raw.uncompressed_crc:
         raise _damaged(path, offset, "CRC mismatch")
     return data
 
@@ -1279,37 +1319,29 @@ def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
     return record
 
 
-def _episode_blocks(blocks: list[bytes], path: Path) -> pa.Table:
+def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Path) -> pa.Table:
     """The episode Arrow blocks as one table of :data:`EPISODE_SCHEMA` (``ended`` all true).
 
-    Blocks hold at least the columns of format 1.0's first files (:data:`_BLOCK_BASE`); the
-    optional ``game`` column is null when a block lacks it; other columns are ignored.
+    ``blocks`` are raw blocks or those :func:`_episode_part` already decoded.
     """
-    block_schema = pa.schema([f for f in EPISODE_SCHEMA if f.name != "ended"])
-    base = _BLOCK_BASE.names
-    batches = []
-    for data in blocks:
-        batch = _arrow_batch(data, path, fmt.TOPIC_EPISODES)
-        names = batch.schema.names
-        if names[: len(base)] != base:
-            raise CorruptEvidenceError(path, "an episode block does not have the episode columns")
-        # Types are compared, never cast: a cast (or a null column made to fill in) allocates
-        # for the row count a block declares, which a hostile block can make huge.
-        present = [n for n in block_schema.names if n in names]
-        for name in present:
-            actual, expected = batch.schema.field(name).type, block_schema.field(name).type
-            if not actual.equals(expected):
-                raise CorruptEvidenceError(
-                    path,
-                    f"an episode block has wrong types: {name!r} is {actual}, expected {expected}",
-                )
-        if names != block_schema.names:
-            game = batch.column("game") if "game" in names else pa.nulls(batch.num_rows, pa.int64())
-            batch = pa.RecordBatch.from_arrays(
-                [*batch.select(base).columns, game], schema=block_schema
+    parts = [
+        data if isinstance(data, pa.RecordBatch) else _episode_part(data, path) for data in blocks
+    ]
+    if all(part.num_columns == len(_BLOCK_BASE) for part in parts):  # no block has game
+        table = pa.Table.from_batches(parts, schema=_BLOCK_BASE).combine_chunks()
+        table = table.append_column(
+            _BLOCK_SCHEMA.field("game"), pa.nulls(table.num_rows, pa.int64())
+        )
+    else:
+        parts = [
+            part
+            if part.num_columns == len(_BLOCK_SCHEMA)
+            else pa.RecordBatch.from_arrays(
+                [*part.columns, pa.nulls(part.num_rows, pa.int64())], schema=_BLOCK_SCHEMA
             )
-        batches.append(batch)
-    table = pa.Table.from_batches(batches, schema=block_schema).combine_chunks()
+            for part in parts
+        ]
+        table = pa.Table.from_batches(parts, schema=_BLOCK_SCHEMA).combine_chunks()
     for name in ("episode", "outcome", "length"):
         if table.column(name).null_count:
             raise CorruptEvidenceError(path, f"an episode block has nulls in its {name!r} column")
@@ -1322,6 +1354,44 @@ def _episode_blocks(blocks: list[bytes], path: Path) -> pa.Table:
         )
     ended = pa.array(np.ones(table.num_rows, dtype=np.bool_))
     return table.append_column(EPISODE_SCHEMA.field("ended"), ended)
+
+
+def _episode_part(data: bytes, path: Path) -> pa.RecordBatch:
+    """One episode block, decoded and checked: the columns of :data:`_BLOCK_SCHEMA` it has.
+
+    Blocks hold at least the columns of format 1.0's first files (:data:`_BLOCK_BASE`); the
+    optional ``game`` column is null when a block lacks it; other columns are ignored.
+    """
+    batch = _arrow_batch(data, path, fmt.TOPIC_EPISODES)
+    schema = batch.schema
+    _check_episode_block(schema, path)
+    target = _BLOCK_SCHEMA if "game" in schema.names else _BLOCK_BASE
+    # Types were compared, never cast: a cast (or a null column made to fill in) before the
+    # checks would allocate for the row count a block declares, which a hostile block can
+    # make huge. Columns a later 1.x may add are left out (select() copies nothing).
+    part = batch.select(target.names)
+    if not part.schema.equals(target):  # names and types agree; nullability may not
+        part = pa.RecordBatch.from_arrays(part.columns, schema=target)
+    return part
+
+
+def _reset_block(data: bytes, path: Path) -> pa.RecordBatch:
+    return _arrow_batch(data, path, fmt.TOPIC_RESETS)
+
+
+def _check_episode_block(schema: pa.Schema, path: Path) -> None:
+    """An episode block starts with the base columns and has the episode columns' types."""
+    names = schema.names
+    if names[: len(_BLOCK_BASE)] != _BLOCK_BASE.names:
+        raise CorruptEvidenceError(path, "an episode block does not have the episode columns")
+    for name in _BLOCK_SCHEMA.names:
+        if name not in names:
+            continue
+        actual, expected = schema.field(name).type, _BLOCK_SCHEMA.field(name).type
+        if not actual.equals(expected):
+            raise CorruptEvidenceError(
+                path, f"an episode block has wrong types: {name!r} is {actual}, expected {expected}"
+            )
 
 
 def _end_record_columns(records: list[bytes], path: Path) -> dict[str, list[Any]]:

@@ -186,11 +186,14 @@ def _rewrite(
     compression: CompressionType = CompressionType.NONE,
     chunk_size: int = 4096,
     end_records: list[bytes] | None = None,
+    replace: dict[tuple[str, int], bytes] | None = None,
 ) -> Path:
     """Copy an evidence file through mcap's own reader and writer (records kept in order).
 
     With ``end_records`` the episode records are replaced by those (written after the rest).
+    ``replace`` maps (topic, i) to new data for the i-th message on that topic.
     """
+    seen: dict[str, int] = {}
     with open(src, "rb") as f:
         mcap = make_reader(f)
         header = mcap.get_header()
@@ -220,8 +223,10 @@ def _rewrite(
                 fmt.TOPIC_EPISODES,
             ):
                 continue
+            i = seen[channel.topic] = seen.get(channel.topic, -1) + 1
+            data = (replace or {}).get((channel.topic, i), message.data)
             writer.add_message(
-                channel.id, message.log_time, message.data, message.publish_time, message.sequence
+                channel.id, message.log_time, data, message.publish_time, message.sequence
             )
         for i, data in enumerate(end_records or []):
             writer.add_message(ends[0], last + 1 + i, data, last + 1 + i, 0)
@@ -456,6 +461,35 @@ def test_episodes_of_a_finished_file_decode_no_step_block(
     assert ev.episodes().equals(expected)
     assert fmt.TOPIC_STEPS not in topics
     assert 0 < topics.count(fmt.TOPIC_RESETS) <= len(ev._chunks)
+
+
+def test_a_pass_decodes_reset_and_episode_blocks_as_they_come(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ev = open_evidence(recorded)
+    topics = _count_decodes(monkeypatch)
+    for _ in ev.iter_step_batches():
+        assert topics.count(fmt.TOPIC_RESETS) <= topics.count(fmt.TOPIC_STEPS)
+    during = len(topics)
+    assert topics.count(fmt.TOPIC_RESETS) > 0 and topics.count(fmt.TOPIC_EPISODES) > 0
+    ev.resets()
+    ev.episodes()
+    assert len(topics) == during  # nothing left to decode at the end
+
+
+@pytest.mark.parametrize("topic", [fmt.TOPIC_RESETS, fmt.TOPIC_EPISODES])
+def test_a_bad_reset_or_episode_block_fails_where_it_is_asked_for(
+    recorded: Path, tmp_path: Path, topic: str
+) -> None:
+    bad = _rewrite(recorded, tmp_path / "bad.mcap", replace={(topic, 1): b"not arrow"})
+    ev = open_evidence(bad)
+    assert sum(b.num_rows for b in ev.iter_step_batches()) == ev.steps().num_rows > 0
+    asked = ev.resets if topic == fmt.TOPIC_RESETS else ev.episodes
+    with pytest.raises(CorruptEvidenceError, match=f"a block on {topic} is not a valid Arrow"):
+        asked()
+    # the same error as a reader that never streamed the steps
+    with pytest.raises(CorruptEvidenceError, match=f"a block on {topic} is not a valid Arrow"):
+        (open_evidence(bad).resets if topic == fmt.TOPIC_RESETS else open_evidence(bad).episodes)()
 
 
 def test_a_pass_over_the_steps_keeps_resets_and_episodes_within_a_limit(
