@@ -215,8 +215,14 @@ def bench_check(steps: int, rounds: int) -> dict[str, Any]:
 
 
 def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
-    """Replay time vs stepping the bare env with the same actions (and the same resets)."""
-    from episode_audit.replay import replay
+    """Replay time vs stepping the bare env with the same actions (and the same resets).
+
+    Both sides make the env, reset each episode with its seed and step the very action
+    objects replay steps with (numpy integers for a Discrete space, as ``Discrete.sample()``
+    gives); replay also opens and reads the file and compares. Interleaved rounds, median of
+    the per-round ratios.
+    """
+    from episode_audit.replay import _replay_actions, replay
 
     path = TMP / f"replay-{env_id}.mcap"
     space = gym.make(env_id).action_space
@@ -232,13 +238,13 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
     codec = ev.action_codec
     assert codec is not None
     episodes_actions = [
-        codec.decode(ev.episode(e).steps.column("action").combine_chunks()) for e in range(episodes)
+        _replay_actions(ev.episode(e).steps.column("action"), codec)[0] for e in range(episodes)
     ]
     ratios, bare_t, rep_t = [], [], []
     for _ in range(rounds):
-        bare_env = gym.make(env_id)
         gc.collect()
         t0 = time.perf_counter()
+        bare_env = gym.make(env_id)
         for e, actions in enumerate(episodes_actions):
             bare_env.reset(seed=e)
             for a in actions:
@@ -257,9 +263,11 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
         "env": env_id,
         "episodes": episodes,
         "steps": steps,
-        "bare_seconds": statistics.median(bare_t),
-        "replay_seconds": statistics.median(rep_t),
+        "rounds": rounds,
+        "bare_us_per_step": statistics.median(bare_t) / steps * 1e6,
+        "replay_us_per_step": statistics.median(rep_t) / steps * 1e6,
         "ratio_median": statistics.median(ratios),
+        "ratios": [round(x, 4) for x in ratios],
     }
 
 
@@ -272,7 +280,11 @@ BENCHES: dict[str, Callable[[], Any]] = {
     "vector": lambda: bench_vector(8, 25_000, 7),
     "memory": lambda: bench_memory(1_000_000),
     "check": lambda: bench_check(1_000_000, 5),
-    "replay": lambda: [bench_replay("CartPole-v1", 1000, 5), bench_replay("Reacher-v5", 100, 5)],
+    "replay": lambda: [
+        bench_replay("CartPole-v1", 1000, 9),
+        bench_replay("Reacher-v5", 200, 9),
+        bench_replay("HalfCheetah-v5", 20, 9),
+    ],
 }
 
 

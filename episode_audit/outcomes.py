@@ -67,22 +67,35 @@ class RewardTerms:
 
     def extract(self, info: Mapping[str, Any]) -> dict[str, Any] | None:
         """Return the step's terms (values not yet validated), or ``None`` when it has none."""
+        return self.extractor(info)
+
+    @property
+    def extractor(self) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:
+        """:meth:`extract` as a plain function, for the per-step paths (built once)."""
+        built: Callable[[Mapping[str, Any]], dict[str, Any] | None] | None = self.__dict__.get(
+            "_extractor"
+        )
+        if built is None:
+            built = self._build_extractor()
+            object.__setattr__(self, "_extractor", built)  # frozen: a cache, not state
+        return built
+
+    def _build_extractor(self) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:
         src = self.source
         if src == "auto":
-            terms = info.get(self.dict_key)
-            if terms is not None:
-                return dict(terms)
-            if not info:
-                return None
-            prefix = self.prefix
-            found = {k: v for k, v in info.items() if k.startswith(prefix)}
-            return found or None
+            return _auto_terms(self.dict_key, self.prefix)
         if src is None:
-            return None
+            return lambda info: None
         if callable(src):
-            out = src(info)
-            return None if out is None else dict(out)
-        return {k: info[k] for k in src if k in info} or None
+            fn = src
+
+            def from_callable(info: Mapping[str, Any]) -> dict[str, Any] | None:
+                out = fn(info)
+                return None if out is None else dict(out)
+
+            return from_callable
+        keys = tuple(src)
+        return lambda info: {k: info[k] for k in keys if k in info} or None
 
     def describe(self) -> dict[str, Any]:
         """A JSON-able description for the run metadata."""
@@ -94,6 +107,31 @@ class RewardTerms:
         else:
             kind = list(src)
         return {"source": kind, "constants": dict(self.constants)}
+
+
+def _auto_terms(dict_key: str, prefix: str) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:
+    """The ``"auto"`` rule: ``info[dict_key]`` if it is there, else the ``prefix*`` keys.
+
+    Which keys carry the prefix is remembered per key tuple (envs return the same keys step
+    after step), so a step costs a tuple and a lookup, not a scan of every key.
+    """
+    names_of: dict[tuple[Any, ...], tuple[str, ...]] = {}
+
+    def extract(info: Mapping[str, Any]) -> dict[str, Any] | None:
+        terms = info.get(dict_key)
+        if terms is not None:
+            return dict(terms)
+        if not info:
+            return None
+        keys = tuple(info)
+        names = names_of.get(keys)
+        if names is None:
+            names = tuple(k for k in keys if isinstance(k, str) and k.startswith(prefix))
+            if len(names_of) < 64:  # bounded: an env with ever-new keys is scanned each time
+                names_of[keys] = names
+        return {k: info[k] for k in names} if names else None
+
+    return extract
 
 
 class Ending(NamedTuple):

@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from . import format as fmt
-from .columns import terms_column
+from .columns import null_mask, terms_column
 from .errors import ConfigurationError, ReplayError
 from .outcomes import EndingRules, RewardTerms, find_time_limit, time_limit_hit
 from .reader import Evidence, open_evidence
@@ -231,6 +231,142 @@ def _rules_of(run: RunInfo) -> tuple[EndingRules | None, RewardTerms | None]:
     return rules, terms
 
 
+@dataclass(slots=True)
+class _Stepped:
+    """One episode as it was stepped: where its rows are and how its stepping ended."""
+
+    record: dict[str, Any]
+    start: int  # its first row in the steps table
+    count: int  # rows recorded
+    first: int  # its first row in the compared columns
+    ran: int  # steps taken
+    crash: Divergence | None
+    last_info: Any
+    hit_time_limit: bool
+    reset_at: int  # its row in the resets table
+
+
+_FLAG_NAMES = ("False", "True", "not a bool")
+_PLAIN_NUMBERS = frozenset(
+    {float, int, bool, np.float64, np.float32, np.float16, np.int64, np.int32, np.bool_}
+)
+
+
+@dataclass
+class _Got:
+    """The replayed values, one row per compared row (rows never stepped: null, NaN, 0)."""
+
+    obs: pa.Array
+    rewards: np.ndarray[Any, Any]  # float64
+    terminated: np.ndarray[Any, Any]  # int8: 0, 1, or 2 for a value bool() refused
+    truncated: np.ndarray[Any, Any]
+    terms: dict[int, dict[str, Any]]
+
+    @classmethod
+    def collect(
+        cls,
+        steps: _Steps,
+        episodes: list[_Stepped],
+        obs: pa.Array,
+        n: int,
+        terms_rule: RewardTerms | None,
+    ) -> _Got:
+        """Columns of ``n`` rows from what the ``episodes`` ``steps`` returned."""
+        rewards = _rewards(steps.rewards)
+        total = len(steps.rewards)
+        terminated = np.zeros(total, dtype=np.int8)
+        truncated = np.zeros(total, dtype=np.int8)
+        if steps.ends:
+            last, term, trunc = zip(*steps.ends, strict=True)
+            terminated[list(last)] = _flags(list(term))
+            truncated[list(last)] = _flags(list(trunc))
+        if total == n:  # every recorded row was stepped
+            positions: np.ndarray[Any, Any] = np.arange(n)
+        else:
+            ran = np.array([e.ran for e in episodes], dtype=np.int64)
+            firsts = np.array([e.first for e in episodes], dtype=np.int64)
+            positions = np.repeat(firsts, ran) + (
+                np.arange(total) - np.repeat(np.cumsum(ran) - ran, ran)
+            )
+            index = np.full(n, -1, dtype=np.int64)
+            index[positions] = np.arange(total)
+            obs = obs.take(pa.array(index, mask=index < 0))
+            rewards = _scatter(rewards, positions, n, np.nan)
+            terminated = _scatter(terminated, positions, n, 0)
+            truncated = _scatter(truncated, positions, n, 0)
+        terms: dict[int, dict[str, Any]] = {}
+        if terms_rule is not None and steps.infos:
+            extract = terms_rule.extractor
+            at = positions.tolist()
+            for i, info in steps.infos:
+                found = extract(info)
+                if found is not None:
+                    terms[at[i]] = found
+        return cls(obs, rewards, terminated, truncated, terms)
+
+
+@dataclass
+class _Steps:
+    """What the steps returned (but the observations), in order.
+
+    No tuple is kept per step: many live tuples make the garbage collector walk them again
+    and again (a third of the replay's own time on CartPole).
+    """
+
+    rewards: list[Any] = field(default_factory=list)
+    ends: list[tuple[int, Any, Any]] = field(default_factory=list)  # each episode's last step
+    infos: list[tuple[int, Any]] = field(default_factory=list)  # (step, info) when not empty
+
+
+def _scatter(
+    values: np.ndarray[Any, Any], positions: np.ndarray[Any, Any], n: int, fill: Any
+) -> np.ndarray[Any, Any]:
+    out = np.full(n, fill, dtype=values.dtype)
+    out[positions] = values
+    return out
+
+
+def _rewards(values: list[Any]) -> np.ndarray[Any, Any]:
+    """Rewards as float64; one that is not a number is NaN (a text reward is not parsed)."""
+    if set(map(type, values)) <= _PLAIN_NUMBERS:
+        return np.array(values, dtype=np.float64)
+    out = array("d")
+    for value in values:
+        try:
+            out.append(value)
+        except TypeError:
+            out.append(math.nan)
+    return np.array(out, dtype=np.float64)
+
+
+def _flags(values: list[Any]) -> np.ndarray[Any, Any]:
+    """Flags as int8: 0 or 1 by ``bool()``, 2 where ``bool()`` refuses (an array of many)."""
+    try:
+        return np.array(list(map(bool, values)), dtype=np.int8)
+    except Exception:
+        out = np.empty(len(values), dtype=np.int8)
+        for i, value in enumerate(values):
+            try:
+                out[i] = bool(value)
+            except Exception:
+                out[i] = 2
+        return out
+
+
+def _replay_actions(column: pa.ChunkedArray, codec: Any) -> tuple[Any, np.ndarray[Any, Any] | None]:
+    """The actions a replay steps with, and the rows with none (``None`` when all have one).
+
+    Integer actions are numpy integers, as ``Discrete.sample()`` and ``from_jsonable`` give;
+    others are what the space codec decodes.
+    """
+    actions = column.combine_chunks()
+    if pa.types.is_integer(actions.type) and actions.null_count == 0:
+        return actions.to_numpy(), None
+    values = codec.decode(actions)
+    missing = [i for i, value in enumerate(values) if value is None]
+    return values, (np.array(missing, dtype=np.int64) if missing else None)
+
+
 class _EpisodeRunner:
     """Replays the episodes of one file in one environment."""
 
@@ -243,6 +379,7 @@ class _EpisodeRunner:
         progress: Callable[[int], None] | None,
     ) -> None:
         self.ev = ev
+        self.file = str(ev.path)
         self.env = env
         self.atol = atol
         self.progress = progress
@@ -252,10 +389,10 @@ class _EpisodeRunner:
         self.time_limit = find_time_limit(env)
 
     def not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
-        return EpisodeReplay(str(self.ev.path), index, "not_replayable", steps, reason=reason)
+        return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
 
     def _diverged(self, index: int, steps: int, divergence: Divergence) -> EpisodeReplay:
-        return EpisodeReplay(str(self.ev.path), index, "diverged", steps, divergence)
+        return EpisodeReplay(self.file, index, "diverged", steps, divergence)
 
     def run_all(
         self,
@@ -267,9 +404,9 @@ class _EpisodeRunner:
     ) -> list[EpisodeReplay]:
         """Replay ``records`` (in file order): step every episode, then compare in one pass.
 
-        Stepping collects the replayed values of all episodes into whole-file buffers; the
-        comparison then runs over whole columns at once, and the first mismatching step of
-        each episode is looked up from the mismatch positions.
+        Stepping only keeps what the env returns; the values become columns afterwards, and
+        the comparison runs over whole columns at once. The first mismatching step of each
+        episode is looked up from the mismatch positions.
         """
         obs_codec, act_codec = self.obs_codec, self.act_codec
         done: dict[int, EpisodeReplay] = {}
@@ -278,120 +415,33 @@ class _EpisodeRunner:
                 index = int(r["episode"])
                 done[index] = self.not_replayable(index, 0, "the file's spaces cannot be rebuilt")
             return [done[int(r["episode"])] for r in records]
-        action_col = steps.column(fmt.COL_ACTION).combine_chunks()
-        actions: Any
-        if pa.types.is_integer(action_col.type) and action_col.null_count == 0:
-            actions = action_col.to_numpy()  # numpy ints, as Discrete.sample() gives
-        else:
-            actions = act_codec.decode(action_col)
+        actions, null_rows = _replay_actions(steps.column(fmt.COL_ACTION), act_codec)
         reset_obs = resets.column(fmt.COL_OBSERVATION).combine_chunks() if resets.num_rows else None
-        got_obs = obs_codec.new_buffer()
-        got_reset = obs_codec.new_buffer()
-        rewards = array("d")
-        terminated = array("b")
-        truncated = array("b")
-        terms: dict[int, dict[str, Any]] = {}
-        extract = self.terms_rule.extract if self.terms_rule is not None else None
-        take: list[np.ndarray[Any, Any]] = []
-        reset_take: list[int] = []
-        # per replayed episode: record, first row in the got buffers, recorded rows, rows run,
-        # a crash divergence, the last info
-        plan: list[tuple[dict[str, Any], int, int, int, Divergence | None, Any]] = []
-        env_step = self.env.step
-        append_obs = got_obs.append
-        progress = self.progress
-        for record in records:
-            index = int(record["episode"])
-            start, count = rows.get(index, (0, 0))
-            seed = record.get("seed")
-            rng_state = record.get("rng_state")
-            at = reset_rows.get(index)
-            if seed is None and rng_state is None:
-                done[index] = self.not_replayable(
-                    index, 0, "no seed or RNG state recorded for its reset"
-                )
-                continue
-            if at is None or reset_obs is None:
-                done[index] = self.not_replayable(
-                    index, count, "its reset row is missing (torn file)"
-                )
-                continue
-            try:
-                options = from_json(record["options"], "options") if record.get("options") else None
-                state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
-            except ValueError as exc:
-                done[index] = self.not_replayable(index, count, f"its reset record: {exc}")
-                continue
-            try:
-                if seed is not None:
-                    obs, _ = self.env.reset(seed=int(seed), options=options)
-                else:
-                    restore_rng_state(self.env, state)
-                    obs, _ = self.env.reset(options=options)
-            except Exception as exc:
-                done[index] = self._diverged(
-                    index, 0, Divergence(None, "reset", "a reset", f"{type(exc).__name__}: {exc}")
-                )
-                continue
-            _append(got_reset, obs)
-            reset_take.append(at)
-            first = len(rewards)
-            crash: Divergence | None = None
-            last_info: Any = {}
-            ran = 0
-            for row in range(start, start + count):
-                action = actions[row]
-                if action is None:
-                    crash = Divergence(ran, "action", "a recorded action", "null (not recordable)")
-                    break
-                try:
-                    obs, reward, term, trunc, info = env_step(action)
-                except Exception as exc:
-                    crash = Divergence(ran, "step", "a step", f"{type(exc).__name__}: {exc}")
-                    break
-                try:
-                    append_obs(obs)
-                except (TypeError, ValueError):
-                    got_obs.append_null()
-                try:
-                    rewards.append(reward)  # type: ignore[arg-type]
-                except TypeError:
-                    rewards.append(math.nan)
-                terminated.append(bool(term))
-                truncated.append(bool(trunc))
-                if extract is not None and info:
-                    found = extract(info)
-                    if found is not None:
-                        terms[len(rewards) - 1] = found
-                last_info = info
-                ran += 1
-                if (term or trunc) and ran < count:
-                    break
-            for _ in range(count - ran):  # keep rows aligned with the evidence
-                got_obs.append_null()
-                rewards.append(math.nan)
-                terminated.append(0)
-                truncated.append(0)
-            take.append(np.arange(start, start + count))
-            # the TimeLimit state belongs to this episode: read it now, not after the others
-            hit = time_limit_hit(self.time_limit)
-            plan.append((record, first, count, ran, crash, (last_info, hit)))
-            if progress is not None:
-                progress(count)
-        if plan:
-            expected = steps.take(pa.array(np.concatenate(take))) if take else steps.slice(0, 0)
-            self._got_obs = got_obs.finish()
-            bad, field_masks = self._mismatches(
-                expected, self._got_obs, rewards, terms, terminated, truncated
-            )
+        episodes, returned, got_obs, got_reset = self._step_all(
+            records, actions, null_rows, rows, reset_rows, done
+        )
+        if episodes:
             assert reset_obs is not None
+            starts = np.array([e.start for e in episodes], dtype=np.int64)
+            counts = np.array([e.count for e in episodes], dtype=np.int64)
+            firsts = np.array([e.first for e in episodes], dtype=np.int64)
+            take = np.repeat(starts - firsts, counts) + np.arange(int(counts.sum()))
+            same_rows = take.size == steps.num_rows and bool((take == np.arange(take.size)).all())
+            expected = steps if same_rows else steps.take(pa.array(take))
+            got = _Got.collect(returned, episodes, got_obs, expected.num_rows, self.terms_rule)
+            self._got_obs = got.obs
+            bad, field_masks = self._mismatches(expected, got)
             reset_equal, reset_diff = obs_codec.compare(
-                reset_obs.take(pa.array(reset_take, pa.int64())), got_reset.finish(), atol=self.atol
+                reset_obs.take(pa.array([e.reset_at for e in episodes], pa.int64())),
+                got_reset,
+                atol=self.atol,
             )
-            for k, (record, first, count, ran, crash, info) in enumerate(plan):
-                index = int(record["episode"])
+            at = np.searchsorted(bad, firsts)
+            first_bad = np.append(bad, np.iinfo(np.int64).max)[at].tolist()
+            for k, episode in enumerate(episodes):
+                index = int(episode.record["episode"])
                 if not reset_equal[k]:
-                    exp = obs_codec.decode(reset_obs.slice(reset_take[k], 1))[0]
+                    exp = obs_codec.decode(reset_obs.slice(episode.reset_at, 1))[0]
                     done[index] = self._diverged(
                         index,
                         0,
@@ -404,31 +454,114 @@ class _EpisodeRunner:
                         ),
                     )
                     continue
-                done[index] = self._verdict(
-                    record,
-                    first,
-                    count,
-                    ran,
-                    crash,
-                    info,
-                    bad,
-                    field_masks,
-                    expected,
-                    rewards,
-                    terms,
-                    terminated,
-                    truncated,
-                )
+                done[index] = self._verdict(episode, first_bad[k], field_masks, expected, got)
         return [done[int(r["episode"])] for r in records]
 
-    def _mismatches(
+    def _step_all(
         self,
-        expected: pa.Table,
-        got_obs: pa.Array,
-        rewards: array[float],
-        terms: dict[int, dict[str, Any]],
-        terminated: array[int],
-        truncated: array[int],
+        records: list[dict[str, Any]],
+        actions: Any,
+        null_rows: np.ndarray[Any, Any] | None,
+        rows: dict[int, tuple[int, int]],
+        reset_rows: dict[int, int],
+        done: dict[int, EpisodeReplay],
+    ) -> tuple[list[_Stepped], _Steps, pa.Array, pa.Array]:
+        """Reset and step every replayable episode.
+
+        Returns the stepped episodes, what their steps returned (in order), and the columns
+        of their observations and reset observations (copied as they come: an env may
+        change an array it returned).
+        """
+        assert self.obs_codec is not None
+        env, env_step = self.env, self.env.step
+        got_obs, got_reset = self.obs_codec.new_buffer(), self.obs_codec.new_buffer()
+        append_obs = got_obs.append
+        steps = _Steps()
+        rewards = steps.rewards
+        keep_reward, keep_info = rewards.append, steps.infos.append
+        ends = steps.ends
+        episodes: list[_Stepped] = []
+        progress = self.progress
+        first = 0
+        for record in records:
+            index = int(record["episode"])
+            start, count = rows.get(index, (0, 0))
+            seed = record.get("seed")
+            rng_state = record.get("rng_state")
+            reset_at = reset_rows.get(index)
+            if seed is None and rng_state is None:
+                done[index] = self.not_replayable(
+                    index, 0, "no seed or RNG state recorded for its reset"
+                )
+                continue
+            if reset_at is None:
+                done[index] = self.not_replayable(
+                    index, count, "its reset row is missing (torn file)"
+                )
+                continue
+            try:
+                options = from_json(record["options"], "options") if record.get("options") else None
+                state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
+            except ValueError as exc:
+                done[index] = self.not_replayable(index, count, f"its reset record: {exc}")
+                continue
+            try:
+                if seed is not None:
+                    obs, _ = env.reset(seed=int(seed), options=options)
+                else:
+                    restore_rng_state(env, state)
+                    obs, _ = env.reset(options=options)
+            except Exception as exc:
+                done[index] = self._diverged(
+                    index, 0, Divergence(None, "reset", "a reset", f"{type(exc).__name__}: {exc}")
+                )
+                continue
+            _append(got_reset, obs)
+            stop = start + count
+            crash: Divergence | None = None
+            if null_rows is not None and null_rows.size:
+                k = int(np.searchsorted(null_rows, start))
+                if k < null_rows.size and null_rows[k] < stop:
+                    stop = int(null_rows[k])
+                    crash = Divergence(
+                        stop - start, "action", "a recorded action", "null (not recordable)"
+                    )
+            before = len(rewards)
+            try:
+                for action in actions[start:stop]:
+                    obs, reward, term, trunc, info = env_step(action)
+                    try:
+                        append_obs(obs)
+                    except (TypeError, ValueError):
+                        got_obs.append_null()
+                    keep_reward(reward)
+                    if info:
+                        keep_info((len(rewards) - 1, info))
+                    if term or trunc:
+                        break
+            except Exception as exc:
+                ran = len(rewards) - before
+                crash = Divergence(ran, "step", "a step", f"{type(exc).__name__}: {exc}")
+            ran = len(rewards) - before
+            if ran < stop - start and (crash is None or crash.field == "action"):
+                crash = None  # it ended early: the length check says so
+            last_info = info if ran else {}
+            # Every step before the last had both flags falsy (stepping stops at the first
+            # that has one set): only the last step's are kept.
+            if ran:
+                ends.append((len(rewards) - 1, term, trunc))
+            # the TimeLimit state belongs to this episode: read it now, not after the others
+            hit = time_limit_hit(self.time_limit)
+            episodes.append(
+                _Stepped(record, start, count, first, ran, crash, last_info, hit, reset_at)
+            )
+            first += count
+            if progress is not None:
+                progress(count)
+        return episodes, steps, got_obs.finish(), got_reset.finish()
+
+    def _mismatches(
+        self, expected: pa.Table, got: _Got
     ) -> tuple[
         np.ndarray[Any, Any], list[tuple[str, np.ndarray[Any, Any], np.ndarray[Any, Any] | None]]
     ]:
@@ -436,10 +569,10 @@ class _EpisodeRunner:
         assert self.obs_codec is not None
         n = expected.num_rows
         obs_equal, obs_diff = self.obs_codec.compare(
-            expected.column(fmt.COL_OBSERVATION).combine_chunks(), got_obs, atol=self.atol
+            expected.column(fmt.COL_OBSERVATION).combine_chunks(), got.obs, atol=self.atol
         )
         exp_r = expected.column(fmt.COL_REWARD).to_numpy()
-        got_r = np.frombuffer(rewards, dtype=np.float64) if n else np.zeros(0)
+        got_r = got.rewards
         with np.errstate(invalid="ignore"):
             diff_r = np.abs(exp_r - got_r)
             same_r = (exp_r == got_r) | (np.isnan(exp_r) & np.isnan(got_r)) | (diff_r <= self.atol)
@@ -448,10 +581,13 @@ class _EpisodeRunner:
             ("reward", same_r, diff_r),
         ]
         if self.terms_rule is not None:
-            fields.append(("terms", self._terms_equal(expected, terms, n), None))
-        for name, got in ((fmt.COL_TERMINATED, terminated), (fmt.COL_TRUNCATED, truncated)):
-            exp = expected.column(name).to_numpy(zero_copy_only=False)
-            fields.append((name, exp == np.frombuffer(got, dtype=np.int8).astype(np.bool_), None))
+            fields.append(("terms", self._terms_equal(expected, got.terms, n), None))
+        for name, flags in (
+            (fmt.COL_TERMINATED, got.terminated),
+            (fmt.COL_TRUNCATED, got.truncated),
+        ):
+            exp = expected.column(name).to_numpy(zero_copy_only=False).astype(np.int8)
+            fields.append((name, exp == flags, None))
         ok = np.ones(n, dtype=np.bool_)
         for _, equal, _ in fields:
             ok &= equal
@@ -464,33 +600,21 @@ class _EpisodeRunner:
         got = terms_column(n, terms)
         if exp.null_count == n and got.null_count == n:
             return np.ones(n, dtype=np.bool_)
-        equal = np.ones(n, dtype=np.bool_)
-        for i, (a, b) in enumerate(zip(exp.to_pylist(), got.to_pylist(), strict=True)):
-            if not _terms_equal(a, b, self.atol):
-                equal[i] = False
-        return equal
+        return _terms_rows_equal(exp, got, self.atol)
 
     def _verdict(
         self,
-        record: dict[str, Any],
-        first: int,
-        count: int,
-        ran: int,
-        crash: Divergence | None,
-        info: Any,
-        bad: np.ndarray[Any, Any],
+        episode: _Stepped,
+        first_bad: int,
         fields: list[tuple[str, np.ndarray[Any, Any], np.ndarray[Any, Any] | None]],
         expected: pa.Table,
-        rewards: array[float],
-        terms: dict[int, dict[str, Any]],
-        terminated: array[int],
-        truncated: array[int],
+        got: _Got,
     ) -> EpisodeReplay:
         assert self.obs_codec is not None
+        record, first, count, ran = episode.record, episode.first, episode.count, episode.ran
         index = int(record["episode"])
-        pos = int(np.searchsorted(bad, first))
-        if pos < bad.size and bad[pos] < first + ran:
-            row = int(bad[pos])
+        if first_bad < first + ran:
+            row = first_bad
             step = row - first
             for name, equal, diff in fields:
                 if equal[row]:
@@ -499,53 +623,52 @@ class _EpisodeRunner:
                 if name == "observation":
                     col = expected.column(fmt.COL_OBSERVATION)
                     exp_v = _short(self.obs_codec.decode(col.slice(row, 1).combine_chunks())[0])
-                    got_v = _short(self.obs_codec.decode(self._got_obs.slice(row, 1))[0])
+                    got_v = _short(self.obs_codec.decode(got.obs.slice(row, 1))[0])
                 elif name == "reward":
                     exp_v = repr(expected.column(fmt.COL_REWARD)[row].as_py())
-                    got_v = repr(rewards[row])
+                    got_v = repr(float(got.rewards[row]))
                 elif name == "terms":
                     exp_v = _short(dict(expected.column(fmt.COL_TERMS)[row].as_py() or []))
-                    got_v = _short(terms.get(row, {}))
+                    got_v = _short(got.terms.get(row, {}))
                 else:
-                    got_flags = terminated if name == fmt.COL_TERMINATED else truncated
+                    flags = got.terminated if name == fmt.COL_TERMINATED else got.truncated
                     exp_v = str(expected.column(name)[row].as_py())
-                    got_v = str(bool(got_flags[row]))
+                    got_v = _FLAG_NAMES[int(flags[row])]
                 return self._diverged(index, step, Divergence(step, name, exp_v, got_v, d))
-        if crash is not None:
-            return self._diverged(index, ran, crash)
+        if episode.crash is not None:
+            return self._diverged(index, ran, episode.crash)
         if ran < count:
             return self._diverged(
                 index,
                 ran,
                 Divergence(ran, "length", f"{count} steps", f"the episode ended after {ran}"),
             )
-        flags_t = [bool(x) for x in terminated[first : first + ran]]
-        flags_u = [bool(x) for x in truncated[first : first + ran]]
-        last_info, hit = info
-        outcome = self._outcome_difference(record, flags_t, flags_u, last_info, hit)
-        if outcome is not None:
-            return self._diverged(index, ran, outcome)
-        return EpisodeReplay(str(self.ev.path), index, "identical", ran)
+        if ran:
+            last = first + ran - 1
+            outcome = self._outcome_difference(
+                record,
+                bool(got.terminated[last] == 1),
+                bool(got.truncated[last] == 1),
+                ran - 1,
+                episode.last_info,
+                episode.hit_time_limit,
+            )
+            if outcome is not None:
+                return self._diverged(index, ran, outcome)
+        return EpisodeReplay(self.file, index, "identical", ran)
 
     def _outcome_difference(
         self,
         record: dict[str, Any],
-        terminated: list[bool],
-        truncated: list[bool],
+        term: bool,
+        trunc: bool,
+        last_step: int,
         info: Any,
         hit_time_limit: bool,
     ) -> Divergence | None:
-        if (
-            self.rules is None
-            or not terminated
-            or record["outcome"]
-            in (
-                fmt.OUTCOME_INCOMPLETE,
-                fmt.OUTCOME_ERROR,
-            )
-        ):
+        """How the outcome of an episode whose last step was ``last_step`` differs, if it does."""
+        if self.rules is None or record["outcome"] in (fmt.OUTCOME_INCOMPLETE, fmt.OUTCOME_ERROR):
             return None
-        term, trunc = terminated[-1], truncated[-1]
         if not (term or trunc):
             return None
         ending = self.rules.classify(
@@ -557,9 +680,7 @@ class _EpisodeRunner:
         want = (record["outcome"], record.get("failure_label"), record.get("truncation_reason"))
         got = (ending.outcome, ending.failure_label, ending.truncation_reason)
         if want != got:
-            return Divergence(
-                len(terminated) - 1, "outcome", _fmt_outcome(*want), _fmt_outcome(*got)
-            )
+            return Divergence(last_step, "outcome", _fmt_outcome(*want), _fmt_outcome(*got))
         return None
 
 
@@ -575,12 +696,53 @@ def _fmt_outcome(outcome: str, label: str | None, reason: str | None) -> str:
     return "/".join(parts)
 
 
+def _terms_rows_equal(exp: pa.Array, got: pa.Array, atol: float) -> np.ndarray[Any, Any]:
+    """Per row of two ``terms`` map columns, what :func:`_terms_equal` says, over whole columns.
+
+    Rows are equal when both are null, or both hold the same names in the same order with
+    values equal (NaN equals NaN; within ``atol`` when it is positive; a null value equals
+    only a null value).
+    """
+    exp_null, got_null = null_mask(exp), null_mask(got)
+    exp_off = exp.offsets.to_numpy(zero_copy_only=False).astype(np.int64)
+    got_off = got.offsets.to_numpy(zero_copy_only=False).astype(np.int64)
+    exp_len, got_len = np.diff(exp_off), np.diff(got_off)
+    both = ~exp_null & ~got_null
+    equal: np.ndarray[Any, Any] = (exp_null == got_null) & (~both | (exp_len == got_len))
+    rows = np.flatnonzero(both & (exp_len == got_len) & (exp_len > 0))
+    if rows.size == 0:
+        return equal
+    # the flat positions of every compared (name, value) pair, row after row
+    lens = exp_len[rows]
+    within = np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens)
+    exp_at = pa.array(np.repeat(exp_off[rows], lens) + within)
+    got_at = pa.array(np.repeat(got_off[rows], lens) + within)
+    keys = pc.equal(exp.keys.take(exp_at), got.keys.take(got_at)).fill_null(False)
+    same = keys.to_numpy(zero_copy_only=False)
+    exp_v, got_v = exp.items.take(exp_at), got.items.take(got_at)
+    a = exp_v.to_numpy(zero_copy_only=False).astype(np.float64)
+    b = got_v.to_numpy(zero_copy_only=False).astype(np.float64)
+    a_null, b_null = null_mask(exp_v), null_mask(got_v)
+    with np.errstate(invalid="ignore"):
+        close = (a == b) | (np.isnan(a) & np.isnan(b))
+        if atol > 0:
+            close |= np.abs(a - b) <= atol
+    same &= np.where(a_null | b_null, a_null & b_null, close)
+    equal[rows[np.repeat(np.arange(rows.size), lens)[~same]]] = False
+    return equal
+
+
 def _terms_equal(a: Any, b: Any, atol: float) -> bool:
+    """One row of :func:`_terms_rows_equal`: ``(name, value)`` lists, or ``None``."""
     if a is None or b is None:
         return a is None and b is None
     if [k for k, _ in a] != [k for k, _ in b]:
         return False
     for (_, x), (_, y) in zip(a, b, strict=True):
+        if x is None or y is None:
+            if x is None and y is None:
+                continue
+            return False
         if x == y or (x != x and y != y):
             continue
         if atol > 0 and abs(x - y) <= atol:

@@ -677,7 +677,7 @@ class Stream:
         self._act_codec = act_codec
         self._rules = settings.rules
         self._terms_rule = settings.terms_rule
-        self._extract_terms = settings.terms_rule.extract
+        self._extract_terms = settings.terms_rule.extractor
         self._info_keys = settings.info_keys
         self._keep_all_info = settings.keep_all_info
         self._track_info = settings.track_info

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import textwrap
@@ -7,11 +8,16 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
+import pyarrow as pa
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from episode_audit import RecordEvidence
+from episode_audit.columns import TERMS_TYPE
 from episode_audit.errors import ConfigurationError
-from episode_audit.replay import load_callable, replay
+from episode_audit.replay import _terms_equal, _terms_rows_equal, load_callable, replay
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -184,3 +190,129 @@ def test_replay_streams_in_windows_of_whole_episodes(
     assert [e.episode for e in result.episodes] == list(range(13))
     assert result.count("identical") == 13, [e for e in result.episodes if e.status != "identical"]
     assert replay([path], episodes=[3, 11]).count("identical") == 2
+
+
+class Counter(gym.Env[Any, int]):
+    """Counts up by its action; hands out one observation array it changes in place."""
+
+    observation_space = gym.spaces.Box(-1000.0, 1000.0, (2,), np.float64)
+    action_space = gym.spaces.Discrete(3)
+
+    def __init__(self, length: int = 6, raise_at: int | None = None) -> None:
+        self.length, self.raise_at = length, raise_at
+        self.buffer = np.zeros(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        self.buffer[:] = self.np_random.integers(0, 10), 0.0
+        return self.buffer, {}
+
+    def step(self, action: int) -> Any:
+        self.t += 1
+        if self.t == self.raise_at:
+            raise RuntimeError("boom")
+        self.buffer += (int(action), 1.0)  # the same array, changed in place
+        terms = {"reward_terms": {"count": float(action), "alive": 1.0}}
+        return self.buffer, float(action) + 1.0, self.t >= self.length, False, terms
+
+
+def record_counter(path: Path, episodes: int = 4) -> Path:
+    with RecordEvidence(Counter(), path) as env:
+        env.action_space.seed(5)
+        for e in range(episodes):
+            env.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(env.action_space.sample())
+                done = term or trunc
+    return path
+
+
+def test_an_env_that_reuses_its_observation_array_replays_identically(tmp_path: Path) -> None:
+    path = record_counter(tmp_path / "counter.mcap")
+    result = replay([path], env_factory=Counter)
+    assert result.count("identical") == 4, result.episodes
+    assert [e.steps for e in result.episodes] == [6] * 4
+
+
+def test_an_episode_that_ends_early_on_replay_diverges_on_its_flag(tmp_path: Path) -> None:
+    path = record_counter(tmp_path / "counter.mcap", episodes=2)
+    result = replay([path], env_factory=lambda: Counter(length=4))
+    assert [(e.status, e.steps) for e in result.episodes] == [("diverged", 3)] * 2
+    divergence = result.episodes[1].divergence
+    assert divergence is not None
+    assert divergence.describe() == "step 3: terminated expected False, got True"
+
+
+def test_an_env_that_raises_on_replay_diverges_at_that_step(tmp_path: Path) -> None:
+    path = record_counter(tmp_path / "counter.mcap", episodes=3)
+    result = replay([path], env_factory=lambda: Counter(raise_at=3))
+    for episode in result.episodes:
+        assert episode.status == "diverged" and episode.steps == 2
+        assert episode.divergence is not None
+        assert (episode.divergence.step, episode.divergence.field) == (2, "step")
+        assert episode.divergence.got == "RuntimeError: boom"
+
+
+def test_a_changed_reward_term_diverges_on_terms(tmp_path: Path) -> None:
+    class Renamed(Counter):
+        def step(self, action: int) -> Any:
+            obs, reward, term, trunc, _ = super().step(action)
+            renamed = {"reward_terms": {"count": float(action), "alive!": 1.0}}
+            return obs, reward, term, trunc, renamed
+
+    path = record_counter(tmp_path / "counter.mcap", episodes=1)
+    result = replay([path], env_factory=Renamed)
+    divergence = result.episodes[0].divergence
+    assert divergence is not None and (divergence.step, divergence.field) == (0, "terms")
+    assert "'alive!': 1.0" in divergence.got
+
+
+# --------------------------------------------------------------------------------------------
+# terms comparison over whole columns
+# --------------------------------------------------------------------------------------------
+
+_NAMES = st.sampled_from(["a", "b", "ctrl", "é"])
+_VALUES = st.one_of(
+    st.sampled_from([0.0, -0.0, 1.0, 1.5, math.nan, math.inf, None]),
+    st.floats(-2, 2, allow_nan=False),
+)
+_ROW = st.one_of(st.none(), st.lists(st.tuples(_NAMES, _VALUES), max_size=3))
+
+
+@given(
+    pairs=st.lists(st.tuples(_ROW, _ROW), max_size=12),
+    atol=st.sampled_from([0.0, 1e-9, 0.5]),
+    cut=st.integers(0, 3),
+)
+@settings(max_examples=300, deadline=None)
+def test_terms_rows_equal_agrees_with_the_row_by_row_rule(
+    pairs: list[tuple[Any, Any]], atol: float, cut: int
+) -> None:
+    # the same two columns sliced (offsets into longer children), as take() may leave them
+    pad = [[("pad", 1.0)]] * cut
+    exp = pa.array(pad + [a for a, _ in pairs], TERMS_TYPE).slice(cut)
+    got = pa.array(pad + [b for _, b in pairs], TERMS_TYPE).slice(cut)
+    # the row-by-row rule (PettingZoo replay's) is the reference
+    expected = [_terms_equal(a, b, atol) for a, b in pairs]
+    assert _terms_rows_equal(exp, got, atol).tolist() == expected
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "atol", "equal"),
+    [
+        (None, None, 0.0, True),
+        (None, [], 0.0, False),
+        ([], [], 0.0, True),
+        ([("a", 1.0)], [("a", 1.0)], 0.0, True),
+        ([("a", math.nan)], [("a", math.nan)], 0.0, True),
+        ([("a", 1.0)], [("a", 1.0 + 1e-12)], 0.0, False),
+        ([("a", 1.0)], [("a", 1.0 + 1e-12)], 1e-9, True),
+        ([("a", 1.0), ("b", 2.0)], [("b", 2.0), ("a", 1.0)], 0.0, False),  # order counts
+        ([("a", None)], [("a", None)], 0.5, True),
+        ([("a", None)], [("a", 0.0)], 0.5, False),
+    ],
+)
+def test_terms_equal_rule(a: Any, b: Any, atol: float, equal: bool) -> None:
+    assert _terms_equal(a, b, atol) is equal
