@@ -360,6 +360,8 @@ def _replay_actions(column: pa.ChunkedArray, codec: Any) -> tuple[Any, np.ndarra
     others are what the space codec decodes.
     """
     actions = column.combine_chunks()
+    if len(actions) == 0:  # (a torn file may not even name the column's type)
+        return [], None
     if pa.types.is_integer(actions.type) and actions.null_count == 0:
         return actions.to_numpy(), None
     values = codec.decode(actions)
@@ -410,6 +412,8 @@ class _EpisodeRunner:
         """
         obs_codec, act_codec = self.obs_codec, self.act_codec
         done: dict[int, EpisodeReplay] = {}
+        if not records:
+            return []
         if obs_codec is None or act_codec is None:
             for r in records:
                 index = int(r["episode"])
@@ -804,33 +808,44 @@ def replay_evidence(
             trust_entry_points=trust_entry_points,
             progress=progress,
         )
-    table = ev.episodes()
-    records = table.to_pylist()
-    if episodes is not None:
-        wanted = set(episodes)
-        records = [r for r in records if r["episode"] in wanted]
+    wanted = None if episodes is None else set(episodes)
+
+    def records() -> list[dict[str, Any]]:
+        listed = ev.episodes().to_pylist()
+        return listed if wanted is None else [r for r in listed if r["episode"] in wanted]
+
+    def none_replayable(reason: str) -> list[EpisodeReplay]:
+        path = str(ev.path)
+        return [
+            EpisodeReplay(path, int(r["episode"]), "not_replayable", 0, reason=reason)
+            for r in records()
+        ]
+
     why_not = _layout_not_replayable(ev.run.layout)
     if why_not is not None:
-        return [
-            EpisodeReplay(str(ev.path), int(r["episode"]), "not_replayable", 0, reason=why_not)
-            for r in records
-        ]
+        return none_replayable(why_not)
     try:
         env = build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
     except ReplayError as exc:
-        return [
-            EpisodeReplay(str(ev.path), int(r["episode"]), "not_replayable", 0, reason=str(exc))
-            for r in records
-        ]
+        return none_replayable(str(exc))
     try:
         runner = _EpisodeRunner(ev, env, atol=atol, progress=progress)
-        resets = ev.resets()
-        reset_rows = {int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())}
-        by_index = {int(r["episode"]): r for r in records}
-        selected = None if episodes is None else pa.array(sorted(by_index), pa.int64())
+        selected = None if wanted is None else pa.array(sorted(wanted), pa.int64())
         results: dict[int, EpisodeReplay] = {}
+        known: list[Any] = []  # records, by index, resets, reset rows: read when first needed
 
         def run(table: pa.Table) -> None:
+            if not known:
+                # After a complete pass over the steps this reads nothing again: the pass kept
+                # the episode records and reset blocks. (A file longer than a window is read
+                # once more here.)
+                listed = records()
+                resets = ev.resets()
+                reset_rows = {
+                    int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())
+                }
+                known.extend([listed, {int(r["episode"]): r for r in listed}, resets, reset_rows])
+            _, by_index, resets, reset_rows = known
             rows = _row_ranges(table.column(fmt.COL_EPISODE).to_numpy())
             batch = [by_index[e] for e in rows if e in by_index and e not in results]
             for result in runner.run_all(batch, table, rows, reset_rows, resets):
@@ -857,14 +872,19 @@ def replay_evidence(
                     run(table.slice(0, cut))
                     window = table.slice(cut).to_batches()
                     held = table.num_rows - cut
-        if window:
-            run(pa.Table.from_batches(window).combine_chunks())
-        rest = [r for r in records if int(r["episode"]) not in results]  # no rows at all
+        # the last window, and (with no rows) the episodes that have no steps at all
+        run(
+            pa.Table.from_batches(window).combine_chunks()
+            if window
+            else ev.steps_schema.empty_table()
+        )
+        listed, _, resets, reset_rows = known
+        rest = [r for r in listed if int(r["episode"]) not in results]  # no rows at all
         if rest:
             empty = ev.steps_schema.empty_table()
             for result in runner.run_all(rest, empty, {}, reset_rows, resets):
                 results[result.episode] = result
-        return [results[int(r["episode"])] for r in records]
+        return [results[int(r["episode"])] for r in listed]
     finally:
         env.close()
 

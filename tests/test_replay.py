@@ -192,6 +192,36 @@ def test_replay_streams_in_windows_of_whole_episodes(
     assert replay([path], episodes=[3, 11]).count("identical") == 2
 
 
+@pytest.mark.parametrize(("window", "passes"), [(10**6, 1), (40, 2)])
+def test_replay_reads_a_file_once_when_it_fits_one_window(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, window: int, passes: int
+) -> None:
+    from episode_audit import reader as reader_module
+
+    replay_module = sys.modules["episode_audit.replay"]
+    path = tmp_path / "cp.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path, block_steps=16) as env:
+        env.action_space.seed(0)
+        for e in range(8):
+            env.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(env.action_space.sample())
+                done = term or trunc
+    reads: list[int] = []
+    original = reader_module._read_chunk_record
+
+    def counting(f: Any, ref: Any, where: Path) -> Any:
+        reads.append(ref.offset)
+        return original(f, ref, where)
+
+    monkeypatch.setattr(reader_module, "_read_chunk_record", counting)
+    monkeypatch.setattr(replay_module, "REPLAY_WINDOW_ROWS", window)
+    assert replay([path]).count("identical") == 8
+    chunks = len(set(reads))
+    assert chunks > 3 and len(reads) == passes * chunks
+
+
 class Counter(gym.Env[Any, int]):
     """Counts up by its action; hands out one observation array it changes in place."""
 
