@@ -15,18 +15,25 @@ Ending(outcome='truncated', failure_label=None, truncation_reason='time_limit')
 
 from __future__ import annotations
 
+import itertools
 import math
+import operator
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import gymnasium as gym
+import numpy as np
 from gymnasium.wrappers import TimeLimit
 
 from . import format as fmt
 from .errors import ConfigurationError
 
 __all__ = ["Ending", "EndingRules", "RewardTerms", "find_time_limit", "time_limit_hit"]
+
+_PLAIN_NUMBERS = frozenset(
+    {float, int, bool, np.float64, np.float32, np.float16, np.int64, np.int32, np.bool_}
+)
 
 TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
 
@@ -68,6 +75,40 @@ class RewardTerms:
     def extract(self, info: Mapping[str, Any]) -> dict[str, Any] | None:
         """Return the step's terms (values not yet validated), or ``None`` when it has none."""
         return self.extractor(info)
+
+    def extract_many(
+        self, infos: Sequence[Mapping[str, Any]]
+    ) -> tuple[tuple[str, ...], np.ndarray[Any, np.dtype[np.float64]]] | None:
+        """The terms of many steps at once: ``(names, values)``, a float64 row per step.
+
+        Only when :meth:`extract` would give every step the same names in the same order,
+        each value a plain number; ``None`` otherwise (then ask :meth:`extract` step by step).
+
+        >>> names, values = RewardTerms().extract_many([{"reward_a": 1.0}, {"reward_a": 2}])
+        >>> names, values.tolist()
+        (('reward_a',), [[1.0], [2.0]])
+        """
+        src = self.source
+        if not infos or src is None or (callable(src) and not isinstance(src, str)):
+            return None
+        key_sets = set(map(tuple, infos))
+        if len(key_sets) != 1:
+            return None
+        (keys,) = key_sets
+        if src == "auto":
+            if self.dict_key in keys:
+                return None
+            names = tuple(k for k in keys if isinstance(k, str) and k.startswith(self.prefix))
+        else:
+            present = set(keys)
+            names = tuple(str(k) for k in src if k in present)
+        if not names:
+            return None
+        get = operator.itemgetter(*names)
+        rows = [(v,) for v in map(get, infos)] if len(names) == 1 else list(map(get, infos))
+        if not set(map(type, itertools.chain.from_iterable(rows))) <= _PLAIN_NUMBERS:
+            return None
+        return names, np.array(rows, dtype=np.float64).reshape(len(infos), len(names))
 
     @property
     def extractor(self) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:

@@ -260,7 +260,7 @@ class _Got:
     rewards: np.ndarray[Any, Any]  # float64
     terminated: np.ndarray[Any, Any]  # int8: 0, 1, or 2 for a value bool() refused
     truncated: np.ndarray[Any, Any]
-    terms: dict[int, dict[str, Any]]
+    terms: _Terms
 
     @classmethod
     def collect(
@@ -294,15 +294,60 @@ class _Got:
             rewards = _scatter(rewards, positions, n, np.nan)
             terminated = _scatter(terminated, positions, n, 0)
             truncated = _scatter(truncated, positions, n, 0)
-        terms: dict[int, dict[str, Any]] = {}
+        terms = _Terms(n)
         if terms_rule is not None and steps.infos:
-            extract = terms_rule.extractor
-            at = positions.tolist()
-            for i, info in steps.infos:
-                found = extract(info)
-                if found is not None:
-                    terms[at[i]] = found
+            infos = steps.infos
+            terms.rows = positions[steps.info_rows]
+            many = terms_rule.extract_many(infos)
+            if many is not None:
+                terms.names, terms.values = many
+            else:
+                extract = terms_rule.extractor
+                for row, info in zip(terms.rows.tolist(), infos, strict=True):
+                    found = extract(info)
+                    if found is not None:
+                        terms.found[row] = found
         return cls(obs, rewards, terminated, truncated, terms)
+
+
+@dataclass
+class _Terms:
+    """The replayed reward terms of ``n`` rows.
+
+    Either a dict per row in ``found``, or (the usual case) one tuple of ``names`` and a
+    float64 row of ``values`` for each row in ``rows``.
+    """
+
+    n: int
+    found: dict[int, dict[str, Any]] = field(default_factory=dict)
+    rows: np.ndarray[Any, Any] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    names: tuple[str, ...] = ()
+    values: np.ndarray[Any, Any] | None = None
+
+    def column(self) -> pa.Array:
+        """The ``terms`` map column of the ``n`` rows (null where a step had none)."""
+        if self.values is None:
+            return terms_column(self.n, self.found)
+        k, m = len(self.names), len(self.rows)
+        counts = np.zeros(self.n, dtype=np.int32)
+        counts[self.rows] = k
+        offsets = np.zeros(self.n + 1, dtype=np.int32)
+        np.cumsum(counts, out=offsets[1:])
+        keys = pa.array(self.names, pa.string()).take(pa.array(np.tile(np.arange(k), m)))
+        valid = np.zeros(self.n, dtype=np.bool_)
+        valid[self.rows] = True
+        return pa.MapArray.from_arrays(
+            pa.array(offsets), keys, pa.array(self.values.reshape(-1)), mask=pa.array(~valid)
+        )
+
+    def at(self, row: int) -> dict[str, Any]:
+        """The terms of one row (empty if it had none)."""
+        if self.values is None:
+            return self.found.get(row, {})
+        hit = np.flatnonzero(self.rows == row)
+        if not hit.size:
+            return {}
+        return dict(zip(self.names, self.values[int(hit[0])].tolist(), strict=True))
 
 
 @dataclass
@@ -315,7 +360,8 @@ class _Steps:
 
     rewards: list[Any] = field(default_factory=list)
     ends: list[tuple[int, Any, Any]] = field(default_factory=list)  # each episode's last step
-    infos: list[tuple[int, Any]] = field(default_factory=list)  # (step, info) when not empty
+    info_rows: list[int] = field(default_factory=list)  # the steps whose info is not empty
+    infos: list[Any] = field(default_factory=list)  # and their infos
 
 
 def _scatter(
@@ -483,6 +529,7 @@ class _EpisodeRunner:
         steps = _Steps()
         rewards = steps.rewards
         keep_reward, keep_info = rewards.append, steps.infos.append
+        keep_info_row = steps.info_rows.append
         ends = steps.ends
         episodes: list[_Stepped] = []
         progress = self.progress
@@ -540,7 +587,8 @@ class _EpisodeRunner:
                         got_obs.append_null()
                     keep_reward(reward)
                     if info:
-                        keep_info((len(rewards) - 1, info))
+                        keep_info_row(len(rewards) - 1)
+                        keep_info(info)
                     if term or trunc:
                         break
             except Exception as exc:
@@ -585,7 +633,7 @@ class _EpisodeRunner:
             ("reward", same_r, diff_r),
         ]
         if self.terms_rule is not None:
-            fields.append(("terms", self._terms_equal(expected, got.terms, n), None))
+            fields.append(("terms", self._terms_equal(expected, got.terms.column(), n), None))
         for name, flags in (
             (fmt.COL_TERMINATED, got.terminated),
             (fmt.COL_TRUNCATED, got.truncated),
@@ -597,11 +645,8 @@ class _EpisodeRunner:
             ok &= equal
         return np.flatnonzero(~ok), fields
 
-    def _terms_equal(
-        self, expected: pa.Table, terms: dict[int, dict[str, Any]], n: int
-    ) -> np.ndarray[Any, Any]:
+    def _terms_equal(self, expected: pa.Table, got: pa.Array, n: int) -> np.ndarray[Any, Any]:
         exp = expected.column(fmt.COL_TERMS).combine_chunks()
-        got = terms_column(n, terms)
         if exp.null_count == n and got.null_count == n:
             return np.ones(n, dtype=np.bool_)
         return _terms_rows_equal(exp, got, self.atol)
@@ -633,7 +678,7 @@ class _EpisodeRunner:
                     got_v = repr(float(got.rewards[row]))
                 elif name == "terms":
                     exp_v = _short(dict(expected.column(fmt.COL_TERMS)[row].as_py() or []))
-                    got_v = _short(got.terms.get(row, {}))
+                    got_v = _short(got.terms.at(row))
                 else:
                     flags = got.terminated if name == fmt.COL_TERMINATED else got.truncated
                     exp_v = str(expected.column(name)[row].as_py())

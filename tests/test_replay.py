@@ -299,6 +299,36 @@ def test_a_changed_reward_term_diverges_on_terms(tmp_path: Path) -> None:
     assert "'alive!': 1.0" in divergence.got
 
 
+class PrefixTerms(Counter):
+    """Terms as MuJoCo v5 envs give them: ``reward_*`` keys of the info."""
+
+    alive = 1.0
+
+    def step(self, action: int) -> Any:
+        obs, reward, term, trunc, _ = super().step(action)
+        info = {"reward_count": float(action), "x": 0, "reward_alive": self.alive}
+        return obs, reward, term, trunc, info
+
+
+def test_prefix_terms_replay_identically_and_diverge_by_name(tmp_path: Path) -> None:
+    path = tmp_path / "prefix.mcap"
+    with RecordEvidence(PrefixTerms(), path) as env:
+        env.action_space.seed(2)
+        for e in range(3):
+            env.reset(seed=e)
+            for _ in range(6):
+                env.step(env.action_space.sample())
+    assert replay([path], env_factory=PrefixTerms).count("identical") == 3
+
+    class Cheaper(PrefixTerms):
+        alive = 0.5
+
+    divergence = replay([path], env_factory=Cheaper).episodes[2].divergence
+    assert divergence is not None and (divergence.step, divergence.field) == (0, "terms")
+    assert divergence.got == "{'reward_count': 2.0, 'reward_alive': 0.5}"
+    assert divergence.expected == "{'reward_count': 2.0, 'reward_alive': 1.0}"
+
+
 # --------------------------------------------------------------------------------------------
 # terms comparison over whole columns
 # --------------------------------------------------------------------------------------------
