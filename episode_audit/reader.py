@@ -1071,7 +1071,11 @@ def _inner_record(kind: Any, body: bytes, path: Path, offset: int, pos: int) -> 
 
 def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordBatch:
     """Decode one block; check its framing, its data and (steps, resets) its columns."""
-    problem = _ipc_problem(data)
+    # Blocks of one topic share their schema message: one already found good is not walked
+    # or checked again (the record batch after it still is).
+    known = _GOOD_SCHEMA_MESSAGES.get(topic, b"")
+    schema_checked = len(data) > len(known) > 0 and bytes(data[: len(known)]) == known
+    problem = _ipc_problem(data, len(known) if schema_checked else 0)
     if problem is not None:
         raise CorruptEvidenceError(path, f"a block on {topic} {problem}")
     try:
@@ -1083,7 +1087,7 @@ def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordB
             path, f"a block on {topic} is not a valid Arrow stream: {_one_line(exc)}"
         ) from None
     schema = batch.schema
-    if not schema.equals(_CHECKED.get(topic, _NO_SCHEMA)):
+    if not schema_checked and not schema.equals(_CHECKED.get(topic, _NO_SCHEMA)):
         try:
             _decode_names(schema)
         except ValueError:
@@ -1097,6 +1101,10 @@ def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordB
                 path, f"a block on {topic} does not have the expected columns: {problem}"
             )
         _CHECKED[topic] = schema
+    if not schema_checked:
+        first = _first_message_end(data)
+        if first is not None:
+            _GOOD_SCHEMA_MESSAGES[topic] = bytes(data[:first])
     if topic in _NOT_NULL:
         for name in _NOT_NULL[topic]:
             if batch.column(name).null_count:
@@ -1162,6 +1170,8 @@ _NOT_NULL: dict[str, tuple[str, ...]] = {
 _NO_SCHEMA = pa.schema([])
 _CHECKED: dict[str, pa.Schema] = {}
 """The last block schema found good, per topic (blocks of one file share their schema)."""
+_GOOD_SCHEMA_MESSAGES: dict[str, bytes] = {}
+"""Per topic, the bytes of the last IPC schema message of a block found good."""
 
 
 def _columns_problem(schema: pa.Schema, required: dict[str, pa.DataType | None]) -> str | None:
@@ -1187,19 +1197,32 @@ _I32 = struct.Struct("<i")
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _I64 = struct.Struct("<q")
+_I32_PAIR = struct.Struct("<ii")  # continuation marker, metadata size
 _IPC_SCHEMA, _IPC_DICTIONARY, _IPC_RECORD_BATCH = 1, 2, 3
 
 
-def _ipc_problem(data: bytes | memoryview) -> str | None:
+def _first_message_end(data: bytes | memoryview) -> int | None:
+    """Where the IPC stream's first message ends, if it is a schema without a body."""
+    try:
+        marker, size = _I32_PAIR.unpack_from(data, 0)
+        if marker != -1 or not 0 < size <= len(data) - 8:
+            return None
+        kind, body_length, _ = _ipc_message(data, 8, size)
+    except (struct.error, IndexError):
+        return None
+    return 8 + int(size) if kind == _IPC_SCHEMA and body_length == 0 else None
+
+
+def _ipc_problem(data: bytes | memoryview, start: int = 0) -> str | None:
     """Refuse what our blocks never hold and what could inflate: compressed or dictionary bodies.
 
-    Walks the Arrow IPC stream's framing up to its first record batch, reading each message's
-    flatbuffer header by hand (an IPC body may be LZ4/ZSTD-compressed, buffer by buffer, with
-    declared sizes that pyarrow would allocate before any check). Returns None when fine; a
-    stream cut short is left to pyarrow to report.
+    Walks the Arrow IPC stream's framing (from the message at ``start``) up to its first record
+    batch, reading each message's flatbuffer header by hand (an IPC body may be LZ4/ZSTD-
+    compressed, buffer by buffer, with declared sizes that pyarrow would allocate before any
+    check). Returns None when fine; a stream cut short is left to pyarrow to report.
     """
     end = len(data)
-    pos = 0
+    pos = start
     try:
         while pos + 8 <= end:
             (size,) = _I32.unpack_from(data, pos)
