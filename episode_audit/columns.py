@@ -7,16 +7,21 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
-__all__ = ["TERMS_TYPE", "null_mask", "terms_column"]
+__all__ = ["PLAIN_NUMBERS", "TERMS_TYPE", "null_mask", "terms_column", "terms_matrix_column"]
 
 TERMS_TYPE = pa.map_(pa.string(), pa.float64())
 """Arrow type of the ``terms`` column: term name -> value, null when a step has no terms."""
+
+PLAIN_NUMBERS = frozenset(
+    {float, int, bool, np.float64, np.float32, np.float16, np.int64, np.int32, np.bool_}
+)
+"""Types whose values numpy turns into float64 as they are (no text parsing, no arrays)."""
 
 
 def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
@@ -36,14 +41,40 @@ def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
         valid[row] = True
         keys.extend(terms)
         values.extend(terms.values())
-    offsets = np.zeros(n + 1, dtype=np.int32)
-    np.cumsum(counts, out=offsets[1:])
     try:
         numbers = np.asarray(values, dtype=np.float64)
     except Exception:
         numbers = np.array([_as_float(v) for v in values], dtype=np.float64)
+    return _map_column(counts, valid, pa.array(keys, pa.string()), numbers)
+
+
+def terms_matrix_column(
+    n: int, rows: np.ndarray[Any, Any], names: Sequence[str], values: np.ndarray[Any, Any]
+) -> pa.Array:
+    """The ``terms`` column of ``n`` steps whose ``rows`` all have the same ``names``.
+
+    ``values`` holds one float64 row per entry of ``rows`` (ascending); other steps are null.
+
+    >>> terms_matrix_column(3, np.array([0, 2]), ["a"], np.array([[1.0], [2.0]])).to_pylist()
+    [[('a', 1.0)], None, [('a', 2.0)]]
+    """
+    k = len(names)
+    counts = np.zeros(n, dtype=np.int32)
+    counts[rows] = k
+    valid = np.zeros(n, dtype=np.bool_)
+    valid[rows] = True
+    keys = pa.array(list(names), pa.string()).take(pa.array(np.tile(np.arange(k), len(rows))))
+    return _map_column(counts, valid, keys, values.reshape(-1))
+
+
+def _map_column(
+    counts: np.ndarray[Any, Any], valid: np.ndarray[Any, Any], keys: pa.Array, values: Any
+) -> pa.Array:
+    """A ``terms`` map column from entries per row, row validity and the flat keys/values."""
+    offsets = np.zeros(len(counts) + 1, dtype=np.int32)
+    np.cumsum(counts, out=offsets[1:])
     return pa.MapArray.from_arrays(
-        pa.array(offsets), pa.array(keys, pa.string()), pa.array(numbers), mask=pa.array(~valid)
+        pa.array(offsets), keys, pa.array(values, pa.float64()), mask=pa.array(~valid)
     )
 
 

@@ -27,13 +27,10 @@ import numpy as np
 from gymnasium.wrappers import TimeLimit
 
 from . import format as fmt
+from .columns import PLAIN_NUMBERS
 from .errors import ConfigurationError
 
 __all__ = ["Ending", "EndingRules", "RewardTerms", "find_time_limit", "time_limit_hit"]
-
-_PLAIN_NUMBERS = frozenset(
-    {float, int, bool, np.float64, np.float32, np.float16, np.int64, np.int32, np.bool_}
-)
 
 TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
 
@@ -98,15 +95,15 @@ class RewardTerms:
         if src == "auto":
             if self.dict_key in keys:
                 return None
-            names = tuple(k for k in keys if isinstance(k, str) and k.startswith(self.prefix))
+            names = _prefixed(keys, self.prefix)
         else:
             present = set(keys)
-            names = tuple(str(k) for k in src if k in present)
+            names = tuple(k for k in src if k in present)
         if not names:
             return None
         get = operator.itemgetter(*names)
         rows = [(v,) for v in map(get, infos)] if len(names) == 1 else list(map(get, infos))
-        if not set(map(type, itertools.chain.from_iterable(rows))) <= _PLAIN_NUMBERS:
+        if not set(map(type, itertools.chain.from_iterable(rows))) <= PLAIN_NUMBERS:
             return None
         return names, np.array(rows, dtype=np.float64).reshape(len(infos), len(names))
 
@@ -150,6 +147,11 @@ class RewardTerms:
         return {"source": kind, "constants": dict(self.constants)}
 
 
+def _prefixed(keys: Sequence[Any], prefix: str) -> tuple[str, ...]:
+    """The keys that are names starting with ``prefix``, in order."""
+    return tuple(k for k in keys if isinstance(k, str) and k.startswith(prefix))
+
+
 def _auto_terms(dict_key: str, prefix: str) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:
     """The ``"auto"`` rule: ``info[dict_key]`` if it is there, else the ``prefix*`` keys.
 
@@ -167,7 +169,7 @@ def _auto_terms(dict_key: str, prefix: str) -> Callable[[Mapping[str, Any]], dic
         keys = tuple(info)
         names = names_of.get(keys)
         if names is None:
-            names = tuple(k for k in keys if isinstance(k, str) and k.startswith(prefix))
+            names = _prefixed(keys, prefix)
             if len(names_of) < 64:  # bounded: an env with ever-new keys is scanned each time
                 names_of[keys] = names
         return {k: info[k] for k in names} if names else None

@@ -58,11 +58,6 @@ from mcap.stream_reader import StreamReader
 
 from . import format as fmt
 from .columns import TERMS_TYPE
-
-try:  # zlib-ng's CRC-32 (the same checksum) runs ~4x faster than the system zlib's
-    from zlib_ng.zlib_ng import crc32 as _crc32
-except ImportError:  # pragma: no cover - a platform without zlib-ng wheels
-    from zlib import crc32 as _crc32
 from .errors import (
     CorruptEvidenceError,
     EvidenceError,
@@ -72,6 +67,11 @@ from .errors import (
 from .records import EPISODE_ARROW_SCHEMA as EPISODE_SCHEMA
 from .records import RunInfo
 from .spaces import SpaceCodec, codec_for, space_from_description
+
+try:  # zlib-ng's CRC-32 (the same checksum) runs ~4x faster than the system zlib's
+    from zlib_ng.zlib_ng import crc32 as _crc32
+except ImportError:  # pragma: no cover - a platform without zlib-ng wheels
+    from zlib import crc32 as _crc32
 
 __all__ = [
     "EPISODE_COLUMNS",
@@ -252,11 +252,11 @@ class _Gathered:
         if self.dropped:
             return
         for _, data in chunk.resets:
-            self.resets.append(self._decoded(data, self.resets, _reset_block))
+            self.resets.append(self._early(data, self.resets, _reset_block))
             self.size += len(data)
         for data in chunk.records:
             decode = _episode_part if self.arrow_records else None
-            self.records.append(self._decoded(data, self.records, decode))
+            self.records.append(self._early(data, self.records, decode))
             self.size += len(data)
         if self.limit is not None and self.size > self.limit:
             self.dropped = True
@@ -269,7 +269,7 @@ class _Gathered:
             except Exception:
                 self.stats = None  # counted again, with its error, if episodes() needs it
 
-    def _decoded(
+    def _early(
         self,
         data: bytes,
         kept: list[pa.RecordBatch | bytes],
@@ -586,10 +586,7 @@ class Evidence:
         """
         if self._resets_cache is None:
             gathered = self._gather()
-            parts = [
-                data if isinstance(data, pa.RecordBatch) else _reset_block(data, self.path)
-                for data in gathered.resets
-            ]
+            parts = _decode_kept(gathered.resets, _reset_block, self.path)
             self._resets_cache = self._table(parts, fmt.TOPIC_RESETS, None)
             gathered.resets = []
         return self._resets_cache
@@ -621,9 +618,8 @@ class Evidence:
             starts = self._starts(self.resets(), ended)
             columns = {name: table.column(name).to_pylist() for name in EPISODE_COLUMNS}
         else:
-            columns = _end_record_columns(
-                gathered.records, self.path
-            )  # JSON records: kept as bytes
+            # JSON records: the pass kept them as bytes
+            columns = _end_record_columns(gathered.records, self.path)
             ended = set(columns["episode"])
             starts = self._starts(self.resets(), ended)
         stats = _StepStats()
@@ -1347,9 +1343,7 @@ def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Path) -> pa.Tabl
 
     ``blocks`` are raw blocks or those :func:`_episode_part` already decoded.
     """
-    parts = [
-        data if isinstance(data, pa.RecordBatch) else _episode_part(data, path) for data in blocks
-    ]
+    parts = _decode_kept(blocks, _episode_part, path)
     if all(part.num_columns == len(_BLOCK_BASE) for part in parts):  # no block has game
         table = pa.Table.from_batches(parts, schema=_BLOCK_BASE).combine_chunks()
         table = table.append_column(
@@ -1400,6 +1394,13 @@ def _episode_part(data: bytes, path: Path) -> pa.RecordBatch:
 
 def _reset_block(data: bytes, path: Path) -> pa.RecordBatch:
     return _arrow_batch(data, path, fmt.TOPIC_RESETS)
+
+
+def _decode_kept(
+    kept: list[pa.RecordBatch | bytes], decode: Callable[[bytes, Path], pa.RecordBatch], path: Path
+) -> list[pa.RecordBatch]:
+    """The blocks a pass kept, decoding those it kept as bytes (see :class:`_Gathered`)."""
+    return [data if isinstance(data, pa.RecordBatch) else decode(data, path) for data in kept]
 
 
 def _check_episode_block(schema: pa.Schema, path: Path) -> None:

@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from . import format as fmt
-from .columns import null_mask, terms_column
+from .columns import PLAIN_NUMBERS, null_mask, terms_column, terms_matrix_column
 from .errors import ConfigurationError, ReplayError
 from .outcomes import EndingRules, RewardTerms, find_time_limit, time_limit_hit
 from .reader import Evidence, open_evidence
@@ -247,9 +247,6 @@ class _Stepped:
 
 
 _FLAG_NAMES = ("False", "True", "not a bool")
-_PLAIN_NUMBERS = frozenset(
-    {float, int, bool, np.float64, np.float32, np.float16, np.int64, np.int32, np.bool_}
-)
 
 
 @dataclass
@@ -328,17 +325,7 @@ class _Terms:
         """The ``terms`` map column of the ``n`` rows (null where a step had none)."""
         if self.values is None:
             return terms_column(self.n, self.found)
-        k, m = len(self.names), len(self.rows)
-        counts = np.zeros(self.n, dtype=np.int32)
-        counts[self.rows] = k
-        offsets = np.zeros(self.n + 1, dtype=np.int32)
-        np.cumsum(counts, out=offsets[1:])
-        keys = pa.array(self.names, pa.string()).take(pa.array(np.tile(np.arange(k), m)))
-        valid = np.zeros(self.n, dtype=np.bool_)
-        valid[self.rows] = True
-        return pa.MapArray.from_arrays(
-            pa.array(offsets), keys, pa.array(self.values.reshape(-1)), mask=pa.array(~valid)
-        )
+        return terms_matrix_column(self.n, self.rows, self.names, self.values)
 
     def at(self, row: int) -> dict[str, Any]:
         """The terms of one row (empty if it had none)."""
@@ -374,7 +361,7 @@ def _scatter(
 
 def _rewards(values: list[Any]) -> np.ndarray[Any, Any]:
     """Rewards as float64; one that is not a number is NaN (a text reward is not parsed)."""
-    if set(map(type, values)) <= _PLAIN_NUMBERS:
+    if set(map(type, values)) <= PLAIN_NUMBERS:
         return np.array(values, dtype=np.float64)
     out = array("d")
     for value in values:
@@ -479,7 +466,6 @@ class _EpisodeRunner:
             same_rows = take.size == steps.num_rows and bool((take == np.arange(take.size)).all())
             expected = steps if same_rows else steps.take(pa.array(take))
             got = _Got.collect(returned, episodes, got_obs, expected.num_rows, self.terms_rule)
-            self._got_obs = got.obs
             bad, field_masks = self._mismatches(expected, got)
             reset_equal, reset_diff = obs_codec.compare(
                 reset_obs.take(pa.array([e.reset_at for e in episodes], pa.int64())),
