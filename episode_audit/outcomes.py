@@ -15,9 +15,9 @@ Ending(outcome='truncated', failure_label=None, truncation_reason='time_limit')
 
 from __future__ import annotations
 
-import itertools
 import math
 import operator
+from array import array
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
@@ -101,11 +101,13 @@ class RewardTerms:
             names = tuple(k for k in src if k in present)
         if not names:
             return None
-        get = operator.itemgetter(*names)
-        rows = [(v,) for v in map(get, infos)] if len(names) == 1 else list(map(get, infos))
-        if not set(map(type, itertools.chain.from_iterable(rows))) <= PLAIN_NUMBERS:
-            return None
-        return names, np.array(rows, dtype=np.float64).reshape(len(infos), len(names))
+        values = np.empty((len(names), len(infos)), dtype=np.float64)
+        for i, name in enumerate(names):  # column by column: no tuple per step
+            column = list(map(operator.itemgetter(name), infos))
+            if not set(map(type, column)) <= PLAIN_NUMBERS:
+                return None
+            values[i] = array("d", column)
+        return names, values.T
 
     @property
     def extractor(self) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:

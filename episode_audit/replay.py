@@ -34,13 +34,14 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from . import format as fmt
-from .columns import PLAIN_NUMBERS, null_mask, terms_column, terms_matrix_column
+from .columns import null_mask, terms_column, terms_matrix_column
 from .errors import ConfigurationError, ReplayError
-from .outcomes import EndingRules, RewardTerms, find_time_limit, time_limit_hit
+from .outcomes import Ending, EndingRules, RewardTerms, find_time_limit, time_limit_hit
 from .reader import Evidence, open_evidence
 from .recorder import library_versions
 from .records import RunInfo, from_json
 from .seeding import restore_rng_state
+from .spaces import SpaceCodec
 
 __all__ = [
     "Divergence",
@@ -246,6 +247,94 @@ class _Stepped:
     reset_at: int  # its row in the resets table
 
 
+@dataclass
+class _Ran:
+    """The stepped episodes, in order, as parallel lists.
+
+    The stepping loop appends to lists (cheaper than an object per episode); :meth:`episode`
+    gives one episode as a :class:`_Stepped`.
+    """
+
+    records: list[dict[str, Any]] = field(default_factory=list)
+    starts: list[int] = field(default_factory=list)
+    counts: list[int] = field(default_factory=list)
+    ran: list[int] = field(default_factory=list)
+    last_infos: list[Any] = field(default_factory=list)
+    hits: list[bool] = field(default_factory=list)  # whether its TimeLimit was reached
+    reset_at: list[int] = field(default_factory=list)  # its row in the resets table
+    crashes: dict[int, Divergence] = field(default_factory=dict)  # by position
+
+    def firsts(self) -> np.ndarray[Any, Any]:
+        """Each episode's first row in the compared columns (its recorded rows, back to back)."""
+        counts = np.array(self.counts, dtype=np.int64)
+        return np.cumsum(counts) - counts
+
+    def episode(self, k: int, first: int) -> _Stepped:
+        """The ``k``-th episode, whose first compared row is ``first``."""
+        return _Stepped(
+            self.records[k],
+            self.starts[k],
+            self.counts[k],
+            first,
+            self.ran[k],
+            self.crashes.get(k),
+            self.last_infos[k],
+            self.hits[k],
+            self.reset_at[k],
+        )
+
+
+class _Rows:
+    """Values of one column as a replay gets them, copied as they come.
+
+    (An env may change an array it returned.) An array of exactly the column's dtype and
+    shape is kept as its raw bytes: the stepping loop appends ``value.tobytes()`` to
+    :attr:`raw` itself. Any other value goes through :meth:`add` and the column's buffer.
+    """
+
+    def __init__(self, codec: SpaceCodec) -> None:
+        self.codec = codec
+        self.dtype: np.dtype[Any] | None = None
+        self.shape: tuple[int, ...] | None = None
+        if codec.raw_rows is not None:
+            self.dtype, self.shape = codec.raw_rows
+        self.raw: list[bytes | None] = []  # None where the row went through add()
+        self._buffer = codec.new_buffer()
+        self._added: list[int] = []
+
+    def add(self, value: Any) -> None:
+        """Add one row through the column's buffer (a null row if it cannot be encoded)."""
+        self._added.append(len(self.raw))
+        self.raw.append(None)
+        try:
+            self._buffer.append(value)
+        except Exception:  # not encodable (whatever the value raised): a null row
+            self._buffer.append_null()
+
+    def keep(self, value: Any) -> None:
+        """Add one row, whatever it is (the stepping loop inlines the raw case)."""
+        if type(value) is np.ndarray and value.dtype is self.dtype and value.shape == self.shape:
+            self.raw.append(value.tobytes())
+        else:
+            self.add(value)
+
+    def finish(self) -> pa.Array:
+        """The column of the rows added so far."""
+        n, added = len(self.raw), self._added
+        if n and not added:
+            return self.codec.from_raw(b"".join(self.raw))  # type: ignore[arg-type]
+        via_buffer = self._buffer.finish()
+        if len(added) == n:
+            return via_buffer
+        raw = self.codec.from_raw(b"".join([r for r in self.raw if r is not None]))
+        order = np.empty(n, dtype=np.int64)
+        is_added = np.zeros(n, dtype=np.bool_)
+        is_added[added] = True
+        order[~is_added] = np.arange(n - len(added))
+        order[is_added] = np.arange(n - len(added), n)
+        return pa.concat_arrays([raw, via_buffer]).take(pa.array(order))
+
+
 _FLAG_NAMES = ("False", "True", "not a bool")
 
 
@@ -263,12 +352,17 @@ class _Got:
     def collect(
         cls,
         steps: _Steps,
-        episodes: list[_Stepped],
+        ran: np.ndarray[Any, Any],
+        firsts: np.ndarray[Any, Any],
         obs: pa.Array,
         n: int,
         terms_rule: RewardTerms | None,
     ) -> _Got:
-        """Columns of ``n`` rows from what the ``episodes`` ``steps`` returned."""
+        """Columns of ``n`` rows from what the episodes' ``steps`` returned.
+
+        Each episode took ``ran`` steps and its recorded rows start at ``firsts`` in the
+        compared columns.
+        """
         rewards = _rewards(steps.rewards)
         total = len(steps.rewards)
         terminated = np.zeros(total, dtype=np.int8)
@@ -280,8 +374,6 @@ class _Got:
         if total == n:  # every recorded row was stepped
             positions: np.ndarray[Any, Any] = np.arange(n)
         else:
-            ran = np.array([e.ran for e in episodes], dtype=np.int64)
-            firsts = np.array([e.first for e in episodes], dtype=np.int64)
             positions = np.repeat(firsts, ran) + (
                 np.arange(total) - np.repeat(np.cumsum(ran) - ran, ran)
             )
@@ -361,15 +453,17 @@ def _scatter(
 
 def _rewards(values: list[Any]) -> np.ndarray[Any, Any]:
     """Rewards as float64; one that is not a number is NaN (a text reward is not parsed)."""
-    if set(map(type, values)) <= PLAIN_NUMBERS:
-        return np.array(values, dtype=np.float64)
+    try:
+        return np.frombuffer(array("d", values), dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        pass
     out = array("d")
     for value in values:
         try:
             out.append(value)
-        except TypeError:
+        except (TypeError, ValueError, OverflowError):  # (an int too large for a float)
             out.append(math.nan)
-    return np.array(out, dtype=np.float64)
+    return np.frombuffer(out, dtype=np.float64)
 
 
 def _flags(values: list[Any]) -> np.ndarray[Any, Any]:
@@ -422,6 +516,7 @@ class _EpisodeRunner:
         self.act_codec = ev.action_codec
         self.rules, self.terms_rule = _rules_of(ev.run)
         self.time_limit = find_time_limit(env)
+        self._plain_endings: dict[tuple[bool, bool, bool], Ending] = {}
 
     def not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
@@ -440,8 +535,8 @@ class _EpisodeRunner:
         """Replay ``records`` (in file order): step every episode, then compare in one pass.
 
         Stepping only keeps what the env returns; the values become columns afterwards, and
-        the comparison runs over whole columns at once. The first mismatching step of each
-        episode is looked up from the mismatch positions.
+        the comparison runs over whole columns at once. Only an episode with a difference is
+        looked at on its own, from the mismatch positions.
         """
         obs_codec, act_codec = self.obs_codec, self.act_codec
         done: dict[int, EpisodeReplay] = {}
@@ -453,45 +548,101 @@ class _EpisodeRunner:
                 done[index] = self.not_replayable(index, 0, "the file's spaces cannot be rebuilt")
             return [done[int(r["episode"])] for r in records]
         actions, null_rows = _replay_actions(steps.column(fmt.COL_ACTION), act_codec)
-        reset_obs = resets.column(fmt.COL_OBSERVATION).combine_chunks() if resets.num_rows else None
-        episodes, returned, got_obs, got_reset = self._step_all(
+        ran, returned, got_obs, got_reset = self._step_all(
             records, actions, null_rows, rows, reset_rows, done
         )
-        if episodes:
-            assert reset_obs is not None
-            starts = np.array([e.start for e in episodes], dtype=np.int64)
-            counts = np.array([e.count for e in episodes], dtype=np.int64)
-            firsts = np.array([e.first for e in episodes], dtype=np.int64)
-            take = np.repeat(starts - firsts, counts) + np.arange(int(counts.sum()))
-            same_rows = take.size == steps.num_rows and bool((take == np.arange(take.size)).all())
-            expected = steps if same_rows else steps.take(pa.array(take))
-            got = _Got.collect(returned, episodes, got_obs, expected.num_rows, self.terms_rule)
-            bad, field_masks = self._mismatches(expected, got)
-            reset_equal, reset_diff = obs_codec.compare(
-                reset_obs.take(pa.array([e.reset_at for e in episodes], pa.int64())),
-                got_reset,
-                atol=self.atol,
-            )
-            at = np.searchsorted(bad, firsts)
-            first_bad = np.append(bad, np.iinfo(np.int64).max)[at].tolist()
-            for k, episode in enumerate(episodes):
-                index = int(episode.record["episode"])
-                if not reset_equal[k]:
-                    exp = obs_codec.decode(reset_obs.slice(episode.reset_at, 1))[0]
-                    done[index] = self._diverged(
-                        index,
-                        0,
-                        Divergence(
-                            None,
-                            "reset_observation",
-                            _short(exp),
-                            "a different one",
-                            float(reset_diff[k]),
-                        ),
-                    )
-                    continue
-                done[index] = self._verdict(episode, first_bad[k], field_masks, expected, got)
+        if ran.records:
+            self._compare(ran, returned, got_obs, got_reset, steps, resets, done)
         return [done[int(r["episode"])] for r in records]
+
+    def _compare(
+        self,
+        ran: _Ran,
+        returned: _Steps,
+        got_obs: pa.Array,
+        got_reset: pa.Array,
+        steps: pa.Table,
+        resets: pa.Table,
+        done: dict[int, EpisodeReplay],
+    ) -> None:
+        """Compare the stepped episodes with the evidence; put each one's result in ``done``."""
+        obs_codec = self.obs_codec
+        assert obs_codec is not None
+        starts = np.array(ran.starts, dtype=np.int64)
+        counts = np.array(ran.counts, dtype=np.int64)
+        steps_ran = np.array(ran.ran, dtype=np.int64)
+        firsts = np.cumsum(counts) - counts
+        take = np.repeat(starts - firsts, counts) + np.arange(int(counts.sum()))
+        same_rows = take.size == steps.num_rows and bool((take == np.arange(take.size)).all())
+        expected = steps if same_rows else steps.take(pa.array(take))
+        got = _Got.collect(returned, steps_ran, firsts, got_obs, expected.num_rows, self.terms_rule)
+        bad, field_masks = self._mismatches(expected, got)
+        reset_obs = resets.column(fmt.COL_OBSERVATION).combine_chunks()
+        reset_equal, reset_diff = obs_codec.compare(
+            reset_obs.take(pa.array(ran.reset_at, pa.int64())), got_reset, atol=self.atol
+        )
+        first_bad = np.append(bad, np.iinfo(np.int64).max)[np.searchsorted(bad, firsts)]
+        # clean: the reset and every compared row match, all rows ran, nothing raised
+        clean = reset_equal & (first_bad >= firsts + steps_ran) & (steps_ran == counts)
+        if ran.crashes:
+            clean[list(ran.crashes)] = False
+        lasts = (firsts + steps_ran - 1)[steps_ran > 0]
+        last_term = np.zeros(len(counts), dtype=np.int8)
+        last_trunc = np.zeros(len(counts), dtype=np.int8)
+        last_term[steps_ran > 0] = got.terminated[lasts]
+        last_trunc[steps_ran > 0] = got.truncated[lasts]
+        file, outcome_difference = self.file, self._outcome_difference
+        checks_outcome, plain = self.rules is not None, self._plain_endings
+        for k, (record, is_clean, n, term, trunc) in enumerate(
+            zip(
+                ran.records,
+                clean.tolist(),
+                ran.ran,
+                last_term.tolist(),
+                last_trunc.tolist(),
+                strict=True,
+            )
+        ):
+            index = int(record["episode"])
+            if is_clean:
+                outcome = None
+                info = ran.last_infos[k]
+                if n and not (
+                    # the usual case, without a call: an outcome already classified the same
+                    checks_outcome
+                    and type(info) is dict
+                    and not info
+                    and plain.get((term == 1, trunc == 1, ran.hits[k]))
+                    == (
+                        record["outcome"],
+                        record.get("failure_label"),
+                        record.get("truncation_reason"),
+                    )
+                ):
+                    outcome = outcome_difference(
+                        record, term == 1, trunc == 1, n - 1, info, ran.hits[k]
+                    )
+                done[index] = (
+                    EpisodeReplay(file, index, "identical", n)
+                    if outcome is None
+                    else self._diverged(index, n, outcome)
+                )
+            elif not reset_equal[k]:
+                exp = obs_codec.decode(reset_obs.slice(ran.reset_at[k], 1))[0]
+                done[index] = self._diverged(
+                    index,
+                    0,
+                    Divergence(
+                        None,
+                        "reset_observation",
+                        _short(exp),
+                        "a different one",
+                        float(reset_diff[k]),
+                    ),
+                )
+            else:
+                episode = ran.episode(k, int(firsts[k]))
+                done[index] = self._verdict(episode, int(first_bad[k]), field_masks, expected, got)
 
     def _step_all(
         self,
@@ -501,7 +652,7 @@ class _EpisodeRunner:
         rows: dict[int, tuple[int, int]],
         reset_rows: dict[int, int],
         done: dict[int, EpisodeReplay],
-    ) -> tuple[list[_Stepped], _Steps, pa.Array, pa.Array]:
+    ) -> tuple[_Ran, _Steps, pa.Array, pa.Array]:
         """Reset and step every replayable episode.
 
         Returns the stepped episodes, what their steps returned (in order), and the columns
@@ -510,16 +661,25 @@ class _EpisodeRunner:
         """
         assert self.obs_codec is not None
         env, env_step = self.env, self.env.step
-        got_obs, got_reset = self.obs_codec.new_buffer(), self.obs_codec.new_buffer()
-        append_obs = got_obs.append
+        got_obs, got_reset = _Rows(self.obs_codec), _Rows(self.obs_codec)
+        keep_raw, keep_other = got_obs.raw.append, got_obs.add
+        raw_dtype, raw_shape, ndarray = got_obs.dtype, got_obs.shape, np.ndarray
         steps = _Steps()
         rewards = steps.rewards
         keep_reward, keep_info = rewards.append, steps.infos.append
         keep_info_row = steps.info_rows.append
         ends = steps.ends
-        episodes: list[_Stepped] = []
+        ran = _Ran()
+        keep_record, keep_start, keep_count = (
+            ran.records.append,
+            ran.starts.append,
+            ran.counts.append,
+        )
+        keep_ran, keep_last_info, keep_hit = ran.ran.append, ran.last_infos.append, ran.hits.append
+        keep_reset_at = ran.reset_at.append
+        time_limit = self.time_limit
         progress = self.progress
-        first = 0
+        has_nulls = null_rows is not None and null_rows.size > 0
         for record in records:
             index = int(record["episode"])
             start, count = rows.get(index, (0, 0))
@@ -553,10 +713,11 @@ class _EpisodeRunner:
                     index, 0, Divergence(None, "reset", "a reset", f"{type(exc).__name__}: {exc}")
                 )
                 continue
-            _append(got_reset, obs)
+            got_reset.keep(obs)
             stop = start + count
             crash: Divergence | None = None
-            if null_rows is not None and null_rows.size:
+            if has_nulls:
+                assert null_rows is not None
                 k = int(np.searchsorted(null_rows, start))
                 if k < null_rows.size and null_rows[k] < stop:
                     stop = int(null_rows[k])
@@ -567,10 +728,11 @@ class _EpisodeRunner:
             try:
                 for action in actions[start:stop]:
                     obs, reward, term, trunc, info = env_step(action)
-                    try:
-                        append_obs(obs)
-                    except (TypeError, ValueError):
-                        got_obs.append_null()
+                    # got_obs.keep(obs), inlined for the common case
+                    if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
+                        keep_raw(obs.tobytes())
+                    else:
+                        keep_other(obs)
                     keep_reward(reward)
                     if info:
                         keep_info_row(len(rewards) - 1)
@@ -578,25 +740,28 @@ class _EpisodeRunner:
                     if term or trunc:
                         break
             except Exception as exc:
-                ran = len(rewards) - before
-                crash = Divergence(ran, "step", "a step", f"{type(exc).__name__}: {exc}")
-            ran = len(rewards) - before
-            if ran < stop - start and (crash is None or crash.field == "action"):
+                ran_now = len(rewards) - before
+                crash = Divergence(ran_now, "step", "a step", f"{type(exc).__name__}: {exc}")
+            ran_now = len(rewards) - before
+            if ran_now < stop - start and (crash is None or crash.field == "action"):
                 crash = None  # it ended early: the length check says so
-            last_info = info if ran else {}
             # Every step before the last had both flags falsy (stepping stops at the first
             # that has one set): only the last step's are kept.
-            if ran:
+            if ran_now:
                 ends.append((len(rewards) - 1, term, trunc))
+            if crash is not None:
+                ran.crashes[len(ran.records)] = crash
+            keep_record(record)
+            keep_start(start)
+            keep_count(count)
+            keep_ran(ran_now)
+            keep_last_info(info if ran_now else {})
             # the TimeLimit state belongs to this episode: read it now, not after the others
-            hit = time_limit_hit(self.time_limit)
-            episodes.append(
-                _Stepped(record, start, count, first, ran, crash, last_info, hit, reset_at)
-            )
-            first += count
+            keep_hit(time_limit is not None and time_limit_hit(time_limit))
+            keep_reset_at(reset_at)
             if progress is not None:
                 progress(count)
-        return episodes, steps, got_obs.finish(), got_reset.finish()
+        return ran, steps, got_obs.finish(), got_reset.finish()
 
     def _mismatches(
         self, expected: pa.Table, got: _Got
@@ -706,24 +871,25 @@ class _EpisodeRunner:
             return None
         if not (term or trunc):
             return None
-        ending = self.rules.classify(
-            term,
-            trunc,
-            info if isinstance(info, Mapping) else {},
-            time_limit_hit=hit_time_limit,
-        )
+        if type(info) is dict and not info:  # the usual case: one classification per flags
+            key = (term, trunc, hit_time_limit)
+            ending = self._plain_endings.get(key)
+            if ending is None:
+                ending = self._plain_endings[key] = self.rules.classify(
+                    term, trunc, {}, time_limit_hit=hit_time_limit
+                )
+        else:
+            ending = self.rules.classify(
+                term,
+                trunc,
+                info if isinstance(info, Mapping) else {},
+                time_limit_hit=hit_time_limit,
+            )
         want = (record["outcome"], record.get("failure_label"), record.get("truncation_reason"))
         got = (ending.outcome, ending.failure_label, ending.truncation_reason)
         if want != got:
             return Divergence(last_step, "outcome", _fmt_outcome(*want), _fmt_outcome(*got))
         return None
-
-
-def _append(buffer: Any, value: Any) -> None:
-    try:
-        buffer.append(value)
-    except (TypeError, ValueError):
-        buffer.append_null()
 
 
 def _fmt_outcome(outcome: str, label: str | None, reason: str | None) -> str:

@@ -656,9 +656,28 @@ class SpaceCodec(abc.ABC):
     """The space this codec encodes."""
     arrow_type: pa.DataType
     """The Arrow type of the column."""
+    raw_rows: tuple[np.dtype[Any], tuple[int, ...]] | None = None
+    """For fixed-shape numbers: the dtype and shape of a numpy array whose raw bytes
+    (``tobytes()``) :meth:`from_raw` takes as one row; ``None`` for other columns."""
 
     def _metadata(self) -> dict[str, str]:
         return {_META_KIND: self.kind, _META_SPACE: type(self.space).__name__}
+
+    def from_raw(self, data: bytes) -> pa.Array:
+        """Return the column whose rows are ``data``: rows of :attr:`raw_rows`, back to back.
+
+        A way to collect values faster than :meth:`new_buffer`, for arrays that have exactly
+        the column's dtype and shape.
+
+        >>> from gymnasium import spaces
+        >>> codec = codec_for(spaces.Box(0, 1, (2,), np.float32))
+        >>> codec.raw_rows
+        (dtype('float32'), (2,))
+        >>> rows = [np.array([0, 1], np.float32), np.array([1, 0], np.float32)]
+        >>> [v.tolist() for v in codec.decode(codec.from_raw(b"".join(r.tobytes() for r in rows)))]
+        [[0.0, 1.0], [1.0, 0.0]]
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no raw rows")
 
     def field(self, name: str) -> pa.Field:
         """Return a nullable Arrow field of :attr:`arrow_type` with kind, shape, dtype metadata."""
@@ -772,6 +791,17 @@ class _ArrayCodec(SpaceCodec):
         self._high_flat = np.broadcast_to(high, self._shape).reshape(self._size)
         self._value_type = pa.from_numpy_dtype(self._dtype)
         self.arrow_type = pa.list_(self._value_type, self._size)
+        self.raw_rows = (self._dtype, self._shape)
+
+    def from_raw(self, data: bytes) -> pa.Array:
+        """Return the column whose rows are ``data`` (see :meth:`SpaceCodec.from_raw`)."""
+        flat = np.frombuffer(data, dtype=self._dtype)
+        if flat.size % self._size:
+            raise ValueError(
+                f"Expect whole rows of {self._size} values, actually: {flat.size} values"
+            )
+        values = pa.array(flat, type=self._value_type)
+        return pa.FixedSizeListArray.from_arrays(values, list_size=self._size)
 
     def _metadata(self) -> dict[str, str]:
         return {
@@ -821,6 +851,8 @@ class _ArrayCodec(SpaceCodec):
         b = self._block(got).reshape(n, self._size)
         bits = np.dtype(f"u{self._dtype.itemsize}")
         same = a.view(bits) == b.view(bits)
+        if same.all():  # the usual case: one reduction over the block, none per row
+            return np.ones(n, dtype=np.bool_), np.zeros(n, dtype=np.float64)
         if self._dtype.kind == "f":
             same |= np.isnan(a) & np.isnan(b)
         with np.errstate(all="ignore"):

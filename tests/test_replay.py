@@ -17,7 +17,13 @@ from hypothesis import strategies as st
 from episode_audit import RecordEvidence
 from episode_audit.columns import TERMS_TYPE
 from episode_audit.errors import ConfigurationError
-from episode_audit.replay import _terms_equal, _terms_rows_equal, load_callable, replay
+from episode_audit.replay import (
+    _rewards,
+    _terms_equal,
+    _terms_rows_equal,
+    load_callable,
+    replay,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -297,6 +303,86 @@ def test_a_changed_reward_term_diverges_on_terms(tmp_path: Path) -> None:
     divergence = result.episodes[0].divergence
     assert divergence is not None and (divergence.step, divergence.field) == (0, "terms")
     assert "'alive!': 1.0" in divergence.got
+
+
+class Shapeshifter(Counter):
+    """Hands out its observations as lists, float32 arrays and views, by turns."""
+
+    def step(self, action: int) -> Any:
+        obs, *rest = super().step(action)
+        kind = self.t % 4
+        if kind == 1:
+            obs = obs.tolist()
+        elif kind == 2:
+            obs = obs.astype(np.float32)
+        elif kind == 3:
+            obs = np.stack([obs, obs])[0]  # a view of a bigger array
+        return (obs, *rest)
+
+
+def test_observations_of_any_form_replay_identically(tmp_path: Path) -> None:
+    """Rows that are not exactly the space's dtype and shape go through the column buffer."""
+    path = tmp_path / "shapes.mcap"
+    with RecordEvidence(Shapeshifter(), path) as env:
+        for e in range(3):
+            env.reset(seed=e)
+            for action in (1, 2, 0, 1, 2, 1):
+                env.step(action)
+    for factory in (Shapeshifter, Counter):  # recorded by turns, replayed by turns or not
+        result = replay([path], env_factory=factory)
+        assert result.count("identical") == 3, result.episodes
+
+
+def test_an_observation_that_cannot_be_encoded_diverges_at_its_step(tmp_path: Path) -> None:
+    class Garbled(Counter):
+        def step(self, action: int) -> Any:
+            obs, *rest = super().step(action)
+            return ("not an array" if self.t == 4 else obs, *rest)
+
+    path = record_counter(tmp_path / "counter.mcap", episodes=2)
+    result = replay([path], env_factory=Garbled)
+    for episode in result.episodes:
+        assert episode.divergence is not None
+        assert (episode.divergence.step, episode.divergence.field) == (3, "observation")
+        assert episode.divergence.got == "None"
+
+
+def test_every_episode_whose_outcome_changed_diverges_on_it(tmp_path: Path) -> None:
+    """The same flags and info in every episode: the outcome is classified once, compared
+    with each episode's record."""
+
+    class Plain(Counter):
+        def step(self, action: int) -> Any:
+            obs, reward, term, trunc, _ = super().step(action)
+            return obs, reward, term, trunc, {}
+
+    class Labelled(Plain):
+        def step(self, action: int) -> Any:
+            obs, reward, term, trunc, info = super().step(action)
+            return obs, reward, term, trunc, {"failure": "fell"} if term else info
+
+    path = tmp_path / "labelled.mcap"
+    with RecordEvidence(Labelled(), path) as env:
+        for e in range(3):
+            env.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(1)
+                done = term or trunc
+    assert replay([path], env_factory=Labelled).count("identical") == 3
+    result = replay([path], env_factory=Plain)
+    assert [e.status for e in result.episodes] == ["diverged"] * 3
+    for episode in result.episodes:
+        assert episode.divergence is not None
+        assert episode.divergence.describe() == (
+            "step 5: outcome expected failure/fell, got failure/unlabeled"
+        )
+
+
+def test_rewards_that_are_not_numbers_become_nan() -> None:
+    got = _rewards([1, 10**400, "2.0", np.float32(0.5), True])
+    assert [got[0], got[3], got[4]] == [1.0, 0.5, 1.0]
+    assert math.isnan(got[1]) and math.isnan(got[2])
 
 
 class PrefixTerms(Counter):

@@ -1012,3 +1012,18 @@ def test_extend_takes_a_batch_as_it_is_or_nothing(
     assert at_once.finish().equals(one_by_one.finish())
     if refused is not None:
         assert not at_once.extend(refused) and len(at_once) == 0  # a cast is never silent
+
+
+def test_from_raw_takes_rows_of_the_space_dtype_and_shape_back_to_back() -> None:
+    codec = codec_for(spaces.Box(0.0, 10.0, (2, 2), np.float32))
+    rows = np.arange(8, dtype=np.float32).reshape(2, 2, 2)
+    assert codec.raw_rows == (np.dtype(np.float32), (2, 2))
+    column = codec.from_raw(rows.tobytes())
+    assert column.type == codec.arrow_type
+    assert codec.compare(column, codec.encode(list(rows)))[0].tolist() == [True, True]
+    with pytest.raises(ValueError, match="whole rows of 4 values, actually: 6 values"):
+        codec.from_raw(rows.tobytes()[:24])
+    discrete = codec_for(spaces.Discrete(3))
+    assert discrete.raw_rows is None
+    with pytest.raises(NotImplementedError, match="has no raw rows"):
+        discrete.from_raw(b"")
