@@ -26,7 +26,7 @@ from gymnasium.envs.registration import EnvSpec
 from .outcomes import EndingRules, RewardTerms, TermsFn, find_time_limit
 from .seeding import capture_rng_state
 from .spaces import codec_for, describe_space
-from .streams import EvidenceFile, RecorderSettings, library_versions, run_info
+from .streams import DEFAULT_BLOCK_STEPS, EvidenceFile, RecorderSettings, library_versions, run_info
 
 __all__ = ["RecordEvidence", "library_versions"]
 
@@ -69,7 +69,7 @@ class RecordEvidence(
         digest_min_bytes: Store observation arrays of at least this many bytes as a 16-byte
             BLAKE2b digest instead of losslessly (for large images); ``None`` keeps all.
         block_steps: Steps per columnar block (fewer when rows are large, so that the chunk
-            of one flush stays under 256 MiB uncompressed).
+            of one flush stays under 32 MiB uncompressed).
         flush_every_s: Flush at least this often (checked on every step and reset).
         fsync: ``fsync`` the file on every flush.
         overwrite: Allow replacing an existing file.
@@ -87,7 +87,7 @@ class RecordEvidence(
         ending_rules: EndingRules | None = None,
         info_keys: Sequence[str] | str = (),
         digest_min_bytes: int | None = None,
-        block_steps: int = 8192,
+        block_steps: int = DEFAULT_BLOCK_STEPS,
         flush_every_s: float = 1.0,
         fsync: bool = False,
         overwrite: bool = False,

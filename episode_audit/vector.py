@@ -57,7 +57,7 @@ from .outcomes import EndingRules, RewardTerms, TermsFn
 from .records import to_json
 from .seeding import capture_rng_state
 from .spaces import codec_for, describe_space
-from .streams import EvidenceFile, RecorderSettings, Stream, note, run_info
+from .streams import DEFAULT_BLOCK_STEPS, EvidenceFile, RecorderSettings, Stream, note, run_info
 
 __all__ = ["RecordVectorEvidence", "ResetRngInfo"]
 
@@ -171,7 +171,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         ending_rules: EndingRules | None = None,
         info_keys: Sequence[str] | str = (),
         digest_min_bytes: int | None = None,
-        block_steps: int = 8192,
+        block_steps: int = DEFAULT_BLOCK_STEPS,
         flush_every_s: float = 1.0,
         fsync: bool = False,
         overwrite: bool = False,

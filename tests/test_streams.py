@@ -251,7 +251,7 @@ def test_large_rows_make_smaller_blocks_than_block_steps(
     ev = open_evidence(path)
     sizes = [batch.num_rows for batch in ev.iter_step_batches()]
     assert sum(sizes) == 12
-    assert ev.run.recorder["block_steps"] == 8192  # as configured
+    assert ev.run.recorder["block_steps"] == streams.DEFAULT_BLOCK_STEPS  # as configured
     with open(path, "rb") as f:
         blocks = [
             pa.ipc.open_stream(m.data).read_all().num_rows
