@@ -57,6 +57,16 @@ Status = Literal["identical", "diverged", "not_replayable"]
 EnvFactory = Callable[[], gym.Env[Any, Any]]
 
 _TRUSTED_WRAPPER_PREFIX = "gymnasium.wrappers"
+_RECORD_COLUMNS = (
+    fmt.COL_EPISODE,
+    "seed",
+    "rng_state",
+    "options",
+    "outcome",
+    "failure_label",
+    "truncation_reason",
+)
+"""The columns of the episode table a replay reads."""
 REPLAY_WINDOW_ROWS = 65_536
 """Replay compares this many steps (of whole episodes) at a time, so memory stays bounded."""
 
@@ -1008,7 +1018,9 @@ def replay_evidence(
     wanted = None if episodes is None else set(episodes)
 
     def records() -> list[dict[str, Any]]:
-        listed = ev.episodes().to_pylist()
+        table = ev.episodes()
+        columns = [c for c in _RECORD_COLUMNS if c in table.column_names]
+        listed = table.select(columns).to_pylist()  # (a map column is slow to list)
         return listed if wanted is None else [r for r in listed if r["episode"] in wanted]
 
     def none_replayable(reason: str) -> list[EpisodeReplay]:
