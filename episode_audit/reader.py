@@ -1635,24 +1635,38 @@ def open_evidence(path: str | os.PathLike[str]) -> Evidence:
     episode_audit.errors.EvidenceError: no/such/file.mcap: cannot open: No such file or directory
     """
     p = Path(path)
-    try:
-        if not stat.S_ISREG(os.stat(p).st_mode):
-            raise NotEvidenceError(p, "not a regular file")
-        f = open(p, "rb")  # noqa: SIM115
-    except OSError as exc:
-        raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
-    with f:
-        head = f.read(len(_MAGIC))
-        if len(head) == 0:
-            raise NotEvidenceError(p, "the file is empty")
-        if head != _MAGIC:
-            raise NotEvidenceError(p, "not an MCAP file (wrong magic bytes)")
+    with _open_mcap(p) as f:
         f.seek(0)
         indexed = _open_indexed(f, p)
         if indexed is None:
             f.seek(0)
             return _open_linear(f, p)
         return indexed
+
+
+def _open_mcap(p: Path) -> IO[bytes]:
+    """Open ``p`` for reading, just after the MCAP magic bytes.
+
+    Raises :class:`~episode_audit.errors.NotEvidenceError` for what is not a regular file
+    (a FIFO would block) or does not start like MCAP, and
+    :class:`~episode_audit.errors.EvidenceError` for a file that cannot be opened.
+    """
+    try:
+        if not stat.S_ISREG(os.stat(p).st_mode):
+            raise NotEvidenceError(p, "not a regular file")
+        f = open(p, "rb")  # noqa: SIM115
+    except OSError as exc:
+        raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
+    try:
+        head = f.read(len(_MAGIC))
+        if len(head) == 0:
+            raise NotEvidenceError(p, "the file is empty")
+        if head != _MAGIC:
+            raise NotEvidenceError(p, "not an MCAP file (wrong magic bytes)")
+    except BaseException:
+        f.close()
+        raise
+    return f
 
 
 def _parse_run(
@@ -1871,14 +1885,8 @@ def iter_records(
     off or unreadable (the torn tail a killed writer leaves); summary records are skipped.
     """
     p = Path(path)
-    try:
-        f = open(p, "rb")  # noqa: SIM115
-    except OSError as exc:
-        raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
-    with f:
+    with _open_mcap(p) as f:
         size = os.fstat(f.fileno()).st_size
-        if f.read(len(_MAGIC)) != _MAGIC:
-            raise NotEvidenceError(p, "not an MCAP file (wrong magic bytes)")
         pos = len(_MAGIC)
         summary = False
         while True:

@@ -32,6 +32,7 @@ from typer.testing import CliRunner
 
 from episode_audit import EvidenceError, check, open_evidence
 from episode_audit.cli import app
+from episode_audit.reader import iter_records
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -302,6 +303,8 @@ def test_a_fifo_is_not_evidence_and_does_not_block(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     with pytest.raises(EvidenceError, match=r"pipe\.mcap: not a regular file"):
         open_evidence(fifo)
+    with pytest.raises(EvidenceError, match=r"pipe\.mcap: not a regular file"):
+        next(iter_records(fifo))  # (what recovery walks)
 
 
 # ----------------------------------------------------------------------------- mixed directory
