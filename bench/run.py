@@ -25,6 +25,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.wrappers import TimeLimit
 
 from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
 
@@ -268,6 +269,7 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
         bare_t.append(bare)
         rep_t.append(rep)
     steps = sum(len(a) for a in episodes_actions)
+    own = replay_own_seconds(path, env_id, rounds)
     return {
         "env": env_id,
         "episodes": episodes,
@@ -276,7 +278,79 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
         "bare_us_per_step": statistics.median(bare_t) / steps * 1e6,
         "replay_us_per_step": statistics.median(rep_t) / steps * 1e6,
         **ratios(bare_t, rep_t),
+        "own_us_per_step": own / steps * 1e6,
+        "ratio_own_work": 1 + own / min(bare_t),
     }
+
+
+class Playback(gym.Env[Any, Any]):
+    """Hands back a file's recorded resets and steps, whatever the action: an env whose own
+    cost is next to nothing, so that replaying in it times replay's own work."""
+
+    def __init__(self, path: Path, env_id: str) -> None:
+        ev = open_evidence(path)
+        real = gym.make(env_id)
+        self.observation_space, self.action_space = real.observation_space, real.action_space
+        obs_codec = ev.observation_codec
+        assert obs_codec is not None
+        steps = ev.steps()
+        resets = ev.resets()
+        firsts = obs_codec.decode(resets.column("observation").combine_chunks())
+        self.resets = dict(zip(resets.column("episode").to_pylist(), firsts, strict=True))
+        self.seeds = {r["seed"]: r["episode"] for r in ev.episodes().to_pylist()}
+        rows = zip(
+            steps.column("episode").to_pylist(),
+            obs_codec.decode(steps.column("observation").combine_chunks()),
+            steps.column("reward").to_pylist(),
+            steps.column("terminated").to_pylist(),
+            steps.column("truncated").to_pylist(),
+            steps.column("terms").to_pylist(),
+            strict=True,
+        )
+        self.episodes: dict[int, list[Any]] = {}
+        for e, obs, reward, term, trunc, terms in rows:
+            step = (obs, reward, term, trunc, dict(terms or []))
+            self.episodes.setdefault(e, []).append(step)
+        self.rows: list[Any] = []
+        self.t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        episode = self.seeds[seed]
+        self.rows, self.t = self.episodes[episode], 0
+        return self.resets[episode], {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        return self.rows[self.t - 1]
+
+
+def replay_own_seconds(path: Path, env_id: str, rounds: int) -> float:
+    """Replay's own work on ``path``: replay in :class:`Playback` (behind the env's TimeLimit)
+    minus stepping :class:`Playback` bare, fastest rounds. The host's noise barely moves it."""
+    from episode_audit.replay import replay
+
+    limit = gym.spec(env_id).max_episode_steps
+    playback = Playback(path, env_id)
+
+    def make() -> gym.Env[Any, Any]:
+        return TimeLimit(playback, limit) if limit else playback
+
+    bare_t, rep_t = [], []
+    for _ in range(rounds):
+        gc.collect()
+        t0 = time.perf_counter()
+        env = make()
+        for seed, episode in playback.seeds.items():
+            env.reset(seed=seed)
+            for _ in playback.episodes.get(episode, ()):
+                env.step(None)
+        bare_t.append(time.perf_counter() - t0)
+        gc.collect()
+        t0 = time.perf_counter()
+        result = replay([path], env_factory=make)
+        rep_t.append(time.perf_counter() - t0)
+        assert result.count("identical") == len(playback.seeds), result
+    return min(rep_t) - min(bare_t)
 
 
 BENCHES: dict[str, Callable[[], Any]] = {

@@ -502,6 +502,8 @@ def _replay_actions(column: pa.ChunkedArray, codec: Any) -> tuple[Any, np.ndarra
     if pa.types.is_integer(actions.type) and actions.null_count == 0:
         return actions.to_numpy(), None
     values = codec.decode(actions)
+    if actions.null_count == 0:
+        return values, None
     missing = [i for i, value in enumerate(values) if value is None]
     return values, (np.array(missing, dtype=np.int64) if missing else None)
 
@@ -969,6 +971,10 @@ def _row_ranges(episode: np.ndarray[Any, Any]) -> dict[int, tuple[int, int]]:
     starts = np.flatnonzero(np.diff(episode)) + 1
     firsts = np.concatenate([[0], starts])
     counts = np.diff(np.append(firsts, episode.size))
+    indices = episode[firsts]
+    if np.unique(indices).size == indices.size:  # the usual case: one run per episode
+        ranges = zip(firsts.tolist(), counts.tolist(), strict=True)
+        return dict(zip(indices.tolist(), ranges, strict=True))
     out: dict[int, tuple[int, int]] = {}
     for first, count in zip(firsts.tolist(), counts.tolist(), strict=True):
         index = int(episode[first])

@@ -19,6 +19,7 @@ from episode_audit.columns import TERMS_TYPE
 from episode_audit.errors import ConfigurationError
 from episode_audit.replay import (
     _rewards,
+    _row_ranges,
     _terms_equal,
     _terms_rows_equal,
     load_callable,
@@ -462,3 +463,9 @@ def test_terms_rows_equal_agrees_with_the_row_by_row_rule(
 )
 def test_terms_equal_rule(a: Any, b: Any, atol: float, equal: bool) -> None:
     assert _terms_equal(a, b, atol) is equal
+
+
+def test_row_ranges_of_runs_of_episodes() -> None:
+    assert _row_ranges(np.array([3, 3, 5, 5, 5, 7])) == {3: (0, 2), 5: (2, 3), 7: (5, 1)}
+    assert _row_ranges(np.array([1, 1, 2, 1])) == {1: (0, 2), 2: (2, 1)}  # the first run
+    assert _row_ranges(np.array([], dtype=np.int64)) == {}
