@@ -247,14 +247,12 @@ class _Stepped:
     """One episode as it was stepped: where its rows are and how its stepping ended."""
 
     record: dict[str, Any]
-    start: int  # its first row in the steps table
     count: int  # rows recorded
     first: int  # its first row in the compared columns
     ran: int  # steps taken
     crash: Divergence | None
     last_info: Any
     hit_time_limit: bool
-    reset_at: int  # its row in the resets table
 
 
 @dataclass
@@ -274,23 +272,16 @@ class _Ran:
     reset_at: list[int] = field(default_factory=list)  # its row in the resets table
     crashes: dict[int, Divergence] = field(default_factory=dict)  # by position
 
-    def firsts(self) -> np.ndarray[Any, Any]:
-        """Each episode's first row in the compared columns (its recorded rows, back to back)."""
-        counts = np.array(self.counts, dtype=np.int64)
-        return np.cumsum(counts) - counts
-
     def episode(self, k: int, first: int) -> _Stepped:
         """The ``k``-th episode, whose first compared row is ``first``."""
         return _Stepped(
             self.records[k],
-            self.starts[k],
             self.counts[k],
             first,
             self.ran[k],
             self.crashes.get(k),
             self.last_infos[k],
             self.hits[k],
-            self.reset_at[k],
         )
 
 
@@ -624,12 +615,7 @@ class _EpisodeRunner:
                     checks_outcome
                     and type(info) is dict
                     and not info
-                    and plain.get((term == 1, trunc == 1, ran.hits[k]))
-                    == (
-                        record["outcome"],
-                        record.get("failure_label"),
-                        record.get("truncation_reason"),
-                    )
+                    and plain.get((term == 1, trunc == 1, ran.hits[k])) == _recorded_outcome(record)
                 ):
                     outcome = outcome_difference(
                         record, term == 1, trunc == 1, n - 1, info, ran.hits[k]
@@ -897,11 +883,16 @@ class _EpisodeRunner:
                 info if isinstance(info, Mapping) else {},
                 time_limit_hit=hit_time_limit,
             )
-        want = (record["outcome"], record.get("failure_label"), record.get("truncation_reason"))
+        want = _recorded_outcome(record)
         got = (ending.outcome, ending.failure_label, ending.truncation_reason)
         if want != got:
             return Divergence(last_step, "outcome", _fmt_outcome(*want), _fmt_outcome(*got))
         return None
+
+
+def _recorded_outcome(record: Mapping[str, Any]) -> tuple[Any, Any, Any]:
+    """An episode record's (outcome, failure label, truncation reason), as an ``Ending`` is."""
+    return record["outcome"], record.get("failure_label"), record.get("truncation_reason")
 
 
 def _fmt_outcome(outcome: str, label: str | None, reason: str | None) -> str:
