@@ -85,20 +85,13 @@ class RewardTerms:
         >>> names, values.tolist()
         (('reward_a',), [[1.0], [2.0]])
         """
-        src = self.source
-        if not infos or src is None or (callable(src) and not isinstance(src, str)):
+        if not infos or self.source is None:
             return None
         key_sets = set(map(tuple, infos))
         if len(key_sets) != 1:
             return None
         (keys,) = key_sets
-        if src == "auto":
-            if self.dict_key in keys:
-                return None
-            names = _prefixed(keys, self.prefix)
-        else:
-            present = set(keys)
-            names = tuple(k for k in src if k in present)
+        names = self.names_for(keys)
         if not names:
             return None
         values = np.empty((len(names), len(infos)), dtype=np.float64)
@@ -108,6 +101,30 @@ class RewardTerms:
                 return None
             values[i] = array("d", column)
         return names, values.T
+
+    def names_for(self, keys: tuple[Any, ...]) -> tuple[str, ...] | None:
+        """The names :meth:`extract` reads from an info whose keys are ``keys`` (in order).
+
+        ``()`` when such an info has no terms; ``None`` when only :meth:`extract` can tell
+        (a callable source, or a ``reward_terms`` dict in the info). The recorder asks once per
+        key tuple, then reads every step's terms with one ``itemgetter``.
+
+        >>> RewardTerms().names_for(("reward_dist", "x", "reward_ctrl"))
+        ('reward_dist', 'reward_ctrl')
+        >>> RewardTerms(["b", "a"]).names_for(("a", "b", "c")), RewardTerms().names_for(("x",))
+        (('b', 'a'), ())
+        >>> RewardTerms().names_for(("reward_terms",)) is None
+        True
+        """
+        src = self.source
+        if src is None:
+            return ()
+        if callable(src) and not isinstance(src, str):
+            return None
+        if src == "auto":
+            return None if self.dict_key in keys else _prefixed(keys, self.prefix)
+        present = set(keys)
+        return tuple(dict.fromkeys(k for k in src if k in present))  # as extract(): once each
 
     @property
     def extractor(self) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import atexit
 import math
+import operator
 import os
 import platform
 import sys
@@ -685,6 +686,12 @@ class Stream:
         self._rules = settings.rules
         self._terms_rule = settings.terms_rule
         self._extract_terms = settings.terms_rule.extractor
+        # How the terms of infos with the last key tuple seen are read (see _plan_terms)
+        self._terms_keys: tuple[Any, ...] | None = None
+        self._terms_names: tuple[str, ...] = ()
+        self._terms_get: Callable[[Any], Any] = tuple  # set with the names
+        self._terms_one = False
+        self._terms_generic = False
         self._info_keys = settings.info_keys
         self._keep_all_info = settings.keep_all_info
         self._track_info = settings.track_info
@@ -898,10 +905,25 @@ class Stream:
             # both flags' truth values, here: one without any (an array) takes the slow path
             running = (not terminated) & (not truncated)
             block = self.block
-            terms = self._extract_terms(info) if info else None
-            if terms is not None:
-                # __float__, not float(): a str such as "1.5" is not a number (slow path)
-                values = [v.__float__() for v in terms.values()]
+            names: tuple[str, ...] = ()
+            terms = None
+            if info:
+                keys = tuple(info)
+                if keys != self._terms_keys:
+                    self._plan_terms(keys)
+                names = self._terms_names
+                if names:
+                    # the values, straight into the block: array("d") takes numbers only (a
+                    # str such as "1.5" raises: slow path, which drops what this added)
+                    if self._terms_one:
+                        block.term_vals.append(self._terms_get(info))
+                    else:
+                        block.term_vals.extend(self._terms_get(info))
+                elif self._terms_generic:
+                    terms = self._extract_terms(info)
+                    if terms is not None:
+                        # __float__, not float(): a str is not a number (slow path)
+                        values = [v.__float__() for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
                 raise LookupError  # a value was cast: note it on the slow path
             block.rewards.append(reward)  # may raise: slow path
@@ -909,7 +931,11 @@ class Stream:
             self._record_step_slow(result, action)
             return
         row = len(block.times)
-        if terms is not None:
+        if names:
+            block.term_rows.append(row)
+            block.term_counts.append(len(names))
+            block.term_keys.extend(names)
+        elif terms is not None:
             block.add_terms(row, terms, values)
         now = self._clock()
         block.times.append(now)  # commits the row
@@ -917,6 +943,16 @@ class Stream:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
         if row + 1 >= self._block_steps or now >= self.file.flush_at:
             self.file.flush()
+
+    def _plan_terms(self, keys: tuple[Any, ...]) -> None:
+        """Say how the terms of infos with these keys are read, until the keys change."""
+        names = self._terms_rule.names_for(keys)
+        self._terms_keys = keys
+        self._terms_names = names or ()  # (): none, or (generic) ask extract() step by step
+        self._terms_generic = names is None
+        self._terms_one = names is not None and len(names) == 1
+        if names:
+            self._terms_get = operator.itemgetter(*names)  # a tuple of values, or one value
 
     def extend(self, obs: Any, actions: Any, rewards: Any, times: Any) -> None:
         """Hand over all rows taken in a batch since the last call (numpy arrays, a row each).
@@ -958,6 +994,7 @@ class Stream:
         block.obs.truncate(rows)
         block.act.truncate(rows)
         del block.rewards[rows:]
+        del block.term_vals[len(block.term_keys) :]
         notes: list[str] = []
         try:
             obs, reward, terminated, truncated, info = result

@@ -236,6 +236,95 @@ def test_non_numeric_reward_term_is_recorded_as_nan_and_noted(tmp_path: Path, ba
     assert findings(path, "terms_sum_mismatch") == []  # a NaN term is not also a mismatch
 
 
+@pytest.mark.parametrize("bad_at", [0, 1])
+def test_non_numeric_prefixed_term_leaves_the_other_steps_aligned(
+    tmp_path: Path, bad_at: int
+) -> None:
+    # MuJoCo-style reward_* keys take the recorder's fastest path, which writes a step's term
+    # values before it knows the whole step is fine: a bad value in either position is rolled
+    # back and the step recorded (NaN + note) on the slow path; its neighbours are untouched.
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        values: list[Any] = [0.25 * env.t, -1.0]
+        if env.t == 2:
+            values[bad_at] = "oops"
+        return ZEROS, 1.0, False, False, {"reward_a": values[0], "reward_b": values[1]}
+
+    path = tmp_path / "prefixed.mcap"
+    with scripted(path, step) as env:
+        loop(env, episodes=1, steps=4)
+    assert_valid(path)
+    terms = [dict(s["terms"]) for s in steps_of(path)]
+    assert [list(t) for t in terms] == [["reward_a", "reward_b"]] * 4
+    assert [t["reward_a"] for t in terms][::2] == [0.25, 0.75]
+    assert terms[3] == {"reward_a": 1.0, "reward_b": -1.0}
+    assert math.isnan(terms[1]["reward_a" if bad_at == 0 else "reward_b"])
+    name = "reward_a" if bad_at == 0 else "reward_b"
+    (noted,) = findings(path, "recorder_note:term_not_numeric")
+    assert noted.message == (
+        f"recorder noted term_not_numeric at step 1 (1 time(s) in the episode): "
+        f"term '{name}' is 'oops'"
+    )
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    assert dict(episode["term_totals"])["reward_b" if bad_at == 0 else "reward_a"] == (
+        -4.0 if bad_at == 0 else 2.5
+    )
+
+
+def test_prefixed_terms_then_an_invalid_observation_record_the_terms_once(tmp_path: Path) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        obs = np.zeros(5, np.float32) if env.t == 2 else ZEROS  # does not fit the space
+        return obs, 1.0, False, False, {"reward_a": float(env.t)}
+
+    path = tmp_path / "obs.mcap"
+    with scripted(path, step) as env:
+        loop(env, episodes=1, steps=3)
+    steps = steps_of(path)
+    assert [dict(s["terms"]) for s in steps] == [{"reward_a": float(t)} for t in (1, 2, 3)]
+    assert steps[1]["observation"] is None and "observation_invalid" in steps[1]["notes"]
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    assert dict(episode["term_totals"]) == {"reward_a": 6.0}
+
+
+def test_terms_read_right_when_the_info_keys_change_from_step_to_step(tmp_path: Path) -> None:
+    infos: list[dict[str, Any]] = [
+        {"reward_a": 1.0, "x": 0},
+        {"reward_a": 2.0, "reward_b": np.float32(0.5)},
+        {"x": 1},  # no terms
+        {},
+        {"reward_b": np.float64(3.0), "reward_a": 4},  # other order
+        {"reward_a": 5.0, "x": 0},  # the first keys again
+    ]
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return ZEROS, 1.0, False, False, infos[env.t - 1]
+
+    path = tmp_path / "keys.mcap"
+    with scripted(path, step) as env:
+        loop(env, episodes=1, steps=len(infos))
+    terms = [s["terms"] for s in steps_of(path)]
+    assert terms == [
+        [("reward_a", 1.0)],
+        [("reward_a", 2.0), ("reward_b", 0.5)],
+        None,
+        None,
+        [("reward_b", 3.0), ("reward_a", 4.0)],
+        [("reward_a", 5.0)],
+    ]
+    assert open_evidence(path).episodes().to_pylist()[0]["notes"] == 0
+
+
+def test_terms_from_a_list_of_info_keys_are_read_once_each_in_the_list_order(
+    tmp_path: Path,
+) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return ZEROS, 1.0, False, False, {"ctrl": -0.5, "progress": 1.5, "other": 9.0}
+
+    path = tmp_path / "listed.mcap"
+    with scripted(path, step, reward_terms=["progress", "missing", "ctrl", "progress"]) as env:
+        loop(env, episodes=1, steps=2)
+    assert [s["terms"] for s in steps_of(path)] == [[("progress", 1.5), ("ctrl", -0.5)]] * 2
+
+
 def test_nan_reward_term_is_kept_and_flagged(tmp_path: Path) -> None:
     def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
         a = math.nan if env.t == 3 else 0.5
