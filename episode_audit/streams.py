@@ -692,6 +692,8 @@ class Stream:
         self._terms_get: Callable[[Any], Any] = tuple  # set with the names
         self._terms_one = False
         self._terms_generic = False
+        # plans by key tuple: an env that adds a term key on some steps only flips between two
+        self._terms_plans: dict[tuple[Any, ...], tuple[Any, ...]] = {}
         self._info_keys = settings.info_keys
         self._keep_all_info = settings.keep_all_info
         self._track_info = settings.track_info
@@ -946,13 +948,21 @@ class Stream:
 
     def _plan_terms(self, keys: tuple[Any, ...]) -> None:
         """Say how the terms of infos with these keys are read, until the keys change."""
-        names = self._terms_rule.names_for(keys)
-        self._terms_keys = keys
-        self._terms_names = names or ()  # (): none, or (generic) ask extract() step by step
-        self._terms_generic = names is None
-        self._terms_one = names is not None and len(names) == 1
-        if names:
-            self._terms_get = operator.itemgetter(*names)  # a tuple of values, or one value
+        plan = self._terms_plans.get(keys)
+        if plan is None:
+            names = self._terms_rule.names_for(keys)
+            # names: one itemgetter reads them all; None: extract() step by step; (): none
+            get = operator.itemgetter(*names) if names else tuple
+            plan = (keys, names or (), get, names is not None and len(names) == 1, names is None)
+            if len(self._terms_plans) < 64:  # bounded: an env with ever-new keys re-plans
+                self._terms_plans[keys] = plan
+        (
+            self._terms_keys,
+            self._terms_names,
+            self._terms_get,
+            self._terms_one,
+            self._terms_generic,
+        ) = plan
 
     def extend(self, obs: Any, actions: Any, rewards: Any, times: Any) -> None:
         """Hand over all rows taken in a batch since the last call (numpy arrays, a row each).
