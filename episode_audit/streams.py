@@ -686,12 +686,12 @@ class Stream:
         self._rules = settings.rules
         self._terms_rule = settings.terms_rule
         self._extract_terms = settings.terms_rule.extractor
-        # How the terms of infos with the last key tuple seen are read (see _plan_terms)
+        # How the terms of infos with the last key tuple seen are read (see _plan_terms):
+        # the names (None: ask _extract_terms step by step) and one itemgetter of them
         self._terms_keys: tuple[Any, ...] | None = None
-        self._terms_names: tuple[str, ...] = ()
+        self._terms_names: tuple[str, ...] | None = ()
         self._terms_get: Callable[[Any], Any] = tuple  # set with the names
         self._terms_one = False
-        self._terms_generic = False
         # plans by key tuple: an env that adds a term key on some steps only flips between two
         self._terms_plans: dict[tuple[Any, ...], tuple[Any, ...]] = {}
         self._info_keys = settings.info_keys
@@ -907,7 +907,7 @@ class Stream:
             # both flags' truth values, here: one without any (an array) takes the slow path
             running = (not terminated) & (not truncated)
             block = self.block
-            names: tuple[str, ...] = ()
+            names: tuple[str, ...] | None = ()
             terms = None
             if info:
                 keys = tuple(info)
@@ -921,7 +921,7 @@ class Stream:
                         block.term_vals.append(self._terms_get(info))
                     else:
                         block.term_vals.extend(self._terms_get(info))
-                elif self._terms_generic:
+                elif names is None:
                     terms = self._extract_terms(info)
                     if terms is not None:
                         # __float__, not float(): a str is not a number (slow path)
@@ -953,16 +953,10 @@ class Stream:
             names = self._terms_rule.names_for(keys)
             # names: one itemgetter reads them all; None: extract() step by step; (): none
             get = operator.itemgetter(*names) if names else tuple
-            plan = (keys, names or (), get, names is not None and len(names) == 1, names is None)
+            plan = (keys, names, get, names is not None and len(names) == 1)
             if len(self._terms_plans) < 64:  # bounded: an env with ever-new keys re-plans
                 self._terms_plans[keys] = plan
-        (
-            self._terms_keys,
-            self._terms_names,
-            self._terms_get,
-            self._terms_one,
-            self._terms_generic,
-        ) = plan
+        self._terms_keys, self._terms_names, self._terms_get, self._terms_one = plan
 
     def extend(self, obs: Any, actions: Any, rewards: Any, times: Any) -> None:
         """Hand over all rows taken in a batch since the last call (numpy arrays, a row each).
