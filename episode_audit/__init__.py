@@ -25,9 +25,9 @@ from .errors import (
 from .export import export
 from .format import FORMAT_VERSION
 from .outcomes import Ending, EndingRules, RewardTerms
-from .reader import EPISODE_COLUMNS, EpisodeEvidence, Evidence, open_evidence
+from .reader import EPISODE_COLUMNS, DamagedRegion, EpisodeEvidence, Evidence, open_evidence
 from .recorder import RecordEvidence
-from .records import RunInfo
+from .records import EpisodeRanges, RunInfo
 from .recover import RecoveryResult, recover
 from .replay import ReplayResult, replay
 from .report import Gates, Report, report
@@ -37,11 +37,13 @@ __all__ = [
     "CheckResult",
     "ConfigurationError",
     "CorruptEvidenceError",
+    "DamagedRegion",
     "EPISODE_COLUMNS",
     "Ending",
     "EndingRules",
     "EpisodeAuditError",
     "EpisodeEvidence",
+    "EpisodeRanges",
     "Evidence",
     "EvidenceError",
     "FORMAT_VERSION",

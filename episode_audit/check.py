@@ -47,7 +47,11 @@ code                             severity  meaning
 ``file_unfinished``              warning   the writer did not finish the file (crash, kill); the
                                            message says what the reader dropped
 ``file_recovered``               warning   the file was rewritten by ``episode-audit recover``
-                                           from a torn file; the message says what was dropped
+                                           from a torn or damaged file; the message says what
+                                           was dropped
+``evidence_damaged``             error     ``recover`` skipped damaged chunks of the original
+                                           file: which episodes lost part or all of their
+                                           evidence (one per file)
 ``not_replayable``               warning   episodes with neither a reset seed nor an RNG state
                                            (one per file, listing up to five); or a vector
                                            file whose vector env had no sub-envs
@@ -117,6 +121,7 @@ LENGTH_MISMATCH = "length_mismatch"
 RECORDER_NOTE = "recorder_note"
 FILE_UNFINISHED = "file_unfinished"
 FILE_RECOVERED = "file_recovered"
+EVIDENCE_DAMAGED = "evidence_damaged"
 NOT_REPLAYABLE = "not_replayable"
 MISSING_ENV_SPEC = "missing_env_spec"
 FORMAT_VERSION = "format_version"
@@ -438,9 +443,10 @@ def _number(value: float) -> str:
     return f"{value:.9g}"
 
 
-def _listing(indices: list[int]) -> str:
+def _listing(indices: list[int], count: int | None = None) -> str:
+    """The first indices, and how many more of ``count`` (default: all of ``indices``)."""
     shown = ", ".join(str(i) for i in indices[:_LIST_LIMIT])
-    more = len(indices) - _LIST_LIMIT
+    more = (len(indices) if count is None else count) - _LIST_LIMIT
     return shown + (f" and {more} more" if more > 0 else "")
 
 
@@ -545,8 +551,25 @@ class _FileCheck:
             self.finding(
                 "warning",
                 FILE_RECOVERED,
-                f"recovered from a torn file (the writer did not finish it); dropped: {dropped}",
+                f"rewritten by episode-audit recover from a torn or damaged file; "
+                f"dropped: {dropped}",
             )
+            damaged, stretches = ev.damaged_episodes, ev.damaged_stretches
+            if damaged or stretches:
+                shown = damaged.first(_LIST_LIMIT)
+                lost = (
+                    f"{damaged.count} episode(s) lost part or all of their evidence "
+                    f"(episodes {_listing(shown, damaged.count)}): their records, steps and "
+                    "outcomes are not the whole run"
+                    if damaged
+                    else "no episode lost evidence"
+                )
+                self.finding(
+                    "error",
+                    EVIDENCE_DAMAGED,
+                    f"recover skipped {stretches} damaged stretch(es) of the original file; {lost}",
+                    shown[0] if shown else None,
+                )
         layout = ev.run.layout or {}
         if ev.run.env_spec is None and not layout.get("env_module"):  # PettingZoo: a module
             notes = [str(n) for n in (ev.run.recorder or {}).get("notes") or []]
@@ -920,7 +943,11 @@ class _FileCheck:
         incomplete = pc.equal(outcome, fmt.OUTCOME_INCOMPLETE).to_numpy(zero_copy_only=False)
         incomplete_eps = listed(incomplete)
         if incomplete_eps:
-            cut = int((incomplete & ~ended).sum())
+            cut_off = incomplete & ~ended
+            lost = self.ev.damaged_episodes  # (their end records were in damaged chunks)
+            if lost:
+                cut_off &= ~np.array([e in lost for e in rows.column(fmt.COL_EPISODE).to_pylist()])
+            cut = int(cut_off.sum())
             torn = f", {cut} of them cut off by the torn end of the file" if cut else ""
             self.finding(
                 "warning",

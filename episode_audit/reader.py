@@ -31,6 +31,7 @@ Every error raised on purpose is an :class:`~episode_audit.errors.EvidenceError`
 
 from __future__ import annotations
 
+import bisect
 import importlib
 import json
 import os
@@ -65,7 +66,7 @@ from .errors import (
     UnsupportedVersionError,
 )
 from .records import EPISODE_ARROW_SCHEMA as EPISODE_SCHEMA
-from .records import RunInfo
+from .records import EpisodeRanges, RunInfo
 from .spaces import SpaceCodec, codec_for, space_from_description
 
 try:  # zlib-ng's CRC-32 (the same checksum) runs ~4x faster than the system zlib's
@@ -77,11 +78,13 @@ __all__ = [
     "EPISODE_COLUMNS",
     "ChunkContents",
     "ChunkRecords",
+    "DamagedRegion",
     "EpisodeEvidence",
     "Evidence",
     "FileEnd",
     "iter_records",
     "open_evidence",
+    "summary_definitions",
 ]
 
 MAX_RECORD_BYTES = 1 << 30
@@ -320,6 +323,25 @@ class Evidence:
     _resets_cache: pa.Table | None = field(default=None, repr=False)
     _gathered: _Gathered | None = field(default=None, repr=False)
     _stats: _StepStats | None = field(default=None, repr=False)
+
+    @property
+    def damaged_episodes(self) -> EpisodeRanges:
+        """Episodes that lost part or all of their evidence in damaged chunks.
+
+        Only a file rewritten by ``episode-audit recover`` from a damaged one says so (its
+        run-end record lists them); for any other file this is empty.
+        """
+        return EpisodeRanges.from_json((self.run_end or {}).get("damaged_episodes"))
+
+    @property
+    def damaged_stretches(self) -> int:
+        """How many damaged stretches of the original file a recovery skipped (0 if none)."""
+        raw = (self.run_end or {}).get("damaged")
+        try:
+            value = json.loads(raw) if raw else []
+        except ValueError:
+            return 0
+        return len(value) if isinstance(value, list) else 0
 
     # --------------------------------------------------------------- raw access
 
@@ -791,8 +813,11 @@ def _joined(parts: list[pa.RecordBatch]) -> Iterator[pa.RecordBatch]:
 # ------------------------------------------------------------------- chunks
 
 
+_RECOVER_HINT = "; `episode-audit recover` copies the intact chunks to a new file"
+
+
 def _damaged(path: Path, offset: int, why: str) -> CorruptEvidenceError:
-    return CorruptEvidenceError(path, f"chunk at byte {offset} is damaged ({why})")
+    return CorruptEvidenceError(path, f"chunk at byte {offset} is damaged ({why}){_RECOVER_HINT}")
 
 
 def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Path) -> _RawChunk:
@@ -1108,6 +1133,15 @@ def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordB
                     path, f"a block on {topic} has nulls in its {name!r} column"
                 )
     return batch
+
+
+def step_block_rows(data: bytes | memoryview, path: Path) -> int:
+    """How many rows one step block holds, the block checked as the reader checks it.
+
+    Raises :class:`~episode_audit.errors.CorruptEvidenceError` (naming ``path``) for a block
+    the reader would refuse, before decoding anything that could inflate.
+    """
+    return int(_arrow_batch(data, path, fmt.TOPIC_STEPS).num_rows)
 
 
 def _decode_names(fields: Iterable[pa.Field]) -> None:
@@ -1873,22 +1907,50 @@ class FileEnd:
     footer: bool
 
 
+@dataclass(frozen=True)
+class DamagedRegion:
+    """Bytes :func:`iter_records` skipped with ``skip_damaged``.
+
+    A damaged chunk, or a stretch whose record framing is garbled (then up to the next record
+    the file's summary locates).
+
+    Attributes:
+        offset: Where the skipped bytes start (a chunk record's offset for a damaged chunk).
+        length: How many bytes were skipped.
+        why: What was wrong, in words (e.g. ``chunk at byte 24389 is damaged (CRC mismatch)``).
+    """
+
+    offset: int
+    length: int
+    why: str
+
+
 def iter_records(
-    path: str | os.PathLike[str],
-) -> Iterator[Header | Metadata | Schema | Channel | Message | ChunkRecords | FileEnd]:
+    path: str | os.PathLike[str], *, skip_damaged: bool = False
+) -> Iterator[
+    Header | Metadata | Schema | Channel | Message | ChunkRecords | DamagedRegion | FileEnd
+]:
     """Walk a file's data section record by record, in file order (what recovery copies).
 
     Yields the Header, Metadata records, each complete chunk's records (decompressed and
-    CRC-checked: damage inside a complete chunk raises
-    :class:`~episode_audit.errors.CorruptEvidenceError`), records written outside chunks, and
-    last a :class:`FileEnd`. The walk stops at the footer or at the first record that is cut
-    off or unreadable (the torn tail a killed writer leaves); summary records are skipped.
+    CRC-checked), records written outside chunks, and last a :class:`FileEnd`. The walk stops
+    at the footer or at the first record that is cut off or unreadable (the torn tail a killed
+    writer leaves); summary records are skipped.
+
+    Damage inside a complete chunk raises :class:`~episode_audit.errors.CorruptEvidenceError`;
+    with ``skip_damaged`` the walk yields a :class:`DamagedRegion` for it instead and goes on
+    with the next record. When the file has a readable summary (it was finished), garbled
+    framing is skipped too, up to the next chunk or metadata record the summary locates: only
+    bytes after the last of those end the walk.
     """
     p = Path(path)
     with _open_mcap(p) as f:
         size = os.fstat(f.fileno()).st_size
+        known = _record_starts(f) if skip_damaged else []
+        f.seek(len(_MAGIC))
         pos = len(_MAGIC)
         summary = False
+
         while True:
             head = f.read(_RECORD_HEAD.size)
             if len(head) < _RECORD_HEAD.size:
@@ -1896,12 +1958,32 @@ def iter_records(
                 return
             opcode, length = _RECORD_HEAD.unpack(head)
             stop = pos + _RECORD_HEAD.size + length
+            bad: str | None = None
+            at = bisect.bisect_right(known, pos)  # the next record the summary locates, if any
+            nxt = known[at] if at < len(known) else None
             if length > MAX_RECORD_BYTES or stop > size:
-                yield FileEnd(pos, size, opcode, False)
-                return
+                bad = f"a record at byte {pos} declares {length} bytes, past the end of the file"
+            elif not summary and nxt is not None and stop > nxt:
+                bad = f"a record at byte {pos} overruns the record the summary locates at {nxt}"
+            if bad is not None:
+                if nxt is None:
+                    yield FileEnd(pos, size, opcode, False)
+                    return
+                yield DamagedRegion(pos, nxt - pos, bad)
+                pos = nxt
+                f.seek(pos)
+                continue
             if opcode == _OP_CHUNK and not summary:
-                raw = _read_chunk_record(f, _ChunkRef(pos, 0, 0, 0, 0), p)
-                yield ChunkRecords(pos, _chunk_records(_decompress(raw, p, pos), p, pos))
+                try:
+                    raw = _read_chunk_record(f, _ChunkRef(pos, 0, 0, 0, 0), p)
+                    item: ChunkRecords | DamagedRegion = ChunkRecords(
+                        pos, _chunk_records(_decompress(raw, p, pos), p, pos)
+                    )
+                except CorruptEvidenceError as exc:
+                    if not skip_damaged:
+                        raise
+                    item = DamagedRegion(pos, stop - pos, exc.problem.removesuffix(_RECOVER_HINT))
+                yield item
             else:
                 body = f.read(length)
                 if opcode == _OP_FOOTER:
@@ -1913,10 +1995,45 @@ def iter_records(
                     try:
                         yield _top_level(opcode, body)
                     except _Unreadable:
-                        yield FileEnd(pos, size, opcode, False)
-                        return
+                        if nxt is None:
+                            yield FileEnd(pos, size, opcode, False)
+                            return
+                        yield DamagedRegion(pos, nxt - pos, f"a record at byte {pos} is garbled")
+                        stop = nxt
             pos = stop
             f.seek(pos)
+
+
+def _record_starts(f: IO[bytes]) -> list[int]:
+    """Offsets of the chunk and metadata records a file's summary locates (none without one)."""
+    summary = _summary(f)
+    if summary is None:
+        return []
+    starts = {c.chunk_start_offset for c in summary.chunk_indexes}
+    starts.update(m.offset for m in summary.metadata_indexes)
+    return sorted(starts)
+
+
+def _summary(f: IO[bytes]) -> Any:
+    """The file's MCAP summary, or ``None`` when it has no readable one (torn, damaged)."""
+    try:
+        f.seek(0)
+        return SeekingReader(f, record_size_limit=MAX_RECORD_BYTES).get_summary()
+    except Exception:
+        return None
+
+
+def summary_definitions(path: str | os.PathLike[str]) -> tuple[list[Schema], list[Channel]]:
+    """The Schema and Channel records of a file's summary (empty lists without a summary).
+
+    A finished file repeats there the definitions its first chunk holds, so a recovery can
+    decode the later chunks even when that one is damaged.
+    """
+    with _open_mcap(Path(path)) as f:
+        summary = _summary(f)
+    if summary is None:
+        return [], []
+    return list(summary.schemas.values()), list(summary.channels.values())
 
 
 class _Unreadable(Exception):

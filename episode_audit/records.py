@@ -10,9 +10,11 @@ b'{"a":1.5,"b":"nan"}'
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
-from collections.abc import Mapping
+import operator
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -26,6 +28,7 @@ __all__ = [
     "EPISODE_ARROW_SCHEMA",
     "EPISODE_SCHEMA",
     "MAX_JSON_TEXT",
+    "EpisodeRanges",
     "RunInfo",
     "from_json",
     "to_json",
@@ -85,6 +88,84 @@ def from_json(text: str | bytes, what: str, limit: int = MAX_JSON_TEXT) -> Any:
         raise ValueError(f"{what} is nested too deeply to be JSON episode-audit wrote") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{what} is not valid JSON: {exc}") from None
+
+
+@dataclass(frozen=True)
+class EpisodeRanges:
+    """A set of episode indices as sorted, disjoint, inclusive ``(first, last)`` spans.
+
+    Compact whatever the count: a recovery that skipped damaged chunks lists the episodes
+    that lost evidence this way (a run of thousands of lost episodes is one span).
+
+    >>> lost = EpisodeRanges.of([7, 3, 4, 5], spans=[(10, 12)])
+    >>> lost.spans, lost.count, 4 in lost, 6 in lost
+    (((3, 5), (7, 7), (10, 12)), 7, True, False)
+    >>> lost.first(5), lost.to_json()
+    ([3, 4, 5, 7, 10], '[[3, 5], [7, 7], [10, 12]]')
+    >>> EpisodeRanges.from_json(lost.to_json()) == lost
+    True
+    """
+
+    spans: tuple[tuple[int, int], ...] = ()
+
+    @classmethod
+    def of(
+        cls, indices: Iterable[int] = (), spans: Iterable[tuple[int, int]] = ()
+    ) -> EpisodeRanges:
+        """The union of ``indices`` and ``spans`` (merged where they touch or overlap)."""
+        merged: list[tuple[int, int]] = []
+        for first, last in sorted([*((i, i) for i in indices), *spans]):
+            if merged and first <= merged[-1][1] + 1:
+                merged[-1] = (merged[-1][0], max(merged[-1][1], last))
+            else:
+                merged.append((first, last))
+        return cls(tuple(merged))
+
+    @classmethod
+    def from_json(cls, raw: str | None) -> EpisodeRanges:
+        """Parse :meth:`to_json`'s text; anything else (absent, garbled) is the empty set."""
+        try:
+            values = json.loads(raw) if raw and len(raw) <= MAX_JSON_TEXT else []
+        except ValueError:
+            return cls()
+        spans = [
+            (v[0], v[1])
+            for v in (values if isinstance(values, list) else [])
+            if isinstance(v, list)
+            and len(v) == 2
+            and all(type(x) is int for x in v)
+            and 0 <= v[0] <= v[1]
+        ]
+        return cls.of(spans=spans)
+
+    def to_json(self) -> str:
+        """``[[first, last], ...]``."""
+        return json.dumps([list(span) for span in self.spans])
+
+    @property
+    def count(self) -> int:
+        """How many indices."""
+        return sum(last - first + 1 for first, last in self.spans)
+
+    def first(self, n: int) -> list[int]:
+        """The ``n`` smallest indices (fewer if there are fewer)."""
+        out: list[int] = []
+        for first, last in self.spans:
+            out.extend(range(first, min(last, first + n - len(out) - 1) + 1))
+            if len(out) >= n:
+                break
+        return out
+
+    def __contains__(self, index: object) -> bool:
+        try:
+            index = operator.index(index)  # type: ignore[arg-type]
+        except TypeError:
+            return False
+        at = bisect.bisect_right(self.spans, (index, float("inf"))) - 1
+        return at >= 0 and self.spans[at][0] <= index <= self.spans[at][1]
+
+    def __bool__(self) -> bool:
+        return bool(self.spans)
 
 
 def _numpy_default(value: Any) -> Any:

@@ -36,18 +36,28 @@ import os
 import secrets
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any, Literal
 
-import pyarrow as pa
 import pyarrow.compute as pc
 from mcap.records import Channel, Header, Message, Metadata, Schema
 
 from . import format as fmt
 from ._version import __version__
-from .errors import ConfigurationError, CorruptEvidenceError
-from .reader import ChunkRecords, FileEnd, iter_records, open_evidence
+from .errors import ConfigurationError, CorruptEvidenceError, EvidenceError
+from .reader import (
+    _RECOVER_HINT,
+    ChunkRecords,
+    DamagedRegion,
+    FileEnd,
+    iter_records,
+    open_evidence,
+    step_block_rows,
+    summary_definitions,
+)
+from .records import EpisodeRanges
 from .writer import EvidenceWriter
 
 __all__ = ["RecoveryResult", "recover"]
@@ -98,6 +108,13 @@ class RecoveryResult:
         closing: The torn file holds the recorder's run-end record: ``close()`` had flushed
             every step before the kill. Without it the recorder died mid-run, and the steps it
             took after its last flush (at most ``flush_every_s``) are in no file.
+        damaged: Damaged chunks (a CRC mismatch, garbled records) and garbled stretches that
+            were skipped, in file order.
+        damaged_episodes: Episodes that lost part or all of their evidence (reset, steps or
+            end record) in those chunks. Those still in the output are ``incomplete`` when
+            their end record was lost; ``check`` reports each, and replay skips them.
+        damaged_tail: Damage came after the last intact chunk of an unfinished file: episodes
+            that began there left nothing behind, and cannot be counted.
     """
 
     source: Path
@@ -112,6 +129,9 @@ class RecoveryResult:
     dropped_record: str | None
     dropped_at: int
     closing: bool = True
+    damaged: tuple[DamagedRegion, ...] = ()
+    damaged_episodes: EpisodeRanges = field(default_factory=EpisodeRanges)
+    damaged_tail: bool = False
 
     @property
     def data_dropped(self) -> bool:
@@ -125,23 +145,32 @@ class RecoveryResult:
         A partial chunk, cut-off episodes, or the steps after the last flush of a recorder
         killed before ``close()``.
         """
-        return self.data_dropped or bool(self.cut_off_episodes) or not self.closing
+        return (
+            self.data_dropped
+            or bool(self.cut_off_episodes)
+            or not self.closing
+            or bool(self.damaged)
+        )
 
     @property
     def dropped(self) -> str:
         """What the recovery dropped or marked, in words (``nothing`` when nothing)."""
         parts = []
+        if self.damaged:
+            parts.append(_damage_words(self.damaged, self.damaged_episodes))
+            if self.damaged_tail:
+                parts.append(
+                    "the damage follows the last intact chunk: episodes begun there cannot "
+                    "be counted"
+                )
         if self.dropped_bytes:
             what = f"a partial {self.dropped_record} record" if self.dropped_record else "bytes"
             parts.append(f"the last {self.dropped_bytes} bytes ({what} at byte {self.dropped_at})")
         if self.cut_off_episodes:
-            shown = ", ".join(str(e) for e in self.cut_off_episodes[:5])
-            more = (
-                f" and {len(self.cut_off_episodes) - 5} more"
-                if len(self.cut_off_episodes) > 5
-                else ""
+            cut = list(self.cut_off_episodes)
+            parts.append(
+                f"episode(s) {_some(cut, len(cut))} had no end record: recorded as incomplete"
             )
-            parts.append(f"episode(s) {shown}{more} had no end record: recorded as incomplete")
         if not self.closing:
             parts.append("the recorder was killed before close(): steps after its last flush")
         return "; ".join(parts) if parts else "nothing"
@@ -166,6 +195,23 @@ class RecoveryResult:
 _NOT_DATA_NAMES = frozenset(_RECORD_NAMES[op] for op in _NOT_DATA)
 
 
+def _some(values: list[int], count: int, shown: int = 5) -> str:
+    """``1, 2, 3, 4, 5 and 7 more`` (``values``: at least the first ``shown`` of ``count``)."""
+    text = ", ".join(str(v) for v in values[:shown])
+    return f"{text} and {count - shown} more" if count > shown else text
+
+
+def _damage_words(damaged: tuple[DamagedRegion, ...], episodes: EpisodeRanges) -> str:
+    where = "; ".join(d.why for d in damaged[:3])
+    more = f"; and {len(damaged) - 3} more" if len(damaged) > 3 else ""
+    lost = (
+        f": episode(s) {_some(episodes.first(5), episodes.count)} lost evidence in them"
+        if episodes
+        else " (no episode lost evidence in them)"
+    )
+    return f"{len(damaged)} damaged stretch(es) skipped ({where}{more}){lost}"
+
+
 def recover(
     path: str | os.PathLike[str], out: str | os.PathLike[str], *, overwrite: bool = False
 ) -> RecoveryResult:
@@ -183,10 +229,20 @@ def recover(
     """
     src, dst = Path(path), Path(out)
     _check_paths(src, dst, overwrite)
-    ev = open_evidence(src)
+    try:
+        ev = open_evidence(src)
+    except CorruptEvidenceError as exc:
+        if not exc.problem.endswith(_RECOVER_HINT):
+            raise
+        # (an unfinished file: only its first chunk was read, for the channel definitions)
+        raise CorruptEvidenceError(
+            src,
+            f"{exc.problem.removesuffix(_RECOVER_HINT)}: it holds the channel definitions and "
+            "the file has no summary that repeats them, so no chunk can be decoded",
+        ) from None
     tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
     try:
-        if ev.finished:
+        if ev.finished and not _damage_in(src):
             try:
                 shutil.copyfile(src, tmp)
             except OSError as exc:
@@ -196,9 +252,7 @@ def recover(
             size = src.stat().st_size
             result = RecoveryResult(src, dst, True, 0, 0, len(lengths), steps, (), 0, None, size)
         else:
-            episodes = ev.episodes()
-            cut = tuple(episodes.filter(pc.invert(episodes["ended"]))["episode"].to_pylist())
-            result = _rewrite(src, tmp, dst, episodes.num_rows, cut)
+            result = _rewrite(src, tmp, dst)
             check = open_evidence(tmp)
             if not check.finished:  # pragma: no cover - the writer finished it just now
                 raise CorruptEvidenceError(tmp, f"the recovered file is unfinished: {check.torn}")
@@ -207,6 +261,11 @@ def recover(
     finally:
         tmp.unlink(missing_ok=True)
     return result
+
+
+def _damage_in(path: Path) -> bool:
+    """Whether a walk over the finished file ``path`` meets damage (every chunk checked)."""
+    return any(isinstance(item, DamagedRegion) for item in iter_records(path, skip_damaged=True))
 
 
 def _check_paths(src: Path, dst: Path, overwrite: bool) -> None:
@@ -227,22 +286,28 @@ def _check_paths(src: Path, dst: Path, overwrite: bool) -> None:
         )
 
 
-def _rewrite(
-    src: Path, tmp: Path, dst: Path, episodes: int, cut_off: tuple[int, ...]
-) -> RecoveryResult:
-    """Copy ``src``'s complete records into the new file ``tmp`` and finish it."""
-    records = iter_records(src)
+def _rewrite(src: Path, tmp: Path, dst: Path) -> RecoveryResult:
+    """Copy ``src``'s complete, intact records into the new file ``tmp`` and finish it."""
+    records = iter_records(src, skip_damaged=True)
     header = next(records)
     if not isinstance(header, Header):  # open_evidence found one: the walk does too
         raise CorruptEvidenceError(src, "the first record is not an MCAP header")
     writer = EvidenceWriter(tmp, library=header.library)
     try:
         copy = _Copy(src, writer)
+        # A finished file repeats its schemas and channels in its summary: with them, chunks
+        # after a damaged first chunk (which held the definitions) still decode.
+        schemas, channels = summary_definitions(src)
+        for record in [*schemas, *channels]:
+            copy.record(record)
         end: FileEnd | None = None
         old_run_end: dict[str, str] | None = None
+        damaged: list[DamagedRegion] = []
         for item in records:
             if isinstance(item, FileEnd):
                 end = item
+            elif isinstance(item, DamagedRegion):
+                damaged.append(item)
             elif isinstance(item, Metadata):
                 if item.name == fmt.METADATA_RUN_END:
                     old_run_end = dict(item.metadata)
@@ -253,9 +318,20 @@ def _rewrite(
                     copy.record(record)
                 writer.flush()
                 copy.chunks += 1
+                copy.last_chunk = item.offset
             elif not isinstance(item, Header):
                 copy.record(item)
         assert end is not None  # iter_records always ends with one
+        writer.flush()
+        # What the output holds so far (an unfinished file, read as a torn one) says which
+        # episodes were cut off, and with damage, which lost evidence.
+        damage: _Damage = ""
+        if damaged:
+            damage = "at the end" if damaged[-1].offset > copy.last_chunk else "inside"
+        try:
+            kept = _Kept.of(tmp, old_run_end, damage)
+        except EvidenceError as exc:  # what it copied from src: name src
+            raise type(exc)(src, exc.problem) from None
         dropped = end.size - end.offset if not end.footer else 0
         kind = None
         if dropped and end.cut_opcode is not None:
@@ -266,19 +342,22 @@ def _rewrite(
             False,
             copy.chunks,
             copy.messages,
-            episodes,
+            kept.episodes,
             copy.steps,
-            cut_off,
+            kept.cut_off,
             dropped,
             kind,
             end.size - dropped,
             old_run_end is not None,
+            tuple(damaged),
+            kept.damaged,
+            damage == "at the end" and old_run_end is None,
         )
         last = (old_run_end or {}).get("end_time")
         writer.finish(
             {
                 "status": fmt.RUN_STATUS_RECOVERED,
-                "episodes": str(episodes),
+                "episodes": str(kept.episodes),
                 "steps": str(copy.steps),
                 "blocks": str(copy.blocks),
                 "end_time": last or _iso(copy.last_time),
@@ -287,13 +366,95 @@ def _rewrite(
                 "recovered_time": datetime.now(timezone.utc).isoformat(),
                 "dropped": result.dropped,
                 "dropped_bytes": str(dropped),
-                "cut_off_episodes": json.dumps(list(cut_off)),
+                "cut_off_episodes": json.dumps(list(kept.cut_off)),
+                "damaged": json.dumps(
+                    [{"offset": d.offset, "length": d.length, "why": d.why} for d in damaged]
+                ),
+                "damaged_episodes": kept.damaged.to_json(),
             }
         )
     except BaseException:
         writer.abandon()
         raise
     return result
+
+
+_Damage = Literal["", "inside", "at the end"]
+"""Where a recovery met damage: nowhere, before an intact chunk, or after the last one."""
+
+
+@dataclass(frozen=True)
+class _Kept:
+    """The episodes of a recovery's output: how many, which were cut off, which damaged."""
+
+    episodes: int
+    cut_off: tuple[int, ...]
+    damaged: EpisodeRanges
+
+    @classmethod
+    def of(cls, path: Path, old_run_end: dict[str, str] | None, damage: _Damage) -> _Kept:
+        """Read the (still unfinished) output ``path``.
+
+        Without damage, the episodes without an end record were cut off by the torn end. With
+        damage, an episode lost evidence when its end record is missing but a later episode
+        of its stream began (only a stream's last episode can be cut off), its reset row is
+        missing, it has fewer step rows than its record says, its step indices have a gap, or
+        it is missing altogether (indices are 0, 1, ... in a file; a finished input's run-end
+        record says how many). An episode without an end record counts as damaged, not cut
+        off, when the input has its run-end record (``close()`` wrote every end record) or the
+        ``damage`` comes after the last intact chunk.
+        """
+        ev = open_evidence(path)
+        table = ev.episodes()
+        index = table.column(fmt.COL_EPISODE).to_pylist()
+        ended = table.column("ended").to_pylist()
+        if not damage:
+            cut = tuple(e for e, done in zip(index, ended, strict=True) if not done)
+            return cls(len(index), cut, EpisodeRanges())
+        streams = zip(
+            table.column("env_index").to_pylist(), table.column("agent").to_pylist(), strict=True
+        )
+        last: dict[tuple[Any, Any], int] = {}
+        for e, stream in zip(index, streams, strict=True):
+            last[stream] = max(last.get(stream, e), e)
+        # After close() (its run-end record is there) no episode is cut off; nor, when damage
+        # follows the last intact chunk, can a missing end record be told from a lost one.
+        finals = set() if old_run_end is not None or damage == "at the end" else set(last.values())
+        cut = tuple(e for e, done in zip(index, ended, strict=True) if not done and e in finals)
+        lost = {e for e, done in zip(index, ended, strict=True) if not done and e not in finals}
+        resets = set(ev.resets().column(fmt.COL_EPISODE).to_pylist())
+        lost.update(e for e in index if e not in resets)
+        rows = (
+            ev.steps(columns=[fmt.COL_EPISODE, fmt.COL_STEP])
+            .group_by(fmt.COL_EPISODE)
+            .aggregate([(fmt.COL_STEP, "count"), (fmt.COL_STEP, "min"), (fmt.COL_STEP, "max")])
+        )
+        counts: dict[int, int] = {}
+        for e, n, low, high in zip(
+            rows.column(fmt.COL_EPISODE).to_pylist(),
+            rows.column(f"{fmt.COL_STEP}_count").to_pylist(),
+            rows.column(f"{fmt.COL_STEP}_min").to_pylist(),
+            rows.column(f"{fmt.COL_STEP}_max").to_pylist(),
+            strict=True,
+        ):
+            counts[e] = n
+            if low != 0 or high != n - 1:
+                lost.add(e)
+        for e, done, length in zip(index, ended, table.column("length").to_pylist(), strict=True):
+            if done and counts.get(e, 0) < (length or 0):
+                lost.add(e)
+        known = sorted(set(index) | set(counts) | resets)
+        try:
+            total = int((old_run_end or {}).get("episodes", "0"))
+        except ValueError:
+            total = 0
+        # the indices no evidence is left of: the gaps, and after the last one kept
+        gaps, previous = [], -1
+        for e in [*known, max(total, known[-1] + 1 if known else 0)]:
+            if e > previous + 1:
+                gaps.append((previous + 1, e - 1))
+            previous = max(previous, e)
+        return cls(len(index), cut, EpisodeRanges.of(lost, gaps))
 
 
 class _Copy:
@@ -307,6 +468,7 @@ class _Copy:
         self.steps_channels: set[int] = set()
         self.chunks = self.messages = self.steps = self.blocks = 0
         self.last_time = 0
+        self.last_chunk = -1  # the offset of the last chunk copied
 
     def record(self, record: object) -> None:
         writer = self.writer
@@ -322,7 +484,7 @@ class _Copy:
             self.messages += 1
             self.last_time = max(self.last_time, record.log_time)
             if channel in self.steps_channels:
-                self.steps += _rows(record.data, self.src)
+                self.steps += step_block_rows(record.data, self.src)
                 self.blocks += 1
         elif isinstance(record, Schema) and record.id not in self.schemas:
             self.schemas[record.id] = writer.register_schema(
@@ -340,15 +502,6 @@ class _Copy:
             self.channels[record.id] = new
             if record.topic == fmt.TOPIC_STEPS:
                 self.steps_channels.add(new)
-
-
-def _rows(data: bytes, src: Path) -> int:
-    try:
-        return int(pa.ipc.open_stream(pa.py_buffer(data)).read_next_batch().num_rows)
-    except (pa.ArrowException, StopIteration, OSError) as exc:
-        raise CorruptEvidenceError(
-            src, f"a block on {fmt.TOPIC_STEPS} is not a valid Arrow stream: {exc}"
-        ) from None
 
 
 def _iso(time_ns: int) -> str:

@@ -678,6 +678,7 @@ class _EpisodeRunner:
         time_limit = self.time_limit
         progress = self.progress
         has_nulls = null_rows is not None and null_rows.size > 0
+        damaged = self.ev.damaged_episodes
         for record in records:
             index = int(record["episode"])
             start, count = rows.get(index, (0, 0))
@@ -687,6 +688,11 @@ class _EpisodeRunner:
             if seed is None and rng_state is None:
                 done[index] = self.not_replayable(
                     index, 0, "no seed or RNG state recorded for its reset"
+                )
+                continue
+            if index in damaged:
+                done[index] = self.not_replayable(
+                    index, count, "part of its evidence was in a damaged chunk (skipped by recover)"
                 )
                 continue
             if reset_at is None:

@@ -231,6 +231,7 @@ def replay_agents_evidence(
     resets = ev.resets()
     reset_at = {int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())}
     done: dict[int, EpisodeReplay] = {}
+    damaged = ev.damaged_episodes
     try:
         for record in records:
             index = int(record["episode"])
@@ -241,6 +242,12 @@ def replay_agents_evidence(
                 done[index] = EpisodeReplay(
                     path, index, "not_replayable", 0, reason="it belongs to no game"
                 )
+                continue
+            if any(int(r["episode"]) in damaged for r in members.values()):
+                for r in members.values():
+                    done[int(r["episode"])] = EpisodeReplay(
+                        path, int(r["episode"]), "not_replayable", 0, reason=_DAMAGED_GAME
+                    )
                 continue
             for result in _replay_game(
                 env,
@@ -264,6 +271,9 @@ def replay_agents_evidence(
     finally:
         env.close()
     return [done[int(r["episode"])] for r in records if int(r["episode"]) in done]
+
+
+_DAMAGED_GAME = "an agent-episode of its game lost evidence in a damaged chunk (skipped by recover)"
 
 
 def _replay_game(

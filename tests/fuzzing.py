@@ -916,7 +916,7 @@ def _call(outcome: Outcome, name: str, fn: Callable[[], Any]) -> Any:
 
 def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
     """Every library entry point a user can reach with a file."""
-    from episode_audit import check, export, replay, report
+    from episode_audit import check, export, recover, replay, report
     from episode_audit.show import episode_output, summary_output
 
     def reading() -> None:
@@ -959,6 +959,17 @@ def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
     _call(outcome, "show", show)
     _call(outcome, "export", lambda: export([path], scratch / "export", overwrite=True))
     _call(outcome, "replay", lambda: replay([path]))
+
+    def recovering() -> None:
+        # what recover writes is finished evidence the audit reads (it skips damaged chunks)
+        out = scratch / "recovered.mcap"
+        recover(path, out, overwrite=True)
+        if not open_evidence(out).finished:
+            raise Escaped("recover wrote an unfinished file")
+        check([out])
+        replay([out])
+
+    _call(outcome, "recover", recovering)
 
 
 def drive_cli(path: Path, scratch: Path, outcome: Outcome, commands: list[str]) -> None:

@@ -6,6 +6,7 @@ import struct
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
@@ -16,12 +17,17 @@ from typer.testing import CliRunner
 from episode_audit import (
     ConfigurationError,
     CorruptEvidenceError,
+    EpisodeRanges,
     NotEvidenceError,
     RecordEvidence,
+    RecordVectorEvidence,
+    ReplayResult,
     open_evidence,
     recover,
 )
 from episode_audit.cli import app
+from episode_audit.reader import iter_records
+from episode_audit.replay import replay as replay_files
 from tests import kill_harness
 
 runner = CliRunner()
@@ -210,20 +216,153 @@ def test_cli_exit_2_for_what_is_not_evidence(tmp_path: Path) -> None:
         recover(text, tmp_path)
 
 
-def test_damage_inside_a_complete_chunk_is_an_error_and_leaves_nothing(
+def evidence_in_chunk(path: Path, offset: int) -> set[int]:
+    """The episodes with a reset row, step rows or an end record in the chunk at ``offset``."""
+    for chunk in open_evidence(path).scan():
+        if chunk.offset == offset:
+            found: set[int] = set()
+            for batch in chunk.steps + chunk.resets:
+                found.update(batch.column("episode").to_pylist())
+            for raw in chunk.episode_records:
+                found.update(pa.ipc.open_stream(raw).read_all()["episode"].to_pylist())
+            return found
+    raise AssertionError(f"no chunk at {offset}")
+
+
+def replay_file(path: Path) -> ReplayResult:
+    return replay_files([path])
+
+
+def damaged_copy(source: Path, directory: Path, at: int, cut: int | None = None) -> Path:
+    """``source`` (up to ``cut``) with the byte at ``at`` flipped."""
+    data = bytearray(source.read_bytes()[:cut])
+    data[at] ^= 0xFF
+    out = directory / f"damaged-{at}-{cut}.mcap"
+    out.write_bytes(bytes(data))
+    return out
+
+
+@pytest.mark.parametrize("which", ["first", "second", "middle", "last"])
+def test_a_damaged_chunk_is_skipped_and_its_episodes_named(
+    recorded: Path, tmp_path: Path, which: str
+) -> None:
+    chunks, _ = layout(recorded)
+    k = {"first": 0, "second": 1, "middle": len(chunks) // 2, "last": len(chunks) - 1}[which]
+    offset, length = chunks[k]
+    damaged = damaged_copy(recorded, tmp_path, offset + length - 20)  # in the compressed records
+    with pytest.raises(CorruptEvidenceError, match=f"chunk at byte {offset} is damaged.*recover"):
+        open_evidence(damaged).episodes()
+    result = recover(damaged, tmp_path / "out.mcap")
+    assert [(d.offset, d.length) for d in result.damaged] == [(offset, length)]
+    assert "CRC mismatch" in result.damaged[0].why or "damaged" in result.damaged[0].why
+    truth = evidence_in_chunk(recorded, offset)
+    assert truth and set(result.damaged_episodes.first(1000)) == truth
+    assert result.lost and result.chunks == len(chunks) - 1 and not result.cut_off_episodes
+    out = open_evidence(tmp_path / "out.mcap")
+    assert out.finished and out.run_end is not None and out.run_end["status"] == "recovered"
+    assert out.damaged_episodes == result.damaged_episodes and out.damaged_stretches == 1
+    # every step of every intact chunk is kept, untouched
+    original = open_evidence(recorded).steps()
+    kept = original.filter(pc.invert(pc.is_in(original["episode"], pa.array(sorted(truth)))))
+    survivors = out.steps()
+    survivors = survivors.filter(pc.invert(pc.is_in(survivors["episode"], pa.array(sorted(truth)))))
+    assert survivors.equals(kept)
+    # the audit commands say what was lost; replay skips the damaged episodes
+    code, report, _ = run("check", str(tmp_path / "out.mcap"), "--format", "json")
+    findings = json.loads(report)["findings"]
+    damage = [f for f in findings if f["code"] == "evidence_damaged"]
+    assert code == 1 and len(damage) == 1 and damage[0]["severity"] == "error"
+    assert f"{len(truth)} episode(s) lost part or all" in damage[0]["message"]
+    assert not any("cut off by the torn end" in f["message"] for f in findings)
+    replayed = replay_file(tmp_path / "out.mcap")
+    skipped = {e.episode for e in replayed.episodes if e.status == "not_replayable"}
+    assert skipped == truth & {e.episode for e in replayed.episodes}
+    assert replayed.count("identical") == len(replayed.episodes) - len(skipped)
+
+
+def test_recover_cli_names_the_damage_and_exits_1(recorded: Path, tmp_path: Path) -> None:
+    chunks, _ = layout(recorded)
+    offset, length = chunks[1]
+    damaged = damaged_copy(recorded, tmp_path, offset + length - 20)
+    for command in ("check", "report", "show", "replay"):
+        code, _, err = run(command, str(damaged))
+        assert code == 2 and "`episode-audit recover` copies the intact chunks" in err, command
+    code, out, err = run("recover", str(damaged), "-o", str(tmp_path / "out.mcap"))
+    assert code == 1 and err == ""
+    assert f"1 damaged stretch(es) skipped (chunk at byte {offset} is damaged" in out
+    assert "lost evidence in them" in out and len(out.strip().splitlines()) == 1
+
+
+def test_garbled_framing_in_a_finished_file_is_skipped_up_to_the_next_chunk(
     recorded: Path, tmp_path: Path
 ) -> None:
     chunks, _ = layout(recorded)
-    data = bytearray(recorded.read_bytes()[: chunks[-2][0]])
+    (offset, _), (following, _) = chunks[2], chunks[3]
+    damaged = damaged_copy(recorded, tmp_path, offset + 8)  # the top byte of its record length
+    result = recover(damaged, tmp_path / "out.mcap")
+    assert [(d.offset, d.length) for d in result.damaged] == [(offset, following - offset)]
+    assert "past the end of the file" in result.damaged[0].why
+    assert set(result.damaged_episodes.first(1000)) == evidence_in_chunk(recorded, offset)
+    assert result.chunks == len(chunks) - 1
+
+
+def test_damage_and_a_torn_tail_together(recorded: Path, tmp_path: Path) -> None:
+    chunks, _ = layout(recorded)
     offset, length = chunks[1]
-    data[offset + length - 20] ^= 0xFF  # inside the compressed records
-    torn = tmp_path / "damaged.mcap"
-    torn.write_bytes(bytes(data))
+    cut = chunks[-2][0] + 40  # torn inside the second-to-last chunk
+    damaged = damaged_copy(recorded, tmp_path, offset + length - 20, cut)
+    result = recover(damaged, tmp_path / "out.mcap")
+    assert [d.offset for d in result.damaged] == [offset]
+    assert set(result.damaged_episodes.first(1000)) == evidence_in_chunk(recorded, offset)
+    assert result.dropped_record == "chunk" and result.dropped_at == chunks[-2][0]
+    assert result.cut_off_episodes  # the episode in flight at the torn end
+    assert not set(result.cut_off_episodes) & set(result.damaged_episodes.first(1000))
+    text = result.summary()
+    assert "damaged stretch(es) skipped" in text and "had no end record" in text
+
+
+def test_damage_in_the_last_intact_chunk_of_a_torn_file_marks_the_open_episodes(
+    recorded: Path, tmp_path: Path
+) -> None:
+    chunks, _ = layout(recorded)
+    offset, length = chunks[-3]
+    damaged = damaged_copy(recorded, tmp_path, offset + length - 20, chunks[-2][0] + 40)
+    result = recover(damaged, tmp_path / "out.mcap")
+    # whether an episode lost its end record to the damage or to the kill cannot be told:
+    # none is called cut off, every one without an end record is named as damaged; one that
+    # began in the damaged chunk left nothing behind, and the result says it cannot be counted
+    assert not result.cut_off_episodes and result.damaged_tail
+    present = {
+        int(e) for e in open_evidence(tmp_path / "out.mcap").episodes()["episode"].to_pylist()
+    }
+    truth = evidence_in_chunk(recorded, offset)
+    assert truth & present and set(result.damaged_episodes.first(1000)) == truth & present
+    assert "episodes begun there cannot be counted" in result.summary()
+
+
+def test_a_damaged_first_chunk_of_a_torn_file_cannot_be_recovered(
+    recorded: Path, tmp_path: Path
+) -> None:
+    chunks, _ = layout(recorded)
+    offset, length = chunks[0]
+    damaged = damaged_copy(recorded, tmp_path, offset + length - 20, chunks[-2][0] + 40)
+    with pytest.raises(CorruptEvidenceError, match="holds the channel definitions") as caught:
+        recover(damaged, tmp_path / "out.mcap")
+    assert "copies the intact chunks" not in str(caught.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [damaged.name]  # no temp file left
+    code, _, err = run("recover", str(damaged), "-o", str(tmp_path / "out.mcap"))
+    assert code == 2 and "no chunk can be decoded" in err and len(err.strip().splitlines()) == 1
+
+
+def test_iter_records_raises_on_damage_unless_asked_to_skip(recorded: Path, tmp_path: Path) -> None:
+    chunks, _ = layout(recorded)
+    offset, length = chunks[1]
+    damaged = damaged_copy(recorded, tmp_path, offset + length - 20)
     with pytest.raises(CorruptEvidenceError, match=f"chunk at byte {offset} is damaged"):
-        recover(torn, tmp_path / "out.mcap")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.mcap"]  # no temp file left
-    code, _, err = run("recover", str(torn), "-o", str(tmp_path / "out.mcap"))
-    assert code == 2 and "damaged" in err
+        list(iter_records(damaged))
+    walked = list(iter_records(damaged, skip_damaged=True))
+    assert [type(item).__name__ for item in walked].count("DamagedRegion") == 1
+    assert [type(item).__name__ for item in walked].count("ChunkRecords") == len(chunks) - 1
 
 
 def test_finished_file_is_copied_unchanged(recorded: Path, tmp_path: Path) -> None:
@@ -294,3 +433,40 @@ def test_kill_sample(tmp_path: Path) -> None:
     assert {v.plan.mode for v in verdicts} == set(kill_harness.MODES)
     assert [(v.plan, v.problems) for v in verdicts if v.problems] == []
     assert all(v.in_file >= v.flushed for v in verdicts)
+
+
+def test_a_damaged_chunk_of_a_vector_file(tmp_path: Path) -> None:
+    """Several streams: episodes of every sub-env that had evidence in the chunk are named."""
+    path = tmp_path / "vector.mcap"
+    envs = gym.vector.SyncVectorEnv([lambda: gym.make("CartPole-v1") for _ in range(3)])
+    with RecordVectorEvidence(envs, path, block_steps=64) as env:
+        env.action_space.seed(0)
+        env.reset(seed=0)
+        for _ in range(300):
+            env.step(env.action_space.sample())
+    chunks, _ = layout(path)
+    offset, length = chunks[len(chunks) // 2]
+    damaged = damaged_copy(path, tmp_path, offset + length - 20)
+    result = recover(damaged, tmp_path / "out.mcap")
+    truth = evidence_in_chunk(path, offset)
+    assert len(truth) > 3 and set(result.damaged_episodes.first(1000)) == truth
+    replayed = replay_file(tmp_path / "out.mcap")
+    assert replayed.count("diverged") == 0
+    assert {e.episode for e in replayed.episodes if e.status == "not_replayable"} == truth & {
+        e.episode for e in replayed.episodes
+    }
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [None, "", "not json", "{}", "[1, 2]", "[[3, 1]]", '[["a", 2]]', "[[-1, 4]]", "[[1, 2, 3]]"],
+)
+def test_damaged_episodes_that_do_not_parse_read_as_none(raw: str | None) -> None:
+    assert EpisodeRanges.from_json(raw) == EpisodeRanges()
+
+
+def test_damaged_episodes_stay_compact_and_exact() -> None:
+    lost = EpisodeRanges.of([2, 3, 9], spans=[(4, 5), (10, 10**12)])
+    assert lost.spans == ((2, 5), (9, 10**12)) and lost.count == 10**12 - 4
+    assert 10**11 in lost and 6 not in lost and "3" not in lost and np.int64(3) in lost
+    assert EpisodeRanges.from_json(lost.to_json()) == lost and lost.first(3) == [2, 3, 4]
