@@ -447,13 +447,20 @@ def export(
 
 @app.command()
 def recover(
-    path: Annotated[Path, typer.Argument(help="A torn evidence file (left by a killed recorder).")],
+    path: Annotated[
+        Path,
+        typer.Argument(help="A torn evidence file (left by a killed recorder) or a damaged one."),
+    ],
     out: Annotated[Path, typer.Option("--out", "-o", help="The finished file to write.")],
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Replace an existing output file (never the input).")
     ] = False,
 ) -> None:
-    """Rewrite a torn file as a finished, indexed one; exit 1 if anything was or may be lost."""
+    """Rewrite a torn or damaged file as a finished, indexed one.
+
+    Every complete, intact chunk is kept; damaged chunks are skipped and the episodes that lost
+    evidence named. Exit 1 if anything was or may have been lost.
+    """
     from .recover import recover as run_recover
 
     if not path.exists():

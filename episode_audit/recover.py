@@ -1,4 +1,4 @@
-"""Recover a torn evidence file: rewrite it as a finished, indexed MCAP file.
+"""Recover a torn or damaged evidence file: rewrite it as a finished, indexed MCAP file.
 
 A recorder killed before ``close()`` leaves a file without summary, footer or run-end record,
 and perhaps a partial record at its end. :func:`recover` copies everything before the torn end —
@@ -6,6 +6,11 @@ the run metadata, every complete chunk with its schemas, channels and messages (
 sequence numbers kept), chunk by chunk — into a new file through
 :class:`~episode_audit.writer.EvidenceWriter`, which adds the message and chunk indexes, the
 summary and the footer, and a run-end record with ``status=recovered`` saying what was dropped.
+
+A chunk damaged after it was written (a CRC mismatch, a frame that does not decompress) is
+skipped, as is, in a finished file, a stretch whose record framing is garbled (up to the next
+record its summary locates); the result and the run-end record name the damaged stretches and
+the episodes that lost evidence in them (:attr:`RecoveryResult.damaged_episodes`).
 
 The input is never changed. The output is written to a temporary file next to ``out`` and
 renamed into place only when it is finished, so a crash during recovery loses nothing; an
@@ -217,10 +222,11 @@ def recover(
 ) -> RecoveryResult:
     """Rewrite the evidence file ``path`` as a finished, indexed file ``out``.
 
-    Every complete chunk is kept, with the run metadata; the torn tail is dropped; the run-end
-    record has ``status=recovered`` and says what was dropped (see ``docs/format.md``).
+    Every complete, intact chunk is kept, with the run metadata; damaged chunks and the torn
+    tail are dropped; the run-end record has ``status=recovered`` and says what was dropped
+    (see ``docs/format.md``).
     Episodes without an end record stay ``incomplete`` (``ended`` false), as a reader of the
-    torn file sees them. A finished input is copied unchanged.
+    torn file sees them. A finished, intact input is copied unchanged.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
     (without ``overwrite``) or cannot be created, and

@@ -72,7 +72,7 @@ def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
         return to_json(data)
     status = "finished" if data["finished"] else f"UNFINISHED ({data['torn']})"
     if data["recovered"] is not None:
-        status = f"recovered from a torn file (dropped: {data['recovered']})"
+        status = f"recovered from a torn or damaged file (dropped: {data['recovered']})"
     rows = [
         ["file", data["file"]],
         ["status", status],

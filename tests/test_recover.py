@@ -424,7 +424,7 @@ def test_audit_commands_agree_on_a_torn_file_and_its_recovery(
     episode = str(open_evidence(torn).episodes()["episode"][-1].as_py())
     assert output("show", torn, "-e", episode) == output("show", fixed, "-e", episode)
     code, text, _ = run("show", str(fixed))
-    assert "recovered from a torn file (dropped: the last" in text
+    assert "recovered from a torn or damaged file (dropped: the last" in text
 
 
 def test_kill_sample(tmp_path: Path) -> None:
