@@ -96,7 +96,7 @@ import pyarrow.compute as pc
 from . import format as fmt
 from .columns import null_mask
 from .reader import Evidence, open_evidence
-from .records import from_json
+from .records import from_json, listing
 from .spaces import SpaceCodec
 
 __all__ = ["CheckResult", "Finding", "Severity", "check", "check_evidence"]
@@ -395,7 +395,7 @@ class _KeySets:
             "note",
             self.code,
             f"{self.noun} keys changed between steps in {len(eps)} episode(s) (episodes "
-            f"{_listing(eps)}); first at step {step} of episode {episode}: added {added}, "
+            f"{listing(eps)}); first at step {step} of episode {episode}: added {added}, "
             f"removed {removed}",
             file,
             episode,
@@ -441,13 +441,6 @@ def _short(value: Any, limit: int = 60) -> str:
 
 def _number(value: float) -> str:
     return f"{value:.9g}"
-
-
-def _listing(indices: list[int], count: int | None = None) -> str:
-    """The first indices, and how many more of ``count`` (default: all of ``indices``)."""
-    shown = ", ".join(str(i) for i in indices[:_LIST_LIMIT])
-    more = (len(indices) if count is None else count) - _LIST_LIMIT
-    return shown + (f" and {more} more" if more > 0 else "")
 
 
 # --------------------------------------------------------------------------------------------
@@ -559,7 +552,7 @@ class _FileCheck:
                 shown = damaged.first(_LIST_LIMIT)
                 lost = (
                     f"{damaged.count} episode(s) lost part or all of their evidence "
-                    f"(episodes {_listing(shown, damaged.count)}): their records, steps and "
+                    f"(episodes {listing(shown, damaged.count)}): their records, steps and "
                     "outcomes are not the whole run"
                     if damaged
                     else "no episode lost evidence"
@@ -922,7 +915,7 @@ class _FileCheck:
                 "note",
                 TERMINATED_AND_TRUNCATED,
                 f"{len(both_eps)} episode(s) ended with both terminated and truncated set; "
-                f"the task ending counts (episodes {_listing(both_eps)})",
+                f"the task ending counts (episodes {listing(both_eps)})",
                 both_eps[0],
             )
 
@@ -935,7 +928,7 @@ class _FileCheck:
                 "warning",
                 UNLABELED_FAILURE,
                 f"{len(unlabeled_eps)} of {failures} failure(s) have no label "
-                f"(episodes {_listing(unlabeled_eps)})",
+                f"(episodes {listing(unlabeled_eps)})",
                 unlabeled_eps[0],
             )
 
@@ -953,7 +946,7 @@ class _FileCheck:
                 "warning",
                 INCOMPLETE_EPISODE,
                 f"{len(incomplete_eps)} episode(s) stopped before they ended{torn} "
-                f"(episodes {_listing(incomplete_eps)})",
+                f"(episodes {listing(incomplete_eps)})",
                 incomplete_eps[0],
             )
 
@@ -982,7 +975,7 @@ class _FileCheck:
                 "warning",
                 NOT_REPLAYABLE,
                 f"{len(seedless_eps)} episode(s) have neither a reset seed nor an RNG state "
-                f"and cannot be replayed (episodes {_listing(seedless_eps)})",
+                f"and cannot be replayed (episodes {listing(seedless_eps)})",
                 seedless_eps[0],
             )
 
@@ -1048,7 +1041,7 @@ class _FileCheck:
         where = "at reset" if first.step is None else "on steps"
         message = (
             f"recorder noted {code.partition(':')[2]} {where} in {len(episodes)} episodes "
-            f"(episodes {_listing(episodes)}; {sum(h.count for _, h in group)} time(s) in all): "
+            f"(episodes {listing(episodes)}; {sum(h.count for _, h in group)} time(s) in all): "
             f"{first.detail}"
         )
         return Finding("warning", code, message, self.file, first_episode, first.step)

@@ -14,7 +14,7 @@ import bisect
 import json
 import math
 import operator
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -88,6 +88,20 @@ def from_json(text: str | bytes, what: str, limit: int = MAX_JSON_TEXT) -> Any:
         raise ValueError(f"{what} is nested too deeply to be JSON episode-audit wrote") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{what} is not valid JSON: {exc}") from None
+
+
+def listing(indices: Sequence[int], count: int | None = None, limit: int = 5) -> str:
+    """The first ``limit`` indices for people, and how many more of ``count`` there are.
+
+    ``count`` defaults to ``len(indices)``; given, ``indices`` holds at least the first
+    ``limit`` of them.
+
+    >>> listing([3, 4, 5, 6, 7, 8, 9]), listing([3, 4, 5, 6, 7], count=40)
+    ('3, 4, 5, 6, 7 and 2 more', '3, 4, 5, 6, 7 and 35 more')
+    """
+    shown = ", ".join(str(i) for i in indices[:limit])
+    more = (len(indices) if count is None else count) - limit
+    return shown + (f" and {more} more" if more > 0 else "")
 
 
 @dataclass(frozen=True)

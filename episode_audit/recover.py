@@ -62,7 +62,7 @@ from .reader import (
     step_block_rows,
     summary_definitions,
 )
-from .records import EpisodeRanges
+from .records import EpisodeRanges, listing
 from .writer import EvidenceWriter
 
 __all__ = ["RecoveryResult", "recover"]
@@ -174,7 +174,7 @@ class RecoveryResult:
         if self.cut_off_episodes:
             cut = list(self.cut_off_episodes)
             parts.append(
-                f"episode(s) {_some(cut, len(cut))} had no end record: recorded as incomplete"
+                f"episode(s) {listing(cut, len(cut))} had no end record: recorded as incomplete"
             )
         if not self.closing:
             parts.append("the recorder was killed before close(): steps after its last flush")
@@ -200,17 +200,11 @@ class RecoveryResult:
 _NOT_DATA_NAMES = frozenset(_RECORD_NAMES[op] for op in _NOT_DATA)
 
 
-def _some(values: list[int], count: int, shown: int = 5) -> str:
-    """``1, 2, 3, 4, 5 and 7 more`` (``values``: at least the first ``shown`` of ``count``)."""
-    text = ", ".join(str(v) for v in values[:shown])
-    return f"{text} and {count - shown} more" if count > shown else text
-
-
 def _damage_words(damaged: tuple[DamagedRegion, ...], episodes: EpisodeRanges) -> str:
     where = "; ".join(d.why for d in damaged[:3])
     more = f"; and {len(damaged) - 3} more" if len(damaged) > 3 else ""
     lost = (
-        f": episode(s) {_some(episodes.first(5), episodes.count)} lost evidence in them"
+        f": episode(s) {listing(episodes.first(5), episodes.count)} lost evidence in them"
         if episodes
         else " (no episode lost evidence in them)"
     )
