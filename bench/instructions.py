@@ -1,4 +1,4 @@
-"""Recording's cost in instructions and simulated cache misses, under valgrind's cachegrind.
+"""Recording's (or replay's) cost in instructions and cache misses, under valgrind's cachegrind.
 
     python bench/instructions.py Reacher-v5 [CartPole-v1 ...]
 
@@ -9,6 +9,17 @@ under valgrind a second is a few steps; blocks and ``close()`` are counted), for
 steps, so the per-step figures (the difference over the 2 000 extra steps) leave out start-up.
 ``est_cycles`` weighs an L1 miss as 10 instructions and a last-level miss as 100. Needs
 ``valgrind`` (not part of ``make bench``; about 4 minutes per env on 2 cores).
+
+    python bench/instructions.py --replay CartPole-v1 [Reacher-v5 ...]
+
+counts replay instead: the episodes ``make bench`` replays (same counts, seeds and actions)
+are recorded once outside valgrind, with a 2-episode file; then three children count (1) the
+set-up alone (imports, the file's actions, a warm-up step of the env and a replay of the small
+file, so first-call costs are outside what is compared, as in the bench's later rounds), (2) the
+set-up and the bare loop (``gym.make`` and the same resets and actions), (3) the set-up and
+``replay()`` of the file (opening, reading, building the env, stepping, comparing).
+``instructions_ratio`` is (3 - 1) / (2 - 1): what ``make bench`` times as ``ratio_median``,
+without the host's noise.
 """
 
 from __future__ import annotations
@@ -99,13 +110,113 @@ def measure(env_id: str) -> dict[str, Any]:
     }
 
 
+REPLAY_EPISODES = {"CartPole-v1": 1000, "Reacher-v5": 200, "HalfCheetah-v5": 10}
+"""How many episodes ``make bench`` replays per env (others: 100)."""
+
+
+def replay_child(kind: str, env_id: str, path: str, warm_path: str) -> None:
+    """Set up, then (``kind``) nothing, the bare loop, or ``replay()`` of ``path``."""
+    import gymnasium as gym
+
+    from episode_audit import open_evidence, replay
+    from episode_audit.replay import _replay_actions, _row_ranges
+
+    ev = open_evidence(path)
+    codec = ev.action_codec
+    assert codec is not None
+    episodes = ev.episodes().column("episode").to_pylist()
+    steps = ev.steps()
+    every, _ = _replay_actions(steps.column("action"), codec)
+    rows = _row_ranges(steps.column("episode").to_numpy())
+    actions = [every[rows[e][0] : rows[e][0] + rows[e][1]] for e in episodes]
+    warm = gym.make(env_id)
+    warm.reset(seed=0)
+    warm.step(actions[0][0])
+    assert replay([warm_path]).count("identical") == 2
+    if kind == "bare":
+        env = gym.make(env_id)
+        for e, episode_actions in zip(episodes, actions, strict=True):
+            env.reset(seed=e)
+            for a in episode_actions:
+                env.step(a)
+    elif kind == "replay":
+        result = replay([path])
+        assert result.count("identical") == len(episodes), result
+
+
+def replay_counts(kind: str, env_id: str, path: Path, warm_path: Path) -> int:
+    """cachegrind's instruction total for one replay child."""
+    run = subprocess.run(
+        [
+            "valgrind",
+            "--tool=cachegrind",
+            "--cache-sim=no",
+            "--cachegrind-out-file=/dev/null",
+            sys.executable,
+            __file__,
+            "--replay-child",
+            kind,
+            env_id,
+            str(path),
+            str(warm_path),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        # numpy's OpenBLAS threads spin after a call, adding millions of instructions that
+        # vary from run to run; one hash seed keeps dict and set layouts the same
+        env={**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"},
+    )
+    return {m[1]: int(m[2].replace(",", "")) for m in _LINE.finditer(run.stderr)}["I"]
+
+
+def measure_replay(env_id: str) -> dict[str, Any]:
+    """Instructions of replaying ``make bench``'s episodes against the bare loop's."""
+    import gymnasium as gym
+
+    from episode_audit import RecordEvidence
+
+    episodes = REPLAY_EPISODES.get(env_id, 100)
+    with tempfile.TemporaryDirectory(prefix="episode-audit-instr-") as d:
+        path, warm_path = Path(d) / "replay.mcap", Path(d) / "warm.mcap"
+        space = gym.make(env_id).action_space
+        space.seed(1)
+        for file, first, count in ((path, 0, episodes), (warm_path, 10**6, 2)):
+            with RecordEvidence(gym.make(env_id), file) as env:
+                for e in range(first, first + count):
+                    env.reset(seed=e)
+                    done = False
+                    while not done:
+                        _, _, terminated, truncated, _ = env.step(space.sample())
+                        done = terminated or truncated
+        kinds = ("none", "bare", "replay")
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            counted = pool.map(lambda k: replay_counts(k, env_id, path, warm_path), kinds)
+            got = dict(zip(kinds, counted, strict=True))
+    bare, rep = got["bare"] - got["none"], got["replay"] - got["none"]
+    return {
+        "env": env_id,
+        "episodes": episodes,
+        "bare_instructions": bare,
+        "replay_instructions": rep,
+        "instructions_ratio": rep / bare,
+    }
+
+
 def main(argv: list[str]) -> int:
     if argv[:1] == ["--child"]:
         child(argv[1], argv[2], int(argv[3]), argv[4])
         return 0
+    if argv[:1] == ["--replay-child"]:
+        replay_child(argv[1], argv[2], argv[3], argv[4])
+        return 0
     if shutil.which("valgrind") is None:
         print("valgrind is not installed (apt install valgrind)", file=sys.stderr)
         return 2
+    if argv[:1] == ["--replay"]:
+        for env_id in argv[1:] or ["CartPole-v1"]:
+            print(json.dumps(measure_replay(env_id), indent=2), flush=True)
+        return 0
     for env_id in argv or ["Reacher-v5"]:
         print(json.dumps(measure(env_id), indent=2), flush=True)
     return 0

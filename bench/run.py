@@ -269,7 +269,7 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
         bare_t.append(bare)
         rep_t.append(rep)
     steps = sum(len(a) for a in episodes_actions)
-    own = replay_own_seconds(path, env_id, rounds)
+    own = replay_own_seconds(path, env_id, rounds, episodes_actions)
     return {
         "env": env_id,
         "episodes": episodes,
@@ -324,9 +324,11 @@ class Playback(gym.Env[Any, Any]):
         return self.rows[self.t - 1]
 
 
-def replay_own_seconds(path: Path, env_id: str, rounds: int) -> float:
+def replay_own_seconds(path: Path, env_id: str, rounds: int, actions: list[Any]) -> float:
     """Replay's own work on ``path``: replay in :class:`Playback` (behind the env's TimeLimit)
-    minus stepping :class:`Playback` bare, fastest rounds. The host's noise barely moves it."""
+    minus stepping :class:`Playback` bare with the same ``actions`` per episode (numpy slices,
+    as replay steps with: iterating them costs both sides), fastest rounds. The host's noise
+    barely moves it."""
     from episode_audit.replay import replay
 
     limit = gym.spec(env_id).max_episode_steps
@@ -342,8 +344,8 @@ def replay_own_seconds(path: Path, env_id: str, rounds: int) -> float:
         env = make()
         for seed, episode in playback.seeds.items():
             env.reset(seed=seed)
-            for _ in playback.episodes.get(episode, ()):
-                env.step(None)
+            for a in actions[episode]:
+                env.step(a)
         bare_t.append(time.perf_counter() - t0)
         gc.collect()
         t0 = time.perf_counter()

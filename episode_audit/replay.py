@@ -15,6 +15,11 @@ How the environment is built, safely (a file may come from anyone):
 
 Nothing named inside a file is imported without that flag — including the ``module:`` prefix
 Gymnasium's ``make`` would import, and wrappers recorded in the spec that are not Gymnasium's own.
+
+An env built from its id or spec leaves out Gymnasium's two development-time checks, the
+passive env checker and the reset-before-step order check: neither changes what a reset or
+step returns (replay always resets first), and together they cost about as much per step as
+replay's own work. An env from ``env_factory`` is used as the factory built it.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import math
 import os
 from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -67,6 +72,8 @@ _RECORD_COLUMNS = (
     "truncation_reason",
 )
 """The columns of the episode table a replay reads."""
+_RECORD_KEYS = frozenset({fmt.COL_EPISODE, "outcome"})
+"""Those it reads as ``record[key]``, listed even when every value is null."""
 REPLAY_WINDOW_ROWS = 65_536
 """Replay compares this many steps (of whole episodes) at a time, so memory stays bounded."""
 
@@ -177,7 +184,7 @@ def build_env(
             kwargs = dict(spec.get("kwargs") or {})
             if "max_episode_steps" in spec:
                 kwargs["max_episode_steps"] = spec["max_episode_steps"]
-            env = gym.make(env_id, **kwargs)
+            env = gym.make(_without_checks(gym.spec(env_id)), **kwargs)
             for wrapper in wrappers:
                 cls = load_callable(str(wrapper["entry_point"]))
                 if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
@@ -193,7 +200,8 @@ def build_env(
     entry = spec.get("entry_point")
     if trust_entry_points and spec:
         try:
-            return gym.make(gym.envs.registration.EnvSpec.from_json(json.dumps(spec)))
+            recorded_spec = gym.envs.registration.EnvSpec.from_json(json.dumps(spec))
+            return gym.make(_without_checks(recorded_spec))
         except Exception as exc:
             raise ReplayError(f"cannot make the env from the recorded spec: {exc}") from None
     if foreign and env_id in gym.registry:
@@ -206,6 +214,11 @@ def build_env(
         "registers it, --env-factory MODULE:CALLABLE, or --trust-entry-points to import "
         f"{entry!r} named in the file"
     )
+
+
+def _without_checks(spec: gym.envs.registration.EnvSpec) -> gym.envs.registration.EnvSpec:
+    """``spec`` without the passive env checker and the order check (see the module doc)."""
+    return replace(spec, disable_env_checker=True, order_enforce=False)
 
 
 def _gymnasium_wrapper(wrapper: Mapping[str, Any]) -> bool:
@@ -259,10 +272,15 @@ class _Stepped:
 class _Ran:
     """The stepped episodes, in order, as parallel lists.
 
-    The stepping loop appends to lists (cheaper than an object per episode); :meth:`episode`
-    gives one episode as a :class:`_Stepped`.
+    The stepping loop appends one tuple per episode to :attr:`stepped` (cheaper than an
+    object, or an append per list); :meth:`finish` makes the lists. :meth:`episode` gives one
+    episode as a :class:`_Stepped`.
     """
 
+    # (record, start, count, ran, last info, hit, reset row) per episode, until finish()
+    stepped: list[tuple[dict[str, Any], int, int, int, Any, bool, int]] = field(
+        default_factory=list
+    )
     records: list[dict[str, Any]] = field(default_factory=list)
     starts: list[int] = field(default_factory=list)
     counts: list[int] = field(default_factory=list)
@@ -271,6 +289,22 @@ class _Ran:
     hits: list[bool] = field(default_factory=list)  # whether its TimeLimit was reached
     reset_at: list[int] = field(default_factory=list)  # its row in the resets table
     crashes: dict[int, Divergence] = field(default_factory=dict)  # by position
+
+    def finish(self) -> _Ran:
+        """Turn the stepped tuples into the parallel lists."""
+        if self.stepped:
+            columns = [list(c) for c in zip(*self.stepped, strict=True)]
+            (
+                self.records,
+                self.starts,
+                self.counts,
+                self.ran,
+                self.last_infos,
+                self.hits,
+                self.reset_at,
+            ) = columns
+            self.stepped = []
+        return self
 
     def episode(self, k: int, first: int) -> _Stepped:
         """The ``k``-th episode, whose first compared row is ``first``."""
@@ -606,7 +640,7 @@ class _EpisodeRunner:
                 strict=True,
             )
         ):
-            index = int(record["episode"])
+            index = record["episode"]
             if is_clean:
                 outcome = None
                 info = ran.last_infos[k]
@@ -661,6 +695,7 @@ class _EpisodeRunner:
         env, env_step = self.env, self.env.step
         got_obs, got_reset = _Rows(self.obs_codec), _Rows(self.obs_codec)
         keep_raw, keep_other = got_obs.raw.append, got_obs.add
+        keep_raw_reset, keep_reset_other = got_reset.raw.append, got_reset.add
         raw_dtype, raw_shape, ndarray = got_obs.dtype, got_obs.shape, np.ndarray
         steps = _Steps()
         rewards = steps.rewards
@@ -668,20 +703,16 @@ class _EpisodeRunner:
         keep_info_row = steps.info_rows.append
         ends = steps.ends
         ran = _Ran()
-        keep_record, keep_start, keep_count = (
-            ran.records.append,
-            ran.starts.append,
-            ran.counts.append,
-        )
-        keep_ran, keep_last_info, keep_hit = ran.ran.append, ran.last_infos.append, ran.hits.append
-        keep_reset_at = ran.reset_at.append
+        stepped = ran.stepped
+        keep_stepped = stepped.append
         time_limit = self.time_limit
         progress = self.progress
         has_nulls = null_rows is not None and null_rows.size > 0
-        damaged = self.ev.damaged_episodes
+        damaged = self.ev.damaged_episodes or None  # (an empty set is not asked)
+        no_rows = (0, 0)
         for record in records:
-            index = int(record["episode"])
-            start, count = rows.get(index, (0, 0))
+            index = record["episode"]
+            start, count = rows.get(index, no_rows)
             seed = record.get("seed")
             rng_state = record.get("rng_state")
             reset_at = reset_rows.get(index)
@@ -690,7 +721,7 @@ class _EpisodeRunner:
                     index, 0, "no seed or RNG state recorded for its reset"
                 )
                 continue
-            if index in damaged:
+            if damaged is not None and index in damaged:
                 done[index] = self.not_replayable(
                     index, count, "part of its evidence was in a damaged chunk (skipped by recover)"
                 )
@@ -708,7 +739,7 @@ class _EpisodeRunner:
                 continue
             try:
                 if seed is not None:
-                    obs, _ = env.reset(seed=int(seed), options=options)
+                    obs, _ = env.reset(seed=seed, options=options)
                 else:
                     restore_rng_state(env, state)
                     obs, _ = env.reset(options=options)
@@ -717,7 +748,11 @@ class _EpisodeRunner:
                     index, 0, Divergence(None, "reset", "a reset", f"{type(exc).__name__}: {exc}")
                 )
                 continue
-            got_reset.keep(obs)
+            # got_reset.keep(obs), inlined
+            if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
+                keep_raw_reset(obs.tobytes())
+            else:
+                keep_reset_other(obs)
             stop = start + count
             crash: Divergence | None = None
             if has_nulls:
@@ -754,18 +789,13 @@ class _EpisodeRunner:
             if ran_now:
                 ends.append((len(rewards) - 1, term, trunc))
             if crash is not None:
-                ran.crashes[len(ran.records)] = crash
-            keep_record(record)
-            keep_start(start)
-            keep_count(count)
-            keep_ran(ran_now)
-            keep_last_info(info if ran_now else {})
+                ran.crashes[len(stepped)] = crash
             # the TimeLimit state belongs to this episode: read it now, not after the others
-            keep_hit(time_limit is not None and time_limit_hit(time_limit))
-            keep_reset_at(reset_at)
+            hit = time_limit is not None and time_limit_hit(time_limit)
+            keep_stepped((record, start, count, ran_now, info if ran_now else {}, hit, reset_at))
             if progress is not None:
                 progress(count)
-        return ran, steps, got_obs.finish(), got_reset.finish()
+        return ran.finish(), steps, got_obs.finish(), got_reset.finish()
 
     def _mismatches(
         self, expected: pa.Table, got: _Got
@@ -1022,8 +1052,15 @@ def replay_evidence(
 
     def records() -> list[dict[str, Any]]:
         table = ev.episodes()
-        columns = [c for c in _RECORD_COLUMNS if c in table.column_names]
-        listed = table.select(columns).to_pylist()  # (a map column is slow to list)
+        # Only the columns replay reads (a map column is slow to list), and of the optional
+        # ones only those with a value: a record's .get() gives None for the others.
+        columns = [
+            c
+            for c in _RECORD_COLUMNS
+            if c in table.column_names
+            and (c in _RECORD_KEYS or table.column(c).null_count < table.num_rows)
+        ]
+        listed = table.select(columns).to_pylist()
         return listed if wanted is None else [r for r in listed if r["episode"] in wanted]
 
     def none_replayable(reason: str) -> list[EpisodeReplay]:
@@ -1053,10 +1090,9 @@ def replay_evidence(
                 # once more here.)
                 listed = records()
                 resets = ev.resets()
-                reset_rows = {
-                    int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())
-                }
-                known.extend([listed, {int(r["episode"]): r for r in listed}, resets, reset_rows])
+                indices = resets.column(fmt.COL_EPISODE).to_pylist()
+                reset_rows = dict(zip(indices, range(len(indices)), strict=True))
+                known.extend([listed, {r["episode"]: r for r in listed}, resets, reset_rows])
             _, by_index, resets, reset_rows = known
             rows = _row_ranges(table.column(fmt.COL_EPISODE).to_numpy())
             batch = [by_index[e] for e in rows if e in by_index and e not in results]
@@ -1091,12 +1127,12 @@ def replay_evidence(
             else ev.steps_schema.empty_table()
         )
         listed, _, resets, reset_rows = known
-        rest = [r for r in listed if int(r["episode"]) not in results]  # no rows at all
+        rest = [r for r in listed if r["episode"] not in results]  # no rows at all
         if rest:
             empty = ev.steps_schema.empty_table()
             for result in runner.run_all(rest, empty, {}, reset_rows, resets):
                 results[result.episode] = result
-        return [results[int(r["episode"])] for r in listed]
+        return [results[r["episode"]] for r in listed]
     finally:
         env.close()
 

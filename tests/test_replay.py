@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from episode_audit import RecordEvidence
+from episode_audit import RecordEvidence, open_evidence
 from episode_audit.columns import TERMS_TYPE
 from episode_audit.errors import ConfigurationError
 from episode_audit.replay import (
@@ -22,6 +22,7 @@ from episode_audit.replay import (
     _row_ranges,
     _terms_equal,
     _terms_rows_equal,
+    build_env,
     load_callable,
     replay,
 )
@@ -134,6 +135,40 @@ def test_replay_never_imports_a_module_named_in_the_file(tmp_path: Path) -> None
     finally:
         sys.path.remove(str(tmp_path))
         sys.modules.pop("evil_module_for_test", None)
+
+
+def _stack(env: gym.Env[Any, Any]) -> list[str]:
+    names = []
+    while isinstance(env, gym.Wrapper):
+        names.append(type(env).__name__)
+        env = env.env
+    return [*names, type(env).__name__]
+
+
+def test_the_replay_env_leaves_out_gymnasiums_development_checks(tmp_path: Path) -> None:
+    """No PassiveEnvChecker or OrderEnforcing (they never change a step's result); the time
+    limit and recorded Gymnasium wrappers stay, in their order."""
+    plain = record_random(tmp_path / "plain.mcap", "CartPole-v1", 2, max_episode_steps=7)
+    assert _stack(gym.make("CartPole-v1")) == [
+        "TimeLimit",
+        "OrderEnforcing",
+        "PassiveEnvChecker",
+        "CartPoleEnv",
+    ]
+    env = build_env(open_evidence(plain).run)
+    assert _stack(env) == ["TimeLimit", "CartPoleEnv"]
+    assert env.spec is not None and env.spec.max_episode_steps == 7
+    wrapped = tmp_path / "wrapped.mcap"
+    with RecordEvidence(gym.wrappers.ClipReward(gym.make("CartPole-v1"), 0.0, 0.5), wrapped) as rec:
+        rec.reset(seed=1)
+        for _ in range(5):
+            rec.step(0)
+    assert _stack(build_env(open_evidence(wrapped).run)) == [
+        "ClipReward",
+        "TimeLimit",
+        "CartPoleEnv",
+    ]
+    assert replay([plain, wrapped]).count("identical") == 3
 
 
 def test_load_callable_errors() -> None:
