@@ -49,6 +49,12 @@ code                             severity  meaning
 ``file_recovered``               warning   the file was rewritten by ``episode-audit recover``
                                            from a torn or damaged file; the message says what
                                            was dropped
+``summary_damaged``              warning   the end of a finished file is damaged: its summary
+                                           section (MCAP's index) does not match the footer's
+                                           CRC, or the footer or closing magic is garbled; the
+                                           file was read by scanning its data section, which
+                                           holds all the evidence; ``recover`` writes a copy
+                                           with a new summary
 ``evidence_damaged``             error     ``recover`` skipped damaged chunks of the original
                                            file: which episodes lost part or all of their
                                            evidence (one per file)
@@ -121,6 +127,7 @@ LENGTH_MISMATCH = "length_mismatch"
 RECORDER_NOTE = "recorder_note"
 FILE_UNFINISHED = "file_unfinished"
 FILE_RECOVERED = "file_recovered"
+SUMMARY_DAMAGED = "summary_damaged"
 EVIDENCE_DAMAGED = "evidence_damaged"
 NOT_REPLAYABLE = "not_replayable"
 MISSING_ENV_SPEC = "missing_env_spec"
@@ -563,6 +570,13 @@ class _FileCheck:
                     f"recover skipped {stretches} damaged stretch(es) of the original file; {lost}",
                     shown[0] if shown else None,
                 )
+        if ev.summary_damage:
+            self.finding(
+                "warning",
+                SUMMARY_DAMAGED,
+                f"{ev.summary_damage}: the file was read by scanning its data section, which "
+                "holds all the evidence (`episode-audit recover` writes a copy with a new summary)",
+            )
         layout = ev.run.layout or {}
         if ev.run.env_spec is None and not layout.get("env_module"):  # PettingZoo: a module
             notes = [str(n) for n in (ev.run.recorder or {}).get("notes") or []]

@@ -54,7 +54,7 @@ import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
+from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from . import format as fmt
@@ -310,6 +310,10 @@ class Evidence:
         finished: Whether the writer finished the file (summary, footer, run-end record).
         run_end: The run-end record (``status`` is ``finished`` or ``recovered``), if any.
         torn: For an unfinished file, what the reader had to drop at the torn end.
+        summary_damage: For a finished file whose end is damaged — its summary section
+            (MCAP's index of it) does not match the footer's CRC, or the footer or closing
+            magic is garbled — what is wrong; the file was then read by scanning its data
+            section, which holds all the evidence.
     """
 
     path: Path
@@ -319,6 +323,7 @@ class Evidence:
     torn: str | None
     _chunks: list[_ChunkRef] = field(repr=False)
     _channels: dict[int, Channel] = field(repr=False)
+    summary_damage: str | None = None
     _episodes_cache: pa.Table | None = field(default=None, repr=False)
     _resets_cache: pa.Table | None = field(default=None, repr=False)
     _gathered: _Gathered | None = field(default=None, repr=False)
@@ -1670,11 +1675,14 @@ def open_evidence(path: str | os.PathLike[str]) -> Evidence:
     """
     p = Path(path)
     with _open_mcap(p) as f:
+        damage = _summary_damage(f)
         f.seek(0)
-        indexed = _open_indexed(f, p)
+        indexed = None if damage else _open_indexed(f, p)
         if indexed is None:
             f.seek(0)
-            return _open_linear(f, p)
+            ev = _open_linear(f, p, past_data_end=damage is None)
+            ev.summary_damage = damage
+            return ev
         return indexed
 
 
@@ -1782,8 +1790,56 @@ def _open_indexed(f: IO[bytes], path: Path) -> Evidence | None:
     return ev
 
 
-def _open_linear(f: IO[bytes], path: Path) -> Evidence:
-    """Scan a file without a usable summary; keep every complete chunk."""
+_FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, offsets start, summary CRC
+_OP_FOOTER_BODY = 20  # the footer's length field: three fields of 8, 8 and 4 bytes
+
+
+def _summary_damage(f: IO[bytes]) -> str | None:
+    """Why the end of a finished file (summary, footer, magic) is damaged, or ``None``.
+
+    ``None`` also for a torn file, which ends with neither a footer nor the magic. The
+    footer's CRC covers the summary section through the footer's own offset fields (MCAP
+    spec); a writer may leave it 0 (not computed), which is accepted.
+    """
+    size = os.fstat(f.fileno()).st_size
+    tail = _FOOTER.size + len(_MAGIC)
+    if size < len(_MAGIC) + tail:
+        return None
+    f.seek(size - tail)
+    raw = f.read(tail)
+    opcode, length, start, _, crc = _FOOTER.unpack(raw[: _FOOTER.size])
+    footer_ok = opcode == _OP_FOOTER and length == _OP_FOOTER_BODY
+    if raw[_FOOTER.size :] != _MAGIC:
+        # a whole footer before 8 bytes that are not the magic: the magic was damaged (a
+        # torn file does not end with a footer)
+        return "the closing magic bytes are damaged" if footer_ok else None
+    if not footer_ok:
+        return "the footer record before the closing magic is damaged"
+    if start == 0 or crc == 0:
+        return None
+    end = size - len(_MAGIC) - 4  # through the footer's summary_offset_start field
+    if not len(_MAGIC) <= start < end:
+        return f"the footer puts the summary section at byte {start}, outside the file"
+    f.seek(start)
+    crc_now, left = 0, end - start
+    while left:
+        block = f.read(min(left, 1 << 20))
+        if not block:
+            break
+        crc_now = _crc32(block, crc_now)
+        left -= len(block)
+    if crc_now != crc:
+        return f"the summary section at bytes {start}-{end} does not match the footer's CRC"
+    return None
+
+
+def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evidence:
+    """Scan a file without a usable summary; keep every complete chunk.
+
+    With ``past_data_end`` false (a file whose footer and closing magic are there, but whose
+    summary does not match the footer's CRC) the scan stops at the data section's end record:
+    what follows is the summary, which only repeats and indexes the data section.
+    """
     reader = StreamReader(f, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES)
     header: Header | None = None
     metadata: dict[str, dict[str, str]] = {}
@@ -1854,6 +1910,9 @@ def _open_linear(f: IO[bytes], path: Path) -> Evidence:
             channels[record.id] = record
         elif isinstance(record, Schema):
             schemas.append(record)
+        elif isinstance(record, DataEnd) and not past_data_end:
+            footer = True
+            break
         elif isinstance(record, Footer):
             footer = True
     if header is None:
@@ -2016,6 +2075,8 @@ def _record_starts(f: IO[bytes]) -> list[int]:
 
 def _summary(f: IO[bytes]) -> Any:
     """The file's MCAP summary, or ``None`` when it has no readable one (torn, damaged)."""
+    if _summary_damage(f):
+        return None
     try:
         f.seek(0)
         return SeekingReader(f, record_size_limit=MAX_RECORD_BYTES).get_summary()

@@ -120,6 +120,9 @@ class RecoveryResult:
             their end record was lost; ``check`` reports each, and replay skips them.
         damaged_tail: Damage came after the last intact chunk of an unfinished file: episodes
             that began there left nothing behind, and cannot be counted.
+        summary_damage: The input's summary section did not match its footer's CRC (what
+            :attr:`~episode_audit.reader.Evidence.summary_damage` says); the output has a new
+            one. The summary only repeats the data section: nothing is lost by it.
     """
 
     source: Path
@@ -137,6 +140,7 @@ class RecoveryResult:
     damaged: tuple[DamagedRegion, ...] = ()
     damaged_episodes: EpisodeRanges = field(default_factory=EpisodeRanges)
     damaged_tail: bool = False
+    summary_damage: str | None = None
 
     @property
     def data_dropped(self) -> bool:
@@ -178,6 +182,8 @@ class RecoveryResult:
             )
         if not self.closing:
             parts.append("the recorder was killed before close(): steps after its last flush")
+        if self.summary_damage:
+            parts.append(f"{self.summary_damage}: a new summary was written")
         return "; ".join(parts) if parts else "nothing"
 
     def summary(self) -> str:
@@ -192,6 +198,8 @@ class RecoveryResult:
             f"{self.steps} steps in {self.chunks} chunks"
         )
         if not self.lost:
+            if self.summary_damage:
+                return f"{kept}; nothing lost ({self.dropped})"
             tail = f"; dropped {self.dropped}" if self.dropped_bytes else ""
             return f"{kept}; nothing lost (the writer had not finished the file{tail})"
         return f"{kept}; dropped: {self.dropped}"
@@ -242,7 +250,7 @@ def recover(
         ) from None
     tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
     try:
-        if ev.finished and not _damage_in(src):
+        if ev.finished and not ev.summary_damage and not _damage_in(src):
             try:
                 shutil.copyfile(src, tmp)
             except OSError as exc:
@@ -252,7 +260,7 @@ def recover(
             size = src.stat().st_size
             result = RecoveryResult(src, dst, True, 0, 0, len(lengths), steps, (), 0, None, size)
         else:
-            result = _rewrite(src, tmp, dst)
+            result = _rewrite(src, tmp, dst, ev.summary_damage)
             check = open_evidence(tmp)
             if not check.finished:  # pragma: no cover - the writer finished it just now
                 raise CorruptEvidenceError(tmp, f"the recovered file is unfinished: {check.torn}")
@@ -286,7 +294,7 @@ def _check_paths(src: Path, dst: Path, overwrite: bool) -> None:
         )
 
 
-def _rewrite(src: Path, tmp: Path, dst: Path) -> RecoveryResult:
+def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> RecoveryResult:
     """Copy ``src``'s complete, intact records into the new file ``tmp`` and finish it."""
     records = iter_records(src, skip_damaged=True)
     header = next(records)
@@ -352,6 +360,7 @@ def _rewrite(src: Path, tmp: Path, dst: Path) -> RecoveryResult:
             tuple(damaged),
             kept.damaged,
             damage == "at the end" and old_run_end is None,
+            summary_damage,
         )
         last = (old_run_end or {}).get("end_time")
         writer.finish(

@@ -723,3 +723,60 @@ def test_a_known_schema_message_still_has_its_batch_checked(recorded: Path) -> N
     # a stream cut inside its schema message is not taken for the known one
     with pytest.raises(CorruptEvidenceError, match="not a valid Arrow stream"):
         reader_module._arrow_batch(good[: known - 1], where, fmt.TOPIC_STEPS)
+
+
+def _summary_start(data: bytes) -> int:
+    """The footer's summary_start (a finished file ends with footer + magic)."""
+    _, _, start, _, _ = struct.unpack("<BQQQI", data[-8 - 29 : -8])
+    return int(start)
+
+
+def _same_evidence(a: Any, b: Any) -> bool:
+    return bool(
+        a.steps().equals(b.steps())
+        and a.episodes().equals(b.episodes())
+        and a.resets().equals(b.resets())
+    )
+
+
+def test_a_damaged_summary_is_read_around(recorded: Path, tmp_path: Path) -> None:
+    """A flipped byte anywhere from the summary to the closing magic changes nothing that is
+    read: a summary whose CRC does not match is ignored and the data section is scanned."""
+    data = recorded.read_bytes()
+    intact = open_evidence(recorded)
+    start = _summary_start(data)
+    damaged = tmp_path / "damaged.mcap"
+    flagged = 0
+    for at in range(start, len(data), 13):
+        damaged.write_bytes(_patched(data, at, bytes([data[at] ^ 0xFF])))
+        ev = open_evidence(damaged)
+        assert ev.finished, at
+        assert _same_evidence(ev, intact), at
+        flagged += ev.summary_damage is not None
+    assert flagged > (len(data) - start) // 13 // 2  # most flips are caught by the CRC
+
+
+def test_a_damaged_summary_schema_is_reported_and_recover_writes_a_new_one(
+    recorded: Path, tmp_path: Path
+) -> None:
+    from episode_audit import check, recover
+
+    data = recorded.read_bytes()
+    start = _summary_start(data)
+    at = data.index(b"episode_audit/steps", start)  # the summary's copy of a channel topic
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(_patched(data, at + 3, b"X"))
+    ev = open_evidence(damaged)
+    assert ev.summary_damage is not None
+    assert ev.summary_damage.startswith(f"the summary section at bytes {start}-")
+    assert _same_evidence(ev, open_evidence(recorded))
+    found = [f for f in check([damaged]).findings if f.code == "summary_damaged"]
+    assert len(found) == 1 and found[0].severity == "warning"
+    out = tmp_path / "out.mcap"
+    result = recover(damaged, out)
+    assert not result.already_finished and not result.lost
+    assert "does not match the footer's CRC: a new summary was written" in result.summary()
+    fixed = open_evidence(out)
+    assert fixed.summary_damage is None and fixed.finished
+    assert fixed.steps().equals(ev.steps())
+    assert not [f for f in check([out]).findings if f.code == "summary_damaged"]
