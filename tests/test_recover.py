@@ -457,6 +457,41 @@ def test_a_damaged_chunk_of_a_vector_file(tmp_path: Path) -> None:
     }
 
 
+def test_a_damaged_chunk_of_a_pettingzoo_file(tmp_path: Path) -> None:
+    """Agent-episodes are named like any other; replay skips every game one of them is in."""
+    rps_v2 = pytest.importorskip("pettingzoo.classic.rps_v2")
+    from episode_audit import RecordParallelEvidence, check
+
+    path = tmp_path / "rps.mcap"
+    kwargs = {"max_cycles": 5}
+    with RecordParallelEvidence(
+        rps_v2.parallel_env(**kwargs), path, env_kwargs=kwargs, block_steps=8
+    ) as env:
+        for game in range(30):
+            env.reset(seed=game)
+            while env.agents:
+                env.step({a: (game + i) % 3 for i, a in enumerate(env.agents)})
+    chunks, _ = layout(path)
+    assert len(chunks) >= 3
+    offset, length = chunks[len(chunks) // 2]
+    damaged = damaged_copy(path, tmp_path, offset + length - 20)
+    out = tmp_path / "out.mcap"
+    result = recover(damaged, out)
+    truth = evidence_in_chunk(path, offset)
+    assert truth and set(result.damaged_episodes.first(1000)) == truth
+    assert [f.code for f in check([out]).findings].count("evidence_damaged") == 1
+    replayed = replay_file(out)
+    assert replayed.count("diverged") == 0 and replayed.count("identical") > 0
+    skipped = {e.episode for e in replayed.episodes if e.status == "not_replayable"}
+    present = {e.episode for e in replayed.episodes}
+    assert truth & present <= skipped  # and the other agent-episodes of those games
+    assert all(
+        e.reason is not None and "damaged chunk" in e.reason
+        for e in replayed.episodes
+        if e.status == "not_replayable"
+    )
+
+
 @pytest.mark.parametrize(
     "raw",
     [None, "", "not json", "{}", "[1, 2]", "[[3, 1]]", '[["a", 2]]', "[[-1, 4]]", "[[1, 2, 3]]"],
