@@ -1807,12 +1807,13 @@ def _summary_damage(f: IO[bytes]) -> str | None:
         return None
     f.seek(size - tail)
     raw = f.read(tail)
-    opcode, length, start, _, crc = _FOOTER.unpack(raw[: _FOOTER.size])
+    opcode, length, start, offsets, crc = _FOOTER.unpack(raw[: _FOOTER.size])
     footer_ok = opcode == _OP_FOOTER and length == _OP_FOOTER_BODY
     if raw[_FOOTER.size :] != _MAGIC:
-        # a whole footer before 8 bytes that are not the magic: the magic was damaged (a
-        # torn file does not end with a footer)
-        return "the closing magic bytes are damaged" if footer_ok else None
+        # a whole footer, pointing inside the file, before 8 bytes that are not the magic:
+        # the magic was damaged (a torn file does not end with a footer)
+        inside = start < size - tail and offsets < size - tail
+        return "the closing magic bytes are damaged" if footer_ok and inside else None
     if not footer_ok:
         return "the footer record before the closing magic is damaged"
     if start == 0 or crc == 0:
