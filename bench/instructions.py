@@ -62,27 +62,32 @@ def child(kind: str, env_id: str, steps: int, out: str) -> None:
     env.close()
 
 
-def counts(kind: str, env_id: str, steps: int, tmp: Path) -> dict[str, int]:
-    """cachegrind's totals for one child run."""
+def _cachegrind(
+    args: list[str], out_file: str, env: dict[str, str] | None = None
+) -> dict[str, int]:
+    """cachegrind's totals for this script run as a child with ``args``."""
     run = subprocess.run(
         [
             "valgrind",
             "--tool=cachegrind",
             "--cache-sim=yes",
-            f"--cachegrind-out-file={tmp / f'{kind}-{steps}.cg'}",
+            f"--cachegrind-out-file={out_file}",
             sys.executable,
             __file__,
-            "--child",
-            kind,
-            env_id,
-            str(steps),
-            str(tmp / f"{kind}-{steps}.mcap"),
+            *args,
         ],
         capture_output=True,
         text=True,
         check=True,
+        env=env,
     )
     return {m[1]: int(m[2].replace(",", "")) for m in _LINE.finditer(run.stderr)}
+
+
+def counts(kind: str, env_id: str, steps: int, tmp: Path) -> dict[str, int]:
+    """cachegrind's totals for one child run."""
+    out = str(tmp / f"{kind}-{steps}.mcap")
+    return _cachegrind(["--child", kind, env_id, str(steps), out], str(tmp / f"{kind}-{steps}.cg"))
 
 
 def measure(env_id: str) -> dict[str, Any]:
@@ -149,28 +154,13 @@ def replay_child(kind: str, env_id: str, path: str, warm_path: str) -> None:
 
 def replay_counts(kind: str, env_id: str, path: Path, warm_path: Path) -> dict[str, int]:
     """cachegrind's totals for one replay child."""
-    run = subprocess.run(
-        [
-            "valgrind",
-            "--tool=cachegrind",
-            "--cache-sim=yes",
-            "--cachegrind-out-file=/dev/null",
-            sys.executable,
-            __file__,
-            "--replay-child",
-            kind,
-            env_id,
-            str(path),
-            str(warm_path),
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
+    return _cachegrind(
+        ["--replay-child", kind, env_id, str(path), str(warm_path)],
+        "/dev/null",
         # numpy's OpenBLAS threads spin after a call, adding millions of instructions that
         # vary from run to run; one hash seed keeps dict and set layouts the same
-        env={**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"},
+        {**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"},
     )
-    return {m[1]: int(m[2].replace(",", "")) for m in _LINE.finditer(run.stderr)}
 
 
 def measure_replay(env_id: str) -> dict[str, Any]:

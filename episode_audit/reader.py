@@ -1912,7 +1912,7 @@ def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evi
         elif isinstance(record, Schema):
             schemas.append(record)
         elif isinstance(record, DataEnd) and not past_data_end:
-            footer = True
+            footer = True  # (the footer was found already, behind the damaged summary)
             break
         elif isinstance(record, Footer):
             footer = True
