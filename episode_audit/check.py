@@ -55,6 +55,10 @@ code                             severity  meaning
                                            file was read by scanning its data section, which
                                            holds all the evidence; ``recover`` writes a copy
                                            with a new summary
+``run_end_damaged``              warning   a finished file's run-end record (which its sound
+                                           summary locates) is garbled: every chunk is there,
+                                           but the record's status and counts are lost;
+                                           ``recover`` writes a copy with a new one
 ``evidence_damaged``             error     ``recover`` skipped damaged chunks of the original
                                            file: which episodes lost part or all of their
                                            evidence (one per file)
@@ -128,6 +132,7 @@ RECORDER_NOTE = "recorder_note"
 FILE_UNFINISHED = "file_unfinished"
 FILE_RECOVERED = "file_recovered"
 SUMMARY_DAMAGED = "summary_damaged"
+RUN_END_DAMAGED = "run_end_damaged"
 EVIDENCE_DAMAGED = "evidence_damaged"
 NOT_REPLAYABLE = "not_replayable"
 MISSING_ENV_SPEC = "missing_env_spec"
@@ -576,6 +581,14 @@ class _FileCheck:
                 SUMMARY_DAMAGED,
                 f"{ev.summary_damage}: the file was read by scanning its data section, which "
                 "holds all the evidence (`episode-audit recover` writes a copy with a new summary)",
+            )
+        if ev.run_end_damage:
+            self.finding(
+                "warning",
+                RUN_END_DAMAGED,
+                f"{ev.run_end_damage}: the writer finished the file (its summary and footer are "
+                "sound) and every chunk is there, but the record's status and counts are lost "
+                "(`episode-audit recover` writes a copy with a new run-end record)",
             )
         layout = ev.run.layout or {}
         if ev.run.env_spec is None and not layout.get("env_module"):  # PettingZoo: a module

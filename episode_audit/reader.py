@@ -314,6 +314,10 @@ class Evidence:
             (MCAP's index of it) does not match the footer's CRC, or the footer or closing
             magic is garbled — what is wrong; the file was then read by scanning its data
             section, which holds all the evidence.
+        run_end_damage: For a finished file whose run-end record (which its sound summary
+            locates) is garbled, what is wrong. The writer finished the file and every chunk
+            is there; the record's status and counts are lost, and :attr:`run_end` is
+            ``None``.
     """
 
     path: Path
@@ -324,6 +328,7 @@ class Evidence:
     _chunks: list[_ChunkRef] = field(repr=False)
     _channels: dict[int, Channel] = field(repr=False)
     summary_damage: str | None = None
+    run_end_damage: str | None = None
     _episodes_cache: pa.Table | None = field(default=None, repr=False)
     _resets_cache: pa.Table | None = field(default=None, repr=False)
     _gathered: _Gathered | None = field(default=None, repr=False)
@@ -1766,9 +1771,26 @@ def _open_indexed(f: IO[bytes], path: Path) -> Evidence | None:
         if summary is None:
             return None
         header = reader.get_header()
-        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     except Exception:
         return None
+    metadata: dict[str, dict[str, str]] = {}
+    run_end_damage: str | None = None
+    for index in summary.metadata_indexes:
+        record = _metadata_at(f, index.offset, index.name)
+        if record is not None:
+            metadata[record.name] = dict(record.metadata)
+            continue
+        if not _footer_crc(f):  # a summary nothing vouches for: scan the data section instead
+            return None
+        what = f"the {index.name} metadata record at byte {index.offset} is garbled"
+        if index.name == fmt.METADATA_RUN:
+            raise CorruptEvidenceError(
+                path,
+                f"{what}: the spaces, env and settings of the run it held are lost, so the "
+                "file cannot be read as evidence",
+            )
+        if index.name == fmt.METADATA_RUN_END:
+            run_end_damage = what
     run, run_end = _parse_run(path, metadata, header)
     chunks = sorted(
         (
@@ -1785,9 +1807,28 @@ def _open_indexed(f: IO[bytes], path: Path) -> Evidence | None:
         ),
         key=lambda c: c.offset,
     )
-    ev = Evidence(path, run, run_end is not None, run_end, None, chunks, dict(summary.channels))
+    finished = run_end is not None or run_end_damage is not None
+    ev = Evidence(path, run, finished, run_end, None, chunks, dict(summary.channels))
+    ev.run_end_damage = run_end_damage
     ev._schema_cache = _schemas_of(summary.schemas.values())  # type: ignore[attr-defined]
     return ev
+
+
+def _metadata_at(f: IO[bytes], offset: int, name: str) -> Metadata | None:
+    """The metadata record ``name`` a summary locates at ``offset``; ``None`` if garbled.
+
+    Its body must parse to exactly its declared length, as :func:`iter_records` reads it.
+    """
+    try:
+        f.seek(offset)
+        opcode, length = _RECORD_HEAD.unpack(f.read(_RECORD_HEAD.size))
+        if opcode != _OP_METADATA or length > MAX_RECORD_BYTES:
+            return None
+        body = f.read(length)
+        record = _top_level(opcode, body) if len(body) == length else None
+    except (struct.error, OSError, _Unreadable):
+        return None
+    return record if isinstance(record, Metadata) and record.name == name else None
 
 
 _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, offsets start, summary CRC
@@ -1803,10 +1844,9 @@ def _summary_damage(f: IO[bytes]) -> str | None:
     """
     size = os.fstat(f.fileno()).st_size
     tail = _FOOTER.size + len(_MAGIC)
-    if size < len(_MAGIC) + tail:
+    raw = _file_tail(f, size)
+    if raw is None:
         return None
-    f.seek(size - tail)
-    raw = f.read(tail)
     opcode, length, start, offsets, crc = _FOOTER.unpack(raw[: _FOOTER.size])
     footer_ok = opcode == _OP_FOOTER and length == _OP_FOOTER_BODY
     if raw[_FOOTER.size :] != _MAGIC:
@@ -1832,6 +1872,32 @@ def _summary_damage(f: IO[bytes]) -> str | None:
     if crc_now != crc:
         return f"the summary section at bytes {start}-{end} does not match the footer's CRC"
     return None
+
+
+def _file_tail(f: IO[bytes], size: int) -> bytes | None:
+    """The last bytes of a file, where a footer and the closing magic go (``None``: too short)."""
+    tail = _FOOTER.size + len(_MAGIC)
+    if size < len(_MAGIC) + tail:
+        return None
+    f.seek(size - tail)
+    return f.read(tail)
+
+
+def _footer(f: IO[bytes]) -> tuple[int, int] | None:
+    """A whole footer's (summary start, summary CRC) before the closing magic, if any."""
+    raw = _file_tail(f, os.fstat(f.fileno()).st_size)
+    if raw is None or raw[_FOOTER.size :] != _MAGIC:
+        return None
+    opcode, length, start, _, crc = _FOOTER.unpack(raw[: _FOOTER.size])
+    if opcode != _OP_FOOTER or length != _OP_FOOTER_BODY:
+        return None
+    return start, crc
+
+
+def _footer_crc(f: IO[bytes]) -> int:
+    """The footer's summary CRC (0 without a footer, or when the writer did not compute it)."""
+    found = _footer(f)
+    return 0 if found is None else found[1]
 
 
 def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evidence:
@@ -1934,6 +2000,7 @@ _OP_FOOTER = 0x02
 _OP_METADATA = 0x0C
 _OP_DATA_END = 0x0F
 _FULL_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_DATA_END = struct.Struct("<BQI")  # opcode, length (4), data section CRC
 
 
 @dataclass(frozen=True)
@@ -1978,11 +2045,14 @@ class DamagedRegion:
         offset: Where the skipped bytes start (a chunk record's offset for a damaged chunk).
         length: How many bytes were skipped.
         why: What was wrong, in words (e.g. ``chunk at byte 24389 is damaged (CRC mismatch)``).
+        metadata: The name of the metadata record the file's summary locates at ``offset``
+            (e.g. ``episode_audit.run_end``), when the skipped bytes are that record.
     """
 
     offset: int
     length: int
     why: str
+    metadata: str | None = None
 
 
 def iter_records(
@@ -2006,7 +2076,7 @@ def iter_records(
     p = Path(path)
     with _open_mcap(p) as f:
         size = os.fstat(f.fileno()).st_size
-        known = _record_starts(f) if skip_damaged else []
+        known, names = _record_starts(f) if skip_damaged else ([], {})
         f.seek(len(_MAGIC))
         pos = len(_MAGIC)
         summary = False
@@ -2021,15 +2091,19 @@ def iter_records(
             bad: str | None = None
             at = bisect.bisect_right(known, pos)  # the next record the summary locates, if any
             nxt = known[at] if at < len(known) else None
+            name = names.get(pos)  # the metadata record the summary locates here, if any
+            what = "a record" if name is None else f"the {name} metadata record"
             if length > MAX_RECORD_BYTES or stop > size:
-                bad = f"a record at byte {pos} declares {length} bytes, past the end of the file"
+                bad = f"{what} at byte {pos} declares {length} bytes, past the end of the file"
             elif not summary and nxt is not None and stop > nxt:
-                bad = f"a record at byte {pos} overruns the record the summary locates at {nxt}"
+                bad = f"{what} at byte {pos} overruns the record the summary locates at {nxt}"
+            elif name is not None and opcode != _OP_METADATA:
+                bad = f"{what} at byte {pos} is garbled (opcode {opcode:#04x})"
             if bad is not None:
                 if nxt is None:
                     yield FileEnd(pos, size, opcode, False)
                     return
-                yield DamagedRegion(pos, nxt - pos, bad)
+                yield DamagedRegion(pos, nxt - pos, bad, name)
                 pos = nxt
                 f.seek(pos)
                 continue
@@ -2058,20 +2132,35 @@ def iter_records(
                         if nxt is None:
                             yield FileEnd(pos, size, opcode, False)
                             return
-                        yield DamagedRegion(pos, nxt - pos, f"a record at byte {pos} is garbled")
+                        yield DamagedRegion(
+                            pos, nxt - pos, f"{what} at byte {pos} is garbled", name
+                        )
                         stop = nxt
             pos = stop
             f.seek(pos)
 
 
-def _record_starts(f: IO[bytes]) -> list[int]:
-    """Offsets of the chunk and metadata records a file's summary locates (none without one)."""
+def _record_starts(f: IO[bytes]) -> tuple[list[int], dict[int, str]]:
+    """Offsets of the records a file's summary locates, and the metadata records' names.
+
+    The chunks and metadata records, and the data-end record just before the summary
+    section: so a garbled record is skipped up to the next one even when it is the last
+    metadata record (the run-end record). None without a summary.
+    """
     summary = _summary(f)
     if summary is None:
-        return []
+        return [], {}
     starts = {c.chunk_start_offset for c in summary.chunk_indexes}
-    starts.update(m.offset for m in summary.metadata_indexes)
-    return sorted(starts)
+    names = {m.offset: m.name for m in summary.metadata_indexes}
+    starts.update(names)
+    found = _footer(f)
+    data_end = (found[0] if found else 0) - _DATA_END.size
+    if data_end > len(_MAGIC):
+        f.seek(data_end)
+        head = f.read(_DATA_END.size)
+        if len(head) == _DATA_END.size and _DATA_END.unpack(head)[:2] == (_OP_DATA_END, 4):
+            starts.add(data_end)
+    return sorted(starts), names
 
 
 def _summary(f: IO[bytes]) -> Any:

@@ -123,6 +123,10 @@ class RecoveryResult:
         summary_damage: The input's summary section did not match its footer's CRC (what
             :attr:`~episode_audit.reader.Evidence.summary_damage` says); the output has a new
             one. The summary only repeats the data section: nothing is lost by it.
+        run_end_damage: The input's run-end record was garbled (what
+            :attr:`~episode_audit.reader.Evidence.run_end_damage` says); the output has a new
+            one. ``close()`` had written every step and end record; the old record's status
+            and counts are lost.
     """
 
     source: Path
@@ -141,6 +145,7 @@ class RecoveryResult:
     damaged_episodes: EpisodeRanges = field(default_factory=EpisodeRanges)
     damaged_tail: bool = False
     summary_damage: str | None = None
+    run_end_damage: str | None = None
 
     @property
     def data_dropped(self) -> bool:
@@ -184,6 +189,11 @@ class RecoveryResult:
             parts.append("the recorder was killed before close(): steps after its last flush")
         if self.summary_damage:
             parts.append(f"{self.summary_damage}: a new summary was written")
+        if self.run_end_damage:
+            parts.append(
+                f"{self.run_end_damage}: its status and counts were lost, a new run-end record "
+                "was written"
+            )
         return "; ".join(parts) if parts else "nothing"
 
     def summary(self) -> str:
@@ -198,6 +208,8 @@ class RecoveryResult:
             f"{self.steps} steps in {self.chunks} chunks"
         )
         if not self.lost:
+            if self.run_end_damage:  # (its words say what the record held)
+                return f"{kept}; no evidence lost ({self.dropped})"
             if self.summary_damage:
                 return f"{kept}; nothing lost ({self.dropped})"
             tail = f"; dropped {self.dropped}" if self.dropped_bytes else ""
@@ -250,7 +262,7 @@ def recover(
         ) from None
     tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
     try:
-        if ev.finished and not ev.summary_damage and not _damage_in(src):
+        if ev.finished and not (ev.summary_damage or ev.run_end_damage) and not _damage_in(src):
             try:
                 shutil.copyfile(src, tmp)
             except OSError as exc:
@@ -310,12 +322,16 @@ def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> Rec
             copy.record(record)
         end: FileEnd | None = None
         old_run_end: dict[str, str] | None = None
+        run_end_damage: str | None = None  # the run-end record is there, but garbled
         damaged: list[DamagedRegion] = []
         for item in records:
             if isinstance(item, FileEnd):
                 end = item
             elif isinstance(item, DamagedRegion):
-                damaged.append(item)
+                if item.metadata == fmt.METADATA_RUN_END:
+                    run_end_damage = item.why
+                else:
+                    damaged.append(item)
             elif isinstance(item, Metadata):
                 if item.name == fmt.METADATA_RUN_END:
                     old_run_end = dict(item.metadata)
@@ -336,8 +352,9 @@ def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> Rec
         damage: _Damage = ""
         if damaged:
             damage = "at the end" if damaged[-1].offset > copy.last_chunk else "inside"
+        closed = old_run_end is not None or run_end_damage is not None  # close() ran
         try:
-            kept = _Kept.of(tmp, old_run_end, damage)
+            kept = _Kept.of(tmp, old_run_end or ({} if closed else None), damage)
         except EvidenceError as exc:  # what it copied from src: name src
             raise type(exc)(src, exc.problem) from None
         dropped = end.size - end.offset if not end.footer else 0
@@ -356,11 +373,12 @@ def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> Rec
             dropped,
             kind,
             end.size - dropped,
-            old_run_end is not None,
+            closed,
             tuple(damaged),
             kept.damaged,
-            damage == "at the end" and old_run_end is None,
+            damage == "at the end" and not closed,
             summary_damage,
+            run_end_damage,
         )
         last = (old_run_end or {}).get("end_time")
         writer.finish(

@@ -780,3 +780,76 @@ def test_a_damaged_summary_schema_is_reported_and_recover_writes_a_new_one(
     assert fixed.summary_damage is None and fixed.finished
     assert fixed.steps().equals(ev.steps())
     assert not [f for f in check([out]).findings if f.code == "summary_damaged"]
+
+
+def _metadata_offset(path: Path, name: str) -> tuple[int, int]:
+    """(offset, length) of the metadata record ``name`` the file's summary locates."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    (index,) = [m for m in summary.metadata_indexes if m.name == name]
+    return index.offset, index.length
+
+
+def test_a_garbled_run_end_record_is_named_and_the_file_is_still_finished(
+    recorded: Path, tmp_path: Path
+) -> None:
+    """Before: "the writer did not finish the file", and recover said the recorder was killed
+    before close(). The summary and footer behind the record say the writer finished."""
+    data = recorded.read_bytes()
+    offset, length = _metadata_offset(recorded, "episode_audit.run_end")
+    intact = open_evidence(recorded)
+    damaged = tmp_path / "damaged.mcap"
+    # the opcode, the length field, the name, a key and a value of the record
+    for at in (offset, offset + 1, offset + 9 + 4 + 3, offset + length - 3):
+        damaged.write_bytes(_patched(data, at, bytes([data[at] ^ 0xFF])))
+        ev = open_evidence(damaged)
+        assert ev.finished and ev.torn is None and ev.run_end is None, at
+        assert ev.run_end_damage is not None
+        assert ev.run_end_damage.startswith(
+            f"the episode_audit.run_end metadata record at byte {offset} "
+        ), at
+        assert _same_evidence(ev, intact), at
+
+
+def test_a_garbled_run_end_record_is_reported_and_recover_writes_a_new_one(
+    recorded: Path, tmp_path: Path
+) -> None:
+    from episode_audit import check, recover
+
+    data = recorded.read_bytes()
+    offset, _ = _metadata_offset(recorded, "episode_audit.run_end")
+    at = data.index(b"status", offset)
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(_patched(data, at, b"\xff"))  # not UTF-8 any more
+    codes = [f.code for f in check([damaged]).findings]
+    assert "run_end_damaged" in codes and "file_unfinished" not in codes
+    out = tmp_path / "out.mcap"
+    result = recover(damaged, out)
+    assert not result.already_finished and not result.lost and result.closing
+    assert result.summary().endswith(
+        f"; no evidence lost (the episode_audit.run_end metadata record at byte {offset} is "
+        "garbled: its status and counts were lost, a new run-end record was written)"
+    )
+    fixed = open_evidence(out)
+    assert fixed.finished and fixed.run_end_damage is None
+    assert fixed.run_end is not None and fixed.run_end["status"] == "recovered"
+    assert _same_evidence(fixed, open_evidence(recorded))
+    assert "run_end_damaged" not in [f.code for f in check([out]).findings]
+
+
+def test_a_garbled_run_metadata_record_is_named(recorded: Path, tmp_path: Path) -> None:
+    """Without the run record (spaces, env, settings) nothing can be read as evidence."""
+    data = recorded.read_bytes()
+    offset, _ = _metadata_offset(recorded, "episode_audit.run")
+    at = data.index(b"format_version", offset)
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(_patched(data, at, b"\xff"))
+    with pytest.raises(
+        CorruptEvidenceError,
+        match=rf"the episode_audit.run metadata record at byte {offset} is garbled: the "
+        "spaces, env and settings of the run it held are lost",
+    ):
+        open_evidence(damaged)
