@@ -30,7 +30,14 @@ from . import format as fmt
 from .columns import PLAIN_NUMBERS
 from .errors import ConfigurationError
 
-__all__ = ["Ending", "EndingRules", "RewardTerms", "find_time_limit", "time_limit_hit"]
+__all__ = [
+    "Ending",
+    "EndingRules",
+    "RewardTerms",
+    "find_time_limit",
+    "plain_time_limit",
+    "time_limit_hit",
+]
 
 TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
 
@@ -293,6 +300,29 @@ def find_time_limit(env: Any) -> TimeLimit[Any, Any] | None:
             return current
         current = current.env
     return None
+
+
+def plain_time_limit(env: Any) -> tuple[Any, int] | None:
+    """``(inner env, max_episode_steps)`` when ``env`` is exactly Gymnasium's ``TimeLimit``.
+
+    Its reset only zeroes a counter, and its step only counts and sets ``truncated`` on the
+    ``max_episode_steps``-th step: a loop that resets and steps the inner env and counts the
+    same way gets what the wrapper returns, without a wrapper call per step. A subclass may
+    do more, so only the class itself qualifies.
+
+    >>> import gymnasium as gym
+    >>> inner, limit = plain_time_limit(gym.make("CartPole-v1", disable_env_checker=True))
+    >>> type(inner).__name__, limit
+    ('OrderEnforcing', 500)
+    >>> plain_time_limit(gym.make("CartPole-v1").unwrapped) is None
+    True
+    """
+    if type(env) is not TimeLimit:
+        return None
+    limit = getattr(env, "_max_episode_steps", None)
+    if type(limit) is not int or limit <= 0:
+        return None
+    return env.env, limit
 
 
 def time_limit_hit(time_limit: TimeLimit[Any, Any] | None) -> bool:

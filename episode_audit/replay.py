@@ -20,6 +20,11 @@ An env built from its id or spec leaves out Gymnasium's two development-time che
 passive env checker and the reset-before-step order check: neither changes what a reset or
 step returns (replay always resets first), and together they cost about as much per step as
 replay's own work. An env from ``env_factory`` is used as the factory built it.
+
+When the outermost wrapper is exactly Gymnasium's ``TimeLimit`` (either way), the stepping loop
+resets and steps the env inside it and counts the limit itself, as the wrapper would: the same
+flags and outcomes, without a wrapper call per step (see
+:func:`~episode_audit.outcomes.plain_time_limit`).
 """
 
 from __future__ import annotations
@@ -41,7 +46,14 @@ import pyarrow.compute as pc
 from . import format as fmt
 from .columns import null_mask, terms_column, terms_matrix_column
 from .errors import ConfigurationError, ReplayError
-from .outcomes import Ending, EndingRules, RewardTerms, find_time_limit, time_limit_hit
+from .outcomes import (
+    Ending,
+    EndingRules,
+    RewardTerms,
+    find_time_limit,
+    plain_time_limit,
+    time_limit_hit,
+)
 from .reader import Evidence, open_evidence
 from .recorder import library_versions
 from .records import RunInfo, from_json
@@ -553,6 +565,9 @@ class _EpisodeRunner:
         self.act_codec = ev.action_codec
         self.rules, self.terms_rule = _rules_of(ev.run)
         self.time_limit = find_time_limit(env)
+        # An outermost Gymnasium TimeLimit is counted by the stepping loop, not called: the
+        # same flags, without a wrapper call per step (see plain_time_limit).
+        self.counted = plain_time_limit(env)
         self._plain_endings: dict[tuple[bool, bool, bool], Ending] = {}
 
     def not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
@@ -692,7 +707,9 @@ class _EpisodeRunner:
         change an array it returned).
         """
         assert self.obs_codec is not None
-        env, env_step = self.env, self.env.step
+        env = self.env if self.counted is None else self.counted[0]
+        limit = None if self.counted is None else self.counted[1]
+        env_step = env.step
         got_obs, got_reset = _Rows(self.obs_codec), _Rows(self.obs_codec)
         keep_raw, keep_other = got_obs.raw.append, got_obs.add
         keep_raw_reset, keep_reset_other = got_reset.raw.append, got_reset.add
@@ -763,9 +780,11 @@ class _EpisodeRunner:
                     crash = Divergence(
                         stop - start, "action", "a recorded action", "null (not recordable)"
                     )
+            # the TimeLimit truncates its limit-th step, so stepping ends there at the latest
+            end = stop if limit is None or stop - start <= limit else start + limit
             before = len(rewards)
             try:
-                for action in actions[start:stop]:
+                for action in actions[start:end]:
                     obs, reward, term, trunc, info = env_step(action)
                     # got_obs.keep(obs), inlined for the common case
                     if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
@@ -782,6 +801,8 @@ class _EpisodeRunner:
                 ran_now = len(rewards) - before
                 crash = Divergence(ran_now, "step", "a step", f"{type(exc).__name__}: {exc}")
             ran_now = len(rewards) - before
+            if ran_now == limit:
+                trunc = True  # what the TimeLimit sets on its limit-th step
             if ran_now < stop - start and (crash is None or crash.field == "action"):
                 crash = None  # it ended early: the length check says so
             # Every step before the last had both flags falsy (stepping stops at the first
@@ -791,7 +812,11 @@ class _EpisodeRunner:
             if crash is not None:
                 ran.crashes[len(stepped)] = crash
             # the TimeLimit state belongs to this episode: read it now, not after the others
-            hit = time_limit is not None and time_limit_hit(time_limit)
+            hit = (
+                ran_now == limit
+                if limit is not None
+                else time_limit is not None and time_limit_hit(time_limit)
+            )
             keep_stepped((record, start, count, ran_now, info if ran_now else {}, hit, reset_at))
             if progress is not None:
                 progress(count)

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from episode_audit import RecordEvidence, open_evidence
 from episode_audit.columns import TERMS_TYPE
 from episode_audit.errors import ConfigurationError
+from episode_audit.outcomes import plain_time_limit
 from episode_audit.replay import (
     _rewards,
     _row_ranges,
@@ -26,6 +27,7 @@ from episode_audit.replay import (
     load_callable,
     replay,
 )
+from tests.envs import ScriptedEnv
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -169,6 +171,67 @@ def test_the_replay_env_leaves_out_gymnasiums_development_checks(tmp_path: Path)
         "CartPoleEnv",
     ]
     assert replay([plain, wrapped]).count("identical") == 3
+
+
+def _limit_script(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+    """Action 1 ends the task, 2 makes the env truncate itself; stepping past ``env.fail_at``
+    steps raises."""
+    if env.t > getattr(env, "fail_at", 10**9):
+        raise RuntimeError("the env broke")
+    obs = np.full(2, env.t / 10, np.float32)
+    return obs, float(env.t), action == 1, action == 2, {}
+
+
+def _limited(limit: int, fail_at: int | None = None) -> gym.wrappers.TimeLimit[Any, Any]:
+    env = ScriptedEnv(_limit_script)
+    if fail_at is not None:
+        env.fail_at = fail_at  # type: ignore[attr-defined]
+    return gym.wrappers.TimeLimit(env, limit)
+
+
+# (actions per episode) recorded behind a TimeLimit of 4: a limit truncation, both flags on
+# the limit-th step, the env's own truncation and a termination before the limit
+_LIMIT_EPISODES = [[0, 0, 0, 0], [0, 0, 0, 1], [0, 2], [0, 1], [1]]
+
+
+@pytest.mark.parametrize(
+    ("limit", "fail_at", "statuses"),
+    [
+        (4, None, ["identical"] * 5),
+        (3, None, ["diverged", "diverged", "identical", "identical", "identical"]),
+        (5, None, ["diverged", "diverged", "identical", "identical", "identical"]),
+        (4, 3, ["diverged", "diverged", "identical", "identical", "identical"]),
+    ],
+)
+def test_an_outermost_time_limit_is_counted_by_replay_exactly_as_the_wrapper_would(
+    tmp_path: Path, limit: int, fail_at: int | None, statuses: list[str]
+) -> None:
+    """Replay steps the env inside a plain TimeLimit and counts the limit itself; every
+    result, divergence included, is the one the wrapper's own step gives."""
+    path = tmp_path / "limit.mcap"
+    with RecordEvidence(_limited(4), path) as rec:
+        for e, actions in enumerate(_LIMIT_EPISODES):
+            rec.reset(seed=e)
+            for action in actions:
+                rec.step(action)
+    made: list[gym.wrappers.TimeLimit[Any, Any]] = []
+
+    def counted() -> gym.Env[Any, Any]:
+        made.append(_limited(limit, fail_at))
+        return made[-1]
+
+    def called() -> gym.Env[Any, Any]:  # an outer wrapper: the TimeLimit's step is called
+        return gym.Wrapper(_limited(limit, fail_at))
+
+    assert plain_time_limit(counted()) is not None and plain_time_limit(called()) is None
+    by_count = replay([path], env_factory=counted).episodes
+    by_call = replay([path], env_factory=called).episodes
+    assert by_count == by_call
+    assert [e.status for e in by_count] == statuses
+    assert made[-1]._elapsed_steps is None  # the wrapper itself never ran
+    if limit == 3:
+        divergence = by_count[0].divergence
+        assert divergence is not None and (divergence.step, divergence.field) == (2, "truncated")
 
 
 def test_load_callable_errors() -> None:
