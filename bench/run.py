@@ -328,7 +328,8 @@ def replay_own_seconds(path: Path, env_id: str, rounds: int, actions: list[Any])
     """Replay's own work on ``path``: replay in :class:`Playback` (behind the env's TimeLimit)
     minus stepping :class:`Playback` bare with the same ``actions`` per episode (numpy slices,
     as replay steps with: iterating them costs both sides), fastest rounds. The host's noise
-    barely moves it."""
+    barely moves it. Replay counts the TimeLimit itself where the bare side calls it, so this
+    is net of that call."""
     from episode_audit.replay import replay
 
     limit = gym.spec(env_id).max_episode_steps
