@@ -354,7 +354,7 @@ def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> Rec
             damage = "at the end" if damaged[-1].offset > copy.last_chunk else "inside"
         closed = old_run_end is not None or run_end_damage is not None  # close() ran
         try:
-            kept = _Kept.of(tmp, old_run_end or ({} if closed else None), damage)
+            kept = _Kept.of(tmp, damage, closed=closed, run_end=old_run_end or {})
         except EvidenceError as exc:  # what it copied from src: name src
             raise type(exc)(src, exc.problem) from None
         dropped = end.size - end.offset if not end.footer else 0
@@ -419,8 +419,11 @@ class _Kept:
     damaged: EpisodeRanges
 
     @classmethod
-    def of(cls, path: Path, old_run_end: dict[str, str] | None, damage: _Damage) -> _Kept:
+    def of(cls, path: Path, damage: _Damage, *, closed: bool, run_end: dict[str, str]) -> _Kept:
         """Read the (still unfinished) output ``path``.
+
+        ``closed``: the input has a run-end record (intact or garbled), so ``close()`` ran;
+        ``run_end``: that record's values, when it could be read (else empty).
 
         Without damage, the episodes without an end record were cut off by the torn end. With
         damage, an episode lost evidence when its end record is missing but a later episode
@@ -428,7 +431,7 @@ class _Kept:
         missing, it has fewer step rows than its record says, its step indices have a gap, or
         it is missing altogether (indices are 0, 1, ... in a file; a finished input's run-end
         record says how many). An episode without an end record counts as damaged, not cut
-        off, when the input has its run-end record (``close()`` wrote every end record) or the
+        off, when the input was ``closed`` (``close()`` wrote every end record) or the
         ``damage`` comes after the last intact chunk.
         """
         ev = open_evidence(path)
@@ -444,9 +447,10 @@ class _Kept:
         last: dict[tuple[Any, Any], int] = {}
         for e, stream in zip(index, streams, strict=True):
             last[stream] = max(last.get(stream, e), e)
-        # After close() (its run-end record is there) no episode is cut off; nor, when damage
-        # follows the last intact chunk, can a missing end record be told from a lost one.
-        finals = set() if old_run_end is not None or damage == "at the end" else set(last.values())
+        # After close() (its run-end record is there, even garbled) no episode is cut off;
+        # nor, when damage follows the last intact chunk, can a missing end record be told
+        # from a lost one.
+        finals = set() if closed or damage == "at the end" else set(last.values())
         cut = tuple(e for e, done in zip(index, ended, strict=True) if not done and e in finals)
         lost = {e for e, done in zip(index, ended, strict=True) if not done and e not in finals}
         resets = set(ev.resets().column(fmt.COL_EPISODE).to_pylist())
@@ -472,7 +476,7 @@ class _Kept:
                 lost.add(e)
         known = sorted(set(index) | set(counts) | resets)
         try:
-            total = int((old_run_end or {}).get("episodes", "0"))
+            total = int(run_end.get("episodes", "0"))
         except ValueError:
             total = 0
         # the indices no evidence is left of: the gaps, and after the last one kept

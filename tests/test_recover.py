@@ -4,6 +4,7 @@ import hashlib
 import json
 import struct
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -490,6 +491,56 @@ def test_a_damaged_chunk_of_a_pettingzoo_file(tmp_path: Path) -> None:
         for e in replayed.episodes
         if e.status == "not_replayable"
     )
+
+
+def test_a_finished_file_never_calls_an_episode_cut_off(tmp_path: Path) -> None:
+    """An agent that left early had its end record in a damaged chunk that later chunks
+    follow: after close() no episode was in flight, so its episode lost evidence; it was
+    not cut off by a killed writer."""
+    pytest.importorskip("pettingzoo")
+    from gymnasium.spaces import Box, Discrete
+    from pettingzoo.utils.env import ParallelEnv
+
+    from episode_audit import RecordParallelEvidence
+
+    class OneLeavesEarly(ParallelEnv):  # type: ignore[misc]
+        metadata = {"name": "one_leaves_early_v0"}
+        possible_agents = ["early", "late"]
+
+        def observation_space(self, agent: str) -> Any:
+            return Box(0.0, 100.0, (1,), np.float32)
+
+        def action_space(self, agent: str) -> Any:
+            return Discrete(2)
+
+        def reset(self, seed: int | None = None, options: Any = None) -> Any:
+            self.agents, self.t = list(self.possible_agents), 0
+            return {a: np.zeros(1, np.float32) for a in self.agents}, {a: {} for a in self.agents}
+
+        def step(self, actions: Any) -> Any:
+            self.t += 1
+            ends = {a: self.t == (20 if a == "early" else 60) for a in self.agents}
+            obs = {a: np.array([self.t], np.float32) for a in self.agents}
+            nothing: dict[str, Any] = {a: {} for a in self.agents}
+            rewards = dict.fromkeys(self.agents, 1.0)
+            out = obs, rewards, ends, dict.fromkeys(self.agents, False), nothing
+            self.agents = [a for a in self.agents if not ends[a]]
+            return out
+
+    path = tmp_path / "early.mcap"
+    with RecordParallelEvidence(OneLeavesEarly(), path, block_steps=8) as env:
+        env.reset(seed=0)
+        while env.agents:
+            env.step(dict.fromkeys(env.agents, 0))
+    chunks, _ = layout(path)
+    # the last chunk with evidence of the early agent's episode (0) holds its end record
+    k = max(i for i, (offset, _) in enumerate(chunks) if 0 in evidence_in_chunk(path, offset))
+    assert 0 < k < len(chunks) - 1
+    offset, length = chunks[k]
+    result = recover(damaged_copy(path, tmp_path, offset + length - 20), tmp_path / "out.mcap")
+    assert result.closing and result.lost
+    assert not result.cut_off_episodes
+    assert set(result.damaged_episodes.first(10)) == evidence_in_chunk(path, offset) == {0, 1}
 
 
 @pytest.mark.parametrize(
