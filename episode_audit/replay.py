@@ -812,11 +812,7 @@ class _EpisodeRunner:
             if crash is not None:
                 ran.crashes[len(stepped)] = crash
             # the TimeLimit state belongs to this episode: read it now, not after the others
-            hit = (
-                ran_now == limit
-                if limit is not None
-                else time_limit is not None and time_limit_hit(time_limit)
-            )
+            hit = ran_now == limit if limit is not None else time_limit_hit(time_limit)
             keep_stepped((record, start, count, ran_now, info if ran_now else {}, hit, reset_at))
             if progress is not None:
                 progress(count)
