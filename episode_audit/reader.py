@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from io import BytesIO
 from itertools import pairwise
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -1843,18 +1843,16 @@ def _summary_damage(f: IO[bytes]) -> str | None:
     spec); a writer may leave it 0 (not computed), which is accepted.
     """
     size = os.fstat(f.fileno()).st_size
-    tail = _FOOTER.size + len(_MAGIC)
-    raw = _file_tail(f, size)
-    if raw is None:
+    tail = _tail(f, size)
+    if tail is None:
         return None
-    opcode, length, start, offsets, crc = _FOOTER.unpack(raw[: _FOOTER.size])
-    footer_ok = opcode == _OP_FOOTER and length == _OP_FOOTER_BODY
-    if raw[_FOOTER.size :] != _MAGIC:
+    start, crc = tail.summary_start, tail.summary_crc
+    if not tail.magic_ok:
         # a whole footer, pointing inside the file, before 8 bytes that are not the magic:
         # the magic was damaged (a torn file does not end with a footer)
-        inside = start < size - tail and offsets < size - tail
-        return "the closing magic bytes are damaged" if footer_ok and inside else None
-    if not footer_ok:
+        inside = max(start, tail.offsets_start) < size - _TAIL_BYTES
+        return "the closing magic bytes are damaged" if tail.footer_ok and inside else None
+    if not tail.footer_ok:
         return "the footer record before the closing magic is damaged"
     if start == 0 or crc == 0:
         return None
@@ -1874,24 +1872,36 @@ def _summary_damage(f: IO[bytes]) -> str | None:
     return None
 
 
-def _file_tail(f: IO[bytes], size: int) -> bytes | None:
-    """The last bytes of a file, where a footer and the closing magic go (``None``: too short)."""
-    tail = _FOOTER.size + len(_MAGIC)
-    if size < len(_MAGIC) + tail:
+class _Tail(NamedTuple):
+    """The last bytes of a file, read as a footer record and the closing magic."""
+
+    footer_ok: bool  # the footer record's opcode and length are right
+    magic_ok: bool
+    summary_start: int
+    offsets_start: int
+    summary_crc: int
+
+
+_TAIL_BYTES = _FOOTER.size + len(_MAGIC)
+
+
+def _tail(f: IO[bytes], size: int) -> _Tail | None:
+    """Where a footer and the closing magic go, at the end of a file (``None``: too short)."""
+    if size < len(_MAGIC) + _TAIL_BYTES:
         return None
-    f.seek(size - tail)
-    return f.read(tail)
+    f.seek(size - _TAIL_BYTES)
+    raw = f.read(_TAIL_BYTES)
+    opcode, length, start, offsets, crc = _FOOTER.unpack(raw[: _FOOTER.size])
+    footer_ok = opcode == _OP_FOOTER and length == _OP_FOOTER_BODY
+    return _Tail(footer_ok, raw[_FOOTER.size :] == _MAGIC, start, offsets, crc)
 
 
 def _footer(f: IO[bytes]) -> tuple[int, int] | None:
     """A whole footer's (summary start, summary CRC) before the closing magic, if any."""
-    raw = _file_tail(f, os.fstat(f.fileno()).st_size)
-    if raw is None or raw[_FOOTER.size :] != _MAGIC:
+    tail = _tail(f, os.fstat(f.fileno()).st_size)
+    if tail is None or not (tail.footer_ok and tail.magic_ok):
         return None
-    opcode, length, start, _, crc = _FOOTER.unpack(raw[: _FOOTER.size])
-    if opcode != _OP_FOOTER or length != _OP_FOOTER_BODY:
-        return None
-    return start, crc
+    return tail.summary_start, tail.summary_crc
 
 
 def _footer_crc(f: IO[bytes]) -> int:

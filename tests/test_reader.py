@@ -756,6 +756,26 @@ def test_a_damaged_summary_is_read_around(recorded: Path, tmp_path: Path) -> Non
     assert flagged > (len(data) - start) // 13 // 2  # most flips are caught by the CRC
 
 
+@pytest.mark.parametrize(
+    ("where", "why"),
+    [
+        (-1, "the closing magic bytes are damaged"),
+        (-8 - 29, "the footer record before the closing magic is damaged"),  # its opcode
+        (-8 - 29 + 1, "the footer record before the closing magic is damaged"),  # its length
+    ],
+)
+def test_a_damaged_footer_or_magic_is_named_and_the_file_still_reads(
+    recorded: Path, tmp_path: Path, where: int, why: str
+) -> None:
+    data = recorded.read_bytes()
+    damaged = tmp_path / "damaged.mcap"
+    at = len(data) + where
+    damaged.write_bytes(_patched(data, at, bytes([data[at] ^ 0xFF])))
+    ev = open_evidence(damaged)
+    assert ev.summary_damage == why
+    assert ev.finished and _same_evidence(ev, open_evidence(recorded))
+
+
 def test_a_damaged_summary_schema_is_reported_and_recover_writes_a_new_one(
     recorded: Path, tmp_path: Path
 ) -> None:
