@@ -75,6 +75,14 @@ def ratios(base: list[float], other: list[float]) -> dict[str, Any]:
     }
 
 
+def noise_floor(first: list[float], second: list[float]) -> dict[str, Any]:
+    """The same work timed twice in each round (an A/A test): how far apart two equal runs
+    land on this host. A ratio inside this spread cannot be told from 1 here."""
+    per_round = [b / a for a, b in zip(first, second, strict=True)]
+    q1, _, q3 = statistics.quantiles(per_round, n=4)
+    return {"aa_median": statistics.median(per_round), "aa_quartiles": [round(q1, 4), round(q3, 4)]}
+
+
 def bench_record(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
     """Interleaved bare/recorded runs over the same actions; median of per-round ratios."""
     actions = actions_for(env_id, steps)
@@ -230,8 +238,9 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
 
     Both sides make the env, reset each episode with its seed and step the very action
     objects replay steps with (numpy integers for a Discrete space, as ``Discrete.sample()``
-    gives); replay also opens and reads the file and compares. Interleaved rounds, median of
-    the per-round ratios.
+    gives); replay also opens and reads the file and compares. Each round times bare, replay,
+    bare: replay against the mean of the two bare runs around it (drift cancels), median of
+    the per-round ratios; the two bare runs against each other give the noise floor.
     """
     from episode_audit.replay import _replay_actions, replay
 
@@ -251,8 +260,8 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
     episodes_actions = [
         _replay_actions(ev.episode(e).steps.column("action"), codec)[0] for e in range(episodes)
     ]
-    bare_t, rep_t = [], []
-    for _ in range(rounds):
+
+    def bare() -> float:
         gc.collect()
         t0 = time.perf_counter()
         bare_env = gym.make(env_id)
@@ -260,14 +269,19 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
             bare_env.reset(seed=e)
             for a in actions:
                 bare_env.step(a)
-        bare = time.perf_counter() - t0
+        return time.perf_counter() - t0
+
+    before_t, rep_t, after_t = [], [], []
+    for _ in range(rounds):
+        before_t.append(bare())
         gc.collect()
         t0 = time.perf_counter()
         result = replay([path])
-        rep = time.perf_counter() - t0
+        rep_t.append(time.perf_counter() - t0)
         assert result.count("identical") == episodes, result
-        bare_t.append(bare)
-        rep_t.append(rep)
+        after_t.append(bare())
+    # each replay against the mean of the bare runs around it (drift cancels)
+    bare_t = [(b + a) / 2 for b, a in zip(before_t, after_t, strict=True)]
     steps = sum(len(a) for a in episodes_actions)
     own = replay_own_seconds(path, env_id, rounds, episodes_actions)
     return {
@@ -278,6 +292,7 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
         "bare_us_per_step": statistics.median(bare_t) / steps * 1e6,
         "replay_us_per_step": statistics.median(rep_t) / steps * 1e6,
         **ratios(bare_t, rep_t),
+        **noise_floor(before_t, after_t),
         "own_us_per_step": own / steps * 1e6,
         "ratio_own_work": 1 + own / min(bare_t),
     }
