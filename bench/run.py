@@ -163,7 +163,7 @@ def bench_vector(num_envs: int, steps: int, rounds: int, mode: str = "sync") -> 
     }
 
 
-class Endless(gym.Env[np.ndarray, np.ndarray]):
+class Endless(gym.Env[np.ndarray, np.int64]):
     """A cheap env that never ends by itself (for the long-episode memory benchmark)."""
 
     observation_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
@@ -186,7 +186,7 @@ def bench_memory(steps: int) -> dict[str, Any]:
     samples = []
     base = rss_mb()
     for i in range(steps):
-        env.step(i & 1)
+        env.step(np.int64(i & 1))
         if i % (steps // 20) == 0:
             samples.append(rss_mb() - base)
     env.close()
