@@ -11,7 +11,7 @@ import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
@@ -20,6 +20,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from . import __version__
 from .errors import ConfigurationError, EpisodeAuditError, EvidenceError
 from .render import OutputFormat, safe
+
+if TYPE_CHECKING:
+    from .reader import Evidence
 
 app = typer.Typer(
     name="episode-audit",
@@ -130,18 +133,29 @@ def _format(value: str) -> OutputFormat:
     return value  # type: ignore[return-value]
 
 
-def _readable(files: Sequence[Path]) -> tuple[list[Path], int]:
-    """The files that open as evidence; one stderr line for each that does not."""
+def _error_line(exc: EpisodeAuditError) -> None:
+    _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+
+
+def _readable(
+    files: Sequence[Path], load: Callable[[Evidence], object] | None = None
+) -> tuple[list[tuple[Path, Evidence]], int]:
+    """The files that open as evidence (and whose ``load`` reads), opened.
+
+    One stderr line for each file that does not, so one bad file costs the others nothing.
+    """
     from .reader import open_evidence
 
-    readable: list[Path] = []
+    readable: list[tuple[Path, Evidence]] = []
     unreadable = 0
     for path in files:
         try:
-            open_evidence(path)
-            readable.append(path)
+            ev = open_evidence(path)
+            if load is not None:
+                load(ev)
+            readable.append((path, ev))
         except EpisodeAuditError as exc:
-            _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+            _error_line(exc)
             unreadable += 1
     return readable, unreadable
 
@@ -193,7 +207,7 @@ def check(
                     [path], atol=atol, rtol=rtol, require_terms=require_terms, progress=advance
                 )
             except EpisodeAuditError as exc:
-                _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+                _error_line(exc)
                 unreadable += 1
                 continue
             merged.findings.extend(result.findings)
@@ -260,7 +274,7 @@ def replay(
             except ConfigurationError as exc:
                 fail(str(exc))
             except EpisodeAuditError as exc:
-                _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+                _error_line(exc)
                 unreadable += 1
                 continue
             merged.episodes.extend(result.episodes)
@@ -333,9 +347,9 @@ def report(
     output: FormatOption = "table",
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
+    from .reader import Evidence
     from .render import report_output
-    from .report import BY_KEYS, Gates
-    from .report import report as run_report
+    from .report import BY_KEYS, Gates, report_tables
 
     fmt = _format(output)
     if by not in BY_KEYS and not (by.startswith("tag:") and len(by) > 4):
@@ -350,11 +364,15 @@ def report(
         max_truncation_rate=_rate_option("--max-truncation-rate", max_truncation_rate),
         fail_on_incentive_warning=fail_on_incentive_warning,
     )
-    readable, unreadable = _readable(collect(paths))
+    # Reading each file's episodes here (they are cached) puts a file damaged past its start
+    # with the unreadable ones instead of stopping the report of the others.
+    readable, unreadable = _readable(collect(paths), Evidence.episodes)
     if not readable:
         raise typer.Exit(EXIT_USAGE)
     try:
-        result = run_report(readable, by=by, gates=gates, games=games)
+        result = report_tables(
+            [(str(path), ev) for path, ev in readable], by=by, gates=gates, games=games
+        )
     except EpisodeAuditError as exc:
         fail(str(exc))
     emit(report_output(result, fmt))
@@ -426,14 +444,18 @@ def export(
     """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
     from .export import export as run_export
 
-    files, unreadable = _readable(collect(paths))
-    if not files:
+    readable, unreadable = _readable(collect(paths))
+    if not readable:
         raise typer.Exit(EXIT_USAGE)
+    files = [path for path, _ in readable]
     try:
         with progress_bar("exporting", _steps_total(files)) as advance:
-            result = run_export(files, out, overwrite=overwrite, progress=advance)
+            result = run_export(
+                files, out, overwrite=overwrite, progress=advance, on_error=_error_line
+            )
     except EpisodeAuditError as exc:
         fail(str(exc))
+    unreadable += len(result.failed)
     emit(
         f"wrote {result.episodes} episodes to {result.episodes_file} and {result.steps} steps "
         f"to {len(result.steps_files)} *.steps.parquet file(s) in {out}"

@@ -21,7 +21,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from .errors import ConfigurationError
+from .errors import ConfigurationError, EvidenceError
 from .reader import open_evidence
 
 __all__ = ["ExportResult", "export"]
@@ -35,6 +35,9 @@ class ExportResult:
     steps_files: list[Path] = field(default_factory=list)
     episodes: int = 0
     steps: int = 0
+    failed: list[Path] = field(default_factory=list)
+    """Inputs that could not be read to the end (only with ``on_error``); nothing of theirs
+    is in the output."""
 
 
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:
@@ -57,10 +60,14 @@ def export(
     *,
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
+    on_error: Callable[[EvidenceError], None] | None = None,
 ) -> ExportResult:
     """Write the steps and episodes of ``paths`` as Parquet files into ``out_dir``.
 
-    Existing output files are not replaced unless ``overwrite=True``.
+    Existing output files are not replaced unless ``overwrite=True``. An input that cannot
+    be read to the end (e.g. a damaged chunk) raises :class:`~episode_audit.errors.EvidenceError`;
+    with ``on_error``, it is handed the error instead, the input is listed in
+    :attr:`ExportResult.failed` with nothing of it in the output, and the others are exported.
 
     >>> import tempfile, pathlib, gymnasium as gym
     >>> from episode_audit import RecordEvidence
@@ -97,38 +104,58 @@ def export(
             )
     episode_tables: list[pa.Table] = []
     for source, name in zip(sources, names, strict=True):
-        ev = open_evidence(source)
-        label = str(source)
-        episodes = ev.episodes()
-        episode_tables.append(_with_file(episodes, label))
-        # Vector and PettingZoo files: each step row names its sub-env and agent too.
-        multi = (ev.run.layout or {}).get("kind", "single") != "single"
-        env_index = episodes.column("env_index").combine_chunks()
-        agent = episodes.column("agent").combine_chunks()
         target = out / f"{name}.steps.parquet"
-        writer: pq.ParquetWriter | None = None
         try:
-            for batch in ev.iter_step_batches():
-                table = _with_file(batch, label)
-                if multi:
-                    table = _with_stream(table, episodes, env_index, agent)
-                if writer is None:
-                    writer = pq.ParquetWriter(target, table.schema, compression="zstd")
-                writer.write_table(table)
-                result.steps += table.num_rows
-                if progress is not None:
-                    progress(table.num_rows)
-        except BaseException:
-            if writer is not None:
-                writer.close()
-                target.unlink(missing_ok=True)  # no half-written file that looks complete
-            raise
-        if writer is not None:
-            writer.close()
-        if writer is None:  # no steps at all: still write an empty, typed file
-            pq.write_table(_with_file(ev.steps_schema.empty_table(), label), target)
+            episodes, steps = _export_one(source, target, progress)
+        except EvidenceError as exc:
+            if on_error is None:
+                raise
+            on_error(exc)
+            result.failed.append(source)
+            continue
+        episode_tables.append(episodes)
+        result.steps += steps
         result.steps_files.append(target)
     episodes = pa.concat_tables(episode_tables) if episode_tables else pa.table({})
     pq.write_table(episodes, result.episodes_file, compression="zstd")
     result.episodes = episodes.num_rows
     return result
+
+
+def _export_one(
+    source: Path, target: Path, progress: Callable[[int], None] | None
+) -> tuple[pa.Table, int]:
+    """Write ``source``'s steps to ``target``; return its episodes (with ``file``) and steps.
+
+    On any failure no ``target`` is left behind: a half-written file must not look complete.
+    """
+    ev = open_evidence(source)
+    label = str(source)
+    episodes = ev.episodes()
+    # Vector and PettingZoo files: each step row names its sub-env and agent too.
+    multi = (ev.run.layout or {}).get("kind", "single") != "single"
+    env_index = episodes.column("env_index").combine_chunks()
+    agent = episodes.column("agent").combine_chunks()
+    writer: pq.ParquetWriter | None = None
+    steps = 0
+    try:
+        for batch in ev.iter_step_batches():
+            table = _with_file(batch, label)
+            if multi:
+                table = _with_stream(table, episodes, env_index, agent)
+            if writer is None:
+                writer = pq.ParquetWriter(target, table.schema, compression="zstd")
+            writer.write_table(table)
+            steps += table.num_rows
+            if progress is not None:
+                progress(table.num_rows)
+    except BaseException:
+        if writer is not None:
+            writer.close()
+            target.unlink(missing_ok=True)
+        raise
+    if writer is not None:
+        writer.close()
+    else:  # no steps at all: still write an empty, typed file
+        pq.write_table(_with_file(ev.steps_schema.empty_table(), label), target)
+    return _with_file(episodes, label), steps

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 import struct
 from pathlib import Path
 from typing import Any
@@ -10,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
@@ -19,10 +21,12 @@ from episode_audit import (
     ConfigurationError,
     CorruptEvidenceError,
     EpisodeRanges,
+    EvidenceError,
     NotEvidenceError,
     RecordEvidence,
     RecordVectorEvidence,
     ReplayResult,
+    export,
     open_evidence,
     recover,
 )
@@ -292,6 +296,54 @@ def test_recover_cli_names_the_damage_and_exits_1(recorded: Path, tmp_path: Path
     assert code == 1 and err == ""
     assert f"1 damaged stretch(es) skipped (chunk at byte {offset} is damaged" in out
     assert "lost evidence in them" in out and len(out.strip().splitlines()) == 1
+
+
+def test_a_damaged_file_among_good_ones_costs_them_nothing(recorded: Path, tmp_path: Path) -> None:
+    """The damage is found after the file opened; the others are still checked, replayed,
+    reported and exported, and the command exits 2 naming the damaged file."""
+    chunks, _ = layout(recorded)
+    offset, length = chunks[1]
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    shutil.copy(recorded, inputs / "a.mcap")
+    damaged_copy(recorded, tmp_path, offset + length - 20).rename(inputs / "b.mcap")
+    shutil.copy(recorded, inputs / "c.mcap")
+    good = [str(inputs / "a.mcap"), str(inputs / "c.mcap")]
+    for command in ("check", "replay", "report", "export"):
+        if command == "export":
+            code, out, err = run(command, str(inputs), "-o", str(tmp_path / "out"))
+        else:
+            code, out, err = run(command, str(inputs), "--format", "json")
+        assert code == 2, command
+        assert err.count("episode-audit: error:") == 1, command
+        assert f"{inputs / 'b.mcap'}: chunk at byte {offset} is damaged" in err, command
+        if command == "check":
+            assert sorted(json.loads(out)["files"]) == good
+        elif command == "replay":
+            assert sorted({e["file"] for e in json.loads(out)["episodes"]}) == good
+        elif command == "report":
+            assert [g["key"] for g in json.loads(out)["groups"]] == good
+    exported = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert exported == ["a.steps.parquet", "c.steps.parquet", "episodes.parquet"]
+    episodes = pq.read_table(tmp_path / "out" / "episodes.parquet")
+    assert sorted(set(episodes.column("file").to_pylist())) == good
+    assert episodes.num_rows == 2 * open_evidence(recorded).episodes().num_rows
+
+
+def test_export_raises_on_a_damaged_file_unless_given_on_error(
+    recorded: Path, tmp_path: Path
+) -> None:
+    chunks, _ = layout(recorded)
+    offset, length = chunks[1]
+    damaged = damaged_copy(recorded, tmp_path, offset + length - 20)
+    with pytest.raises(CorruptEvidenceError, match=f"chunk at byte {offset} is damaged"):
+        export([recorded, damaged], tmp_path / "raised")
+    assert not (tmp_path / "raised" / f"{damaged.stem}.steps.parquet").exists()
+    errors: list[EvidenceError] = []
+    result = export([recorded, damaged], tmp_path / "kept", on_error=errors.append)
+    assert result.failed == [damaged] and len(errors) == 1
+    assert result.steps_files == [tmp_path / "kept" / "run.steps.parquet"]
+    assert result.episodes == open_evidence(recorded).episodes().num_rows
 
 
 def test_garbled_framing_in_a_finished_file_is_skipped_up_to_the_next_chunk(
