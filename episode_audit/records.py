@@ -324,10 +324,9 @@ class RunInfo:
         """Encode as an MCAP metadata map (string values; structured values as JSON)."""
         out: dict[str, str] = {}
         for key, value in asdict(self).items():
-            if key in self._JSON_FIELDS:
-                out[key] = to_json(value).decode()
-            elif value is not None:
-                out[key] = str(value)
+            if value is None:
+                continue  # env_id, env_spec: absent (a reader takes absent as None)
+            out[key] = to_json(value).decode() if key in self._JSON_FIELDS else str(value)
         return out
 
     @classmethod

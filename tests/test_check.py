@@ -430,6 +430,12 @@ def test_not_replayable_and_missing_env_spec(tmp_path: Path) -> None:
     )
     spec = _only(result, "missing_env_spec")
     assert spec.message == "no environment spec recorded: replay needs an env factory"
+    # absent from the run metadata, as format.md says (not the JSON text "null")
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        run = next(m for m in make_reader(f).iter_metadata() if m.name == "episode_audit.run")
+    assert "env_spec" not in run.metadata and "env_id" not in run.metadata
     assert "recorder_note:stepped_before_reset" in _codes(result)
 
 
