@@ -13,7 +13,17 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-__all__ = ["PLAIN_NUMBERS", "TERMS_TYPE", "null_mask", "terms_column", "terms_matrix_column"]
+__all__ = [
+    "PLAIN_NUMBERS",
+    "TERMS_TYPE",
+    "null_mask",
+    "terms_column",
+    "terms_matrix_column",
+    "error_message",
+    "error_text",
+    "text",
+    "text_array",
+]
 
 TERMS_TYPE = pa.map_(pa.string(), pa.float64())
 """Arrow type of the ``terms`` column: term name -> value, null when a step has no terms."""
@@ -22,6 +32,57 @@ PLAIN_NUMBERS = frozenset(
     {float, int, bool, np.float64, np.float32, np.float16, np.int64, np.int32, np.bool_}
 )
 """Types whose values numpy turns into float64 as they are (no text parsing, no arrays)."""
+
+
+def text(value: Any) -> str:
+    r"""``value`` as text that UTF-8 (so Arrow and the file) can hold.
+
+    Lone surrogates — e.g. a file name decoded by ``os.fsdecode`` from bytes that are not UTF-8 —
+    become backslash escapes; anything else is kept as it is. Recorder and replay both store
+    names and labels through this, so the two agree.
+
+    >>> text("door"), text("level-\udcff.json"), text(3)
+    ('door', 'level-\\udcff.json', '3')
+    """
+    s = value if isinstance(value, str) else str(value)
+    try:
+        s.encode("utf-8")
+    except UnicodeEncodeError:
+        return s.encode("utf-8", "backslashreplace").decode("utf-8")
+    return s
+
+
+def error_message(exc: BaseException) -> str:
+    r"""``str(exc)`` as :func:`text`, even when that ``str()`` raises.
+
+    >>> error_message(ValueError("bad \udcff"))
+    'bad \\udcff'
+    """
+    try:
+        return text(str(exc))
+    except Exception as trouble:
+        return f"<str() raised {type(trouble).__name__}>"
+
+
+def error_text(exc: BaseException) -> str:
+    """``"Type: message"`` of an exception (see :func:`error_message`).
+
+    >>> error_text(KeyError("x"))
+    "KeyError: 'x'"
+    """
+    return f"{text(type(exc).__qualname__)}: {error_message(exc)}"
+
+
+def text_array(values: Sequence[Any]) -> pa.Array:
+    r"""A string column of ``values`` (``None`` stays null); see :func:`text` for the rest.
+
+    >>> text_array(["a", None, 7, "b\udcff"]).to_pylist()
+    ['a', None, '7', 'b\\udcff']
+    """
+    try:
+        return pa.array(values, pa.string())
+    except (pa.ArrowException, TypeError, ValueError):  # not str, or not UTF-8-encodable
+        return pa.array([None if v is None else text(v) for v in values], pa.string())
 
 
 def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
@@ -45,7 +106,7 @@ def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
         numbers = np.asarray(values, dtype=np.float64)
     except Exception:
         numbers = np.array([_as_float(v) for v in values], dtype=np.float64)
-    return _map_column(counts, valid, pa.array(keys, pa.string()), numbers)
+    return _map_column(counts, valid, text_array(keys), numbers)
 
 
 def terms_matrix_column(

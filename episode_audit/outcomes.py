@@ -27,7 +27,7 @@ import numpy as np
 from gymnasium.wrappers import TimeLimit
 
 from . import format as fmt
-from .columns import PLAIN_NUMBERS
+from .columns import PLAIN_NUMBERS, error_text, text
 from .errors import ConfigurationError
 
 __all__ = [
@@ -254,14 +254,14 @@ class EndingRules:
         else:
             label = info.get(self.failure_key)
         if isinstance(label, str) and label:
-            return label
+            return text(label)
         return fmt.UNLABELED
 
     def truncation_reason(self, info: Mapping[str, Any], *, time_limit_hit: bool) -> str:
         """The reason a truncated episode was cut off."""
         reason = info.get(self.truncation_reason_key)
         if isinstance(reason, str) and reason:
-            return reason
+            return text(reason)
         return fmt.REASON_TIME_LIMIT if time_limit_hit else fmt.REASON_EXTERNAL
 
     def classify(
@@ -276,6 +276,37 @@ class EndingRules:
         if truncated:
             return Ending(fmt.OUTCOME_TRUNCATED, None, reason)
         raise ConfigurationError("classify() needs terminated or truncated to be set")
+
+    def classify_or_note(
+        self, terminated: bool, truncated: bool, info: Any, *, time_limit_hit: bool
+    ) -> tuple[Ending, str | None]:
+        """:meth:`classify` and ``None``, or the ending by the flags alone and why.
+
+        The second is for a final ``info`` that cannot be read: not a mapping, a success
+        value whose truth is ambiguous, a ``success_fn`` that raises.
+
+        The recorder and replay both classify this way, so neither raises over an env's info.
+
+        >>> import numpy as np
+        >>> ending, why = EndingRules().classify_or_note(
+        ...     True, False, {"success": np.ones(2)}, time_limit_hit=False
+        ... )
+        >>> ending.outcome, ending.failure_label, why[:40]
+        ('failure', 'unlabeled', 'ValueError: The truth value of an array ')
+        """
+        try:
+            if not isinstance(info, Mapping):
+                raise TypeError(f"info is a {type(info).__name__}, not a dict")
+            return self.classify(terminated, truncated, info, time_limit_hit=time_limit_hit), None
+        except Exception as exc:
+            why = error_text(exc)
+        # by the flags alone: no key lookups, no user functions
+        reason = None
+        if truncated:
+            reason = fmt.REASON_TIME_LIMIT if time_limit_hit else fmt.REASON_EXTERNAL
+        if terminated:
+            return Ending(fmt.OUTCOME_FAILURE, fmt.UNLABELED, reason), why
+        return Ending(fmt.OUTCOME_TRUNCATED, None, reason), why
 
     def describe(self) -> dict[str, Any]:
         """A JSON-able description for the run metadata."""

@@ -26,7 +26,15 @@ from gymnasium.envs.registration import EnvSpec
 from .outcomes import EndingRules, RewardTerms, TermsFn, find_time_limit
 from .seeding import capture_rng_state
 from .spaces import codec_for, describe_space
-from .streams import DEFAULT_BLOCK_STEPS, EvidenceFile, RecorderSettings, library_versions, run_info
+from .streams import (
+    DEFAULT_BLOCK_STEPS,
+    EvidenceFile,
+    RecorderSettings,
+    library_versions,
+    note,
+    run_info,
+    short,
+)
 
 __all__ = ["RecordEvidence", "library_versions"]
 
@@ -147,20 +155,32 @@ class RecordEvidence(
         file = self._file
         file.check_open()
         stream = self._stream
-        stream.end_open()
-        rng_state = capture_rng_state(self._unwrapped) if seed is None else None
         notes: list[str] = []
-        episode = stream.begin(seed, options, rng_state, notes)
+        episode = None
         try:
-            obs, info = self.env.reset(seed=seed, options=options)
+            stream.end_open()
+            rng_state = capture_rng_state(self._unwrapped) if seed is None else None
+            episode = stream.begin(seed, options, rng_state, notes)
+        except Exception as exc:  # never break the training loop over recording trouble
+            file.trouble(exc)
+        try:
+            result = self.env.reset(seed=seed, options=options)
         except Exception as exc:
-            stream.end_error(exc, "reset")
-            file.flush()
+            self._on_error(exc, "reset")
             raise
-        stream.record_reset(episode, obs, info, notes)
-        if file.due():
-            file.flush()
-        return obs, info
+        try:
+            try:
+                obs, info = result
+            except Exception:
+                notes.append(note("reset_result_invalid", f"reset() returned {short(result)}"))
+                obs, info = None, {}
+            if episode is not None:
+                stream.record_reset(episode, obs, info, notes)
+            if file.due():
+                file.auto_flush()
+        except Exception as exc:
+            file.trouble(exc)
+        return result
 
     def step(
         self, action: gym.core.ActType
@@ -171,14 +191,18 @@ class RecordEvidence(
         try:
             result = self.env.step(action)
         except Exception as exc:
-            self._on_step_error(exc)
+            self._on_error(exc, "step")
             raise
         self._record_step(action, result)
         return result
 
-    def _on_step_error(self, exc: Exception) -> None:
+    def _on_error(self, exc: Exception, during: str) -> None:
+        """The env raised ``exc``: end the episode as ``error``.
+
+        The loop then sees the env's own error, never one of the recorder's.
+        """
         try:
-            self._stream.end_error(exc, "step")
+            self._stream.end_error(exc, during)
             self._file.flush()
         except Exception as trouble:
             self._file.trouble(trouble)

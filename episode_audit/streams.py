@@ -40,7 +40,7 @@ from gymnasium.wrappers import TimeLimit
 
 from . import format as fmt
 from ._version import __version__
-from .columns import TERMS_TYPE, terms_column
+from .columns import TERMS_TYPE, error_message, terms_column, text, text_array
 from .errors import ConfigurationError, RecorderError
 from .outcomes import EndingRules, RewardTerms, TermsFn, time_limit_hit
 from .records import EPISODE_ARROW_SCHEMA, EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
@@ -77,9 +77,12 @@ def library_versions() -> dict[str, str]:
 
 
 def short(value: Any) -> str:
-    """``repr(value)``, cut to 80 characters (for notes and messages)."""
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
+    """``repr(value)``, cut to 80 characters (for notes and messages); never raises."""
+    try:
+        shown = repr(value)
+    except Exception as exc:
+        shown = f"<{type(value).__name__}: repr() raised {type(exc).__name__}>"
+    return shown if len(shown) <= 80 else shown[:77] + "..."
 
 
 def note(code: str, message: str) -> str:
@@ -338,16 +341,19 @@ def _info_column(
     for row, data in info.items():
         try:
             values[row] = to_json(data).decode()
-        except (TypeError, ValueError):
-            safe = {}
+        except Exception:  # TypeError, ValueError, RecursionError (a cycle), a raising __str__
+            safe: dict[str, Any] = {}
             for key, value in data.items():
+                name = key if isinstance(key, str) else short(key)
                 try:
                     to_json(value)
-                    safe[key] = to_jsonable(value)
-                except (TypeError, ValueError):
-                    safe[key] = f"<unserializable {type(value).__name__}: {short(value)}>"
+                    safe[name] = to_jsonable(value)
+                except Exception:
+                    safe[name] = f"<unserializable {type(value).__name__}: {short(value)}>"
                     notes.setdefault(row, []).append(
-                        note("info_unserializable", f"info[{key!r}] is a {type(value).__name__}")
+                        note(
+                            "info_unserializable", f"info[{short(key)}] is a {type(value).__name__}"
+                        )
                     )
             values[row] = to_json(safe).decode()
     return pa.array(values, pa.string())
@@ -629,6 +635,18 @@ class EvidenceFile:
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns
 
+    def auto_flush(self) -> None:
+        """:meth:`flush` because a block filled or ``flush_every_s`` passed.
+
+        This runs inside the training loop: a failure is the recorder's trouble (warned once),
+        never the loop's.
+        """
+        try:
+            self.flush()
+        except Exception as exc:
+            self.flush_at = self.clock() + self.flush_ns  # not again on every step
+            self.trouble(exc)
+
     def close(self) -> None:
         """End every open episode as ``incomplete``, flush, and finish the file.
 
@@ -880,8 +898,8 @@ class Stream:
         if error is not None:
             exc, during = error
             ending["error"] = {
-                "type": type(exc).__qualname__,
-                "message": str(exc)[:2000],
+                "type": text(type(exc).__qualname__),
+                "message": error_message(exc)[:2000],
                 "during": during,
             }
             ending["error_ns"] = self.file.clock()
@@ -944,7 +962,7 @@ class Stream:
         if not running:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
         if row + 1 >= self._block_steps or now >= self.file.flush_at:
-            self.file.flush()
+            self.file.auto_flush()
 
     def _plan_terms(self, keys: tuple[Any, ...]) -> None:
         """Say how the terms of infos with these keys are read, until the keys change."""
@@ -1058,7 +1076,7 @@ class Stream:
                 info if isinstance(info, Mapping) else {},
             )
         if len(block.times) >= self._block_steps or now >= file.flush_at:
-            file.flush()
+            file.auto_flush()
 
     def _limit_hit(self, block: _Block) -> bool:
         if self._time_limit is not None:
@@ -1076,9 +1094,17 @@ class Stream:
         truncated: bool,
         info: Mapping[str, Any],
     ) -> None:
-        ending = self._rules.classify(
+        ending, why = self._rules.classify_or_note(
             bool(terminated), bool(truncated), info, time_limit_hit=self._limit_hit(block)
         )
+        if why is not None:  # the ending by the flags alone; say why
+            unreadable = note("ending_unreadable", why)
+            row_notes = block.notes.get(row)
+            if row_notes is None:
+                block.notes[row] = [unreadable]
+                episode.notes += 1
+            else:
+                row_notes.append(unreadable)
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
         block.flags[row] = (bool(terminated), bool(truncated))
@@ -1243,11 +1269,7 @@ def _apply_block(
     counts = np.frombuffer(block.term_counts, dtype=np.int64)
     values = np.frombuffer(block.term_vals, dtype=np.float64)
     keys = block.term_keys
-    try:
-        key_array = pa.array(keys, pa.string())
-    except (pa.ArrowException, TypeError, ValueError):
-        keys = [k if isinstance(k, str) else str(k) for k in keys]
-        key_array = pa.array(keys, pa.string())
+    key_array = text_array(keys)  # non-str names str()-ed, lone surrogates escaped
     per_value = np.repeat(rows, counts)
     keep = counted[per_value]
     totals = (

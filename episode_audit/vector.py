@@ -389,9 +389,12 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         try:
             obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
         except Exception as exc:
-            for i in indices:
-                self._begin_failed(i, seeds[i], recorded_options, states.get(i), exc)
-            file.flush()
+            try:
+                for i in indices:
+                    self._begin_failed(i, seeds[i], recorded_options, states.get(i), exc)
+                file.flush()
+            except Exception as trouble:  # the loop sees the env's error, not the recorder's
+                file.trouble(trouble)
             raise
         try:
             rows = list(iterate(self._obs_space, obs))
@@ -511,7 +514,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), _EMPTY)
         self._since_flush += 1
         if self._since_flush >= self._block_steps or now >= file.flush_at:
-            file.flush()
+            file.auto_flush()
         elif self._p_len >= _BATCH_STEPS:
             self._drain()
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from episode_audit import RecordEvidence, check, open_evidence
+from episode_audit import EndingRules, RecordEvidence, check, open_evidence
 from episode_audit.check import Finding
 from tests.envs import ScriptedEnv
 
@@ -538,3 +538,174 @@ def test_action_outside_its_space_is_kept_and_flagged(tmp_path: Path) -> None:
     assert_valid(path)
     (episode,) = open_evidence(path).episodes().to_pylist()
     assert (episode["outcome"], episode["error_type"]) == ("error", "AssertionError")
+
+
+# ------------------------------------------------------------- text UTF-8 cannot encode, odd infos
+
+SURROGATE = "\udcff"  # what os.fsdecode makes of a byte that is not UTF-8
+
+
+@pytest.mark.parametrize("where", ["failure", "truncation_reason", "term"])
+def test_text_utf8_cannot_encode_is_stored_escaped_and_nothing_is_lost(
+    tmp_path: Path, where: str
+) -> None:
+    bad = f"hit{SURROGATE}"
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        end = env.t == 3
+        info: dict[str, Any] = {}
+        if end and where == "failure":
+            info = {"failure": bad}
+        elif end and where == "truncation_reason":
+            info = {"truncation_reason": bad}
+        elif where == "term":
+            info = {"reward_terms": {bad: 1.0}}
+        return (
+            ZEROS,
+            1.0,
+            end and where != "truncation_reason",
+            end and where == "truncation_reason",
+            info,
+        )
+
+    path = tmp_path / "text.mcap"
+    with scripted(path, step, block_steps=2) as env:  # a flush every other step
+        results = loop(env, episodes=3)
+    assert len(results) == 9
+    assert_valid(path)
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [e["length"] for e in episodes] == [3, 3, 3]
+    escaped = "hit\\udcff"
+    if where == "failure":
+        assert [e["failure_label"] for e in episodes] == [escaped] * 3
+    elif where == "truncation_reason":
+        assert [e["truncation_reason"] for e in episodes] == [escaped] * 3
+    else:
+        assert [e["term_totals"] for e in episodes] == [[(escaped, 3.0)]] * 3
+    assert check([path]).steps == 9
+
+
+def test_an_env_error_whose_message_utf8_cannot_encode_reaches_the_loop_itself(
+    tmp_path: Path,
+) -> None:
+    class Unprintable(Exception):
+        def __str__(self) -> str:
+            raise RuntimeError("no str")
+
+    errors = [ValueError(f"cannot load level-{SURROGATE}.json"), Unprintable()]
+
+    def reset(env: ScriptedEnv) -> tuple[Any, ...]:
+        if env.np_random_seed in (0, 1):
+            raise errors[env.np_random_seed]
+        return ZEROS, {}
+
+    path = tmp_path / "reset.mcap"
+    with scripted(path, None, reset) as env:
+        for seed, error in enumerate(errors):
+            with pytest.raises(type(error)) as raised:
+                env.reset(seed=seed)
+            assert raised.value is error
+    assert_valid(path)
+    records = open_evidence(path).episodes().to_pylist()
+    assert [
+        (e["outcome"], e["error_type"].rpartition(".")[2], e["error_message"]) for e in records
+    ] == [
+        ("error", "ValueError", "cannot load level-\\udcff.json"),
+        ("error", "Unprintable", "<str() raised RuntimeError>"),
+    ]
+
+
+@pytest.mark.parametrize(
+    "success", [np.array([True, False]), "fn"], ids=["ambiguous_array", "raising_success_fn"]
+)
+def test_an_unreadable_success_value_ends_the_episode_by_its_flags_and_is_noted(
+    tmp_path: Path, success: Any
+) -> None:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        info = {} if isinstance(success, str) else {"success": success}
+        return ZEROS, 1.0, env.t == 3, False, info
+
+    def broken(info: Any) -> bool:
+        raise KeyError("goal")
+
+    kwargs = {"ending_rules": EndingRules(success_fn=broken)} if isinstance(success, str) else {}
+    path = tmp_path / "success.mcap"
+    with scripted(path, step, **kwargs) as env:
+        assert len(loop(env, episodes=2)) == 6
+    assert_valid(path)
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["outcome"], e["failure_label"], e["length"]) for e in episodes] == [
+        ("failure", "unlabeled", 3)
+    ] * 2
+    assert [e["notes"] for e in episodes] == [1, 1]
+    noted = findings(path, "recorder_note:ending_unreadable")
+    why = "The truth value of an array" if not kwargs else "KeyError: 'goal'"
+    assert [(f.episode, f.step) for f in noted] == [(0, 2), (1, 2)]
+    assert all(why in f.message for f in noted)
+
+
+@pytest.mark.parametrize("shape", ["cycle", "deep", "bad_repr_key"])
+def test_an_info_value_json_cannot_hold_is_noted_when_info_is_kept(
+    tmp_path: Path, shape: str
+) -> None:
+    class BadRepr:
+        def __repr__(self) -> str:
+            raise RuntimeError("no repr")
+
+        def __hash__(self) -> int:
+            return 1
+
+    def value() -> Any:
+        if shape == "cycle":
+            node: dict[str, Any] = {"name": "root"}
+            node["self"] = node
+            return node
+        if shape == "deep":
+            deep: list[Any] = []
+            for _ in range(5000):
+                deep = [deep]
+            return deep
+        return {BadRepr(): 1}
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        info = {"t": env.t, "odd": value()} if env.t == 2 else {"t": env.t}
+        return ZEROS, 1.0, env.t == 3, False, info
+
+    path = tmp_path / "info.mcap"
+    with scripted(path, step, info_keys="all", block_steps=2) as env:
+        assert len(loop(env, episodes=3)) == 9
+    assert_valid(path)
+    assert [e["length"] for e in open_evidence(path).episodes().to_pylist()] == [3, 3, 3]
+    assert len(findings(path, "recorder_note:info_unserializable")) == 3  # one per episode
+
+
+def test_a_reset_that_returns_no_obs_info_pair_is_passed_through_and_noted(
+    tmp_path: Path,
+) -> None:
+    extra = (ZEROS, {}, "extra")
+    path = tmp_path / "reset.mcap"
+    with scripted(path, None, lambda env: extra) as env:
+        assert env.reset(seed=0) is extra
+        env.step(0)
+    assert_valid(path)
+    (finding,) = findings(path, "recorder_note:reset_result_invalid")
+    assert "reset() returned (array([0., 0.], dtype=float32), {}, 'extra')" in finding.message
+
+
+def test_a_flush_that_fails_mid_loop_is_warned_once_and_never_reaches_the_loop(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Fault injection: the disk fills up after the file was created."""
+    from episode_audit.writer import EvidenceWriter
+
+    def full(*args: Any, **kwargs: Any) -> int:
+        raise OSError(28, "No space left on device")
+
+    env = scripted(tmp_path / "full.mcap", None, block_steps=2)
+    monkeypatch.setattr(EvidenceWriter, "write_batch", full)
+    with pytest.warns(RuntimeWarning, match=r"full\.mcap failed \(OSError: .*No space left") as w:
+        assert len(loop(env, episodes=3)) == 12
+    assert len(w) == 1
+    monkeypatch.undo()
+    env.close()
+    assert open_evidence(tmp_path / "full.mcap").finished
