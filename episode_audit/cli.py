@@ -1,7 +1,8 @@
 """The ``episode-audit`` command: a thin Typer layer over the library.
 
-Exit codes (as linters use them): 0 clean, 1 findings / divergence / gate missed,
-2 usage error or unreadable input. Expected failures print one line on stderr, never a traceback.
+Exit codes (as linters use them): 0 clean, 1 findings / divergence / gate missed / data
+lost (recover), 2 usage error or unreadable input. Expected failures print one line on
+stderr, never a traceback.
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ app = typer.Typer(
     help=(
         "Record, replay and audit reinforcement-learning episodes kept as MCAP evidence files."
         "\n\n"
-        "Exit codes: 0 clean, 1 findings / divergence / gate missed, 2 usage error or "
-        "unreadable input."
+        "Exit codes: 0 clean, 1 findings / divergence / gate missed / data lost (recover), "
+        "2 usage error or unreadable input."
     ),
     no_args_is_help=True,
     add_completion=False,

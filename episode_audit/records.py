@@ -246,7 +246,10 @@ EPISODE_SCHEMA: dict[str, Any] = {
                 "during": {"enum": ["reset", "step"]},
             },
         },
-        "notes": {"type": "integer", "description": "steps of this episode with recorder notes"},
+        "notes": {
+            "type": "integer",
+            "description": "rows of this episode (reset and steps) with recorder notes",
+        },
         "game": {
             "type": ["integer", "null"],
             "description": "multi-agent files: the joint reset (game) of this agent-episode",

@@ -17,6 +17,7 @@ from rich.text import Text
 from . import format as fmt
 from .errors import EvidenceError
 from .reader import Evidence
+from .records import from_json, to_jsonable
 from .render import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
 
 __all__ = ["episode_output", "episode_rows", "summarize", "summary_output"]
@@ -128,9 +129,14 @@ def _cell(value: Any) -> str:
 
 
 def episode_rows(
-    ev: Evidence, index: int, start: int | None, stop: int | None
+    ev: Evidence, index: int, start: int | None, stop: int | None, *, plain: bool = False
 ) -> tuple[list[str], list[list[Any]], dict[str, Any]]:
-    """Headers, rows (step, action, reward, each term, flags, outcome/label, notes), record."""
+    """Headers, rows (step, action, reward, each term, flags, outcome/label, notes), record.
+
+    Cells are display text; with ``plain``, the values themselves (JSON-able: numbers, the
+    action as a list, a term absent from a step as ``None``, notes as a list).
+    """
+    cell = _plain if plain else _cell
     episode = ev.episode(index)
     steps = episode.steps
     n = steps.num_rows
@@ -164,26 +170,35 @@ def episode_rows(
         outcome = row[fmt.COL_OUTCOME]
         if outcome and row[fmt.COL_LABEL]:
             outcome = f"{outcome} ({row[fmt.COL_LABEL]})"
+        notes = row[fmt.COL_NOTES]
         rows.append(
             [
                 row[fmt.COL_STEP],
-                _cell(action),
-                _cell(row[fmt.COL_REWARD]),
-                *(_cell(term.get(name)) for name in names),
+                cell(action),
+                cell(row[fmt.COL_REWARD]),
+                *(cell(term.get(name)) for name in names),
                 row[fmt.COL_TERMINATED],
                 row[fmt.COL_TRUNCATED],
-                outcome or "",
-                _cell(row[fmt.COL_NOTES]) if row[fmt.COL_NOTES] else "",
+                outcome or ("" if not plain else None),
+                (from_json(notes, "notes") if plain else _cell(notes))
+                if notes
+                else ("" if not plain else []),
             ]
         )
     return headers, rows, episode.record
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, bytes):
+        return value.hex()
+    return to_jsonable(value)
 
 
 def episode_output(
     ev: Evidence, index: int, start: int | None, stop: int | None, output: OutputFormat
 ) -> RenderableType | str:
     """Render one episode's steps (optionally a slice of them)."""
-    headers, rows, record = episode_rows(ev, index, start, stop)
+    headers, rows, record = episode_rows(ev, index, start, stop, plain=output == "json")
     outcome = record["outcome"]
     label = record.get("failure_label") or record.get("truncation_reason")
     title = (
@@ -192,6 +207,7 @@ def episode_output(
         f"seed {record['seed'] if record['seed'] is not None else '-'}"
     )
     if output == "json":
+        record = {**record, "term_totals": dict(record.get("term_totals") or [])}
         return to_json({"episode": record, "columns": headers, "rows": rows})
     if output == "markdown":
         return f"### {markdown_text(title)}\n\n" + markdown_table(headers, rows) + "\n"

@@ -63,7 +63,7 @@ class EvidenceWriter:
         except FileExistsError:
             raise ConfigurationError(
                 f"{self.path}: file exists; evidence is never overwritten — "
-                "choose another path or pass overwrite=True"
+                "choose another path, or pass overwrite=True (--overwrite on the command line)"
             ) from None
         except OSError as exc:
             raise ConfigurationError(f"{self.path}: cannot create: {exc.strerror}") from None

@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from episode_audit import RecordEvidence
+from episode_audit import RecordEvidence, open_evidence
 from episode_audit.cli import app
 
 REPO = Path(__file__).resolve().parents[1]
@@ -177,6 +177,15 @@ def test_show_summary_and_episode() -> None:
     data = json.loads(out)
     assert [row[0] for row in data["rows"]] == list(range(115, 120))
     assert data["rows"][-1][data["columns"].index("outcome")] == "truncated (time_limit)"
+    # JSON holds the values themselves, as the file does (not the table's display text)
+    steps = open_evidence("fixtures/clean.mcap").episode(4).steps.slice(115).to_pylist()
+    for row, step in zip(data["rows"], steps, strict=True):
+        cells = dict(zip(data["columns"], row, strict=True))
+        assert cells["reward"] == step["reward"] and isinstance(cells["reward"], float)
+        assert {k: cells[k] for k in dict(step["terms"])} == dict(step["terms"])
+        assert cells["notes"] == [] and cells["terminated"] is step["terminated"]
+    record = open_evidence("fixtures/clean.mcap").episode(4).record
+    assert data["episode"]["term_totals"] == dict(record["term_totals"])
     code, out, _ = run("show", "fixtures/clean.mcap", "--episode", "0", "--steps", "0:3")
     assert code == 0 and "shaping" in out
     code, _, err = run("show", "fixtures/clean.mcap", "--steps", "0:3")
