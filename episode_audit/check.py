@@ -67,6 +67,8 @@ code                             severity  meaning
                                            file whose vector env had no sub-envs
 ``missing_env_spec``             warning   the file has no environment spec to rebuild the env
 ``format_version``               note      the file was written with an older format version
+``file_unreadable``              error     (the CLI only) an input that could not be read at
+                                           all, so a JSON result never reads as ``ok`` over it
 ``terms_keys_changed``           note      the set of reward-term names changed from one step to
                                            the next within an episode (one per file: how many
                                            episodes, the first change and the names added and

@@ -8,6 +8,7 @@ stderr, never a traceback.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -58,18 +59,29 @@ def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
 
 
 def collect(paths: Sequence[Path]) -> list[Path]:
-    """Files as given and ``*.mcap`` files under directories (recursively, sorted)."""
+    """Files as given and ``*.mcap`` files under directories (recursively, sorted).
+
+    A file reached twice (named twice, or also found in a directory given) counts once.
+    """
     out: list[Path] = []
+    seen: set[Path] = set()
     for path in paths:
-        if path.is_dir():
-            found = sorted(p for p in path.rglob("*.mcap") if p.is_file())
-            if not found:
-                fail(f"{path}: no *.mcap files in this directory")
-            out.extend(found)
-        elif path.exists():
-            out.append(path)
-        else:
-            fail(f"{path}: no such file or directory")
+        try:
+            if path.is_dir():
+                found = sorted(p for p in path.rglob("*.mcap") if p.is_file())
+                if not found:
+                    fail(f"{path}: no *.mcap files in this directory")
+            elif path.exists():
+                found = [path]
+            else:
+                fail(f"{path}: no such file or directory")
+            for file in found:
+                real = file.resolve()
+                if real not in seen:
+                    seen.add(real)
+                    out.append(file)
+        except OSError as exc:  # e.g. a directory on the way without search permission
+            fail(f"{path}: cannot read: {exc.strerror or exc}")
     return out
 
 
@@ -161,6 +173,12 @@ def _readable(
     return readable, unreadable
 
 
+def _episode_index(index: int) -> int:
+    if not 0 <= index < 2**63:
+        fail(f"--episode: expected an episode index >= 0, got {index}")
+    return index
+
+
 def _steps_total(paths: Sequence[Path]) -> int | None:
     from .reader import open_evidence
 
@@ -193,7 +211,7 @@ def check(
     output: FormatOption = "table",
 ) -> None:
     """Check integrity and consistency: terms sum to reward, endings labelled, nothing missing."""
-    from .check import CheckResult
+    from .check import CheckResult, Finding
     from .check import check as run_check
     from .render import check_output
 
@@ -207,9 +225,16 @@ def check(
                 result = run_check(
                     [path], atol=atol, rtol=rtol, require_terms=require_terms, progress=advance
                 )
+            except ConfigurationError as exc:
+                fail(str(exc))
             except EpisodeAuditError as exc:
                 _error_line(exc)
                 unreadable += 1
+                # in the result too, so a JSON consumer does not read "ok" over a skipped file
+                merged.findings.append(
+                    Finding("error", "file_unreadable", str(exc), str(path), None, None)
+                )
+                merged.files.append(str(path))
                 continue
             merged.findings.extend(result.findings)
             merged.files.extend(result.files)
@@ -257,6 +282,10 @@ def replay(
     from .replay import replay as run_replay
 
     fmt = _format(output)
+    if not (math.isfinite(atol) and atol >= 0):
+        fail(f"--atol: expected a finite number >= 0, got {atol}")
+    for index in episode or []:
+        _episode_index(index)
     files = collect(paths)
     merged = ReplayResult()
     unreadable = 0
@@ -281,6 +310,13 @@ def replay(
             merged.episodes.extend(result.episodes)
             merged.version_differences.update(result.version_differences)
     emit(replay_output(merged, fmt))
+    missing = sorted(set(episode or ()) - {e.episode for e in merged.episodes})
+    if missing and not unreadable:
+        listed = ", ".join(map(str, missing))
+        fail(
+            f"--episode: no episode {listed} in the file(s) given "
+            "(`episode-audit show FILE` says how many there are)"
+        )
     if unreadable:
         raise typer.Exit(EXIT_USAGE)
     if not merged.ok:
@@ -301,6 +337,8 @@ def _parse_failure_rates(values: Sequence[str]) -> tuple[float | None, dict[str,
             fail(f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r}")
         if not 0.0 <= number <= 1.0:
             fail(f"--max-failure-rate: expected a rate between 0 and 1, got {rate!r}")
+        if sep and not label:
+            fail(f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r} (no label)")
         if sep:
             by_label[label] = number
         else:
@@ -370,6 +408,12 @@ def report(
     readable, unreadable = _readable(collect(paths), Evidence.episodes)
     if not readable:
         raise typer.Exit(EXIT_USAGE)
+    if games:  # a file without games would count nothing, and every gate would pass
+        for path, ev in readable:
+            kind = str((ev.run.layout or {}).get("kind", "single"))
+            if not kind.startswith("pettingzoo"):
+                what = "single-env" if kind == "single" else kind
+                fail(f"--games counts PettingZoo games; {path} is a {what} file (drop --games)")
     try:
         result = report_tables(
             [(str(path), ev) for path, ev in readable], by=by, gates=gates, games=games
@@ -416,6 +460,8 @@ def show(
     from .show import episode_output, summary_output
 
     fmt = _format(output)
+    if episode is not None:
+        _episode_index(episode)
     start, stop = _parse_slice(steps)
     if steps is not None and episode is None:
         fail("--steps needs --episode N")
@@ -457,6 +503,15 @@ def export(
     except EpisodeAuditError as exc:
         fail(str(exc))
     unreadable += len(result.failed)
+    for path, ev in readable:
+        if not ev.finished and path not in result.failed:
+            why = ev.torn or "no run-end record"
+            _stderr().print(
+                f"episode-audit: note: {safe(str(path))} is unfinished ({safe(why)}): "
+                "exported what it holds, its cut-off episode as incomplete",
+                markup=False,
+                soft_wrap=True,
+            )
     emit(
         f"wrote {result.episodes} episodes to {result.episodes_file} and {result.steps} steps "
         f"to {len(result.steps_files)} *.steps.parquet file(s) in {out}"
@@ -570,5 +625,18 @@ def record(
 
 
 def main() -> None:
-    """Console-script entry point."""
-    app()
+    """Console-script entry point.
+
+    An operating-system error the commands do not name themselves (a full disk, a permission
+    denied on an output path) is one line on stderr and exit 2, not a traceback.
+    """
+    try:
+        app()
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        _stderr().print(
+            f"episode-audit: error: {safe(where + (exc.strerror or str(exc)))}",
+            markup=False,
+            soft_wrap=True,
+        )
+        raise SystemExit(EXIT_USAGE) from None

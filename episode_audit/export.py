@@ -80,7 +80,12 @@ def export(
     True
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise ConfigurationError(f"{out}: not a directory; --out names the directory to write to")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigurationError(f"{out}: cannot create the directory: {exc.strerror}") from None
     result = ExportResult(out / "episodes.parquet")
     targets: list[Path] = [result.episodes_file]
     sources = [Path(p) for p in paths]

@@ -1942,7 +1942,7 @@ def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evi
             zlib.error,
             OSError,
             MemoryError,
-        ) as exc:
+        ):
             if start >= size and footer:  # the closing magic bytes were never written
                 torn = f"ends at byte {size} without the closing magic: the writer did not finish"
                 break
@@ -1950,11 +1950,14 @@ def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evi
                 break
             torn = (
                 f"torn at byte {start} of {size}: the last {size - start} bytes "
-                f"({type(exc).__name__}) were dropped"
+                "(a record cut short) were dropped"
             )
             break
-        except Exception as exc:
-            torn = f"torn at byte {start} of {size}: {type(exc).__name__}; the rest was dropped"
+        except Exception:
+            torn = (
+                f"torn at byte {start} of {size}: the record there is cut short or garbled; "
+                "the rest was dropped"
+            )
             break
         good_end = f.tell()
         if isinstance(record, Header):

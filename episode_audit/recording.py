@@ -16,13 +16,18 @@ from typing import Any
 
 import gymnasium as gym
 
-from .errors import ConfigurationError
+from .columns import error_text
+from .errors import ConfigurationError, RecorderError
 from .recorder import RecordEvidence
 from .replay import load_callable
 
-__all__ = ["RecordSummary", "record_episodes"]
+__all__ = ["RecordSummary", "RecordingError", "record_episodes"]
 
 Policy = Callable[[Any], Any]
+
+
+class RecordingError(RecorderError):
+    """The env or the policy raised while recording (the file keeps the episode as ``error``)."""
 
 
 @dataclass
@@ -39,6 +44,19 @@ class RecordSummary:
         return f"recorded {self.episodes} episodes ({self.steps} steps) to {self.path}: {counts}"
 
 
+def import_modules(modules: Sequence[str]) -> None:
+    """Import each module the user named with ``--import`` (e.g. one that registers envs).
+
+    Anything that goes wrong — no such module, an empty name, a module that raises on import —
+    is a :class:`~episode_audit.errors.ConfigurationError` naming the module.
+    """
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except Exception as exc:
+            raise ConfigurationError(f"--import {module!r}: {error_text(exc)}") from None
+
+
 def _policy(name: str, env: gym.Env[Any, Any], seed: int) -> Policy:
     if name == "random":
         space = env.action_space
@@ -50,7 +68,12 @@ def _policy(name: str, env: gym.Env[Any, Any], seed: int) -> Policy:
         return make_policy(name, env, seed=seed)
     if ":" in name:
         factory = load_callable(name)
-        policy = factory(env, seed)
+        try:
+            policy = factory(env, seed)
+        except Exception as exc:
+            raise ConfigurationError(
+                f"--policy {name}: the factory raised {error_text(exc)}"
+            ) from None
         if not callable(policy):
             raise ConfigurationError(f"--policy {name}: expected a callable obs -> action")
         return policy  # type: ignore[no-any-return]
@@ -81,13 +104,18 @@ def record_episodes(
     >>> print(summary)  # doctest: +ELLIPSIS
     recorded 2 episodes (10 steps) to ...cp.mcap: truncated 2
     """
-    for module in imports:
-        try:
-            importlib.import_module(module)
-        except ImportError as exc:
-            raise ConfigurationError(f"--import {module}: {exc}") from None
+    import_modules(imports)
     if episodes < 1:
         raise ConfigurationError(f"--episodes: expected at least 1, got {episodes}")
+    if seed < 0 or seed + episodes > 2**63:
+        raise ConfigurationError(
+            f"--seed: expected 0 <= seed and seed + episodes <= 2**63 (seeds are stored as "
+            f"int64), got {seed}"
+        )
+    if max_episode_steps is not None and max_episode_steps < 1:
+        raise ConfigurationError(
+            f"--max-episode-steps: expected at least 1, got {max_episode_steps}"
+        )
     kwargs = dict(env_kwargs or {})
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = max_episode_steps
@@ -95,23 +123,36 @@ def record_episodes(
         env = gym.make(env_id, **kwargs)
     except gym.error.Error as exc:
         raise ConfigurationError(f"cannot make {env_id!r}: {exc}") from None
-    except TypeError as exc:
-        raise ConfigurationError(f"cannot make {env_id!r} with {kwargs}: {exc}") from None
+    except Exception as exc:  # the env's own constructor: a bad kwarg, a missing file, ...
+        raise ConfigurationError(
+            f"cannot make {env_id!r} with {kwargs}: {error_text(exc)}"
+        ) from None
+    # Everything that can be wrong with the arguments is found before the file is touched:
+    # a usage error never leaves a file behind, nor replaces one (--overwrite).
+    try:
+        act = _policy(policy, env, seed)
+    except BaseException:
+        env.close()
+        raise
     run_tags = {"policy": policy, **(tags or {})}
     outcomes: Counter[str] = Counter()
     steps = 0
     with RecordEvidence(env, out, tags=run_tags, overwrite=overwrite) as recorder:
-        act = _policy(policy, env, seed)
+        path = str(recorder.path)
         for i in range(episodes):
-            obs, _ = recorder.reset(seed=seed + i)
-            while True:
-                obs, _, terminated, truncated, _ = recorder.step(act(obs))
-                steps += 1
-                if terminated or truncated:
-                    break
+            try:
+                obs, _ = recorder.reset(seed=seed + i)
+                while True:
+                    obs, _, terminated, truncated, _ = recorder.step(act(obs))
+                    steps += 1
+                    if terminated or truncated:
+                        break
+            except Exception as exc:
+                raise RecordingError(
+                    f"episode {i}: {error_text(exc)} (the episode is recorded as error in {path})"
+                ) from exc
             if on_episode is not None:
                 on_episode()
-        path = str(recorder.path)
     from .reader import open_evidence
 
     outcomes.update(open_evidence(path).episodes().column("outcome").to_pylist())

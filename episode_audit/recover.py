@@ -299,6 +299,10 @@ def _check_paths(src: Path, dst: Path, overwrite: bool) -> None:
         )
     if dst.is_dir():
         raise ConfigurationError(f"{dst}: is a directory; give the output file's path")
+    if dst.exists() and not dst.is_file():
+        raise ConfigurationError(
+            f"{dst}: not a regular file (a device or a pipe); give the output file's path"
+        )
     if dst.exists() and not overwrite:
         raise ConfigurationError(
             f"{dst}: file exists; recovery never overwrites it — choose another path or pass "

@@ -265,3 +265,120 @@ def test_hostile_strings_print_literally(tmp_path: Path) -> None:
     _, out, _ = run("report", str(path), "--by", "label")
     assert "[red]x[/red]\\x1b[31m" in out
     assert "\x1b" not in out
+
+
+# ------------------------------------------------------------------- bad arguments (a CLI audit)
+
+
+def one_error_line(err: str, *needles: str) -> None:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("episode-audit: error: "), err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--policy", "nonsense"], "--policy: expected random, scripted, hacker"),
+        (["--policy", "scripted"], "for policy 'scripted', actually: CartPole-v1"),
+        (["--policy", "tests.factories:no_such"], "cannot load 'tests.factories:no_such'"),
+        (["--seed", "-1"], "--seed: expected 0 <= seed"),
+        (["--seed", str(2**64 - 1)], "--seed: expected 0 <= seed"),
+        (["--max-episode-steps", "0"], "--max-episode-steps: expected at least 1, got 0"),
+        (["--import", ""], "--import '': ValueError: Empty module name"),
+        (["--env-kwargs", '{"render_mode": 3}'], "cannot make 'CartPole-v1' with"),
+    ],
+)
+def test_a_record_usage_error_touches_no_file(
+    tmp_path: Path, args: list[str], message: str
+) -> None:
+    """Found before the file is opened: no file left behind, none replaced (--overwrite)."""
+    fresh = tmp_path / "fresh.mcap"
+    code, _, err = run("record", "CartPole-v1", "--out", str(fresh), "--episodes", "1", *args)
+    assert code == 2 and not fresh.exists()
+    one_error_line(err, message)
+    kept = shutil.copy(FIXTURES / "clean.mcap", tmp_path / "kept.mcap")
+    before = Path(kept).read_bytes()
+    code, _, _ = run("record", "CartPole-v1", "--out", str(kept), "--overwrite", *args)
+    assert code == 2 and Path(kept).read_bytes() == before
+
+
+def test_argument_values_outside_their_range_are_usage_errors(tmp_path: Path) -> None:
+    clean = "fixtures/clean.mcap"
+    huge = str(2**80)
+    for args, message in [
+        (["replay", clean, "--atol", "nan"], "--atol: expected a finite number >= 0, got nan"),
+        (["replay", clean, "--atol", "inf"], "--atol: expected a finite number >= 0, got inf"),
+        (["replay", clean, "-e", huge], f"--episode: expected an episode index >= 0, got {huge}"),
+        (["show", clean, "-e", huge], f"--episode: expected an episode index >= 0, got {huge}"),
+        (["check", clean, clean, "--atol", "-1"], "atol: expected a finite number >= 0"),
+        (["report", clean, "--max-failure-rate", "=0.1"], "got '=0.1' (no label)"),
+        (["report", clean, "--games"], "fixtures/clean.mcap is a single-env file (drop --games)"),
+        (["export", clean, "--out", clean], "clean.mcap: not a directory; --out names"),
+    ]:
+        code, out, err = run(*args)
+        assert code == 2, args
+        one_error_line(err, message)
+    # an episode index no file has: the (empty) result, then the error
+    code, out, err = run("replay", clean, "-e", "99")
+    assert code == 2 and "0 identical" in out
+    one_error_line(err, "--episode: no episode 99 in the file(s) given")
+
+
+def test_a_file_given_twice_counts_once(tmp_path: Path) -> None:
+    clean = FIXTURES / "clean.mcap"
+    (tmp_path / "d").mkdir()
+    shutil.copy(clean, tmp_path / "d" / "clean.mcap")
+    copy = tmp_path / "d" / "clean.mcap"
+    code, out, _ = run("report", str(copy), str(tmp_path / "d"), "--by", "all", "-f", "json")
+    assert code == 0
+    (group,) = json.loads(out)["groups"]
+    assert group["episodes"] == open_evidence(clean).episodes().num_rows
+    code, out, _ = run("check", str(copy), str(copy), "-f", "json")
+    assert json.loads(out)["files"] == [str(copy)]
+
+
+def test_check_json_names_an_unreadable_file_and_is_not_ok(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    code, out, err = run("check", "fixtures/clean.mcap", str(bad), "-f", "json")
+    assert code == 2
+    one_error_line(err, str(bad))
+    data = json.loads(out)
+    assert data["ok"] is False and data["files"] == ["fixtures/clean.mcap", str(bad)]
+    (finding,) = [f for f in data["findings"] if f["code"] == "file_unreadable"]
+    assert finding["severity"] == "error" and finding["file"] == str(bad)
+
+
+def test_export_says_an_input_is_unfinished(tmp_path: Path) -> None:
+    code, out, err = run("export", "fixtures/torn.mcap", "--out", str(tmp_path / "out"))
+    assert code == 0 and "wrote" in out
+    assert err.startswith("episode-audit: note: fixtures/torn.mcap is unfinished (")
+    assert "exported what it holds" in err
+
+
+def test_recover_refuses_to_replace_a_pipe(tmp_path: Path) -> None:
+    import os
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    code, _, err = run("recover", "fixtures/torn.mcap", "--out", str(fifo), "--overwrite")
+    assert code == 2 and fifo.is_fifo()
+    one_error_line(err, "fifo: not a regular file (a device or a pipe)")
+
+
+def test_an_os_error_no_command_names_is_one_line_and_exit_2(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from episode_audit import cli
+
+    def disk_full() -> None:
+        raise OSError(28, "No space left on device", "/data/out.mcap")
+
+    monkeypatch.setattr(cli, "app", disk_full)
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    one_error_line(err, "/data/out.mcap: No space left on device")

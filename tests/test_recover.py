@@ -317,8 +317,12 @@ def test_a_damaged_file_among_good_ones_costs_them_nothing(recorded: Path, tmp_p
         assert code == 2, command
         assert err.count("episode-audit: error:") == 1, command
         assert f"{inputs / 'b.mcap'}: chunk at byte {offset} is damaged" in err, command
-        if command == "check":
-            assert sorted(json.loads(out)["files"]) == good
+        if command == "check":  # the damaged file is there as a file_unreadable error
+            data = json.loads(out)
+            assert data["files"] == [good[0], str(inputs / "b.mcap"), good[1]]
+            assert [f["file"] for f in data["findings"] if f["code"] == "file_unreadable"] == [
+                str(inputs / "b.mcap")
+            ]
         elif command == "replay":
             assert sorted({e["file"] for e in json.loads(out)["episodes"]}) == good
         elif command == "report":

@@ -72,7 +72,7 @@ def make_policy(name: str, env: gym.Env[Any, Any], seed: int | None = None) -> P
     if policies is None:
         raise ConfigurationError(
             f"Expect an environment of one of the tasks {tuple(_POLICIES)} for policy {name!r}, "
-            f"actually: {env.unwrapped!r}"
+            f"actually: {env.spec.id if env.spec is not None else type(env.unwrapped).__name__}"
         )
     scripted, hacker = policies
     return hacker if name == "hacker" else scripted
