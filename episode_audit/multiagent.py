@@ -21,7 +21,10 @@ steps — what PettingZoo reported, never ``last()``'s cumulative reward summed 
 double counts). Observation, flags and info of the row are X's at its next turn. X's reset row
 is its observation at its first turn. Dead steps (``step(None)`` for a terminated/truncated X) are
 not actions: they close X's last row; replay performs them itself. Rewards X receives before its
-first action are added to its first row (noted ``reward_before_first_turn``).
+first action are added to its first row (noted ``reward_before_first_turn``). A ``step()`` that
+raises is no row (as for a Gymnasium env): the other agents' rows still open (actions that did
+complete) are closed with their state when it raised, and every open agent-episode of the game
+ends ``error``; agents that had no turn yet get no reset row.
 """
 
 from __future__ import annotations
@@ -217,10 +220,11 @@ class AECTurns:
     """Per-agent turn accounting of an AEC env (see the module docstring).
 
     Call :meth:`begin` after ``reset()``, :meth:`turn` just before each ``step(action)``,
-    :meth:`stepped` just after it and :meth:`finish` when the game is cut (next reset, close).
-    ``on_reset(agent, obs, info)`` is called at an agent's first turn; ``on_row(agent, action,
-    (obs, reward, terminated, truncated, info), notes)`` when one of its rows closes. The
-    recorder and the replay share this class, so they account turns identically.
+    :meth:`stepped` just after it (or :meth:`failed` if it raised) and :meth:`finish` when the
+    game is cut (next reset, close). ``on_reset(agent, obs, info)`` is called at an agent's first
+    turn; ``on_row(agent, action, (obs, reward, terminated, truncated, info), notes)`` when one of
+    its rows closes. The recorder and the replay share this class, so they account turns
+    identically.
     """
 
     def __init__(self, env: Any, on_reset: ResetFn, on_row: RowFn) -> None:
@@ -231,6 +235,7 @@ class AECTurns:
         self.early: dict[str, float] = {}  # rewards received before the first action
         self.started: set[str] = set()
         self.expected: list[str] = []
+        self.acting: str | None = None  # whose row the last turn() opened
 
     def begin(self, agents: Sequence[str]) -> None:
         """A new game began with ``agents``."""
@@ -238,6 +243,7 @@ class AECTurns:
         self.early = {}
         self.started = set()
         self.expected = list(agents)
+        self.acting = None
 
     def _start(self, agent: str) -> None:
         if agent in self.started:
@@ -263,12 +269,22 @@ class AECTurns:
             obs, term, trunc, info = None, False, False, {}
         self.on_row(agent, action, (obs, reward, term, trunc, info), notes)
 
-    def turn(self, action: Any) -> bool:
-        """Account for ``step(action)`` about to run; return whether it is a dead step."""
-        env = self.env
-        agent = env.agent_selection
+    def arrive(self) -> str:
+        """``agent_selection``'s turn has come: begin it (reset row), close its open row.
+
+        What :meth:`turn` does before the action; the replay calls it alone where the recorded
+        actions run out. Returns the agent.
+        """
+        agent: str = self.env.agent_selection
         self._start(agent)
         self._close(agent)
+        return agent
+
+    def turn(self, action: Any) -> bool:
+        """Account for ``step(action)`` about to run; return whether it is a dead step."""
+        self.acting = None
+        env = self.env
+        agent = self.arrive()
         dead = bool(env.terminations.get(agent, False) or env.truncations.get(agent, False))
         if not dead:
             notes: list[str] = []
@@ -282,7 +298,25 @@ class AECTurns:
                     )
                 )
             self.pending[agent] = [action, reward, notes]
+            self.acting = agent
         return dead
+
+    def failed(self) -> None:
+        """The ``step()`` accounted by the last :meth:`turn` raised: the game's turns are over.
+
+        Its action is no row (as a Gymnasium step that raises). The other open rows — actions
+        whose step did complete — are closed with the env's state now; agents that had no turn
+        get no reset row, and a later :meth:`finish` does nothing.
+        """
+        if self.acting is not None:
+            self.pending.pop(self.acting, None)
+        self.acting = None
+        self.expected = []
+        try:
+            for agent in list(self.pending):
+                self._close(agent)
+        finally:
+            self.pending = {}  # a row the env's state could not close is dropped, not kept
 
     def stepped(self) -> None:
         """Add the rewards the step just produced (``env.rewards``) to each agent's open row."""
@@ -799,6 +833,10 @@ class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
         try:
             self.env.step(action)
         except Exception as exc:
+            try:  # its action is no row; the other open rows close now, before the error
+                self._turns.failed()
+            except Exception as trouble:
+                rec.file.trouble(trouble)
             rec.error(exc, "step")
             raise
         try:

@@ -8,6 +8,21 @@ accounted exactly as the recorder did (:class:`~episode_audit.multiagent.AECTurn
 agent's episode is compared with its evidence: reset observation, observations, rewards,
 reward terms, ``terminated``, ``truncated``, length and outcome.
 
+Where the recorded actions run out, the replay stops at ``agent_selection``'s turn and closes
+the other agents' open rows (and begins those without a turn) with the env's state there, as
+the recorder did when the game was cut by ``reset()`` or ``close()``. Two kinds of games were
+not cut there:
+
+- a game cut off by a torn file (an agent-episode without an end record): the recording went
+  on, so those rows and reset rows were recorded at later turns, after an action the file does
+  not hold. They cannot be replayed: the episode is ``not_replayable`` (saying which step and
+  whose missing action), once everything before it compared identical;
+- a game whose ``step()`` raised (``error`` during ``step``): the recorder closed the open rows
+  with the env's state after the failed step, which the replay (not repeating that step, whose
+  action is no row) has only if the env left its state untouched. Such a row whose
+  observation, terms or flags differ makes its episode ``not_replayable``, saying so, never
+  ``diverged`` (its reward, summed over steps that completed, is compared as any other).
+
 How the env is built, safely:
 
 1. ``env_factory`` (``"module:callable"`` or a callable) given by the user; else
@@ -119,6 +134,16 @@ class _Game:
         self.reset: dict[str, Any] = {}
         self.rows: dict[str, list[tuple[Any, Any, float, bool, bool, Any]]] = {}
         self.crash: tuple[str | None, str] | None = None
+        # AEC: rows and reset rows made at real turns, before the game was cut (None: not cut)
+        self.turned: dict[str, int] | None = None
+        self.started: set[str] = set()
+        # AEC: (agent, its action index) where the recorded actions ran out
+        self.stopped: tuple[str, int] | None = None
+
+    def cut(self) -> None:
+        """Mark what was replayed so far as made at real turns; what follows closes the game."""
+        self.turned = {agent: len(rows) for agent, rows in self.rows.items()}
+        self.started = set(self.reset)
 
     def on_reset(self, agent: str, obs: Any, info: Any) -> None:
         self.reset.setdefault(str(agent), obs)
@@ -139,11 +164,13 @@ def _number(value: Any) -> float:
         return math.nan
 
 
-def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int) -> None:
+def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int, failed: bool) -> None:
+    """Drive an AEC game; ``failed``: the recorded game ended by a ``step()`` that raised."""
     from .multiagent import AECTurns
 
     turns = AECTurns(env, game.on_reset, game.on_row)
     turns.begin(list(env.agents))
+    taken: dict[str, int] = {}
     for _ in range(limit):
         if not env.agents:
             break
@@ -151,15 +178,24 @@ def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int) ->
         dead = env.terminations.get(agent, False) or env.truncations.get(agent, False)
         queue = queues.get(str(agent), [])
         if not dead and not queue:
-            break  # the recording stopped here
+            # the recording stopped here (or its next action was lost): the agent's turn came
+            turns.arrive()
+            game.stopped = (str(agent), taken.get(str(agent), 0))
+            break
         action = None if dead else queue.pop(0)
+        if not dead:
+            taken[str(agent)] = taken.get(str(agent), 0) + 1
         turns.turn(action)
         try:
             env.step(action)
         except Exception as exc:
             game.crash = (str(agent), f"{type(exc).__name__}: {exc}")
+            if failed:  # so did the recording (or at least its game ended by an error)
+                game.cut()
+                turns.failed()
             return
         turns.stepped()
+    game.cut()
     turns.finish()
 
 
@@ -316,12 +352,21 @@ def _replay_game(
     options = json.loads(first["options"]) if first.get("options") else None
     game = _Game()
     limit = sum(len(q) for q in queues.values()) + 2 * len(members) + 2
+    # how the recorded game ended, if not by its rules, a reset or close (see the docstring)
+    cut_kind: str | None = None
+    if any(r.get("ended") is False for r in members.values()):
+        cut_kind = _TORN
+    elif any(
+        r.get("outcome") == fmt.OUTCOME_ERROR and r.get("error_during") == "step"
+        for r in members.values()
+    ):
+        cut_kind = _FAILED
     try:
         if seed is None:
             restore_rng_state(env, json.loads(str(rng_state)))
         out = env.reset(seed=None if seed is None else int(seed), options=options)
         if aec:
-            _run_aec(env, game, queues, limit)
+            _run_aec(env, game, queues, limit, cut_kind == _FAILED)
         else:
             game.reset["__reset__"] = out
             _run_parallel(env, game, queues, limit)
@@ -344,9 +389,14 @@ def _replay_game(
                 max_cycles,
                 atol,
                 path,
+                cut_kind,
             )
         )
     return results
+
+
+_TORN = "torn"
+_FAILED = "failed"
 
 
 def _compare(
@@ -363,15 +413,52 @@ def _compare(
     max_cycles: int | None,
     atol: float,
     path: str,
+    cut_kind: str | None = None,
 ) -> EpisodeReplay:
     index = int(record["episode"])
     start, count = rows.get(index, (0, 0))
     got = game.rows.get(agent, [])
+    # rows from `turned` on (and a reset row outside `started`) were made where the game was cut
+    turned = len(got) if game.turned is None else game.turned.get(agent, 0)
+    torn = cut_kind == _TORN and game.stopped is not None
 
     def diverged(step: int | None, divergence: Divergence) -> EpisodeReplay:
         return EpisodeReplay(path, index, "diverged", 0 if step is None else step, divergence)
 
+    def state_diverged(step: int, divergence: Divergence) -> EpisodeReplay:
+        """A row's observation, terms or flags differ (its reward is the steps' own)."""
+        if cut_kind == _FAILED and step >= turned:
+            return EpisodeReplay(
+                path,
+                index,
+                "not_replayable",
+                step,
+                reason=(
+                    f"its step {step} was closed when the env raised in step(), with the env's "
+                    "state after that failed step, which a replay does not repeat "
+                    f"({divergence.describe()})"
+                ),
+            )
+        return diverged(step, divergence)
+
+    def cut_off(what: str, step: int) -> EpisodeReplay:
+        assert game.stopped is not None
+        who, action = game.stopped
+        return EpisodeReplay(
+            path,
+            index,
+            "not_replayable",
+            step,
+            reason=(
+                f"cut off by the torn file: {what} was recorded after {who}'s step {action}, "
+                "whose action is not in the file, so the replay cannot reach it "
+                "(what comes before it replays identical)"
+            ),
+        )
+
     at = reset_at.get(index)
+    if torn and at is not None and agent not in game.started:
+        return cut_off("its reset row", 0)
     if at is not None and agent in game.reset:
         expected = resets.column(fmt.COL_OBSERVATION).slice(at, 1).combine_chunks()
         equal, diff = obs_codec.compare(expected, obs_codec.encode([game.reset[agent]]), atol=atol)
@@ -386,7 +473,7 @@ def _compare(
                     float(diff[0]),
                 ),
             )
-    n = min(count, len(got))
+    n = min(count, len(got), turned) if torn else min(count, len(got))
     if n:
         exp = steps.slice(start, n)
         obs_equal, obs_diff = obs_codec.compare(
@@ -404,7 +491,7 @@ def _compare(
                 exp_obs = obs_codec.decode(
                     exp.column(fmt.COL_OBSERVATION).slice(k, 1).combine_chunks()
                 )[0]
-                return diverged(
+                return state_diverged(
                     k,
                     Divergence(k, "observation", _short(exp_obs), _short(obs), float(obs_diff[k])),
                 )
@@ -415,16 +502,22 @@ def _compare(
                 found = terms_rule.extract(info)
                 mine = None if found is None else [(str(a), _number(b)) for a, b in found.items()]
                 if not _terms_equal(exp_terms[k], mine, atol):
-                    return diverged(
+                    return state_diverged(
                         k,
                         Divergence(
                             k, "terms", _short(dict(exp_terms[k] or [])), _short(dict(mine or []))
                         ),
                     )
             if exp_t[k] != term:
-                return diverged(k, Divergence(k, fmt.COL_TERMINATED, str(exp_t[k]), str(term)))
+                return state_diverged(
+                    k, Divergence(k, fmt.COL_TERMINATED, str(exp_t[k]), str(term))
+                )
             if exp_u[k] != trunc:
-                return diverged(k, Divergence(k, fmt.COL_TRUNCATED, str(exp_u[k]), str(trunc)))
+                return state_diverged(
+                    k, Divergence(k, fmt.COL_TRUNCATED, str(exp_u[k]), str(trunc))
+                )
+    if torn and count > n:
+        return cut_off(f"its step {n}", n)
     if game.crash is not None and (game.crash[0] in (None, agent)) and len(got) < count:
         return diverged(len(got), Divergence(len(got), "step", "a step", game.crash[1]))
     if len(got) != count:

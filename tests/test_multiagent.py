@@ -9,6 +9,7 @@ twin env stepped by hand with the same seed and actions, summing what PettingZoo
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import warnings
 from collections import defaultdict
@@ -19,6 +20,7 @@ import numpy as np
 import pettingzoo
 import pytest
 from pettingzoo import AECEnv
+from pettingzoo.utils.wrappers import BaseWrapper
 from typer.testing import CliRunner
 
 from episode_audit import (
@@ -27,6 +29,7 @@ from episode_audit import (
     RecordParallelEvidence,
     check,
     open_evidence,
+    recover,
     replay,
     report,
 )
@@ -213,6 +216,176 @@ def test_aec_api_test_passes_on_the_wrapped_env(tmp_path: Path) -> None:
     assert check([tmp_path / "api.mcap"]).errors == 0
     seeded = [r for r in replay([tmp_path / "api.mcap"]).episodes if r.status != "not_replayable"]
     assert seeded and all(r.status == "identical" for r in seeded)
+
+
+class _Crashing(BaseWrapper):  # type: ignore[misc]
+    """An AEC env whose ``crash_at``-th step of a game raises (after changing it, if ``late``)."""
+
+    def __init__(self, env: Any, crash_at: int, late: bool = False) -> None:
+        super().__init__(env)
+        self.crash_at, self.late, self.n = crash_at, late, 0
+
+    def reset(self, seed: int | None = None, options: Any = None) -> None:
+        self.n = 0
+        super().reset(seed=seed, options=options)
+
+    def step(self, action: Any) -> None:
+        self.n += 1
+        if self.n == self.crash_at and not self.late:
+            raise RuntimeError("engine crashed")
+        super().step(action)
+        if self.n == self.crash_at:
+            raise RuntimeError("engine crashed late")
+
+
+def _crashing_ttt(crash_at: int, late: bool = False) -> Any:
+    return lambda: _Crashing(tictactoe_v3.env(), crash_at, late)
+
+
+def _record_crash(path: Path, make: Any, message: str) -> None:
+    """Game 0 (seed 0): moves 0, 3, 1, 4 — the 4th raises; game 1 (seed 1): one move."""
+    with RecordAECEvidence(make(), path) as env:
+        env.reset(seed=0)
+        for move in [0, 3, 1]:
+            env.step(move)
+        with pytest.raises(RuntimeError, match=message):
+            env.step(4)
+        # valid before close, and the error game is over: nothing is added to it later
+        assert [r["outcome"] for r in open_evidence(path).episodes().to_pylist()] == ["error"] * 2
+        env.reset(seed=1)
+        env.step(4)
+
+
+def test_an_aec_step_that_raises_keeps_the_moves_that_completed(tmp_path: Path) -> None:
+    path = tmp_path / "crash.mcap"
+    make = _crashing_ttt(4)
+    _record_crash(path, make, "^engine crashed$")
+    ev = open_evidence(path)
+    rows = ev.episodes().to_pylist()
+    got = [(r["game"], r["agent"], r["outcome"], r["length"], r["error_during"]) for r in rows]
+    assert got == [
+        # player_1's moves 0 and 1 completed; player_2's 3 did, its 4 raised (no row, as a
+        # Gymnasium step that raises)
+        (0, "player_1", "error", 2, "step"),
+        (0, "player_2", "error", 1, "step"),
+        (1, "player_1", "incomplete", 1, None),
+        (1, "player_2", "incomplete", 0, None),
+    ]
+    assert {r["error_message"] for r in rows[:2]} == {"engine crashed"}
+    assert ev.episode(0).steps.column("action").to_pylist() == [0, 1]
+    assert ev.episode(1).steps.column("action").to_pylist() == [3]
+    # no row after an end (step_after_end): only the error itself, and warnings
+    found = check([path]).findings
+    assert sorted({(f.severity, f.code) for f in found}) == [
+        ("error", "error_episode"),
+        ("warning", "incomplete_episode"),
+        ("warning", "missing_terms"),
+    ]
+    assert [f.episode for f in found if f.code == "error_episode"] == [0, 1]
+    result = replay([path], env_factory=make)
+    assert [(r.status, r.steps) for r in result.episodes] == [
+        ("identical", 2),
+        ("identical", 1),
+        ("identical", 1),
+        ("identical", 0),
+    ], result.to_dict()
+
+
+def test_an_aec_step_that_changes_the_env_and_raises_is_not_replayed_past_it(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "late.mcap"
+    make = _crashing_ttt(4, late=True)  # player_2's move 4 is played, then the step raises
+    _record_crash(path, make, "^engine crashed late$")
+    assert [r["length"] for r in open_evidence(path).episodes().to_pylist()] == [2, 1, 1, 0]
+    first, *others = replay([path], env_factory=make).episodes
+    # player_1's move 1 was closed with the board after the failed step (it holds the 4):
+    # a replay, which does not repeat that step, cannot have it
+    assert (first.status, first.steps) == ("not_replayable", 1)
+    assert first.reason is not None
+    assert first.reason.startswith(
+        "its step 1 was closed when the env raised in step(), with the env's state after that "
+        "failed step, which a replay does not repeat (step 1: observation expected "
+    )
+    assert [r.status for r in others] == ["identical"] * 3
+
+
+def _torn_copy(src: Path, dst: Path) -> Path:
+    shutil.copyfile(src, dst)  # what a SIGKILL right after flush() leaves on disk
+    return dst
+
+
+def test_a_torn_aec_game_replays_what_it_can_and_never_diverges(tmp_path: Path) -> None:
+    path, torn, recovered = tmp_path / "c4.mcap", tmp_path / "torn.mcap", tmp_path / "rec.mcap"
+    with RecordAECEvidence(connect_four_v3.env(), path) as env:
+        env.reset(seed=0)
+        for move in [3, 3, 4]:
+            env.step(move)
+        env.flush()
+        _torn_copy(path, torn)
+    # player_0's move 3 closed at its second turn (after player_1's move 3); player_1's 3 and
+    # player_0's 4 were still open rows: their actions are not in the file
+    rows = open_evidence(torn).episodes().to_pylist()
+    assert [(r["agent"], r["outcome"], r["length"], r["ended"]) for r in rows] == [
+        ("player_0", "incomplete", 1, False),
+        ("player_1", "incomplete", 0, False),
+    ]
+    assert check([torn]).errors == 0
+    assert recover(torn, recovered).cut_off_episodes == (0, 1)
+    for file in (torn, recovered):
+        first, second = replay([file]).episodes
+        assert (first.status, first.steps) == ("not_replayable", 0)
+        assert first.reason == (
+            "cut off by the torn file: its step 0 was recorded after player_1's step 0, whose "
+            "action is not in the file, so the replay cannot reach it (what comes before it "
+            "replays identical)"
+        )
+        assert (second.status, second.steps) == ("identical", 0)  # its reset row
+    assert replay([path]).count("identical") == 2  # the finished file: cut by close()
+
+
+def test_a_torn_tictactoe_reset_row_after_a_lost_move_is_not_replayable(tmp_path: Path) -> None:
+    path, torn = tmp_path / "ttt.mcap", tmp_path / "torn.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), path) as env:
+        env.reset(seed=0)
+        for move in [0, 3]:
+            env.step(move)
+        env.flush()
+        _torn_copy(path, torn)
+    # no step rows; player_2's reset row is the board after player_1's move 0 (an open row)
+    assert [r["length"] for r in open_evidence(torn).episodes().to_pylist()] == [0, 0]
+    first, second = replay([torn]).episodes
+    assert (first.status, second.status) == ("identical", "not_replayable")
+    assert second.reason == (
+        "cut off by the torn file: its reset row was recorded after player_1's step 0, whose "
+        "action is not in the file, so the replay cannot reach it (what comes before it "
+        "replays identical)"
+    )
+
+
+@pytest.mark.parametrize("module", [tictactoe_v3, connect_four_v3])
+def test_aec_files_torn_after_any_turn_never_diverge(tmp_path: Path, module: Any) -> None:
+    path, torn = tmp_path / "rec.mcap", tmp_path / "torn.mcap"
+    actions = _play_aec(module.env(), 2)  # a whole game, its dead steps as None
+    cut_off = 0
+    for turns in range(len(actions) + 1):
+        with RecordAECEvidence(module.env(), path, overwrite=True) as env:
+            _play_aec(env, 1)  # a finished game, then one torn after `turns` turns
+            env.reset(seed=2)
+            for action in actions[:turns]:
+                env.step(action)
+            env.flush()
+            _torn_copy(path, torn)
+        result = replay([torn])
+        statuses = [r.status for r in result.episodes]
+        assert "diverged" not in statuses, (turns, result.to_dict())
+        assert statuses[:2] == ["identical", "identical"]  # game 0
+        # at most one agent's row (or reset row) was recorded after a move the file lost
+        assert statuses.count("not_replayable") <= 1, (turns, result.to_dict())
+        cut_off += statuses.count("not_replayable")
+        assert check([torn]).errors == 0
+    assert statuses == ["identical"] * 4  # the whole game, dead steps and all
+    assert cut_off > 0
 
 
 # ------------------------------------------------------------------------------- Parallel
