@@ -21,6 +21,8 @@ __all__ = [
     "terms_matrix_column",
     "error_message",
     "error_text",
+    "number",
+    "number_or_nan",
     "text",
     "text_array",
 ]
@@ -50,6 +52,31 @@ def text(value: Any) -> str:
     except UnicodeEncodeError:
         return s.encode("utf-8", "backslashreplace").decode("utf-8")
     return s
+
+
+def number(value: Any) -> float:
+    """``float(value)`` for numbers only: text such as ``"1.5"`` raises ``TypeError``.
+
+    How the recorder reads a reward or term (and replay the re-run env's, identically).
+
+    >>> number(np.float32(0.5)), number(True)
+    (0.5, 1.0)
+    """
+    if isinstance(value, (str, bytes, bytearray)):
+        raise TypeError(f"{type(value).__name__} is not a number")
+    return float(value)
+
+
+def number_or_nan(value: Any) -> float:
+    """:func:`number`, or NaN for a value that is not a number (as the recorder stores it).
+
+    >>> number_or_nan("1.5"), number_or_nan(None), number_or_nan(2)
+    (nan, nan, 2.0)
+    """
+    try:
+        return number(value)
+    except Exception:
+        return math.nan
 
 
 def error_message(exc: BaseException) -> str:

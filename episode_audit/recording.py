@@ -7,7 +7,6 @@ The library behind ``episode-audit record``: :func:`record_episodes` makes the e
 
 from __future__ import annotations
 
-import importlib
 import os
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
@@ -19,7 +18,7 @@ import gymnasium as gym
 from .columns import error_text
 from .errors import ConfigurationError, RecorderError
 from .recorder import RecordEvidence
-from .replay import load_callable
+from .replay import import_modules, load_callable
 
 __all__ = ["RecordSummary", "RecordingError", "record_episodes"]
 
@@ -42,19 +41,6 @@ class RecordSummary:
     def __str__(self) -> str:
         counts = ", ".join(f"{k} {v}" for k, v in sorted(self.outcomes.items()))
         return f"recorded {self.episodes} episodes ({self.steps} steps) to {self.path}: {counts}"
-
-
-def import_modules(modules: Sequence[str]) -> None:
-    """Import each module the user named with ``--import`` (e.g. one that registers envs).
-
-    Anything that goes wrong — no such module, an empty name, a module that raises on import —
-    is a :class:`~episode_audit.errors.ConfigurationError` naming the module.
-    """
-    for module in modules:
-        try:
-            importlib.import_module(module)
-        except Exception as exc:
-            raise ConfigurationError(f"--import {module!r}: {error_text(exc)}") from None
 
 
 def _policy(name: str, env: gym.Env[Any, Any], seed: int) -> Policy:

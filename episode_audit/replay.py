@@ -16,6 +16,12 @@ How the environment is built, safely (a file may come from anyone):
 Nothing named inside a file is imported without that flag — including the ``module:`` prefix
 Gymnasium's ``make`` would import, and wrappers recorded in the spec that are not Gymnasium's own.
 
+Without ``env_factory``, a file needs its recorded env spec: the recorder writes the env id
+whenever the env has a spec, but the spec only when it is JSON-serializable (not when a kwarg
+of the env or of a wrapper is, say, a lambda). An id without a spec does not say which kwargs
+and wrappers the env had, so such episodes are not replayable: the bare id may be another env,
+and its differences would be false divergences.
+
 An env built from its id or spec leaves out Gymnasium's two development-time checks, the
 passive env checker and the reset-before-step order check: neither changes what a reset or
 step returns (replay always resets first), and together they cost about as much per step as
@@ -25,6 +31,12 @@ When the outermost wrapper is exactly Gymnasium's ``TimeLimit`` (either way), th
 resets and steps the env inside it and counts the limit itself, as the wrapper would: the same
 flags and outcomes, without a wrapper call per step (see
 :func:`~episode_audit.outcomes.plain_time_limit`).
+
+The re-run env's infos are read as the recorder read the recorded env's: an info that is not a
+mapping has no terms, terms that cannot be read are none, a term value that is not a number is
+NaN, a term name that is not a string is ``str()``-ed (see :meth:`_Terms.read`), and a final
+info the ending rules cannot read gives the ending by the flags alone. No info makes replay
+raise.
 """
 
 from __future__ import annotations
@@ -36,6 +48,7 @@ import os
 from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from itertools import chain
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -44,7 +57,15 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from . import format as fmt
-from .columns import null_mask, terms_column, terms_matrix_column
+from .columns import (
+    PLAIN_NUMBERS,
+    error_text,
+    null_mask,
+    number_or_nan,
+    terms_column,
+    terms_matrix_column,
+    text,
+)
 from .errors import ConfigurationError, ReplayError
 from .outcomes import (
     Ending,
@@ -171,6 +192,29 @@ def load_callable(spec: str) -> Callable[..., Any]:
     return target  # type: ignore[no-any-return]
 
 
+def import_modules(modules: Sequence[str]) -> None:
+    """Import each module the user named with ``--import`` (e.g. one that registers envs).
+
+    Anything that goes wrong — no such module, an empty name, a module that raises on import —
+    is a :class:`~episode_audit.errors.ConfigurationError` naming the module.
+    """
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except Exception as exc:
+            raise ConfigurationError(f"--import {module!r}: {error_text(exc)}") from None
+
+
+def _installed_version(distribution: str) -> str:
+    """The installed version of a library this process has not imported, or "not installed"."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(distribution)
+    except (PackageNotFoundError, ValueError):
+        return "not installed"
+
+
 def build_env(
     run: RunInfo,
     *,
@@ -180,14 +224,25 @@ def build_env(
     """Build the environment to replay a file's episodes in (see the module docstring)."""
     if env_factory is not None:
         factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
-        env = factory()
+        name = env_factory if isinstance(env_factory, str) else getattr(factory, "__name__", "")
+        try:
+            env = factory()
+        except Exception as exc:  # the user's own code: say so, in one line
+            raise ConfigurationError(
+                f"--env-factory {name}: it raised {error_text(exc)}; it must take no "
+                "arguments and return the env"
+            ) from None
         if not isinstance(env, gym.Env):
-            raise ReplayError(f"the env factory returned {type(env).__name__}, not a gymnasium.Env")
+            raise ConfigurationError(
+                f"--env-factory {name}: it returned {type(env).__name__}, not a gymnasium.Env"
+            )
         return env
     spec = run.env_spec or {}
     env_id = run.env_id
     if not env_id:
         raise ReplayError("the file names no env id; pass --env-factory MODULE:CALLABLE")
+    if not spec:  # the spec was not serializable: the bare id may be another env
+        raise ReplayError(_no_spec_reason(run))
     recorded = spec.get("additional_wrappers") or []
     wrappers = [w for w in recorded if isinstance(w, Mapping)] if isinstance(recorded, list) else []
     foreign = [str(w.get("entry_point")) for w in wrappers if not _gymnasium_wrapper(w)]
@@ -225,6 +280,20 @@ def build_env(
         f"env id {env_id!r} is not registered in this process; pass --import MODULE that "
         "registers it, --env-factory MODULE:CALLABLE, or --trust-entry-points to import "
         f"{entry!r} named in the file"
+    )
+
+
+def _no_spec_reason(run: RunInfo) -> str:
+    """Why a file with an env id but no env spec cannot be replayed without an env factory."""
+    notes = (run.recorder or {}).get("notes")
+    said = (
+        [str(n) for n in notes if str(n).startswith("env spec")] if isinstance(notes, list) else []
+    )
+    why = f" ({said[0][:200]})" if said else ""
+    return (
+        f"the env spec of {run.env_id!r} was not recorded{why}: its kwargs and wrappers are "
+        "unknown, and the bare id may be another env; pass --env-factory MODULE:CALLABLE "
+        "that builds the env as it was recorded"
     )
 
 
@@ -432,18 +501,33 @@ class _Got:
             truncated = _scatter(truncated, positions, n, 0)
         terms = _Terms(n)
         if terms_rule is not None and steps.infos:
-            infos = steps.infos
-            terms.rows = positions[steps.info_rows]
-            many = terms_rule.extract_many(infos)
-            if many is not None:
-                terms.names, terms.values = many
-            else:
-                extract = terms_rule.extractor
-                for row, info in zip(terms.rows.tolist(), infos, strict=True):
-                    found = extract(info)
-                    if found is not None:
-                        terms.found[row] = found
+            terms.read(terms_rule, positions[steps.info_rows], steps.infos)
         return cls(obs, rewards, terminated, truncated, terms)
+
+
+def _recorded_terms(
+    extract: Callable[[Mapping[str, Any]], dict[str, Any] | None], info: Any
+) -> dict[str, float] | None:
+    """One step's terms as the recorder's ``Stream._slow_values`` records them (no notes).
+
+    None when the info is not a mapping or its terms cannot be read; each value is
+    :func:`~episode_audit.columns.number_or_nan` of it; each name a string.
+    """
+    if not isinstance(info, Mapping):
+        return None
+    try:
+        raw = extract(info)
+        if raw is None:
+            return None
+        terms: dict[str, float] = {}
+        for key, value in raw.items():
+            terms[key if isinstance(key, str) else str(key)] = number_or_nan(value)
+    except Exception:  # (a name whose str() raises: the recorder could not write it either)
+        return None
+    return terms
+
+
+_JUST_DICTS = frozenset({dict})
 
 
 @dataclass
@@ -459,6 +543,62 @@ class _Terms:
     rows: np.ndarray[Any, Any] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     names: tuple[str, ...] = ()
     values: np.ndarray[Any, Any] | None = None
+
+    def read(self, rule: RewardTerms, rows: np.ndarray[Any, Any], infos: list[Any]) -> None:
+        """Read the terms of the steps at ``rows`` from their ``infos``, as the recorder does.
+
+        Dict infos whose terms are all plain numbers are read as they are, as the recorder's
+        fast path reads them; anything else (an info that is not a dict, terms that cannot be
+        read, a value that is not a plain number) info by info, as the recorder's slow path
+        reads it (:func:`_recorded_terms`). No info makes this raise.
+        """
+        self.rows = rows
+        try:
+            many = rule.extract_many(infos)
+        except Exception:  # an info that is not a dict (a list, a number): step by step
+            many = None
+        if many is not None:
+            self.names, self.values = tuple(map(text, many[0])), many[1]
+            return
+        extract = rule.extractor
+        found: dict[int, dict[str, Any]] = {}
+        if set(map(type, infos)) == _JUST_DICTS:
+            try:
+                for row, info in zip(rows.tolist(), infos, strict=True):
+                    terms = extract(info)
+                    if terms is not None:
+                        found[row] = terms
+            except Exception:  # terms that cannot be read: info by info
+                pass
+            else:
+                if self._keep_if_plain(found):
+                    return
+            found = {}
+        for row, info in zip(rows.tolist(), infos, strict=True):
+            terms = _recorded_terms(extract, info)
+            if terms is not None:
+                found[row] = terms
+        self.found = found
+
+    def _keep_if_plain(self, found: dict[int, dict[str, Any]]) -> bool:
+        """Keep ``found`` if every value is a plain number, and say whether it was kept.
+
+        (The ``terms`` column reads other values its own way, e.g. parses text, where the
+        recorder writes NaN.) When every step has the same string names: as a matrix.
+        """
+        dicts = list(found.values())
+        if dicts:
+            names = tuple(dicts[0])
+            if all(isinstance(name, str) for name in names):
+                many = RewardTerms(names).extract_many(dicts)
+                if many is not None:
+                    self.rows = np.fromiter(found, dtype=np.int64, count=len(found))
+                    self.names, self.values = tuple(map(text, names)), many[1]
+                    return True
+        if not set(map(type, chain.from_iterable(map(dict.values, dicts)))) <= PLAIN_NUMBERS:
+            return False
+        self.found = found  # names as the recorder's fast path writes them (text_array)
+        return True
 
     def column(self) -> pa.Array:
         """The ``terms`` map column of the ``n`` rows (null where a step had none)."""
@@ -792,7 +932,11 @@ class _EpisodeRunner:
                     else:
                         keep_other(obs)
                     keep_reward(reward)
-                    if info:
+                    try:
+                        if info:
+                            keep_info_row(len(rewards) - 1)
+                            keep_info(info)
+                    except Exception:  # an info with no truth value (an array): kept
                         keep_info_row(len(rewards) - 1)
                         keep_info(info)
                     if term or trunc:
@@ -934,7 +1078,9 @@ class _EpisodeRunner:
                     term, trunc, {}, time_limit_hit=hit_time_limit
                 )
         else:
-            ending = self.rules.classify(
+            # as the recorder: an info it cannot read (a success value with no truth value, an
+            # array) gives the ending by the flags alone
+            ending, _ = self.rules.classify_or_note(
                 term,
                 trunc,
                 info if isinstance(info, Mapping) else {},
@@ -1176,11 +1322,7 @@ def replay(
     """
     if atol < 0:
         raise ConfigurationError(f"atol: expected a number >= 0, actually: {atol!r}")
-    for module in imports:
-        try:
-            importlib.import_module(module)
-        except ImportError as exc:
-            raise ConfigurationError(f"--import {module}: {exc}") from None
+    import_modules(imports)
     selected = None if episodes is None else list(episodes)
     result = ReplayResult()
     for path in paths:
@@ -1197,9 +1339,10 @@ def replay(
         )
         current = library_versions()
         diffs = {
-            lib: (str(recorded), current.get(lib, "not installed"))
+            lib: (str(recorded), now)
             for lib, recorded in ev.run.versions.items()
-            if current.get(lib) != recorded and lib != "episode_audit"
+            if (now := current.get(lib) or _installed_version(lib)) != recorded
+            and lib != "episode_audit"
         }
         if diffs:
             result.version_differences[str(ev.path)] = diffs

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import importlib
 import json
-import math
 import warnings
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
@@ -48,6 +47,7 @@ from typing import Any
 import pyarrow as pa
 
 from . import format as fmt
+from .columns import number_or_nan
 from .errors import ReplayError
 from .reader import Evidence
 from .replay import (
@@ -153,15 +153,8 @@ class _Game:
     ) -> None:
         obs, reward, term, trunc, info = result
         self.rows.setdefault(str(agent), []).append(
-            (action, obs, _number(reward), bool(term), bool(trunc), info)
+            (action, obs, number_or_nan(reward), bool(term), bool(trunc), info)
         )
-
-
-def _number(value: Any) -> float:
-    try:
-        return float(value)
-    except Exception:
-        return math.nan
 
 
 def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int, failed: bool) -> None:
@@ -500,7 +493,11 @@ def _compare(
                 return diverged(k, Divergence(k, "reward", repr(e), repr(reward), abs(e - reward)))
             if terms_rule is not None and isinstance(info, Mapping):
                 found = terms_rule.extract(info)
-                mine = None if found is None else [(str(a), _number(b)) for a, b in found.items()]
+                mine = (
+                    None
+                    if found is None
+                    else [(str(a), number_or_nan(b)) for a, b in found.items()]
+                )
                 if not _terms_equal(exp_terms[k], mine, atol):
                     return state_diverged(
                         k,

@@ -40,7 +40,15 @@ from gymnasium.wrappers import TimeLimit
 
 from . import format as fmt
 from ._version import __version__
-from .columns import TERMS_TYPE, error_message, terms_column, text, text_array
+from .columns import (
+    TERMS_TYPE,
+    error_message,
+    error_text,
+    number,
+    terms_column,
+    text,
+    text_array,
+)
 from .errors import ConfigurationError, RecorderError
 from .outcomes import EndingRules, RewardTerms, TermsFn, time_limit_hit
 from .records import EPISODE_ARROW_SCHEMA, EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
@@ -1122,7 +1130,7 @@ class Stream:
     ) -> tuple[float, dict[str, float] | None]:
         """Per-value handling of a reward and terms the fast path could not take."""
         try:
-            r = _number(reward)
+            r = number(reward)
         except Exception:
             r = math.nan
             notes.append(note("reward_not_numeric", f"reward {short(reward)}"))
@@ -1132,18 +1140,18 @@ class Stream:
         try:
             raw = self._terms_rule.extract(info)
         except Exception as exc:
-            notes.append(note("terms_unreadable", f"{type(exc).__name__}: {exc}"))
+            notes.append(note("terms_unreadable", error_text(exc)))
             return r, None
         if raw is None:
             return r, None
         terms: dict[str, float] = {}
         for key, value in raw.items():
             try:
-                number = _number(value)
+                x = number(value)
             except Exception:
-                number = math.nan
-                notes.append(note("term_not_numeric", f"term {key!r} is {short(value)}"))
-            terms[key if isinstance(key, str) else str(key)] = number
+                x = math.nan
+                notes.append(note("term_not_numeric", f"term {short(key)} is {short(value)}"))
+            terms[key if isinstance(key, str) else str(key)] = x
         return r, terms
 
     def _implicit_episode(self, notes: list[str]) -> _Episode:
@@ -1295,13 +1303,6 @@ def _apply_block(
     return pa.MapArray.from_arrays(
         pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
     )
-
-
-def _number(value: Any) -> float:
-    """``float(value)`` for numbers only: text such as ``"1.5"`` raises ``TypeError``."""
-    if isinstance(value, (str, bytes, bytearray)):
-        raise TypeError(f"{type(value).__name__} is not a number")
-    return float(value)
 
 
 def _append_noted(

@@ -15,3 +15,13 @@ def heavy_cartpole() -> gym.Env[Any, Any]:
     cp.total_mass = cp.masspole + cp.masscart
     cp.polemass_length = cp.masspole * cp.length
     return env
+
+
+def raises() -> gym.Env[Any, Any]:
+    """An env factory with a bug (for the CLI's one-line error)."""
+    raise RuntimeError("boom from factory")
+
+
+def not_an_env() -> Any:
+    """An env factory that returns something else."""
+    return "CartPole-v1"

@@ -382,3 +382,27 @@ def test_an_os_error_no_command_names_is_one_line_and_exit_2(
     assert exited.value.code == 2
     err = capsys.readouterr().err
     one_error_line(err, "/data/out.mcap: No space left on device")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (
+            ["--env-factory", "tests.factories:raises"],
+            "--env-factory tests.factories:raises: it raised RuntimeError: boom from factory",
+        ),
+        (
+            ["--env-factory", "tests.factories:not_an_env"],
+            "--env-factory tests.factories:not_an_env: it returned str, not a gymnasium.Env",
+        ),
+        (["--import", ""], "--import '': ValueError: Empty module name"),
+        (
+            ["--import", "tests.no_such_module"],
+            "--import 'tests.no_such_module': ModuleNotFoundError",
+        ),
+    ],
+)
+def test_a_replay_factory_or_import_that_fails_is_one_line(args: list[str], message: str) -> None:
+    code, _, err = run("replay", "fixtures/clean.mcap", *args)
+    assert code == 2
+    one_error_line(err, message)

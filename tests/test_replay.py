@@ -1,9 +1,12 @@
 from __future__ import annotations
 
+import json
 import math
+import re
 import subprocess
 import sys
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -13,10 +16,12 @@ import pyarrow as pa
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from typer.testing import CliRunner
 
 from episode_audit import RecordEvidence, open_evidence
+from episode_audit.cli import app
 from episode_audit.columns import TERMS_TYPE
-from episode_audit.errors import ConfigurationError
+from episode_audit.errors import ConfigurationError, ReplayError
 from episode_audit.outcomes import plain_time_limit
 from episode_audit.replay import (
     _rewards,
@@ -567,3 +572,184 @@ def test_row_ranges_of_runs_of_episodes() -> None:
     assert _row_ranges(np.array([3, 3, 5, 5, 5, 7])) == {3: (0, 2), 5: (2, 3), 7: (5, 1)}
     assert _row_ranges(np.array([1, 1, 2, 1])) == {1: (0, 2), 2: (2, 1)}  # the first run
     assert _row_ranges(np.array([], dtype=np.int64)) == {}
+
+
+# --------------------------------------------------------------------------------------------
+# infos that are not a dict of numbers: replay reads them as the recorder did, never raises
+# --------------------------------------------------------------------------------------------
+
+_BAD_INFOS: dict[str, Callable[[int], Any]] = {
+    "list": lambda t: [1, 2],
+    "str": lambda t: "info",
+    "number": lambda t: 7,  # not even iterable
+    "array": lambda t: np.array([1.0, 2.0]),  # no truth value
+    "terms_list": lambda t: {"reward_terms": [0.5, 0.5]},
+    "terms_scalar": lambda t: {"reward_terms": 0.5},
+    "terms_array": lambda t: {"reward_terms": {"a": np.array([1.0])}, "reward_x": np.zeros(2)},
+    "prefix_array": lambda t: {"reward_x": np.zeros(2), "reward_y": 1.0},
+    "prefix_surrogate": lambda t: {"reward_\udcff": 1.0},  # not UTF-8: written escaped
+    "terms_int_names": lambda t: {"reward_terms": {0: 0.5, 1: 0.5}},
+    "terms_text": lambda t: {"reward_terms": {"a": "1.5", "b": 0.5}},
+    "by_turns": lambda t: [{"reward_terms": {"a": 0.5}}, [1], {"reward_terms": {0: t}}, "x"][t - 1],
+    "success_array": lambda t: {"success": np.array([True, False])},  # ends by its flags
+}
+_NAN = math.nan
+# the terms the recorder wrote for the first episode's four steps (compared by repr: NaN)
+_RECORDED_TERMS: dict[str, list[Any]] = {
+    "list": [None] * 4,
+    "str": [None] * 4,
+    "number": [None] * 4,
+    "array": [None] * 4,
+    "terms_list": [None] * 4,
+    "terms_scalar": [None] * 4,
+    "terms_array": [[("a", _NAN)]] * 4,
+    "prefix_array": [[("reward_x", _NAN), ("reward_y", 1.0)]] * 4,
+    "prefix_surrogate": [[("reward_\\udcff", 1.0)]] * 4,
+    "terms_int_names": [[("0", 0.5), ("1", 0.5)]] * 4,
+    "terms_text": [[("a", _NAN), ("b", 0.5)]] * 4,
+    "by_turns": [[("a", 0.5)], None, [("0", 3.0)], None],
+    "success_array": [None] * 4,
+}
+
+
+class BadInfo(gym.Env[Any, int]):
+    """Deterministic; its info, per ``kind``, is one the recorder notes (or reads) and records."""
+
+    observation_space = gym.spaces.Box(-10.0, 10.0, (2,), np.float64)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return np.array([self.np_random.integers(0, 5), 0.0]), {}
+
+    def step(self, action: int) -> Any:
+        self.t += 1
+        obs = np.array([float(action), float(self.t)])
+        return obs, 1.0, self.t == 4, False, _BAD_INFOS[self.kind](self.t)
+
+
+def bad_info_list() -> BadInfo:
+    """The --env-factory of the CLI test."""
+    return BadInfo("list")
+
+
+def record_bad_info(path: Path, kind: str) -> Path:
+    with RecordEvidence(BadInfo(kind), path) as env:
+        env.action_space.seed(1)
+        for e in range(3):
+            env.reset(seed=e)
+            for _ in range(4):
+                env.step(env.action_space.sample())
+    return path
+
+
+@pytest.mark.parametrize("kind", list(_BAD_INFOS))
+def test_an_info_the_recorder_tolerated_replays_identically(tmp_path: Path, kind: str) -> None:
+    """Not a dict, terms that cannot be read, a term that is not a number (NaN, which equals
+    NaN), a name that is not a string (str()-ed): replay reads the re-run env's infos so."""
+    path = record_bad_info(tmp_path / "bad.mcap", kind)
+    recorded = open_evidence(path).steps().column("terms").to_pylist()[:4]
+    assert repr(recorded) == repr(_RECORDED_TERMS[kind])
+    result = replay([path], env_factory=lambda: BadInfo(kind))
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 4)] * 3, result
+
+
+def test_terms_read_info_by_info_still_diverge_on_a_changed_value(tmp_path: Path) -> None:
+    class Retuned(BadInfo):
+        def step(self, action: int) -> Any:
+            obs, reward, term, trunc, info = super().step(action)
+            return obs, reward, term, trunc, {"reward_terms": {0: 4.0}} if self.t == 3 else info
+
+    path = record_bad_info(tmp_path / "bad.mcap", "by_turns")
+    result = replay([path], env_factory=lambda: Retuned("by_turns"))
+    assert [(e.status, e.steps) for e in result.episodes] == [("diverged", 2)] * 3
+    divergence = result.episodes[0].divergence
+    assert divergence is not None
+    assert divergence.describe() == "step 2: terms expected {'0': 3.0}, got {'0': 4.0}"
+
+
+# --------------------------------------------------------------------------------------------
+# a file without its env spec: replayable only in an env the user builds
+# --------------------------------------------------------------------------------------------
+
+_NO_SPEC = (
+    r"the env spec of 'CartPole-v1' was not recorded \(env spec is not JSON-serializable "
+    r"\(TypeError: .*\)\): its kwargs and wrappers are unknown, and the bare id may be another "
+    r"env; pass --env-factory MODULE:CALLABLE that builds the env as it was recorded"
+)
+
+
+def doubled_cartpole() -> gym.Env[Any, Any]:
+    """CartPole whose rewards are doubled by a lambda: its spec is not JSON-serializable."""
+    return gym.wrappers.TransformReward(gym.make("CartPole-v1"), lambda r: 2 * r)
+
+
+def record_doubled(path: Path) -> Path:
+    with RecordEvidence(doubled_cartpole(), path) as env:
+        for e in range(2):
+            env.reset(seed=e)
+            for _ in range(5):
+                env.step(e % 2)
+    return path
+
+
+def test_a_file_without_its_env_spec_is_replayed_only_with_an_env_factory(tmp_path: Path) -> None:
+    """Its id alone would build CartPole without the wrapper: rewards 1.0 where 2.0 were
+    recorded, a false divergence."""
+    path = record_doubled(tmp_path / "doubled.mcap")
+    run = open_evidence(path).run
+    assert (run.env_id, run.env_spec) == ("CartPole-v1", None)
+    for trust in (False, True):  # no spec to trust either
+        result = replay([path], trust_entry_points=trust)
+        assert [(e.status, e.steps) for e in result.episodes] == [("not_replayable", 0)] * 2
+        assert result.ok
+        for episode in result.episodes:
+            assert episode.reason is not None and re.fullmatch(_NO_SPEC, episode.reason)
+    with pytest.raises(ReplayError, match=_NO_SPEC):
+        build_env(run)
+    assert replay([path], env_factory=doubled_cartpole).count("identical") == 2
+
+
+# --------------------------------------------------------------------------------------------
+# the CLI: exit 0 for identical and for not replayable (only a divergence is exit 1)
+# --------------------------------------------------------------------------------------------
+
+
+def _cli(*args: str) -> tuple[int, str]:
+    result = CliRunner().invoke(app, list(args))
+    if result.exception and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout
+
+
+def test_cli_replays_an_info_the_recorder_tolerated_and_exits_0(tmp_path: Path) -> None:
+    path = record_bad_info(tmp_path / "bad.mcap", "list")
+    code, out = _cli("replay", str(path), "--env-factory", "tests.test_replay:bad_info_list")
+    assert code == 0, out
+    assert "3 identical, 0 diverged, 0 not replayable" in out
+
+
+def test_cli_says_why_a_file_without_its_env_spec_is_not_replayable_and_exits_0(
+    tmp_path: Path,
+) -> None:
+    path = record_doubled(tmp_path / "doubled.mcap")
+    code, out = _cli("replay", str(path), "--format", "json")
+    assert code == 0, out
+    data = json.loads(out)
+    assert data["summary"] == {"identical": 0, "diverged": 0, "not_replayable": 2}
+    assert re.fullmatch(_NO_SPEC, data["episodes"][0]["reason"])
+    code, out = _cli("replay", str(path), "--env-factory", "tests.test_replay:doubled_cartpole")
+    assert code == 0, out
+    assert "2 identical, 0 diverged, 0 not replayable" in out
+
+
+def test_a_library_installed_but_not_imported_is_not_called_missing() -> None:
+    """Replay's "current" version of a library the replaying process never imported."""
+    from episode_audit.replay import _installed_version
+
+    assert _installed_version("numpy") == np.__version__
+    assert _installed_version("no-such-distribution-xyz") == "not installed"

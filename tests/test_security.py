@@ -42,7 +42,7 @@ _FORBIDDEN_CALLS = {"eval", "exec", "compile", "__import__"}
 # import_module calls whose argument is not a constant: the user's --import / --env-factory /
 # --policy (command-line arguments and library arguments), never a string read from a file.
 _DYNAMIC_IMPORTS_ALLOWED = {("replay.py", "load_callable"), ("replay.py", "replay")}
-_DYNAMIC_IMPORTS_ALLOWED |= {("recording.py", "record_episodes")}
+_DYNAMIC_IMPORTS_ALLOWED |= {("replay.py", "import_modules")}
 # The package's own lazy attributes (a fixed table of its own modules), and PettingZoo replay,
 # which imports a module named in a file only after is_pettingzoo_module() found it inside the
 # installed pettingzoo package (or with --trust-entry-points); test_multiagent pins both paths.
