@@ -103,6 +103,7 @@ _RECORD_COLUMNS = (
     "outcome",
     "failure_label",
     "truncation_reason",
+    "error_during",
 )
 """The columns of the episode table a replay reads."""
 _RECORD_KEYS = frozenset({fmt.COL_EPISODE, "outcome"})
@@ -278,8 +279,8 @@ def build_env(
         )
     raise ReplayError(
         f"env id {env_id!r} is not registered in this process; pass --import MODULE that "
-        "registers it, --env-factory MODULE:CALLABLE, or --trust-entry-points to import "
-        f"{entry!r} named in the file"
+        "registers it, --env-factory MODULE:CALLABLE"
+        + (f", or --trust-entry-points to import {entry!r} named in the file" if entry else "")
     )
 
 
@@ -884,9 +885,12 @@ class _EpisodeRunner:
                 )
                 continue
             if reset_at is None:
-                done[index] = self.not_replayable(
-                    index, count, "its reset row is missing (torn file)"
+                why = (
+                    "its reset raised (an error episode): there is no reset to compare"
+                    if record.get("error_during") == "reset"
+                    else "its reset row is missing (torn file)"
                 )
+                done[index] = self.not_replayable(index, count, why)
                 continue
             try:
                 options = from_json(record["options"], "options") if record.get("options") else None
@@ -939,8 +943,11 @@ class _EpisodeRunner:
                     except Exception:  # an info with no truth value (an array): kept
                         keep_info_row(len(rewards) - 1)
                         keep_info(info)
-                    if term or trunc:
-                        break
+                    try:
+                        if term or trunc:
+                            break
+                    except Exception:  # flags with no truth value: False, as the recorder took them
+                        term = trunc = False
             except Exception as exc:
                 ran_now = len(rewards) - before
                 crash = Divergence(ran_now, "step", "a step", f"{type(exc).__name__}: {exc}")

@@ -58,6 +58,8 @@ class EvidenceWriter:
             raise ConfigurationError(
                 f"compression: expected one of {sorted(modes)}, actually: {compression!r}"
             )
+        if self.path.is_dir():
+            raise ConfigurationError(f"{self.path}: is a directory; give the evidence file's path")
         try:
             self._stream: IO[bytes] = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115
         except FileExistsError:

@@ -406,3 +406,9 @@ def test_a_replay_factory_or_import_that_fails_is_one_line(args: list[str], mess
     code, _, err = run("replay", "fixtures/clean.mcap", *args)
     assert code == 2
     one_error_line(err, message)
+
+
+def test_record_out_naming_a_directory_says_so(tmp_path: Path) -> None:
+    code, _, err = run("record", "CartPole-v1", "--out", str(tmp_path), "--episodes", "1")
+    assert code == 2
+    one_error_line(err, f"{tmp_path}: is a directory; give the evidence file's path")

@@ -753,3 +753,38 @@ def test_a_library_installed_but_not_imported_is_not_called_missing() -> None:
 
     assert _installed_version("numpy") == np.__version__
     assert _installed_version("no-such-distribution-xyz") == "not installed"
+
+
+class OddFlags(gym.Env[Any, int]):
+    """Deterministic; a flag with no truth value (an array) on step 2, then ends on step 4;
+    and a reset that raises for seed 99."""
+
+    observation_space = gym.spaces.Box(-10.0, 10.0, (2,), np.float64)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        if seed == 99:
+            raise RuntimeError("no level")
+        self.t = 0
+        return np.zeros(2), {}
+
+    def step(self, action: int) -> Any:
+        self.t += 1
+        flag: Any = np.array([True, False]) if self.t == 2 else self.t == 4
+        return np.array([float(action), float(self.t)]), 1.0, flag, False, {}
+
+
+def test_odd_flags_replay_as_recorded_and_a_reset_error_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "flags.mcap"
+    with RecordEvidence(OddFlags(), path) as env:
+        env.reset(seed=0)
+        for _ in range(4):
+            env.step(0)
+        with pytest.raises(RuntimeError, match="no level"):
+            env.reset(seed=99)
+    result = replay([path], env_factory=OddFlags)
+    assert [(e.status, e.reason) for e in result.episodes] == [
+        ("identical", None),
+        ("not_replayable", "its reset raised (an error episode): there is no reset to compare"),
+    ]
