@@ -1035,8 +1035,7 @@ class Stream:
         if episode is None:
             episode = self._implicit_episode(notes)
         try:
-            terminated = bool(terminated)
-            truncated = bool(truncated)
+            flags = bool(terminated), bool(truncated)
         except Exception:
             notes.append(
                 note(
@@ -1044,7 +1043,12 @@ class Stream:
                     f"terminated={short(terminated)}, truncated={short(truncated)}",
                 )
             )
-            terminated = truncated = False
+            flags = False, False
+        else:
+            odd = type(terminated) not in _BOOLS or type(truncated) not in _BOOLS
+            if odd and (flags[0] or flags[1]):  # as the fast path notes them (_end_by_flags)
+                notes.append(_odd_flags(terminated, truncated))
+        terminated, truncated = flags
         r, terms = self._slow_values(reward, info, notes)
         _append_noted(block.obs, obs, "observation", notes)
         _append_noted(block.act, action, "action", notes)
@@ -1102,17 +1106,14 @@ class Stream:
         truncated: bool,
         info: Mapping[str, Any],
     ) -> None:
+        if type(terminated) not in _BOOLS or type(truncated) not in _BOOLS:
+            # e.g. the text "False", which is true: the episode ends, and the step says why
+            _add_note(episode, block, row, _odd_flags(terminated, truncated))
         ending, why = self._rules.classify_or_note(
             bool(terminated), bool(truncated), info, time_limit_hit=self._limit_hit(block)
         )
         if why is not None:  # the ending by the flags alone; say why
-            unreadable = note("ending_unreadable", why)
-            row_notes = block.notes.get(row)
-            if row_notes is None:
-                block.notes[row] = [unreadable]
-                episode.notes += 1
-            else:
-                row_notes.append(unreadable)
+            _add_note(episode, block, row, note("ending_unreadable", why))
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
         block.flags[row] = (bool(terminated), bool(truncated))
@@ -1303,6 +1304,27 @@ def _apply_block(
     return pa.MapArray.from_arrays(
         pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
     )
+
+
+_BOOLS = frozenset({bool, np.bool_})
+
+
+def _odd_flags(terminated: Any, truncated: Any) -> str:
+    return note(
+        "flags_not_bool",
+        f"terminated={short(terminated)}, truncated={short(truncated)} "
+        "(taken by their truth value)",
+    )
+
+
+def _add_note(episode: _Episode, block: _Block, row: int, text: str) -> None:
+    """Add a note to the step at ``row`` (a row with notes counts once in its episode's)."""
+    row_notes = block.notes.get(row)
+    if row_notes is None:
+        block.notes[row] = [text]
+        episode.notes += 1
+    else:
+        row_notes.append(text)
 
 
 def _append_noted(

@@ -709,3 +709,31 @@ def test_a_flush_that_fails_mid_loop_is_warned_once_and_never_reaches_the_loop(
     monkeypatch.undo()
     env.close()
     assert open_evidence(tmp_path / "full.mcap").finished
+
+
+@pytest.mark.parametrize(
+    "flag", ["False", 1, np.int64(1), [0]], ids=["text", "int", "np_int", "list"]
+)
+def test_a_true_flag_that_is_not_a_bool_ends_the_episode_and_is_noted(
+    tmp_path: Path, flag: Any
+) -> None:
+    """Taken by its truth value (the text "False" is true), and the step says so."""
+    path = tmp_path / "flags.mcap"
+    with scripted(path, lambda e, a: (ZEROS, 1.0, flag if e.t == 2 else False, False, {})) as env:
+        env.reset(seed=0)
+        for _ in range(2):
+            env.step(0)
+    assert_valid(path)
+    (noted,) = findings(path, "recorder_note:flags_not_bool")
+    assert (noted.episode, noted.step) == (0, 1) and "taken by their truth value" in noted.message
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    assert (episode["outcome"], episode["terminated"], episode["length"]) == ("failure", True, 2)
+
+
+def test_numpy_bool_flags_are_not_noted(tmp_path: Path) -> None:
+    path = tmp_path / "flags.mcap"
+    with scripted(path, lambda e, a: (ZEROS, 1.0, np.bool_(e.t == 2), np.False_, {})) as env:
+        env.reset(seed=0)
+        for _ in range(2):
+            env.step(0)
+    assert findings(path, "recorder_note:flags_not_bool") == []
