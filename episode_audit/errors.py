@@ -35,12 +35,25 @@ class EpisodeAuditError(Exception):
 
 
 class EvidenceError(EpisodeAuditError):
-    """An evidence file cannot be read; the message names the file and the problem."""
+    """An evidence file cannot be read; the message names the file and the problem.
+
+    The problem is cut to :data:`MAX_PROBLEM` characters: it may quote a value from the file,
+    which can be megabytes long, and the message is one line on a terminal.
+
+    >>> len(str(EvidenceError("run.mcap", "format_version " + "x" * 10**6)))
+    1038
+    """
 
     def __init__(self, path: str | PathLike[str], problem: str) -> None:
         self.path = str(path)
+        if len(problem) > MAX_PROBLEM:
+            problem = f"{problem[:MAX_PROBLEM]}... ({len(problem) - MAX_PROBLEM} more characters)"
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+
+MAX_PROBLEM = 1000
+"""The longest problem an :class:`EvidenceError` message quotes."""
 
 
 class NotEvidenceError(EvidenceError):
