@@ -463,12 +463,7 @@ class _Agents:
         self.streams[agent].record_reset(episode, obs, info, notes)
 
     def error(self, exc: Exception, during: str) -> None:
-        try:
-            for stream in self.streams.values():
-                stream.end_error(exc, during)
-            self.file.flush()
-        except Exception as trouble:
-            self.file.trouble(trouble)
+        self.file.end_with_error(self.streams.values(), exc, during)
 
 
 def _settings(

@@ -300,13 +300,8 @@ class EndingRules:
             return self.classify(terminated, truncated, info, time_limit_hit=time_limit_hit), None
         except Exception as exc:
             why = error_text(exc)
-        # by the flags alone: no key lookups, no user functions
-        reason = None
-        if truncated:
-            reason = fmt.REASON_TIME_LIMIT if time_limit_hit else fmt.REASON_EXTERNAL
-        if terminated:
-            return Ending(fmt.OUTCOME_FAILURE, fmt.UNLABELED, reason), why
-        return Ending(fmt.OUTCOME_TRUNCATED, None, reason), why
+        # by the flags alone: the default rules over an empty info (no user functions)
+        return _BY_FLAGS.classify(terminated, truncated, {}, time_limit_hit=time_limit_hit), why
 
     def describe(self) -> dict[str, Any]:
         """A JSON-able description for the run metadata."""
@@ -317,6 +312,10 @@ class EndingRules:
             "success_fn": _fn_name(self.success_fn),
             "failure_fn": _fn_name(self.failure_fn),
         }
+
+
+_BY_FLAGS = EndingRules()
+"""Rules that read nothing from an info: with an empty one, the ending the flags alone give."""
 
 
 def _fn_name(fn: Callable[..., Any] | None) -> str | None:

@@ -197,15 +197,7 @@ class RecordEvidence(
         return result
 
     def _on_error(self, exc: Exception, during: str) -> None:
-        """The env raised ``exc``: end the episode as ``error``.
-
-        The loop then sees the env's own error, never one of the recorder's.
-        """
-        try:
-            self._stream.end_error(exc, during)
-            self._file.flush()
-        except Exception as trouble:
-            self._file.trouble(trouble)
+        self._file.end_with_error((self._stream,), exc, during)
 
     def flush(self) -> None:
         """Write everything recorded so far to the file now."""

@@ -29,7 +29,7 @@ import sys
 import time
 import weakref
 from array import array
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import datetime, timezone
 from typing import Any, Protocol
 
@@ -643,6 +643,19 @@ class EvidenceFile:
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns
 
+    def end_with_error(self, streams: Iterable[Stream], exc: BaseException, during: str) -> None:
+        """The env raised ``exc``: end the streams' open episodes as ``error``, written now.
+
+        A failure here is the recorder's trouble (warned once): the loop then sees the env's
+        own error, never one of the recorder's.
+        """
+        try:
+            for stream in streams:
+                stream.end_error(exc, during)
+            self.flush()
+        except Exception as trouble:
+            self.trouble(trouble)
+
     def auto_flush(self) -> None:
         """:meth:`flush` because a block filled or ``flush_every_s`` passed.
 
@@ -1034,8 +1047,9 @@ class Stream:
         episode = self.episode
         if episode is None:
             episode = self._implicit_episode(notes)
+        raw_flags = terminated, truncated  # _end_by_flags notes a true one that is not a bool
         try:
-            flags = bool(terminated), bool(truncated)
+            terminated, truncated = bool(terminated), bool(truncated)
         except Exception:
             notes.append(
                 note(
@@ -1043,12 +1057,7 @@ class Stream:
                     f"terminated={short(terminated)}, truncated={short(truncated)}",
                 )
             )
-            flags = False, False
-        else:
-            odd = type(terminated) not in _BOOLS or type(truncated) not in _BOOLS
-            if odd and (flags[0] or flags[1]):  # as the fast path notes them (_end_by_flags)
-                notes.append(_odd_flags(terminated, truncated))
-        terminated, truncated = flags
+            raw_flags = terminated, truncated = False, False
         r, terms = self._slow_values(reward, info, notes)
         _append_noted(block.obs, obs, "observation", notes)
         _append_noted(block.act, action, "action", notes)
@@ -1080,12 +1089,7 @@ class Stream:
             episode.notes += 1
         if (terminated or truncated) and not episode.ended:
             self._end_by_flags(
-                episode,
-                block,
-                rows,
-                terminated,
-                truncated,
-                info if isinstance(info, Mapping) else {},
+                episode, block, rows, *raw_flags, info if isinstance(info, Mapping) else {}
             )
         if len(block.times) >= self._block_steps or now >= file.flush_at:
             file.auto_flush()
@@ -1108,7 +1112,10 @@ class Stream:
     ) -> None:
         if type(terminated) not in _BOOLS or type(truncated) not in _BOOLS:
             # e.g. the text "False", which is true: the episode ends, and the step says why
-            _add_note(episode, block, row, _odd_flags(terminated, truncated))
+            odd = f"terminated={short(terminated)}, truncated={short(truncated)}"
+            _add_note(
+                episode, block, row, note("flags_not_bool", f"{odd} (taken by their truth value)")
+            )
         ending, why = self._rules.classify_or_note(
             bool(terminated), bool(truncated), info, time_limit_hit=self._limit_hit(block)
         )
@@ -1307,14 +1314,6 @@ def _apply_block(
 
 
 _BOOLS = frozenset({bool, np.bool_})
-
-
-def _odd_flags(terminated: Any, truncated: Any) -> str:
-    return note(
-        "flags_not_bool",
-        f"terminated={short(terminated)}, truncated={short(truncated)} "
-        "(taken by their truth value)",
-    )
 
 
 def _add_note(episode: _Episode, block: _Block, row: int, text: str) -> None:

@@ -598,12 +598,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             )
 
     def _on_step_error(self, exc: Exception) -> None:
-        try:
-            for stream in self._streams:
-                stream.end_error(exc, "step")
-            self._file.flush()
-        except Exception as trouble:
-            self._file.trouble(trouble)
+        self._file.end_with_error(self._streams, exc, "step")
 
     def flush(self) -> None:
         """Write everything recorded so far to the file now."""
