@@ -11,14 +11,20 @@ are decided by the recorder).
 Ending(outcome='success', failure_label=None, truncation_reason=None)
 >>> EndingRules().classify(False, True, {}, time_limit_hit=True)
 Ending(outcome='truncated', failure_label=None, truncation_reason='time_limit')
+
+A value read from ``info`` that the rules take but that is not what they expect (a term name
+that is not a string, a success value that is not a bool, a failure label that is not text)
+is what a recorder note is for: :func:`named_terms` and :meth:`EndingRules.classify_or_note`
+say so, in the words of :func:`note`.
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 import operator
 from array import array
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -35,9 +41,28 @@ __all__ = [
     "EndingRules",
     "RewardTerms",
     "find_time_limit",
+    "named_terms",
+    "plain_names",
     "plain_time_limit",
     "time_limit_hit",
 ]
+
+_NOTE_LIMIT = 300
+
+
+def short(value: Any) -> str:
+    """``repr(value)``, cut to 80 characters (for notes and messages); never raises."""
+    try:
+        shown = repr(value)
+    except Exception as exc:
+        shown = f"<{type(value).__name__}: repr() raised {type(exc).__name__}>"
+    return shown if len(shown) <= 80 else shown[:77] + "..."
+
+
+def note(code: str, message: str) -> str:
+    """A recorder note ``"code: message"`` (see ``docs/format.md`` for the codes)."""
+    return f"{code}: {message}"[:_NOTE_LIMIT]
+
 
 TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
 
@@ -110,17 +135,20 @@ class RewardTerms:
         return names, values.T
 
     def names_for(self, keys: tuple[Any, ...]) -> tuple[str, ...] | None:
-        """The names :meth:`extract` reads from an info whose keys are ``keys`` (in order).
+        r"""The names :meth:`extract` reads from an info whose keys are ``keys`` (in order).
 
         ``()`` when such an info has no terms; ``None`` when only :meth:`extract` can tell
-        (a callable source, or a ``reward_terms`` dict in the info). The recorder asks once per
-        key tuple, then reads every step's terms with one ``itemgetter``.
+        (a callable source, or a ``reward_terms`` dict in the info) or when a name is not
+        recorded as it is (not :func:`plain_names`: :func:`named_terms` names those). The
+        recorder asks once per key tuple, then reads every step's terms with one ``itemgetter``.
 
         >>> RewardTerms().names_for(("reward_dist", "x", "reward_ctrl"))
         ('reward_dist', 'reward_ctrl')
         >>> RewardTerms(["b", "a"]).names_for(("a", "b", "c")), RewardTerms().names_for(("x",))
         (('b', 'a'), ())
         >>> RewardTerms().names_for(("reward_terms",)) is None
+        True
+        >>> RewardTerms().names_for(("reward_\udcff",)) is None  # stored escaped
         True
         """
         src = self.source
@@ -129,9 +157,13 @@ class RewardTerms:
         if callable(src) and not isinstance(src, str):
             return None
         if src == "auto":
-            return None if self.dict_key in keys else _prefixed(keys, self.prefix)
-        present = set(keys)
-        return tuple(dict.fromkeys(k for k in src if k in present))  # as extract(): once each
+            if self.dict_key in keys:
+                return None
+            names = _prefixed(keys, self.prefix)
+        else:
+            present = set(keys)
+            names = tuple(dict.fromkeys(k for k in src if k in present))  # as extract(): once
+        return names if plain_names(names) else None
 
     @property
     def extractor(self) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:
@@ -176,6 +208,77 @@ class RewardTerms:
 def _prefixed(keys: Sequence[Any], prefix: str) -> tuple[str, ...]:
     """The keys that are names starting with ``prefix``, in order."""
     return tuple(k for k in keys if isinstance(k, str) and k.startswith(prefix))
+
+
+def plain_names(names: Iterable[Any]) -> bool:
+    r"""Whether every name is recorded as it is: a ``str`` (not a subclass) UTF-8 can encode.
+
+    Such a name is its own :func:`term_name`, so distinct ones never collide; the recorder
+    and replay hand only other names to :func:`named_terms`.
+
+    >>> plain_names(["reward_a", "é"]), plain_names([b"a"]), plain_names(["a\udcff"])
+    (True, False, False)
+    """
+    names = tuple(names)
+    if not set(map(type, names)) <= _STR:
+        return False
+    try:
+        "".join(names).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+_STR = frozenset({str})
+
+
+def term_name(key: Any) -> str:
+    r"""The name a reward term's key is recorded under; never raises.
+
+    A ``str`` as it is, anything else its ``str()`` (so ``b"a"`` is ``"b'a'"``: bytes are not
+    decoded, as no other name is guessed at), through :func:`~episode_audit.columns.text`
+    (text UTF-8 cannot encode is escaped). A key whose ``str()`` raises is named after its type.
+
+    >>> term_name("dist"), term_name(b"a"), term_name(1), term_name("a\udcff")
+    ('dist', "b'a'", '1', 'a\\udcff')
+    """
+    try:
+        return text(key)
+    except Exception as exc:
+        return f"<{type(key).__name__}: str() raised {type(exc).__name__}>"
+
+
+def named_terms(
+    keys: Sequence[Any], values: Sequence[float]
+) -> tuple[dict[str, float], str | None]:
+    """A step's terms by the name each key is recorded under (:func:`term_name`).
+
+    Keys that share a name (``1`` and ``"1"``, ``b"a"`` and ``"b'a'"``) are one term, the sum
+    of their values, where the first of them was; the second item then says which keys, for
+    the ``terms_name_collision`` note (else ``None``). The recorder's two paths and replay
+    all name terms with this, so a file replays as it was recorded.
+
+    >>> named_terms([1, "x", "1"], [0.5, 2.0, 0.25])
+    ({'1': 0.75, 'x': 2.0}, "keys 1, '1' share the name '1': recorded as one term, their sum")
+    """
+    terms: dict[str, float] = {}
+    shared: list[str] = []
+    for key, value in zip(keys, values, strict=True):
+        name = term_name(key)
+        if name in terms:
+            if name not in shared:
+                shared.append(name)
+            terms[name] += value
+        else:
+            terms[name] = value
+    if not shared:
+        return terms, None
+    why = "; ".join(
+        f"keys {', '.join(short(k) for k in keys if term_name(k) == name)} share the name "
+        f"{short(name)}: recorded as one term, their sum"
+        for name in shared
+    )
+    return terms, why
 
 
 def _auto_terms(dict_key: str, prefix: str) -> Callable[[Mapping[str, Any]], dict[str, Any] | None]:
@@ -229,6 +332,11 @@ class EndingRules:
     ``truncated`` with the env-given reason, else ``time_limit`` when Gymnasium's TimeLimit
     fired, else ``external``. When both flags are set, the task ending counts and the
     truncation reason is kept beside it.
+
+    A success value is taken by its truth value, whatever it is; one that is not a bool or a
+    real number (the text ``"no"``, which is true) is a ``success_not_bool`` note. A failure
+    label that is neither text nor a bool (an int, an Enum member) is a failure without a label
+    and a ``failure_label_not_text`` note. See :meth:`classify_or_note`.
     """
 
     success_keys: Sequence[str] = ("success", "is_success")
@@ -239,22 +347,52 @@ class EndingRules:
 
     def is_success(self, info: Mapping[str, Any]) -> bool:
         """Whether the success predicate holds for this final ``info``."""
+        return self._success(info, None)
+
+    def _success(self, info: Mapping[str, Any], notes: list[str] | None) -> bool:
+        """:meth:`is_success`; a value that is not a bool or a number is noted in ``notes``."""
+        value: Any
         if self.success_fn is not None:
-            return bool(self.success_fn(info))
-        for key in self.success_keys:
-            value = info.get(key)
-            if value is not None:
-                return bool(value)
-        return False
+            value, source = self.success_fn(info), "success_fn returned"
+        else:
+            for key in self.success_keys:
+                value = info.get(key)
+                if value is not None:
+                    source = f"info[{short(key)}] is"
+                    break
+            else:
+                return False
+        truth = bool(value)  # may raise (an array): the ending is unreadable
+        if notes is not None and not _truth_value(value):
+            taken = "a success" if truth else "not a success"
+            notes.append(
+                note(
+                    "success_not_bool",
+                    f"{source} {_shown(value)}: taken by its truth value as {taken}",
+                )
+            )
+        return truth
 
     def failure_label(self, info: Mapping[str, Any]) -> str:
         """The failure label of a terminal failure (``unlabeled`` when none is given)."""
+        return self._failure_label(info, None)
+
+    def _failure_label(self, info: Mapping[str, Any], notes: list[str] | None) -> str:
+        """:meth:`failure_label`; a label that is not text nor a bool is noted in ``notes``."""
         if self.failure_fn is not None:
-            label = self.failure_fn(info)
+            label, source = self.failure_fn(info), "failure_fn returned"
         else:
-            label = info.get(self.failure_key)
+            label, source = info.get(self.failure_key), f"info[{short(self.failure_key)}] is"
         if isinstance(label, str) and label:
             return text(label)
+        if notes is not None and not _no_label(label):
+            hint = "return a string" if self.failure_fn else "give a string, or pass failure_fn"
+            notes.append(
+                note(
+                    "failure_label_not_text",
+                    f"{source} {_shown(label)}: recorded as unlabeled; {hint}",
+                )
+            )
         return fmt.UNLABELED
 
     def truncation_reason(self, info: Mapping[str, Any], *, time_limit_hit: bool) -> str:
@@ -268,22 +406,46 @@ class EndingRules:
         self, terminated: bool, truncated: bool, info: Mapping[str, Any], *, time_limit_hit: bool
     ) -> Ending:
         """Classify a final step (at least one of the flags must be set)."""
+        return self._classify(terminated, truncated, info, time_limit_hit, None)
+
+    def _classify(
+        self,
+        terminated: bool,
+        truncated: bool,
+        info: Mapping[str, Any],
+        time_limit_hit: bool,
+        notes: list[str] | None,
+    ) -> Ending:
+        """:meth:`classify`; what the values read deserve is noted in ``notes`` (if given)."""
         reason = self.truncation_reason(info, time_limit_hit=time_limit_hit) if truncated else None
         if terminated:
-            if self.is_success(info):
+            if self._success(info, notes):
                 return Ending(fmt.OUTCOME_SUCCESS, None, reason)
-            return Ending(fmt.OUTCOME_FAILURE, self.failure_label(info), reason)
+            return Ending(fmt.OUTCOME_FAILURE, self._failure_label(info, notes), reason)
         if truncated:
             return Ending(fmt.OUTCOME_TRUNCATED, None, reason)
         raise ConfigurationError("classify() needs terminated or truncated to be set")
 
     def classify_or_note(
-        self, terminated: bool, truncated: bool, info: Any, *, time_limit_hit: bool
+        self,
+        terminated: bool,
+        truncated: bool,
+        info: Any,
+        *,
+        time_limit_hit: bool,
+        notes: list[str] | None = None,
     ) -> tuple[Ending, str | None]:
         """:meth:`classify` and ``None``, or the ending by the flags alone and why.
 
         The second is for a final ``info`` that cannot be read: not a mapping, a success
-        value whose truth is ambiguous, a ``success_fn`` that raises.
+        value whose truth is ambiguous, a ``success_fn`` / ``failure_fn`` that raises.
+
+        With ``notes``, values that were read but are not what the rules expect are appended
+        to it as recorder notes (:func:`note`): ``success_not_bool``, a success value that is
+        not a bool or a real number (a 0-d array of one counts as one; NaN does not), taken by
+        its truth value; ``failure_label_not_text``, a true failure label that is not a
+        non-empty string nor a bool, recorded as ``unlabeled``. The ending is :meth:`classify`'s
+        either way. An empty string, ``None``, ``False`` or ``0`` is no label: not noted.
 
         The recorder and replay both classify this way, so neither raises over an env's info.
 
@@ -293,13 +455,25 @@ class EndingRules:
         ... )
         >>> ending.outcome, ending.failure_label, why[:40]
         ('failure', 'unlabeled', 'ValueError: The truth value of an array ')
+        >>> notes = []
+        >>> EndingRules().classify_or_note(
+        ...     True, False, {"success": "no"}, time_limit_hit=False, notes=notes
+        ... )
+        (Ending(outcome='success', failure_label=None, truncation_reason=None), None)
+        >>> notes
+        ["success_not_bool: info['success'] is 'no' (str): taken by its truth value as a success"]
         """
+        read: list[str] | None = None if notes is None else []
         try:
             if not isinstance(info, Mapping):
                 raise TypeError(f"info is a {type(info).__name__}, not a dict")
-            return self.classify(terminated, truncated, info, time_limit_hit=time_limit_hit), None
+            ending = self._classify(terminated, truncated, info, time_limit_hit, read)
         except Exception as exc:
-            why = error_text(exc)
+            why = error_text(exc)  # nothing read counts: no notes but this one
+        else:
+            if notes is not None and read:
+                notes.extend(read)
+            return ending, None
         # by the flags alone: the default rules over an empty info (no user functions)
         return _BY_FLAGS.classify(terminated, truncated, {}, time_limit_hit=time_limit_hit), why
 
@@ -316,6 +490,45 @@ class EndingRules:
 
 _BY_FLAGS = EndingRules()
 """Rules that read nothing from an info: with an empty one, the ending the flags alone give."""
+
+_BOOLS = frozenset({bool, np.bool_})
+_TRUTH_TYPES = frozenset({bool, np.bool_, int, float, np.float64, np.float32})
+"""The usual success values: bools and numbers (checked first, by type, for speed)."""
+
+
+def _truth_value(value: Any) -> bool:
+    """Whether ``value`` is a bool or a real number (not NaN), numpy's included.
+
+    A 0-d numpy array of one counts as one: it has one truth value, as the scalar has.
+    """
+    if type(value) not in _TRUTH_TYPES:
+        if isinstance(value, np.ndarray) and value.ndim == 0:
+            value = value[()]
+        if not isinstance(value, (numbers.Real, np.bool_)):
+            return False
+    try:
+        return not math.isnan(value)
+    except Exception:  # a Real whose float() fails: taken as it is
+        return True
+
+
+def _no_label(label: Any) -> bool:
+    """Whether a failure label that is not text goes without a note.
+
+    A bool (``True`` is the documented "a failure without a label") or a false value (``None``,
+    ``""``, ``0``) does; a value without a single truth value (an array) is noted.
+    """
+    if type(label) in _BOOLS:
+        return True
+    try:
+        return not label
+    except Exception:
+        return False
+
+
+def _shown(value: Any) -> str:
+    """``repr`` (cut) and type of a value, for a note: ``'no' (str)``."""
+    return f"{short(value)} ({type(value).__name__})"
 
 
 def _fn_name(fn: Callable[..., Any] | None) -> str | None:

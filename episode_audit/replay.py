@@ -34,9 +34,10 @@ flags and outcomes, without a wrapper call per step (see
 
 The re-run env's infos are read as the recorder read the recorded env's: an info that is not a
 mapping has no terms, terms that cannot be read are none, a term value that is not a number is
-NaN, a term name that is not a string is ``str()``-ed (see :meth:`_Terms.read`), and a final
-info the ending rules cannot read gives the ending by the flags alone. No info makes replay
-raise.
+NaN, term names follow the recorder's one rule (:func:`~episode_audit.outcomes.named_terms`: a
+name that is not a string is ``str()``-ed, names that then collide are one term, their sum; see
+:meth:`_Terms.read`), and a final info the ending rules cannot read gives the ending by the flags
+alone. No info makes replay raise.
 """
 
 from __future__ import annotations
@@ -64,7 +65,6 @@ from .columns import (
     number_or_nan,
     terms_column,
     terms_matrix_column,
-    text,
 )
 from .errors import ConfigurationError, ReplayError
 from .outcomes import (
@@ -72,6 +72,8 @@ from .outcomes import (
     EndingRules,
     RewardTerms,
     find_time_limit,
+    named_terms,
+    plain_names,
     plain_time_limit,
     time_limit_hit,
 )
@@ -512,7 +514,8 @@ def _recorded_terms(
     """One step's terms as the recorder's ``Stream._slow_values`` records them (no notes).
 
     None when the info is not a mapping or its terms cannot be read; each value is
-    :func:`~episode_audit.columns.number_or_nan` of it; each name a string.
+    :func:`~episode_audit.columns.number_or_nan` of it; names are the recorder's
+    (:func:`~episode_audit.outcomes.named_terms`).
     """
     if not isinstance(info, Mapping):
         return None
@@ -520,12 +523,9 @@ def _recorded_terms(
         raw = extract(info)
         if raw is None:
             return None
-        terms: dict[str, float] = {}
-        for key, value in raw.items():
-            terms[key if isinstance(key, str) else str(key)] = number_or_nan(value)
-    except Exception:  # (a name whose str() raises: the recorder could not write it either)
+        return named_terms(list(raw), [number_or_nan(value) for value in raw.values()])[0]
+    except Exception:  # terms that cannot be read: none, as the recorder noted
         return None
-    return terms
 
 
 _JUST_DICTS = frozenset({dict})
@@ -548,10 +548,11 @@ class _Terms:
     def read(self, rule: RewardTerms, rows: np.ndarray[Any, Any], infos: list[Any]) -> None:
         """Read the terms of the steps at ``rows`` from their ``infos``, as the recorder does.
 
-        Dict infos whose terms are all plain numbers are read as they are, as the recorder's
-        fast path reads them; anything else (an info that is not a dict, terms that cannot be
-        read, a value that is not a plain number) info by info, as the recorder's slow path
-        reads it (:func:`_recorded_terms`). No info makes this raise.
+        Dict infos whose terms are all plain numbers with plain names are read as they are, as
+        the recorder's fast path reads them; anything else (an info that is not a dict, terms
+        that cannot be read, a value that is not a plain number, a name that is not plain text)
+        info by info, as the recorder's slow path reads it (:func:`_recorded_terms`). No info
+        makes this raise.
         """
         self.rows = rows
         try:
@@ -559,7 +560,7 @@ class _Terms:
         except Exception:  # an info that is not a dict (a list, a number): step by step
             many = None
         if many is not None:
-            self.names, self.values = tuple(map(text, many[0])), many[1]
+            self.names, self.values = many  # plain names (names_for): as they are
             return
         extract = rule.extractor
         found: dict[int, dict[str, Any]] = {}
@@ -582,23 +583,25 @@ class _Terms:
         self.found = found
 
     def _keep_if_plain(self, found: dict[int, dict[str, Any]]) -> bool:
-        """Keep ``found`` if every value is a plain number, and say whether it was kept.
+        """Keep ``found`` if its values are plain numbers and its names plain; say if it was kept.
 
         (The ``terms`` column reads other values its own way, e.g. parses text, where the
-        recorder writes NaN.) When every step has the same string names: as a matrix.
+        recorder writes NaN; other names are the recorder's :func:`named_terms`.) When every
+        step has the same names: as a matrix.
         """
         dicts = list(found.values())
+        if not plain_names(set(chain.from_iterable(dicts))):
+            return False
         if dicts:
             names = tuple(dicts[0])
-            if all(isinstance(name, str) for name in names):
-                many = RewardTerms(names).extract_many(dicts)
-                if many is not None:
-                    self.rows = np.fromiter(found, dtype=np.int64, count=len(found))
-                    self.names, self.values = tuple(map(text, names)), many[1]
-                    return True
+            many = RewardTerms(names).extract_many(dicts)
+            if many is not None:
+                self.rows = np.fromiter(found, dtype=np.int64, count=len(found))
+                self.names, self.values = names, many[1]
+                return True
         if not set(map(type, chain.from_iterable(map(dict.values, dicts)))) <= PLAIN_NUMBERS:
             return False
-        self.found = found  # names as the recorder's fast path writes them (text_array)
+        self.found = found  # plain names: as the recorder's fast path writes them
         return True
 
     def column(self) -> pa.Array:

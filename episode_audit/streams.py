@@ -50,7 +50,16 @@ from .columns import (
     text_array,
 )
 from .errors import ConfigurationError, RecorderError
-from .outcomes import EndingRules, RewardTerms, TermsFn, time_limit_hit
+from .outcomes import (
+    EndingRules,
+    RewardTerms,
+    TermsFn,
+    named_terms,
+    plain_names,
+    time_limit_hit,
+)
+from .outcomes import note as note  # the recorders' note helpers (re-exported)
+from .outcomes import short as short
 from .records import EPISODE_ARROW_SCHEMA, EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
 from .spaces import ColumnBuffer, SpaceCodec
 from .writer import EvidenceWriter
@@ -58,7 +67,6 @@ from .writer import EvidenceWriter
 __all__ = ["EvidenceFile", "RecorderSettings", "Stream", "library_versions"]
 
 _INT64_MAX = 2**63 - 1
-_NOTE_LIMIT = 300
 
 
 def library_versions() -> dict[str, str]:
@@ -82,20 +90,6 @@ def library_versions() -> dict[str, str]:
         if module is not None:
             versions[name] = str(getattr(module, "__version__", "unknown"))
     return versions
-
-
-def short(value: Any) -> str:
-    """``repr(value)``, cut to 80 characters (for notes and messages); never raises."""
-    try:
-        shown = repr(value)
-    except Exception as exc:
-        shown = f"<{type(value).__name__}: repr() raised {type(exc).__name__}>"
-    return shown if len(shown) <= 80 else shown[:77] + "..."
-
-
-def note(code: str, message: str) -> str:
-    """A recorder note ``"code: message"`` (see ``docs/format.md`` for the codes)."""
-    return f"{code}: {message}"[:_NOTE_LIMIT]
 
 
 DEFAULT_BLOCK_STEPS = 32_768
@@ -277,6 +271,7 @@ class _Block:
         "notes",
         "obs",
         "pending",
+        "raw_names",
         "reset_info",
         "reset_notes",
         "reset_obs",
@@ -309,6 +304,8 @@ class _Block:
         self.term_counts = array("q")
         self.term_keys: list[Any] = []
         self.term_vals = array("d")
+        # whether add_terms took keys as an extractor gave them (named at flush: _apply_block)
+        self.raw_names = False
         self.ends: dict[int, tuple[str, str | None]] = {}
         self.info: dict[int, dict[str, Any]] = {}
         self.notes: dict[int, list[str]] = {}
@@ -334,6 +331,8 @@ class _Block:
         return first + self.rows() - row
 
     def add_terms(self, row: int, keys: Any, values: list[float]) -> None:
+        """Add a row's terms, its keys as they are (named by the one rule at flush)."""
+        self.raw_names = True
         self.term_rows.append(row)
         self.term_counts.append(len(values))
         self.term_keys.extend(keys)
@@ -1116,11 +1115,18 @@ class Stream:
             _add_note(
                 episode, block, row, note("flags_not_bool", f"{odd} (taken by their truth value)")
             )
+        read: list[str] = []  # notes on values read (a success value that is not a bool)
         ending, why = self._rules.classify_or_note(
-            bool(terminated), bool(truncated), info, time_limit_hit=self._limit_hit(block)
+            bool(terminated),
+            bool(truncated),
+            info,
+            time_limit_hit=self._limit_hit(block),
+            notes=read,
         )
         if why is not None:  # the ending by the flags alone; say why
-            _add_note(episode, block, row, note("ending_unreadable", why))
+            read.append(note("ending_unreadable", why))
+        for item in read:
+            _add_note(episode, block, row, item)
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
         block.flags[row] = (bool(terminated), bool(truncated))
@@ -1152,14 +1158,16 @@ class Stream:
             return r, None
         if raw is None:
             return r, None
-        terms: dict[str, float] = {}
+        values: list[float] = []
         for key, value in raw.items():
             try:
-                x = number(value)
+                values.append(number(value))
             except Exception:
-                x = math.nan
+                values.append(math.nan)
                 notes.append(note("term_not_numeric", f"term {short(key)} is {short(value)}"))
-            terms[key if isinstance(key, str) else str(key)] = x
+        terms, shared = named_terms(list(raw), values)
+        if shared is not None:
+            notes.append(note("terms_name_collision", shared))
         return r, terms
 
     def _implicit_episode(self, notes: list[str]) -> _Episode:
@@ -1285,7 +1293,9 @@ def _apply_block(
     counts = np.frombuffer(block.term_counts, dtype=np.int64)
     values = np.frombuffer(block.term_vals, dtype=np.float64)
     keys = block.term_keys
-    key_array = text_array(keys)  # non-str names str()-ed, lone surrogates escaped
+    if block.raw_names and not plain_names(set(keys)):
+        counts, keys, values = _named_block_terms(block, episode_col)
+    key_array = text_array(keys)  # every name plain (or named): as it is
     per_value = np.repeat(rows, counts)
     keep = counted[per_value]
     totals = (
@@ -1313,15 +1323,47 @@ def _apply_block(
     )
 
 
+def _named_block_terms(
+    block: _Block, episode_col: np.ndarray[Any, np.dtype[np.int64]]
+) -> tuple[np.ndarray[Any, np.dtype[np.int64]], list[str], np.ndarray[Any, np.dtype[np.float64]]]:
+    """The block's term counts, names and values, each row's named by :func:`named_terms`.
+
+    For a block whose keys are not all plain names (``b"a"``, ``1``, ``"1"``): as the slow
+    path names a step's terms, with its ``terms_name_collision`` note.
+    """
+    keys = block.term_keys
+    values = block.term_vals
+    counts = array("q")
+    names: list[str] = []
+    named_values = array("d")
+    start = 0
+    for row, count in zip(block.term_rows, block.term_counts, strict=True):
+        end = start + count
+        terms, shared = named_terms(keys[start:end], values[start:end])
+        start = end
+        if shared is not None:
+            episode = block.episodes.get(int(episode_col[row]))
+            _add_note(episode, block, row, note("terms_name_collision", shared))
+        counts.append(len(terms))
+        names.extend(terms)
+        named_values.extend(terms.values())
+    return (
+        np.frombuffer(counts, dtype=np.int64),
+        names,
+        np.frombuffer(named_values, dtype=np.float64),
+    )
+
+
 _BOOLS = frozenset({bool, np.bool_})
 
 
-def _add_note(episode: _Episode, block: _Block, row: int, text: str) -> None:
+def _add_note(episode: _Episode | None, block: _Block, row: int, text: str) -> None:
     """Add a note to the step at ``row`` (a row with notes counts once in its episode's)."""
     row_notes = block.notes.get(row)
     if row_notes is None:
         block.notes[row] = [text]
-        episode.notes += 1
+        if episode is not None:
+            episode.notes += 1
     else:
         row_notes.append(text)
 

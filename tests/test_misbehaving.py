@@ -4,7 +4,10 @@ flags each case with its own code."""
 
 from __future__ import annotations
 
+import enum
+import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -737,3 +740,229 @@ def test_numpy_bool_flags_are_not_noted(tmp_path: Path) -> None:
         for _ in range(2):
             env.step(0)
     assert findings(path, "recorder_note:flags_not_bool") == []
+
+
+# ------------------------------------------------------------------ endings read from info
+
+
+def noted(path: Path, code: str) -> list[tuple[int, int, str]]:
+    """``(episode, step, message)`` of each recorder note ``code`` in the steps' notes column."""
+    found = []
+    for row in steps_of(path):
+        for item in json.loads(row["notes"] or "[]"):
+            if item.startswith(code + ": "):
+                found.append((row["episode"], row["step"], item.removeprefix(code + ": ")))
+    return found
+
+
+def record_ending(path: Path, info: dict[str, Any], **kwargs: Any) -> dict[str, Any]:
+    """One episode of three steps ending by ``terminated`` with ``info``; its record."""
+    with scripted(path, lambda e, a: (ZEROS, 1.0, e.t == 3, False, info), **kwargs) as env:
+        assert len(loop(env, episodes=1)) == 3
+    assert_valid(path)
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    return dict(episode)
+
+
+class Colour(enum.Enum):
+    RED = 1
+
+
+@pytest.mark.parametrize(
+    ("value", "outcome", "shown"),
+    [
+        ("no", "success", r"'no' \(str\)"),
+        ("False", "success", r"'False' \(str\)"),
+        ([0], "success", r"\[0\] \(list\)"),
+        ({"done": False}, "success", r"\{'done': False\} \(dict\)"),
+        ("", "failure", r"'' \(str\)"),
+        (math.nan, "success", r"nan \(float\)"),
+    ],
+    ids=["no", "False", "list", "dict", "empty_text", "nan"],
+)
+@pytest.mark.parametrize("key", ["success", "is_success"])
+def test_a_success_value_that_is_not_a_bool_or_a_number_is_taken_by_its_truth_and_noted(
+    tmp_path: Path, key: str, value: Any, outcome: str, shown: str
+) -> None:
+    """Classified as before (so old files replay the same), and the final step says why."""
+    path = tmp_path / "success.mcap"
+    episode = record_ending(path, {key: value})
+    assert (episode["outcome"], episode["notes"]) == (outcome, 1)
+    taken = "a success" if outcome == "success" else "not a success"
+    ((ep, step, message),) = noted(path, "success_not_bool")
+    assert (ep, step) == (0, 2)
+    assert re.fullmatch(
+        rf"info\['{key}'\] is {shown}: taken by its truth value as {taken}", message
+    )
+    (finding,) = findings(path, "recorder_note:success_not_bool")
+    assert (finding.severity, finding.episode, finding.step) == ("warning", 0, 2)
+    assert message in finding.message
+
+
+@pytest.mark.parametrize(("value", "outcome"), [("yes", "success"), (None, "failure")])
+def test_a_success_fn_that_returns_no_bool_or_number_is_taken_by_its_truth_and_noted(
+    tmp_path: Path, value: Any, outcome: str
+) -> None:
+    path = tmp_path / "success_fn.mcap"
+    episode = record_ending(path, {}, ending_rules=EndingRules(success_fn=lambda info: value))
+    assert episode["outcome"] == outcome
+    ((_, step, message),) = noted(path, "success_not_bool")
+    assert step == 2
+    assert re.fullmatch(r"success_fn returned \S+ \(\w+\): taken by its truth value as .+", message)
+    assert findings(path, "recorder_note:success_not_bool") != []
+
+
+@pytest.mark.parametrize(
+    ("value", "outcome"),
+    [
+        (True, "success"),
+        (np.True_, "success"),
+        (np.False_, "failure"),
+        (1.0, "success"),
+        (0.0, "failure"),
+        (np.float32(1.0), "success"),  # Gymnasium-Robotics' is_success
+        (np.float64(0.0), "failure"),
+        (1, "success"),
+        (np.int64(0), "failure"),
+        (np.array(1.0, np.float32), "success"),  # a 0-d array: one truth value
+        (None, "failure"),  # no success value at all
+    ],
+)
+def test_success_values_that_are_bools_or_numbers_are_not_noted(
+    tmp_path: Path, value: Any, outcome: str
+) -> None:
+    path = tmp_path / "success.mcap"
+    assert record_ending(path, {"is_success": value})["outcome"] == outcome
+    assert noted(path, "success_not_bool") == []
+    assert findings(path, "recorder_note:success_not_bool") == []
+
+
+@pytest.mark.parametrize(
+    ("value", "shown"),
+    [
+        (3, r"3 \(int\)"),
+        (Colour.RED, r"<Colour\.RED: 1> \(Colour\)"),
+        (["door"], r"\['door'\] \(list\)"),
+        (b"door", r"b'door' \(bytes\)"),
+        (np.array([1, 2]), r"array\(\[1, 2\]\) \(ndarray\)"),  # no truth value: still unlabeled
+    ],
+    ids=["int", "enum", "list", "bytes", "array"],
+)
+def test_a_failure_label_that_is_not_text_is_unlabeled_and_noted(
+    tmp_path: Path, value: Any, shown: str
+) -> None:
+    path = tmp_path / "label.mcap"
+    episode = record_ending(path, {"failure": value})
+    assert (episode["outcome"], episode["failure_label"], episode["notes"]) == (
+        "failure",
+        "unlabeled",
+        1,
+    )
+    ((ep, step, message),) = noted(path, "failure_label_not_text")
+    assert (ep, step) == (0, 2)
+    assert re.fullmatch(
+        rf"info\['failure'\] is {shown}: recorded as unlabeled; "
+        r"give a string, or pass failure_fn",
+        message,
+    )
+    (finding,) = findings(path, "recorder_note:failure_label_not_text")
+    assert (finding.severity, finding.episode, finding.step) == ("warning", 0, 2)
+    assert message in finding.message
+    assert len(findings(path, "unlabeled_failure")) == 1
+
+
+def test_a_failure_fn_that_returns_no_text_is_unlabeled_and_noted(tmp_path: Path) -> None:
+    path = tmp_path / "label_fn.mcap"
+    rules = EndingRules(failure_fn=lambda info: Colour.RED)
+    assert record_ending(path, {}, ending_rules=rules)["failure_label"] == "unlabeled"
+    ((_, step, message),) = noted(path, "failure_label_not_text")
+    assert step == 2
+    assert re.fullmatch(
+        r"failure_fn returned <Colour\.RED: 1> \(Colour\): recorded as unlabeled; "
+        r"return a string",
+        message,
+    )
+
+
+@pytest.mark.parametrize(
+    ("value", "label"),
+    [
+        (True, "unlabeled"),  # documented: a failure without a label
+        (np.True_, "unlabeled"),
+        ("", "unlabeled"),  # the text for "no label", like None
+        (None, "unlabeled"),
+        (0, "unlabeled"),
+        ("door_slammed", "door_slammed"),
+    ],
+)
+def test_failure_labels_that_are_text_or_say_no_label_are_not_noted(
+    tmp_path: Path, value: Any, label: str
+) -> None:
+    path = tmp_path / "label.mcap"
+    episode = record_ending(path, {"failure": value})
+    assert (episode["outcome"], episode["failure_label"], episode["notes"]) == (
+        "failure",
+        label,
+        0,
+    )
+    assert noted(path, "failure_label_not_text") == []
+
+
+# ------------------------------------------------------------------ reward-term names
+
+
+TERM_NAME_CASES: dict[str, tuple[dict[Any, float], list[tuple[str, float]], str | None]] = {
+    # info["reward_terms"] -> the recorded terms of a step, and its terms_name_collision note
+    "bytes": ({b"a": 0.5, "b": 0.25}, [("b'a'", 0.5), ("b", 0.25)], None),
+    "int": ({0: 0.5, 1: 0.25}, [("0", 0.5), ("1", 0.25)], None),
+    "collision": (
+        {1: 0.5, "1": 0.25},
+        [("1", 0.75)],
+        r"keys 1, '1' share the name '1': recorded as one term, their sum",
+    ),
+    "bytes_collision": (
+        {"b'a'": 0.5, "c": 0.0, b"a": 0.25},
+        [("b'a'", 0.75), ("c", 0.0)],
+        r"""keys "b'a'", b'a' share the name "b'a'": recorded as one term, their sum""",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(TERM_NAME_CASES))
+def test_term_names_are_one_rule_on_both_recorder_paths_and_replay_identically(
+    tmp_path: Path, case: str
+) -> None:
+    """The fast path (plain steps) and the slow path (``info_keys`` set) write the same names
+    and values; names that collide are one term, their sum, noted; replay reads them so."""
+    from episode_audit import replay
+
+    terms, recorded, collision = TERM_NAME_CASES[case]
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return ZEROS, 0.75, env.t == 3, False, {"reward_terms": dict(terms)}
+
+    paths = {}
+    for way, kwargs in (("fast", {}), ("slow", {"info_keys": ["nothing"]})):
+        path = paths[way] = tmp_path / f"{way}.mcap"
+        with scripted(path, step, **kwargs) as env:
+            assert len(loop(env, episodes=2, steps=3)) == 6
+        assert_valid(path)
+        steps = steps_of(path)
+        assert [row["terms"] for row in steps] == [recorded] * 6, way
+        episodes = open_evidence(path).episodes().to_pylist()
+        assert [e["term_totals"] for e in episodes] == [[(k, 3 * v) for k, v in recorded]] * 2
+        notes = noted(path, "terms_name_collision")
+        if collision is None:
+            assert notes == [], way
+        else:
+            assert [(e, s) for e, s, _ in notes] == [(e, s) for e in (0, 1) for s in range(3)]
+            assert all(re.fullmatch(collision, m) for _, _, m in notes), notes
+            assert [e["notes"] for e in episodes] == [3, 3]
+            found = findings(path, "recorder_note:terms_name_collision")
+            assert [(f.severity, f.episode, f.step) for f in found] == [
+                ("warning", 0, 0),
+                ("warning", 1, 0),
+            ]
+        assert findings(path, "terms_sum_mismatch") == []
+        result = replay([path], env_factory=lambda: ScriptedEnv(step_fn=step))
+        assert [(e.status, e.steps) for e in result.episodes] == [("identical", 3)] * 2, way

@@ -5,7 +5,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from episode_audit.outcomes import RewardTerms
+from episode_audit.outcomes import Ending, EndingRules, RewardTerms, named_terms
 
 AUTO_CASES: list[tuple[dict[Any, Any], dict[str, Any] | None]] = [
     ({}, None),
@@ -85,3 +85,117 @@ def test_extract_many_is_extract_for_each_step(
             one = terms.extract(info)
             assert one is not None and list(one) == list(names)
             assert [float(v) for v in one.values()] == row
+
+
+NAME_CASES: list[tuple[list[Any], list[float], dict[str, float], str | None]] = [
+    (["a", "b"], [1.0, 2.0], {"a": 1.0, "b": 2.0}, None),
+    ([b"a", 0, True], [1.0, 2.0, 3.0], {"b'a'": 1.0, "0": 2.0, "True": 3.0}, None),
+    (["a\udcff"], [1.0], {"a\\udcff": 1.0}, None),  # as the file stores it
+    (
+        [1, "x", "1", 1.0],
+        [0.5, 2.0, 0.25, 0.125],
+        {"1": 0.5 + 0.25, "x": 2.0, "1.0": 0.125},
+        "keys 1, '1' share the name '1': recorded as one term, their sum",
+    ),
+    (
+        ["a\udcff", "a\\udcff", b"z", "b'z'"],
+        [1.0, 2.0, 3.0, 4.0],
+        {"a\\udcff": 3.0, "b'z'": 7.0},
+        "keys 'a\\udcff', 'a\\\\udcff' share the name 'a\\\\udcff': recorded as one term, their "
+        "sum; keys b'z', \"b'z'\" share the name \"b'z'\": recorded as one term, their sum",
+    ),
+]
+
+
+@pytest.mark.parametrize(("keys", "values", "terms", "collided"), NAME_CASES)
+def test_named_terms_name_every_key_by_one_rule_and_sum_the_names_that_collide(
+    keys: list[Any], values: list[float], terms: dict[str, float], collided: str | None
+) -> None:
+    got, why = named_terms(keys, values)
+    assert got == terms and list(got) == list(terms)  # first-seen order
+    assert why == collided
+
+
+def test_a_term_name_whose_str_raises_still_has_a_name() -> None:
+    class Nameless:
+        def __str__(self) -> str:
+            raise RuntimeError("no")
+
+    assert named_terms([Nameless()], [1.0]) == (
+        {"<Nameless: str() raised RuntimeError>": 1.0},
+        None,
+    )
+
+
+@pytest.mark.parametrize(
+    "source", [["reward_a", b"reward_b"], ["reward_\udcff"], [1]], ids=["bytes", "surrogate", "int"]
+)
+def test_names_that_are_not_plain_text_are_left_to_extract(source: list[Any]) -> None:
+    """names_for / extract_many give only names written as they are; the rest go through
+    extract() and named_terms, the one rule for every path."""
+    info = {key: 1.0 for key in [*source, "reward_a"]}
+    terms = RewardTerms(source)
+    assert terms.names_for(tuple(info)) is None
+    assert terms.extract_many([info] * 2) is None
+    assert terms.extract(info) == {key: 1.0 for key in source}
+
+
+def classified(
+    info: Any, rules: EndingRules | None = None, terminated: bool = True
+) -> tuple[Ending, str | None, list[str]]:
+    notes: list[str] = []
+    ending, why = (rules or EndingRules()).classify_or_note(
+        terminated, not terminated, info, time_limit_hit=False, notes=notes
+    )
+    return ending, why, notes
+
+
+@pytest.mark.parametrize(
+    ("info", "outcome", "note"),
+    [
+        ({"success": True}, "success", None),
+        ({"is_success": np.float32(1.0)}, "success", None),
+        (
+            {"success": "no"},
+            "success",
+            "success_not_bool: info['success'] is 'no' (str): taken "
+            "by its truth value as a success",
+        ),
+        (
+            {"failure": 3},
+            "failure",
+            "failure_label_not_text: info['failure'] is 3 (int): "
+            "recorded as unlabeled; give a string, or pass failure_fn",
+        ),
+        ({"success": [], "failure": 3}, "failure", None),  # both: two notes (below)
+        ({"failure": True}, "failure", None),
+    ],
+)
+def test_classify_or_note_hands_back_notes_and_classify_stays_as_it_was(
+    info: dict[str, Any], outcome: str, note: str | None
+) -> None:
+    ending, why, notes = classified(info)
+    assert why is None and ending.outcome == outcome
+    assert ending == EndingRules().classify(True, False, info, time_limit_hit=False)
+    if note is not None:
+        assert notes == [note]
+    elif "failure" in info and "success" in info:
+        assert [n.partition(":")[0] for n in notes] == [
+            "success_not_bool",
+            "failure_label_not_text",
+        ]
+    else:
+        assert notes == []
+    # without notes=, as before: the same ending, nothing else
+    assert EndingRules().classify_or_note(True, False, info, time_limit_hit=False) == (ending, None)
+
+
+def test_notes_are_bounded_and_left_out_when_the_ending_is_unreadable() -> None:
+    ending, why, notes = classified({"success": "x" * 10_000})
+    assert ending.outcome == "success" and len(notes) == 1 and len(notes[0]) <= 300
+    broken = EndingRules(success_fn=lambda info: "", failure_fn=lambda info: info["missing"])
+    ending, why, notes = classified({}, broken)
+    assert ending.failure_label == "unlabeled" and why == "KeyError: 'missing'"
+    assert notes == []  # the ending is by the flags alone: nothing was read
+    ending, why, notes = classified({"success": "no"}, terminated=False)
+    assert ending.outcome == "truncated" and notes == []  # success is not read for truncations
