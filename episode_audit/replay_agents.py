@@ -10,18 +10,33 @@ reward terms, ``terminated``, ``truncated``, length and outcome.
 
 Where the recorded actions run out, the replay stops at ``agent_selection``'s turn and closes
 the other agents' open rows (and begins those without a turn) with the env's state there, as
-the recorder did when the game was cut by ``reset()`` or ``close()``. Two kinds of games were
+the recorder did when the game was cut by ``reset()`` or ``close()``. Three kinds of games were
 not cut there:
 
+- a game whose ``reset()`` raised (``error`` during ``reset``): it has no reset row and no
+  step, so there is nothing to compare; its agent-episodes are ``not_replayable`` with a
+  single env's reason, whether or not the replay's reset would raise;
 - a game cut off by a torn file (an agent-episode without an end record): the recording went
   on, so those rows and reset rows were recorded at later turns, after an action the file does
   not hold. They cannot be replayed: the episode is ``not_replayable`` (saying which step and
   whose missing action), once everything before it compared identical;
-- a game whose ``step()`` raised (``error`` during ``step``): the recorder closed the open rows
-  with the env's state after the failed step, which the replay (not repeating that step, whose
-  action is no row) has only if the env left its state untouched. Such a row whose
-  observation, terms or flags differ makes its episode ``not_replayable``, saying so, never
-  ``diverged`` (its reward, summed over steps that completed, is compared as any other).
+- a game whose ``step()`` raised (``error`` during ``step``): the step that raised came after
+  the game's last recorded action — the next agent's step, whose action is no row, or a dead
+  step after it (the file does not say which). The recorder closed the open rows with the
+  env's state when it raised, which the replay has only if the env left its state untouched
+  and, where the replay performs dead steps after that action, only if the recording raised
+  after them. So the rows closed after the next agent's turn following that action are
+  compared up to what the file can reproduce: such a row whose observation, terms or flags
+  differ makes its episode ``not_replayable``, saying so (the game, the last recorded action,
+  the recorded error, and whether the replay's dead steps there raised), never ``diverged``
+  (its reward, summed over steps that completed, is compared as any other). A dead step that
+  raises there on replay is taken as the recorded error.
+
+The replay's env raising where the recording's did not is a divergence, as for a single env:
+a reset that raises diverges every agent-episode of the game at ``reset``; a step that raises
+(any step before the last recorded action has run, whose action is a row or whose dead step
+the recording completed) diverges at ``step`` every agent-episode whose rows it cut short,
+naming the agent and step that raised for the other agents.
 
 How the env is built, safely:
 
@@ -42,6 +57,7 @@ import importlib
 import json
 import warnings
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import pyarrow as pa
@@ -53,6 +69,7 @@ from .reader import Evidence
 from .replay import (
     Divergence,
     EpisodeReplay,
+    Status,
     _row_ranges,
     _rules_of,
     _short,
@@ -127,18 +144,51 @@ def build_pettingzoo_env(
     return env
 
 
+@dataclass(frozen=True)
+class _Crash:
+    """Where the replay's env raised, and what.
+
+    ``agent``'s step ``step`` (``None``: its dead step); ``agent`` ``None``: outside an agent's
+    step (a Parallel step, or a call of the replay's own accounting).
+    """
+
+    agent: str | None
+    step: int | None
+    error: str
+
+    def place(self) -> tuple[str, int | None]:
+        """(agent, step) of an agent's step, for :func:`_turn_name`."""
+        assert self.agent is not None
+        return self.agent, self.step
+
+    def divergence(self, agent: str, step: int) -> Divergence:
+        """``agent``'s episode, whose row ``step`` the replay could not complete."""
+        got = self.error
+        if self.agent is not None and (self.agent, self.step) != (agent, step):
+            got += f" (raised in {_turn_name(*self.place())})"
+        return Divergence(step, "step", "a step", got)
+
+
+def _turn_name(agent: str, step: int | None) -> str:
+    return f"{agent}'s dead step" if step is None else f"{agent}'s step {step}"
+
+
 class _Game:
     """The replayed rows of one game, per agent."""
 
     def __init__(self) -> None:
         self.reset: dict[str, Any] = {}
         self.rows: dict[str, list[tuple[Any, Any, float, bool, bool, Any]]] = {}
-        self.crash: tuple[str | None, str] | None = None
+        self.crash: _Crash | None = None
         # AEC: rows and reset rows made at real turns, before the game was cut (None: not cut)
         self.turned: dict[str, int] | None = None
         self.started: set[str] = set()
         # AEC: (agent, its action index) where the recorded actions ran out
         self.stopped: tuple[str, int] | None = None
+        # AEC: (agent, its action index) of the last recorded action the replay took
+        self.last: tuple[str, int] | None = None
+        # AEC: the agents whose dead steps the replay performed after the game was cut
+        self.dead_after_cut: list[str] = []
 
     def cut(self) -> None:
         """Mark what was replayed so far as made at real turns; what follows closes the game."""
@@ -158,37 +208,52 @@ class _Game:
 
 
 def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int, failed: bool) -> None:
-    """Drive an AEC game; ``failed``: the recorded game ended by a ``step()`` that raised."""
+    """Drive an AEC game; ``failed``: the recorded game ended by a ``step()`` that raised.
+
+    In such a game the recording raised after its last recorded action, so the game is cut
+    (:meth:`_Game.cut`) at the turn that follows it, once that agent's turn has come (the
+    recording had that turn too). A dead step the replay performs after the cut may be the
+    one that raised: it is noted, and if it raises, that is the recorded error. Any other step
+    that raises is a divergence (the recording completed it).
+    """
     from .multiagent import AECTurns
 
     turns = AECTurns(env, game.on_reset, game.on_row)
     turns.begin(list(env.agents))
     taken: dict[str, int] = {}
+    left = sum(len(queue) for queue in queues.values())
     for _ in range(limit):
         if not env.agents:
             break
-        agent = env.agent_selection
+        agent = str(env.agent_selection)
         dead = env.terminations.get(agent, False) or env.truncations.get(agent, False)
-        queue = queues.get(str(agent), [])
+        queue = queues.get(agent, [])
         if not dead and not queue:
             # the recording stopped here (or its next action was lost): the agent's turn came
             turns.arrive()
-            game.stopped = (str(agent), taken.get(str(agent), 0))
+            game.stopped = (agent, taken.get(agent, 0))
             break
         action = None if dead else queue.pop(0)
         if not dead:
-            taken[str(agent)] = taken.get(str(agent), 0) + 1
+            taken[agent] = taken.get(agent, 0) + 1
+            game.last = (agent, taken[agent] - 1)
+            left -= 1
         turns.turn(action)
+        past = failed and dead and not left  # at or after the step the recording raised in
+        if past and game.turned is None:
+            game.cut()
         try:
             env.step(action)
         except Exception as exc:
-            game.crash = (str(agent), f"{type(exc).__name__}: {exc}")
-            if failed:  # so did the recording (or at least its game ended by an error)
-                game.cut()
+            game.crash = _Crash(agent, None if dead else taken[agent] - 1, _error_text(exc))
+            if past:  # the recorded error, raised again
                 turns.failed()
             return
+        if past:
+            game.dead_after_cut.append(agent)
         turns.stepped()
-    game.cut()
+    if game.turned is None:
+        game.cut()
     turns.finish()
 
 
@@ -206,7 +271,7 @@ def _run_parallel(env: Any, game: _Game, queues: dict[str, list[Any]], limit: in
         try:
             obs, rewards, term, trunc, infos = env.step(actions)
         except Exception as exc:
-            game.crash = (None, f"{type(exc).__name__}: {exc}")
+            game.crash = _Crash(None, None, _error_text(exc))
             return
         for agent, action in actions.items():
             game.on_row(agent, action, agent_result(agent, obs, rewards, term, trunc, infos))
@@ -323,17 +388,20 @@ def _replay_game(
 ) -> list[EpisodeReplay]:
     first = next(iter(members.values()))
     seed, rng_state = first.get("seed"), first.get("rng_state")
-    if seed is None and rng_state is None:
+
+    def every(
+        status: Status, reason: str | None, divergence: Divergence | None = None
+    ) -> list[EpisodeReplay]:
+        """The same result for every agent-episode of the game (nothing of it was compared)."""
         return [
-            EpisodeReplay(
-                path,
-                int(r["episode"]),
-                "not_replayable",
-                0,
-                reason="no seed or RNG state recorded for its game's reset",
-            )
+            EpisodeReplay(path, int(r["episode"]), status, 0, divergence, reason)
             for r in members.values()
         ]
+
+    if seed is None and rng_state is None:
+        return every("not_replayable", "no seed or RNG state recorded for its game's reset")
+    if any(r.get("error_during") == "reset" for r in members.values()):
+        return every("not_replayable", _RESET_RAISED)
     queues: dict[str, list[Any]] = {}
     for agent, r in members.items():
         start, count = rows.get(int(r["episode"]), (0, 0))
@@ -358,13 +426,17 @@ def _replay_game(
         if seed is None:
             restore_rng_state(env, json.loads(str(rng_state)))
         out = env.reset(seed=None if seed is None else int(seed), options=options)
+    except Exception as exc:  # the recorded reset did not raise (see above): as a single env
+        return every("diverged", None, Divergence(None, "reset", "a reset", _error_text(exc)))
+    try:
         if aec:
             _run_aec(env, game, queues, limit, cut_kind == _FAILED)
         else:
             game.reset["__reset__"] = out
             _run_parallel(env, game, queues, limit)
     except Exception as exc:
-        game.crash = (None, f"{type(exc).__name__}: {exc}")
+        game.crash = _Crash(None, None, _error_text(exc))
+    failure = _recorded_error(members) if cut_kind == _FAILED else None
     results = []
     for agent, r in members.items():
         results.append(
@@ -383,6 +455,7 @@ def _replay_game(
                 atol,
                 path,
                 cut_kind,
+                failure,
             )
         )
     return results
@@ -390,6 +463,49 @@ def _replay_game(
 
 _TORN = "torn"
 _FAILED = "failed"
+_RESET_RAISED = "its reset raised (an error episode): there is no reset to compare"
+"""A single env's reason (``replay._EpisodeRunner._step_all``), for a game whose reset raised."""
+
+
+def _error_text(exc: BaseException) -> str:
+    """An exception the replay's env raised, as a single env's replay words it."""
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _recorded_error(members: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """``"Type: message"`` of the error a game's ``step()`` raised when it was recorded."""
+    for r in members.values():
+        if r.get("outcome") == fmt.OUTCOME_ERROR and r.get("error_during") == "step":
+            return f"{r.get('error_type')}: {r.get('error_message')}"
+    return None
+
+
+def _failed_step_reason(game_index: Any, game: _Game, error: str, step: int, what: str) -> str:
+    """Why row ``step``, closed when the recorded game's ``step()`` raised, cannot be compared.
+
+    ``what`` describes the difference. The step that raised came after the game's last recorded
+    action (``game.last``): the replay stopped at the next agent's turn, whose action is not in
+    the file (that step raised), or performed dead steps there that did not raise (the file
+    does not say whether the recording raised in one of them or at the turn after them).
+    """
+    after = "its reset" if game.last is None else _turn_name(*game.last)
+    dead = ", ".join(_turn_name(agent, None) for agent in game.dead_after_cut)
+    if game.crash is not None:
+        replay_did = f"it raised {game.crash.error} too, in {_turn_name(*game.crash.place())}"
+        replay_did += f" (after {dead})" if dead else ""
+    elif dead:
+        replay_did = f"it did not (it performed {dead})"
+    elif game.stopped is not None:
+        replay_did = (
+            f"it stops at {_turn_name(*game.stopped)}, which raised: its action is not in the file"
+        )
+    else:
+        replay_did = "its game is over there"
+    return (
+        f"game {game_index}, after {after} (the game's last recorded action): recorded: the "
+        f"env raised {error} here; replay: {replay_did}, so its step {step}, closed with the "
+        f"env's state when the env raised, cannot be compared ({what})"
+    )
 
 
 def _compare(
@@ -407,6 +523,7 @@ def _compare(
     atol: float,
     path: str,
     cut_kind: str | None = None,
+    failure: str | None = None,
 ) -> EpisodeReplay:
     index = int(record["episode"])
     start, count = rows.get(index, (0, 0))
@@ -421,17 +538,10 @@ def _compare(
     def state_diverged(step: int, divergence: Divergence) -> EpisodeReplay:
         """A row's observation, terms or flags differ (its reward is the steps' own)."""
         if cut_kind == _FAILED and step >= turned:
-            return EpisodeReplay(
-                path,
-                index,
-                "not_replayable",
-                step,
-                reason=(
-                    f"its step {step} was closed when the env raised in step(), with the env's "
-                    "state after that failed step, which a replay does not repeat "
-                    f"({divergence.describe()})"
-                ),
+            reason = _failed_step_reason(
+                record.get("game"), game, failure or "an error", step, divergence.describe()
             )
+            return EpisodeReplay(path, index, "not_replayable", step, reason=reason)
         return diverged(step, divergence)
 
     def cut_off(what: str, step: int) -> EpisodeReplay:
@@ -515,8 +625,8 @@ def _compare(
                 )
     if torn and count > n:
         return cut_off(f"its step {n}", n)
-    if game.crash is not None and (game.crash[0] in (None, agent)) and len(got) < count:
-        return diverged(len(got), Divergence(len(got), "step", "a step", game.crash[1]))
+    if game.crash is not None and len(got) < count:
+        return diverged(len(got), game.crash.divergence(agent, len(got)))
     if len(got) != count:
         return diverged(
             n,

@@ -9,6 +9,7 @@ twin env stepped by hand with the same seed and actions, summing what PettingZoo
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import sys
 import warnings
@@ -20,7 +21,7 @@ import numpy as np
 import pettingzoo
 import pytest
 from pettingzoo import AECEnv
-from pettingzoo.utils.wrappers import BaseWrapper
+from pettingzoo.utils.wrappers import BaseParallelWrapper, BaseWrapper
 from typer.testing import CliRunner
 
 from episode_audit import (
@@ -304,10 +305,188 @@ def test_an_aec_step_that_changes_the_env_and_raises_is_not_replayed_past_it(
     assert (first.status, first.steps) == ("not_replayable", 1)
     assert first.reason is not None
     assert first.reason.startswith(
-        "its step 1 was closed when the env raised in step(), with the env's state after that "
-        "failed step, which a replay does not repeat (step 1: observation expected "
+        "game 0, after player_1's step 1 (the game's last recorded action): recorded: the env "
+        "raised RuntimeError: engine crashed late here; replay: it stops at player_2's step 1, "
+        "which raised: its action is not in the file, so its step 1, closed with the env's "
+        "state when the env raised, cannot be compared (step 1: observation expected "
     )
     assert [r.status for r in others] == ["identical"] * 3
+
+
+class _Leaving(_Everyone):
+    """As :class:`_Everyone`, but ``a`` is terminated by its second action (at step 4) while
+    ``b`` and ``c`` play on; its dead step comes next (PettingZoo's ``_deads_step_first``).
+    Every agent observes the step index and how many agents are in the game. ``reset()``
+    raises while ``broken_reset`` is set, a dead step while ``broken_dead`` is.
+    """
+
+    metadata = {"name": "leaving_v0"}
+
+    def __init__(self, broken_dead: bool = False, broken_reset: bool = False) -> None:
+        super().__init__()
+        from gymnasium.spaces import Box
+
+        self._obs = Box(0.0, 100.0, (2,), np.float32)
+        self.broken_dead, self.broken_reset = broken_dead, broken_reset
+
+    def observe(self, agent: str) -> Any:
+        return np.array([self.t, len(self.agents)], dtype=np.float32)
+
+    def reset(self, seed: int | None = None, options: Any = None) -> None:
+        if self.broken_reset:
+            raise RuntimeError("no board")
+        super().reset(seed=seed, options=options)
+        self._skip_agent_selection = None
+
+    def step(self, action: Any) -> None:
+        agent = self.agent_selection
+        if self.terminations[agent] or self.truncations[agent]:
+            if self.broken_dead:
+                raise RuntimeError("dead step broke")
+            self._was_dead_step(action)
+            return
+        super().step(action)
+        if self.t == 4:
+            self.terminations["a"] = True
+            self._deads_step_first()
+
+
+def _play_leaving(env: Any, seed: int) -> None:
+    env.reset(seed=seed)
+    for _agent in env.agent_iter():
+        _, _, term, trunc, _ = env.last()
+        env.step(None if term or trunc else 1)
+
+
+def _statuses(result: Any) -> list[tuple[str, str | None]]:
+    return [
+        (r.status, None if r.divergence is None else r.divergence.describe())
+        for r in result.episodes
+    ]
+
+
+def test_an_aec_dead_step_that_raised_only_when_recorded_is_not_called_diverged(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "leaving.mcap"
+    with RecordAECEvidence(_Leaving(), path) as env:
+        _play_leaving(env, 0)
+        env.unwrapped.broken_dead = True
+        with pytest.raises(RuntimeError, match=r"^dead step broke$"):
+            _play_leaving(env, 1)  # a's dead step (after its second action) raises
+    rows = open_evidence(path).episodes().to_pylist()
+    assert [(r["game"], r["agent"], r["outcome"], r["length"]) for r in rows[3:]] == [
+        (1, "a", "failure", 2),  # its last row closed at its (dead) turn, before the raise
+        (1, "b", "error", 1),  # b's and c's open rows closed with the env's state then
+        (1, "c", "error", 1),
+    ]
+    # the replay performs a's dead step itself: it does not raise, a leaves, and b's turn
+    # comes, a state the recording never had; b's row was called diverged on its observation
+    result = replay([path], env_factory=_Leaving)
+    assert [r.status for r in result.episodes] == ["identical"] * 4 + ["not_replayable"] * 2
+    for replayed, agent in zip(result.episodes[4:], "bc", strict=True):
+        assert replayed.steps == 0
+        assert re.fullmatch(
+            r"game 1, after a's step 1 \(the game's last recorded action\): recorded: the env "
+            r"raised RuntimeError: dead step broke here; replay: it did not \(it performed a's "
+            r"dead step\), so its step 0, closed with the env's state when the env raised, "
+            r"cannot be compared \(step 0: observation expected \[4\.0, 3\.0\], got "
+            r"\[4\.0, 2\.0\] \(max abs diff 1\)\)",
+            replayed.reason or "",
+        ), (agent, replayed.reason)
+    # a replay whose dead step raises there too has the recorded game's state
+    again = replay([path], env_factory=lambda: _Leaving(broken_dead=True)).episodes
+    assert [r.status for r in again[3:]] == ["identical"] * 3
+
+
+def test_an_aec_replay_that_raises_where_the_recording_did_not_diverges_there(
+    tmp_path: Path,
+) -> None:
+    # game 0 of this file raised on its 4th step, game 1 did not
+    path = tmp_path / "crash.mcap"
+    _record_crash(path, _crashing_ttt(4), "^engine crashed$")
+    # the replay raises on the 2nd step (player_2's first move), which the recording completed
+    early = replay([path], env_factory=_crashing_ttt(2))
+    assert _statuses(early) == [
+        (
+            "diverged",
+            "step 0: step expected a step, got RuntimeError: engine crashed "
+            "(raised in player_2's step 0)",
+        ),
+        ("diverged", "step 0: step expected a step, got RuntimeError: engine crashed"),
+        ("identical", None),
+        ("identical", None),
+    ]
+    # a dead step that raises only on replay: b and c never completed a row
+    leaving = tmp_path / "leaving.mcap"
+    with RecordAECEvidence(_Leaving(), leaving) as env:
+        _play_leaving(env, 0)
+    dead = replay([leaving], env_factory=lambda: _Leaving(broken_dead=True))
+    assert _statuses(dead) == [
+        ("identical", None),
+        (
+            "diverged",
+            "step 0: step expected a step, got RuntimeError: dead step broke "
+            "(raised in a's dead step)",
+        ),
+        (
+            "diverged",
+            "step 0: step expected a step, got RuntimeError: dead step broke "
+            "(raised in a's dead step)",
+        ),
+    ]
+    # a reset that raises only on replay: every agent-episode, rows or not, as a single env
+    reset = replay([leaving], env_factory=lambda: _Leaving(broken_reset=True))
+    assert (
+        _statuses(reset)
+        == [("diverged", "reset: reset expected a reset, got RuntimeError: no board")] * 3
+    )
+
+
+class _ResetFails(BaseParallelWrapper):  # type: ignore[misc]
+    """A Parallel env whose ``reset()`` raises while ``broken_reset`` is set."""
+
+    broken_reset = False
+
+    def reset(self, seed: int | None = None, options: Any = None) -> Any:
+        if self.broken_reset:
+            raise RuntimeError("no board")
+        return super().reset(seed=seed, options=options)
+
+
+def _play_rps(env: Any, seed: int) -> None:
+    env.reset(seed=seed)
+    while env.agents:
+        env.step(dict.fromkeys(env.agents, 1))
+
+
+@pytest.mark.parametrize("api", ["aec", "parallel"])
+def test_a_game_whose_reset_raised_is_not_replayable(tmp_path: Path, api: str) -> None:
+    """As a single env's episode whose reset raised, though the replay's reset does not."""
+    path = tmp_path / "reset.mcap"
+    if api == "aec":
+        recorder: Any = RecordAECEvidence(_Leaving(), path)
+        play, broken, make = _play_leaving, recorder.unwrapped, _Leaving
+    else:
+        recorder = RecordParallelEvidence(_ResetFails(rps_v2.parallel_env(max_cycles=3)), path)
+        play, broken, make = _play_rps, recorder.env, lambda: rps_v2.parallel_env(max_cycles=3)
+    with recorder as env:
+        play(env, 0)
+        broken.broken_reset = True
+        with pytest.raises(RuntimeError, match=r"^no board$"):
+            env.reset(seed=1)  # game 1: no reset row, no step
+        broken.broken_reset = False
+        play(env, 2)
+    rows = open_evidence(path).episodes().to_pylist()
+    agents = len(rows) // 3
+    assert [(r["game"], r["error_during"]) for r in rows] == [(0, None)] * agents + [
+        (1, "reset")
+    ] * agents + [(2, None)] * agents
+    assert {r["outcome"] for r in rows if r["game"] == 1} == {"error"}
+    result = replay([path], env_factory=make)
+    assert [(r.status, r.reason) for r in result.episodes] == [("identical", None)] * agents + [
+        ("not_replayable", "its reset raised (an error episode): there is no reset to compare")
+    ] * agents + [("identical", None)] * agents
 
 
 def _torn_copy(src: Path, dst: Path) -> Path:
