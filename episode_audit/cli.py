@@ -133,10 +133,18 @@ def main_options(
 
 FormatOption = Annotated[
     str,
-    typer.Option("--format", "-f", help="Output format: table, markdown (CI summaries) or json."),
+    typer.Option(
+        "--format",
+        "-f",
+        help="Output format: table, markdown (CI summaries) or json.",
+        metavar="<format>",
+    ),
 ]
+# readable=False: the library says "cannot open: Permission denied" in one line, and the
+# other inputs go on (Click's own check is a three-line usage error that stops them all)
 PathsArgument = Annotated[
-    list[Path], typer.Argument(help="Evidence files, or directories searched for *.mcap.")
+    list[Path],
+    typer.Argument(help="Evidence files, or directories searched for *.mcap.", readable=False),
 ]
 
 
@@ -254,7 +262,10 @@ def check(
 def replay(
     paths: PathsArgument,
     episode: Annotated[
-        list[int] | None, typer.Option("--episode", "-e", help="Replay only these episodes.")
+        list[int] | None,
+        typer.Option(
+            "--episode", "-e", help="Replay only this episode (repeatable).", metavar="<int>"
+        ),
     ] = None,
     atol: Annotated[
         float, typer.Option(help="Tolerance for numeric comparisons (0: exact, the default).")
@@ -265,7 +276,11 @@ def replay(
     ] = None,
     import_: Annotated[
         list[str] | None,
-        typer.Option("--import", help="Import MODULE first (e.g. a package that registers envs)."),
+        typer.Option(
+            "--import",
+            help="Import MODULE first (e.g. a package that registers envs; repeatable).",
+            metavar="<module>",
+        ),
     ] = None,
     trust_entry_points: Annotated[
         bool,
@@ -374,7 +389,10 @@ def report(
     ] = None,
     max_failure_rate: Annotated[
         list[str] | None,
-        typer.Option(help="Gate: RATE overall, or LABEL=RATE for one failure label (repeatable)."),
+        typer.Option(
+            help="Gate: RATE overall, or LABEL=RATE for one failure label (repeatable).",
+            metavar="<[label=]rate>",
+        ),
     ] = None,
     max_truncation_rate: Annotated[
         float | None, typer.Option(help="Gate: fail if a group's truncation rate is higher.")
@@ -421,6 +439,8 @@ def report(
     except EpisodeAuditError as exc:
         fail(str(exc))
     emit(report_output(result, fmt))
+    for line in result.gate_notes:
+        _stderr().print(f"episode-audit: warning: {safe(line)}", markup=False, soft_wrap=True)
     if unreadable:
         raise typer.Exit(EXIT_USAGE)
     if not result.passed:
@@ -446,7 +466,7 @@ def _parse_slice(value: str | None) -> tuple[int | None, int | None]:
 
 @app.command()
 def show(
-    path: Annotated[Path, typer.Argument(help="An evidence file.")],
+    path: Annotated[Path, typer.Argument(help="An evidence file.", readable=False)],
     episode: Annotated[
         int | None, typer.Option("--episode", "-e", help="Show this episode's steps.")
     ] = None,
@@ -527,7 +547,10 @@ def export(
 def recover(
     path: Annotated[
         Path,
-        typer.Argument(help="A torn evidence file (left by a killed recorder) or a damaged one."),
+        typer.Argument(
+            help="A torn evidence file (left by a killed recorder) or a damaged one.",
+            readable=False,
+        ),
     ],
     out: Annotated[Path, typer.Option("--out", "-o", help="The finished file to write.")],
     overwrite: Annotated[
@@ -578,10 +601,16 @@ def record(
         int | None, typer.Option(help="Override the registered time limit.")
     ] = None,
     tag: Annotated[
-        list[str] | None, typer.Option(help="Run tag KEY=VALUE (repeatable), e.g. policy=ppo.")
+        list[str] | None,
+        typer.Option(
+            help="Run tag KEY=VALUE (repeatable), e.g. policy=ppo.", metavar="<key=value>"
+        ),
     ] = None,
     import_: Annotated[
-        list[str] | None, typer.Option("--import", help="Import MODULE first (registers envs).")
+        list[str] | None,
+        typer.Option(
+            "--import", help="Import MODULE first (registers envs; repeatable).", metavar="<module>"
+        ),
     ] = None,
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Replace an existing file.")

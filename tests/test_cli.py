@@ -1,7 +1,10 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -50,6 +53,17 @@ def test_help_and_version() -> None:
         assert command in out
     code, out, _ = run("--version")
     assert code == 0 and out.startswith("episode-audit ")
+
+
+@pytest.mark.parametrize(
+    "command", ["check", "replay", "report", "show", "export", "record", "recover"]
+)
+def test_help_names_option_values_not_python_types(command: str) -> None:
+    """Options read ``--episode <int>`` and ``--tag <key=value>``, not ``<list[int]>``."""
+    code, out, _ = run(command, "--help")
+    assert code == 0
+    options = out[out.index("Options:") :]
+    assert "<list[" not in options, options
 
 
 def test_check_terms_that_do_not_sum_exit_1_and_name_the_step() -> None:
@@ -412,3 +426,72 @@ def test_record_out_naming_a_directory_says_so(tmp_path: Path) -> None:
     code, _, err = run("record", "CartPole-v1", "--out", str(tmp_path), "--episodes", "1")
     assert code == 2
     one_error_line(err, f"{tmp_path}: is a directory; give the evidence file's path")
+
+
+def test_a_gate_on_a_label_no_failure_has_warns_and_still_passes() -> None:
+    """A misspelt label (``colision``) would pass every time; the report says so."""
+    code, out, err = run(
+        "report",
+        "fixtures/unlabeled_failure.mcap",
+        "--max-failure-rate",
+        "colision=0.1",
+        "--format",
+        "json",
+    )
+    assert code == 0
+    assert json.loads(out)["unmatched_labels"] == ["colision"]
+    assert err.strip() == (
+        "episode-audit: warning: gate max_failure_rate:colision: no failure in these files is "
+        "labelled 'colision': is the label spelt as recorded? (labels seen: 'unlabeled')"
+    )
+
+
+def _without_read_override() -> list[str] | None:
+    """A command prefix under which a mode-000 file cannot be read: none for a normal user;
+    for root, ``setpriv`` dropping the capabilities that bypass file permissions."""
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        return None
+    caps = "-dac_override,-dac_read_search"
+    return [setpriv, "--bounding-set", caps, "--inh-caps", caps]
+
+
+@pytest.mark.parametrize("command", ["check", "report", "show", "replay", "export", "recover"])
+def test_a_file_without_read_permission_is_one_line_and_the_others_go_on(
+    tmp_path: Path, command: str
+) -> None:
+    """Click's own readability check was a three-line usage error that stopped every input."""
+    prefix = _without_read_override()
+    if prefix is None:
+        pytest.skip("running as root without setpriv: a mode-000 file stays readable")
+    locked = tmp_path / "locked.mcap"
+    shutil.copy(FIXTURES / "clean.mcap", locked)
+    locked.chmod(0)
+    several = command in ("check", "report", "replay", "export")
+    args = [str(locked), *([str(FIXTURES / "clean.mcap")] if several else [])]
+    if command in ("export", "recover"):
+        args += ["--out", str(tmp_path / "out")]
+    done = subprocess.run(
+        [*prefix, sys.executable, "-m", "episode_audit", command, *args, "--format", "json"]
+        if command in ("check", "report", "replay")
+        else [*prefix, sys.executable, "-m", "episode_audit", command, *args],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
+    assert done.returncode == 2, done
+    if command == "check":  # an unreadable input is a finding there, and the exit says so
+        findings = json.loads(done.stdout)["findings"]
+        assert [f["code"] for f in findings] == ["file_unreadable"], findings
+        assert "cannot open: Permission denied" in findings[0]["message"]
+    else:
+        one_error_line(done.stderr, f"{locked}: cannot open: Permission denied")
+    if command == "report":
+        assert json.loads(done.stdout)["groups"][0]["episodes"] == 6
+    if command == "replay":
+        assert json.loads(done.stdout)["summary"]["identical"] == 6
+    if command == "export":
+        assert (tmp_path / "out" / "episodes.parquet").exists()
