@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -260,7 +260,9 @@ class Report:
           ],
           "gates": [{"gate": str, "group": str, "passed": bool, "message": str}, ...],
           "unfinished": [{"file": str, "why": str}, ...]   # files still being written or torn
-          "unit": str                # "episode", or "game" (PettingZoo games, games=True)
+          "unit": str,               # "episode", or "game" (PettingZoo games, games=True)
+          "unmatched_labels": [str, ...]   # labels of per-label failure gates that no failure
+                                           # has: a misspelt label would pass every time
         }
 
     An unfinished file (its writer is still running, or was killed) is reported with what was
@@ -273,6 +275,17 @@ class Report:
     gates: list[GateResult]
     unfinished: list[tuple[str, str]] = field(default_factory=list)
     unit: str = "episode"
+    unmatched_labels: list[str] = field(default_factory=list)
+
+    @property
+    def gate_notes(self) -> list[str]:
+        """One line for each per-label failure gate on a label no failure has."""
+        seen = sorted({label for group in self.groups for label in group.failures})
+        labels = ", ".join(map(repr, seen)) if seen else "none"
+        return [
+            f"gate max_failure_rate:{label}: {_unmatched_why(label)} (labels seen: {labels})"
+            for label in self.unmatched_labels
+        ]
 
     @property
     def passed(self) -> bool:
@@ -291,6 +304,7 @@ class Report:
             ],
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
             "unit": self.unit,
+            "unmatched_labels": list(self.unmatched_labels),
         }
 
 
@@ -659,8 +673,22 @@ def _gate(
     return GateResult(gate, group.key, passed, f"{what} {shown} {op} {limit} {where}")
 
 
+def _unmatched_labels(gates: Gates | None, groups: Sequence[GroupReport]) -> list[str]:
+    """The labels of per-label failure gates that no failure of any group has."""
+    if gates is None:
+        return []
+    seen = {label for group in groups for label in group.failures}
+    return sorted(set(gates.max_failure_rate_by_label) - seen)
+
+
+def _unmatched_why(label: str) -> str:
+    """What a gate on a label no failure has means (a misspelt label always passes)."""
+    return f"no failure in these files is labelled {label!r}: is the label spelt as recorded?"
+
+
 def _gates(gates: Gates, groups: list[GroupReport]) -> list[GateResult]:
     results: list[GateResult] = []
+    unmatched = set(_unmatched_labels(gates, groups))
     for group in groups:
         if gates.min_success_rate is not None:
             results.append(
@@ -686,16 +714,12 @@ def _gates(gates: Gates, groups: list[GroupReport]) -> list[GateResult]:
             )
         for label, bound in sorted(gates.max_failure_rate_by_label.items()):
             rate = _rate(group.failures.get(label, 0), group.ended)
-            results.append(
-                _gate(
-                    f"max_failure_rate:{label}",
-                    group,
-                    f"failure rate {label!r}",
-                    rate,
-                    bound,
-                    False,
-                )
+            result = _gate(
+                f"max_failure_rate:{label}", group, f"failure rate {label!r}", rate, bound, False
             )
+            if label in unmatched:  # a misspelt label would pass every time: say so
+                result = replace(result, message=f"{result.message}; {_unmatched_why(label)}")
+            results.append(result)
         if gates.max_truncation_rate is not None:
             results.append(
                 _gate(
@@ -756,6 +780,7 @@ def report_tables(
         _gates(gates, groups) if gates is not None else [],
         unfinished,
         "game" if games else "episode",
+        _unmatched_labels(gates, groups),
     )
 
 

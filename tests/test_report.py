@@ -221,11 +221,17 @@ def test_gates_pass_and_fail_per_group(tmp_path: Path) -> None:
     assert [g.message for g in only_good.gates] == [
         f"success rate 0.80 >= 0.80 (group {good})",
         f"failure rate 0.20 <= 0.20 (group {good})",
-        f"failure rate 'collision' 0.00 <= 0.10 (group {good})",
+        f"failure rate 'collision' 0.00 <= 0.10 (group {good}); no failure in these files is "
+        "labelled 'collision': is the label spelt as recorded?",
         f"truncation rate 0.00 <= 0.25 (group {good})",
     ]
+    assert only_good.unmatched_labels == ["collision"]
+    assert only_good.gate_notes == [
+        "gate max_failure_rate:collision: no failure in these files is labelled 'collision': "
+        "is the label spelt as recorded? (labels seen: 'drop')"
+    ]
     both = report([good, bad], gates=gates)
-    assert not both.passed
+    assert not both.passed and both.unmatched_labels == [] and both.gate_notes == []
     failed = {(g.gate, g.group): g.message for g in both.gates if not g.passed}
     assert failed == {
         ("min_success_rate", str(bad)): f"success rate 0.25 < 0.80 (group {bad})",
@@ -385,7 +391,15 @@ def test_report_to_dict_is_stable_json(tmp_path: Path) -> None:
         env.step(0)
     result = report([nan], by="all", gates=Gates(min_success_rate=0.5))
     data = json.loads(json.dumps(result.to_dict(), allow_nan=False))
-    assert list(data) == ["by", "passed", "groups", "gates", "unfinished", "unit"]
+    assert list(data) == [
+        "by",
+        "passed",
+        "groups",
+        "gates",
+        "unfinished",
+        "unit",
+        "unmatched_labels",
+    ]
     assert data["by"] == "all" and data["passed"] is True
     (group,) = data["groups"]
     assert group["key"] == "all"
