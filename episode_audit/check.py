@@ -526,6 +526,7 @@ class _FileCheck:
                 self.progress(batch.num_rows)
         self.check_resets()
         self.check_episodes()
+        self.check_unfinished()
         self.report_hits()
         self.report_missing_terms()
         for tracker in (self.term_keys, self.info_keys):
@@ -544,16 +545,25 @@ class _FileCheck:
 
     # ------------------------------------------------------------------ file level
 
+    def check_unfinished(self) -> None:
+        """After the pass over the file: an unfinished file, and whether it held anything."""
+        ev = self.ev
+        if ev.finished:
+            return
+        why = ev.torn or "no run-end record"
+        read = "complete chunks were read"
+        if not self.steps and not self.episodes and not ev.resets().num_rows:
+            read = (
+                "it holds no complete chunk: no episode, reset or step to check (a recorder "
+                "killed before its first flush, or one still starting)"
+            )
+        self.finding(
+            "warning", FILE_UNFINISHED, f"the writer did not finish the file ({why}); {read}"
+        )
+
     def check_file(self) -> None:
         ev = self.ev
-        if not ev.finished:
-            why = ev.torn or "no run-end record"
-            self.finding(
-                "warning",
-                FILE_UNFINISHED,
-                f"the writer did not finish the file ({why}); complete chunks were read",
-            )
-        elif (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED:
+        if ev.finished and (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED:
             dropped = (ev.run_end or {}).get("dropped") or "not recorded"
             self.finding(
                 "warning",

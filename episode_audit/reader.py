@@ -1335,7 +1335,6 @@ def _ipc_message(data: bytes | memoryview, start: int, size: int) -> tuple[int, 
 _SCAN_ONCE: Any = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
 _COMPACT = json.JSONEncoder(separators=(",", ":"))  # as json.dumps(..., separators=(",", ":"))
 _OUTCOMES = frozenset(fmt.OUTCOMES)
-_OUTCOME_ARRAY = pa.array(fmt.OUTCOMES, pa.string())
 _NO_ERROR: dict[str, Any] = {}
 _NO_TERMS: tuple[tuple[str, float], ...] = ()
 _GROUP = 128  # end records parsed at a time (few parsed objects alive: less GC work)
@@ -1407,7 +1406,8 @@ def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Path) -> pa.Tabl
         if table.column(name).null_count:
             raise CorruptEvidenceError(path, f"an episode block has nulls in its {name!r} column")
     unknown = pc.filter(
-        table.column("outcome"), pc.invert(pc.is_in(table.column("outcome"), _OUTCOME_ARRAY))
+        table.column("outcome"),
+        pc.invert(pc.is_in(table.column("outcome"), pa.array(fmt.OUTCOMES, pa.string()))),
     )
     if len(unknown):
         raise CorruptEvidenceError(
@@ -1717,7 +1717,7 @@ def _open_mcap(p: Path) -> IO[bytes]:
 
 
 def _parse_run(
-    path: Path, metadata: dict[str, dict[str, str]], header: Header | None
+    path: Path, metadata: dict[str, dict[str, str]], header: Header | None, torn: str | None = None
 ) -> tuple[RunInfo, dict[str, str] | None]:
     if header is not None and header.profile != fmt.MCAP_PROFILE:
         raise NotEvidenceError(
@@ -1726,6 +1726,12 @@ def _parse_run(
             f"expected {fmt.MCAP_PROFILE!r})",
         )
     raw = metadata.get(fmt.METADATA_RUN)
+    if raw is None and torn is not None and header is not None:
+        raise CorruptEvidenceError(
+            path,
+            f"an evidence file torn before its run metadata was written ({torn}): "
+            "it holds no evidence (a recorder killed as it started leaves such a file)",
+        )
     if raw is None:
         raise NotEvidenceError(
             path, f"no {fmt.METADATA_RUN!r} metadata record: not an evidence file"
@@ -1997,9 +2003,9 @@ def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evi
             footer = True
     if header is None:
         raise NotEvidenceError(path, "no MCAP header: the file is torn before any evidence")
-    run, run_end = _parse_run(path, metadata, header)
     if torn is None and not footer:
         torn = f"ends at byte {size} without a summary: the writer did not finish"
+    run, run_end = _parse_run(path, metadata, header, torn)
     finished = footer and run_end is not None and torn is None
     ev = Evidence(path, run, finished, run_end, None if finished else torn, chunks, channels)
     ev._schema_cache = _schemas_of(schemas)  # type: ignore[attr-defined]

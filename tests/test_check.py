@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -532,4 +533,26 @@ def test_a_note_repeated_in_many_episodes_is_one_finding(tmp_path: Path) -> None
     assert noted[0].message.startswith(
         "recorder noted reward_not_numeric on steps in 7 episodes "
         "(episodes 0, 1, 2, 3, 4 and 2 more; 14 time(s) in all): reward '1.0'"
+    )
+
+
+def test_a_torn_file_that_holds_nothing_says_so(tmp_path: Path) -> None:
+    """Torn after its run metadata, before its first chunk: nothing to check, and it says so."""
+    clean = (Path(__file__).parents[1] / "fixtures" / "clean.mcap").read_bytes()
+    path = tmp_path / "early.mcap"
+    path.write_bytes(clean[:1500])
+    result = check([path])
+    (finding,) = result.findings
+    assert (finding.severity, finding.code) == ("warning", "file_unfinished")
+    assert re.search(
+        r"the writer did not finish the file \(torn at byte \d+ of 1500: .*\); it holds no "
+        r"complete chunk: no episode, reset or step to check \(a recorder killed before its "
+        r"first flush, or one still starting\)$",
+        finding.message,
+    ), finding.message
+    # a torn file with chunks in it is read as before
+    torn = check([Path(__file__).parents[1] / "fixtures" / "torn.mcap"])
+    assert any(
+        f.code == "file_unfinished" and f.message.endswith("complete chunks were read")
+        for f in torn.findings
     )

@@ -92,6 +92,19 @@ def test_garbage_file(tmp_path: Path) -> None:
         open_evidence(path)
 
 
+@pytest.mark.parametrize("cut", [100, 1000, 1400])
+def test_a_file_torn_before_its_run_metadata_says_so(tmp_path: Path, cut: int) -> None:
+    """Not "not an evidence file": its header names our profile; the recorder died starting."""
+    path = tmp_path / "early.mcap"
+    path.write_bytes((Path(__file__).parents[1] / "fixtures" / "clean.mcap").read_bytes()[:cut])
+    with pytest.raises(
+        CorruptEvidenceError,
+        match=rf"early\.mcap: an evidence file torn before its run metadata was written "
+        rf"\(torn at byte 57 of {cut}: .*\): it holds no evidence",
+    ):
+        open_evidence(path)
+
+
 def test_mcap_that_is_not_evidence(tmp_path: Path) -> None:
     path = tmp_path / "other.mcap"
     with open(path, "wb") as f:
