@@ -13,9 +13,9 @@ Ending(outcome='success', failure_label=None, truncation_reason=None)
 Ending(outcome='truncated', failure_label=None, truncation_reason='time_limit')
 
 A value read from ``info`` that the rules take but that is not what they expect (a term name
-that is not a string, a success value that is not a bool, a failure label that is not text)
-is what a recorder note is for: :func:`named_terms` and :meth:`EndingRules.classify_or_note`
-say so, in the words of :func:`note`.
+that is not a string, a success value that is not a bool, a failure label or truncation reason
+that is not text) is what a recorder note is for: :func:`named_terms` and
+:meth:`EndingRules.classify_or_note` say so, in the words of :func:`note`.
 """
 
 from __future__ import annotations
@@ -336,7 +336,9 @@ class EndingRules:
     A success value is taken by its truth value, whatever it is; one that is not a bool or a
     real number (the text ``"no"``, which is true) is a ``success_not_bool`` note. A failure
     label that is neither text nor a bool (an int, an Enum member) is a failure without a label
-    and a ``failure_label_not_text`` note. See :meth:`classify_or_note`.
+    and a ``failure_label_not_text`` note; a truncation reason that is neither text nor a bool,
+    the reason given without one (``time_limit`` / ``external``) and a
+    ``truncation_reason_not_text`` note. See :meth:`classify_or_note`.
     """
 
     success_keys: Sequence[str] = ("success", "is_success")
@@ -397,10 +399,29 @@ class EndingRules:
 
     def truncation_reason(self, info: Mapping[str, Any], *, time_limit_hit: bool) -> str:
         """The reason a truncated episode was cut off."""
+        return self._truncation_reason(info, time_limit_hit, None)
+
+    def _truncation_reason(
+        self, info: Mapping[str, Any], time_limit_hit: bool, notes: list[str] | None
+    ) -> str:
+        """:meth:`truncation_reason`; a reason that is not text nor a bool is noted in ``notes``.
+
+        As a failure label (:meth:`_failure_label`): ``True`` says "cut off" and no more, as
+        the flag does, so nothing the env said is lost; an Enum member or a code is.
+        """
         reason = info.get(self.truncation_reason_key)
         if isinstance(reason, str) and reason:
             return text(reason)
-        return fmt.REASON_TIME_LIMIT if time_limit_hit else fmt.REASON_EXTERNAL
+        taken = fmt.REASON_TIME_LIMIT if time_limit_hit else fmt.REASON_EXTERNAL
+        if notes is not None and not _no_label(reason):
+            notes.append(
+                note(
+                    "truncation_reason_not_text",
+                    f"info[{short(self.truncation_reason_key)}] is {_shown(reason)}: "
+                    f"recorded as {taken}; give a string",
+                )
+            )
+        return taken
 
     def classify(
         self, terminated: bool, truncated: bool, info: Mapping[str, Any], *, time_limit_hit: bool
@@ -417,7 +438,7 @@ class EndingRules:
         notes: list[str] | None,
     ) -> Ending:
         """:meth:`classify`; what the values read deserve is noted in ``notes`` (if given)."""
-        reason = self.truncation_reason(info, time_limit_hit=time_limit_hit) if truncated else None
+        reason = self._truncation_reason(info, time_limit_hit, notes) if truncated else None
         if terminated:
             if self._success(info, notes):
                 return Ending(fmt.OUTCOME_SUCCESS, None, reason)
@@ -444,8 +465,11 @@ class EndingRules:
         to it as recorder notes (:func:`note`): ``success_not_bool``, a success value that is
         not a bool or a real number (a 0-d array of one counts as one; NaN does not), taken by
         its truth value; ``failure_label_not_text``, a true failure label that is not a
-        non-empty string nor a bool, recorded as ``unlabeled``. The ending is :meth:`classify`'s
-        either way. An empty string, ``None``, ``False`` or ``0`` is no label: not noted.
+        non-empty string nor a bool, recorded as ``unlabeled``; ``truncation_reason_not_text``,
+        a true truncation reason that is not a non-empty string nor a bool, recorded as the
+        reason given without one. The ending is :meth:`classify`'s either way. An empty string,
+        ``None``, ``False`` or ``0`` is no label (no reason), ``True`` a failure without a label
+        (a truncation without a reason): not noted.
 
         The recorder and replay both classify this way, so neither raises over an env's info.
 
@@ -513,7 +537,7 @@ def _truth_value(value: Any) -> bool:
 
 
 def _no_label(label: Any) -> bool:
-    """Whether a failure label that is not text goes without a note.
+    """Whether a failure label (or truncation reason) that is not text goes without a note.
 
     A bool (``True`` is the documented "a failure without a label") or a false value (``None``,
     ``""``, ``0``) does; a value without a single truth value (an array) is noted.

@@ -889,7 +889,7 @@ class _EpisodeRunner:
                 continue
             if reset_at is None:
                 why = (
-                    "its reset raised (an error episode): there is no reset to compare"
+                    RESET_RAISED
                     if record.get("error_during") == "reset"
                     else "its reset row is missing (torn file)"
                 )
@@ -1088,19 +1088,41 @@ class _EpisodeRunner:
                     term, trunc, {}, time_limit_hit=hit_time_limit
                 )
         else:
-            # as the recorder: an info it cannot read (a success value with no truth value, an
-            # array) gives the ending by the flags alone
-            ending, _ = self.rules.classify_or_note(
-                term,
-                trunc,
-                info if isinstance(info, Mapping) else {},
-                time_limit_hit=hit_time_limit,
-            )
-        want = _recorded_outcome(record)
-        got = (ending.outcome, ending.failure_label, ending.truncation_reason)
-        if want != got:
-            return Divergence(last_step, "outcome", _fmt_outcome(*want), _fmt_outcome(*got))
-        return None
+            ending = _final_ending(self.rules, term, trunc, info, time_limit_hit=hit_time_limit)
+        return _outcome_divergence(record, ending, last_step)
+
+
+RESET_RAISED = "its reset raised (an error episode): there is no reset to compare"
+"""Why an episode (or a PettingZoo game) whose recorded ``reset()`` raised is not replayable."""
+
+
+def _final_ending(
+    rules: EndingRules, terminated: bool, truncated: bool, info: Any, *, time_limit_hit: bool
+) -> Ending:
+    """A final step's ending as the recorder's ``Stream._end_by_flags`` classifies it.
+
+    An info that is not a mapping is read as an empty one; one the rules cannot read (a success
+    value with no single truth value, an array) gives the ending by the flags alone
+    (:meth:`~episode_audit.outcomes.EndingRules.classify_or_note`). Never raises.
+    """
+    ending, _ = rules.classify_or_note(
+        terminated,
+        truncated,
+        info if isinstance(info, Mapping) else {},
+        time_limit_hit=time_limit_hit,
+    )
+    return ending
+
+
+def _outcome_divergence(
+    record: Mapping[str, Any], ending: Ending, last_step: int
+) -> Divergence | None:
+    """How ``ending`` differs from an episode record's ending, at ``last_step``, if it does."""
+    want = _recorded_outcome(record)
+    got = (ending.outcome, ending.failure_label, ending.truncation_reason)
+    if want != got:
+        return Divergence(last_step, "outcome", _fmt_outcome(*want), _fmt_outcome(*got))
+    return None
 
 
 def _recorded_outcome(record: Mapping[str, Any]) -> tuple[Any, Any, Any]:

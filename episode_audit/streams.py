@@ -340,8 +340,16 @@ class _Block:
 
 
 def _info_column(
-    rows: int, info: dict[int, dict[str, Any]], notes: dict[int, list[str]]
+    rows: int,
+    info: dict[int, dict[str, Any]],
+    notes: dict[int, list[str]],
+    episode_of: Callable[[int], _Episode | None],
 ) -> pa.Array:
+    """The ``info`` column of ``rows`` rows: each kept info as JSON (null where none).
+
+    A value JSON cannot hold is written as its ``repr`` and noted ``info_unserializable`` in
+    ``notes``, counted in the episode ``episode_of(row)`` (see :func:`_add_notes`).
+    """
     if not info:
         return pa.nulls(rows, pa.string())
     values: list[str | None] = [None] * rows
@@ -357,11 +365,8 @@ def _info_column(
                     safe[name] = to_jsonable(value)
                 except Exception:
                     safe[name] = f"<unserializable {type(value).__name__}: {short(value)}>"
-                    notes.setdefault(row, []).append(
-                        note(
-                            "info_unserializable", f"info[{short(key)}] is a {type(value).__name__}"
-                        )
-                    )
+                    what = f"info[{short(key)}] is a {type(value).__name__}"
+                    _add_notes(episode_of(row), notes, row, [note("info_unserializable", what)])
             values[row] = to_json(safe).decode()
     return pa.array(values, pa.string())
 
@@ -867,8 +872,7 @@ class Stream:
             )
         )
         if notes:
-            block.reset_notes[row] = notes
-            episode.notes += 1
+            _add_notes(episode, block.reset_notes, row, notes)
 
     def _kept_info(self, info: Any, notes: list[str]) -> dict[str, Any] | None:
         if not isinstance(info, Mapping):
@@ -1083,9 +1087,8 @@ class Stream:
         file = self.file
         now = file.clock()
         block.times.append(now)  # commits the row
-        if notes:
-            block.notes[rows] = notes
-            episode.notes += 1
+        if notes:  # beside those an AEC recorder's turn accounting put on the row, if any
+            _add_notes(episode, block.notes, rows, notes)
         if (terminated or truncated) and not episode.ended:
             self._end_by_flags(
                 episode, block, rows, *raw_flags, info if isinstance(info, Mapping) else {}
@@ -1109,13 +1112,11 @@ class Stream:
         truncated: bool,
         info: Mapping[str, Any],
     ) -> None:
+        read: list[str] = []  # notes on the flags and values read (a success that is no bool)
         if type(terminated) not in _BOOLS or type(truncated) not in _BOOLS:
             # e.g. the text "False", which is true: the episode ends, and the step says why
             odd = f"terminated={short(terminated)}, truncated={short(truncated)}"
-            _add_note(
-                episode, block, row, note("flags_not_bool", f"{odd} (taken by their truth value)")
-            )
-        read: list[str] = []  # notes on values read (a success value that is not a bool)
+            read.append(note("flags_not_bool", f"{odd} (taken by their truth value)"))
         ending, why = self._rules.classify_or_note(
             bool(terminated),
             bool(truncated),
@@ -1125,8 +1126,8 @@ class Stream:
         )
         if why is not None:  # the ending by the flags alone; say why
             read.append(note("ending_unreadable", why))
-        for item in read:
-            _add_note(episode, block, row, item)
+        if read:
+            _add_notes(episode, block.notes, row, read)
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
         block.flags[row] = (bool(terminated), bool(truncated))
@@ -1215,7 +1216,11 @@ class Stream:
             for row, (out, lab) in block.ends.items():
                 outcome[row] = out
                 label[row] = lab
-            info = _info_column(n, block.info, block.notes)
+            # notes found now count in the episodes' records, written after this (flush)
+            episode_at = block.episodes.get
+            info = _info_column(
+                n, block.info, block.notes, lambda row: episode_at(int(episode[row]))
+            )
             columns = [
                 pa.array(episode),
                 pa.array(step),
@@ -1247,7 +1252,12 @@ class Stream:
                 pa.array(rng, pa.string()),
                 pa.array(options, pa.string()),
                 block.reset_obs.finish(),
-                _info_column(n, block.reset_info, block.reset_notes),
+                _info_column(
+                    n,
+                    block.reset_info,
+                    block.reset_notes,
+                    lambda row: block.episodes.get(block.resets[row][0]),
+                ),
                 _notes_column(n, block.reset_notes),
             ]
             if self._reset_extra:
@@ -1343,7 +1353,7 @@ def _named_block_terms(
         start = end
         if shared is not None:
             episode = block.episodes.get(int(episode_col[row]))
-            _add_note(episode, block, row, note("terms_name_collision", shared))
+            _add_notes(episode, block.notes, row, [note("terms_name_collision", shared)])
         counts.append(len(terms))
         names.extend(terms)
         named_values.extend(terms.values())
@@ -1357,15 +1367,22 @@ def _named_block_terms(
 _BOOLS = frozenset({bool, np.bool_})
 
 
-def _add_note(episode: _Episode | None, block: _Block, row: int, text: str) -> None:
-    """Add a note to the step at ``row`` (a row with notes counts once in its episode's)."""
-    row_notes = block.notes.get(row)
+def _add_notes(
+    episode: _Episode | None, by_row: dict[int, list[str]], row: int, texts: list[str]
+) -> None:
+    """Add notes to ``row`` of ``by_row`` (a block's step or reset notes).
+
+    A row with notes counts once in its episode's ``notes`` (``None``: a row of no episode),
+    however many notes it gets and whenever: while stepping, or when its block is written
+    (before the records of the episodes that ended, in the same flush).
+    """
+    row_notes = by_row.get(row)
     if row_notes is None:
-        block.notes[row] = [text]
+        by_row[row] = texts
         if episode is not None:
             episode.notes += 1
     else:
-        row_notes.append(text)
+        row_notes.extend(texts)
 
 
 def _append_noted(

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from pettingzoo import AECEnv, ParallelEnv
 
 from episode_audit import EndingRules, RecordEvidence, check, open_evidence
 from episode_audit.check import Finding
@@ -966,3 +967,409 @@ def test_term_names_are_one_rule_on_both_recorder_paths_and_replay_identically(
         assert findings(path, "terms_sum_mismatch") == []
         result = replay([path], env_factory=lambda: ScriptedEnv(step_fn=step))
         assert [(e.status, e.steps) for e in result.episodes] == [("identical", 3)] * 2, way
+
+
+# ---------------------------------------------------------- truncation reasons read from info
+
+
+def record_truncation(path: Path, info: dict[str, Any], *, time_limit: bool) -> dict[str, Any]:
+    """One episode of three steps cut off with ``info`` (by a ``TimeLimit`` or by the env)."""
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        return ZEROS, 1.0, False, not time_limit and env.t == 3, info
+
+    inner: gym.Env[Any, Any] = ScriptedEnv(step_fn=step)
+    if time_limit:
+        inner = gym.wrappers.TimeLimit(inner, max_episode_steps=3)
+    with RecordEvidence(inner, path) as env:
+        env.action_space.seed(0)
+        assert len(loop(env, episodes=1)) == 3
+    assert_valid(path)
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    return dict(episode)
+
+
+@pytest.mark.parametrize(
+    ("value", "shown"),
+    [
+        (3, r"3 \(int\)"),
+        (Colour.RED, r"<Colour\.RED: 1> \(Colour\)"),
+        (b"wall", r"b'wall' \(bytes\)"),
+        (["wall"], r"\['wall'\] \(list\)"),
+        (np.int64(7), r"np\.int64\(7\) \(int64\)|7 \(int64\)"),  # numpy 2 / 1 repr
+        (np.array([1, 2]), r"array\(\[1, 2\]\) \(ndarray\)"),  # no truth value: still noted
+    ],
+    ids=["int", "enum", "bytes", "list", "np_int", "array"],
+)
+@pytest.mark.parametrize("time_limit", [True, False], ids=["time_limit", "external"])
+def test_a_truncation_reason_that_is_not_text_keeps_the_reason_and_is_noted(
+    tmp_path: Path, value: Any, shown: str, time_limit: bool
+) -> None:
+    """As a failure label that is not text: the reason is the one without it, and the final
+    step says what the env gave."""
+    from episode_audit import replay
+
+    path = tmp_path / "reason.mcap"
+    episode = record_truncation(path, {"truncation_reason": value}, time_limit=time_limit)
+    reason = "time_limit" if time_limit else "external"
+    assert (episode["outcome"], episode["truncation_reason"], episode["notes"]) == (
+        "truncated",
+        reason,
+        1,
+    )
+    ((ep, step, message),) = noted(path, "truncation_reason_not_text")
+    assert (ep, step) == (0, 2)
+    assert re.fullmatch(
+        rf"info\['truncation_reason'\] is ({shown}): recorded as {reason}; give a string", message
+    ), message
+    (finding,) = findings(path, "recorder_note:truncation_reason_not_text")
+    assert (finding.severity, finding.episode, finding.step) == ("warning", 0, 2)
+    assert message in finding.message
+    assert steps_of(path)[-1]["label"] == reason
+    if not time_limit:  # (a TimeLimit the factory would have to rebuild)
+        factory = lambda: ScriptedEnv(  # noqa: E731
+            step_fn=lambda e, a: (ZEROS, 1.0, False, e.t == 3, {"truncation_reason": value})
+        )
+        assert [e.status for e in replay([path], env_factory=factory).episodes] == ["identical"]
+
+
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [
+        (None, "time_limit"),
+        ("", "time_limit"),  # the text for "no reason", like None
+        (False, "time_limit"),
+        (0, "time_limit"),
+        (True, "time_limit"),  # "cut off, no reason given": nothing is lost (see docs)
+        (np.True_, "time_limit"),
+        ("wall_hit", "wall_hit"),
+    ],
+)
+def test_truncation_reasons_that_are_text_or_say_no_reason_are_not_noted(
+    tmp_path: Path, value: Any, reason: str
+) -> None:
+    path = tmp_path / "reason.mcap"
+    episode = record_truncation(path, {"truncation_reason": value}, time_limit=True)
+    assert (episode["outcome"], episode["truncation_reason"], episode["notes"]) == (
+        "truncated",
+        reason,
+        0,
+    )
+    assert noted(path, "truncation_reason_not_text") == []
+
+
+def test_a_truncation_reason_beside_a_task_ending_is_noted_too(tmp_path: Path) -> None:
+    """Both flags set: the task ending counts and the reason is kept beside it, so it is read."""
+    path = tmp_path / "both.mcap"
+    info = {"success": True, "truncation_reason": Colour.RED}
+    with scripted(path, lambda e, a: (ZEROS, 1.0, e.t == 3, e.t == 3, info)) as env:
+        assert len(loop(env, episodes=1)) == 3
+    (episode,) = open_evidence(path).episodes().to_pylist()
+    assert (episode["outcome"], episode["truncation_reason"], episode["notes"]) == (
+        "success",
+        "external",
+        1,
+    )
+    ((_, step, message),) = noted(path, "truncation_reason_not_text")
+    assert step == 2 and message.startswith("info['truncation_reason'] is <Colour.RED: 1>")
+
+
+# ------------------------------------------------------------------ episode note counts
+
+
+def rows_with_notes(path: Path) -> dict[int, int]:
+    """Per episode: its reset row and step rows that carry recorder notes."""
+    ev = open_evidence(path)
+    count: dict[int, int] = {}
+    for table in (ev.resets(), ev.steps()):
+        for row in table.select(["episode", "notes"]).to_pylist():
+            if row["notes"] is not None:
+                count[row["episode"]] = count.get(row["episode"], 0) + 1
+    return count
+
+
+def assert_note_counts(path: Path) -> None:
+    """Every episode record's ``notes`` is the number of its rows with notes."""
+    records = {r["episode"]: r["notes"] for r in open_evidence(path).episodes().to_pylist()}
+    rows = rows_with_notes(path)
+    assert records == {e: rows.get(e, 0) for e in records}
+
+
+class Opaque:
+    """An info value JSON cannot hold (noted info_unserializable when the block is written)."""
+
+    def __repr__(self) -> str:
+        return "Opaque()"
+
+
+@pytest.mark.parametrize("block_steps", [2, 100], ids=["small_blocks", "one_block"])
+def test_notes_added_when_a_block_is_written_count_in_the_episode_record(
+    tmp_path: Path, block_steps: int
+) -> None:
+    """info_unserializable is found when the block is written, before the episode's record
+    (same flush): the reset row and every step row count, a row with two notes once."""
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        info: dict[Any, Any] = {"x": Opaque()}
+        if env.t == 2:  # a second note on that row, made while stepping
+            info["reward_terms"] = {"a": "1.5"}
+        return ZEROS, 1.0, env.t == 4, False, info
+
+    path = tmp_path / "info.mcap"
+    reset = lambda env: (ZEROS, {"x": Opaque()})  # noqa: E731
+    with scripted(path, step, reset, info_keys=["x"], block_steps=block_steps) as env:
+        assert len(loop(env, episodes=2)) == 8
+    assert_valid(path)
+    assert [e["notes"] for e in open_evidence(path).episodes().to_pylist()] == [5, 5]
+    assert_note_counts(path)
+    assert [(e, s) for e, s, _ in noted(path, "info_unserializable")] == [
+        (e, s) for e in (0, 1) for s in range(4)
+    ]
+    assert [(e, s) for e, s, _ in noted(path, "term_not_numeric")] == [(0, 1), (1, 1)]
+
+
+def test_rows_stepped_after_the_end_count_only_when_written_with_the_end(tmp_path: Path) -> None:
+    """The documented limit: an episode's record is written at the flush after its end and
+    never again, so a row stepped after its end (noted step_after_end) and written by a later
+    flush is not in its count."""
+    path = tmp_path / "after.mcap"
+    with scripted(path, lambda e, a: (ZEROS, 1.0, e.t >= 2, False, {})) as env:
+        env.reset(seed=0)
+        for _ in range(3):  # the third after the end: written with it
+            env.step(0)
+        env.reset(seed=1)
+        for _ in range(2):
+            env.step(0)
+        env.flush()  # the second episode's record is written here
+        env.step(0)  # after its end, in a later flush
+    records = open_evidence(path).episodes().to_pylist()
+    assert [(r["length"], r["notes"]) for r in records] == [(2, 1), (2, 0)]
+    assert [(e, s) for e, s, _ in noted(path, "step_after_end")] == [(0, 2), (1, 2)]
+
+
+# ------------------------------------------------------------------ PettingZoo infos on replay
+
+
+GAME_STEPS = 4
+
+
+class InfoAEC(AECEnv):  # type: ignore[misc]
+    """Agents ``a`` and ``b`` take turns; every step pays both 1 and gives both
+    ``info_fn(final)``; the fourth step terminates both (then their dead steps)."""
+
+    metadata = {"name": "info_aec_v0"}
+
+    def __init__(self, info_fn: Any) -> None:
+        super().__init__()
+        self.info_fn = info_fn
+        self.possible_agents = ["a", "b"]
+
+    def observation_space(self, agent: str) -> Any:
+        return gym.spaces.Box(0.0, 100.0, (1,), np.float32)
+
+    def action_space(self, agent: str) -> Any:
+        return gym.spaces.Discrete(2)
+
+    def observe(self, agent: str) -> Any:
+        return np.array([self.t], dtype=np.float32)
+
+    def reset(self, seed: int | None = None, options: Any = None) -> None:
+        self.agents = list(self.possible_agents)
+        self.t = 0
+        self.rewards = dict.fromkeys(self.agents, 0.0)
+        self._cumulative_rewards = dict.fromkeys(self.agents, 0.0)
+        self.terminations = dict.fromkeys(self.agents, False)
+        self.truncations = dict.fromkeys(self.agents, False)
+        self.infos: dict[str, Any] = {a: {} for a in self.agents}
+        self.agent_selection = "a"
+
+    def step(self, action: Any) -> None:
+        agent = self.agent_selection
+        if self.terminations[agent] or self.truncations[agent]:
+            self._was_dead_step(action)
+            return
+        self._cumulative_rewards[agent] = 0.0
+        self.t += 1
+        final = self.t >= GAME_STEPS
+        self.rewards = dict.fromkeys(self.agents, 1.0)
+        self.infos = {a: self.info_fn(final) for a in self.agents}
+        if final:
+            self.terminations = dict.fromkeys(self.agents, True)
+        self.agent_selection = self.agents[(self.agents.index(agent) + 1) % len(self.agents)]
+        self._accumulate_rewards()
+
+
+class InfoParallel(ParallelEnv):  # type: ignore[misc]
+    """The Parallel twin of :class:`InfoAEC`: four joint steps, both agents terminate."""
+
+    metadata = {"name": "info_parallel_v0"}
+
+    def __init__(self, info_fn: Any) -> None:
+        self.info_fn = info_fn
+        self.possible_agents = ["a", "b"]
+
+    def observation_space(self, agent: str) -> Any:
+        return gym.spaces.Box(0.0, 100.0, (1,), np.float32)
+
+    def action_space(self, agent: str) -> Any:
+        return gym.spaces.Discrete(2)
+
+    def reset(self, seed: int | None = None, options: Any = None) -> Any:
+        self.agents = list(self.possible_agents)
+        self.t = 0
+        return {a: np.zeros(1, np.float32) for a in self.agents}, {a: {} for a in self.agents}
+
+    def step(self, actions: dict[str, Any]) -> Any:
+        self.t += 1
+        final = self.t >= GAME_STEPS
+        live = list(self.agents)
+        if final:
+            self.agents = []
+        return (
+            {a: np.array([self.t], np.float32) for a in live},
+            dict.fromkeys(live, 1.0),
+            dict.fromkeys(live, final),
+            dict.fromkeys(live, False),
+            {a: self.info_fn(final) for a in live},
+        )
+
+
+def play_game(env: Any, api: str, seed: int) -> None:
+    env.reset(seed=seed)
+    if api == "aec":
+        for _agent in env.agent_iter():
+            _, _, term, trunc, _ = env.last()
+            env.step(None if term or trunc else 1)
+    else:
+        while env.agents:
+            env.step(dict.fromkeys(env.agents, 1))
+
+
+def record_game(path: Path, api: str, info_fn: Any) -> Any:
+    """Two games of :class:`InfoAEC` or :class:`InfoParallel`; returns the env factory."""
+    from episode_audit import RecordAECEvidence, RecordParallelEvidence
+
+    make = (lambda: InfoAEC(info_fn)) if api == "aec" else (lambda: InfoParallel(info_fn))
+    recorder = RecordAECEvidence if api == "aec" else RecordParallelEvidence
+    with recorder(make(), path) as env:
+        for seed in (0, 1):
+            play_game(env, api, seed)
+    assert_valid(path)
+    return make
+
+
+PZ_INFO_CASES: dict[str, tuple[Any, list[tuple[str, float]] | None, str, str | None]] = {
+    # per-step info (final: the game's last step) -> each row's recorded terms, the ending,
+    # and the recorder note every row (or the final row) has
+    "collision": (
+        lambda final: {"reward_terms": {1: 0.5, "1": 0.25}},
+        [("1", 0.75)],
+        "failure/unlabeled",
+        "terms_name_collision",
+    ),
+    "surrogate": (
+        lambda final: {"reward_terms": {"a\udcff": 0.5}},
+        [("a\\udcff", 0.5)],
+        "failure/unlabeled",
+        None,
+    ),
+    "bytes": (
+        lambda final: {"reward_terms": {b"a": 0.5}},
+        [("b'a'", 0.5)],
+        "failure/unlabeled",
+        None,
+    ),
+    "text_value": (
+        lambda final: {"reward_terms": {"x": "1.5"}},
+        [("x", math.nan)],
+        "failure/unlabeled",
+        "term_not_numeric",
+    ),
+    "unreadable": (
+        lambda final: {"reward_terms": 5},
+        None,
+        "failure/unlabeled",
+        "terms_unreadable",
+    ),
+    "not_a_dict": (lambda final: [1, 2], None, "failure/unlabeled", "info_not_dict"),
+    "array_success": (
+        lambda final: {"reward_a": 1.0, **({"success": np.array([1, 0])} if final else {})},
+        [("reward_a", 1.0)],
+        "failure/unlabeled",
+        "ending_unreadable",
+    ),
+    "success_text": (
+        lambda final: {"success": "no"} if final else {},
+        None,
+        "success",
+        "success_not_bool",
+    ),
+    "label_enum": (
+        lambda final: {"failure": Colour.RED} if final else {},
+        None,
+        "failure/unlabeled",
+        "failure_label_not_text",
+    ),
+}
+
+
+@pytest.mark.parametrize("api", ["aec", "parallel"])
+@pytest.mark.parametrize("case", list(PZ_INFO_CASES))
+def test_pettingzoo_infos_are_read_on_replay_as_the_recorder_read_them(
+    tmp_path: Path, case: str, api: str
+) -> None:
+    """Term names by the one rule (collisions summed, text escaped), terms that cannot be read
+    are none, a final info the rules cannot read ends by the flags: every agent replays
+    identical, and replay never raises over an info."""
+    from episode_audit import replay
+
+    info_fn, terms, ending, code = PZ_INFO_CASES[case]
+    path = tmp_path / f"{api}.mcap"
+    make = record_game(path, api, info_fn)
+    records = open_evidence(path).episodes().to_pylist()
+    assert len(records) == 4
+    assert {"/".join(p for p in (r["outcome"], r["failure_label"]) if p) for r in records} == {
+        ending
+    }
+    for row in steps_of(path):
+        if terms is None:
+            assert row["terms"] is None
+        else:
+            assert [k for k, _ in row["terms"]] == [k for k, _ in terms]
+            assert np.allclose([v for _, v in row["terms"]], [v for _, v in terms], equal_nan=True)
+    if code is not None:
+        assert noted(path, code) != []
+    assert_note_counts(path)
+    result = replay([path], env_factory=make)
+    rows = GAME_STEPS // 2 if api == "aec" else GAME_STEPS  # AEC: the agents take turns
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", rows)] * 4, (
+        result.to_dict()
+    )
+
+
+def test_pettingzoo_replay_still_compares_the_named_terms(tmp_path: Path) -> None:
+    """The names are the recorder's: a replayed env whose colliding terms sum otherwise
+    diverges at its first step, showing the recorded sum."""
+    from episode_audit import replay
+
+    path = tmp_path / "parallel.mcap"
+    record_game(path, "parallel", lambda final: {"reward_terms": {1: 0.5, "1": 0.25}})
+    other = lambda: InfoParallel(lambda final: {"reward_terms": {1: 0.5, "1": 0.5}})  # noqa: E731
+    first, *_ = replay([path], env_factory=other).episodes
+    assert first.status == "diverged" and first.divergence is not None
+    assert first.divergence.describe() == "step 0: terms expected {'1': 0.75}, got {'1': 1.0}"
+
+
+def test_an_aec_row_noted_by_the_turns_and_by_the_step_keeps_both_notes_counted_once(
+    tmp_path: Path,
+) -> None:
+    """``b`` is paid by ``a``'s first step, before its own first turn (reward_before_first_turn,
+    noted by the turn accounting), and its first row's term is text (term_not_numeric, noted
+    by the recorder's slow path): one row, both notes, one row in the count."""
+    path = tmp_path / "aec.mcap"
+    record_game(path, "aec", lambda final: {"reward_terms": {"x": "1.5"}})
+    first_b = [r for r in steps_of(path) if r["episode"] == 1 and r["step"] == 0]
+    (row,) = first_b
+    codes = [n.partition(":")[0] for n in json.loads(row["notes"])]
+    assert codes == ["reward_before_first_turn", "term_not_numeric"]
+    assert_note_counts(path)

@@ -199,3 +199,51 @@ def test_notes_are_bounded_and_left_out_when_the_ending_is_unreadable() -> None:
     assert notes == []  # the ending is by the flags alone: nothing was read
     ending, why, notes = classified({"success": "no"}, terminated=False)
     assert ending.outcome == "truncated" and notes == []  # success is not read for truncations
+
+
+@pytest.mark.parametrize(
+    ("reason", "note"),
+    [
+        (
+            3,
+            "truncation_reason_not_text: info['truncation_reason'] is 3 (int): "
+            "recorded as time_limit; give a string",
+        ),
+        (
+            b"wall",
+            "truncation_reason_not_text: info['truncation_reason'] is b'wall' (bytes): "
+            "recorded as time_limit; give a string",
+        ),
+        (
+            np.ones(2),
+            "truncation_reason_not_text: info['truncation_reason'] is array([1., 1.]) "
+            "(ndarray): recorded as time_limit; give a string",
+        ),
+        (None, None),
+        ("", None),
+        (False, None),
+        (0, None),
+        (True, None),  # "cut off", no reason: nothing lost
+        (np.True_, None),
+        ("wall", None),
+    ],
+)
+@pytest.mark.parametrize("terminated", [False, True], ids=["truncated", "both_flags"])
+def test_a_truncation_reason_that_is_not_text_is_noted_and_the_reason_stays_as_it_was(
+    reason: Any, note: str | None, terminated: bool
+) -> None:
+    info = {"truncation_reason": reason, "success": True}
+    notes: list[str] = []
+    ending, why = EndingRules().classify_or_note(
+        terminated, True, info, time_limit_hit=True, notes=notes
+    )
+    assert why is None
+    assert ending == EndingRules().classify(terminated, True, info, time_limit_hit=True)
+    assert ending.truncation_reason == (
+        reason if isinstance(reason, str) and reason else "time_limit"
+    )
+    assert notes == ([] if note is None else [note])
+    assert EndingRules().classify_or_note(terminated, True, info, time_limit_hit=True) == (
+        ending,
+        None,
+    )
