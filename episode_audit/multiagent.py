@@ -24,7 +24,10 @@ not actions: they close X's last row; replay performs them itself. Rewards X rec
 first action are added to its first row (noted ``reward_before_first_turn``). A ``step()`` that
 raises is no row (as for a Gymnasium env): the other agents' rows still open (actions that did
 complete) are closed with their state when it raised, and every open agent-episode of the game
-ends ``error``; agents that had no turn yet get no reset row.
+ends ``error``; agents that had no turn yet get no reset row. When no agent-episode is left open
+by then (each had ended by its flags: a dead step that raises after the game was decided), their
+outcomes stand and the last row that ``step()`` closed is noted ``env_raised`` (the error and
+whose step raised), so the file still says the env raised.
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ import pettingzoo
 from pettingzoo import AECEnv, ParallelEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper, BaseWrapper
 
-from .errors import ConfigurationError
+from .columns import error_text
+from .errors import ConfigurationError, RecorderError
 from .outcomes import EndingRules, RewardTerms, TermsFn
 from .records import to_jsonable
 from .seeding import capture_rng_state
@@ -66,6 +70,8 @@ _MODULE_PATTERN = re.compile(r"^pettingzoo\.[a-z_]+\.[a-z0-9_]+_v\d+$")
 
 RowFn = Callable[[str, Any, tuple[Any, float, bool, bool, Any], list[str]], None]
 ResetFn = Callable[[str, Any, Any], None]
+# a row held back (see RecordAECEvidence.step): its stream, the action and result, its notes
+_Row = tuple[Stream, Any, tuple[Any, float, bool, bool, Any], list[str]]
 
 
 def agent_result(
@@ -208,6 +214,19 @@ def _checked_env_id(env_id: str, kind: str) -> str:
     return str(spec.id)
 
 
+def _ends_episode(result: tuple[Any, float, bool, bool, Any]) -> bool:
+    """Whether a row with this result ends its episode.
+
+    By its flags' truth values, taken as :meth:`Stream.step` takes them (flags without a truth
+    value end nothing).
+    """
+    try:
+        terminated, truncated = bool(result[2]), bool(result[3])
+    except Exception:
+        return False
+    return terminated or truncated
+
+
 def _float(value: Any, notes: list[str], agent: str) -> float:
     try:
         return float(value)
@@ -333,6 +352,17 @@ class AECTurns:
             self._start(agent)
         for agent in list(self.pending):
             self._close(agent)
+
+
+def _write_row(
+    stream: Stream, action: Any, result: tuple[Any, float, bool, bool, Any], notes: list[str]
+) -> None:
+    """Record one AEC row of ``stream``, with the notes of the accounting itself."""
+    if notes and stream.episode is not None:
+        # they go to the row about to be written
+        stream.block.notes.setdefault(len(stream.block.times), []).extend(notes)
+        stream.episode.notes += 1
+    stream.step(action, result)
 
 
 class _Agents:
@@ -766,6 +796,7 @@ class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
         )
         self._begun: dict[Any, Any] = {}
         self._turns = AECTurns(env, self._on_reset, self._on_row)
+        self._held: list[_Row] | None = None  # rows closed by the step() under way
 
     def _on_reset(self, agent: str, obs: Any, info: Any) -> None:
         rec = self._rec
@@ -780,11 +811,49 @@ class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
         stream = self._rec.streams.get(agent)
         if stream is None:
             return
-        if notes and stream.episode is not None:
-            # notes of the accounting itself go to the row about to be written
-            stream.block.notes.setdefault(len(stream.block.times), []).extend(notes)
-            stream.episode.notes += 1
-        stream.step(action, result)
+        if self._held is not None:  # written once the step returned or raised (see step())
+            self._held.append((stream, action, result, notes))
+        else:
+            _write_row(stream, action, result, notes)
+
+    def _release(
+        self, raised: Exception | None = None, agent: Any = None, dead: bool = False
+    ) -> None:
+        """Write the rows held since the ``step()`` under way began. Never raises.
+
+        ``raised``: that step raised it, in ``agent``'s turn (a ``dead`` step or not). If that
+        ends no agent-episode ``error`` (see :meth:`_raised_note`), the last row held says so.
+        """
+        held, self._held = self._held or [], None
+        try:
+            lost = None if raised is None else self._raised_note(held, raised, agent, dead)
+            if lost is not None:
+                if not held:
+                    raise RecorderError(f"the env raised in a step that closed no row: {lost}")
+                held[-1][3].append(lost)
+            for row in held:
+                _write_row(*row)
+        except Exception as exc:
+            self._rec.file.trouble(exc)
+
+    def _raised_note(self, held: list[_Row], exc: Exception, agent: Any, dead: bool) -> str | None:
+        """The note ``env_raised`` if the ``step()`` that raised ``exc`` ends no episode ``error``.
+
+        That is when no agent-episode is left open once the ``held`` rows are written: every
+        agent had ended by its flags (a dead step after the game was decided). ``None`` when one
+        is left: it ends ``error``, which says it all.
+        """
+        ending = {stream for stream, _, result, _ in held if _ends_episode(result)}
+        for stream in self._rec.streams.values():
+            episode = stream.episode
+            if episode is not None and not episode.ended and stream not in ending:
+                return None
+        turn = f"{agent}'s dead step" if dead else f"{agent}'s step"
+        return note(
+            "env_raised",
+            f"{error_text(exc)} (during step: {turn}, after every agent-episode of game "
+            f"{self._rec.game} had ended)",
+        )
 
     def _cut(self) -> None:
         """Close the open rows of the current game with the env's state now."""
@@ -817,23 +886,34 @@ class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
             rec.file.trouble(exc)
 
     def step(self, action: Any) -> None:
-        """Step the env for ``agent_selection`` and account the turn (see :class:`AECTurns`)."""
+        """Step the env for ``agent_selection`` and account the turn (see :class:`AECTurns`).
+
+        The rows the turn closes are held until the env's ``step()`` returned or raised: one
+        that raised after every agent-episode had ended is noted on the last of them.
+        """
         rec = self._rec
         if self._closed:
             rec.file.check_open()
+        self._held = []
         try:
-            self._turns.turn(action)
-        except Exception as exc:
-            rec.file.trouble(exc)
-        try:
-            self.env.step(action)
-        except Exception as exc:
-            try:  # its action is no row; the other open rows close now, before the error
-                self._turns.failed()
-            except Exception as trouble:
-                rec.file.trouble(trouble)
-            rec.error(exc, "step")
-            raise
+            agent, dead = None, False
+            try:
+                agent = self.env.agent_selection
+                dead = self._turns.turn(action)
+            except Exception as exc:
+                rec.file.trouble(exc)
+            try:
+                self.env.step(action)
+            except Exception as exc:
+                try:  # its action is no row; the other open rows close now, before the error
+                    self._turns.failed()
+                except Exception as trouble:
+                    rec.file.trouble(trouble)
+                self._release(exc, agent, dead)
+                rec.error(exc, "step")
+                raise
+        finally:
+            self._release()
         try:
             self._turns.stepped()
             if rec.file.due():

@@ -8,6 +8,14 @@ accounted exactly as the recorder did (:class:`~episode_audit.multiagent.AECTurn
 agent's episode is compared with its evidence: reset observation, observations, rewards,
 reward terms, ``terminated``, ``truncated``, length and outcome.
 
+Each agent's infos are read as the recorder read them (its stream records a step as a single
+env's), by a single env's replay helpers: an info that is not a mapping has no terms, terms that
+cannot be read are none, a term value that is not a number is NaN, term names follow the one
+rule (:func:`~episode_audit.outcomes.named_terms`: names that collide are one term, their sum;
+text UTF-8 cannot encode is escaped), and a final info the ending rules cannot read gives the
+ending by the flags alone (:meth:`~episode_audit.outcomes.EndingRules.classify_or_note`). No
+info makes replay raise.
+
 Where the recorded actions run out, the replay stops at ``agent_selection``'s turn and closes
 the other agents' open rows (and begins those without a turn) with the env's state there, as
 the recorder did when the game was cut by ``reset()`` or ``close()``. Three kinds of games were
@@ -67,9 +75,13 @@ from .columns import number_or_nan
 from .errors import ReplayError
 from .reader import Evidence
 from .replay import (
+    RESET_RAISED,
     Divergence,
     EpisodeReplay,
     Status,
+    _final_ending,
+    _outcome_divergence,
+    _recorded_terms,
     _row_ranges,
     _rules_of,
     _short,
@@ -401,7 +413,7 @@ def _replay_game(
     if seed is None and rng_state is None:
         return every("not_replayable", "no seed or RNG state recorded for its game's reset")
     if any(r.get("error_during") == "reset" for r in members.values()):
-        return every("not_replayable", _RESET_RAISED)
+        return every("not_replayable", RESET_RAISED)
     queues: dict[str, list[Any]] = {}
     for agent, r in members.items():
         start, count = rows.get(int(r["episode"]), (0, 0))
@@ -417,10 +429,7 @@ def _replay_game(
     cut_kind: str | None = None
     if any(r.get("ended") is False for r in members.values()):
         cut_kind = _TORN
-    elif any(
-        r.get("outcome") == fmt.OUTCOME_ERROR and r.get("error_during") == "step"
-        for r in members.values()
-    ):
+    elif _recorded_error(members, steps, rows) is not None:
         cut_kind = _FAILED
     try:
         if seed is None:
@@ -436,7 +445,7 @@ def _replay_game(
             _run_parallel(env, game, queues, limit)
     except Exception as exc:
         game.crash = _Crash(None, None, _error_text(exc))
-    failure = _recorded_error(members) if cut_kind == _FAILED else None
+    failure = _recorded_error(members, steps, rows) if cut_kind == _FAILED else None
     results = []
     for agent, r in members.items():
         results.append(
@@ -463,8 +472,6 @@ def _replay_game(
 
 _TORN = "torn"
 _FAILED = "failed"
-_RESET_RAISED = "its reset raised (an error episode): there is no reset to compare"
-"""A single env's reason (``replay._EpisodeRunner._step_all``), for a game whose reset raised."""
 
 
 def _error_text(exc: BaseException) -> str:
@@ -472,12 +479,34 @@ def _error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def _recorded_error(members: Mapping[str, Mapping[str, Any]]) -> str | None:
-    """``"Type: message"`` of the error a game's ``step()`` raised when it was recorded."""
+def _recorded_error(
+    members: Mapping[str, Mapping[str, Any]], steps: pa.Table, rows: dict[int, tuple[int, int]]
+) -> str | None:
+    """``"Type: message"`` of the error a game's ``step()`` raised when it was recorded.
+
+    From its ``error`` agent-episode, else from the note ``env_raised`` on the last row of one
+    (a step that raised after every agent-episode had ended, see ``multiagent``).
+    """
     for r in members.values():
         if r.get("outcome") == fmt.OUTCOME_ERROR and r.get("error_during") == "step":
             return f"{r.get('error_type')}: {r.get('error_message')}"
+    if fmt.COL_NOTES not in steps.column_names:
+        return None
+    for r in members.values():
+        start, count = rows.get(int(r["episode"]), (0, 0))
+        notes = steps.column(fmt.COL_NOTES)[start + count - 1].as_py() if count else None
+        try:
+            items = json.loads(notes) if notes else []
+        except ValueError:  # a garbled notes value: no error to read from it
+            continue
+        for item in items if isinstance(items, list) else ():
+            code, _, detail = str(item).partition(": ")
+            if code == _ENV_RAISED:
+                return detail.rpartition(" (during step: ")[0] or detail
     return None
+
+
+_ENV_RAISED = "env_raised"
 
 
 def _failed_step_reason(game_index: Any, game: _Game, error: str, step: int, what: str) -> str:
@@ -588,6 +617,7 @@ def _compare(
         exp_t = exp.column(fmt.COL_TERMINATED).to_pylist()
         exp_u = exp.column(fmt.COL_TRUNCATED).to_pylist()
         exp_terms = exp.column(fmt.COL_TERMS).to_pylist()
+        extract = None if terms_rule is None else terms_rule.extractor
         for k in range(n):
             _, obs, reward, term, trunc, info = got[k]
             if not obs_equal[k]:
@@ -601,13 +631,9 @@ def _compare(
             e = float(exp_r[k])
             if not (e == reward or (e != e and reward != reward) or abs(e - reward) <= atol):
                 return diverged(k, Divergence(k, "reward", repr(e), repr(reward), abs(e - reward)))
-            if terms_rule is not None and isinstance(info, Mapping):
-                found = terms_rule.extract(info)
-                mine = (
-                    None
-                    if found is None
-                    else [(str(a), number_or_nan(b)) for a, b in found.items()]
-                )
+            if extract is not None:
+                found = _recorded_terms(extract, info)  # as the agent's stream recorded them
+                mine = None if found is None else list(found.items())
                 if not _terms_equal(exp_terms[k], mine, atol):
                     return state_diverged(
                         k,
@@ -639,22 +665,14 @@ def _compare(
     ):
         _, _, _, term, trunc, info = got[-1]
         if term or trunc:
-            ending = rules.classify(
+            ending = _final_ending(
+                rules,
                 term,
                 trunc,
-                info if isinstance(info, Mapping) else {},
+                info,
                 time_limit_hit=max_cycles is not None and count >= max_cycles,
             )
-            want = (record["outcome"], record.get("failure_label"), record.get("truncation_reason"))
-            have = (ending.outcome, ending.failure_label, ending.truncation_reason)
-            if want != have:
-                return diverged(
-                    count - 1,
-                    Divergence(
-                        count - 1,
-                        "outcome",
-                        "/".join(p for p in want if p),
-                        "/".join(p for p in have if p),
-                    ),
-                )
+            outcome = _outcome_divergence(record, ending, count - 1)
+            if outcome is not None:
+                return diverged(count - 1, outcome)
     return EpisodeReplay(path, index, "identical", count)

@@ -313,6 +313,112 @@ def test_an_aec_step_that_changes_the_env_and_raises_is_not_replayed_past_it(
     assert [r.status for r in others] == ["identical"] * 3
 
 
+def _record_crash_after_win(path: Path, crash_at: int, flush_every_s: float = 1.0) -> None:
+    """Tic-tac-toe, seed 0: player_1 wins with its third move (step 5); the dead steps follow,
+    player_2's (step 6) then player_1's (step 7), and step ``crash_at`` raises."""
+    make = _crashing_ttt(crash_at)
+    with RecordAECEvidence(make(), path, flush_every_s=flush_every_s) as env:
+        env.reset(seed=0)
+        for move in [0, 3, 1, 4, 2]:
+            env.step(move)
+        for _ in range(crash_at - 6):
+            env.step(None)  # player_2's dead step
+        with pytest.raises(RuntimeError, match=r"^engine crashed$"):  # the loop still gets it
+            env.step(None)
+
+
+@pytest.mark.parametrize(
+    ("crash_at", "whose"),
+    [
+        (6, "player_2"),  # player_1's winning move is still an open row: it closes after it
+        (7, "player_1"),  # every row had closed (player_1's at its dead turn)
+    ],
+)
+@pytest.mark.parametrize("flush_every_s", [1.0, 1e-9])  # 1e-9: each row is flushed at once
+def test_an_aec_dead_step_that_raises_after_every_agent_ended_is_noted(
+    tmp_path: Path, crash_at: int, whose: str, flush_every_s: float
+) -> None:
+    path = tmp_path / "ttt.mcap"
+    _record_crash_after_win(path, crash_at, flush_every_s)
+    ev = open_evidence(path)
+    rows = ev.episodes().to_pylist()
+    # both agent-episodes had ended by their flags when the env raised: no episode was in
+    # progress, so none ends `error` and their outcomes stand...
+    assert [
+        (r["agent"], r["outcome"], r["terminated"], r["length"], r["return"], r["error_type"])
+        for r in rows
+    ] == [
+        ("player_1", "failure", True, 3, 1.0, None),  # tictactoe gives no success key
+        ("player_2", "failure", True, 2, -1.0, None),
+    ]
+    # ...and the last row the failing step() closed says what raised, where
+    steps = ev.steps(columns=["episode", "step", "notes"]).to_pylist()
+    noted = [(s["episode"], s["step"], json.loads(s["notes"])) for s in steps if s["notes"]]
+    assert noted == [
+        (
+            0,
+            2,
+            [
+                "env_raised: RuntimeError: engine crashed (during step: "
+                f"{whose}'s dead step, after every agent-episode of game 0 had ended)"
+            ],
+        )
+    ]
+    assert [r["notes"] for r in rows] == [1, 0]
+    found = check([path]).findings
+    assert [
+        (f.severity, f.episode, f.step, "RuntimeError: engine crashed" in f.message)
+        for f in found
+        if f.code == "recorder_note:env_raised"
+    ] == [("warning", 0, 2, True)]
+
+
+def test_a_step_that_raises_again_in_a_game_that_raised_warns_that_it_is_not_noted(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "leaving.mcap"
+    with RecordAECEvidence(_Leaving(broken_dead=True), path) as env:
+        env.reset(seed=0)
+        for _ in range(4):
+            env.step(1)  # a is terminated by its second action: its dead step comes next
+        with pytest.raises(RuntimeError, match=r"^dead step broke$"):
+            env.step(None)  # b and c end error
+        # every agent-episode has ended and this step closes no row: nowhere to note it
+        with (
+            pytest.warns(RuntimeWarning, match=r"closed no row.*env_raised: RuntimeError: dead"),
+            pytest.raises(RuntimeError, match=r"^dead step broke$"),
+        ):
+            env.step(None)
+    outcomes = [r["outcome"] for r in open_evidence(path).episodes().to_pylist()]
+    assert outcomes == ["failure", "error", "error"]
+
+
+@pytest.mark.parametrize("crash_at", [6, 7])
+def test_replay_explains_a_dead_step_that_raised_after_every_agent_ended(
+    tmp_path: Path, crash_at: int
+) -> None:
+    path = tmp_path / "ttt.mcap"
+    _record_crash_after_win(path, crash_at)
+    # a replay whose dead step raises there too has the recorded game's state
+    assert (
+        _statuses(replay([path], env_factory=_crashing_ttt(crash_at))) == [("identical", None)] * 2
+    )
+    first, second = replay([path]).episodes
+    assert (second.status, second.steps) == ("identical", 2)
+    if crash_at == 7:  # every row closed before the dead step that raised
+        assert (first.status, first.steps) == ("identical", 3)
+        return
+    # player_1's winning row was closed with the env's state when player_2's dead step
+    # raised; the replay performs that dead step (player_2 leaves) and closes it after it
+    assert (first.status, first.steps) == ("not_replayable", 2)
+    assert (first.reason or "").startswith(
+        "game 0, after player_1's step 2 (the game's last recorded action): recorded: the env "
+        "raised RuntimeError: engine crashed here; replay: it did not (it performed player_2's "
+        "dead step, player_1's dead step), so its step 2, closed with the env's state when the "
+        "env raised, cannot be compared (step 2: observation expected "
+    ), first.reason
+
+
 class _Leaving(_Everyone):
     """As :class:`_Everyone`, but ``a`` is terminated by its second action (at step 4) while
     ``b`` and ``c`` play on; its dead step comes next (PettingZoo's ``_deads_step_first``).
@@ -380,6 +486,9 @@ def test_an_aec_dead_step_that_raised_only_when_recorded_is_not_called_diverged(
         (1, "b", "error", 1),  # b's and c's open rows closed with the env's state then
         (1, "c", "error", 1),
     ]
+    # their error episodes say the env raised: no row is noted env_raised
+    notes = open_evidence(path).steps().column("notes").to_pylist()
+    assert not [n for n in notes if n and "env_raised" in n]
     # the replay performs a's dead step itself: it does not raise, a leaves, and b's turn
     # comes, a state the recording never had; b's row was called diverged on its observation
     result = replay([path], env_factory=_Leaving)
