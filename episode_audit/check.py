@@ -43,7 +43,9 @@ code                             severity  meaning
 ``recorder_note:<code>``         warning   steps or resets the recorder annotated with a note
                                            ``<code>`` (e.g. ``observation_invalid``,
                                            ``term_not_numeric``, ``info_unserializable``,
-                                           ``reward_not_numeric``); one per episode and code
+                                           ``reward_not_numeric``); one per episode and code;
+                                           an error for ``env_raised`` (a PettingZoo AEC env
+                                           raised after every agent-episode had ended)
 ``file_unfinished``              warning   the writer did not finish the file (crash, kill); the
                                            message says what the reader dropped
 ``file_recovered``               warning   the file was rewritten by ``episode-audit recover``
@@ -1083,7 +1085,7 @@ class _FileCheck:
             f"(episodes {listing(episodes)}; {sum(h.count for _, h in group)} time(s) in all): "
             f"{first.detail}"
         )
-        return Finding("warning", code, message, self.file, first_episode, first.step)
+        return Finding(_note_severity(code), code, message, self.file, first_episode, first.step)
 
     def hit_finding(self, code: str, episode: int, hit: _Hit) -> Finding:
         where = "at reset" if hit.step is None else f"at step {hit.step}"
@@ -1102,10 +1104,19 @@ class _FileCheck:
         elif code == STEP_AFTER_END:
             message = f"{n} step(s) recorded after the episode ended, first {where}"
         else:  # recorder notes
-            severity = "warning"
+            severity = _note_severity(code)
             noted = code.partition(":")[2]
             message = f"recorder noted {noted} {where} ({n} time(s) in the episode): {hit.detail}"
         return Finding(severity, code, message, self.file, episode, hit.step)
+
+
+_ERROR_NOTES = frozenset({f"{RECORDER_NOTE}:env_raised"})
+"""Recorder notes that say what an ``error`` outcome says elsewhere: the env raised."""
+
+
+def _note_severity(code: str) -> Severity:
+    """A recorder note's severity: a warning, unless it says the environment raised."""
+    return "error" if code in _ERROR_NOTES else "warning"
 
 
 def _parse_notes(text: str) -> list[str]:

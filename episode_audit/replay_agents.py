@@ -215,8 +215,16 @@ class _Game:
     ) -> None:
         obs, reward, term, trunc, info = result
         self.rows.setdefault(str(agent), []).append(
-            (action, obs, number_or_nan(reward), bool(term), bool(trunc), info)
+            (action, obs, number_or_nan(reward), _truth(term), _truth(trunc), info)
         )
+
+
+def _truth(flag: Any) -> bool:
+    """A flag's truth value; False for one without any (an array), as the recorder takes it."""
+    try:
+        return bool(flag)
+    except Exception:
+        return False
 
 
 def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int, failed: bool) -> None:

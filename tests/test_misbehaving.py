@@ -1373,3 +1373,29 @@ def test_an_aec_row_noted_by_the_turns_and_by_the_step_keeps_both_notes_counted_
     codes = [n.partition(":")[0] for n in json.loads(row["notes"])]
     assert codes == ["reward_before_first_turn", "term_not_numeric"]
     assert_note_counts(path)
+
+
+class ArrayFlagParallel(InfoParallel):
+    """:class:`InfoParallel` whose second step's truncation flags are arrays (no truth value)."""
+
+    def step(self, actions: dict[str, Any]) -> Any:
+        obs, rewards, terms, truncs, infos = super().step(actions)
+        if self.t == 2:
+            truncs = {a: np.array([True, False]) for a in truncs}
+        return obs, rewards, terms, truncs, infos
+
+
+def test_pettingzoo_flags_without_a_truth_value_replay_as_the_recorder_took_them(
+    tmp_path: Path,
+) -> None:
+    """The recorder takes such flags as False (noted flags_not_bool); so does replay."""
+    from episode_audit import RecordParallelEvidence, replay
+
+    path = tmp_path / "flags.mcap"
+    with RecordParallelEvidence(ArrayFlagParallel(lambda final: {}), path) as env:
+        play_game(env, "parallel", 0)
+    steps = open_evidence(path).steps().to_pylist()
+    noted = [row["step"] for row in steps if "flags_not_bool" in (row["notes"] or "")]
+    assert noted == [1, 1]
+    result = replay([path], env_factory=lambda: ArrayFlagParallel(lambda final: {}))
+    assert [e.status for e in result.episodes] == ["identical", "identical"], result.episodes

@@ -365,12 +365,13 @@ def test_an_aec_dead_step_that_raises_after_every_agent_ended_is_noted(
         )
     ]
     assert [r["notes"] for r in rows] == [1, 0]
-    found = check([path]).findings
+    found = check([path])
     assert [
         (f.severity, f.episode, f.step, "RuntimeError: engine crashed" in f.message)
-        for f in found
+        for f in found.findings
         if f.code == "recorder_note:env_raised"
-    ] == [("warning", 0, 2, True)]
+    ] == [("error", 0, 2, True)]  # the env raised: an error, as an error episode is
+    assert not found.ok
 
 
 def test_a_step_that_raises_again_in_a_game_that_raised_warns_that_it_is_not_noted(
