@@ -397,6 +397,13 @@ def report(
     max_truncation_rate: Annotated[
         float | None, typer.Option(help="Gate: fail if a group's truncation rate is higher.")
     ] = None,
+    max_error_rate: Annotated[
+        float | None,
+        typer.Option(
+            help="Gate: fail if a group's error rate (episodes whose env raised, of all its "
+            "episodes; the other rates leave them out) is higher."
+        ),
+    ] = None,
     fail_on_incentive_warning: Annotated[
         bool,
         typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
@@ -419,6 +426,7 @@ def report(
         max_failure_rate=overall,
         max_failure_rate_by_label=by_label,
         max_truncation_rate=_rate_option("--max-truncation-rate", max_truncation_rate),
+        max_error_rate=_rate_option("--max-error-rate", max_error_rate),
         fail_on_incentive_warning=fail_on_incentive_warning,
     )
     # Reading each file's episodes here (they are cached) puts a file damaged past its start
@@ -439,7 +447,7 @@ def report(
     except EpisodeAuditError as exc:
         fail(str(exc))
     emit(report_output(result, fmt))
-    for line in result.gate_notes:
+    for line in result.notes:
         _stderr().print(f"episode-audit: warning: {safe(line)}", markup=False, soft_wrap=True)
     if unreadable:
         raise typer.Exit(EXIT_USAGE)

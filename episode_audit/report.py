@@ -204,12 +204,15 @@ class Gates:
     max_failure_rate_by_label: Mapping[str, float] = field(default_factory=dict)
     max_truncation_rate: float | None = None
     fail_on_incentive_warning: bool = False
+    max_error_rate: float | None = None
+    """Errors (the env raised) over *all* the group's episodes: the other rates leave them out."""
 
     def __post_init__(self) -> None:
         named = [
             ("min_success_rate", self.min_success_rate),
             ("max_failure_rate", self.max_failure_rate),
             ("max_truncation_rate", self.max_truncation_rate),
+            ("max_error_rate", self.max_error_rate),
             *(
                 (f"max_failure_rate_by_label[{label!r}]", value)
                 for label, value in self.max_failure_rate_by_label.items()
@@ -261,8 +264,10 @@ class Report:
           "gates": [{"gate": str, "group": str, "passed": bool, "message": str}, ...],
           "unfinished": [{"file": str, "why": str}, ...]   # files still being written or torn
           "unit": str,               # "episode", or "game" (PettingZoo games, games=True)
-          "unmatched_labels": [str, ...]   # labels of per-label failure gates that no failure
+          "unmatched_labels": [str, ...],  # labels of per-label failure gates that no failure
                                            # has: a misspelt label would pass every time
+          "notes": [str, ...]              # those labels, and a by="tag:NAME" no file has,
+                                           # in words (the CLI prints them as warnings)
         }
 
     An unfinished file (its writer is still running, or was killed) is reported with what was
@@ -276,16 +281,24 @@ class Report:
     unfinished: list[tuple[str, str]] = field(default_factory=list)
     unit: str = "episode"
     unmatched_labels: list[str] = field(default_factory=list)
+    missing_tag: str | None = None
 
     @property
-    def gate_notes(self) -> list[str]:
-        """One line for each per-label failure gate on a label no failure has."""
+    def notes(self) -> list[str]:
+        """What the report's options matched nothing of, a line each: a per-label failure gate
+        on a label no failure has; ``by="tag:NAME"`` with a tag no file has."""
         seen = sorted({label for group in self.groups for label in group.failures})
         labels = ", ".join(map(repr, seen)) if seen else "none"
-        return [
+        notes = [
             f"gate max_failure_rate:{label}: {_unmatched_why(label)} (labels seen: {labels})"
             for label in self.unmatched_labels
         ]
+        if self.missing_tag is not None:
+            notes.append(
+                f"by tag:{self.missing_tag}: no file has the tag {self.missing_tag!r}, so every "
+                f"episode is in the group {NONE_KEY!r}: is the tag spelt as recorded?"
+            )
+        return notes
 
     @property
     def passed(self) -> bool:
@@ -305,6 +318,7 @@ class Report:
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
             "unit": self.unit,
             "unmatched_labels": list(self.unmatched_labels),
+            "notes": self.notes,
         }
 
 
@@ -686,7 +700,29 @@ def _unmatched_why(label: str) -> str:
     return f"no failure in these files is labelled {label!r}: is the label spelt as recorded?"
 
 
+def _any_gate(gates: Gates) -> bool:
+    return (
+        any(
+            bound is not None
+            for bound in (
+                gates.min_success_rate,
+                gates.max_failure_rate,
+                gates.max_truncation_rate,
+                gates.max_error_rate,
+            )
+        )
+        or bool(gates.max_failure_rate_by_label)
+        or gates.fail_on_incentive_warning
+    )
+
+
 def _gates(gates: Gates, groups: list[GroupReport]) -> list[GateResult]:
+    if not groups and _any_gate(gates):  # nothing evaluated is not a pass
+        return [
+            GateResult(
+                "episodes", "-", False, "no episodes in these files: no gate could be checked"
+            )
+        ]
     results: list[GateResult] = []
     unmatched = set(_unmatched_labels(gates, groups))
     for group in groups:
@@ -728,6 +764,17 @@ def _gates(gates: Gates, groups: list[GroupReport]) -> list[GateResult]:
                     "truncation rate",
                     group.truncation_rate,
                     gates.max_truncation_rate,
+                    False,
+                )
+            )
+        if gates.max_error_rate is not None:
+            results.append(
+                _gate(
+                    "max_error_rate",
+                    group,
+                    "error rate (of all episodes)",
+                    _rate(group.errors, group.episodes),
+                    gates.max_error_rate,
                     False,
                 )
             )
@@ -781,7 +828,16 @@ def report_tables(
         unfinished,
         "game" if games else "episode",
         _unmatched_labels(gates, groups),
+        _missing_tag(by, sources),
     )
+
+
+def _missing_tag(by: str, sources: Sequence[tuple[str, Evidence]]) -> str | None:
+    """The tag of ``by="tag:NAME"`` when no file has it (every episode would be ``(none)``)."""
+    if not by.startswith("tag:") or not sources:
+        return None
+    name = by[4:]
+    return None if any(name in (ev.run.tags or {}) for _, ev in sources) else name
 
 
 def report(

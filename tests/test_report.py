@@ -30,7 +30,7 @@ OBS = np.zeros(2, np.float32)
 class Plan:
     """One scripted episode: how it ends, after how many steps, paying what per step."""
 
-    end: str  # "success", "failure:LABEL", "failure", "truncated:REASON", "both", "none"
+    end: str  # "success", "failure:LABEL", "failure", "truncated:REASON", "both", "none", "error"
     length: int = 3
     reward: float = 1.0
     terms: dict[str, float] = field(default_factory=dict)
@@ -59,6 +59,8 @@ def _record_plans(
         elif last and plan.end == "both":
             terminated = truncated = True
             info["failure"] = "collision"
+        elif last and plan.end == "error":
+            raise RuntimeError("the env broke")
         return OBS, plan.reward, terminated, truncated, info
 
     with RecordEvidence(ScriptedEnv(step_fn=step), path, tags=tags, **kwargs) as env:
@@ -66,7 +68,10 @@ def _record_plans(
             state["plan"] = plan
             env.reset(seed=seed)
             for _ in range(plan.length):
-                env.step(0)
+                try:
+                    env.step(0)
+                except RuntimeError:  # Plan("error"): the episode is recorded as an error
+                    break
     return path
 
 
@@ -226,12 +231,12 @@ def test_gates_pass_and_fail_per_group(tmp_path: Path) -> None:
         f"truncation rate 0.00 <= 0.25 (group {good})",
     ]
     assert only_good.unmatched_labels == ["collision"]
-    assert only_good.gate_notes == [
+    assert only_good.notes == [
         "gate max_failure_rate:collision: no failure in these files is labelled 'collision': "
         "is the label spelt as recorded? (labels seen: 'drop')"
     ]
     both = report([good, bad], gates=gates)
-    assert not both.passed and both.unmatched_labels == [] and both.gate_notes == []
+    assert not both.passed and both.unmatched_labels == [] and both.notes == []
     failed = {(g.gate, g.group): g.message for g in both.gates if not g.passed}
     assert failed == {
         ("min_success_rate", str(bad)): f"success rate 0.25 < 0.80 (group {bad})",
@@ -399,6 +404,7 @@ def test_report_to_dict_is_stable_json(tmp_path: Path) -> None:
         "unfinished",
         "unit",
         "unmatched_labels",
+        "notes",
     ]
     assert data["by"] == "all" and data["passed"] is True
     (group,) = data["groups"]
@@ -449,3 +455,44 @@ def test_unreadable_file_raises_evidence_error(tmp_path: Path) -> None:
 
 def test_interval_is_a_value() -> None:
     assert Interval(0.1, 0.2) == Interval(0.1, 0.2)
+
+
+def test_the_error_rate_gate_counts_every_episode(tmp_path: Path) -> None:
+    """Rates leave errors out, so 9 crashes in 10 still pass a success gate: this gate says so."""
+    path = _record_plans(tmp_path / "crashy.mcap", [Plan("success")] + [Plan("error")] * 9)
+    result = report([path], gates=Gates(min_success_rate=0.9, max_error_rate=0.1))
+    assert _one(result).errors == 9
+    assert [(g.gate, g.passed, g.message) for g in result.gates] == [
+        ("min_success_rate", True, f"success rate 1.00 >= 0.90 (group {path})"),
+        ("max_error_rate", False, f"error rate (of all episodes) 0.90 > 0.10 (group {path})"),
+    ]
+    with pytest.raises(ConfigurationError, match=r"max_error_rate: expected a rate between 0"):
+        Gates(max_error_rate=1.5)
+
+
+def test_gates_over_no_episodes_fail(tmp_path: Path) -> None:
+    """A file that holds no episode (a recorder killed as it started) evaluates no gate: that is
+    not a pass."""
+    empty = tmp_path / "empty.mcap"
+    with RecordEvidence(ScriptedEnv(), empty):
+        pass
+    assert report([empty]).passed  # no gates: nothing to fail
+    result = report([empty], gates=Gates(min_success_rate=0.5))
+    assert not result.passed
+    assert [(g.gate, g.group, g.message) for g in result.gates] == [
+        ("episodes", "-", "no episodes in these files: no gate could be checked")
+    ]
+
+
+def test_a_tag_no_file_has_is_said(tmp_path: Path) -> None:
+    """``by="tag:polcy"`` (misspelt) puts every episode in "(none)": the report says why."""
+    path = _record_plans(tmp_path / "run.mcap", [Plan("success")], tags={"policy": "ppo"})
+    assert report([path], by="tag:policy").notes == []
+    missing = report([path], by="tag:polcy")
+    assert [g.key for g in missing.groups] == ["(none)"]
+    assert missing.missing_tag == "polcy"
+    assert missing.notes == [
+        "by tag:polcy: no file has the tag 'polcy', so every episode is in the group '(none)': "
+        "is the tag spelt as recorded?"
+    ]
+    assert missing.to_dict()["notes"] == missing.notes
