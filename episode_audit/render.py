@@ -60,12 +60,26 @@ def safe(value: Any) -> str:
 
 
 def fmt_number(value: float | None, digits: int = 3) -> str:
-    """A compact number for tables; ``-`` for missing."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+    """A compact number for tables (``-`` for missing).
+
+    ``digits`` significant digits, whole numbers in full up to a million (a MuJoCo return reads
+    ``4824``, not ``4.82e+03``); ``nan`` for a NaN (not missing: a value that is not a number).
+
+    >>> [fmt_number(x) for x in (None, math.nan, 4823.7, 1000.0, 12.345, -0.05291, 2.5e7, 7)]
+    ['-', 'nan', '4824', '1000', '12.3', '-0.0529', '2.500e+07', '7']
+    """
+    if value is None:
         return "-"
     if isinstance(value, (int, np.integer)):
         return str(value)
-    return f"{value:.{digits}g}" if abs(value) < 1e5 else f"{value:.3e}"
+    if not math.isfinite(value):
+        return str(float(value))  # nan, inf, -inf
+    size = abs(value)
+    if size >= 1e6:
+        return f"{value:.3e}"
+    if size >= 10**digits:
+        return f"{value:.0f}"
+    return f"{value:.{digits}g}"
 
 
 def _rate(rate: float | None) -> str:

@@ -285,8 +285,11 @@ class Report:
 
     @property
     def notes(self) -> list[str]:
-        """What the report's options matched nothing of, a line each: a per-label failure gate
-        on a label no failure has; ``by="tag:NAME"`` with a tag no file has."""
+        """What the report's options matched nothing of, a line each.
+
+        A per-label failure gate on a label no failure has; ``by="tag:NAME"`` with a tag no
+        file has.
+        """
         seen = sorted({label for group in self.groups for label in group.failures})
         labels = ", ".join(map(repr, seen)) if seen else "none"
         notes = [
