@@ -513,7 +513,12 @@ def export(
     paths: PathsArgument,
     out: Annotated[Path, typer.Option("--out", "-o", help="Directory for the Parquet files.")],
     overwrite: Annotated[
-        bool, typer.Option("--overwrite", help="Replace existing exported files.")
+        bool,
+        typer.Option(
+            "--overwrite",
+            help="Replace the export in --out (its *.steps.parquet files this export does not "
+            "write are removed).",
+        ),
     ] = False,
 ) -> None:
     """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
@@ -540,9 +545,10 @@ def export(
                 markup=False,
                 soft_wrap=True,
             )
+    removed = f"; removed {len(result.removed)} from an earlier export" if result.removed else ""
     emit(
         f"wrote {result.episodes} episodes to {result.episodes_file} and {result.steps} steps "
-        f"to {len(result.steps_files)} *.steps.parquet file(s) in {out}"
+        f"to {len(result.steps_files)} *.steps.parquet file(s) in {out}{removed}"
     )
     if unreadable:
         raise typer.Exit(EXIT_USAGE)

@@ -38,6 +38,9 @@ class ExportResult:
     failed: list[Path] = field(default_factory=list)
     """Inputs that could not be read to the end (only with ``on_error``); nothing of theirs
     is in the output."""
+    removed: list[Path] = field(default_factory=list)
+    """With ``overwrite``: ``*.steps.parquet`` files of an earlier export that this one did not
+    write, removed so that ``read_parquet('DIR/*.steps.parquet')`` reads this export only."""
 
 
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:
@@ -64,7 +67,9 @@ def export(
 ) -> ExportResult:
     """Write the steps and episodes of ``paths`` as Parquet files into ``out_dir``.
 
-    Existing output files are not replaced unless ``overwrite=True``. An input that cannot
+    Existing output files are not replaced unless ``overwrite=True``, which replaces the export
+    in ``out_dir``: ``*.steps.parquet`` files there that this export does not write (an earlier
+    export's) are removed (:attr:`ExportResult.removed`). An input that cannot
     be read to the end (e.g. a damaged chunk) raises :class:`~episode_audit.errors.EvidenceError`;
     with ``on_error``, it is handed the error instead, the input is listed in
     :attr:`ExportResult.failed` with nothing of it in the output, and the others are exported.
@@ -124,6 +129,12 @@ def export(
     episodes = pa.concat_tables(episode_tables) if episode_tables else pa.table({})
     pq.write_table(episodes, result.episodes_file, compression="zstd")
     result.episodes = episodes.num_rows
+    if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
+        written = set(result.steps_files)
+        for stale in sorted(out.glob("*.steps.parquet")):
+            if stale not in written and stale.is_file():
+                stale.unlink()
+                result.removed.append(stale)
     return result
 
 
