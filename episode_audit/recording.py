@@ -26,7 +26,10 @@ Policy = Callable[[Any], Any]
 
 
 class RecordingError(RecorderError):
-    """The env or the policy raised while recording (the file keeps the episode as ``error``)."""
+    """The env or the policy raised while recording.
+
+    The file keeps the episode as ``error`` when the env raised, ``incomplete`` when the policy did.
+    """
 
 
 @dataclass
@@ -129,10 +132,19 @@ def record_episodes(
             try:
                 obs, _ = recorder.reset(seed=seed + i)
                 while True:
-                    obs, _, terminated, truncated, _ = recorder.step(act(obs))
+                    try:
+                        action = act(obs)
+                    except Exception as exc:  # the policy's fault: the env's episode is open
+                        raise RecordingError(
+                            f"episode {i}: the policy raised {error_text(exc)} (the episode is "
+                            f"recorded as incomplete in {path})"
+                        ) from exc
+                    obs, _, terminated, truncated, _ = recorder.step(action)
                     steps += 1
                     if terminated or truncated:
                         break
+            except RecordingError:
+                raise
             except Exception as exc:
                 raise RecordingError(
                     f"episode {i}: {error_text(exc)} (the episode is recorded as error in {path})"

@@ -25,3 +25,16 @@ def raises() -> gym.Env[Any, Any]:
 def not_an_env() -> Any:
     """An env factory that returns something else."""
     return "CartPole-v1"
+
+
+def crashing_policy(env: gym.Env[Any, Any], seed: int) -> Any:
+    """A --policy factory whose policy raises on its third call (a bug in the policy)."""
+    calls = [0]
+
+    def act(obs: Any) -> Any:
+        calls[0] += 1
+        if calls[0] == 3:
+            raise ValueError("policy bug")
+        return env.action_space.sample()
+
+    return act

@@ -495,3 +495,19 @@ def test_a_file_without_read_permission_is_one_line_and_the_others_go_on(
         assert json.loads(done.stdout)["summary"]["identical"] == 6
     if command == "export":
         assert (tmp_path / "out" / "episodes.parquet").exists()
+
+
+def test_record_says_when_the_policy_raised(tmp_path: Path) -> None:
+    """Not "recorded as error" (that is the env raising): the env's episode is left open."""
+    out = tmp_path / "pol.mcap"
+    code, _, err = run(
+        "record", "CartPole-v1", "--out", str(out), "--policy", "tests.factories:crashing_policy"
+    )
+    assert code == 2
+    one_error_line(
+        err,
+        "episode 0: the policy raised ValueError: policy bug (the episode is recorded as "
+        f"incomplete in {out})",
+    )
+    (episode,) = open_evidence(out).episodes().to_pylist()
+    assert (episode["outcome"], episode["length"]) == ("incomplete", 2)
