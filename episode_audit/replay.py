@@ -106,6 +106,7 @@ _RECORD_COLUMNS = (
     "failure_label",
     "truncation_reason",
     "error_during",
+    "length",
 )
 """The columns of the episode table a replay reads."""
 _RECORD_KEYS = frozenset({fmt.COL_EPISODE, "outcome"})
@@ -1210,6 +1211,30 @@ def _row_ranges(episode: np.ndarray[Any, Any]) -> dict[int, tuple[int, int]]:
     return out
 
 
+_ENDINGS = frozenset({fmt.OUTCOME_SUCCESS, fmt.OUTCOME_FAILURE, fmt.OUTCOME_TRUNCATED})
+
+
+def _to_end(
+    rows: dict[int, tuple[int, int]], records: Mapping[int, Mapping[str, Any]]
+) -> dict[int, tuple[int, int]]:
+    """Each episode's rows up to its recorded end.
+
+    Rows stepped after an episode ended (the recorder noted them ``step_after_end``; ``check``
+    reports them) are not the episode: replay compares the steps up to its ``length``.
+    """
+    out = rows
+    for index, (first, count) in rows.items():
+        record = records.get(index)
+        if record is None or record.get("outcome") not in _ENDINGS:
+            continue
+        length = record.get("length")
+        if isinstance(length, int) and 0 <= length < count:
+            if out is rows:
+                out = dict(rows)
+            out[index] = (first, length)
+    return out
+
+
 def _layout_not_replayable(layout: Mapping[str, Any]) -> str | None:
     """Why a file's layout cannot be replayed episode by episode, or ``None`` if it can.
 
@@ -1293,7 +1318,7 @@ def replay_evidence(
                 reset_rows = dict(zip(indices, range(len(indices)), strict=True))
                 known.extend([listed, {r["episode"]: r for r in listed}, resets, reset_rows])
             _, by_index, resets, reset_rows = known
-            rows = _row_ranges(table.column(fmt.COL_EPISODE).to_numpy())
+            rows = _to_end(_row_ranges(table.column(fmt.COL_EPISODE).to_numpy()), by_index)
             batch = [by_index[e] for e in rows if e in by_index and e not in results]
             for result in runner.run_all(batch, table, rows, reset_rows, resets):
                 results[result.episode] = result

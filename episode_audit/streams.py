@@ -206,6 +206,7 @@ class _Episode:
     """Running state of one open episode of a stream."""
 
     __slots__ = (
+        "after_end",
         "agent",
         "end_ns",
         "ended",
@@ -244,6 +245,7 @@ class _Episode:
         self.start_ns = start_ns
         self.end_ns = start_ns
         self.steps = 0
+        self.after_end = 0  # rows stepped after it ended, in blocks already written
         self.ret = 0.0
         self.totals: dict[str, float] = {}
         self.notes = 0
@@ -251,6 +253,10 @@ class _Episode:
         self.env_index = env_index
         self.agent = agent
         self.game = game
+
+    def next_step(self) -> int:
+        """The step index of its next row in a new block (rows after its end number on)."""
+        return self.steps + self.after_end
 
 
 class _Block:
@@ -297,7 +303,7 @@ class _Block:
         self.segments: list[tuple[int, int, int, bool]] = []
         self.episodes: dict[int, _Episode] = {}
         if episode is not None:
-            self.add_segment(0, episode, episode.steps, not episode.ended)
+            self.add_segment(0, episode, episode.next_step(), not episode.ended)
         self.flags: dict[int, tuple[bool, bool]] = {}  # rows with terminated or truncated set
         # reward terms, flat: for each row that has terms, its row, count, keys and values
         self.term_rows = array("q")
@@ -1076,7 +1082,7 @@ class Stream:
                 first = (
                     block.next_step_index()
                     if last is not None and last[1] == episode.index
-                    else episode.steps
+                    else episode.next_step()
                 )
                 block.add_segment(rows, episode, first, False)
         block.rewards.append(r)
@@ -1297,6 +1303,8 @@ def _apply_block(
             ep.ret += float(np.add.reduce(rewards[start:end]))
             ep.end_ns = block.times[end - 1]
             counted[start:end] = True
+        elif end > start:  # stepped after the end: numbered on, not counted
+            block.episodes[index].after_end += end - start
     if not block.term_rows:
         return pa.nulls(n, TERMS_TYPE)
     rows = np.frombuffer(block.term_rows, dtype=np.int64)

@@ -491,3 +491,28 @@ def test_the_wrapped_env_passes_gymnasiums_env_checker(tmp_path: Path) -> None:
         warnings.simplefilter("ignore")  # "different from the unwrapped version", inf bounds
         with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "checked.mcap") as env:
             check_env(env, skip_render_check=True)
+
+
+@pytest.mark.parametrize("block_steps", [4, 8, 1000])
+def test_rows_stepped_after_the_end_number_on_across_blocks(
+    tmp_path: Path, block_steps: int
+) -> None:
+    """Their step indices went back to the episode's length at every new block (duplicate
+    (episode, step) pairs); replay, which compares up to the recorded end, called such an
+    episode diverged on its length."""
+    from episode_audit import check, replay
+
+    path = tmp_path / "after.mcap"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # gymnasium's own "step after terminated" warning
+        with RecordEvidence(gym.make("CartPole-v1"), path, block_steps=block_steps) as env:
+            env.reset(seed=0)
+            for _ in range(40):
+                env.step(0)  # CartPole ends after 11 of these; the loop steps on
+    ev = open_evidence(path)
+    (record,) = ev.episodes().to_pylist()
+    assert (record["outcome"], record["length"]) == ("failure", 11)
+    assert ev.steps(columns=["step"]).column("step").to_pylist() == list(range(40))
+    assert [e.status for e in replay([path]).episodes] == ["identical"]
+    found = [f for f in check([path]).findings if f.code == "step_after_end"]
+    assert [(f.episode, f.severity) for f in found] == [(0, "error")]
