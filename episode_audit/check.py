@@ -19,7 +19,8 @@ code                             severity  meaning
                                            ``atol + rtol * |reward|``; one per episode, naming
                                            the first such step, how many and the worst residual
 ``missing_terms``                warning   steps without reward terms (one per file, with the
-                                           count); an error with ``require_terms``
+                                           count); an error with ``require_terms``; a note
+                                           when recorded with ``reward_terms=None``
 ``nonfinite_reward``             error     NaN or infinite rewards (one per episode)
 ``nonfinite_term``               error     NaN or infinite reward terms (one per episode)
 ``observation_out_of_space``     error     observations outside the observation space (one per
@@ -1052,6 +1053,8 @@ class _FileCheck:
             return
         source = (self.ev.run.reward_terms or {}).get("source")
         severity: Severity = "error" if self.require_terms else "warning"
+        if source is None and not self.require_terms:
+            severity = "note"  # reward_terms=None: the recording was told to keep none
         episode, step = self.first_missing or (None, None)
         self.finding(
             severity,

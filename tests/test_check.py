@@ -159,6 +159,19 @@ def test_missing_terms_is_an_error_when_required(tmp_path: Path) -> None:
     assert not check([path], require_terms=True).ok
 
 
+def test_missing_terms_is_a_note_when_recorded_without_terms(tmp_path: Path) -> None:
+    """reward_terms=None says to keep none: a warning on every such file made --strict useless."""
+    path = _record(
+        tmp_path / "none.mcap",
+        lambda env, action: (OBS, 1.0, env.t == 4, False, {}),
+        reward_terms=None,
+    )
+    note = _only(check([path]), "missing_terms")
+    assert note.severity == "note"
+    assert note.message.startswith("4 of 4 steps have no reward terms (terms source None)")
+    assert _only(check([path], require_terms=True), "missing_terms").severity == "error"
+
+
 def test_nonfinite_reward_and_term(tmp_path: Path) -> None:
     def step(env: ScriptedEnv, action: Any) -> Step:
         terms = {"a": 1.0, "b": math.inf if env.t in (3, 4) else 0.0}
