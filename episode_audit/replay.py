@@ -821,15 +821,12 @@ class _EpisodeRunner:
                 )
             elif not reset_equal[k]:
                 exp = obs_codec.decode(reset_obs.slice(ran.reset_at[k], 1))[0]
+                now = obs_codec.decode(got_reset.slice(k, 1))[0]
                 done[index] = self._diverged(
                     index,
                     0,
                     Divergence(
-                        None,
-                        "reset_observation",
-                        _short(exp),
-                        "a different one",
-                        float(reset_diff[k]),
+                        None, "reset_observation", _short(exp), _short(now), float(reset_diff[k])
                     ),
                 )
             else:

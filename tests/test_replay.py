@@ -788,3 +788,25 @@ def test_odd_flags_replay_as_recorded_and_a_reset_error_says_so(tmp_path: Path) 
         ("identical", None),
         ("not_replayable", "its reset raised (an error episode): there is no reset to compare"),
     ]
+
+
+class _ShiftedReset(gym.Wrapper[Any, Any, Any, Any]):
+    """CartPole whose reset observation is moved by 0.25 in its first element."""
+
+    def reset(self, **kwargs: Any) -> Any:
+        obs, info = self.env.reset(**kwargs)
+        return obs + np.array([0.25, 0, 0, 0], dtype=obs.dtype), info
+
+
+def test_a_reset_divergence_shows_both_observations(tmp_path: Path) -> None:
+    """It said "got a different one": the replayed observation is what a user needs to see."""
+    path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 1)
+    result = replay([path], env_factory=lambda: _ShiftedReset(gym.make("CartPole-v1")))
+    (episode,) = result.episodes
+    divergence = episode.divergence
+    assert divergence is not None and divergence.field == "reset_observation"
+    expected = open_evidence(path).resets().column("observation")[0].as_py()
+    assert divergence.max_abs_diff == pytest.approx(0.25, abs=1e-6)
+    first = float(divergence.got.lstrip("[").split(",")[0])
+    assert first == pytest.approx(expected[0] + 0.25, abs=1e-6), divergence.got
+    assert float(divergence.expected.lstrip("[").split(",")[0]) == pytest.approx(expected[0])
