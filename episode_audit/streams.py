@@ -826,7 +826,7 @@ class Stream:
             self.end_episode(episode, fmt.OUTCOME_INCOMPLETE)
         file = self.file
         recorded_seed = _recordable_seed(seed, notes)
-        if seed is None and rng_state is None:
+        if seed is None and rng_state is None and not _has_note(notes, "rng_state_unavailable"):
             notes.append(
                 note("rng_state_unavailable", "reset without a seed and the env has no np_random")
             )
@@ -834,7 +834,7 @@ class Stream:
         if options is not None:
             try:
                 recorded_options = to_jsonable(options)
-            except (TypeError, ValueError):
+            except Exception:  # not JSON; cyclic or too deep (RecursionError); a key's str() raises
                 notes.append(note("options_unserializable", short(options)))
                 recorded_options = {"repr": short(options)}
         episode = _Episode(
@@ -1373,6 +1373,12 @@ def _named_block_terms(
 
 
 _BOOLS = frozenset({bool, np.bool_})
+
+
+def _has_note(notes: list[str], code: str) -> bool:
+    """Whether ``notes`` already has a note ``code`` (a caller may know the better reason)."""
+    prefix = f"{code}:"
+    return any(item.startswith(prefix) for item in notes)
 
 
 def _add_notes(

@@ -259,3 +259,43 @@ def test_large_rows_make_smaller_blocks_than_block_steps(
             if c.topic == "episode_audit/steps"
         ]
     assert blocks == [5, 5, 2]
+
+
+def test_begin_notes_options_it_cannot_hold_and_keeps_a_callers_rng_reason(
+    tmp_path: Path,
+) -> None:
+    """Cyclic or too deep options raised RecursionError out of begin() (the recorder then lost
+    the episode boundary); a caller's own rng_state_unavailable reason got a second, generic,
+    false one beside it."""
+    env = gym.make("CartPole-v1")
+    settings = RecorderSettings()
+    run = run_info(
+        settings=settings,
+        spec=env.spec,
+        observation_space=describe_space(env.observation_space),
+        action_space=describe_space(env.action_space),
+        tags=None,
+        command_line=["test"],
+        layout={"kind": "single"},
+    )
+    path = tmp_path / "begin.mcap"
+    file = EvidenceFile(path, run, settings)
+    stream = file.add_stream(codec_for(env.observation_space), codec_for(env.action_space))
+    file.start()
+    cyclic: dict[str, Any] = {"a": 1}
+    cyclic["self"] = cyclic
+    deep: Any = []
+    for _ in range(5000):
+        deep = [deep]
+    for options in (cyclic, {"deep": deep}):
+        notes: list[str] = []
+        episode = stream.begin(1, options, None, notes)
+        stream.record_reset(episode, *env.reset(seed=1), notes)
+        stream.step(0, env.step(0))
+    notes = ["rng_state_unavailable: the caller knows why"]
+    episode = stream.begin(None, None, None, notes)
+    stream.record_reset(episode, *env.reset(), notes)
+    file.close()
+    rows = open_evidence(path).resets().column("notes").to_pylist()
+    assert [json.loads(r)[0].split(":")[0] for r in rows[:2]] == ["options_unserializable"] * 2
+    assert json.loads(rows[2]) == ["rng_state_unavailable: the caller knows why"]
