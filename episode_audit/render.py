@@ -32,7 +32,7 @@ from rich.text import Text
 
 from .check import CheckResult
 from .replay import ReplayResult
-from .report import GroupReport, Report
+from .report import GroupReport, Interval, Report
 
 __all__ = [
     "OutputFormat",
@@ -218,15 +218,18 @@ def _mean_std(mean: float | None, std: float | None) -> str:
     return f"{fmt_number(mean)} ± {fmt_number(std or 0.0)}"
 
 
+def _ci(ci: Interval | None) -> str:
+    return "" if ci is None else f" [{ci.low:.2f}, {ci.high:.2f}]"
+
+
 def _group_row(g: GroupReport) -> list[str]:
-    ci = "" if g.success_ci is None else f" [{g.success_ci.low:.2f}, {g.success_ci.high:.2f}]"
     return [
         g.key,
         str(g.episodes),
-        f"{g.success} ({_rate(g.success_rate)}{ci})",
-        f"{sum(g.failures.values())} ({_rate(g.failure_rate)})",
+        f"{g.success} ({_rate(g.success_rate)}{_ci(g.success_ci)})",
+        f"{sum(g.failures.values())} ({_rate(g.failure_rate)}{_ci(g.failure_ci)})",
         _counts(g.failures),
-        f"{sum(g.truncations.values())} ({_rate(g.truncation_rate)})",
+        f"{sum(g.truncations.values())} ({_rate(g.truncation_rate)}{_ci(g.truncation_ci)})",
         _counts(g.truncations),
         str(g.incomplete),
         str(g.errors),
@@ -240,9 +243,9 @@ REPORT_HEADERS = [
     "group",
     "episodes",
     "success (95% CI)",
-    "failure",
+    "failure (95% CI)",
     "failure labels",
-    "truncated",
+    "truncated (95% CI)",
     "truncation reasons",
     "incomplete",
     "error",

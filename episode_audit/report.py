@@ -151,6 +151,8 @@ class GroupReport:
     length_std: float | None
     term_means: dict[str, dict[str, float]]
     warnings: list[IncentiveWarning]
+    failure_ci: Interval | None = None
+    truncation_ci: Interval | None = None
 
     @property
     def failure(self) -> int:
@@ -170,17 +172,15 @@ class GroupReport:
             "ended": self.ended,
             "success": self.success,
             "success_rate": self.success_rate,
-            "success_ci": (
-                None
-                if self.success_ci is None
-                else {"low": self.success_ci.low, "high": self.success_ci.high}
-            ),
+            "success_ci": _interval(self.success_ci),
             "failure": self.failure,
             "failures": dict(self.failures),
             "failure_rate": self.failure_rate,
+            "failure_ci": _interval(self.failure_ci),
             "truncated": self.truncated,
             "truncations": dict(self.truncations),
             "truncation_rate": self.truncation_rate,
+            "truncation_ci": _interval(self.truncation_ci),
             "incomplete": self.incomplete,
             "errors": self.errors,
             "terminated_and_truncated": self.terminated_and_truncated,
@@ -193,6 +193,10 @@ class GroupReport:
         }
         result: dict[str, Any] = to_jsonable(data)
         return result
+
+
+def _interval(ci: Interval | None) -> dict[str, float] | None:
+    return None if ci is None else {"low": ci.low, "high": ci.high}
 
 
 @dataclass(frozen=True)
@@ -253,7 +257,9 @@ class Report:
              "success": int, "success_rate": float | null,
              "success_ci": {"low": float, "high": float} | null,
              "failure": int, "failures": {label: int}, "failure_rate": float | null,
+             "failure_ci": {"low": float, "high": float} | null,
              "truncated": int, "truncations": {reason: int}, "truncation_rate": float | null,
+             "truncation_ci": {"low": float, "high": float} | null,
              "incomplete": int, "errors": int, "terminated_and_truncated": int,
              "return_mean": float | null, "return_std": float | null,
              "length_mean": float | null, "length_std": float | null,
@@ -562,6 +568,8 @@ def _group(key: str, rows: pa.Table, terms: pa.Table) -> GroupReport:
         length_std=length_std,
         term_means=term_means,
         warnings=[],
+        failure_ci=wilson_interval(failure, ended) if ended else None,
+        truncation_ci=wilson_interval(truncated, ended) if ended else None,
     )
     group.warnings = _incentive_warnings(
         group, outcome_arr, np.array(failure_labels, dtype=object), returns, terms

@@ -129,6 +129,9 @@ def test_counts_and_rates_keep_outcomes_apart(tmp_path: Path) -> None:
     assert group.failure_rate == pytest.approx(3 / 6)
     assert group.truncation_rate == pytest.approx(1 / 6)
     assert group.success_ci == wilson_interval(2, 6)
+    # every rate has its interval (PRODUCT: rates side by side, with intervals)
+    assert group.failure_ci == wilson_interval(3, 6)
+    assert group.truncation_ci == wilson_interval(1, 6)
     # returns and lengths over the six ended episodes only
     returns = [6.0, 6.0, 2.0, 4.0, 5.0, 1.0]
     lengths = [3, 3, 2, 4, 5, 1]
