@@ -34,7 +34,10 @@ ending) keeps copies of the batch arrays (observations, actions, rewards) and on
 episode boundaries (autoresets, endings) are handled per sub-env when they happen, at the rows
 they will have. Steps with info (e.g. MuJoCo ``reward_*`` terms), or with values that need a cast,
 are recorded sub-env by sub-env as :class:`~episode_audit.RecordEvidence` records a step, with
-per-sub-env info dicts taken from the vector info (``info[k][i]`` where ``info["_k"][i]``).
+per-sub-env info dicts taken from the vector info (``info[k][i]`` where ``info["_k"][i]``), or
+from a list of per-sub-env infos (Gymnasium's ``DictInfoToList``). So are steps of a sub-env
+without a running episode (stepped before its reset, or after its episode ended), which are
+noted as the single-env recorder notes them.
 
 Wrap the vector env itself (innermost): replay rebuilds one sub-env from its spec.
 """
@@ -53,7 +56,7 @@ from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, Vecto
 from gymnasium.vector.utils import iterate
 
 from . import format as fmt
-from .outcomes import EndingRules, RewardTerms, TermsFn
+from .outcomes import EndingRules, RewardTerms, TermsFn, find_time_limit
 from .records import to_json
 from .seeding import capture_rng_state
 from .spaces import codec_for, describe_space
@@ -117,6 +120,58 @@ def _sub_info(infos: Mapping[str, Any], i: int) -> dict[str, Any]:
             continue
         out[key] = _sub_info(value, i) if isinstance(value, Mapping) else value[i]
     return out
+
+
+def _env_info(infos: Any, i: int, n: int) -> Any:
+    """Sub-env ``i``'s info from a vector step's or reset's info, as the sub-env would give it.
+
+    The vector dict form (:func:`_sub_info`), or a list of per-sub-env infos (what Gymnasium's
+    ``DictInfoToList`` makes of it); anything else is handed on as it is (the stream notes an
+    info that is not a dict).
+    """
+    if isinstance(infos, Mapping):
+        return _sub_info(infos, i) if infos else _EMPTY
+    if isinstance(infos, (list, tuple)) and len(infos) == n:
+        return infos[i]
+    return infos
+
+
+def _per_env(values: Any, n: int) -> list[Any]:
+    """One value per sub-env from a batch (an array, or a list from a vector env of its own).
+
+    Numbers come out as Python numbers; anything else is handed on as it is, for the stream to
+    record and note as the single-env recorder would (e.g. a reward that is text).
+    """
+    if isinstance(values, np.ndarray) and values.shape == (n,) and values.dtype.kind in "biuf":
+        return values.tolist()  # type: ignore[no-any-return]
+    try:
+        items = list(values)
+    except TypeError:
+        return [values] * n
+    return items if len(items) == n else [values] * n
+
+
+def _rejected(seed: Any, options: Any, n: int) -> bool:
+    """Whether Gymnasium's vector envs refuse these reset arguments before resetting any sub-env.
+
+    (A seed that is neither ``None``, an int nor ``n`` seeds; a ``reset_mask`` that is not a bool
+    array of shape ``(n,)`` with a true value.) Such a refused reset changes no episode.
+    """
+    if seed is not None and not isinstance(seed, int):
+        try:
+            if len(seed) != n:
+                return True
+        except TypeError:
+            return True
+    if isinstance(options, Mapping) and "reset_mask" in options:
+        mask = options["reset_mask"]
+        return not (
+            isinstance(mask, np.ndarray)
+            and mask.shape == (n,)
+            and mask.dtype == np.bool_
+            and bool(mask.any())
+        )
+    return False
 
 
 def _autoreset_mode(env: VectorEnv[Any, Any, Any]) -> AutoresetMode:
@@ -239,10 +294,9 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         self.path = self._file.path
         obs_codec = codec_for(obs_space, digest_min_bytes=digest_min_bytes)
         act_codec = codec_for(act_space)
-        max_steps = getattr(sub_spec, "max_episode_steps", None)
         self._streams: list[Stream] = [
-            self._file.add_stream(obs_codec, act_codec, env_index=i, max_episode_steps=max_steps)
-            for i in range(n)
+            self._file.add_stream(obs_codec, act_codec, env_index=i, max_episode_steps=limit)
+            for i, limit in enumerate(self._max_steps(sub_spec))
         ]
         self._file.start()
         self._file.before_flush.append(self._on_flush)
@@ -272,6 +326,9 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         self._act_space = env.action_space
         # NEXT_STEP: the sub-envs whose next step is their autoreset, and their RNG states.
         self._resetting: list[int] = []
+        # the sub-envs without a running episode (never reset, or ended); None: not known now
+        self._idle: set[int] | None = None
+        self._no_infos = [_EMPTY] * n  # a DictInfoToList info without values
         self._pending_rng: dict[int, dict[str, Any] | None] = {}
         self._closed = False
 
@@ -295,6 +352,21 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")
         }
         return dataclasses.replace(spec, kwargs=kwargs)
+
+    def _max_steps(self, sub_spec: Any) -> list[int | None]:
+        """Each sub-env's step limit: its ``TimeLimit`` (``SyncVectorEnv``), else its spec's.
+
+        The limit is counted by the stream (a ``SAME_STEP`` autoreset has zeroed the wrapper's
+        own count by the time the ending is recorded). An ``AsyncVectorEnv``'s sub-envs cannot
+        be searched for a ``TimeLimit`` cheaply: the spec's limit is used.
+        """
+        limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * self._n
+        if self._sync is not None:
+            for i, sub in enumerate(self._sync.envs):
+                limit = getattr(find_time_limit(sub), "_max_episode_steps", None)
+                if isinstance(limit, int):
+                    limits[i] = limit
+        return limits
 
     # ------------------------------------------------------------------ RNG states
 
@@ -320,8 +392,10 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             return out
         return dict.fromkeys(indices)
 
-    def _rng_from_info(self, info: Mapping[str, Any]) -> dict[str, Any] | None:
+    def _rng_from_info(self, info: Any) -> dict[str, Any] | None:
         """The state :class:`ResetRngInfo` put in a reset info (then it is always used)."""
+        if not isinstance(info, Mapping):
+            return None
         text = info.get(fmt.INFO_RNG_STATE)
         if not isinstance(text, str):
             return None
@@ -341,7 +415,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         options: Any,
         rng_state: dict[str, Any] | None,
         obs: Any,
-        info: Mapping[str, Any],
+        info: Any,
         start_ns: int,
         why_no_rng: str | None = None,
     ) -> None:
@@ -367,28 +441,18 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         file = self._file
         file.check_open()
         n = self._n
-        mask = None
-        if options is not None and "reset_mask" in options:
-            mask = np.asarray(options["reset_mask"]).astype(bool).reshape(-1)
-        indices = list(range(n)) if mask is None or mask.size != n else np.flatnonzero(mask)
-        indices = [int(i) for i in indices]
-        if seed is None or not self._sub_envs:
-            seeds: list[Any] = [None] * n
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(n)]
-        else:
-            seeds = list(seed) + [None] * max(0, n - len(seed))
-        recorded_options = (
-            None
-            if options is None
-            else ({k: v for k, v in options.items() if k != "reset_mask"} or None)
-        )
+        indices, recorded_options = _reset_targets(options, n)
+        seeds = self._seeds(seed)
+        rejected = _rejected(seed, options, n)
         unseeded = [i for i in indices if seeds[i] is None]
         states = {} if self._rng_in_info else self._capture(unseeded)
         start = file.clock()
+        self._idle = None
         try:
             obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
         except Exception as exc:
+            if rejected:  # refused before any sub-env was reset: no episode changed
+                raise
             try:
                 for i in indices:
                     self._begin_failed(i, seeds[i], recorded_options, states.get(i), exc)
@@ -399,7 +463,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         try:
             rows = list(iterate(self._obs_space, obs))
             for i in indices:
-                info = _sub_info(infos, i) if infos else _EMPTY
+                info = _env_info(infos, i, n)
                 rng = states.get(i)
                 if seeds[i] is None:
                     rng = self._rng_from_info(info) or rng
@@ -416,6 +480,19 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         except Exception as exc:  # never break the training loop over recording trouble
             file.trouble(exc)
         return obs, infos
+
+    def _seeds(self, seed: Any) -> list[Any]:
+        """The seed each sub-env's reset gets from ``reset(seed=seed)`` (as Gymnasium's do)."""
+        n = self._n
+        if seed is None or not self._sub_envs:
+            return [None] * n
+        if isinstance(seed, (int, np.integer)):
+            return [int(seed) + i for i in range(n)]
+        try:
+            seeds = list(seed)
+        except TypeError:  # not a seed (the env refuses it)
+            return [None] * n
+        return (seeds + [None] * n)[:n]
 
     def _begin_failed(
         self, i: int, seed: Any, options: Any, rng: dict[str, Any] | None, exc: Exception
@@ -439,6 +516,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         try:
             self._record_step(actions, result)
         except Exception as exc:  # never break the training loop over recording trouble
+            self._idle = None
             self._file.trouble(exc)
         return result
 
@@ -450,20 +528,34 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         ends = [i for i, e in enumerate(ended) if e] if True in ended else []
         mode = self._mode
         resetting = self._resetting  # NEXT_STEP: the sub-envs this step only resets
+        n = self._n
+        idle = self._idle
+        if idle is None:
+            idle = self._idle = {
+                i for i, s in enumerate(self._streams) if s.episode is None or s.episode.ended
+            }
         if (
             self._batchable
-            and not infos
+            and (
+                (type(infos) is dict and not infos)
+                or (type(infos) is list and infos == self._no_infos)
+            )
             and (mode is not AutoresetMode.SAME_STEP or not ends)
+            and (not idle or idle.issubset(resetting))  # else: notes (before reset, after end)
+            and type(rewards) is np.ndarray
+            and rewards.shape == (n,)
+            and rewards.dtype.kind in "biuf"
             and _fits(obs, self._obs_shape, self._obs_dtype)
             and _fits(actions, self._act_shape, self._act_dtype)
         ):
             self._batch_step(obs, actions, rewards, term, trunc, ends, resetting)
         else:
             self._drain()
+            self._idle = None
             self._record_step_slow(
                 list(iterate(self._obs_space, obs)),
                 list(iterate(self._act_space, actions)),
-                np.asarray(rewards, dtype=np.float64).tolist(),
+                _per_env(rewards, n),
                 term.tolist(),
                 trunc.tolist(),
                 infos,
@@ -491,9 +583,10 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         """
         file = self._file
         now = file.clock()
+        rew = np.array(rewards, dtype=np.float64)  # every conversion before any append
         self._p_obs.append(obs.copy())
         self._p_act.append(actions.copy())
-        self._p_rew.append(np.array(rewards, dtype=np.float64))
+        self._p_rew.append(rew)
         self._p_time.append(now)
         self._p_mask.append(resetting)
         self._p_len += 1
@@ -506,12 +599,17 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 rng = self._pending_rng.pop(i, None)
                 streams[i].end_open()
                 self._begin(i, None, None, rng, obs[i], _EMPTY, now)
+            idle = self._idle
+            if idle:
+                idle.difference_update(resetting)
             for i in ends:
                 if resetting and i in resetting:
                     continue  # a reset step has no flags (Gymnasium clears them)
                 block = streams[i].block
                 block.pending = pending - skipped[i]
                 streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), _EMPTY)
+                if idle is not None:
+                    idle.add(i)
         self._since_flush += 1
         if self._since_flush >= self._block_steps or now >= file.flush_at:
             file.auto_flush()
@@ -554,18 +652,19 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         self,
         obs_rows: list[Any],
         act_rows: list[Any],
-        reward_list: list[float],
+        reward_list: list[Any],
         term_list: list[bool],
         trunc_list: list[bool],
-        infos: Mapping[str, Any],
+        infos: Any,
     ) -> None:
         """A step with info, autoresets or (SAME_STEP) ended episodes: sub-env by sub-env."""
         streams = self._streams
         mode = self._mode
         resetting = set(self._resetting)
         now = self._file.clock()
-        for i in range(self._n):
-            info = _sub_info(infos, i) if infos else _EMPTY
+        n = self._n
+        for i in range(n):
+            info = _env_info(infos, i, n)
             if i in resetting:
                 # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
                 rng = self._rng_from_info(info)
@@ -575,14 +674,20 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 self._begin(i, None, None, rng, obs_rows[i], info, now)
                 continue
             if mode is AutoresetMode.SAME_STEP and (term_list[i] or trunc_list[i]):
-                final = info.get("final_info")
-                step_info = final if isinstance(final, Mapping) else _EMPTY
-                final_obs = infos["final_obs"][i] if "final_obs" in infos else obs_rows[i]
+                if isinstance(info, Mapping):
+                    final = info.get("final_info")
+                    step_info = final if isinstance(final, Mapping) else _EMPTY
+                    final_obs = info["final_obs"] if "final_obs" in info else obs_rows[i]
+                    reset_info: Any = {
+                        k: v for k, v in info.items() if k not in ("final_info", "final_obs")
+                    }
+                else:  # neither the vector dict form nor a list of dicts (noted)
+                    step_info = reset_info = info
+                    final_obs = obs_rows[i]
                 streams[i].step(
                     act_rows[i],
                     (final_obs, reward_list[i], term_list[i], trunc_list[i], step_info),
                 )
-                reset_info = {k: v for k, v in info.items() if k not in ("final_info", "final_obs")}
                 rng = self._rng_from_info(reset_info)
                 why = (
                     None
@@ -598,6 +703,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             )
 
     def _on_step_error(self, exc: Exception) -> None:
+        self._idle = None
         self._file.end_with_error(self._streams, exc, "step")
 
     def flush(self) -> None:
@@ -634,6 +740,26 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 ResourceWarning,
                 stacklevel=2,
             )
+
+
+def _reset_targets(options: Any, n: int) -> tuple[list[int], Any]:
+    """The sub-envs a ``reset(options=options)`` resets, and the options their episodes record.
+
+    Only a mapping's ``reset_mask`` (a mask of ``n`` values) selects sub-envs; options that are
+    not a mapping are passed to every sub-env and recorded as they are.
+    """
+    if not isinstance(options, Mapping):
+        return list(range(n)), options
+    indices: Sequence[int] | np.ndarray[Any, Any] = range(n)
+    if "reset_mask" in options:
+        try:
+            mask = np.asarray(options["reset_mask"]).astype(bool).reshape(-1)
+        except Exception:  # not a mask (the env refuses it)
+            mask = None
+        if mask is not None and mask.size == n:
+            indices = np.flatnonzero(mask)
+    recorded = {k: v for k, v in options.items() if k != "reset_mask"} or None
+    return [int(i) for i in indices], recorded
 
 
 def _has_rng_info(env: Any) -> bool:

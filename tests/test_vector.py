@@ -428,3 +428,291 @@ def test_an_env_error_ends_the_open_episodes_and_reraises(tmp_path: Path) -> Non
     ]
     assert episodes[1]["rng_state"] is not None  # seed list: sub-env 1 reset unseeded
     assert episodes[0]["error_message"] == "motor on fire"
+
+
+# ---------------------------------------------------------------- misbehaving vector envs
+
+
+class _Quiet(gym.Env[np.ndarray, np.int64]):
+    """No info; terminates on its 3rd step (never, with ``ends=False``)."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, ends: bool = True) -> None:
+        self.t = 0
+        self.ends = ends
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return self.np_random.uniform(-1, 1, 2).astype(np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        obs = self.np_random.uniform(-1, 1, 2).astype(np.float32)
+        return obs, 1.0, self.ends and self.t >= 3, False, {}
+
+
+class _SetInfos(gym.vector.VectorWrapper):
+    """Hands out ``infos`` in place of the vector env's infos."""
+
+    def __init__(self, env: Any, infos: Any) -> None:
+        super().__init__(env)
+        self.infos = infos
+
+    def reset(self, **kwargs: Any) -> Any:
+        obs, _ = self.env.reset(**kwargs)
+        return obs, self.infos
+
+    def step(self, actions: Any) -> Any:
+        *result, _ = self.env.step(actions)
+        return (*result, self.infos)
+
+
+def _codes(path: Path) -> set[str]:
+    return {f.code for f in check([path]).findings}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_infos_as_a_list_of_dicts_are_read_per_sub_env(
+    tmp_path: Path, kind: str, mode: str
+) -> None:
+    """gymnasium's DictInfoToList between the recorder and the vector env: the same episodes."""
+    from gymnasium.vector import AsyncVectorEnv
+    from gymnasium.wrappers.vector import DictInfoToList
+
+    path = tmp_path / "list.mcap"
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    envs = DictInfoToList(make([_Scored, _Scored], autoreset_mode=mode))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        with RecordVectorEvidence(envs, path, ending_rules=None) as rec:
+            rec.reset(seed=1)
+            for _ in range(8):
+                rec.step(np.array([1, 0]))
+    ev = open_evidence(path)
+    ended = [e for e in ev.episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert sorted((e["env_index"], e["outcome"], e["failure_label"]) for e in ended) == [
+        (0, "success", None),
+        (0, "success", None),
+        (1, "failure", "fell"),
+        (1, "failure", "fell"),
+    ]
+    for e in ended:
+        assert dict(e["term_totals"]) == {"alive": 3.0, "bonus": 1.5 if e["env_index"] == 0 else 0}
+    assert ev.steps().num_rows == (12 if mode == "NextStep" else 16)
+    # (Async SAME_STEP without ResetRngInfo: autoreset episodes without RNG states)
+    allowed = {"incomplete_episode", "missing_env_spec"}
+    allowed |= {"not_replayable", "recorder_note:rng_state_unavailable"}
+    assert _codes(path) <= allowed
+
+
+@pytest.mark.parametrize("infos", [None, "oops", [{}], ({}, 3)], ids=repr)
+def test_infos_neither_dict_nor_list_of_dicts_are_noted_and_the_rows_kept(
+    tmp_path: Path, infos: Any
+) -> None:
+    path = tmp_path / "odd.mcap"
+    envs = _SetInfos(SyncVectorEnv([_Quiet, _Quiet]), infos)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=1)
+        for _ in range(4):  # 3 steps, then the autoreset
+            rec.step(np.zeros(2, dtype=np.int64))
+    ev = open_evidence(path)
+    episodes = ev.episodes().to_pylist()
+    assert sorted((e["env_index"], e["outcome"], e["length"]) for e in episodes) == [
+        (0, "failure", 3),
+        (0, "incomplete", 0),
+        (1, "failure", 3),
+        (1, "incomplete", 0),
+    ]
+    assert ev.steps().num_rows == 6
+    env_index = {e["episode"]: e["env_index"] for e in episodes}
+    noted = {(env_index[ep], code) for ep, code in _noted(path)}
+    if infos == ({}, 3):  # sub-env 0's info is fine; sub-env 1's is an int
+        assert noted == {(1, "info_not_dict")}
+    else:
+        assert noted == {(0, "info_not_dict"), (1, "info_not_dict")}
+    check([path])
+    replay([path])
+
+
+def _noted(path: Path) -> Counter[tuple[int, str]]:
+    """(episode, note code) of every note on a step or reset row of the file."""
+    ev = open_evidence(path)
+    rows = [*ev.steps(columns=["episode", "notes"]).to_pylist(), *ev.resets().to_pylist()]
+    return Counter(
+        (r["episode"], n.split(":")[0]) for r in rows if r["notes"] for n in json.loads(r["notes"])
+    )
+
+
+class _ListVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
+    """A vector env of its own (no sub-envs) whose results are Python lists; sub-env 1's reward
+    is ``bad`` on the 3rd step, which ends both episodes."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, bad: Any) -> None:
+        from gymnasium.vector.utils import batch_space
+
+        self.num_envs = 2
+        self.single_observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+        self.single_action_space = gym.spaces.Discrete(2)
+        self.observation_space = batch_space(self.single_observation_space, 2)
+        self.action_space = batch_space(self.single_action_space, 2)
+        self.bad = bad
+        self.t = 0
+
+    def reset(self, *, seed: Any = None, options: Any = None) -> Any:
+        self.t = 0
+        return np.zeros((2, 2), np.float32), {}
+
+    def step(self, actions: Any) -> Any:
+        self.t += 1
+        rewards: list[Any] = [1.0, self.bad if self.t == 3 else 1.0]
+        done = self.t == 3
+        self.t %= 4  # NEXT_STEP: the 4th step is the autoreset
+        return np.zeros((2, 2), np.float32), rewards, [done, done], [False, False], {}
+
+
+@pytest.mark.parametrize("bad", ["abc", "1.5", [1.0]], ids=repr)
+def test_a_reward_that_is_not_a_number_is_noted_and_the_step_kept(tmp_path: Path, bad: Any) -> None:
+    """As the single-env recorder: NaN and ``reward_not_numeric``; close() never raises."""
+    path = tmp_path / "rewards.mcap"
+    rec = RecordVectorEvidence(_ListVec(bad), path, flush_every_s=0.001)
+    rec.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        for _ in range(8):
+            rec.step(np.zeros(2, np.int64))
+        rec.close()
+    ev = open_evidence(path)
+    assert ev.finished
+    episodes = ev.episodes().to_pylist()
+    assert [(e["env_index"], e["outcome"], e["length"]) for e in episodes][:4] == [
+        (0, "failure", 3),
+        (1, "failure", 3),
+        (0, "failure", 3),
+        (1, "failure", 3),
+    ]
+    rewards = ev.steps(columns=["episode", "step", "reward"]).to_pylist()
+    assert len(rewards) == 12
+    nan = [(r["episode"], r["step"]) for r in rewards if r["reward"] != r["reward"]]
+    assert nan == [(1, 2), (3, 2)]
+    noted = {k for k in _noted(path) if k[1] != "rng_state_unavailable"}  # (no sub-envs)
+    assert noted == {(1, "reward_not_numeric"), (3, "reward_not_numeric")}
+    assert "length_mismatch" not in _codes(path)
+
+
+@pytest.mark.parametrize("options", [["hard"], ("hard", 2), "hard"], ids=repr)
+def test_reset_options_that_are_not_a_dict_are_passed_on_and_recorded(
+    tmp_path: Path, options: Any
+) -> None:
+    from episode_audit import RecordEvidence
+
+    path = tmp_path / "options.mcap"
+    with RecordVectorEvidence(SyncVectorEnv([_Quiet, _Quiet]), path) as rec:
+        rec.reset(seed=0, options=options)
+        rec.step(np.zeros(2, np.int64))
+    single = tmp_path / "single.mcap"
+    with RecordEvidence(_Quiet(), single) as env:
+        env.reset(seed=0, options=options)
+    want = open_evidence(single).episodes().to_pylist()[0]["options"]
+    assert [e["options"] for e in open_evidence(path).episodes().to_pylist()] == [want, want]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_steps_before_reset_are_noted_like_the_single_env_recorder(
+    tmp_path: Path, kind: str
+) -> None:
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "early.mcap"
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    envs = make([lambda: _Quiet(ends=False)] * 2)
+    with RecordVectorEvidence(envs, path) as rec:
+        for _ in range(2):
+            rec.step(np.zeros(2, np.int64))
+        rec.reset(seed=0)
+        for _ in range(2):
+            rec.step(np.zeros(2, np.int64))
+    ev = open_evidence(path)
+    assert -1 not in ev.steps()["episode"].to_pylist()
+    episodes = ev.episodes().to_pylist()
+    assert [(e["env_index"], e["length"], e["seed"]) for e in episodes] == [
+        (0, 2, None),
+        (1, 2, None),
+        (0, 2, 0),
+        (1, 2, 1),
+    ]
+    assert _noted(path) == Counter({(0, "stepped_before_reset"): 1, (1, "stepped_before_reset"): 1})
+    assert "length_mismatch" not in _codes(path)
+
+
+def test_steps_after_an_episode_ended_are_noted_like_the_single_env_recorder(
+    tmp_path: Path,
+) -> None:
+    """The vector env stepped on (without a reset) after a sub-env raised."""
+    path = tmp_path / "after-error.mcap"
+    rec = RecordVectorEvidence(SyncVectorEnv([_Breaks, _Breaks]), path)
+    rec.reset(seed=0)
+    raised = 0
+    for _ in range(7):  # sub-env 0 raises on the 5th step, sub-env 1 on the 6th
+        try:
+            rec.step(np.zeros(2, np.int64))
+        except RuntimeError:
+            raised += 1
+    rec.close()
+    assert raised == 2
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["outcome"], e["length"]) for e in episodes] == [("error", 4)] * 2
+    assert _noted(path) == Counter({(0, "step_after_end"): 1, (1, "step_after_end"): 1})
+    assert "length_mismatch" not in _codes(path)
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep", "Disabled"])
+def test_a_time_limit_without_a_spec_is_found_on_each_sub_env(tmp_path: Path, mode: str) -> None:
+    from gymnasium.wrappers import TimeLimit
+
+    path = tmp_path / "limit.mcap"
+    envs = SyncVectorEnv([lambda: TimeLimit(_Quiet(ends=False), 2)] * 2, autoreset_mode=mode)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            _, _, term, trunc, _ = rec.step(np.zeros(2, np.int64))
+            if mode == "Disabled" and (term | trunc).any():
+                rec.reset(options={"reset_mask": term | trunc})
+    ended = [e for e in open_evidence(path).episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["outcome"], e["truncation_reason"]) for e in ended] == [
+        ("truncated", "time_limit")
+    ] * 2
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_reset_arguments_the_vector_env_rejects_change_no_episode(
+    tmp_path: Path, kind: str
+) -> None:
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "rejected.mcap"
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    envs = make([lambda: _Quiet(ends=False)] * 2, autoreset_mode="Disabled")
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        rec.step(np.zeros(2, np.int64))
+        for seed, options in (
+            ([1, 2, 3], None),
+            (None, {"reset_mask": [True, False]}),
+            (None, {"reset_mask": np.array([1, 0])}),
+            (None, {"reset_mask": np.array([True])}),
+        ):
+            with pytest.raises((ValueError, TypeError)):
+                rec.reset(seed=seed, options=options)
+        rec.step(np.zeros(2, np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["outcome"], e["length"], e["seed"]) for e in episodes] == [
+        ("incomplete", 2, 0),
+        ("incomplete", 2, 1),
+    ]
+    assert _codes(path) <= {"incomplete_episode", "missing_env_spec", "missing_terms"}
