@@ -49,6 +49,10 @@ code                             severity  meaning
                                            raised after every agent-episode had ended)
 ``file_unfinished``              warning   the writer did not finish the file (crash, kill); the
                                            message says what the reader dropped
+``recorder_trouble``             error     the recorder failed inside itself while recording
+                                           (warned once, never raised into the loop): the
+                                           run-end record's count and first failure; the
+                                           evidence may miss what it was recording then
 ``file_recovered``               warning   the file was rewritten by ``episode-audit recover``
                                            from a torn or damaged file; the message says what
                                            was dropped
@@ -135,6 +139,7 @@ ERROR_EPISODE = "error_episode"
 LENGTH_MISMATCH = "length_mismatch"
 RECORDER_NOTE = "recorder_note"
 FILE_UNFINISHED = "file_unfinished"
+RECORDER_TROUBLE = "recorder_trouble"
 FILE_RECOVERED = "file_recovered"
 SUMMARY_DAMAGED = "summary_damaged"
 RUN_END_DAMAGED = "run_end_damaged"
@@ -566,6 +571,15 @@ class _FileCheck:
 
     def check_file(self) -> None:
         ev = self.ev
+        troubles = (ev.run_end or {}).get(fmt.RUN_END_TROUBLE)
+        if troubles:
+            first = str((ev.run_end or {}).get(fmt.RUN_END_FIRST_TROUBLE) or "not recorded")
+            self.finding(
+                "error",
+                RECORDER_TROUBLE,
+                f"the recorder failed inside itself {troubles} time(s) while recording (first: "
+                f"{first[:300]}); the evidence may miss what it was recording then",
+            )
         if ev.finished and (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED:
             dropped = (ev.run_end or {}).get("dropped") or "not recorded"
             self.finding(

@@ -44,6 +44,8 @@ __all__ = [
     "OUTCOME_TRUNCATED",
     "REASON_EXTERNAL",
     "REASON_TIME_LIMIT",
+    "RUN_END_FIRST_TROUBLE",
+    "RUN_END_TROUBLE",
     "RUN_STATUS_FINISHED",
     "RUN_STATUS_RECOVERED",
     "SCHEMA_EPISODE_BLOCK",
@@ -89,6 +91,10 @@ METADATA_RUN_END: Final = "episode_audit.run_end"
 # The run-end record's ``status``: written by the recorder's close(), or by recovery.
 RUN_STATUS_FINISHED: Final = "finished"
 RUN_STATUS_RECOVERED: Final = "recovered"
+# Run-end keys present when the recorder failed inside itself while recording (never raised
+# into the loop): how many times, and the first failure as "Type: message".
+RUN_END_TROUBLE: Final = "recorder_trouble"
+RUN_END_FIRST_TROUBLE: Final = "recorder_trouble_first"
 
 # Columns of step blocks (reset blocks use episode, time_ns, observation, info, notes).
 COL_EPISODE: Final = "episode"

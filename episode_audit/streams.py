@@ -67,6 +67,7 @@ from .writer import EvidenceWriter
 __all__ = ["EvidenceFile", "RecorderSettings", "Stream", "library_versions"]
 
 _INT64_MAX = 2**63 - 1
+_TROUBLE_TEXT = 500  # characters of the first trouble kept in the run-end record
 
 
 def library_versions() -> dict[str, str]:
@@ -472,6 +473,8 @@ class EvidenceFile:
         self.closed = False
         self.counts = {"episodes": 0, "steps": 0, "blocks": 0}
         self._warned = False
+        self.troubles = 0  # the recorder's own failures, said in the run-end record
+        self.first_trouble: str | None = None
         if owner is not None:
             _OPEN_RECORDERS.add(owner)
         self._owner = owner
@@ -552,7 +555,14 @@ class EvidenceFile:
         return self.clock() >= self.flush_at
 
     def trouble(self, exc: Exception) -> None:
-        """Something failed inside the recorder itself: warn once, keep the loop running."""
+        """Something failed inside the recorder itself: warn once, keep the loop running.
+
+        The run-end record counts them and keeps the first (``recorder_trouble``), so the file
+        says the evidence may miss what was being recorded then.
+        """
+        self.troubles += 1
+        if self.first_trouble is None:
+            self.first_trouble = error_text(exc)[:_TROUBLE_TEXT]
         if not self._warned:
             self._warned = True
             import warnings
@@ -692,15 +702,17 @@ class EvidenceFile:
             for stream in self.streams:
                 stream.end_open()
             self.flush()
-            self.writer.finish(
-                {
-                    "status": "finished",
-                    "episodes": str(self.counts["episodes"]),
-                    "steps": str(self.counts["steps"]),
-                    "blocks": str(self.counts["blocks"]),
-                    "end_time": datetime.now(timezone.utc).isoformat(),
-                }
-            )
+            run_end = {
+                "status": "finished",
+                "episodes": str(self.counts["episodes"]),
+                "steps": str(self.counts["steps"]),
+                "blocks": str(self.counts["blocks"]),
+                "end_time": datetime.now(timezone.utc).isoformat(),
+            }
+            if self.troubles:
+                run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
+                run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
+            self.writer.finish(run_end)
         except BaseException:
             self.writer.abandon()
             raise

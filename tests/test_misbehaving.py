@@ -712,7 +712,20 @@ def test_a_flush_that_fails_mid_loop_is_warned_once_and_never_reaches_the_loop(
     assert len(w) == 1
     monkeypatch.undo()
     env.close()
-    assert open_evidence(tmp_path / "full.mcap").finished
+    ev = open_evidence(tmp_path / "full.mcap")
+    assert ev.finished
+    # the file says so: the run-end record counts the failures, and check reports them
+    assert ev.run_end is not None and int(ev.run_end["recorder_trouble"]) >= 1
+    assert "No space left on device" in ev.run_end["recorder_trouble_first"]
+    (trouble,) = [
+        f for f in check([tmp_path / "full.mcap"]).findings if f.code == "recorder_trouble"
+    ]
+    assert trouble.severity == "error"
+    assert re.match(
+        r"the recorder failed inside itself \d+ time\(s\) while recording \(first: OSError: "
+        r".*No space left on device\); the evidence may miss what it was recording then$",
+        trouble.message,
+    ), trouble.message
 
 
 @pytest.mark.parametrize(
