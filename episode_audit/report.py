@@ -25,7 +25,9 @@ code                             when
                                  return, at least as high as the truncated episodes' (if any)
 ``shaping_dominates``            one reward term supplies >= 50 % of the absolute term mass of
                                  the group's ended episodes while the success rate is < 0.5
-                                 (needs at least two terms; declared constants count)
+                                 (needs at least two terms; declared constants count; and at
+                                 least one episode the task ended, success or failure: a group
+                                 only ever cut off by a time limit has no success signal)
 ===============================  =============================================================
 """
 
@@ -647,7 +649,10 @@ def _incentive_warnings(
             )
 
     rate = group.success_rate
-    if rate is not None and rate < _SHAPING_SUCCESS_RATE and terms.num_rows:
+    # success can only be rare where the task can end by itself: a group whose episodes were
+    # all cut off (HalfCheetah, Reacher: time limit only) has no success signal to compare with
+    task_endings = group.success + group.failure
+    if rate is not None and rate < _SHAPING_SUCCESS_RATE and task_endings and terms.num_rows:
         by_term = (
             pa.table({"term": terms.column("term"), "mass": pc.abs(terms.column("total"))})
             .group_by("term")

@@ -347,6 +347,13 @@ def test_shaping_dominates(tmp_path: Path) -> None:
         Plan("failure:fell", reward=1.1, terms=terms, length=2)
     ]
     assert _one(report([_record_plans(tmp_path / "fine.mcap", plans)])).warnings == []
+    # nor where the task never ends by itself (time limit only, as HalfCheetah): no success
+    # signal to be rare; one failure among them is one
+    cut = [Plan("truncated:time_limit", reward=1.1, terms=terms)] * 4
+    assert _one(report([_record_plans(tmp_path / "cut.mcap", cut)])).warnings == []
+    one_fall = [*cut, Plan("failure:fell", reward=1.1, terms=terms)]
+    group = _one(report([_record_plans(tmp_path / "fell.mcap", one_fall)]))
+    assert "shaping_dominates" in [w.code for w in group.warnings]
 
 
 def test_declared_constants_count_as_terms(tmp_path: Path) -> None:
