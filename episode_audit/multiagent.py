@@ -358,10 +358,7 @@ def _write_row(
     stream: Stream, action: Any, result: tuple[Any, float, bool, bool, Any], notes: list[str]
 ) -> None:
     """Record one AEC row of ``stream``, with the notes of the accounting itself."""
-    if notes and stream.episode is not None:
-        # they go to the row about to be written
-        stream.block.notes.setdefault(len(stream.block.times), []).extend(notes)
-        stream.episode.notes += 1
+    stream.note_next_row(notes)
     stream.step(action, result)
 
 

@@ -213,8 +213,9 @@ class Gates:
     max_error_rate: float | None = None
     """Errors (the env raised) over *all* the group's episodes: the other rates leave them out."""
 
-    def __post_init__(self) -> None:
-        named = [
+    def _rates(self) -> list[tuple[str, float | None]]:
+        """Every rate bound, named (``None``: that gate is off)."""
+        return [
             ("min_success_rate", self.min_success_rate),
             ("max_failure_rate", self.max_failure_rate),
             ("max_truncation_rate", self.max_truncation_rate),
@@ -224,7 +225,14 @@ class Gates:
                 for label, value in self.max_failure_rate_by_label.items()
             ),
         ]
-        for name, value in named:
+
+    @property
+    def any(self) -> bool:
+        """Whether any gate is on."""
+        return self.fail_on_incentive_warning or any(v is not None for _, v in self._rates())
+
+    def __post_init__(self) -> None:
+        for name, value in self._rates():
             if value is not None and not (
                 isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value <= 1
             ):
@@ -716,24 +724,8 @@ def _unmatched_why(label: str) -> str:
     return f"no failure in these files is labelled {label!r}: is the label spelt as recorded?"
 
 
-def _any_gate(gates: Gates) -> bool:
-    return (
-        any(
-            bound is not None
-            for bound in (
-                gates.min_success_rate,
-                gates.max_failure_rate,
-                gates.max_truncation_rate,
-                gates.max_error_rate,
-            )
-        )
-        or bool(gates.max_failure_rate_by_label)
-        or gates.fail_on_incentive_warning
-    )
-
-
 def _gates(gates: Gates, groups: list[GroupReport]) -> list[GateResult]:
-    if not groups and _any_gate(gates):  # nothing evaluated is not a pass
+    if not groups and gates.any:  # nothing evaluated is not a pass
         return [
             GateResult(
                 "episodes", "-", False, "no episodes in these files: no gate could be checked"

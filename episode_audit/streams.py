@@ -1006,6 +1006,11 @@ class Stream:
         if row + 1 >= self._block_steps or now >= self.file.flush_at:
             self.file.auto_flush()
 
+    def note_next_row(self, notes: list[str]) -> None:
+        """Put ``notes`` on the row the next :meth:`step` writes (a caller's own accounting)."""
+        if notes and self.episode is not None:
+            _add_notes(self.episode, self.block.notes, len(self.block.times), notes)
+
     def _plan_terms(self, keys: tuple[Any, ...]) -> None:
         """Say how the terms of infos with these keys are read, until the keys change."""
         plan = self._terms_plans.get(keys)
