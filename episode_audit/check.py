@@ -113,7 +113,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from . import format as fmt
-from .columns import null_mask
+from .columns import null_mask, one_array
 from .reader import Evidence, open_evidence
 from .records import from_json, listing
 from .spaces import SpaceCodec
@@ -930,10 +930,10 @@ class _FileCheck:
             return
         episode: _IntArray = resets.column(fmt.COL_EPISODE).to_numpy()
         if fmt.COL_OBSERVATION in resets.column_names:
-            obs = resets.column(fmt.COL_OBSERVATION).combine_chunks()
+            obs = one_array(resets.column(fmt.COL_OBSERVATION))
             self.check_space(fmt.COL_OBSERVATION, obs, episode, None)
         if fmt.COL_NOTES in resets.column_names:
-            self.check_notes(resets.column(fmt.COL_NOTES).combine_chunks(), episode, None)
+            self.check_notes(one_array(resets.column(fmt.COL_NOTES)), episode, None)
 
     def check_episodes(self) -> None:
         table = self.ev.episodes()

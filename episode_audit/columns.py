@@ -17,6 +17,7 @@ __all__ = [
     "PLAIN_NUMBERS",
     "TERMS_TYPE",
     "null_mask",
+    "one_array",
     "terms_column",
     "terms_matrix_column",
     "error_message",
@@ -164,6 +165,25 @@ def _map_column(
     return pa.MapArray.from_arrays(
         pa.array(offsets), keys, pa.array(values, pa.float64()), mask=pa.array(~valid)
     )
+
+
+def one_array(column: pa.Array | pa.ChunkedArray) -> pa.Array:
+    """``column`` as one Array, without a copy when it has a single chunk.
+
+    (``ChunkedArray.combine_chunks()`` copies even a single chunk: for a column of camera
+    frames that is hundreds of megabytes written for nothing.)
+
+    >>> one_array(pa.chunked_array([[1, 2], [3]])).to_pylist()
+    [1, 2, 3]
+    >>> chunk = pa.array([1.5])
+    >>> one_array(pa.chunked_array([chunk])) is not None and one_array(chunk) is chunk
+    True
+    """
+    if isinstance(column, pa.Array):
+        return column
+    if column.num_chunks == 1:
+        return column.chunk(0)
+    return column.combine_chunks()
 
 
 def null_mask(array: pa.Array) -> np.ndarray[Any, np.dtype[np.bool_]]:

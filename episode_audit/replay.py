@@ -63,6 +63,7 @@ from .columns import (
     error_text,
     null_mask,
     number_or_nan,
+    one_array,
     terms_column,
     terms_matrix_column,
 )
@@ -113,6 +114,9 @@ _RECORD_KEYS = frozenset({fmt.COL_EPISODE, "outcome"})
 """Those it reads as ``record[key]``, listed even when every value is null."""
 REPLAY_WINDOW_ROWS = 65_536
 """Replay compares this many steps (of whole episodes) at a time, so memory stays bounded."""
+REPLAY_WINDOW_BYTES = 64 << 20
+"""… or fewer: as many whole episodes as this many bytes of recorded steps hold (camera
+frames), and at least one episode."""
 
 
 @dataclass(frozen=True)
@@ -124,12 +128,44 @@ class Divergence:
     expected: str
     got: str
     max_abs_diff: float | None = None
+    first_difference: str | None = None
+    """For an array observation too long to show whole (``expected`` and ``got`` are cut to
+    80 characters): the index of the first element that differs, both values and how many
+    elements differ."""
 
     def describe(self) -> str:
-        """One line: step, field, expected, got, max abs difference."""
+        """One line: step, field, expected, got, max abs difference, first difference."""
         where = "reset" if self.step is None else f"step {self.step}"
-        diff = "" if self.max_abs_diff is None else f" (max abs diff {self.max_abs_diff:.3g})"
-        return f"{where}: {self.field} expected {self.expected}, got {self.got}{diff}"
+        notes = []
+        if self.max_abs_diff is not None:
+            notes.append(f"max abs diff {self.max_abs_diff:.3g}")
+        if self.first_difference is not None:
+            notes.append(f"first at {self.first_difference}")
+        more = f" ({'; '.join(notes)})" if notes else ""
+        return f"{where}: {self.field} expected {self.expected}, got {self.got}{more}"
+
+    @classmethod
+    def of_observation(
+        cls,
+        step: int | None,
+        expected: Any,
+        got: Any,
+        max_abs_diff: float | None,
+        atol: float,
+    ) -> Divergence:
+        """An observation that differs (``step`` ``None``: the reset observation).
+
+        When either value is too long to show whole, the first differing element is named.
+        """
+        shown = _short(expected), _short(got)
+        cut = any("..." in text for text in shown)
+        return cls(
+            step,
+            "observation" if step is not None else "reset_observation",
+            *shown,
+            max_abs_diff,
+            _first_difference(expected, got, atol) if cut else None,
+        )
 
 
 @dataclass(frozen=True)
@@ -315,9 +351,66 @@ def _gymnasium_wrapper(wrapper: Mapping[str, Any]) -> bool:
 
 def _short(value: Any) -> str:
     if isinstance(value, np.ndarray):
+        if value.size > 16:  # (a camera frame's list would be millions of characters)
+            text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
+            text = " ".join(text.split())
+            return text if len(text) <= 80 else text[:77] + "..."
         value = value.tolist()
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _first_difference(expected: Any, got: Any, atol: float, path: str = "") -> str | None:
+    """Where two observations first differ, element by element, or ``None``.
+
+    Only for numeric arrays (in a Dict or Tuple too) of the same shape: the index of the first
+    element that differs (as replay compares: bitwise, NaN equal to NaN, or within ``atol``),
+    both values, and how many elements differ.
+
+    >>> _first_difference(np.zeros((2, 3)), np.array([[0, 0, 0], [0, 0.5, 0.25]]), 0.0)
+    '[1, 1]: expected 0.0, got 0.5; 2 of 6 elements differ'
+    >>> _first_difference({"pos": np.zeros(2)}, {"pos": np.ones(2)}, 0.0)
+    "['pos'][0]: expected 0.0, got 1.0; 2 of 2 elements differ"
+    """
+    if isinstance(expected, Mapping) and isinstance(got, Mapping):
+        for key in expected:
+            if key in got:
+                found = _first_difference(expected[key], got[key], atol, f"{path}[{key!r}]")
+                if found is not None:
+                    return found
+        return None
+    if isinstance(expected, tuple) and isinstance(got, tuple) and len(expected) == len(got):
+        for i, (e, g) in enumerate(zip(expected, got, strict=True)):
+            found = _first_difference(e, g, atol, f"{path}[{i}]")
+            if found is not None:
+                return found
+        return None
+    if not isinstance(expected, np.ndarray) or not isinstance(got, np.ndarray):
+        return None
+    if expected.shape != got.shape or expected.ndim == 0 or expected.dtype.kind not in "biuf":
+        return None
+    if got.dtype.kind not in "biuf":
+        return None
+    a, b = expected.reshape(-1), got.reshape(-1)
+    if a.dtype == b.dtype:
+        bits = np.dtype(f"u{a.dtype.itemsize}")
+        same = a.view(bits) == b.view(bits)
+    else:
+        same = a == b
+    if a.dtype.kind == "f" or b.dtype.kind == "f":
+        same |= np.isnan(a) & np.isnan(b)
+    if atol > 0.0:
+        with np.errstate(all="ignore"):
+            same |= np.abs(a.astype(np.float64) - b.astype(np.float64)) <= atol
+    differ = np.flatnonzero(~same)
+    if differ.size == 0:
+        return None
+    first = int(differ[0])
+    index = ", ".join(str(int(i)) for i in np.unravel_index(first, expected.shape))
+    return (
+        f"{path}[{index}]: expected {a[first].item()!r}, got {b[first].item()!r}; "
+        f"{differ.size} of {a.size} elements differ"
+    )
 
 
 def _rules_of(run: RunInfo) -> tuple[EndingRules | None, RewardTerms | None]:
@@ -678,7 +771,7 @@ def _replay_actions(column: pa.ChunkedArray, codec: Any) -> tuple[Any, np.ndarra
     Integer actions are numpy integers, as ``Discrete.sample()`` and ``from_jsonable`` give;
     others are what the space codec decodes.
     """
-    actions = column.combine_chunks()
+    actions = one_array(column)
     if len(actions) == 0:  # (a torn file may not even name the column's type)
         return [], None
     if pa.types.is_integer(actions.type) and actions.null_count == 0:
@@ -774,7 +867,7 @@ class _EpisodeRunner:
         expected = steps if same_rows else steps.take(pa.array(take))
         got = _Got.collect(returned, steps_ran, firsts, got_obs, expected.num_rows, self.terms_rule)
         bad, field_masks = self._mismatches(expected, got)
-        reset_obs = resets.column(fmt.COL_OBSERVATION).combine_chunks()
+        reset_obs = one_array(resets.column(fmt.COL_OBSERVATION))
         reset_equal, reset_diff = obs_codec.compare(
             reset_obs.take(pa.array(ran.reset_at, pa.int64())), got_reset, atol=self.atol
         )
@@ -825,9 +918,7 @@ class _EpisodeRunner:
                 done[index] = self._diverged(
                     index,
                     0,
-                    Divergence(
-                        None, "reset_observation", _short(exp), _short(now), float(reset_diff[k])
-                    ),
+                    Divergence.of_observation(None, exp, now, float(reset_diff[k]), self.atol),
                 )
             else:
                 episode = ran.episode(k, int(firsts[k]))
@@ -979,7 +1070,7 @@ class _EpisodeRunner:
         assert self.obs_codec is not None
         n = expected.num_rows
         obs_equal, obs_diff = self.obs_codec.compare(
-            expected.column(fmt.COL_OBSERVATION).combine_chunks(), got.obs, atol=self.atol
+            expected.column(fmt.COL_OBSERVATION), got.obs, atol=self.atol
         )
         exp_r = expected.column(fmt.COL_REWARD).to_numpy()
         got_r = got.rewards
@@ -1004,7 +1095,7 @@ class _EpisodeRunner:
         return np.flatnonzero(~ok), fields
 
     def _terms_equal(self, expected: pa.Table, got: pa.Array, n: int) -> np.ndarray[Any, Any]:
-        exp = expected.column(fmt.COL_TERMS).combine_chunks()
+        exp = one_array(expected.column(fmt.COL_TERMS))
         if exp.null_count == n and got.null_count == n:
             return np.ones(n, dtype=np.bool_)
         return _terms_rows_equal(exp, got, self.atol)
@@ -1029,9 +1120,11 @@ class _EpisodeRunner:
                 d = None if diff is None else float(diff[row])
                 if name == "observation":
                     col = expected.column(fmt.COL_OBSERVATION)
-                    exp_v = _short(self.obs_codec.decode(col.slice(row, 1).combine_chunks())[0])
-                    got_v = _short(self.obs_codec.decode(got.obs.slice(row, 1))[0])
-                elif name == "reward":
+                    exp_obs = self.obs_codec.decode(one_array(col.slice(row, 1)))[0]
+                    got_obs = self.obs_codec.decode(got.obs.slice(row, 1))[0]
+                    divergence = Divergence.of_observation(step, exp_obs, got_obs, d, self.atol)
+                    return self._diverged(index, step, divergence)
+                if name == "reward":
                     exp_v = repr(expected.column(fmt.COL_REWARD)[row].as_py())
                     got_v = repr(float(got.rewards[row]))
                 elif name == "terms":
@@ -1323,30 +1416,32 @@ def replay_evidence(
         # One pass over the file, in windows of whole episodes (memory stays bounded): the
         # rows of a single env's episodes are contiguous, so all but the last run are complete.
         window: list[pa.RecordBatch] = []
-        held = 0
+        held = held_bytes = 0
+        cut = 0  # where the window's last episode starts (0: it holds one episode only)
+        last: Any = None  # the episode of the window's last row
         for batch in ev.iter_step_batches():
             if selected is not None:
                 batch = batch.filter(pc.is_in(batch.column(fmt.COL_EPISODE), selected))
+            episode = batch.column(fmt.COL_EPISODE).to_numpy()
+            if episode.size:
+                if last is not None and episode[0] != last:
+                    cut = held
+                starts = np.flatnonzero(episode[1:] != episode[:-1])
+                if starts.size:
+                    cut = held + int(starts[-1]) + 1
+                last = episode[-1]
             window.append(batch)
             held += batch.num_rows
-            if held >= REPLAY_WINDOW_ROWS:
-                table = pa.Table.from_batches(window).combine_chunks()
-                episode = table.column(fmt.COL_EPISODE).to_numpy()
-                cut = (
-                    int(np.flatnonzero(episode != episode[-1])[-1]) + 1
-                    if (episode != episode[-1]).any()
-                    else 0
-                )
-                if cut:
-                    run(table.slice(0, cut))
-                    window = table.slice(cut).to_batches()
-                    held = table.num_rows - cut
+            held_bytes += batch.nbytes
+            if cut and (held >= REPLAY_WINDOW_ROWS or held_bytes >= REPLAY_WINDOW_BYTES):
+                table = pa.Table.from_batches(window)  # (its columns are joined as needed)
+                run(table.slice(0, cut))
+                window = table.slice(cut).to_batches()
+                held -= cut
+                held_bytes = sum(b.nbytes for b in window)
+                cut = 0
         # the last window, and (with no rows) the episodes that have no steps at all
-        run(
-            pa.Table.from_batches(window).combine_chunks()
-            if window
-            else ev.steps_schema.empty_table()
-        )
+        run(pa.Table.from_batches(window) if window else ev.steps_schema.empty_table())
         listed, _, resets, reset_rows = known
         rest = [r for r in listed if r["episode"] not in results]  # no rows at all
         if rest:

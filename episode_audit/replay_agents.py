@@ -71,7 +71,7 @@ from typing import Any
 import pyarrow as pa
 
 from . import format as fmt
-from .columns import number_or_nan
+from .columns import number_or_nan, one_array
 from .errors import ReplayError
 from .reader import Evidence
 from .replay import (
@@ -426,7 +426,7 @@ def _replay_game(
     for agent, r in members.items():
         start, count = rows.get(int(r["episode"]), (0, 0))
         queues[agent] = (
-            act_codec.decode(steps.column(fmt.COL_ACTION).slice(start, count).combine_chunks())
+            act_codec.decode(one_array(steps.column(fmt.COL_ACTION).slice(start, count)))
             if count
             else []
         )
@@ -600,24 +600,20 @@ def _compare(
     if torn and at is not None and agent not in game.started:
         return cut_off("its reset row", 0)
     if at is not None and agent in game.reset:
-        expected = resets.column(fmt.COL_OBSERVATION).slice(at, 1).combine_chunks()
+        expected = one_array(resets.column(fmt.COL_OBSERVATION).slice(at, 1))
         equal, diff = obs_codec.compare(expected, obs_codec.encode([game.reset[agent]]), atol=atol)
         if not equal[0]:
             return diverged(
                 None,
-                Divergence(
-                    None,
-                    "reset_observation",
-                    _short(obs_codec.decode(expected)[0]),
-                    _short(game.reset[agent]),
-                    float(diff[0]),
+                Divergence.of_observation(
+                    None, obs_codec.decode(expected)[0], game.reset[agent], float(diff[0]), atol
                 ),
             )
     n = min(count, len(got), turned) if torn else min(count, len(got))
     if n:
         exp = steps.slice(start, n)
         obs_equal, obs_diff = obs_codec.compare(
-            exp.column(fmt.COL_OBSERVATION).combine_chunks(),
+            one_array(exp.column(fmt.COL_OBSERVATION)),
             obs_codec.encode([g[1] for g in got[:n]]),
             atol=atol,
         )
@@ -629,12 +625,11 @@ def _compare(
         for k in range(n):
             _, obs, reward, term, trunc, info = got[k]
             if not obs_equal[k]:
-                exp_obs = obs_codec.decode(
-                    exp.column(fmt.COL_OBSERVATION).slice(k, 1).combine_chunks()
-                )[0]
+                exp_obs = obs_codec.decode(one_array(exp.column(fmt.COL_OBSERVATION).slice(k, 1)))[
+                    0
+                ]
                 return state_diverged(
-                    k,
-                    Divergence(k, "observation", _short(exp_obs), _short(obs), float(obs_diff[k])),
+                    k, Divergence.of_observation(k, exp_obs, obs, float(obs_diff[k]), atol)
                 )
             e = float(exp_r[k])
             if not (e == reward or (e != e and reward != reward) or abs(e - reward) <= atol):

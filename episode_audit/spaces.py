@@ -55,7 +55,7 @@ import pyarrow.compute as pc
 from gymnasium import spaces
 from gymnasium.spaces import Space
 
-from episode_audit.columns import null_mask
+from episode_audit.columns import null_mask, one_array
 from episode_audit.errors import ConfigurationError
 
 __all__ = [
@@ -75,6 +75,8 @@ _META_DIGEST: Final = "episode_audit.digest"
 
 _DIGEST_NAME: Final = "blake2b-128"
 _DIGEST_SIZE: Final = 16
+_COMPARE_ELEMENTS: Final = 1 << 20
+"""Values an array compare takes per pass (its temporaries are a few times this in bytes)."""
 _INT64_MIN: Final = -(2**63)
 _INT64_MAX: Final = 2**63 - 1
 _BLOCK_BYTES: Final = 1 << 20
@@ -699,7 +701,7 @@ class SpaceCodec(abc.ABC):
 
     def _check(self, array: Any) -> pa.Array:
         if isinstance(array, pa.ChunkedArray):
-            array = array.combine_chunks()
+            array = one_array(array)
         if not isinstance(array, pa.Array):
             raise TypeError(f"Expect a pyarrow Array, actually: {type(array).__name__}")
         if not array.type.equals(self.arrow_type):
@@ -726,9 +728,16 @@ class SpaceCodec(abc.ABC):
         return result
 
     def compare(
-        self, expected: pa.Array, got: pa.Array, *, atol: float = 0.0
+        self,
+        expected: pa.Array | pa.ChunkedArray,
+        got: pa.Array | pa.ChunkedArray,
+        *,
+        atol: float = 0.0,
     ) -> tuple[_BoolArray, _FloatArray]:
         """Compare two columns row by row; return ``(equal, max_abs_diff)``.
+
+        A chunked ``expected`` is compared chunk by chunk (its chunks are not joined, so not
+        copied); wide rows are compared a few at a time, so the temporaries stay small.
 
         With ``atol == 0`` numbers must be bitwise equal (NaN equals NaN); otherwise numeric
         values are equal when ``|a - b| <= atol``. Text, digests and JSON values differ by 0.0
@@ -736,6 +745,20 @@ class SpaceCodec(abc.ABC):
         """
         if not atol >= 0.0 or math.isinf(atol):
             raise ValueError(f"Expect atol to be a finite float >= 0, actually: {atol!r}")
+        if isinstance(expected, pa.ChunkedArray) and expected.num_chunks > 1:
+            # chunk by chunk: joining the chunks would copy the column (camera frames)
+            if len(expected) != len(got):
+                raise ValueError(
+                    f"Expect arrays of the same length, actually: {len(expected)} and {len(got)}"
+                )
+            parts, offset = [], 0
+            for chunk in expected.chunks:
+                parts.append(self.compare(chunk, got.slice(offset, len(chunk)), atol=atol))
+                offset += len(chunk)
+            return (
+                np.concatenate([equal for equal, _ in parts]),
+                np.concatenate([diff for _, diff in parts]),
+            )
         expected = self._check(expected)
         got = self._check(got)
         if len(expected) != len(got):
@@ -849,6 +872,23 @@ class _ArrayCodec(SpaceCodec):
         n = len(expected)
         a = self._block(expected).reshape(n, self._size)
         b = self._block(got).reshape(n, self._size)
+        rows = max(1, _COMPARE_ELEMENTS // self._size)
+        if n <= rows:  # one pass (small observations: a whole replay window)
+            return self._compare_rows(a, b, atol)
+        # in passes of whole rows: the temporaries stay small (camera frames)
+        equal = np.empty(n, dtype=np.bool_)
+        max_diff = np.empty(n, dtype=np.float64)
+        for start in range(0, n, rows):
+            stop = start + rows
+            equal[start:stop], max_diff[start:stop] = self._compare_rows(
+                a[start:stop], b[start:stop], atol
+            )
+        return equal, max_diff
+
+    def _compare_rows(
+        self, a: npt.NDArray[Any], b: npt.NDArray[Any], atol: float
+    ) -> tuple[_BoolArray, _FloatArray]:
+        n = len(a)
         bits = np.dtype(f"u{self._dtype.itemsize}")
         same = a.view(bits) == b.view(bits)
         if same.all():  # the usual case: one reduction over the block, none per row
@@ -1148,6 +1188,10 @@ def _json_float(value: float) -> float | str:
 def _describe_bound(values: npt.NDArray[Any], bounded: npt.NDArray[np.bool_], marker: str) -> Any:
     """Return one bound of a Box: a scalar when all elements agree, else a flat C-order list."""
     kind = values.dtype.kind
+    flat, flat_bounded = values.reshape(-1), bounded.reshape(-1)
+    if flat.size > 1 and (flat_bounded == flat_bounded[0]).all() and (flat == flat[0]).all():
+        # the usual case (an image: 0 and 255 everywhere), without a loop over the elements
+        return _describe_bound(flat[:1], flat_bounded[:1], marker)
     items: list[Any] = []
     for value, is_bounded in zip(
         values.reshape(-1).tolist(), bounded.reshape(-1).tolist(), strict=True
@@ -1245,6 +1289,10 @@ def _parse_bound(
     raw: Any, shape: tuple[int, ...], dtype: np.dtype[Any], marker: str
 ) -> tuple[npt.NDArray[Any], npt.NDArray[np.bool_]]:
     size = math.prod(shape)
+    if not isinstance(raw, list) and size != 1:
+        # one value for every element (written so when all agree): parsed once
+        one, one_bounded = _parse_bound(raw, (1,), dtype, marker)
+        return np.full(shape, one[0], dtype=dtype), np.full(shape, bool(one_bounded[0]))
     items = raw if isinstance(raw, list) else [raw] * size
     if len(items) != size:
         raise ConfigurationError(

@@ -332,6 +332,59 @@ def test_replay_reads_a_file_once_when_it_fits_one_window(
     assert chunks > 3 and len(reads) == passes * chunks
 
 
+def pixel_cartpole(heavier: bool = False) -> gym.Env[Any, Any]:
+    """CartPole whose observation is its rendered frame (400 x 600 x 3 bytes, 720 kB)."""
+    pytest.importorskip("pygame")
+    env = (
+        make_heavier_cartpole(render_mode="rgb_array")
+        if heavier
+        else gym.make("CartPole-v1", render_mode="rgb_array")
+    )
+    return gym.wrappers.AddRenderObservation(env, render_only=True)
+
+
+def test_camera_frames_replay_in_windows_of_bounded_bytes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A window of 65 536 rows of camera frames is 47 GB: replay windows are bounded by bytes
+    # too (whole episodes, at least one), and compares frames in passes of a few rows.
+    replay_module = sys.modules["episode_audit.replay"]
+    path = tmp_path / "pixels.mcap"
+    with RecordEvidence(pixel_cartpole(), path, block_steps=4) as env:
+        for e in range(4):
+            env.reset(seed=e)
+            for t in range(500):
+                _, _, term, trunc, _ = env.step(t % 2)
+                if term or trunc:
+                    break
+    windows: list[int] = []
+    run_all = replay_module._EpisodeRunner.run_all
+
+    def counting(self: Any, records: Any, steps: pa.Table, *args: Any) -> Any:
+        windows.append(steps.num_rows)
+        return run_all(self, records, steps, *args)
+
+    monkeypatch.setattr(replay_module._EpisodeRunner, "run_all", counting)
+    monkeypatch.setattr(replay_module, "REPLAY_WINDOW_BYTES", 4 * 720_000)
+    result = replay([path], env_factory=pixel_cartpole)
+    assert result.count("identical") == 4, result.episodes
+    assert len(windows) == 4 and sum(windows) == sum(e.steps for e in result.episodes)
+
+    changed = replay([path], env_factory=lambda: pixel_cartpole(heavier=True)).episodes
+    assert [e.status for e in changed] == ["diverged"] * 4
+    first = changed[0].divergence
+    assert first is not None and first.field == "observation" and first.step is not None
+    assert first.max_abs_diff is not None and 0 < first.max_abs_diff <= 255
+    # a frame is too long to show: the first differing pixel is named
+    assert first.first_difference is not None
+    assert re.fullmatch(
+        r"\[\d+, \d+, [012]\]: expected \d+, got \d+; \d+ of 720000 elements differ",
+        first.first_difference,
+    ), first.first_difference
+    assert f"first at {first.first_difference}" in first.describe()
+    assert len(first.expected) <= 80
+
+
 class Counter(gym.Env[Any, int]):
     """Counts up by its action; hands out one observation array it changes in place."""
 

@@ -607,6 +607,38 @@ def test_compare_exact_is_bitwise_with_nan_equal_to_nan() -> None:
     assert equal.tolist() == [True, True, True, False, False]
 
 
+@pytest.mark.parametrize("space_name", ["box", "nested"])
+def test_compare_by_chunk_and_in_passes_gives_the_one_pass_result(
+    space_name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Replay hands compare a column of several chunks (one per recorded block) and wide rows
+    # (camera frames) are compared a few rows per pass; neither may change a result.
+    from episode_audit import spaces as spaces_module
+
+    space = spaces.Box(-10.0, 10.0, shape=(5,), dtype=np.float32) if space_name == "box" else NESTED
+    codec = codec_for(space)
+    values = samples(space, 12)
+    changed = list(values)
+    changed[4] = samples(space, 13)[12]
+    changed[9] = samples(space, 14)[13]
+    expected = codec.encode(values)
+    got = codec.encode(changed)
+    chunked = pa.chunked_array([expected.slice(0, 5), expected.slice(5, 1), expected.slice(6)])
+    whole = codec.compare(expected, got)
+    assert not whole[0][4] and not whole[0][9] and whole[0].sum() == 10
+    for atol in (0.0, 0.5):
+        one = codec.compare(expected, got, atol=atol)
+        by_chunk = codec.compare(chunked, got, atol=atol)
+        monkeypatch.setattr(spaces_module, "_COMPARE_ELEMENTS", 7)
+        in_passes = codec.compare(chunked, got, atol=atol)
+        monkeypatch.undo()
+        for other in (by_chunk, in_passes):
+            assert other[0].tolist() == one[0].tolist()
+            assert other[1].tolist() == one[1].tolist()
+    with pytest.raises(ValueError, match="the same length"):
+        codec.compare(chunked, got.slice(1))
+
+
 @pytest.mark.parametrize("name", ["discrete-start", "multidiscrete", "box-int32", "box-bool"])
 def test_compare_integers(name: str) -> None:
     space = SPACES[name]
