@@ -45,6 +45,7 @@ __all__ = [
     "REASON_EXTERNAL",
     "REASON_TIME_LIMIT",
     "RUN_END_FIRST_TROUBLE",
+    "RUN_END_SUCCESS_REPORTED",
     "RUN_END_TROUBLE",
     "RUN_STATUS_FINISHED",
     "RUN_STATUS_RECOVERED",
@@ -95,6 +96,9 @@ RUN_STATUS_RECOVERED: Final = "recovered"
 # into the loop): how many times, and the first failure as "Type: message".
 RUN_END_TROUBLE: Final = "recorder_trouble"
 RUN_END_FIRST_TROUBLE: Final = "recorder_trouble_first"
+# Run-end key: how many episodes the task ended (or cut off) with an info that said anything
+# about success (``EndingRules.reports_success``); 0 for a task without a success signal.
+RUN_END_SUCCESS_REPORTED: Final = "success_reported"
 
 # Columns of step blocks (reset blocks use episode, time_ns, observation, info, notes).
 COL_EPISODE: Final = "episode"

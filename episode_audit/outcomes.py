@@ -351,6 +351,23 @@ class EndingRules:
         """Whether the success predicate holds for this final ``info``."""
         return self._success(info, None)
 
+    def reports_success(self, info: Any) -> bool:
+        """Whether this final ``info`` says anything about success, true or false.
+
+        Always true with a ``success_fn``. A task whose endings never do (CartPole, Hopper:
+        no success key in their infos) has no success to be missing, and ``report`` does not
+        warn that it is.
+
+        >>> EndingRules().reports_success({"is_success": False}), EndingRules().reports_success({})
+        (True, False)
+        """
+        if self.success_fn is not None:
+            return True
+        try:
+            return any(info.get(key) is not None for key in self.success_keys)
+        except Exception:  # an info that is not a mapping, or one whose get() raises
+            return False
+
     def _success(self, info: Mapping[str, Any], notes: list[str] | None) -> bool:
         """:meth:`is_success`; a value that is not a bool or a number is noted in ``notes``."""
         value: Any

@@ -344,6 +344,20 @@ class Evidence:
         return EpisodeRanges.from_json((self.run_end or {}).get("damaged_episodes"))
 
     @property
+    def reports_success(self) -> bool | None:
+        """Whether the task said anything about success in an episode's final info.
+
+        ``False`` for a task without a success signal (CartPole, Hopper: its endings are
+        failures or cut-offs, never successes); ``None`` when the file does not say (a torn
+        file, or one written by a recorder that did not count it yet).
+        """
+        raw = (self.run_end or {}).get(fmt.RUN_END_SUCCESS_REPORTED)
+        try:
+            return None if raw is None else int(raw) > 0
+        except ValueError:
+            return None
+
+    @property
     def damaged_stretches(self) -> int:
         """How many damaged stretches of the original file a recovery skipped (0 if none)."""
         raw = (self.run_end or {}).get("damaged")

@@ -402,6 +402,12 @@ def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> Rec
                     [{"offset": d.offset, "length": d.length, "why": d.why} for d in damaged]
                 ),
                 "damaged_episodes": kept.damaged.to_json(),
+                # (counted over the original's episodes: whether its task reports success)
+                **{
+                    key: value
+                    for key, value in (old_run_end or {}).items()
+                    if key == fmt.RUN_END_SUCCESS_REPORTED
+                },
             }
         )
     except BaseException:

@@ -29,6 +29,10 @@ code                             when
                                  least one episode the task ended, success or failure: a group
                                  only ever cut off by a time limit has no success signal)
 ===============================  =============================================================
+
+The last two need a task that reports success (``success_signal``): a group whose files all
+say their task never did (no success key in any episode's final info and no ``success_fn``:
+CartPole, Hopper, whose endings are falls) has no success to be rare, and is not warned.
 """
 
 from __future__ import annotations
@@ -155,6 +159,9 @@ class GroupReport:
     warnings: list[IncentiveWarning]
     failure_ci: Interval | None = None
     truncation_ci: Interval | None = None
+    success_signal: bool = True
+    """Whether the task reports success: some file of the group says its task did (a success
+    key in an episode's final info, or a ``success_fn``), or does not say (torn, or older)."""
 
     @property
     def failure(self) -> int:
@@ -192,6 +199,7 @@ class GroupReport:
             "length_std": self.length_std,
             "term_means": {k: dict(v) for k, v in self.term_means.items()},
             "warnings": [{"code": w.code, "message": w.message} for w in self.warnings],
+            "success_signal": self.success_signal,
         }
         result: dict[str, Any] = to_jsonable(data)
         return result
@@ -274,7 +282,8 @@ class Report:
              "return_mean": float | null, "return_std": float | null,
              "length_mean": float | null, "length_std": float | null,
              "term_means": {outcome: {term: float}},
-             "warnings": [{"code": str, "message": str}]},
+             "warnings": [{"code": str, "message": str}],
+             "success_signal": bool},  # the task reports success (see the warnings)
             ...
           ],
           "gates": [{"gate": str, "group": str, "passed": bool, "message": str}, ...],
@@ -427,7 +436,12 @@ def _collect(
         else:
             value = (ev.run.tags or {}).get(by[4:])
             key = pa.array([NONE_KEY if value is None else str(value)] * n, pa.string())
-        parts.append(table.select(_EPISODE_FIELDS).append_column("key", key))
+        signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
+        parts.append(
+            table.select(_EPISODE_FIELDS)
+            .append_column("key", key)
+            .append_column("success_signal", signal)
+        )
         term_parts.extend(_term_rows(table, key, ev))
     if not parts:
         empty = pa.schema(
@@ -440,6 +454,7 @@ def _collect(
                 ("length", pa.int64()),
                 ("return", pa.float64()),
                 ("key", pa.string()),
+                ("success_signal", pa.bool_()),
             ]
         ).empty_table()
         return empty, _TERM_SCHEMA.empty_table()
@@ -580,6 +595,7 @@ def _group(key: str, rows: pa.Table, terms: pa.Table) -> GroupReport:
         warnings=[],
         failure_ci=wilson_interval(failure, ended) if ended else None,
         truncation_ci=wilson_interval(truncated, ended) if ended else None,
+        success_signal=bool(pc.any(rows.column("success_signal")).as_py()),
     )
     group.warnings = _incentive_warnings(
         group, outcome_arr, np.array(failure_labels, dtype=object), returns, terms
@@ -641,7 +657,7 @@ def _incentive_warnings(
                     f"truncated episodes earn a mean return of {_num(mean)} over "
                     f"{truncated_returns.size} episodes, more than {against}",
                 )
-    elif failure_mask.any():
+    elif failure_mask.any() and group.success_signal:
         mean = float(np.mean(returns[failure_mask]))
         truncated_mean = float(np.mean(truncated_returns)) if truncated_returns.size else None
         if mean > 0 and (truncated_mean is None or mean >= truncated_mean):
@@ -660,7 +676,13 @@ def _incentive_warnings(
     # success can only be rare where the task can end by itself: a group whose episodes were
     # all cut off (HalfCheetah, Reacher: time limit only) has no success signal to compare with
     task_endings = group.success + group.failure
-    if rate is not None and rate < _SHAPING_SUCCESS_RATE and task_endings and terms.num_rows:
+    if (
+        rate is not None
+        and rate < _SHAPING_SUCCESS_RATE
+        and task_endings
+        and group.success_signal
+        and terms.num_rows
+    ):
         by_term = (
             pa.table({"term": terms.column("term"), "mass": pc.abs(terms.column("total"))})
             .group_by("term")

@@ -471,7 +471,7 @@ class EvidenceFile:
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns  # when flush_every_s will have passed
         self.closed = False
-        self.counts = {"episodes": 0, "steps": 0, "blocks": 0}
+        self.counts = {"episodes": 0, "steps": 0, "blocks": 0, "success_reported": 0}
         self._warned = False
         self.troubles = 0  # the recorder's own failures, said in the run-end record
         self.first_trouble: str | None = None
@@ -709,6 +709,7 @@ class EvidenceFile:
                 "blocks": str(self.counts["blocks"]),
                 "end_time": datetime.now(timezone.utc).isoformat(),
             }
+            run_end[fmt.RUN_END_SUCCESS_REPORTED] = str(self.counts["success_reported"])
             if self.troubles:
                 run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
                 run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
@@ -1149,6 +1150,8 @@ class Stream:
         )
         if why is not None:  # the ending by the flags alone; say why
             read.append(note("ending_unreadable", why))
+        if self._rules.reports_success(info):
+            self.file.counts["success_reported"] += 1
         if read:
             _add_notes(episode, block.notes, row, read)
         label = ending.failure_label if terminated else ending.truncation_reason

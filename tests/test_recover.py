@@ -158,6 +158,9 @@ def test_killed_during_close_loses_nothing(recorded: Path, tmp_path: Path) -> No
     assert fixed.run_end is not None
     assert fixed.run_end["dropped"] == "nothing" and fixed.run_end["cut_off_episodes"] == "[]"
     assert fixed.run_end["end_time"] == open_evidence(recorded).run_end["end_time"]  # type: ignore[index]
+    # whether the task reports success is the original's (report's warnings read it)
+    assert fixed.run_end["success_reported"] == open_evidence(recorded).run_end["success_reported"]  # type: ignore[index]
+    assert fixed.reports_success is open_evidence(recorded).reports_success is not None
 
 
 def test_a_file_without_its_closing_magic_is_unfinished(recorded: Path, tmp_path: Path) -> None:

@@ -37,8 +37,15 @@ class Plan:
 
 
 def _record_plans(
-    path: Path, plans: Sequence[Plan], *, tags: dict[str, str] | None = None, **kwargs: Any
+    path: Path,
+    plans: Sequence[Plan],
+    *,
+    tags: dict[str, str] | None = None,
+    reports_success: bool = True,
+    **kwargs: Any,
 ) -> Path:
+    """Record ``plans``; with ``reports_success`` every final info says ``success`` (as
+    Gymnasium-Robotics' ``is_success``), else only a success's does not either (CartPole)."""
     state: dict[str, Plan] = {}
 
     def step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
@@ -61,6 +68,10 @@ def _record_plans(
             info["failure"] = "collision"
         elif last and plan.end == "error":
             raise RuntimeError("the env broke")
+        if last and reports_success:
+            info["success"] = plan.end == "success"
+        elif last and plan.end == "success":
+            raise AssertionError("a success is reported")
         return OBS, plan.reward, terminated, truncated, info
 
     with RecordEvidence(ScriptedEnv(step_fn=step), path, tags=tags, **kwargs) as env:
@@ -325,6 +336,43 @@ def test_no_success_but_positive_return(tmp_path: Path) -> None:
     assert _one(report([_record_plans(tmp_path / "cartpole_like.mcap", plans)])).warnings == []
     negative = [Plan("failure:collision", reward=-1.0)]
     assert _one(report([_record_plans(tmp_path / "negative.mcap", negative)])).warnings == []
+
+
+def test_no_success_warnings_for_a_task_without_success(tmp_path: Path) -> None:
+    # A task whose infos never say anything about success (CartPole, Hopper: its episodes end
+    # by falling) has no success to be missing or rare: the two success warnings would fire on
+    # every run of it, failing --fail-on-incentive-warning for nothing.
+    terms = {"alive": 1.0, "progress": 0.1}
+    plans = [Plan("failure:fell", reward=1.1, terms=terms)] * 3
+    silent = _record_plans(tmp_path / "silent.mcap", plans, reports_success=False)
+    assert open_evidence(silent).reports_success is False
+    group = _one(report([silent]))
+    assert group.warnings == [] and group.success_signal is False
+    assert report([silent], gates=Gates(fail_on_incentive_warning=True)).passed
+    # the same episodes from a task that reports success (false each time) are warned
+    told = _record_plans(tmp_path / "told.mcap", plans)
+    assert open_evidence(told).reports_success is True
+    group = _one(report([told]))
+    assert [w.code for w in group.warnings] == ["no_success_positive_return", "shaping_dominates"]
+    assert group.to_dict()["success_signal"] is True
+    # grouped together: one file of the group reports success, so the group does
+    together = _one(report([silent, told], by="all"))
+    assert together.success_signal is True and len(together.warnings) == 2
+
+
+def test_cartpole_is_a_task_without_success(tmp_path: Path) -> None:
+    path = tmp_path / "cartpole.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        for seed in range(5):
+            env.reset(seed=seed)
+            done = False
+            while not done:
+                _, _, terminated, truncated, _ = env.step(0)  # falls in ~10 steps
+                done = terminated or truncated
+    assert open_evidence(path).reports_success is False
+    group = _one(report([path]))
+    assert group.failures == {"unlabeled": 5} and group.return_mean is not None
+    assert group.return_mean > 0 and group.warnings == []
 
 
 def test_shaping_dominates(tmp_path: Path) -> None:
