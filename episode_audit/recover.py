@@ -420,6 +420,17 @@ _Damage = Literal["", "inside", "at the end"]
 """Where a recovery met damage: nowhere, before an intact chunk, or after the last one."""
 
 
+def _cut_off_of(run_end: dict[str, str]) -> set[int]:
+    """The episodes a recovery's run-end record lists as cut off (none if it does not parse)."""
+    try:
+        listed = json.loads(run_end.get("cut_off_episodes") or "[]")
+    except ValueError:
+        return set()
+    if not isinstance(listed, list):
+        return set()
+    return {e for e in listed if isinstance(e, int) and not isinstance(e, bool)}
+
+
 @dataclass(frozen=True)
 class _Kept:
     """The episodes of a recovery's output: how many, which were cut off, which damaged."""
@@ -433,7 +444,8 @@ class _Kept:
         """Read the (still unfinished) output ``path``.
 
         ``closed``: the input has a run-end record (intact or garbled), so ``close()`` ran;
-        ``run_end``: that record's values, when it could be read (else empty).
+        ``run_end``: that record's values, when it could be read (else empty). A recovered
+        input's record lists the episodes its torn original had cut off: they stay cut off.
 
         Without damage, the episodes without an end record were cut off by the torn end. With
         damage, an episode lost evidence when its end record is missing but a later episode
@@ -457,10 +469,13 @@ class _Kept:
         last: dict[tuple[Any, Any], int] = {}
         for e, stream in zip(index, streams, strict=True):
             last[stream] = max(last.get(stream, e), e)
-        # After close() (its run-end record is there, even garbled) no episode is cut off;
-        # nor, when damage follows the last intact chunk, can a missing end record be told
-        # from a lost one.
+        # After close() (its run-end record is there, even garbled) no episode is cut off —
+        # but those a recovery's record lists: a recovered input's cut-off episodes were cut
+        # off by the torn original, and stay so. Nor, when damage follows the last intact
+        # chunk, can a missing end record be told from a lost one.
         finals = set() if closed or damage == "at the end" else set(last.values())
+        if run_end.get("status") == fmt.RUN_STATUS_RECOVERED:
+            finals |= _cut_off_of(run_end)
         cut = tuple(e for e, done in zip(index, ended, strict=True) if not done and e in finals)
         lost = {e for e, done in zip(index, ended, strict=True) if not done and e not in finals}
         resets = set(ev.resets().column(fmt.COL_EPISODE).to_pylist())

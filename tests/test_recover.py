@@ -615,3 +615,27 @@ def test_damaged_episodes_stay_compact_and_exact() -> None:
     assert lost.spans == ((2, 5), (9, 10**12)) and lost.count == 10**12 - 4
     assert 10**11 in lost and 6 not in lost and "3" not in lost and np.int64(3) in lost
     assert EpisodeRanges.from_json(lost.to_json()) == lost and lost.first(3) == [2, 3, 4]
+
+
+def test_recovering_a_recovered_file_again_keeps_its_cut_off_episodes(
+    recorded: Path, tmp_path: Path
+) -> None:
+    # A recovered file has a run-end record, so close() "ran" — but its cut-off episodes were
+    # cut off by the torn original, and a second recovery (the copy was damaged in turn) must
+    # not call them damaged.
+    chunks, _ = layout(recorded)
+    offset, length = chunks[len(chunks) // 2]
+    once = tmp_path / "once.mcap"
+    first = recover(torn_copy(recorded, tmp_path, offset + length), once)
+    assert first.cut_off_episodes
+    cut_off = set(first.cut_off_episodes)
+    intact, _ = layout(once)
+    damaged_at = next(
+        (o, n) for o, n in intact[1:] if evidence_in_chunk(once, o).isdisjoint(cut_off)
+    )
+    twice = tmp_path / "twice.mcap"
+    second = recover(damaged_copy(once, tmp_path, damaged_at[0] + damaged_at[1] - 20), twice)
+    assert set(second.cut_off_episodes) == cut_off
+    assert set(second.damaged_episodes.first(100)) == evidence_in_chunk(once, damaged_at[0])
+    out = open_evidence(twice)
+    assert json.loads(out.run_end["cut_off_episodes"]) == sorted(cut_off)  # type: ignore[index]
