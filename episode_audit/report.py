@@ -24,7 +24,9 @@ code                             when
 ``no_success_positive_return``   no episode succeeded, yet failures earn a positive mean
                                  return, at least as high as the truncated episodes' (if any)
 ``shaping_dominates``            one reward term supplies >= 50 % of the absolute term mass of
-                                 the group's ended episodes while the success rate is < 0.5
+                                 the group's ended episodes, and pays (its total is positive:
+                                 a dominating cost is not shaping), while the success rate is
+                                 < 0.5
                                  (needs at least two terms; declared constants count; and at
                                  least one episode the task ended, success or failure: a group
                                  only ever cut off by a time limit has no success signal)
@@ -684,17 +686,25 @@ def _incentive_warnings(
         and terms.num_rows
     ):
         by_term = (
-            pa.table({"term": terms.column("term"), "mass": pc.abs(terms.column("total"))})
+            pa.table(
+                {
+                    "term": terms.column("term"),
+                    "mass": pc.abs(terms.column("total")),
+                    "total": terms.column("total"),
+                }
+            )
             .group_by("term")
-            .aggregate([("mass", "sum")])
+            .aggregate([("mass", "sum"), ("total", "sum")])
         )
         names = by_term.column("term").to_pylist()
         masses = np.array(by_term.column("mass_sum").to_pylist(), dtype=np.float64)
+        paid = np.array(by_term.column("total_sum").to_pylist(), dtype=np.float64)
         total = float(masses.sum())
         if len(names) >= 2 and total > 0 and math.isfinite(total):
             top = int(np.argmax(masses))
             share = float(masses[top]) / total
-            if share >= _SHAPING_SHARE:
+            # a cost (a term that takes return, as a control cost) does not pay for anything
+            if share >= _SHAPING_SHARE and paid[top] > 0:
                 warn(
                     SHAPING_DOMINATES,
                     f"term {names[top]!r} supplies {share:.0%} of the absolute term mass "

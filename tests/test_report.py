@@ -402,6 +402,12 @@ def test_shaping_dominates(tmp_path: Path) -> None:
     one_fall = [*cut, Plan("failure:fell", reward=1.1, terms=terms)]
     group = _one(report([_record_plans(tmp_path / "fell.mcap", one_fall)]))
     assert "shaping_dominates" in [w.code for w in group.warnings]
+    # a cost that takes most of the mass (a control cost) pays for nothing: not shaping
+    costly = {"ctrl_cost": -1.0, "progress": 0.1}
+    plans = [Plan("success", reward=-0.9, terms=costly)] + [
+        Plan("failure:fell", reward=-0.9, terms=costly)
+    ] * 3
+    assert _one(report([_record_plans(tmp_path / "costly.mcap", plans)])).warnings == []
 
 
 def test_declared_constants_count_as_terms(tmp_path: Path) -> None:
