@@ -105,7 +105,7 @@ import math
 import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -118,7 +118,16 @@ from .reader import Evidence, open_evidence
 from .records import from_json, listing
 from .spaces import SpaceCodec
 
-__all__ = ["CheckResult", "Finding", "Severity", "check", "check_evidence"]
+__all__ = [
+    "FINDING_CODES",
+    "CheckResult",
+    "Finding",
+    "Severity",
+    "check",
+    "check_evidence",
+    "ignored_codes",
+    "is_ignored",
+]
 
 Severity = Literal["error", "warning", "note"]
 _SEVERITY_RANK: dict[str, int] = {"error": 0, "warning": 1, "note": 2}
@@ -147,8 +156,44 @@ EVIDENCE_DAMAGED = "evidence_damaged"
 NOT_REPLAYABLE = "not_replayable"
 MISSING_ENV_SPEC = "missing_env_spec"
 FORMAT_VERSION = "format_version"
+FILE_UNREADABLE = "file_unreadable"
 TERMS_KEYS_CHANGED = "terms_keys_changed"
 INFO_KEYS_CHANGED = "info_keys_changed"
+
+FINDING_CODES: Final[tuple[str, ...]] = (
+    TERMS_SUM_MISMATCH,
+    MISSING_TERMS,
+    NONFINITE_REWARD,
+    NONFINITE_TERM,
+    OBSERVATION_OUT_OF_SPACE,
+    ACTION_OUT_OF_SPACE,
+    OBSERVATION_SPACE_UNCHECKED,
+    ACTION_SPACE_UNCHECKED,
+    STEP_AFTER_END,
+    TERMINATED_AND_TRUNCATED,
+    UNLABELED_FAILURE,
+    INCOMPLETE_EPISODE,
+    ERROR_EPISODE,
+    LENGTH_MISMATCH,
+    RECORDER_NOTE,
+    FILE_UNFINISHED,
+    RECORDER_TROUBLE,
+    FILE_RECOVERED,
+    SUMMARY_DAMAGED,
+    RUN_END_DAMAGED,
+    EVIDENCE_DAMAGED,
+    NOT_REPLAYABLE,
+    MISSING_ENV_SPEC,
+    FORMAT_VERSION,
+    FILE_UNREADABLE,
+    TERMS_KEYS_CHANGED,
+    INFO_KEYS_CHANGED,
+)
+"""Every finding code, in the order of the module docstring's table.
+
+``recorder_note`` stands for the whole family ``recorder_note:<code>``, whose codes are the
+recorder's own (open-ended: a file may hold notes of a newer or another writer).
+"""
 
 _STEP_COLUMNS = [
     fmt.COL_EPISODE,
@@ -162,6 +207,7 @@ _STEP_COLUMNS = [
     fmt.COL_NOTES,
 ]
 _LIST_LIMIT = 5
+_NOT_FINISHED = "the writer did not finish"
 _HASH_MASK = (1 << 64) - 1
 
 _IntArray = npt.NDArray[np.int64]
@@ -216,7 +262,8 @@ class CheckResult:
             {"severity": "error" | "warning" | "note", "code": str, "message": str,
              "file": str, "episode": int | null, "step": int | null},
             ...
-          ]
+          ],
+          "ignored": int                 # findings left out by ``ignore`` (not in counts)
         }
     """
 
@@ -224,6 +271,8 @@ class CheckResult:
     files: list[str]
     episodes: int
     steps: int
+    ignored: int = 0
+    """Findings left out because their code was ignored (see :func:`check`)."""
 
     def _count(self, severity: str) -> int:
         return sum(1 for f in self.findings if f.severity == severity)
@@ -257,6 +306,7 @@ class CheckResult:
             "steps": self.steps,
             "counts": {"error": self.errors, "warning": self.warnings, "note": self.notes},
             "findings": [f.to_dict() for f in self.findings],
+            "ignored": self.ignored,
         }
 
 
@@ -558,16 +608,16 @@ class _FileCheck:
         ev = self.ev
         if ev.finished:
             return
-        why = ev.torn or "no run-end record"
+        # the reader's reason may end by saying it too ("ends at byte N without a summary: the
+        # writer did not finish"): the message says it once
+        why = (ev.torn or "no run-end record").removesuffix(f": {_NOT_FINISHED}")
         read = "complete chunks were read"
         if not self.steps and not self.episodes and not ev.resets().num_rows:
             read = (
                 "it holds no complete chunk: no episode, reset or step to check (a recorder "
                 "killed before its first flush, or one still starting)"
             )
-        self.finding(
-            "warning", FILE_UNFINISHED, f"the writer did not finish the file ({why}); {read}"
-        )
+        self.finding("warning", FILE_UNFINISHED, f"{_NOT_FINISHED} the file ({why}); {read}")
 
     def check_file(self) -> None:
         ev = self.ev
@@ -1168,6 +1218,48 @@ def _check_options(atol: float, rtol: float) -> None:
             raise ConfigurationError(f"{name}: expected a finite number >= 0, actually: {value!r}")
 
 
+def ignored_codes(codes: Iterable[str], *, option: str = "ignore") -> frozenset[str]:
+    """Validate finding codes to ignore; return them as a set for :func:`is_ignored`.
+
+    A code is one of :data:`FINDING_CODES`; ``recorder_note`` stands for every recorder note,
+    ``recorder_note:<code>`` for one of them. An unknown code raises
+    :class:`~episode_audit.errors.ConfigurationError` naming it (under ``option``) and listing
+    the known ones, so a misspelt code does not silently ignore nothing.
+
+    >>> sorted(ignored_codes(["missing_terms", "recorder_note:observation_cast"]))
+    ['missing_terms', 'recorder_note:observation_cast']
+    >>> ignored_codes(["missing_term"])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: ignore: unknown finding code 'missing_term'; \
+known codes: terms_sum_mismatch, missing_terms, ...
+    """
+    from .errors import ConfigurationError
+
+    known = frozenset(FINDING_CODES)
+    wanted = [codes] if isinstance(codes, str) else list(codes)
+    for code in wanted:
+        family, sep, note = code.partition(":")
+        if code in known or (sep and family == RECORDER_NOTE and note):
+            continue
+        raise ConfigurationError(
+            f"{option}: unknown finding code {code!r}; known codes: {', '.join(FINDING_CODES)} "
+            f"({RECORDER_NOTE} for every recorder note, {RECORDER_NOTE}:<code> for one)"
+        )
+    return frozenset(wanted)
+
+
+def is_ignored(code: str, ignored: frozenset[str]) -> bool:
+    """Whether a finding's ``code`` is among ``ignored`` (from :func:`ignored_codes`).
+
+    >>> is_ignored("recorder_note:observation_cast", frozenset({"recorder_note"}))
+    True
+    """
+    if not ignored:
+        return False
+    return code in ignored or (code.startswith(RECORDER_NOTE + ":") and RECORDER_NOTE in ignored)
+
+
 def check_evidence(
     ev: Evidence,
     *,
@@ -1192,25 +1284,36 @@ def check(
     atol: float = 1e-6,
     rtol: float = 1e-6,
     require_terms: bool = False,
+    ignore: Iterable[str] = (),
     progress: Callable[[int], None] | None = None,
 ) -> CheckResult:
     """Open and check each evidence file; return every finding with what was checked.
 
     An unreadable file raises :class:`~episode_audit.errors.EvidenceError` (a torn file is
-    readable: it gets a ``file_unfinished`` finding). ``progress`` is called after each block of
-    steps with the number of steps in that block.
+    readable: it gets a ``file_unfinished`` finding). Findings whose code is in ``ignore`` are
+    left out of the result (and so of its counts and ``ok``), as a linter's ignored codes are;
+    :attr:`CheckResult.ignored` counts them. ``ignore`` takes the codes of
+    :data:`FINDING_CODES`; ``recorder_note`` ignores every recorder note,
+    ``recorder_note:<code>`` one of them; an unknown code raises
+    :class:`~episode_audit.errors.ConfigurationError`. ``progress`` is called after each block
+    of steps with the number of steps in that block.
     """
     _check_options(atol, rtol)
+    ignored = ignored_codes(ignore)
     findings: list[Finding] = []
     files: list[str] = []
-    episodes = steps = 0
+    episodes = steps = left_out = 0
     for path in paths:
         ev = open_evidence(path)
         files.append(str(ev.path))
         checker = _FileCheck(
             ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=progress
         )
-        findings.extend(checker.run())
+        for finding in checker.run():
+            if is_ignored(finding.code, ignored):
+                left_out += 1
+            else:
+                findings.append(finding)
         episodes += checker.episodes
         steps += checker.steps
-    return CheckResult(findings, files, episodes, steps)
+    return CheckResult(findings, files, episodes, steps, left_out)

@@ -158,17 +158,23 @@ def _error_line(exc: EpisodeAuditError) -> None:
     _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
 
 
+def _unreadable(path: Path, exc: EpisodeAuditError, into: list[tuple[str, str]]) -> None:
+    """An input that could not be read: its stderr line, and ``(file, why)`` for the JSON."""
+    _error_line(exc)
+    into.append((str(path), exc.problem if isinstance(exc, EvidenceError) else str(exc)))
+
+
 def _readable(
     files: Sequence[Path], load: Callable[[Evidence], object] | None = None
-) -> tuple[list[tuple[Path, Evidence]], int]:
-    """The files that open as evidence (and whose ``load`` reads), opened.
+) -> tuple[list[tuple[Path, Evidence]], list[tuple[str, str]]]:
+    """The files that open as evidence (and whose ``load`` reads), opened; and the others.
 
     One stderr line for each file that does not, so one bad file costs the others nothing.
     """
     from .reader import open_evidence
 
     readable: list[tuple[Path, Evidence]] = []
-    unreadable = 0
+    unreadable: list[tuple[str, str]] = []
     for path in files:
         try:
             ev = open_evidence(path)
@@ -176,8 +182,7 @@ def _readable(
                 load(ev)
             readable.append((path, ev))
         except EpisodeAuditError as exc:
-            _error_line(exc)
-            unreadable += 1
+            _unreadable(path, exc, unreadable)
     return readable, unreadable
 
 
@@ -216,39 +221,60 @@ def check(
         bool, typer.Option("--require-terms", help="Steps without reward terms are errors.")
     ] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Warnings also fail (exit 1).")] = False,
+    ignore: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--ignore",
+            help="Leave out findings with this code, from the output and the exit code "
+            "(repeatable; recorder_note ignores every recorder note).",
+            metavar="<code>",
+        ),
+    ] = None,
     output: FormatOption = "table",
 ) -> None:
     """Check integrity and consistency: terms sum to reward, endings labelled, nothing missing."""
-    from .check import CheckResult, Finding
+    from .check import FILE_UNREADABLE, CheckResult, Finding, ignored_codes, is_ignored
     from .check import check as run_check
     from .render import check_output
 
     fmt = _format(output)
+    try:
+        ignored = ignored_codes(ignore or (), option="--ignore")
+    except ConfigurationError as exc:
+        fail(str(exc))
     files = collect(paths)
     merged = CheckResult(findings=[], files=[], episodes=0, steps=0)
-    unreadable = 0
+    unreadable: list[tuple[str, str]] = []
     with progress_bar("checking", _steps_total(files)) as advance:
         for path in files:
             try:
                 result = run_check(
-                    [path], atol=atol, rtol=rtol, require_terms=require_terms, progress=advance
+                    [path],
+                    atol=atol,
+                    rtol=rtol,
+                    require_terms=require_terms,
+                    ignore=ignored,
+                    progress=advance,
                 )
             except ConfigurationError as exc:
                 fail(str(exc))
             except EpisodeAuditError as exc:
-                _error_line(exc)
-                unreadable += 1
+                _unreadable(path, exc, unreadable)
                 # in the result too, so a JSON consumer does not read "ok" over a skipped file
-                merged.findings.append(
-                    Finding("error", "file_unreadable", str(exc), str(path), None, None)
-                )
+                if is_ignored(FILE_UNREADABLE, ignored):
+                    merged.ignored += 1
+                else:
+                    merged.findings.append(
+                        Finding("error", FILE_UNREADABLE, str(exc), str(path), None, None)
+                    )
                 merged.files.append(str(path))
                 continue
             merged.findings.extend(result.findings)
             merged.files.extend(result.files)
             merged.episodes += result.episodes
             merged.steps += result.steps
-    emit(check_output(merged, fmt))
+            merged.ignored += result.ignored
+    emit(check_output(merged, fmt, unreadable=unreadable))
     if unreadable:
         raise typer.Exit(EXIT_USAGE)
     if merged.errors or (strict and merged.warnings):
@@ -303,7 +329,7 @@ def replay(
         _episode_index(index)
     files = collect(paths)
     merged = ReplayResult()
-    unreadable = 0
+    unreadable: list[tuple[str, str]] = []
     with progress_bar("replaying", _steps_total(files) if episode is None else None) as advance:
         for path in files:
             try:
@@ -319,12 +345,11 @@ def replay(
             except ConfigurationError as exc:
                 fail(str(exc))
             except EpisodeAuditError as exc:
-                _error_line(exc)
-                unreadable += 1
+                _unreadable(path, exc, unreadable)
                 continue
             merged.episodes.extend(result.episodes)
             merged.version_differences.update(result.version_differences)
-    emit(replay_output(merged, fmt))
+    emit(replay_output(merged, fmt, unreadable=unreadable))
     missing = sorted(set(episode or ()) - {e.episode for e in merged.episodes})
     if missing and not unreadable:
         listed = ", ".join(map(str, missing))
@@ -446,7 +471,7 @@ def report(
         )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    emit(report_output(result, fmt))
+    emit(report_output(result, fmt, unreadable=unreadable))
     for line in result.notes:
         _stderr().print(f"episode-audit: warning: {safe(line)}", markup=False, soft_wrap=True)
     if unreadable:
@@ -481,9 +506,17 @@ def show(
     steps: Annotated[
         str | None, typer.Option(help="Slice of steps A:B (with --episode), e.g. 0:50.")
     ] = None,
+    all_episodes: Annotated[
+        bool,
+        typer.Option(
+            "--all-episodes",
+            help="List every episode in the summary (default: all up to 12, else the first "
+            "and last 5).",
+        ),
+    ] = False,
     output: FormatOption = "table",
 ) -> None:
-    """Summarize a file (run metadata, versions, env spec, episodes), or one episode's steps."""
+    """Summarize a file (run metadata, spaces, versions, env spec, episodes), or one episode."""
     from .reader import open_evidence
     from .show import episode_output, summary_output
 
@@ -493,12 +526,14 @@ def show(
     start, stop = _parse_slice(steps)
     if steps is not None and episode is None:
         fail("--steps needs --episode N")
+    if all_episodes and episode is not None:
+        fail("--all-episodes lists the episodes of the file summary; not with --episode N")
     if not path.exists():
         fail(f"{path}: no such file or directory")
     try:
         ev = open_evidence(path)
         if episode is None:
-            emit(summary_output(ev, fmt))
+            emit(summary_output(ev, fmt, all_episodes=all_episodes))
         else:
             emit(episode_output(ev, episode, start, stop, fmt))
     except EpisodeAuditError as exc:
@@ -524,7 +559,7 @@ def export(
     """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
     from .export import export as run_export
 
-    readable, unreadable = _readable(collect(paths))
+    readable, skipped = _readable(collect(paths))
     if not readable:
         raise typer.Exit(EXIT_USAGE)
     files = [path for path, _ in readable]
@@ -535,7 +570,7 @@ def export(
             )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    unreadable += len(result.failed)
+    unreadable = len(skipped) + len(result.failed)
     for path, ev in readable:
         if not ev.finished and path not in result.failed:
             why = ev.torn or "no run-end record"

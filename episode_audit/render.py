@@ -132,10 +132,20 @@ def to_json(data: Any) -> str:
 # ----------------------------------------------------------------------------- check
 
 
-def check_output(result: CheckResult, output: OutputFormat) -> Output:
-    """Findings of ``check`` in the requested format."""
+def _unreadable_json(unreadable: Iterable[tuple[str, str]]) -> list[dict[str, str]]:
+    """``[{"file", "why"}]``: the inputs a command could not read (each also named on stderr)."""
+    return [{"file": file, "why": why} for file, why in unreadable]
+
+
+def check_output(
+    result: CheckResult, output: OutputFormat, *, unreadable: Sequence[tuple[str, str]] = ()
+) -> Output:
+    """Findings of ``check`` in the requested format.
+
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    """
     if output == "json":
-        return to_json(result.to_dict())
+        return to_json({**result.to_dict(), "unreadable": _unreadable_json(unreadable)})
     headers = ["severity", "file", "episode", "step", "code", "message"]
     rows = [
         [
@@ -151,6 +161,7 @@ def check_output(result: CheckResult, output: OutputFormat) -> Output:
     summary = (
         f"{len(result.files)} file(s), {result.episodes} episodes, {result.steps} steps: "
         f"{result.errors} error(s), {result.warnings} warning(s), {result.notes} note(s)"
+        + (f", {result.ignored} ignored" if result.ignored else "")
     )
     if output == "markdown":
         body = markdown_table(headers, rows) if rows else "_no findings_"
@@ -165,10 +176,15 @@ def check_output(result: CheckResult, output: OutputFormat) -> Output:
 # ----------------------------------------------------------------------------- replay
 
 
-def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
-    """Replay results: one row per episode that was not identical, plus a summary."""
+def replay_output(
+    result: ReplayResult, output: OutputFormat, *, unreadable: Sequence[tuple[str, str]] = ()
+) -> Output:
+    """Replay results: one row per episode that was not identical, plus a summary.
+
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    """
     if output == "json":
-        return to_json(result.to_dict())
+        return to_json({**result.to_dict(), "unreadable": _unreadable_json(unreadable)})
     headers = ["file", "episode", "status", "steps", "where", "detail"]
     rows = []
     for e in result.episodes:
@@ -255,10 +271,15 @@ REPORT_HEADERS = [
 ]
 
 
-def report_output(result: Report, output: OutputFormat) -> Output:
-    """The success / failure / truncation table, term breakdown, warnings and gates."""
+def report_output(
+    result: Report, output: OutputFormat, *, unreadable: Sequence[tuple[str, str]] = ()
+) -> Output:
+    """The success / failure / truncation table, term breakdown, warnings and gates.
+
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    """
     if output == "json":
-        return to_json(result.to_dict())
+        return to_json({**result.to_dict(), "unreadable": _unreadable_json(unreadable)})
     rows = [_group_row(g) for g in result.groups]
     term_rows = [
         [g.key, outcome, term, fmt_number(value)]

@@ -2,6 +2,16 @@
 
 :func:`summarize` returns the summary as plain data (the library view); :func:`summary_output`
 and :func:`episode_output` render it as a table, Markdown or JSON.
+
+The summary lists the file's episodes (index, outcome, label or reason, length, return): all of
+them up to :data:`EPISODE_LIST_FULL`, else the first :data:`EPISODE_LIST_HEAD` and the last
+:data:`EPISODE_LIST_TAIL` with a row saying how many are left out (``all_episodes`` lists every
+one). Spaces are shown with their shape and dtype:
+
+>>> space_text({"type": "Box", "shape": [11], "dtype": "float64", "low": -1.0, "high": 1.0})
+'Box(shape=(11,), dtype=float64)'
+>>> space_text({"type": "Discrete", "n": 3, "start": -1, "dtype": "int64"})
+'Discrete(n=3, start=-1, shape=(), dtype=int64)'
 """
 
 from __future__ import annotations
@@ -11,6 +21,8 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from gymnasium import spaces
+from gymnasium.spaces import Space
 from rich.console import Group, RenderableType
 from rich.text import Text
 
@@ -19,15 +31,159 @@ from .errors import EvidenceError
 from .reader import Evidence
 from .records import from_json, to_jsonable
 from .render import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
+from .spaces import space_from_description
 
-__all__ = ["episode_output", "episode_rows", "summarize", "summary_output"]
+__all__ = [
+    "EPISODE_LIST_FULL",
+    "EPISODE_LIST_HEAD",
+    "EPISODE_LIST_TAIL",
+    "episode_list",
+    "episode_output",
+    "episode_rows",
+    "space_shape_dtype",
+    "space_text",
+    "summarize",
+    "summary_output",
+]
+
+EPISODE_LIST_HEAD = 5
+"""Episodes listed from the start of a long file's summary."""
+EPISODE_LIST_TAIL = 5
+"""Episodes listed from the end of a long file's summary."""
+EPISODE_LIST_FULL = 12
+"""Files with up to this many episodes have every one listed (so no row hides one or two)."""
+
+_SPACE_TEXT_LIMIT = 300
+"""The longest space text (a Dict of many spaces is cut)."""
 
 
-def summarize(ev: Evidence) -> dict[str, Any]:
-    """The file summary: run metadata, versions, env spec, episodes by outcome, finished or not."""
+def _space(description: Any) -> Space[Any] | None:
+    """The space a file describes, rebuilt; ``None`` when the description does not parse."""
+    try:
+        return space_from_description(description)
+    except Exception:  # a description from the file that is not one: nothing to show
+        return None
+
+
+def space_shape_dtype(description: Any) -> tuple[list[int] | None, str | None]:
+    """The shape and dtype of a described space, or ``None`` where it has no single one.
+
+    ``description`` is a space as the file describes it
+    (:func:`~episode_audit.spaces.describe_space`); composite spaces (``Dict``, ``Tuple``, …)
+    and ``Text`` have neither, and a description that does not parse gives ``None``.
+
+    >>> space_shape_dtype({"type": "MultiBinary", "n": [2, 3]})
+    ([2, 3], 'int8')
+    >>> space_shape_dtype({"type": "Dict", "spaces": []})
+    (None, None)
+    """
+    space = _space(description)
+    if space is None or space.shape is None or space.dtype is None:
+        return None, None
+    return list(space.shape), str(space.dtype)
+
+
+def space_text(description: Any) -> str:
+    """A described space as one line with its shape and dtype (see the module docstring).
+
+    Composite spaces show their parts: ``Dict(obs: Box(shape=(3,), dtype=float32), …)``;
+    spaces without one shape (``Text``, ``Sequence``, ``Graph``) read as Gymnasium prints them.
+    A description that does not parse shows its type only, e.g. ``Box(?)``.
+    """
+    space = _space(description)
+    if space is None:
+        kind = description.get("type") if isinstance(description, dict) else None
+        if kind == "Custom":
+            return f"Custom({description.get('class', '?')})"
+        return f"{kind}(?)" if isinstance(kind, str) else "?"
+    text = _space_text(space)
+    if len(text) > _SPACE_TEXT_LIMIT:
+        text = text[: _SPACE_TEXT_LIMIT - 3] + "..."
+    return text
+
+
+def _space_text(space: Space[Any]) -> str:
+    if isinstance(space, spaces.Dict):
+        return f"Dict({', '.join(f'{k}: {_space_text(s)}' for k, s in space.spaces.items())})"
+    if isinstance(space, spaces.Tuple):
+        return f"Tuple({', '.join(_space_text(s) for s in space.spaces)})"
+    if space.shape is None or space.dtype is None:
+        return repr(space)
+    extra = ""
+    if isinstance(space, spaces.Discrete):
+        start = int(space.start)
+        extra = f"n={int(space.n)}, " + (f"start={start}, " if start else "")
+    return f"{type(space).__name__}({extra}shape={space.shape}, dtype={space.dtype})"
+
+
+_LIST_COLUMNS = (
+    "episode",
+    "env_index",
+    "agent",
+    "outcome",
+    "failure_label",
+    "truncation_reason",
+    "error_type",
+    "length",
+    "return",
+)
+_LABEL_OF = {
+    fmt.OUTCOME_FAILURE: "failure_label",
+    fmt.OUTCOME_TRUNCATED: "truncation_reason",
+    fmt.OUTCOME_ERROR: "error_type",
+}
+
+
+def episode_list(
+    episodes: pa.Table, *, all_episodes: bool = False
+) -> tuple[list[dict[str, Any]], int]:
+    """The episodes a summary lists, and how many it leaves out (between the first and last).
+
+    ``episodes`` is :meth:`Evidence.episodes`. Each entry: ``episode``, ``env_index`` and
+    ``agent`` (``None`` outside vector and PettingZoo files), ``outcome``, ``label`` (the failure
+    label, truncation reason or error type; ``None`` for a success or an incomplete episode),
+    ``length`` and ``return``.
+    """
+    n = episodes.num_rows
+    columns = [c for c in _LIST_COLUMNS if c in episodes.column_names]
+    table = episodes.select(columns)
+    if all_episodes or n <= EPISODE_LIST_FULL:
+        parts, omitted = [table], 0
+    else:
+        tail = n - EPISODE_LIST_TAIL
+        parts = [table.slice(0, EPISODE_LIST_HEAD), table.slice(tail)]
+        omitted = tail - EPISODE_LIST_HEAD
+    rows: list[dict[str, Any]] = []
+    for part in parts:
+        for record in part.to_pylist():
+            label = _LABEL_OF.get(record["outcome"])
+            rows.append(
+                {
+                    "episode": record["episode"],
+                    "env_index": record.get("env_index"),
+                    "agent": record.get("agent"),
+                    "outcome": record["outcome"],
+                    "label": record.get(label) if label else None,
+                    "length": record["length"],
+                    "return": record.get("return"),
+                }
+            )
+    return rows, omitted
+
+
+def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
+    """The file summary: run metadata, versions, env spec, episodes by outcome, finished or not.
+
+    ``episode_list`` holds the first and last episodes of a long file (``episode_list_omitted``
+    says how many are between them), or every one with ``all_episodes``: see
+    :func:`episode_list`.
+    """
     episodes = ev.episodes()
     outcomes = Counter(episodes.column("outcome").to_pylist())
     run = ev.run
+    listed, omitted = episode_list(episodes, all_episodes=all_episodes)
+    obs_shape, obs_dtype = space_shape_dtype(run.observation_space)
+    act_shape, act_dtype = space_shape_dtype(run.action_space)
     return {
         "file": str(ev.path),
         "finished": ev.finished,
@@ -51,6 +207,12 @@ def summarize(ev: Evidence) -> dict[str, Any]:
         "command_line": run.command_line,
         "env_spec": run.env_spec,
         "layout": run.layout,
+        "observation_shape": obs_shape,
+        "observation_dtype": obs_dtype,
+        "action_shape": act_shape,
+        "action_dtype": act_dtype,
+        "episode_list": listed,
+        "episode_list_omitted": omitted,
     }
 
 
@@ -66,9 +228,37 @@ def _layout_text(layout: dict[str, Any]) -> str:
     return f"{kind}: {', '.join(parts)}" + (f" ({', '.join(extra)})" if extra else "")
 
 
-def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
-    """Render :func:`summarize`."""
-    data = summarize(ev)
+def _episode_table(data: dict[str, Any]) -> tuple[str, list[str], list[list[Any]]]:
+    """Title, headers and rows of the summary's episode list (the ``… N more`` row included)."""
+    listed: list[dict[str, Any]] = data["episode_list"]
+    omitted: int = data["episode_list_omitted"]
+    kind = str((data["layout"] or {}).get("kind", "single"))
+    extra = (
+        ["env_index"] if kind == "vector" else ["agent"] if kind.startswith("pettingzoo") else []
+    )
+    headers = ["episode", *extra, "outcome", "label / reason", "length", "return"]
+
+    def row(e: dict[str, Any]) -> list[Any]:
+        label = e["label"] if e["label"] is not None else "-"
+        cells = [e["episode"], *(e[key] for key in extra), e["outcome"], label, e["length"]]
+        return [*cells, fmt_number(e["return"])]
+
+    rows = [row(e) for e in listed]
+    if not omitted:
+        return "Episodes", headers, rows
+    more = ["…", *("" for _ in extra), f"{omitted} more", "(--all-episodes)", "", ""]
+    rows.insert(EPISODE_LIST_HEAD, more)
+    title = (
+        f"Episodes (first {EPISODE_LIST_HEAD} and last {EPISODE_LIST_TAIL} of {data['episodes']})"
+    )
+    return title, headers, rows
+
+
+def summary_output(
+    ev: Evidence, output: OutputFormat, *, all_episodes: bool = False
+) -> RenderableType | str:
+    """Render :func:`summarize` (``all_episodes``: list every episode, not the first and last)."""
+    data = summarize(ev, all_episodes=all_episodes)
     if output == "json":
         return to_json(data)
     status = "finished" if data["finished"] else f"UNFINISHED ({data['torn']})"
@@ -86,20 +276,30 @@ def summary_output(ev: Evidence, output: OutputFormat) -> RenderableType | str:
         ["episodes", data["episodes"]],
         ["steps", data["steps"]],
         ["outcomes", ", ".join(f"{k} {v}" for k, v in data["outcomes"].items())],
-        ["spaces", f"observation {data['observation_space']}, action {data['action_space']}"],
+        ["observation space", space_text(ev.run.observation_space)],
+        ["action space", space_text(ev.run.action_space)],
         ["versions", ", ".join(f"{k} {v}" for k, v in data["versions"].items())],
         ["platform", data["platform"]],
         ["command", " ".join(data["command_line"])],
     ]
     spec = to_json(data["env_spec"]) if data["env_spec"] is not None else "-"
+    title, headers, episode_rows = _episode_table(data)
     if output == "markdown":
         block = safe_block(spec)
         fence = "`" * max(3, _longest_backtick_run(block) + 1)
+        episodes = (
+            f"\n\n{title}:\n\n" + markdown_table(headers, episode_rows) if episode_rows else ""
+        )
         return (
             markdown_table(["field", "value"], rows)
+            + episodes
             + f"\n\nEnv spec:\n\n{fence}json\n{block}\n{fence}\n"
         )
-    return Group(table("Evidence file", ["field", "value"], rows), Text("env spec: " + spec))
+    parts: list[RenderableType] = [table("Evidence file", ["field", "value"], rows)]
+    if episode_rows:
+        parts.append(table(title, headers, episode_rows))
+    parts.append(Text("env spec: " + spec))
+    return Group(*parts)
 
 
 def safe_block(text: str) -> str:

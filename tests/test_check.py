@@ -467,7 +467,7 @@ def test_result_to_dict_is_stable_json(tmp_path: Path) -> None:
     path = _record(tmp_path / "terms.mcap", _terms_step({2: 1.0}))
     result = check([path, path])
     data = json.loads(json.dumps(result.to_dict(), allow_nan=False))
-    assert list(data) == ["ok", "files", "episodes", "steps", "counts", "findings"]
+    assert list(data) == ["ok", "files", "episodes", "steps", "counts", "findings", "ignored"]
     assert data["ok"] is False
     assert data["files"] == [str(path), str(path)]
     assert (data["episodes"], data["steps"]) == (2, 12)
@@ -568,4 +568,74 @@ def test_a_torn_file_that_holds_nothing_says_so(tmp_path: Path) -> None:
     assert any(
         f.code == "file_unfinished" and f.message.endswith("complete chunks were read")
         for f in torn.findings
+    )
+
+
+# ------------------------------------------------------------------- ignored codes
+
+
+def test_finding_codes_are_the_docstring_table() -> None:
+    """The codes ``ignore`` accepts are the ones the module docstring documents, in order."""
+    import importlib
+
+    from episode_audit.check import FINDING_CODES
+
+    # (episode_audit.check, as an attribute, is the package's check function)
+    check_module = importlib.import_module("episode_audit.check")
+    documented = re.findall(r"^``([a-z_]+)(?::<code>)?``\s", check_module.__doc__ or "", re.M)
+    assert documented == list(FINDING_CODES)
+
+
+def test_ignored_codes_are_left_out_and_counted() -> None:
+    fixture = Path(__file__).parents[1] / "fixtures" / "terms_mismatch.mcap"
+    full = check([fixture])
+    mismatches = [f for f in full.findings if f.code == "terms_sum_mismatch"]
+    assert mismatches and not full.ok and full.ignored == 0
+    result = check([fixture], ignore=["terms_sum_mismatch"])
+    assert result.ok and result.ignored == len(mismatches)
+    assert result.findings == [f for f in full.findings if f.code != "terms_sum_mismatch"]
+    assert result.to_dict()["ignored"] == len(mismatches)
+    assert result.errors == full.errors - len(mismatches)
+
+
+def test_ignoring_recorder_note_ignores_every_recorder_note(tmp_path: Path) -> None:
+    path = tmp_path / "text_reward.mcap"
+    with RecordEvidence(_TextReward(gym.make("CartPole-v1", max_episode_steps=2)), path) as env:
+        env.reset(seed=0)
+        env.step(0)
+    code = "recorder_note:reward_not_numeric"
+    assert code in _codes(check([path]))
+    for ignore in (["recorder_note"], [code]):
+        result = check([path], ignore=ignore)
+        assert code not in _codes(result) and result.ignored == 1, ignore
+    assert code in _codes(check([path], ignore=["recorder_note:observation_cast"]))
+
+
+@pytest.mark.parametrize("code", ["missing_term", "", "recorder_note:", "recorder_notes"])
+def test_an_unknown_ignored_code_is_a_configuration_error(code: str) -> None:
+    fixture = Path(__file__).parents[1] / "fixtures" / "clean.mcap"
+    with pytest.raises(
+        ConfigurationError,
+        match=re.escape(
+            f"ignore: unknown finding code {code!r}; known codes: terms_sum_mismatch, "
+        ),
+    ):
+        check([fixture], ignore=[code])
+
+
+def test_file_unfinished_says_the_writer_did_not_finish_once(tmp_path: Path) -> None:
+    """Before: "the writer did not finish the file (ends at byte N without a summary: the writer
+    did not finish); …" — the reader's reason repeated the message's opening words."""
+    torn = Path(__file__).parents[1] / "fixtures" / "torn.mcap"
+    size = torn.stat().st_size
+    assert _only(check([torn]), "file_unfinished").message == (
+        f"the writer did not finish the file (ends at byte {size} without a summary); "
+        "complete chunks were read"
+    )
+    clean = (Path(__file__).parents[1] / "fixtures" / "clean.mcap").read_bytes()
+    no_magic = tmp_path / "no_magic.mcap"
+    no_magic.write_bytes(clean[:-8])  # the footer is there, the closing magic is not
+    assert _only(check([no_magic]), "file_unfinished").message == (
+        f"the writer did not finish the file (ends at byte {len(clean) - 8} without the closing "
+        "magic); complete chunks were read"
     )

@@ -88,6 +88,44 @@ def test_check_strict_fails_on_warnings() -> None:
     assert code == 1
 
 
+def test_check_ignore_leaves_findings_out_of_output_and_exit_code() -> None:
+    code, out, _ = run("check", "fixtures/terms_mismatch.mcap", "--format", "json")
+    assert code == 1
+    before = json.loads(out)
+    mismatches = [f for f in before["findings"] if f["code"] == "terms_sum_mismatch"]
+    assert mismatches and before["ignored"] == 0
+    code, out, _ = run(
+        "check", "fixtures/terms_mismatch.mcap", "--ignore", "terms_sum_mismatch", "-f", "json"
+    )
+    assert code == 0
+    data = json.loads(out)
+    assert data["ok"] is True and data["ignored"] == len(mismatches)
+    assert all(f["code"] != "terms_sum_mismatch" for f in data["findings"])
+    assert data["counts"]["error"] == before["counts"]["error"] - len(mismatches)
+    # --strict: the warnings left fail; ignored too, they do not
+    args = ["check", "fixtures/unlabeled_failure.mcap", "--strict"]
+    assert run(*args)[0] == 1
+    code, out, _ = run(*args, "--ignore", "unlabeled_failure", "--ignore", "missing_terms")
+    assert code == 0
+    assert out.strip().endswith("0 error(s), 0 warning(s), 0 note(s), 2 ignored"), out
+    for fmt in ("table", "markdown"):
+        _, out, _ = run("check", "fixtures/clean.mcap", "-f", fmt)
+        assert "ignored" not in out, fmt
+
+
+def test_check_ignore_of_an_unknown_code_is_a_usage_error_listing_the_known_ones() -> None:
+    from episode_audit.check import FINDING_CODES
+
+    code, out, err = run("check", "fixtures/terms_mismatch.mcap", "--ignore", "terms_mismatch")
+    assert code == 2 and out == ""
+    one_error_line(
+        err,
+        "--ignore: unknown finding code 'terms_mismatch'; known codes: "
+        + ", ".join(FINDING_CODES)
+        + " (recorder_note for every recorder note, recorder_note:<code> for one)",
+    )
+
+
 def test_unreadable_file_exit_2_one_line(tmp_path: Path) -> None:
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x00" * 100)
@@ -206,6 +244,100 @@ def test_show_summary_and_episode() -> None:
     assert code == 2 and "--episode" in err
     code, _, err = run("show", "fixtures/clean.mcap", "--episode", "99")
     assert code == 2 and "no episode 99" in err
+
+
+SHOW_JSON_KEYS = [  # the summary's keys before the episode list and the spaces' shapes
+    "file", "finished", "torn", "recovered", "format_version", "writer", "env_id", "start_time",
+    "tags", "episodes", "steps", "outcomes", "observation_space", "action_space", "reward_terms",
+    "versions", "platform", "command_line", "env_spec", "layout",
+]  # fmt: skip
+
+
+def test_show_summary_lists_episodes_and_spaces_with_shape_and_dtype() -> None:
+    code, out, _ = run("show", "fixtures/clean.mcap")
+    assert code == 0
+    lines = [" ".join(line.split()) for line in out.splitlines()]
+    assert "observation space Box(shape=(11,), dtype=float64)" in lines
+    assert "action space Box(shape=(3,), dtype=float32)" in lines
+    start = lines.index("episode outcome label / reason length return")
+    assert lines[start + 2 : start + 8] == [
+        "0 success - 65 11.5",
+        "1 success - 66 11.5",
+        "2 success - 65 11.5",
+        "3 success - 67 11.6",
+        "4 truncated time_limit 120 1.3",
+        "5 success - 64 11.4",
+    ]
+    code, out, _ = run("show", "fixtures/torn.mcap", "--format", "markdown")
+    assert code == 0
+    assert "| action space | Discrete(n=2, shape=(), dtype=int64) |" in out
+    assert "| 11 | incomplete | - | 14 | 14 |" in out  # 12 episodes: every one listed
+    # JSON: the keys it had, in their order, then the new ones
+    code, out, _ = run("show", "fixtures/torn.mcap", "--format", "json")
+    data = json.loads(out)
+    assert list(data)[: len(SHOW_JSON_KEYS)] == SHOW_JSON_KEYS
+    assert data["observation_space"] == "Box" and data["action_space"] == "Discrete"
+    assert (data["observation_shape"], data["observation_dtype"]) == ([4], "float32")
+    assert (data["action_shape"], data["action_dtype"]) == ([], "int64")
+    assert data["episode_list_omitted"] == 0 and len(data["episode_list"]) == 12
+    assert data["episode_list"][0] == {
+        "episode": 0,
+        "env_index": 0,
+        "agent": None,
+        "outcome": "failure",
+        "label": "unlabeled",
+        "length": 18,
+        "return": 18.0,
+    }
+
+
+def test_show_summary_of_a_long_file_lists_the_first_and_last_episodes(tmp_path: Path) -> None:
+    path = cartpole(tmp_path / "long.mcap", episodes=20, max_episode_steps=3)
+    code, out, _ = run("show", str(path))
+    assert code == 0
+    lines = [" ".join(line.split()) for line in out.splitlines()]
+    title = lines.index("Episodes (first 5 and last 5 of 20)")
+    episodes = lines[title + 4 : lines.index("", title + 4)]
+    assert [row.split()[0] for row in episodes] == [*"01234", "…", *map(str, range(15, 20))]
+    assert episodes[5] == "… 10 more (--all-episodes)"
+    assert episodes[0] == "0 truncated time_limit 3 3"
+    code, out, _ = run("show", str(path), "--format", "json")
+    data = json.loads(out)
+    assert data["episode_list_omitted"] == 10
+    assert [e["episode"] for e in data["episode_list"]] == [0, 1, 2, 3, 4, *range(15, 20)]
+    code, out, _ = run("show", str(path), "--all-episodes", "--format", "json")
+    data = json.loads(out)
+    assert data["episode_list_omitted"] == 0
+    assert [e["episode"] for e in data["episode_list"]] == list(range(20))
+    code, out, _ = run("show", str(path), "--all-episodes", "--format", "markdown")
+    assert code == 0 and "more |" not in out and "| 10 | truncated | time_limit | 3 | 3 |" in out
+    code, _, err = run("show", str(path), "--all-episodes", "--episode", "0")
+    assert code == 2
+    one_error_line(
+        err, "--all-episodes lists the episodes of the file summary; not with --episode N"
+    )
+
+
+@pytest.mark.parametrize(
+    ("description", "text"),
+    [
+        ({"type": "MultiDiscrete", "nvec": [[2, 3]], "start": [[0, 0]], "dtype": "int64"},
+         "MultiDiscrete(shape=(1, 2), dtype=int64)"),
+        ({"type": "MultiBinary", "n": 4}, "MultiBinary(shape=(4,), dtype=int8)"),
+        ({"type": "Text", "min_length": 1, "max_length": 8, "charset": "ab"},
+         "Text(1, 8, charset=ab)"),
+        ({"type": "Tuple", "spaces": [{"type": "Discrete", "n": 2, "start": 0, "dtype": "int64"}]},
+         "Tuple(Discrete(n=2, shape=(), dtype=int64))"),
+        ({"type": "Custom", "class": "a.B", "repr": "B()"}, "Custom(a.B)"),
+        ({"type": "Box", "shape": "x", "dtype": 3}, "Box(?)"),  # from a bad file
+        ({"type": "Dict", "spaces": [["a"], 7]}, "Dict(?)"),
+        ({}, "?"),
+    ],
+)  # fmt: skip
+def test_space_text_of_every_kind_of_space(description: dict[str, object], text: str) -> None:
+    from episode_audit.show import space_text
+
+    assert space_text(description) == text
 
 
 def test_export_reads_back_with_pyarrow_and_pandas(tmp_path: Path) -> None:
@@ -363,6 +495,26 @@ def test_check_json_names_an_unreadable_file_and_is_not_ok(tmp_path: Path) -> No
     assert data["ok"] is False and data["files"] == ["fixtures/clean.mcap", str(bad)]
     (finding,) = [f for f in data["findings"] if f["code"] == "file_unreadable"]
     assert finding["severity"] == "error" and finding["file"] == str(bad)
+
+
+@pytest.mark.parametrize("command", ["check", "replay", "report"])
+def test_json_names_the_unreadable_inputs_as_stderr_does(tmp_path: Path, command: str) -> None:
+    """Before: one stderr line per unreadable input and exit 2, but the JSON did not name them."""
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    torn = tmp_path / "early.mcap"  # torn before its run metadata
+    torn.write_bytes((FIXTURES / "clean.mcap").read_bytes()[:200])
+    code, out, err = run(command, "fixtures/clean.mcap", str(bad), str(torn), "-f", "json")
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith("episode-audit: error: ") for line in lines)
+    unreadable = json.loads(out)["unreadable"]
+    assert [u["file"] for u in unreadable] == [str(bad), str(torn)]
+    for entry, line in zip(unreadable, lines, strict=True):
+        assert line == f"episode-audit: error: {entry['file']}: {entry['why']}"
+    assert unreadable[0]["why"].startswith("not an MCAP file"), unreadable
+    code, out, err = run(command, "fixtures/clean.mcap", "-f", "json")
+    assert code == 0 and err == "" and json.loads(out)["unreadable"] == []
 
 
 def test_export_says_an_input_is_unfinished(tmp_path: Path) -> None:
