@@ -34,10 +34,11 @@ ending) keeps copies of the batch arrays (observations, actions, rewards) and on
 episode boundaries (autoresets, endings) are handled per sub-env when they happen, at the rows
 they will have. Steps with info (e.g. MuJoCo ``reward_*`` terms), or with values that need a cast,
 are recorded sub-env by sub-env as :class:`~episode_audit.RecordEvidence` records a step, with
-per-sub-env info dicts taken from the vector info (``info[k][i]`` where ``info["_k"][i]``), or
-from a list of per-sub-env infos (Gymnasium's ``DictInfoToList``). So are steps of a sub-env
-without a running episode (stepped before its reset, or after its episode ended), which are
-noted as the single-env recorder notes them.
+per-sub-env info dicts taken from the vector info (``info[k][i]`` where ``info["_k"][i]``; a key
+without a mask is taken as every sub-env's, noted ``info_unmasked``), or from a list of
+per-sub-env infos (Gymnasium's ``DictInfoToList``). So are steps of a sub-env without a running
+episode (stepped before its reset, or after its episode ended), and steps whose flags are not a
+bool array, which are noted as the single-env recorder notes them.
 
 Wrap the vector env itself (innermost): replay rebuilds one sub-env from its spec.
 """
@@ -66,6 +67,8 @@ __all__ = ["RecordVectorEvidence", "ResetRngInfo"]
 
 _EMPTY: dict[str, Any] = {}
 _BATCH_STEPS = 256  # vector steps batched before their rows are handed to the streams
+_BOOLS = frozenset({bool, np.bool_})
+_BOOL = np.dtype(np.bool_)
 
 
 def _fits(values: Any, shape: tuple[int, ...], dtype: Any) -> bool:
@@ -85,6 +88,11 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     episodes that a vector env resets by itself replayable on their own. The wrapper changes
     nothing else, and it is invisible in the env's spec (replay does not need it).
 
+    It also remembers its last step since a reset, and a reset that raised (with that step and
+    the RNG state it started from), so that the recorder of a ``SyncVectorEnv`` can record an
+    autoreset that raised inside ``step()`` where it belongs: after the step that ended the
+    episode, as an episode of its own that ended ``error`` during ``reset``.
+
     >>> import gymnasium as gym
     >>> env = ResetRngInfo(gym.make("CartPole-v1"))
     >>> _, info = env.reset(seed=1)
@@ -95,12 +103,31 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     ['bit_generator', 'has_uint32', 'state', 'uinteger']
     """
 
+    def __init__(self, env: gym.Env[Any, Any]) -> None:
+        super().__init__(env)
+        self._last_step: tuple[Any, Any] | None = None  # (action, result) since the last reset
+        # a reset that raised: (the exception, the RNG state before it, the step before it)
+        self._failed_reset: tuple[BaseException, Any, tuple[Any, Any] | None] | None = None
+
+    def step(self, action: Any) -> Any:
+        """Step the env (remembering the step until the next reset)."""
+        result = self.env.step(action)
+        self._last_step = (action, result)
+        return result
+
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the env; an unseeded reset's info gains the RNG state it started from."""
         state = capture_rng_state(self.env) if seed is None else None
-        obs, info = self.env.reset(seed=seed, options=options)
+        last, self._last_step = self._last_step, None
+        try:
+            result = self.env.reset(seed=seed, options=options)
+        except Exception as exc:
+            self._failed_reset = (exc, state, last)
+            raise
+        self._failed_reset = None
+        obs, info = result
         if state is not None:
             info = {**info, fmt.INFO_RNG_STATE: to_json(state).decode()}
         return obs, info
@@ -111,29 +138,85 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         return self.env.spec
 
 
-def _sub_info(infos: Mapping[str, Any], i: int) -> dict[str, Any]:
-    """Sub-env ``i``'s info from a vector info dict (values ``infos[k][i]`` where ``_k`` is set)."""
-    out: dict[str, Any] = {}
+def _entries(value: Any, n: int) -> Any:
+    """``value`` itself if it holds one entry per sub-env (an array, a list or a tuple of n)."""
+    if isinstance(value, np.ndarray):
+        return value if value.ndim and len(value) == n else None
+    if isinstance(value, (list, tuple)) and len(value) == n:
+        return value
+    return None
+
+
+def _split_info(
+    infos: Mapping[Any, Any], n: int, prefix: str = ""
+) -> tuple[list[dict[Any, Any]], list[str]]:
+    """Each sub-env's info from a vector info dict, and the keys read without a mask.
+
+    A key ``k`` with a mask ``_k`` (Gymnasium's vector envs give every key one): ``infos[k][i]``
+    where ``infos["_k"][i]`` is set. A key without one (a vector env of one's own may leave them
+    out) is taken as present for every sub-env: a value of ``n`` entries (an array, a list or a
+    tuple) as each sub-env's own entry, any other value as the same for every sub-env. Such keys
+    are returned (dotted within nested dicts, which are read the same way) so that the rows they
+    reached can say so: that reading is a guess.
+    """
+    outs: list[dict[Any, Any]] = [{} for _ in range(n)]
+    guessed: list[str] = []
     for key, value in infos.items():
         mask = infos.get(f"_{key}")
-        if mask is None or not mask[i]:
+        present = None if mask is None else _entries(mask, n)
+        if present is None and type(key) is str and key[:1] == "_" and key[1:] in infos:
+            continue  # the mask of another key
+        if isinstance(value, Mapping):
+            values, inner = _split_info(value, n, f"{prefix}{key}.")
+            guessed += inner
+        else:
+            values = _entries(value, n)
+            if values is None:  # not one entry per sub-env (masked or not)
+                values = [value] * n
+                guessed.append(f"{prefix}{key} (the same for every sub-env)")
+            elif present is None:
+                guessed.append(f"{prefix}{key}")
+        if present is None:
+            if mask is not None:  # a mask that is not one truth value per sub-env
+                guessed.append(f"{prefix}_{key} (not a mask of {n})")
+            if isinstance(value, Mapping):
+                for out, sub in zip(outs, values, strict=True):
+                    if sub:
+                        out[key] = sub
+            else:
+                for i, out in enumerate(outs):
+                    out[key] = values[i]
             continue
-        out[key] = _sub_info(value, i) if isinstance(value, Mapping) else value[i]
-    return out
+        if isinstance(present, np.ndarray):
+            present = present.tolist()
+        for i, here in enumerate(present):
+            if here:
+                outs[i][key] = values[i]
+    return outs, guessed
 
 
-def _env_info(infos: Any, i: int, n: int) -> Any:
-    """Sub-env ``i``'s info from a vector step's or reset's info, as the sub-env would give it.
+def _env_infos(infos: Any, n: int) -> tuple[list[Any], str | None]:
+    """Each sub-env's info from a vector step's or reset's info, as the sub-env would give it.
 
-    The vector dict form (:func:`_sub_info`), or a list of per-sub-env infos (what Gymnasium's
+    The vector dict form (:func:`_split_info`), or a list of per-sub-env infos (what Gymnasium's
     ``DictInfoToList`` makes of it); anything else is handed on as it is (the stream notes an
-    info that is not a dict).
+    info that is not a dict). Also the ``info_unmasked`` note for every sub-env's row when the
+    dict had keys without a ``_key`` mask (``None`` when it had none).
     """
     if isinstance(infos, Mapping):
-        return _sub_info(infos, i) if infos else _EMPTY
+        if not infos:
+            return [_EMPTY] * n, None
+        outs, guessed = _split_info(infos, n)
+        if not guessed:
+            return outs, None
+        return outs, note(
+            "info_unmasked",
+            f"vector info without a '_<key>' mask of {n} truth values for {', '.join(guessed)}: "
+            f"taken as present for every sub-env, a value of {n} entries as one entry each",
+        )
     if isinstance(infos, (list, tuple)) and len(infos) == n:
-        return infos[i]
-    return infos
+        return list(infos), None
+    return [infos] * n, None
 
 
 def _per_env(values: Any, n: int) -> list[Any]:
@@ -149,6 +232,30 @@ def _per_env(values: Any, n: int) -> list[Any]:
     except TypeError:
         return [values] * n
     return items if len(items) == n else [values] * n
+
+
+def _flags(values: Any, n: int) -> tuple[np.ndarray[Any, np.dtype[np.bool_]], list[Any] | None]:
+    """A batch of flags (``terminated`` or ``truncated``) read, and as given if one is noted.
+
+    A bool array of ``n`` (what Gymnasium's vector envs return) is taken as it is: one check.
+    Anything else is read flag by flag as the single-env recorder reads a flag: a flag with no
+    truth value is false, and it or a true flag that is not a ``bool`` (the text ``"False"``,
+    the int ``1``) is noted ``flags_not_bool`` by the stream that records it as given.
+    """
+    if type(values) is np.ndarray and values.dtype is _BOOL and values.shape == (n,):
+        return values, None
+    given = _per_env(values, n)
+    truths: list[bool] = []
+    odd = False
+    for value in given:
+        try:
+            truth = bool(value)
+        except Exception:  # no truth value (an array of several)
+            truth, odd = False, True
+        else:
+            odd = odd or (truth and type(value) not in _BOOLS)
+        truths.append(truth)
+    return np.array(truths, dtype=np.bool_), given if odd else None
 
 
 def _rejected(seed: Any, options: Any, n: int) -> bool:
@@ -329,6 +436,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         # the sub-envs without a running episode (never reset, or ended); None: not known now
         self._idle: set[int] | None = None
         self._no_infos = [_EMPTY] * n  # a DictInfoToList info without values
+        self._flags_shape = (n,)
         self._pending_rng: dict[int, dict[str, Any] | None] = {}
         self._closed = False
 
@@ -354,18 +462,30 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         return dataclasses.replace(spec, kwargs=kwargs)
 
     def _max_steps(self, sub_spec: Any) -> list[int | None]:
-        """Each sub-env's step limit: its ``TimeLimit`` (``SyncVectorEnv``), else its spec's.
+        """Each sub-env's step limit: its ``TimeLimit``'s, else its spec's.
 
         The limit is counted by the stream (a ``SAME_STEP`` autoreset has zeroed the wrapper's
-        own count by the time the ending is recorded). An ``AsyncVectorEnv``'s sub-envs cannot
-        be searched for a ``TimeLimit`` cheaply: the spec's limit is used.
+        own count by the time the ending is recorded). A ``SyncVectorEnv``'s sub-envs are
+        searched for a ``TimeLimit`` directly. An ``AsyncVectorEnv``'s are asked for
+        ``_max_episode_steps`` (``TimeLimit``'s), but only when every one says it has it
+        (``has_wrapper_attr``, which every ``gymnasium.Env`` has): a worker asked for an
+        attribute its env lacks raises, and that ends the worker.
         """
         limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * self._n
+        found: Sequence[Any] = ()
         if self._sync is not None:
-            for i, sub in enumerate(self._sync.envs):
-                limit = getattr(find_time_limit(sub), "_max_episode_steps", None)
-                if isinstance(limit, int):
-                    limits[i] = limit
+            found = [
+                getattr(find_time_limit(sub), "_max_episode_steps", None) for sub in self._sync.envs
+            ]
+        elif self._async is not None:
+            try:
+                if all(self._async.call("has_wrapper_attr", "_max_episode_steps")):
+                    found = self._async.get_attr("_max_episode_steps")
+            except Exception:  # the spec's limit, then
+                found = ()
+        for i, limit in enumerate(found):
+            if isinstance(limit, int) and not isinstance(limit, bool):
+                limits[i] = limit
         return limits
 
     # ------------------------------------------------------------------ RNG states
@@ -418,10 +538,11 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         info: Any,
         start_ns: int,
         why_no_rng: str | None = None,
+        noted: str | None = None,
     ) -> None:
-        """Begin sub-env ``i``'s next episode and record its reset row."""
+        """Begin sub-env ``i``'s next episode and record its reset row (noted ``noted``)."""
         stream = self._streams[i]
-        notes: list[str] = []
+        notes: list[str] = [] if noted is None else [noted]
         if seed is None and rng_state is None:
             notes.append(
                 note("rng_state_unavailable", why_no_rng or self._no_rng_note or "no np_random")
@@ -462,14 +583,17 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             raise
         try:
             rows = list(iterate(self._obs_space, obs))
+            sub_infos, unmasked = _env_infos(infos, n)
             for i in indices:
-                info = _env_info(infos, i, n)
+                info = sub_infos[i]
                 rng = states.get(i)
                 if seeds[i] is None:
                     rng = self._rng_from_info(info) or rng
                 self._streams[i].block.pending = self._pending_rows(i)
                 self._streams[i].end_open()
-                self._begin(i, seeds[i], recorded_options, rng, rows[i], info, start)
+                self._begin(
+                    i, seeds[i], recorded_options, rng, rows[i], info, start, None, unmasked
+                )
             if self._resetting:
                 done = set(indices)
                 self._resetting = [i for i in self._resetting if i not in done]
@@ -522,13 +646,22 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
 
     def _record_step(self, actions: Any, result: tuple[Any, ...]) -> None:
         obs, rewards, terminated, truncated, infos = result
-        term = np.asarray(terminated, dtype=np.bool_)
-        trunc = np.asarray(truncated, dtype=np.bool_)
+        n = self._n
+        if (
+            type(terminated) is np.ndarray
+            and type(truncated) is np.ndarray
+            and terminated.dtype is _BOOL
+            and truncated.dtype is _BOOL
+            and terminated.shape == truncated.shape == self._flags_shape
+        ):  # the common case (Gymnasium's vector envs), checked once per vector step
+            term, trunc, term_given, trunc_given = terminated, truncated, None, None
+        else:
+            term, term_given = _flags(terminated, n)
+            trunc, trunc_given = _flags(truncated, n)
         ended = (term | trunc).tolist()
         ends = [i for i, e in enumerate(ended) if e] if True in ended else []
         mode = self._mode
         resetting = self._resetting  # NEXT_STEP: the sub-envs this step only resets
-        n = self._n
         idle = self._idle
         if idle is None:
             idle = self._idle = {
@@ -542,6 +675,8 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             )
             and (mode is not AutoresetMode.SAME_STEP or not ends)
             and (not idle or idle.issubset(resetting))  # else: notes (before reset, after end)
+            and term_given is None  # else: flags to note (not bool)
+            and trunc_given is None
             and type(rewards) is np.ndarray
             and rewards.shape == (n,)
             and rewards.dtype.kind in "biuf"
@@ -556,8 +691,9 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                 list(iterate(self._obs_space, obs)),
                 list(iterate(self._act_space, actions)),
                 _per_env(rewards, n),
-                term.tolist(),
-                trunc.tolist(),
+                term.tolist() if term_given is None else term_given,
+                trunc.tolist() if trunc_given is None else trunc_given,
+                ended,
                 infos,
             )
         if mode is AutoresetMode.NEXT_STEP:
@@ -653,27 +789,35 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         obs_rows: list[Any],
         act_rows: list[Any],
         reward_list: list[Any],
-        term_list: list[bool],
-        trunc_list: list[bool],
+        term_list: list[Any],
+        trunc_list: list[Any],
+        ended: list[bool],
         infos: Any,
     ) -> None:
-        """A step with info, autoresets or (SAME_STEP) ended episodes: sub-env by sub-env."""
+        """A step with info, autoresets or (SAME_STEP) ended episodes: sub-env by sub-env.
+
+        The flags are as given where one is to be noted (see :func:`_flags`), for the stream to
+        note as it would a single env's; ``ended`` is their reading.
+        """
         streams = self._streams
         mode = self._mode
         resetting = set(self._resetting)
         now = self._file.clock()
         n = self._n
+        sub_infos, unmasked = _env_infos(infos, n)
         for i in range(n):
-            info = _env_info(infos, i, n)
+            info = sub_infos[i]
             if i in resetting:
                 # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
                 rng = self._rng_from_info(info)
                 if rng is None:
                     rng = self._pending_rng.pop(i, None)
                 self._streams[i].end_open()
-                self._begin(i, None, None, rng, obs_rows[i], info, now)
+                self._begin(i, None, None, rng, obs_rows[i], info, now, None, unmasked)
                 continue
-            if mode is AutoresetMode.SAME_STEP and (term_list[i] or trunc_list[i]):
+            if unmasked is not None:
+                streams[i].note_next_row([unmasked])
+            if mode is AutoresetMode.SAME_STEP and ended[i]:
                 if isinstance(info, Mapping):
                     final = info.get("final_info")
                     step_info = final if isinstance(final, Mapping) else _EMPTY
@@ -696,15 +840,107 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
                     "cannot be read from outside; wrap the sub-envs in episode_audit.ResetRngInfo "
                     "(gym.make_vec(..., wrappers=[ResetRngInfo])) to make such episodes replayable"
                 )
-                self._begin(i, None, None, rng, obs_rows[i], reset_info, now, why)
+                self._begin(i, None, None, rng, obs_rows[i], reset_info, now, why, unmasked)
                 continue
             streams[i].step(
                 act_rows[i], (obs_rows[i], reward_list[i], term_list[i], trunc_list[i], info)
             )
 
     def _on_step_error(self, exc: Exception) -> None:
+        """The vector step raised ``exc``: end the open episodes as ``error`` (``step``).
+
+        An autoreset that raised is first recorded where it belongs (:meth:`_failed_autoresets`).
+        """
         self._idle = None
+        try:
+            self._drain()
+            self._failed_autoresets(exc)
+        except Exception as trouble:  # the loop sees the env's error, not the recorder's
+            self._file.trouble(trouble)
         self._file.end_with_error(self._streams, exc, "step")
+
+    def _failed_autoresets(self, exc: Exception) -> None:
+        """Record the autoresets of the step that raised ``exc`` that failed, as failed resets.
+
+        Each becomes an episode of its sub-env ended ``error`` during ``reset`` (as a single env's
+        ``reset()`` that raised), with the RNG state the reset started from.
+
+        - ``NEXT_STEP``: the step was to reset the sub-envs whose episodes ended on the step
+          before (those episodes have their endings already). Which one raised is known for a
+          ``SyncVectorEnv`` (by :class:`ResetRngInfo`, else the sub-env whose ``reset`` is in
+          the exception's traceback); otherwise every one of them gets the error. The sub-envs
+          not recorded so stay due for their autoreset (a ``SyncVectorEnv`` retries it on its
+          next step), from their RNG states read again.
+        - ``SAME_STEP``: the reset ran after the step that ended the episode, and that step's
+          result never left the vector env; :class:`ResetRngInfo` (installed on a
+          ``SyncVectorEnv``'s sub-envs by default) kept it: the step is recorded (the episode's
+          true ending), then the failed reset. Without it the episode ends ``error`` like the
+          others.
+        """
+        mode = self._mode
+        if mode is AutoresetMode.DISABLED:
+            return
+        failed = self._wrapper_failures(exc)
+        if mode is AutoresetMode.SAME_STEP:
+            for i, (state, last) in failed.items():
+                if last is not None:
+                    self._streams[i].step(*last)
+                    self._begin_failed(i, None, None, state, exc)
+            return
+        resetting = self._resetting
+        if not resetting:
+            return
+        if not failed:
+            raiser = self._sync_raiser(exc)
+            if raiser is None:  # not known: every autoreset of the step may have raised
+                failed = dict.fromkeys(resetting, (None, None))
+            elif raiser[1] == "reset":
+                failed = {raiser[0]: (None, None)}
+        for i in resetting:
+            if i in failed:
+                state = failed[i][0]
+                if state is None:
+                    state = self._pending_rng.get(i)
+                self._begin_failed(i, None, None, state, exc)
+        if self._sync is not None and not self._rng_in_info:
+            self._pending_rng = self._capture(resetting)  # a failed step may have drawn
+
+    def _wrapper_failures(self, exc: Exception) -> dict[int, tuple[Any, Any]]:
+        """The sub-envs whose :class:`ResetRngInfo` saw its reset raise ``exc`` (Sync only).
+
+        ``{i: (RNG state before the reset, (action, result) of the step before it)}``.
+        """
+        out: dict[int, tuple[Any, Any]] = {}
+        if self._sync is None:
+            return out
+        for i, sub in enumerate(self._sync.envs):
+            wrapper = _rng_wrapper(sub)
+            if wrapper is None:
+                continue
+            failed = wrapper._failed_reset
+            if failed is not None and failed[0] is exc:
+                out[i] = (failed[1], failed[2])
+                wrapper._failed_reset = None
+        return out
+
+    def _sync_raiser(self, exc: Exception) -> tuple[int, str] | None:
+        """The ``SyncVectorEnv`` sub-env whose ``reset`` or ``step`` raised ``exc``, if known.
+
+        The sub-env's own method is in the exception's traceback (the vector env calls it).
+        """
+        if self._sync is None:
+            return None
+        envs = {id(env): i for i, env in enumerate(self._sync.envs)}
+        tb = exc.__traceback__
+        while tb is not None:
+            frame = tb.tb_frame
+            name = frame.f_code.co_name
+            if name in ("reset", "step"):
+                i = envs.get(id(frame.f_locals.get("self")))
+                if i is not None:
+                    return i, name
+            tb = tb.tb_next
+        return None
 
     def flush(self) -> None:
         """Write everything recorded so far to the file now."""
@@ -762,9 +998,14 @@ def _reset_targets(options: Any, n: int) -> tuple[list[int], Any]:
     return [int(i) for i in indices], recorded
 
 
-def _has_rng_info(env: Any) -> bool:
+def _rng_wrapper(env: Any) -> ResetRngInfo | None:
+    """The outermost :class:`ResetRngInfo` around ``env``, if any."""
     while isinstance(env, gym.Wrapper):
         if isinstance(env, ResetRngInfo):
-            return True
+            return env
         env = env.env
-    return False
+    return None
+
+
+def _has_rng_info(env: Any) -> bool:
+    return _rng_wrapper(env) is not None

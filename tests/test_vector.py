@@ -30,7 +30,6 @@ from episode_audit import (
     report,
 )
 from episode_audit.cli import app
-from episode_audit.vector import _sub_info
 
 N = 4
 STEPS = 2000
@@ -309,15 +308,27 @@ def test_terms_and_endings_come_from_each_sub_envs_info(tmp_path: Path) -> None:
         }
 
 
-def test_sub_info_picks_one_sub_envs_values() -> None:
+def test_env_infos_picks_one_sub_envs_values() -> None:
+    from episode_audit.vector import _env_infos
+
     infos = {
         "a": np.array([1.0, 2.0]),
         "_a": np.array([True, False]),
         "d": {"x": np.array([0, 7]), "_x": np.array([False, True])},
         "_d": np.array([False, True]),
     }
-    assert _sub_info(infos, 0) == {"a": 1.0}
-    assert _sub_info(infos, 1) == {"d": {"x": 7}}
+    assert _env_infos(infos, 2) == ([{"a": 1.0}, {"d": {"x": 7}}], None)
+    # no masks (a vector env of one's own): present for every sub-env, and said so
+    unmasked = {"s": np.array([True, False]), "t": {"u": [1, 2]}, "level": "hard", "_x": 5}
+    subs, why = _env_infos(unmasked, 2)
+    assert subs == [
+        {"s": True, "t": {"u": 1}, "level": "hard", "_x": 5},
+        {"s": False, "t": {"u": 2}, "level": "hard", "_x": 5},
+    ]
+    assert why is not None and why.startswith("info_unmasked: ")
+    assert "s, t.u, level (the same for every sub-env), _x (the same" in why
+    assert _env_infos([{"a": 1}, {}], 2) == ([{"a": 1}, {}], None)
+    assert _env_infos("oops", 2) == (["oops", "oops"], None)
 
 
 def test_misuse_raises_and_bad_input_does_not(tmp_path: Path) -> None:
@@ -716,3 +727,295 @@ def test_reset_arguments_the_vector_env_rejects_change_no_episode(
         ("incomplete", 2, 1),
     ]
     assert _codes(path) <= {"incomplete_episode", "missing_env_spec", "missing_terms"}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_time_limit_without_a_spec_is_found_on_async_sub_envs_too(
+    tmp_path: Path, kind: str
+) -> None:
+    """An AsyncVectorEnv's workers are asked only when every one has a TimeLimit: a worker asked
+    for an attribute its env lacks raises, and dies (mixed sub-envs: the limit is unknown)."""
+    from gymnasium.vector import AsyncVectorEnv
+    from gymnasium.wrappers import TimeLimit
+
+    def limited() -> Any:
+        return TimeLimit(_Quiet(ends=False), 2)
+
+    def unlimited() -> Any:
+        return _Quiet(ends=False)
+
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    for fns, want in (
+        ([limited, limited], [(0, "time_limit"), (1, "time_limit")]),
+        ([limited, unlimited], [(0, "time_limit" if kind == "sync" else "external")]),
+    ):
+        path = tmp_path / "limit.mcap"
+        with RecordVectorEvidence(make(fns), path, overwrite=True) as rec:
+            rec.reset(seed=0)
+            for _ in range(4):  # 2 steps, the autoreset, a step (every worker still alive)
+                rec.step(np.zeros(2, np.int64))
+        episodes = open_evidence(path).episodes().to_pylist()
+        ended = [e for e in episodes if e["outcome"] != "incomplete"]
+        assert [(e["env_index"], e["truncation_reason"]) for e in ended] == want
+
+
+# ---------------------------------------------------------------- info without masks
+
+
+class _NoMaskVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
+    """A vector env of its own whose info has values but no ``_key`` masks (Gymnasium's vector
+    envs add them; one's own may not): reward terms on every step; on the 3rd, which ends both
+    episodes, success for sub-env 0 and a failure label for sub-env 1."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self) -> None:
+        from gymnasium.vector.utils import batch_space
+
+        self.num_envs = 2
+        self.single_observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+        self.single_action_space = gym.spaces.Discrete(2)
+        self.observation_space = batch_space(self.single_observation_space, 2)
+        self.action_space = batch_space(self.single_action_space, 2)
+        self.t = 0
+
+    def reset(self, *, seed: Any = None, options: Any = None) -> Any:
+        self.t = 0
+        return np.zeros((2, 2), np.float32), {}
+
+    def step(self, actions: Any) -> Any:
+        self.t += 1
+        done = self.t == 3
+        info: dict[str, Any] = {"reward_terms": {"alive": np.ones(2), "bonus": [0.5, 0.0]}}
+        if done:
+            info["success"] = np.array([True, False])
+            info["failure"] = [None, "fell"]
+        self.t %= 4  # NEXT_STEP: the 4th step is the autoreset
+        return np.zeros((2, 2), np.float32), np.array([1.5, 1.0]), np.full(2, done), [0, 0], info
+
+
+def test_info_without_masks_is_read_for_every_sub_env_and_noted(tmp_path: Path) -> None:
+    path = tmp_path / "nomask.mcap"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        with RecordVectorEvidence(_NoMaskVec(), path, ending_rules=None) as rec:
+            rec.reset(seed=0)
+            for _ in range(4):
+                rec.step(np.zeros(2, np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    ended = [e for e in episodes if e["outcome"] != "incomplete"]
+    assert [(e["env_index"], e["outcome"], e["failure_label"]) for e in ended] == [
+        (0, "success", None),
+        (1, "failure", "fell"),
+    ]
+    assert [dict(e["term_totals"]) for e in ended] == [
+        {"alive": 3.0, "bonus": 1.5},
+        {"alive": 3.0, "bonus": 0.0},
+    ]
+    # every row read from such an info says so: 3 steps each, then the autoresets' reset rows
+    noted = {k: v for k, v in _noted(path).items() if k[1] != "rng_state_unavailable"}
+    assert noted == {
+        (0, "info_unmasked"): 3,
+        (1, "info_unmasked"): 3,
+        (2, "info_unmasked"): 1,
+        (3, "info_unmasked"): 1,
+    }
+    findings = check([path]).findings
+    (why,) = {f.message.split(": ", 1)[1] for f in findings if f.code.endswith("info_unmasked")}
+    assert "'_<key>' mask" in why and "reward_terms.alive, reward_terms.bonus" in why
+    assert not {"missing_terms", "unlabeled_failure"} & {f.code for f in findings}
+
+
+# ---------------------------------------------------------------- flags that are not bools
+
+
+class _FlagVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
+    """A vector env of its own whose ``terminated`` on its 2nd step is ``flags`` as given."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.DISABLED}
+
+    def __init__(self, flags: Any) -> None:
+        from gymnasium.vector.utils import batch_space
+
+        self.num_envs = 2
+        self.single_observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+        self.single_action_space = gym.spaces.Discrete(2)
+        self.observation_space = batch_space(self.single_observation_space, 2)
+        self.action_space = batch_space(self.single_action_space, 2)
+        self.flags = flags
+        self.t = 0
+
+    def reset(self, *, seed: Any = None, options: Any = None) -> Any:
+        self.t = 0
+        return np.zeros((2, 2), np.float32), {}
+
+    def step(self, actions: Any) -> Any:
+        self.t += 1
+        term = self.flags if self.t == 2 else np.zeros(2, np.bool_)
+        return np.zeros((2, 2), np.float32), np.ones(2), term, np.zeros(2, np.bool_), {}
+
+
+class _FlagEnv(gym.Env[np.ndarray, np.int64]):
+    """One sub-env of :class:`_FlagVec`: ``terminated`` on its 2nd step is ``flag``."""
+
+    observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, flag: Any) -> None:
+        self.flag = flag
+        self.t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        return np.zeros(2, np.float32), 1.0, self.flag if self.t == 2 else False, False, {}
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [["False", False], np.array([1, 0]), np.array(["False", ""]), [np.array([1, 2]), True]],
+    ids=["text-list", "int-array", "str-array", "no-truth-value"],
+)
+def test_flags_that_are_not_bools_are_noted_like_the_single_env_recorder(
+    tmp_path: Path, flags: Any
+) -> None:
+    from episode_audit import RecordEvidence
+
+    path = tmp_path / "flags.mcap"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        with RecordVectorEvidence(_FlagVec(flags), path) as rec:
+            rec.reset(seed=0)
+            for _ in range(2):
+                rec.step(np.zeros(2, np.int64))
+    ev = open_evidence(path)
+    episodes = ev.episodes().to_pylist()
+    steps = ev.steps(columns=["episode", "step", "notes"]).to_pylist()
+    for i in range(2):
+        single = tmp_path / f"single-{i}.mcap"
+        with RecordEvidence(_FlagEnv(list(flags)[i]), single) as env:
+            env.reset(seed=0)
+            for _ in range(2):
+                env.step(0)
+        want_ep = open_evidence(single).episodes().to_pylist()[0]
+        (got_ep,) = [e for e in episodes if e["env_index"] == i]
+        keys = ["outcome", "failure_label", "terminated", "length"]
+        assert [got_ep[k] for k in keys] == [want_ep[k] for k in keys], i
+
+        def codes(rows: list[dict[str, Any]]) -> list[tuple[int, list[str]]]:
+            return [
+                (r["step"], [n.split(":")[0] for n in json.loads(r["notes"])])
+                for r in rows
+                if r["notes"]
+            ]
+
+        want = codes(open_evidence(single).steps(columns=["step", "notes"]).to_pylist())
+        got = codes([r for r in steps if r["episode"] == got_ep["episode"]])
+        assert got == want, i
+    assert any(n for n in _noted(path) if n[1] == "flags_not_bool")
+
+
+# ---------------------------------------------------------------- an autoreset that raises
+
+
+class _ResetBomb(gym.Env[np.ndarray, np.int64]):
+    """Terminates on its ``length``-th step; a reset without a seed raises (kept in ``raised``)."""
+
+    observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+    raised: list[BaseException] = []
+
+    def __init__(self, length: int) -> None:
+        self.length = length
+        self.t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        if seed is None:
+            self.np_random.uniform()  # the failed reset draws
+            exc = ValueError("reset refused")
+            _ResetBomb.raised.append(exc)
+            raise exc
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        return np.zeros(2, np.float32), 1.0, self.t == self.length, False, {}
+
+
+def _bombs(kind: str, mode: str) -> Any:
+    from gymnasium.vector import AsyncVectorEnv
+
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    return make([lambda: _ResetBomb(3), lambda: _ResetBomb(5)], autoreset_mode=mode)
+
+
+@pytest.mark.parametrize(
+    ("kind", "mode"), [("sync", "NextStep"), ("async", "NextStep"), ("sync", "SameStep")]
+)
+def test_an_autoreset_that_raises_is_a_failed_reset_after_the_true_ending(
+    tmp_path: Path, kind: str, mode: str
+) -> None:
+    """As a single env's reset() that raised: an episode ended ``error`` during ``reset``; the
+    episode before it keeps its ending (SAME_STEP: its last step, kept by ResetRngInfo); the
+    loop gets the env's exception."""
+    path = tmp_path / "bomb.mcap"
+    rec = RecordVectorEvidence(_bombs(kind, mode), path)
+    rec.reset(seed=0)
+    _ResetBomb.raised.clear()
+    steps = 4 if mode == "NextStep" else 3  # sub-env 0 ends on step 3 and resets on step 4 / 3
+    for _ in range(steps - 1):
+        rec.step(np.zeros(2, np.int64))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # AsyncVectorEnv logs the worker's error
+        with pytest.raises(ValueError, match="reset refused") as raised:
+            rec.step(np.zeros(2, np.int64))
+    if kind == "sync":
+        assert raised.value is _ResetBomb.raised[-1]  # the env's own exception, untouched
+    rec.close()
+    episodes = open_evidence(path).episodes().to_pylist()
+    got = [
+        (e["env_index"], e["outcome"], e["length"], e["terminated"], e["error_during"])
+        for e in episodes
+    ]
+    assert sorted(got) == [
+        (0, "error", 0, False, "reset"),
+        (0, "failure", 3, True, None),
+        # the step raised while sub-env 1's episode ran (as any error in a vector step)
+        (1, "error", steps - 1, False, "step"),
+    ]
+    (failed,) = [e for e in episodes if e["error_during"] == "reset"]
+    assert failed["error_message"] == "reset refused" and failed["seed"] is None
+    assert failed["rng_state"] is not None  # the state the failed reset started from
+    assert "error_episode" in _codes(path)
+
+
+def test_after_a_failed_autoreset_the_sync_vector_env_goes_on(tmp_path: Path) -> None:
+    """NEXT_STEP SyncVectorEnv: the sub-env is still due for its autoreset; the loop resets."""
+    path = tmp_path / "bomb-on.mcap"
+    with RecordVectorEvidence(_bombs("sync", "NextStep"), path) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            rec.step(np.zeros(2, np.int64))
+        for _ in range(2):  # the autoreset is tried again, and raises again
+            with pytest.raises(ValueError, match="reset refused"):
+                rec.step(np.zeros(2, np.int64))
+        rec.reset(seed=7)
+        rec.step(np.zeros(2, np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    episodes.sort(key=lambda e: e["episode"])
+    assert [(e["env_index"], e["outcome"], e["length"], e["seed"]) for e in episodes] == [
+        (0, "failure", 3, 0),
+        (1, "error", 3, 1),
+        (0, "error", 0, None),
+        (0, "error", 0, None),
+        (0, "incomplete", 1, 7),
+        (1, "incomplete", 1, 8),
+    ]
+    # each failed reset started from the state the sub-env was in then (the first one drew)
+    first, second = [e["rng_state"] for e in episodes[2:4]]
+    assert first is not None and second is not None and first != second
