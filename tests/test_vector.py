@@ -558,13 +558,10 @@ def _noted(path: Path) -> Counter[tuple[int, str]]:
     )
 
 
-class _ListVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
-    """A vector env of its own (no sub-envs) whose results are Python lists; sub-env 1's reward
-    is ``bad`` on the 3rd step, which ends both episodes."""
+class _TwoEnvVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
+    """A vector env of its own (no sub-envs) of two sub-envs: zero observations, counting steps."""
 
-    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}
-
-    def __init__(self, bad: Any) -> None:
+    def __init__(self) -> None:
         from gymnasium.vector.utils import batch_space
 
         self.num_envs = 2
@@ -572,12 +569,22 @@ class _ListVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
         self.single_action_space = gym.spaces.Discrete(2)
         self.observation_space = batch_space(self.single_observation_space, 2)
         self.action_space = batch_space(self.single_action_space, 2)
-        self.bad = bad
         self.t = 0
 
     def reset(self, *, seed: Any = None, options: Any = None) -> Any:
         self.t = 0
         return np.zeros((2, 2), np.float32), {}
+
+
+class _ListVec(_TwoEnvVec):
+    """Results as Python lists; sub-env 1's reward is ``bad`` on the 3rd step, which ends both
+    episodes."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, bad: Any) -> None:
+        super().__init__()
+        self.bad = bad
 
     def step(self, actions: Any) -> Any:
         self.t += 1
@@ -762,26 +769,12 @@ def test_a_time_limit_without_a_spec_is_found_on_async_sub_envs_too(
 # ---------------------------------------------------------------- info without masks
 
 
-class _NoMaskVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
-    """A vector env of its own whose info has values but no ``_key`` masks (Gymnasium's vector
-    envs add them; one's own may not): reward terms on every step; on the 3rd, which ends both
-    episodes, success for sub-env 0 and a failure label for sub-env 1."""
+class _NoMaskVec(_TwoEnvVec):
+    """Its info has values but no ``_key`` masks (Gymnasium's vector envs add them; one's own
+    may not): reward terms on every step; on the 3rd, which ends both episodes, success for
+    sub-env 0 and a failure label for sub-env 1."""
 
     metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}
-
-    def __init__(self) -> None:
-        from gymnasium.vector.utils import batch_space
-
-        self.num_envs = 2
-        self.single_observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
-        self.single_action_space = gym.spaces.Discrete(2)
-        self.observation_space = batch_space(self.single_observation_space, 2)
-        self.action_space = batch_space(self.single_action_space, 2)
-        self.t = 0
-
-    def reset(self, *, seed: Any = None, options: Any = None) -> Any:
-        self.t = 0
-        return np.zeros((2, 2), np.float32), {}
 
     def step(self, actions: Any) -> Any:
         self.t += 1
@@ -829,25 +822,14 @@ def test_info_without_masks_is_read_for_every_sub_env_and_noted(tmp_path: Path) 
 # ---------------------------------------------------------------- flags that are not bools
 
 
-class _FlagVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
-    """A vector env of its own whose ``terminated`` on its 2nd step is ``flags`` as given."""
+class _FlagVec(_TwoEnvVec):
+    """``terminated`` on its 2nd step is ``flags`` as given."""
 
     metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.DISABLED}
 
     def __init__(self, flags: Any) -> None:
-        from gymnasium.vector.utils import batch_space
-
-        self.num_envs = 2
-        self.single_observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
-        self.single_action_space = gym.spaces.Discrete(2)
-        self.observation_space = batch_space(self.single_observation_space, 2)
-        self.action_space = batch_space(self.single_action_space, 2)
+        super().__init__()
         self.flags = flags
-        self.t = 0
-
-    def reset(self, *, seed: Any = None, options: Any = None) -> Any:
-        self.t = 0
-        return np.zeros((2, 2), np.float32), {}
 
     def step(self, actions: Any) -> Any:
         self.t += 1
