@@ -81,6 +81,10 @@ _INT64_MIN: Final = -(2**63)
 _INT64_MAX: Final = 2**63 - 1
 _BLOCK_BYTES: Final = 1 << 20
 """Bytes a fresh array buffer preallocates (at most 1024 rows, at least one)."""
+_LARGE_ROW_BYTES: Final = 4096
+_LARGE_BLOCK_BYTES: Final = 32 << 20
+"""… but for rows of at least ``_LARGE_ROW_BYTES``: as many rows as this many bytes hold (the
+recorder's blocks of large rows are that size, ``streams.CHUNK_TARGET_BYTES``)."""
 # Up to this many values per row, a column's rows are checked transposed (column by column):
 # numpy's inner loops over 4 values per row run ~10x slower than over a block's rows.
 _NARROW: Final = 16
@@ -144,6 +148,10 @@ def _null_mask_array(length: int, nulls: list[int]) -> _BoolArray | None:
 
 
 def _initial_rows(row_nbytes: int) -> int:
+    if row_nbytes >= _LARGE_ROW_BYTES:
+        # (camera frames) a recorder block's worth at once: numpy's empty block takes memory
+        # only as rows are written into it, and doubling would copy every row again
+        return max(1, _LARGE_BLOCK_BYTES // row_nbytes)
     return max(1, min(1024, _BLOCK_BYTES // max(1, row_nbytes)))
 
 

@@ -185,7 +185,7 @@ class EvidenceWriter:
         sink = pa.BufferOutputStream()
         with pa.ipc.new_stream(sink, batch.schema) as ipc:
             ipc.write_batch(batch)
-        data = sink.getvalue().to_pybytes()
+        data = memoryview(sink.getvalue())  # (the chunk copies it: no bytes copy before that)
         self._add(channel_id, data, log_time)
         return len(data)
 
@@ -194,11 +194,12 @@ class EvidenceWriter:
         self._check_open()
         self._add(channel_id, data, log_time)
 
-    def _add(self, channel_id: int, data: bytes, log_time: int) -> None:
+    def _add(self, channel_id: int, data: bytes | memoryview, log_time: int) -> None:
         self._writer.add_message(
             channel_id=channel_id,
             log_time=log_time,
-            data=data,
+            # (typed bytes, but the chunk builder only writes it to a BytesIO: any buffer does)
+            data=data,  # type: ignore[arg-type]
             publish_time=log_time,
             sequence=self._messages & 0xFFFFFFFF,
         )

@@ -1059,3 +1059,21 @@ def test_from_raw_takes_rows_of_the_space_dtype_and_shape_back_to_back() -> None
     assert discrete.raw_rows is None
     with pytest.raises(NotImplementedError, match="has no raw rows"):
         discrete.from_raw(b"")
+
+
+def test_a_buffer_of_camera_frames_takes_a_recorder_block_without_growing() -> None:
+    # Doubling a block of 720 kB rows copies every row again at each step; a large-row buffer
+    # starts with a recorder block's worth (numpy commits the memory only as rows arrive).
+    codec = codec_for(spaces.Box(0, 255, shape=(400, 600, 3), dtype=np.uint8))
+    buffer = codec.new_buffer()
+    block = buffer._data  # type: ignore[attr-defined]
+    frame = np.zeros((400, 600, 3), np.uint8)
+    rows = (32 << 20) // frame.nbytes  # what the recorder puts in one block of such rows
+    for i in range(rows):
+        frame[0, 0, 0] = i
+        buffer.append(frame)
+    assert buffer._data is block  # type: ignore[attr-defined]
+    column = buffer.finish()
+    assert len(column) == rows and column[rows - 1].values[0].as_py() == rows - 1
+    # small rows keep their small first block
+    assert len(codec_for(spaces.Box(-1, 1, (4,))).new_buffer()._data) == 1024  # type: ignore[attr-defined]
