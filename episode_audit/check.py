@@ -1266,16 +1266,20 @@ def check_evidence(
     atol: float = 1e-6,
     rtol: float = 1e-6,
     require_terms: bool = False,
+    ignore: Iterable[str] = (),
 ) -> list[Finding]:
     """Check one open evidence file and return its findings (see the module docstring).
 
     A step's terms match its reward when ``|reward - (sum(terms) + sum(constants))| <= atol +
     rtol * |reward|``, the constants being those declared in the file
     (``ev.run.reward_terms["constants"]``). With ``require_terms`` steps without terms are an
-    error instead of a warning.
+    error instead of a warning. Findings whose code is in ``ignore`` are left out, as in
+    :func:`check`.
     """
     _check_options(atol, rtol)
-    return _FileCheck(ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=None).run()
+    ignored = ignored_codes(ignore)
+    found = _FileCheck(ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=None).run()
+    return [f for f in found if not is_ignored(f.code, ignored)]
 
 
 def check(

@@ -65,6 +65,23 @@ def _space(description: Any) -> Space[Any] | None:
         return None
 
 
+def _digest_min_bytes(recorder: Any) -> int | None:
+    """The recorder's ``digest_min_bytes`` setting (``None``: every array stored whole)."""
+    value = recorder.get("digest_min_bytes") if isinstance(recorder, dict) else None
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def _observation_text(description: Any, data: dict[str, Any]) -> str:
+    text = space_text(description)
+    limit = data.get("observation_digest_min_bytes")
+    if limit is None:
+        return text
+    return (
+        f"{text}; arrays of {limit} bytes or more stored as 16-byte BLAKE2b digests "
+        "(replay compares them, show and export cannot give their values)"
+    )
+
+
 def space_shape_dtype(description: Any) -> tuple[list[int] | None, str | None]:
     """The shape and dtype of a described space, or ``None`` where it has no single one.
 
@@ -213,6 +230,7 @@ def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
         "action_dtype": act_dtype,
         "episode_list": listed,
         "episode_list_omitted": omitted,
+        "observation_digest_min_bytes": _digest_min_bytes(run.recorder),
     }
 
 
@@ -276,7 +294,7 @@ def summary_output(
         ["episodes", data["episodes"]],
         ["steps", data["steps"]],
         ["outcomes", ", ".join(f"{k} {v}" for k, v in data["outcomes"].items())],
-        ["observation space", space_text(ev.run.observation_space)],
+        ["observation space", _observation_text(ev.run.observation_space, data)],
         ["action space", space_text(ev.run.action_space)],
         ["versions", ", ".join(f"{k} {v}" for k, v in data["versions"].items())],
         ["platform", data["platform"]],

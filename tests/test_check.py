@@ -388,6 +388,10 @@ def test_length_mismatch(tmp_path: Path) -> None:
     ev.episodes = lambda: patched  # type: ignore[method-assign]
     finding = _only(check_evidence(ev), "length_mismatch")
     assert (finding.episode, finding.severity) == (1, "error")
+    # the one-file check leaves ignored codes out as check() does
+    assert "length_mismatch" not in [f.code for f in check_evidence(ev, ignore=["length_mismatch"])]
+    with pytest.raises(ConfigurationError, match="ignore: unknown finding code 'length'"):
+        check_evidence(ev, ignore=["length"])
     assert finding.message == (
         "the episode record says 5 steps, the file holds 3 step rows up to its outcome"
     )

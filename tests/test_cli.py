@@ -289,6 +289,23 @@ def test_show_summary_lists_episodes_and_spaces_with_shape_and_dtype() -> None:
         "length": 18,
         "return": 18.0,
     }
+    assert data["observation_digest_min_bytes"] is None
+
+
+def test_show_says_which_observations_are_stored_as_digests(tmp_path: Path) -> None:
+    path = tmp_path / "digests.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path, digest_min_bytes=16) as env:
+        env.reset(seed=0)
+        env.step(0)
+    code, out, _ = run("show", str(path), "--format", "markdown")
+    assert code == 0
+    assert (
+        "| observation space | Box(shape=(4,), dtype=float32); arrays of 16 bytes or more stored "
+        "as 16-byte BLAKE2b digests (replay compares them, show and export cannot give their "
+        "values) |"
+    ) in out
+    code, out, _ = run("show", str(path), "--format", "json")
+    assert json.loads(out)["observation_digest_min_bytes"] == 16
 
 
 def test_show_summary_of_a_long_file_lists_the_first_and_last_episodes(tmp_path: Path) -> None:
