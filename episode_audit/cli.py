@@ -457,7 +457,7 @@ def report(
     # Reading each file's episodes here (they are cached) puts a file damaged past its start
     # with the unreadable ones instead of stopping the report of the others.
     readable, unreadable = _readable(collect(paths), Evidence.episodes)
-    if not readable:
+    if not readable and fmt != "json":  # (JSON is still one document: its unreadable list)
         raise typer.Exit(EXIT_USAGE)
     if games:  # a file without games would count nothing, and every gate would pass
         for path, ev in readable:

@@ -532,6 +532,14 @@ def test_json_names_the_unreadable_inputs_as_stderr_does(tmp_path: Path, command
     assert unreadable[0]["why"].startswith("not an MCAP file"), unreadable
     code, out, err = run(command, "fixtures/clean.mcap", "-f", "json")
     assert code == 0 and err == "" and json.loads(out)["unreadable"] == []
+    # nothing readable at all: still one JSON document, naming them (exit 2)
+    code, out, err = run(command, str(bad), "-f", "json")
+    assert code == 2 and [u["file"] for u in json.loads(out)["unreadable"]] == [str(bad)]
+    # (a table has nothing to show: only the error line)
+    code, out, err = run(command, str(bad))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    if command == "report":
+        assert out == ""
 
 
 def test_export_says_an_input_is_unfinished(tmp_path: Path) -> None:
