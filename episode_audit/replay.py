@@ -82,7 +82,7 @@ from .reader import Evidence, open_evidence
 from .recorder import library_versions
 from .records import RunInfo, from_json
 from .seeding import restore_rng_state
-from .spaces import SpaceCodec
+from .spaces import SpaceCodec, equal_elements
 
 __all__ = [
     "Divergence",
@@ -350,13 +350,12 @@ def _gymnasium_wrapper(wrapper: Mapping[str, Any]) -> bool:
 
 
 def _short(value: Any) -> str:
-    if isinstance(value, np.ndarray):
-        if value.size > 16:  # (a camera frame's list would be millions of characters)
-            text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
-            text = " ".join(text.split())
-            return text if len(text) <= 80 else text[:77] + "..."
-        value = value.tolist()
-    text = repr(value)
+    if isinstance(value, np.ndarray) and value.size > 16:
+        # (a camera frame's list would be millions of characters)
+        text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
+        text = " ".join(text.split())
+    else:
+        text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
     return text if len(text) <= 80 else text[:77] + "..."
 
 
@@ -392,17 +391,7 @@ def _first_difference(expected: Any, got: Any, atol: float, path: str = "") -> s
     if got.dtype.kind not in "biuf":
         return None
     a, b = expected.reshape(-1), got.reshape(-1)
-    if a.dtype == b.dtype:
-        bits = np.dtype(f"u{a.dtype.itemsize}")
-        same = a.view(bits) == b.view(bits)
-    else:
-        same = a == b
-    if a.dtype.kind == "f" or b.dtype.kind == "f":
-        same |= np.isnan(a) & np.isnan(b)
-    if atol > 0.0:
-        with np.errstate(all="ignore"):
-            same |= np.abs(a.astype(np.float64) - b.astype(np.float64)) <= atol
-    differ = np.flatnonzero(~same)
+    differ = np.flatnonzero(~equal_elements(a, b, atol))
     if differ.size == 0:
         return None
     first = int(differ[0])

@@ -63,6 +63,7 @@ __all__ = [
     "SpaceCodec",
     "codec_for",
     "describe_space",
+    "equal_elements",
     "space_from_description",
 ]
 
@@ -898,20 +899,40 @@ class _ArrayCodec(SpaceCodec):
     ) -> tuple[_BoolArray, _FloatArray]:
         n = len(a)
         bits = np.dtype(f"u{self._dtype.itemsize}")
-        same = a.view(bits) == b.view(bits)
-        if same.all():  # the usual case: one reduction over the block, none per row
+        if (a.view(bits) == b.view(bits)).all():  # the usual case: one reduction, none per row
             return np.ones(n, dtype=np.bool_), np.zeros(n, dtype=np.float64)
-        if self._dtype.kind == "f":
-            same |= np.isnan(a) & np.isnan(b)
+        same = equal_elements(a, b)
         with np.errstate(all="ignore"):
             diff = np.abs(a.astype(np.float64) - b.astype(np.float64))
         diff[same] = 0.0
         diff[np.isnan(diff)] = np.inf
         if atol > 0.0:
             same |= diff <= atol
-        equal: _BoolArray = same.all(axis=1)
+        equal: _BoolArray = np.asarray(same.all(axis=1), dtype=np.bool_)
         max_diff: _FloatArray = diff.max(axis=1, initial=0.0)
         return equal, max_diff
+
+
+def equal_elements(a: npt.NDArray[Any], b: npt.NDArray[Any], atol: float = 0.0) -> _BoolArray:
+    """Element by element, whether two numeric arrays of one shape are equal as compared.
+
+    Bitwise when their dtypes agree (else by value), NaN equal to NaN, or within ``atol``.
+
+    >>> a, b = np.array([0.0, np.nan, 1.0]), np.array([-0.0, np.nan, 1.25])
+    >>> equal_elements(a, b).tolist(), equal_elements(a, b, 0.5).tolist()
+    ([False, True, False], [True, True, True])
+    """
+    if a.dtype == b.dtype:
+        bits = np.dtype(f"u{a.dtype.itemsize}")
+        same: _BoolArray = a.view(bits) == b.view(bits)
+    else:
+        same = np.asarray(a == b, dtype=np.bool_)
+    if a.dtype.kind == "f" or b.dtype.kind == "f":
+        same |= np.isnan(a) & np.isnan(b)
+    if atol > 0.0:
+        with np.errstate(all="ignore"):
+            same |= np.abs(a.astype(np.float64) - b.astype(np.float64)) <= atol
+    return same
 
 
 class _DigestCodec(SpaceCodec):

@@ -708,8 +708,8 @@ class EvidenceFile:
                 "steps": str(self.counts["steps"]),
                 "blocks": str(self.counts["blocks"]),
                 "end_time": datetime.now(timezone.utc).isoformat(),
+                fmt.RUN_END_SUCCESS_REPORTED: str(self.counts["success_reported"]),
             }
-            run_end[fmt.RUN_END_SUCCESS_REPORTED] = str(self.counts["success_reported"])
             if self.troubles:
                 run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
                 run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")

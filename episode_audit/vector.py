@@ -371,7 +371,7 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         self._sync_unwrapped = [] if self._sync is None else [e.unwrapped for e in self._sync.envs]
         if self._mode is AutoresetMode.SAME_STEP and self._sync is not None and install_rng_info:
             for i, sub in enumerate(self._sync.envs):
-                if not _has_rng_info(sub):
+                if _rng_wrapper(sub) is None:
                     self._sync.envs[i] = ResetRngInfo(sub)
             self._rng_in_info = True
         obs_space, act_space = env.single_observation_space, env.single_action_space
@@ -1005,7 +1005,3 @@ def _rng_wrapper(env: Any) -> ResetRngInfo | None:
             return env
         env = env.env
     return None
-
-
-def _has_rng_info(env: Any) -> bool:
-    return _rng_wrapper(env) is not None
