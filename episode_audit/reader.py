@@ -74,6 +74,9 @@ try:  # zlib-ng's CRC-32 (the same checksum) runs ~4x faster than the system zli
 except ImportError:  # pragma: no cover - a platform without zlib-ng wheels
     from zlib import crc32 as _crc32
 
+_ARROW_ZSTD = pa.Codec.is_available("zstd")
+"""Whether this pyarrow decompresses zstd (PyPI's wheels do); else ``zstandard`` does."""
+
 __all__ = [
     "EPISODE_COLUMNS",
     "ChunkContents",
@@ -377,7 +380,7 @@ class Evidence:
 
     def _decoded(
         self, refs: Sequence[_ChunkRef], *, ahead: bool, want: frozenset[int] | None = None
-    ) -> Iterator[tuple[_ChunkRef, tuple[bytes, list[int] | None]]]:
+    ) -> Iterator[tuple[_ChunkRef, tuple[memoryview, list[int] | None]]]:
         """Yield each chunk's decompressed records and its wanted messages' offsets.
 
         With ``ahead``, a worker thread reads and decompresses ahead.
@@ -391,7 +394,7 @@ class Evidence:
             # One worker: it alone touches ``f``, one chunk after the other. (Two workers were
             # measured slower on 2 cores: they compete with the thread that parses.)
             pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="episode-audit-read")
-            pending: deque[tuple[_ChunkRef, Future[tuple[bytes, list[int] | None]]]] = deque()
+            pending: deque[tuple[_ChunkRef, Future[tuple[memoryview, list[int] | None]]]] = deque()
             in_flight = 0  # decompressed bytes pending
             try:
                 for ref in refs:
@@ -899,9 +902,15 @@ def _raw_chunk(
     return _RawChunk(compression, size, crc, data)
 
 
-def _decompress(raw: _RawChunk, path: Path, offset: int) -> bytes:
-    """Decompress a chunk's records to exactly their declared size and check their CRC."""
+def _decompress(raw: _RawChunk, path: Path, offset: int) -> memoryview:
+    """Decompress a chunk's records to exactly their declared size and check their CRC.
+
+    A zstd chunk is decompressed into Arrow's memory pool, which keeps its pages for the
+    next chunk or file. A Python ``bytes`` object of a chunk's size is given fresh pages by
+    the C allocator each time, and touching them (page faults) cost more than decompressing.
+    """
     size = raw.uncompressed_size
+    data: bytes | memoryview
     try:
         if raw.compression == "zstd":
             declared = zstandard.frame_content_size(raw.data)
@@ -909,18 +918,19 @@ def _decompress(raw: _RawChunk, path: Path, offset: int) -> bytes:
                 raise _damaged(
                     path, offset, f"its zstd frame declares {declared} bytes, the chunk {size}"
                 )
-            data = (
-                zstandard.ZstdDecompressor().decompress(raw.data, max_output_size=size)
-                if size
-                else b""
-            )
+            if not size:
+                data = b""
+            elif _ARROW_ZSTD:  # (it fails unless the frame holds exactly ``size`` bytes)
+                data = memoryview(pa.decompress(raw.data, decompressed_size=size, codec="zstd"))
+            else:
+                data = zstandard.ZstdDecompressor().decompress(raw.data, max_output_size=size)
         elif raw.compression == "lz4":
             decompressor = _lz4_frame(path).LZ4FrameDecompressor()
             data = decompressor.decompress(raw.data, max_length=size) if size else b""
             if size and not decompressor.eof:
                 raise _damaged(path, offset, f"its lz4 frame holds more than {size} bytes")
         else:
-            data = bytes(raw.data)
+            data = raw.data
     except EvidenceError:
         raise
     except Exception as exc:
@@ -929,12 +939,12 @@ def _decompress(raw: _RawChunk, path: Path, offset: int) -> bytes:
         raise _damaged(path, offset, f"it holds {len(data)} bytes, not the declared {size}")
     if raw.uncompressed_crc and _crc32(data) != raw.uncompressed_crc:
         raise _damaged(path, offset, "CRC mismatch")
-    return data
+    return memoryview(data)
 
 
 def _read_and_decompress(
     f: IO[bytes], ref: _ChunkRef, path: Path, want: frozenset[int] | None = None
-) -> tuple[bytes, list[int] | None]:
+) -> tuple[memoryview, list[int] | None]:
     """The chunk's decompressed records and the offsets of the ``want`` channels' messages.
 
     The offsets come from the chunk's message index; ``None`` means: split every record.
@@ -998,7 +1008,7 @@ def _lz4_frame(path: Path) -> Any:
 
 
 def _split(
-    data: bytes,
+    data: bytes | memoryview,
     path: Path,
     offset: int,
     route: dict[int, int] | None,
@@ -1062,7 +1072,7 @@ def _split(
 
 
 def _split_indexed(
-    data: bytes,
+    data: bytes | memoryview,
     view: memoryview,
     route: dict[int, int],
     keep: tuple[bool, ...],
@@ -1102,7 +1112,7 @@ class _Exact(BytesIO):
         return data
 
 
-def _inner_record(kind: Any, body: bytes, path: Path, offset: int, pos: int) -> Any:
+def _inner_record(kind: Any, body: bytes | memoryview, path: Path, offset: int, pos: int) -> Any:
     """Read a Channel or Schema record from its body (trailing bytes are allowed, per MCAP)."""
     try:
         return kind.read(ReadDataStream(_Exact(body)))
@@ -2144,7 +2154,7 @@ def iter_records(
                 try:
                     raw = _read_chunk_record(f, _ChunkRef(pos, 0, 0, 0, 0), p)
                     item: ChunkRecords | DamagedRegion = ChunkRecords(
-                        pos, _chunk_records(_decompress(raw, p, pos), p, pos)
+                        pos, _chunk_records(_decompress(raw, p, pos).tobytes(), p, pos)
                     )
                 except CorruptEvidenceError as exc:
                     if not skip_damaged:

@@ -49,6 +49,7 @@ import os
 from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from io import BytesIO
 from itertools import chain
 from typing import Any, Literal
 
@@ -489,25 +490,33 @@ class _Ran:
 class _Rows:
     """Values of one column as a replay gets them, copied as they come.
 
-    (An env may change an array it returned.) An array of exactly the column's dtype and
-    shape is kept as its raw bytes: the stepping loop appends ``value.tobytes()`` to
-    :attr:`raw` itself. Any other value goes through :meth:`add` and the column's buffer.
+    (An env may change an array it returned.) A C-contiguous array of exactly the column's
+    dtype and shape is kept as its raw bytes: the stepping loop writes it to :attr:`raw`
+    itself (no object per row). Any other value goes through :meth:`add` and the column's
+    buffer.
     """
 
     def __init__(self, codec: SpaceCodec) -> None:
         self.codec = codec
         self.dtype: np.dtype[Any] | None = None
         self.shape: tuple[int, ...] | None = None
+        self._row_bytes = 0
         if codec.raw_rows is not None:
-            self.dtype, self.shape = codec.raw_rows
-        self.raw: list[bytes | None] = []  # None where the row went through add()
+            dtype, shape = codec.raw_rows
+            self._row_bytes = dtype.itemsize * math.prod(shape)
+            if self._row_bytes:  # (rows of no bytes could not be counted)
+                self.dtype, self.shape = dtype, shape
+        self.raw = BytesIO()  # the raw rows, back to back
         self._buffer = codec.new_buffer()
-        self._added: list[int] = []
+        self._added: list[int] = []  # the rows that went through add()
+
+    def __len__(self) -> int:
+        raw = self.raw.tell() // self._row_bytes if self._row_bytes else 0
+        return raw + len(self._added)
 
     def add(self, value: Any) -> None:
         """Add one row through the column's buffer (a null row if it cannot be encoded)."""
-        self._added.append(len(self.raw))
-        self.raw.append(None)
+        self._added.append(len(self))
         try:
             self._buffer.append(value)
         except Exception:  # not encodable (whatever the value raised): a null row
@@ -516,19 +525,22 @@ class _Rows:
     def keep(self, value: Any) -> None:
         """Add one row, whatever it is (the stepping loop inlines the raw case)."""
         if type(value) is np.ndarray and value.dtype is self.dtype and value.shape == self.shape:
-            self.raw.append(value.tobytes())
-        else:
-            self.add(value)
+            try:
+                self.raw.write(value)  # type: ignore[arg-type]  # (an ndarray is a buffer)
+                return
+            except ValueError:  # not C-contiguous
+                pass
+        self.add(value)
 
     def finish(self) -> pa.Array:
         """The column of the rows added so far."""
-        n, added = len(self.raw), self._added
+        n, added = len(self), self._added
         if n and not added:
-            return self.codec.from_raw(b"".join(self.raw))  # type: ignore[arg-type]
+            return self.codec.from_raw(self.raw.getvalue())
         via_buffer = self._buffer.finish()
         if len(added) == n:
             return via_buffer
-        raw = self.codec.from_raw(b"".join([r for r in self.raw if r is not None]))
+        raw = self.codec.from_raw(self.raw.getvalue())
         order = np.empty(n, dtype=np.int64)
         is_added = np.zeros(n, dtype=np.bool_)
         is_added[added] = True
@@ -933,8 +945,9 @@ class _EpisodeRunner:
         limit = None if self.counted is None else self.counted[1]
         env_step = env.step
         got_obs, got_reset = _Rows(self.obs_codec), _Rows(self.obs_codec)
-        keep_raw, keep_other = got_obs.raw.append, got_obs.add
-        keep_raw_reset, keep_reset_other = got_reset.raw.append, got_reset.add
+        keep_raw: Callable[[Any], int] = got_obs.raw.write  # (takes any C-contiguous array)
+        keep_other = got_obs.add
+        keep_reset = got_reset.keep
         raw_dtype, raw_shape, ndarray = got_obs.dtype, got_obs.shape, np.ndarray
         steps = _Steps()
         rewards = steps.rewards
@@ -990,11 +1003,7 @@ class _EpisodeRunner:
                     index, 0, Divergence(None, "reset", "a reset", f"{type(exc).__name__}: {exc}")
                 )
                 continue
-            # got_reset.keep(obs), inlined
-            if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
-                keep_raw_reset(obs.tobytes())
-            else:
-                keep_reset_other(obs)
+            keep_reset(obs)
             stop = start + count
             crash: Divergence | None = None
             if has_nulls:
@@ -1011,9 +1020,12 @@ class _EpisodeRunner:
             try:
                 for action in actions[start:end]:
                     obs, reward, term, trunc, info = env_step(action)
-                    # got_obs.keep(obs), inlined for the common case
+                    # got_obs.keep(obs), inlined
                     if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
-                        keep_raw(obs.tobytes())
+                        try:
+                            keep_raw(obs)
+                        except ValueError:  # not C-contiguous
+                            keep_other(obs)
                     else:
                         keep_other(obs)
                     keep_reward(reward)

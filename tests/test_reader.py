@@ -391,6 +391,23 @@ def test_zstd_frame_larger_than_the_chunk_says_is_refused_before_decompressing(
         open_evidence(path).steps()
 
 
+@pytest.mark.parametrize("arrow", [True, False])
+def test_zstd_chunks_read_the_same_with_either_decompressor(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, arrow: bool
+) -> None:
+    """Arrow's zstd (into its memory pool) where pyarrow has it, else ``zstandard``."""
+    expected = open_evidence(recorded).steps()
+    monkeypatch.setattr(reader_module, "_ARROW_ZSTD", arrow)
+    assert open_evidence(recorded).steps().equals(expected)
+    bad = _patched(recorded.read_bytes(), open_evidence(recorded)._chunks[1].offset + 200, b"\x00")
+    path = tmp_path / "flipped.mcap"
+    path.write_bytes(bytes(bad))
+    with pytest.raises(
+        CorruptEvidenceError, match=r"flipped.mcap: chunk at byte \d+ .*(CRC|ZSTD|zstd|Zstd)"
+    ):
+        open_evidence(path).steps()
+
+
 def test_split_raises_only_corruption_on_garbage(recorded: Path) -> None:
     path = recorded
     ev = open_evidence(path)

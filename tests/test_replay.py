@@ -467,13 +467,16 @@ class Shapeshifter(Counter):
 
     def step(self, action: int) -> Any:
         obs, *rest = super().step(action)
-        kind = self.t % 4
+        kind = self.t % 5
         if kind == 1:
             obs = obs.tolist()
         elif kind == 2:
             obs = obs.astype(np.float32)
         elif kind == 3:
             obs = np.stack([obs, obs])[0]  # a view of a bigger array
+        elif kind == 4:  # the space's dtype and shape, but not C-contiguous
+            obs = np.stack([obs, obs], axis=1)[:, 0]
+            assert obs.shape == (2,) and not obs.flags.c_contiguous
         return (obs, *rest)
 
 
