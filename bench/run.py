@@ -380,12 +380,11 @@ BENCHES: dict[str, Callable[[], Any]] = {
     "vector": lambda: bench_vector(8, 25_000, 7),
     "memory": lambda: bench_memory(1_000_000),
     "check": lambda: bench_check(1_000_000, 5),
-    # interleaved rounds: on a shared VM one round's ratio moves by +-10 %; CartPole's rounds
-    # are short (~0.5 s), so it takes twice as many for a steadier median
+    # 41 interleaved rounds: on a shared VM one round's ratio moves by +-10 %
     "replay": lambda: [
         bench_replay("CartPole-v1", 1000, 41),
-        bench_replay("Reacher-v5", 200, 21),
-        bench_replay("HalfCheetah-v5", 10, 21),
+        bench_replay("Reacher-v5", 200, 41),
+        bench_replay("HalfCheetah-v5", 10, 41),
     ],
 }
 
