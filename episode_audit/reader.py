@@ -910,7 +910,7 @@ def _decompress(raw: _RawChunk, path: Path, offset: int) -> memoryview:
     the C allocator each time, and touching them (page faults) cost more than decompressing.
     """
     size = raw.uncompressed_size
-    data: bytes | memoryview
+    data: bytes | memoryview | pa.Buffer
     try:
         if raw.compression == "zstd":
             declared = zstandard.frame_content_size(raw.data)
@@ -921,7 +921,7 @@ def _decompress(raw: _RawChunk, path: Path, offset: int) -> memoryview:
             if not size:
                 data = b""
             elif _ARROW_ZSTD:  # (it fails unless the frame holds exactly ``size`` bytes)
-                data = memoryview(pa.decompress(raw.data, decompressed_size=size, codec="zstd"))
+                data = pa.decompress(raw.data, decompressed_size=size, codec="zstd")
             else:
                 data = zstandard.ZstdDecompressor().decompress(raw.data, max_output_size=size)
         elif raw.compression == "lz4":
