@@ -127,7 +127,7 @@ def replay_child(kind: str, env_id: str, path: str, warm_path: str) -> None:
     import gymnasium as gym
 
     from episode_audit import open_evidence, replay
-    from episode_audit.replay import _replay_actions, _row_ranges
+    from episode_audit.replay.single import _replay_actions, _row_ranges
 
     ev = open_evidence(path)
     codec = ev.action_codec

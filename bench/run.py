@@ -216,7 +216,7 @@ def big_cartpole_file(steps: int) -> Path:
 
 
 def bench_check(steps: int, rounds: int) -> dict[str, Any]:
-    from episode_audit.check import check
+    from episode_audit.check.core import check
 
     path = big_cartpole_file(steps)
     times = []
@@ -242,7 +242,8 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
     bare: replay against the mean of the two bare runs around it (drift cancels), median of
     the per-round ratios; the two bare runs against each other give the noise floor.
     """
-    from episode_audit.replay import _replay_actions, replay
+    from episode_audit.replay import replay
+    from episode_audit.replay.single import _replay_actions
 
     path = TMP / f"replay-{env_id}.mcap"
     space = gym.make(env_id).action_space

@@ -23,15 +23,19 @@ from .errors import (
     UnsupportedVersionError,
 )
 from .export import export
-from .format import FORMAT_VERSION
-from .outcomes import Ending, EndingRules, RewardTerms
-from .reader import EPISODE_COLUMNS, DamagedRegion, EpisodeEvidence, Evidence, open_evidence
-from .recorder import RecordEvidence
-from .records import EpisodeRanges, RunInfo
+from .format import FORMAT_VERSION, EpisodeRanges, RunInfo
+from .read import EPISODE_COLUMNS, DamagedRegion, EpisodeEvidence, Evidence, open_evidence
+from .record import (
+    Ending,
+    EndingRules,
+    RecordEvidence,
+    RecordVectorEvidence,
+    ResetRngInfo,
+    RewardTerms,
+)
 from .recover import RecoveryResult, recover
 from .replay import ReplayResult, replay
 from .report import Gates, Report, report
-from .vector import RecordVectorEvidence, ResetRngInfo
 
 __all__ = [
     "CheckResult",
@@ -73,7 +77,7 @@ __all__ = [
 ]
 
 # The PettingZoo recorders import pettingzoo (optional): loaded on first access.
-_LAZY = {"RecordAECEvidence": "multiagent", "RecordParallelEvidence": "multiagent"}
+_LAZY = {"RecordAECEvidence": "record.pettingzoo", "RecordParallelEvidence": "record.pettingzoo"}
 
 
 def __getattr__(name: str) -> object:

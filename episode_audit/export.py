@@ -22,7 +22,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from .errors import ConfigurationError, EvidenceError
-from .reader import open_evidence
+from .read.reader import open_evidence
 
 __all__ = ["ExportResult", "export"]
 

@@ -4,7 +4,7 @@ A recorder killed before ``close()`` leaves a file without summary, footer or ru
 and perhaps a partial record at its end. :func:`recover` copies everything before the torn end —
 the run metadata, every complete chunk with its schemas, channels and messages (times and
 sequence numbers kept), chunk by chunk — into a new file through
-:class:`~episode_audit.writer.EvidenceWriter`, which adds the message and chunk indexes, the
+:class:`~episode_audit.record.writer.EvidenceWriter`, which adds the message and chunk indexes, the
 summary and the footer, and a run-end record with ``status=recovered`` saying what was dropped.
 
 A chunk damaged after it was written (a CRC mismatch, a frame that does not decompress) is
@@ -49,10 +49,11 @@ from typing import Any, Literal
 import pyarrow.compute as pc
 from mcap.records import Channel, Header, Message, Metadata, Schema
 
-from . import format as fmt
 from ._version import __version__
 from .errors import ConfigurationError, CorruptEvidenceError, EvidenceError
-from .reader import (
+from .format import names as fmt
+from .format.records import EpisodeRanges, listing
+from .read.reader import (
     _RECOVER_HINT,
     ChunkRecords,
     DamagedRegion,
@@ -62,8 +63,7 @@ from .reader import (
     step_block_rows,
     summary_definitions,
 )
-from .records import EpisodeRanges, listing
-from .writer import EvidenceWriter
+from .record.writer import EvidenceWriter
 
 __all__ = ["RecoveryResult", "recover"]
 
@@ -121,10 +121,10 @@ class RecoveryResult:
         damaged_tail: Damage came after the last intact chunk of an unfinished file: episodes
             that began there left nothing behind, and cannot be counted.
         summary_damage: The input's summary section did not match its footer's CRC (what
-            :attr:`~episode_audit.reader.Evidence.summary_damage` says); the output has a new
+            :attr:`~episode_audit.read.reader.Evidence.summary_damage` says); the output has a new
             one. The summary only repeats the data section: nothing is lost by it.
         run_end_damage: The input's run-end record was garbled (what
-            :attr:`~episode_audit.reader.Evidence.run_end_damage` says); the output has a new
+            :attr:`~episode_audit.read.reader.Evidence.run_end_damage` says); the output has a new
             one. ``close()`` had written every step and end record; the old record's status
             and counts are lost.
     """

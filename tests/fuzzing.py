@@ -55,7 +55,7 @@ if __name__ == "__main__":  # the worker: import the package from this checkout
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from episode_audit import EpisodeAuditError, RecordEvidence, open_evidence
-from episode_audit import format as fmt
+from episode_audit.format import names as fmt
 
 MAGIC = b"\x89MCAP0\r\n"
 OP = {
@@ -577,7 +577,7 @@ def zstd_bomb(data: bytes, rng: random.Random) -> bytes:
     The chunk declares its old size, the frame's size, the reader's cap, 4 GiB or 2**63 - 1
     uncompressed bytes; the frame header has the real size or none.
     """
-    from episode_audit import reader
+    from episode_audit.read import reader
 
     _, chunks = layout(data)
     c = rng.choice([c for c in chunks if c.compression == "zstd"])
@@ -917,7 +917,7 @@ def _call(outcome: Outcome, name: str, fn: Callable[[], Any]) -> Any:
 def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
     """Every library entry point a user can reach with a file."""
     from episode_audit import check, export, recover, replay, report
-    from episode_audit.show import episode_output, summary_output
+    from episode_audit.cli.show import episode_output, summary_output
 
     def reading() -> None:
         ev = open_evidence(path)
@@ -1080,7 +1080,7 @@ def worker(corpus: Path, deadline_s: float) -> None:
 if __name__ == "__main__":
     import os
 
-    from episode_audit import reader as _reader
+    from episode_audit.read import reader as _reader
 
     # The harness runs with a lower cap than the library's 1 GiB default, so that inputs at
     # the cap stay cheap; the bound checked is peak memory against the cap.

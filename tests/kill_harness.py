@@ -13,8 +13,8 @@ kernel sees it, and whether the step ended an episode. Kills land in four ways:
   its message index — after handing a random prefix of that write to the OS;
 - ``close``: the same inside ``close()`` (final chunk, index, run-end record, summary, footer).
 
-The file is the library's own: only ``open`` in ``episode_audit.writer`` is shadowed by one that
-returns a pass-through wrapper of the real file (``_Disk``); unarmed, it changes nothing.
+The file is the library's own: only ``open`` in ``episode_audit.record.writer`` is shadowed by
+one that returns a pass-through wrapper of the real file (``_Disk``); unarmed, it changes nothing.
 
 For each kill :func:`judge` checks: the file reads; it is unfinished (unless ``close()``
 completed); every step written before the last growth of the file (a completed flush) is in it;
@@ -93,7 +93,7 @@ def _log(fd: int, kind: int, n: int, size: int) -> None:
 def _child(cfg: dict[str, Any]) -> None:
     import gymnasium as gym
 
-    import episode_audit.writer as writer_module
+    import episode_audit.record.writer as writer_module
     from episode_audit import RecordEvidence
 
     rng = random.Random(cfg["seed"])

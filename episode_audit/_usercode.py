@@ -1,0 +1,50 @@
+"""Import the code a user names: ``--import``, ``--env-factory``, ``--policy``.
+
+The only place that imports by a computed name, and only names given as arguments, never
+strings read from a file (see ``docs/security.md``).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from .errors import ConfigurationError
+from .format.columns import error_text
+
+__all__ = ["import_modules", "load_callable"]
+
+
+def load_callable(spec: str) -> Callable[..., Any]:
+    """Import ``"module:attribute"`` (given by the user, never by a file) and return it.
+
+    >>> import gymnasium
+    >>> load_callable("gymnasium:make") is gymnasium.make
+    True
+    """
+    module_name, sep, attr = spec.partition(":")
+    if not sep or not module_name or not attr:
+        raise ConfigurationError(f"expected MODULE:CALLABLE, actually: {spec!r}")
+    try:
+        target: Any = importlib.import_module(module_name)
+        for part in attr.split("."):
+            target = getattr(target, part)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigurationError(f"cannot load {spec!r}: {exc}") from None
+    if not callable(target):
+        raise ConfigurationError(f"{spec!r} is not callable")
+    return target  # type: ignore[no-any-return]
+
+
+def import_modules(modules: Sequence[str]) -> None:
+    """Import each module the user named with ``--import`` (e.g. one that registers envs).
+
+    Anything that goes wrong — no such module, an empty name, a module that raises on import —
+    is a :class:`~episode_audit.errors.ConfigurationError` naming the module.
+    """
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except Exception as exc:
+            raise ConfigurationError(f"--import {module!r}: {error_text(exc)}") from None

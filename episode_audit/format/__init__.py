@@ -1,0 +1,14 @@
+"""The evidence file format: the layer every other wing builds on (see ``docs/format.md``).
+
+- :mod:`.names` — topics, encodings, metadata keys, column names, outcomes (spelled once).
+- :mod:`.records` — the run metadata (:class:`RunInfo`), episode record schemas, JSON helpers.
+- :mod:`.columns` — Arrow columns and value helpers shared by the recorder and replay.
+- :mod:`.spaces` — Gymnasium spaces <-> Arrow columns (codecs, buffers, descriptions).
+
+It imports nothing from the other wings.
+"""
+
+from .names import FORMAT_MAJOR, FORMAT_VERSION
+from .records import EpisodeRanges, RunInfo
+
+__all__ = ["FORMAT_MAJOR", "FORMAT_VERSION", "EpisodeRanges", "RunInfo"]

@@ -1,0 +1,32 @@
+"""The record wing: wrappers that write evidence files while an env runs.
+
+Public: :class:`RecordEvidence` (Gymnasium), :class:`RecordVectorEvidence` and
+:class:`ResetRngInfo` (vector envs), ``RecordParallelEvidence`` and ``RecordAECEvidence``
+(PettingZoo, imported on first use), and the rules that read an env's info:
+:class:`RewardTerms`, :class:`EndingRules`, :class:`Ending`.
+"""
+
+from __future__ import annotations
+
+from .gym import RecordEvidence
+from .rules import Ending, EndingRules, RewardTerms
+from .vector import RecordVectorEvidence, ResetRngInfo
+
+__all__ = [
+    "Ending",
+    "EndingRules",
+    "RecordAECEvidence",
+    "RecordEvidence",
+    "RecordParallelEvidence",
+    "RecordVectorEvidence",
+    "ResetRngInfo",
+    "RewardTerms",
+]
+
+
+def __getattr__(name: str) -> object:
+    if name not in ("RecordAECEvidence", "RecordParallelEvidence"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from . import pettingzoo  # imports pettingzoo (optional): only when asked for
+
+    return getattr(pettingzoo, name)

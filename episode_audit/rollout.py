@@ -1,0 +1,157 @@
+"""Record episodes of any registered Gymnasium environment with a built-in or given policy.
+
+The library behind ``episode-audit record``: :func:`record_episodes` makes the env, wraps it in
+:class:`~episode_audit.record.gym.RecordEvidence`, and runs ``episodes`` episodes seeded ``seed``,
+``seed + 1``, ... .
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+
+from ._usercode import import_modules, load_callable
+from .errors import ConfigurationError, RecorderError
+from .format.columns import error_text
+from .record.gym import RecordEvidence
+
+__all__ = ["RecordSummary", "RecordingError", "record_episodes"]
+
+Policy = Callable[[Any], Any]
+
+
+class RecordingError(RecorderError):
+    """The env or the policy raised while recording.
+
+    The file keeps the episode as ``error`` when the env raised, ``incomplete`` when the policy did.
+    """
+
+
+@dataclass
+class RecordSummary:
+    """What :func:`record_episodes` wrote."""
+
+    path: str
+    episodes: int
+    steps: int
+    outcomes: dict[str, int] = field(default_factory=dict)
+
+    def __str__(self) -> str:
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(self.outcomes.items()))
+        return f"recorded {self.episodes} episodes ({self.steps} steps) to {self.path}: {counts}"
+
+
+def _policy(name: str, env: gym.Env[Any, Any], seed: int) -> Policy:
+    if name == "random":
+        space = env.action_space
+        space.seed(seed)
+        return lambda obs: space.sample()
+    if name in ("scripted", "hacker"):
+        from .tasks import make_policy
+
+        return make_policy(name, env, seed=seed)
+    if ":" in name:
+        factory = load_callable(name)
+        try:
+            policy = factory(env, seed)
+        except Exception as exc:
+            raise ConfigurationError(
+                f"--policy {name}: the factory raised {error_text(exc)}"
+            ) from None
+        if not callable(policy):
+            raise ConfigurationError(f"--policy {name}: expected a callable obs -> action")
+        return policy  # type: ignore[no-any-return]
+    raise ConfigurationError(
+        f"--policy: expected random, scripted, hacker or MODULE:CALLABLE, got {name!r}"
+    )
+
+
+def record_episodes(
+    env_id: str,
+    out: str | os.PathLike[str],
+    *,
+    policy: str = "random",
+    episodes: int = 10,
+    seed: int = 0,
+    env_kwargs: Mapping[str, Any] | None = None,
+    max_episode_steps: int | None = None,
+    tags: Mapping[str, str] | None = None,
+    imports: Sequence[str] = (),
+    overwrite: bool = False,
+    on_episode: Callable[[], None] | None = None,
+) -> RecordSummary:
+    """Record ``episodes`` episodes of ``env_id`` to ``out``.
+
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "cp.mcap"
+    >>> summary = record_episodes("CartPole-v1", path, episodes=2, max_episode_steps=5)
+    >>> print(summary)  # doctest: +ELLIPSIS
+    recorded 2 episodes (10 steps) to ...cp.mcap: truncated 2
+    """
+    import_modules(imports)
+    if episodes < 1:
+        raise ConfigurationError(f"--episodes: expected at least 1, got {episodes}")
+    if seed < 0 or seed + episodes > 2**63:
+        raise ConfigurationError(
+            f"--seed: expected 0 <= seed and seed + episodes <= 2**63 (seeds are stored as "
+            f"int64), got {seed}"
+        )
+    if max_episode_steps is not None and max_episode_steps < 1:
+        raise ConfigurationError(
+            f"--max-episode-steps: expected at least 1, got {max_episode_steps}"
+        )
+    kwargs = dict(env_kwargs or {})
+    if max_episode_steps is not None:
+        kwargs["max_episode_steps"] = max_episode_steps
+    try:
+        env = gym.make(env_id, **kwargs)
+    except gym.error.Error as exc:
+        raise ConfigurationError(f"cannot make {env_id!r}: {exc}") from None
+    except Exception as exc:  # the env's own constructor: a bad kwarg, a missing file, ...
+        raise ConfigurationError(
+            f"cannot make {env_id!r} with {kwargs}: {error_text(exc)}"
+        ) from None
+    # Everything that can be wrong with the arguments is found before the file is touched:
+    # a usage error never leaves a file behind, nor replaces one (--overwrite).
+    try:
+        act = _policy(policy, env, seed)
+    except BaseException:
+        env.close()
+        raise
+    run_tags = {"policy": policy, **(tags or {})}
+    outcomes: Counter[str] = Counter()
+    steps = 0
+    with RecordEvidence(env, out, tags=run_tags, overwrite=overwrite) as recorder:
+        path = str(recorder.path)
+        for i in range(episodes):
+            try:
+                obs, _ = recorder.reset(seed=seed + i)
+                while True:
+                    try:
+                        action = act(obs)
+                    except Exception as exc:  # the policy's fault: the env's episode is open
+                        raise RecordingError(
+                            f"episode {i}: the policy raised {error_text(exc)} (the episode is "
+                            f"recorded as incomplete in {path})"
+                        ) from exc
+                    obs, _, terminated, truncated, _ = recorder.step(action)
+                    steps += 1
+                    if terminated or truncated:
+                        break
+            except RecordingError:
+                raise
+            except Exception as exc:
+                raise RecordingError(
+                    f"episode {i}: {error_text(exc)} (the episode is recorded as error in {path})"
+                ) from exc
+            if on_episode is not None:
+                on_episode()
+    from .read.reader import open_evidence
+
+    outcomes.update(open_evidence(path).episodes().column("outcome").to_pylist())
+    return RecordSummary(path, episodes, steps, dict(outcomes))

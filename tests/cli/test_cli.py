@@ -1,0 +1,702 @@
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+from episode_audit import RecordEvidence, open_evidence
+from episode_audit.cli import app
+
+REPO = Path(__file__).resolve().parents[2]
+FIXTURES = REPO / "fixtures"
+GOLDEN = Path(__file__).resolve().parent / "golden"
+runner = CliRunner()
+
+
+@pytest.fixture(autouse=True)
+def _in_repo(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(REPO)
+
+
+def run(*args: str) -> tuple[int, str, str]:
+    result = runner.invoke(app, list(args))
+    if result.exception and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+def cartpole(path: Path, episodes: int = 3, **kwargs: object) -> Path:
+    with RecordEvidence(gym.make("CartPole-v1", **kwargs), path) as env:
+        env.action_space.seed(0)
+        for e in range(episodes):
+            env.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(env.action_space.sample())
+                done = term or trunc
+    return path
+
+
+def test_help_and_version() -> None:
+    code, out, _ = run("--help")
+    assert code == 0
+    for command in ("check", "replay", "report", "show", "export", "record"):
+        assert command in out
+    code, out, _ = run("--version")
+    assert code == 0 and out.startswith("episode-audit ")
+
+
+@pytest.mark.parametrize(
+    "command", ["check", "replay", "report", "show", "export", "record", "recover"]
+)
+def test_help_names_option_values_not_python_types(command: str) -> None:
+    """Options read ``--episode <int>`` and ``--tag <key=value>``, not ``<list[int]>``."""
+    code, out, _ = run(command, "--help")
+    assert code == 0
+    options = out[out.index("Options:") :]
+    assert "<list[" not in options, options
+
+
+def test_check_terms_that_do_not_sum_exit_1_and_name_the_step() -> None:
+    code, out, _ = run("check", "fixtures/terms_mismatch.mcap", "--format", "json")
+    assert code == 1
+    data = json.loads(out)
+    (finding,) = [f for f in data["findings"] if f["code"] == "terms_sum_mismatch"]
+    assert (finding["episode"], finding["step"]) == (1, 3)
+    code, out, _ = run("check", "fixtures/terms_mismatch.mcap")
+    assert code == 1 and "terms_sum_mismatch" in out and "step 3" in out
+
+
+def test_check_clean_file_exit_0() -> None:
+    code, out, _ = run("check", "fixtures/clean.mcap")
+    assert code == 0, out
+
+
+def test_check_strict_fails_on_warnings() -> None:
+    code, _, _ = run("check", "fixtures/unlabeled_failure.mcap")
+    assert code == 0
+    code, _, _ = run("check", "fixtures/unlabeled_failure.mcap", "--strict")
+    assert code == 1
+
+
+def test_check_ignore_leaves_findings_out_of_output_and_exit_code() -> None:
+    code, out, _ = run("check", "fixtures/terms_mismatch.mcap", "--format", "json")
+    assert code == 1
+    before = json.loads(out)
+    mismatches = [f for f in before["findings"] if f["code"] == "terms_sum_mismatch"]
+    assert mismatches and before["ignored"] == 0
+    code, out, _ = run(
+        "check", "fixtures/terms_mismatch.mcap", "--ignore", "terms_sum_mismatch", "-f", "json"
+    )
+    assert code == 0
+    data = json.loads(out)
+    assert data["ok"] is True and data["ignored"] == len(mismatches)
+    assert all(f["code"] != "terms_sum_mismatch" for f in data["findings"])
+    assert data["counts"]["error"] == before["counts"]["error"] - len(mismatches)
+    # --strict: the warnings left fail; ignored too, they do not
+    args = ["check", "fixtures/unlabeled_failure.mcap", "--strict"]
+    assert run(*args)[0] == 1
+    code, out, _ = run(*args, "--ignore", "unlabeled_failure", "--ignore", "missing_terms")
+    assert code == 0
+    assert out.strip().endswith("0 error(s), 0 warning(s), 0 note(s), 2 ignored"), out
+    for fmt in ("table", "markdown"):
+        _, out, _ = run("check", "fixtures/clean.mcap", "-f", fmt)
+        assert "ignored" not in out, fmt
+
+
+def test_check_ignore_of_an_unknown_code_is_a_usage_error_listing_the_known_ones() -> None:
+    from episode_audit.check.core import FINDING_CODES
+
+    code, out, err = run("check", "fixtures/terms_mismatch.mcap", "--ignore", "terms_mismatch")
+    assert code == 2 and out == ""
+    one_error_line(
+        err,
+        "--ignore: unknown finding code 'terms_mismatch'; known codes: "
+        + ", ".join(FINDING_CODES)
+        + " (recorder_note for every recorder note, recorder_note:<code> for one)",
+    )
+
+
+def test_unreadable_file_exit_2_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    for command in ("check", "report", "replay", "show"):
+        code, _, err = run(command, str(bad))
+        assert code == 2, command
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and "bad.mcap" in lines[0] and "Traceback" not in err
+    code, _, err = run("check", str(tmp_path / "missing.mcap"))
+    assert code == 2 and "no such file" in err
+
+
+def test_torn_file_check_reports_unfinished_and_report_counts_episodes() -> None:
+    code, out, _ = run("check", "fixtures/torn.mcap", "--format", "json")
+    assert code == 0
+    codes = {f["code"] for f in json.loads(out)["findings"]}
+    assert "file_unfinished" in codes
+    code, out, _ = run("report", "fixtures/torn.mcap", "--format", "json")
+    assert code == 0
+    (group,) = json.loads(out)["groups"]
+    assert group["episodes"] >= 2 and group["incomplete"] == 1
+    assert group["ended"] == group["episodes"] - 1
+
+
+def test_directories_are_searched(tmp_path: Path) -> None:
+    (tmp_path / "sub").mkdir()
+    shutil.copy(FIXTURES / "clean.mcap", tmp_path / "sub" / "a.mcap")
+    shutil.copy(FIXTURES / "unlabeled_failure.mcap", tmp_path / "b.mcap")
+    code, out, _ = run("report", str(tmp_path), "--format", "json")
+    assert code == 0
+    assert len(json.loads(out)["groups"]) == 2
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code, _, err = run("check", str(empty))
+    assert code == 2 and "no *.mcap files" in err
+
+
+def test_replay_identical_exit_0(tmp_path: Path) -> None:
+    path = cartpole(tmp_path / "cp.mcap")
+    code, out, _ = run("replay", str(path))
+    assert code == 0, out
+    assert "3 identical, 0 diverged, 0 not replayable" in out
+
+
+def test_replay_of_a_changed_env_exit_1_names_step_and_field(tmp_path: Path) -> None:
+    path = cartpole(tmp_path / "cp.mcap")
+    code, out, _ = run(
+        "replay", str(path), "--env-factory", "tests.support.factories:heavy_cartpole"
+    )
+    assert code == 1
+    assert "step 0: observation expected" in out
+    assert "0 identical, 3 diverged" in out
+
+
+def test_replay_bad_factory_is_a_usage_error(tmp_path: Path) -> None:
+    path = cartpole(tmp_path / "cp.mcap", episodes=1)
+    code, _, err = run("replay", str(path), "--env-factory", "nocolon")
+    assert code == 2 and "MODULE:CALLABLE" in err
+    code, _, err = run("replay", str(path), "--import", "no_such_module_for_test")
+    assert code == 2 and "no_such_module_for_test" in err
+
+
+def test_report_gates_missed_and_held() -> None:
+    code, out, _ = run("report", "fixtures/clean.mcap", "--min-success-rate", "0.95")
+    assert code == 1 and "FAIL" in out
+    code, out, _ = run(
+        "report", "fixtures/clean.mcap", "--min-success-rate", "0.5", "--max-truncation-rate", "0.5"
+    )
+    assert code == 0, out
+    code, out, _ = run(
+        "report", "fixtures/unlabeled_failure.mcap", "--max-failure-rate", "unlabeled=0.1"
+    )
+    assert code == 1
+    code, _, err = run("report", "fixtures/clean.mcap", "--max-failure-rate", "x=2")
+    assert code == 2 and "between 0 and 1" in err
+    code, _, err = run("report", "fixtures/clean.mcap", "--by", "colour")
+    assert code == 2 and "--by" in err
+
+
+def test_report_never_folds_flags_into_done() -> None:
+    for fmt in ("table", "markdown", "json"):
+        _, out, _ = run("report", "fixtures/clean.mcap", "--format", fmt)
+        assert "done" not in out.lower()
+
+
+@pytest.mark.parametrize("fmt", ["markdown", "json"])
+def test_report_golden_output(fmt: str) -> None:
+    code, out, _ = run("report", "fixtures/clean.mcap", "--by", "tag:policy", "--format", fmt)
+    assert code == 0
+    golden = GOLDEN / f"report_clean.{'md' if fmt == 'markdown' else 'json'}"
+    assert out == golden.read_text(), f"regenerate {golden} if the change is intended"
+
+
+def test_show_summary_and_episode() -> None:
+    code, out, _ = run("show", "fixtures/clean.mcap", "--format", "json")
+    assert code == 0
+    data = json.loads(out)
+    assert data["finished"] is True and data["episodes"] == 6
+    code, out, _ = run(
+        "show", "fixtures/clean.mcap", "--episode", "4", "--steps", "115:", "--format", "json"
+    )
+    assert code == 0
+    data = json.loads(out)
+    assert [row[0] for row in data["rows"]] == list(range(115, 120))
+    assert data["rows"][-1][data["columns"].index("outcome")] == "truncated (time_limit)"
+    # JSON holds the values themselves, as the file does (not the table's display text)
+    steps = open_evidence("fixtures/clean.mcap").episode(4).steps.slice(115).to_pylist()
+    for row, step in zip(data["rows"], steps, strict=True):
+        cells = dict(zip(data["columns"], row, strict=True))
+        assert cells["reward"] == step["reward"] and isinstance(cells["reward"], float)
+        assert {k: cells[k] for k in dict(step["terms"])} == dict(step["terms"])
+        assert cells["notes"] == [] and cells["terminated"] is step["terminated"]
+    record = open_evidence("fixtures/clean.mcap").episode(4).record
+    assert data["episode"]["term_totals"] == dict(record["term_totals"])
+    code, out, _ = run("show", "fixtures/clean.mcap", "--episode", "0", "--steps", "0:3")
+    assert code == 0 and "shaping" in out
+    code, _, err = run("show", "fixtures/clean.mcap", "--steps", "0:3")
+    assert code == 2 and "--episode" in err
+    code, _, err = run("show", "fixtures/clean.mcap", "--episode", "99")
+    assert code == 2 and "no episode 99" in err
+
+
+SHOW_JSON_KEYS = [  # the summary's keys before the episode list and the spaces' shapes
+    "file", "finished", "torn", "recovered", "format_version", "writer", "env_id", "start_time",
+    "tags", "episodes", "steps", "outcomes", "observation_space", "action_space", "reward_terms",
+    "versions", "platform", "command_line", "env_spec", "layout",
+]  # fmt: skip
+
+
+def test_show_summary_lists_episodes_and_spaces_with_shape_and_dtype() -> None:
+    code, out, _ = run("show", "fixtures/clean.mcap")
+    assert code == 0
+    lines = [" ".join(line.split()) for line in out.splitlines()]
+    assert "observation space Box(shape=(11,), dtype=float64)" in lines
+    assert "action space Box(shape=(3,), dtype=float32)" in lines
+    start = lines.index("episode outcome label / reason length return")
+    assert lines[start + 2 : start + 8] == [
+        "0 success - 65 11.5",
+        "1 success - 66 11.5",
+        "2 success - 65 11.5",
+        "3 success - 67 11.6",
+        "4 truncated time_limit 120 1.3",
+        "5 success - 64 11.4",
+    ]
+    code, out, _ = run("show", "fixtures/torn.mcap", "--format", "markdown")
+    assert code == 0
+    assert "| action space | Discrete(n=2, shape=(), dtype=int64) |" in out
+    assert "| 11 | incomplete | - | 14 | 14 |" in out  # 12 episodes: every one listed
+    # JSON: the keys it had, in their order, then the new ones
+    code, out, _ = run("show", "fixtures/torn.mcap", "--format", "json")
+    data = json.loads(out)
+    assert list(data)[: len(SHOW_JSON_KEYS)] == SHOW_JSON_KEYS
+    assert data["observation_space"] == "Box" and data["action_space"] == "Discrete"
+    assert (data["observation_shape"], data["observation_dtype"]) == ([4], "float32")
+    assert (data["action_shape"], data["action_dtype"]) == ([], "int64")
+    assert data["episode_list_omitted"] == 0 and len(data["episode_list"]) == 12
+    assert data["episode_list"][0] == {
+        "episode": 0,
+        "env_index": 0,
+        "agent": None,
+        "outcome": "failure",
+        "label": "unlabeled",
+        "length": 18,
+        "return": 18.0,
+    }
+    assert data["observation_digest_min_bytes"] is None
+
+
+def test_show_says_which_observations_are_stored_as_digests(tmp_path: Path) -> None:
+    path = tmp_path / "digests.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path, digest_min_bytes=16) as env:
+        env.reset(seed=0)
+        env.step(0)
+    code, out, _ = run("show", str(path), "--format", "markdown")
+    assert code == 0
+    assert (
+        "| observation space | Box(shape=(4,), dtype=float32); arrays of 16 bytes or more stored "
+        "as 16-byte BLAKE2b digests (replay compares them, show and export cannot give their "
+        "values) |"
+    ) in out
+    code, out, _ = run("show", str(path), "--format", "json")
+    assert json.loads(out)["observation_digest_min_bytes"] == 16
+
+
+def test_show_summary_of_a_long_file_lists_the_first_and_last_episodes(tmp_path: Path) -> None:
+    path = cartpole(tmp_path / "long.mcap", episodes=20, max_episode_steps=3)
+    code, out, _ = run("show", str(path))
+    assert code == 0
+    lines = [" ".join(line.split()) for line in out.splitlines()]
+    title = lines.index("Episodes (first 5 and last 5 of 20)")
+    episodes = lines[title + 4 : lines.index("", title + 4)]
+    assert [row.split()[0] for row in episodes] == [*"01234", "…", *map(str, range(15, 20))]
+    assert episodes[5] == "… 10 more (--all-episodes)"
+    assert episodes[0] == "0 truncated time_limit 3 3"
+    code, out, _ = run("show", str(path), "--format", "json")
+    data = json.loads(out)
+    assert data["episode_list_omitted"] == 10
+    assert [e["episode"] for e in data["episode_list"]] == [0, 1, 2, 3, 4, *range(15, 20)]
+    code, out, _ = run("show", str(path), "--all-episodes", "--format", "json")
+    data = json.loads(out)
+    assert data["episode_list_omitted"] == 0
+    assert [e["episode"] for e in data["episode_list"]] == list(range(20))
+    code, out, _ = run("show", str(path), "--all-episodes", "--format", "markdown")
+    assert code == 0 and "more |" not in out and "| 10 | truncated | time_limit | 3 | 3 |" in out
+    code, _, err = run("show", str(path), "--all-episodes", "--episode", "0")
+    assert code == 2
+    one_error_line(
+        err, "--all-episodes lists the episodes of the file summary; not with --episode N"
+    )
+
+
+@pytest.mark.parametrize(
+    ("description", "text"),
+    [
+        ({"type": "MultiDiscrete", "nvec": [[2, 3]], "start": [[0, 0]], "dtype": "int64"},
+         "MultiDiscrete(shape=(1, 2), dtype=int64)"),
+        ({"type": "MultiBinary", "n": 4}, "MultiBinary(shape=(4,), dtype=int8)"),
+        ({"type": "Text", "min_length": 1, "max_length": 8, "charset": "ab"},
+         "Text(1, 8, charset=ab)"),
+        ({"type": "Tuple", "spaces": [{"type": "Discrete", "n": 2, "start": 0, "dtype": "int64"}]},
+         "Tuple(Discrete(n=2, shape=(), dtype=int64))"),
+        ({"type": "Custom", "class": "a.B", "repr": "B()"}, "Custom(a.B)"),
+        ({"type": "Box", "shape": "x", "dtype": 3}, "Box(?)"),  # from a bad file
+        ({"type": "Dict", "spaces": [["a"], 7]}, "Dict(?)"),
+        ({}, "?"),
+    ],
+)  # fmt: skip
+def test_space_text_of_every_kind_of_space(description: dict[str, object], text: str) -> None:
+    from episode_audit.cli.show import space_text
+
+    assert space_text(description) == text
+
+
+def test_export_reads_back_with_pyarrow_and_pandas(tmp_path: Path) -> None:
+    out_dir = tmp_path / "out"
+    code, out, _ = run(
+        "export", "fixtures/clean.mcap", "fixtures/unlabeled_failure.mcap", "--out", str(out_dir)
+    )
+    assert code == 0, out
+    steps = pq.read_table(out_dir / "clean.steps.parquet")
+    assert set(steps.column("file").to_pylist()) == {"fixtures/clean.mcap"}
+    episodes = pd.read_parquet(out_dir / "episodes.parquet")
+    assert len(episodes) == 9
+    assert set(episodes["file"]) == {"fixtures/clean.mcap", "fixtures/unlabeled_failure.mcap"}
+    frame = pd.read_parquet(out_dir / "unlabeled_failure.steps.parquet")
+    assert len(frame) == int(
+        episodes[episodes["file"] == "fixtures/unlabeled_failure.mcap"]["length"].sum()
+    )
+    code, _, err = run("export", "fixtures/clean.mcap", "--out", str(out_dir))
+    assert code == 2 and "--overwrite" in err
+
+
+def test_record_any_registered_env(tmp_path: Path) -> None:
+    out = tmp_path / "rec.mcap"
+    code, stdout, _ = run(
+        "record",
+        "CartPole-v1",
+        "--episodes",
+        "3",
+        "--seed",
+        "7",
+        "--out",
+        str(out),
+        "--max-episode-steps",
+        "10",
+        "--tag",
+        "checkpoint=42",
+    )
+    assert code == 0, stdout
+    assert "recorded 3 episodes" in stdout
+    code, out_json, _ = run("show", str(out), "--format", "json")
+    data = json.loads(out_json)
+    assert data["tags"] == {"policy": "random", "checkpoint": "42"}
+    code, _, err = run("record", "NoSuchEnv-v9", "--out", str(tmp_path / "x.mcap"))
+    assert code == 2 and "NoSuchEnv-v9" in err
+    code, _, err = run("record", "CartPole-v1", "--out", str(out))
+    assert code == 2 and "never overwritten" in err
+    code, _, err = run(
+        "record", "CartPole-v1", "--out", str(tmp_path / "y.mcap"), "--env-kwargs", "{"
+    )
+    assert code == 2 and "--env-kwargs" in err
+
+
+def test_hostile_strings_print_literally(tmp_path: Path) -> None:
+    import numpy as np
+
+    from tests.support.envs import ScriptedEnv
+
+    env = ScriptedEnv(
+        step_fn=lambda e, a: (
+            np.zeros(2, np.float32),
+            1.0,
+            True,
+            False,
+            {"failure": "[red]x[/red]\x1b[31m"},
+        )
+    )
+    path = tmp_path / "hostile.mcap"
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        rec.step(0)
+    _, out, _ = run("report", str(path), "--by", "label")
+    assert "[red]x[/red]\\x1b[31m" in out
+    assert "\x1b" not in out
+
+
+# ------------------------------------------------------------------- bad arguments (a CLI audit)
+
+
+def one_error_line(err: str, *needles: str) -> None:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("episode-audit: error: "), err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--policy", "nonsense"], "--policy: expected random, scripted, hacker"),
+        (["--policy", "scripted"], "for policy 'scripted', actually: CartPole-v1"),
+        (
+            ["--policy", "tests.support.factories:no_such"],
+            "cannot load 'tests.support.factories:no_such'",
+        ),
+        (["--seed", "-1"], "--seed: expected 0 <= seed"),
+        (["--seed", str(2**64 - 1)], "--seed: expected 0 <= seed"),
+        (["--max-episode-steps", "0"], "--max-episode-steps: expected at least 1, got 0"),
+        (["--import", ""], "--import '': ValueError: Empty module name"),
+        (["--env-kwargs", '{"render_mode": 3}'], "cannot make 'CartPole-v1' with"),
+    ],
+)
+def test_a_record_usage_error_touches_no_file(
+    tmp_path: Path, args: list[str], message: str
+) -> None:
+    """Found before the file is opened: no file left behind, none replaced (--overwrite)."""
+    fresh = tmp_path / "fresh.mcap"
+    code, _, err = run("record", "CartPole-v1", "--out", str(fresh), "--episodes", "1", *args)
+    assert code == 2 and not fresh.exists()
+    one_error_line(err, message)
+    kept = shutil.copy(FIXTURES / "clean.mcap", tmp_path / "kept.mcap")
+    before = Path(kept).read_bytes()
+    code, _, _ = run("record", "CartPole-v1", "--out", str(kept), "--overwrite", *args)
+    assert code == 2 and Path(kept).read_bytes() == before
+
+
+def test_argument_values_outside_their_range_are_usage_errors(tmp_path: Path) -> None:
+    clean = "fixtures/clean.mcap"
+    huge = str(2**80)
+    for args, message in [
+        (["replay", clean, "--atol", "nan"], "--atol: expected a finite number >= 0, got nan"),
+        (["replay", clean, "--atol", "inf"], "--atol: expected a finite number >= 0, got inf"),
+        (["replay", clean, "-e", huge], f"--episode: expected an episode index >= 0, got {huge}"),
+        (["show", clean, "-e", huge], f"--episode: expected an episode index >= 0, got {huge}"),
+        (["check", clean, clean, "--atol", "-1"], "atol: expected a finite number >= 0"),
+        (["report", clean, "--max-failure-rate", "=0.1"], "got '=0.1' (no label)"),
+        (["report", clean, "--games"], "fixtures/clean.mcap is a single-env file (drop --games)"),
+        (["export", clean, "--out", clean], "clean.mcap: not a directory; --out names"),
+    ]:
+        code, out, err = run(*args)
+        assert code == 2, args
+        one_error_line(err, message)
+    # an episode index no file has: the (empty) result, then the error
+    code, out, err = run("replay", clean, "-e", "99")
+    assert code == 2 and "0 identical" in out
+    one_error_line(err, "--episode: no episode 99 in the file(s) given")
+
+
+def test_a_file_given_twice_counts_once(tmp_path: Path) -> None:
+    clean = FIXTURES / "clean.mcap"
+    (tmp_path / "d").mkdir()
+    shutil.copy(clean, tmp_path / "d" / "clean.mcap")
+    copy = tmp_path / "d" / "clean.mcap"
+    code, out, _ = run("report", str(copy), str(tmp_path / "d"), "--by", "all", "-f", "json")
+    assert code == 0
+    (group,) = json.loads(out)["groups"]
+    assert group["episodes"] == open_evidence(clean).episodes().num_rows
+    code, out, _ = run("check", str(copy), str(copy), "-f", "json")
+    assert json.loads(out)["files"] == [str(copy)]
+
+
+def test_check_json_names_an_unreadable_file_and_is_not_ok(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    code, out, err = run("check", "fixtures/clean.mcap", str(bad), "-f", "json")
+    assert code == 2
+    one_error_line(err, str(bad))
+    data = json.loads(out)
+    assert data["ok"] is False and data["files"] == ["fixtures/clean.mcap", str(bad)]
+    (finding,) = [f for f in data["findings"] if f["code"] == "file_unreadable"]
+    assert finding["severity"] == "error" and finding["file"] == str(bad)
+
+
+@pytest.mark.parametrize("command", ["check", "replay", "report"])
+def test_json_names_the_unreadable_inputs_as_stderr_does(tmp_path: Path, command: str) -> None:
+    """Before: one stderr line per unreadable input and exit 2, but the JSON did not name them."""
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    torn = tmp_path / "early.mcap"  # torn before its run metadata
+    torn.write_bytes((FIXTURES / "clean.mcap").read_bytes()[:200])
+    code, out, err = run(command, "fixtures/clean.mcap", str(bad), str(torn), "-f", "json")
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith("episode-audit: error: ") for line in lines)
+    unreadable = json.loads(out)["unreadable"]
+    assert [u["file"] for u in unreadable] == [str(bad), str(torn)]
+    for entry, line in zip(unreadable, lines, strict=True):
+        assert line == f"episode-audit: error: {entry['file']}: {entry['why']}"
+    assert unreadable[0]["why"].startswith("not an MCAP file"), unreadable
+    code, out, err = run(command, "fixtures/clean.mcap", "-f", "json")
+    assert code == 0 and err == "" and json.loads(out)["unreadable"] == []
+    # nothing readable at all: still one JSON document, naming them (exit 2)
+    code, out, err = run(command, str(bad), "-f", "json")
+    assert code == 2 and [u["file"] for u in json.loads(out)["unreadable"]] == [str(bad)]
+    # (a table has nothing to show: only the error line)
+    code, out, err = run(command, str(bad))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    if command == "report":
+        assert out == ""
+
+
+def test_export_says_an_input_is_unfinished(tmp_path: Path) -> None:
+    code, out, err = run("export", "fixtures/torn.mcap", "--out", str(tmp_path / "out"))
+    assert code == 0 and "wrote" in out
+    assert err.startswith("episode-audit: note: fixtures/torn.mcap is unfinished (")
+    assert "exported what it holds" in err
+
+
+def test_recover_refuses_to_replace_a_pipe(tmp_path: Path) -> None:
+    import os
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    code, _, err = run("recover", "fixtures/torn.mcap", "--out", str(fifo), "--overwrite")
+    assert code == 2 and fifo.is_fifo()
+    one_error_line(err, "fifo: not a regular file (a device or a pipe)")
+
+
+def test_an_os_error_no_command_names_is_one_line_and_exit_2(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from episode_audit.cli import _app as cli
+
+    def disk_full() -> None:
+        raise OSError(28, "No space left on device", "/data/out.mcap")
+
+    monkeypatch.setattr(cli, "app", disk_full)
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    one_error_line(err, "/data/out.mcap: No space left on device")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (
+            ["--env-factory", "tests.support.factories:raises"],
+            "--env-factory tests.support.factories:raises: "
+            "it raised RuntimeError: boom from factory",
+        ),
+        (
+            ["--env-factory", "tests.support.factories:not_an_env"],
+            "--env-factory tests.support.factories:not_an_env: "
+            "it returned str, not a gymnasium.Env",
+        ),
+        (["--import", ""], "--import '': ValueError: Empty module name"),
+        (
+            ["--import", "tests.no_such_module"],
+            "--import 'tests.no_such_module': ModuleNotFoundError",
+        ),
+    ],
+)
+def test_a_replay_factory_or_import_that_fails_is_one_line(args: list[str], message: str) -> None:
+    code, _, err = run("replay", "fixtures/clean.mcap", *args)
+    assert code == 2
+    one_error_line(err, message)
+
+
+def test_record_out_naming_a_directory_says_so(tmp_path: Path) -> None:
+    code, _, err = run("record", "CartPole-v1", "--out", str(tmp_path), "--episodes", "1")
+    assert code == 2
+    one_error_line(err, f"{tmp_path}: is a directory; give the evidence file's path")
+
+
+def test_a_gate_on_a_label_no_failure_has_warns_and_still_passes() -> None:
+    """A misspelt label (``colision``) would pass every time; the report says so."""
+    code, out, err = run(
+        "report",
+        "fixtures/unlabeled_failure.mcap",
+        "--max-failure-rate",
+        "colision=0.1",
+        "--format",
+        "json",
+    )
+    assert code == 0
+    assert json.loads(out)["unmatched_labels"] == ["colision"]
+    assert err.strip() == (
+        "episode-audit: warning: gate max_failure_rate:colision: no failure in these files is "
+        "labelled 'colision': is the label spelt as recorded? (labels seen: 'unlabeled')"
+    )
+
+
+def _without_read_override() -> list[str] | None:
+    """A command prefix under which a mode-000 file cannot be read: none for a normal user;
+    for root, ``setpriv`` dropping the capabilities that bypass file permissions."""
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        return None
+    caps = "-dac_override,-dac_read_search"
+    return [setpriv, "--bounding-set", caps, "--inh-caps", caps]
+
+
+@pytest.mark.parametrize("command", ["check", "report", "show", "replay", "export", "recover"])
+def test_a_file_without_read_permission_is_one_line_and_the_others_go_on(
+    tmp_path: Path, command: str
+) -> None:
+    """Click's own readability check was a three-line usage error that stopped every input."""
+    prefix = _without_read_override()
+    if prefix is None:
+        pytest.skip("running as root without setpriv: a mode-000 file stays readable")
+    locked = tmp_path / "locked.mcap"
+    shutil.copy(FIXTURES / "clean.mcap", locked)
+    locked.chmod(0)
+    several = command in ("check", "report", "replay", "export")
+    args = [str(locked), *([str(FIXTURES / "clean.mcap")] if several else [])]
+    if command in ("export", "recover"):
+        args += ["--out", str(tmp_path / "out")]
+    done = subprocess.run(
+        [*prefix, sys.executable, "-m", "episode_audit", command, *args, "--format", "json"]
+        if command in ("check", "report", "replay")
+        else [*prefix, sys.executable, "-m", "episode_audit", command, *args],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
+    assert done.returncode == 2, done
+    if command == "check":  # an unreadable input is a finding there, and the exit says so
+        findings = json.loads(done.stdout)["findings"]
+        assert [f["code"] for f in findings] == ["file_unreadable"], findings
+        assert "cannot open: Permission denied" in findings[0]["message"]
+    else:
+        one_error_line(done.stderr, f"{locked}: cannot open: Permission denied")
+    if command == "report":
+        assert json.loads(done.stdout)["groups"][0]["episodes"] == 6
+    if command == "replay":
+        assert json.loads(done.stdout)["summary"]["identical"] == 6
+    if command == "export":
+        assert (tmp_path / "out" / "episodes.parquet").exists()
+
+
+def test_record_says_when_the_policy_raised(tmp_path: Path) -> None:
+    """Not "recorded as error" (that is the env raising): the env's episode is left open."""
+    out = tmp_path / "pol.mcap"
+    code, _, err = run(
+        "record",
+        "CartPole-v1",
+        "--out",
+        str(out),
+        "--policy",
+        "tests.support.factories:crashing_policy",
+    )
+    assert code == 2
+    one_error_line(
+        err,
+        "episode 0: the policy raised ValueError: policy bug (the episode is recorded as "
+        f"incomplete in {out})",
+    )
+    (episode,) = open_evidence(out).episodes().to_pylist()
+    assert (episode["outcome"], episode["length"]) == ("incomplete", 2)

@@ -1,0 +1,29 @@
+"""Fixtures shared by every wing's tests: the small fake envs and the repository's paths."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.support.envs import ScriptedEnv
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def repo() -> Path:
+    """The repository's root (``fixtures/``, ``docs/``, ``README.md`` live there)."""
+    return REPO
+
+
+@pytest.fixture
+def scripted_env() -> Callable[..., ScriptedEnv]:
+    """Make a :class:`~tests.support.envs.ScriptedEnv` from ``step_fn`` / ``reset_fn``."""
+
+    def make(**kwargs: Any) -> ScriptedEnv:
+        return ScriptedEnv(**kwargs)
+
+    return make

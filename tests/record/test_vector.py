@@ -1,0 +1,1003 @@
+"""Vector-env recording (vector.py): the issue's acceptance, per autoreset mode, Sync and Async.
+
+A vector CartPole-v1 with 4 sub-envs is recorded for 2 000 steps in each mode; its episodes are
+compared with the same sub-envs stepped by hand (independent envs seeded s + i, the same
+actions), and every sub-env episode is replayed on its own.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pyarrow.compute as pc
+import pytest
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from typer.testing import CliRunner
+
+from episode_audit import (
+    RecorderError,
+    RecordVectorEvidence,
+    ResetRngInfo,
+    check,
+    open_evidence,
+    replay,
+    report,
+)
+from episode_audit.cli import app
+
+N = 4
+STEPS = 2000
+SEED = 11
+MODES = [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP, AutoresetMode.DISABLED]
+KINDS = ["sync", "async"]
+
+
+def _actions() -> np.ndarray[Any, Any]:
+    return np.random.default_rng(0).integers(0, 2, size=(STEPS, N))
+
+
+def _record(path: Path, kind: str, mode: AutoresetMode, **make: Any) -> Path:
+    envs = gym.make_vec(
+        "CartPole-v1",
+        N,
+        vectorization_mode=kind,
+        vector_kwargs={"autoreset_mode": mode},
+        **make,
+    )
+    actions = _actions()
+    with RecordVectorEvidence(envs, path, block_steps=300) as rec:
+        rec.reset(seed=SEED)
+        for t in range(STEPS):
+            _, _, term, trunc, _ = rec.step(actions[t])
+            if mode is AutoresetMode.DISABLED and (term | trunc).any():
+                rec.reset(options={"reset_mask": term | trunc})
+    return path
+
+
+def _by_hand(mode: AutoresetMode) -> dict[int, list[tuple[int, float, bool]]]:
+    """(length, return, ended) of every episode of each sub-env, stepped as its own env."""
+    actions = _actions()
+    out: dict[int, list[tuple[int, float, bool]]] = {}
+    for i in range(N):
+        env = gym.make("CartPole-v1")
+        env.reset(seed=SEED + i)
+        episodes: list[tuple[int, float, bool]] = []
+        length, ret, autoreset_next = 0, 0.0, False
+        for t in range(STEPS):
+            if autoreset_next:  # NEXT_STEP: this vector step only resets the sub-env
+                env.reset()
+                autoreset_next = False
+                continue
+            _, reward, term, trunc, _ = env.step(int(actions[t, i]))
+            length, ret = length + 1, ret + float(reward)
+            if term or trunc:
+                episodes.append((length, ret, True))
+                length, ret = 0, 0.0
+                if mode is AutoresetMode.NEXT_STEP:
+                    autoreset_next = True
+                else:
+                    env.reset()
+        if not autoreset_next:  # the episode begun last, cut off by close()
+            episodes.append((length, ret, False))
+        out[i] = episodes
+        env.close()
+    return out
+
+
+@pytest.fixture(
+    scope="module",
+    params=[(k, m) for k in KINDS for m in MODES],
+    ids=lambda p: f"{p[0]}-{p[1].value}",
+)
+def recorded(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[str, AutoresetMode, Path]:
+    kind, mode = request.param
+    # Async SAME_STEP: the sub-envs report their RNG state before each autoreset themselves.
+    make = {"wrappers": [ResetRngInfo]} if (kind, mode) == ("async", mode.SAME_STEP) else {}
+    path = tmp_path_factory.mktemp("vec") / f"{kind}-{mode.value}.mcap"
+    return kind, mode, _record(path, kind, mode, **make)
+
+
+def test_episodes_equal_the_sub_envs_stepped_by_hand(
+    recorded: tuple[str, AutoresetMode, Path],
+) -> None:
+    _, mode, path = recorded
+    ev = open_evidence(path)
+    assert ev.finished and ev.multi_stream
+    assert ev.run.layout["kind"] == "vector" and ev.run.layout["num_envs"] == N
+    assert ev.run.layout["autoreset_mode"] == mode.value
+    assert ev.run.env_id == "CartPole-v1"  # the sub-env, what replay rebuilds
+    episodes = ev.episodes()
+    hand = _by_hand(mode)
+    for i in range(N):
+        mine = episodes.filter(pc.equal(episodes["env_index"], i)).to_pylist()
+        got = [(e["length"], e["return"], e["outcome"] != "incomplete") for e in mine]
+        assert got == hand[i], f"sub-env {i}"
+        assert mine[0]["seed"] == SEED + i
+        assert all(e["seed"] is None and e["rng_state"] for e in mine[1:])
+    assert sum(len(h) for h in hand.values()) == episodes.num_rows > 300
+
+
+def test_no_phantom_reset_steps(recorded: tuple[str, AutoresetMode, Path]) -> None:
+    _, mode, path = recorded
+    ev = open_evidence(path)
+    steps = ev.steps(columns=["episode", "step", "reward", "terminated", "truncated"])
+    # CartPole pays 1 for every real step; an autoreset step would be a row with reward 0.
+    assert pc.all(pc.equal(steps["reward"], 1.0)).as_py()
+    hand_steps = sum(n for eps in _by_hand(mode).values() for n, _, _ in eps)
+    assert steps.num_rows == hand_steps
+    expected = STEPS * N - (hand_steps if mode is AutoresetMode.NEXT_STEP else STEPS * N)
+    # NEXT_STEP: every vector step a sub-env spent resetting is a reset row, not a step row
+    resets = ev.resets()
+    if mode is AutoresetMode.NEXT_STEP:
+        assert resets.num_rows == N + expected
+    else:
+        assert resets.num_rows == ev.episodes().num_rows
+    assert sorted(resets["episode"].to_pylist()) == ev.episodes()["episode"].to_pylist()
+    ends = pc.or_(steps["terminated"], steps["truncated"]).to_numpy(zero_copy_only=False)
+    episode = steps["episode"].to_numpy()
+    last = np.append(episode[1:] != episode[:-1], True)
+    assert not (ends & ~last).any()  # nothing recorded after an episode's end
+
+
+def test_every_sub_env_episode_replays_identically_on_its_own(
+    recorded: tuple[str, AutoresetMode, Path],
+) -> None:
+    _, _, path = recorded
+    result = replay([path])
+    statuses = Counter(e.status for e in result.episodes)
+    assert statuses == {"identical": open_evidence(path).episodes().num_rows}, [
+        (e.episode, e.reason) for e in result.episodes if e.status != "identical"
+    ][:3]
+
+
+def test_check_and_report_by_env_index(recorded: tuple[str, AutoresetMode, Path]) -> None:
+    _, _, path = recorded
+    codes = {f.code for f in check([path]).findings}
+    assert codes <= {"unlabeled_failure", "missing_terms", "incomplete_episode"}, codes
+    grouped = report([path], by="env_index")
+    assert [g.key for g in grouped.groups] == [str(i) for i in range(N)]
+    episodes = open_evidence(path).episodes()
+    assert [g.episodes for g in grouped.groups] == [
+        episodes.filter(pc.equal(episodes["env_index"], i)).num_rows for i in range(N)
+    ]
+
+
+def test_exported_steps_name_their_sub_env(
+    recorded: tuple[str, AutoresetMode, Path], tmp_path: Path
+) -> None:
+    import pyarrow.parquet as pq
+
+    from episode_audit import export
+
+    _, _, path = recorded
+    result = export([path], tmp_path / "out")
+    steps = pq.read_table(result.steps_files[0])
+    episodes = pq.read_table(result.episodes_file)
+    assert steps.column_names[:3] == ["file", "env_index", "agent"]
+    owner = dict(zip(episodes["episode"].to_pylist(), episodes["env_index"].to_pylist()))
+    assert [owner[e] for e in steps["episode"].to_pylist()] == steps["env_index"].to_pylist()
+    assert set(steps["env_index"].to_pylist()) == {0, 1, 2, 3}
+    assert steps["agent"].null_count == steps.num_rows
+
+
+def test_cli_check_report_replay_on_a_vector_file(tmp_path: Path) -> None:
+    path = _record(tmp_path / "cli.mcap", "sync", AutoresetMode.NEXT_STEP)
+    runner = CliRunner()
+    checked = runner.invoke(app, ["check", str(path), "--format", "json"])
+    assert checked.exit_code in (0, 1), checked.output
+    codes = {f["code"] for f in json.loads(checked.stdout)["findings"]}
+    assert codes <= {"unlabeled_failure", "missing_terms", "incomplete_episode"}
+    reported = runner.invoke(app, ["report", str(path), "--by", "env_index", "--format", "json"])
+    assert reported.exit_code == 0, reported.output
+    assert [g["key"] for g in json.loads(reported.stdout)["groups"]] == ["0", "1", "2", "3"]
+    replayed = runner.invoke(app, ["replay", str(path), "--format", "json"])
+    assert replayed.exit_code == 0, replayed.output
+    summary = json.loads(replayed.stdout)["summary"]
+    assert summary["diverged"] == summary["not_replayable"] == 0 and summary["identical"] > 300
+    shown = runner.invoke(app, ["show", str(path)])
+    assert shown.exit_code == 0 and "vector: 4 sub-envs (SyncVectorEnv, NextStep)" in shown.stdout
+
+
+def test_same_step_async_without_the_rng_wrapper_says_why(tmp_path: Path) -> None:
+    path = tmp_path / "no-rng.mcap"
+    envs = gym.make_vec(
+        "CartPole-v1",
+        2,
+        vectorization_mode="async",
+        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP},
+        max_episode_steps=5,
+    )
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=3)
+        for _ in range(12):
+            rec.step(np.zeros(2, dtype=np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [e["seed"] for e in episodes[:2]] == [3, 4]
+    autoreset = episodes[2:]
+    assert autoreset and all(e["seed"] is None and e["rng_state"] is None for e in autoreset)
+    findings = check([path]).findings
+    why = [f.message for f in findings if f.code == "recorder_note:rng_state_unavailable"]
+    assert why and "SAME_STEP" in why[0] and "ResetRngInfo" in why[0]
+    assert any(f.code == "not_replayable" for f in findings)
+    statuses = {e.episode: e.status for e in replay([path]).episodes}
+    assert statuses[0] == statuses[1] == "identical"
+    assert {statuses[e["episode"]] for e in autoreset} == {"not_replayable"}
+
+
+def test_sync_same_step_wraps_the_sub_envs_in_place(tmp_path: Path) -> None:
+    envs = gym.make_vec(
+        "CartPole-v1", 2, vectorization_mode="sync", vector_kwargs={"autoreset_mode": "SameStep"}
+    )
+    with RecordVectorEvidence(envs, tmp_path / "w.mcap") as rec:
+        assert isinstance(rec.unwrapped, SyncVectorEnv)
+        assert all(isinstance(e, ResetRngInfo) for e in rec.unwrapped.envs)
+        rec.reset(seed=0)
+    assert open_evidence(tmp_path / "w.mcap").run.env_spec["additional_wrappers"] == []
+
+
+def test_vector_entry_point_env_is_recorded_but_not_replayable(tmp_path: Path) -> None:
+    path = tmp_path / "native.mcap"
+    envs = gym.make_vec("CartPole-v1", 3)  # CartPoleVectorEnv: no sub-envs
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(60):
+            rec.step(rec.action_space.sample())
+    ev = open_evidence(path)
+    assert ev.run.layout["vector_class"] == "CartPoleVectorEnv"
+    assert ev.run.layout["sub_envs"] is False
+    episodes = ev.episodes()
+    assert episodes.num_rows >= 3 and pc.all(pc.equal(ev.steps()["reward"], 1.0)).as_py()
+    findings = check([path]).findings
+    (file_level,) = [f for f in findings if f.code == "not_replayable" and f.episode is None]
+    assert "CartPoleVectorEnv has no sub-envs" in file_level.message
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert "no sub-envs" in (result.episodes[0].reason or "")
+
+
+class _Scored(gym.Env[np.ndarray, np.int64]):
+    """Pays named terms; succeeds after 3 steps when the action is 1, fails when it is 0."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return self.np_random.uniform(-1, 1, 2).astype(np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        done = self.t >= 3
+        info: dict[str, Any] = {"reward_terms": {"alive": 1.0, "bonus": 0.5 * int(action)}}
+        if done:
+            info["success" if action else "failure"] = True if action else "fell"
+        obs = self.np_random.uniform(-1, 1, 2).astype(np.float32)
+        return obs, 1.0 + 0.5 * int(action), done, False, info
+
+
+def test_terms_and_endings_come_from_each_sub_envs_info(tmp_path: Path) -> None:
+    path = tmp_path / "scored.mcap"
+    for mode in ("NextStep", "SameStep"):
+        envs = SyncVectorEnv([_Scored, _Scored], autoreset_mode=mode)
+        with RecordVectorEvidence(envs, path, overwrite=True, ending_rules=None) as rec:
+            rec.reset(seed=1)
+            for _ in range(8):
+                rec.step(np.array([1, 0]))
+        episodes = open_evidence(path).episodes().to_pylist()
+        ended = [e for e in episodes if e["outcome"] != "incomplete"]
+        assert {(e["env_index"], e["outcome"], e["failure_label"]) for e in ended} == {
+            (0, "success", None),
+            (1, "failure", "fell"),
+        }, mode
+        for e in ended:
+            bonus = 1.5 if e["env_index"] == 0 else 0.0
+            assert dict(e["term_totals"]) == {"alive": 3.0, "bonus": bonus}
+        # an unregistered env has no spec to rebuild it from; nothing else is wrong
+        assert {f.code for f in check([path]).findings} <= {
+            "incomplete_episode",
+            "missing_env_spec",
+        }
+
+
+def test_env_infos_picks_one_sub_envs_values() -> None:
+    from episode_audit.record.vector import _env_infos
+
+    infos = {
+        "a": np.array([1.0, 2.0]),
+        "_a": np.array([True, False]),
+        "d": {"x": np.array([0, 7]), "_x": np.array([False, True])},
+        "_d": np.array([False, True]),
+    }
+    assert _env_infos(infos, 2) == ([{"a": 1.0}, {"d": {"x": 7}}], None)
+    # no masks (a vector env of one's own): present for every sub-env, and said so
+    unmasked = {"s": np.array([True, False]), "t": {"u": [1, 2]}, "level": "hard", "_x": 5}
+    subs, why = _env_infos(unmasked, 2)
+    assert subs == [
+        {"s": True, "t": {"u": 1}, "level": "hard", "_x": 5},
+        {"s": False, "t": {"u": 2}, "level": "hard", "_x": 5},
+    ]
+    assert why is not None and why.startswith("info_unmasked: ")
+    assert "s, t.u, level (the same for every sub-env), _x (the same" in why
+    assert _env_infos([{"a": 1}, {}], 2) == ([{"a": 1}, {}], None)
+    assert _env_infos("oops", 2) == (["oops", "oops"], None)
+
+
+def test_misuse_raises_and_bad_input_does_not(tmp_path: Path) -> None:
+    envs = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync")
+    rec = RecordVectorEvidence(envs, tmp_path / "m.mcap")
+    rec.reset(seed=0)
+    rec.close()
+    rec.close()  # twice is fine
+    with pytest.raises(RecorderError, match="closed"):
+        rec.step(np.zeros(2, dtype=np.int64))
+    with pytest.raises(Exception, match="file exists"):
+        RecordVectorEvidence(gym.make_vec("CartPole-v1", 2), tmp_path / "m.mcap")
+
+
+def test_batched_rows_equal_the_row_by_row_ones(tmp_path: Path) -> None:
+    """Steps without info are kept as whole batches; info_keys forces the per-row path."""
+    tables = []
+    for name, info_keys in (("batched", ()), ("rows", "all")):
+        path = tmp_path / f"{name}.mcap"
+        envs = gym.make_vec("CartPole-v1", N, vectorization_mode="sync")
+        actions = _actions()[:700]
+        with RecordVectorEvidence(envs, path, block_steps=50, info_keys=info_keys) as rec:
+            rec.reset(seed=SEED)
+            for t, action in enumerate(actions):
+                rec.step(action)
+                if t == 333:
+                    rec.flush()
+        ev = open_evidence(path)
+        keep = ["episode", "step", "action", "observation", "reward", "terminated", "truncated"]
+        tables.append(
+            (
+                ev.steps(columns=[*keep, "outcome", "label"]),
+                ev.episodes().drop_columns(["start_time_ns", "end_time_ns"]),
+                ev.resets().select(["episode", "env_index", "seed", "rng_state", "observation"]),
+            )
+        )
+    (steps_a, eps_a, resets_a), (steps_b, eps_b, resets_b) = tables
+    # the same rows (the reader's episode order follows the flushes, which differ)
+    order = [("episode", "ascending"), ("step", "ascending")]
+    assert steps_a.sort_by(order).equals(steps_b.sort_by(order))
+    assert eps_a.equals(eps_b)
+    assert resets_a.sort_by("episode").equals(resets_b.sort_by("episode"))
+    # blocks of at most block_steps rows per sub-env
+    assert (
+        max(b.num_rows for b in open_evidence(tmp_path / "batched.mcap").scan() for b in b.steps)
+        <= 50
+    )
+
+
+def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path) -> None:
+    from gymnasium.utils.env_checker import check_env, data_equivalence
+
+    for mode in ("NextStep", "SameStep"):
+
+        def make(mode: str = mode) -> Any:
+            return gym.make_vec(
+                "CartPole-v1", 3, vectorization_mode="sync", vector_kwargs={"autoreset_mode": mode}
+            )
+
+        bare = make()
+        rec = RecordVectorEvidence(make(), tmp_path / f"{mode}.mcap")
+        assert data_equivalence(bare.reset(seed=2), rec.reset(seed=2))
+        for action in np.random.default_rng(1).integers(0, 2, size=(120, 3)):
+            got, want = rec.step(action), bare.step(action)
+            info = dict(got[4])
+            # SAME_STEP: the sub-envs' ResetRngInfo adds its one key to the autoresets' info
+            info.pop("episode_audit.rng_state", None)
+            info.pop("_episode_audit.rng_state", None)
+            assert data_equivalence(got[:4], want[:4]) and data_equivalence(info, want[4])
+        rec.close()
+        bare.close()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(ResetRngInfo(gym.make("CartPole-v1")), skip_render_check=True)
+
+
+class _Breaks(gym.Env[np.ndarray, np.int64]):
+    """Raises on its 5th step."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        if self.t == 5:
+            raise RuntimeError("motor on fire")
+        return np.zeros(2, np.float32), 1.0, False, False, {}
+
+
+def test_an_env_error_ends_the_open_episodes_and_reraises(tmp_path: Path) -> None:
+    path = tmp_path / "broken.mcap"
+    rec = RecordVectorEvidence(SyncVectorEnv([_Breaks, _Breaks]), path)
+    rec.reset(seed=[4, None])
+    for _ in range(4):
+        rec.step(np.zeros(2, dtype=np.int64))
+    with pytest.raises(RuntimeError, match="motor on fire"):
+        rec.step(np.zeros(2, dtype=np.int64))
+    rec.close()
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["env_index"], e["seed"], e["outcome"], e["length"]) for e in episodes] == [
+        (0, 4, "error", 4),
+        (1, None, "error", 4),
+    ]
+    assert episodes[1]["rng_state"] is not None  # seed list: sub-env 1 reset unseeded
+    assert episodes[0]["error_message"] == "motor on fire"
+
+
+# ---------------------------------------------------------------- misbehaving vector envs
+
+
+class _Quiet(gym.Env[np.ndarray, np.int64]):
+    """No info; terminates on its 3rd step (never, with ``ends=False``)."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, ends: bool = True) -> None:
+        self.t = 0
+        self.ends = ends
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return self.np_random.uniform(-1, 1, 2).astype(np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        obs = self.np_random.uniform(-1, 1, 2).astype(np.float32)
+        return obs, 1.0, self.ends and self.t >= 3, False, {}
+
+
+class _SetInfos(gym.vector.VectorWrapper):
+    """Hands out ``infos`` in place of the vector env's infos."""
+
+    def __init__(self, env: Any, infos: Any) -> None:
+        super().__init__(env)
+        self.infos = infos
+
+    def reset(self, **kwargs: Any) -> Any:
+        obs, _ = self.env.reset(**kwargs)
+        return obs, self.infos
+
+    def step(self, actions: Any) -> Any:
+        *result, _ = self.env.step(actions)
+        return (*result, self.infos)
+
+
+def _codes(path: Path) -> set[str]:
+    return {f.code for f in check([path]).findings}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_infos_as_a_list_of_dicts_are_read_per_sub_env(
+    tmp_path: Path, kind: str, mode: str
+) -> None:
+    """gymnasium's DictInfoToList between the recorder and the vector env: the same episodes."""
+    from gymnasium.vector import AsyncVectorEnv
+    from gymnasium.wrappers.vector import DictInfoToList
+
+    path = tmp_path / "list.mcap"
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    envs = DictInfoToList(make([_Scored, _Scored], autoreset_mode=mode))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        with RecordVectorEvidence(envs, path, ending_rules=None) as rec:
+            rec.reset(seed=1)
+            for _ in range(8):
+                rec.step(np.array([1, 0]))
+    ev = open_evidence(path)
+    ended = [e for e in ev.episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert sorted((e["env_index"], e["outcome"], e["failure_label"]) for e in ended) == [
+        (0, "success", None),
+        (0, "success", None),
+        (1, "failure", "fell"),
+        (1, "failure", "fell"),
+    ]
+    for e in ended:
+        assert dict(e["term_totals"]) == {"alive": 3.0, "bonus": 1.5 if e["env_index"] == 0 else 0}
+    assert ev.steps().num_rows == (12 if mode == "NextStep" else 16)
+    # (Async SAME_STEP without ResetRngInfo: autoreset episodes without RNG states)
+    allowed = {"incomplete_episode", "missing_env_spec"}
+    allowed |= {"not_replayable", "recorder_note:rng_state_unavailable"}
+    assert _codes(path) <= allowed
+
+
+@pytest.mark.parametrize("infos", [None, "oops", [{}], ({}, 3)], ids=repr)
+def test_infos_neither_dict_nor_list_of_dicts_are_noted_and_the_rows_kept(
+    tmp_path: Path, infos: Any
+) -> None:
+    path = tmp_path / "odd.mcap"
+    envs = _SetInfos(SyncVectorEnv([_Quiet, _Quiet]), infos)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=1)
+        for _ in range(4):  # 3 steps, then the autoreset
+            rec.step(np.zeros(2, dtype=np.int64))
+    ev = open_evidence(path)
+    episodes = ev.episodes().to_pylist()
+    assert sorted((e["env_index"], e["outcome"], e["length"]) for e in episodes) == [
+        (0, "failure", 3),
+        (0, "incomplete", 0),
+        (1, "failure", 3),
+        (1, "incomplete", 0),
+    ]
+    assert ev.steps().num_rows == 6
+    env_index = {e["episode"]: e["env_index"] for e in episodes}
+    noted = {(env_index[ep], code) for ep, code in _noted(path)}
+    if infos == ({}, 3):  # sub-env 0's info is fine; sub-env 1's is an int
+        assert noted == {(1, "info_not_dict")}
+    else:
+        assert noted == {(0, "info_not_dict"), (1, "info_not_dict")}
+    check([path])
+    replay([path])
+
+
+def _noted(path: Path) -> Counter[tuple[int, str]]:
+    """(episode, note code) of every note on a step or reset row of the file."""
+    ev = open_evidence(path)
+    rows = [*ev.steps(columns=["episode", "notes"]).to_pylist(), *ev.resets().to_pylist()]
+    return Counter(
+        (r["episode"], n.split(":")[0]) for r in rows if r["notes"] for n in json.loads(r["notes"])
+    )
+
+
+class _TwoEnvVec(gym.vector.VectorEnv):  # type: ignore[type-arg]
+    """A vector env of its own (no sub-envs) of two sub-envs: zero observations, counting steps."""
+
+    def __init__(self) -> None:
+        from gymnasium.vector.utils import batch_space
+
+        self.num_envs = 2
+        self.single_observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+        self.single_action_space = gym.spaces.Discrete(2)
+        self.observation_space = batch_space(self.single_observation_space, 2)
+        self.action_space = batch_space(self.single_action_space, 2)
+        self.t = 0
+
+    def reset(self, *, seed: Any = None, options: Any = None) -> Any:
+        self.t = 0
+        return np.zeros((2, 2), np.float32), {}
+
+
+class _ListVec(_TwoEnvVec):
+    """Results as Python lists; sub-env 1's reward is ``bad`` on the 3rd step, which ends both
+    episodes."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, bad: Any) -> None:
+        super().__init__()
+        self.bad = bad
+
+    def step(self, actions: Any) -> Any:
+        self.t += 1
+        rewards: list[Any] = [1.0, self.bad if self.t == 3 else 1.0]
+        done = self.t == 3
+        self.t %= 4  # NEXT_STEP: the 4th step is the autoreset
+        return np.zeros((2, 2), np.float32), rewards, [done, done], [False, False], {}
+
+
+@pytest.mark.parametrize("bad", ["abc", "1.5", [1.0]], ids=repr)
+def test_a_reward_that_is_not_a_number_is_noted_and_the_step_kept(tmp_path: Path, bad: Any) -> None:
+    """As the single-env recorder: NaN and ``reward_not_numeric``; close() never raises."""
+    path = tmp_path / "rewards.mcap"
+    rec = RecordVectorEvidence(_ListVec(bad), path, flush_every_s=0.001)
+    rec.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        for _ in range(8):
+            rec.step(np.zeros(2, np.int64))
+        rec.close()
+    ev = open_evidence(path)
+    assert ev.finished
+    episodes = ev.episodes().to_pylist()
+    assert [(e["env_index"], e["outcome"], e["length"]) for e in episodes][:4] == [
+        (0, "failure", 3),
+        (1, "failure", 3),
+        (0, "failure", 3),
+        (1, "failure", 3),
+    ]
+    rewards = ev.steps(columns=["episode", "step", "reward"]).to_pylist()
+    assert len(rewards) == 12
+    nan = [(r["episode"], r["step"]) for r in rewards if r["reward"] != r["reward"]]
+    assert nan == [(1, 2), (3, 2)]
+    noted = {k for k in _noted(path) if k[1] != "rng_state_unavailable"}  # (no sub-envs)
+    assert noted == {(1, "reward_not_numeric"), (3, "reward_not_numeric")}
+    assert "length_mismatch" not in _codes(path)
+
+
+@pytest.mark.parametrize("options", [["hard"], ("hard", 2), "hard"], ids=repr)
+def test_reset_options_that_are_not_a_dict_are_passed_on_and_recorded(
+    tmp_path: Path, options: Any
+) -> None:
+    from episode_audit import RecordEvidence
+
+    path = tmp_path / "options.mcap"
+    with RecordVectorEvidence(SyncVectorEnv([_Quiet, _Quiet]), path) as rec:
+        rec.reset(seed=0, options=options)
+        rec.step(np.zeros(2, np.int64))
+    single = tmp_path / "single.mcap"
+    with RecordEvidence(_Quiet(), single) as env:
+        env.reset(seed=0, options=options)
+    want = open_evidence(single).episodes().to_pylist()[0]["options"]
+    assert [e["options"] for e in open_evidence(path).episodes().to_pylist()] == [want, want]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_steps_before_reset_are_noted_like_the_single_env_recorder(
+    tmp_path: Path, kind: str
+) -> None:
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "early.mcap"
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    envs = make([lambda: _Quiet(ends=False)] * 2)
+    with RecordVectorEvidence(envs, path) as rec:
+        for _ in range(2):
+            rec.step(np.zeros(2, np.int64))
+        rec.reset(seed=0)
+        for _ in range(2):
+            rec.step(np.zeros(2, np.int64))
+    ev = open_evidence(path)
+    assert -1 not in ev.steps()["episode"].to_pylist()
+    episodes = ev.episodes().to_pylist()
+    assert [(e["env_index"], e["length"], e["seed"]) for e in episodes] == [
+        (0, 2, None),
+        (1, 2, None),
+        (0, 2, 0),
+        (1, 2, 1),
+    ]
+    assert _noted(path) == Counter({(0, "stepped_before_reset"): 1, (1, "stepped_before_reset"): 1})
+    assert "length_mismatch" not in _codes(path)
+
+
+def test_steps_after_an_episode_ended_are_noted_like_the_single_env_recorder(
+    tmp_path: Path,
+) -> None:
+    """The vector env stepped on (without a reset) after a sub-env raised."""
+    path = tmp_path / "after-error.mcap"
+    rec = RecordVectorEvidence(SyncVectorEnv([_Breaks, _Breaks]), path)
+    rec.reset(seed=0)
+    raised = 0
+    for _ in range(7):  # sub-env 0 raises on the 5th step, sub-env 1 on the 6th
+        try:
+            rec.step(np.zeros(2, np.int64))
+        except RuntimeError:
+            raised += 1
+    rec.close()
+    assert raised == 2
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["outcome"], e["length"]) for e in episodes] == [("error", 4)] * 2
+    assert _noted(path) == Counter({(0, "step_after_end"): 1, (1, "step_after_end"): 1})
+    assert "length_mismatch" not in _codes(path)
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep", "Disabled"])
+def test_a_time_limit_without_a_spec_is_found_on_each_sub_env(tmp_path: Path, mode: str) -> None:
+    from gymnasium.wrappers import TimeLimit
+
+    path = tmp_path / "limit.mcap"
+    envs = SyncVectorEnv([lambda: TimeLimit(_Quiet(ends=False), 2)] * 2, autoreset_mode=mode)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            _, _, term, trunc, _ = rec.step(np.zeros(2, np.int64))
+            if mode == "Disabled" and (term | trunc).any():
+                rec.reset(options={"reset_mask": term | trunc})
+    ended = [e for e in open_evidence(path).episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["outcome"], e["truncation_reason"]) for e in ended] == [
+        ("truncated", "time_limit")
+    ] * 2
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_reset_arguments_the_vector_env_rejects_change_no_episode(
+    tmp_path: Path, kind: str
+) -> None:
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "rejected.mcap"
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    envs = make([lambda: _Quiet(ends=False)] * 2, autoreset_mode="Disabled")
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        rec.step(np.zeros(2, np.int64))
+        for seed, options in (
+            ([1, 2, 3], None),
+            (None, {"reset_mask": [True, False]}),
+            (None, {"reset_mask": np.array([1, 0])}),
+            (None, {"reset_mask": np.array([True])}),
+        ):
+            with pytest.raises((ValueError, TypeError)):
+                rec.reset(seed=seed, options=options)
+        rec.step(np.zeros(2, np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["outcome"], e["length"], e["seed"]) for e in episodes] == [
+        ("incomplete", 2, 0),
+        ("incomplete", 2, 1),
+    ]
+    assert _codes(path) <= {"incomplete_episode", "missing_env_spec", "missing_terms"}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_time_limit_without_a_spec_is_found_on_async_sub_envs_too(
+    tmp_path: Path, kind: str
+) -> None:
+    """An AsyncVectorEnv's workers are asked only when every one has a TimeLimit: a worker asked
+    for an attribute its env lacks raises, and dies (mixed sub-envs: the limit is unknown)."""
+    from gymnasium.vector import AsyncVectorEnv
+    from gymnasium.wrappers import TimeLimit
+
+    def limited() -> Any:
+        return TimeLimit(_Quiet(ends=False), 2)
+
+    def unlimited() -> Any:
+        return _Quiet(ends=False)
+
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    for fns, want in (
+        ([limited, limited], [(0, "time_limit"), (1, "time_limit")]),
+        ([limited, unlimited], [(0, "time_limit" if kind == "sync" else "external")]),
+    ):
+        path = tmp_path / "limit.mcap"
+        with RecordVectorEvidence(make(fns), path, overwrite=True) as rec:
+            rec.reset(seed=0)
+            for _ in range(4):  # 2 steps, the autoreset, a step (every worker still alive)
+                rec.step(np.zeros(2, np.int64))
+        episodes = open_evidence(path).episodes().to_pylist()
+        ended = [e for e in episodes if e["outcome"] != "incomplete"]
+        assert [(e["env_index"], e["truncation_reason"]) for e in ended] == want
+
+
+# ---------------------------------------------------------------- info without masks
+
+
+class _NoMaskVec(_TwoEnvVec):
+    """Its info has values but no ``_key`` masks (Gymnasium's vector envs add them; one's own
+    may not): reward terms on every step; on the 3rd, which ends both episodes, success for
+    sub-env 0 and a failure label for sub-env 1."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def step(self, actions: Any) -> Any:
+        self.t += 1
+        done = self.t == 3
+        info: dict[str, Any] = {"reward_terms": {"alive": np.ones(2), "bonus": [0.5, 0.0]}}
+        if done:
+            info["success"] = np.array([True, False])
+            info["failure"] = [None, "fell"]
+        self.t %= 4  # NEXT_STEP: the 4th step is the autoreset
+        return np.zeros((2, 2), np.float32), np.array([1.5, 1.0]), np.full(2, done), [0, 0], info
+
+
+def test_info_without_masks_is_read_for_every_sub_env_and_noted(tmp_path: Path) -> None:
+    path = tmp_path / "nomask.mcap"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        with RecordVectorEvidence(_NoMaskVec(), path, ending_rules=None) as rec:
+            rec.reset(seed=0)
+            for _ in range(4):
+                rec.step(np.zeros(2, np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    ended = [e for e in episodes if e["outcome"] != "incomplete"]
+    assert [(e["env_index"], e["outcome"], e["failure_label"]) for e in ended] == [
+        (0, "success", None),
+        (1, "failure", "fell"),
+    ]
+    assert [dict(e["term_totals"]) for e in ended] == [
+        {"alive": 3.0, "bonus": 1.5},
+        {"alive": 3.0, "bonus": 0.0},
+    ]
+    # every row read from such an info says so: 3 steps each, then the autoresets' reset rows
+    noted = {k: v for k, v in _noted(path).items() if k[1] != "rng_state_unavailable"}
+    assert noted == {
+        (0, "info_unmasked"): 3,
+        (1, "info_unmasked"): 3,
+        (2, "info_unmasked"): 1,
+        (3, "info_unmasked"): 1,
+    }
+    findings = check([path]).findings
+    (why,) = {f.message.split(": ", 1)[1] for f in findings if f.code.endswith("info_unmasked")}
+    assert "'_<key>' mask" in why and "reward_terms.alive, reward_terms.bonus" in why
+    assert not {"missing_terms", "unlabeled_failure"} & {f.code for f in findings}
+
+
+# ---------------------------------------------------------------- flags that are not bools
+
+
+class _FlagVec(_TwoEnvVec):
+    """``terminated`` on its 2nd step is ``flags`` as given."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.DISABLED}
+
+    def __init__(self, flags: Any) -> None:
+        super().__init__()
+        self.flags = flags
+
+    def step(self, actions: Any) -> Any:
+        self.t += 1
+        term = self.flags if self.t == 2 else np.zeros(2, np.bool_)
+        return np.zeros((2, 2), np.float32), np.ones(2), term, np.zeros(2, np.bool_), {}
+
+
+class _FlagEnv(gym.Env[np.ndarray, np.int64]):
+    """One sub-env of :class:`_FlagVec`: ``terminated`` on its 2nd step is ``flag``."""
+
+    observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, flag: Any) -> None:
+        self.flag = flag
+        self.t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        return np.zeros(2, np.float32), 1.0, self.flag if self.t == 2 else False, False, {}
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [["False", False], np.array([1, 0]), np.array(["False", ""]), [np.array([1, 2]), True]],
+    ids=["text-list", "int-array", "str-array", "no-truth-value"],
+)
+def test_flags_that_are_not_bools_are_noted_like_the_single_env_recorder(
+    tmp_path: Path, flags: Any
+) -> None:
+    from episode_audit import RecordEvidence
+
+    path = tmp_path / "flags.mcap"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no recorder trouble
+        with RecordVectorEvidence(_FlagVec(flags), path) as rec:
+            rec.reset(seed=0)
+            for _ in range(2):
+                rec.step(np.zeros(2, np.int64))
+    ev = open_evidence(path)
+    episodes = ev.episodes().to_pylist()
+    steps = ev.steps(columns=["episode", "step", "notes"]).to_pylist()
+    for i in range(2):
+        single = tmp_path / f"single-{i}.mcap"
+        with RecordEvidence(_FlagEnv(list(flags)[i]), single) as env:
+            env.reset(seed=0)
+            for _ in range(2):
+                env.step(0)
+        want_ep = open_evidence(single).episodes().to_pylist()[0]
+        (got_ep,) = [e for e in episodes if e["env_index"] == i]
+        keys = ["outcome", "failure_label", "terminated", "length"]
+        assert [got_ep[k] for k in keys] == [want_ep[k] for k in keys], i
+
+        def codes(rows: list[dict[str, Any]]) -> list[tuple[int, list[str]]]:
+            return [
+                (r["step"], [n.split(":")[0] for n in json.loads(r["notes"])])
+                for r in rows
+                if r["notes"]
+            ]
+
+        want = codes(open_evidence(single).steps(columns=["step", "notes"]).to_pylist())
+        got = codes([r for r in steps if r["episode"] == got_ep["episode"]])
+        assert got == want, i
+    assert any(n for n in _noted(path) if n[1] == "flags_not_bool")
+
+
+# ---------------------------------------------------------------- an autoreset that raises
+
+
+class _ResetBomb(gym.Env[np.ndarray, np.int64]):
+    """Terminates on its ``length``-th step; a reset without a seed raises (kept in ``raised``)."""
+
+    observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+    raised: list[BaseException] = []
+
+    def __init__(self, length: int) -> None:
+        self.length = length
+        self.t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        if seed is None:
+            self.np_random.uniform()  # the failed reset draws
+            exc = ValueError("reset refused")
+            _ResetBomb.raised.append(exc)
+            raise exc
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        return np.zeros(2, np.float32), 1.0, self.t == self.length, False, {}
+
+
+def _bombs(kind: str, mode: str) -> Any:
+    from gymnasium.vector import AsyncVectorEnv
+
+    make = SyncVectorEnv if kind == "sync" else AsyncVectorEnv
+    return make([lambda: _ResetBomb(3), lambda: _ResetBomb(5)], autoreset_mode=mode)
+
+
+@pytest.mark.parametrize(
+    ("kind", "mode"), [("sync", "NextStep"), ("async", "NextStep"), ("sync", "SameStep")]
+)
+def test_an_autoreset_that_raises_is_a_failed_reset_after_the_true_ending(
+    tmp_path: Path, kind: str, mode: str
+) -> None:
+    """As a single env's reset() that raised: an episode ended ``error`` during ``reset``; the
+    episode before it keeps its ending (SAME_STEP: its last step, kept by ResetRngInfo); the
+    loop gets the env's exception."""
+    path = tmp_path / "bomb.mcap"
+    rec = RecordVectorEvidence(_bombs(kind, mode), path)
+    rec.reset(seed=0)
+    _ResetBomb.raised.clear()
+    steps = 4 if mode == "NextStep" else 3  # sub-env 0 ends on step 3 and resets on step 4 / 3
+    for _ in range(steps - 1):
+        rec.step(np.zeros(2, np.int64))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # AsyncVectorEnv logs the worker's error
+        with pytest.raises(ValueError, match="reset refused") as raised:
+            rec.step(np.zeros(2, np.int64))
+    if kind == "sync":
+        assert raised.value is _ResetBomb.raised[-1]  # the env's own exception, untouched
+    rec.close()
+    episodes = open_evidence(path).episodes().to_pylist()
+    got = [
+        (e["env_index"], e["outcome"], e["length"], e["terminated"], e["error_during"])
+        for e in episodes
+    ]
+    assert sorted(got) == [
+        (0, "error", 0, False, "reset"),
+        (0, "failure", 3, True, None),
+        # the step raised while sub-env 1's episode ran (as any error in a vector step)
+        (1, "error", steps - 1, False, "step"),
+    ]
+    (failed,) = [e for e in episodes if e["error_during"] == "reset"]
+    assert failed["error_message"] == "reset refused" and failed["seed"] is None
+    assert failed["rng_state"] is not None  # the state the failed reset started from
+    assert "error_episode" in _codes(path)
+
+
+def test_after_a_failed_autoreset_the_sync_vector_env_goes_on(tmp_path: Path) -> None:
+    """NEXT_STEP SyncVectorEnv: the sub-env is still due for its autoreset; the loop resets."""
+    path = tmp_path / "bomb-on.mcap"
+    with RecordVectorEvidence(_bombs("sync", "NextStep"), path) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            rec.step(np.zeros(2, np.int64))
+        for _ in range(2):  # the autoreset is tried again, and raises again
+            with pytest.raises(ValueError, match="reset refused"):
+                rec.step(np.zeros(2, np.int64))
+        rec.reset(seed=7)
+        rec.step(np.zeros(2, np.int64))
+    episodes = open_evidence(path).episodes().to_pylist()
+    episodes.sort(key=lambda e: e["episode"])
+    assert [(e["env_index"], e["outcome"], e["length"], e["seed"]) for e in episodes] == [
+        (0, "failure", 3, 0),
+        (1, "error", 3, 1),
+        (0, "error", 0, None),
+        (0, "error", 0, None),
+        (0, "incomplete", 1, 7),
+        (1, "incomplete", 1, 8),
+    ]
+    # each failed reset started from the state the sub-env was in then (the first one drew)
+    first, second = [e["rng_state"] for e in episodes[2:4]]
+    assert first is not None and second is not None and first != second
