@@ -917,7 +917,7 @@ def _call(outcome: Outcome, name: str, fn: Callable[[], Any]) -> Any:
 def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
     """Every library entry point a user can reach with a file."""
     from episode_audit import check, export, recover, replay, report
-    from episode_audit.cli.show import episode_output, summary_output
+    from episode_audit.cli.render.show import episode_output, summary_output
 
     def reading() -> None:
         ev = open_evidence(path)

@@ -16,13 +16,19 @@ from typing import Final
 __all__ = [
     "ARROW_ENCODING",
     "COL_ACTION",
+    "COL_AGENT",
+    "COL_ENV_INDEX",
     "COL_EPISODE",
+    "COL_GAME",
     "COL_INFO",
     "COL_LABEL",
     "COL_NOTES",
     "COL_OBSERVATION",
+    "COL_OPTIONS",
     "COL_OUTCOME",
     "COL_REWARD",
+    "COL_RNG_STATE",
+    "COL_SEED",
     "COL_STEP",
     "COL_TERMINATED",
     "COL_TERMS",
@@ -100,7 +106,7 @@ RUN_END_FIRST_TROUBLE: Final = "recorder_trouble_first"
 # about success (``EndingRules.reports_success``); 0 for a task without a success signal.
 RUN_END_SUCCESS_REPORTED: Final = "success_reported"
 
-# Columns of step blocks (reset blocks use episode, time_ns, observation, info, notes).
+# Column names of the blocks (their schemas: ``schemas.py``).
 COL_EPISODE: Final = "episode"
 COL_STEP: Final = "step"
 COL_TIME: Final = "time_ns"
@@ -114,6 +120,12 @@ COL_OUTCOME: Final = "outcome"
 COL_LABEL: Final = "label"
 COL_INFO: Final = "info"
 COL_NOTES: Final = "notes"
+COL_ENV_INDEX: Final = "env_index"
+COL_SEED: Final = "seed"
+COL_RNG_STATE: Final = "rng_state"
+COL_OPTIONS: Final = "options"
+COL_AGENT: Final = "agent"
+COL_GAME: Final = "game"
 
 OUTCOME_SUCCESS: Final = "success"
 OUTCOME_FAILURE: Final = "failure"

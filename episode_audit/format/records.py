@@ -19,13 +19,10 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
 
 from . import names as fmt
-from .columns import TERMS_TYPE
 
 __all__ = [
-    "EPISODE_ARROW_SCHEMA",
     "EPISODE_SCHEMA",
     "MAX_JSON_TEXT",
     "EpisodeRanges",
@@ -256,38 +253,6 @@ EPISODE_SCHEMA: dict[str, Any] = {
         },
     },
 }
-
-EPISODE_ARROW_SCHEMA = pa.schema(
-    [
-        pa.field("episode", pa.int64(), nullable=False),
-        pa.field("env_index", pa.int64()),
-        pa.field("agent", pa.string()),
-        pa.field("seed", pa.int64()),
-        pa.field("rng_state", pa.string()),
-        pa.field("options", pa.string()),
-        pa.field("outcome", pa.string(), nullable=False),
-        pa.field("failure_label", pa.string()),
-        pa.field("truncation_reason", pa.string()),
-        pa.field("terminated", pa.bool_()),
-        pa.field("truncated", pa.bool_()),
-        pa.field("length", pa.int64(), nullable=False),
-        pa.field("return", pa.float64()),
-        pa.field("term_totals", TERMS_TYPE),
-        pa.field("start_time_ns", pa.int64()),
-        pa.field("end_time_ns", pa.int64()),
-        pa.field("error_type", pa.string()),
-        pa.field("error_message", pa.string()),
-        pa.field("error_during", pa.string()),
-        pa.field("notes", pa.int64()),
-        pa.field("game", pa.int64()),
-        pa.field("ended", pa.bool_(), nullable=False),
-    ]
-)
-"""Arrow schema of the episodes table; episode blocks hold every column but ``ended`` (and
-``game`` unless the file records games: PettingZoo files).
-
-``rng_state`` and ``options`` are compact JSON text; ``term_totals`` maps term -> total.
-"""
 
 
 @dataclass

@@ -1,9 +1,11 @@
 """The read wing: open evidence files (finished or torn) as Arrow tables.
 
 Public: :func:`open_evidence`, :class:`Evidence`, :class:`EpisodeEvidence`,
-:data:`EPISODE_COLUMNS`; for recovery, :func:`iter_records` and its items.
+:data:`EPISODE_COLUMNS`; a command's inputs: :func:`evidence_files`, :func:`open_all`,
+:class:`Unreadable`, :func:`steps_total`; for recovery, :func:`iter_records` and its items.
 """
 
+from .inputs import Unreadable, evidence_files, open_all, steps_total
 from .reader import (
     EPISODE_COLUMNS,
     ChunkContents,
@@ -25,7 +27,11 @@ __all__ = [
     "EpisodeEvidence",
     "Evidence",
     "FileEnd",
+    "Unreadable",
+    "evidence_files",
     "iter_records",
+    "open_all",
     "open_evidence",
+    "steps_total",
     "summary_definitions",
 ]

@@ -64,9 +64,9 @@ from ..errors import (
     UnsupportedVersionError,
 )
 from ..format import names as fmt
-from ..format.columns import TERMS_TYPE
-from ..format.records import EPISODE_ARROW_SCHEMA as EPISODE_SCHEMA
 from ..format.records import EpisodeRanges, RunInfo
+from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA, key_columns, required_columns
+from ..format.schemas import EPISODE_TABLE_SCHEMA as EPISODE_SCHEMA
 from ..format.spaces import SpaceCodec, codec_for, space_from_description
 
 try:  # zlib-ng's CRC-32 (the same checksum) runs ~4x faster than the system zlib's
@@ -133,18 +133,18 @@ EPISODE_COLUMNS: tuple[str, ...] = tuple(EPISODE_SCHEMA.names)
 """Columns of :meth:`Evidence.episodes`; ``ended`` is False for episodes a torn file cut off."""
 
 _RESET_START_COLUMNS = [
-    "episode",
-    "env_index",
-    "agent",
-    "game",
+    fmt.COL_EPISODE,
+    fmt.COL_ENV_INDEX,
+    fmt.COL_AGENT,
+    fmt.COL_GAME,
     fmt.COL_TIME,
-    "seed",
-    "rng_state",
-    "options",
+    fmt.COL_SEED,
+    fmt.COL_RNG_STATE,
+    fmt.COL_OPTIONS,
 ]
 # Columns every episode block has (those of format 1.0's first files); ``game`` is optional.
-_BLOCK_SCHEMA = pa.schema([f for f in EPISODE_SCHEMA if f.name != "ended"])
-_BLOCK_BASE = pa.schema([f for f in _BLOCK_SCHEMA if f.name != "game"])
+_BLOCK_SCHEMA = EPISODE_BLOCK_SCHEMA
+_BLOCK_BASE = EPISODE_BLOCK_BASE
 
 
 @dataclass(frozen=True)
@@ -1197,39 +1197,13 @@ def _one_line(exc: BaseException, limit: int = 200) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-# Columns a block must have, with their types (None: any type; the space decides). Files of
-# the same major version may add columns; these are the ones the readers rely on.
+# Columns a block must have, with their types (None: any type; the space decides), and those
+# that must have no nulls: from the block schemas' one definition.
 _REQUIRED: dict[str, dict[str, pa.DataType | None]] = {
-    fmt.TOPIC_STEPS: {
-        fmt.COL_EPISODE: pa.int64(),
-        fmt.COL_STEP: pa.int64(),
-        fmt.COL_TIME: pa.int64(),
-        fmt.COL_ACTION: None,
-        fmt.COL_OBSERVATION: None,
-        fmt.COL_REWARD: pa.float64(),
-        fmt.COL_TERMS: TERMS_TYPE,
-        fmt.COL_TERMINATED: pa.bool_(),
-        fmt.COL_TRUNCATED: pa.bool_(),
-        fmt.COL_OUTCOME: pa.string(),
-        fmt.COL_LABEL: pa.string(),
-        fmt.COL_INFO: pa.string(),
-        fmt.COL_NOTES: pa.string(),
-    },
-    fmt.TOPIC_RESETS: {
-        fmt.COL_EPISODE: pa.int64(),
-        "env_index": pa.int64(),
-        fmt.COL_TIME: pa.int64(),
-        "seed": pa.int64(),
-        "rng_state": pa.string(),
-        "options": pa.string(),
-        fmt.COL_OBSERVATION: None,
-        fmt.COL_INFO: pa.string(),
-        fmt.COL_NOTES: pa.string(),
-    },
+    topic: required_columns(topic) for topic in (fmt.TOPIC_STEPS, fmt.TOPIC_RESETS)
 }
 _NOT_NULL: dict[str, tuple[str, ...]] = {
-    fmt.TOPIC_STEPS: (fmt.COL_EPISODE, fmt.COL_STEP, fmt.COL_TIME),
-    fmt.TOPIC_RESETS: (fmt.COL_EPISODE, "env_index", fmt.COL_TIME),
+    topic: key_columns(topic) for topic in (fmt.TOPIC_STEPS, fmt.TOPIC_RESETS)
 }
 _NO_SCHEMA = pa.schema([])
 _CHECKED: dict[str, pa.Schema] = {}

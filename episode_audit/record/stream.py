@@ -50,7 +50,8 @@ from ..format.columns import (
     text,
     text_array,
 )
-from ..format.records import EPISODE_ARROW_SCHEMA, EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
+from ..format.records import EPISODE_SCHEMA, RunInfo, to_json, to_jsonable
+from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA, reset_schema, step_schema
 from ..format.spaces import ColumnBuffer, SpaceCodec
 from .rules import (
     EndingRules,
@@ -448,10 +449,7 @@ class EvidenceFile:
         # Clock: monotonic for ordering, anchored to the wall clock once.
         self.clock = time.monotonic_ns
         self.wall_offset = time.time_ns() - time.monotonic_ns()
-        fields = [f for f in EPISODE_ARROW_SCHEMA if f.name != "ended"]
-        if not games:
-            fields = [f for f in fields if f.name != "game"]
-        self._episode_schema = pa.schema(fields)
+        self._episode_schema = EPISODE_BLOCK_SCHEMA if games else EPISODE_BLOCK_BASE
         self.pending: list[tuple[_Episode, dict[str, Any]]] = []
         self.streams: list[Stream] = []
         # called first by every flush (a batching recorder hands over its rows)
@@ -768,39 +766,14 @@ class Stream:
         """Estimated bytes of one step row (for sizing blocks)."""
         self._time_limit = time_limit
         self._max_steps = max_episode_steps
-        self._step_schema = pa.schema(
-            [
-                pa.field(fmt.COL_EPISODE, pa.int64(), nullable=False),
-                pa.field(fmt.COL_STEP, pa.int64(), nullable=False),
-                pa.field(fmt.COL_TIME, pa.int64(), nullable=False),
-                act_codec.field(fmt.COL_ACTION),
-                obs_codec.field(fmt.COL_OBSERVATION),
-                pa.field(fmt.COL_REWARD, pa.float64(), nullable=False),
-                pa.field(fmt.COL_TERMS, TERMS_TYPE),
-                pa.field(fmt.COL_TERMINATED, pa.bool_(), nullable=False),
-                pa.field(fmt.COL_TRUNCATED, pa.bool_(), nullable=False),
-                pa.field(fmt.COL_OUTCOME, pa.string()),
-                pa.field(fmt.COL_LABEL, pa.string()),
-                pa.field(fmt.COL_INFO, pa.string()),
-                pa.field(fmt.COL_NOTES, pa.string()),
-            ]
+        self._step_schema = step_schema(
+            act_codec.field(fmt.COL_ACTION), obs_codec.field(fmt.COL_OBSERVATION)
         )
-        reset_fields = [
-            pa.field(fmt.COL_EPISODE, pa.int64(), nullable=False),
-            pa.field("env_index", pa.int64(), nullable=False),
-            pa.field(fmt.COL_TIME, pa.int64(), nullable=False),
-            pa.field("seed", pa.int64()),
-            pa.field("rng_state", pa.string()),
-            pa.field("options", pa.string()),
-            obs_codec.field(fmt.COL_OBSERVATION),
-            pa.field(fmt.COL_INFO, pa.string()),
-            pa.field(fmt.COL_NOTES, pa.string()),
-        ]
         # Multi-stream files: reset rows also say whose they are (and, with games, which game).
         self._reset_extra = file.multi
-        if file.multi:
-            reset_fields += [pa.field("agent", pa.string()), pa.field("game", pa.int64())]
-        self._reset_schema = pa.schema(reset_fields)
+        self._reset_schema = reset_schema(
+            obs_codec.field(fmt.COL_OBSERVATION), multi_stream=file.multi
+        )
         channel_meta = {"agent": agent or "", "env_index": str(env_index)}
         writer = file.writer
         try:
@@ -1247,22 +1220,22 @@ class Stream:
             info = _info_column(
                 n, block.info, block.notes, lambda row: episode_at(int(episode[row]))
             )
-            columns = [
-                pa.array(episode),
-                pa.array(step),
-                pa.array(times),
-                block.act.finish(),
-                block.obs.finish(),
-                pa.array(np.frombuffer(block.rewards, dtype=np.float64)),
-                terms,
-                pa.array(terminated),
-                pa.array(truncated),
-                pa.array(outcome, pa.string()),
-                pa.array(label, pa.string()),
-                info,
-                _notes_column(n, block.notes),
-            ]
-            batch = pa.RecordBatch.from_arrays(columns, schema=self._step_schema)
+            columns = {
+                fmt.COL_EPISODE: pa.array(episode),
+                fmt.COL_STEP: pa.array(step),
+                fmt.COL_TIME: pa.array(times),
+                fmt.COL_ACTION: block.act.finish(),
+                fmt.COL_OBSERVATION: block.obs.finish(),
+                fmt.COL_REWARD: pa.array(np.frombuffer(block.rewards, dtype=np.float64)),
+                fmt.COL_TERMS: terms,
+                fmt.COL_TERMINATED: pa.array(terminated),
+                fmt.COL_TRUNCATED: pa.array(truncated),
+                fmt.COL_OUTCOME: pa.array(outcome, pa.string()),
+                fmt.COL_LABEL: pa.array(label, pa.string()),
+                fmt.COL_INFO: info,
+                fmt.COL_NOTES: _notes_column(n, block.notes),
+            }
+            batch = _batch(columns, self._step_schema)
             writer.write_batch(self._steps_channel, batch, int(times[-1]))
             file.counts["steps"] += n
             file.counts["blocks"] += 1
@@ -1270,26 +1243,32 @@ class Stream:
             n = len(block.resets)
             episode_r, mono_r, seeds, rng, options, games = zip(*block.resets, strict=True)
             times = np.fromiter(mono_r, dtype=np.int64, count=n) + offset
-            columns = [
-                pa.array(np.fromiter(episode_r, dtype=np.int64, count=n)),
-                pa.array(np.full(n, self.env_index, dtype=np.int64)),
-                pa.array(times),
-                pa.array(seeds, pa.int64()),
-                pa.array(rng, pa.string()),
-                pa.array(options, pa.string()),
-                block.reset_obs.finish(),
-                _info_column(
+            columns = {
+                fmt.COL_EPISODE: pa.array(np.fromiter(episode_r, dtype=np.int64, count=n)),
+                fmt.COL_ENV_INDEX: pa.array(np.full(n, self.env_index, dtype=np.int64)),
+                fmt.COL_TIME: pa.array(times),
+                fmt.COL_SEED: pa.array(seeds, pa.int64()),
+                fmt.COL_RNG_STATE: pa.array(rng, pa.string()),
+                fmt.COL_OPTIONS: pa.array(options, pa.string()),
+                fmt.COL_OBSERVATION: block.reset_obs.finish(),
+                fmt.COL_INFO: _info_column(
                     n,
                     block.reset_info,
                     block.reset_notes,
                     lambda row: block.episodes.get(block.resets[row][0]),
                 ),
-                _notes_column(n, block.reset_notes),
-            ]
+                fmt.COL_NOTES: _notes_column(n, block.reset_notes),
+            }
             if self._reset_extra:
-                columns += [pa.array([self.agent] * n, pa.string()), pa.array(games, pa.int64())]
-            batch = pa.RecordBatch.from_arrays(columns, schema=self._reset_schema)
+                columns[fmt.COL_AGENT] = pa.array([self.agent] * n, pa.string())
+                columns[fmt.COL_GAME] = pa.array(games, pa.int64())
+            batch = _batch(columns, self._reset_schema)
             writer.write_batch(self._resets_channel, batch, int(times[-1]))
+
+
+def _batch(columns: dict[str, pa.Array], schema: pa.Schema) -> pa.RecordBatch:
+    """A record batch of ``schema`` from its columns by name."""
+    return pa.RecordBatch.from_arrays([columns[name] for name in schema.names], schema=schema)
 
 
 def _index_columns(

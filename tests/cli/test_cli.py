@@ -354,7 +354,7 @@ def test_show_summary_of_a_long_file_lists_the_first_and_last_episodes(tmp_path:
     ],
 )  # fmt: skip
 def test_space_text_of_every_kind_of_space(description: dict[str, object], text: str) -> None:
-    from episode_audit.cli.show import space_text
+    from episode_audit.cli.render.show import space_text
 
     assert space_text(description) == text
 

@@ -1,0 +1,87 @@
+"""``episode-audit record``: record episodes of a registered env with a policy."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from ..errors import EpisodeAuditError
+from ._app import app, emit, fail, progress_bar
+
+
+@app.command()
+def record(
+    env_id: Annotated[str, typer.Argument(help="A registered Gymnasium id, e.g. CartPole-v1.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The evidence file to write.")],
+    policy: Annotated[
+        str,
+        typer.Option(
+            help="random, scripted or hacker (reference tasks), or MODULE:CALLABLE taking "
+            "(env, seed) and returning obs -> action."
+        ),
+    ] = "random",
+    episodes: Annotated[int, typer.Option(help="Number of episodes.", min=1)] = 10,
+    seed: Annotated[int, typer.Option(help="Seed of the first episode (then seed+1, ...).")] = 0,
+    env_kwargs: Annotated[
+        str | None,
+        typer.Option(
+            help="Keyword arguments for gym.make as JSON, e.g. '{\"proxy_reward\": true}'."
+        ),
+    ] = None,
+    max_episode_steps: Annotated[
+        int | None, typer.Option(help="Override the registered time limit.")
+    ] = None,
+    tag: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Run tag KEY=VALUE (repeatable), e.g. policy=ppo.", metavar="<key=value>"
+        ),
+    ] = None,
+    import_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--import", help="Import MODULE first (registers envs; repeatable).", metavar="<module>"
+        ),
+    ] = None,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace an existing file.")
+    ] = False,
+) -> None:
+    """Record episodes of a Gymnasium environment with a built-in or given policy."""
+    from ..rollout import record_episodes
+
+    kwargs: dict[str, Any] = {}
+    if env_kwargs:
+        try:
+            kwargs = json.loads(env_kwargs)
+        except json.JSONDecodeError as exc:
+            fail(f"--env-kwargs: not valid JSON ({exc.msg})")
+        if not isinstance(kwargs, dict):
+            fail("--env-kwargs: expected a JSON object")
+    tags: dict[str, str] = {}
+    for item in tag or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            fail(f"--tag: expected KEY=VALUE, got {item!r}")
+        tags[key] = value
+    try:
+        with progress_bar(f"recording {env_id}", episodes) as advance:
+            summary = record_episodes(
+                env_id,
+                out,
+                policy=policy,
+                episodes=episodes,
+                seed=seed,
+                env_kwargs=kwargs,
+                max_episode_steps=max_episode_steps,
+                tags=tags,
+                imports=import_ or (),
+                overwrite=overwrite,
+                on_episode=lambda: advance(1),
+            )
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    emit(str(summary))

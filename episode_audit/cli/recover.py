@@ -1,0 +1,43 @@
+"""``episode-audit recover``: rewrite a torn or damaged file as a finished one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ..errors import EpisodeAuditError
+from ._app import EXIT_FINDINGS, app, emit, fail
+
+
+@app.command()
+def recover(
+    path: Annotated[
+        Path,
+        typer.Argument(
+            help="A torn evidence file (left by a killed recorder) or a damaged one.",
+            readable=False,
+        ),
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The finished file to write.")],
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace an existing output file (never the input).")
+    ] = False,
+) -> None:
+    """Rewrite a torn or damaged file as a finished, indexed one.
+
+    Every complete, intact chunk is kept; damaged chunks are skipped and the episodes that lost
+    evidence named. Exit 1 if anything was or may have been lost.
+    """
+    from ..recover import recover as run_recover
+
+    if not path.exists():
+        fail(f"{path}: no such file or directory")
+    try:
+        result = run_recover(path, out, overwrite=overwrite)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    emit(result.summary())
+    if result.lost:
+        raise typer.Exit(EXIT_FINDINGS)

@@ -1,0 +1,66 @@
+"""Render a replay result: the episodes that did not replay identically."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from rich.console import Group, RenderableType
+from rich.text import Text
+
+from ...read.inputs import Unreadable
+from ...replay import ReplayResult
+from .common import (
+    Output,
+    OutputFormat,
+    markdown_table,
+    table,
+    to_json,
+    unreadable_json,
+)
+
+__all__ = ["replay_output"]
+
+
+def replay_output(
+    result: ReplayResult, output: OutputFormat, *, unreadable: Sequence[Unreadable] = ()
+) -> Output:
+    """Replay results: one row per episode that was not identical, plus a summary.
+
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    """
+    if output == "json":
+        return to_json({**result.to_dict(), "unreadable": unreadable_json(unreadable)})
+    headers = ["file", "episode", "status", "steps", "where", "detail"]
+    rows = []
+    for e in result.episodes:
+        if e.status == "identical":
+            continue
+        d = e.divergence
+        where = "-" if d is None else ("reset" if d.step is None else f"step {d.step}")
+        detail = d.describe() if d is not None else (e.reason or "")
+        rows.append([e.file, e.episode, e.status, e.steps, where, detail])
+    summary = (
+        f"{result.count('identical')} identical, {result.count('diverged')} diverged, "
+        f"{result.count('not_replayable')} not replayable"
+    )
+    versions = [
+        [file, lib, recorded, current]
+        for file, diffs in result.version_differences.items()
+        for lib, (recorded, current) in diffs.items()
+    ]
+    version_headers = ["file", "library", "recorded", "current"]
+    if output == "markdown":
+        parts = [f"### episode-audit replay\n\n{summary}\n"]
+        if rows:
+            parts.append(markdown_table(headers, rows) + "\n")
+        if versions and result.count("diverged"):
+            parts.append("Library versions differ from the recording:\n\n")
+            parts.append(markdown_table(version_headers, versions) + "\n")
+        return "\n".join(parts)
+    out: list[RenderableType] = []
+    if rows:
+        out.append(table("Episodes that did not replay identically", headers, rows))
+    if versions and result.count("diverged"):
+        out.append(table("Library versions differ from the recording", version_headers, versions))
+    out.append(Text(summary))
+    return Group(*out)

@@ -1,0 +1,132 @@
+"""Render a report: rates side by side with intervals, terms, warnings, gates."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from rich.console import Group, RenderableType
+
+from ...read.inputs import Unreadable
+from ...report import GroupReport, Interval, Report
+from .common import (
+    Output,
+    OutputFormat,
+    fmt_number,
+    markdown_table,
+    rate,
+    table,
+    to_json,
+    unreadable_json,
+)
+
+__all__ = ["REPORT_HEADERS", "report_output"]
+
+
+def _counts(counts: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) or "-"
+
+
+def _mean_std(mean: float | None, std: float | None) -> str:
+    if mean is None:
+        return "-"
+    return f"{fmt_number(mean)} ± {fmt_number(std or 0.0)}"
+
+
+def _ci(ci: Interval | None) -> str:
+    return "" if ci is None else f" [{ci.low:.2f}, {ci.high:.2f}]"
+
+
+def _group_row(g: GroupReport) -> list[str]:
+    return [
+        g.key,
+        str(g.episodes),
+        f"{g.success} ({rate(g.success_rate)}{_ci(g.success_ci)})",
+        f"{sum(g.failures.values())} ({rate(g.failure_rate)}{_ci(g.failure_ci)})",
+        _counts(g.failures),
+        f"{sum(g.truncations.values())} ({rate(g.truncation_rate)}{_ci(g.truncation_ci)})",
+        _counts(g.truncations),
+        str(g.incomplete),
+        str(g.errors),
+        str(g.terminated_and_truncated),
+        _mean_std(g.return_mean, g.return_std),
+        _mean_std(g.length_mean, g.length_std),
+    ]
+
+
+REPORT_HEADERS = [
+    "group",
+    "episodes",
+    "success (95% CI)",
+    "failure (95% CI)",
+    "failure labels",
+    "truncated (95% CI)",
+    "truncation reasons",
+    "incomplete",
+    "error",
+    "term.+trunc.",
+    "return",
+    "length",
+]
+
+
+def report_output(
+    result: Report, output: OutputFormat, *, unreadable: Sequence[Unreadable] = ()
+) -> Output:
+    """The success / failure / truncation table, term breakdown, warnings and gates.
+
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    """
+    if output == "json":
+        return to_json({**result.to_dict(), "unreadable": unreadable_json(unreadable)})
+    rows = [_group_row(g) for g in result.groups]
+    term_rows = [
+        [g.key, outcome, term, fmt_number(value)]
+        for g in result.groups
+        for outcome, terms in sorted(g.term_means.items())
+        for term, value in sorted(terms.items())
+    ]
+    term_headers = ["group", "outcome", "term", "mean total per episode"]
+    warnings = [[w.group, w.code, w.message] for g in result.groups for w in g.warnings]
+    warning_headers = ["group", "warning", "why"]
+    gates = [[r.gate, r.group, "pass" if r.passed else "FAIL", r.message] for r in result.gates]
+    gate_headers = ["gate", "group", "result", "detail"]
+    unfinished = [[name, why] for name, why in result.unfinished]
+    unfinished_title = "Unfinished files (still being written, or torn): counts so far"
+    unfinished_headers = ["file", "why"]
+    if output == "markdown":
+        parts = [
+            f"### episode-audit report (by {result.by}{_unit(result)})\n",
+            markdown_table(REPORT_HEADERS, rows) + "\n",
+        ]
+        if term_rows:
+            parts += [
+                "#### Reward terms by outcome\n",
+                markdown_table(term_headers, term_rows) + "\n",
+            ]
+        if warnings:
+            parts += ["#### Incentive warnings\n", markdown_table(warning_headers, warnings) + "\n"]
+        if gates:
+            parts += ["#### Gates\n", markdown_table(gate_headers, gates) + "\n"]
+        if unfinished:
+            parts += [
+                f"#### {unfinished_title}\n",
+                markdown_table(unfinished_headers, unfinished) + "\n",
+            ]
+        return "\n".join(parts)
+    out: list[RenderableType] = [
+        table(f"Outcomes (by {result.by}{_unit(result)})", REPORT_HEADERS, rows)
+    ]
+    if term_rows:
+        out.append(table("Reward terms by outcome", term_headers, term_rows))
+    if warnings:
+        out.append(table("Incentive warnings", warning_headers, warnings))
+    if gates:
+        out.append(table("Gates", gate_headers, gates))
+    if unfinished:
+        out.append(table(unfinished_title, unfinished_headers, unfinished))
+    return Group(*out)
+
+
+def _unit(result: Report) -> str:
+    """``", games"`` when a report counts PettingZoo games instead of episodes."""
+    return ", games" if result.unit == "game" else ""

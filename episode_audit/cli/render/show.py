@@ -1,0 +1,432 @@
+"""What ``episode-audit show`` prints: a file's summary, or one episode's steps.
+
+:func:`summarize` returns the summary as plain data (the library view); :func:`summary_output`
+and :func:`episode_output` render it as a table, Markdown or JSON.
+
+The summary lists the file's episodes (index, outcome, label or reason, length, return): all of
+them up to :data:`EPISODE_LIST_FULL`, else the first :data:`EPISODE_LIST_HEAD` and the last
+:data:`EPISODE_LIST_TAIL` with a row saying how many are left out (``all_episodes`` lists every
+one). Spaces are shown with their shape and dtype:
+
+>>> space_text({"type": "Box", "shape": [11], "dtype": "float64", "low": -1.0, "high": 1.0})
+'Box(shape=(11,), dtype=float64)'
+>>> space_text({"type": "Discrete", "n": 3, "start": -1, "dtype": "int64"})
+'Discrete(n=3, start=-1, shape=(), dtype=int64)'
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from gymnasium import spaces
+from gymnasium.spaces import Space
+from rich.console import Group, RenderableType
+from rich.text import Text
+
+from ...errors import EvidenceError
+from ...format import names as fmt
+from ...format.records import from_json, to_jsonable
+from ...format.spaces import space_from_description
+from ...read.reader import Evidence
+from .common import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
+
+__all__ = [
+    "EPISODE_LIST_FULL",
+    "EPISODE_LIST_HEAD",
+    "EPISODE_LIST_TAIL",
+    "episode_list",
+    "episode_output",
+    "episode_rows",
+    "space_shape_dtype",
+    "space_text",
+    "summarize",
+    "summary_output",
+]
+
+EPISODE_LIST_HEAD = 5
+"""Episodes listed from the start of a long file's summary."""
+EPISODE_LIST_TAIL = 5
+"""Episodes listed from the end of a long file's summary."""
+EPISODE_LIST_FULL = 12
+"""Files with up to this many episodes have every one listed (so no row hides one or two)."""
+
+_SPACE_TEXT_LIMIT = 300
+"""The longest space text (a Dict of many spaces is cut)."""
+
+
+def _space(description: Any) -> Space[Any] | None:
+    """The space a file describes, rebuilt; ``None`` when the description does not parse."""
+    try:
+        return space_from_description(description)
+    except Exception:  # a description from the file that is not one: nothing to show
+        return None
+
+
+def _digest_min_bytes(recorder: Any) -> int | None:
+    """The recorder's ``digest_min_bytes`` setting (``None``: every array stored whole)."""
+    value = recorder.get("digest_min_bytes") if isinstance(recorder, dict) else None
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def _observation_text(description: Any, data: dict[str, Any]) -> str:
+    text = space_text(description)
+    limit = data.get("observation_digest_min_bytes")
+    if limit is None:
+        return text
+    return (
+        f"{text}; arrays of {limit} bytes or more stored as 16-byte BLAKE2b digests "
+        "(replay compares them, show and export cannot give their values)"
+    )
+
+
+def space_shape_dtype(description: Any) -> tuple[list[int] | None, str | None]:
+    """The shape and dtype of a described space, or ``None`` where it has no single one.
+
+    ``description`` is a space as the file describes it
+    (:func:`~episode_audit.format.spaces.describe_space`); composite spaces (``Dict``, ``Tuple``, …)
+    and ``Text`` have neither, and a description that does not parse gives ``None``.
+
+    >>> space_shape_dtype({"type": "MultiBinary", "n": [2, 3]})
+    ([2, 3], 'int8')
+    >>> space_shape_dtype({"type": "Dict", "spaces": []})
+    (None, None)
+    """
+    space = _space(description)
+    if space is None or space.shape is None or space.dtype is None:
+        return None, None
+    return list(space.shape), str(space.dtype)
+
+
+def space_text(description: Any) -> str:
+    """A described space as one line with its shape and dtype (see the module docstring).
+
+    Composite spaces show their parts: ``Dict(obs: Box(shape=(3,), dtype=float32), …)``;
+    spaces without one shape (``Text``, ``Sequence``, ``Graph``) read as Gymnasium prints them.
+    A description that does not parse shows its type only, e.g. ``Box(?)``.
+    """
+    space = _space(description)
+    if space is None:
+        kind = description.get("type") if isinstance(description, dict) else None
+        if kind == "Custom":
+            return f"Custom({description.get('class', '?')})"
+        return f"{kind}(?)" if isinstance(kind, str) else "?"
+    text = _space_text(space)
+    if len(text) > _SPACE_TEXT_LIMIT:
+        text = text[: _SPACE_TEXT_LIMIT - 3] + "..."
+    return text
+
+
+def _space_text(space: Space[Any]) -> str:
+    if isinstance(space, spaces.Dict):
+        return f"Dict({', '.join(f'{k}: {_space_text(s)}' for k, s in space.spaces.items())})"
+    if isinstance(space, spaces.Tuple):
+        return f"Tuple({', '.join(_space_text(s) for s in space.spaces)})"
+    if space.shape is None or space.dtype is None:
+        return repr(space)
+    extra = ""
+    if isinstance(space, spaces.Discrete):
+        start = int(space.start)
+        extra = f"n={int(space.n)}, " + (f"start={start}, " if start else "")
+    return f"{type(space).__name__}({extra}shape={space.shape}, dtype={space.dtype})"
+
+
+_LIST_COLUMNS = (
+    "episode",
+    "env_index",
+    "agent",
+    "outcome",
+    "failure_label",
+    "truncation_reason",
+    "error_type",
+    "length",
+    "return",
+)
+_LABEL_OF = {
+    fmt.OUTCOME_FAILURE: "failure_label",
+    fmt.OUTCOME_TRUNCATED: "truncation_reason",
+    fmt.OUTCOME_ERROR: "error_type",
+}
+
+
+def episode_list(
+    episodes: pa.Table, *, all_episodes: bool = False
+) -> tuple[list[dict[str, Any]], int]:
+    """The episodes a summary lists, and how many it leaves out (between the first and last).
+
+    ``episodes`` is :meth:`Evidence.episodes`. Each entry: ``episode``, ``env_index`` and
+    ``agent`` (``None`` outside vector and PettingZoo files), ``outcome``, ``label`` (the failure
+    label, truncation reason or error type; ``None`` for a success or an incomplete episode),
+    ``length`` and ``return``.
+    """
+    n = episodes.num_rows
+    columns = [c for c in _LIST_COLUMNS if c in episodes.column_names]
+    table = episodes.select(columns)
+    if all_episodes or n <= EPISODE_LIST_FULL:
+        parts, omitted = [table], 0
+    else:
+        tail = n - EPISODE_LIST_TAIL
+        parts = [table.slice(0, EPISODE_LIST_HEAD), table.slice(tail)]
+        omitted = tail - EPISODE_LIST_HEAD
+    rows: list[dict[str, Any]] = []
+    for part in parts:
+        for record in part.to_pylist():
+            label = _LABEL_OF.get(record["outcome"])
+            rows.append(
+                {
+                    "episode": record["episode"],
+                    "env_index": record.get("env_index"),
+                    "agent": record.get("agent"),
+                    "outcome": record["outcome"],
+                    "label": record.get(label) if label else None,
+                    "length": record["length"],
+                    "return": record.get("return"),
+                }
+            )
+    return rows, omitted
+
+
+def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
+    """The file summary: run metadata, versions, env spec, episodes by outcome, finished or not.
+
+    ``episode_list`` holds the first and last episodes of a long file (``episode_list_omitted``
+    says how many are between them), or every one with ``all_episodes``: see
+    :func:`episode_list`.
+    """
+    episodes = ev.episodes()
+    outcomes = Counter(episodes.column("outcome").to_pylist())
+    run = ev.run
+    listed, omitted = episode_list(episodes, all_episodes=all_episodes)
+    obs_shape, obs_dtype = space_shape_dtype(run.observation_space)
+    act_shape, act_dtype = space_shape_dtype(run.action_space)
+    return {
+        "file": str(ev.path),
+        "finished": ev.finished,
+        "torn": ev.torn,
+        "recovered": (ev.run_end or {}).get("dropped", "not recorded")
+        if (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED
+        else None,
+        "format_version": run.format_version,
+        "writer": run.writer,
+        "env_id": run.env_id,
+        "start_time": run.start_time,
+        "tags": run.tags,
+        "episodes": episodes.num_rows,
+        "steps": int(sum(episodes.column("length").to_pylist())),
+        "outcomes": {k: outcomes.get(k, 0) for k in fmt.OUTCOMES},
+        "observation_space": run.observation_space.get("type"),
+        "action_space": run.action_space.get("type"),
+        "reward_terms": run.reward_terms,
+        "versions": run.versions,
+        "platform": run.platform,
+        "command_line": run.command_line,
+        "env_spec": run.env_spec,
+        "layout": run.layout,
+        "observation_shape": obs_shape,
+        "observation_dtype": obs_dtype,
+        "action_shape": act_shape,
+        "action_dtype": act_dtype,
+        "episode_list": listed,
+        "episode_list_omitted": omitted,
+        "observation_digest_min_bytes": _digest_min_bytes(run.recorder),
+    }
+
+
+def _layout_text(layout: dict[str, Any]) -> str:
+    """``single``, or e.g. ``vector: 8 sub-envs (SyncVectorEnv, NextStep)``."""
+    kind = str(layout.get("kind", "single"))
+    if kind == "single":
+        return kind
+    parts = [f"{layout.get('num_envs', '?')} sub-envs"] if kind == "vector" else []
+    if layout.get("agents"):
+        parts.append("agents " + ", ".join(str(a) for a in layout["agents"]))
+    extra = [str(layout[k]) for k in ("vector_class", "autoreset_mode") if layout.get(k)]
+    return f"{kind}: {', '.join(parts)}" + (f" ({', '.join(extra)})" if extra else "")
+
+
+def _episode_table(data: dict[str, Any]) -> tuple[str, list[str], list[list[Any]]]:
+    """Title, headers and rows of the summary's episode list (the ``… N more`` row included)."""
+    listed: list[dict[str, Any]] = data["episode_list"]
+    omitted: int = data["episode_list_omitted"]
+    kind = str((data["layout"] or {}).get("kind", "single"))
+    extra = (
+        ["env_index"] if kind == "vector" else ["agent"] if kind.startswith("pettingzoo") else []
+    )
+    headers = ["episode", *extra, "outcome", "label / reason", "length", "return"]
+
+    def row(e: dict[str, Any]) -> list[Any]:
+        label = e["label"] if e["label"] is not None else "-"
+        cells = [e["episode"], *(e[key] for key in extra), e["outcome"], label, e["length"]]
+        return [*cells, fmt_number(e["return"])]
+
+    rows = [row(e) for e in listed]
+    if not omitted:
+        return "Episodes", headers, rows
+    more = ["…", *("" for _ in extra), f"{omitted} more", "(--all-episodes)", "", ""]
+    rows.insert(EPISODE_LIST_HEAD, more)
+    title = (
+        f"Episodes (first {EPISODE_LIST_HEAD} and last {EPISODE_LIST_TAIL} of {data['episodes']})"
+    )
+    return title, headers, rows
+
+
+def summary_output(
+    ev: Evidence, output: OutputFormat, *, all_episodes: bool = False
+) -> RenderableType | str:
+    """Render :func:`summarize` (``all_episodes``: list every episode, not the first and last)."""
+    data = summarize(ev, all_episodes=all_episodes)
+    if output == "json":
+        return to_json(data)
+    status = "finished" if data["finished"] else f"UNFINISHED ({data['torn']})"
+    if data["recovered"] is not None:
+        status = f"recovered from a torn or damaged file (dropped: {data['recovered']})"
+    rows = [
+        ["file", data["file"]],
+        ["status", status],
+        ["format", data["format_version"]],
+        ["writer", data["writer"]],
+        ["env id", data["env_id"] or "-"],
+        ["layout", _layout_text(data["layout"])],
+        ["started", data["start_time"]],
+        ["tags", ", ".join(f"{k}={v}" for k, v in data["tags"].items()) or "-"],
+        ["episodes", data["episodes"]],
+        ["steps", data["steps"]],
+        ["outcomes", ", ".join(f"{k} {v}" for k, v in data["outcomes"].items())],
+        ["observation space", _observation_text(ev.run.observation_space, data)],
+        ["action space", space_text(ev.run.action_space)],
+        ["versions", ", ".join(f"{k} {v}" for k, v in data["versions"].items())],
+        ["platform", data["platform"]],
+        ["command", " ".join(data["command_line"])],
+    ]
+    spec = to_json(data["env_spec"]) if data["env_spec"] is not None else "-"
+    title, headers, episode_rows = _episode_table(data)
+    if output == "markdown":
+        block = safe_block(spec)
+        fence = "`" * max(3, _longest_backtick_run(block) + 1)
+        episodes = (
+            f"\n\n{title}:\n\n" + markdown_table(headers, episode_rows) if episode_rows else ""
+        )
+        return (
+            markdown_table(["field", "value"], rows)
+            + episodes
+            + f"\n\nEnv spec:\n\n{fence}json\n{block}\n{fence}\n"
+        )
+    parts: list[RenderableType] = [table("Evidence file", ["field", "value"], rows)]
+    if episode_rows:
+        parts.append(table(title, headers, episode_rows))
+    parts.append(Text("env spec: " + spec))
+    return Group(*parts)
+
+
+def safe_block(text: str) -> str:
+    """Text for a fenced code block: control characters escaped line by line."""
+    return "\n".join(safe(line) for line in text.splitlines())
+
+
+def _longest_backtick_run(text: str) -> int:
+    longest = run = 0
+    for c in text:
+        run = run + 1 if c == "`" else 0
+        longest = max(longest, run)
+    return longest
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, np.ndarray):
+        return np.array2string(value, precision=4, threshold=8, max_line_width=60)
+    if isinstance(value, float):
+        return fmt_number(value, 6)
+    if isinstance(value, bytes):
+        return value.hex()[:16] + "…"
+    text = str(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def episode_rows(
+    ev: Evidence, index: int, start: int | None, stop: int | None, *, plain: bool = False
+) -> tuple[list[str], list[list[Any]], dict[str, Any]]:
+    """Headers, rows (step, action, reward, each term, flags, outcome/label, notes), record.
+
+    Cells are display text; with ``plain``, the values themselves (JSON-able: numbers, the
+    action as a list, a term absent from a step as ``None``, notes as a list).
+    """
+    cell = _plain if plain else _cell
+    episode = ev.episode(index)
+    steps = episode.steps
+    n = steps.num_rows
+    lo, hi, _ = slice(start, stop).indices(n)
+    if n and lo >= hi:
+        raise EvidenceError(
+            ev.path, f"--steps {start}:{stop} selects no step of episode {index} ({n} steps)"
+        )
+    part = steps.slice(lo, max(hi - lo, 0))
+    codec = ev.action_codec
+    action_col = part.column(fmt.COL_ACTION).combine_chunks() if part.num_rows else pa.array([])
+    actions = (
+        codec.decode(action_col) if codec is not None and part.num_rows else action_col.to_pylist()
+    )
+    terms = [dict(t) if t is not None else {} for t in part.column(fmt.COL_TERMS).to_pylist()]
+    names = sorted({k for t in terms for k in t})
+    headers = ["step", "action", "reward", *names, "terminated", "truncated", "outcome", "notes"]
+    rows: list[list[Any]] = []
+    records = part.select(
+        [
+            fmt.COL_STEP,
+            fmt.COL_REWARD,
+            fmt.COL_TERMINATED,
+            fmt.COL_TRUNCATED,
+            fmt.COL_OUTCOME,
+            fmt.COL_LABEL,
+            fmt.COL_NOTES,
+        ]
+    ).to_pylist()
+    for row, action, term in zip(records, actions, terms, strict=True):
+        outcome = row[fmt.COL_OUTCOME]
+        if outcome and row[fmt.COL_LABEL]:
+            outcome = f"{outcome} ({row[fmt.COL_LABEL]})"
+        notes = row[fmt.COL_NOTES]
+        rows.append(
+            [
+                row[fmt.COL_STEP],
+                cell(action),
+                cell(row[fmt.COL_REWARD]),
+                *(cell(term.get(name)) for name in names),
+                row[fmt.COL_TERMINATED],
+                row[fmt.COL_TRUNCATED],
+                outcome or ("" if not plain else None),
+                (from_json(notes, "notes") if plain else _cell(notes))
+                if notes
+                else ("" if not plain else []),
+            ]
+        )
+    return headers, rows, episode.record
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, bytes):
+        return value.hex()
+    return to_jsonable(value)
+
+
+def episode_output(
+    ev: Evidence, index: int, start: int | None, stop: int | None, output: OutputFormat
+) -> RenderableType | str:
+    """Render one episode's steps (optionally a slice of them)."""
+    headers, rows, record = episode_rows(ev, index, start, stop, plain=output == "json")
+    outcome = record["outcome"]
+    label = record.get("failure_label") or record.get("truncation_reason")
+    title = (
+        f"episode {index}: {outcome}{f' ({label})' if label else ''}, {record['length']} steps, "
+        f"return {fmt_number(record['return'])}, "
+        f"seed {record['seed'] if record['seed'] is not None else '-'}"
+    )
+    if output == "json":
+        record = {**record, "term_totals": dict(record.get("term_totals") or [])}
+        return to_json({"episode": record, "columns": headers, "rows": rows})
+    if output == "markdown":
+        return f"### {markdown_text(title)}\n\n" + markdown_table(headers, rows) + "\n"
+    return table(title, headers, rows)

@@ -1,0 +1,185 @@
+"""The Arrow schemas of an evidence file's columnar blocks, each defined once.
+
+The recorder builds its step, reset and episode blocks from these definitions; the reader checks
+every block it decodes against them; ``check`` and replay read the columns by these names.
+A column's type is ``None`` where the space decides it (action, observation: see
+:mod:`.spaces`). ``key`` columns locate rows: the reader refuses a block with nulls in them.
+
+>>> names = [c.name for c in STEP_COLUMNS]
+>>> names[:4], names[-2:]
+(['episode', 'step', 'time_ns', 'action'], ['info', 'notes'])
+>>> required_columns(TOPIC_RESETS)["seed"]
+DataType(int64)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import pyarrow as pa
+
+from .columns import TERMS_TYPE
+from .names import (
+    COL_ACTION,
+    COL_AGENT,
+    COL_ENV_INDEX,
+    COL_EPISODE,
+    COL_GAME,
+    COL_INFO,
+    COL_LABEL,
+    COL_NOTES,
+    COL_OBSERVATION,
+    COL_OPTIONS,
+    COL_OUTCOME,
+    COL_REWARD,
+    COL_RNG_STATE,
+    COL_SEED,
+    COL_STEP,
+    COL_TERMINATED,
+    COL_TERMS,
+    COL_TIME,
+    COL_TRUNCATED,
+    TOPIC_RESETS,
+    TOPIC_STEPS,
+)
+
+__all__ = [
+    "EPISODE_BLOCK_BASE",
+    "EPISODE_BLOCK_SCHEMA",
+    "EPISODE_TABLE_SCHEMA",
+    "RESET_COLUMNS",
+    "RESET_STREAM_COLUMNS",
+    "STEP_COLUMNS",
+    "Column",
+    "key_columns",
+    "required_columns",
+    "reset_schema",
+    "step_schema",
+]
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column of a block: its name, its Arrow type (``None``: the space's), its nulls."""
+
+    name: str
+    type: pa.DataType | None
+    nullable: bool = True
+    key: bool = False
+
+
+STEP_COLUMNS: tuple[Column, ...] = (
+    Column(COL_EPISODE, pa.int64(), nullable=False, key=True),
+    Column(COL_STEP, pa.int64(), nullable=False, key=True),
+    Column(COL_TIME, pa.int64(), nullable=False, key=True),
+    Column(COL_ACTION, None),
+    Column(COL_OBSERVATION, None),
+    Column(COL_REWARD, pa.float64(), nullable=False),
+    Column(COL_TERMS, TERMS_TYPE),
+    Column(COL_TERMINATED, pa.bool_(), nullable=False),
+    Column(COL_TRUNCATED, pa.bool_(), nullable=False),
+    Column(COL_OUTCOME, pa.string()),
+    Column(COL_LABEL, pa.string()),
+    Column(COL_INFO, pa.string()),
+    Column(COL_NOTES, pa.string()),
+)
+"""Columns of a step block (topic ``episode_audit/steps``), in order: one row per step."""
+
+RESET_COLUMNS: tuple[Column, ...] = (
+    Column(COL_EPISODE, pa.int64(), nullable=False, key=True),
+    Column(COL_ENV_INDEX, pa.int64(), nullable=False, key=True),
+    Column(COL_TIME, pa.int64(), nullable=False, key=True),
+    Column(COL_SEED, pa.int64()),
+    Column(COL_RNG_STATE, pa.string()),
+    Column(COL_OPTIONS, pa.string()),
+    Column(COL_OBSERVATION, None),
+    Column(COL_INFO, pa.string()),
+    Column(COL_NOTES, pa.string()),
+)
+"""Columns of a reset block (topic ``episode_audit/resets``), in order: one row per reset."""
+
+RESET_STREAM_COLUMNS: tuple[Column, ...] = (
+    Column(COL_AGENT, pa.string()),
+    Column(COL_GAME, pa.int64()),
+)
+"""Reset columns multi-stream files add (vector, PettingZoo): whose reset, in which game."""
+
+_BLOCK_COLUMNS = {TOPIC_STEPS: STEP_COLUMNS, TOPIC_RESETS: RESET_COLUMNS}
+
+
+def _schema(columns: Sequence[Column], space_fields: dict[str, pa.Field]) -> pa.Schema:
+    return pa.schema(
+        [
+            space_fields[c.name] if c.type is None else pa.field(c.name, c.type, c.nullable)
+            for c in columns
+        ]
+    )
+
+
+def step_schema(action: pa.Field, observation: pa.Field) -> pa.Schema:
+    """The schema of a stream's step blocks, given its action and observation fields.
+
+    >>> step_schema(pa.field("action", pa.int64()), pa.field("observation", pa.int64())).field(
+    ...     "reward"
+    ... )
+    pyarrow.Field<reward: double not null>
+    """
+    return _schema(STEP_COLUMNS, {COL_ACTION: action, COL_OBSERVATION: observation})
+
+
+def reset_schema(observation: pa.Field, *, multi_stream: bool) -> pa.Schema:
+    """The schema of a stream's reset blocks (with ``agent`` and ``game`` if ``multi_stream``)."""
+    columns = RESET_COLUMNS + RESET_STREAM_COLUMNS if multi_stream else RESET_COLUMNS
+    return _schema(columns, {COL_OBSERVATION: observation})
+
+
+def required_columns(topic: str) -> dict[str, pa.DataType | None]:
+    """The columns every block of ``topic`` has, with their types (``None``: any type).
+
+    Files of the same major version may add columns; these are the ones readers rely on.
+    """
+    return {c.name: c.type for c in _BLOCK_COLUMNS[topic]}
+
+
+def key_columns(topic: str) -> tuple[str, ...]:
+    """The columns of ``topic``'s blocks that must have no nulls (they locate rows)."""
+    return tuple(c.name for c in _BLOCK_COLUMNS[topic] if c.key)
+
+
+EPISODE_TABLE_SCHEMA = pa.schema(
+    [
+        pa.field("episode", pa.int64(), nullable=False),
+        pa.field(COL_ENV_INDEX, pa.int64()),
+        pa.field(COL_AGENT, pa.string()),
+        pa.field(COL_SEED, pa.int64()),
+        pa.field(COL_RNG_STATE, pa.string()),
+        pa.field(COL_OPTIONS, pa.string()),
+        pa.field("outcome", pa.string(), nullable=False),
+        pa.field("failure_label", pa.string()),
+        pa.field("truncation_reason", pa.string()),
+        pa.field("terminated", pa.bool_()),
+        pa.field("truncated", pa.bool_()),
+        pa.field("length", pa.int64(), nullable=False),
+        pa.field("return", pa.float64()),
+        pa.field("term_totals", TERMS_TYPE),
+        pa.field("start_time_ns", pa.int64()),
+        pa.field("end_time_ns", pa.int64()),
+        pa.field("error_type", pa.string()),
+        pa.field("error_message", pa.string()),
+        pa.field("error_during", pa.string()),
+        pa.field("notes", pa.int64()),
+        pa.field(COL_GAME, pa.int64()),
+        pa.field("ended", pa.bool_(), nullable=False),
+    ]
+)
+"""The episodes table (:meth:`Evidence.episodes`): one row per episode.
+
+``rng_state`` and ``options`` are compact JSON text; ``term_totals`` maps term -> total;
+``ended`` is False for an episode a torn file cut off before its record.
+"""
+
+EPISODE_BLOCK_SCHEMA = pa.schema([f for f in EPISODE_TABLE_SCHEMA if f.name != "ended"])
+"""An episode block (topic ``episode_audit/episodes``) of a file that records games."""
+EPISODE_BLOCK_BASE = pa.schema([f for f in EPISODE_BLOCK_SCHEMA if f.name != COL_GAME])
+"""An episode block of any other file: the columns every episode block has."""

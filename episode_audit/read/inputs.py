@@ -1,0 +1,98 @@
+"""The inputs of a command: evidence files named directly or found in directories.
+
+:func:`evidence_files` expands paths (directories searched for ``*.mcap``); :func:`open_all`
+opens them, keeping going past the ones that cannot be read (each an :class:`Unreadable`), so
+one bad file costs the others nothing; :func:`steps_total` sums the steps finished files
+declare, for progress bars.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
+from .reader import Evidence, open_evidence
+
+__all__ = ["Unreadable", "evidence_files", "open_all", "steps_total"]
+
+
+@dataclass(frozen=True)
+class Unreadable:
+    """An input that could not be read: the file and why (the error's problem)."""
+
+    file: str
+    why: str
+
+    @classmethod
+    def of(cls, path: str | Path, exc: EpisodeAuditError) -> Unreadable:
+        """The input ``path`` that failed with ``exc``."""
+        return cls(str(path), exc.problem if isinstance(exc, EvidenceError) else str(exc))
+
+
+def evidence_files(paths: Sequence[Path]) -> list[Path]:
+    """Files as given and ``*.mcap`` files under directories (recursively, sorted).
+
+    A file reached twice (named twice, or also found in a directory given) counts once.
+    Raises :class:`~episode_audit.errors.ConfigurationError` for a path that does not exist,
+    a directory without evidence files, or one that cannot be listed.
+    """
+    out: list[Path] = []
+    seen: set[Path] = set()
+    for path in paths:
+        try:
+            if path.is_dir():
+                found = sorted(p for p in path.rglob("*.mcap") if p.is_file())
+                if not found:
+                    raise ConfigurationError(f"{path}: no *.mcap files in this directory")
+            elif path.exists():
+                found = [path]
+            else:
+                raise ConfigurationError(f"{path}: no such file or directory")
+            for file in found:
+                real = file.resolve()
+                if real not in seen:
+                    seen.add(real)
+                    out.append(file)
+        except OSError as exc:  # e.g. a directory on the way without search permission
+            raise ConfigurationError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return out
+
+
+def open_all(
+    files: Sequence[Path],
+    load: Callable[[Evidence], object] | None = None,
+    on_error: Callable[[EpisodeAuditError], None] | None = None,
+) -> tuple[list[tuple[Path, Evidence]], list[Unreadable]]:
+    """The files that open as evidence (and whose ``load`` reads), opened; and the others.
+
+    ``on_error`` is told of each file that does not, as it is found.
+    """
+    readable: list[tuple[Path, Evidence]] = []
+    unreadable: list[Unreadable] = []
+    for path in files:
+        try:
+            ev = open_evidence(path)
+            if load is not None:
+                load(ev)
+            readable.append((path, ev))
+        except EpisodeAuditError as exc:
+            if on_error is not None:
+                on_error(exc)
+            unreadable.append(Unreadable.of(path, exc))
+    return readable, unreadable
+
+
+def steps_total(paths: Sequence[Path]) -> int | None:
+    """The steps the files' run-end records declare, or ``None`` if one does not say."""
+    total = 0
+    for path in paths:
+        try:
+            run_end = open_evidence(path).run_end
+        except EvidenceError:
+            return None
+        if not run_end or not str(run_end.get("steps", "")).isdigit():
+            return None
+        total += int(run_end["steps"])
+    return total
