@@ -613,7 +613,7 @@ def test_compare_by_chunk_and_in_passes_gives_the_one_pass_result(
 ) -> None:
     # Replay hands compare a column of several chunks (one per recorded block) and wide rows
     # (camera frames) are compared a few rows per pass; neither may change a result.
-    from episode_audit.format import spaces as spaces_module
+    from episode_audit.format.spaces import codecs as spaces_module
 
     space = spaces.Box(-10.0, 10.0, shape=(5,), dtype=np.float32) if space_name == "box" else NESTED
     codec = codec_for(space)
