@@ -30,6 +30,7 @@ __all__ = [
     "counts_per_episode",
     "first_per_episode",
     "short",
+    "steps_of",
 ]
 
 IntArray = npt.NDArray[np.int64]
@@ -142,6 +143,14 @@ def counts_per_episode(episode: IntArray, ordered: bool = False) -> tuple[IntArr
         return present.astype(np.int64) + low, counts[present].astype(np.int64)
     uniq, counts = np.unique(episode, return_counts=True)
     return uniq, counts.astype(np.int64)
+
+
+def steps_of(step: IntArray | None, rows: IntArray) -> list[int | None]:
+    """The steps of ``rows`` (all ``None`` for resets, which have no ``step``)."""
+    if step is None:
+        return [None] * len(rows)
+    steps: list[int | None] = step[rows].tolist()
+    return steps
 
 
 def short(value: object, limit: int = 60) -> str:

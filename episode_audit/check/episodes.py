@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -44,9 +45,10 @@ _COLUMNS = [
 
 
 class _Records:
-    """The episode records of one file, with the episodes a mask selects."""
+    """The episode records of one file, and one finding over the episodes a mask selects."""
 
-    def __init__(self, rows: pa.Table) -> None:
+    def __init__(self, state: FileState, rows: pa.Table) -> None:
+        self.state = state
         self.rows = rows
         self.episode: IntArray = rows.column("episode").to_numpy()
         self.outcome = rows.column("outcome")
@@ -56,6 +58,12 @@ class _Records:
         chosen: list[int] = self.episode[np.asarray(mask, dtype=np.bool_)].tolist()
         return chosen
 
+    def finding_over(self, code: str, mask: Any, says: Callable[[list[int]], str]) -> None:
+        """One finding for the episodes ``mask`` selects, if any, at the first of them."""
+        episodes = self.listed(mask)
+        if episodes:
+            self.state.finding(code, says(episodes), episodes[0])
+
 
 def check_episode_records(state: FileState, endings: EndingChecks) -> None:
     """Check the file's episode records (``endings`` counted their step rows)."""
@@ -63,65 +71,59 @@ def check_episode_records(state: FileState, endings: EndingChecks) -> None:
     state.episodes = table.num_rows
     if table.num_rows == 0:
         return
-    records = _Records(table.select(_COLUMNS))
-    _both_flags(state, records)
-    _unlabeled_failures(state, records)
+    records = _Records(state, table.select(_COLUMNS))
+    _both_flags(records)
+    _unlabeled_failures(records)
     ended = records.rows.column("ended").to_numpy(zero_copy_only=False)
-    _incomplete(state, records, ended)
-    _errors(state, records)
-    _lengths(state, records, endings, ended)
-    _seedless(state, records)
+    _incomplete(records, ended)
+    _errors(records)
+    _lengths(records, endings, ended)
+    _seedless(records)
 
 
-def _both_flags(state: FileState, records: _Records) -> None:
+def _both_flags(records: _Records) -> None:
     rows = records.rows
     both = pc.fill_null(pc.and_(rows.column("terminated"), rows.column("truncated")), False)
-    both_eps = records.listed(both.to_numpy(zero_copy_only=False))
-    if both_eps:
-        state.finding(
-            TERMINATED_AND_TRUNCATED,
-            f"{len(both_eps)} episode(s) ended with both terminated and truncated set; "
-            f"the task ending counts (episodes {listing(both_eps)})",
-            both_eps[0],
-        )
-
-
-def _unlabeled_failures(state: FileState, records: _Records) -> None:
-    is_failure = pc.equal(records.outcome, fmt.OUTCOME_FAILURE)
-    label = records.rows.column("failure_label")
-    unlabeled = pc.and_(is_failure, pc.equal(label, fmt.UNLABELED))
-    unlabeled_eps = records.listed(pc.fill_null(unlabeled, False).to_numpy(zero_copy_only=False))
-    if unlabeled_eps:
-        failures = int(pc.sum(is_failure).as_py() or 0)
-        state.finding(
-            UNLABELED_FAILURE,
-            f"{len(unlabeled_eps)} of {failures} failure(s) have no label "
-            f"(episodes {listing(unlabeled_eps)})",
-            unlabeled_eps[0],
-        )
-
-
-def _incomplete(state: FileState, records: _Records, ended: BoolArray) -> None:
-    incomplete = pc.equal(records.outcome, fmt.OUTCOME_INCOMPLETE).to_numpy(zero_copy_only=False)
-    incomplete_eps = records.listed(incomplete)
-    if not incomplete_eps:
-        return
-    cut_off = incomplete & ~ended
-    lost = state.ev.damaged_episodes  # (their end records were in damaged chunks)
-    if lost:
-        episodes = records.rows.column(fmt.COL_EPISODE).to_pylist()
-        cut_off &= ~np.array([e in lost for e in episodes])
-    cut = int(cut_off.sum())
-    torn = f", {cut} of them cut off by the torn end of the file" if cut else ""
-    state.finding(
-        INCOMPLETE_EPISODE,
-        f"{len(incomplete_eps)} episode(s) stopped before they ended{torn} "
-        f"(episodes {listing(incomplete_eps)})",
-        incomplete_eps[0],
+    records.finding_over(
+        TERMINATED_AND_TRUNCATED,
+        both.to_numpy(zero_copy_only=False),
+        lambda eps: (
+            f"{len(eps)} episode(s) ended with both terminated and truncated set; "
+            f"the task ending counts (episodes {listing(eps)})"
+        ),
     )
 
 
-def _errors(state: FileState, records: _Records) -> None:
+def _unlabeled_failures(records: _Records) -> None:
+    is_failure = pc.equal(records.outcome, fmt.OUTCOME_FAILURE)
+    label = records.rows.column("failure_label")
+    unlabeled = pc.fill_null(pc.and_(is_failure, pc.equal(label, fmt.UNLABELED)), False)
+
+    def says(eps: list[int]) -> str:
+        failures = int(pc.sum(is_failure).as_py() or 0)
+        return f"{len(eps)} of {failures} failure(s) have no label (episodes {listing(eps)})"
+
+    records.finding_over(UNLABELED_FAILURE, unlabeled.to_numpy(zero_copy_only=False), says)
+
+
+def _incomplete(records: _Records, ended: BoolArray) -> None:
+    incomplete = pc.equal(records.outcome, fmt.OUTCOME_INCOMPLETE).to_numpy(zero_copy_only=False)
+
+    def says(eps: list[int]) -> str:
+        cut_off = incomplete & ~ended
+        lost = records.state.ev.damaged_episodes  # (their end records were in damaged chunks)
+        if lost:
+            episodes = records.rows.column(fmt.COL_EPISODE).to_pylist()
+            cut_off &= ~np.array([e in lost for e in episodes])
+        cut = int(cut_off.sum())
+        torn = f", {cut} of them cut off by the torn end of the file" if cut else ""
+        return f"{len(eps)} episode(s) stopped before they ended{torn} (episodes {listing(eps)})"
+
+    records.finding_over(INCOMPLETE_EPISODE, incomplete, says)
+
+
+def _errors(records: _Records) -> None:
+    state = records.state
     errors = pc.equal(records.outcome, fmt.OUTCOME_ERROR).to_numpy(zero_copy_only=False)
     if not errors.any():
         return
@@ -137,7 +139,8 @@ def _errors(state: FileState, records: _Records) -> None:
         )
 
 
-def _lengths(state: FileState, records: _Records, endings: EndingChecks, ended: BoolArray) -> None:
+def _lengths(records: _Records, endings: EndingChecks, ended: BoolArray) -> None:
+    state = records.state
     episode = records.episode
     length: IntArray = records.rows.column("length").to_numpy()
     counted = endings.rows_counted(episode)
@@ -152,14 +155,14 @@ def _lengths(state: FileState, records: _Records, endings: EndingChecks, ended: 
         )
 
 
-def _seedless(state: FileState, records: _Records) -> None:
+def _seedless(records: _Records) -> None:
     rows = records.rows
     seedless = pc.and_(pc.is_null(rows.column("seed")), pc.is_null(rows.column("rng_state")))
-    seedless_eps = records.listed(seedless.to_numpy(zero_copy_only=False))
-    if seedless_eps:
-        state.finding(
-            NOT_REPLAYABLE,
-            f"{len(seedless_eps)} episode(s) have neither a reset seed nor an RNG state "
-            f"and cannot be replayed (episodes {listing(seedless_eps)})",
-            seedless_eps[0],
-        )
+    records.finding_over(
+        NOT_REPLAYABLE,
+        seedless.to_numpy(zero_copy_only=False),
+        lambda eps: (
+            f"{len(eps)} episode(s) have neither a reset seed nor an RNG state "
+            f"and cannot be replayed (episodes {listing(eps)})"
+        ),
+    )

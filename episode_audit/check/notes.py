@@ -12,7 +12,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..format.records import from_json, listing
-from ._state import BoolArray, FileState, Hit, IntArray, first_per_episode, short
+from ._state import BoolArray, FileState, Hit, IntArray, first_per_episode, short, steps_of
 from .registry import RECORDER_NOTE, SEVERITY, STEP_AFTER_END, Severity
 
 __all__ = ["is_note", "note_finding", "notes_summary", "recorder_notes"]
@@ -63,10 +63,7 @@ def recorder_notes(
             continue
         eps, first, counts, _ = first_per_episode(episode, mask)
         details = [message_of[int(indices[row])] for row in first.tolist()]
-        first_steps: list[int | None] = (
-            [None] * len(details) if step is None else step[first].tolist()
-        )
-        state.hits.add(f"{_PREFIX}{code}", eps, first_steps, counts, details=details)
+        state.hits.add(f"{_PREFIX}{code}", eps, steps_of(step, first), counts, details=details)
     return after_end
 
 

@@ -11,7 +11,7 @@ import pyarrow as pa
 
 from ..format import names as fmt
 from ..format.spaces import SpaceCodec
-from ._state import FileState, Hit, HitMessage, IntArray, first_per_episode, short
+from ._state import FileState, Hit, HitMessage, IntArray, first_per_episode, short, steps_of
 from .registry import (
     ACTION_OUT_OF_SPACE,
     ACTION_SPACE_UNCHECKED,
@@ -76,10 +76,7 @@ class SpaceChecks:
             except Exception as exc:  # a value contains() judged but decode cannot show
                 value = f"<{type(exc).__name__}>"
             details.append(short(value))
-        first_steps: list[int | None] = (
-            [None] * len(details) if step is None else step[first].tolist()
-        )
-        self.state.hits.add(code, eps, first_steps, counts, details=details)
+        self.state.hits.add(code, eps, steps_of(step, first), counts, details=details)
 
     def _unchecked(self, column: str, why: str) -> None:
         """Checking ``column`` failed: say so, and check it no further."""
