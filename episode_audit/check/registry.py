@@ -123,8 +123,8 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "declared, or a wrapper between the env and the recorder that changes the reward but "
         "not its terms all show here.",
         "Report every term the reward is summed from and declare the constant ones with "
-        "`constant_terms=`; put the recorder inside a wrapper that rescales the reward "
-        "(`Scale(RecordEvidence(env))`), or have the wrapper rescale the terms too; for float "
+        "`constant_terms=`; record below a wrapper that rescales the reward (wrap "
+        "`RecordEvidence(env)` in it), or have the wrapper rescale the terms too; for float "
         "rounding, widen `--atol` / `--rtol`.",
     ),
     FindingKind(
@@ -190,7 +190,8 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "note",
         "Observations were not checked against their space.",
         "The observation space cannot be rebuilt from the file (a space the format does not "
-        "describe), or checking the observations against it failed; the message says which.",
+        "describe, or a description that does not match the column), or checking the "
+        "observations against it failed; the message says which.",
         "`observation_out_of_space` cannot be found in this file.",
         "Nothing to fix in the file. Record with one of Gymnasium's own spaces when the check "
         "matters.",
@@ -212,8 +213,7 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "noted as stepped after the episode had ended. One finding per episode, at the first "
         "such step, with the count.",
         "The loop kept stepping an ended episode without a reset: what the env does then is "
-        "undefined, and those steps belong to no episode (`replay` and `report` leave them "
-        "out).",
+        "undefined, and those steps belong to no episode (`replay` leaves them out).",
         "Call `reset()` once `terminated` or `truncated` is true.",
     ),
     FindingKind(
@@ -314,7 +314,7 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "The file was rewritten by `episode-audit recover`.",
         "The file was rewritten by `episode-audit recover` from a torn or damaged file; the "
         "message says what was dropped.",
-        "The original lost what the message says (at least the steps after its last flush).",
+        "The original lost what the message says.",
         "Nothing to fix in this file; `--ignore file_recovered` once it is known.",
     ),
     FindingKind(
@@ -397,8 +397,8 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "The set of reward-term names changed from one step to the next within an episode. "
         "One finding per file: how many episodes, the first change and the names added and "
         "removed. Steps without terms are not compared.",
-        "A term that comes and goes is usually a bonus or penalty paid only sometimes; the "
-        "report's term breakdown averages over the steps that have it.",
+        "Steps of one episode break their rewards down differently: by design for a bonus or "
+        "penalty paid only on some steps, a bug when the env forgets to report a term.",
         "Nothing, when it is by design; otherwise report every term on every step (a zero "
         "when it does not apply).",
     ),
