@@ -6,15 +6,15 @@ from typing import Annotated
 
 import typer
 
-from ..errors import ConfigurationError, EpisodeAuditError
-from ..read.inputs import Unreadable, steps_total
+from ..errors import ConfigurationError
+from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     FormatOption,
     PathsArgument,
+    _error_line,
     _format,
-    _unreadable,
     app,
     collect,
     emit,
@@ -46,8 +46,8 @@ def check(
     output: FormatOption = "table",
 ) -> None:
     """Check integrity and consistency: terms sum to reward, endings labelled, nothing missing."""
-    from ..check.core import FILE_UNREADABLE, CheckResult, Finding, ignored_codes, is_ignored
-    from ..check.core import check as run_check
+    from ..check import check as run_check
+    from ..check import ignored_codes
     from .render import check_output
 
     fmt = _format(output)
@@ -56,39 +56,22 @@ def check(
     except ConfigurationError as exc:
         fail(str(exc))
     files = collect(paths)
-    merged = CheckResult(findings=[], files=[], episodes=0, steps=0)
-    unreadable: list[Unreadable] = []
     with progress_bar("checking", steps_total(files)) as advance:
-        for path in files:
-            try:
-                result = run_check(
-                    [path],
-                    atol=atol,
-                    rtol=rtol,
-                    require_terms=require_terms,
-                    ignore=ignored,
-                    progress=advance,
-                )
-            except ConfigurationError as exc:
-                fail(str(exc))
-            except EpisodeAuditError as exc:
-                _unreadable(path, exc, unreadable)
-                # in the result too, so a JSON consumer does not read "ok" over a skipped file
-                if is_ignored(FILE_UNREADABLE, ignored):
-                    merged.ignored += 1
-                else:
-                    merged.findings.append(
-                        Finding("error", FILE_UNREADABLE, str(exc), str(path), None, None)
-                    )
-                merged.files.append(str(path))
-                continue
-            merged.findings.extend(result.findings)
-            merged.files.extend(result.files)
-            merged.episodes += result.episodes
-            merged.steps += result.steps
-            merged.ignored += result.ignored
-    emit(check_output(merged, fmt, unreadable=unreadable))
-    if unreadable:
+        try:
+            result = run_check(
+                files,
+                atol=atol,
+                rtol=rtol,
+                require_terms=require_terms,
+                ignore=ignored,
+                progress=advance,
+                keep_going=True,
+                on_error=_error_line,
+            )
+        except ConfigurationError as exc:
+            fail(str(exc))
+    emit(check_output(result, fmt))
+    if result.unreadable:
         raise typer.Exit(EXIT_USAGE)
-    if merged.errors or (strict and merged.warnings):
+    if result.errors or (strict and result.warnings):
         raise typer.Exit(EXIT_FINDINGS)

@@ -16,11 +16,12 @@ import pytest
 from episode_audit import (
     ConfigurationError,
     CorruptEvidenceError,
+    EpisodeAuditError,
     EvidenceError,
     RecordEvidence,
     open_evidence,
 )
-from episode_audit.check.core import CheckResult, Finding, check, check_evidence
+from episode_audit.check import CheckResult, Finding, check, check_evidence
 from episode_audit.read.reader import Evidence
 from tests.support.envs import ScriptedEnv
 
@@ -506,7 +507,7 @@ def test_wrong_tolerances_are_configuration_errors(
 
 
 def test_grouping_keeps_recording_order_for_interleaved_rows() -> None:
-    from episode_audit.check.core import _first_per_episode
+    from episode_audit.check._state import first_per_episode as _first_per_episode
 
     episode = np.array([1, 0, 1, 0, 2, 1], dtype=np.int64)
     mask = np.array([True, True, True, False, True, True])
@@ -578,15 +579,12 @@ def test_a_torn_file_that_holds_nothing_says_so(tmp_path: Path) -> None:
 # ------------------------------------------------------------------- ignored codes
 
 
-def test_finding_codes_are_the_docstring_table() -> None:
-    """The codes ``ignore`` accepts are the ones the module docstring documents, in order."""
-    import importlib
+def test_finding_codes_are_the_docs_table() -> None:
+    """The codes ``ignore`` accepts are the ones docs/findings.md documents, in order."""
+    from episode_audit.check import FINDING_CODES
 
-    from episode_audit.check.core import FINDING_CODES
-
-    # (episode_audit.check.core, as an attribute, is the package's check function)
-    check_module = importlib.import_module("episode_audit.check.core")
-    documented = re.findall(r"^``([a-z_]+)(?::<code>)?``\s", check_module.__doc__ or "", re.M)
+    text = (Path(__file__).parents[2] / "docs" / "findings.md").read_text()
+    documented = re.findall(r"^\| \[`([a-z_]+)(?::<code>)?`\]", text, re.M)
     assert documented == list(FINDING_CODES)
 
 
@@ -643,3 +641,40 @@ def test_file_unfinished_says_the_writer_did_not_finish_once(tmp_path: Path) -> 
         f"the writer did not finish the file (ends at byte {len(clean) - 8} without the closing "
         "magic); complete chunks were read"
     )
+
+
+# ------------------------------------------------------------------- unreadable inputs
+
+
+def test_keep_going_lists_unreadable_inputs_and_checks_the_others(tmp_path: Path) -> None:
+    clean = Path(__file__).parents[2] / "fixtures" / "clean.mcap"
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    told: list[EpisodeAuditError] = []
+    result = check([bad, clean], keep_going=True, on_error=told.append)
+    alone = check([clean])
+    assert result.files == [str(bad), str(clean)]
+    assert (result.episodes, result.steps) == (alone.episodes, alone.steps)
+    (error,) = told
+    assert isinstance(error, EvidenceError)
+    assert [(u.file, u.why) for u in result.unreadable] == [(str(bad), error.problem)]
+    unreadable, *rest = result.findings
+    assert (unreadable.severity, unreadable.code, unreadable.file) == (
+        "error",
+        "file_unreadable",
+        str(bad),
+    )
+    assert unreadable.message == str(error) and not result.ok
+    assert rest == alone.findings
+    ignored = check([bad, clean], keep_going=True, ignore=["file_unreadable"])
+    assert ignored.findings == alone.findings and ignored.ignored == 1
+    assert len(ignored.unreadable) == 1
+    # without keep_going, as before: the first unreadable input raises
+    with pytest.raises(EvidenceError, match=r"bad\.mcap"):
+        check([clean, bad])
+
+
+def test_keep_going_still_raises_configuration_errors(tmp_path: Path) -> None:
+    clean = Path(__file__).parents[2] / "fixtures" / "clean.mcap"
+    with pytest.raises(ConfigurationError, match="atol: expected a finite number >= 0"):
+        check([clean], atol=-1.0, keep_going=True)

@@ -114,7 +114,7 @@ def test_check_ignore_leaves_findings_out_of_output_and_exit_code() -> None:
 
 
 def test_check_ignore_of_an_unknown_code_is_a_usage_error_listing_the_known_ones() -> None:
-    from episode_audit.check.core import FINDING_CODES
+    from episode_audit.check import FINDING_CODES
 
     code, out, err = run("check", "fixtures/terms_mismatch.mcap", "--ignore", "terms_mismatch")
     assert code == 2 and out == ""

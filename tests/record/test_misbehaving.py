@@ -18,7 +18,7 @@ from mcap.reader import make_reader
 from pettingzoo import AECEnv, ParallelEnv
 
 from episode_audit import EndingRules, RecordEvidence, check, open_evidence
-from episode_audit.check.core import Finding
+from episode_audit.check import Finding
 from tests.support.envs import ScriptedEnv
 
 ZEROS = np.zeros(2, np.float32)

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 from rich.console import Group, RenderableType
 from rich.text import Text
 
 from ...check import CheckResult
-from ...read.inputs import Unreadable
 from .common import (
     Output,
     OutputFormat,
@@ -21,15 +18,13 @@ from .common import (
 __all__ = ["check_output"]
 
 
-def check_output(
-    result: CheckResult, output: OutputFormat, *, unreadable: Sequence[Unreadable] = ()
-) -> Output:
+def check_output(result: CheckResult, output: OutputFormat) -> Output:
     """Findings of ``check`` in the requested format.
 
-    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    JSON also lists the inputs that could not be read (``result.unreadable``).
     """
     if output == "json":
-        return to_json({**result.to_dict(), "unreadable": unreadable_json(unreadable)})
+        return to_json({**result.to_dict(), "unreadable": unreadable_json(result.unreadable)})
     headers = ["severity", "file", "episode", "step", "code", "message"]
     rows = [
         [

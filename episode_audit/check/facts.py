@@ -1,0 +1,140 @@
+"""File-level facts: how the file was written, finished, recovered and what it allows.
+
+:func:`check_file_facts` runs before the steps (``recorder_trouble``, ``file_recovered``,
+``evidence_damaged``, ``summary_damaged``, ``run_end_damaged``, ``missing_env_spec``, a vector
+file's ``not_replayable``, ``format_version``); :func:`check_unfinished` after them
+(``file_unfinished``, which says whether the file held anything).
+"""
+
+from __future__ import annotations
+
+from ..format import names as fmt
+from ..format.records import listing
+from ._state import FileState
+from .registry import (
+    EVIDENCE_DAMAGED,
+    FILE_RECOVERED,
+    FILE_UNFINISHED,
+    FORMAT_VERSION,
+    MISSING_ENV_SPEC,
+    NOT_REPLAYABLE,
+    RECORDER_TROUBLE,
+    RUN_END_DAMAGED,
+    SUMMARY_DAMAGED,
+)
+
+__all__ = ["check_file_facts", "check_unfinished"]
+
+_LIST_LIMIT = 5
+_NOT_FINISHED = "the writer did not finish"
+
+
+def check_file_facts(state: FileState) -> None:
+    """The findings about the file as a whole, in this order."""
+    _recorder_trouble(state)
+    _recovered(state)
+    _damaged_end(state)
+    _replayable(state)
+    _format_version(state)
+
+
+def _recorder_trouble(state: FileState) -> None:
+    run_end = state.ev.run_end or {}
+    troubles = run_end.get(fmt.RUN_END_TROUBLE)
+    if troubles:
+        first = str(run_end.get(fmt.RUN_END_FIRST_TROUBLE) or "not recorded")
+        state.finding(
+            RECORDER_TROUBLE,
+            f"the recorder failed inside itself {troubles} time(s) while recording (first: "
+            f"{first[:300]}); the evidence may miss what it was recording then",
+        )
+
+
+def _recovered(state: FileState) -> None:
+    ev = state.ev
+    if not (ev.finished and (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED):
+        return
+    dropped = (ev.run_end or {}).get("dropped") or "not recorded"
+    state.finding(
+        FILE_RECOVERED,
+        f"rewritten by episode-audit recover from a torn or damaged file; dropped: {dropped}",
+    )
+    damaged, stretches = ev.damaged_episodes, ev.damaged_stretches
+    if damaged or stretches:
+        shown = damaged.first(_LIST_LIMIT)
+        lost = (
+            f"{damaged.count} episode(s) lost part or all of their evidence "
+            f"(episodes {listing(shown, damaged.count)}): their records, steps and "
+            "outcomes are not the whole run"
+            if damaged
+            else "no episode lost evidence"
+        )
+        state.finding(
+            EVIDENCE_DAMAGED,
+            f"recover skipped {stretches} damaged stretch(es) of the original file; {lost}",
+            shown[0] if shown else None,
+        )
+
+
+def _damaged_end(state: FileState) -> None:
+    ev = state.ev
+    if ev.summary_damage:
+        state.finding(
+            SUMMARY_DAMAGED,
+            f"{ev.summary_damage}: the file was read by scanning its data section, which "
+            "holds all the evidence (`episode-audit recover` writes a copy with a new summary)",
+        )
+    if ev.run_end_damage:
+        state.finding(
+            RUN_END_DAMAGED,
+            f"{ev.run_end_damage}: the writer finished the file (its summary and footer are "
+            "sound) and every chunk is there, but the record's status and counts are lost "
+            "(`episode-audit recover` writes a copy with a new run-end record)",
+        )
+
+
+def _replayable(state: FileState) -> None:
+    run = state.ev.run
+    layout = run.layout or {}
+    if run.env_spec is None and not layout.get("env_module"):  # PettingZoo: a module
+        notes = [str(n) for n in (run.recorder or {}).get("notes") or []]
+        why = f" ({'; '.join(notes)})" if notes else ""
+        state.finding(
+            MISSING_ENV_SPEC, f"no environment spec recorded{why}: replay needs an env factory"
+        )
+    if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
+        why = layout.get("replay_note") or "the vector env had no sub-envs"
+        state.finding(NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
+
+
+def _format_version(state: FileState) -> None:
+    version = state.ev.run.format_version
+    if _version_tuple(version) < _version_tuple(fmt.FORMAT_VERSION):
+        state.finding(
+            FORMAT_VERSION,
+            f"written with format {version}, older than the current {fmt.FORMAT_VERSION}",
+        )
+
+
+def _version_tuple(version: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(p) for p in version.split("."))
+    except ValueError:
+        return (0,)
+
+
+def check_unfinished(state: FileState) -> None:
+    """After the pass over the file: an unfinished file, and whether it held anything."""
+    ev = state.ev
+    if ev.finished:
+        return
+    # the reader's reason may end by saying it too ("ends at byte N without a summary: the
+    # writer did not finish"): the message says it once
+    why = (ev.torn or "no run-end record").removesuffix(f": {_NOT_FINISHED}")
+    read = "complete chunks were read"
+    if not state.steps and not state.episodes and not ev.resets().num_rows:
+        read = (
+            "it holds no complete chunk: no episode, reset or step to check (a recorder "
+            "killed before its first flush, or one still starting)"
+        )
+    state.finding(FILE_UNFINISHED, f"{_NOT_FINISHED} the file ({why}); {read}")
