@@ -9,7 +9,6 @@ import pytest
 
 from episode_audit import ConfigurationError, EpisodeAuditError
 from episode_audit.report import Gates, report, report_inputs
-from episode_audit.report.incentives import INCENTIVE_WARNINGS, incentive_table
 from episode_audit.report.inputs import gates_from_options
 
 REPO = Path(__file__).resolve().parents[2]
@@ -91,14 +90,3 @@ def test_gates_are_checked_and_notes_kept() -> None:
     assert result.unreadable == []
     missed = report_inputs([CLEAN], min_success_rate=0.95)
     assert not missed.report.passed
-
-
-def test_the_reporting_doc_holds_the_generated_incentive_table() -> None:
-    doc = (REPO / "docs" / "reporting.md").read_text()
-    assert incentive_table() in doc, "paste incentive_table() into docs/reporting.md"
-    assert set(INCENTIVE_WARNINGS) == {
-        "failure_outearns_success",
-        "truncation_outearns_success",
-        "no_success_positive_return",
-        "shaping_dominates",
-    }
