@@ -94,6 +94,31 @@ def record_episodes(
     recorded 2 episodes (10 steps) to ...cp.mcap: truncated 2
     """
     import_modules(imports)
+    _check_counts(episodes, seed, max_episode_steps)
+    env = _make_env(env_id, env_kwargs, max_episode_steps)
+    # Everything that can be wrong with the arguments is found before the file is touched:
+    # a usage error never leaves a file behind, nor replaces one (--overwrite).
+    try:
+        act = _policy(policy, env, seed)
+    except BaseException:
+        env.close()
+        raise
+    steps = 0
+    run_tags = {"policy": policy, **(tags or {})}
+    with RecordEvidence(env, out, tags=run_tags, overwrite=overwrite) as recorder:
+        path = str(recorder.path)
+        for i in range(episodes):
+            steps += _record_episode(recorder, act, i, seed + i, path)
+            if on_episode is not None:
+                on_episode()
+    from .read import open_evidence
+
+    outcomes = Counter(open_evidence(path).episodes().column("outcome").to_pylist())
+    return RecordSummary(path, episodes, steps, dict(outcomes))
+
+
+def _check_counts(episodes: int, seed: int, max_episode_steps: int | None) -> None:
+    """The number of episodes, the first seed and the time limit are in range."""
     if episodes < 1:
         raise ConfigurationError(f"--episodes: expected at least 1, got {episodes}")
     if seed < 0 or seed + episodes > 2**63:
@@ -105,53 +130,49 @@ def record_episodes(
         raise ConfigurationError(
             f"--max-episode-steps: expected at least 1, got {max_episode_steps}"
         )
+
+
+def _make_env(
+    env_id: str, env_kwargs: Mapping[str, Any] | None, max_episode_steps: int | None
+) -> gym.Env[Any, Any]:
+    """``gym.make(env_id, ...)``; anything that goes wrong is a configuration error."""
     kwargs = dict(env_kwargs or {})
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = max_episode_steps
     try:
-        env = gym.make(env_id, **kwargs)
+        return gym.make(env_id, **kwargs)
     except gym.error.Error as exc:
         raise ConfigurationError(f"cannot make {env_id!r}: {exc}") from None
     except Exception as exc:  # the env's own constructor: a bad kwarg, a missing file, ...
         raise ConfigurationError(
             f"cannot make {env_id!r} with {kwargs}: {error_text(exc)}"
         ) from None
-    # Everything that can be wrong with the arguments is found before the file is touched:
-    # a usage error never leaves a file behind, nor replaces one (--overwrite).
-    try:
-        act = _policy(policy, env, seed)
-    except BaseException:
-        env.close()
-        raise
-    run_tags = {"policy": policy, **(tags or {})}
-    outcomes: Counter[str] = Counter()
-    steps = 0
-    with RecordEvidence(env, out, tags=run_tags, overwrite=overwrite) as recorder:
-        path = str(recorder.path)
-        for i in range(episodes):
-            try:
-                obs, _ = recorder.reset(seed=seed + i)
-                while True:
-                    try:
-                        action = act(obs)
-                    except Exception as exc:  # the policy's fault: the env's episode is open
-                        raise RecordingError(
-                            f"episode {i}: the policy raised {error_text(exc)} (the episode is "
-                            f"recorded as incomplete in {path})"
-                        ) from exc
-                    obs, _, terminated, truncated, _ = recorder.step(action)
-                    steps += 1
-                    if terminated or truncated:
-                        break
-            except RecordingError:
-                raise
-            except Exception as exc:
-                raise RecordingError(
-                    f"episode {i}: {error_text(exc)} (the episode is recorded as error in {path})"
-                ) from exc
-            if on_episode is not None:
-                on_episode()
-    from .read.reader import open_evidence
 
-    outcomes.update(open_evidence(path).episodes().column("outcome").to_pylist())
-    return RecordSummary(path, episodes, steps, dict(outcomes))
+
+def _record_episode(recorder: RecordEvidence, act: Policy, i: int, seed: int, path: str) -> int:
+    """Run episode ``i`` (seeded ``seed``) to its end; return its steps.
+
+    An exception from the env or the policy is a :class:`RecordingError` saying how the file
+    keeps the episode.
+    """
+    steps = 0
+    try:
+        obs, _ = recorder.reset(seed=seed)
+        while True:
+            try:
+                action = act(obs)
+            except Exception as exc:  # the policy's fault: the env's episode is open
+                raise RecordingError(
+                    f"episode {i}: the policy raised {error_text(exc)} (the episode is "
+                    f"recorded as incomplete in {path})"
+                ) from exc
+            obs, _, terminated, truncated, _ = recorder.step(action)
+            steps += 1
+            if terminated or truncated:
+                return steps
+    except RecordingError:
+        raise
+    except Exception as exc:
+        raise RecordingError(
+            f"episode {i}: {error_text(exc)} (the episode is recorded as error in {path})"
+        ) from exc

@@ -37,3 +37,18 @@ def test_overwrite_replaces_the_whole_export(tmp_path: Path) -> None:
     other.write_bytes(b"")
     assert export([a], out, overwrite=True).removed == []
     assert other.exists()
+
+
+def test_the_result_names_unfinished_inputs_and_sums_up(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = export([FIXTURES / "torn.mcap", FIXTURES / "clean.mcap"], out)
+    (unfinished,) = result.unfinished
+    assert unfinished[0] == FIXTURES / "torn.mcap"
+    assert result.notes == [
+        f"{FIXTURES / 'torn.mcap'} is unfinished ({unfinished[1]}): exported what it holds, "
+        "its cut-off episode as incomplete"
+    ]
+    assert result.summary() == (
+        f"wrote {result.episodes} episodes to {out / 'episodes.parquet'} and {result.steps} "
+        f"steps to 2 *.steps.parquet file(s) in {out}"
+    )

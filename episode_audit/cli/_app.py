@@ -51,10 +51,32 @@ def _stderr() -> Console:
     return Console(stderr=True, highlight=False)
 
 
+def _say(kind: str, message: object) -> None:
+    """One line on stderr: ``episode-audit: KIND: message`` (control characters escaped)."""
+    _stderr().print(f"episode-audit: {kind}: {safe(message)}", markup=False, soft_wrap=True)
+
+
 def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
     """Print one line on stderr and exit."""
-    _stderr().print(f"episode-audit: error: {safe(message)}", markup=False, soft_wrap=True)
+    _say("error", message)
     raise typer.Exit(code)
+
+
+def warn(message: str) -> None:
+    """Print a warning line on stderr (the command goes on)."""
+    _say("warning", message)
+
+
+def note(message: str) -> None:
+    """Print a note line on stderr (the command goes on)."""
+    _say("note", message)
+
+
+def existing(path: Path) -> Path:
+    """``path``, or exit 2 saying there is no such file (a command that takes one file)."""
+    if not path.exists():
+        fail(f"{path}: no such file or directory")
+    return path
 
 
 def collect(paths: Sequence[Path]) -> list[Path]:
@@ -135,7 +157,7 @@ def _format(value: str) -> OutputFormat:
 
 
 def _error_line(exc: EpisodeAuditError) -> None:
-    _stderr().print(f"episode-audit: error: {safe(exc)}", markup=False, soft_wrap=True)
+    _say("error", exc)
 
 
 def _unreadable(path: Path, exc: EpisodeAuditError, into: list[Unreadable]) -> None:
@@ -170,9 +192,5 @@ def main() -> None:
         app()
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
-        _stderr().print(
-            f"episode-audit: error: {safe(where + (exc.strerror or str(exc)))}",
-            markup=False,
-            soft_wrap=True,
-        )
+        _say("error", where + (exc.strerror or str(exc)))
         raise SystemExit(EXIT_USAGE) from None

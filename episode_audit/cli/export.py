@@ -14,14 +14,13 @@ from ._app import (
     PathsArgument,
     _error_line,
     _readable,
-    _stderr,
     app,
     collect,
     emit,
     fail,
+    note,
     progress_bar,
 )
-from .render import safe
 
 
 @app.command()
@@ -40,7 +39,9 @@ def export(
     """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
     from ..export import export as run_export
 
-    readable, skipped = _readable(collect(paths))
+    # The inputs are opened first, so that one that cannot be is named before any output is
+    # written, takes no output name, and the progress bar counts the others' steps.
+    readable, unreadable = _readable(collect(paths))
     if not readable:
         raise typer.Exit(EXIT_USAGE)
     files = [path for path, _ in readable]
@@ -51,20 +52,8 @@ def export(
             )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    unreadable = len(skipped) + len(result.failed)
-    for path, ev in readable:
-        if not ev.finished and path not in result.failed:
-            why = ev.torn or "no run-end record"
-            _stderr().print(
-                f"episode-audit: note: {safe(str(path))} is unfinished ({safe(why)}): "
-                "exported what it holds, its cut-off episode as incomplete",
-                markup=False,
-                soft_wrap=True,
-            )
-    removed = f"; removed {len(result.removed)} from an earlier export" if result.removed else ""
-    emit(
-        f"wrote {result.episodes} episodes to {result.episodes_file} and {result.steps} steps "
-        f"to {len(result.steps_files)} *.steps.parquet file(s) in {out}{removed}"
-    )
-    if unreadable:
+    for line in result.notes:
+        note(line)
+    emit(result.summary())
+    if unreadable or result.failed:
         raise typer.Exit(EXIT_USAGE)

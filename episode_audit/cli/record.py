@@ -53,20 +53,7 @@ def record(
     """Record episodes of a Gymnasium environment with a built-in or given policy."""
     from ..rollout import record_episodes
 
-    kwargs: dict[str, Any] = {}
-    if env_kwargs:
-        try:
-            kwargs = json.loads(env_kwargs)
-        except json.JSONDecodeError as exc:
-            fail(f"--env-kwargs: not valid JSON ({exc.msg})")
-        if not isinstance(kwargs, dict):
-            fail("--env-kwargs: expected a JSON object")
-    tags: dict[str, str] = {}
-    for item in tag or []:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            fail(f"--tag: expected KEY=VALUE, got {item!r}")
-        tags[key] = value
+    kwargs, tags = _env_kwargs(env_kwargs), _tags(tag or [])
     try:
         with progress_bar(f"recording {env_id}", episodes) as advance:
             summary = record_episodes(
@@ -85,3 +72,27 @@ def record(
     except EpisodeAuditError as exc:
         fail(str(exc))
     emit(str(summary))
+
+
+def _env_kwargs(text: str | None) -> dict[str, Any]:
+    """``--env-kwargs``: a JSON object (none: no keyword arguments)."""
+    if not text:
+        return {}
+    try:
+        kwargs = json.loads(text)
+    except json.JSONDecodeError as exc:
+        fail(f"--env-kwargs: not valid JSON ({exc.msg})")
+    if not isinstance(kwargs, dict):
+        fail("--env-kwargs: expected a JSON object")
+    return kwargs
+
+
+def _tags(items: list[str]) -> dict[str, str]:
+    """``--tag KEY=VALUE`` options, as a mapping (a later value of a key wins)."""
+    tags: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            fail(f"--tag: expected KEY=VALUE, got {item!r}")
+        tags[key] = value
+    return tags

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import EXIT_FINDINGS, app, emit, fail
+from ._app import EXIT_FINDINGS, app, emit, existing, fail
 
 
 @app.command()
@@ -32,8 +32,7 @@ def recover(
     """
     from ..recover import recover as run_recover
 
-    if not path.exists():
-        fail(f"{path}: no such file or directory")
+    existing(path)
     try:
         result = run_recover(path, out, overwrite=overwrite)
     except EpisodeAuditError as exc:

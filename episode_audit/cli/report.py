@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Annotated
 
 import typer
@@ -13,41 +12,13 @@ from ._app import (
     EXIT_USAGE,
     FormatOption,
     PathsArgument,
+    _error_line,
     _format,
-    _readable,
-    _stderr,
     app,
-    collect,
     emit,
     fail,
+    warn,
 )
-from .render import safe
-
-
-def _parse_failure_rates(values: Sequence[str]) -> tuple[float | None, dict[str, float]]:
-    overall: float | None = None
-    by_label: dict[str, float] = {}
-    for value in values:
-        label, sep, rate = value.rpartition("=")
-        try:
-            number = float(rate)
-        except ValueError:
-            fail(f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r}")
-        if not 0.0 <= number <= 1.0:
-            fail(f"--max-failure-rate: expected a rate between 0 and 1, got {rate!r}")
-        if sep and not label:
-            fail(f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r} (no label)")
-        if sep:
-            by_label[label] = number
-        else:
-            overall = number
-    return overall, by_label
-
-
-def _rate_option(name: str, value: float | None) -> float | None:
-    if value is not None and not 0.0 <= value <= 1.0:
-        fail(f"{name}: expected a rate between 0 and 1, got {value}")
-    return value
 
 
 @app.command()
@@ -94,45 +65,30 @@ def report(
     output: FormatOption = "table",
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
-    from ..read.reader import Evidence
-    from ..report.core import BY_KEYS, Gates, report_tables
+    from ..report.inputs import report_inputs
     from .render import report_output
 
     fmt = _format(output)
-    if by not in BY_KEYS and not (by.startswith("tag:") and len(by) > 4):
-        fail(f"--by: expected file, env, env_index, agent, label, all or tag:NAME, got {by!r}")
-    if games and by == "agent":
-        fail("--games cannot be grouped --by agent: a game has many agents")
-    overall, by_label = _parse_failure_rates(max_failure_rate or [])
-    gates = Gates(
-        min_success_rate=_rate_option("--min-success-rate", min_success_rate),
-        max_failure_rate=overall,
-        max_failure_rate_by_label=by_label,
-        max_truncation_rate=_rate_option("--max-truncation-rate", max_truncation_rate),
-        max_error_rate=_rate_option("--max-error-rate", max_error_rate),
-        fail_on_incentive_warning=fail_on_incentive_warning,
-    )
-    # Reading each file's episodes here (they are cached) puts a file damaged past its start
-    # with the unreadable ones instead of stopping the report of the others.
-    readable, unreadable = _readable(collect(paths), Evidence.episodes)
-    if not readable and fmt != "json":  # (JSON is still one document: its unreadable list)
-        raise typer.Exit(EXIT_USAGE)
-    if games:  # a file without games would count nothing, and every gate would pass
-        for path, ev in readable:
-            kind = str((ev.run.layout or {}).get("kind", "single"))
-            if not kind.startswith("pettingzoo"):
-                what = "single-env" if kind == "single" else kind
-                fail(f"--games counts PettingZoo games; {path} is a {what} file (drop --games)")
     try:
-        result = report_tables(
-            [(str(path), ev) for path, ev in readable], by=by, gates=gates, games=games
+        result = report_inputs(
+            paths,
+            by=by,
+            games=games,
+            min_success_rate=min_success_rate,
+            max_failure_rate=max_failure_rate or (),
+            max_truncation_rate=max_truncation_rate,
+            max_error_rate=max_error_rate,
+            fail_on_incentive_warning=fail_on_incentive_warning,
+            on_error=_error_line,
         )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    emit(report_output(result, fmt, unreadable=unreadable))
-    for line in result.notes:
-        _stderr().print(f"episode-audit: warning: {safe(line)}", markup=False, soft_wrap=True)
-    if unreadable:
+    if not result.readable and fmt != "json":  # (JSON is still one document: its unreadable list)
         raise typer.Exit(EXIT_USAGE)
-    if not result.passed:
+    emit(report_output(result.report, fmt, unreadable=result.unreadable))
+    for line in result.report.notes:
+        warn(line)
+    if result.unreadable:
+        raise typer.Exit(EXIT_USAGE)
+    if not result.report.passed:
         raise typer.Exit(EXIT_FINDINGS)

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import FormatOption, _episode_index, _format, app, emit, fail
+from ._app import FormatOption, _episode_index, _format, app, emit, existing, fail
 
 
 def _parse_slice(value: str | None) -> tuple[int | None, int | None]:
@@ -23,6 +23,20 @@ def _parse_slice(value: str | None) -> tuple[int | None, int | None]:
     if not sep:
         fail(f"--steps: expected A:B (e.g. 0:50), got {value!r}")
     return a, b
+
+
+def _steps(
+    episode: int | None, steps: str | None, all_episodes: bool
+) -> tuple[int | None, int | None]:
+    """The ``--steps`` slice, once ``--episode``, ``--steps`` and ``--all-episodes`` agree."""
+    if episode is not None:
+        _episode_index(episode)
+    start, stop = _parse_slice(steps)
+    if steps is not None and episode is None:
+        fail("--steps needs --episode N")
+    if all_episodes and episode is not None:
+        fail("--all-episodes lists the episodes of the file summary; not with --episode N")
+    return start, stop
 
 
 @app.command()
@@ -45,19 +59,12 @@ def show(
     output: FormatOption = "table",
 ) -> None:
     """Summarize a file (run metadata, spaces, versions, env spec, episodes), or one episode."""
-    from ..read.reader import open_evidence
+    from ..read import open_evidence
     from .render.show import episode_output, summary_output
 
     fmt = _format(output)
-    if episode is not None:
-        _episode_index(episode)
-    start, stop = _parse_slice(steps)
-    if steps is not None and episode is None:
-        fail("--steps needs --episode N")
-    if all_episodes and episode is not None:
-        fail("--all-episodes lists the episodes of the file summary; not with --episode N")
-    if not path.exists():
-        fail(f"{path}: no such file or directory")
+    start, stop = _steps(episode, steps, all_episodes)
+    existing(path)
     try:
         ev = open_evidence(path)
         if episode is None:

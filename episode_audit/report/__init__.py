@@ -1,25 +1,33 @@
-"""The report wing: success, failure and truncation rates per group, gates for CI."""
+"""The report wing: success, failure and truncation rates per group, gates for CI.
 
-from .core import (
-    GateResult,
-    Gates,
-    GroupReport,
-    IncentiveWarning,
-    Interval,
-    Report,
-    report,
-    report_tables,
-    wilson_interval,
-)
+- :mod:`.core`: :func:`report`, :func:`report_tables` and the :class:`Report` they return;
+- :mod:`.inputs`: :func:`report_inputs`, the library behind ``episode-audit report``;
+- :mod:`.collect`: episodes and reward-term totals of opened files, keyed by the grouping;
+- :mod:`.groups`: one group's counts, rates and statistics (:class:`GroupReport`);
+- :mod:`.incentives`: :class:`IncentiveWarning` and the rules that raise them;
+- :mod:`.gates`: :class:`Gates` and :class:`GateResult`;
+- :mod:`.stats`: :func:`wilson_interval` and :class:`Interval`; :mod:`.games`: PettingZoo games.
+
+Rates, denominators, warnings and the JSON shape: ``docs/reporting.md``.
+"""
+
+from .core import Report, report, report_tables
+from .gates import GateResult, Gates
+from .groups import GroupReport
+from .incentives import IncentiveWarning
+from .inputs import InputsReport, report_inputs
+from .stats import Interval, wilson_interval
 
 __all__ = [
     "GateResult",
     "Gates",
     "GroupReport",
     "IncentiveWarning",
+    "InputsReport",
     "Interval",
     "Report",
     "report",
+    "report_inputs",
     "report_tables",
     "wilson_interval",
 ]

@@ -1,18 +1,10 @@
 """Whole-game outcomes of PettingZoo files, from their agents' episodes.
 
-A *game* is the agent-episodes one joint ``reset()`` started (their ``game`` field). Its outcome
-is derived from its agents' outcomes by one rule, the first that applies:
-
-1. ``error`` if any agent-episode is ``error``;
-2. ``incomplete`` if any is ``incomplete`` (the recording cut the game);
-3. ``failure`` if any agent failed (label: the first failing agent's label, in episode order);
-4. ``truncated`` if any agent was truncated (reason: the first truncated agent's reason);
-5. ``success`` — every agent succeeded.
-
-That is a team reading (a game succeeds only if every agent does; a task ending beats a cutoff,
-as for one episode). For competitive games read the agents' own outcomes (``--by agent``).
-A game's ``length`` is its longest agent-episode, its ``return`` the sum of its agents'
-returns, its ``term_totals`` the sums of theirs.
+A *game* is the agent-episodes one joint ``reset()`` started (their ``game`` field).
+:func:`game_outcome` derives its outcome from its agents' by one rule, a team reading (the first
+of ``error``, ``incomplete``, ``failure``, ``truncated`` any agent-episode has, else ``success``:
+``docs/format.md``, "Game outcome"); :func:`game_table` turns an episodes table into one row per
+game: its longest agent-episode's length, the sums of their returns and reward-term totals.
 """
 
 from __future__ import annotations
@@ -25,7 +17,18 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.columns import terms_column
 
-__all__ = ["game_outcome", "game_table"]
+__all__ = ["OUTCOME_FIELDS", "game_outcome", "game_table"]
+
+OUTCOME_FIELDS = (
+    "outcome",
+    "failure_label",
+    "truncation_reason",
+    "terminated",
+    "truncated",
+    "length",
+    "return",
+)
+"""The columns of an episode's ending a report reads; a game's row has them too."""
 
 _ORDER = (fmt.OUTCOME_ERROR, fmt.OUTCOME_INCOMPLETE, fmt.OUTCOME_FAILURE, fmt.OUTCOME_TRUNCATED)
 
@@ -87,22 +90,10 @@ def game_table(episodes: pa.Table) -> pa.Table:
             }
         )
     columns = {
-        name: pa.array([r[name] for r in rows], episodes.schema.field(name).type) for name in _NAMES
+        name: pa.array([r[name] for r in rows], episodes.schema.field(name).type)
+        for name in ("episode", *OUTCOME_FIELDS, "game")
     }
     columns["term_totals"] = terms_column(len(rows), totals)
     columns["env_index"] = pa.array([0] * len(rows), pa.int64())
     columns["agent"] = pa.nulls(len(rows), pa.string())
     return pa.table(columns)
-
-
-_NAMES = (
-    "episode",
-    "outcome",
-    "failure_label",
-    "truncation_reason",
-    "terminated",
-    "truncated",
-    "length",
-    "return",
-    "game",
-)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from episode_audit import ConfigurationError, EvidenceError, RecordEvidence, open_evidence
-from episode_audit.report.core import (
+from episode_audit.report import (
     Gates,
     GroupReport,
     Interval,

@@ -1,11 +1,7 @@
-r"""Render audit results as Rich tables, Markdown (for CI job summaries) or JSON.
+r"""The renderers' shared parts: Rich tables, Markdown tables (CI job summaries) and JSON.
 
-Every string that comes from an evidence file (labels, messages, env ids, tags, term names) is
-made safe before display: table titles, headers and cells are ``rich.text.Text`` objects (never
-parsed as markup), and control characters such as ANSI escapes are shown as escape sequences
-(``\x1b``), not interpreted. In Markdown, backslashes, pipes, backticks, ``<``, ``>``, ``&``
-and a ``]`` that would close a link text are backslash-escaped, so a value can neither break a
-table row nor become a link, a code span or HTML.
+Every string from an evidence file is made safe before display (:func:`safe`,
+:func:`markdown_text`; the rules: ``docs/security.md``, "Inject markup"):
 
 >>> safe("[red]x[/red]\x1b[2J")
 '[red]x[/red]\\x1b[2J'

@@ -1,12 +1,8 @@
 """What ``episode-audit show`` prints: a file's summary, or one episode's steps.
 
-:func:`summarize` returns the summary as plain data (the library view); :func:`summary_output`
-and :func:`episode_output` render it as a table, Markdown or JSON.
-
-The summary lists the file's episodes (index, outcome, label or reason, length, return): all of
-them up to :data:`EPISODE_LIST_FULL`, else the first :data:`EPISODE_LIST_HEAD` and the last
-:data:`EPISODE_LIST_TAIL` with a row saying how many are left out (``all_episodes`` lists every
-one). Spaces are shown with their shape and dtype:
+:func:`summary_output` renders :func:`~episode_audit.read.summary.summarize` (the library view of
+a file) and :func:`episode_output` one episode's steps (:func:`episode_rows`), as a table,
+Markdown or JSON. Spaces are shown with their shape and dtype:
 
 >>> space_text({"type": "Box", "shape": [11], "dtype": "float64", "low": -1.0, "high": 1.0})
 'Box(shape=(11,), dtype=float64)'
@@ -16,7 +12,6 @@ one). Spaces are shown with their shape and dtype:
 
 from __future__ import annotations
 
-from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -29,46 +24,14 @@ from rich.text import Text
 from ...errors import EvidenceError
 from ...format import names as fmt
 from ...format.records import from_json, to_jsonable
-from ...format.spaces import space_from_description
-from ...read.reader import Evidence
+from ...read import Evidence
+from ...read.summary import EPISODE_LIST_HEAD, EPISODE_LIST_TAIL, rebuilt_space, summarize
 from .common import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
 
-__all__ = [
-    "EPISODE_LIST_FULL",
-    "EPISODE_LIST_HEAD",
-    "EPISODE_LIST_TAIL",
-    "episode_list",
-    "episode_output",
-    "episode_rows",
-    "space_shape_dtype",
-    "space_text",
-    "summarize",
-    "summary_output",
-]
-
-EPISODE_LIST_HEAD = 5
-"""Episodes listed from the start of a long file's summary."""
-EPISODE_LIST_TAIL = 5
-"""Episodes listed from the end of a long file's summary."""
-EPISODE_LIST_FULL = 12
-"""Files with up to this many episodes have every one listed (so no row hides one or two)."""
+__all__ = ["episode_output", "episode_rows", "space_text", "summary_output"]
 
 _SPACE_TEXT_LIMIT = 300
 """The longest space text (a Dict of many spaces is cut)."""
-
-
-def _space(description: Any) -> Space[Any] | None:
-    """The space a file describes, rebuilt; ``None`` when the description does not parse."""
-    try:
-        return space_from_description(description)
-    except Exception:  # a description from the file that is not one: nothing to show
-        return None
-
-
-def _digest_min_bytes(recorder: Any) -> int | None:
-    """The recorder's ``digest_min_bytes`` setting (``None``: every array stored whole)."""
-    value = recorder.get("digest_min_bytes") if isinstance(recorder, dict) else None
-    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 def _observation_text(description: Any, data: dict[str, Any]) -> str:
@@ -82,32 +45,14 @@ def _observation_text(description: Any, data: dict[str, Any]) -> str:
     )
 
 
-def space_shape_dtype(description: Any) -> tuple[list[int] | None, str | None]:
-    """The shape and dtype of a described space, or ``None`` where it has no single one.
-
-    ``description`` is a space as the file describes it
-    (:func:`~episode_audit.format.spaces.describe_space`); composite spaces (``Dict``, ``Tuple``, …)
-    and ``Text`` have neither, and a description that does not parse gives ``None``.
-
-    >>> space_shape_dtype({"type": "MultiBinary", "n": [2, 3]})
-    ([2, 3], 'int8')
-    >>> space_shape_dtype({"type": "Dict", "spaces": []})
-    (None, None)
-    """
-    space = _space(description)
-    if space is None or space.shape is None or space.dtype is None:
-        return None, None
-    return list(space.shape), str(space.dtype)
-
-
 def space_text(description: Any) -> str:
-    """A described space as one line with its shape and dtype (see the module docstring).
+    """A described space as one line with its shape and dtype (examples: the module docstring).
 
     Composite spaces show their parts: ``Dict(obs: Box(shape=(3,), dtype=float32), …)``;
     spaces without one shape (``Text``, ``Sequence``, ``Graph``) read as Gymnasium prints them.
     A description that does not parse shows its type only, e.g. ``Box(?)``.
     """
-    space = _space(description)
+    space = rebuilt_space(description)
     if space is None:
         kind = description.get("type") if isinstance(description, dict) else None
         if kind == "Custom":
@@ -131,107 +76,6 @@ def _space_text(space: Space[Any]) -> str:
         start = int(space.start)
         extra = f"n={int(space.n)}, " + (f"start={start}, " if start else "")
     return f"{type(space).__name__}({extra}shape={space.shape}, dtype={space.dtype})"
-
-
-_LIST_COLUMNS = (
-    "episode",
-    "env_index",
-    "agent",
-    "outcome",
-    "failure_label",
-    "truncation_reason",
-    "error_type",
-    "length",
-    "return",
-)
-_LABEL_OF = {
-    fmt.OUTCOME_FAILURE: "failure_label",
-    fmt.OUTCOME_TRUNCATED: "truncation_reason",
-    fmt.OUTCOME_ERROR: "error_type",
-}
-
-
-def episode_list(
-    episodes: pa.Table, *, all_episodes: bool = False
-) -> tuple[list[dict[str, Any]], int]:
-    """The episodes a summary lists, and how many it leaves out (between the first and last).
-
-    ``episodes`` is :meth:`Evidence.episodes`. Each entry: ``episode``, ``env_index`` and
-    ``agent`` (``None`` outside vector and PettingZoo files), ``outcome``, ``label`` (the failure
-    label, truncation reason or error type; ``None`` for a success or an incomplete episode),
-    ``length`` and ``return``.
-    """
-    n = episodes.num_rows
-    columns = [c for c in _LIST_COLUMNS if c in episodes.column_names]
-    table = episodes.select(columns)
-    if all_episodes or n <= EPISODE_LIST_FULL:
-        parts, omitted = [table], 0
-    else:
-        tail = n - EPISODE_LIST_TAIL
-        parts = [table.slice(0, EPISODE_LIST_HEAD), table.slice(tail)]
-        omitted = tail - EPISODE_LIST_HEAD
-    rows: list[dict[str, Any]] = []
-    for part in parts:
-        for record in part.to_pylist():
-            label = _LABEL_OF.get(record["outcome"])
-            rows.append(
-                {
-                    "episode": record["episode"],
-                    "env_index": record.get("env_index"),
-                    "agent": record.get("agent"),
-                    "outcome": record["outcome"],
-                    "label": record.get(label) if label else None,
-                    "length": record["length"],
-                    "return": record.get("return"),
-                }
-            )
-    return rows, omitted
-
-
-def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
-    """The file summary: run metadata, versions, env spec, episodes by outcome, finished or not.
-
-    ``episode_list`` holds the first and last episodes of a long file (``episode_list_omitted``
-    says how many are between them), or every one with ``all_episodes``: see
-    :func:`episode_list`.
-    """
-    episodes = ev.episodes()
-    outcomes = Counter(episodes.column("outcome").to_pylist())
-    run = ev.run
-    listed, omitted = episode_list(episodes, all_episodes=all_episodes)
-    obs_shape, obs_dtype = space_shape_dtype(run.observation_space)
-    act_shape, act_dtype = space_shape_dtype(run.action_space)
-    return {
-        "file": str(ev.path),
-        "finished": ev.finished,
-        "torn": ev.torn,
-        "recovered": (ev.run_end or {}).get("dropped", "not recorded")
-        if (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED
-        else None,
-        "format_version": run.format_version,
-        "writer": run.writer,
-        "env_id": run.env_id,
-        "start_time": run.start_time,
-        "tags": run.tags,
-        "episodes": episodes.num_rows,
-        "steps": int(sum(episodes.column("length").to_pylist())),
-        "outcomes": {k: outcomes.get(k, 0) for k in fmt.OUTCOMES},
-        "observation_space": run.observation_space.get("type"),
-        "action_space": run.action_space.get("type"),
-        "reward_terms": run.reward_terms,
-        "versions": run.versions,
-        "platform": run.platform,
-        "command_line": run.command_line,
-        "env_spec": run.env_spec,
-        "layout": run.layout,
-        "observation_shape": obs_shape,
-        "observation_dtype": obs_dtype,
-        "action_shape": act_shape,
-        "action_dtype": act_dtype,
-        "episode_list": listed,
-        "episode_list_omitted": omitted,
-        "observation_digest_min_bytes": _digest_min_bytes(run.recorder),
-    }
 
 
 def _layout_text(layout: dict[str, Any]) -> str:

@@ -1,0 +1,189 @@
+"""Recovery step by step: open the input, copy what is intact, finish and publish the output."""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+from datetime import datetime, timezone
+from pathlib import Path
+
+import pyarrow.compute as pc
+from mcap.records import Header
+
+from .._version import __version__
+from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
+from ..format import names as fmt
+from ..read import DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
+from ..read.reader import _RECOVER_HINT
+from ..record.writer import EvidenceWriter
+from .copying import RecordCopy
+from .files import check_paths, fsync, publish
+from .kept import Kept
+from .result import RecoveryResult, record_name
+
+__all__ = ["recover"]
+
+
+def recover(
+    path: str | os.PathLike[str], out: str | os.PathLike[str], *, overwrite: bool = False
+) -> RecoveryResult:
+    """Rewrite the evidence file ``path`` as a finished, indexed file ``out``.
+
+    Every complete, intact chunk is kept, with the run metadata; damaged chunks and the torn
+    tail are dropped; the run-end record has ``status=recovered`` and says what was dropped
+    (see ``docs/format.md``).
+    Episodes without an end record stay ``incomplete`` (``ended`` false), as a reader of the
+    torn file sees them. A finished, intact input is copied unchanged. The input is never
+    changed; the output is written next to ``out`` and renamed into place once finished.
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
+    (without ``overwrite``) or cannot be created, and
+    :class:`~episode_audit.errors.EvidenceError` (and its subclasses) when the input is not
+    readable evidence.
+
+    >>> import tempfile, pathlib, gymnasium as gym, numpy as np
+    >>> from episode_audit import RecordEvidence, open_evidence
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> env = RecordEvidence(gym.make("Pendulum-v1"), d / "run.mcap", block_steps=8)
+    >>> _ = env.reset(seed=0)
+    >>> for _ in range(20):
+    ...     _ = env.step(np.zeros(1, np.float32))
+    >>> data = (d / "run.mcap").read_bytes()   # 16 steps flushed; as a killed process leaves it
+    >>> _ = (d / "torn.mcap").write_bytes(data[:-10])
+    >>> env.close()
+    >>> result = recover(d / "torn.mcap", d / "fixed.mcap")
+    >>> result.lost, result.steps, result.cut_off_episodes
+    (True, 16, (0,))
+    >>> open_evidence(d / "fixed.mcap").run_end["status"]
+    'recovered'
+    """
+    src, dst = Path(path), Path(out)
+    check_paths(src, dst, overwrite)
+    ev = _open_input(src)
+    tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
+    try:
+        if ev.finished and not (ev.summary_damage or ev.run_end_damage) and not _damage_in(src):
+            result = _copy_unchanged(src, ev, tmp, dst)
+        else:
+            result = _rewrite(src, tmp, dst, ev.summary_damage)
+            check = open_evidence(tmp)
+            if not check.finished:  # pragma: no cover - the writer finished it just now
+                raise CorruptEvidenceError(tmp, f"the recovered file is unfinished: {check.torn}")
+        fsync(tmp)
+        publish(tmp, dst, overwrite)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return result
+
+
+def _open_input(src: Path) -> Evidence:
+    """Open the input; one whose first chunk is damaged has no channel definitions left."""
+    try:
+        return open_evidence(src)
+    except CorruptEvidenceError as exc:
+        if not exc.problem.endswith(_RECOVER_HINT):
+            raise
+        # (an unfinished file: only its first chunk was read, for the channel definitions)
+        raise CorruptEvidenceError(
+            src,
+            f"{exc.problem.removesuffix(_RECOVER_HINT)}: it holds the channel definitions and "
+            "the file has no summary that repeats them, so no chunk can be decoded",
+        ) from None
+
+
+def _damage_in(path: Path) -> bool:
+    """Whether a walk over the finished file ``path`` meets damage (every chunk checked)."""
+    return any(isinstance(item, DamagedRegion) for item in iter_records(path, skip_damaged=True))
+
+
+def _copy_unchanged(src: Path, ev: Evidence, tmp: Path, dst: Path) -> RecoveryResult:
+    """A finished, intact input (``ev``, opened from ``src``): copied byte for byte."""
+    try:
+        shutil.copyfile(src, tmp)
+    except OSError as exc:
+        raise ConfigurationError(f"{tmp}: cannot write: {exc.strerror}") from None
+    lengths = ev.episodes()["length"]
+    steps = int(pc.sum(lengths).as_py() or 0)
+    size = src.stat().st_size
+    return RecoveryResult(src, dst, True, 0, 0, len(lengths), steps, (), 0, None, size)
+
+
+def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> RecoveryResult:
+    """Copy ``src``'s complete, intact records into the new file ``tmp`` and finish it."""
+    records = iter_records(src, skip_damaged=True)
+    header = next(records)
+    if not isinstance(header, Header):  # open_evidence found one: the walk does too
+        raise CorruptEvidenceError(src, "the first record is not an MCAP header")
+    writer = EvidenceWriter(tmp, library=header.library)
+    try:
+        copy = RecordCopy(src, writer)
+        end = copy.copy(records)
+        # What the output holds so far (an unfinished file, read as a torn one) says which
+        # episodes were cut off, and with damage, which lost evidence.
+        try:
+            kept = Kept.of(tmp, copy.damage, closed=copy.closed, run_end=copy.run_end or {})
+        except EvidenceError as exc:  # what it copied from src: name src
+            raise type(exc)(src, exc.problem) from None
+        result = _result(src, dst, copy, end, kept, summary_damage)
+        writer.finish(_run_end(src, copy, kept, result))
+    except BaseException:
+        writer.abandon()
+        raise
+    return result
+
+
+def _result(
+    src: Path, dst: Path, copy: RecordCopy, end: FileEnd, kept: Kept, summary_damage: str | None
+) -> RecoveryResult:
+    """What the rewrite kept, and what it dropped at the torn end and in damaged stretches."""
+    dropped = end.size - end.offset if not end.footer else 0
+    kind = record_name(end.cut_opcode) if dropped and end.cut_opcode is not None else None
+    return RecoveryResult(
+        src,
+        dst,
+        False,
+        copy.chunks,
+        copy.messages,
+        kept.episodes,
+        copy.steps,
+        kept.cut_off,
+        dropped,
+        kind,
+        end.size - dropped,
+        copy.closed,
+        tuple(copy.damaged),
+        kept.damaged,
+        copy.damage == "at the end" and not copy.closed,
+        summary_damage,
+        copy.run_end_damage,
+    )
+
+
+def _run_end(src: Path, copy: RecordCopy, kept: Kept, result: RecoveryResult) -> dict[str, str]:
+    """The output's run-end record: ``status=recovered``, what was kept and what dropped."""
+    old = copy.run_end or {}
+    return {
+        "status": fmt.RUN_STATUS_RECOVERED,
+        "episodes": str(kept.episodes),
+        "steps": str(copy.steps),
+        "blocks": str(copy.blocks),
+        "end_time": old.get("end_time") or _iso(copy.last_time),
+        "recovered_from": str(src),
+        "recovered_by": f"episode-audit {__version__}",
+        "recovered_time": datetime.now(timezone.utc).isoformat(),
+        "dropped": result.dropped,
+        "dropped_bytes": str(result.dropped_bytes),
+        "cut_off_episodes": json.dumps(list(kept.cut_off)),
+        "damaged": json.dumps(
+            [{"offset": d.offset, "length": d.length, "why": d.why} for d in copy.damaged]
+        ),
+        "damaged_episodes": kept.damaged.to_json(),
+        # (counted over the original's episodes: whether its task reports success)
+        **{key: value for key, value in old.items() if key == fmt.RUN_END_SUCCESS_REPORTED},
+    }
+
+
+def _iso(time_ns: int) -> str:
+    return datetime.fromtimestamp(time_ns / 1e9, timezone.utc).isoformat()

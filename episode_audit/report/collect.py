@@ -1,0 +1,205 @@
+"""The episodes of opened evidence files as the two tables a report groups.
+
+:func:`collect` returns one row per episode (or per PettingZoo game) with its group key, and one
+row per (ended episode, reward term) with the term's episode total. The key comes from ``by``:
+:data:`BY_KEYS` or ``tag:NAME`` (:func:`is_by`, :func:`check_by`); an episode without a value
+for it is in the group :data:`NONE_KEY`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..errors import ConfigurationError
+from ..format import names as fmt
+from ..read import Evidence
+from .games import OUTCOME_FIELDS, game_table
+
+__all__ = [
+    "BY_KEYS",
+    "ENDED",
+    "ERROR_KEY",
+    "INCOMPLETE_KEY",
+    "NONE_KEY",
+    "SUCCESS_KEY",
+    "check_by",
+    "collect",
+    "is_by",
+]
+
+NONE_KEY = "(none)"
+SUCCESS_KEY = "(success)"
+INCOMPLETE_KEY = "(incomplete)"
+ERROR_KEY = "(error)"
+
+ENDED = (fmt.OUTCOME_SUCCESS, fmt.OUTCOME_FAILURE, fmt.OUTCOME_TRUNCATED)
+"""The outcomes of the episodes rates count (the denominator)."""
+
+BY_KEYS = ("file", "env", "env_index", "agent", "label", "all")
+"""The ``by`` groupings besides ``tag:NAME``."""
+
+_EPISODES_SCHEMA = pa.schema(
+    [
+        ("outcome", pa.string()),
+        ("failure_label", pa.string()),
+        ("truncation_reason", pa.string()),
+        ("terminated", pa.bool_()),
+        ("truncated", pa.bool_()),
+        ("length", pa.int64()),
+        ("return", pa.float64()),
+        ("key", pa.string()),
+        ("success_signal", pa.bool_()),
+    ]
+)
+_TERM_SCHEMA = pa.schema(
+    [("key", pa.string()), ("outcome", pa.string()), ("term", pa.string()), ("total", pa.float64())]
+)
+
+
+def is_by(by: str) -> bool:
+    """Whether ``by`` names a grouping.
+
+    >>> is_by("env"), is_by("tag:policy"), is_by("tag:"), is_by("files")
+    (True, True, False, False)
+    """
+    return by in BY_KEYS or (by.startswith("tag:") and len(by) > 4)
+
+
+def check_by(by: str) -> None:
+    """Raise :class:`~episode_audit.errors.ConfigurationError` unless ``by`` names a grouping."""
+    if is_by(by):
+        return
+    raise ConfigurationError(
+        f"by: expected 'file', 'env', 'tag:NAME', 'label', 'all', 'env_index' or 'agent', "
+        f"actually: {by!r}"
+    )
+
+
+def collect(
+    sources: Iterable[tuple[str, Evidence]], by: str, games: bool = False
+) -> tuple[pa.Table, pa.Table]:
+    """Return (episodes, terms): one row per episode, one row per (episode, term) total.
+
+    With ``games``, one row per game of a PettingZoo file instead (see :mod:`.games`).
+    """
+    parts: list[pa.Table] = []
+    term_parts: list[pa.Table] = []
+    for name, ev in sources:
+        table = ev.episodes()
+        if games:
+            table = game_table(table)
+        n = table.num_rows
+        if n == 0:
+            continue
+        key = _keys(name, ev, table, by, games)
+        signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
+        parts.append(
+            table.select(list(OUTCOME_FIELDS))
+            .append_column("key", key)
+            .append_column("success_signal", signal)
+        )
+        term_parts.extend(_term_rows(table, key, ev))
+    if not parts:
+        return _EPISODES_SCHEMA.empty_table(), _TERM_SCHEMA.empty_table()
+    terms = pa.concat_tables(term_parts) if term_parts else _TERM_SCHEMA.empty_table()
+    return pa.concat_tables(parts), terms
+
+
+def _keys(name: str, ev: Evidence, table: pa.Table, by: str, games: bool) -> pa.Array:
+    """Per episode of ``table`` (of the file ``name``), its group key for ``by``."""
+    n = table.num_rows
+    if by == "file":
+        return pa.array([name] * n, pa.string())
+    if by == "env":
+        return pa.array([ev.run.env_id or NONE_KEY] * n, pa.string())
+    if by == "all":
+        return pa.array(["all"] * n, pa.string())
+    if by == "label":
+        return _label_keys(table)
+    if by == "env_index":  # vector files: one group per sub-env index
+        return pc.cast(table.column("env_index"), pa.string()).combine_chunks()
+    if by == "agent":  # PettingZoo files: one group per agent
+        if games:
+            raise ConfigurationError("by='agent' and games=True: a game has many agents")
+        return pc.fill_null(table.column("agent"), NONE_KEY).combine_chunks()
+    value = (ev.run.tags or {}).get(by[4:])
+    return pa.array([NONE_KEY if value is None else str(value)] * n, pa.string())
+
+
+def _label_keys(table: pa.Table) -> pa.Array:
+    """Per episode, its key for ``by="label"``."""
+    outcome = table.column("outcome")
+    failure = pc.fill_null(table.column("failure_label"), fmt.UNLABELED)
+    reason = pc.fill_null(table.column("truncation_reason"), fmt.REASON_EXTERNAL)
+    truncated = pc.binary_join_element_wise("(truncated:", reason, ")", "")
+    keys = pc.case_when(
+        pc.make_struct(
+            pc.equal(outcome, fmt.OUTCOME_SUCCESS),
+            pc.equal(outcome, fmt.OUTCOME_FAILURE),
+            pc.equal(outcome, fmt.OUTCOME_TRUNCATED),
+            pc.equal(outcome, fmt.OUTCOME_ERROR),
+        ),
+        SUCCESS_KEY,
+        failure,
+        truncated,
+        ERROR_KEY,
+        INCOMPLETE_KEY,
+    )
+    return keys.combine_chunks() if isinstance(keys, pa.ChunkedArray) else keys
+
+
+def _term_rows(table: pa.Table, key: pa.Array, ev: Evidence) -> list[pa.Table]:
+    """Per (episode, term): the term's episode total, for ended episodes only."""
+    ended = pc.is_in(table.column("outcome"), pa.array(ENDED)).to_numpy(zero_copy_only=False)
+    if not ended.any():
+        return []
+    mask = pa.array(ended)
+    outcome = table.column("outcome").combine_chunks().filter(mask)
+    keys = key.filter(mask)
+    out: list[pa.Table] = []
+    totals = table.column("term_totals").combine_chunks().filter(mask)
+    if len(totals) and totals.null_count < len(totals):
+        # Offsets, not pc.list_parent_indices: that kernel aborts the process on map arrays
+        # (pyarrow 26).
+        offsets = totals.offsets.to_numpy(zero_copy_only=False).astype(np.int64)
+        lo, hi = int(offsets[0]), int(offsets[-1])
+        parents = pa.array(np.repeat(np.arange(len(totals)), np.diff(offsets)))
+        out.append(
+            pa.table(
+                {
+                    "key": keys.take(parents),
+                    "outcome": outcome.take(parents),
+                    "term": totals.keys.slice(lo, hi - lo),
+                    "total": totals.items.slice(lo, hi - lo),
+                },
+                schema=_TERM_SCHEMA,
+            )
+        )
+    return out + _constant_rows(ev, table, mask, keys, outcome)
+
+
+def _constant_rows(
+    ev: Evidence, table: pa.Table, mask: pa.Array, keys: pa.Array, outcome: pa.Array
+) -> list[pa.Table]:
+    """Per (ended episode, declared constant term): the constant times the episode's length."""
+    constants = (ev.run.reward_terms or {}).get("constants") or {}
+    if not constants:
+        return []
+    steps = pc.cast(table.column("length").combine_chunks().filter(mask), pa.float64())
+    return [
+        pa.table(
+            {
+                "key": keys,
+                "outcome": outcome,
+                "term": pa.array([str(name)] * len(keys), pa.string()),
+                "total": pc.multiply(steps, float(value)),
+            },
+            schema=_TERM_SCHEMA,
+        )
+        for name, value in constants.items()
+        if isinstance(value, (int, float))
+    ]

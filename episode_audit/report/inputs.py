@@ -1,0 +1,151 @@
+"""The library behind ``episode-audit report``: a command's inputs and options, reported.
+
+:func:`report_inputs` takes the options as the command line gives them (``--max-failure-rate``
+as ``RATE`` or ``LABEL=RATE`` strings) and checks them in its words, opens the files the paths
+name (going past the unreadable ones), checks that ``--games`` fits them, and reports them with
+:func:`~.core.report_tables`: an :class:`InputsReport`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigurationError, EpisodeAuditError
+from ..read import Evidence
+from ..read.inputs import Unreadable, evidence_files, open_all
+from .collect import is_by
+from .core import Report, report_tables
+from .gates import Gates, is_rate
+
+__all__ = ["InputsReport", "gates_from_options", "report_inputs"]
+
+
+@dataclass(frozen=True)
+class InputsReport:
+    """The report of the readable inputs, and the inputs that could not be read."""
+
+    report: Report
+    unreadable: list[Unreadable]
+    readable: int
+    """How many inputs were read (the report is of those)."""
+
+
+def report_inputs(
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    by: str = "file",
+    games: bool = False,
+    min_success_rate: float | None = None,
+    max_failure_rate: Sequence[str] = (),
+    max_truncation_rate: float | None = None,
+    max_error_rate: float | None = None,
+    fail_on_incentive_warning: bool = False,
+    on_error: Callable[[EpisodeAuditError], None] | None = None,
+) -> InputsReport:
+    """Report the evidence files ``paths`` name (directories are searched for ``*.mcap``).
+
+    The options are those of ``episode-audit report``, checked in that order, each problem a
+    :class:`~episode_audit.errors.ConfigurationError` naming the option. A file that cannot be
+    read (its episodes included) is handed to ``on_error`` and listed in
+    :attr:`InputsReport.unreadable`, so one bad file costs the others nothing.
+    """
+    if not is_by(by):
+        raise ConfigurationError(
+            f"--by: expected file, env, env_index, agent, label, all or tag:NAME, got {by!r}"
+        )
+    if games and by == "agent":
+        raise ConfigurationError("--games cannot be grouped --by agent: a game has many agents")
+    gates = gates_from_options(
+        min_success_rate=min_success_rate,
+        max_failure_rate=max_failure_rate,
+        max_truncation_rate=max_truncation_rate,
+        max_error_rate=max_error_rate,
+        fail_on_incentive_warning=fail_on_incentive_warning,
+    )
+    files = evidence_files([Path(p) for p in paths])
+    # Reading each file's episodes here (they are cached) puts a file damaged past its start
+    # with the unreadable ones instead of stopping the report of the others.
+    readable, unreadable = open_all(files, Evidence.episodes, on_error=on_error)
+    if games:  # a file without games would count nothing, and every gate would pass
+        for path, ev in readable:
+            _check_games_fit(path, ev)
+    sources = [(str(path), ev) for path, ev in readable]
+    result = report_tables(sources, by=by, gates=gates, games=games)
+    return InputsReport(result, unreadable, len(readable))
+
+
+def gates_from_options(
+    *,
+    min_success_rate: float | None = None,
+    max_failure_rate: Sequence[str] = (),
+    max_truncation_rate: float | None = None,
+    max_error_rate: float | None = None,
+    fail_on_incentive_warning: bool = False,
+) -> Gates:
+    """The :class:`~.gates.Gates` of the command line's options, checked in their words.
+
+    ``max_failure_rate`` holds ``RATE`` (overall) and ``LABEL=RATE`` (one label) strings.
+
+    >>> gates_from_options(max_failure_rate=["0.2", "collision=0.05"]).max_failure_rate_by_label
+    {'collision': 0.05}
+    >>> try:
+    ...     gates_from_options(max_failure_rate=["=0.1"])
+    ... except ConfigurationError as exc:
+    ...     print(exc)
+    --max-failure-rate: expected RATE or LABEL=RATE, got '=0.1' (no label)
+    """
+    overall, by_label = _failure_rates(max_failure_rate)
+    return Gates(
+        min_success_rate=_rate_option("--min-success-rate", min_success_rate),
+        max_failure_rate=overall,
+        max_failure_rate_by_label=by_label,
+        max_truncation_rate=_rate_option("--max-truncation-rate", max_truncation_rate),
+        max_error_rate=_rate_option("--max-error-rate", max_error_rate),
+        fail_on_incentive_warning=fail_on_incentive_warning,
+    )
+
+
+def _failure_rates(values: Sequence[str]) -> tuple[float | None, dict[str, float]]:
+    """``--max-failure-rate`` values: the overall rate (the last given) and those by label."""
+    overall: float | None = None
+    by_label: dict[str, float] = {}
+    for value in values:
+        label, sep, rate = value.rpartition("=")
+        try:
+            number = float(rate)
+        except ValueError:
+            raise ConfigurationError(
+                f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r}"
+            ) from None
+        if not is_rate(number):
+            raise ConfigurationError(
+                f"--max-failure-rate: expected a rate between 0 and 1, got {rate!r}"
+            )
+        if sep and not label:
+            raise ConfigurationError(
+                f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r} (no label)"
+            )
+        if sep:
+            by_label[label] = number
+        else:
+            overall = number
+    return overall, by_label
+
+
+def _rate_option(name: str, value: float | None) -> float | None:
+    if value is not None and not is_rate(value):
+        raise ConfigurationError(f"{name}: expected a rate between 0 and 1, got {value}")
+    return value
+
+
+def _check_games_fit(path: Path, ev: Evidence) -> None:
+    """``--games`` counts PettingZoo games: a file of another kind has none."""
+    kind = str((ev.run.layout or {}).get("kind", "single"))
+    if not kind.startswith("pettingzoo"):
+        what = "single-env" if kind == "single" else kind
+        raise ConfigurationError(
+            f"--games counts PettingZoo games; {path} is a {what} file (drop --games)"
+        )
