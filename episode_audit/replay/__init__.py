@@ -1,7 +1,13 @@
-"""The replay wing: re-run recorded episodes and say where they diverge, if they do."""
+"""The replay wing: re-run recorded episodes and say where they diverge, if they do.
 
+:func:`replay` (files) and :func:`replay_evidence` (one open file) give a
+:class:`ReplayResult`: an :class:`EpisodeReplay` per episode, with its :class:`Divergence` if
+it diverged; :func:`build_env` builds the env a file's episodes replay in.
+"""
+
+from .envs import build_env
+from .results import Divergence, EpisodeReplay, ReplayResult
 from .run import replay, replay_evidence
-from .single import Divergence, EpisodeReplay, ReplayResult, build_env
 
 __all__ = [
     "Divergence",

@@ -14,14 +14,10 @@ from .._usercode import import_modules
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
 from ..record.gym import library_versions
+from .envs import EnvFactory
 from .pettingzoo import replay_agents_evidence
-from .single import (
-    EnvFactory,
-    EpisodeReplay,
-    ReplayResult,
-    _installed_version,
-    replay_single_evidence,
-)
+from .results import EpisodeReplay, ReplayResult
+from .single import replay_single_evidence
 
 __all__ = ["replay", "replay_evidence"]
 
@@ -84,13 +80,28 @@ def replay(
                 progress=progress,
             )
         )
-        current = library_versions()
-        diffs = {
-            lib: (str(recorded), now)
-            for lib, recorded in ev.run.versions.items()
-            if (now := current.get(lib) or _installed_version(lib)) != recorded
-            and lib != "episode_audit"
-        }
+        diffs = _version_differences(ev)
         if diffs:
             result.version_differences[str(ev.path)] = diffs
     return result
+
+
+def _version_differences(ev: Evidence) -> dict[str, tuple[str, str]]:
+    """The libraries whose version now differs from the recorded one: (recorded, current)."""
+    current = library_versions()
+    return {
+        lib: (str(recorded), now)
+        for lib, recorded in ev.run.versions.items()
+        if (now := current.get(lib) or _installed_version(lib)) != recorded
+        and lib != "episode_audit"
+    }
+
+
+def _installed_version(distribution: str) -> str:
+    """The installed version of a library this process has not imported, or "not installed"."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(distribution)
+    except (PackageNotFoundError, ValueError):
+        return "not installed"
