@@ -2,7 +2,7 @@
 
 :class:`Divergence` (where and how an episode first differed, shown in one line),
 :class:`EpisodeReplay` (one episode's replay), :class:`ReplayResult` (many, with the library
-versions that differ from the recording), :data:`Status`;
+versions that differ from the recording and the inputs that could not be read), :data:`Status`;
 :func:`short` and :func:`env_error` word values and errors as every replay shows them.
 """
 
@@ -15,6 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..format.spaces import equal_elements
+from ..read.inputs import Unreadable
 
 __all__ = [
     "RESET_RAISED",
@@ -96,10 +97,16 @@ class EpisodeReplay:
 
 @dataclass
 class ReplayResult:
-    """Replays of many episodes, with the library versions that differ from the recording."""
+    """Replays of many episodes, with the library versions that differ from the recording.
+
+    ``unreadable``: the inputs that could not be read (``replay(..., keep_going=True)``);
+    ``missing``: the selected episode indices that no file replayed had.
+    """
 
     episodes: list[EpisodeReplay] = field(default_factory=list)
     version_differences: dict[str, dict[str, tuple[str, str]]] = field(default_factory=dict)
+    unreadable: list[Unreadable] = field(default_factory=list)
+    missing: list[int] = field(default_factory=list)
 
     def count(self, status: Status) -> int:
         """How many episodes ended with ``status``."""
