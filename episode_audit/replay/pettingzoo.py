@@ -20,6 +20,7 @@ import pyarrow as pa
 from ..errors import ReplayError
 from ..format import names as fmt
 from ..format.columns import number_or_nan, one_array
+from ..format.records import EpisodeRanges
 from ..format.spaces import SpaceCodec
 from ..read.reader import Evidence
 from ..record.rules import EndingRules, RewardTerms
@@ -190,7 +191,7 @@ class _File:
     rows: dict[int, tuple[int, int]]
     resets: pa.Table
     reset_at: dict[int, int]
-    damaged: Any
+    damaged: EpisodeRanges
     obs_codec: SpaceCodec
     act_codec: SpaceCodec
     rules: EndingRules | None

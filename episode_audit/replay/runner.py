@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..format import names as fmt
-from ..format.records import from_json
+from ..format.records import EpisodeRanges, from_json
 from ..read.reader import Evidence
 from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
@@ -202,7 +202,7 @@ class EpisodeRunner:
         index: int,
         count: int,
         reset_at: int | None,
-        damaged: Any,
+        damaged: EpisodeRanges | None,
         done: dict[int, EpisodeReplay],
     ) -> Any:
         """Reset ``env`` for one episode and return its observation.
