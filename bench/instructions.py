@@ -127,7 +127,8 @@ def replay_child(kind: str, env_id: str, path: str, warm_path: str) -> None:
     import gymnasium as gym
 
     from episode_audit import open_evidence, replay
-    from episode_audit.replay.single import _replay_actions, _row_ranges
+    from episode_audit.replay.recorded import replay_actions as _replay_actions
+    from episode_audit.replay.recorded import row_ranges as _row_ranges
 
     ev = open_evidence(path)
     codec = ev.action_codec

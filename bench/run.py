@@ -243,7 +243,7 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
     the per-round ratios; the two bare runs against each other give the noise floor.
     """
     from episode_audit.replay import replay
-    from episode_audit.replay.single import _replay_actions
+    from episode_audit.replay.recorded import replay_actions as _replay_actions
 
     path = TMP / f"replay-{env_id}.mcap"
     space = gym.make(env_id).action_space

@@ -46,7 +46,7 @@ _DYNAMIC_IMPORTS_ALLOWED = {("_usercode.py", "load_callable"), ("_usercode.py", 
 # which imports a module named in a file only after is_pettingzoo_module() found it inside the
 # installed pettingzoo package (or with --trust-entry-points); test_multiagent pins both paths.
 _DYNAMIC_IMPORTS_ALLOWED |= {("__init__.py", "__getattr__")}
-_DYNAMIC_IMPORTS_ALLOWED |= {("replay/pettingzoo.py", "build_pettingzoo_env")}
+_DYNAMIC_IMPORTS_ALLOWED |= {("replay/envs.py", "_from_pettingzoo_module")}
 
 
 def _is_re(func: ast.expr) -> bool:

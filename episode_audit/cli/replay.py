@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-import math
 from typing import Annotated
 
 import typer
 
-from ..errors import ConfigurationError, EpisodeAuditError
-from ..read.inputs import Unreadable, steps_total
+from ..errors import ConfigurationError
+from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     FormatOption,
     PathsArgument,
-    _episode_index,
+    _error_line,
     _format,
-    _unreadable,
     app,
     collect,
     emit,
@@ -59,46 +57,39 @@ def replay(
     output: FormatOption = "table",
 ) -> None:
     """Re-run episodes from their recorded seed / RNG state and compare them step by step."""
-    from ..replay import ReplayResult
     from ..replay import replay as run_replay
+    from ..replay import replay_options
     from .render import replay_output
 
     fmt = _format(output)
-    if not (math.isfinite(atol) and atol >= 0):
-        fail(f"--atol: expected a finite number >= 0, got {atol}")
-    for index in episode or []:
-        _episode_index(index)
+    try:
+        episodes = replay_options(atol, episode, atol_option="--atol", episode_option="--episode")
+    except ConfigurationError as exc:
+        fail(str(exc))
     files = collect(paths)
-    merged = ReplayResult()
-    unreadable: list[Unreadable] = []
     with progress_bar("replaying", steps_total(files) if episode is None else None) as advance:
-        for path in files:
-            try:
-                result = run_replay(
-                    [path],
-                    episodes=episode,
-                    atol=atol,
-                    env_factory=env_factory,
-                    imports=import_ or (),
-                    trust_entry_points=trust_entry_points,
-                    progress=advance,
-                )
-            except ConfigurationError as exc:
-                fail(str(exc))
-            except EpisodeAuditError as exc:
-                _unreadable(path, exc, unreadable)
-                continue
-            merged.episodes.extend(result.episodes)
-            merged.version_differences.update(result.version_differences)
-    emit(replay_output(merged, fmt, unreadable=unreadable))
-    missing = sorted(set(episode or ()) - {e.episode for e in merged.episodes})
-    if missing and not unreadable:
-        listed = ", ".join(map(str, missing))
+        try:
+            result = run_replay(
+                files,
+                episodes=episodes,
+                atol=atol,
+                env_factory=env_factory,
+                imports=import_ or (),
+                trust_entry_points=trust_entry_points,
+                progress=advance,
+                keep_going=True,
+                on_error=_error_line,
+            )
+        except ConfigurationError as exc:
+            fail(str(exc))
+    emit(replay_output(result, fmt))
+    if result.missing and not result.unreadable:
+        listed = ", ".join(map(str, result.missing))
         fail(
             f"--episode: no episode {listed} in the file(s) given "
             "(`episode-audit show FILE` says how many there are)"
         )
-    if unreadable:
+    if result.unreadable:
         raise typer.Exit(EXIT_USAGE)
-    if not merged.ok:
+    if not result.ok:
         raise typer.Exit(EXIT_FINDINGS)

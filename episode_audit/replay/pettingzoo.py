@@ -1,165 +1,39 @@
 """Replay PettingZoo evidence files game by game and compare every agent's episode.
 
-A game (the agent-episodes of one joint reset) is the unit of replay: the env is rebuilt, reset
-with the game's seed (or RNG state) and driven with the recorded actions — in the Parallel API
-every live agent's next recorded action per step; in the AEC API the next recorded action of
-``agent_selection``, with dead steps (``step(None)``) performed by the replay itself. Rows are
-accounted exactly as the recorder did
-(:class:`~episode_audit.record.pettingzoo.AECTurns`), then each agent's episode is compared
-with its evidence: reset observation, observations, rewards, reward terms, ``terminated``,
-``truncated``, length and outcome.
-
-Each agent's infos are read as the recorder read them (its stream records a step as a single
-env's), by a single env's replay helpers: an info that is not a mapping has no terms, terms that
-cannot be read are none, a term value that is not a number is NaN, term names follow the one
-rule (:func:`~episode_audit.record.rules.named_terms`: names that collide are one term, their sum;
-text UTF-8 cannot encode is escaped), and a final info the ending rules cannot read gives the
-ending by the flags alone (:meth:`~episode_audit.record.rules.EndingRules.classify_or_note`). No
-info makes replay raise.
-
-Where the recorded actions run out, the replay stops at ``agent_selection``'s turn and closes
-the other agents' open rows (and begins those without a turn) with the env's state there, as
-the recorder did when the game was cut by ``reset()`` or ``close()``. Three kinds of games were
-not cut there:
-
-- a game whose ``reset()`` raised (``error`` during ``reset``): it has no reset row and no
-  step, so there is nothing to compare; its agent-episodes are ``not_replayable`` with a
-  single env's reason, whether or not the replay's reset would raise;
-- a game cut off by a torn file (an agent-episode without an end record): the recording went
-  on, so those rows and reset rows were recorded at later turns, after an action the file does
-  not hold. They cannot be replayed: the episode is ``not_replayable`` (saying which step and
-  whose missing action), once everything before it compared identical;
-- a game whose ``step()`` raised (``error`` during ``step``): the step that raised came after
-  the game's last recorded action — the next agent's step, whose action is no row, or a dead
-  step after it (the file does not say which). The recorder closed the open rows with the
-  env's state when it raised, which the replay has only if the env left its state untouched
-  and, where the replay performs dead steps after that action, only if the recording raised
-  after them. So the rows closed after the next agent's turn following that action are
-  compared up to what the file can reproduce: such a row whose observation, terms or flags
-  differ makes its episode ``not_replayable``, saying so (the game, the last recorded action,
-  the recorded error, and whether the replay's dead steps there raised), never ``diverged``
-  (its reward, summed over steps that completed, is compared as any other). A dead step that
-  raises there on replay is taken as the recorded error.
-
-The replay's env raising where the recording's did not is a divergence, as for a single env:
-a reset that raises diverges every agent-episode of the game at ``reset``; a step that raises
-(any step before the last recorded action has run, whose action is a row or whose dead step
-the recording completed) diverges at ``step`` every agent-episode whose rows it cut short,
-naming the agent and step that raised for the other agents.
-
-How the env is built, safely:
-
-1. ``env_factory`` (``"module:callable"`` or a callable) given by the user; else
-2. the recorded ``env_id`` when it is registered in this process's PettingZoo registry
-   (PettingZoo 1.27+, the AEC or Parallel one by the file's kind), made with
-   ``pettingzoo.make(api, env_id, **env_kwargs)``; an id that is not registered is not used
-   and imports nothing; else
-3. the recorded ``env_module`` when it is one of PettingZoo's own env modules
-   (``pettingzoo.<family>.<name>_v<N>`` resolving inside the installed ``pettingzoo``
-   package), calling its ``env()`` (AEC) or ``parallel_env()`` with the recorded ``env_kwargs``;
-4. any other recorded module only with ``trust_entry_points=True``.
+:func:`replay_agents_evidence` replays a file's (selected) agent-episodes a whole game at a time
+in the env :func:`~.envs.build_pettingzoo_env` builds: each game is reset as recorded and driven
+with the recorded actions (AEC: :func:`_run_aec`, Parallel: :func:`_run_parallel`), its rows
+accounted as the recorder accounted them; then each agent's episode is compared with its
+evidence (:class:`_AgentEpisode`). How games replay, and what a game cut by a torn file or by a
+``step()`` that raised can be compared with: docs/replay.md.
 """
 
 from __future__ import annotations
 
-import importlib
 import json
-import warnings
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import pyarrow as pa
 
-from .._usercode import load_callable
 from ..errors import ReplayError
 from ..format import names as fmt
 from ..format.columns import number_or_nan, one_array
+from ..format.records import EpisodeRanges
+from ..format.spaces import SpaceCodec
 from ..read.reader import Evidence
+from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
-from .single import (
-    RESET_RAISED,
-    Divergence,
-    EpisodeReplay,
-    Status,
-    _final_ending,
-    _outcome_divergence,
-    _recorded_terms,
-    _row_ranges,
-    _rules_of,
-    _short,
-    _terms_equal,
-)
+from .compare import outcome_difference, terms_equal
+from .envs import build_pettingzoo_env
+from .recorded import row_ranges, rules_of
+from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, none_replayable, short
+from .returned import recorded_terms
 
-__all__ = ["build_pettingzoo_env", "replay_agents_evidence"]
+__all__ = ["replay_agents_evidence"]
 
 KINDS = ("pettingzoo_parallel", "pettingzoo_aec")
-
-
-def build_pettingzoo_env(
-    layout: Mapping[str, Any],
-    *,
-    env_factory: str | Callable[[], Any] | None = None,
-    trust_entry_points: bool = False,
-) -> Any:
-    """Build the PettingZoo env a file was recorded from (see the module docstring)."""
-    from pettingzoo import AECEnv, ParallelEnv
-
-    from ..record.pettingzoo import (
-        KIND_PARALLEL,
-        is_pettingzoo_module,
-        is_registered,
-        make_registered,
-    )
-
-    kind = str(layout.get("kind"))
-    parallel = kind == KIND_PARALLEL
-    want = ParallelEnv if parallel else AECEnv
-    api = "ParallelEnv" if parallel else "AECEnv"
-    env_id = layout.get("env_id")
-    kwargs = layout.get("env_kwargs") or {}
-    if env_factory is not None:
-        factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
-        env = factory()
-    elif isinstance(env_id, str) and is_registered(kind, env_id):
-        try:
-            env = make_registered(kind, env_id, kwargs)
-        except Exception as exc:
-            raise ReplayError(
-                f"cannot make {env_id} with the recorded kwargs {kwargs!r}: "
-                f"{type(exc).__name__}: {exc}"
-            ) from None
-    else:
-        unknown_id = (
-            f"env id {env_id!r} is not registered in this process's PettingZoo "
-            f"{'parallel' if parallel else 'AEC'} registry and "
-            if isinstance(env_id, str)
-            else ""
-        )
-        module_name = layout.get("env_module")
-        if not isinstance(module_name, str) or not module_name:
-            raise ReplayError(
-                f"{unknown_id}the file names no PettingZoo env module; pass --env-factory"
-            )
-        if not is_pettingzoo_module(module_name) and not trust_entry_points:
-            raise ReplayError(
-                f"{unknown_id}env module {module_name!r} is not one of PettingZoo's own; pass "
-                "--env-factory MODULE:CALLABLE, or --trust-entry-points to import it"
-            )
-        try:
-            with warnings.catch_warnings():  # PettingZoo 1.27 deprecates importing env modules
-                warnings.simplefilter("ignore", DeprecationWarning)
-                module = importlib.import_module(module_name)
-            make = getattr(module, "parallel_env" if parallel else "env")
-            env = make(**kwargs)
-        except Exception as exc:
-            raise ReplayError(
-                f"cannot make {module_name} with the recorded kwargs {kwargs!r}: "
-                f"{type(exc).__name__}: {exc}"
-            ) from None
-    if not isinstance(env, want):
-        raise ReplayError(f"the env factory returned {type(env).__name__}, not a PettingZoo {api}")
-    return env
 
 
 @dataclass(frozen=True)
@@ -271,7 +145,7 @@ def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int, fa
         try:
             env.step(action)
         except Exception as exc:
-            game.crash = _Crash(agent, None if dead else taken[agent] - 1, _error_text(exc))
+            game.crash = _Crash(agent, None if dead else taken[agent] - 1, env_error(exc))
             if past:  # the recorded error, raised again
                 turns.failed()
             return
@@ -297,13 +171,62 @@ def _run_parallel(env: Any, game: _Game, queues: dict[str, list[Any]], limit: in
         try:
             obs, rewards, term, trunc, infos = env.step(actions)
         except Exception as exc:
-            game.crash = _Crash(None, None, _error_text(exc))
+            game.crash = _Crash(None, None, env_error(exc))
             return
         for agent, action in actions.items():
             game.on_row(agent, action, agent_result(agent, obs, rewards, term, trunc, infos))
         for agent in env.agents:
             if str(agent) not in game.reset:
                 game.on_reset(agent, obs.get(agent), infos.get(agent, {}))
+
+
+@dataclass(frozen=True)
+class _File:
+    """What a PettingZoo file recorded, as its games' replays read it."""
+
+    path: str
+    aec: bool
+    games: dict[int, dict[str, dict[str, Any]]]  # each game's records, by agent
+    steps: pa.Table
+    rows: dict[int, tuple[int, int]]
+    resets: pa.Table
+    reset_at: dict[int, int]
+    damaged: EpisodeRanges
+    obs_codec: SpaceCodec
+    act_codec: SpaceCodec
+    rules: EndingRules | None
+    terms_rule: RewardTerms | None
+    max_cycles: int | None
+    atol: float
+
+    @classmethod
+    def read(cls, ev: Evidence, obs_codec: SpaceCodec, act_codec: SpaceCodec, atol: float) -> _File:
+        """Read ``ev``'s games, steps and resets."""
+        layout = ev.run.layout or {}
+        rules, terms_rule = rules_of(ev.run)
+        max_cycles = layout.get("max_cycles")
+        games: dict[int, dict[str, dict[str, Any]]] = {}
+        for r in ev.episodes().to_pylist():
+            if r.get("game") is not None and r.get("agent") is not None:
+                games.setdefault(int(r["game"]), {})[str(r["agent"])] = r
+        steps = ev.steps()
+        resets = ev.resets()
+        return cls(
+            str(ev.path),
+            layout.get("kind") == "pettingzoo_aec",
+            games,
+            steps,
+            row_ranges(steps.column(fmt.COL_EPISODE).to_numpy()),
+            resets,
+            {int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())},
+            ev.damaged_episodes,
+            obs_codec,
+            act_codec,
+            rules,
+            terms_rule,
+            max_cycles if isinstance(max_cycles, int) else None,
+            atol,
+        )
 
 
 def replay_agents_evidence(
@@ -321,73 +244,18 @@ def replay_agents_evidence(
     if episodes is not None:
         wanted = set(episodes)
         records = [r for r in records if r["episode"] in wanted]
-
-    def all_not(reason: str) -> list[EpisodeReplay]:
-        return [
-            EpisodeReplay(path, int(r["episode"]), "not_replayable", 0, reason=reason)
-            for r in records
-        ]
-
     obs_codec, act_codec = ev.observation_codec, ev.action_codec
     if obs_codec is None or act_codec is None:
-        return all_not("the file's spaces cannot be rebuilt")
-    layout = ev.run.layout or {}
+        return none_replayable(path, records, "the file's spaces cannot be rebuilt")
     try:
         env = build_pettingzoo_env(
-            layout, env_factory=env_factory, trust_entry_points=trust_entry_points
+            ev.run.layout or {}, env_factory=env_factory, trust_entry_points=trust_entry_points
         )
     except ReplayError as exc:
-        return all_not(str(exc))
-    aec = layout.get("kind") == "pettingzoo_aec"
-    rules, terms_rule = _rules_of(ev.run)
-    max_cycles = layout.get("max_cycles")
-    all_records = ev.episodes().to_pylist()
-    games: dict[int, dict[str, dict[str, Any]]] = {}
-    for r in all_records:
-        if r.get("game") is not None and r.get("agent") is not None:
-            games.setdefault(int(r["game"]), {})[str(r["agent"])] = r
-    steps = ev.steps()
-    rows = _row_ranges(steps.column(fmt.COL_EPISODE).to_numpy())
-    resets = ev.resets()
-    reset_at = {int(e): i for i, e in enumerate(resets.column(fmt.COL_EPISODE).to_pylist())}
-    done: dict[int, EpisodeReplay] = {}
-    damaged = ev.damaged_episodes
+        return none_replayable(path, records, str(exc))
+    file = _File.read(ev, obs_codec, act_codec, atol)
     try:
-        for record in records:
-            index = int(record["episode"])
-            if index in done:
-                continue
-            members = games.get(int(record["game"])) if record.get("game") is not None else None
-            if not members:
-                done[index] = EpisodeReplay(
-                    path, index, "not_replayable", 0, reason="it belongs to no game"
-                )
-                continue
-            if any(int(r["episode"]) in damaged for r in members.values()):
-                for r in members.values():
-                    done[int(r["episode"])] = EpisodeReplay(
-                        path, int(r["episode"]), "not_replayable", 0, reason=_DAMAGED_GAME
-                    )
-                continue
-            for result in _replay_game(
-                env,
-                aec,
-                members,
-                steps,
-                rows,
-                resets,
-                reset_at,
-                obs_codec,
-                act_codec,
-                rules,
-                terms_rule,
-                max_cycles if isinstance(max_cycles, int) else None,
-                atol,
-                path,
-            ):
-                done[result.episode] = result
-                if progress is not None:
-                    progress(result.steps)
+        done = _replay_games(env, file, records, progress)
     finally:
         env.close()
     return [done[int(r["episode"])] for r in records if int(r["episode"]) in done]
@@ -396,101 +264,89 @@ def replay_agents_evidence(
 _DAMAGED_GAME = "an agent-episode of its game lost evidence in a damaged chunk (skipped by recover)"
 
 
-def _replay_game(
+def _replay_games(
     env: Any,
-    aec: bool,
-    members: dict[str, dict[str, Any]],
-    steps: pa.Table,
-    rows: dict[int, tuple[int, int]],
-    resets: pa.Table,
-    reset_at: dict[int, int],
-    obs_codec: Any,
-    act_codec: Any,
-    rules: Any,
-    terms_rule: Any,
-    max_cycles: int | None,
-    atol: float,
-    path: str,
-) -> list[EpisodeReplay]:
-    first = next(iter(members.values()))
-    seed, rng_state = first.get("seed"), first.get("rng_state")
-
-    def every(
-        status: Status, reason: str | None, divergence: Divergence | None = None
-    ) -> list[EpisodeReplay]:
-        """The same result for every agent-episode of the game (nothing of it was compared)."""
-        return [
-            EpisodeReplay(path, int(r["episode"]), status, 0, divergence, reason)
-            for r in members.values()
-        ]
-
-    if seed is None and rng_state is None:
-        return every("not_replayable", "no seed or RNG state recorded for its game's reset")
-    if any(r.get("error_during") == "reset" for r in members.values()):
-        return every("not_replayable", RESET_RAISED)
-    queues: dict[str, list[Any]] = {}
-    for agent, r in members.items():
-        start, count = rows.get(int(r["episode"]), (0, 0))
-        queues[agent] = (
-            act_codec.decode(one_array(steps.column(fmt.COL_ACTION).slice(start, count)))
-            if count
-            else []
-        )
-    options = json.loads(first["options"]) if first.get("options") else None
-    game = _Game()
-    limit = sum(len(q) for q in queues.values()) + 2 * len(members) + 2
-    # how the recorded game ended, if not by its rules, a reset or close (see the docstring)
-    cut_kind: str | None = None
-    if any(r.get("ended") is False for r in members.values()):
-        cut_kind = _TORN
-    elif _recorded_error(members, steps, rows) is not None:
-        cut_kind = _FAILED
-    try:
-        if seed is None:
-            restore_rng_state(env, json.loads(str(rng_state)))
-        out = env.reset(seed=None if seed is None else int(seed), options=options)
-    except Exception as exc:  # the recorded reset did not raise (see above): as a single env
-        return every("diverged", None, Divergence(None, "reset", "a reset", _error_text(exc)))
-    try:
-        if aec:
-            _run_aec(env, game, queues, limit, cut_kind == _FAILED)
-        else:
-            game.reset["__reset__"] = out
-            _run_parallel(env, game, queues, limit)
-    except Exception as exc:
-        game.crash = _Crash(None, None, _error_text(exc))
-    failure = _recorded_error(members, steps, rows) if cut_kind == _FAILED else None
-    results = []
-    for agent, r in members.items():
-        results.append(
-            _compare(
-                agent,
-                r,
-                game,
-                steps,
-                rows,
-                resets,
-                reset_at,
-                obs_codec,
-                rules,
-                terms_rule,
-                max_cycles,
-                atol,
-                path,
-                cut_kind,
-                failure,
+    file: _File,
+    records: list[dict[str, Any]],
+    progress: Callable[[int], None] | None,
+) -> dict[int, EpisodeReplay]:
+    """Replay the game of each of ``records`` (once per game), by episode index."""
+    done: dict[int, EpisodeReplay] = {}
+    for record in records:
+        index = int(record["episode"])
+        if index in done:
+            continue
+        members = file.games.get(int(record["game"])) if record.get("game") is not None else None
+        if not members:
+            done[index] = EpisodeReplay(
+                file.path, index, "not_replayable", 0, reason="it belongs to no game"
             )
-        )
-    return results
+            continue
+        if any(int(r["episode"]) in file.damaged for r in members.values()):
+            for result in none_replayable(file.path, members.values(), _DAMAGED_GAME):
+                done[result.episode] = result
+            continue
+        for result in _replay_game(env, file, members):
+            done[result.episode] = result
+            if progress is not None:
+                progress(result.steps)
+    return done
 
 
 _TORN = "torn"
 _FAILED = "failed"
 
 
-def _error_text(exc: BaseException) -> str:
-    """An exception the replay's env raised, as a single env's replay words it."""
-    return f"{type(exc).__name__}: {exc}"
+def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> list[EpisodeReplay]:
+    """Replay one game (its records by agent) and compare each agent's episode."""
+    first = next(iter(members.values()))
+    seed, rng_state = first.get("seed"), first.get("rng_state")
+    if seed is None and rng_state is None:
+        reason = "no seed or RNG state recorded for its game's reset"
+        return none_replayable(file.path, members.values(), reason)
+    if any(r.get("error_during") == "reset" for r in members.values()):
+        return none_replayable(file.path, members.values(), RESET_RAISED)
+    queues: dict[str, list[Any]] = {}
+    for agent, r in members.items():
+        start, count = file.rows.get(int(r["episode"]), (0, 0))
+        queues[agent] = (
+            file.act_codec.decode(one_array(file.steps.column(fmt.COL_ACTION).slice(start, count)))
+            if count
+            else []
+        )
+    options = json.loads(first["options"]) if first.get("options") else None
+    game = _Game()
+    limit = sum(len(q) for q in queues.values()) + 2 * len(members) + 2
+    # how the recorded game ended, if not by its rules, a reset or close (see docs/replay.md)
+    cut_kind: str | None = None
+    failure: str | None = None
+    if any(r.get("ended") is False for r in members.values()):
+        cut_kind = _TORN
+    else:
+        failure = _recorded_error(members, file.steps, file.rows)
+        cut_kind = None if failure is None else _FAILED
+    try:
+        if seed is None:
+            restore_rng_state(env, json.loads(str(rng_state)))
+        out = env.reset(seed=None if seed is None else int(seed), options=options)
+    except Exception as exc:  # the recorded reset did not raise (see above): as a single env
+        divergence = Divergence(None, "reset", "a reset", env_error(exc))
+        return [
+            EpisodeReplay(file.path, int(r["episode"]), "diverged", 0, divergence)
+            for r in members.values()
+        ]
+    try:
+        if file.aec:
+            _run_aec(env, game, queues, limit, cut_kind == _FAILED)
+        else:
+            game.reset["__reset__"] = out
+            _run_parallel(env, game, queues, limit)
+    except Exception as exc:
+        game.crash = _Crash(None, None, env_error(exc))
+    return [
+        _AgentEpisode(agent, r, game, file, cut_kind, failure).result()
+        for agent, r in members.items()
+    ]
 
 
 def _recorded_error(
@@ -551,48 +407,100 @@ def _failed_step_reason(game_index: Any, game: _Game, error: str, step: int, wha
     )
 
 
-def _compare(
-    agent: str,
-    record: dict[str, Any],
-    game: _Game,
-    steps: pa.Table,
-    rows: dict[int, tuple[int, int]],
-    resets: pa.Table,
-    reset_at: dict[int, int],
-    obs_codec: Any,
-    rules: Any,
-    terms_rule: Any,
-    max_cycles: int | None,
-    atol: float,
-    path: str,
-    cut_kind: str | None = None,
-    failure: str | None = None,
-) -> EpisodeReplay:
-    index = int(record["episode"])
-    start, count = rows.get(index, (0, 0))
-    got = game.rows.get(agent, [])
-    # rows from `turned` on (and a reset row outside `started`) were made where the game was cut
-    turned = len(got) if game.turned is None else game.turned.get(agent, 0)
-    torn = cut_kind == _TORN and game.stopped is not None
+class _AgentEpisode:
+    """One agent's episode of a replayed game, compared with its evidence.
 
-    def diverged(step: int | None, divergence: Divergence) -> EpisodeReplay:
-        return EpisodeReplay(path, index, "diverged", 0 if step is None else step, divergence)
+    ``cut_kind``: how the recorded game ended, if it was cut (torn, or a ``step()`` that raised
+    with ``failure``, its ``"Type: message"``); rows the replay made where the game was cut
+    can be compared only up to what the file can reproduce (docs/replay.md).
+    """
 
-    def state_diverged(step: int, divergence: Divergence) -> EpisodeReplay:
-        """A row's observation, terms or flags differ (its reward is the steps' own)."""
-        if cut_kind == _FAILED and step >= turned:
-            reason = _failed_step_reason(
-                record.get("game"), game, failure or "an error", step, divergence.describe()
+    def __init__(
+        self,
+        agent: str,
+        record: dict[str, Any],
+        game: _Game,
+        file: _File,
+        cut_kind: str | None,
+        failure: str | None,
+    ) -> None:
+        self.agent = agent
+        self.record = record
+        self.game = game
+        self.file = file
+        self.cut_kind = cut_kind
+        self.failure = failure
+        self.index = int(record["episode"])
+        self.start, self.count = file.rows.get(self.index, (0, 0))
+        self.got = game.rows.get(agent, [])
+        # rows from `turned` on (and a reset row outside `started`) were made where the game
+        # was cut
+        self.turned = len(self.got) if game.turned is None else game.turned.get(agent, 0)
+        self.torn = cut_kind == _TORN and game.stopped is not None
+
+    def result(self) -> EpisodeReplay:
+        """The episode's replay: its first difference, or identical."""
+        agent, game, count, got = self.agent, self.game, self.count, self.got
+        at = self.file.reset_at.get(self.index)
+        if self.torn and at is not None and agent not in game.started:
+            return self._cut_off("its reset row", 0)
+        if at is not None and agent in game.reset:
+            divergence = self._reset_divergence(at, game.reset[agent])
+            if divergence is not None:
+                return self._diverged(None, divergence)
+        n = min(count, len(got), self.turned) if self.torn else min(count, len(got))
+        if n:
+            found = self._first_row_difference(n)
+            if found is not None:
+                return found
+        if self.torn and count > n:
+            return self._cut_off(f"its step {n}", n)
+        if game.crash is not None and len(got) < count:
+            return self._diverged(len(got), game.crash.divergence(agent, len(got)))
+        if len(got) != count:
+            return self._diverged(
+                n,
+                Divergence(n, "length", f"{count} steps", f"{len(got)} in the replayed game"),
             )
-            return EpisodeReplay(path, index, "not_replayable", step, reason=reason)
-        return diverged(step, divergence)
+        if count:
+            _, _, _, term, trunc, info = got[-1]
+            max_cycles = self.file.max_cycles
+            outcome = outcome_difference(
+                self.file.rules,
+                self.record,
+                term,
+                trunc,
+                count - 1,
+                info,
+                time_limit_hit=max_cycles is not None and count >= max_cycles,
+            )
+            if outcome is not None:
+                return self._diverged(count - 1, outcome)
+        return EpisodeReplay(self.file.path, self.index, "identical", count)
 
-    def cut_off(what: str, step: int) -> EpisodeReplay:
-        assert game.stopped is not None
-        who, action = game.stopped
+    def _diverged(self, step: int | None, divergence: Divergence) -> EpisodeReplay:
+        steps = 0 if step is None else step
+        return EpisodeReplay(self.file.path, self.index, "diverged", steps, divergence)
+
+    def _state_diverged(self, step: int, divergence: Divergence) -> EpisodeReplay:
+        """A row's observation, terms or flags differ (its reward is the steps' own)."""
+        if self.cut_kind == _FAILED and step >= self.turned:
+            reason = _failed_step_reason(
+                self.record.get("game"),
+                self.game,
+                self.failure or "an error",
+                step,
+                divergence.describe(),
+            )
+            return EpisodeReplay(self.file.path, self.index, "not_replayable", step, reason=reason)
+        return self._diverged(step, divergence)
+
+    def _cut_off(self, what: str, step: int) -> EpisodeReplay:
+        assert self.game.stopped is not None
+        who, action = self.game.stopped
         return EpisodeReplay(
-            path,
-            index,
+            self.file.path,
+            self.index,
             "not_replayable",
             step,
             reason=(
@@ -602,22 +510,21 @@ def _compare(
             ),
         )
 
-    at = reset_at.get(index)
-    if torn and at is not None and agent not in game.started:
-        return cut_off("its reset row", 0)
-    if at is not None and agent in game.reset:
-        expected = one_array(resets.column(fmt.COL_OBSERVATION).slice(at, 1))
-        equal, diff = obs_codec.compare(expected, obs_codec.encode([game.reset[agent]]), atol=atol)
-        if not equal[0]:
-            return diverged(
-                None,
-                Divergence.of_observation(
-                    None, obs_codec.decode(expected)[0], game.reset[agent], float(diff[0]), atol
-                ),
-            )
-    n = min(count, len(got), turned) if torn else min(count, len(got))
-    if n:
-        exp = steps.slice(start, n)
+    def _reset_divergence(self, at: int, obs: Any) -> Divergence | None:
+        """How the replayed reset observation ``obs`` differs from reset row ``at``, if it does."""
+        obs_codec, atol = self.file.obs_codec, self.file.atol
+        expected = one_array(self.file.resets.column(fmt.COL_OBSERVATION).slice(at, 1))
+        equal, diff = obs_codec.compare(expected, obs_codec.encode([obs]), atol=atol)
+        if equal[0]:
+            return None
+        return Divergence.of_observation(
+            None, obs_codec.decode(expected)[0], obs, float(diff[0]), atol
+        )
+
+    def _first_row_difference(self, n: int) -> EpisodeReplay | None:
+        """The result of the first of the first ``n`` rows that differs, if one does."""
+        obs_codec, atol, got = self.file.obs_codec, self.file.atol, self.got
+        exp = self.file.steps.slice(self.start, n)
         obs_equal, obs_diff = obs_codec.compare(
             one_array(exp.column(fmt.COL_OBSERVATION)),
             obs_codec.encode([g[1] for g in got[:n]]),
@@ -627,61 +534,33 @@ def _compare(
         exp_t = exp.column(fmt.COL_TERMINATED).to_pylist()
         exp_u = exp.column(fmt.COL_TRUNCATED).to_pylist()
         exp_terms = exp.column(fmt.COL_TERMS).to_pylist()
+        terms_rule = self.file.terms_rule
         extract = None if terms_rule is None else terms_rule.extractor
         for k in range(n):
             _, obs, reward, term, trunc, info = got[k]
             if not obs_equal[k]:
-                exp_obs = obs_codec.decode(one_array(exp.column(fmt.COL_OBSERVATION).slice(k, 1)))[
-                    0
-                ]
-                return state_diverged(
+                column = exp.column(fmt.COL_OBSERVATION)
+                exp_obs = obs_codec.decode(one_array(column.slice(k, 1)))[0]
+                return self._state_diverged(
                     k, Divergence.of_observation(k, exp_obs, obs, float(obs_diff[k]), atol)
                 )
             e = float(exp_r[k])
             if not (e == reward or (e != e and reward != reward) or abs(e - reward) <= atol):
-                return diverged(k, Divergence(k, "reward", repr(e), repr(reward), abs(e - reward)))
+                return self._diverged(
+                    k, Divergence(k, "reward", repr(e), repr(reward), abs(e - reward))
+                )
             if extract is not None:
-                found = _recorded_terms(extract, info)  # as the agent's stream recorded them
+                found = recorded_terms(extract, info)  # as the agent's stream recorded them
                 mine = None if found is None else list(found.items())
-                if not _terms_equal(exp_terms[k], mine, atol):
-                    return state_diverged(
-                        k,
-                        Divergence(
-                            k, "terms", _short(dict(exp_terms[k] or [])), _short(dict(mine or []))
-                        ),
-                    )
+                if not terms_equal(exp_terms[k], mine, atol):
+                    expected, replayed = short(dict(exp_terms[k] or [])), short(dict(mine or []))
+                    return self._state_diverged(k, Divergence(k, "terms", expected, replayed))
             if exp_t[k] != term:
-                return state_diverged(
+                return self._state_diverged(
                     k, Divergence(k, fmt.COL_TERMINATED, str(exp_t[k]), str(term))
                 )
             if exp_u[k] != trunc:
-                return state_diverged(
+                return self._state_diverged(
                     k, Divergence(k, fmt.COL_TRUNCATED, str(exp_u[k]), str(trunc))
                 )
-    if torn and count > n:
-        return cut_off(f"its step {n}", n)
-    if game.crash is not None and len(got) < count:
-        return diverged(len(got), game.crash.divergence(agent, len(got)))
-    if len(got) != count:
-        return diverged(
-            n,
-            Divergence(n, "length", f"{count} steps", f"{len(got)} in the replayed game"),
-        )
-    if (
-        rules is not None
-        and count
-        and record["outcome"] not in (fmt.OUTCOME_INCOMPLETE, fmt.OUTCOME_ERROR)
-    ):
-        _, _, _, term, trunc, info = got[-1]
-        if term or trunc:
-            ending = _final_ending(
-                rules,
-                term,
-                trunc,
-                info,
-                time_limit_hit=max_cycles is not None and count >= max_cycles,
-            )
-            outcome = _outcome_divergence(record, ending, count - 1)
-            if outcome is not None:
-                return diverged(count - 1, outcome)
-    return EpisodeReplay(path, index, "identical", count)
+        return None

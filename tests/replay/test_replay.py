@@ -24,14 +24,11 @@ from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError, ReplayError
 from episode_audit.format.columns import TERMS_TYPE
 from episode_audit.record.rules import plain_time_limit
-from episode_audit.replay import replay
-from episode_audit.replay.single import (
-    _rewards,
-    _row_ranges,
-    _terms_equal,
-    _terms_rows_equal,
-    build_env,
-)
+from episode_audit.replay import build_env, replay
+from episode_audit.replay.compare import _terms_rows_equal
+from episode_audit.replay.compare import terms_equal as _terms_equal
+from episode_audit.replay.recorded import row_ranges as _row_ranges
+from episode_audit.replay.returned import _rewards
 from tests.support.envs import ScriptedEnv
 
 REPO = Path(__file__).resolve().parents[2]
@@ -358,13 +355,14 @@ def test_camera_frames_replay_in_windows_of_bounded_bytes(
                 if term or trunc:
                     break
     windows: list[int] = []
-    run_all = replay_module._EpisodeRunner.run_all
+    runner_module = sys.modules["episode_audit.replay.runner"]
+    run_all = runner_module.EpisodeRunner.run_all
 
     def counting(self: Any, records: Any, steps: pa.Table, *args: Any) -> Any:
         windows.append(steps.num_rows)
         return run_all(self, records, steps, *args)
 
-    monkeypatch.setattr(replay_module._EpisodeRunner, "run_all", counting)
+    monkeypatch.setattr(runner_module.EpisodeRunner, "run_all", counting)
     monkeypatch.setattr(replay_module, "REPLAY_WINDOW_BYTES", 4 * 720_000)
     result = replay([path], env_factory=pixel_cartpole)
     assert result.count("identical") == 4, result.episodes
@@ -807,7 +805,7 @@ def test_cli_says_why_a_file_without_its_env_spec_is_not_replayable_and_exits_0(
 
 def test_a_library_installed_but_not_imported_is_not_called_missing() -> None:
     """Replay's "current" version of a library the replaying process never imported."""
-    from episode_audit.replay.single import _installed_version
+    from episode_audit.replay.run import _installed_version
 
     assert _installed_version("numpy") == np.__version__
     assert _installed_version("no-such-distribution-xyz") == "not installed"

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 from rich.console import Group, RenderableType
 from rich.text import Text
 
-from ...read.inputs import Unreadable
 from ...replay import ReplayResult
 from .common import (
     Output,
@@ -21,15 +18,13 @@ from .common import (
 __all__ = ["replay_output"]
 
 
-def replay_output(
-    result: ReplayResult, output: OutputFormat, *, unreadable: Sequence[Unreadable] = ()
-) -> Output:
+def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
     """Replay results: one row per episode that was not identical, plus a summary.
 
-    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    JSON also lists the inputs that could not be read (``result.unreadable``).
     """
     if output == "json":
-        return to_json({**result.to_dict(), "unreadable": unreadable_json(unreadable)})
+        return to_json({**result.to_dict(), "unreadable": unreadable_json(result.unreadable)})
     headers = ["file", "episode", "status", "steps", "where", "detail"]
     rows = []
     for e in result.episodes:

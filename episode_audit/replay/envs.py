@@ -1,0 +1,217 @@
+"""Build the environment to replay a file's episodes in, safely (a file may come from anyone).
+
+:func:`build_env` (a single env, for single-env and vector files) and
+:func:`build_pettingzoo_env` (PettingZoo's AEC or Parallel env; imports ``pettingzoo`` only
+when called): the user's ``env_factory``, else the recorded env id when it is registered in
+this process, else only with ``trust_entry_points`` what the file names. The order and what each
+step may import: docs/replay.md (how the env is built) and docs/security.md (rule 2).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+from typing import Any
+
+import gymnasium as gym
+
+from .._usercode import load_callable
+from ..errors import ConfigurationError, ReplayError
+from ..format.columns import error_text
+from ..format.records import RunInfo
+
+__all__ = ["EnvFactory", "build_env", "build_pettingzoo_env"]
+
+EnvFactory = Callable[[], gym.Env[Any, Any]]
+
+_TRUSTED_WRAPPER_PREFIX = "gymnasium.wrappers"
+
+
+def build_env(
+    run: RunInfo,
+    *,
+    env_factory: str | EnvFactory | None = None,
+    trust_entry_points: bool = False,
+) -> gym.Env[Any, Any]:
+    """Build the environment to replay a file's episodes in (see docs/replay.md).
+
+    Raises :class:`~episode_audit.errors.ReplayError` when the file's episodes cannot be
+    replayed in this process, :class:`~episode_audit.errors.ConfigurationError` when
+    ``env_factory`` cannot be loaded, raises or returns something other than a ``gymnasium.Env``.
+    """
+    if env_factory is not None:
+        return _from_factory(env_factory)
+    spec = run.env_spec or {}
+    env_id = run.env_id
+    if not env_id:
+        raise ReplayError("the file names no env id; pass --env-factory MODULE:CALLABLE")
+    if not spec:  # the spec was not serializable: the bare id may be another env
+        raise ReplayError(_no_spec_reason(run))
+    recorded = spec.get("additional_wrappers") or []
+    wrappers = [w for w in recorded if isinstance(w, Mapping)] if isinstance(recorded, list) else []
+    foreign = [str(w.get("entry_point")) for w in wrappers if not _gymnasium_wrapper(w)]
+    if ":" not in env_id and env_id in gym.registry and (not foreign or trust_entry_points):
+        return _from_registry(env_id, spec, wrappers)
+    entry = spec.get("entry_point")
+    if trust_entry_points and spec:
+        try:
+            recorded_spec = gym.envs.registration.EnvSpec.from_json(json.dumps(spec))
+            return gym.make(_without_checks(recorded_spec))
+        except Exception as exc:
+            raise ReplayError(f"cannot make the env from the recorded spec: {exc}") from None
+    if foreign and env_id in gym.registry:
+        raise ReplayError(
+            f"the recorded env had wrappers from outside Gymnasium ({', '.join(foreign)}); "
+            "pass --env-factory MODULE:CALLABLE, or --trust-entry-points to import them"
+        )
+    raise ReplayError(
+        f"env id {env_id!r} is not registered in this process; pass --import MODULE that "
+        "registers it, --env-factory MODULE:CALLABLE"
+        + (f", or --trust-entry-points to import {entry!r} named in the file" if entry else "")
+    )
+
+
+def _from_factory(env_factory: str | EnvFactory) -> gym.Env[Any, Any]:
+    """The env the user's factory returns, checked to be one."""
+    factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
+    name = env_factory if isinstance(env_factory, str) else getattr(factory, "__name__", "")
+    try:
+        env = factory()
+    except Exception as exc:  # the user's own code: say so, in one line
+        raise ConfigurationError(
+            f"--env-factory {name}: it raised {error_text(exc)}; it must take no "
+            "arguments and return the env"
+        ) from None
+    if not isinstance(env, gym.Env):
+        raise ConfigurationError(
+            f"--env-factory {name}: it returned {type(env).__name__}, not a gymnasium.Env"
+        )
+    return env
+
+
+def _from_registry(
+    env_id: str, spec: Mapping[str, Any], wrappers: list[Mapping[str, Any]]
+) -> gym.Env[Any, Any]:
+    """The registered ``env_id`` made with the recorded kwargs, in its (Gymnasium's) wrappers."""
+    try:
+        kwargs = dict(spec.get("kwargs") or {})
+        if "max_episode_steps" in spec:
+            kwargs["max_episode_steps"] = spec["max_episode_steps"]
+        env = gym.make(_without_checks(gym.spec(env_id)), **kwargs)
+        for wrapper in wrappers:
+            cls = load_callable(str(wrapper["entry_point"]))
+            if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
+                raise ReplayError(
+                    f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
+                )
+            env = cls(env, **(wrapper.get("kwargs") or {}))
+    except ConfigurationError:
+        raise
+    except Exception as exc:  # the env's own code, given what the file recorded
+        raise ReplayError(f"cannot make {env_id!r} with the recorded kwargs: {exc}") from None
+    return env
+
+
+def _no_spec_reason(run: RunInfo) -> str:
+    """Why a file with an env id but no env spec cannot be replayed without an env factory."""
+    notes = (run.recorder or {}).get("notes")
+    said = (
+        [str(n) for n in notes if str(n).startswith("env spec")] if isinstance(notes, list) else []
+    )
+    why = f" ({said[0][:200]})" if said else ""
+    return (
+        f"the env spec of {run.env_id!r} was not recorded{why}: its kwargs and wrappers are "
+        "unknown, and the bare id may be another env; pass --env-factory MODULE:CALLABLE "
+        "that builds the env as it was recorded"
+    )
+
+
+def _without_checks(spec: gym.envs.registration.EnvSpec) -> gym.envs.registration.EnvSpec:
+    """``spec`` without the passive env checker and the order check (see docs/replay.md)."""
+    return replace(spec, disable_env_checker=True, order_enforce=False)
+
+
+def _gymnasium_wrapper(wrapper: Mapping[str, Any]) -> bool:
+    """Whether a recorded wrapper's entry point is a plain name in ``gymnasium.wrappers``."""
+    module, sep, attr = str(wrapper.get("entry_point", "")).partition(":")
+    inside = module == _TRUSTED_WRAPPER_PREFIX or module.startswith(_TRUSTED_WRAPPER_PREFIX + ".")
+    return bool(sep) and inside and attr.isidentifier() and not attr.startswith("_")
+
+
+def build_pettingzoo_env(
+    layout: Mapping[str, Any],
+    *,
+    env_factory: str | Callable[[], Any] | None = None,
+    trust_entry_points: bool = False,
+) -> Any:
+    """Build the PettingZoo env a file was recorded from (see docs/replay.md).
+
+    Raises :class:`~episode_audit.errors.ReplayError` when it cannot be built in this process,
+    or is not the PettingZoo API (AEC or Parallel) the file was recorded with.
+    """
+    from pettingzoo import AECEnv, ParallelEnv
+
+    from ..record.pettingzoo import KIND_PARALLEL, is_registered, make_registered
+
+    kind = str(layout.get("kind"))
+    parallel = kind == KIND_PARALLEL
+    want = ParallelEnv if parallel else AECEnv
+    api = "ParallelEnv" if parallel else "AECEnv"
+    env_id = layout.get("env_id")
+    kwargs = layout.get("env_kwargs") or {}
+    if env_factory is not None:
+        factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
+        env = factory()
+    elif isinstance(env_id, str) and is_registered(kind, env_id):
+        try:
+            env = make_registered(kind, env_id, kwargs)
+        except Exception as exc:
+            raise ReplayError(
+                f"cannot make {env_id} with the recorded kwargs {kwargs!r}: "
+                f"{type(exc).__name__}: {exc}"
+            ) from None
+    else:
+        env = _from_pettingzoo_module(layout, parallel, trust_entry_points)
+    if not isinstance(env, want):
+        raise ReplayError(f"the env factory returned {type(env).__name__}, not a PettingZoo {api}")
+    return env
+
+
+def _from_pettingzoo_module(
+    layout: Mapping[str, Any], parallel: bool, trust_entry_points: bool
+) -> Any:
+    """The env of the recorded ``env_module``: PettingZoo's own, or any with the flag."""
+    from ..record.pettingzoo import is_pettingzoo_module
+
+    env_id = layout.get("env_id")
+    kwargs = layout.get("env_kwargs") or {}
+    unknown_id = (
+        f"env id {env_id!r} is not registered in this process's PettingZoo "
+        f"{'parallel' if parallel else 'AEC'} registry and "
+        if isinstance(env_id, str)
+        else ""
+    )
+    module_name = layout.get("env_module")
+    if not isinstance(module_name, str) or not module_name:
+        raise ReplayError(
+            f"{unknown_id}the file names no PettingZoo env module; pass --env-factory"
+        )
+    if not is_pettingzoo_module(module_name) and not trust_entry_points:
+        raise ReplayError(
+            f"{unknown_id}env module {module_name!r} is not one of PettingZoo's own; pass "
+            "--env-factory MODULE:CALLABLE, or --trust-entry-points to import it"
+        )
+    try:
+        with warnings.catch_warnings():  # PettingZoo 1.27 deprecates importing env modules
+            warnings.simplefilter("ignore", DeprecationWarning)
+            module = importlib.import_module(module_name)
+        make = getattr(module, "parallel_env" if parallel else "env")
+        return make(**kwargs)
+    except Exception as exc:
+        raise ReplayError(
+            f"cannot make {module_name} with the recorded kwargs {kwargs!r}: "
+            f"{type(exc).__name__}: {exc}"
+        ) from None

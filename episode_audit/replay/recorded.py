@@ -1,0 +1,162 @@
+"""What a file recorded, as a replay reads it: episode records, row ranges, actions and rules.
+
+:func:`episode_records` (the records a replay reads), :func:`row_ranges` and :func:`to_end`
+(each episode's rows), :func:`replay_actions` (the actions to step with), :func:`rules_of` (the
+recorded ending rules and reward terms) and :func:`layout_not_replayable`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from ..format import names as fmt
+from ..format.columns import one_array
+from ..format.records import RunInfo
+from ..read.reader import Evidence
+from ..record.rules import EndingRules, RewardTerms
+
+__all__ = [
+    "episode_records",
+    "layout_not_replayable",
+    "replay_actions",
+    "row_ranges",
+    "rules_of",
+    "to_end",
+]
+
+_RECORD_COLUMNS = (
+    fmt.COL_EPISODE,
+    "seed",
+    "rng_state",
+    "options",
+    "outcome",
+    "failure_label",
+    "truncation_reason",
+    "error_during",
+    "length",
+)
+"""The columns of the episode table a replay reads."""
+_RECORD_KEYS = frozenset({fmt.COL_EPISODE, "outcome"})
+"""Those it reads as ``record[key]``, listed even when every value is null."""
+_ENDINGS = frozenset({fmt.OUTCOME_SUCCESS, fmt.OUTCOME_FAILURE, fmt.OUTCOME_TRUNCATED})
+
+
+def episode_records(ev: Evidence, wanted: set[int] | None) -> list[dict[str, Any]]:
+    """The episode records of a single-env or vector file (``wanted``: only those), in order.
+
+    Only the columns replay reads (a map column is slow to list), and of the optional ones only
+    those with a value: a record's ``.get()`` gives ``None`` for the others.
+    """
+    table = ev.episodes()
+    columns = [
+        c
+        for c in _RECORD_COLUMNS
+        if c in table.column_names
+        and (c in _RECORD_KEYS or table.column(c).null_count < table.num_rows)
+    ]
+    listed = table.select(columns).to_pylist()
+    return listed if wanted is None else [r for r in listed if r["episode"] in wanted]
+
+
+def row_ranges(episode: np.ndarray[Any, Any]) -> dict[int, tuple[int, int]]:
+    """(first row, row count) of each episode; a single env's episodes are contiguous runs."""
+    if episode.size == 0:
+        return {}
+    starts = np.flatnonzero(np.diff(episode)) + 1
+    firsts = np.concatenate([[0], starts])
+    counts = np.diff(np.append(firsts, episode.size))
+    indices = episode[firsts]
+    if np.unique(indices).size == indices.size:  # the usual case: one run per episode
+        ranges = zip(firsts.tolist(), counts.tolist(), strict=True)
+        return dict(zip(indices.tolist(), ranges, strict=True))
+    out: dict[int, tuple[int, int]] = {}
+    for first, count in zip(firsts.tolist(), counts.tolist(), strict=True):
+        index = int(episode[first])
+        if index in out:  # not contiguous (never written so): fall back to the first run
+            continue
+        out[index] = (first, count)
+    return out
+
+
+def to_end(
+    rows: dict[int, tuple[int, int]], records: Mapping[int, Mapping[str, Any]]
+) -> dict[int, tuple[int, int]]:
+    """Each episode's rows up to its recorded end.
+
+    Rows stepped after an episode ended (the recorder noted them ``step_after_end``; ``check``
+    reports them) are not the episode: replay compares the steps up to its ``length``.
+    """
+    out = rows
+    for index, (first, count) in rows.items():
+        record = records.get(index)
+        if record is None or record.get("outcome") not in _ENDINGS:
+            continue
+        length = record.get("length")
+        if isinstance(length, int) and 0 <= length < count:
+            if out is rows:
+                out = dict(rows)
+            out[index] = (first, length)
+    return out
+
+
+def replay_actions(column: pa.ChunkedArray, codec: Any) -> tuple[Any, np.ndarray[Any, Any] | None]:
+    """The actions a replay steps with, and the rows with none (``None`` when all have one).
+
+    Integer actions are numpy integers, as ``Discrete.sample()`` and ``from_jsonable`` give;
+    others are what the space codec decodes.
+    """
+    actions = one_array(column)
+    if len(actions) == 0:  # (a torn file may not even name the column's type)
+        return [], None
+    if pa.types.is_integer(actions.type) and actions.null_count == 0:
+        return actions.to_numpy(), None
+    values = codec.decode(actions)
+    if actions.null_count == 0:
+        return values, None
+    missing = [i for i, value in enumerate(values) if value is None]
+    return values, (np.array(missing, dtype=np.int64) if missing else None)
+
+
+def rules_of(run: RunInfo) -> tuple[EndingRules | None, RewardTerms | None]:
+    """The recorded ending rules and reward terms a replay can apply (``None``: not compared).
+
+    Ending rules with a ``success_fn`` or ``failure_fn`` and terms from a callable are only
+    named in a file, so outcomes (terms) are then not compared.
+    """
+    ending = run.ending_rules or {}
+    rules: EndingRules | None = None
+    if not ending.get("success_fn") and not ending.get("failure_fn"):
+        rules = EndingRules(
+            success_keys=tuple(ending.get("success_keys") or ("success", "is_success")),
+            failure_key=str(ending.get("failure_key") or "failure"),
+            truncation_reason_key=str(ending.get("truncation_reason_key") or "truncation_reason"),
+        )
+    source = (run.reward_terms or {}).get("source", "auto")
+    terms: RewardTerms | None
+    if source == "auto" or source is None:
+        terms = RewardTerms(source)
+    elif isinstance(source, list):
+        terms = RewardTerms(tuple(str(k) for k in source))
+    else:  # a callable the file can only name: terms are not compared
+        terms = None
+    return rules, terms
+
+
+def layout_not_replayable(layout: Mapping[str, Any]) -> str | None:
+    """Why a file's layout cannot be replayed episode by episode, or ``None`` if it can.
+
+    A vector file's episodes replay one by one in a single sub-env rebuilt from the recorded
+    sub-env spec, unless the vector env had no sub-envs (a ``vector_entry_point`` env).
+    """
+    kind = layout.get("kind", "single")
+    if kind == "single":
+        return None
+    if kind == "vector":
+        if layout.get("sub_envs", True):
+            return None
+        return str(layout.get("replay_note") or "the vector env had no sub-envs")
+    return f"layout {kind!r} is not replayable yet"

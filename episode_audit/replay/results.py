@@ -1,0 +1,201 @@
+"""What a replay says: each episode's status and, where it diverged, its first difference.
+
+:class:`Divergence` (where and how an episode first differed, shown in one line),
+:class:`EpisodeReplay` (one episode's replay), :class:`ReplayResult` (many, with the library
+versions that differ from the recording and the inputs that could not be read), :data:`Status`;
+:func:`short` and :func:`env_error` word values and errors as every replay shows them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from ..format.spaces import equal_elements
+from ..read.inputs import Unreadable
+
+__all__ = [
+    "RESET_RAISED",
+    "Divergence",
+    "EpisodeReplay",
+    "ReplayResult",
+    "Status",
+    "env_error",
+    "none_replayable",
+    "short",
+]
+
+Status = Literal["identical", "diverged", "not_replayable"]
+
+RESET_RAISED = "its reset raised (an error episode): there is no reset to compare"
+"""Why an episode (or a PettingZoo game) whose recorded ``reset()`` raised is not replayable."""
+
+
+@dataclass(frozen=True)
+class Divergence:
+    """Where a replay first differed from the evidence (``step`` is ``None`` for the reset)."""
+
+    step: int | None
+    field: str
+    expected: str
+    got: str
+    max_abs_diff: float | None = None
+    first_difference: str | None = None
+    """For an array observation too long to show whole (``expected`` and ``got`` are cut to
+    80 characters): the index of the first element that differs, both values and how many
+    elements differ."""
+
+    def describe(self) -> str:
+        """One line: step, field, expected, got, max abs difference, first difference."""
+        where = "reset" if self.step is None else f"step {self.step}"
+        notes = []
+        if self.max_abs_diff is not None:
+            notes.append(f"max abs diff {self.max_abs_diff:.3g}")
+        if self.first_difference is not None:
+            notes.append(f"first at {self.first_difference}")
+        more = f" ({'; '.join(notes)})" if notes else ""
+        return f"{where}: {self.field} expected {self.expected}, got {self.got}{more}"
+
+    @classmethod
+    def of_observation(
+        cls,
+        step: int | None,
+        expected: Any,
+        got: Any,
+        max_abs_diff: float | None,
+        atol: float,
+    ) -> Divergence:
+        """An observation that differs (``step`` ``None``: the reset observation).
+
+        When either value is too long to show whole, the first differing element is named.
+        """
+        shown = short(expected), short(got)
+        cut = any("..." in text for text in shown)
+        return cls(
+            step,
+            "observation" if step is not None else "reset_observation",
+            *shown,
+            max_abs_diff,
+            _first_difference(expected, got, atol) if cut else None,
+        )
+
+
+@dataclass(frozen=True)
+class EpisodeReplay:
+    """The replay of one episode."""
+
+    file: str
+    episode: int
+    status: Status
+    steps: int
+    divergence: Divergence | None = None
+    reason: str | None = None
+
+
+@dataclass
+class ReplayResult:
+    """Replays of many episodes, with the library versions that differ from the recording.
+
+    ``unreadable``: the inputs that could not be read (``replay(..., keep_going=True)``);
+    ``missing``: the selected episode indices that no file replayed had.
+    """
+
+    episodes: list[EpisodeReplay] = field(default_factory=list)
+    version_differences: dict[str, dict[str, tuple[str, str]]] = field(default_factory=dict)
+    unreadable: list[Unreadable] = field(default_factory=list)
+    missing: list[int] = field(default_factory=list)
+
+    def count(self, status: Status) -> int:
+        """How many episodes ended with ``status``."""
+        return sum(1 for e in self.episodes if e.status == status)
+
+    @property
+    def ok(self) -> bool:
+        """True when no episode diverged (not-replayable episodes do not fail a replay)."""
+        return self.count("diverged") == 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able form: ``{"summary": {...}, "episodes": [...], "version_differences"}``."""
+        return {
+            "summary": {
+                "identical": self.count("identical"),
+                "diverged": self.count("diverged"),
+                "not_replayable": self.count("not_replayable"),
+            },
+            "episodes": [asdict(e) for e in self.episodes],
+            "version_differences": {
+                file: {lib: {"recorded": a, "current": b} for lib, (a, b) in diffs.items()}
+                for file, diffs in self.version_differences.items()
+            },
+        }
+
+
+def none_replayable(
+    file: str, records: Iterable[Mapping[str, Any]], reason: str
+) -> list[EpisodeReplay]:
+    """Every episode of ``records`` not replayable, for one ``reason`` (nothing was stepped)."""
+    return [
+        EpisodeReplay(file, int(r["episode"]), "not_replayable", 0, reason=reason) for r in records
+    ]
+
+
+def env_error(exc: BaseException) -> str:
+    """``"Type: message"`` of an exception the replay's env raised, as a divergence shows it."""
+    return f"{type(exc).__name__}: {exc}"
+
+
+def short(value: Any) -> str:
+    """A value as a divergence shows it: its ``repr``, cut to 80 characters."""
+    if isinstance(value, np.ndarray) and value.size > 16:
+        # (a camera frame's list would be millions of characters)
+        text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
+        text = " ".join(text.split())
+    else:
+        text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _first_difference(expected: Any, got: Any, atol: float, path: str = "") -> str | None:
+    """Where two observations first differ, element by element, or ``None``.
+
+    Only for numeric arrays (in a Dict or Tuple too) of the same shape: the index of the first
+    element that differs (as replay compares: bitwise, NaN equal to NaN, or within ``atol``),
+    both values, and how many elements differ.
+
+    >>> _first_difference(np.zeros((2, 3)), np.array([[0, 0, 0], [0, 0.5, 0.25]]), 0.0)
+    '[1, 1]: expected 0.0, got 0.5; 2 of 6 elements differ'
+    >>> _first_difference({"pos": np.zeros(2)}, {"pos": np.ones(2)}, 0.0)
+    "['pos'][0]: expected 0.0, got 1.0; 2 of 2 elements differ"
+    """
+    if isinstance(expected, Mapping) and isinstance(got, Mapping):
+        for key in expected:
+            if key in got:
+                found = _first_difference(expected[key], got[key], atol, f"{path}[{key!r}]")
+                if found is not None:
+                    return found
+        return None
+    if isinstance(expected, tuple) and isinstance(got, tuple) and len(expected) == len(got):
+        for i, (e, g) in enumerate(zip(expected, got, strict=True)):
+            found = _first_difference(e, g, atol, f"{path}[{i}]")
+            if found is not None:
+                return found
+        return None
+    if not isinstance(expected, np.ndarray) or not isinstance(got, np.ndarray):
+        return None
+    if expected.shape != got.shape or expected.ndim == 0 or expected.dtype.kind not in "biuf":
+        return None
+    if got.dtype.kind not in "biuf":
+        return None
+    a, b = expected.reshape(-1), got.reshape(-1)
+    differ = np.flatnonzero(~equal_elements(a, b, atol))
+    if differ.size == 0:
+        return None
+    first = int(differ[0])
+    index = ", ".join(str(int(i)) for i in np.unravel_index(first, expected.shape))
+    return (
+        f"{path}[{index}]: expected {a[first].item()!r}, got {b[first].item()!r}; "
+        f"{differ.size} of {a.size} elements differ"
+    )

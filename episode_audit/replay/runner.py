@@ -1,0 +1,265 @@
+"""Step a file's episodes in one env: reset each as recorded, then the recorded actions.
+
+:class:`EpisodeRunner` resets every replayable episode from its recorded seed (or RNG state),
+steps it with its recorded actions, keeps what the env returns (:mod:`.returned`) and hands the
+stepped episodes to a :class:`~.compare.Comparison`. How the time limit is counted and what
+makes an episode not replayable: docs/replay.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pyarrow as pa
+
+from ..format import names as fmt
+from ..format.records import EpisodeRanges, from_json
+from ..read.reader import Evidence
+from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
+from ..record.seeding import restore_rng_state
+from .compare import Comparison
+from .recorded import replay_actions, rules_of
+from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error
+from .returned import Ran, Rows, Steps
+
+__all__ = ["EpisodeRunner"]
+
+_SKIPPED = object()
+"""What :meth:`EpisodeRunner._reset` returns for an episode it did not reset."""
+
+
+class EpisodeRunner:
+    """Replays the episodes of one file in one environment."""
+
+    def __init__(
+        self,
+        ev: Evidence,
+        env: gym.Env[Any, Any],
+        *,
+        atol: float,
+        progress: Callable[[int], None] | None,
+    ) -> None:
+        self.ev = ev
+        self.file = str(ev.path)
+        self.env = env
+        self.progress = progress
+        self.obs_codec = ev.observation_codec
+        self.act_codec = ev.action_codec
+        rules, terms_rule = rules_of(ev.run)
+        self.comparison = (
+            None
+            if self.obs_codec is None
+            else Comparison(
+                self.file, self.obs_codec, atol=atol, rules=rules, terms_rule=terms_rule
+            )
+        )
+        self.time_limit = find_time_limit(env)
+        # An outermost Gymnasium TimeLimit is counted by the stepping loop, not called: the
+        # same flags, without a wrapper call per step (see plain_time_limit).
+        self.counted = plain_time_limit(env)
+
+    def _not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
+        return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
+
+    def run_all(
+        self,
+        records: list[dict[str, Any]],
+        steps: pa.Table,
+        rows: dict[int, tuple[int, int]],
+        reset_rows: dict[int, int],
+        resets: pa.Table,
+    ) -> list[EpisodeReplay]:
+        """Replay ``records`` (in file order): step every episode, then compare in one pass.
+
+        Stepping only keeps what the env returns; the values become columns afterwards, and
+        the comparison runs over whole columns at once. Only an episode with a difference is
+        looked at on its own, from the mismatch positions.
+        """
+        done: dict[int, EpisodeReplay] = {}
+        if not records:
+            return []
+        if self.comparison is None or self.act_codec is None:
+            for r in records:
+                index = int(r["episode"])
+                done[index] = self._not_replayable(index, 0, "the file's spaces cannot be rebuilt")
+            return [done[int(r["episode"])] for r in records]
+        actions, null_rows = replay_actions(steps.column(fmt.COL_ACTION), self.act_codec)
+        ran, returned, got_obs, got_reset = self._step_all(
+            records, actions, null_rows, rows, reset_rows, done
+        )
+        if ran.records:
+            self.comparison.episodes(ran, returned, got_obs, got_reset, steps, resets, done)
+        return [done[int(r["episode"])] for r in records]
+
+    def _step_all(
+        self,
+        records: list[dict[str, Any]],
+        actions: Any,
+        null_rows: np.ndarray[Any, Any] | None,
+        rows: dict[int, tuple[int, int]],
+        reset_rows: dict[int, int],
+        done: dict[int, EpisodeReplay],
+    ) -> tuple[Ran, Steps, pa.Array, pa.Array]:
+        """Reset and step every replayable episode.
+
+        Returns the stepped episodes, what their steps returned (in order), and the columns
+        of their observations and reset observations (copied as they come: an env may
+        change an array it returned).
+
+        This is replay's per-step loop, and long on purpose: everything a step does is inline
+        (no call, attribute lookup or object per step beyond the env's own step); what is done
+        once per episode and is not the usual case (:meth:`_reset`'s refusals, a null action)
+        is in its own method.
+        """
+        assert self.obs_codec is not None
+        env = self.env if self.counted is None else self.counted[0]
+        limit = None if self.counted is None else self.counted[1]
+        env_step = env.step
+        got_obs, got_reset = Rows(self.obs_codec), Rows(self.obs_codec)
+        keep_raw: Callable[[Any], int] = got_obs.raw.write  # (takes any C-contiguous array)
+        keep_other = got_obs.add
+        keep_reset = got_reset.keep
+        raw_dtype, raw_shape, ndarray = got_obs.dtype, got_obs.shape, np.ndarray
+        steps = Steps()
+        rewards = steps.rewards
+        keep_reward, keep_info = rewards.append, steps.infos.append
+        keep_info_row = steps.info_rows.append
+        ends = steps.ends
+        ran = Ran()
+        stepped = ran.stepped
+        keep_stepped = stepped.append
+        time_limit, progress, reset = self.time_limit, self.progress, self._reset
+        has_nulls = null_rows is not None and null_rows.size > 0
+        damaged = self.ev.damaged_episodes or None  # (an empty set is not asked)
+        no_rows = (0, 0)
+        for record in records:
+            index = record["episode"]
+            start, count = rows.get(index, no_rows)
+            reset_at = reset_rows.get(index)
+            obs = reset(env, record, index, count, reset_at, damaged, done)
+            if obs is _SKIPPED:
+                continue
+            keep_reset(obs)
+            stop = start + count
+            crash: Divergence | None = None
+            if has_nulls:
+                assert null_rows is not None
+                stop, crash = _first_null_action(null_rows, start, stop)
+            # the TimeLimit truncates its limit-th step, so stepping ends there at the latest
+            end = stop if limit is None or stop - start <= limit else start + limit
+            before = len(rewards)
+            try:
+                for action in actions[start:end]:
+                    obs, reward, term, trunc, info = env_step(action)
+                    # got_obs.keep(obs), inlined
+                    if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
+                        try:
+                            keep_raw(obs)
+                        except ValueError:  # not C-contiguous
+                            keep_other(obs)
+                    else:
+                        keep_other(obs)
+                    keep_reward(reward)
+                    try:
+                        if info:
+                            keep_info_row(len(rewards) - 1)
+                            keep_info(info)
+                    except Exception:  # an info with no truth value (an array): kept
+                        keep_info_row(len(rewards) - 1)
+                        keep_info(info)
+                    try:
+                        if term or trunc:
+                            break
+                    except Exception:  # flags with no truth value: False, as the recorder took them
+                        term = trunc = False
+            except Exception as exc:
+                crash = Divergence(len(rewards) - before, "step", "a step", env_error(exc))
+            ran_now = len(rewards) - before
+            if ran_now == limit:
+                trunc = True  # what the TimeLimit sets on its limit-th step
+            if ran_now < stop - start and (crash is None or crash.field == "action"):
+                crash = None  # it ended early: the length check says so
+            # Every step before the last had both flags falsy (stepping stops at the first
+            # that has one set): only the last step's are kept.
+            if ran_now:
+                ends.append((len(rewards) - 1, term, trunc))
+            if crash is not None:
+                ran.crashes[len(stepped)] = crash
+            # the TimeLimit state belongs to this episode: read it now, not after the others
+            hit = ran_now == limit if limit is not None else time_limit_hit(time_limit)
+            keep_stepped((record, start, count, ran_now, info if ran_now else {}, hit, reset_at))
+            if progress is not None:
+                progress(count)
+        return ran.finish(), steps, got_obs.finish(), got_reset.finish()
+
+    def _reset(
+        self,
+        env: gym.Env[Any, Any],
+        record: dict[str, Any],
+        index: int,
+        count: int,
+        reset_at: int | None,
+        damaged: EpisodeRanges | None,
+        done: dict[int, EpisodeReplay],
+    ) -> Any:
+        """Reset ``env`` for one episode and return its observation.
+
+        An episode that cannot be reset as recorded, or whose reset raises, gets its result
+        in ``done`` instead, and this returns ``_SKIPPED``.
+        """
+        seed = record.get("seed")
+        rng_state = record.get("rng_state")
+        if seed is None and rng_state is None:
+            done[index] = self._not_replayable(
+                index, 0, "no seed or RNG state recorded for its reset"
+            )
+            return _SKIPPED
+        if damaged is not None and index in damaged:
+            done[index] = self._not_replayable(
+                index, count, "part of its evidence was in a damaged chunk (skipped by recover)"
+            )
+            return _SKIPPED
+        if reset_at is None:
+            why = (
+                RESET_RAISED
+                if record.get("error_during") == "reset"
+                else "its reset row is missing (torn file)"
+            )
+            done[index] = self._not_replayable(index, count, why)
+            return _SKIPPED
+        try:
+            options = from_json(record["options"], "options") if record.get("options") else None
+            state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
+        except ValueError as exc:
+            done[index] = self._not_replayable(index, count, f"its reset record: {exc}")
+            return _SKIPPED
+        try:
+            if seed is not None:
+                obs, _ = env.reset(seed=seed, options=options)
+            else:
+                restore_rng_state(env, state)
+                obs, _ = env.reset(options=options)
+        except Exception as exc:
+            divergence = Divergence(None, "reset", "a reset", env_error(exc))
+            done[index] = EpisodeReplay(self.file, index, "diverged", 0, divergence)
+            return _SKIPPED
+        return obs
+
+
+def _first_null_action(
+    null_rows: np.ndarray[Any, Any], start: int, stop: int
+) -> tuple[int, Divergence | None]:
+    """Where an episode's rows ``start .. stop`` stop being steppable, and why if before ``stop``.
+
+    A row with no recorded action (not recordable) ends the stepping there, as a divergence.
+    """
+    k = int(np.searchsorted(null_rows, start))
+    if k < null_rows.size and null_rows[k] < stop:
+        null = int(null_rows[k])
+        return null, Divergence(
+            null - start, "action", "a recorded action", "null (not recordable)"
+        )
+    return stop, None

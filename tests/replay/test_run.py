@@ -1,0 +1,65 @@
+"""replay()'s inputs: options checked, unreadable files kept going past, missing episodes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from episode_audit.errors import ConfigurationError, EpisodeAuditError, EvidenceError
+from episode_audit.read.inputs import Unreadable
+from episode_audit.replay import replay, replay_options
+
+FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
+CLEAN = FIXTURES / "clean.mcap"
+
+
+@pytest.mark.parametrize(
+    ("atol", "episodes", "message"),
+    [
+        (float("nan"), None, "atol: expected a finite number >= 0, got nan"),
+        (float("inf"), None, "atol: expected a finite number >= 0, got inf"),
+        (-1.0, None, "atol: expected a finite number >= 0, got -1.0"),
+        (0.0, [1, -2], "episodes: expected an episode index >= 0, got -2"),
+        (0.0, [2**63], f"episodes: expected an episode index >= 0, got {2**63}"),
+    ],
+)
+def test_replay_options_name_what_is_wrong(
+    atol: float, episodes: list[int] | None, message: str
+) -> None:
+    with pytest.raises(ConfigurationError) as raised:
+        replay_options(atol, episodes)
+    assert str(raised.value) == message
+
+
+def test_replay_options_name_the_options_as_the_caller_does() -> None:
+    with pytest.raises(ConfigurationError, match=r"^--episode: expected an episode index"):
+        replay_options(0.0, [-1], atol_option="--atol", episode_option="--episode")
+    assert replay_options(0.5, iter([3, 1])) == [3, 1]
+    assert replay_options(0.0) is None
+
+
+def test_replay_raises_for_an_unreadable_file_unless_told_to_keep_going(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    with pytest.raises(EvidenceError, match="not an MCAP file"):
+        replay([CLEAN, bad])
+    told: list[EpisodeAuditError] = []
+    result = replay([bad, CLEAN], keep_going=True, on_error=told.append)
+    assert [str(e) for e in told] == [f"{bad}: not an MCAP file (wrong magic bytes)"]
+    assert result.unreadable == [Unreadable(str(bad), "not an MCAP file (wrong magic bytes)")]
+    assert result.count("identical") == len(result.episodes) == 6 and result.ok
+    assert "unreadable" not in result.to_dict()  # the JSON of replay() itself is as it was
+
+
+def test_keep_going_does_not_hide_a_usage_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigurationError, match="no_such_module_for_test"):
+        replay([CLEAN], imports=["no_such_module_for_test"], keep_going=True)
+    with pytest.raises(ConfigurationError, match="it raised RuntimeError: boom from factory"):
+        replay([CLEAN], env_factory="tests.support.factories:raises", keep_going=True)
+
+
+def test_missing_lists_the_selected_episodes_no_file_had() -> None:
+    result = replay([CLEAN], episodes=[99, 1, 42])
+    assert [e.episode for e in result.episodes] == [1] and result.missing == [42, 99]
+    assert replay([CLEAN]).missing == []
