@@ -22,7 +22,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from .errors import ConfigurationError, EvidenceError
-from .read.reader import open_evidence
+from .read import open_evidence
 
 __all__ = ["ExportResult", "export"]
 

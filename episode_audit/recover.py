@@ -53,7 +53,7 @@ from ._version import __version__
 from .errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from .format import names as fmt
 from .format.records import EpisodeRanges, listing
-from .read.reader import (
+from .read import (
     _RECOVER_HINT,
     ChunkRecords,
     DamagedRegion,

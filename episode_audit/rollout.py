@@ -151,7 +151,7 @@ def record_episodes(
                 ) from exc
             if on_episode is not None:
                 on_episode()
-    from .read.reader import open_evidence
+    from .read import open_evidence
 
     outcomes.update(open_evidence(path).episodes().column("outcome").to_pylist())
     return RecordSummary(path, episodes, steps, dict(outcomes))

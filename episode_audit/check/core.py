@@ -116,7 +116,7 @@ from ..format import names as fmt
 from ..format.columns import null_mask, one_array
 from ..format.records import from_json, listing
 from ..format.spaces import SpaceCodec
-from ..read.reader import Evidence, open_evidence
+from ..read import Evidence, open_evidence
 
 __all__ = [
     "FINDING_CODES",

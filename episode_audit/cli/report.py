@@ -94,7 +94,7 @@ def report(
     output: FormatOption = "table",
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
-    from ..read.reader import Evidence
+    from ..read import Evidence
     from ..report.core import BY_KEYS, Gates, report_tables
     from .render import report_output
 

@@ -45,7 +45,7 @@ def show(
     output: FormatOption = "table",
 ) -> None:
     """Summarize a file (run metadata, spaces, versions, env spec, episodes), or one episode."""
-    from ..read.reader import open_evidence
+    from ..read import open_evidence
     from .render.show import episode_output, summary_output
 
     fmt = _format(output)

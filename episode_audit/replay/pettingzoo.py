@@ -75,7 +75,7 @@ from .._usercode import load_callable
 from ..errors import ReplayError
 from ..format import names as fmt
 from ..format.columns import number_or_nan, one_array
-from ..read.reader import Evidence
+from ..read import Evidence
 from ..record.seeding import restore_rng_state
 from .single import (
     RESET_RAISED,

@@ -70,7 +70,7 @@ from ..format.columns import (
 )
 from ..format.records import RunInfo, from_json
 from ..format.spaces import SpaceCodec, equal_elements
-from ..read.reader import Evidence
+from ..read import Evidence
 from ..record.rules import (
     Ending,
     EndingRules,

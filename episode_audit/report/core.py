@@ -52,7 +52,7 @@ import pyarrow.compute as pc
 from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import to_jsonable
-from ..read.reader import Evidence, open_evidence
+from ..read import Evidence, open_evidence
 
 __all__ = [
     "GateResult",

@@ -21,7 +21,7 @@ from episode_audit import (
     open_evidence,
 )
 from episode_audit.check.core import CheckResult, Finding, check, check_evidence
-from episode_audit.read.reader import Evidence
+from episode_audit.read import Evidence
 from tests.support.envs import ScriptedEnv
 
 Step = tuple[Any, Any, Any, Any, Any]

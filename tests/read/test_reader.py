@@ -1,10 +1,13 @@
 from __future__ import annotations
 
+import importlib
 import json
+import pkgutil
 import random
 import struct
 import zlib
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import gymnasium as gym
@@ -21,9 +24,10 @@ from episode_audit import (
     RecordEvidence,
     UnsupportedVersionError,
     open_evidence,
+    read,
 )
 from episode_audit.format import names as fmt
-from episode_audit.read import reader as reader_module
+from episode_audit.read import blocks, chunks, episodes, passes
 
 
 def _record(path: Path, episodes: int = 4, block_steps: int = 16) -> Path:
@@ -261,13 +265,13 @@ def _split_file(path: Path) -> list[tuple[str, int, bytes]]:
     """The same, from the fast chunk reader and splitter."""
     ev = open_evidence(path)
     topic_of = {0: fmt.TOPIC_STEPS, 1: fmt.TOPIC_RESETS, 2: fmt.TOPIC_EPISODE_END}
-    route = {cid: reader_module._SLOTS.get(c.topic, -1) for cid, c in ev._channels.items()}
+    route = {cid: chunks._SLOTS.get(c.topic, -1) for cid, c in ev._channels.items()}
     out = []
     with open(path, "rb") as f:
         for ref in ev._chunks:
-            raw = reader_module._read_chunk_record(f, ref, path)
-            data = reader_module._decompress(raw, path, ref.offset)
-            messages = reader_module._split(data, path, ref.offset, route, (True,) * 3, [], None)
+            raw = chunks._read_chunk_record(f, ref, path)
+            data = chunks._decompress(raw, path, ref.offset)
+            messages = chunks._split(data, path, ref.offset, route, (True,) * 3, [], None)
             out.extend((topic_of[slot], t, view.tobytes()) for slot, t, view, _ in messages)
     return out
 
@@ -280,7 +284,7 @@ def test_splitter_equals_mcaps_own_reader(recorded: Path, tmp_path: Path, compre
         path = _rewrite(recorded, tmp_path / f"{compression}.mcap", compression=kind)
     expected = _mcap_messages(path)
     assert len(expected) > 10
-    assert _split_file(path) == [m for m in expected if m[0] in reader_module._SLOTS]
+    assert _split_file(path) == [m for m in expected if m[0] in chunks._SLOTS]
     # and the public single pass yields the same blocks and records, chunk by chunk
     ev = open_evidence(path)
     contents = list(ev.scan())
@@ -397,7 +401,7 @@ def test_zstd_chunks_read_the_same_with_either_decompressor(
 ) -> None:
     """Arrow's zstd (into its memory pool) where pyarrow has it, else ``zstandard``."""
     expected = open_evidence(recorded).steps()
-    monkeypatch.setattr(reader_module, "_ARROW_ZSTD", arrow)
+    monkeypatch.setattr(chunks, "_ARROW_ZSTD", arrow)
     assert open_evidence(recorded).steps().equals(expected)
     bad = _patched(recorded.read_bytes(), open_evidence(recorded)._chunks[1].offset + 200, b"\x00")
     path = tmp_path / "flipped.mcap"
@@ -413,10 +417,8 @@ def test_split_raises_only_corruption_on_garbage(recorded: Path) -> None:
     ev = open_evidence(path)
     with open(path, "rb") as f:
         ref = ev._chunks[0]
-        data = reader_module._decompress(
-            reader_module._read_chunk_record(f, ref, path), path, ref.offset
-        )
-    route = {cid: reader_module._SLOTS.get(c.topic, -1) for cid, c in ev._channels.items()}
+        data = chunks._decompress(chunks._read_chunk_record(f, ref, path), path, ref.offset)
+    route = {cid: chunks._SLOTS.get(c.topic, -1) for cid, c in ev._channels.items()}
     rng = random.Random(0)
     outcomes = set()
     for case in range(400):
@@ -425,7 +427,7 @@ def test_split_raises_only_corruption_on_garbage(recorded: Path) -> None:
             at = rng.randrange(len(mutated)) if mutated else 0
             mutated[at : at + 1] = bytes([rng.randrange(256)])
         try:
-            reader_module._split(bytes(mutated), path, 7, dict(route), (True,) * 3, [], [])
+            chunks._split(bytes(mutated), path, 7, dict(route), (True,) * 3, [], [])
             outcomes.add("ok")
         except CorruptEvidenceError as exc:
             assert "chunk at byte 7" in str(exc) and "run.mcap" in str(exc)
@@ -433,7 +435,7 @@ def test_split_raises_only_corruption_on_garbage(recorded: Path) -> None:
     assert outcomes == {"ok", "corrupt"}
     for garbage in (b"\x05", b"\x05\x00\x00", b"\x05" + struct.pack("<Q", 3) + b"abc"):
         with pytest.raises(CorruptEvidenceError, match="chunk at byte 7 is damaged"):
-            reader_module._split(garbage, path, 7, dict(route), (True,) * 3, [], [])
+            chunks._split(garbage, path, 7, dict(route), (True,) * 3, [], [])
 
 
 # --------------------------------------------------------------------------- one pass, caches
@@ -441,26 +443,38 @@ def test_split_raises_only_corruption_on_garbage(recorded: Path) -> None:
 
 def _count_chunk_reads(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     reads: list[int] = []
-    original = reader_module._read_chunk_record
+    original = chunks._read_chunk_record
 
     def counting(f: Any, ref: Any, path: Path) -> Any:
         reads.append(ref.offset)
         return original(f, ref, path)
 
-    monkeypatch.setattr(reader_module, "_read_chunk_record", counting)
+    monkeypatch.setattr(chunks, "_read_chunk_record", counting)
     return reads
 
 
 def _count_decodes(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     topics: list[str] = []
-    original = reader_module._arrow_batch
+    original = blocks._arrow_batch
 
     def counting(data: Any, path: Path, topic: str) -> Any:
         topics.append(topic)
         return original(data, path, topic)
 
-    monkeypatch.setattr(reader_module, "_arrow_batch", counting)
+    for module in _wing_modules_with("_arrow_batch"):  # blocks, and passes (step blocks)
+        monkeypatch.setattr(module, "_arrow_batch", counting)
     return topics
+
+
+def _wing_modules_with(name: str) -> list[ModuleType]:
+    """The read wing's modules that look ``name`` up in their own namespace."""
+    wing = "episode_audit.read"
+    found = [
+        importlib.import_module(f"{wing}.{m.name}") for m in pkgutil.iter_modules(read.__path__)
+    ]
+    modules = [module for module in found if name in vars(module)]
+    assert {m.__name__ for m in modules} >= {f"{wing}.blocks", f"{wing}.passes"}
+    return modules
 
 
 def test_check_reads_each_chunk_once(recorded: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -531,7 +545,7 @@ def test_a_pass_over_the_steps_keeps_resets_and_episodes_within_a_limit(
     ev.resets()
     ev.episodes()
     assert len(reads) == len(ev._chunks)
-    monkeypatch.setattr(reader_module, "KEEP_LIMIT", 100)
+    monkeypatch.setattr(passes, "KEEP_LIMIT", 100)
     reads.clear()
     ev = open_evidence(recorded)
     for _ in ev._pass(steps=True):  # what iter_step_batches does, with the limit patched
@@ -623,12 +637,12 @@ def _reference_episodes(records: list[bytes]) -> pa.Table:
                 "ended": True,
             }
         )
-    return pa.Table.from_pylist(rows, schema=reader_module.EPISODE_SCHEMA)
+    return pa.Table.from_pylist(rows, schema=episodes.EPISODE_SCHEMA)
 
 
 def _odd_records(count: int) -> list[bytes]:
     """Episode records the fast path must hand over to the record-by-record one, and others."""
-    sentinel = reader_module._SPLIT_VALUE
+    sentinel = episodes._SPLIT_VALUE
     records = []
     for i in range(count):
         record: dict[str, Any] = {
@@ -677,13 +691,13 @@ def test_episode_records_match_the_row_by_row_reading(
     odd = _odd_records(300)
     path = _rewrite(recorded, tmp_path / "odd.mcap", end_records=odd)
     one_by_one: list[bytes] = []
-    original = reader_module._episode_record
+    original = episodes._episode_record
 
     def counting(data: bytes, path: Path) -> Any:
         one_by_one.append(data)
         return original(data, path)
 
-    monkeypatch.setattr(reader_module, "_episode_record", counting)
+    monkeypatch.setattr(episodes, "_episode_record", counting)
     table = open_evidence(path).episodes()
     assert 0 < len(one_by_one) < len(odd)  # the groups with odd records only
     assert repr(table.to_pylist()) == repr(_reference_episodes(odd).to_pylist())
@@ -724,12 +738,12 @@ def test_a_replaced_record_with_wrong_types_is_no_error(recorded: Path, tmp_path
 
 
 def test_json_column_splits_one_encoding_and_falls_back() -> None:
-    values = [None, {"a": [1, 2.5]}, "s", None, [1, reader_module._SPLIT_VALUE, 2], 3]
-    assert reader_module._json_column(values) == [
+    values = [None, {"a": [1, 2.5]}, "s", None, [1, episodes._SPLIT_VALUE, 2], 3]
+    assert episodes._json_column(values) == [
         None if v is None else json.dumps(v, separators=(",", ":")) for v in values
     ]
-    assert reader_module._json_column([None, None]) == [None, None]
-    assert reader_module._json_column([{"x": 1}]) == ['{"x":1}']
+    assert episodes._json_column([None, None]) == [None, None]
+    assert episodes._json_column([{"x": 1}]) == ['{"x":1}']
 
 
 def test_a_known_schema_message_still_has_its_batch_checked(recorded: Path) -> None:
@@ -743,16 +757,16 @@ def test_a_known_schema_message_still_has_its_batch_checked(recorded: Path) -> N
         return bytes(sink.getvalue())
 
     good, compressed = stream(), stream(compression="zstd")
-    known = reader_module._first_message_end(good)
+    known = blocks._first_message_end(good)
     assert known is not None and good[:known] == compressed[:known]  # the same schema message
     where = Path("x.mcap")
-    assert reader_module._arrow_batch(good, where, fmt.TOPIC_STEPS).equals(batch)
-    assert reader_module._GOOD_SCHEMA_MESSAGES[fmt.TOPIC_STEPS] == good[:known]
+    assert blocks._arrow_batch(good, where, fmt.TOPIC_STEPS).equals(batch)
+    assert blocks._GOOD_SCHEMA_MESSAGES[fmt.TOPIC_STEPS] == good[:known]
     with pytest.raises(CorruptEvidenceError, match="uses Arrow IPC body compression"):
-        reader_module._arrow_batch(compressed, where, fmt.TOPIC_STEPS)
+        blocks._arrow_batch(compressed, where, fmt.TOPIC_STEPS)
     # a stream cut inside its schema message is not taken for the known one
     with pytest.raises(CorruptEvidenceError, match="not a valid Arrow stream"):
-        reader_module._arrow_batch(good[: known - 1], where, fmt.TOPIC_STEPS)
+        blocks._arrow_batch(good[: known - 1], where, fmt.TOPIC_STEPS)
 
 
 def _summary_start(data: bytes) -> int:

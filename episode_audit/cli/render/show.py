@@ -30,7 +30,7 @@ from ...errors import EvidenceError
 from ...format import names as fmt
 from ...format.records import from_json, to_jsonable
 from ...format.spaces import space_from_description
-from ...read.reader import Evidence
+from ...read import Evidence
 from .common import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
 
 __all__ = [
