@@ -158,11 +158,9 @@ class Evidence:
     ) -> Iterator[_Chunk]:
         """The wanted messages of every chunk (from ``start_time`` on), in file order."""
         refs = [r for r in self._chunks if start_time is None or r.end_time >= start_time]
+        expected = _declared_schema(self._channels, self._schemas, fmt.TOPIC_STEPS)
         wanted = (steps, resets, records)
-        expected = self._declared_schema(fmt.TOPIC_STEPS)
-        return _read_chunks(
-            self.path, refs, self._channels, self._slots, expected, wanted, ahead=ahead
-        )
+        return _read_chunks(self.path, refs, self._channels, self._slots, expected, wanted, ahead)
 
     def _pass(
         self,
@@ -272,13 +270,10 @@ class Evidence:
         """The Arrow schema of the steps table (from the file, even when it has no steps)."""
         return self._topic_schema(fmt.TOPIC_STEPS)
 
-    def _declared_schema(self, topic: str) -> pa.Schema | None:
-        """The schema the file's Schema record declares for ``topic``, if any (unchecked)."""
-        return _declared_schema(self._channels, self._schemas, topic)
-
     def _topic_schema(self, topic: str) -> pa.Schema:
         """The topic's schema as the file declares it, checked (see :func:`_topic_schema`)."""
-        return _topic_schema(self.path, self._declared_schema(topic), topic)
+        declared = _declared_schema(self._channels, self._schemas, topic)
+        return _topic_schema(self.path, declared, topic)
 
     def _gather(self) -> _Gathered:
         """Reset blocks and episode records, from the last complete pass or a new one."""

@@ -46,7 +46,6 @@ def _read_chunks(
     slots: dict[str, int],
     expected: pa.Schema | None,
     wanted: tuple[bool, bool, bool],
-    *,
     ahead: bool,
 ) -> Iterator[_Chunk]:
     """Yield the wanted (steps, resets, records) messages of each chunk of ``refs``, in order.
