@@ -251,7 +251,11 @@ def summary_definitions(path: str | os.PathLike[str]) -> tuple[list[Schema], lis
 
 
 def _chunk_records(data: bytes, path: Path, offset: int) -> list[Schema | Channel | Message]:
-    """Every Schema, Channel and Message record of a decompressed chunk, in order."""
+    """Every Schema, Channel and Message record of a decompressed chunk, in order.
+
+    The walk is :func:`~episode_audit.read.chunks._split`'s, which keeps its own inline: it is
+    the reader's chunk loop, where a call per record would cost.
+    """
     out: list[Schema | Channel | Message] = []
     pos, end = 0, len(data)
     try:
