@@ -261,3 +261,20 @@ def test_a_garbled_run_metadata_record_is_named(recorded: Path, tmp_path: Path) 
         "spaces, env and settings of the run it held are lost",
     ):
         open_evidence(damaged)
+
+
+def test_one_assignment_lowers_the_record_cap_everywhere(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The fuzz harness lowers ``chunks.MAX_RECORD_BYTES``: opening and the walk obey it too."""
+    from mcap.records import Header
+
+    from episode_audit.read import FileEnd, chunks, iter_records
+
+    assert open_evidence(recorded).finished
+    monkeypatch.setattr(chunks, "MAX_RECORD_BYTES", 64)  # less than the Schema records
+    with pytest.raises(CorruptEvidenceError, match="torn before its run metadata was written"):
+        open_evidence(recorded)  # neither the summary nor the scan gets past the first Schema
+    items = list(iter_records(recorded))
+    assert [type(item) for item in items] == [Header, FileEnd]
+    assert items[-1].offset < items[-1].size
