@@ -71,6 +71,8 @@ _RECOVER_HINT = "; `episode-audit recover` copies the intact chunks to a new fil
 
 @dataclass(frozen=True)
 class _ChunkRef:
+    """Where a chunk record is in its file, the log times it spans and its sizes."""
+
     offset: int
     start_time: int
     end_time: int
