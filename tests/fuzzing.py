@@ -577,12 +577,12 @@ def zstd_bomb(data: bytes, rng: random.Random) -> bytes:
     The chunk declares its old size, the frame's size, the reader's cap, 4 GiB or 2**63 - 1
     uncompressed bytes; the frame header has the real size or none.
     """
-    from episode_audit.read import reader
+    from episode_audit.read import chunks as read_chunks
 
     _, chunks = layout(data)
     c = rng.choice([c for c in chunks if c.compression == "zstd"])
     frame = bomb(content_size=rng.random() < 0.5)
-    cap = reader.MAX_RECORD_BYTES
+    cap = read_chunks.MAX_RECORD_BYTES
     declared = rng.choice([c.uncompressed_size, len(frame), cap, cap + 1, 4 << 30, HUGE])
     body = bytearray(data[c.record.body : c.records_at - 8])
     struct.pack_into("<Q", body, 16, declared)
@@ -1080,11 +1080,11 @@ def worker(corpus: Path, deadline_s: float) -> None:
 if __name__ == "__main__":
     import os
 
-    from episode_audit.read import reader as _reader
+    from episode_audit.read import chunks as _chunks
 
     # The harness runs with a lower cap than the library's 1 GiB default, so that inputs at
     # the cap stay cheap; the bound checked is peak memory against the cap.
-    _reader.MAX_RECORD_BYTES = int(os.environ.get("EPISODE_AUDIT_FUZZ_CAP_MIB", "64")) << 20
+    _chunks.MAX_RECORD_BYTES = int(os.environ.get("EPISODE_AUDIT_FUZZ_CAP_MIB", "64")) << 20
     limit = int(os.environ.get("EPISODE_AUDIT_FUZZ_AS_GIB", "4")) << 30
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))  # a safety net on shared machines
     worker(Path(sys.argv[1]), float(sys.argv[2]))

@@ -32,7 +32,7 @@ from typer.testing import CliRunner
 
 from episode_audit import EvidenceError, check, open_evidence
 from episode_audit.cli import app
-from episode_audit.read.reader import iter_records
+from episode_audit.read import iter_records
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))

@@ -31,7 +31,7 @@ from episode_audit import (
     recover,
 )
 from episode_audit.cli import app
-from episode_audit.read.reader import iter_records
+from episode_audit.read import iter_records
 from episode_audit.replay import replay as replay_files
 from tests import kill_harness
 

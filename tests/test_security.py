@@ -20,7 +20,7 @@ from episode_audit import RecordEvidence, check, export, open_evidence, replay, 
 from episode_audit.cli import app
 from episode_audit.errors import CorruptEvidenceError
 from episode_audit.format import names as fmt
-from episode_audit.read.reader import MAX_JSON_BYTES
+from episode_audit.read.episodes import MAX_JSON_BYTES
 from tests.support.envs import ScriptedEnv
 from tests.support.hostile import HOSTILE, PIECES, replace_column, rewrite
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from ..read.reader import Evidence
+from ..read import Evidence
 from .findings import Finding
 from .registry import SEVERITY, Severity
 

@@ -1,7 +1,7 @@
 """Check evidence files: pure functions from evidence to findings.
 
 - :func:`check` opens evidence files and checks each one into a :class:`CheckResult`.
-- :func:`check_evidence` checks one open :class:`~episode_audit.read.reader.Evidence`.
+- :func:`check_evidence` checks one open :class:`~episode_audit.read.Evidence`.
 
 One pass over a file's steps, a block at a time, runs every rule group over whole columns with
 ``pyarrow.compute`` and numpy (no Python code per step); per-episode results merge across
@@ -21,8 +21,8 @@ import pyarrow as pa
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..format.columns import one_array
+from ..read import Evidence, open_evidence
 from ..read.inputs import Unreadable
-from ..read.reader import Evidence, open_evidence
 from ._state import BoolArray, FileState, FloatArray, Hit, HitMessage, IntArray, counts_per_episode
 from .endings import EndingChecks
 from .episodes import check_episode_records

@@ -1,25 +1,26 @@
 """The read wing: open evidence files (finished or torn) as Arrow tables.
 
 Public: :func:`open_evidence`, :class:`Evidence`, :class:`EpisodeEvidence`,
-:data:`EPISODE_COLUMNS`; a command's inputs: :func:`evidence_files`, :func:`open_all`,
-:class:`Unreadable`, :func:`steps_total`; for recovery, :func:`iter_records` and its items.
+:class:`ChunkContents`, :data:`EPISODE_COLUMNS`; a command's inputs: :func:`evidence_files`,
+:func:`open_all`, :class:`Unreadable`, :func:`steps_total`; for recovery, :func:`iter_records`
+and its items, :func:`summary_definitions` and :func:`step_block_rows`.
+
+Modules, lowest first: ``layout`` (the MCAP record layout), ``chunks`` (reading, decompressing
+and splitting chunks; read-ahead), ``blocks`` (one Arrow block, checked), ``passes`` (the chunk
+loop, what a pass keeps), ``episodes`` (the episodes table), ``evidence`` (the API),
+``opening`` (indexed and linear opening), ``records`` (recovery's record walk), ``inputs``.
 """
 
+from .blocks import step_block_rows
+from .chunks import RECOVER_HINT
+from .episodes import EPISODE_COLUMNS
+from .evidence import ChunkContents, EpisodeEvidence, Evidence
 from .inputs import Unreadable, evidence_files, open_all, steps_total
-from .reader import (
-    EPISODE_COLUMNS,
-    ChunkContents,
-    ChunkRecords,
-    DamagedRegion,
-    EpisodeEvidence,
-    Evidence,
-    FileEnd,
-    iter_records,
-    open_evidence,
-    summary_definitions,
-)
+from .opening import open_evidence
+from .records import ChunkRecords, DamagedRegion, FileEnd, iter_records, summary_definitions
 
 __all__ = [
+    "RECOVER_HINT",
     "EPISODE_COLUMNS",
     "ChunkContents",
     "ChunkRecords",
@@ -32,6 +33,7 @@ __all__ = [
     "iter_records",
     "open_all",
     "open_evidence",
+    "step_block_rows",
     "steps_total",
     "summary_definitions",
 ]

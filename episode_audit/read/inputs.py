@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
-from .reader import Evidence, open_evidence
+from .evidence import Evidence
+from .opening import open_evidence
 
 __all__ = ["Unreadable", "evidence_files", "open_all", "steps_total"]
 

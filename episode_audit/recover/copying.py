@@ -14,8 +14,7 @@ from mcap.records import Channel, Header, Message, Metadata, Schema
 
 from ..errors import CorruptEvidenceError
 from ..format import names as fmt
-from ..read import ChunkRecords, DamagedRegion, FileEnd, summary_definitions
-from ..read.reader import step_block_rows
+from ..read import ChunkRecords, DamagedRegion, FileEnd, step_block_rows, summary_definitions
 from ..record.writer import EvidenceWriter
 from .kept import Damage
 

@@ -15,8 +15,7 @@ from mcap.records import Header
 from .._version import __version__
 from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
-from ..read import DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
-from ..read.reader import _RECOVER_HINT
+from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
 from .files import check_paths, fsync, publish
@@ -83,12 +82,12 @@ def _open_input(src: Path) -> Evidence:
     try:
         return open_evidence(src)
     except CorruptEvidenceError as exc:
-        if not exc.problem.endswith(_RECOVER_HINT):
+        if not exc.problem.endswith(RECOVER_HINT):
             raise
         # (an unfinished file: only its first chunk was read, for the channel definitions)
         raise CorruptEvidenceError(
             src,
-            f"{exc.problem.removesuffix(_RECOVER_HINT)}: it holds the channel definitions and "
+            f"{exc.problem.removesuffix(RECOVER_HINT)}: it holds the channel definitions and "
             "the file has no summary that repeats them, so no chunk can be decoded",
         ) from None
 

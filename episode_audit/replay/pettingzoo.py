@@ -22,7 +22,7 @@ from ..format import names as fmt
 from ..format.columns import number_or_nan, one_array
 from ..format.records import EpisodeRanges
 from ..format.spaces import SpaceCodec
-from ..read.reader import Evidence
+from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal

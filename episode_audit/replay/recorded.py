@@ -16,7 +16,7 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.columns import one_array
 from ..format.records import RunInfo
-from ..read.reader import Evidence
+from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
 
 __all__ = [

@@ -17,7 +17,7 @@ import pyarrow as pa
 
 from ..format import names as fmt
 from ..format.records import EpisodeRanges, from_json
-from ..read.reader import Evidence
+from ..read import Evidence
 from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
 from .compare import Comparison

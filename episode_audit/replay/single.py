@@ -17,7 +17,7 @@ import pyarrow.compute as pc
 
 from ..errors import ReplayError
 from ..format import names as fmt
-from ..read.reader import Evidence
+from ..read import Evidence
 from .envs import EnvFactory, build_env
 from .recorded import episode_records, layout_not_replayable, row_ranges, to_end
 from .results import EpisodeReplay, none_replayable

@@ -22,7 +22,7 @@ from episode_audit import (
     open_evidence,
 )
 from episode_audit.check import CheckResult, Finding, check, check_evidence
-from episode_audit.read.reader import Evidence
+from episode_audit.read import Evidence
 from tests.support.envs import ScriptedEnv
 
 Step = tuple[Any, Any, Any, Any, Any]

@@ -303,7 +303,7 @@ def test_replay_streams_in_windows_of_whole_episodes(
 def test_replay_reads_a_file_once_when_it_fits_one_window(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, window: int, passes: int
 ) -> None:
-    from episode_audit.read import reader as reader_module
+    from episode_audit.read import chunks as chunks_module
 
     replay_module = sys.modules["episode_audit.replay.single"]
     path = tmp_path / "cp.mcap"
@@ -316,13 +316,13 @@ def test_replay_reads_a_file_once_when_it_fits_one_window(
                 _, _, term, trunc, _ = env.step(env.action_space.sample())
                 done = term or trunc
     reads: list[int] = []
-    original = reader_module._read_chunk_record
+    original = chunks_module._read_chunk_record
 
     def counting(f: Any, ref: Any, where: Path) -> Any:
         reads.append(ref.offset)
         return original(f, ref, where)
 
-    monkeypatch.setattr(reader_module, "_read_chunk_record", counting)
+    monkeypatch.setattr(chunks_module, "_read_chunk_record", counting)
     monkeypatch.setattr(replay_module, "REPLAY_WINDOW_ROWS", window)
     assert replay([path]).count("identical") == 8
     chunks = len(set(reads))

@@ -1,0 +1,398 @@
+"""The :class:`Evidence` API: an open evidence file's tables, blocks and episodes.
+
+:class:`Evidence` (made by :func:`~episode_audit.read.opening.open_evidence`) gives the run
+metadata, the episodes, steps and resets tables as ``pyarrow`` tables, block-by-block
+streaming (:meth:`Evidence.scan`, :meth:`Evidence.iter_step_batches`) and episode-by-episode
+reading (:class:`EpisodeEvidence`). One pass over the file serves the steps, the resets and the
+episodes; both tables are cached (docs/format.md, "Reading").
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.compute as pc
+from mcap.records import Channel
+
+from ..errors import EvidenceError
+from ..format import names as fmt
+from ..format.records import EpisodeRanges, RunInfo
+from ..format.spaces import SpaceCodec, codec_for, space_from_description
+from .blocks import _blocks_table, _declared_schema, _empty_table, _reset_block, _topic_schema
+from .chunks import _ARROW_SLOTS, _SLOTS, _ChunkRef
+from .episodes import _build_episodes
+from .passes import (
+    _Chunk,
+    _contiguous,
+    _decode_kept,
+    _episode_rows,
+    _Gathered,
+    _read_chunks,
+    _StepStats,
+)
+
+
+@dataclass(frozen=True)
+class ChunkContents:
+    """What one chunk of an evidence file holds, as :meth:`Evidence.scan` yields it.
+
+    Attributes:
+        offset: The chunk's byte offset in the file.
+        steps: Its step blocks, in recording order (empty when not asked for).
+        resets: Its reset blocks (empty when not asked for).
+        episode_records: Its episode records, raw: Arrow IPC episode blocks for files that have
+            them (topic ``episode_audit/episodes``), else JSON end records (empty when not
+            asked for).
+    """
+
+    offset: int
+    steps: list[pa.RecordBatch]
+    resets: list[pa.RecordBatch]
+    episode_records: list[bytes]
+
+
+@dataclass
+class EpisodeEvidence:
+    """One episode: its record (a row of :meth:`Evidence.episodes`), its steps and reset row."""
+
+    record: dict[str, Any]
+    steps: pa.Table
+    reset: dict[str, Any] | None
+
+    @property
+    def index(self) -> int:
+        """The episode index in its file."""
+        return int(self.record["episode"])
+
+
+@dataclass
+class Evidence:
+    """An open evidence file. Use :func:`open_evidence` to make one.
+
+    Attributes:
+        path: The file.
+        run: The run metadata.
+        finished: Whether the writer finished the file (summary, footer, run-end record).
+        run_end: The run-end record (``status`` is ``finished`` or ``recovered``), if any.
+        torn: For an unfinished file, what the reader had to drop at the torn end.
+        summary_damage: For a finished file whose end is damaged — its summary section
+            (MCAP's index of it) does not match the footer's CRC, or the footer or closing
+            magic is garbled — what is wrong; the file was then read by scanning its data
+            section, which holds all the evidence.
+        run_end_damage: For a finished file whose run-end record (which its sound summary
+            locates) is garbled, what is wrong. The writer finished the file and every chunk
+            is there; the record's status and counts are lost, and :attr:`run_end` is
+            ``None``.
+    """
+
+    path: Path
+    run: RunInfo
+    finished: bool
+    run_end: dict[str, str] | None
+    torn: str | None
+    _chunks: list[_ChunkRef] = field(repr=False)
+    _channels: dict[int, Channel] = field(repr=False)
+    summary_damage: str | None = None
+    run_end_damage: str | None = None
+    _schemas: dict[int, pa.Schema] = field(default_factory=dict, repr=False, compare=False)
+    _episodes_cache: pa.Table | None = field(default=None, repr=False)
+    _resets_cache: pa.Table | None = field(default=None, repr=False)
+    _gathered: _Gathered | None = field(default=None, repr=False)
+    _stats: _StepStats | None = field(default=None, repr=False)
+
+    @property
+    def damaged_episodes(self) -> EpisodeRanges:
+        """Episodes that lost part or all of their evidence in damaged chunks.
+
+        Only a file rewritten by ``episode-audit recover`` from a damaged one says so (its
+        run-end record lists them); for any other file this is empty.
+        """
+        return EpisodeRanges.from_json((self.run_end or {}).get("damaged_episodes"))
+
+    @property
+    def reports_success(self) -> bool | None:
+        """Whether the task said anything about success in an episode's final info.
+
+        ``False`` for a task without a success signal (CartPole, Hopper: its endings are
+        failures or cut-offs, never successes); ``None`` when the file does not say (a torn
+        file, or one written by a recorder that did not count it yet).
+        """
+        raw = (self.run_end or {}).get(fmt.RUN_END_SUCCESS_REPORTED)
+        try:
+            return None if raw is None else int(raw) > 0
+        except ValueError:
+            return None
+
+    @property
+    def damaged_stretches(self) -> int:
+        """How many damaged stretches of the original file a recovery skipped (0 if none)."""
+        raw = (self.run_end or {}).get("damaged")
+        try:
+            value = json.loads(raw) if raw else []
+        except ValueError:
+            return 0
+        return len(value) if isinstance(value, list) else 0
+
+    # --------------------------------------------------------------- passes
+
+    @property
+    def _slots(self) -> dict[str, int]:
+        """Topic -> slot; episode records come from Arrow blocks when the file has them."""
+        if any(ch.topic == fmt.TOPIC_EPISODES for ch in self._channels.values()):
+            return _ARROW_SLOTS
+        return _SLOTS
+
+    def _read(
+        self,
+        *,
+        steps: bool,
+        resets: bool,
+        records: bool,
+        start_time: int | None = None,
+        ahead: bool = True,
+    ) -> Iterator[_Chunk]:
+        """The wanted messages of every chunk (from ``start_time`` on), in file order."""
+        refs = [r for r in self._chunks if start_time is None or r.end_time >= start_time]
+        expected = _declared_schema(self._channels, self._schemas, fmt.TOPIC_STEPS)
+        wanted = (steps, resets, records)
+        return _read_chunks(self.path, refs, self._channels, self._slots, expected, wanted, ahead)
+
+    def _pass(
+        self,
+        *,
+        steps: bool,
+        resets: bool = False,
+        records: bool = False,
+        keep_all: bool = False,
+    ) -> Iterator[_Chunk]:
+        """Read every chunk once; a complete pass also keeps resets and episode records.
+
+        They are kept by the first complete pass only, and (unless ``keep_all``) only up to
+        :data:`KEEP_LIMIT` bytes.
+        """
+        gather = None
+        if self._gathered is None:
+            gather = _Gathered.for_pass(
+                self.path,
+                count_steps=steps and not self.finished,
+                keep_all=keep_all,
+                arrow_records=self._slots is _ARROW_SLOTS,
+            )
+        keep = gather is not None
+        for chunk in self._read(steps=steps, resets=resets or keep, records=records or keep):
+            if gather is not None:
+                gather.add(chunk)
+            yield chunk
+        if gather is not None and not gather.dropped:
+            self._gathered = gather
+            if gather.stats is not None:
+                self._stats = gather.stats
+
+    def scan(
+        self, *, steps: bool = True, resets: bool = True, episode_records: bool = True
+    ) -> Iterator[ChunkContents]:
+        """Read each chunk once and yield what it holds, in file order.
+
+        Leave out what you do not need: a chunk's step blocks are only decoded with ``steps``.
+        Episode records are raw, as written (see :class:`ChunkContents`; :meth:`episodes`
+        gives the table).
+        A complete scan also fills the caches of :meth:`resets` and :meth:`episodes`.
+        """
+        path = self.path
+        for chunk in self._pass(steps=steps, resets=resets, records=episode_records):
+            yield ChunkContents(
+                chunk.ref.offset,
+                [batch for _, batch in chunk.steps] if steps else [],
+                [_reset_block(data, path) for _, data in chunk.resets] if resets else [],
+                list(chunk.records) if episode_records else [],
+            )
+
+    # --------------------------------------------------------------- steps
+
+    def iter_step_batches(self, columns: Sequence[str] | None = None) -> Iterator[pa.RecordBatch]:
+        """Yield the steps block by block (one record batch per written block).
+
+        Each chunk is read once; the pass also keeps what :meth:`resets` and :meth:`episodes`
+        need, so calling them afterwards reads nothing again.
+
+        Every episode's rows come out contiguous and in step order. In a multi-stream file
+        (vector sub-envs, agents) the streams' blocks interleave in the file, so there the
+        batches are regrouped: an episode's rows are held until its stream moves on to its next
+        episode (or the file ends), then yielded with the other episodes completed in the same
+        chunk. Memory is then bounded by the longest open episode of each stream.
+        """
+        selected = None if columns is None else list(columns)
+        batches: Iterable[pa.RecordBatch]
+        if self.multi_stream:
+            batches = _contiguous(self._pass(steps=True))
+        else:
+            batches = (batch for chunk in self._pass(steps=True) for _, batch in chunk.steps)
+        for batch in batches:
+            yield batch if selected is None else batch.select(selected)
+
+    @property
+    def multi_stream(self) -> bool:
+        """Whether the file has more than one step stream (vector sub-envs, agents)."""
+        return sum(ch.topic == fmt.TOPIC_STEPS for ch in self._channels.values()) > 1
+
+    def steps(
+        self,
+        *,
+        columns: Sequence[str] | None = None,
+        episodes: Iterable[int] | None = None,
+    ) -> pa.Table:
+        """All steps (or those of ``episodes``) as one table, in recording order."""
+        wanted = None if episodes is None else pa.array(sorted(set(episodes)), pa.int64())
+        parts: list[pa.RecordBatch] = []
+        for batch in self.iter_step_batches():
+            if wanted is not None:
+                batch = batch.filter(pc.is_in(batch.column(fmt.COL_EPISODE), wanted))
+                if batch.num_rows == 0:
+                    continue
+            parts.append(batch if columns is None else batch.select(list(columns)))
+        return self._table(parts, fmt.TOPIC_STEPS, columns)
+
+    def _table(
+        self, parts: list[pa.RecordBatch], topic: str, columns: Sequence[str] | None
+    ) -> pa.Table:
+        """The blocks as one table; without any, an empty one with the topic's schema."""
+        if parts:
+            return _blocks_table(parts, topic, self.path)
+        return _empty_table(self._topic_schema(topic), columns)
+
+    @property
+    def steps_schema(self) -> pa.Schema:
+        """The Arrow schema of the steps table (from the file, even when it has no steps)."""
+        return self._topic_schema(fmt.TOPIC_STEPS)
+
+    def _topic_schema(self, topic: str) -> pa.Schema:
+        """The topic's schema as the file declares it, checked (see :func:`_topic_schema`)."""
+        declared = _declared_schema(self._channels, self._schemas, topic)
+        return _topic_schema(self.path, declared, topic)
+
+    def _gather(self) -> _Gathered:
+        """Reset blocks and episode records, from the last complete pass or a new one."""
+        if self._gathered is None:
+            # A torn file's episodes need counts from its steps: count them in the same pass.
+            for _ in self._pass(steps=not self.finished, keep_all=True):
+                pass
+        assert self._gathered is not None
+        return self._gathered
+
+    def resets(self) -> pa.Table:
+        """One row per reset: episode, seed, rng_state (JSON), options (JSON), observation.
+
+        The table is read once and cached.
+        """
+        if self._resets_cache is None:
+            gathered = self._gather()
+            parts = _decode_kept(gathered.resets, _reset_block, self.path)
+            self._resets_cache = self._table(parts, fmt.TOPIC_RESETS, None)
+            gathered.resets = []
+        return self._resets_cache
+
+    # --------------------------------------------------------------- episodes
+
+    def episodes(self) -> pa.Table:
+        """One row per episode (see :data:`EPISODE_COLUMNS`), including cut-off ones.
+
+        The table is read once and cached. An episode with an end record takes every value
+        from it; one without (cut off by a torn file) is counted from its reset row and steps.
+        """
+        if self._episodes_cache is None:
+            self._episodes_cache = self._build_episodes()
+        return self._episodes_cache
+
+    def _build_episodes(self) -> pa.Table:
+        gathered = self._gather()
+        table = _build_episodes(
+            self.path,
+            gathered.records,
+            arrow=self._slots is _ARROW_SLOTS,
+            finished=self.finished,
+            resets=self.resets,
+            step_stats=self._step_stats,
+        )
+        gathered.records = []
+        return table
+
+    def _step_stats(self) -> _StepStats:
+        if self._stats is None:
+            stats = _StepStats()
+            for chunk in self._read(steps=True, resets=False, records=False):
+                for _, batch in chunk.steps:
+                    stats.add(batch)
+            self._stats = stats
+        return self._stats
+
+    def episode(self, index: int) -> EpisodeEvidence:
+        """One episode, read from the chunks its time range covers only."""
+        table = self.episodes()
+        match = table.filter(pc.equal(table.column("episode"), index))
+        if match.num_rows == 0:
+            raise EvidenceError(
+                self.path, f"no episode {index} (the file has {table.num_rows} episodes)"
+            )
+        record = match.to_pylist()[0]
+        return self._load_episode(record)
+
+    def _load_episode(self, record: dict[str, Any]) -> EpisodeEvidence:
+        start = record.get("start_time_ns")
+        end = record.get("end_time_ns") if record.get("ended") else None
+        parts, reset = _episode_rows(
+            self._read(steps=True, resets=True, records=False, start_time=start, ahead=False),
+            int(record["episode"]),
+            start,
+            end,
+            self.path,
+        )
+        return EpisodeEvidence(record, self._table(parts, fmt.TOPIC_STEPS, None), reset)
+
+    def iter_episodes(self) -> Iterator[EpisodeEvidence]:
+        """Yield every episode with its steps, one at a time."""
+        for record in self.episodes().to_pylist():
+            yield self._load_episode(record)
+
+    @property
+    def observation_codec(self) -> SpaceCodec | None:
+        """Codec of the observation column, rebuilt from the file (``None`` if unsupported)."""
+        return self._codec("observation_space")
+
+    @property
+    def action_codec(self) -> SpaceCodec | None:
+        """Codec of the action column, rebuilt from the file (``None`` if unsupported)."""
+        return self._codec("action_space")
+
+    def _codec(self, name: str) -> SpaceCodec | None:
+        cache: dict[str, SpaceCodec | None] = self.__dict__.setdefault("_codec_cache", {})
+        if name not in cache:
+            cache[name] = _column_codec(self, name)
+        return cache[name]
+
+    def __enter__(self) -> Evidence:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+def _column_codec(ev: Evidence, name: str) -> SpaceCodec | None:
+    """The codec of the space ``name`` describes, if it describes its column in the file."""
+    digest = ev.run.recorder.get("digest_min_bytes") if name == "observation_space" else None
+    column = fmt.COL_OBSERVATION if name == "observation_space" else fmt.COL_ACTION
+    try:
+        space = space_from_description(getattr(ev.run, name))
+        codec: SpaceCodec | None = codec_for(space, digest_min_bytes=digest)
+        stored = ev.steps_schema.field(column).type
+        if codec is not None and not (
+            pa.types.is_null(stored) or codec.field(column).type.equals(stored)
+        ):
+            codec = None  # the description does not describe the column: do not decode
+    except Exception:
+        codec = None
+    return codec

@@ -1,0 +1,410 @@
+"""Opening evidence files: through their summary when it is sound, else by a linear scan.
+
+:func:`open_evidence` checks the file's end (:func:`_summary_damage`: the summary against the
+footer's CRC, the footer, the closing magic), then opens it through the summary (chunk index,
+channels, schemas, metadata: :func:`_open_indexed`) or, for a torn or damaged file, by scanning
+its data section and keeping every complete chunk (:func:`_open_linear`). Both check the run
+metadata (:func:`_parse_run`) and return an :class:`~episode_audit.read.evidence.Evidence`.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import struct
+import zlib
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, NamedTuple
+
+import pyarrow as pa
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Metadata, Schema
+from mcap.stream_reader import StreamReader
+
+from ..errors import CorruptEvidenceError, EvidenceError, NotEvidenceError, UnsupportedVersionError
+from ..format import names as fmt
+from ..format.records import RunInfo
+from . import chunks
+from .blocks import _one_line
+from .chunks import _NOTHING, _ChunkRef, _crc32_of, _decompress, _raw_chunk, _split
+from .episodes import MAX_JSON_BYTES
+from .evidence import Evidence
+from .layout import (
+    _FOOTER,
+    _MAGIC,
+    _OP_FOOTER,
+    _OP_FOOTER_BODY,
+    _OP_METADATA,
+    _RECORD_HEAD,
+    _top_level,
+    _Unreadable,
+)
+
+
+def open_evidence(path: str | os.PathLike[str]) -> Evidence:
+    """Open an evidence file (finished, or torn by a crash) for reading.
+
+    Raises :class:`~episode_audit.errors.NotEvidenceError` for a file that is not evidence,
+    :class:`~episode_audit.errors.UnsupportedVersionError` for a newer major format version, and
+    :class:`~episode_audit.errors.CorruptEvidenceError` for damage a crash cannot explain.
+
+    >>> open_evidence("no/such/file.mcap")
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.EvidenceError: no/such/file.mcap: cannot open: No such file or directory
+    """
+    p = Path(path)
+    with _open_mcap(p) as f:
+        damage = _summary_damage(f)
+        f.seek(0)
+        indexed = None if damage else _open_indexed(f, p)
+        if indexed is None:
+            f.seek(0)
+            ev = _open_linear(f, p, past_data_end=damage is None)
+            ev.summary_damage = damage
+            return ev
+        return indexed
+
+
+def _open_mcap(p: Path) -> IO[bytes]:
+    """Open ``p`` for reading, just after the MCAP magic bytes.
+
+    Raises :class:`~episode_audit.errors.NotEvidenceError` for what is not a regular file
+    (a FIFO would block) or does not start like MCAP, and
+    :class:`~episode_audit.errors.EvidenceError` for a file that cannot be opened.
+    """
+    try:
+        if not stat.S_ISREG(os.stat(p).st_mode):
+            raise NotEvidenceError(p, "not a regular file")
+        f = open(p, "rb")  # noqa: SIM115
+    except OSError as exc:
+        raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
+    try:
+        head = f.read(len(_MAGIC))
+        if len(head) == 0:
+            raise NotEvidenceError(p, "the file is empty")
+        if head != _MAGIC:
+            raise NotEvidenceError(p, "not an MCAP file (wrong magic bytes)")
+    except BaseException:
+        f.close()
+        raise
+    return f
+
+
+def _parse_run(
+    path: Path, metadata: dict[str, dict[str, str]], header: Header | None, torn: str | None = None
+) -> tuple[RunInfo, dict[str, str] | None]:
+    if header is not None and header.profile != fmt.MCAP_PROFILE:
+        raise NotEvidenceError(
+            path,
+            f"an MCAP file, but not evidence (profile {header.profile!r}, "
+            f"expected {fmt.MCAP_PROFILE!r})",
+        )
+    raw = metadata.get(fmt.METADATA_RUN)
+    if raw is None and torn is not None and header is not None:
+        raise CorruptEvidenceError(
+            path,
+            f"an evidence file torn before its run metadata was written ({torn}): "
+            "it holds no evidence (a recorder killed as it started leaves such a file)",
+        )
+    if raw is None:
+        raise NotEvidenceError(
+            path, f"no {fmt.METADATA_RUN!r} metadata record: not an evidence file"
+        )
+    version = raw.get("format_version", "")
+    try:
+        major = fmt.format_major(version)
+    except ValueError:
+        raise CorruptEvidenceError(path, f"format_version {version!r} is not a version") from None
+    if major > fmt.FORMAT_MAJOR:
+        raise UnsupportedVersionError(
+            path,
+            f"written with format {version}, newer than this reader ({fmt.FORMAT_VERSION}); "
+            "upgrade episode-audit",
+        )
+    if any(len(v) > MAX_JSON_BYTES for v in raw.values()):
+        raise CorruptEvidenceError(path, "run metadata value exceeds the 1 MiB limit")
+    try:
+        run = RunInfo.from_metadata(raw)
+    except (ValueError, TypeError) as exc:
+        raise CorruptEvidenceError(path, _one_line(exc)) from None
+    except RecursionError:
+        raise CorruptEvidenceError(path, "run metadata is nested too deeply") from None
+    return run, metadata.get(fmt.METADATA_RUN_END)
+
+
+def _schemas_of(schemas: Iterable[Schema]) -> dict[int, pa.Schema]:
+    out: dict[int, pa.Schema] = {}
+    for schema in schemas:
+        if schema.encoding == fmt.ARROW_ENCODING:
+            try:
+                out[schema.id] = pa.ipc.read_schema(pa.py_buffer(schema.data))
+            except (pa.ArrowException, OSError, ValueError):
+                continue
+    return out
+
+
+def _open_indexed(f: IO[bytes], path: Path) -> Evidence | None:
+    """Open through the summary; ``None`` when the file has no usable summary (torn)."""
+    try:
+        reader = SeekingReader(f, record_size_limit=chunks.MAX_RECORD_BYTES)
+        summary = reader.get_summary()
+        if summary is None:
+            return None
+        header = reader.get_header()
+    except Exception:
+        return None
+    metadata: dict[str, dict[str, str]] = {}
+    run_end_damage: str | None = None
+    for index in summary.metadata_indexes:
+        record = _metadata_at(f, index.offset, index.name)
+        if record is not None:
+            metadata[record.name] = dict(record.metadata)
+            continue
+        if not _footer_crc(f):  # a summary nothing vouches for: scan the data section instead
+            return None
+        what = f"the {index.name} metadata record at byte {index.offset} is garbled"
+        if index.name == fmt.METADATA_RUN:
+            raise CorruptEvidenceError(
+                path,
+                f"{what}: the spaces, env and settings of the run it held are lost, so the "
+                "file cannot be read as evidence",
+            )
+        if index.name == fmt.METADATA_RUN_END:
+            run_end_damage = what
+    run, run_end = _parse_run(path, metadata, header)
+    refs = sorted(
+        (
+            _ChunkRef(
+                c.chunk_start_offset,
+                c.message_start_time,
+                c.message_end_time,
+                c.compressed_size,
+                c.uncompressed_size,
+                tuple(sorted(c.message_index_offsets.items())),
+                c.message_index_length,
+            )
+            for c in summary.chunk_indexes
+        ),
+        key=lambda c: c.offset,
+    )
+    finished = run_end is not None or run_end_damage is not None
+    schemas = _schemas_of(summary.schemas.values())
+    ev = Evidence(
+        path, run, finished, run_end, None, refs, dict(summary.channels), _schemas=schemas
+    )
+    ev.run_end_damage = run_end_damage
+    return ev
+
+
+def _metadata_at(f: IO[bytes], offset: int, name: str) -> Metadata | None:
+    """The metadata record ``name`` a summary locates at ``offset``; ``None`` if garbled.
+
+    Its body must parse to exactly its declared length, as :func:`iter_records` reads it.
+    """
+    try:
+        f.seek(offset)
+        opcode, length = _RECORD_HEAD.unpack(f.read(_RECORD_HEAD.size))
+        if opcode != _OP_METADATA or length > chunks.MAX_RECORD_BYTES:
+            return None
+        body = f.read(length)
+        record = _top_level(opcode, body) if len(body) == length else None
+    except (struct.error, OSError, _Unreadable):
+        return None
+    return record if isinstance(record, Metadata) and record.name == name else None
+
+
+def _summary_damage(f: IO[bytes]) -> str | None:
+    """Why the end of a finished file (summary, footer, magic) is damaged, or ``None``.
+
+    ``None`` also for a torn file, which ends with neither a footer nor the magic. The
+    footer's CRC covers the summary section through the footer's own offset fields (MCAP
+    spec); a writer may leave it 0 (not computed), which is accepted.
+    """
+    size = os.fstat(f.fileno()).st_size
+    tail = _tail(f, size)
+    if tail is None:
+        return None
+    start, crc = tail.summary_start, tail.summary_crc
+    if not tail.magic_ok:
+        # a whole footer, pointing inside the file, before 8 bytes that are not the magic:
+        # the magic was damaged (a torn file does not end with a footer)
+        inside = max(start, tail.offsets_start) < size - _TAIL_BYTES
+        return "the closing magic bytes are damaged" if tail.footer_ok and inside else None
+    if not tail.footer_ok:
+        return "the footer record before the closing magic is damaged"
+    if start == 0 or crc == 0:
+        return None
+    end = size - len(_MAGIC) - 4  # through the footer's summary_offset_start field
+    if not len(_MAGIC) <= start < end:
+        return f"the footer puts the summary section at byte {start}, outside the file"
+    if _crc32_of(f, start, end) != crc:
+        return f"the summary section at bytes {start}-{end} does not match the footer's CRC"
+    return None
+
+
+class _Tail(NamedTuple):
+    """The last bytes of a file, read as a footer record and the closing magic."""
+
+    footer_ok: bool  # the footer record's opcode and length are right
+    magic_ok: bool
+    summary_start: int
+    offsets_start: int
+    summary_crc: int
+
+
+_TAIL_BYTES = _FOOTER.size + len(_MAGIC)
+
+
+def _tail(f: IO[bytes], size: int) -> _Tail | None:
+    """Where a footer and the closing magic go, at the end of a file (``None``: too short)."""
+    if size < len(_MAGIC) + _TAIL_BYTES:
+        return None
+    f.seek(size - _TAIL_BYTES)
+    raw = f.read(_TAIL_BYTES)
+    opcode, length, start, offsets, crc = _FOOTER.unpack(raw[: _FOOTER.size])
+    footer_ok = opcode == _OP_FOOTER and length == _OP_FOOTER_BODY
+    return _Tail(footer_ok, raw[_FOOTER.size :] == _MAGIC, start, offsets, crc)
+
+
+def _footer(f: IO[bytes]) -> tuple[int, int] | None:
+    """A whole footer's (summary start, summary CRC) before the closing magic, if any."""
+    tail = _tail(f, os.fstat(f.fileno()).st_size)
+    if tail is None or not (tail.footer_ok and tail.magic_ok):
+        return None
+    return tail.summary_start, tail.summary_crc
+
+
+def _footer_crc(f: IO[bytes]) -> int:
+    """The footer's summary CRC (0 without a footer, or when the writer did not compute it)."""
+    found = _footer(f)
+    return 0 if found is None else found[1]
+
+
+# What mcap's StreamReader raises for a record cut short (anything else: a garbled one).
+_CUT_SHORT = (McapError, EvidenceError, ValueError, EOFError, zlib.error, OSError, MemoryError)
+
+
+@dataclass
+class _Scan:
+    """What a linear scan found: the records it keeps, and whether the file was torn."""
+
+    path: Path
+    header: Header | None = None
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    chunks: list[_ChunkRef] = field(default_factory=list)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    schemas: list[Schema] = field(default_factory=list)
+    footer: bool = False
+    torn: str | None = None
+
+    def add(self, record: object, start: int) -> None:
+        """Keep what ``record`` (read at byte ``start``) says about the file."""
+        if isinstance(record, Header):
+            self.header = record
+        elif isinstance(record, Metadata):
+            self.metadata[record.name] = dict(record.metadata)
+        elif isinstance(record, Chunk):
+            self.chunks.append(
+                _ChunkRef(
+                    start,
+                    record.message_start_time,
+                    record.message_end_time,
+                    len(record.data),
+                    record.uncompressed_size,
+                )
+            )
+            if not self.channels:
+                self._discover_channels(record, start)
+        elif isinstance(record, Channel):
+            self.channels[record.id] = record
+        elif isinstance(record, Schema):
+            self.schemas.append(record)
+        elif isinstance(record, Footer):
+            self.footer = True
+
+    def _discover_channels(self, record: Chunk, start: int) -> None:
+        """The channels (and schemas) the first chunk defines, for a file that has no others."""
+        path = self.path
+        raw = _raw_chunk(
+            record.compression,
+            record.uncompressed_size,
+            record.uncompressed_crc,
+            record.data,
+            path,
+            start,
+        )
+        found: list[Channel] = []
+        _split(_decompress(raw, path, start), path, start, None, _NOTHING, found, self.schemas)
+        self.channels.update((channel.id, channel) for channel in found)
+
+
+def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evidence:
+    """Scan a file without a usable summary; keep every complete chunk.
+
+    With ``past_data_end`` false (a file whose footer and closing magic are there, but whose
+    summary does not match the footer's CRC) the scan stops at the data section's end record:
+    what follows is the summary, which only repeats and indexes the data section.
+    """
+    reader = StreamReader(f, emit_chunks=True, record_size_limit=chunks.MAX_RECORD_BYTES)
+    scan = _Scan(path)
+    good_end = 0
+    size = os.fstat(f.fileno()).st_size
+    records = reader.records
+    while True:
+        start = good_end
+        try:
+            record = next(records)
+        except StopIteration:
+            break
+        except _CUT_SHORT:
+            scan.torn = _cut_short(start, size, scan.footer)
+            break
+        except Exception:
+            scan.torn = (
+                f"torn at byte {start} of {size}: the record there is cut short or garbled; "
+                "the rest was dropped"
+            )
+            break
+        good_end = f.tell()
+        if isinstance(record, DataEnd) and not past_data_end:
+            scan.footer = True  # (the footer was found already, behind the damaged summary)
+            break
+        scan.add(record, start)
+    return _scanned_evidence(scan, size)
+
+
+def _cut_short(start: int, size: int, footer: bool) -> str | None:
+    """What a linear scan dropped when the record at ``start`` is cut short (None: nothing)."""
+    if start >= size and footer:  # the closing magic bytes were never written
+        return f"ends at byte {size} without the closing magic: the writer did not finish"
+    if start >= size:  # stopped at a record boundary: nothing to drop
+        return None
+    return (
+        f"torn at byte {start} of {size}: the last {size - start} bytes "
+        "(a record cut short) were dropped"
+    )
+
+
+def _scanned_evidence(scan: _Scan, size: int) -> Evidence:
+    """The evidence a linear scan found (finished only with a footer and a run-end record)."""
+    path, torn = scan.path, scan.torn
+    if scan.header is None:
+        raise NotEvidenceError(path, "no MCAP header: the file is torn before any evidence")
+    if torn is None and not scan.footer:
+        torn = f"ends at byte {size} without a summary: the writer did not finish"
+    run, run_end = _parse_run(path, scan.metadata, scan.header, torn)
+    finished = scan.footer and run_end is not None and torn is None
+    return Evidence(
+        path,
+        run,
+        finished,
+        run_end,
+        None if finished else torn,
+        scan.chunks,
+        scan.channels,
+        _schemas=_schemas_of(scan.schemas),
+    )
