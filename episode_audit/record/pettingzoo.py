@@ -44,14 +44,17 @@ from typing import Any
 import pettingzoo
 from pettingzoo import AECEnv, ParallelEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper, BaseWrapper
+from typing_extensions import Unpack
 
 from ..errors import ConfigurationError, RecorderError
 from ..format.columns import error_text
 from ..format.records import to_jsonable
 from ..format.spaces import codec_for, describe_space
-from .rules import EndingRules, RewardTerms, TermsFn
+from .file import EvidenceFile
+from .notes import note
 from .seeding import capture_rng_state
-from .stream import DEFAULT_BLOCK_STEPS, EvidenceFile, RecorderSettings, Stream, note, run_info
+from .settings import RecorderOptions, RecorderSettings, run_info
+from .stream import Stream
 
 __all__ = [
     "AECTurns",
@@ -374,12 +377,7 @@ class _Agents:
         env_id: str | None,
         env_module: str | None,
         env_kwargs: Mapping[str, Any] | None,
-        tags: Mapping[str, str] | None,
         settings: RecorderSettings,
-        digest_min_bytes: int | None,
-        fsync: bool,
-        overwrite: bool,
-        command_line: Sequence[str] | None,
         owner: Any,
     ) -> None:
         agents = [str(a) for a in env.possible_agents]
@@ -430,8 +428,6 @@ class _Agents:
             spec=None,
             observation_space=obs_desc,
             action_space=act_desc,
-            tags=tags,
-            command_line=command_line,
             layout=layout,
         )
         self.run_info = dataclasses.replace(info, env_id=layout["env_name"])
@@ -439,14 +435,13 @@ class _Agents:
             path,
             self.run_info,
             settings,
-            fsync=fsync,
-            overwrite=overwrite,
             games=True,
             owner=owner,
         )
         self.path = self.file.path
         obs_codec = codec_for(
-            env.observation_space(env.possible_agents[0]), digest_min_bytes=digest_min_bytes
+            env.observation_space(env.possible_agents[0]),
+            digest_min_bytes=settings.digest_min_bytes,
         )
         act_codec = codec_for(env.action_space(env.possible_agents[0]))
         max_cycles = layout["max_cycles"] if isinstance(layout["max_cycles"], int) else None
@@ -493,26 +488,6 @@ class _Agents:
         self.file.end_with_error(self.streams.values(), exc, during)
 
 
-def _settings(
-    reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None,
-    constant_terms: Mapping[str, float] | None,
-    ending_rules: EndingRules | None,
-    info_keys: Sequence[str] | str,
-    digest_min_bytes: int | None,
-    block_steps: int,
-    flush_every_s: float,
-) -> RecorderSettings:
-    return RecorderSettings(
-        reward_terms=reward_terms,
-        constant_terms=constant_terms,
-        ending_rules=ending_rules,
-        info_keys=info_keys,
-        digest_min_bytes=digest_min_bytes,
-        block_steps=block_steps,
-        flush_every_s=flush_every_s,
-    )
-
-
 _ARGS_DOC = """
     Args:
         env: The PettingZoo env to record (every agent must share one observation space and
@@ -552,10 +527,6 @@ class _Recording:
         env_id: str | None,
         env_module: str | None,
         env_kwargs: Mapping[str, Any] | None,
-        tags: Mapping[str, str] | None,
-        fsync: bool,
-        overwrite: bool,
-        command_line: Sequence[str] | None,
     ) -> None:
         self._rec = _Agents(
             env,
@@ -564,12 +535,7 @@ class _Recording:
             env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,
-            tags=tags,
             settings=settings,
-            digest_min_bytes=settings.digest_min_bytes,
-            fsync=fsync,
-            overwrite=overwrite,
-            command_line=command_line,
             owner=self,
         )
         self.run_info = self._rec.run_info
@@ -634,39 +600,17 @@ class RecordParallelEvidence(_Recording, BaseParallelWrapper):  # type: ignore[m
         env_id: str | None = None,
         env_module: str | None = None,
         env_kwargs: Mapping[str, Any] | None = None,
-        tags: Mapping[str, str] | None = None,
-        reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None = "auto",
-        constant_terms: Mapping[str, float] | None = None,
-        ending_rules: EndingRules | None = None,
-        info_keys: Sequence[str] | str = (),
-        digest_min_bytes: int | None = None,
-        block_steps: int = DEFAULT_BLOCK_STEPS,
-        flush_every_s: float = 1.0,
-        fsync: bool = False,
-        overwrite: bool = False,
-        command_line: Sequence[str] | None = None,
+        **options: Unpack[RecorderOptions],
     ) -> None:
         super().__init__(env)
         self._record_to(
             env,
             path,
             KIND_PARALLEL,
-            _settings(
-                reward_terms,
-                constant_terms,
-                ending_rules,
-                info_keys,
-                digest_min_bytes,
-                block_steps,
-                flush_every_s,
-            ),
+            RecorderSettings.of(options, "RecordParallelEvidence.__init__()"),
             env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,
-            tags=tags,
-            fsync=fsync,
-            overwrite=overwrite,
-            command_line=command_line,
         )
 
     def reset(
@@ -757,39 +701,17 @@ class RecordAECEvidence(_Recording, BaseWrapper):  # type: ignore[misc]
         env_id: str | None = None,
         env_module: str | None = None,
         env_kwargs: Mapping[str, Any] | None = None,
-        tags: Mapping[str, str] | None = None,
-        reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None = "auto",
-        constant_terms: Mapping[str, float] | None = None,
-        ending_rules: EndingRules | None = None,
-        info_keys: Sequence[str] | str = (),
-        digest_min_bytes: int | None = None,
-        block_steps: int = DEFAULT_BLOCK_STEPS,
-        flush_every_s: float = 1.0,
-        fsync: bool = False,
-        overwrite: bool = False,
-        command_line: Sequence[str] | None = None,
+        **options: Unpack[RecorderOptions],
     ) -> None:
         super().__init__(env)
         self._record_to(
             env,
             path,
             KIND_AEC,
-            _settings(
-                reward_terms,
-                constant_terms,
-                ending_rules,
-                info_keys,
-                digest_min_bytes,
-                block_steps,
-                flush_every_s,
-            ),
+            RecorderSettings.of(options, "RecordAECEvidence.__init__()"),
             env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,
-            tags=tags,
-            fsync=fsync,
-            overwrite=overwrite,
-            command_line=command_line,
         )
         self._begun: dict[Any, Any] = {}
         self._turns = AECTurns(env, self._on_reset, self._on_row)

@@ -55,13 +55,17 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import iterate
+from typing_extensions import Unpack
 
 from ..format import names as fmt
 from ..format.records import to_json
 from ..format.spaces import codec_for, describe_space
-from .rules import EndingRules, RewardTerms, TermsFn, find_time_limit
+from .file import EvidenceFile
+from .notes import note
+from .rules import find_time_limit
 from .seeding import capture_rng_state
-from .stream import DEFAULT_BLOCK_STEPS, EvidenceFile, RecorderSettings, Stream, note, run_info
+from .settings import RecorderOptions, RecorderSettings, run_info
+from .stream import Stream
 
 __all__ = ["RecordVectorEvidence", "ResetRngInfo"]
 
@@ -327,29 +331,11 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         env: VectorEnv[Any, Any, Any],
         path: str | os.PathLike[str],
         *,
-        tags: Mapping[str, str] | None = None,
-        reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None = "auto",
-        constant_terms: Mapping[str, float] | None = None,
-        ending_rules: EndingRules | None = None,
-        info_keys: Sequence[str] | str = (),
-        digest_min_bytes: int | None = None,
-        block_steps: int = DEFAULT_BLOCK_STEPS,
-        flush_every_s: float = 1.0,
-        fsync: bool = False,
-        overwrite: bool = False,
-        command_line: Sequence[str] | None = None,
         install_rng_info: bool = True,
+        **options: Unpack[RecorderOptions],
     ) -> None:
         super().__init__(env)
-        settings = RecorderSettings(
-            reward_terms=reward_terms,
-            constant_terms=constant_terms,
-            ending_rules=ending_rules,
-            info_keys=info_keys,
-            digest_min_bytes=digest_min_bytes,
-            block_steps=block_steps,
-            flush_every_s=flush_every_s,
-        )
+        settings = RecorderSettings.of(options, "RecordVectorEvidence.__init__()")
         base = env.unwrapped
         self._mode = _autoreset_mode(env)
         self._sync = base if isinstance(base, SyncVectorEnv) else None
@@ -390,16 +376,12 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             spec=sub_spec,
             observation_space=describe_space(obs_space),
             action_space=describe_space(act_space),
-            tags=tags,
-            command_line=command_line,
             layout=layout,
             notes=notes,
         )
-        self._file = EvidenceFile(
-            path, self.run_info, settings, fsync=fsync, overwrite=overwrite, owner=self
-        )
+        self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
-        obs_codec = codec_for(obs_space, digest_min_bytes=digest_min_bytes)
+        obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
         act_codec = codec_for(act_space)
         self._streams: list[Stream] = [
             self._file.add_stream(obs_codec, act_codec, env_index=i, max_episode_steps=limit)
