@@ -22,7 +22,13 @@ from .file import EvidenceFile
 from .notes import note, short
 from .rules import find_time_limit
 from .seeding import capture_rng_state
-from .settings import RecorderOptions, RecorderSettings, library_versions, run_info
+from .settings import (
+    RecorderOptions,
+    RecorderSettings,
+    check_options,
+    library_versions,
+    run_info,
+)
 
 __all__ = ["RecordEvidence", "library_versions"]
 
@@ -66,8 +72,9 @@ class RecordEvidence(
         path: str | os.PathLike[str],
         **options: Unpack[RecorderOptions],
     ) -> None:
+        check_options(options, "RecordEvidence.__init__()")
         gym.Wrapper.__init__(self, env)
-        settings = RecorderSettings.of(options, "RecordEvidence.__init__()")
+        settings = RecorderSettings(**options)
         digest_min_bytes = settings.digest_min_bytes
         obs_codec = codec_for(env.observation_space, digest_min_bytes=digest_min_bytes)
         act_codec = codec_for(env.action_space)

@@ -30,6 +30,7 @@ __all__ = [
     "DEFAULT_BLOCK_STEPS",
     "RecorderOptions",
     "RecorderSettings",
+    "check_options",
     "library_versions",
     "run_info",
 ]
@@ -59,8 +60,13 @@ class RecorderOptions(TypedDict, total=False):
 _OPTIONS = frozenset(RecorderOptions.__annotations__)
 
 
-def _check_names(options: Mapping[str, Any], caller: str) -> None:
-    """Refuse an option no recorder takes, as Python refuses an unknown keyword."""
+def check_options(options: Mapping[str, Any], caller: str) -> None:
+    """Refuse an option no recorder takes, as Python refuses an unknown keyword of ``caller``.
+
+    >>> check_options({"reward_term": None}, "RecordEvidence.__init__()")
+    Traceback (most recent call last):
+    TypeError: RecordEvidence.__init__() got an unexpected keyword argument 'reward_term'
+    """
     for name in options:
         if name not in _OPTIONS:
             raise TypeError(f"{caller} got an unexpected keyword argument {name!r}")
@@ -113,7 +119,7 @@ class RecorderSettings:
     )
 
     def __init__(self, **options: Unpack[RecorderOptions]) -> None:
-        _check_names(options, "RecorderSettings()")
+        check_options(options, "RecorderSettings()")
         block_steps = options.get("block_steps", DEFAULT_BLOCK_STEPS)
         flush_every_s = options.get("flush_every_s", 1.0)
         info_keys = options.get("info_keys", ())
@@ -150,12 +156,6 @@ class RecorderSettings:
         self.command_line = options.get("command_line")
         self.fsync = options.get("fsync", False)
         self.overwrite = options.get("overwrite", False)
-
-    @classmethod
-    def of(cls, options: RecorderOptions, caller: str) -> RecorderSettings:
-        """The settings of a recorder's ``**options``; an unknown one is ``caller``'s TypeError."""
-        _check_names(options, caller)
-        return cls(**options)
 
     def recorder_metadata(self, notes: Sequence[str] = ()) -> dict[str, Any]:
         """The ``recorder`` key of the run metadata."""

@@ -18,7 +18,7 @@ from typing_extensions import Unpack
 from ...errors import RecorderError
 from ...format.columns import error_text
 from ..notes import note
-from ..settings import RecorderOptions, RecorderSettings
+from ..settings import RecorderOptions, RecorderSettings, check_options
 from ..stream import Stream
 from .agents import ARGS_DOC, AgentRecorder, Begun
 from .registry import KIND_AEC
@@ -87,12 +87,13 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
         env_kwargs: Mapping[str, Any] | None = None,
         **options: Unpack[RecorderOptions],
     ) -> None:
+        check_options(options, "RecordAECEvidence.__init__()")
         super().__init__(env)
         self._record_to(
             env,
             path,
             KIND_AEC,
-            RecorderSettings.of(options, "RecordAECEvidence.__init__()"),
+            RecorderSettings(**options),
             env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,

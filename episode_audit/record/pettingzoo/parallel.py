@@ -15,7 +15,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 from typing_extensions import Unpack
 
-from ..settings import RecorderOptions, RecorderSettings
+from ..settings import RecorderOptions, RecorderSettings, check_options
 from .agents import ARGS_DOC, AgentRecorder, agent_result
 from .registry import KIND_PARALLEL
 
@@ -53,12 +53,13 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
         env_kwargs: Mapping[str, Any] | None = None,
         **options: Unpack[RecorderOptions],
     ) -> None:
+        check_options(options, "RecordParallelEvidence.__init__()")
         super().__init__(env)
         self._record_to(
             env,
             path,
             KIND_PARALLEL,
-            RecorderSettings.of(options, "RecordParallelEvidence.__init__()"),
+            RecorderSettings(**options),
             env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,

@@ -21,7 +21,7 @@ from typing_extensions import Unpack
 from ...format.spaces import codec_for, describe_space
 from ..file import EvidenceFile
 from ..rules import find_time_limit
-from ..settings import RecorderOptions, RecorderSettings, run_info
+from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import refused, reset_targets, seeds_of
@@ -70,8 +70,9 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
         install_rng_info: bool = True,
         **options: Unpack[RecorderOptions],
     ) -> None:
+        check_options(options, "RecordVectorEvidence.__init__()")
         super().__init__(env)
-        settings = RecorderSettings.of(options, "RecordVectorEvidence.__init__()")
+        settings = RecorderSettings(**options)
         base = env.unwrapped
         mode = autoreset_mode(env)
         sync = base if isinstance(base, SyncVectorEnv) else None
