@@ -16,6 +16,7 @@ import numpy as np
 from gymnasium.wrappers import TimeLimit
 
 from ..format import names as fmt
+from ..format.columns import error_message, text
 from ..format.schemas import reset_schema, step_schema
 from ..format.spaces import SpaceCodec
 from .block import Block, Episode, count_block, reset_batch, row_bytes, step_batch
@@ -40,22 +41,10 @@ class StreamFile(Protocol):
     wall_offset: int
     flush_at: int
     counts: dict[str, int]
+    pending: list[tuple[Episode, dict[str, Any]]]  # ended episodes, their records not written
 
     def take_episode_index(self) -> int:
         """The next file-global episode index."""
-
-    def end_episode(
-        self,
-        episode: Episode,
-        outcome: str,
-        *,
-        failure_label: str | None = None,
-        truncation_reason: str | None = None,
-        terminated: bool = False,
-        truncated: bool = False,
-        error: tuple[BaseException, str] | None = None,
-    ) -> None:
-        """Mark the episode ended; its record is written at the next flush."""
 
     def auto_flush(self) -> None:
         """Flush because a block filled or ``flush_every_s`` passed; never raises."""
@@ -141,9 +130,9 @@ class EpisodeStream:
         replayable). Notes about the seed or options are appended to ``notes``.
         """
         episode = self.episode
-        file = self.file
         if episode is not None and not episode.ended:
-            file.end_episode(episode, fmt.OUTCOME_INCOMPLETE)
+            self.end_episode(episode, fmt.OUTCOME_INCOMPLETE)
+        file = self.file
         recorded_seed = recordable_seed(seed, notes)
         if seed is None and rng_state is None and not has_note(notes, "rng_state_unavailable"):
             notes.append(
@@ -194,14 +183,47 @@ class EpisodeStream:
         """End the open episode, if any, with ``outcome`` (``incomplete`` by default)."""
         episode = self.episode
         if episode is not None and not episode.ended:
-            self.file.end_episode(episode, outcome)
+            self.end_episode(episode, outcome)
 
     def end_error(self, exc: BaseException, during: str) -> None:
         """End the open episode as ``error`` (the env raised ``exc`` during reset or step)."""
         episode = self.episode
         if episode is None or episode.ended:
             return
-        self.file.end_episode(episode, fmt.OUTCOME_ERROR, error=(exc, during))
+        self.end_episode(episode, fmt.OUTCOME_ERROR, error=(exc, during))
+
+    def end_episode(
+        self,
+        episode: Episode,
+        outcome: str,
+        *,
+        failure_label: str | None = None,
+        truncation_reason: str | None = None,
+        terminated: bool = False,
+        truncated: bool = False,
+        error: tuple[BaseException, str] | None = None,
+    ) -> None:
+        """Mark the episode ended; its record is written at the next flush."""
+        episode.ended = True
+        ending: dict[str, Any] = {
+            "outcome": outcome,
+            "failure_label": failure_label,
+            "truncation_reason": truncation_reason,
+            "terminated": terminated,
+            "truncated": truncated,
+            "error": None,
+        }
+        if error is not None:
+            exc, during = error
+            ending["error"] = {
+                "type": text(type(exc).__qualname__),
+                "message": error_message(exc)[:2000],
+                "during": during,
+            }
+            ending["error_ns"] = self.file.clock()
+        file = self.file
+        file.pending.append((episode, ending))
+        file.counts["episodes"] += 1
 
     def cap_block_steps(self, rows: int) -> None:
         """Write a block after at most ``rows`` rows (the file sizes blocks of large rows)."""
@@ -260,15 +282,14 @@ class EpisodeStream:
         )
         if why is not None:  # the ending by the flags alone; say why
             read.append(note("ending_unreadable", why))
-        file = self.file
         if self._rules.reports_success(info):
-            file.counts["success_reported"] += 1
+            self.file.counts["success_reported"] += 1
         if read:
             add_notes(episode, block.notes, row, read)
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
         block.flags[row] = (bool(terminated), bool(truncated))
-        file.end_episode(
+        self.end_episode(
             episode,
             ending.outcome,
             failure_label=ending.failure_label,

@@ -23,7 +23,7 @@ from gymnasium.wrappers import TimeLimit
 from .._version import __version__
 from ..errors import RecorderError
 from ..format import names as fmt
-from ..format.columns import error_message, error_text, terms_column, text
+from ..format.columns import error_text, terms_column, text
 from ..format.records import EPISODE_SCHEMA, RunInfo, to_json
 from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from ..format.spaces import SpaceCodec
@@ -32,7 +32,7 @@ from .settings import RecorderSettings
 from .stream import Stream
 from .writer import EvidenceWriter
 
-__all__ = ["CHUNK_TARGET_BYTES", "EvidenceFile"]
+__all__ = ["CHUNK_TARGET_BYTES", "EvidenceFile", "FileRecorder"]
 
 CHUNK_TARGET_BYTES = 32 << 20
 """Largest uncompressed chunk the recorder aims for: a flush comes after at most this many
@@ -45,6 +45,48 @@ _TROUBLE_TEXT = 500  # characters of the first trouble kept in the run-end recor
 
 class _Owner(Protocol):
     def close(self) -> None: ...
+
+
+class FileRecorder:
+    """What every recorder does with its evidence file (``_file``, which the recorder opens).
+
+    ``flush()``; finishing the file once, on the recorder's ``close()``; and a warning when a
+    recorder that warns (``_warns_unclosed``) is dropped with its file still open.
+    """
+
+    _file: EvidenceFile
+    _closed: bool
+    _warns_unclosed = True
+
+    def flush(self) -> None:
+        """Write everything recorded so far to the file now."""
+        self._file.check_open()
+        self._file.flush()
+
+    def _before_close(self) -> None:
+        """Called before the file is finished (by :meth:`_close_file`)."""
+
+    def _close_file(self, close_env: Callable[[], None]) -> None:
+        """Finish the file; safe to call more than once. ``close_env`` runs even if it fails."""
+        if getattr(self, "_closed", True):
+            return
+        self._closed = True
+        try:
+            self._before_close()
+            self._file.close()
+        finally:
+            close_env()
+
+    def __del__(self) -> None:
+        if self._warns_unclosed and not getattr(self, "_closed", True):
+            import warnings
+
+            warnings.warn(
+                f"episode-audit: {type(self).__name__} for {getattr(self, 'path', '?')} was not "
+                "closed; call close() or use it as a context manager",
+                ResourceWarning,
+                stacklevel=2,
+            )
 
 
 class EvidenceFile:
@@ -207,38 +249,6 @@ class EvidenceFile:
 
     # ------------------------------------------------------------------ episode records
 
-    def end_episode(
-        self,
-        episode: Episode,
-        outcome: str,
-        *,
-        failure_label: str | None = None,
-        truncation_reason: str | None = None,
-        terminated: bool = False,
-        truncated: bool = False,
-        error: tuple[BaseException, str] | None = None,
-    ) -> None:
-        """Mark the episode ended; its record is written at the next flush."""
-        episode.ended = True
-        ending: dict[str, Any] = {
-            "outcome": outcome,
-            "failure_label": failure_label,
-            "truncation_reason": truncation_reason,
-            "terminated": terminated,
-            "truncated": truncated,
-            "error": None,
-        }
-        if error is not None:
-            exc, during = error
-            ending["error"] = {
-                "type": text(type(exc).__qualname__),
-                "message": error_message(exc)[:2000],
-                "during": during,
-            }
-            ending["error_ns"] = self.clock()
-        self.pending.append((episode, ending))
-        self.counts["episodes"] += 1
-
     def _write_episodes(self) -> None:
         """Write the episodes ended since the last flush: JSON messages and one Arrow block."""
         ended = self.pending
@@ -331,7 +341,7 @@ class EvidenceFile:
 def _episode_record(
     episode: Episode, ending: dict[str, Any], wall_offset: int, games: bool
 ) -> dict[str, Any]:
-    """The episode record of an ended episode (``ending``: what :meth:`end_episode` said)."""
+    """The episode record of an ended episode (``ending``: what ``Stream.end_episode`` said)."""
     end_ns = ending.pop("error_ns", episode.end_ns)
     record = {
         "episode": episode.index,

@@ -18,7 +18,7 @@ from gymnasium.envs.registration import EnvSpec
 from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
-from .file import EvidenceFile
+from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
 from .seeding import capture_rng_state
@@ -34,6 +34,7 @@ __all__ = ["RecordEvidence", "library_versions"]
 
 
 class RecordEvidence(
+    FileRecorder,
     gym.Wrapper[gym.core.ObsType, gym.core.ActType, gym.core.ObsType, gym.core.ActType],
 ):
     """Record every step of every episode of an environment to an MCAP evidence file.
@@ -160,36 +161,14 @@ class RecordEvidence(
     def _on_error(self, exc: Exception, during: str) -> None:
         self._file.end_with_error((self._stream,), exc, during)
 
-    def flush(self) -> None:
-        """Write everything recorded so far to the file now."""
-        self._check_open()
-        self._file.flush()
-
     def close(self) -> None:
         """Finish the evidence file (an open episode is recorded as ``incomplete``) and close.
 
         Safe to call more than once. The environment is closed even if finishing fails.
         """
-        if getattr(self, "_closed", True):
-            return
-        self._closed = True
-        try:
-            self._file.close()
-        finally:
-            super().close()
+        self._close_file(super().close)
 
     @property
     def closed(self) -> bool:
         """Whether the evidence file has been finished."""
         return self._closed
-
-    def __del__(self) -> None:
-        if not getattr(self, "_closed", True):
-            import warnings
-
-            warnings.warn(
-                f"episode-audit: RecordEvidence for {getattr(self, 'path', '?')} was not closed; "
-                "call close() or use it as a context manager",
-                ResourceWarning,
-                stacklevel=2,
-            )

@@ -7,18 +7,13 @@ ended is noted ``env_raised`` on the last of them (``docs/format.md``, "PettingZ
 
 from __future__ import annotations
 
-import os
-from collections.abc import Mapping
 from typing import Any
 
-from pettingzoo import AECEnv
 from pettingzoo.utils.wrappers import BaseWrapper
-from typing_extensions import Unpack
 
 from ...errors import RecorderError
 from ...format.columns import error_text
 from ..notes import note
-from ..settings import RecorderOptions, RecorderSettings, check_options
 from ..stream import Stream
 from .agents import ARGS_DOC, AgentRecorder, Begun
 from .registry import KIND_AEC
@@ -76,28 +71,9 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
     """
 
     __doc__ = (__doc__ or "") + ARGS_DOC
+    _kind = KIND_AEC
 
-    def __init__(
-        self,
-        env: AECEnv,
-        path: str | os.PathLike[str],
-        *,
-        env_id: str | None = None,
-        env_module: str | None = None,
-        env_kwargs: Mapping[str, Any] | None = None,
-        **options: Unpack[RecorderOptions],
-    ) -> None:
-        check_options(options, "RecordAECEvidence.__init__()")
-        super().__init__(env)
-        self._record_to(
-            env,
-            path,
-            KIND_AEC,
-            RecorderSettings(**options),
-            env_id=env_id,
-            env_module=env_module,
-            env_kwargs=env_kwargs,
-        )
+    def _started(self, env: Any) -> None:
         self._begun: dict[Any, Begun | None] = {}
         self._turns = AECTurns(env, self._on_reset, self._on_row)
         self._held: list[_Row] | None = None  # rows closed by the step() under way

@@ -14,13 +14,15 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
+from typing_extensions import Unpack
+
 from ...errors import ConfigurationError
 from ...format.records import to_jsonable
 from ...format.spaces import codec_for, describe_space
 from ..block import Episode
-from ..file import EvidenceFile
+from ..file import EvidenceFile, FileRecorder
 from ..seeding import capture_rng_state
-from ..settings import RecorderSettings, run_info
+from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..stream import Stream
 from .registry import checked_env_id, env_id_of, env_module_of
 
@@ -206,59 +208,56 @@ ARGS_DOC = """
 """The arguments both wrappers' docstrings end with."""
 
 
-class AgentRecorder:
+class AgentRecorder(FileRecorder):
     """What both wrappers share: the recording's setup, ``flush()``, ``close()``, ``with``."""
 
     env: Any
     _rec: AgentStreams
-    _closed: bool
+    _warns_unclosed = False
 
-    def _record_to(
+    _kind: str  # the layout kind: KIND_PARALLEL or KIND_AEC
+
+    def __init__(
         self,
         env: Any,
         path: str | os.PathLike[str],
-        kind: str,
-        settings: RecorderSettings,
         *,
-        env_id: str | None,
-        env_module: str | None,
-        env_kwargs: Mapping[str, Any] | None,
+        env_id: str | None = None,
+        env_module: str | None = None,
+        env_kwargs: Mapping[str, Any] | None = None,
+        **options: Unpack[RecorderOptions],
     ) -> None:
+        check_options(options, f"{type(self).__name__}.__init__()")
+        super().__init__(env)  # type: ignore[call-arg]  # the PettingZoo wrapper's, next in line
         self._rec = AgentStreams(
             env,
             path,
-            kind,
+            self._kind,
             env_id=env_id,
             env_module=env_module,
             env_kwargs=env_kwargs,
-            settings=settings,
+            settings=RecorderSettings(**options),
             owner=self,
         )
+        self._file = self._rec.file
         self.run_info = self._rec.run_info
         self.path = self._rec.path
         self._closed = False
+        self._started(env)
 
-    def _before_close(self) -> None:
-        """Called by :meth:`close` before the file is finished."""
+    def _started(self, env: Any) -> None:
+        """Called at the end of ``__init__``, the file started (a wrapper's own state)."""
 
     def flush(self) -> None:
         """Write everything recorded so far to the file now (open AEC rows stay open)."""
-        self._rec.file.check_open()
-        self._rec.file.flush()
+        super().flush()
 
     def close(self) -> None:
         """Finish the evidence file (open episodes become ``incomplete``) and close the env.
 
         Safe to call more than once. The env is closed even if finishing fails.
         """
-        if getattr(self, "_closed", True):
-            return
-        self._closed = True
-        try:
-            self._before_close()
-            self._rec.file.close()
-        finally:
-            self.env.close()
+        self._close_file(lambda: self.env.close())
 
     def __enter__(self) -> Any:
         return self

@@ -7,15 +7,11 @@ observation it appears with its reset row (``docs/format.md``, "PettingZoo files
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from typing import Any
 
-from pettingzoo import ParallelEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper
-from typing_extensions import Unpack
 
-from ..settings import RecorderOptions, RecorderSettings, check_options
 from .agents import ARGS_DOC, AgentRecorder, agent_result
 from .registry import KIND_PARALLEL
 
@@ -42,28 +38,7 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
     """
 
     __doc__ = (__doc__ or "") + ARGS_DOC
-
-    def __init__(
-        self,
-        env: ParallelEnv,
-        path: str | os.PathLike[str],
-        *,
-        env_id: str | None = None,
-        env_module: str | None = None,
-        env_kwargs: Mapping[str, Any] | None = None,
-        **options: Unpack[RecorderOptions],
-    ) -> None:
-        check_options(options, "RecordParallelEvidence.__init__()")
-        super().__init__(env)
-        self._record_to(
-            env,
-            path,
-            KIND_PARALLEL,
-            RecorderSettings(**options),
-            env_id=env_id,
-            env_module=env_module,
-            env_kwargs=env_kwargs,
-        )
+    _kind = KIND_PARALLEL
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None

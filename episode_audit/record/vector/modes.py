@@ -48,8 +48,9 @@ def autoreset_mode(env: VectorEnv[Any, Any, Any]) -> AutoresetMode:
 class Autoreset:
     """How sub-env episodes begin and steps are recorded sub-env by sub-env (``DISABLED``).
 
-    ``resetting`` lists the sub-envs whose current step only resets them (``NEXT_STEP``);
-    ``batches_endings`` says whether a step that ends an episode may be batched.
+    ``resetting`` lists the sub-envs whose current step only resets them, ``pending_rng`` their
+    RNG states read after the step before (``NEXT_STEP`` only); ``batches_endings`` says
+    whether a step that ends an episode may be batched.
     """
 
     mode = AutoresetMode.DISABLED
@@ -67,6 +68,7 @@ class Autoreset:
         self._clock = clock
         self._no_rng_note = no_rng_note
         self.resetting: list[int] = []
+        self.pending_rng: dict[int, RngState | None] = {}  # of the sub-envs in resetting
 
     def begin(
         self,
@@ -162,16 +164,6 @@ class NextStep(Autoreset):
     """
 
     mode = AutoresetMode.NEXT_STEP
-
-    def __init__(
-        self,
-        streams: Sequence[Stream],
-        rng: SubEnvRng,
-        clock: Callable[[], int],
-        no_rng_note: str | None,
-    ) -> None:
-        super().__init__(streams, rng, clock, no_rng_note)
-        self.pending_rng: dict[int, RngState | None] = {}  # of the sub-envs in resetting
 
     def autoreset(self, i: int, obs: Any, info: Any, now: int, noted: str | None) -> None:
         """Begin sub-env ``i``'s next episode with this step's observation as its reset row."""

@@ -19,7 +19,7 @@ from gymnasium.vector.utils import iterate
 from typing_extensions import Unpack
 
 from ...format.spaces import codec_for, describe_space
-from ..file import EvidenceFile
+from ..file import EvidenceFile, FileRecorder
 from ..rules import find_time_limit
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from .infos import env_infos
@@ -31,7 +31,7 @@ from .steps import VectorSteps
 __all__ = ["RecordVectorEvidence"]
 
 
-class RecordVectorEvidence(gym.vector.VectorWrapper):
+class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
     """Record every sub-env episode of a vector env to one MCAP evidence file.
 
     Each sub-env is a stream of its own (its index is the episodes' ``env_index``); an episode
@@ -221,40 +221,18 @@ class RecordVectorEvidence(gym.vector.VectorWrapper):
             self._file.trouble(trouble)
         self._file.end_with_error(self._streams, exc, "step")
 
-    def flush(self) -> None:
-        """Write everything recorded so far to the file now."""
-        self._file.check_open()
-        self._file.flush()
-
     def close(self, **kwargs: Any) -> None:
         """Finish the evidence file (open episodes are recorded as ``incomplete``) and close.
 
         Safe to call more than once. The vector env is closed even if finishing fails.
         """
-        if getattr(self, "_closed", True):
-            return
-        self._closed = True
-        try:
-            self._file.close()
-        finally:
-            self.env.close(**kwargs)
+        self._close_file(lambda: self.env.close(**kwargs))
 
     def __enter__(self) -> RecordVectorEvidence:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-    def __del__(self) -> None:
-        if not getattr(self, "_closed", True):
-            import warnings
-
-            warnings.warn(
-                f"episode-audit: RecordVectorEvidence for {getattr(self, 'path', '?')} was not "
-                "closed; call close() or use it as a context manager",
-                ResourceWarning,
-                stacklevel=2,
-            )
 
 
 def _sub_spec(
