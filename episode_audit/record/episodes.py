@@ -58,7 +58,8 @@ class EpisodeStream:
 
     Episodes begin with :meth:`begin` (+ :meth:`record_reset`) and end by their flags
     (classified by the file's ending rules), by :meth:`end_open` (``incomplete``) or by
-    :meth:`end_error`; :meth:`write_blocks` writes the rows to the stream's two channels.
+    :meth:`end_error`; :meth:`write_blocks` writes the rows to the stream's two channels. The
+    constructor sets up the whole stream, what :class:`~.stream.Stream`'s steps read included.
     """
 
     def __init__(
@@ -80,6 +81,16 @@ class EpisodeStream:
         self._obs_codec = obs_codec
         self._act_codec = act_codec
         self._rules = settings.rules
+        self._terms_rule = settings.terms_rule
+        self._extract_terms = settings.terms_rule.extractor
+        # How the terms of infos with the last key tuple seen are read (see Stream._plan_terms):
+        # the names (None: ask _extract_terms step by step) and one itemgetter of them
+        self._terms_keys: tuple[Any, ...] | None = None
+        self._terms_names: tuple[str, ...] | None = ()
+        self._terms_get: Callable[[Any], Any] = tuple  # set with the names
+        self._terms_one = False
+        # plans by key tuple: an env that adds a term key on some steps only flips between two
+        self._terms_plans: dict[tuple[Any, ...], tuple[Any, ...]] = {}
         self._info_keys = settings.info_keys
         self._keep_all_info = settings.keep_all_info
         self._track_info = settings.track_info

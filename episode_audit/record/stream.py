@@ -9,13 +9,11 @@ what is odd, never raising into the training loop. How: ``docs/recording.md``.
 from __future__ import annotations
 
 import operator
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from gymnasium.wrappers import TimeLimit
 
-from ..format.spaces import SpaceCodec
 from .episodes import EpisodeStream, StreamFile
 from .notes import add_notes, append_noted, note
 from .values import kept_info, reward_and_terms, step_result, truth_flags
@@ -30,38 +28,6 @@ class Stream(EpisodeStream):
     :meth:`step` per step. Episodes end by their flags (classified by the file's ending rules),
     by :meth:`end_open` (``incomplete``) or by :meth:`end_error`.
     """
-
-    def __init__(
-        self,
-        file: StreamFile,
-        obs_codec: SpaceCodec,
-        act_codec: SpaceCodec,
-        *,
-        env_index: int = 0,
-        agent: str | None = None,
-        time_limit: TimeLimit[Any, Any] | None = None,
-        max_episode_steps: int | None = None,
-    ) -> None:
-        super().__init__(
-            file,
-            obs_codec,
-            act_codec,
-            env_index=env_index,
-            agent=agent,
-            time_limit=time_limit,
-            max_episode_steps=max_episode_steps,
-        )
-        terms_rule = file.settings.terms_rule
-        self._terms_rule = terms_rule
-        self._extract_terms = terms_rule.extractor
-        # How the terms of infos with the last key tuple seen are read (see _plan_terms):
-        # the names (None: ask _extract_terms step by step) and one itemgetter of them
-        self._terms_keys: tuple[Any, ...] | None = None
-        self._terms_names: tuple[str, ...] | None = ()
-        self._terms_get: Callable[[Any], Any] = tuple  # set with the names
-        self._terms_one = False
-        # plans by key tuple: an env that adds a term key on some steps only flips between two
-        self._terms_plans: dict[tuple[Any, ...], tuple[Any, ...]] = {}
 
     # ------------------------------------------------------------------ steps
 

@@ -93,22 +93,12 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         if mode is AutoresetMode.SAME_STEP and sync is not None and install_rng_info:
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
-        layout: dict[str, Any] = {
-            "kind": "vector",
-            "num_envs": n,
-            "agents": [],
-            "autoreset_mode": mode.value,
-            "vector_class": type(base).__name__,
-            "sub_envs": self._sub_envs,
-        }
-        if no_rng_note:
-            layout["replay_note"] = no_rng_note
         self.run_info = run_info(
             settings=settings,
             spec=sub_spec,
             observation_space=describe_space(obs_space),
             action_space=describe_space(act_space),
-            layout=layout,
+            layout=_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note),
             notes=notes,
         )
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
@@ -233,6 +223,23 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _layout(
+    n: int, mode: AutoresetMode, vector_class: str, sub_envs: bool, replay_note: str | None
+) -> dict[str, Any]:
+    """The layout metadata of a vector file (``docs/format.md``, "Multi-stream files")."""
+    layout: dict[str, Any] = {
+        "kind": "vector",
+        "num_envs": n,
+        "agents": [],
+        "autoreset_mode": mode.value,
+        "vector_class": vector_class,
+        "sub_envs": sub_envs,
+    }
+    if replay_note:
+        layout["replay_note"] = replay_note
+    return layout
 
 
 def _sub_spec(
