@@ -1,4 +1,4 @@
-"""Vector-env recording (vector.py): the issue's acceptance, per autoreset mode, Sync and Async.
+"""Vector-env recording (record/vector/): the issue's acceptance, per autoreset mode, Sync, Async.
 
 A vector CartPole-v1 with 4 sub-envs is recorded for 2 000 steps in each mode; its episodes are
 compared with the same sub-envs stepped by hand (independent envs seeded s + i, the same
