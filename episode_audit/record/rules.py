@@ -190,7 +190,8 @@ class RewardTerms:
         """The rule a run metadata's ``reward_terms`` describes: the inverse of :meth:`describe`.
 
         ``None`` for a callable source (``"callable:..."``: a file can only name it). A
-        description without a source is ``"auto"``'s; the constants are kept.
+        description without a source is ``"auto"``'s; the constants are kept (one that is not a
+        finite number, which :meth:`describe` never gives, is a ``ConfigurationError``).
 
         >>> terms = RewardTerms.from_description({"source": ["b", "a"], "constants": {"c": 1.0}})
         >>> terms.source, terms.constants

@@ -5,6 +5,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from episode_audit.errors import ConfigurationError
 from episode_audit.record.rules import Ending, EndingRules, RewardTerms, named_terms
 
 AUTO_CASES: list[tuple[dict[Any, Any], dict[str, Any] | None]] = [
@@ -319,3 +320,8 @@ def test_ending_rules_with_a_callable_are_not_rebuilt(rules: EndingRules) -> Non
 def test_ending_rules_described_without_keys_take_the_defaults() -> None:
     for description in (None, {}, {"success_keys": None, "failure_key": None}):
         assert EndingRules.from_description(description) == EndingRules()
+
+
+def test_reward_terms_from_a_description_refuse_a_constant_describe_never_gives() -> None:
+    with pytest.raises(ConfigurationError, match="constant reward term 'a': expected a finite"):
+        RewardTerms.from_description({"source": "auto", "constants": {"a": float("nan")}})
