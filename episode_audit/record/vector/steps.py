@@ -104,6 +104,7 @@ class VectorSteps:
         self._file = file
         self._streams = streams
         self._autoreset = autoreset
+        self._batches_endings = autoreset.batches_endings  # read per step: kept here
         self._obs_space = obs_space
         self._act_space = act_space
         single_obs, single_act = single_spaces
@@ -163,7 +164,7 @@ class VectorSteps:
                 (type(infos) is dict and not infos)
                 or (type(infos) is list and infos == self._no_infos)
             )
-            and (autoreset.batches_endings or not ends)
+            and (self._batches_endings or not ends)
             and (not idle or idle.issubset(resetting))  # else: notes (before reset, after end)
             and term_given is None  # else: flags to note (not bool)
             and trunc_given is None
