@@ -2,14 +2,16 @@
 
 Public: :class:`RecordEvidence` (Gymnasium), :class:`RecordVectorEvidence` and
 :class:`ResetRngInfo` (vector envs), ``RecordParallelEvidence`` and ``RecordAECEvidence``
-(PettingZoo, imported on first use), and the rules that read an env's info:
-:class:`RewardTerms`, :class:`EndingRules`, :class:`Ending`.
+(PettingZoo, imported on first use), their options (:class:`RecorderOptions`, checked by
+:class:`RecorderSettings`), and the rules that read an env's info: :class:`RewardTerms`,
+:class:`EndingRules`, :class:`Ending`. How recording works: ``docs/recording.md``.
 """
 
 from __future__ import annotations
 
 from .gym import RecordEvidence
 from .rules import Ending, EndingRules, RewardTerms
+from .settings import RecorderOptions, RecorderSettings
 from .vector import RecordVectorEvidence, ResetRngInfo
 
 __all__ = [
@@ -19,6 +21,8 @@ __all__ = [
     "RecordEvidence",
     "RecordParallelEvidence",
     "RecordVectorEvidence",
+    "RecorderOptions",
+    "RecorderSettings",
     "ResetRngInfo",
     "RewardTerms",
 ]

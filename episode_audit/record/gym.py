@@ -1,45 +1,40 @@
-"""Recording wrappers: every step of every episode into one evidence file.
-
-- :class:`RecordEvidence` — a ``gymnasium.Wrapper`` that writes seeds, RNG states, actions,
-  observations, rewards and their named terms, ``terminated`` / ``truncated`` and each episode's
-  outcome to an MCAP evidence file (see ``docs/format.md``).
+"""Record a Gymnasium env: :class:`RecordEvidence`, every step of every episode into one file.
 
 The wrapper is a thin layer over one :class:`~episode_audit.record.stream.Stream` of an
-:class:`~episode_audit.record.stream.EvidenceFile` (the recording core, shared with the vector and
-multi-agent recorders). The hot path only appends to column buffers; rows are turned into Arrow
-blocks when a block is full, when ``flush_every_s`` has passed (checked on each step and reset),
-on ``flush()`` and on ``close()``. Episode records are written at those flushes too.
-A bad value from the environment (a non-numeric reward or term, an observation that does not fit
-its space, an info value JSON cannot hold) is recorded and noted, never raised into the training
-loop. The wrapper raises only for misuse, e.g. stepping after ``close()``.
+:class:`~episode_audit.record.file.EvidenceFile` (the recording core, shared with the vector and
+PettingZoo recorders); its options are those of
+:class:`~episode_audit.record.settings.RecorderSettings`. How steps are recorded, flushed and
+noted: ``docs/recording.md``. The wrapper raises only for misuse, e.g. stepping after
+``close()``; a bad value from the env is recorded and noted.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
 from gymnasium.envs.registration import EnvSpec
+from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
-from .rules import EndingRules, RewardTerms, TermsFn, find_time_limit
+from .file import EvidenceFile, FileRecorder
+from .notes import note, short
+from .rules import find_time_limit
 from .seeding import capture_rng_state
-from .stream import (
-    DEFAULT_BLOCK_STEPS,
-    EvidenceFile,
+from .settings import (
+    RecorderOptions,
     RecorderSettings,
+    check_options,
     library_versions,
-    note,
     run_info,
-    short,
 )
 
 __all__ = ["RecordEvidence", "library_versions"]
 
 
 class RecordEvidence(
+    FileRecorder,
     gym.Wrapper[gym.core.ObsType, gym.core.ActType, gym.core.ObsType, gym.core.ActType],
 ):
     """Record every step of every episode of an environment to an MCAP evidence file.
@@ -66,51 +61,22 @@ class RecordEvidence(
         env: The environment to record.
         path: The evidence file to create. An existing file is never overwritten unless
             ``overwrite=True``.
-        tags: Free-form run tags (policy name, checkpoint, git commit, ...).
-        reward_terms: Where a step's named reward terms come from: ``"auto"`` (``info
-            ["reward_terms"]`` or ``info["reward_*"]``), a list of info keys, a callable
-            ``info -> dict``, a :class:`RewardTerms`, or ``None``.
-        constant_terms: Terms the env adds outside its info, declared once (``check`` adds
-            them to every step's sum).
-        ending_rules: How success, failure labels and truncation reasons are read.
-        info_keys: Info keys to keep per step as JSON: a list of keys, or ``"all"``.
-        digest_min_bytes: Store observation arrays of at least this many bytes as a 16-byte
-            BLAKE2b digest instead of losslessly (for large images); ``None`` keeps all.
-        block_steps: Steps per columnar block (fewer when rows are large, so that the chunk
-            of one flush stays under 32 MiB uncompressed).
-        flush_every_s: Flush at least this often (checked on every step and reset).
-        fsync: ``fsync`` the file on every flush.
-        overwrite: Allow replacing an existing file.
-        command_line: The command line to store (defaults to ``sys.argv``).
+        **options: The recorder options (``tags``, ``reward_terms``, ``constant_terms``,
+            ``ending_rules``, ``info_keys``, ``digest_min_bytes``, ``block_steps``,
+            ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``): see
+            :class:`~episode_audit.record.settings.RecorderSettings`.
     """
 
     def __init__(
         self,
         env: gym.Env[gym.core.ObsType, gym.core.ActType],
         path: str | os.PathLike[str],
-        *,
-        tags: Mapping[str, str] | None = None,
-        reward_terms: RewardTerms | str | Sequence[str] | TermsFn | None = "auto",
-        constant_terms: Mapping[str, float] | None = None,
-        ending_rules: EndingRules | None = None,
-        info_keys: Sequence[str] | str = (),
-        digest_min_bytes: int | None = None,
-        block_steps: int = DEFAULT_BLOCK_STEPS,
-        flush_every_s: float = 1.0,
-        fsync: bool = False,
-        overwrite: bool = False,
-        command_line: Sequence[str] | None = None,
+        **options: Unpack[RecorderOptions],
     ) -> None:
+        check_options(options, "RecordEvidence.__init__()")
         gym.Wrapper.__init__(self, env)
-        settings = RecorderSettings(
-            reward_terms=reward_terms,
-            constant_terms=constant_terms,
-            ending_rules=ending_rules,
-            info_keys=info_keys,
-            digest_min_bytes=digest_min_bytes,
-            block_steps=block_steps,
-            flush_every_s=flush_every_s,
-        )
+        settings = RecorderSettings(**options)
+        digest_min_bytes = settings.digest_min_bytes
         obs_codec = codec_for(env.observation_space, digest_min_bytes=digest_min_bytes)
         act_codec = codec_for(env.action_space)
         self._unwrapped = env.unwrapped
@@ -119,13 +85,9 @@ class RecordEvidence(
             spec=env.spec,
             observation_space=describe_space(env.observation_space),
             action_space=describe_space(env.action_space),
-            tags=tags,
-            command_line=command_line,
             layout={"kind": "single", "num_envs": 1, "agents": []},
         )
-        self._file = EvidenceFile(
-            path, self.run_info, settings, fsync=fsync, overwrite=overwrite, owner=self
-        )
+        self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         self._stream = self._file.add_stream(
             obs_codec, act_codec, env_index=0, time_limit=find_time_limit(env)
@@ -199,36 +161,14 @@ class RecordEvidence(
     def _on_error(self, exc: Exception, during: str) -> None:
         self._file.end_with_error((self._stream,), exc, during)
 
-    def flush(self) -> None:
-        """Write everything recorded so far to the file now."""
-        self._check_open()
-        self._file.flush()
-
     def close(self) -> None:
         """Finish the evidence file (an open episode is recorded as ``incomplete``) and close.
 
         Safe to call more than once. The environment is closed even if finishing fails.
         """
-        if getattr(self, "_closed", True):
-            return
-        self._closed = True
-        try:
-            self._file.close()
-        finally:
-            super().close()
+        self._close_file(super().close)
 
     @property
     def closed(self) -> bool:
         """Whether the evidence file has been finished."""
         return self._closed
-
-    def __del__(self) -> None:
-        if not getattr(self, "_closed", True):
-            import warnings
-
-            warnings.warn(
-                f"episode-audit: RecordEvidence for {getattr(self, 'path', '?')} was not closed; "
-                "call close() or use it as a context manager",
-                ResourceWarning,
-                stacklevel=2,
-            )

@@ -3,7 +3,8 @@
 :class:`RewardTerms` says how a step's named reward terms are read from ``info``;
 :class:`EndingRules` turns a final step's ``terminated`` / ``truncated`` / ``info`` into one
 outcome of the taxonomy (``success``, ``failure``, ``truncated``; ``incomplete`` and ``error``
-are decided by the recorder).
+are decided by the recorder). Both describe themselves for the run metadata and are rebuilt
+from that description (``from_description``). Values they read but do not expect are notes.
 
 >>> RewardTerms().extract({"reward_dist": -0.2, "reward_ctrl": -0.1, "x": 3})
 {'reward_dist': -0.2, 'reward_ctrl': -0.1}
@@ -11,11 +12,6 @@ are decided by the recorder).
 Ending(outcome='success', failure_label=None, truncation_reason=None)
 >>> EndingRules().classify(False, True, {}, time_limit_hit=True)
 Ending(outcome='truncated', failure_label=None, truncation_reason='time_limit')
-
-A value read from ``info`` that the rules take but that is not what they expect (a term name
-that is not a string, a success value that is not a bool, a failure label or truncation reason
-that is not text) is what a recorder note is for: :func:`named_terms` and
-:meth:`EndingRules.classify_or_note` say so, in the words of :func:`note`.
 """
 
 from __future__ import annotations
@@ -26,7 +22,7 @@ import operator
 from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import gymnasium as gym
 import numpy as np
@@ -35,34 +31,19 @@ from gymnasium.wrappers import TimeLimit
 from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.columns import PLAIN_NUMBERS, error_text, text
+from .notes import note, short
 
 __all__ = [
     "Ending",
     "EndingRules",
     "RewardTerms",
     "find_time_limit",
+    "find_wrapper",
     "named_terms",
     "plain_names",
     "plain_time_limit",
     "time_limit_hit",
 ]
-
-_NOTE_LIMIT = 300
-
-
-def short(value: Any) -> str:
-    """``repr(value)``, cut to 80 characters (for notes and messages); never raises."""
-    try:
-        shown = repr(value)
-    except Exception as exc:
-        shown = f"<{type(value).__name__}: repr() raised {type(exc).__name__}>"
-    return shown if len(shown) <= 80 else shown[:77] + "..."
-
-
-def note(code: str, message: str) -> str:
-    """A recorder note ``"code: message"`` (see ``docs/format.md`` for the codes)."""
-    return f"{code}: {message}"[:_NOTE_LIMIT]
-
 
 TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
 
@@ -203,6 +184,29 @@ class RewardTerms:
         else:
             kind = list(src)
         return {"source": kind, "constants": dict(self.constants)}
+
+    @classmethod
+    def from_description(cls, description: Mapping[str, Any] | None) -> RewardTerms | None:
+        """The rule a run metadata's ``reward_terms`` describes: the inverse of :meth:`describe`.
+
+        ``None`` for a callable source (``"callable:..."``: a file can only name it). A
+        description without a source is ``"auto"``'s; the constants are kept (one that is not a
+        finite number, which :meth:`describe` never gives, is a ``ConfigurationError``).
+
+        >>> terms = RewardTerms.from_description({"source": ["b", "a"], "constants": {"c": 1.0}})
+        >>> terms.source, terms.constants
+        (('b', 'a'), {'c': 1.0})
+        >>> RewardTerms.from_description({"source": "callable:my_terms"}) is None
+        True
+        """
+        description = description or {}
+        source = description.get("source", "auto")
+        constants = dict(description.get("constants") or {})
+        if source == "auto" or source is None:
+            return cls(source, constants)
+        if isinstance(source, list):
+            return cls(tuple(str(k) for k in source), constants)
+        return None  # a callable the file can only name
 
 
 def _prefixed(keys: Sequence[Any], prefix: str) -> tuple[str, ...]:
@@ -528,6 +532,36 @@ class EndingRules:
             "failure_fn": _fn_name(self.failure_fn),
         }
 
+    @classmethod
+    def from_description(cls, description: Mapping[str, Any] | None) -> EndingRules | None:
+        """The rules a run metadata's ``ending_rules`` describes: the inverse of :meth:`describe`.
+
+        ``None`` when it names a ``success_fn`` or ``failure_fn`` (a callable cannot be rebuilt
+        from a file). A key that is missing (or null) takes its default.
+
+        >>> rules = EndingRules.from_description({"success_keys": ["done"], "failure_key": "why"})
+        >>> rules.success_keys, rules.failure_key, rules.truncation_reason_key
+        (('done',), 'why', 'truncation_reason')
+        >>> EndingRules.from_description({"success_fn": "my_success"}) is None
+        True
+        """
+        description = description or {}
+        if description.get("success_fn") or description.get("failure_fn"):
+            return None
+        default = cls()
+
+        def given(key: str, value: Any) -> Any:
+            found = description.get(key)
+            return value if found is None else found
+
+        return cls(
+            success_keys=tuple(given("success_keys", default.success_keys)),
+            failure_key=str(given("failure_key", default.failure_key)),
+            truncation_reason_key=str(
+                given("truncation_reason_key", default.truncation_reason_key)
+            ),
+        )
+
 
 _BY_FLAGS = EndingRules()
 """Rules that read nothing from an info: with an empty one, the ending the flags alone give."""
@@ -576,14 +610,22 @@ def _fn_name(fn: Callable[..., Any] | None) -> str | None:
     return None if fn is None else getattr(fn, "__qualname__", type(fn).__name__)
 
 
-def find_time_limit(env: Any) -> TimeLimit[Any, Any] | None:
-    """The outermost Gymnasium ``TimeLimit`` wrapper around ``env``, if any."""
+_W = TypeVar("_W", bound=gym.Wrapper[Any, Any, Any, Any])
+
+
+def find_wrapper(env: Any, kind: type[_W]) -> _W | None:
+    """The outermost wrapper of type ``kind`` around ``env`` (``env`` itself included), if any."""
     current = env
     while isinstance(current, gym.Wrapper):
-        if isinstance(current, TimeLimit):
+        if isinstance(current, kind):
             return current
         current = current.env
     return None
+
+
+def find_time_limit(env: Any) -> TimeLimit[Any, Any] | None:
+    """The outermost Gymnasium ``TimeLimit`` wrapper around ``env``, if any."""
+    return find_wrapper(env, TimeLimit)
 
 
 def plain_time_limit(env: Any) -> tuple[Any, int] | None:

@@ -104,20 +104,9 @@ class EvidenceWriter:
         metadata: Mapping[str, str] | None = None,
     ) -> int:
         """Register a channel of Arrow IPC stream messages (the MCAP schema is the Arrow schema)."""
-        self._check_open()
-        schema_id = self._writer.register_schema(
-            name=schema_name,
-            encoding=fmt.ARROW_ENCODING,
-            data=schema.serialize().to_pybytes(),
-        )
-        return int(
-            self._writer.register_channel(
-                topic=topic,
-                message_encoding=fmt.ARROW_ENCODING,
-                schema_id=schema_id,
-                metadata=dict(metadata or {}),
-            )
-        )
+        data = schema.serialize().to_pybytes()
+        schema_id = self.register_schema(schema_name, fmt.ARROW_ENCODING, data)
+        return self.register_channel(topic, fmt.ARROW_ENCODING, schema_id, metadata)
 
     def register_json_channel(
         self,
@@ -127,20 +116,9 @@ class EvidenceWriter:
         metadata: Mapping[str, str] | None = None,
     ) -> int:
         """Register a channel of JSON messages described by a JSON Schema."""
-        self._check_open()
-        schema_id = self._writer.register_schema(
-            name=schema_name,
-            encoding=fmt.JSONSCHEMA_ENCODING,
-            data=json.dumps(json_schema).encode(),
-        )
-        return int(
-            self._writer.register_channel(
-                topic=topic,
-                message_encoding=fmt.JSON_ENCODING,
-                schema_id=schema_id,
-                metadata=dict(metadata or {}),
-            )
-        )
+        data = json.dumps(json_schema).encode()
+        schema_id = self.register_schema(schema_name, fmt.JSONSCHEMA_ENCODING, data)
+        return self.register_channel(topic, fmt.JSON_ENCODING, schema_id, metadata)
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """Register an MCAP schema as given (recovery copies them); returns its id."""

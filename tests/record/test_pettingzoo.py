@@ -1,4 +1,4 @@
-"""PettingZoo recording (multiagent.py), replay (replay_agents.py) and reporting.
+"""PettingZoo recording (record/pettingzoo/), replay (replay/pettingzoo.py) and reporting.
 
 Real PettingZoo envs: tictactoe and connect four (AEC, action masks), rock-paper-scissors and
 knights-archers-zombies (Parallel; KAZ agents die and leave mid-game). Ground truth comes from a

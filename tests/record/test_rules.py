@@ -5,6 +5,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from episode_audit.errors import ConfigurationError
 from episode_audit.record.rules import Ending, EndingRules, RewardTerms, named_terms
 
 AUTO_CASES: list[tuple[dict[Any, Any], dict[str, Any] | None]] = [
@@ -247,3 +248,80 @@ def test_a_truncation_reason_that_is_not_text_is_noted_and_the_reason_stays_as_i
         ending,
         None,
     )
+
+
+def _terms_fn(info: Any) -> dict[str, float]:
+    return {"a": 1.0}
+
+
+@pytest.mark.parametrize(
+    "terms",
+    [
+        RewardTerms(),
+        RewardTerms(None),
+        RewardTerms(["reward_b", "reward_a"]),
+        RewardTerms(("x",), {"alive": 1.0, "bonus": -0.5}),
+        RewardTerms("auto", {"alive": 2}),
+    ],
+    ids=["auto", "none", "list", "list_constants", "auto_constants"],
+)
+def test_reward_terms_are_rebuilt_from_their_description(terms: RewardTerms) -> None:
+    rebuilt = RewardTerms.from_description(terms.describe())
+    assert rebuilt is not None
+    assert rebuilt.describe() == terms.describe()
+    info = {"reward_a": 1.0, "reward_b": 2.0, "x": 3.0, "reward_terms": None}
+    assert rebuilt.extract(info) == terms.extract(info)
+
+
+def test_reward_terms_from_a_callable_are_not_rebuilt() -> None:
+    described = RewardTerms(_terms_fn).describe()
+    assert described["source"] == "callable:_terms_fn"
+    assert RewardTerms.from_description(described) is None
+
+
+def test_reward_terms_described_without_a_source_are_auto() -> None:
+    for description in (None, {}, {"constants": None}):
+        assert RewardTerms.from_description(description) == RewardTerms()
+
+
+@pytest.mark.parametrize(
+    "rules",
+    [
+        EndingRules(),
+        EndingRules(success_keys=("done", "won"), failure_key="why", truncation_reason_key="cut"),
+        EndingRules(success_keys=()),
+        EndingRules(success_keys=["is_success"]),
+    ],
+    ids=["default", "custom", "no_success_keys", "list"],
+)
+def test_ending_rules_are_rebuilt_from_their_description(rules: EndingRules) -> None:
+    rebuilt = EndingRules.from_description(rules.describe())
+    assert rebuilt is not None
+    assert rebuilt.describe() == rules.describe()
+    info = {"success": True, "won": True, "why": "fell", "failure": "slipped"}
+    assert rebuilt.classify(True, False, info, time_limit_hit=False) == rules.classify(
+        True, False, info, time_limit_hit=False
+    )
+
+
+@pytest.mark.parametrize(
+    "rules",
+    [
+        EndingRules(success_fn=lambda info: True),
+        EndingRules(failure_fn=lambda info: "fell"),
+        EndingRules(success_fn=lambda info: True, failure_fn=lambda info: "fell"),
+    ],
+    ids=["success_fn", "failure_fn", "both"],
+)
+def test_ending_rules_with_a_callable_are_not_rebuilt(rules: EndingRules) -> None:
+    assert EndingRules.from_description(rules.describe()) is None
+
+
+def test_ending_rules_described_without_keys_take_the_defaults() -> None:
+    for description in (None, {}, {"success_keys": None, "failure_key": None}):
+        assert EndingRules.from_description(description) == EndingRules()
+
+
+def test_reward_terms_from_a_description_refuse_a_constant_describe_never_gives() -> None:
+    with pytest.raises(ConfigurationError, match="constant reward term 'a': expected a finite"):
+        RewardTerms.from_description({"source": "auto", "constants": {"a": float("nan")}})

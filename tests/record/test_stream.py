@@ -1,4 +1,4 @@
-"""The multi-stream recording core (streams.py) and how the reader reads multi-stream files."""
+"""The multi-stream recording core (file.py, stream.py) and how the reader reads such files."""
 
 from __future__ import annotations
 
@@ -13,12 +13,13 @@ import pyarrow.compute as pc
 import pytest
 from mcap.reader import make_reader
 
-import episode_audit.record.stream as streams
+import episode_audit.record.file as evidence_file
 from episode_audit import RecorderError, RecordEvidence, check, open_evidence
 from episode_audit.format import names as fmt
 from episode_audit.format.spaces import codec_for, describe_space
+from episode_audit.record.file import EvidenceFile
 from episode_audit.record.rules import find_time_limit
-from episode_audit.record.stream import EvidenceFile, RecorderSettings, run_info
+from episode_audit.record.settings import DEFAULT_BLOCK_STEPS, RecorderSettings, run_info
 
 STREAMS = 3
 
@@ -42,14 +43,12 @@ def _hand_rollouts(seed: int, stream: int, episodes: int) -> list[tuple[int, flo
 def _record_streams(path: Path, *, games: bool = False, episodes: int = 6) -> dict[str, Any]:
     """Several CartPole envs stepped in turn, each its own stream, flushed every few steps."""
     envs = [gym.make("CartPole-v1", max_episode_steps=40) for _ in range(STREAMS)]
-    settings = RecorderSettings(block_steps=7)
+    settings = RecorderSettings(block_steps=7, command_line=["test"])
     run = run_info(
         settings=settings,
         spec=envs[0].spec,
         observation_space=describe_space(envs[0].observation_space),
         action_space=describe_space(envs[0].action_space),
-        tags=None,
-        command_line=["test"],
         layout={"kind": "vector", "num_envs": STREAMS, "agents": []},
     )
     file = EvidenceFile(path, run, settings, games=games)
@@ -242,7 +241,7 @@ def test_large_rows_make_smaller_blocks_than_block_steps(
 ) -> None:
     # Blocks are sized so one flush's chunk stays under the target (the reader refuses
     # records over 1 GiB); here the target is 2 MiB, so 5 rows of 400 kB per block.
-    monkeypatch.setattr(streams, "CHUNK_TARGET_BYTES", 2 << 20)
+    monkeypatch.setattr(evidence_file, "CHUNK_TARGET_BYTES", 2 << 20)
     path = tmp_path / "big.mcap"
     with RecordEvidence(_BigObservations(), path, flush_every_s=3600.0) as env:
         env.reset(seed=0)
@@ -251,7 +250,7 @@ def test_large_rows_make_smaller_blocks_than_block_steps(
     ev = open_evidence(path)
     sizes = [batch.num_rows for batch in ev.iter_step_batches()]
     assert sum(sizes) == 12
-    assert ev.run.recorder["block_steps"] == streams.DEFAULT_BLOCK_STEPS  # as configured
+    assert ev.run.recorder["block_steps"] == DEFAULT_BLOCK_STEPS  # as configured
     with open(path, "rb") as f:
         blocks = [
             pa.ipc.open_stream(m.data).read_all().num_rows
@@ -268,14 +267,12 @@ def test_begin_notes_options_it_cannot_hold_and_keeps_a_callers_rng_reason(
     the episode boundary); a caller's own rng_state_unavailable reason got a second, generic,
     false one beside it."""
     env = gym.make("CartPole-v1")
-    settings = RecorderSettings()
+    settings = RecorderSettings(command_line=["test"])
     run = run_info(
         settings=settings,
         spec=env.spec,
         observation_space=describe_space(env.observation_space),
         action_space=describe_space(env.action_space),
-        tags=None,
-        command_line=["test"],
         layout={"kind": "single"},
     )
     path = tmp_path / "begin.mcap"

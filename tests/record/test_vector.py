@@ -1,4 +1,4 @@
-"""Vector-env recording (vector.py): the issue's acceptance, per autoreset mode, Sync and Async.
+"""Vector-env recording (record/vector/): the issue's acceptance, per autoreset mode, Sync, Async.
 
 A vector CartPole-v1 with 4 sub-envs is recorded for 2 000 steps in each mode; its episodes are
 compared with the same sub-envs stepped by hand (independent envs seeded s + i, the same
@@ -309,7 +309,7 @@ def test_terms_and_endings_come_from_each_sub_envs_info(tmp_path: Path) -> None:
 
 
 def test_env_infos_picks_one_sub_envs_values() -> None:
-    from episode_audit.record.vector import _env_infos
+    from episode_audit.record.vector.infos import env_infos as _env_infos
 
     infos = {
         "a": np.array([1.0, 2.0]),

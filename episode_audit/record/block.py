@@ -1,0 +1,459 @@
+"""One stream's rows not yet written, and how they become step and reset record batches.
+
+- :class:`Episode` — the running state of one open episode of a stream.
+- :class:`Block` — column buffers of a stream's steps and resets since its last write.
+- :func:`count_block` — add a block's rows to their episodes (lengths, returns, term totals).
+- :func:`step_batch`, :func:`reset_batch` — a block as the Arrow batches a flush writes.
+- :func:`row_bytes` — the estimated bytes of one step row (for sizing blocks).
+"""
+
+from __future__ import annotations
+
+from array import array
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from ..format import names as fmt
+from ..format.columns import TERMS_TYPE, text_array
+from ..format.records import to_json, to_jsonable
+from ..format.spaces import ColumnBuffer, SpaceCodec
+from .notes import add_notes, note, short
+from .rules import named_terms, plain_names
+
+__all__ = ["Block", "Episode", "count_block", "reset_batch", "row_bytes", "step_batch"]
+
+_Int64s = np.ndarray[Any, np.dtype[np.int64]]
+
+_OTHER_COLUMNS_BYTES = 64  # episode, step, time, reward, flags, offsets of a step row
+
+
+class Episode:
+    """Running state of one open episode of a stream."""
+
+    __slots__ = (
+        "after_end",
+        "agent",
+        "end_ns",
+        "ended",
+        "env_index",
+        "game",
+        "index",
+        "notes",
+        "options",
+        "options_json",
+        "ret",
+        "rng_json",
+        "rng_state",
+        "seed",
+        "start_ns",
+        "steps",
+        "totals",
+    )
+
+    def __init__(
+        self,
+        index: int,
+        seed: int | None,
+        rng_state: dict[str, Any] | None,
+        options: Any,
+        start_ns: int,
+        env_index: int = 0,
+        agent: str | None = None,
+        game: int | None = None,
+    ) -> None:
+        self.index = index
+        self.seed = seed
+        self.rng_state = rng_state
+        self.rng_json: bytes | None = None if rng_state is None else to_json(rng_state)
+        self.options = options
+        self.options_json: str | None = None if options is None else to_json(options).decode()
+        self.start_ns = start_ns
+        self.end_ns = start_ns
+        self.steps = 0
+        self.after_end = 0  # rows stepped after it ended, in blocks already written
+        self.ret = 0.0
+        self.totals: dict[str, float] = {}
+        self.notes = 0
+        self.ended = False
+        self.env_index = env_index
+        self.agent = agent
+        self.game = game
+
+    def next_step(self) -> int:
+        """The step index of its next row in a new block (rows after its end number on)."""
+        return self.steps + self.after_end
+
+
+class Block:
+    """Column buffers of one stream's steps (and resets) not yet written.
+
+    Per step only the observation and action buffers and the ``times`` / ``rewards`` C arrays
+    grow (plus the flat ``term_*`` arrays when the step has reward terms); the episode and step
+    index columns, episode lengths, returns and term totals are derived at flush time from
+    ``segments``; flags, outcomes, info and notes are kept sparsely, by row.
+    """
+
+    __slots__ = (
+        "act",
+        "ends",
+        "episodes",
+        "flags",
+        "info",
+        "notes",
+        "obs",
+        "pending",
+        "raw_names",
+        "reset_info",
+        "reset_notes",
+        "reset_obs",
+        "resets",
+        "rewards",
+        "segments",
+        "term_counts",
+        "term_keys",
+        "term_rows",
+        "term_vals",
+        "times",
+    )
+
+    def __init__(
+        self, obs_codec: SpaceCodec, act_codec: SpaceCodec, episode: Episode | None
+    ) -> None:
+        self.obs: ColumnBuffer = obs_codec.new_buffer()
+        self.act: ColumnBuffer = act_codec.new_buffer()
+        self.times = array("q")  # monotonic ns of each step
+        self.rewards = array("d")
+        # (first row, episode index, step index of that row, counted): a new one at every
+        # reset; rows of a segment that is not counted were stepped after their episode ended.
+        self.segments: list[tuple[int, int, int, bool]] = []
+        self.episodes: dict[int, Episode] = {}
+        if episode is not None:
+            self.add_segment(0, episode, episode.next_step(), not episode.ended)
+        self.flags: dict[int, tuple[bool, bool]] = {}  # rows with terminated or truncated set
+        # reward terms, flat: for each row that has terms, its row, count, keys and values
+        self.term_rows = array("q")
+        self.term_counts = array("q")
+        self.term_keys: list[Any] = []
+        self.term_vals = array("d")
+        # whether add_terms took keys as an extractor gave them (named at flush: count_block)
+        self.raw_names = False
+        self.ends: dict[int, tuple[str, str | None]] = {}
+        self.info: dict[int, dict[str, Any]] = {}
+        self.notes: dict[int, list[str]] = {}
+        # resets: (episode, monotonic ns, seed, rng_state JSON, options JSON, game)
+        self.reset_obs: ColumnBuffer = obs_codec.new_buffer()
+        self.resets: list[tuple[int, int, int | None, str | None, str | None, int | None]] = []
+        self.reset_info: dict[int, dict[str, Any]] = {}
+        self.reset_notes: dict[int, list[str]] = {}
+        # rows a batching recorder has taken but not yet handed over with Stream.extend
+        self.pending = 0
+
+    def rows(self) -> int:
+        """Rows of the block, counting the ``pending`` ones not yet handed over."""
+        return len(self.times) + self.pending
+
+    def add_segment(self, row: int, episode: Episode, first_step: int, counted: bool) -> None:
+        """From ``row`` on, rows are ``episode``'s, numbered from ``first_step``."""
+        self.segments.append((row, episode.index, first_step, counted))
+        self.episodes[episode.index] = episode
+
+    def next_step_index(self) -> int:
+        """The step index the next row of the last segment's episode gets."""
+        row, _, first, _ = self.segments[-1]
+        return first + self.rows() - row
+
+    def add_terms(self, row: int, keys: Any, values: list[float]) -> None:
+        """Add a row's terms, its keys as they are (named by the one rule at flush)."""
+        self.raw_names = True
+        self.term_rows.append(row)
+        self.term_counts.append(len(values))
+        self.term_keys.extend(keys)
+        self.term_vals.extend(values)
+
+    def roll_back(self) -> int:
+        """Drop what a step appended before it was committed; return the committed rows.
+
+        A fast path may append an observation, an action, a reward or term values and then
+        bail out: every column is cut back to the committed row count, so they stay aligned.
+        """
+        rows = len(self.times)
+        self.obs.truncate(rows)
+        self.act.truncate(rows)
+        del self.rewards[rows:]
+        del self.term_vals[len(self.term_keys) :]
+        return rows
+
+    def add_after_end(self, row: int, episode: Episode) -> None:
+        """Row ``row`` is stepped after ``episode`` ended: it numbers on, it is not counted."""
+        last = self.segments[-1] if self.segments else None
+        if last is None or last[1] != episode.index or last[3]:
+            first = (
+                self.next_step_index()
+                if last is not None and last[1] == episode.index
+                else episode.next_step()
+            )
+            self.add_segment(row, episode, first, False)
+
+
+def row_bytes(obs_codec: SpaceCodec, act_codec: SpaceCodec) -> int:
+    """Estimated bytes of one step row of these codecs (for sizing blocks)."""
+    return (
+        _type_bytes(obs_codec.field("o").type)
+        + _type_bytes(act_codec.field("a").type)
+        + _OTHER_COLUMNS_BYTES
+    )
+
+
+def _type_bytes(kind: pa.DataType) -> int:
+    """Bytes of one value of ``kind`` (a guess of 64 for variable-size types)."""
+    if pa.types.is_fixed_size_list(kind):
+        return int(kind.list_size) * _type_bytes(kind.value_type)
+    if pa.types.is_struct(kind):
+        return sum(_type_bytes(kind.field(i).type) for i in range(kind.num_fields))
+    try:
+        return max(1, int(kind.bit_width) // 8)
+    except ValueError:
+        return 64
+
+
+# ---------------------------------------------------------------------- counting a block
+
+
+def count_block(block: Block, n: int) -> tuple[_Int64s, _Int64s, pa.Array]:
+    """Add a block's ``n`` step rows to their episodes (length, return, end time, term totals).
+
+    Returns the block's episode and step index columns and its ``terms`` column. Rows stepped
+    after an episode ended are not counted.
+    """
+    episode_col, step_col = _index_columns(block.segments, n)
+    rewards = np.frombuffer(block.rewards, dtype=np.float64)
+    segments = block.segments
+    counted = np.zeros(n, dtype=np.bool_)
+    for i, (start, index, _, live) in enumerate(segments):
+        end = segments[i + 1][0] if i + 1 < len(segments) else n
+        if end > start and live:
+            ep = block.episodes[index]
+            ep.steps += end - start
+            ep.ret += float(np.add.reduce(rewards[start:end]))
+            ep.end_ns = block.times[end - 1]
+            counted[start:end] = True
+        elif end > start:  # stepped after the end: numbered on, not counted
+            block.episodes[index].after_end += end - start
+    return episode_col, step_col, _terms_column(block, n, episode_col, counted)
+
+
+def _index_columns(
+    segments: Sequence[tuple[int, int, int, bool]], n: int
+) -> tuple[_Int64s, _Int64s]:
+    """Episode and step index per row, from the block's segments."""
+    if not segments or segments[0][0] != 0:
+        segments = [(0, -1, 0, False), *segments]  # rows before any reset: no episode
+    starts = np.array([s[0] for s in segments], dtype=np.int64)
+    lengths = np.diff(np.append(starts, n))
+    episode = np.repeat(np.array([s[1] for s in segments], dtype=np.int64), lengths)
+    first = np.repeat(np.array([s[2] for s in segments], dtype=np.int64) - starts, lengths)
+    return episode, np.arange(n, dtype=np.int64) + first
+
+
+def _terms_column(
+    block: Block, n: int, episode_col: _Int64s, counted: np.ndarray[Any, np.dtype[np.bool_]]
+) -> pa.Array:
+    """The block's ``terms`` column; the counted rows' terms are added to their episodes."""
+    if not block.term_rows:
+        return pa.nulls(n, TERMS_TYPE)
+    rows = np.frombuffer(block.term_rows, dtype=np.int64)
+    counts = np.frombuffer(block.term_counts, dtype=np.int64)
+    values = np.frombuffer(block.term_vals, dtype=np.float64)
+    keys = block.term_keys
+    if block.raw_names and not plain_names(set(keys)):
+        counts, keys, values = _named_block_terms(block, episode_col)
+    key_array = text_array(keys)  # every name plain (or named): as it is
+    per_value = np.repeat(rows, counts)
+    keep = counted[per_value]
+    totals = (
+        pa.table({"e": pa.array(episode_col[per_value]), "k": key_array, "v": pa.array(values)})
+        .filter(pa.array(keep))
+        .group_by(["e", "k"], use_threads=False)
+        .aggregate([("v", "sum")])
+    )
+    for e, k, v in zip(
+        totals.column("e").to_pylist(),
+        totals.column("k").to_pylist(),
+        totals.column("v_sum").to_pylist(),
+        strict=True,
+    ):
+        ep_totals = block.episodes[e].totals
+        ep_totals[k] = ep_totals.get(k, 0.0) + v
+    row_counts = np.zeros(n, dtype=np.int64)
+    row_counts[rows] = counts
+    offsets = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(row_counts, out=offsets[1:])
+    valid = np.zeros(n, dtype=np.bool_)
+    valid[rows] = True
+    return pa.MapArray.from_arrays(
+        pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
+    )
+
+
+def _named_block_terms(
+    block: Block, episode_col: _Int64s
+) -> tuple[_Int64s, list[str], np.ndarray[Any, np.dtype[np.float64]]]:
+    """The block's term counts, names and values, each row's named by :func:`named_terms`.
+
+    For a block whose keys are not all plain names (``b"a"``, ``1``, ``"1"``): as the slow
+    path names a step's terms, with its ``terms_name_collision`` note.
+    """
+    keys = block.term_keys
+    values = block.term_vals
+    counts = array("q")
+    names: list[str] = []
+    named_values = array("d")
+    start = 0
+    for row, count in zip(block.term_rows, block.term_counts, strict=True):
+        end = start + count
+        terms, shared = named_terms(keys[start:end], values[start:end])
+        start = end
+        if shared is not None:
+            episode = block.episodes.get(int(episode_col[row]))
+            add_notes(episode, block.notes, row, [note("terms_name_collision", shared)])
+        counts.append(len(terms))
+        names.extend(terms)
+        named_values.extend(terms.values())
+    return (
+        np.frombuffer(counts, dtype=np.int64),
+        names,
+        np.frombuffer(named_values, dtype=np.float64),
+    )
+
+
+# ---------------------------------------------------------------------- record batches
+
+
+def step_batch(
+    block: Block,
+    counted: tuple[_Int64s, _Int64s, pa.Array],
+    schema: pa.Schema,
+    wall_offset: int,
+) -> tuple[pa.RecordBatch, int]:
+    """The block's step rows as a batch of ``schema`` (``counted``: :func:`count_block`'s).
+
+    Also the wall-clock time of its last row. Notes found now (``info_unserializable``)
+    count in the episodes' records, written after this (flush).
+    """
+    episode, step, terms = counted
+    n = len(block.times)
+    times = np.frombuffer(block.times, dtype=np.int64) + wall_offset
+    terminated = np.zeros(n, dtype=np.bool_)
+    truncated = np.zeros(n, dtype=np.bool_)
+    for row, (term, trunc) in block.flags.items():
+        terminated[row] = term
+        truncated[row] = trunc
+    outcome: list[str | None] = [None] * n
+    label: list[str | None] = [None] * n
+    for row, (out, lab) in block.ends.items():
+        outcome[row] = out
+        label[row] = lab
+    episode_at = block.episodes.get
+    info = _info_column(n, block.info, block.notes, lambda row: episode_at(int(episode[row])))
+    columns = {
+        fmt.COL_EPISODE: pa.array(episode),
+        fmt.COL_STEP: pa.array(step),
+        fmt.COL_TIME: pa.array(times),
+        fmt.COL_ACTION: block.act.finish(),
+        fmt.COL_OBSERVATION: block.obs.finish(),
+        fmt.COL_REWARD: pa.array(np.frombuffer(block.rewards, dtype=np.float64)),
+        fmt.COL_TERMS: terms,
+        fmt.COL_TERMINATED: pa.array(terminated),
+        fmt.COL_TRUNCATED: pa.array(truncated),
+        fmt.COL_OUTCOME: pa.array(outcome, pa.string()),
+        fmt.COL_LABEL: pa.array(label, pa.string()),
+        fmt.COL_INFO: info,
+        fmt.COL_NOTES: _notes_column(n, block.notes),
+    }
+    return _batch(columns, schema), int(times[-1])
+
+
+def reset_batch(
+    block: Block,
+    schema: pa.Schema,
+    wall_offset: int,
+    env_index: int,
+    agent: str | None,
+    multi_stream: bool,
+) -> tuple[pa.RecordBatch, int]:
+    """The block's reset rows as a batch of ``schema``, and the wall-clock time of the last.
+
+    Reset rows of a multi-stream file also say whose they are (``agent``) and their game.
+    """
+    n = len(block.resets)
+    episode_r, mono_r, seeds, rng, options, games = zip(*block.resets, strict=True)
+    times = np.fromiter(mono_r, dtype=np.int64, count=n) + wall_offset
+    columns = {
+        fmt.COL_EPISODE: pa.array(np.fromiter(episode_r, dtype=np.int64, count=n)),
+        fmt.COL_ENV_INDEX: pa.array(np.full(n, env_index, dtype=np.int64)),
+        fmt.COL_TIME: pa.array(times),
+        fmt.COL_SEED: pa.array(seeds, pa.int64()),
+        fmt.COL_RNG_STATE: pa.array(rng, pa.string()),
+        fmt.COL_OPTIONS: pa.array(options, pa.string()),
+        fmt.COL_OBSERVATION: block.reset_obs.finish(),
+        fmt.COL_INFO: _info_column(
+            n,
+            block.reset_info,
+            block.reset_notes,
+            lambda row: block.episodes.get(block.resets[row][0]),
+        ),
+        fmt.COL_NOTES: _notes_column(n, block.reset_notes),
+    }
+    if multi_stream:
+        columns[fmt.COL_AGENT] = pa.array([agent] * n, pa.string())
+        columns[fmt.COL_GAME] = pa.array(games, pa.int64())
+    return _batch(columns, schema), int(times[-1])
+
+
+def _batch(columns: dict[str, pa.Array], schema: pa.Schema) -> pa.RecordBatch:
+    """A record batch of ``schema`` from its columns by name."""
+    return pa.RecordBatch.from_arrays([columns[name] for name in schema.names], schema=schema)
+
+
+def _info_column(
+    rows: int,
+    info: dict[int, dict[str, Any]],
+    notes: dict[int, list[str]],
+    episode_of: Callable[[int], Episode | None],
+) -> pa.Array:
+    """The ``info`` column of ``rows`` rows: each kept info as JSON (null where none).
+
+    A value JSON cannot hold is written as its ``repr`` and noted ``info_unserializable`` in
+    ``notes``, counted in the episode ``episode_of(row)`` (see :func:`~.notes.add_notes`).
+    """
+    if not info:
+        return pa.nulls(rows, pa.string())
+    values: list[str | None] = [None] * rows
+    for row, data in info.items():
+        try:
+            values[row] = to_json(data).decode()
+        except Exception:  # TypeError, ValueError, RecursionError (a cycle), a raising __str__
+            safe: dict[str, Any] = {}
+            for key, value in data.items():
+                name = key if isinstance(key, str) else short(key)
+                try:
+                    to_json(value)
+                    safe[name] = to_jsonable(value)
+                except Exception:
+                    safe[name] = f"<unserializable {type(value).__name__}: {short(value)}>"
+                    what = f"info[{short(key)}] is a {type(value).__name__}"
+                    add_notes(episode_of(row), notes, row, [note("info_unserializable", what)])
+            values[row] = to_json(safe).decode()
+    return pa.array(values, pa.string())
+
+
+def _notes_column(rows: int, notes: dict[int, list[str]]) -> pa.Array:
+    if not notes:
+        return pa.nulls(rows, pa.string())
+    values: list[str | None] = [None] * rows
+    for row, items in notes.items():
+        values[row] = to_json(items).decode()
+    return pa.array(values, pa.string())

@@ -1,0 +1,415 @@
+"""One evidence file being recorded: its streams, episode records, flushes and close.
+
+- :class:`EvidenceFile` — owns the writer, the run metadata, the episode channels, the clock,
+  flush timing, counts and ``close()``; streams are added with ``add_stream``.
+- The episode records of ended episodes are written at each flush (one JSON message each and
+  one Arrow block, ``docs/format.md``, "Episode records").
+- Files whose recorder was never closed are finished when the interpreter exits normally.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import time
+import weakref
+from collections.abc import Callable, Iterable
+from datetime import datetime, timezone
+from typing import Any, Protocol
+
+import pyarrow as pa
+from gymnasium.wrappers import TimeLimit
+
+from .._version import __version__
+from ..errors import RecorderError
+from ..format import names as fmt
+from ..format.columns import error_text, terms_column, text
+from ..format.records import EPISODE_SCHEMA, RunInfo, to_json
+from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
+from ..format.spaces import SpaceCodec
+from .block import Episode
+from .settings import RecorderSettings
+from .stream import Stream
+from .writer import EvidenceWriter
+
+__all__ = ["CHUNK_TARGET_BYTES", "EvidenceFile", "FileRecorder"]
+
+CHUNK_TARGET_BYTES = 32 << 20
+"""Largest uncompressed chunk the recorder aims for: a flush comes after at most this many
+bytes of step rows over every stream, whatever ``block_steps`` says (large observations), so
+the rows a recorder holds stay small and files stay far inside the reader's 1 GiB record cap
+(``reader.MAX_RECORD_BYTES``)."""
+
+_TROUBLE_TEXT = 500  # characters of the first trouble kept in the run-end record
+
+
+class _Owner(Protocol):
+    def close(self) -> None: ...
+
+
+class FileRecorder:
+    """What every recorder does with its evidence file (``_file``, which the recorder opens).
+
+    ``flush()``; finishing the file once, on the recorder's ``close()``; and a warning when a
+    recorder that warns (``_warns_unclosed``) is dropped with its file still open.
+    """
+
+    _file: EvidenceFile
+    _closed: bool
+    _warns_unclosed = True
+
+    def flush(self) -> None:
+        """Write everything recorded so far to the file now."""
+        self._file.check_open()
+        self._file.flush()
+
+    def _before_close(self) -> None:
+        """Called before the file is finished (by :meth:`_close_file`)."""
+
+    def _close_file(self, close_env: Callable[[], None]) -> None:
+        """Finish the file; safe to call more than once. ``close_env`` runs even if it fails."""
+        if getattr(self, "_closed", True):
+            return
+        self._closed = True
+        try:
+            self._before_close()
+            self._file.close()
+        finally:
+            close_env()
+
+    def __del__(self) -> None:
+        if self._warns_unclosed and not getattr(self, "_closed", True):
+            import warnings
+
+            warnings.warn(
+                f"episode-audit: {type(self).__name__} for {getattr(self, 'path', '?')} was not "
+                "closed; call close() or use it as a context manager",
+                ResourceWarning,
+                stacklevel=2,
+            )
+
+
+class EvidenceFile:
+    """One evidence file being recorded: run metadata, episode channels, flushes, close.
+
+    Streams are added with :meth:`add_stream`; :meth:`flush` writes every stream's pending
+    blocks and the records of the episodes ended since the previous flush, in one chunk.
+
+    Args:
+        path: The evidence file to create (never overwritten unless ``settings.overwrite``).
+        run: The run metadata (``layout`` says how many streams there are and of what kind).
+        settings: The recorder settings (the same for every stream; ``fsync``, ``overwrite``).
+        games: Whether episode records and reset rows carry a ``game`` (PettingZoo files).
+        owner: The wrapper to ``close()`` when the interpreter exits with the file still open.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        run: RunInfo,
+        settings: RecorderSettings,
+        *,
+        games: bool = False,
+        owner: _Owner | None = None,
+    ) -> None:
+        self.run = run
+        self.settings = settings
+        self.games = games
+        self.multi = run.layout.get("kind", "single") != "single"
+        self.block_steps = settings.block_steps
+        self.flush_ns = int(settings.flush_every_s * 1e9)
+        # Clock: monotonic for ordering, anchored to the wall clock once.
+        self.clock = time.monotonic_ns
+        self.wall_offset = time.time_ns() - time.monotonic_ns()
+        self._episode_schema = EPISODE_BLOCK_SCHEMA if games else EPISODE_BLOCK_BASE
+        self.pending: list[tuple[Episode, dict[str, Any]]] = []
+        self.streams: list[Stream] = []
+        # called first by every flush (a batching recorder hands over its rows)
+        self.before_flush: list[Callable[[], None]] = []
+        self.writer = EvidenceWriter(
+            path,
+            library=f"episode-audit {__version__}",
+            fsync=settings.fsync,
+            overwrite=settings.overwrite,
+        )
+        self.path = self.writer.path
+        try:
+            self.writer.add_metadata(fmt.METADATA_RUN, run.to_metadata())
+        except BaseException:
+            self.writer.abandon()
+            raise
+        self._episodes_channel = self._episode_blocks_channel = -1
+        self.started = False
+        self.next_episode = 0
+        self.last_flush = self.clock()
+        self.flush_at = self.last_flush + self.flush_ns  # when flush_every_s will have passed
+        self.closed = False
+        self.counts = {"episodes": 0, "steps": 0, "blocks": 0, "success_reported": 0}
+        self._warned = False
+        self.troubles = 0  # the recorder's own failures, said in the run-end record
+        self.first_trouble: str | None = None
+        if owner is not None:
+            _OPEN_RECORDERS.add(owner)
+        self._owner = owner
+
+    def start(self) -> None:
+        """Register the episode channels (after every stream's) and flush the file's head.
+
+        Call once, after the last :meth:`add_stream`; the channels of a single-stream file are
+        then numbered as they always were (steps, resets, episode records, episode blocks).
+        ``block_steps`` is lowered here when the streams' rows are so large that a chunk would
+        outgrow :data:`CHUNK_TARGET_BYTES`.
+        """
+        if self.started:
+            raise RecorderError(f"{self.path}: the evidence file is already started")
+        writer = self.writer
+        try:
+            self._episodes_channel = writer.register_json_channel(
+                fmt.TOPIC_EPISODE_END, fmt.SCHEMA_EPISODE_END, EPISODE_SCHEMA
+            )
+            self._episode_blocks_channel = writer.register_arrow_channel(
+                fmt.TOPIC_EPISODES, fmt.SCHEMA_EPISODE_BLOCK, self._episode_schema, {"agent": ""}
+            )
+            writer.flush()
+        except BaseException:
+            writer.abandon()
+            raise
+        row_bytes = sum(stream.row_bytes for stream in self.streams)
+        self.block_steps = max(1, min(self.block_steps, CHUNK_TARGET_BYTES // max(1, row_bytes)))
+        for stream in self.streams:
+            stream.cap_block_steps(self.block_steps)
+        self.started = True
+
+    def add_stream(
+        self,
+        obs_codec: SpaceCodec,
+        act_codec: SpaceCodec,
+        *,
+        env_index: int = 0,
+        agent: str | None = None,
+        time_limit: TimeLimit[Any, Any] | None = None,
+        max_episode_steps: int | None = None,
+    ) -> Stream:
+        """Register a stream's step and reset channels and return the stream.
+
+        Truncations count as ``time_limit`` when ``time_limit`` (a Gymnasium ``TimeLimit``
+        wrapper) says its limit was hit, or, without one, when the episode reached
+        ``max_episode_steps``.
+        """
+        if self.started:
+            raise RecorderError(f"{self.path}: streams are added before start()")
+        stream = Stream(
+            self,
+            obs_codec,
+            act_codec,
+            env_index=env_index,
+            agent=agent,
+            time_limit=time_limit,
+            max_episode_steps=max_episode_steps,
+        )
+        self.streams.append(stream)
+        return stream
+
+    def check_open(self) -> None:
+        """Raise :class:`RecorderError` when the file is closed."""
+        if self.closed:
+            raise RecorderError(
+                f"{self.path}: the recorder is closed; create a new recorder to record more"
+            )
+
+    def take_episode_index(self) -> int:
+        """The next file-global episode index."""
+        index = self.next_episode
+        self.next_episode += 1
+        return index
+
+    def due(self) -> bool:
+        """Whether ``flush_every_s`` has passed since the last flush."""
+        return self.clock() >= self.flush_at
+
+    def trouble(self, exc: Exception) -> None:
+        """Something failed inside the recorder itself: warn once, keep the loop running.
+
+        The run-end record counts them and keeps the first (``recorder_trouble``), so the file
+        says the evidence may miss what was being recorded then.
+        """
+        self.troubles += 1
+        if self.first_trouble is None:
+            self.first_trouble = error_text(exc)[:_TROUBLE_TEXT]
+        if not self._warned:
+            self._warned = True
+            import warnings
+
+            warnings.warn(
+                f"episode-audit: recording to {self.path} failed ({type(exc).__name__}: {exc}); "
+                "the training loop continues",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+
+    # ------------------------------------------------------------------ episode records
+
+    def _write_episodes(self) -> None:
+        """Write the episodes ended since the last flush: JSON messages and one Arrow block."""
+        ended = self.pending
+        if not ended:
+            return
+        self.pending = []
+        offset, games = self.wall_offset, self.games
+        records = [_episode_record(ep, ending, offset, games) for ep, ending in ended]
+        write_json = self.writer.write_json
+        channel = self._episodes_channel
+        for record, (episode, _) in zip(records, ended, strict=True):
+            # Optional fields that are null are left out (the JSON Schema marks them optional).
+            # rng_state is already JSON (made once at reset): spliced in, not re-encoded.
+            data = to_json({k: v for k, v in record.items() if v is not None})
+            if episode.rng_json is not None:
+                data = data[:-1] + b',"rng_state":' + episode.rng_json + b"}"
+            write_json(channel, data, record["end_time_ns"])
+        batch = _episode_batch(records, [ep for ep, _ in ended], self._episode_schema)
+        self.writer.write_batch(self._episode_blocks_channel, batch, records[-1]["end_time_ns"])
+
+    # ------------------------------------------------------------------ flushing, closing
+
+    def flush(self) -> None:
+        """Write every stream's pending rows and the ended episodes' records, in one chunk."""
+        for hook in self.before_flush:
+            hook()
+        for stream in self.streams:
+            stream.write_blocks()
+        self._write_episodes()
+        self.writer.flush()
+        self.last_flush = self.clock()
+        self.flush_at = self.last_flush + self.flush_ns
+
+    def end_with_error(self, streams: Iterable[Stream], exc: BaseException, during: str) -> None:
+        """The env raised ``exc``: end the streams' open episodes as ``error``, written now.
+
+        A failure here is the recorder's trouble (warned once): the loop then sees the env's
+        own error, never one of the recorder's.
+        """
+        try:
+            for stream in streams:
+                stream.end_error(exc, during)
+            self.flush()
+        except Exception as trouble:
+            self.trouble(trouble)
+
+    def auto_flush(self) -> None:
+        """:meth:`flush` because a block filled or ``flush_every_s`` passed.
+
+        This runs inside the training loop: a failure is the recorder's trouble (warned once),
+        never the loop's.
+        """
+        try:
+            self.flush()
+        except Exception as exc:
+            self.flush_at = self.clock() + self.flush_ns  # not again on every step
+            self.trouble(exc)
+
+    def close(self) -> None:
+        """End every open episode as ``incomplete``, flush, and finish the file.
+
+        Safe to call more than once.
+        """
+        if self.closed:
+            return
+        self.closed = True
+        if self._owner is not None:
+            _OPEN_RECORDERS.discard(self._owner)
+        try:
+            for stream in self.streams:
+                stream.end_open()
+            self.flush()
+            run_end = {
+                "status": "finished",
+                "episodes": str(self.counts["episodes"]),
+                "steps": str(self.counts["steps"]),
+                "blocks": str(self.counts["blocks"]),
+                "end_time": datetime.now(timezone.utc).isoformat(),
+                fmt.RUN_END_SUCCESS_REPORTED: str(self.counts["success_reported"]),
+            }
+            if self.troubles:
+                run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
+                run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
+            self.writer.finish(run_end)
+        except BaseException:
+            self.writer.abandon()
+            raise
+
+
+def _episode_record(
+    episode: Episode, ending: dict[str, Any], wall_offset: int, games: bool
+) -> dict[str, Any]:
+    """The episode record of an ended episode (``ending``: what ``Stream.end_episode`` said)."""
+    end_ns = ending.pop("error_ns", episode.end_ns)
+    record = {
+        "episode": episode.index,
+        "env_index": episode.env_index,
+        "agent": episode.agent,
+        "seed": episode.seed,
+        "options": episode.options,
+        **ending,
+        "length": episode.steps,
+        "return": episode.ret,
+        "term_totals": episode.totals,
+        "start_time_ns": episode.start_ns + wall_offset,
+        "end_time_ns": end_ns + wall_offset,
+        "notes": episode.notes,
+    }
+    if games:
+        record["game"] = episode.game
+    return record
+
+
+def _episode_batch(
+    records: list[dict[str, Any]], episodes: list[Episode], schema: pa.Schema
+) -> pa.RecordBatch:
+    """The episode block of ``records`` (of ``episodes``, for their JSON-encoded values)."""
+
+    def col(name: str) -> list[Any]:
+        return [r[name] for r in records]
+
+    errors = [r["error"] or {} for r in records]
+    columns = {
+        "episode": col("episode"),
+        "env_index": col("env_index"),
+        "agent": col("agent"),
+        "seed": col("seed"),
+        "rng_state": [None if ep.rng_json is None else ep.rng_json.decode() for ep in episodes],
+        "options": [ep.options_json for ep in episodes],
+        "outcome": col("outcome"),
+        "failure_label": col("failure_label"),
+        "truncation_reason": col("truncation_reason"),
+        "terminated": col("terminated"),
+        "truncated": col("truncated"),
+        "length": col("length"),
+        "return": col("return"),
+        "start_time_ns": col("start_time_ns"),
+        "end_time_ns": col("end_time_ns"),
+        "error_type": [e.get("type") for e in errors],
+        "error_message": [e.get("message") for e in errors],
+        "error_during": [e.get("during") for e in errors],
+        "notes": col("notes"),
+        "game": [r.get("game") for r in records],
+    }
+    arrays = [
+        terms_column(len(records), dict(enumerate(col("term_totals"))))
+        if name == "term_totals"
+        else pa.array(columns[name], schema.field(name).type)
+        for name in schema.names
+    ]
+    return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+_OPEN_RECORDERS: weakref.WeakSet[Any] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_recorders() -> None:
+    """Finish files whose recorder was never closed when the interpreter exits normally."""
+    for recorder in list(_OPEN_RECORDERS):
+        try:
+            recorder.close()
+        except Exception:
+            pass

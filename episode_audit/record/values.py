@@ -1,0 +1,122 @@
+"""Reading what an env gave one value at a time, as the recorder's slow path and resets do.
+
+Each reader returns what is recorded and appends a note (:func:`~.notes.note`) for anything
+odd, never raising over an env's value: :func:`step_result`, :func:`truth_flags`,
+:func:`reward_and_terms`, :func:`kept_info`, :func:`recordable_seed`, :func:`recordable_options`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from ..format.columns import error_text, number
+from ..format.records import to_jsonable
+from .notes import note, short
+from .rules import RewardTerms, named_terms
+
+__all__ = [
+    "kept_info",
+    "recordable_options",
+    "recordable_seed",
+    "reward_and_terms",
+    "step_result",
+    "truth_flags",
+]
+
+_INT64_MAX = 2**63 - 1
+
+
+def step_result(result: Any, notes: list[str]) -> tuple[Any, Any, Any, Any, Any]:
+    """``step()``'s 5-tuple, or an empty step (noted ``step_result_invalid``) if it is none."""
+    try:
+        obs, reward, terminated, truncated, info = result
+    except Exception:
+        notes.append(note("step_result_invalid", f"step() returned {short(result)}"))
+        return None, math.nan, False, False, {}
+    return obs, reward, terminated, truncated, info
+
+
+def truth_flags(terminated: Any, truncated: Any, notes: list[str]) -> tuple[bool, bool] | None:
+    """Both flags' truth values; ``None`` (noted ``flags_not_bool``) when one has none."""
+    try:
+        return bool(terminated), bool(truncated)
+    except Exception:
+        notes.append(
+            note("flags_not_bool", f"terminated={short(terminated)}, truncated={short(truncated)}")
+        )
+        return None
+
+
+def reward_and_terms(
+    terms_rule: RewardTerms, reward: Any, info: Any, notes: list[str]
+) -> tuple[float, dict[str, float] | None]:
+    """A step's reward and named terms, value by value (what is not a number is NaN, noted)."""
+    try:
+        r = number(reward)
+    except Exception:
+        r = math.nan
+        notes.append(note("reward_not_numeric", f"reward {short(reward)}"))
+    if not isinstance(info, Mapping):
+        notes.append(note("info_not_dict", f"info is a {type(info).__name__}"))
+        return r, None
+    try:
+        raw = terms_rule.extract(info)
+    except Exception as exc:
+        notes.append(note("terms_unreadable", error_text(exc)))
+        return r, None
+    if raw is None:
+        return r, None
+    values: list[float] = []
+    for key, value in raw.items():
+        try:
+            values.append(number(value))
+        except Exception:
+            values.append(math.nan)
+            notes.append(note("term_not_numeric", f"term {short(key)} is {short(value)}"))
+    terms, shared = named_terms(list(raw), values)
+    if shared is not None:
+        notes.append(note("terms_name_collision", shared))
+    return r, terms
+
+
+def kept_info(
+    info: Any, keep_all: bool, keys: Sequence[str] | None, notes: list[str]
+) -> dict[str, Any] | None:
+    """The part of ``info`` kept per row: all of it, or ``keys`` (``None`` for nothing)."""
+    if not isinstance(info, Mapping):
+        notes.append(note("info_not_dict", f"info is a {type(info).__name__}"))
+        return None
+    if keep_all:
+        return dict(info)
+    if not keys:
+        return None
+    return {k: info[k] for k in keys if k in info} or None
+
+
+def recordable_seed(seed: Any, notes: list[str]) -> int | None:
+    """The seed as an int64 for the file, or ``None`` (with a note) when it does not fit."""
+    if seed is None:
+        return None
+    if type(seed) is int and 0 <= seed <= _INT64_MAX:
+        return seed
+    try:
+        value = int(seed)
+    except (TypeError, ValueError):
+        value = -1
+    if 0 <= value <= _INT64_MAX:
+        return value
+    notes.append(note("seed_out_of_range", f"seed {short(seed)} is not an int64; not replayable"))
+    return None
+
+
+def recordable_options(options: Any, notes: list[str]) -> Any:
+    """``reset()``'s options as JSON-able data; its ``repr`` (noted) when JSON cannot hold it."""
+    if options is None:
+        return None
+    try:
+        return to_jsonable(options)
+    except Exception:  # not JSON; cyclic or too deep (RecursionError); a key's str() raises
+        notes.append(note("options_unserializable", short(options)))
+        return {"repr": short(options)}

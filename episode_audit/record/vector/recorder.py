@@ -1,0 +1,292 @@
+"""The vector recorder: :class:`RecordVectorEvidence`, one episode stream per sub-env.
+
+A thin ``gymnasium.vector.VectorWrapper``: it sets the recording up (one
+:class:`~episode_audit.record.stream.Stream` per sub-env of one evidence file), records
+``reset()`` itself, and hands each step to :class:`~.steps.VectorSteps` and the autoreset
+strategy of the env's mode (:mod:`.modes`). See ``docs/recording.md``, "Vector envs".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
+from gymnasium.vector.utils import iterate
+from typing_extensions import Unpack
+
+from ...format.spaces import codec_for, describe_space
+from ..file import EvidenceFile, FileRecorder
+from ..rules import find_time_limit
+from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
+from .infos import env_infos
+from .modes import autoreset_mode, autoreset_strategy
+from .resets import refused, reset_targets, seeds_of
+from .rng import SubEnvRng
+from .steps import VectorSteps
+
+__all__ = ["RecordVectorEvidence"]
+
+
+class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
+    """Record every sub-env episode of a vector env to one MCAP evidence file.
+
+    Each sub-env is a stream of its own (its index is the episodes' ``env_index``); an episode
+    stores its reset seed or the sub-env's RNG state before the reset, so every sub-env episode,
+    those an autoreset started included, can be replayed on its own by rebuilding one sub-env
+    (``docs/format.md``, "Vector files", says how each autoreset mode is recorded and why).
+
+    Example:
+        >>> import tempfile, pathlib, gymnasium as gym
+        >>> from episode_audit import RecordVectorEvidence, open_evidence
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "vec.mcap"
+        >>> envs = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync", max_episode_steps=3)
+        >>> with RecordVectorEvidence(envs, path) as envs:
+        ...     _ = envs.reset(seed=5)
+        ...     for _ in range(4):  # 3 steps, then the autoreset step
+        ...         _ = envs.step(envs.action_space.sample())
+        >>> ep = open_evidence(path).episodes().to_pylist()
+        >>> [(e["env_index"], e["seed"], e["outcome"], e["length"]) for e in ep[:2]]
+        [(0, 5, 'truncated', 3), (1, 6, 'truncated', 3)]
+
+    Args:
+        env: The vector env to record (wrap it directly: replay rebuilds one sub-env).
+        path: The evidence file to create (never overwritten unless ``overwrite=True``).
+        install_rng_info: For a ``SyncVectorEnv`` in ``SAME_STEP`` mode, wrap its sub-envs in
+            :class:`ResetRngInfo` in place (default), so autoreset episodes are replayable.
+        **options: The recorder options, as for :class:`~episode_audit.RecordEvidence` (see
+            :class:`~episode_audit.record.settings.RecorderSettings`; ``block_steps`` counts
+            rows per sub-env).
+    """
+
+    def __init__(
+        self,
+        env: VectorEnv[Any, Any, Any],
+        path: str | os.PathLike[str],
+        *,
+        install_rng_info: bool = True,
+        **options: Unpack[RecorderOptions],
+    ) -> None:
+        check_options(options, "RecordVectorEvidence.__init__()")
+        super().__init__(env)
+        settings = RecorderSettings(**options)
+        base = env.unwrapped
+        mode = autoreset_mode(env)
+        sync = base if isinstance(base, SyncVectorEnv) else None
+        async_env = base if isinstance(base, AsyncVectorEnv) else None
+        self._sub_envs = sync is not None or async_env is not None
+        n = int(env.num_envs)
+        self._n = n
+        sub_spec = _sub_spec(env, sync, async_env)
+        notes: list[str] = []
+        no_rng_note: str | None = None
+        if not self._sub_envs:
+            no_rng_note = (
+                f"{type(base).__name__} has no sub-envs (a vector_entry_point env): its episodes "
+                "cannot be replayed on their own"
+            )
+            notes.append(no_rng_note)
+        self._rng = SubEnvRng(sync, async_env)
+        if mode is AutoresetMode.SAME_STEP and sync is not None and install_rng_info:
+            self._rng.install_wrappers()
+        obs_space, act_space = env.single_observation_space, env.single_action_space
+        self.run_info = run_info(
+            settings=settings,
+            spec=sub_spec,
+            observation_space=describe_space(obs_space),
+            action_space=describe_space(act_space),
+            layout=_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note),
+            notes=notes,
+        )
+        self._file = EvidenceFile(path, self.run_info, settings, owner=self)
+        self.path = self._file.path
+        obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
+        codecs = obs_codec, codec_for(act_space)
+        self._streams = [
+            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit)
+            for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env))
+        ]
+        self._file.start()
+        self._autoreset = autoreset_strategy(
+            mode, self._streams, self._rng, self._file.clock, no_rng_note
+        )
+        self._steps = VectorSteps(
+            self._file,
+            self._streams,
+            self._autoreset,
+            env.observation_space,
+            env.action_space,
+            codecs,
+            (obs_space, act_space),
+            settings.track_info,
+        )
+        self._record_step = self._steps.record
+        self._obs_space = env.observation_space
+        self._closed = False
+
+    # ------------------------------------------------------------------ gymnasium API
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[Any, dict[str, Any]]:
+        """Reset the vector env (or the sub-envs of ``options["reset_mask"]``) and record it."""
+        file = self._file
+        file.check_open()
+        n = self._n
+        indices, recorded_options = reset_targets(options, n)
+        seeds = seeds_of(seed, n, self._sub_envs)
+        rejected = refused(seed, options, n)
+        unseeded = [i for i in indices if seeds[i] is None]
+        states = {} if self._rng.in_info else self._rng.capture(unseeded)
+        start = file.clock()
+        steps, autoreset, streams = self._steps, self._autoreset, self._streams
+        steps.idle = None
+        try:
+            obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
+        except Exception as exc:
+            if rejected:  # refused before any sub-env was reset: no episode changed
+                raise
+            try:
+                for i in indices:
+                    streams[i].block.pending = steps.pending_rows(i)
+                    autoreset.begin_failed(i, seeds[i], recorded_options, states.get(i), exc)
+                file.flush()
+            except Exception as trouble:  # the loop sees the env's error, not the recorder's
+                file.trouble(trouble)
+            raise
+        try:
+            rows = list(iterate(self._obs_space, obs))
+            sub_infos, unmasked = env_infos(infos, n)
+            for i in indices:
+                info = sub_infos[i]
+                rng = states.get(i)
+                if seeds[i] is None:
+                    rng = self._rng.from_info(info) or rng
+                streams[i].block.pending = steps.pending_rows(i)
+                streams[i].end_open()
+                autoreset.begin(
+                    i, seeds[i], recorded_options, rng, rows[i], info, start, None, unmasked
+                )
+            autoreset.were_reset(indices)
+            if file.due():
+                file.flush()
+        except Exception as exc:  # never break the training loop over recording trouble
+            file.trouble(exc)
+        return obs, infos
+
+    def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
+        """Step every sub-env and record each sub-env's step; the results are returned untouched."""
+        if self._closed:
+            self._file.check_open()
+        try:
+            result = self.env.step(actions)
+        except Exception as exc:
+            self._on_step_error(exc)
+            raise
+        try:
+            self._record_step(actions, result)
+        except Exception as exc:  # never break the training loop over recording trouble
+            self._steps.idle = None
+            self._file.trouble(exc)
+        return result
+
+    def _on_step_error(self, exc: Exception) -> None:
+        """The vector step raised ``exc``: end the open episodes as ``error`` (``step``).
+
+        An autoreset that raised is first recorded where it belongs: as a ``reset()`` that
+        raised, an episode of its sub-env ended ``error`` during ``reset``, with the RNG state
+        the reset started from (the strategy's ``failed_autoresets``).
+        """
+        self._steps.idle = None
+        try:
+            self._steps.drain()
+            self._autoreset.failed_autoresets(exc)
+        except Exception as trouble:  # the loop sees the env's error, not the recorder's
+            self._file.trouble(trouble)
+        self._file.end_with_error(self._streams, exc, "step")
+
+    def close(self, **kwargs: Any) -> None:
+        """Finish the evidence file (open episodes are recorded as ``incomplete``) and close.
+
+        Safe to call more than once. The vector env is closed even if finishing fails.
+        """
+        self._close_file(lambda: self.env.close(**kwargs))
+
+    def __enter__(self) -> RecordVectorEvidence:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _layout(
+    n: int, mode: AutoresetMode, vector_class: str, sub_envs: bool, replay_note: str | None
+) -> dict[str, Any]:
+    """The layout metadata of a vector file (``docs/format.md``, "Multi-stream files")."""
+    layout: dict[str, Any] = {
+        "kind": "vector",
+        "num_envs": n,
+        "agents": [],
+        "autoreset_mode": mode.value,
+        "vector_class": vector_class,
+        "sub_envs": sub_envs,
+    }
+    if replay_note:
+        layout["replay_note"] = replay_note
+    return layout
+
+
+def _sub_spec(
+    env: VectorEnv[Any, Any, Any], sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None
+) -> Any:
+    """The spec of one sub-env (what replay rebuilds), or ``None``."""
+    try:
+        if sync is not None:
+            return sync.envs[0].spec
+        if async_env is not None:
+            return async_env.get_attr("spec")[0]
+    except Exception:
+        return None
+    spec = env.spec
+    if spec is None:
+        return None
+    kwargs = {
+        k: v
+        for k, v in spec.kwargs.items()
+        if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")
+    }
+    return dataclasses.replace(spec, kwargs=kwargs)
+
+
+def _max_steps(
+    sub_spec: Any, n: int, sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None
+) -> list[int | None]:
+    """Each sub-env's step limit: its ``TimeLimit``'s, else its spec's.
+
+    The limit is counted by the stream (a ``SAME_STEP`` autoreset has zeroed the wrapper's
+    own count by the time the ending is recorded). A ``SyncVectorEnv``'s sub-envs are
+    searched for a ``TimeLimit`` directly. An ``AsyncVectorEnv``'s are asked for
+    ``_max_episode_steps`` (``TimeLimit``'s), but only when every one says it has it
+    (``has_wrapper_attr``, which every ``gymnasium.Env`` has): a worker asked for an
+    attribute its env lacks raises, and that ends the worker.
+    """
+    limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * n
+    found: Sequence[Any] = ()
+    if sync is not None:
+        found = [getattr(find_time_limit(sub), "_max_episode_steps", None) for sub in sync.envs]
+    elif async_env is not None:
+        try:
+            if all(async_env.call("has_wrapper_attr", "_max_episode_steps")):
+                found = async_env.get_attr("_max_episode_steps")
+        except Exception:  # the spec's limit, then
+            found = ()
+    for i, limit in enumerate(found):
+        if isinstance(limit, int) and not isinstance(limit, bool):
+            limits[i] = limit
+    return limits

@@ -1,0 +1,174 @@
+"""The sub-envs' RNG states, so that episodes a vector env resets by itself replay on their own.
+
+- :class:`ResetRngInfo` — a sub-env wrapper that puts the RNG state from just before an unseeded
+  reset into the reset's info (for ``SAME_STEP`` autoresets, which run inside ``step()``).
+- :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (``SyncVectorEnv``
+  directly, ``AsyncVectorEnv`` through ``get_attr``) or from the reset infos.
+
+Which mode reads them when, and why: ``docs/format.md``, "Vector files".
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+from gymnasium.vector import AsyncVectorEnv, SyncVectorEnv
+
+from ...format import names as fmt
+from ...format.records import to_json
+from ..rules import find_wrapper
+from ..seeding import capture_rng_state
+
+__all__ = ["ResetRngInfo", "SubEnvRng"]
+
+RngState = dict[str, Any]
+
+
+class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
+    """Put the env's RNG state from just before an unseeded ``reset()`` into its info.
+
+    The state (``env.unwrapped.np_random.bit_generator.state``) goes to
+    ``info["episode_audit.rng_state"]`` as JSON text. :class:`RecordVectorEvidence` reads it to make
+    episodes that a vector env resets by itself replayable on their own. The wrapper changes
+    nothing else, and it is invisible in the env's spec (replay does not need it).
+
+    It also remembers its last step since a reset, and a reset that raised (with that step and
+    the RNG state it started from), so that the recorder of a ``SyncVectorEnv`` can record an
+    autoreset that raised inside ``step()`` where it belongs: after the step that ended the
+    episode, as an episode of its own that ended ``error`` during ``reset``.
+
+    >>> import gymnasium as gym
+    >>> env = ResetRngInfo(gym.make("CartPole-v1"))
+    >>> _, info = env.reset(seed=1)
+    >>> "episode_audit.rng_state" in info
+    False
+    >>> _, info = env.reset()
+    >>> sorted(json.loads(info["episode_audit.rng_state"]))
+    ['bit_generator', 'has_uint32', 'state', 'uinteger']
+    """
+
+    def __init__(self, env: gym.Env[Any, Any]) -> None:
+        super().__init__(env)
+        self._last_step: tuple[Any, Any] | None = None  # (action, result) since the last reset
+        # a reset that raised: (the exception, the RNG state before it, the step before it)
+        self._failed_reset: tuple[BaseException, Any, tuple[Any, Any] | None] | None = None
+
+    def step(self, action: Any) -> Any:
+        """Step the env (remembering the step until the next reset)."""
+        result = self.env.step(action)
+        self._last_step = (action, result)
+        return result
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """Reset the env; an unseeded reset's info gains the RNG state it started from."""
+        state = capture_rng_state(self.env) if seed is None else None
+        last, self._last_step = self._last_step, None
+        try:
+            result = self.env.reset(seed=seed, options=options)
+        except Exception as exc:
+            self._failed_reset = (exc, state, last)
+            raise
+        self._failed_reset = None
+        obs, info = result
+        if state is not None:
+            info = {**info, fmt.INFO_RNG_STATE: to_json(state).decode()}
+        return obs, info
+
+    @property
+    def spec(self) -> Any:  # type: ignore[override]
+        """The wrapped env's spec: this wrapper only observes."""
+        return self.env.spec
+
+    def _take_failed_reset(self, exc: BaseException) -> tuple[Any, Any] | None:
+        """``(RNG state, (action, result) of the step before)`` if its reset raised ``exc``.
+
+        Forgotten once taken.
+        """
+        failed = self._failed_reset
+        if failed is None or failed[0] is not exc:
+            return None
+        self._failed_reset = None
+        return failed[1], failed[2]
+
+
+class SubEnvRng:
+    """Where a vector recorder reads its sub-envs' RNG states (``None`` where unknown).
+
+    Read from outside (:meth:`capture`) until the sub-envs report them in their reset infos
+    (:meth:`from_info`, :class:`ResetRngInfo`); from then on only from the infos (``in_info``).
+    """
+
+    def __init__(self, sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None) -> None:
+        self.sync = sync
+        self._async = async_env
+        # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
+        self._sync_unwrapped = [] if sync is None else [e.unwrapped for e in sync.envs]
+        self.in_info = False
+
+    def install_wrappers(self) -> None:
+        """Wrap every sub-env of the ``SyncVectorEnv`` in :class:`ResetRngInfo` (in place)."""
+        if self.sync is None:
+            return
+        envs = self.sync.envs
+        for i, sub in enumerate(envs):
+            if find_wrapper(sub, ResetRngInfo) is None:
+                envs[i] = ResetRngInfo(sub)
+        self.in_info = True
+
+    def capture(self, indices: Sequence[int]) -> dict[int, RngState | None]:
+        """The RNG states of sub-envs ``indices`` now (``None`` where unknown)."""
+        if not indices:
+            return {}
+        if self.sync is not None:
+            envs = self._sync_unwrapped
+            return {i: capture_rng_state(envs[i]) for i in indices}
+        if self._async is not None:
+            try:
+                generators = self._async.get_attr("np_random")
+            except Exception:
+                return dict.fromkeys(indices)
+            out: dict[int, RngState | None] = {}
+            for i in indices:
+                try:
+                    state = generators[i].bit_generator.state
+                    out[i] = state if isinstance(state, dict) else None
+                except Exception:
+                    out[i] = None
+            return out
+        return dict.fromkeys(indices)
+
+    def from_info(self, info: Any) -> RngState | None:
+        """The state :class:`ResetRngInfo` put in a reset info (then it is always used)."""
+        if not isinstance(info, Mapping):
+            return None
+        text = info.get(fmt.INFO_RNG_STATE)
+        if not isinstance(text, str):
+            return None
+        try:
+            state = json.loads(text)
+        except ValueError:
+            return None
+        if not isinstance(state, dict):
+            return None
+        self.in_info = True  # the sub-envs report it: no need to read it from outside
+        return state
+
+    def failed_resets(self, exc: BaseException) -> dict[int, tuple[Any, Any]]:
+        """The sub-envs whose :class:`ResetRngInfo` saw its reset raise ``exc`` (Sync only).
+
+        ``{i: (RNG state before the reset, (action, result) of the step before it)}``.
+        """
+        out: dict[int, tuple[Any, Any]] = {}
+        if self.sync is None:
+            return out
+        for i, sub in enumerate(self.sync.envs):
+            wrapper = find_wrapper(sub, ResetRngInfo)
+            failed = None if wrapper is None else wrapper._take_failed_reset(exc)
+            if failed is not None:
+                out[i] = failed
+        return out

@@ -1,0 +1,272 @@
+"""How a vector step is recorded: batched when it can be, sub-env by sub-env otherwise.
+
+:class:`VectorSteps` is the vector recorder's hot path. A step without info (and without what
+the batched path cannot take: endings in ``SAME_STEP`` mode, values that need a cast, flags
+that are not a bool array) keeps copies of the batch arrays and one time; every
+:data:`BATCH_STEPS` vector steps, and at each flush, each sub-env's rows are handed to its
+stream in bulk. Only episode boundaries are handled per sub-env, at the rows they will have.
+Any other step goes to the autoreset strategy, sub-env by sub-env (``docs/recording.md``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium.spaces import Space
+from gymnasium.vector.utils import iterate
+
+from ...format.spaces import SpaceCodec
+from ..file import EvidenceFile
+from ..stream import Stream
+from .infos import EMPTY
+from .modes import Autoreset
+
+__all__ = ["BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
+
+BATCH_STEPS = 256
+"""Vector steps batched before their rows are handed to the streams."""
+
+_BOOLS = frozenset({bool, np.bool_})
+_BOOL = np.dtype(np.bool_)
+
+_Bools = np.ndarray[Any, np.dtype[np.bool_]]
+
+
+def _fits(values: Any, shape: tuple[int, ...], dtype: Any) -> bool:
+    """Whether a batch can be stored as it is (exact shape; dtype, or any signed int for int)."""
+    return (
+        type(values) is np.ndarray
+        and values.shape == shape
+        and (values.dtype == dtype or (dtype.kind == "i" and values.dtype.kind == "i"))
+    )
+
+
+def per_env(values: Any, n: int) -> list[Any]:
+    """One value per sub-env from a batch (an array, or a list from a vector env of its own).
+
+    Numbers come out as Python numbers; anything else is handed on as it is, for the stream to
+    record and note as the single-env recorder would (e.g. a reward that is text).
+    """
+    if isinstance(values, np.ndarray) and values.shape == (n,) and values.dtype.kind in "biuf":
+        return values.tolist()  # type: ignore[no-any-return]
+    try:
+        items = list(values)
+    except TypeError:
+        return [values] * n
+    return items if len(items) == n else [values] * n
+
+
+def read_flags(values: Any, n: int) -> tuple[_Bools, list[Any] | None]:
+    """A batch of flags (``terminated`` or ``truncated``) read, and as given if one is noted.
+
+    A bool array of ``n`` (what Gymnasium's vector envs return) is taken as it is: one check.
+    Anything else is read flag by flag as the single-env recorder reads a flag: a flag with no
+    truth value is false, and it or a true flag that is not a ``bool`` (the text ``"False"``,
+    the int ``1``) is noted ``flags_not_bool`` by the stream that records it as given.
+    """
+    if type(values) is np.ndarray and values.dtype is _BOOL and values.shape == (n,):
+        return values, None
+    given = per_env(values, n)
+    truths: list[bool] = []
+    odd = False
+    for value in given:
+        try:
+            truth = bool(value)
+        except Exception:  # no truth value (an array of several)
+            truth, odd = False, True
+        else:
+            odd = odd or (truth and type(value) not in _BOOLS)
+        truths.append(truth)
+    return np.array(truths, dtype=np.bool_), given if odd else None
+
+
+class VectorSteps:
+    """Record vector steps: whole batches while they need nothing per sub-env (the hot path).
+
+    ``idle`` is the set of sub-envs without a running episode (never reset, or ended), ``None``
+    when not known (then worked out on the next step).
+    """
+
+    def __init__(
+        self,
+        file: EvidenceFile,
+        streams: list[Stream],
+        autoreset: Autoreset,
+        obs_space: Space[Any],
+        act_space: Space[Any],
+        codecs: tuple[SpaceCodec, SpaceCodec],
+        single_spaces: tuple[Space[Any], Space[Any]],
+        track_info: bool,
+    ) -> None:
+        n = len(streams)
+        self._n = n
+        self._file = file
+        self._streams = streams
+        self._autoreset = autoreset
+        self._batches_endings = autoreset.batches_endings  # read per step: kept here
+        self._obs_space = obs_space
+        self._act_space = act_space
+        single_obs, single_act = single_spaces
+        obs_codec, act_codec = codecs
+        self._obs_shape = (n, *(single_obs.shape or ()))
+        self._act_shape = (n, *(single_act.shape or ()))
+        self._obs_dtype = single_obs.dtype
+        self._act_dtype = single_act.dtype
+        self._batchable = (
+            not track_info
+            and self._obs_dtype is not None
+            and self._act_dtype is not None
+            and obs_codec.new_buffer().extend(np.zeros((0, *self._obs_shape[1:]), self._obs_dtype))
+            and act_codec.new_buffer().extend(np.zeros((0, *self._act_shape[1:]), self._act_dtype))
+        )
+        self._p_len = 0  # vector steps batched
+        self._p_skip = [0] * n  # of those, the ones each sub-env spent resetting (no row)
+        self._p_obs: list[np.ndarray[Any, Any]] = []
+        self._p_act: list[np.ndarray[Any, Any]] = []
+        self._p_rew: list[np.ndarray[Any, Any]] = []
+        self._p_time: list[int] = []
+        self._p_mask: list[list[int]] = []  # per batched step: the sub-envs that only reset
+        self._since_flush = 0
+        self._block_steps = file.block_steps  # capped by start() for big rows
+        self.idle: set[int] | None = None
+        self._no_infos = [EMPTY] * n  # a DictInfoToList info without values
+        self._flags_shape = (n,)
+        file.before_flush.append(self._on_flush)
+
+    def record(self, actions: Any, result: tuple[Any, ...]) -> None:
+        """Record one vector step (``result``: what the vector env's ``step`` returned)."""
+        obs, rewards, terminated, truncated, infos = result
+        n = self._n
+        if (
+            type(terminated) is np.ndarray
+            and type(truncated) is np.ndarray
+            and terminated.dtype is _BOOL
+            and truncated.dtype is _BOOL
+            and terminated.shape == truncated.shape == self._flags_shape
+        ):  # the common case (Gymnasium's vector envs), checked once per vector step
+            term, trunc, term_given, trunc_given = terminated, truncated, None, None
+        else:
+            term, term_given = read_flags(terminated, n)
+            trunc, trunc_given = read_flags(truncated, n)
+        ended = (term | trunc).tolist()
+        ends = [i for i, e in enumerate(ended) if e] if True in ended else []
+        autoreset = self._autoreset
+        resetting = autoreset.resetting  # NEXT_STEP: the sub-envs this step only resets
+        idle = self.idle
+        if idle is None:
+            idle = self.idle = {
+                i for i, s in enumerate(self._streams) if s.episode is None or s.episode.ended
+            }
+        if (
+            self._batchable
+            and (
+                (type(infos) is dict and not infos)
+                or (type(infos) is list and infos == self._no_infos)
+            )
+            and (self._batches_endings or not ends)
+            and (not idle or idle.issubset(resetting))  # else: notes (before reset, after end)
+            and term_given is None  # else: flags to note (not bool)
+            and trunc_given is None
+            and type(rewards) is np.ndarray
+            and rewards.shape == (n,)
+            and rewards.dtype.kind in "biuf"
+            and _fits(obs, self._obs_shape, self._obs_dtype)
+            and _fits(actions, self._act_shape, self._act_dtype)
+        ):
+            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting)
+        else:
+            self.drain()
+            self.idle = None
+            autoreset.record_rows(
+                list(iterate(self._obs_space, obs)),
+                list(iterate(self._act_space, actions)),
+                per_env(rewards, n),
+                term.tolist() if term_given is None else term_given,
+                trunc.tolist() if trunc_given is None else trunc_given,
+                ended,
+                infos,
+            )
+        if ends or resetting:
+            autoreset.stepped(ends)
+
+    def _batch_step(
+        self,
+        obs: np.ndarray[Any, Any],
+        actions: np.ndarray[Any, Any],
+        rewards: Any,
+        term: _Bools,
+        trunc: _Bools,
+        ends: list[int],
+        resetting: list[int],
+    ) -> None:
+        """A step without info: keep the whole batch; hand rows to the streams in bulk later.
+
+        Only episode boundaries are handled per sub-env: the NEXT_STEP autoresets (reset rows)
+        and the endings (at the rows they will have: each block's ``pending`` counts the rows
+        batched for it).
+        """
+        file = self._file
+        now = file.clock()
+        rew = np.array(rewards, dtype=np.float64)  # every conversion before any append
+        self._p_obs.append(obs.copy())
+        self._p_act.append(actions.copy())
+        self._p_rew.append(rew)
+        self._p_time.append(now)
+        self._p_mask.append(resetting)
+        self._p_len += 1
+        if resetting or ends:
+            streams, skipped, pending = self._streams, self._p_skip, self._p_len
+            for i in resetting:
+                # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
+                skipped[i] += 1
+                streams[i].block.pending = pending - skipped[i]
+                self._autoreset.autoreset(i, obs[i], EMPTY, now, None)
+            idle = self.idle
+            if idle:
+                idle.difference_update(resetting)
+            for i in ends:
+                if resetting and i in resetting:
+                    continue  # a reset step has no flags (Gymnasium clears them)
+                block = streams[i].block
+                block.pending = pending - skipped[i]
+                streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), EMPTY)
+                if idle is not None:
+                    idle.add(i)
+        self._since_flush += 1
+        if self._since_flush >= self._block_steps or now >= file.flush_at:
+            file.auto_flush()
+        elif self._p_len >= BATCH_STEPS:
+            self.drain()
+
+    def pending_rows(self, i: int) -> int:
+        """Rows batched for sub-env ``i`` and not yet handed to its stream."""
+        return self._p_len - self._p_skip[i]
+
+    def drain(self) -> None:
+        """Hand the batched rows over to each sub-env's stream (before any other row)."""
+        if not self._p_obs:
+            return
+        obs = np.stack(self._p_obs)
+        act = np.stack(self._p_act)
+        rew = np.stack(self._p_rew)
+        times = np.array(self._p_time, dtype=np.int64)
+        masks = self._p_mask
+        self._p_obs, self._p_act, self._p_rew, self._p_time, self._p_mask = [], [], [], [], []
+        self._p_len = 0
+        if not any(self._p_skip):
+            for i, stream in enumerate(self._streams):
+                stream.extend(obs[:, i], act[:, i], rew[:, i], times)
+            return
+        self._p_skip = [0] * self._n
+        stepped = np.ones((len(masks), self._n), dtype=np.bool_)
+        for t, skipped in enumerate(masks):
+            if skipped:
+                stepped[t, skipped] = False
+        for i, stream in enumerate(self._streams):
+            rows = stepped[:, i]
+            stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
+
+    def _on_flush(self) -> None:
+        self.drain()
+        self._since_flush = 0
