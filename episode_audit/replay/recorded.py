@@ -124,26 +124,16 @@ def replay_actions(column: pa.ChunkedArray, codec: Any) -> tuple[Any, np.ndarray
 def rules_of(run: RunInfo) -> tuple[EndingRules | None, RewardTerms | None]:
     """The recorded ending rules and reward terms a replay can apply (``None``: not compared).
 
-    Ending rules with a ``success_fn`` or ``failure_fn`` and terms from a callable are only
-    named in a file, so outcomes (terms) are then not compared.
+    Read back from the file's description of them (:meth:`EndingRules.from_description`,
+    :meth:`RewardTerms.from_description`): ending rules with a ``success_fn`` or ``failure_fn``
+    and terms from a callable are only named in a file, so outcomes (terms) are then not
+    compared. Replay compares term names and values, never the declared constants.
     """
-    ending = run.ending_rules or {}
-    rules: EndingRules | None = None
-    if not ending.get("success_fn") and not ending.get("failure_fn"):
-        rules = EndingRules(
-            success_keys=tuple(ending.get("success_keys") or ("success", "is_success")),
-            failure_key=str(ending.get("failure_key") or "failure"),
-            truncation_reason_key=str(ending.get("truncation_reason_key") or "truncation_reason"),
-        )
     source = (run.reward_terms or {}).get("source", "auto")
-    terms: RewardTerms | None
-    if source == "auto" or source is None:
-        terms = RewardTerms(source)
-    elif isinstance(source, list):
-        terms = RewardTerms(tuple(str(k) for k in source))
-    else:  # a callable the file can only name: terms are not compared
-        terms = None
-    return rules, terms
+    return (
+        EndingRules.from_description(run.ending_rules),
+        RewardTerms.from_description({"source": source}),
+    )
 
 
 def layout_not_replayable(layout: Mapping[str, Any]) -> str | None:

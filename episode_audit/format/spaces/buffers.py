@@ -142,20 +142,82 @@ def _coerce_array(
     return cast, note
 
 
-class _ArrayBuffer(ColumnBuffer):
+class _BlockBuffer(ColumnBuffer):
+    """Rows in a preallocated numpy block (``_data``) that doubles when full, with null rows."""
+
+    __slots__ = ("_data", "_n", "_nulls")
+
+    _data: npt.NDArray[Any]
+    _n: int
+    _nulls: list[int]
+
+    def _set_block(self, block: npt.NDArray[Any]) -> None:
+        self._data = block
+
+    def _reserve(self, rows: int) -> None:
+        data = self._data
+        if rows <= len(data):
+            return
+        block = np.empty((max(rows, 2 * len(data)), *data.shape[1:]), dtype=data.dtype)
+        block[: self._n] = data[: self._n]
+        self._set_block(block)
+
+    def _accepts(self, values: Any) -> bool:
+        """Whether a batch of rows can be copied in as it is (see :meth:`extend`)."""
+        return False
+
+    def append_null(self) -> None:
+        """Add a null row (stored as zeros under a cleared validity bit)."""
+        n = self._n
+        self._reserve(n + 1)
+        self._data[n] = 0
+        self._nulls.append(n)
+        self._n = n + 1
+
+    def extend(self, values: Any) -> bool:
+        """Add rows that need no coercion at once (see :meth:`ColumnBuffer.extend`)."""
+        if not self._accepts(values):
+            return False
+        n, k = self._n, len(values)
+        self._reserve(n + k)
+        self._data[n : n + k] = values
+        self._n = n + k
+        return True
+
+    def __len__(self) -> int:
+        return self._n
+
+    def truncate(self, length: int) -> None:
+        self._n = length
+        self._nulls = [i for i in self._nulls if i < length]
+
+    def _taken(
+        self, arrow_copies: bool = False
+    ) -> tuple[npt.NDArray[Any], npt.NDArray[np.bool_] | None]:
+        """The rows and their null mask, the buffer emptied for reuse.
+
+        A block at least half full is handed over to Arrow (a fresh one takes its place); the
+        rows of a mostly empty one are copied, so it is not pinned. With ``arrow_copies`` (Arrow
+        makes its own copy, e.g. bools packed into bits) the rows are a view of the block.
+        """
+        n = self._n
+        data = self._data[:n]
+        if arrow_copies:
+            pass
+        elif 2 * n >= len(self._data):
+            self._set_block(np.empty_like(self._data))
+        else:
+            data = data.copy()
+        mask = _null_mask_array(n, self._nulls)
+        self._n = 0
+        self._nulls = []
+        return data, mask
+
+
+class _ArrayBuffer(_BlockBuffer):
     """Fixed-shape numeric values in a preallocated numpy block that doubles when full."""
 
-    __slots__ = (
-        "_data",
-        "_dtype",
-        "_n",
-        "_notes",
-        "_nulls",
-        "_scalar",
-        "_shape",
-        "_size",
-        "_value_type",
-    )
+    __slots__ = ("_dtype", "_notes", "_scalar", "_shape", "_size", "_value_type")
 
     def __init__(self, shape: tuple[int, ...], dtype: np.dtype[Any], value_type: Any) -> None:
         self._shape = shape
@@ -168,9 +230,6 @@ class _ArrayBuffer(ColumnBuffer):
         self._notes: dict[np.dtype[Any], str | None] = {}
         rows = _initial_rows(self._size * dtype.itemsize)
         self._set_block(np.empty((rows, *shape), dtype=dtype))
-
-    def _set_block(self, block: npt.NDArray[Any]) -> None:
-        self._data = block
 
     def append(self, value: Any) -> str | None:
         """Add one value (see :meth:`ColumnBuffer.append`)."""
@@ -215,61 +274,21 @@ class _ArrayBuffer(ColumnBuffer):
         self._n = n + 1
         return note
 
-    def _reserve(self, rows: int) -> None:
-        capacity = len(self._data)
-        if rows <= capacity:
-            return
-        block = np.empty((max(rows, 2 * capacity), *self._shape), dtype=self._dtype)
-        block[: self._n] = self._data[: self._n]
-        self._set_block(block)
-
-    def append_null(self) -> None:
-        """Add a null row (stored as zeros under a cleared validity bit)."""
-        n = self._n
-        self._reserve(n + 1)
-        self._data[n] = 0
-        self._nulls.append(n)
-        self._n = n + 1
-
-    def extend(self, values: Any) -> bool:
-        """Add rows of exactly this buffer's shape and dtype (see :meth:`ColumnBuffer.extend`)."""
-        if not (
+    def _accepts(self, values: Any) -> bool:
+        return (
             type(values) is np.ndarray
             and values.shape[1:] == self._shape
             and values.dtype == self._dtype
-        ):
-            return False
-        n, k = self._n, len(values)
-        self._reserve(n + k)
-        self._data[n : n + k] = values
-        self._n = n + k
-        return True
-
-    def __len__(self) -> int:
-        return self._n
-
-    def truncate(self, length: int) -> None:
-        self._n = length
-        self._nulls = [i for i in self._nulls if i < length]
+        )
 
     def finish(self) -> pa.Array:
         """Return the rows as a ``FixedSizeListArray`` and empty the buffer."""
-        n = self._n
-        flat = self._data[:n].reshape(-1)
-        if self._dtype.kind == "b":
-            pass  # Arrow packs bools into bits: a copy, so the block stays ours
-        elif 2 * n >= len(self._data):
-            self._set_block(np.empty_like(self._data))  # hand the block over to Arrow
-        else:
-            flat = flat.copy()  # do not pin a mostly empty block
-        values = pa.array(flat, type=self._value_type)
-        mask = _null_mask_array(n, self._nulls)
-        result = pa.FixedSizeListArray.from_arrays(
+        # Arrow packs bools into bits (a copy): the block stays ours, nothing to hand over
+        data, mask = self._taken(arrow_copies=self._dtype.kind == "b")
+        values = pa.array(data.reshape(-1), type=self._value_type)
+        return pa.FixedSizeListArray.from_arrays(
             values, list_size=self._size, mask=None if mask is None else pa.array(mask)
         )
-        self._n = 0
-        self._nulls = []
-        return result
 
 
 class _FlatArrayBuffer(_ArrayBuffer):
@@ -299,10 +318,10 @@ class _FlatArrayBuffer(_ArrayBuffer):
         return None
 
 
-class _IntBuffer(ColumnBuffer):
+class _IntBuffer(_BlockBuffer):
     """Scalar integers in a preallocated int64 block that doubles when full."""
 
-    __slots__ = ("_data", "_mv", "_n", "_nulls")
+    __slots__ = ("_mv",)
 
     def __init__(self) -> None:
         self._n = 0
@@ -349,49 +368,13 @@ class _IntBuffer(ColumnBuffer):
         self._n = n + 1
         return note
 
-    def _reserve(self, rows: int) -> None:
-        if rows > len(self._data):
-            block = np.empty(max(rows, 2 * len(self._data)), dtype=np.int64)
-            block[: self._n] = self._data[: self._n]
-            self._set_block(block)
-
-    def append_null(self) -> None:
-        """Add a null row."""
-        n = self._n
-        self._reserve(n + 1)
-        self._data[n] = 0
-        self._nulls.append(n)
-        self._n = n + 1
-
-    def extend(self, values: Any) -> bool:
-        """Add signed integers (a 1-D numpy array; see :meth:`ColumnBuffer.extend`)."""
-        if not (type(values) is np.ndarray and values.ndim == 1 and values.dtype.kind == "i"):
-            return False
-        n, k = self._n, len(values)
-        self._reserve(n + k)
-        self._data[n : n + k] = values
-        self._n = n + k
-        return True
-
-    def __len__(self) -> int:
-        return self._n
-
-    def truncate(self, length: int) -> None:
-        self._n = length
-        self._nulls = [i for i in self._nulls if i < length]
+    def _accepts(self, values: Any) -> bool:
+        return type(values) is np.ndarray and values.ndim == 1 and values.dtype.kind == "i"
 
     def finish(self) -> pa.Array:
         """Return the rows as an ``int64`` array and empty the buffer."""
-        n = self._n
-        data = self._data[:n]
-        if 2 * n >= len(self._data):
-            self._set_block(np.empty_like(self._data))
-        else:
-            data = data.copy()
-        result = pa.array(data, type=pa.int64(), mask=_null_mask_array(n, self._nulls))
-        self._n = 0
-        self._nulls = []
-        return result
+        data, mask = self._taken()
+        return pa.array(data, type=pa.int64(), mask=mask)
 
 
 class _ListBuffer(ColumnBuffer):
