@@ -44,7 +44,8 @@ _FORBIDDEN_CALLS = {"eval", "exec", "compile", "__import__"}
 _DYNAMIC_IMPORTS_ALLOWED = {("_usercode.py", "load_callable"), ("_usercode.py", "import_modules")}
 # The package's own lazy attributes (a fixed table of its own modules), and PettingZoo replay,
 # which imports a module named in a file only after is_pettingzoo_module() found it inside the
-# installed pettingzoo package (or with --trust-entry-points); test_multiagent pins both paths.
+# installed pettingzoo package (or with --trust-entry-points); tests/record/test_pettingzoo.py
+# pins both paths.
 _DYNAMIC_IMPORTS_ALLOWED |= {("__init__.py", "__getattr__")}
 _DYNAMIC_IMPORTS_ALLOWED |= {("replay/envs.py", "_from_pettingzoo_module")}
 

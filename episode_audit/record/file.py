@@ -38,7 +38,7 @@ CHUNK_TARGET_BYTES = 32 << 20
 """Largest uncompressed chunk the recorder aims for: a flush comes after at most this many
 bytes of step rows over every stream, whatever ``block_steps`` says (large observations), so
 the rows a recorder holds stay small and files stay far inside the reader's 1 GiB record cap
-(``reader.MAX_RECORD_BYTES``)."""
+(``read.chunks.MAX_RECORD_BYTES``)."""
 
 _TROUBLE_TEXT = 500  # characters of the first trouble kept in the run-end record
 

@@ -355,7 +355,7 @@ def _recorded_error(
     """``"Type: message"`` of the error a game's ``step()`` raised when it was recorded.
 
     From its ``error`` agent-episode, else from the note ``env_raised`` on the last row of one
-    (a step that raised after every agent-episode had ended, see ``multiagent``).
+    (a step that raised after every agent-episode had ended, see ``record.pettingzoo``).
     """
     for r in members.values():
         if r.get("outcome") == fmt.OUTCOME_ERROR and r.get("error_during") == "step":
