@@ -22,7 +22,7 @@ from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..format.columns import one_array
 from ..read import Evidence, open_evidence
-from ..read.inputs import Unreadable
+from ..read.inputs import skipped
 from ._state import BoolArray, FileState, FloatArray, Hit, HitMessage, IntArray, counts_per_episode
 from .endings import EndingChecks
 from .episodes import check_episode_records
@@ -244,14 +244,8 @@ def check(
                 ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=progress
             )
             found = checker.run()
-        except ConfigurationError:
-            raise
         except EpisodeAuditError as exc:
-            if not keep_going:
-                raise
-            if on_error is not None:
-                on_error(exc)
-            result.unreadable.append(Unreadable.of(str(path), exc))
+            result.unreadable.append(skipped(path, exc, keep_going=keep_going, on_error=on_error))
             found = [Finding("error", FILE_UNREADABLE, str(exc), str(path), None, None)]
             result.files.append(str(path))
         else:

@@ -15,7 +15,7 @@ from .blocks import step_block_rows
 from .chunks import RECOVER_HINT
 from .episodes import EPISODE_COLUMNS
 from .evidence import ChunkContents, EpisodeEvidence, Evidence
-from .inputs import Unreadable, evidence_files, open_all, steps_total
+from .inputs import Unreadable, evidence_files, open_all, skipped, steps_total
 from .opening import open_evidence
 from .records import ChunkRecords, DamagedRegion, FileEnd, iter_records, summary_definitions
 
@@ -33,6 +33,7 @@ __all__ = [
     "iter_records",
     "open_all",
     "open_evidence",
+    "skipped",
     "step_block_rows",
     "steps_total",
     "summary_definitions",

@@ -8,6 +8,7 @@ declare, for progress bars.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +17,7 @@ from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
 from .evidence import Evidence
 from .opening import open_evidence
 
-__all__ = ["Unreadable", "evidence_files", "open_all", "steps_total"]
+__all__ = ["Unreadable", "evidence_files", "open_all", "skipped", "steps_total"]
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,25 @@ class Unreadable:
     def of(cls, path: str | Path, exc: EpisodeAuditError) -> Unreadable:
         """The input ``path`` that failed with ``exc``."""
         return cls(str(path), exc.problem if isinstance(exc, EvidenceError) else str(exc))
+
+
+def skipped(
+    path: str | os.PathLike[str],
+    exc: EpisodeAuditError,
+    *,
+    keep_going: bool,
+    on_error: Callable[[EpisodeAuditError], None] | None = None,
+) -> Unreadable:
+    """The input ``path`` that failed with ``exc``, skipped: when the caller keeps going.
+
+    ``on_error`` is told first; without ``keep_going`` ``exc`` is raised again. A
+    ``ConfigurationError`` (the caller's options, not the input) is always raised.
+    """
+    if not keep_going or isinstance(exc, ConfigurationError):
+        raise exc
+    if on_error is not None:
+        on_error(exc)
+    return Unreadable.of(os.fspath(path), exc)
 
 
 def evidence_files(paths: Sequence[Path]) -> list[Path]:

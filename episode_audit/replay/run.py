@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable, Sequence
 from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import Evidence, open_evidence
-from ..read.inputs import Unreadable
+from ..read.inputs import skipped
 from ..record.gym import library_versions
 from .envs import EnvFactory
 from .pettingzoo import replay_agents_evidence
@@ -88,14 +88,8 @@ def replay(
                 trust_entry_points=trust_entry_points,
                 progress=progress,
             )
-        except ConfigurationError:
-            raise
         except EpisodeAuditError as exc:
-            if not keep_going:
-                raise
-            if on_error is not None:
-                on_error(exc)
-            result.unreadable.append(Unreadable.of(os.fspath(path), exc))
+            result.unreadable.append(skipped(path, exc, keep_going=keep_going, on_error=on_error))
             continue
         result.episodes.extend(replayed)
         diffs = _version_differences(ev)
