@@ -209,7 +209,8 @@ def test_replay_never_builds_wrappers_named_in_a_file_that_are_not_gymnasiums(
         assert episode.status == "not_replayable"
         assert f"wrappers from outside Gymnasium ({entry})" in (episode.reason or "")
         code, out, _ = cli("replay", str(evil), "--format", "json")
-        assert code == 0 and json.loads(out)["summary"]["not_replayable"] == 1
+        # nothing verified: exit 1 (a usage error or a crash would be 2)
+        assert code == 1 and json.loads(out)["summary"]["not_replayable"] == 1
     assert "ea_canary_module" not in sys.modules and not canary.exists()
 
 
