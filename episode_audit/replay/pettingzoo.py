@@ -28,7 +28,7 @@ from .compare import outcome_difference, terms_equal
 from .envs import build_pettingzoo_env
 from .recorded import row_ranges, rules_of
 from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, none_replayable, short
-from .returned import recorded_terms
+from .returned import encoded, recorded_terms
 
 __all__ = ["replay_agents_evidence"]
 
@@ -517,7 +517,7 @@ class _AgentEpisode:
         """How the replayed reset observation ``obs`` differs from reset row ``at``, if it does."""
         obs_codec, atol = self.file.obs_codec, self.file.atol
         expected = one_array(self.file.resets.column(fmt.COL_OBSERVATION).slice(at, 1))
-        equal, diff = obs_codec.compare(expected, obs_codec.encode([obs]), atol=atol)
+        equal, diff = obs_codec.compare(expected, encoded(obs_codec, [obs]), atol=atol)
         if equal[0]:
             return None
         return Divergence.of_observation(
@@ -530,7 +530,7 @@ class _AgentEpisode:
         exp = self.file.steps.slice(self.start, n)
         obs_equal, obs_diff = obs_codec.compare(
             one_array(exp.column(fmt.COL_OBSERVATION)),
-            obs_codec.encode([g[1] for g in got[:n]]),
+            encoded(obs_codec, [g[1] for g in got[:n]]),
             atol=atol,
         )
         exp_r = exp.column(fmt.COL_REWARD).to_numpy()

@@ -14,6 +14,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..format.columns import error_message
 from ..format.spaces import equal_elements
 from ..read.inputs import Unreadable
 
@@ -143,18 +144,27 @@ def none_replayable(
 
 
 def env_error(exc: BaseException) -> str:
-    """``"Type: message"`` of an exception the replay's env raised, as a divergence shows it."""
-    return f"{type(exc).__name__}: {exc}"
+    """``"Type: message"`` of an exception the replay's env raised, as a divergence shows it.
+
+    (Never raises: an exception whose ``str()`` raises says so.)
+    """
+    return f"{type(exc).__name__}: {error_message(exc)}"
 
 
 def short(value: Any) -> str:
-    """A value as a divergence shows it: its ``repr``, cut to 80 characters."""
-    if isinstance(value, np.ndarray) and value.size > 16:
-        # (a camera frame's list would be millions of characters)
-        text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
-        text = " ".join(text.split())
-    else:
-        text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    """A value as a divergence shows it: its ``repr``, cut to 80 characters.
+
+    Never raises: a value whose ``repr()`` raises (an env's own object) is named by its type.
+    """
+    try:
+        if isinstance(value, np.ndarray) and value.size > 16:
+            # (a camera frame's list would be millions of characters)
+            text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
+            text = " ".join(text.split())
+        else:
+            text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    except Exception as exc:
+        text = f"<a {type(value).__name__} whose repr() raised {env_error(exc)}>"
     return text if len(text) <= 80 else text[:77] + "..."
 
 

@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pytest
+from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from episode_audit import RecordParallelEvidence, replay
 from episode_audit.format import names as fmt
+from tests.replay.test_misbehaving_env import UnprintableError, Unreadable
 from tests.support.hostile import replace_column, rewrite
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
@@ -69,3 +72,44 @@ def test_deeply_nested_notes_are_read_as_no_notes(rps: Path, tmp_path: Path) -> 
 
     evil = rewrite(rps, tmp_path / "notes.mcap", steps=steps)
     assert replay([evil]).count("identical") == 4
+
+
+class _Spoiled(BaseParallelWrapper):  # type: ignore[misc]
+    """rps whose second step returns an unreadable value for one agent (or raises)."""
+
+    def __init__(self, field: str) -> None:
+        super().__init__(rps_v2.parallel_env(max_cycles=3))
+        self.field = field
+        self.steps = 0
+
+    def step(self, actions: dict[str, Any]) -> Any:
+        self.steps += 1
+        if self.steps == 2 and self.field == "raise":
+            raise UnprintableError
+        obs, rewards, term, trunc, infos = self.env.step(actions)
+        if self.steps == 2:
+            first = self.agents[0]
+            if self.field == "observation":
+                obs = {**obs, first: Unreadable()}
+            if self.field == "reward":
+                rewards = {**rewards, first: Unreadable()}
+        return obs, rewards, term, trunc, infos
+
+
+@pytest.mark.parametrize(
+    ("field", "described"),
+    [
+        ("observation", "step 1: observation expected 1, got <a Unreadable whose repr() raised"),
+        ("reward", "step 1: reward expected 0.0, got nan"),
+        (
+            "raise",
+            "step 1: step expected a step, got UnprintableError: <str() raised RuntimeError>",
+        ),
+    ],
+)
+def test_a_value_the_replayed_game_returns_that_raises_is_a_divergence_not_a_traceback(
+    rps: Path, field: str, described: str
+) -> None:
+    first, *_ = replay([rps], env_factory=lambda: _Spoiled(field)).episodes
+    assert first.status == "diverged" and first.divergence is not None
+    assert first.divergence.describe().startswith(described)
