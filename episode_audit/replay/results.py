@@ -101,13 +101,15 @@ class ReplayResult:
     """Replays of many episodes, with the library versions that differ from the recording.
 
     ``unreadable``: the inputs that could not be read (``replay(..., keep_going=True)``);
-    ``missing``: the selected episode indices that no file replayed had.
+    ``missing``: the selected episode indices that no file replayed had; ``notes``: by file,
+    what its env was replayed without (recorded wrappers that never change a step, and why).
     """
 
     episodes: list[EpisodeReplay] = field(default_factory=list)
     version_differences: dict[str, dict[str, tuple[str, str]]] = field(default_factory=dict)
     unreadable: list[Unreadable] = field(default_factory=list)
     missing: list[int] = field(default_factory=list)
+    notes: dict[str, list[str]] = field(default_factory=dict)
 
     def count(self, status: Status) -> int:
         """How many episodes ended with ``status``."""
@@ -119,7 +121,7 @@ class ReplayResult:
         return self.count("diverged") == 0
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-able form: ``{"summary": {...}, "episodes": [...], "version_differences"}``."""
+        """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes"}``."""
         return {
             "summary": {
                 "identical": self.count("identical"),
@@ -131,6 +133,7 @@ class ReplayResult:
                 file: {lib: {"recorded": a, "current": b} for lib, (a, b) in diffs.items()}
                 for file, diffs in self.version_differences.items()
             },
+            "notes": {file: list(notes) for file, notes in self.notes.items()},
         }
 
 
