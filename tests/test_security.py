@@ -536,3 +536,50 @@ def test_hostile_reset_json_is_not_replayable_not_a_crash(plain: Path, tmp_path:
         ("not_replayable", "its reset record: rng_state is nested too deeply to be JSON "
          "episode-audit wrote"),
     ]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("lake") / "lake.mcap"
+    env = gym.make("FrozenLake-v1", desc=["SF", "FG"], is_slippery=False)
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        rec.step(2)
+    return path
+
+
+def _with_kwargs(src: Path, dst: Path, **kwargs: Any) -> Path:
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["kwargs"] = {**spec["kwargs"], **kwargs}
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    return rewrite(src, dst, run=run)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "reason"),
+    [
+        (
+            {"desc": ["S" + "F" * 998 + "G"] * 1000},  # 30 s and 2 GB to build
+            "the recorded env kwarg 'desc' is 1004000 bytes of JSON (all: 1004010), more than "
+            "the 65536 replay builds an env from",
+        ),
+        (
+            {"map_name": json.loads("[" * 20 + "]" * 20)},
+            "the recorded env kwarg 'map_name' is nested 20 deep, more than the 16 replay "
+            "builds an env from",
+        ),
+    ],
+    ids=["large", "deep"],
+)
+def test_recorded_env_kwargs_are_bounded_before_an_env_is_built(
+    lake: Path, tmp_path: Path, kwargs: dict[str, Any], reason: str
+) -> None:
+    evil = _with_kwargs(lake, tmp_path / "evil.mcap", **kwargs)
+    (episode,) = replay([evil]).episodes
+    way_around = "; pass --env-factory MODULE:CALLABLE that builds the env"
+    assert (episode.status, episode.reason) == ("not_replayable", reason + way_around)
+    assert replay([lake]).count("identical") == 1  # (the file as recorded)
+    small = gym.make("FrozenLake-v1", desc=["SF", "FG"], is_slippery=False)
+    assert replay([evil], env_factory=lambda: small).count("identical") == 1

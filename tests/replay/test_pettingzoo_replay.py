@@ -6,6 +6,7 @@ reset records and notes, and an env whose returned values raise when read.
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -113,3 +114,23 @@ def test_a_value_the_replayed_game_returns_that_raises_is_a_divergence_not_a_tra
     first, *_ = replay([rps], env_factory=lambda: _Spoiled(field)).episodes
     assert first.status == "diverged" and first.divergence is not None
     assert first.divergence.describe().startswith(described)
+
+
+def test_recorded_env_kwargs_are_bounded_before_a_game_env_is_built(
+    rps: Path, tmp_path: Path
+) -> None:
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        layout = json.loads(meta["layout"])
+        layout["env_kwargs"] = {**layout["env_kwargs"], "extra": "x" * 70_000}
+        return {**meta, "layout": json.dumps(layout)}
+
+    evil = rewrite(rps, tmp_path / "big.mcap", run=run)
+    results = replay([evil]).episodes
+    assert {(e.status, e.reason) for e in results} == {
+        (
+            "not_replayable",
+            "the recorded env kwarg 'extra' is 70002 bytes of JSON (all: 70003), more than the "
+            "65536 replay builds an env from; pass --env-factory MODULE:CALLABLE that builds "
+            "the env",
+        )
+    }
