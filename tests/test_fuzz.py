@@ -524,7 +524,7 @@ def test_a_recorded_env_spec_of_wrong_shape_is_not_replayable(
     result = replay([path])
     assert {e.status for e in result.episodes} == {"not_replayable"}
     assert result.episodes[0].reason == (
-        "the recorded env kwargs are a int, not a mapping; pass --env-factory MODULE:CALLABLE "
+        "the recorded env kwargs are not a mapping (int); pass --env-factory MODULE:CALLABLE "
         "that builds the env"
     )
 

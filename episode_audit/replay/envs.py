@@ -167,7 +167,7 @@ def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
         return
     if not isinstance(kwargs, Mapping):
         raise ReplayError(
-            f"the recorded {what}s are a {type(kwargs).__name__}, not a mapping; {_WAY_AROUND}"
+            f"the recorded {what}s are not a mapping ({type(kwargs).__name__}); {_WAY_AROUND}"
         )
     for name, value in kwargs.items():
         depth = _depth(value)
