@@ -184,33 +184,135 @@ def test_a_file_naming_pickles_and_modules_imports_and_unpickles_nothing(
 # ----------------------------------------------------------------------- rule 2: replay's imports
 
 
-def test_replay_never_builds_wrappers_named_in_a_file_that_are_not_gymnasiums(
-    tmp_path: Path, canary: Path
-) -> None:
-    """A registered env id whose recorded wrappers are outside ``gymnasium.wrappers``.
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """CartPole recorded with ``render_mode="rgb_array"`` (RecordVideo would run in it)."""
+    path = tmp_path_factory.mktemp("rendered") / "rendered.mcap"
+    env = gym.make("CartPole-v1", max_episode_steps=3, render_mode="rgb_array")
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            rec.step(0)
+    return path
 
-    (The file-named entry point itself: tests/test_replay.py
+
+def _with_wrappers(src: Path, dst: Path, wrappers: list[Any]) -> Path:
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["additional_wrappers"] = wrappers
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    return rewrite(src, dst, run=run)
+
+
+def _wrapper(entry: str, **kwargs: Any) -> dict[str, Any]:
+    return {"name": entry.rpartition(":")[2], "entry_point": entry, "kwargs": kwargs}
+
+
+_VIDEO = "gymnasium.wrappers.rendering:RecordVideo"
+_WAY_AROUND = (
+    "; pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to build "
+    "the recorded wrappers as they are"
+)
+_REFUSED = [
+    (
+        [_wrapper("ea_canary_module:make")],
+        "the recorded wrapper 'ea_canary_module:make' is not one replay knows",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.common:np.save", file="x")],
+        "the recorded wrapper 'gymnasium.wrappers.common:np.save' is not one replay knows",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.transform_reward:TransformReward", func="os:system")],
+        "the recorded wrapper TransformReward: its argument func is a function, which a file "
+        "cannot hold",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers:ClipReward", min_reward="../../x", max_reward=1.0)],
+        "the recorded wrapper ClipReward's argument min_reward: expected a finite number or a "
+        "list of at most 4096, or null, got '../../x'",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.common:TimeLimit", max_episode_steps=5, path="/tmp/x")],
+        "the recorded wrapper TimeLimit has an argument 'path' replay does not know",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.stateful_observation:NormalizeObservation", epsilon=1e-8)],
+        "the recorded wrapper NormalizeObservation: it keeps running statistics across "
+        "episodes, which the file does not hold",
+    ),
+    (
+        [
+            _wrapper(
+                "gymnasium.wrappers.rendering:AddWhiteNoise", probability_of_noise_per_pixel=0.5
+            ),
+            _wrapper(_VIDEO, video_folder="videos"),
+        ],
+        "the recorded wrapper AddWhiteNoise depends on the render() calls the recorded "
+        "RecordVideo made in each step, and replay leaves RecordVideo out (it has side effects)",
+    ),
+]
+
+
+@pytest.mark.parametrize(("wrappers", "reason"), _REFUSED, ids=range(len(_REFUSED)))
+def test_replay_never_builds_a_recorded_wrapper_it_cannot_check(
+    rendered: Path,
+    tmp_path: Path,
+    canary: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    wrappers: list[Any],
+    reason: str,
+) -> None:
+    """Unknown wrappers, file-chosen callables and arguments, wrappers with state across
+    episodes: not replayable, naming the wrapper and the argument; nothing imported or written.
+
+    (The file-named entry point itself: tests/replay/test_replay.py
     ``test_replay_never_imports_a_module_named_in_the_file``, with and without the flag.)
     """
-    source = tmp_path / "plain.mcap"
-    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=3), source) as env:
-        env.reset(seed=0)
-        for _ in range(3):
-            env.step(0)
-    for entry in ("ea_canary_module:make", "gymnasium.wrappers.common:np.save"):
-
-        def run(meta: dict[str, str], entry: str = entry) -> dict[str, str]:
-            spec = json.loads(meta["env_spec"])
-            spec["additional_wrappers"] = [{"name": "W", "entry_point": entry, "kwargs": {}}]
-            return {**meta, "env_spec": json.dumps(spec)}
-
-        evil = rewrite(source, tmp_path / f"evil-{len(entry)}.mcap", run=run)
-        (episode,) = replay([evil]).episodes
-        assert episode.status == "not_replayable"
-        assert f"wrappers from outside Gymnasium ({entry})" in (episode.reason or "")
-        code, out, _ = cli("replay", str(evil), "--format", "json")
-        assert code == 0 and json.loads(out)["summary"]["not_replayable"] == 1
+    evil = _with_wrappers(rendered, tmp_path / "evil.mcap", wrappers)
+    monkeypatch.chdir(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    (episode,) = replay([evil]).episodes
+    assert (episode.status, episode.reason) == ("not_replayable", reason + _WAY_AROUND)
+    code, out, _ = cli("replay", str(evil), "--format", "json")
+    assert code == 0 and json.loads(out)["summary"]["not_replayable"] == 1
+    assert set(tmp_path.rglob("*")) == before
     assert "ea_canary_module" not in sys.modules and not canary.exists()
+
+
+def test_replay_leaves_out_wrappers_that_write_files_or_open_windows(
+    rendered: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """RecordVideo (a folder, a path-traversal prefix, a trigger on every step), HumanRendering
+    and SB3's Monitor never change a step: replay leaves them out and says so."""
+    folder = tmp_path / "videos"
+    wrappers = [
+        _wrapper(_VIDEO, video_folder=str(folder), step_trigger=1, name_prefix="../../x"),
+        _wrapper(_VIDEO, video_folder="relative", episode_trigger=None, step_trigger=1),
+        _wrapper("gymnasium.wrappers.rendering:HumanRendering"),
+        _wrapper("stable_baselines3.common.monitor:Monitor", filename="../../monitor.csv"),
+    ]
+    evil = _with_wrappers(rendered, tmp_path / "evil.mcap", wrappers)
+    monkeypatch.chdir(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    pygame_before = "pygame" in sys.modules
+    result = replay([evil])
+    assert [e.status for e in result.episodes] == ["identical"]
+    never = "never changes a step"
+    assert result.notes == {
+        str(evil): [
+            f"replayed without the recorded wrapper RecordVideo: it {never}",
+            f"replayed without the recorded wrapper RecordVideo: it {never}",
+            f"replayed without the recorded wrapper HumanRendering: it {never}",
+            f"replayed without the recorded wrapper Monitor: it {never}",
+        ]
+    }
+    code, out, _ = cli("replay", str(evil))
+    assert code == 0 and "Replayed without recorded wrappers" in out
+    assert set(tmp_path.rglob("*")) == before
+    if not pygame_before:
+        assert "pygame" not in sys.modules  # (HumanRendering would import it)
 
 
 # ----------------------------------------------------------------------- rule 3: escaping
@@ -434,3 +536,50 @@ def test_hostile_reset_json_is_not_replayable_not_a_crash(plain: Path, tmp_path:
         ("not_replayable", "its reset record: rng_state is nested too deeply to be JSON "
          "episode-audit wrote"),
     ]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("lake") / "lake.mcap"
+    env = gym.make("FrozenLake-v1", desc=["SF", "FG"], is_slippery=False)
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        rec.step(2)
+    return path
+
+
+def _with_kwargs(src: Path, dst: Path, **kwargs: Any) -> Path:
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["kwargs"] = {**spec["kwargs"], **kwargs}
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    return rewrite(src, dst, run=run)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "reason"),
+    [
+        (
+            {"desc": ["S" + "F" * 998 + "G"] * 1000},  # 30 s and 2 GB to build
+            "the recorded env kwarg 'desc' is 1004000 bytes of JSON (all: 1004010), more than "
+            "the 65536 replay builds an env from",
+        ),
+        (
+            {"map_name": json.loads("[" * 20 + "]" * 20)},
+            "the recorded env kwarg 'map_name' is nested 20 deep, more than the 16 replay "
+            "builds an env from",
+        ),
+    ],
+    ids=["large", "deep"],
+)
+def test_recorded_env_kwargs_are_bounded_before_an_env_is_built(
+    lake: Path, tmp_path: Path, kwargs: dict[str, Any], reason: str
+) -> None:
+    evil = _with_kwargs(lake, tmp_path / "evil.mcap", **kwargs)
+    (episode,) = replay([evil]).episodes
+    way_around = "; pass --env-factory MODULE:CALLABLE that builds the env"
+    assert (episode.status, episode.reason) == ("not_replayable", reason + way_around)
+    assert replay([lake]).count("identical") == 1  # (the file as recorded)
+    small = gym.make("FrozenLake-v1", desc=["SF", "FG"], is_slippery=False)
+    assert replay([evil], env_factory=lambda: small).count("identical") == 1
