@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import html
 import json
+import os
 import pickle
 import re
 import sys
@@ -517,6 +518,31 @@ def test_output_paths_never_come_from_file_content(tmp_path: Path) -> None:
     assert code == 0, err
     created = {p for p in tmp_path.rglob("*")} - before
     assert {p.relative_to(tmp_path).as_posix() for p in created} == {"deep/fixed.mcap"}
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_the_recorder_refuses_a_path_that_is_not_a_regular_file(tmp_path: Path, kind: str) -> None:
+    """A FIFO would block the recorder (here it has a reader, so nothing can hang), a device
+    swallow the evidence: refused, even with ``overwrite=True``, before anything is written."""
+    from episode_audit.errors import ConfigurationError
+
+    path = Path(os.devnull)
+    reader = None
+    if kind == "fifo":
+        path = tmp_path / "pipe.mcap"
+        os.mkfifo(path)
+        reader = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    env = gym.make("CartPole-v1")
+    try:
+        what = "a FIFO (named pipe)" if kind == "fifo" else "a character device"
+        with pytest.raises(ConfigurationError, match=re.escape(f"{path}: is {what}, not a reg")):
+            RecordEvidence(env, path, overwrite=True)
+        if reader is not None:
+            assert os.read(reader, 1) == b""  # no writer ever opened the pipe
+    finally:
+        env.close()
+        if reader is not None:
+            os.close(reader)
 
 
 # ----------------------------------------------------------------------- rule 5: bounded sizes
