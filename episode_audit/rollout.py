@@ -19,6 +19,7 @@ from ._usercode import import_modules, load_callable
 from .errors import ConfigurationError, RecorderError
 from .format.columns import error_text
 from .record.gym import RecordEvidence
+from .record.writer import check_output_path
 
 __all__ = ["RecordSummary", "RecordingError", "record_episodes"]
 
@@ -95,6 +96,7 @@ def record_episodes(
     """
     import_modules(imports)
     _check_counts(episodes, seed, max_episode_steps)
+    check_output_path(out)  # (a FIFO would block the recorder, /dev/null lose the evidence)
     env = _make_env(env_id, env_kwargs, max_episode_steps)
     # Everything that can be wrong with the arguments is found before the file is touched:
     # a usage error never leaves a file behind, nor replaces one (--overwrite).

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from collections.abc import Mapping
 from pathlib import Path
 from typing import IO, Any
@@ -20,11 +21,48 @@ from mcap.writer import CompressionType, Writer
 from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
 
-__all__ = ["EvidenceWriter"]
+__all__ = ["EvidenceWriter", "check_output_path", "output_kind"]
 
 # Chunks are closed by our own flushes, not by size: one chunk holds one flushed block
 # plus the JSON records written since the previous flush.
 _CHUNK_SIZE = 64 * 1024 * 1024
+
+
+_KINDS = {
+    stat.S_IFDIR: "a directory",
+    stat.S_IFIFO: "a FIFO (named pipe)",
+    stat.S_IFCHR: "a character device",
+    stat.S_IFBLK: "a block device",
+    stat.S_IFSOCK: "a socket",
+}
+
+
+def output_kind(path: str | os.PathLike[str]) -> str | None:
+    """What ``path`` is if it exists and is not a regular file; ``None`` if it is one, or is not.
+
+    >>> output_kind("/dev/null"), output_kind("/no/such/file")
+    ('a character device', None)
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):  # no such file (opening it says why if it cannot be made)
+        return None
+    return None if stat.S_ISREG(mode) else _KINDS.get(stat.S_IFMT(mode), "a special file")
+
+
+def check_output_path(path: str | os.PathLike[str]) -> None:
+    """Refuse an evidence path that exists and is not a regular file.
+
+    Opening a FIFO for writing waits for a reader (``--overwrite`` would hang), a device such as
+    ``/dev/null`` swallows the evidence: a :class:`ConfigurationError` names the path instead.
+    """
+    kind = output_kind(path)
+    if kind == "a directory":
+        raise ConfigurationError(f"{path}: is a directory; give the evidence file's path")
+    if kind is not None:
+        raise ConfigurationError(
+            f"{path}: is {kind}, not a regular file; give the evidence file's path"
+        )
 
 
 class EvidenceWriter:
@@ -58,8 +96,7 @@ class EvidenceWriter:
             raise ConfigurationError(
                 f"compression: expected one of {sorted(modes)}, actually: {compression!r}"
             )
-        if self.path.is_dir():
-            raise ConfigurationError(f"{self.path}: is a directory; give the evidence file's path")
+        check_output_path(self.path)
         try:
             self._stream: IO[bytes] = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115
         except FileExistsError:

@@ -18,7 +18,7 @@ from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import Evidence, open_evidence
 from ..read.inputs import skipped
 from ..record.gym import library_versions
-from .envs import EnvFactory
+from .envs import EnvFactory, replay_notes
 from .pettingzoo import replay_agents_evidence
 from .results import EpisodeReplay, ReplayResult
 from .single import replay_single_evidence
@@ -92,6 +92,12 @@ def replay(
             result.unreadable.append(skipped(path, exc, keep_going=keep_going, on_error=on_error))
             continue
         result.episodes.extend(replayed)
+        if any(e.status != "not_replayable" for e in replayed):
+            notes = replay_notes(
+                ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points
+            )
+            if notes:
+                result.notes[str(ev.path)] = notes
         diffs = _version_differences(ev)
         if diffs:
             result.version_differences[str(ev.path)] = diffs

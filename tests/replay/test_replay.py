@@ -538,9 +538,13 @@ def test_every_episode_whose_outcome_changed_diverges_on_it(tmp_path: Path) -> N
 
 
 def test_rewards_that_are_not_numbers_become_nan() -> None:
-    got = _rewards([1, 10**400, "2.0", np.float32(0.5), True])
+    got, refused = _rewards([1, 10**400, "2.0", np.float32(0.5), True])
     assert [got[0], got[3], got[4]] == [1.0, 0.5, 1.0]
     assert math.isnan(got[1]) and math.isnan(got[2])
+    assert refused == {
+        1: "OverflowError: int too large to convert to float",
+        2: "TypeError: must be real number, not str",
+    }
 
 
 class PrefixTerms(Counter):

@@ -44,10 +44,13 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
         for lib, (recorded, current) in diffs.items()
     ]
     version_headers = ["file", "library", "recorded", "current"]
+    notes = [[file, note] for file, said in result.notes.items() for note in said]
     if output == "markdown":
         parts = [f"### episode-audit replay\n\n{summary}\n"]
         if rows:
             parts.append(markdown_table(headers, rows) + "\n")
+        if notes:
+            parts.append(markdown_table(["file", "note"], notes) + "\n")
         if versions and result.count("diverged"):
             parts.append("Library versions differ from the recording:\n\n")
             parts.append(markdown_table(version_headers, versions) + "\n")
@@ -55,6 +58,8 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
     out: list[RenderableType] = []
     if rows:
         out.append(table("Episodes that did not replay identically", headers, rows))
+    if notes:
+        out.append(table("Replayed without recorded wrappers", ["file", "note"], notes))
     if versions and result.count("diverged"):
         out.append(table("Library versions differ from the recording", version_headers, versions))
     out.append(Text(summary))
