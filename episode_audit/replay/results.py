@@ -116,14 +116,27 @@ class ReplayResult:
         return sum(1 for e in self.episodes if e.status == status)
 
     @property
+    def verified(self) -> int:
+        """How many episodes were actually replayed and compared: identical or diverged.
+
+        0 when every episode was ``not_replayable`` (or there was none): then nothing confirms
+        the evidence, though :attr:`ok` holds; the command fails so unless told it is expected.
+        """
+        return sum(1 for e in self.episodes if e.status != "not_replayable")
+
+    @property
     def ok(self) -> bool:
-        """True when no episode diverged (not-replayable episodes do not fail a replay)."""
+        """True when no episode diverged (not-replayable episodes do not fail a replay).
+
+        See :attr:`verified` for whether anything was compared at all.
+        """
         return self.count("diverged") == 0
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes"}``."""
         return {
             "summary": {
+                "verified": self.verified,
                 "identical": self.count("identical"),
                 "diverged": self.count("diverged"),
                 "not_replayable": self.count("not_replayable"),

@@ -36,7 +36,7 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
         rows.append([e.file, e.episode, e.status, e.steps, where, detail])
     summary = (
         f"{result.count('identical')} identical, {result.count('diverged')} diverged, "
-        f"{result.count('not_replayable')} not replayable"
+        f"{result.count('not_replayable')} not replayable: {result.verified} episode(s) verified"
     )
     versions = [
         [file, lib, recorded, current]
