@@ -96,7 +96,9 @@ class EvidenceFile:
     blocks and the records of the episodes ended since the previous flush, in one chunk.
 
     Args:
-        path: The evidence file to create (never overwritten unless ``settings.overwrite``).
+        path: The evidence file to create (never overwritten unless ``settings.overwrite``): a
+            path template (``runs/train-{index}.mcap``, :class:`~.lock.PathTemplate`); the
+            resolved path is :attr:`path`.
         run: The run metadata (``layout`` says how many streams there are and of what kind).
         settings: The recorder settings (the same for every stream; ``fsync``, ``overwrite``).
         games: Whether episode records and reset rows carry a ``game`` (PettingZoo files).
@@ -131,6 +133,7 @@ class EvidenceFile:
             library=f"episode-audit {__version__}",
             fsync=settings.fsync,
             overwrite=settings.overwrite,
+            template=True,
         )
         self.path = self.writer.path
         try:

@@ -11,14 +11,14 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Mapping
-from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import pyarrow as pa
 from mcap.writer import CompressionType, Writer
 
 from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
+from .lock import LockedStream, claim_output
 
 __all__ = ["EvidenceWriter"]
 
@@ -31,7 +31,10 @@ class EvidenceWriter:
     """Write one evidence file.
 
     The file is created exclusively: an existing file is never overwritten unless
-    ``overwrite=True``, so a mistyped path cannot destroy earlier evidence.
+    ``overwrite=True``, so a mistyped path cannot destroy earlier evidence; and it is locked
+    before a byte is written, so a file another live recorder writes is refused even then
+    (:func:`~episode_audit.record.lock.claim_output`; with ``template``, ``path`` is a
+    :class:`~episode_audit.record.lock.PathTemplate`). :attr:`path` is the file's path.
 
     >>> import tempfile, pathlib
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "run.mcap"
@@ -50,25 +53,19 @@ class EvidenceWriter:
         fsync: bool = False,
         overwrite: bool = False,
         compression: str = "zstd",
+        template: bool = False,
     ) -> None:
-        self.path = Path(path)
         self._fsync = fsync
         modes = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": None}
         if compression not in modes:
             raise ConfigurationError(
                 f"compression: expected one of {sorted(modes)}, actually: {compression!r}"
             )
-        if self.path.is_dir():
-            raise ConfigurationError(f"{self.path}: is a directory; give the evidence file's path")
-        try:
-            self._stream: IO[bytes] = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115
-        except FileExistsError:
-            raise ConfigurationError(
-                f"{self.path}: file exists; evidence is never overwritten — "
-                "choose another path, or pass overwrite=True (--overwrite on the command line)"
-            ) from None
-        except OSError as exc:
-            raise ConfigurationError(f"{self.path}: cannot create: {exc.strerror}") from None
+        # the file is created (or, with overwrite, opened) and locked before a byte is written
+        output = claim_output(path, overwrite=overwrite, template=template)
+        self.path = output.path
+        file = open(output.fd, "wb")  # noqa: SIM115 - closed by finish() or abandon()
+        self._stream: IO[bytes] = cast(IO[bytes], LockedStream(file, output))
         kind = modes[compression]
         self._writer = Writer(
             self._stream,
