@@ -100,13 +100,15 @@ class ReplayResult:
     """Replays of many episodes, with the library versions that differ from the recording.
 
     ``unreadable``: the inputs that could not be read (``replay(..., keep_going=True)``);
-    ``missing``: the selected episode indices that no file replayed had.
+    ``missing``: the selected episode indices that no file replayed had; ``live``: the files a
+    live recorder is still writing, and by whom (their flushed steps were replayed).
     """
 
     episodes: list[EpisodeReplay] = field(default_factory=list)
     version_differences: dict[str, dict[str, tuple[str, str]]] = field(default_factory=dict)
     unreadable: list[Unreadable] = field(default_factory=list)
     missing: list[int] = field(default_factory=list)
+    live: list[tuple[str, str]] = field(default_factory=list)
 
     def count(self, status: Status) -> int:
         """How many episodes ended with ``status``."""
@@ -118,7 +120,7 @@ class ReplayResult:
         return self.count("diverged") == 0
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-able form: ``{"summary": {...}, "episodes": [...], "version_differences"}``."""
+        """A JSON-able form: ``{"summary", "episodes", "version_differences", "live"}``."""
         return {
             "summary": {
                 "identical": self.count("identical"),
@@ -130,6 +132,7 @@ class ReplayResult:
                 file: {lib: {"recorded": a, "current": b} for lib, (a, b) in diffs.items()}
                 for file, diffs in self.version_differences.items()
             },
+            "live": [{"file": file, "why": why} for file, why in self.live],
         }
 
 
