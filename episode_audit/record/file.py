@@ -313,7 +313,8 @@ class EvidenceFile:
     def close(self) -> None:
         """End every open episode as ``incomplete``, flush, and finish the file.
 
-        Safe to call more than once.
+        A file whose path ``{index}`` claimed and that never held an episode is removed, so
+        its index is free again. Safe to call more than once.
         """
         if self.closed:
             return
@@ -335,6 +336,10 @@ class EvidenceFile:
             if self.troubles:
                 run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
                 run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
+            if self.writer.indexed and self.next_episode == 0:
+                # an {index} file that never held an episode gives its index back (gymnasium's
+                # AsyncVectorEnv builds a sub-env it never steps): removed while still locked
+                self.path.unlink(missing_ok=True)
             self.writer.finish(run_end)
         except BaseException:
             self.writer.abandon()

@@ -112,6 +112,7 @@ class Output:
     fd: int
     key: tuple[int, int]
     locked: bool
+    indexed: bool = False  # the path is the one ``{index}`` claimed
 
     def release(self) -> None:
         """Release the writer's lock (only in the process that took it); the fd stays open."""
@@ -155,7 +156,9 @@ def claim_output(
             continue
         except OSError as exc:
             raise ConfigurationError(f"{candidate}: cannot create: {exc.strerror}") from None
-        return _lock(candidate, fd, truncate=False)
+        output = _lock(candidate, fd, truncate=False)
+        output.indexed = True
+        return output
     raise ConfigurationError(f"path {text!r}: every {{index}} below {MAX_INDEX} is taken")
 
 

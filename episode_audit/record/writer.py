@@ -64,6 +64,7 @@ class EvidenceWriter:
         # the file is created (or, with overwrite, opened) and locked before a byte is written
         output = claim_output(path, overwrite=overwrite, template=template)
         self.path = output.path
+        self.indexed = output.indexed  # (an {index} path: its recorder may give it back)
         file = open(output.fd, "wb")  # noqa: SIM115 - closed by finish() or abandon()
         self._stream: IO[bytes] = cast(IO[bytes], LockedStream(file, output))
         kind = modes[compression]
