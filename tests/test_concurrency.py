@@ -163,7 +163,8 @@ def test_check_and_report_see_what_a_live_recorder_flushed(tmp_path: Path) -> No
             assert (result.episodes, result.steps) == (flushed["episodes"], flushed["steps"])
             (unfinished,) = [f for f in result.findings if f.code == "file_unfinished"]
             assert unfinished.severity == "warning"
-            assert unfinished.message.startswith("the writer did not finish the file (")
+            live = f"still being written by pid {child.pid}"
+            assert unfinished.message.startswith(f"the file is {live}: what it had flushed was")
             assert result.ok  # warnings: exit 0, or 1 with --strict (docs/cli.md)
             assert cli("check", str(path))[0] == 0
             code, out, _ = cli("check", str(path), "--strict", "--format", "json")
@@ -177,8 +178,21 @@ def test_check_and_report_see_what_a_live_recorder_flushed(tmp_path: Path) -> No
             assert group.episodes == flushed["episodes"] and group.incomplete == running
             code, out, _ = cli("report", str(path))
             assert code == 0 and "Unfinished files (still being written, or torn)" in out
+            assert rep.unfinished[0][1].startswith(f"{live}: what it had flushed by byte ")
             code, out, _ = cli("show", str(path))
-            assert code == 0 and "UNFINISHED" in out
+            assert code == 0 and f"UNFINISHED ({live}" in out
+            code, out, _ = cli("replay", str(path), "--format", "json")
+            replayed = json.loads(out)
+            assert code == 0 and replayed["summary"]["identical"] == flushed["episodes"]
+            assert [r["file"] for r in replayed["live"]] == [str(path)]
+            reasons = [e["reason"] for e in replayed["episodes"]]
+            assert reasons[-1] == (
+                f"still being recorded (the file is {live}): its flushed steps replayed"
+                if running
+                else None
+            )
+            code, _, err = cli("recover", str(path), "--out", str(tmp_path / "out.mcap"))
+            assert code == 2 and f"is {live}, not torn; wait for it to close" in err
             child.stdin.write("go on\n")
             child.stdin.flush()
         assert json.loads(child.stdout.readline()) == {"closed": True}
