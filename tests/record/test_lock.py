@@ -16,9 +16,9 @@ import pytest
 
 import episode_audit.record.lock as lock_module
 from episode_audit import RecordEvidence, RecordVectorEvidence, check, open_evidence, recover
-from episode_audit.errors import ConfigurationError, EvidenceError
+from episode_audit.errors import ConfigurationError
 from episode_audit.read.liveness import writer_of
-from episode_audit.record.lock import PathTemplate, claim_output
+from episode_audit.record.lock import PathTemplate
 from episode_audit.rollout import record_episodes
 
 REPO = Path(__file__).resolve().parents[2]
@@ -184,52 +184,6 @@ def test_a_filesystem_without_locks_records_anyway_and_warns_once(
     assert check([tmp_path / "a.mcap", tmp_path / "b.mcap"]).ok
 
 
-# ------------------------------------------------------------------ readers
-
-
-def test_readers_say_a_file_is_still_being_written_and_recover_refuses_it(
-    tmp_path: Path,
-) -> None:
-    path = tmp_path / "live.mcap"
-    env = RecordEvidence(gym.make("CartPole-v1"), path, flush_every_s=3600)
-    _record(env)
-    env.flush()
-    try:
-        ev = open_evidence(path)
-        me = f"pid {os.getpid()}"
-        assert ev.writer is not None and ev.writer.pid == os.getpid()
-        assert ev.torn is not None and ev.torn.startswith(
-            f"still being written by this process ({me})"
-        )
-        with pytest.raises(ConfigurationError, match="is still being written by this process"):
-            recover(path, tmp_path / "out.mcap")
-        assert not (tmp_path / "out.mcap").exists()
-        # nor does recovery replace a live recorder's file
-        done = tmp_path / "done.mcap"
-        with RecordEvidence(gym.make("CartPole-v1"), done) as other:
-            _record(other)
-        with pytest.raises(ConfigurationError, match="recovery never replaces a live recorder"):
-            recover(done, path, overwrite=True)
-        assert open_evidence(path).steps().num_rows == 5
-        env.step(0)  # the writer never noticed the readers
-    finally:
-        env.close()
-    ev = open_evidence(path)
-    assert ev.finished and ev.writer is None and ev.steps().num_rows == 6
-
-
-def test_a_live_file_that_holds_nothing_yet_says_so(tmp_path: Path) -> None:
-    output = claim_output(tmp_path / "new.mcap")  # created and locked, nothing written yet
-    try:
-        with pytest.raises(EvidenceError, match=r"still being written by .* it holds nothing yet"):
-            open_evidence(output.path)
-    finally:
-        output.release()
-        os.close(output.fd)
-    with pytest.raises(EvidenceError, match="the file is empty"):
-        open_evidence(output.path)
-
-
 # ------------------------------------------------------------------ path templates
 
 
@@ -343,3 +297,17 @@ def test_processes_racing_for_an_index_get_distinct_files(tmp_path: Path) -> Non
         claimed.append(Path(out.strip()).name)
     assert sorted(claimed) == [f"train-{i}.mcap" for i in range(6)]
     assert check(sorted((tmp_path / "runs").iterdir())).ok
+
+
+def test_the_record_command_takes_a_template_and_names_the_file(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    out = str(tmp_path / "run-{index}.mcap")
+    for index in (0, 1):
+        result = CliRunner().invoke(app, ["record", "CartPole-v1", "--out", out, "--episodes", "1"])
+        assert result.exit_code == 0, result.output
+        assert f"to {tmp_path / f'run-{index}.mcap'}:" in result.stdout
+    result = CliRunner().invoke(app, ["record", "CartPole-v1", "--out", out, "--overwrite"])
+    assert result.exit_code == 2 and "overwrite=True with {index}" in result.stderr
