@@ -148,8 +148,12 @@ def claim_output(
             f"path {text!r}: overwrite=True with {{index}}: the index always takes a free "
             "path and never overwrites one; drop overwrite, or use a path without {index}"
         )
+    taken = _names_in(os.path.dirname(tmpl.render(0)) or ".")
     for index in range(MAX_INDEX):
-        candidate = Path(tmpl.render(index))
+        text = tmpl.render(index)
+        if os.path.basename(text) in taken:
+            continue
+        candidate = Path(text)
         try:
             fd = os.open(candidate, _CREATE | os.O_EXCL, 0o666)
         except FileExistsError:
@@ -160,6 +164,14 @@ def claim_output(
         output.indexed = True
         return output
     raise ConfigurationError(f"path {text!r}: every {{index}} below {MAX_INDEX} is taken")
+
+
+def _names_in(directory: str) -> frozenset[str]:
+    """The names in ``directory`` now (skipped without a try; the claim itself is atomic)."""
+    try:
+        return frozenset(os.listdir(directory))
+    except OSError:
+        return frozenset()
 
 
 def _open_path(path: Path, overwrite: bool) -> Output:
