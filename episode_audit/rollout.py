@@ -19,7 +19,7 @@ from ._usercode import import_modules, load_callable
 from .errors import ConfigurationError, RecorderError
 from .format.columns import error_text
 from .record.gym import RecordEvidence
-from .record.writer import check_output_path
+from .record.lock import check_output_path
 
 __all__ = ["RecordSummary", "RecordingError", "record_episodes"]
 

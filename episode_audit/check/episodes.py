@@ -161,6 +161,8 @@ def _incomplete(records: _Records, ended: BoolArray) -> None:
             cut_off &= ~np.array([e in lost for e in episodes])
         cut = int(cut_off.sum())
         torn = f", {cut} of them cut off by the torn end of the file" if cut else ""
+        if cut and records.state.ev.writer is not None:
+            torn = f", {cut} of them still being recorded (the file is still being written)"
         return f"{len(eps)} episode(s) stopped before they ended{torn} (episodes {listing(eps)})"
 
     def closed(eps: list[int]) -> str:

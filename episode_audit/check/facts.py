@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from ..format import names as fmt
 from ..format.records import listing
+from ..read.liveness import still_written
 from ._state import FileState
 from .registry import (
     EVIDENCE_DAMAGED,
@@ -127,6 +128,16 @@ def check_unfinished(state: FileState) -> None:
     """After the pass over the file: an unfinished file, and whether it held anything."""
     ev = state.ev
     if ev.finished:
+        return
+    if ev.writer is not None:  # not torn: a live recorder still writes it
+        read = "what it had flushed was checked"
+        if not state.steps and not state.episodes and not ev.resets().num_rows:
+            read = "it holds no complete chunk yet: no episode, reset or step to check"
+        state.finding(
+            FILE_UNFINISHED,
+            f"the file is {still_written(ev.writer)}: {read}; wait for its recorder to close "
+            "it, then check it again",
+        )
         return
     # the reader's reason may end by saying it too ("ends at byte N without a summary: the
     # writer did not finish"): the message says it once

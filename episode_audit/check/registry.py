@@ -306,12 +306,13 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "warning",
         "The writer did not finish the file.",
         "The file has no run-end record: the recorder was killed or crashed, or is still "
-        "recording. The message says what the reader dropped, or that the file holds no "
-        "complete chunk at all.",
+        "recording. The message says which: a live recorder holds the file's lock, and is "
+        "named (its pid); for a torn file it says what the reader dropped, or that the file "
+        "holds no complete chunk at all.",
         "Steps after the recorder's last flush are in no file, and the episodes it was "
         "recording are incomplete.",
-        "Close the recorder (`with RecordEvidence(...)`, or `close()`). "
-        "`episode-audit recover` writes a finished copy of a torn file.",
+        "Close the recorder (`with RecordEvidence(...)`, or `close()`); a live one, wait for "
+        "it. `episode-audit recover` writes a finished copy of a torn file.",
     ),
     FindingKind(
         RECORDER_TROUBLE,

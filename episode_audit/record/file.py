@@ -96,7 +96,9 @@ class EvidenceFile:
     blocks and the records of the episodes ended since the previous flush, in one chunk.
 
     Args:
-        path: The evidence file to create (never overwritten unless ``settings.overwrite``).
+        path: The evidence file to create (never overwritten unless ``settings.overwrite``): a
+            path template (``runs/train-{index}.mcap``, :class:`~.lock.PathTemplate`); the
+            resolved path is :attr:`path`.
         run: The run metadata (``layout`` says how many streams there are and of what kind).
         settings: The recorder settings (the same for every stream; ``fsync``, ``overwrite``).
         games: Whether episode records and reset rows carry a ``game`` (PettingZoo files).
@@ -131,6 +133,7 @@ class EvidenceFile:
             library=f"episode-audit {__version__}",
             fsync=settings.fsync,
             overwrite=settings.overwrite,
+            template=True,
         )
         self.path = self.writer.path
         try:
@@ -310,7 +313,8 @@ class EvidenceFile:
     def close(self) -> None:
         """End every open episode as ``incomplete``, flush, and finish the file.
 
-        Safe to call more than once.
+        A file whose path ``{index}`` claimed and that never held an episode is removed, so
+        its index is free again. Safe to call more than once.
         """
         if self.closed:
             return
@@ -332,6 +336,10 @@ class EvidenceFile:
             if self.troubles:
                 run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
                 run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
+            if self.writer.indexed and self.next_episode == 0:
+                # an {index} file that never held an episode gives its index back (gymnasium's
+                # AsyncVectorEnv builds a sub-env it never steps): removed while still locked
+                self.path.unlink(missing_ok=True)
             self.writer.finish(run_end)
         except BaseException:
             self.writer.abandon()

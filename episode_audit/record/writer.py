@@ -10,66 +10,31 @@ from __future__ import annotations
 
 import json
 import os
-import stat
 from collections.abc import Mapping
-from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import pyarrow as pa
 from mcap.writer import CompressionType, Writer
 
 from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
+from .lock import LockedStream, claim_output
 
-__all__ = ["EvidenceWriter", "check_output_path", "output_kind"]
+__all__ = ["EvidenceWriter"]
 
 # Chunks are closed by our own flushes, not by size: one chunk holds one flushed block
 # plus the JSON records written since the previous flush.
 _CHUNK_SIZE = 64 * 1024 * 1024
 
 
-_KINDS = {
-    stat.S_IFDIR: "a directory",
-    stat.S_IFIFO: "a FIFO (named pipe)",
-    stat.S_IFCHR: "a character device",
-    stat.S_IFBLK: "a block device",
-    stat.S_IFSOCK: "a socket",
-}
-
-
-def output_kind(path: str | os.PathLike[str]) -> str | None:
-    """What ``path`` is if it exists and is not a regular file; ``None`` if it is one, or is not.
-
-    >>> output_kind("/dev/null"), output_kind("/no/such/file")
-    ('a character device', None)
-    """
-    try:
-        mode = os.stat(path).st_mode
-    except (OSError, ValueError):  # no such file (opening it says why if it cannot be made)
-        return None
-    return None if stat.S_ISREG(mode) else _KINDS.get(stat.S_IFMT(mode), "a special file")
-
-
-def check_output_path(path: str | os.PathLike[str]) -> None:
-    """Refuse an evidence path that exists and is not a regular file.
-
-    Opening a FIFO for writing waits for a reader (``--overwrite`` would hang), a device such as
-    ``/dev/null`` swallows the evidence: a :class:`ConfigurationError` names the path instead.
-    """
-    kind = output_kind(path)
-    if kind == "a directory":
-        raise ConfigurationError(f"{path}: is a directory; give the evidence file's path")
-    if kind is not None:
-        raise ConfigurationError(
-            f"{path}: is {kind}, not a regular file; give the evidence file's path"
-        )
-
-
 class EvidenceWriter:
     """Write one evidence file.
 
     The file is created exclusively: an existing file is never overwritten unless
-    ``overwrite=True``, so a mistyped path cannot destroy earlier evidence.
+    ``overwrite=True``, so a mistyped path cannot destroy earlier evidence; and it is locked
+    before a byte is written, so a file another live recorder writes is refused even then
+    (:func:`~episode_audit.record.lock.claim_output`; with ``template``, ``path`` is a
+    :class:`~episode_audit.record.lock.PathTemplate`). :attr:`path` is the file's path.
 
     >>> import tempfile, pathlib
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "run.mcap"
@@ -88,24 +53,20 @@ class EvidenceWriter:
         fsync: bool = False,
         overwrite: bool = False,
         compression: str = "zstd",
+        template: bool = False,
     ) -> None:
-        self.path = Path(path)
         self._fsync = fsync
         modes = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": None}
         if compression not in modes:
             raise ConfigurationError(
                 f"compression: expected one of {sorted(modes)}, actually: {compression!r}"
             )
-        check_output_path(self.path)
-        try:
-            self._stream: IO[bytes] = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115
-        except FileExistsError:
-            raise ConfigurationError(
-                f"{self.path}: file exists; evidence is never overwritten — "
-                "choose another path, or pass overwrite=True (--overwrite on the command line)"
-            ) from None
-        except OSError as exc:
-            raise ConfigurationError(f"{self.path}: cannot create: {exc.strerror}") from None
+        # the file is created (or, with overwrite, opened) and locked before a byte is written
+        output = claim_output(path, overwrite=overwrite, template=template)
+        self.path = output.path
+        self.indexed = output.indexed  # (an {index} path: its recorder may give it back)
+        file = open(output.fd, "wb")  # noqa: SIM115 - closed by finish() or abandon()
+        self._stream: IO[bytes] = cast(IO[bytes], LockedStream(file, output))
         kind = modes[compression]
         self._writer = Writer(
             self._stream,

@@ -102,7 +102,9 @@ class ReplayResult:
 
     ``unreadable``: the inputs that could not be read (``replay(..., keep_going=True)``);
     ``missing``: the selected episode indices that no file replayed had; ``notes``: by file,
-    what its env was replayed without (recorded wrappers that never change a step, and why).
+    what its env was replayed without (recorded wrappers that never change a step, and why);
+    ``live``: the files a live recorder is still writing, and by whom (their flushed steps were
+    replayed).
     """
 
     episodes: list[EpisodeReplay] = field(default_factory=list)
@@ -110,6 +112,7 @@ class ReplayResult:
     unreadable: list[Unreadable] = field(default_factory=list)
     missing: list[int] = field(default_factory=list)
     notes: dict[str, list[str]] = field(default_factory=dict)
+    live: list[tuple[str, str]] = field(default_factory=list)
 
     def count(self, status: Status) -> int:
         """How many episodes ended with ``status``."""
@@ -133,7 +136,7 @@ class ReplayResult:
         return self.count("diverged") == 0
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes"}``."""
+        """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes", "live"}``."""
         return {
             "summary": {
                 "verified": self.verified,
@@ -147,6 +150,7 @@ class ReplayResult:
                 for file, diffs in self.version_differences.items()
             },
             "notes": {file: list(notes) for file, notes in self.notes.items()},
+            "live": [{"file": file, "why": why} for file, why in self.live],
         }
 
 
