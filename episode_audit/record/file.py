@@ -5,6 +5,8 @@
 - The episode records of ended episodes are written at each flush (one JSON message each and
   one Arrow block, ``docs/format.md``, "Episode records").
 - Files whose recorder was never closed are finished when the interpreter exits normally.
+- Disk trouble (a refused flush, a close that cannot finish) is the recorder's trouble: warned
+  once in one line, said in the run-end record, never raised into the training loop.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from .settings import RecorderSettings
 from .stream import Stream
 from .writer import EvidenceWriter
 
-__all__ = ["CHUNK_TARGET_BYTES", "EvidenceFile", "FileRecorder"]
+__all__ = ["CHUNK_TARGET_BYTES", "EvidenceFile", "FileRecorder", "warn_line"]
 
 CHUNK_TARGET_BYTES = 32 << 20
 """Largest uncompressed chunk the recorder aims for: a flush comes after at most this many
@@ -59,9 +61,13 @@ class FileRecorder:
     _warns_unclosed = True
 
     def flush(self) -> None:
-        """Write everything recorded so far to the file now."""
+        """Write everything recorded so far to the file now.
+
+        A flush the OS refuses (a full disk) is the recorder's trouble, as in the loop: warned
+        once, retried by the next flush, said in the run-end record; it does not raise.
+        """
         self._file.check_open()
-        self._file.flush()
+        self._file.auto_flush()
 
     def _before_close(self) -> None:
         """Called before the file is finished (by :meth:`_close_file`)."""
@@ -238,13 +244,9 @@ class EvidenceFile:
             self.first_trouble = error_text(exc)[:_TROUBLE_TEXT]
         if not self._warned:
             self._warned = True
-            import warnings
-
-            warnings.warn(
-                f"episode-audit: recording to {self.path} failed ({type(exc).__name__}: {exc}); "
-                "the training loop continues",
-                RuntimeWarning,
-                stacklevel=4,
+            warn_line(
+                f"episode-audit: recording to {self.path} failed ({error_text(exc)}); "
+                "the training loop continues and the file's run-end record says so"
             )
 
     # ------------------------------------------------------------------ episode records
@@ -310,7 +312,9 @@ class EvidenceFile:
     def close(self) -> None:
         """End every open episode as ``incomplete``, flush, and finish the file.
 
-        Safe to call more than once.
+        Safe to call more than once. Disk trouble does not raise: what could not be written is
+        dropped and the run-end record says so; if even that cannot be written, the file ends
+        after its last good flush (``episode-audit recover`` finishes it) and a warning says so.
         """
         if self.closed:
             return
@@ -321,21 +325,60 @@ class EvidenceFile:
             for stream in self.streams:
                 stream.end_open()
             self.flush()
-            run_end = {
-                "status": "finished",
-                "episodes": str(self.counts["episodes"]),
-                "steps": str(self.counts["steps"]),
-                "blocks": str(self.counts["blocks"]),
-                "end_time": datetime.now(timezone.utc).isoformat(),
-                fmt.RUN_END_SUCCESS_REPORTED: str(self.counts["success_reported"]),
-            }
-            if self.troubles:
-                run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
-                run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
-            self.writer.finish(run_end)
+        except OSError as exc:  # (kept staged: finishing writes it, or drops and counts it)
+            self.trouble(exc)
         except BaseException:
             self.writer.abandon()
             raise
+        for _ in range(2):  # the second time with what the first could not write dropped
+            try:
+                self.writer.finish(self._run_end())
+                return
+            except OSError as exc:
+                self.trouble(exc)
+            except BaseException:
+                self.writer.abandon()
+                raise
+        self.writer.abandon()
+        warn_line(
+            f"episode-audit: {self.path} could not be finished ({self.first_trouble}); it ends "
+            f"after its last good flush: `episode-audit recover {self.path}` finishes a copy"
+        )
+
+    def _run_end(self) -> dict[str, str]:
+        """The run-end record: counts of what is in the file, and the recorder's trouble."""
+        lost, lost_messages = self.writer.lost, self.writer.lost_messages
+        steps = sum(lost[s.channels[0]] for s in self.streams)
+        resets = sum(lost[s.channels[1]] for s in self.streams)
+        blocks = sum(lost_messages[s.channels[0]] for s in self.streams)
+        run_end = {
+            "status": "finished",
+            "episodes": str(self.counts["episodes"]),
+            "steps": str(self.counts["steps"] - steps),
+            "blocks": str(self.counts["blocks"] - blocks),
+            "end_time": datetime.now(timezone.utc).isoformat(),
+            fmt.RUN_END_SUCCESS_REPORTED: str(self.counts["success_reported"]),
+        }
+        if self.troubles:
+            run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
+            run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
+        episodes = lost[self._episode_blocks_channel]
+        if steps or resets or episodes:
+            run_end[fmt.RUN_END_LOST_STEPS] = str(steps)
+            run_end[fmt.RUN_END_LOST_RESETS] = str(resets)
+            run_end[fmt.RUN_END_LOST_EPISODES] = str(episodes)
+        return run_end
+
+
+def warn_line(message: str) -> None:
+    """Warn ``message`` (a ``RuntimeWarning``) as one line, without a source line under it."""
+    import warnings
+
+    # A location with no source: the warning prints as "<episode-audit>:0: RuntimeWarning: ...",
+    # never with a line of the recorder's code (or the user's) under it.
+    warnings.warn_explicit(
+        message, RuntimeWarning, "<episode-audit>", 0, module="episode_audit", registry={}
+    )
 
 
 def _episode_record(
