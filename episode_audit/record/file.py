@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import atexit
 import os
+import sys
+import threading
 import time
 import weakref
 from collections.abc import Callable, Iterable
 from datetime import datetime, timezone
+from types import FrameType
 from typing import Any, Protocol
 
 import pyarrow as pa
@@ -43,6 +46,7 @@ the rows a recorder holds stay small and files stay far inside the reader's 1 Gi
 (``read.chunks.MAX_RECORD_BYTES``)."""
 
 _TROUBLE_TEXT = 500  # characters of the first trouble kept in the run-end record
+_CLOSE_WAIT_S = 10.0  # longest close() waits for another thread's step() or reset() to end
 
 
 class _Owner(Protocol):
@@ -52,36 +56,81 @@ class _Owner(Protocol):
 class FileRecorder:
     """What every recorder does with its evidence file (``_file``, which the recorder opens).
 
-    ``flush()``; finishing the file once, on the recorder's ``close()``; and a warning when a
-    recorder that warns (``_warns_unclosed``) is dropped with its file still open.
+    ``flush()``, from any thread; finishing the file once, on the recorder's ``close()``; and a
+    warning when a recorder that warns (``_warns_unclosed``) is dropped with its file still open.
+
+    Threads: the recorder's ``step()`` and ``reset()`` take no lock. They begin with
+    ``if self._gated: self._enter()`` (one attribute read, as a closed check costs anyway);
+    ``flush()`` and ``close()`` set the gate under a lock, then look whether another thread is
+    inside ``step()`` or ``reset()`` (its stack, ``sys._current_frames``): if none, they write
+    while the gate holds new calls back; if one is, ``flush()`` leaves the flush to the end of
+    that call (``flush_at``) and ``close()`` waits for it to return.
     """
 
     _file: EvidenceFile
     _closed: bool
+    _gated: bool  # closed, or a flush() / close() under way: step() and reset() go by _enter()
+    _flush_lock: threading.Lock
     _warns_unclosed = True
 
-    def flush(self) -> None:
-        """Write everything recorded so far to the file now.
+    def _opened(self) -> None:
+        """Mark the recorder open (the last thing a recorder's ``__init__`` does)."""
+        self._flush_lock = threading.Lock()
+        self._closed = False
+        self._gated = False
 
-        A flush the OS refuses (a full disk) is the recorder's trouble, as in the loop: warned
-        once, retried by the next flush, said in the run-end record; it does not raise.
+    def _enter(self) -> None:
+        """The way into ``step()`` / ``reset()`` when gated: raise if closed.
+
+        Else wait for the ``flush()`` under way in another thread.
         """
         self._file.check_open()
-        self._file.auto_flush()
+        if self._gated:
+            with self._flush_lock:
+                pass
+            self._file.check_open()
+
+    def flush(self) -> None:
+        """Write everything recorded so far to the file now; safe from any thread.
+
+        From another thread while a ``step()`` or ``reset()`` is under way, that call flushes as
+        it ends. A flush the OS refuses (a full disk) is the recorder's trouble, as in the loop:
+        warned once, retried by the next flush, said in the run-end record; it does not raise.
+        """
+        self._file.check_open()
+        with self._flush_lock:
+            self._gated = True
+            try:
+                if _inside(self):
+                    self._file.flush_at = 0  # (read at the end of every step and reset)
+                else:
+                    self._file.auto_flush()
+            finally:
+                self._gated = self._closed
 
     def _before_close(self) -> None:
         """Called before the file is finished (by :meth:`_close_file`)."""
 
     def _close_file(self, close_env: Callable[[], None]) -> None:
-        """Finish the file; safe to call more than once. ``close_env`` runs even if it fails."""
+        """Finish the file; safe to call more than once. ``close_env`` runs even if it fails.
+
+        From another thread, a ``step()`` or ``reset()`` under way ends first (within
+        :data:`_CLOSE_WAIT_S`: a thread stuck in its env does not hold the exit).
+        """
         if getattr(self, "_closed", True):
             return
-        self._closed = True
-        try:
-            self._before_close()
-            self._file.close()
-        finally:
-            close_env()
+        with self._flush_lock:
+            if self._closed:
+                return
+            self._closed = self._gated = True
+            deadline = time.monotonic() + _CLOSE_WAIT_S
+            while _inside(self) and time.monotonic() < deadline:
+                time.sleep(0.001)
+            try:
+                self._before_close()
+                self._file.close()
+            finally:
+                close_env()
 
     def __del__(self) -> None:
         if self._warns_unclosed and not getattr(self, "_closed", True):
@@ -93,6 +142,26 @@ class FileRecorder:
                 ResourceWarning,
                 stacklevel=2,
             )
+
+
+def _inside(recorder: FileRecorder) -> bool:
+    """Whether a thread other than this one is inside ``recorder``'s ``step()`` or ``reset()``.
+
+    A thread held at the gate (in :meth:`FileRecorder._enter`) has touched nothing yet: it is not.
+    """
+    cls = type(recorder)
+    entries = {cls.step.__code__, cls.reset.__code__}  # type: ignore[attr-defined]
+    gate = FileRecorder._enter.__code__
+    me = threading.get_ident()
+    for ident, frame in sys._current_frames().items():
+        f: FrameType | None = None if ident == me else frame
+        while f is not None:  # innermost first: the gate is above the call it holds back
+            if (f.f_code is gate or f.f_code in entries) and f.f_locals.get("self") is recorder:
+                if f.f_code is not gate:
+                    return True
+                break
+            f = f.f_back
+    return False
 
 
 class EvidenceFile:
