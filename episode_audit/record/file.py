@@ -108,6 +108,15 @@ class FileRecorder:
             finally:
                 self._gated = self._closed
 
+    @property
+    def trouble(self) -> str | None:
+        """The recorder's first failure inside itself (``Type: message``), if any.
+
+        Such a failure (a full disk) was warned once and never raised; the run-end record
+        says it too.
+        """
+        return self._file.first_trouble
+
     def _before_close(self) -> None:
         """Called before the file is finished (by :meth:`_close_file`)."""
 

@@ -143,3 +143,29 @@ def test_close_on_a_full_disk_does_not_raise_and_the_file_says_what_was_lost(
         recover(tmp_path / "run.mcap", tmp_path / "fixed.mcap")
         assert open_evidence(tmp_path / "fixed.mcap").finished
     assert all(line.startswith("<episode-audit>:0: RuntimeWarning: ") for line in stderr)
+
+
+def test_record_on_a_full_disk_says_one_line_naming_the_file(tmp_path: Path) -> None:
+    """``episode-audit record``: one error line (no warning, no source line), exit 2."""
+    import resource
+
+    out = tmp_path / "cli.mcap"
+
+    def full_at_40_kib() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (40 << 10, resource.RLIM_INFINITY))
+
+    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONDONTWRITEBYTECODE": "1"}
+    done = subprocess.run(
+        [sys.executable, "-m", "episode_audit", "record", "CartPole-v1", "--out", str(out),
+         "--episodes", "400"],
+        capture_output=True, text=True, env=env, timeout=300, check=False,
+        preexec_fn=full_at_40_kib,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert line.startswith(f"episode-audit: error: {out}: recording failed (OSError: [Errno 27]")
+    # the file reads, and says what it could not hold
+    assert "recorder_trouble" in {f.code for f in check([out]).findings}
+    run_end = open_evidence(out).run_end
+    assert run_end is not None and int(run_end["recorder_lost_steps"]) > 0
