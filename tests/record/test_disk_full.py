@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -169,3 +170,66 @@ def test_record_on_a_full_disk_says_one_line_naming_the_file(tmp_path: Path) -> 
     assert "recorder_trouble" in {f.code for f in check([out]).findings}
     run_end = open_evidence(out).run_end
     assert run_end is not None and int(run_end["recorder_lost_steps"]) > 0
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Any:
+    """A 2 MiB tmpfs mounted for the test (root only; skipped where it cannot be mounted)."""
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    try:
+        mounted = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
+            capture_output=True, text=True, check=False, timeout=30,
+        )  # fmt: skip
+    except OSError as exc:
+        pytest.skip(f"cannot run mount: {exc}")
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs (needs root): {mounted.stderr.strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=True, timeout=30)
+
+
+def test_a_real_full_disk_then_space_again_loses_no_row(small_disk: Path, tmp_path: Path) -> None:
+    """ENOSPC from a full tmpfs (partial writes included): held, retried, every row reads."""
+    import gymnasium as gym
+
+    from episode_audit import RecordEvidence
+
+    path = small_disk / "run.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path, block_steps=2000, flush_every_s=3600)
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    episode, steps = 0, 0
+
+    def run(n: int) -> None:
+        nonlocal episode, steps
+        for _ in range(n):
+            steps += 1
+            if any(env.step(env.action_space.sample())[2:4]):
+                episode += 1
+                env.reset(seed=episode)
+
+    run(2000)
+    filler = small_disk / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+    try:  # the disk fills up (a few bytes may be left)
+        while os.write(fd, b"\0" * 4096):
+            pass
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    with pytest.warns(RuntimeWarning, match=r"run\.mcap failed \(OSError: \[Errno 28\] No space"):
+        run(6000)
+    filler.unlink()  # space returns
+    run(2000)
+    env.flush()
+    shutil.copyfile(path, tmp_path / "killed.mcap")  # what a SIGKILL now leaves on disk
+    env.close()
+    killed = open_evidence(tmp_path / "killed.mcap")
+    assert killed.steps(columns=["episode"]).num_rows == steps == 10_000
+    assert check([tmp_path / "killed.mcap"]).steps == steps
+    ev = open_evidence(path)
+    assert ev.finished and ev.steps(columns=["episode"]).num_rows == steps
+    assert ev.run_end is not None and "recorder_lost_steps" not in ev.run_end
