@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mcap.reader import make_reader
 
 from episode_audit import check, open_evidence, recover
 
@@ -137,6 +138,14 @@ def test_close_on_a_full_disk_does_not_raise_and_the_file_says_what_was_lost(
         assert ev.run_end["recorder_lost_episode_records"] != "0"
         assert int(ev.run_end["recorder_trouble"]) >= 2
         assert len(stderr) == 1, stderr
+        # the summary indexes what the file holds (mcap's own reader, through it)
+        with open(tmp_path / "run.mcap", "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            assert summary is not None and summary.statistics is not None
+            read = sum(1 for _ in reader.iter_messages())
+            assert read == summary.statistics.message_count
+            assert len(summary.chunk_indexes) == summary.statistics.chunk_count
     else:  # nothing fits: the file ends after its last good flush; recover finishes it
         assert not ev.finished and ev.steps(columns=["episode"]).num_rows == 3000
         assert len(stderr) == 2, stderr
