@@ -110,3 +110,36 @@ def test_an_idle_recorder_flushed_from_another_thread_has_its_rows_on_disk(
     shutil.copyfile(path, tmp_path / "killed.mcap")  # what a SIGKILL now leaves on disk
     env.close()
     assert open_evidence(tmp_path / "killed.mcap").steps(columns=["episode"]).num_rows == 5
+
+
+def test_close_from_another_thread_keeps_every_step_that_returned(tmp_path: Path) -> None:
+    """The step under way ends first; a later one raises the closed recorder's error."""
+    from episode_audit.errors import RecorderError
+
+    path = tmp_path / "closed.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path, block_steps=64, flush_every_s=3600)
+    env.action_space.seed(0)
+    returned = 0
+    refused: list[BaseException] = []
+
+    def loop() -> None:
+        nonlocal returned
+        episode = 0
+        env.reset(seed=0)
+        try:
+            while True:
+                if any(env.step(env.action_space.sample())[2:4]):
+                    episode += 1
+                    env.reset(seed=episode)
+                returned += 1
+        except RecorderError as exc:
+            refused.append(exc)
+
+    stepper = threading.Thread(target=loop)
+    stepper.start()
+    time.sleep(0.5)
+    env.close()
+    stepper.join(timeout=30)
+    assert len(refused) == 1 and "the recorder is closed" in str(refused[0])
+    ev = open_evidence(path)
+    assert ev.finished and ev.steps(columns=["episode"]).num_rows in (returned, returned + 1)
