@@ -37,7 +37,7 @@ from .settings import RecorderSettings
 from .stream import Stream
 from .writer import EvidenceWriter
 
-__all__ = ["CHUNK_TARGET_BYTES", "EvidenceFile", "FileRecorder", "warn_line"]
+__all__ = ["CHUNK_TARGET_BYTES", "EvidenceFile", "FileRecorder"]
 
 CHUNK_TARGET_BYTES = 32 << 20
 """Largest uncompressed chunk the recorder aims for: a flush comes after at most this many
@@ -322,7 +322,7 @@ class EvidenceFile:
             self.first_trouble = error_text(exc)[:_TROUBLE_TEXT]
         if not self._warned:
             self._warned = True
-            warn_line(
+            _warn_line(
                 f"episode-audit: recording to {self.path} failed ({error_text(exc)}); "
                 "the training loop continues and the file's run-end record says so"
             )
@@ -418,7 +418,7 @@ class EvidenceFile:
                 self.writer.abandon()
                 raise
         self.writer.abandon()
-        warn_line(
+        _warn_line(
             f"episode-audit: {self.path} could not be finished ({self.first_trouble}); it ends "
             f"after its last good flush: `episode-audit recover {self.path}` finishes a copy"
         )
@@ -448,7 +448,7 @@ class EvidenceFile:
         return run_end
 
 
-def warn_line(message: str) -> None:
+def _warn_line(message: str) -> None:
     """Warn ``message`` (a ``RuntimeWarning``) as one line, without a source line under it."""
     import warnings
 
