@@ -94,7 +94,7 @@ class RecordEvidence(
         )
         self._file.start()
         self._record_step = self._stream.step
-        self._closed = False
+        self._opened()
 
     @property
     def spec(self) -> EnvSpec | None:  # type: ignore[override]
@@ -105,17 +105,14 @@ class RecordEvidence(
         """
         return self.env.spec
 
-    def _check_open(self) -> None:
-        self._file.check_open()
-
     # ------------------------------------------------------------------ gymnasium API
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[gym.core.ObsType, dict[str, Any]]:
         """Reset the env, recording the seed (or the RNG state), options and observation."""
+        self._enter()
         file = self._file
-        file.check_open()
         stream = self._stream
         notes: list[str] = []
         episode = None
@@ -148,8 +145,8 @@ class RecordEvidence(
         self, action: gym.core.ActType
     ) -> tuple[gym.core.ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
         """Step the env and record the step; the 5-tuple is returned untouched."""
-        if self._closed:
-            self._check_open()
+        if self._gated:
+            self._enter()
         try:
             result = self.env.step(action)
         except Exception as exc:

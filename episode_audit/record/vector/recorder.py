@@ -125,7 +125,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         )
         self._record_step = self._steps.record
         self._obs_space = env.observation_space
-        self._closed = False
+        self._opened()
 
     # ------------------------------------------------------------------ gymnasium API
 
@@ -136,8 +136,8 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         options: dict[str, Any] | None = None,
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the vector env (or the sub-envs of ``options["reset_mask"]``) and record it."""
+        self._enter()
         file = self._file
-        file.check_open()
         n = self._n
         indices, recorded_options = reset_targets(options, n)
         seeds = seeds_of(seed, n, self._sub_envs)
@@ -175,15 +175,15 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
                 )
             autoreset.were_reset(indices)
             if file.due():
-                file.flush()
+                file.auto_flush()
         except Exception as exc:  # never break the training loop over recording trouble
             file.trouble(exc)
         return obs, infos
 
     def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
         """Step every sub-env and record each sub-env's step; the results are returned untouched."""
-        if self._closed:
-            self._file.check_open()
+        if self._gated:
+            self._enter()
         try:
             result = self.env.step(actions)
         except Exception as exc:
