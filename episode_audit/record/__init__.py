@@ -2,9 +2,11 @@
 
 Public: :class:`RecordEvidence` (Gymnasium), :class:`RecordVectorEvidence` and
 :class:`ResetRngInfo` (vector envs), ``RecordParallelEvidence`` and ``RecordAECEvidence``
-(PettingZoo, imported on first use), their options (:class:`RecorderOptions`, checked by
-:class:`RecorderSettings`), and the rules that read an env's info: :class:`RewardTerms`,
-:class:`EndingRules`, :class:`Ending`. How recording works: ``docs/recording.md``.
+(PettingZoo, imported on first use), ``RecordVecEnvEvidence``, ``RecordEvalCallback`` and
+``record_evaluation`` (Stable-Baselines3, :mod:`.sb3`, imported on first use), their options
+(:class:`RecorderOptions`, checked by :class:`RecorderSettings`), and the rules that read an
+env's info: :class:`RewardTerms`, :class:`EndingRules`, :class:`Ending`. How recording works:
+``docs/recording.md``.
 """
 
 from __future__ import annotations
@@ -18,19 +20,31 @@ __all__ = [
     "Ending",
     "EndingRules",
     "RecordAECEvidence",
+    "RecordEvalCallback",
     "RecordEvidence",
     "RecordParallelEvidence",
+    "RecordVecEnvEvidence",
     "RecordVectorEvidence",
     "RecorderOptions",
     "RecorderSettings",
     "ResetRngInfo",
     "RewardTerms",
+    "record_evaluation",
 ]
+
+_LAZY = {
+    "RecordAECEvidence": "pettingzoo",
+    "RecordParallelEvidence": "pettingzoo",
+    "RecordEvalCallback": "sb3",
+    "RecordVecEnvEvidence": "sb3",
+    "record_evaluation": "sb3",
+}
 
 
 def __getattr__(name: str) -> object:
-    if name not in ("RecordAECEvidence", "RecordParallelEvidence"):
+    module = _LAZY.get(name)
+    if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from . import pettingzoo  # imports pettingzoo (optional): only when asked for
+    import importlib  # the extra's package (optional): only when asked for
 
-    return getattr(pettingzoo, name)
+    return getattr(importlib.import_module(f".{module}", __name__), name)

@@ -18,6 +18,7 @@ from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, Vecto
 from gymnasium.vector.utils import iterate
 from typing_extensions import Unpack
 
+from ...errors import ConfigurationError
 from ...format.spaces import codec_for, describe_space
 from ..file import EvidenceFile, FileRecorder
 from ..rules import find_time_limit
@@ -71,6 +72,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         **options: Unpack[RecorderOptions],
     ) -> None:
         check_options(options, "RecordVectorEvidence.__init__()")
+        _check_vector_env(env)
         super().__init__(env)
         settings = RecorderSettings(**options)
         base = env.unwrapped
@@ -189,6 +191,23 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _check_vector_env(env: Any) -> None:
+    """Refuse what is not a ``gymnasium.vector.VectorEnv``, naming the recorder that takes it."""
+    if isinstance(env, VectorEnv):
+        return
+    kind = type(env)
+    sb3 = any(c.__module__.startswith("stable_baselines3.") for c in kind.__mro__)
+    hint = (
+        "a Stable-Baselines3 VecEnv: record it with episode_audit.RecordVecEnvEvidence(venv, path)"
+        if sb3
+        else "record a single env with RecordEvidence"
+    )
+    raise ConfigurationError(
+        f"RecordVectorEvidence records a gymnasium.vector.VectorEnv, actually: "
+        f"{kind.__module__}.{kind.__qualname__}, {hint}"
+    )
 
 
 def vector_layout(
