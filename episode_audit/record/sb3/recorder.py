@@ -80,6 +80,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         ConfigurationError: ``venv`` is not an SB3 ``VecEnv``, or an option is out of range.
     """
 
+    _closed = True  # until the file is open (read by a half-built object's __del__ too)
+
     def __init__(
         self,
         venv: VecEnv,
