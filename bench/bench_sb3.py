@@ -125,6 +125,6 @@ def bench(tmp: Path) -> dict[str, Any]:
     if not available():
         return {"skipped": "SB3 not installed (pip install 'episode-audit[sb3]')"}
     return {
-        "ppo_training": bench_ppo(tmp, 8192, 4),
+        "ppo_training": bench_ppo(tmp, 4096, 3),
         "vecenv_recorder": bench_vecenv(tmp, 8, 5000, 5),
     }
