@@ -49,17 +49,17 @@ def bench_ppo(tmp: Path, steps: int, rounds: int) -> dict[str, Any]:
 
     torch.set_num_threads(1)
 
-    def run(recorded: bool, r: int) -> float:
+    def run(recorded: bool, r: int, name: str = "ppo") -> float:
         venv: Any = DummyVecEnv([_cartpole] * 4)
         if recorded:
-            venv = RecordVecEnvEvidence(venv, tmp / f"ppo-{r}.mcap", overwrite=True)
+            venv = RecordVecEnvEvidence(venv, tmp / f"{name}-{r}.mcap", overwrite=True)
         model = PPO("MlpPolicy", venv, n_steps=256, seed=r)
         start = time.perf_counter()
         model.learn(steps)
         venv.close()
         return time.perf_counter() - start
 
-    run(True, -1)  # warm up (imports, first torch kernels)
+    run(True, 0, "warm")  # warm up (imports, first torch kernels)
     bare: list[float] = []
     rec: list[float] = []
     for r in range(rounds):
