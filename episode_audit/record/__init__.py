@@ -32,19 +32,15 @@ __all__ = [
     "record_evaluation",
 ]
 
-_LAZY = {
-    "RecordAECEvidence": "pettingzoo",
-    "RecordParallelEvidence": "pettingzoo",
-    "RecordEvalCallback": "sb3",
-    "RecordVecEnvEvidence": "sb3",
-    "record_evaluation": "sb3",
-}
-
 
 def __getattr__(name: str) -> object:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib  # the extra's package (optional): only when asked for
+    # the extras' packages (optional): imported only when asked for
+    if name in ("RecordAECEvidence", "RecordParallelEvidence"):
+        from . import pettingzoo
 
-    return getattr(importlib.import_module(f".{module}", __name__), name)
+        return getattr(pettingzoo, name)
+    if name in ("RecordEvalCallback", "RecordVecEnvEvidence", "record_evaluation"):
+        from . import sb3
+
+        return getattr(sb3, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
