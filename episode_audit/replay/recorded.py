@@ -30,6 +30,7 @@ __all__ = [
 
 _RECORD_COLUMNS = (
     fmt.COL_EPISODE,
+    fmt.COL_ENV_INDEX,
     "seed",
     "rng_state",
     "options",

@@ -1,0 +1,33 @@
+"""Envs and wrappers with state beyond an episode, for replay's verdict tests.
+
+``EpisodeCount`` keeps a count of resets and adds it to every observation; ``counted_cartpole``
+is the env factory that builds CartPole in it (as --env-factory MODULE:CALLABLE).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+
+class EpisodeCount(gym.ObservationWrapper[Any, Any, Any], gym.utils.RecordConstructorArgs):
+    """Adds the number of resets so far to the observation: state across episodes."""
+
+    def __init__(self, env: gym.Env[Any, Any]) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.ObservationWrapper.__init__(self, env)
+        self.resets = 0
+
+    def reset(self, **kwargs: Any) -> Any:
+        self.resets += 1
+        return super().reset(**kwargs)
+
+    def observation(self, observation: Any) -> Any:
+        return (observation + np.float32(self.resets)).astype(np.float32)
+
+
+def counted_cartpole() -> gym.Env[Any, Any]:
+    """CartPole (at most 8 steps an episode) in :class:`EpisodeCount`."""
+    return EpisodeCount(gym.make("CartPole-v1", max_episode_steps=8))
