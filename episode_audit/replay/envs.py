@@ -22,7 +22,7 @@ from .._usercode import load_callable
 from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
 from ..format.records import RunInfo
-from .wrappers import plan_wrappers
+from ..format.wrappers import plan_wrappers
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",

@@ -1,4 +1,4 @@
-"""The registry of recorded wrappers (replay/wrappers.py) against the installed Gymnasium."""
+"""The registry of recorded wrappers (format/wrappers.py) against the installed Gymnasium."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import inspect
 import gymnasium as gym
 import pytest
 
-from episode_audit.replay.wrappers import RECORDED_WRAPPERS, plan_wrappers
+from episode_audit.format.wrappers import RECORDED_WRAPPERS, plan_wrappers
 
 _GYMNASIUM = {
     entry: rule
