@@ -22,7 +22,13 @@ from ..errors import ReplayError
 from ..format import names as fmt
 from ..read import Evidence
 from .envs import EnvFactory, build_env
-from .recorded import episode_records, layout_not_replayable, row_ranges, to_end
+from .recorded import (
+    episode_records,
+    layout_not_replayable,
+    row_ranges,
+    state_not_restorable,
+    to_end,
+)
 from .results import EpisodeReplay, none_replayable
 from .runner import EpisodeRunner
 
@@ -46,7 +52,7 @@ def replay_single_evidence(
 ) -> list[EpisodeReplay]:
     """Replay the episodes of one open single-env or vector evidence file."""
     wanted = None if episodes is None else set(episodes)
-    why_not = layout_not_replayable(ev.run.layout)
+    why_not = layout_not_replayable(ev.run.layout) or state_not_restorable(ev.run)
     if why_not is not None:
         return none_replayable(str(ev.path), episode_records(ev, wanted), why_not)
 

@@ -8,9 +8,9 @@ from typing import Any
 import gymnasium as gym
 import pytest
 
-from episode_audit import RecordVectorEvidence
+from episode_audit import RecordEvidence, RecordVectorEvidence, check, open_evidence
 from episode_audit.replay import replay
-from tests.support.stateful import counted_cartpole
+from tests.support.stateful import cartpole8, counted_cartpole, normalized_cartpole
 
 
 def record_vector(path: Path, vectorization: str, n: int = 3, steps: int = 60) -> Path:
@@ -34,3 +34,67 @@ def test_each_sub_env_replays_in_its_own_env_in_recorded_order(
     statuses = [(e.episode, e.status, e.divergence) for e in result.episodes]
     assert len(statuses) > 12
     assert all(s == "identical" for _, s, _ in statuses), statuses
+
+
+def run_episodes(env: Any, episodes: int, seed: int = 100) -> None:
+    env.action_space.seed(seed)
+    for e in range(episodes):
+        env.reset(seed=seed + e)
+        done = False
+        while not done:
+            _, _, term, trunc, _ = env.step(env.action_space.sample())
+            done = term or trunc
+
+
+def test_warmed_up_normalize_observation_is_not_replayable_never_diverged(
+    tmp_path: Path,
+) -> None:
+    env = normalized_cartpole()
+    run_episodes(env, 5, seed=1)  # warmed up: running statistics the file will not hold
+    path = tmp_path / "n.mcap"
+    with pytest.warns(UserWarning, match=r"RecordEvidence: the recorded wrapper NormalizeObs"):
+        rec = RecordEvidence(env, path)
+    with rec:
+        run_episodes(rec, 6)
+    for factory in (None, normalized_cartpole):
+        result = replay([path], env_factory=factory)
+        assert [e.status for e in result.episodes] == ["not_replayable"] * 6
+        reason = result.episodes[0].reason or ""
+        assert "NormalizeObservation keeps running statistics" in reason, reason
+        assert "(no state snapshot)" in reason
+    findings = [f for f in check([path]).findings if f.code == "not_replayable"]
+    assert [f.message for f in findings] == [
+        "no episode can be replayed as recorded: " + (result.episodes[0].reason or "")
+    ]
+
+
+def test_vector_wrapper_under_the_recorder_is_recorded_warned_and_not_replayable(
+    tmp_path: Path,
+) -> None:
+    envs: Any = gym.vector.SyncVectorEnv([cartpole8] * 2)
+    envs = gym.wrappers.vector.NormalizeObservation(gym.wrappers.vector.ClipReward(envs, 0, 1))
+    path = tmp_path / "vw.mcap"
+    with pytest.warns(UserWarning, match=r"RecordVectorEvidence: the recorder wrapped") as caught:
+        rec = RecordVectorEvidence(envs, path)
+    warned = [str(w.message) for w in caught]
+    assert len(warned) == 2  # one warning per cause, the innermost first
+    assert "the vector wrapper ClipReward (gymnasium.wrappers.vector." in warned[0]
+    assert "the vector wrapper NormalizeObservation" in warned[1]
+    assert "wrap the vector env in RecordVectorEvidence first (innermost)" in warned[1]
+    with rec:
+        rec.reset(seed=1)
+        for _ in range(20):
+            rec.step(rec.action_space.sample())
+    ev = open_evidence(path)
+    assert ev.run.layout["vector_wrappers"] == [
+        "gymnasium.wrappers.vector.vectorize_reward:ClipReward",
+        "gymnasium.wrappers.vector.stateful_observation:NormalizeObservation",
+    ]
+    result = replay([path], env_factory=cartpole8)
+    assert result.count("diverged") == 0
+    assert result.count("not_replayable") == len(result.episodes) > 2
+    reason = result.episodes[0].reason or ""
+    assert "vector wrapper ClipReward" in reason and "vector wrapper NormalizeObservation" in reason
+    findings = [f.message for f in check([path]).findings if f.code == "not_replayable"]
+    assert len(findings) == 2
+    assert "ClipReward" in findings[0] and "NormalizeObservation" in findings[1]

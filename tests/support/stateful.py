@@ -31,3 +31,13 @@ class EpisodeCount(gym.ObservationWrapper[Any, Any, Any], gym.utils.RecordConstr
 def counted_cartpole() -> gym.Env[Any, Any]:
     """CartPole (at most 8 steps an episode) in :class:`EpisodeCount`."""
     return EpisodeCount(gym.make("CartPole-v1", max_episode_steps=8))
+
+
+def normalized_cartpole() -> gym.Env[Any, Any]:
+    """CartPole (at most 8 steps an episode) in a fresh NormalizeObservation."""
+    return gym.wrappers.NormalizeObservation(gym.make("CartPole-v1", max_episode_steps=8))
+
+
+def cartpole8() -> gym.Env[Any, Any]:
+    """CartPole, at most 8 steps an episode (a vector env's sub-env)."""
+    return gym.make("CartPole-v1", max_episode_steps=8)
