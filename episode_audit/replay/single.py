@@ -21,7 +21,7 @@ import pyarrow.compute as pc
 from ..errors import ReplayError
 from ..format import names as fmt
 from ..read import Evidence
-from .envs import EnvFactory, build_env
+from .envs import EnvFactory, build_env, env_mismatch
 from .recorded import (
     episode_records,
     layout_not_replayable,
@@ -57,7 +57,12 @@ def replay_single_evidence(
         return none_replayable(str(ev.path), episode_records(ev, wanted), why_not)
 
     def build() -> gym.Env[Any, Any]:
-        return build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
+        env = build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
+        why = env_mismatch(ev.run, env)
+        if why is not None:
+            env.close()
+            raise ReplayError(why)
+        return env
 
     def runner(env: gym.Env[Any, Any]) -> EpisodeRunner:
         return EpisodeRunner(ev, env, atol=atol, progress=progress)

@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import pytest
 
-from episode_audit import RecordEvidence, RecordVectorEvidence, check, open_evidence
+from episode_audit import (
+    RecordEvidence,
+    RecordParallelEvidence,
+    RecordVectorEvidence,
+    check,
+    open_evidence,
+)
 from episode_audit.replay import replay
 from tests.support.stateful import cartpole8, counted_cartpole, normalized_cartpole
 
@@ -98,3 +105,61 @@ def test_vector_wrapper_under_the_recorder_is_recorded_warned_and_not_replayable
     findings = [f.message for f in check([path]).findings if f.code == "not_replayable"]
     assert len(findings) == 2
     assert "ClipReward" in findings[0] and "NormalizeObservation" in findings[1]
+
+
+def test_pistonball_rebuilt_with_other_agents_names_the_difference(tmp_path: Path) -> None:
+    pytest.importorskip("pymunk")
+    with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.butterfly import pistonball_v6
+
+    path = tmp_path / "pb.mcap"
+    with RecordParallelEvidence(pistonball_v6.parallel_env(n_pistons=5, max_cycles=3), path) as env:
+        env.reset(seed=1)
+        while env.agents:
+            env.step({a: env.action_space(a).sample() for a in env.agents})
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert len(result.episodes) == 5
+    reason = result.episodes[0].reason or ""
+    assert reason.startswith(
+        'the rebuilt env does not match the recording: agents ["piston_0", "piston_1", '
+        '"piston_2", "piston_3", "piston_4"] recorded vs ["piston_0", '
+    ), reason
+
+
+@pytest.mark.parametrize(
+    ("factory", "reason"),
+    [
+        (
+            "tests.support.stateful:cartpole8",
+            "the rebuilt env does not match the recording: max episode steps 5 recorded vs 8 "
+            "rebuilt",
+        ),
+        (
+            "tests.support.stateful:mountain_car5",
+            "the rebuilt env does not match the recording: observation space "
+            '{"dtype": "float32", "high": [4.800000190734863, "inf"',
+        ),
+    ],
+)
+def test_a_rebuilt_env_that_differs_is_named_not_diverged(
+    tmp_path: Path, factory: str, reason: str
+) -> None:
+    path = tmp_path / "cp.mcap"
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=5), path) as env:
+        run_episodes(env, 2)
+    result = replay([path], env_factory=factory)
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2
+    assert (result.episodes[0].reason or "").startswith(reason), result.episodes[0].reason
+
+
+def test_an_env_kwarg_the_rebuilt_env_has_otherwise_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "fl.mcap"
+    with RecordEvidence(gym.make("FrozenLake-v1", is_slippery=False), path) as env:
+        run_episodes(env, 1)
+    result = replay([path], env_factory=lambda: gym.make("FrozenLake-v1", is_slippery=True))
+    assert result.episodes[0].reason == (
+        "the rebuilt env does not match the recording: env kwarg 'is_slippery' false recorded "
+        "vs true rebuilt"
+    )

@@ -41,3 +41,8 @@ def normalized_cartpole() -> gym.Env[Any, Any]:
 def cartpole8() -> gym.Env[Any, Any]:
     """CartPole, at most 8 steps an episode (a vector env's sub-env)."""
     return gym.make("CartPole-v1", max_episode_steps=8)
+
+
+def mountain_car5() -> gym.Env[Any, Any]:
+    """MountainCar, at most 5 steps an episode (another env than CartPole)."""
+    return gym.make("MountainCar-v0", max_episode_steps=5)
