@@ -17,7 +17,13 @@ from episode_audit import (
     open_evidence,
 )
 from episode_audit.replay import replay
-from tests.support.stateful import cartpole8, counted_cartpole, normalized_cartpole
+from tests.support.stateful import (
+    cartpole8,
+    counted_cartpole,
+    mutating_cartpole,
+    normalized_cartpole,
+    random_module_cartpole,
+)
 
 
 def record_vector(path: Path, vectorization: str, n: int = 3, steps: int = 60) -> Path:
@@ -163,3 +169,21 @@ def test_an_env_kwarg_the_rebuilt_env_has_otherwise_is_named(tmp_path: Path) -> 
         "the rebuilt env does not match the recording: env kwarg 'is_slippery' false recorded "
         "vs true rebuilt"
     )
+
+
+@pytest.mark.parametrize(
+    ("factory", "where", "field"),
+    [(random_module_cartpole, None, "reset_observation"), (mutating_cartpole, 0, "reward")],
+    ids=["random-module-reset", "mutating-wrapper"],
+)
+def test_real_nondeterminism_still_diverges_at_the_right_step(
+    tmp_path: Path, factory: Any, where: int | None, field: str
+) -> None:
+    path = tmp_path / "nd.mcap"
+    with RecordEvidence(factory(), path) as env:
+        run_episodes(env, 3)
+    result = replay([path], env_factory=factory)
+    assert [e.status for e in result.episodes] == ["diverged"] * 3
+    divergence = result.episodes[0].divergence
+    assert divergence is not None
+    assert (divergence.step, divergence.field) == (where, field)

@@ -1,7 +1,8 @@
 """Envs and wrappers with state beyond an episode, for replay's verdict tests.
 
 ``EpisodeCount`` keeps a count of resets and adds it to every observation; ``counted_cartpole``
-is the env factory that builds CartPole in it (as --env-factory MODULE:CALLABLE).
+is the env factory that builds CartPole in it (as --env-factory MODULE:CALLABLE). The others are
+factories of envs that differ from CartPole's recording, or are nondeterministic on purpose.
 """
 
 from __future__ import annotations
@@ -46,3 +47,35 @@ def cartpole8() -> gym.Env[Any, Any]:
 def mountain_car5() -> gym.Env[Any, Any]:
     """MountainCar, at most 5 steps an episode (another env than CartPole)."""
     return gym.make("MountainCar-v0", max_episode_steps=5)
+
+
+class RandomModuleReset(gym.Wrapper[Any, Any, Any, Any]):
+    """Adds a draw of the ``random`` module (not the env's RNG) to the reset observation."""
+
+    def reset(self, **kwargs: Any) -> Any:
+        import random
+
+        obs, info = self.env.reset(**kwargs)
+        return (obs + np.float32(random.random())).astype(np.float32), info
+
+
+class MutatesOutsideAnyAdapter(gym.Wrapper[Any, Any, Any, Any]):
+    """Adds the number of steps any instance ever took to the reward: state no adapter knows
+    (a class attribute, so the replay's wrapper goes on from where the recording's stopped)."""
+
+    steps = 0
+
+    def step(self, action: Any) -> Any:
+        obs, reward, term, trunc, info = self.env.step(action)
+        type(self).steps += 1
+        return obs, float(reward) + type(self).steps, term, trunc, info
+
+
+def random_module_cartpole() -> gym.Env[Any, Any]:
+    """CartPole whose reset observation draws from the ``random`` module."""
+    return RandomModuleReset(gym.make("CartPole-v1", max_episode_steps=8))
+
+
+def mutating_cartpole() -> gym.Env[Any, Any]:
+    """CartPole in :class:`MutatesOutsideAnyAdapter`."""
+    return MutatesOutsideAnyAdapter(gym.make("CartPole-v1", max_episode_steps=8))
