@@ -2,8 +2,9 @@
 
 :func:`check_file_facts` runs before the steps (``recorder_trouble``, ``file_recovered``,
 ``evidence_damaged``, ``summary_damaged``, ``run_end_damaged``, ``missing_env_spec``, a vector
-file's ``not_replayable``, ``format_version``); :func:`check_unfinished` after them
-(``file_unfinished``, which says whether the file held anything).
+file's ``not_replayable`` and those of :mod:`.replayable`, ``format_version``);
+:func:`check_unfinished` after them (``file_unfinished``, which says whether the file held
+anything).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from .registry import (
     RUN_END_DAMAGED,
     SUMMARY_DAMAGED,
 )
+from .replayable import check_state_causes
 
 __all__ = ["check_file_facts", "check_unfinished"]
 
@@ -106,6 +108,7 @@ def _replayable(state: FileState) -> None:
     if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
         why = layout.get("replay_note") or "the vector env had no sub-envs"
         state.finding(NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
+    check_state_causes(state)
 
 
 def _format_version(state: FileState) -> None:

@@ -370,10 +370,14 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "warning",
         "Episodes that cannot be replayed.",
         "Episodes with neither a reset seed nor an RNG state, one finding per file listing up "
-        "to five; or a vector file whose vector env had no sub-envs, so no episode can be "
-        "replayed on its own.",
+        "to five; a vector file whose vector env had no sub-envs, so no episode can be "
+        "replayed on its own; or, one finding per cause, state replay cannot restore: a "
+        "recorded wrapper that keeps state across episodes (running statistics) without a "
+        "state snapshot, or a vector wrapper the vector recorder wrapped.",
         "`replay` cannot re-run them, so nothing confirms that their steps are what the env does.",
-        "Reset before stepping, with a seed (`env.reset(seed=...)`) where you can.",
+        "Reset before stepping, with a seed (`env.reset(seed=...)`) where you can; put the "
+        "recorder innermost, directly around the env (or the vector env), under wrappers that "
+        "keep state.",
     ),
     FindingKind(
         MISSING_ENV_SPEC,

@@ -529,7 +529,9 @@ def test_infos_neither_dict_nor_list_of_dicts_are_noted_and_the_rows_kept(
 ) -> None:
     path = tmp_path / "odd.mcap"
     envs = _SetInfos(SyncVectorEnv([_Quiet, _Quiet]), infos)
-    with RecordVectorEvidence(envs, path) as rec:
+    with pytest.warns(UserWarning, match="the recorder wrapped the vector wrapper _SetInfos"):
+        rec = RecordVectorEvidence(envs, path)
+    with rec:
         rec.reset(seed=1)
         for _ in range(4):  # 3 steps, then the autoreset
             rec.step(np.zeros(2, dtype=np.int64))

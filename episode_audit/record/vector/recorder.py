@@ -20,7 +20,9 @@ from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
 from ...format.spaces import codec_for, describe_space
+from ...format.wrappers import LAYOUT_VECTOR_WRAPPERS
 from ..file import EvidenceFile, FileRecorder
+from ..gym import warn_unrestorable, wrapper_chain
 from ..rules import find_time_limit
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from .infos import env_infos
@@ -95,14 +97,19 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         if mode is AutoresetMode.SAME_STEP and sync is not None and install_rng_info:
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
+        layout = vector_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note)
+        vector_wrappers = _vector_wrappers(env)
+        if vector_wrappers:
+            layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
         self.run_info = run_info(
             settings=settings,
             spec=sub_spec,
             observation_space=describe_space(obs_space),
             action_space=describe_space(act_space),
-            layout=vector_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note),
+            layout=layout,
             notes=notes,
         )
+        warn_unrestorable(type(self).__name__, _sub_wrappers(sync, sub_spec), layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
@@ -275,3 +282,23 @@ def _max_steps(
         if isinstance(limit, int) and not isinstance(limit, bool):
             limits[i] = limit
     return limits
+
+
+def _vector_wrappers(env: Any) -> list[str]:
+    """The entry points of the vector wrappers the recorder wraps, innermost first."""
+    chain: list[str] = []
+    try:
+        while isinstance(env, gym.vector.VectorWrapper) and len(chain) < 64:
+            chain.append(f"{type(env).__module__}:{type(env).__qualname__}")
+            env = env.env
+    except Exception:  # an env's own attribute access: the chain walked so far
+        pass
+    return chain[::-1]
+
+
+def _sub_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]:
+    """The entry points of the first sub-env's wrappers: walked, else as its spec names them."""
+    if sync is not None and sync.envs:
+        return wrapper_chain(sync.envs[0])
+    wrappers = getattr(sub_spec, "additional_wrappers", None) or ()
+    return [str(getattr(w, "entry_point", "")) for w in wrappers]

@@ -9,16 +9,29 @@ through an optional array library). Any other wrapper is unknown, refused too. N
 imports what a file names: a wrapper is rebuilt only from ``gymnasium.wrappers`` by a name in
 the registry. :func:`plan_wrappers` reads a spec's ``additional_wrappers`` into a
 :class:`WrapperPlan`; ``--trust-entry-points`` bypasses all of this (the spec as recorded).
+:func:`state_causes` says, from a file's run metadata alone, what makes the state its episodes
+began in unrestorable (the recorder warns of the same at construction; ``check`` and replay
+report it).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-__all__ = ["RECORDED_WRAPPERS", "WrapperKind", "WrapperPlan", "WrapperRule", "plan_wrappers"]
+__all__ = [
+    "LAYOUT_VECTOR_WRAPPERS",
+    "RECORDED_WRAPPERS",
+    "WrapperKind",
+    "WrapperPlan",
+    "WrapperRule",
+    "plan_wrappers",
+    "state_causes",
+    "stateful_wrapper",
+    "vector_wrapper_cause",
+]
 
 WrapperKind = Literal["rebuilt", "transparent", "stateful", "refused"]
 
@@ -319,3 +332,73 @@ def _bad_argument(name: str, rule: WrapperRule, kwargs: Any) -> str | None:
             shown = shown if len(shown) <= 80 else shown[:77] + "..."
             return f"the recorded wrapper {name}'s argument {arg}: expected {expected}, got {shown}"
     return None
+
+
+LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
+"""The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
+first; absent in files that predate it, and when there were none)."""
+
+
+def stateful_wrapper(entry_point: str) -> str | None:
+    """Why the wrapper of ``entry_point`` keeps state a file does not hold, or ``None``.
+
+    ``None`` for every wrapper but those the registry calls ``stateful``.
+    """
+    rule = RECORDED_WRAPPERS.get(entry_point)
+    return rule.why if rule is not None and rule.kind == "stateful" else None
+
+
+_VECTOR_STEP_SAFE = frozenset(
+    f"gymnasium.wrappers.vector.{module}:{name}"
+    for module, name in (
+        ("dict_info_to_list", "DictInfoToList"),  # the recorder reads infos either way
+        ("common", "RecordEpisodeStatistics"),  # adds episode totals to the infos
+    )
+)
+"""Vector wrappers that change no sub-env's observation, action, reward or flags."""
+
+
+def vector_wrapper_cause(entry_point: str) -> str | None:
+    """Why a vector wrapper under the vector recorder makes its episodes unreplayable.
+
+    ``None`` for those that change no sub-env's step (they only rearrange or add infos).
+    """
+    if entry_point in _VECTOR_STEP_SAFE:
+        return None
+    module, _, name = entry_point.rpartition(":")
+    return (
+        f"the recorder wrapped the vector wrapper {name[:80]} ({module[:120]}): the steps it "
+        "recorded are that wrapper's, which no sub-env rebuilt alone gives; wrap the vector env "
+        f"in RecordVectorEvidence first (innermost), then in {name[:80]}"
+    )
+
+
+def state_causes(env_spec: Any, layout: Any) -> list[str]:
+    """What makes the state a file's episodes began in unrestorable, one reason per cause.
+
+    From the run metadata alone (``env_spec``: the recorded env spec, a sub-env's for a vector
+    file; ``layout``: the file's layout): each recorded wrapper that keeps state across episodes
+    (:func:`stateful_wrapper`), and each vector wrapper the vector recorder wrapped.
+    """
+    causes: list[str] = []
+    wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    for wrapper in _listed(wrappers):
+        entry = str(wrapper.get("entry_point")) if isinstance(wrapper, Mapping) else ""
+        why = stateful_wrapper(entry)
+        if why is not None:
+            name = entry.rpartition(":")[2]
+            causes.append(
+                f"the recorded wrapper {name} {why.removeprefix('it ')} (no state snapshot): "
+                f"its episodes cannot begin in the state they were recorded in; record with the "
+                f"recorder inside {name} (innermost)"
+            )
+    vector = layout.get(LAYOUT_VECTOR_WRAPPERS) if isinstance(layout, Mapping) else None
+    causes += [c for entry in _listed(vector) if (c := vector_wrapper_cause(str(entry)))]
+    return causes
+
+
+def _listed(value: Any) -> Iterable[Any]:
+    """A recorded list (a single value: a list of it; none: empty), at most 64 items."""
+    if value is None:
+        return []
+    return (value if isinstance(value, list) else [value])[:64]
