@@ -17,6 +17,7 @@ import pyarrow as pa
 
 from ..format import names as fmt
 from ..format.records import EpisodeRanges, from_json
+from ..format.spaces import codec_in
 from ..read import Evidence
 from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
@@ -46,8 +47,15 @@ class EpisodeRunner:
         self.file = str(ev.path)
         self.env = env
         self.progress = progress
-        self.obs_codec = ev.observation_codec
-        self.act_codec = ev.action_codec
+        # a space of a class episode-audit does not know: the env's own converts its JSON
+        obs_codec, act_codec = ev.observation_codec, ev.action_codec
+        digest = ev.run.recorder.get("digest_min_bytes")
+        self.obs_codec = (
+            None
+            if obs_codec is None
+            else codec_in(obs_codec, env.observation_space, digest_min_bytes=digest)
+        )
+        self.act_codec = None if act_codec is None else codec_in(act_codec, env.action_space)
         rules, terms_rule = rules_of(ev.run)
         self.comparison = (
             None

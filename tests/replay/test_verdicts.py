@@ -8,6 +8,7 @@ from typing import Any
 
 import gymnasium as gym
 import pytest
+from typer.testing import CliRunner
 
 from episode_audit import (
     RecordEvidence,
@@ -16,7 +17,9 @@ from episode_audit import (
     check,
     open_evidence,
 )
+from episode_audit.cli import app
 from episode_audit.replay import replay
+from tests.support.mission import mission_env
 from tests.support.stateful import (
     cartpole8,
     counted_cartpole,
@@ -187,3 +190,41 @@ def test_real_nondeterminism_still_diverges_at_the_right_step(
     divergence = result.episodes[0].divergence
     assert divergence is not None
     assert (divergence.step, divergence.field) == (where, field)
+
+
+def record_missions(path: Path, episodes: int = 4) -> Path:
+    """Random steps of :class:`MissionEnv`: a Dict observation with a space of its own class."""
+    with RecordEvidence(mission_env(), path) as rec:
+        rec.action_space.seed(1)
+        for e in range(episodes):
+            rec.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = rec.step(rec.action_space.sample())
+                done = term or trunc
+    return path
+
+
+def test_an_unknown_sub_space_is_stored_as_json_and_the_file_replays(tmp_path: Path) -> None:
+    path = record_missions(tmp_path / "m.mcap")
+    ev = open_evidence(path)
+    stored = ev.steps_schema.field("observation").type
+    assert str(stored) == "struct<mission: string, pos: fixed_size_list<item: float>[2]>"
+    result = replay([path], env_factory=mission_env)
+    assert [(e.status, e.reason) for e in result.episodes] == [("identical", None)] * 4
+    notes = [(f.severity, f.code, f.message) for f in check([path]).findings]
+    assert (
+        "note",
+        "observation_space_unchecked",
+        "observation['mission']: MissionSpace is not a Gymnasium space episode-audit knows: "
+        "stored as JSON; its values were not checked against it",
+    ) in notes
+    assert not [n for n in notes if n[1] == "not_replayable"]
+
+
+def test_the_cli_replays_a_file_with_an_unknown_sub_space(tmp_path: Path) -> None:
+    path = record_missions(tmp_path / "m.mcap", episodes=2)
+    factory = "tests.support.mission:mission_env"
+    result = CliRunner().invoke(app, ["replay", str(path), "--env-factory", factory])
+    assert result.exit_code == 0, result.output
+    assert "2 identical, 0 diverged, 0 not replayable" in result.stdout
