@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -190,6 +191,37 @@ def test_real_nondeterminism_still_diverges_at_the_right_step(
     divergence = result.episodes[0].divergence
     assert divergence is not None
     assert (divergence.step, divergence.field) == (where, field)
+    assert [e.restored for e in result.episodes] == [
+        "seed 100; first episode in this env",
+        "seed 101; this env after 1 earlier episode",
+        "seed 102; this env after 2 earlier episodes",
+    ]
+
+
+def test_a_divergence_names_the_rng_state_and_the_sub_env_it_restored(tmp_path: Path) -> None:
+    path = tmp_path / "v.mcap"
+    envs: Any = gym.vector.SyncVectorEnv([mutating_cartpole] * 2)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=5)  # seeded once: every later reset of a sub-env is unseeded
+        rec.action_space.seed(3)
+        for _ in range(20):
+            rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=mutating_cartpole)
+    by_env: dict[int, list[str | None]] = {}
+    for e in result.episodes:
+        assert e.status == "diverged", e
+        env_index = int(open_evidence(path).episodes().to_pylist()[e.episode]["env_index"])
+        by_env.setdefault(env_index, []).append(e.restored)
+    assert by_env[1][:2] == [
+        "seed 6; first episode in sub-env 1's env",
+        "the recorded RNG state (an unseeded reset); sub-env 1's env after 1 earlier episode",
+    ]
+    args = ["replay", str(path), "--env-factory", "tests.support.stateful:mutating_cartpole"]
+    shown = CliRunner().invoke(app, [*args, "--format", "markdown"])
+    assert shown.exit_code == 1
+    assert "(restored: seed 5; first episode in sub-env 0's env) |" in shown.stdout
+    as_json = json.loads(CliRunner().invoke(app, [*args, "--format", "json"]).stdout)
+    assert as_json["episodes"][0]["restored"] == "seed 5; first episode in sub-env 0's env"
 
 
 def record_missions(path: Path, episodes: int = 4) -> Path:
