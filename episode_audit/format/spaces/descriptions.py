@@ -70,7 +70,7 @@ class UnknownSpace(Space[Any]):
         return hash((self.class_path, self.text))
 
     def __repr__(self) -> str:
-        return f"UnknownSpace({self.class_path!r}, {self.text!r})"
+        return f"Custom({self.class_path})"
 
 
 def _plain(value: Any) -> Any:
