@@ -26,6 +26,7 @@ __all__ = [
     "Status",
     "env_error",
     "none_replayable",
+    "restored_state",
     "short",
 ]
 
@@ -94,6 +95,9 @@ class EpisodeReplay:
     steps: int
     divergence: Divergence | None = None
     reason: str | None = None
+    restored: str | None = None
+    """For a diverged episode: the state replay restored before its reset, e.g.
+    ``"seed 7; 2 earlier episodes in this env"`` (:func:`restored_state`)."""
 
 
 @dataclass
@@ -152,6 +156,35 @@ class ReplayResult:
             "notes": {file: list(notes) for file, notes in self.notes.items()},
             "live": [{"file": file, "why": why} for file, why in self.live],
         }
+
+
+def restored_state(
+    record: Mapping[str, Any],
+    earlier: int,
+    *,
+    env: str = "this env",
+    snapshots: Iterable[str] = (),
+) -> str:
+    """What replay restored before an episode's reset, in one line.
+
+    ``record`` is its episode record (its ``seed``, else its ``rng_state``: an unseeded reset);
+    ``earlier`` how many episodes ``env`` (a vector file: the sub-env's own) replayed before it;
+    ``snapshots`` names each state snapshot set before the reset (e.g.
+    ``"snapshot of NormalizeObservation"``).
+
+    >>> restored_state({"seed": 7}, 0)
+    'seed 7; first episode in this env'
+    >>> restored_state({"seed": None, "rng_state": "{}"}, 2, env="sub-env 1's env")
+    "the recorded RNG state (an unseeded reset); sub-env 1's env after 2 earlier episodes"
+    """
+    seed = record.get("seed")
+    parts = [f"seed {seed}" if seed is not None else "the recorded RNG state (an unseeded reset)"]
+    parts.extend(snapshots)
+    if earlier:
+        parts.append(f"{env} after {earlier} earlier episode{'s' if earlier != 1 else ''}")
+    else:
+        parts.append(f"first episode in {env}")
+    return "; ".join(parts)
 
 
 def none_replayable(

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import pytest
+from typer.testing import CliRunner
 
 from episode_audit import (
     RecordEvidence,
@@ -16,7 +18,9 @@ from episode_audit import (
     check,
     open_evidence,
 )
+from episode_audit.cli import app
 from episode_audit.replay import replay
+from tests.support.mission import mission_env
 from tests.support.stateful import (
     cartpole8,
     counted_cartpole,
@@ -187,3 +191,72 @@ def test_real_nondeterminism_still_diverges_at_the_right_step(
     divergence = result.episodes[0].divergence
     assert divergence is not None
     assert (divergence.step, divergence.field) == (where, field)
+    assert [e.restored for e in result.episodes] == [
+        "seed 100; first episode in this env",
+        "seed 101; this env after 1 earlier episode",
+        "seed 102; this env after 2 earlier episodes",
+    ]
+
+
+def test_a_divergence_names_the_rng_state_and_the_sub_env_it_restored(tmp_path: Path) -> None:
+    path = tmp_path / "v.mcap"
+    envs: Any = gym.vector.SyncVectorEnv([mutating_cartpole] * 2)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=5)  # seeded once: every later reset of a sub-env is unseeded
+        rec.action_space.seed(3)
+        for _ in range(20):
+            rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=mutating_cartpole)
+    by_env: dict[int, list[str | None]] = {}
+    for e in result.episodes:
+        assert e.status == "diverged", e
+        env_index = int(open_evidence(path).episodes().to_pylist()[e.episode]["env_index"])
+        by_env.setdefault(env_index, []).append(e.restored)
+    assert by_env[1][:2] == [
+        "seed 6; first episode in sub-env 1's env",
+        "the recorded RNG state (an unseeded reset); sub-env 1's env after 1 earlier episode",
+    ]
+    args = ["replay", str(path), "--env-factory", "tests.support.stateful:mutating_cartpole"]
+    shown = CliRunner().invoke(app, [*args, "--format", "markdown"])
+    assert shown.exit_code == 1
+    assert "(restored: seed 5; first episode in sub-env 0's env) |" in shown.stdout
+    as_json = json.loads(CliRunner().invoke(app, [*args, "--format", "json"]).stdout)
+    assert as_json["episodes"][0]["restored"] == "seed 5; first episode in sub-env 0's env"
+
+
+def record_missions(path: Path, episodes: int = 4) -> Path:
+    """Random steps of :class:`MissionEnv`: a Dict observation with a space of its own class."""
+    with RecordEvidence(mission_env(), path) as rec:
+        rec.action_space.seed(1)
+        for e in range(episodes):
+            rec.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = rec.step(rec.action_space.sample())
+                done = term or trunc
+    return path
+
+
+def test_an_unknown_sub_space_is_stored_as_json_and_the_file_replays(tmp_path: Path) -> None:
+    path = record_missions(tmp_path / "m.mcap")
+    ev = open_evidence(path)
+    stored = ev.steps_schema.field("observation").type
+    assert str(stored) == "struct<mission: string, pos: fixed_size_list<item: float>[2]>"
+    result = replay([path], env_factory=mission_env)
+    assert [(e.status, e.reason) for e in result.episodes] == [("identical", None)] * 4
+    notes = [(f.severity, f.code, f.message) for f in check([path]).findings]
+    assert (
+        "note",
+        "observation_space_unchecked",
+        "observation['mission']: MissionSpace is not a Gymnasium space episode-audit knows: "
+        "stored as JSON; its values were not checked against it",
+    ) in notes
+    assert not [n for n in notes if n[1] == "not_replayable"]
+
+
+def test_the_cli_replays_a_file_with_an_unknown_sub_space(tmp_path: Path) -> None:
+    path = record_missions(tmp_path / "m.mcap", episodes=2)
+    factory = "tests.support.mission:mission_env"
+    result = CliRunner().invoke(app, ["replay", str(path), "--env-factory", factory])
+    assert result.exit_code == 0, result.output
+    assert "2 identical, 0 diverged, 0 not replayable" in result.stdout

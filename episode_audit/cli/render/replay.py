@@ -35,6 +35,8 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
         d = e.divergence
         where = "-" if d is None else ("reset" if d.step is None else f"step {d.step}")
         detail = d.describe() if d is not None else (e.reason or "")
+        if e.restored:
+            detail += f" (restored: {e.restored})"
         rows.append([e.file, e.episode, e.status, e.steps, where, detail])
     summary = (
         f"{result.count('identical')} identical, {result.count('diverged')} diverged, "
