@@ -639,3 +639,63 @@ def test_recovering_a_recovered_file_again_keeps_its_cut_off_episodes(
     assert set(second.damaged_episodes.first(100)) == evidence_in_chunk(once, damaged_at[0])
     out = open_evidence(twice)
     assert json.loads(out.run_end["cut_off_episodes"]) == sorted(cut_off)  # type: ignore[index]
+
+
+def chunk_steps(path: Path) -> dict[int, pa.Table]:
+    """The step rows of each chunk of ``path``, by the chunk's offset."""
+    return {
+        chunk.offset: pa.Table.from_batches(chunk.steps).select(["episode", "step", "reward"])
+        for chunk in open_evidence(path).scan()
+        if chunk.steps
+    }
+
+
+def disk_full_copy(recorded: Path, directory: Path, k: int, written: int) -> Path:
+    """``recorded`` as a brief disk-full leaves it: of chunk ``k`` (and its message indexes)
+    only the first ``written`` bytes reached the file; the writer went on appending the later
+    chunks after them, flushed, and was killed before writing its last chunk."""
+    chunks, _ = layout(recorded)
+    data = recorded.read_bytes()
+    (offset, _), (following, _) = chunks[k], chunks[k + 1]
+    spliced = data[: offset + written] + data[following : chunks[-1][0]]
+    out = directory / f"disk-full-{k}-{written}.mcap"
+    out.write_bytes(spliced)
+    return out
+
+
+@pytest.mark.parametrize("written", [1, 5, 40, "half", "index"])
+def test_recover_resynchronises_after_a_partial_chunk_and_keeps_every_later_step(
+    recorded: Path, tmp_path: Path, written: int | str
+) -> None:
+    """Found by the issue's disk-full run: recover kept the chunks before a partial one and
+    dropped every intact chunk after it as "a partial unknown record"."""
+    chunks, _ = layout(recorded)
+    k = 1  # the first chunk holds the channel definitions
+    offset, length = chunks[k]
+    # cut inside the chunk's record head, its header, its records; or after the whole chunk,
+    # inside the message index records that follow it
+    cut = {"half": length // 2, "index": length + 10}.get(str(written), written)
+    assert isinstance(cut, int)
+    spliced = disk_full_copy(recorded, tmp_path, k, cut)
+    result = recover(spliced, tmp_path / "out.mcap")
+    # the partial record is one damaged stretch, up to the next intact chunk (where the
+    # writer went on); nothing is dropped at the end (the kill came after a flush)
+    lost = offset if written != "index" else None
+    start = offset if lost is not None else offset + length
+    assert [(d.offset, d.length) for d in result.damaged] == [(start, offset + cut - start)]
+    assert result.dropped_bytes == 0
+    assert result.chunks == len(chunks) - 1 - (lost is not None)
+    # every step of every later chunk comes back, untouched
+    by_chunk = chunk_steps(recorded)
+    expected = pa.concat_tables(
+        table for at, table in by_chunk.items() if at not in (lost, chunks[-1][0])
+    )
+    out = open_evidence(tmp_path / "out.mcap")
+    assert out.steps(columns=["episode", "step", "reward"]).equals(expected)
+    later = sum(t.num_rows for at, t in by_chunk.items() if offset < at < chunks[-1][0])
+    assert later >= 2 * 32 and result.steps == expected.num_rows
+    # the episodes with evidence in the lost chunk are named as damaged, no others
+    truth = evidence_in_chunk(recorded, offset) if lost is not None else set()
+    assert set(result.damaged_episodes.first(1000)) == truth
+    text = result.summary()
+    assert "1 damaged stretch(es) skipped (" in text and f" at byte {start} " in text
