@@ -960,10 +960,15 @@ def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
     _call(outcome, "export", lambda: export([path], scratch / "export", overwrite=True))
     _call(outcome, "replay", lambda: replay([path]))
 
+    # a file the audit refuses is never "already finished: copied unchanged"
+    refused = sorted({"reading", "streaming", "check"} & set(outcome.errors))
+
     def recovering() -> None:
         # what recover writes is finished evidence the audit reads (it skips damaged chunks)
         out = scratch / "recovered.mcap"
-        recover(path, out, overwrite=True)
+        result = recover(path, out, overwrite=True)
+        if result.already_finished and refused:
+            raise Escaped(f"recover copied unchanged a file that {refused} refused")
         if not open_evidence(out).finished:
             raise Escaped("recover wrote an unfinished file")
         check([out])

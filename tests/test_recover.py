@@ -34,6 +34,7 @@ from episode_audit.cli import app
 from episode_audit.read import iter_records
 from episode_audit.replay import replay as replay_files
 from tests import kill_harness
+from tests.support.hostile import replace_column, rewrite
 
 runner = CliRunner()
 
@@ -699,3 +700,46 @@ def test_recover_resynchronises_after_a_partial_chunk_and_keeps_every_later_step
     assert set(result.damaged_episodes.first(1000)) == truth
     text = result.summary()
     assert "1 damaged stretch(es) skipped (" in text and f" at byte {start} " in text
+
+
+def _nulls_in(column: str) -> Any:
+    def edit(batch: pa.RecordBatch) -> pa.RecordBatch:
+        values = batch.column(column).to_pylist()
+        values[0] = None
+        return replace_column(batch, column, values)
+
+    return edit
+
+
+def _unknown_outcome(batch: pa.RecordBatch) -> pa.RecordBatch:
+    return replace_column(batch, "outcome", ["won"] * batch.num_rows)
+
+
+def _reward_as_text(batch: pa.RecordBatch) -> pa.RecordBatch:
+    i = batch.schema.get_field_index("reward")
+    return batch.set_column(i, "reward", pa.array([str(v) for v in batch.column(i).to_pylist()]))
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        {"steps": _nulls_in("terminated")},
+        {"steps": _reward_as_text},
+        {"resets": _nulls_in("env_index")},
+        {"episodes": _unknown_outcome},
+    ],
+    ids=["null flags", "wrong type", "null reset key", "unknown outcome"],
+)
+def test_a_finished_file_the_reader_refuses_is_refused_not_copied(
+    recorded: Path, tmp_path: Path, edit: dict[str, Any]
+) -> None:
+    """Found by the issue's fuzzing: recover said "already finished: copied unchanged
+    (nothing to recover)" and exited 0 on files every other command refused."""
+    bad = rewrite(recorded, tmp_path / "bad.mcap", **edit)
+    code, _, refused = run("check", str(bad))
+    assert code == 2 and str(bad) in refused
+    code, out, err = run("recover", str(bad), "-o", str(tmp_path / "out.mcap"))
+    assert (code, out, err) == (2, "", refused)  # the same one line as the other commands
+    with pytest.raises(CorruptEvidenceError):
+        recover(bad, tmp_path / "out.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap"]  # nothing written

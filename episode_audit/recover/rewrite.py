@@ -34,8 +34,10 @@ def recover(
     tail are dropped; the run-end record has ``status=recovered`` and says what was dropped
     (see ``docs/format.md``).
     Episodes without an end record stay ``incomplete`` (``ended`` false), as a reader of the
-    torn file sees them. A finished, intact input is copied unchanged. The input is never
-    changed; the output is written next to ``out`` and renamed into place once finished.
+    torn file sees them. A finished input that reads whole (as ``check`` reads it) is copied
+    unchanged; one whose content the reader refuses is refused with the reader's error. The
+    input is never changed; the output is written next to ``out`` and renamed into place once
+    finished.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
     (without ``overwrite``) or cannot be created, and
@@ -63,7 +65,7 @@ def recover(
     ev = _open_input(src)
     tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
     try:
-        if ev.finished and not (ev.summary_damage or ev.run_end_damage) and not _damage_in(src):
+        if ev.finished and not (ev.summary_damage or ev.run_end_damage) and _intact(src, ev):
             result = _copy_unchanged(src, ev, tmp, dst)
         else:
             result = _rewrite(src, tmp, dst, ev.summary_damage)
@@ -92,9 +94,29 @@ def _open_input(src: Path) -> Evidence:
         ) from None
 
 
-def _damage_in(path: Path) -> bool:
-    """Whether a walk over the finished file ``path`` meets damage (every chunk checked)."""
-    return any(isinstance(item, DamagedRegion) for item in iter_records(path, skip_damaged=True))
+def _intact(path: Path, ev: Evidence) -> bool:
+    """Whether the finished file ``path`` (opened as ``ev``) reads whole, as the audit reads it.
+
+    A walk over every record meets no damage, and a full read (every block decoded and
+    checked, the spaces' codecs built) raises nothing. Damage a recovery can skip gives
+    False; anything else the reader refuses is raised, as the other commands raise it:
+    copying the file would not make it readable.
+    """
+    if any(isinstance(item, DamagedRegion) for item in iter_records(path, skip_damaged=True)):
+        return False
+    try:  # in the order ``check`` reads a file, so that the first problem is the same
+        ev.observation_codec  # noqa: B018 - built (and checked) on first use
+        ev.action_codec  # noqa: B018
+        ev.steps_schema  # noqa: B018
+        for _ in ev.iter_step_batches():
+            pass
+        ev.resets()
+        ev.episodes()
+    except CorruptEvidenceError as exc:
+        if exc.problem.endswith(RECOVER_HINT):
+            return False
+        raise
+    return True
 
 
 def _copy_unchanged(src: Path, ev: Evidence, tmp: Path, dst: Path) -> RecoveryResult:
