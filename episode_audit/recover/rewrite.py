@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import shutil
 from datetime import datetime, timezone
 from pathlib import Path
@@ -18,7 +17,7 @@ from ..format import names as fmt
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
-from .files import check_paths, fsync, publish
+from .files import Temporary, check_paths
 from .kept import Kept
 from .result import RecoveryResult, record_name
 
@@ -63,19 +62,18 @@ def recover(
     src, dst = Path(path), Path(out)
     check_paths(src, dst, overwrite)
     ev = _open_input(src)
-    tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
+    tmp = Temporary(dst)
     try:
         if ev.finished and not (ev.summary_damage or ev.run_end_damage) and _intact(src, ev):
-            result = _copy_unchanged(src, ev, tmp, dst)
+            result = _copy_unchanged(src, ev, tmp.path, dst)
         else:
             result = _rewrite(src, tmp, dst, ev.summary_damage)
-            check = open_evidence(tmp)
+            check = open_evidence(tmp.path)
             if not check.finished:  # pragma: no cover - the writer finished it just now
-                raise CorruptEvidenceError(tmp, f"the recovered file is unfinished: {check.torn}")
-        fsync(tmp)
-        publish(tmp, dst, overwrite)
+                raise CorruptEvidenceError(dst, f"the recovered file is unfinished: {check.torn}")
+        tmp.publish(overwrite)
     finally:
-        tmp.unlink(missing_ok=True)
+        tmp.discard()
     return result
 
 
@@ -124,27 +122,27 @@ def _copy_unchanged(src: Path, ev: Evidence, tmp: Path, dst: Path) -> RecoveryRe
     try:
         shutil.copyfile(src, tmp)
     except OSError as exc:
-        raise ConfigurationError(f"{tmp}: cannot write: {exc.strerror}") from None
+        raise ConfigurationError(f"{dst}: cannot write: {exc.strerror}") from None
     lengths = ev.episodes()["length"]
     steps = int(pc.sum(lengths).as_py() or 0)
     size = src.stat().st_size
     return RecoveryResult(src, dst, True, 0, 0, len(lengths), steps, (), 0, None, size)
 
 
-def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> RecoveryResult:
+def _rewrite(src: Path, tmp: Temporary, dst: Path, summary_damage: str | None) -> RecoveryResult:
     """Copy ``src``'s complete, intact records into the new file ``tmp`` and finish it."""
     records = iter_records(src, skip_damaged=True)
     header = next(records)
     if not isinstance(header, Header):  # open_evidence found one: the walk does too
         raise CorruptEvidenceError(src, "the first record is not an MCAP header")
-    writer = EvidenceWriter(tmp, library=header.library)
+    writer = EvidenceWriter(tmp.path, library=header.library, overwrite=tmp.unnamed)
     try:
         copy = RecordCopy(src, writer)
         end = copy.copy(records)
         # What the output holds so far (an unfinished file, read as a torn one) says which
         # episodes were cut off, and with damage, which lost evidence.
         try:
-            kept = Kept.of(tmp, copy.damage, closed=copy.closed, run_end=copy.run_end or {})
+            kept = Kept.of(tmp.path, copy.damage, closed=copy.closed, run_end=copy.run_end or {})
         except EvidenceError as exc:  # what it copied from src: name src
             raise type(exc)(src, exc.problem) from None
         result = _result(src, dst, copy, end, kept, summary_damage)
