@@ -49,7 +49,7 @@ from .layout import (
     _Unreadable,
 )
 from .opening import _footer, _open_mcap, _summary_damage
-from .resync import index_framing_holds, next_intact
+from .resync import Resync, index_framing_holds
 
 
 @dataclass(frozen=True)
@@ -121,13 +121,14 @@ def iter_records(
     with the next record. When the file has a readable summary (it was finished), garbled
     framing is skipped too, up to the next chunk or metadata record the summary locates: only
     bytes after the last of those end the walk. Without one (a torn file), it goes on at the
-    next record that checks (:func:`~.resync.next_intact`), if any.
+    next record that checks (:class:`~.resync.Resync`), if any.
     """
     p = Path(path)
     with _open_mcap(p) as f:
         size = os.fstat(f.fileno()).st_size
         known, names = _record_starts(f) if skip_damaged else ([], {})
-        resync = skip_damaged and not known  # no summary to say where records start
+        # without a summary to say where records start, the walk looks for them after damage
+        resync = Resync(f, p, size) if skip_damaged and not known else None
         f.seek(len(_MAGIC))
         pos = len(_MAGIC)
         summary = False  # past the data-end record: the summary section, skipped
@@ -144,11 +145,11 @@ def iter_records(
             name = names.get(pos)  # the metadata record the summary locates here, if any
             what = "a record" if name is None else f"the {name} metadata record"
             bad = _bad_framing(what, pos, opcode, length, size, None if summary else nxt, name)
-            index = resync and opcode == _OP_MESSAGE_INDEX  # (checked: it may be partial)
+            index = resync is not None and opcode == _OP_MESSAGE_INDEX  # (it may be partial)
             if bad is None and index and not index_framing_holds(f.read(length)):
                 bad = f"a message index at byte {pos} is garbled"
             if bad is not None:
-                nxt = _resume_at(f, p, pos, size, nxt, resync)
+                nxt = _resume_at(pos, nxt, resync)
                 if nxt is None:
                     yield FileEnd(pos, size, opcode, False)
                     return
@@ -158,9 +159,9 @@ def iter_records(
                 continue
             if opcode == _OP_CHUNK and not summary:
                 item = _chunk_item(f, p, pos, stop, skip_damaged)
-                if resync and isinstance(item, DamagedRegion):
+                if resync is not None and isinstance(item, DamagedRegion):
                     # a partial chunk declares bytes of the records written after it
-                    stop = next_intact(f, p, pos + 1, size) or stop
+                    stop = resync.after(pos) or stop
                     item = DamagedRegion(pos, stop - pos, item.why)
                 yield item
             elif not index:
@@ -174,7 +175,7 @@ def iter_records(
                     try:
                         yield _top_level(opcode, body)
                     except _Unreadable:
-                        nxt = _resume_at(f, p, pos, size, nxt, resync)
+                        nxt = _resume_at(pos, nxt, resync)
                         if nxt is None:
                             yield FileEnd(pos, size, opcode, False)
                             return
@@ -186,17 +187,15 @@ def iter_records(
             f.seek(pos)
 
 
-def _resume_at(
-    f: IO[bytes], path: Path, pos: int, size: int, nxt: int | None, resync: bool
-) -> int | None:
+def _resume_at(pos: int, nxt: int | None, resync: Resync | None) -> int | None:
     """Where a walk goes on after damage at ``pos`` (None: the damage ends it).
 
     At the next record the summary locates (``nxt``), else, with ``resync``, at the next one
     that checks: a failed write leaves a partial record, and a writer that went on, whole ones
     after it.
     """
-    if nxt is None and resync:
-        return next_intact(f, path, pos + 1, size)
+    if nxt is None and resync is not None:
+        return resync.after(pos)
     return nxt
 
 

@@ -19,7 +19,7 @@ from ..errors import CorruptEvidenceError
 from .chunks import MAX_RECORD_BYTES, _ChunkRef, _decompress, _read_chunk_record
 from .layout import _OP_CHUNK, _OP_METADATA, _RECORD_HEAD, _top_level, _Unreadable
 
-__all__ = ["index_framing_holds", "next_intact"]
+__all__ = ["Resync", "index_framing_holds", "next_intact"]
 
 # Where a record may begin: a chunk (its compression named in place), or a metadata record
 # (under 4 GiB). A lookahead, so that overlapping candidates are all found.
@@ -57,6 +57,28 @@ def next_intact(f: IO[bytes], path: Path, start: int, size: int) -> int | None:
             return None
         pos += limit
     return None
+
+
+class Resync:
+    """:func:`next_intact` over one open file of ``size`` bytes.
+
+    It remembers where no intact record is left: damaged records in a row, with nothing intact
+    after them, cost one scan.
+    """
+
+    def __init__(self, f: IO[bytes], path: Path, size: int) -> None:
+        self._f, self._path, self._size = f, path, size
+        self._barren = size  # no intact record starts at or after this offset
+
+    def after(self, pos: int) -> int | None:
+        """The offset of the first intact record after ``pos``, or None."""
+        start = pos + 1
+        if start >= self._barren:
+            return None
+        found = next_intact(self._f, self._path, start, self._size)
+        if found is None:
+            self._barren = start
+        return found
 
 
 def _intact(f: IO[bytes], path: Path, pos: int, size: int) -> bool:

@@ -65,3 +65,15 @@ def test_a_record_that_only_looks_like_one_is_passed_over(recorded: Path, tmp_pa
     assert _find(tmp_path, b"\x00" * 50 + run + chunk) == 50  # a metadata record counts
     assert _find(tmp_path, chunk + chunk, start=1) == len(chunk)
     assert _find(tmp_path, b"") is None and _find(tmp_path, chunk[:-1]) is None
+
+
+def test_where_nothing_intact_is_left_is_scanned_once(recorded: Path, tmp_path: Path) -> None:
+    """After a scan found nothing, a later damage asks again without reading the file."""
+    chunk, _ = _records(recorded)
+    path = tmp_path / "scan.bin"
+    path.write_bytes(bytes(300) + chunk + bytes(300))
+    with open(path, "rb") as f:
+        scan = resync.Resync(f, path, path.stat().st_size)
+        assert scan.after(-1) == 300 and scan.after(300) is None
+        f.close()  # a second scan from further on would now fail to read
+        assert scan.after(301) is None and scan.after(5000) is None
