@@ -20,6 +20,7 @@ import pyarrow.parquet as pq
 
 from .errors import ConfigurationError, EvidenceError
 from .read import open_evidence
+from .record.lock import output_kind
 
 __all__ = ["ExportResult", "export"]
 
@@ -100,6 +101,7 @@ def export(
     result = ExportResult(out / "episodes.parquet")
     sources = [Path(p) for p in paths]
     targets = [out / f"{name}.steps.parquet" for name in _step_file_names(sources)]
+    _refuse_special_files([result.episodes_file, *targets])
     if not overwrite:
         existing = [t for t in [result.episodes_file, *targets] if t.exists()]
         if existing:
@@ -138,6 +140,21 @@ def _output_directory(out: Path) -> Path:
     except OSError as exc:
         raise ConfigurationError(f"{out}: cannot create the directory: {exc.strerror}") from None
     return out
+
+
+def _refuse_special_files(targets: Sequence[Path]) -> None:
+    """An output name taken by a directory, FIFO, device or socket is a usage error.
+
+    Writing to a FIFO waits for a reader (``--overwrite`` would hang), a device swallows the
+    export: each is refused before anything is written.
+    """
+    for target in targets:
+        kind = output_kind(target)
+        if kind is not None:
+            raise ConfigurationError(
+                f"{target}: is {kind}, not a regular file; export writes a file of that name "
+                "— remove it, or choose another --out"
+            )
 
 
 def _step_file_names(sources: Sequence[Path]) -> list[str]:

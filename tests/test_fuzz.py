@@ -546,7 +546,10 @@ def test_a_recorded_env_spec_of_wrong_shape_is_not_replayable(
     path.write_bytes(_model_case(bases, change))
     result = replay([path])
     assert {e.status for e in result.episodes} == {"not_replayable"}
-    assert "cannot make 'CartPole-v1' with the recorded kwargs" in result.episodes[0].reason
+    assert result.episodes[0].reason == (
+        "the recorded env kwargs are not a mapping (int); pass --env-factory MODULE:CALLABLE "
+        "that builds the env"
+    )
 
 
 def test_a_space_description_that_does_not_fit_its_column_is_not_decoded(

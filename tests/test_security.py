@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import ast
+import html
 import json
+import os
 import pickle
 import re
 import sys
@@ -184,50 +186,155 @@ def test_a_file_naming_pickles_and_modules_imports_and_unpickles_nothing(
 # ----------------------------------------------------------------------- rule 2: replay's imports
 
 
-def test_replay_never_builds_wrappers_named_in_a_file_that_are_not_gymnasiums(
-    tmp_path: Path, canary: Path
-) -> None:
-    """A registered env id whose recorded wrappers are outside ``gymnasium.wrappers``.
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """CartPole recorded with ``render_mode="rgb_array"`` (RecordVideo would run in it)."""
+    path = tmp_path_factory.mktemp("rendered") / "rendered.mcap"
+    env = gym.make("CartPole-v1", max_episode_steps=3, render_mode="rgb_array")
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            rec.step(0)
+    return path
 
-    (The file-named entry point itself: tests/test_replay.py
+
+def _with_wrappers(src: Path, dst: Path, wrappers: list[Any]) -> Path:
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["additional_wrappers"] = wrappers
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    return rewrite(src, dst, run=run)
+
+
+def _wrapper(entry: str, **kwargs: Any) -> dict[str, Any]:
+    return {"name": entry.rpartition(":")[2], "entry_point": entry, "kwargs": kwargs}
+
+
+_VIDEO = "gymnasium.wrappers.rendering:RecordVideo"
+_WAY_AROUND = (
+    "; pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to build "
+    "the recorded wrappers as they are"
+)
+_REFUSED = [
+    (
+        [_wrapper("ea_canary_module:make")],
+        "the recorded wrapper 'ea_canary_module:make' is not one replay knows",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.common:np.save", file="x")],
+        "the recorded wrapper 'gymnasium.wrappers.common:np.save' is not one replay knows",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.transform_reward:TransformReward", func="os:system")],
+        "the recorded wrapper TransformReward: its argument func is a function, which a file "
+        "cannot hold",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers:ClipReward", min_reward="../../x", max_reward=1.0)],
+        "the recorded wrapper ClipReward's argument min_reward: expected a finite number or a "
+        "list of at most 4096, or null, got '../../x'",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.common:TimeLimit", max_episode_steps=5, path="/tmp/x")],
+        "the recorded wrapper TimeLimit has an argument 'path' replay does not know",
+    ),
+    (
+        [_wrapper("gymnasium.wrappers.stateful_observation:NormalizeObservation", epsilon=1e-8)],
+        # (a cause replay reads from the file, whatever env it could build: no way around)
+        "the recorded wrapper NormalizeObservation keeps running statistics across episodes, "
+        "which the file does not hold (no state snapshot): its episodes cannot begin in the "
+        "state they were recorded in; record with the recorder inside NormalizeObservation "
+        "(innermost)",
+    ),
+    (
+        [
+            _wrapper(
+                "gymnasium.wrappers.rendering:AddWhiteNoise", probability_of_noise_per_pixel=0.5
+            ),
+            _wrapper(_VIDEO, video_folder="videos"),
+        ],
+        "the recorded wrapper AddWhiteNoise depends on the render() calls the recorded "
+        "RecordVideo made in each step, and replay leaves RecordVideo out (it has side effects)",
+    ),
+]
+
+
+@pytest.mark.parametrize(("wrappers", "reason"), _REFUSED, ids=range(len(_REFUSED)))
+def test_replay_never_builds_a_recorded_wrapper_it_cannot_check(
+    rendered: Path,
+    tmp_path: Path,
+    canary: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    wrappers: list[Any],
+    reason: str,
+) -> None:
+    """Unknown wrappers, file-chosen callables and arguments, wrappers with state across
+    episodes: not replayable, naming the wrapper and the argument; nothing imported or written.
+
+    (The file-named entry point itself: tests/replay/test_replay.py
     ``test_replay_never_imports_a_module_named_in_the_file``, with and without the flag.)
     """
-    source = tmp_path / "plain.mcap"
-    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=3), source) as env:
-        env.reset(seed=0)
-        for _ in range(3):
-            env.step(0)
-    for entry in ("ea_canary_module:make", "gymnasium.wrappers.common:np.save"):
-
-        def run(meta: dict[str, str], entry: str = entry) -> dict[str, str]:
-            spec = json.loads(meta["env_spec"])
-            spec["additional_wrappers"] = [{"name": "W", "entry_point": entry, "kwargs": {}}]
-            return {**meta, "env_spec": json.dumps(spec)}
-
-        evil = rewrite(source, tmp_path / f"evil-{len(entry)}.mcap", run=run)
-        (episode,) = replay([evil]).episodes
-        assert episode.status == "not_replayable"
-        assert f"wrappers from outside Gymnasium ({entry})" in (episode.reason or "")
-        code, out, _ = cli("replay", str(evil), "--format", "json")
-        assert code == 0 and json.loads(out)["summary"]["not_replayable"] == 1
+    evil = _with_wrappers(rendered, tmp_path / "evil.mcap", wrappers)
+    monkeypatch.chdir(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    (episode,) = replay([evil]).episodes
+    way_around = "" if reason.endswith("(innermost)") else _WAY_AROUND
+    assert (episode.status, episode.reason) == ("not_replayable", reason + way_around)
+    code, out, _ = cli("replay", str(evil), "--format", "json")
+    # nothing verified: exit 1 (a usage error or a crash would be 2)
+    assert code == 1 and json.loads(out)["summary"]["not_replayable"] == 1
+    assert set(tmp_path.rglob("*")) == before
     assert "ea_canary_module" not in sys.modules and not canary.exists()
+
+
+def test_replay_leaves_out_wrappers_that_write_files_or_open_windows(
+    rendered: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """RecordVideo (a folder, a path-traversal prefix, a trigger on every step), HumanRendering
+    and SB3's Monitor never change a step: replay leaves them out and says so."""
+    folder = tmp_path / "videos"
+    wrappers = [
+        _wrapper(_VIDEO, video_folder=str(folder), step_trigger=1, name_prefix="../../x"),
+        _wrapper(_VIDEO, video_folder="relative", episode_trigger=None, step_trigger=1),
+        _wrapper("gymnasium.wrappers.rendering:HumanRendering"),
+        _wrapper("stable_baselines3.common.monitor:Monitor", filename="../../monitor.csv"),
+    ]
+    evil = _with_wrappers(rendered, tmp_path / "evil.mcap", wrappers)
+    monkeypatch.chdir(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    pygame_before = "pygame" in sys.modules
+    result = replay([evil])
+    assert [e.status for e in result.episodes] == ["identical"]
+    never = "never changes a step"
+    assert result.notes == {
+        str(evil): [
+            f"replayed without the recorded wrapper RecordVideo: it {never}",
+            f"replayed without the recorded wrapper RecordVideo: it {never}",
+            f"replayed without the recorded wrapper HumanRendering: it {never}",
+            f"replayed without the recorded wrapper Monitor: it {never}",
+        ]
+    }
+    code, out, _ = cli("replay", str(evil))
+    assert code == 0 and "Replayed without recorded wrappers" in out
+    assert set(tmp_path.rglob("*")) == before
+    if not pygame_before:
+        assert "pygame" not in sys.modules  # (HumanRendering would import it)
 
 
 # ----------------------------------------------------------------------- rule 3: escaping
 
 
-@pytest.fixture(scope="module")
-def hostile_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Hostile strings in every place a file carries text: env id, spec, tags, term names,
-    failure labels, truncation reasons, error messages, recorder notes and kept info."""
-    tmp = tmp_path_factory.mktemp("hostile")
+def _recording_with(tmp: Path, text: str, name: str) -> Path:
+    """A file carrying ``text`` in every place a file carries text: env id, spec, tags, term
+    names, failure labels, truncation reasons, error messages, recorder notes and kept info."""
 
     def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
         if env.np_random_seed == 2:
-            raise RuntimeError(HOSTILE)
-        info = {"reward_terms": {HOSTILE: 1.0}, "failure": HOSTILE, HOSTILE: HOSTILE}
-        info["truncation_reason"] = HOSTILE
-        reward = HOSTILE if env.t == 1 else 1.0
+            raise RuntimeError(text)
+        info = {"reward_terms": {text: 1.0}, "failure": text, text: text}
+        info["truncation_reason"] = text
+        reward = text if env.t == 1 else 1.0
         return (
             np.zeros(2, np.float32),
             reward,
@@ -236,8 +343,8 @@ def hostile_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
             info,
         )
 
-    source = tmp / "source.mcap"
-    tags = {"policy": HOSTILE, HOSTILE: "value"}
+    source = tmp / f"source-{name}"
+    tags = {"policy": text, text: "value"}
     with RecordEvidence(ScriptedEnv(step_fn=step), source, tags=tags, info_keys="all") as env:
         for seed in (0, 1, 2):
             env.reset(seed=seed)
@@ -248,10 +355,16 @@ def hostile_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
                 pass
 
     def run(meta: dict[str, str]) -> dict[str, str]:
-        spec = {"id": HOSTILE, "entry_point": HOSTILE, "kwargs": {HOSTILE: HOSTILE}}
-        return {**meta, "env_id": HOSTILE, "env_spec": json.dumps(spec), "writer": HOSTILE}
+        spec = {"id": text, "entry_point": text, "kwargs": {text: text}}
+        return {**meta, "env_id": text, "env_spec": json.dumps(spec), "writer": text}
 
-    return rewrite(source, tmp / "hostile.mcap", run=run)
+    return rewrite(source, tmp / name, run=run)
+
+
+@pytest.fixture(scope="module")
+def hostile_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """:data:`HOSTILE` in every place a file carries text."""
+    return _recording_with(tmp_path_factory.mktemp("hostile"), HOSTILE, "hostile.mcap")
 
 
 OUTPUTS = [
@@ -331,6 +444,156 @@ def test_error_lines_on_stderr_are_escaped(tmp_path: Path) -> None:
     assert len(err.strip().splitlines()) == 1
 
 
+# CI injection: what a label, tag or env id could make of a GitHub job summary (GFM autolinks,
+# raw HTML) or of a CI log (workflow commands: a line starting with `::` once its leading
+# whitespace is trimmed, or holding `##[` anywhere, as the GitHub Actions runner parses them)
+INJECTIONS = {
+    "url": "https://e.invalid/x?a=1",
+    "www": "www.e.invalid",
+    "email": "mail@e.invalid",
+    "xmpp": "xmpp:user@e.invalid/r",
+    "command": "::error file=app.py,line=1::pwned",
+    "indented-command": "   ::add-mask::x",
+    "colons": ":::warning:::x",
+    "v1-command": "##[error]pwned",
+    "azure-command": "##vso[task.setvariable variable=x]1",
+    "html": "<img src=x onerror=alert(1)>",
+    "control": "\x1b[31mred\x07\u202eevil\r\n::error::x",
+}
+WORD_JOINER = "\u2060"  # what cli/render/common.py puts inside `::`, `##[`, after `@`
+_WORKFLOW_COMMAND = re.compile(r"##(\[|vso\[|teamcity\[)", re.IGNORECASE)
+_HTML_TAGS = {"p", "h3", "h4", "table", "thead", "tbody", "tr", "th", "td", "pre", "code"}
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "https://e.invalid",
+        "Https://E.invalid/a_b?c=d#e",
+        "ftp://e.invalid",
+        "(www.e.invalid)",
+        "*www.e.invalid*",
+        "WwW.e.invalid",
+        "a.b+c@e.invalid",
+        "mailto:u@e.invalid",
+        "xmpp:u@e.invalid/r",
+        "<https://e.invalid>",
+        "[x](https://e.invalid)",
+        "![x](https://e.invalid/i.png)",
+        "[x][y] [y]: https://e.invalid",
+        "https\\://e.invalid",
+    ],
+)
+def test_markdown_values_never_become_links(text: str) -> None:
+    """In a table cell and in a heading, as GitHub renders Markdown (cmark-gfm, autolinks on)."""
+    import cmarkgfm
+    from cmarkgfm.cmark import Options
+
+    from episode_audit.cli.render import markdown_table, markdown_text
+
+    for markdown in (markdown_table(["value"], [[text]]), f"### {markdown_text(text)}"):
+        html = cmarkgfm.github_flavored_markdown_to_html(markdown, options=Options.CMARK_OPT_UNSAFE)
+        assert "<a" not in html and "<img" not in html, html
+
+
+@pytest.fixture(scope="module")
+def injected(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A file for each of :data:`INJECTIONS`, carrying it everywhere, named after it too."""
+    tmp = tmp_path_factory.mktemp("injected")
+    return {
+        text: _recording_with(tmp, text, f"{i:02d}-{text.replace('/', '_')}.mcap")
+        for i, text in enumerate(INJECTIONS.values())
+    }
+
+
+def _every_output(files: dict[str, Path], kind: str, tmp: Path) -> list[tuple[str, str, str]]:
+    """``(what, kind, output)`` of every command in format ``kind`` (``stderr`` for error
+    lines): on all ``files`` at once, and on each file (show, recover; record naming it)."""
+    outputs: list[tuple[str, str, str]] = []
+
+    def run(what: str, *args: str) -> None:
+        code, out, err = cli(*args)
+        assert code in (0, 1, 2), (what, err)
+        outputs.extend([(what, kind, out), (what, "stderr", err)])
+
+    paths = [str(p) for p in files.values()]
+    for command in OUTPUTS:
+        if command[0] != "show":
+            run(" ".join(command), command[0], *paths, *command[1:], "--format", kind)
+    for i, (text, path) in enumerate(files.items()):
+        for episode in ((), ("--episode", "0"), ("--episode", "2")):
+            run(f"show {text!r} {episode}", "show", str(path), *episode, "--format", kind)
+        if kind != "table":  # (the commands below have one output format)
+            continue
+        run(f"recover {text!r}", "recover", str(path), "--out", str(tmp / f"{i}.mcap"))
+        named = tmp / f"record-{path.name}"
+        run(f"record {text!r}", "record", "CartPole-v1", "--out", str(named), "--tag", f"p={text}")
+        run(f"record env {text!r}", "record", text, "--out", str(tmp / "never.mcap"))
+        (tmp / f"not-{path.name}").write_bytes(b"not evidence")
+    if kind == "table":
+        run("export", "export", *paths, "--out", str(tmp / "export"))
+        run("check unreadable", "check", *map(str, tmp.glob("not-*")))
+    return outputs
+
+
+def _assert_inert(what: str, kind: str, output: str) -> None:
+    """No workflow command, control character, link or raw HTML in ``output``."""
+    import cmarkgfm
+    from cmarkgfm.cmark import Options
+
+    for line in output.splitlines():
+        assert not line.lstrip().startswith("::"), (what, kind, line)
+        assert not _WORKFLOW_COMMAND.search(line), (what, kind, line)
+    hidden = {c for c in output if not c.isprintable() and c not in ("\n", WORD_JOINER)}
+    assert not hidden, (what, kind, hidden)
+    assert "\\u2060" not in output, (what, kind)  # (a word joiner escaped twice)
+    if kind == "markdown":
+        html = cmarkgfm.github_flavored_markdown_to_html(output, options=Options.CMARK_OPT_UNSAFE)
+        assert "<a" not in html, (what, html)
+        tags = set(re.findall(r"</?([A-Za-z][A-Za-z0-9-]*)", html))
+        assert tags <= _HTML_TAGS, (what, tags - _HTML_TAGS, html)
+    if kind == "json":
+        json.loads(output)
+
+
+def _strings(data: Any) -> set[str]:
+    if isinstance(data, dict):
+        return {str(k) for k in data} | {s for v in data.values() for s in _strings(v)}
+    if isinstance(data, list):
+        return {s for v in data for s in _strings(v)}
+    return {data} if isinstance(data, str) else set()
+
+
+@pytest.mark.parametrize("kind", ["table", "markdown", "json"])
+def test_no_output_can_inject_links_html_or_ci_workflow_commands(
+    injected: dict[str, Path], tmp_path: Path, kind: str
+) -> None:
+    outputs = _every_output(injected, kind, tmp_path)
+    assert len(outputs) >= 2 * (5 + 3 * len(injected))
+    for what, output_kind, output in outputs:
+        _assert_inert(what, output_kind, output)
+
+
+def test_a_defused_value_still_reads_as_it_was(injected: dict[str, Path]) -> None:
+    """The escapes are invisible: the table, the rendered Markdown and the parsed JSON show
+    each value itself (in a table, its word joiners are zero cells wide)."""
+    import cmarkgfm
+
+    args = ("report", *map(str, injected.values()), "--by", "tag:policy", "--format")
+    _, table_out, _ = cli(*args, "table")
+    _, markdown_out, _ = cli(*args, "markdown")
+    rendered = cmarkgfm.github_flavored_markdown_to_html(markdown_out)
+    shown = html.unescape(re.sub(r"<[^>]*>", "", rendered))
+    _, json_out, _ = cli(*args, "json")
+    keys = _strings(json.loads(json_out))
+    for text in INJECTIONS.values():
+        assert text in keys
+        if text.isprintable():
+            flat = re.sub(r"\s+", "", text)
+            assert flat in re.sub(r"\s+", "", table_out.replace(WORD_JOINER, "")), text
+            assert flat in re.sub(r"\s+", "", shown.replace(WORD_JOINER, "")), text
+
+
 # ----------------------------------------------------------------------- rule 4: output paths
 
 
@@ -362,6 +625,31 @@ def test_output_paths_never_come_from_file_content(tmp_path: Path) -> None:
     assert code == 0, err
     created = {p for p in tmp_path.rglob("*")} - before
     assert {p.relative_to(tmp_path).as_posix() for p in created} == {"deep/fixed.mcap"}
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_the_recorder_refuses_a_path_that_is_not_a_regular_file(tmp_path: Path, kind: str) -> None:
+    """A FIFO would block the recorder (here it has a reader, so nothing can hang), a device
+    swallow the evidence: refused, even with ``overwrite=True``, before anything is written."""
+    from episode_audit.errors import ConfigurationError
+
+    path = Path(os.devnull)
+    reader = None
+    if kind == "fifo":
+        path = tmp_path / "pipe.mcap"
+        os.mkfifo(path)
+        reader = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    env = gym.make("CartPole-v1")
+    try:
+        what = "a FIFO (named pipe)" if kind == "fifo" else "a character device"
+        with pytest.raises(ConfigurationError, match=re.escape(f"{path}: is {what}, not a reg")):
+            RecordEvidence(env, path, overwrite=True)
+        if reader is not None:
+            assert os.read(reader, 1) == b""  # no writer ever opened the pipe
+    finally:
+        env.close()
+        if reader is not None:
+            os.close(reader)
 
 
 # ----------------------------------------------------------------------- rule 5: bounded sizes
@@ -434,3 +722,50 @@ def test_hostile_reset_json_is_not_replayable_not_a_crash(plain: Path, tmp_path:
         ("not_replayable", "its reset record: rng_state is nested too deeply to be JSON "
          "episode-audit wrote"),
     ]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("lake") / "lake.mcap"
+    env = gym.make("FrozenLake-v1", desc=["SF", "FG"], is_slippery=False)
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        rec.step(2)
+    return path
+
+
+def _with_kwargs(src: Path, dst: Path, **kwargs: Any) -> Path:
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["kwargs"] = {**spec["kwargs"], **kwargs}
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    return rewrite(src, dst, run=run)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "reason"),
+    [
+        (
+            {"desc": ["S" + "F" * 998 + "G"] * 1000},  # 30 s and 2 GB to build
+            "the recorded env kwarg 'desc' is 1004000 bytes of JSON (all: 1004010), more than "
+            "the 65536 replay builds an env from",
+        ),
+        (
+            {"map_name": json.loads("[" * 20 + "]" * 20)},
+            "the recorded env kwarg 'map_name' is nested 20 deep, more than the 16 replay "
+            "builds an env from",
+        ),
+    ],
+    ids=["large", "deep"],
+)
+def test_recorded_env_kwargs_are_bounded_before_an_env_is_built(
+    lake: Path, tmp_path: Path, kwargs: dict[str, Any], reason: str
+) -> None:
+    evil = _with_kwargs(lake, tmp_path / "evil.mcap", **kwargs)
+    (episode,) = replay([evil]).episodes
+    way_around = "; pass --env-factory MODULE:CALLABLE that builds the env"
+    assert (episode.status, episode.reason) == ("not_replayable", reason + way_around)
+    assert replay([lake]).count("identical") == 1  # (the file as recorded)
+    small = gym.make("FrozenLake-v1", desc=["SF", "FG"], is_slippery=False)
+    assert replay([evil], env_factory=lambda: small).count("identical") == 1

@@ -167,18 +167,33 @@ class RewardChecks:
         )
 
     def missing_terms_finding(self) -> None:
-        """After the steps: one finding for the steps without terms, if any."""
+        """After the steps: one finding for the steps without terms, if any.
+
+        A warning where terms are expected: the recording named where they come from (a list
+        of keys, a callable), or some step of the file has terms. With the default source
+        (``"auto"``) and no step with terms, the env reports none (CartPole): a note, as for
+        ``reward_terms=None``. An error with ``require_terms``.
+        """
         if not self.missing_terms:
             return
         source = (self.state.ev.run.reward_terms or {}).get("source")
-        severity: Severity = "error" if self.require_terms else "warning"
-        if source is None and not self.require_terms:
+        severity: Severity = "warning"
+        why = "; their rewards cannot be checked against terms"
+        if source is None:
             severity = "note"  # reward_terms=None: the recording was told to keep none
+        elif source == "auto" and self.missing_terms == self.state.steps:
+            severity = "note"
+            why = (
+                ": the env reports none (no info['reward_terms'], no info['reward_*'] keys); "
+                "name them with reward_terms= to check its rewards against them"
+            )
+        if self.require_terms:
+            severity = "error"
         episode, step = self.first_missing or (None, None)
         self.state.finding(
             MISSING_TERMS,
             f"{self.missing_terms} of {self.state.steps} steps have no reward terms "
-            f"(terms source {source!r}); their rewards cannot be checked against terms",
+            f"(terms source {source!r}){why}",
             episode,
             step,
             severity=severity,

@@ -43,12 +43,13 @@ EXIT_CLEAN, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 
 
 def _stdout() -> Console:
-    # Plain output when not a terminal: no colour, and wide enough for CI logs.
-    return Console(highlight=False, width=None if sys.stdout.isatty() else 200)
+    # Plain output when not a terminal: no colour, and wide enough for CI logs; no emoji
+    # codes (a label ``:warning:`` prints as written, not as an emoji)
+    return Console(highlight=False, emoji=False, width=None if sys.stdout.isatty() else 200)
 
 
 def _stderr() -> Console:
-    return Console(stderr=True, highlight=False)
+    return Console(stderr=True, highlight=False, emoji=False)
 
 
 def _say(kind: str, message: object) -> None:

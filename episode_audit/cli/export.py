@@ -21,6 +21,7 @@ from ._app import (
     note,
     progress_bar,
 )
+from .render import safe
 
 
 @app.command()
@@ -54,6 +55,6 @@ def export(
         fail(str(exc))
     for line in result.notes:
         note(line)
-    emit(result.summary())
+    emit(safe(result.summary()))
     if unreadable or result.failed:
         raise typer.Exit(EXIT_USAGE)

@@ -10,6 +10,7 @@ import typer
 
 from ..errors import EpisodeAuditError
 from ._app import app, emit, fail, progress_bar
+from .render import safe
 
 
 @app.command()
@@ -71,7 +72,7 @@ def record(
             )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    emit(str(summary))
+    emit(safe(summary))
 
 
 def _env_kwargs(text: str | None) -> dict[str, Any]:

@@ -9,6 +9,7 @@ import typer
 
 from ..errors import EpisodeAuditError
 from ._app import EXIT_FINDINGS, app, emit, existing, fail
+from .render import safe
 
 
 @app.command()
@@ -37,6 +38,6 @@ def recover(
         result = run_recover(path, out, overwrite=overwrite)
     except EpisodeAuditError as exc:
         fail(str(exc))
-    emit(result.summary())
+    emit(safe(result.summary()))
     if result.lost:
         raise typer.Exit(EXIT_FINDINGS)

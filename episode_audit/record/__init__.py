@@ -2,9 +2,11 @@
 
 Public: :class:`RecordEvidence` (Gymnasium), :class:`RecordVectorEvidence` and
 :class:`ResetRngInfo` (vector envs), ``RecordParallelEvidence`` and ``RecordAECEvidence``
-(PettingZoo, imported on first use), their options (:class:`RecorderOptions`, checked by
-:class:`RecorderSettings`), and the rules that read an env's info: :class:`RewardTerms`,
-:class:`EndingRules`, :class:`Ending`. How recording works: ``docs/recording.md``.
+(PettingZoo, imported on first use), ``RecordVecEnvEvidence``, ``RecordEvalCallback`` and
+``record_evaluation`` (Stable-Baselines3, :mod:`.sb3`, imported on first use), their options
+(:class:`RecorderOptions`, checked by :class:`RecorderSettings`), and the rules that read an
+env's info: :class:`RewardTerms`, :class:`EndingRules`, :class:`Ending`. How recording works:
+``docs/recording.md``.
 """
 
 from __future__ import annotations
@@ -18,19 +20,27 @@ __all__ = [
     "Ending",
     "EndingRules",
     "RecordAECEvidence",
+    "RecordEvalCallback",
     "RecordEvidence",
     "RecordParallelEvidence",
+    "RecordVecEnvEvidence",
     "RecordVectorEvidence",
     "RecorderOptions",
     "RecorderSettings",
     "ResetRngInfo",
     "RewardTerms",
+    "record_evaluation",
 ]
 
 
 def __getattr__(name: str) -> object:
-    if name not in ("RecordAECEvidence", "RecordParallelEvidence"):
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from . import pettingzoo  # imports pettingzoo (optional): only when asked for
+    # the extras' packages (optional): imported only when asked for
+    if name in ("RecordAECEvidence", "RecordParallelEvidence"):
+        from . import pettingzoo
 
-    return getattr(pettingzoo, name)
+        return getattr(pettingzoo, name)
+    if name in ("RecordEvalCallback", "RecordVecEnvEvidence", "record_evaluation"):
+        from . import sb3
+
+        return getattr(sb3, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

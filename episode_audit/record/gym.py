@@ -5,12 +5,15 @@ The wrapper is a thin layer over one :class:`~episode_audit.record.stream.Stream
 PettingZoo recorders); its options are those of
 :class:`~episode_audit.record.settings.RecorderSettings`. How steps are recorded, flushed and
 noted: ``docs/recording.md``. The wrapper raises only for misuse, e.g. stepping after
-``close()``; a bad value from the env is recorded and noted.
+``close()``; a bad value from the env is recorded and noted. :func:`warn_unrestorable` warns,
+when a recorder is built, of what will make its episodes' state unrestorable on replay.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
+from collections.abc import Iterable, Mapping
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -18,6 +21,7 @@ from gymnasium.envs.registration import EnvSpec
 from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
+from ..format.wrappers import state_causes
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -30,7 +34,7 @@ from .settings import (
     run_info,
 )
 
-__all__ = ["RecordEvidence", "library_versions"]
+__all__ = ["RecordEvidence", "library_versions", "warn_unrestorable", "wrapper_chain"]
 
 
 class RecordEvidence(
@@ -87,6 +91,7 @@ class RecordEvidence(
             action_space=describe_space(env.action_space),
             layout={"kind": "single", "num_envs": 1, "agents": []},
         )
+        warn_unrestorable(type(self).__name__, wrapper_chain(env), self.run_info.layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         self._stream = self._file.add_stream(
@@ -94,7 +99,7 @@ class RecordEvidence(
         )
         self._file.start()
         self._record_step = self._stream.step
-        self._closed = False
+        self._opened()
 
     @property
     def spec(self) -> EnvSpec | None:  # type: ignore[override]
@@ -105,17 +110,14 @@ class RecordEvidence(
         """
         return self.env.spec
 
-    def _check_open(self) -> None:
-        self._file.check_open()
-
     # ------------------------------------------------------------------ gymnasium API
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[gym.core.ObsType, dict[str, Any]]:
         """Reset the env, recording the seed (or the RNG state), options and observation."""
+        self._enter()
         file = self._file
-        file.check_open()
         stream = self._stream
         notes: list[str] = []
         episode = None
@@ -148,8 +150,8 @@ class RecordEvidence(
         self, action: gym.core.ActType
     ) -> tuple[gym.core.ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
         """Step the env and record the step; the 5-tuple is returned untouched."""
-        if self._closed:
-            self._check_open()
+        if self._gated:
+            self._enter()
         try:
             result = self.env.step(action)
         except Exception as exc:
@@ -172,3 +174,30 @@ class RecordEvidence(
     def closed(self) -> bool:
         """Whether the evidence file has been finished."""
         return self._closed
+
+
+def wrapper_chain(env: Any) -> list[str]:
+    """The entry points (``module:Class``) of the wrappers around ``env``, innermost first.
+
+    Never raises: a chain that cannot be walked gives what was walked.
+    """
+    chain: list[str] = []
+    try:
+        while isinstance(env, gym.Wrapper) and len(chain) < 64:
+            chain.append(f"{type(env).__module__}:{type(env).__qualname__}")
+            env = env.env
+    except Exception:  # an env's own attribute access: the chain walked so far
+        pass
+    return chain[::-1]
+
+
+def warn_unrestorable(recorder: str, wrappers: Iterable[str], layout: Mapping[str, Any]) -> None:
+    """Warn once per cause that will make the recorded episodes' state unrestorable on replay.
+
+    ``wrappers``: entry points of the wrappers under the recorder (a sub-env's, for a vector
+    env); ``layout``: the file's layout (its vector wrappers). The causes are those ``check``
+    and replay read from the file (:func:`~episode_audit.format.wrappers.state_causes`).
+    """
+    spec = {"additional_wrappers": [{"entry_point": str(w)} for w in wrappers]}
+    for cause in state_causes(spec, layout):
+        warnings.warn(f"episode-audit: {recorder}: {cause}", UserWarning, stacklevel=3)

@@ -15,6 +15,7 @@ from .._version import __version__
 from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
+from ..read.liveness import still_written, writer_of
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
 from .files import Temporary, check_paths
@@ -39,7 +40,8 @@ def recover(
     finished.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
-    (without ``overwrite``) or cannot be created, and
+    (without ``overwrite``) or cannot be created, when either file is still being written by a
+    live recorder (``path`` is then not torn: its ``close()`` will finish it), and
     :class:`~episode_audit.errors.EvidenceError` (and its subclasses) when the input is not
     readable evidence.
 
@@ -62,6 +64,7 @@ def recover(
     src, dst = Path(path), Path(out)
     check_paths(src, dst, overwrite)
     ev = _open_input(src)
+    _refuse_live(ev, dst)
     tmp = Temporary(dst)
     try:
         if ev.finished and not (ev.summary_damage or ev.run_end_damage) and _intact(src, ev):
@@ -90,6 +93,21 @@ def _open_input(src: Path) -> Evidence:
             f"{exc.problem.removesuffix(RECOVER_HINT)}: it holds the channel definitions and "
             "the file has no summary that repeats them, so no chunk can be decoded",
         ) from None
+
+
+def _refuse_live(ev: Evidence, dst: Path) -> None:
+    """A file a live recorder still writes is not torn: neither input nor output of a recovery."""
+    if ev.writer is not None:
+        raise ConfigurationError(
+            f"{ev.path}: is {still_written(ev.writer)}, not torn; wait for it to close (its "
+            "close() finishes the file: nothing to recover), or stop that recorder first"
+        )
+    writer = writer_of(dst)
+    if writer is not None:
+        raise ConfigurationError(
+            f"{dst}: is {still_written(writer)}; recovery never replaces a live recorder's "
+            "file — choose another output path"
+        )
 
 
 def _intact(path: Path, ev: Evidence) -> bool:

@@ -201,6 +201,9 @@ class Comparison:
         if name == "reward":
             exp_v = repr(expected.column(fmt.COL_REWARD)[row].as_py())
             got_v = repr(float(got.rewards[row]))
+            refused = got.reward_errors.get(row)
+            if refused is not None:  # (the recorder would have recorded NaN)
+                got_v, d = f"a reward that is not a number (float() raised {refused})", None
         elif name == "terms":
             exp_v = short(dict(expected.column(fmt.COL_TERMS)[row].as_py() or []))
             got_v = short(got.terms.at(row))

@@ -5,6 +5,7 @@
 when called): the user's ``env_factory``, else the recorded env id when it is registered in
 this process, else only with ``trust_entry_points`` what the file names. The order and what each
 step may import: docs/replay.md (how the env is built) and docs/security.md (rule 2).
+:func:`env_mismatch` and :func:`agents_mismatch` say how a built env differs from the recording.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import importlib
 import json
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -22,12 +23,27 @@ from .._usercode import load_callable
 from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
 from ..format.records import RunInfo
+from ..format.spaces import describe_space
+from ..format.wrappers import plan_wrappers
+from ..record.rules import find_time_limit
 
-__all__ = ["EnvFactory", "build_env", "build_pettingzoo_env"]
+__all__ = [
+    "MAX_ENV_KWARGS_BYTES",
+    "MAX_ENV_KWARGS_DEPTH",
+    "EnvFactory",
+    "agents_mismatch",
+    "build_env",
+    "build_pettingzoo_env",
+    "env_mismatch",
+    "replay_notes",
+]
 
 EnvFactory = Callable[[], gym.Env[Any, Any]]
 
-_TRUSTED_WRAPPER_PREFIX = "gymnasium.wrappers"
+MAX_ENV_KWARGS_BYTES = 64 << 10
+"""Replay builds an env from at most this many bytes of recorded kwargs (as JSON) …"""
+MAX_ENV_KWARGS_DEPTH = 16
+"""… nested at most this deep (docs/security.md, rule 5)."""
 
 
 def build_env(
@@ -50,28 +66,41 @@ def build_env(
         raise ReplayError("the file names no env id; pass --env-factory MODULE:CALLABLE")
     if not spec:  # the spec was not serializable: the bare id may be another env
         raise ReplayError(_no_spec_reason(run))
+    _check_env_kwargs(spec.get("kwargs"))
     recorded = spec.get("additional_wrappers") or []
-    wrappers = [w for w in recorded if isinstance(w, Mapping)] if isinstance(recorded, list) else []
-    foreign = [str(w.get("entry_point")) for w in wrappers if not _gymnasium_wrapper(w)]
-    if ":" not in env_id and env_id in gym.registry and (not foreign or trust_entry_points):
-        return _from_registry(env_id, spec, wrappers)
+    recorded = recorded if isinstance(recorded, list) else [recorded]
+    registered = ":" not in env_id and env_id in gym.registry
+    if registered and trust_entry_points:
+        trusted = [w for w in recorded if isinstance(w, Mapping)]
+        return _from_registry(env_id, spec, trusted, _load_wrapper)
+    if registered:
+        plan = plan_wrappers(recorded)
+        if plan.refused is not None:
+            raise ReplayError(plan.refused)
+        rebuilt = [{"entry_point": name, "kwargs": kwargs} for name, kwargs in plan.rebuild]
+        return _from_registry(env_id, spec, rebuilt, _gymnasium_wrapper)
     entry = spec.get("entry_point")
-    if trust_entry_points and spec:
+    if trust_entry_points:
         try:
             recorded_spec = gym.envs.registration.EnvSpec.from_json(json.dumps(spec))
             return gym.make(_without_checks(recorded_spec))
         except Exception as exc:
             raise ReplayError(f"cannot make the env from the recorded spec: {exc}") from None
-    if foreign and env_id in gym.registry:
-        raise ReplayError(
-            f"the recorded env had wrappers from outside Gymnasium ({', '.join(foreign)}); "
-            "pass --env-factory MODULE:CALLABLE, or --trust-entry-points to import them"
-        )
     raise ReplayError(
         f"env id {env_id!r} is not registered in this process; pass --import MODULE that "
         "registers it, --env-factory MODULE:CALLABLE"
         + (f", or --trust-entry-points to import {entry!r} named in the file" if entry else "")
     )
+
+
+def replay_notes(run: RunInfo, *, env_factory: Any, trust_entry_points: bool) -> list[str]:
+    """What :func:`build_env` left out of the env it built from ``run`` (the wrappers, why)."""
+    spec = run.env_spec
+    if env_factory is not None or trust_entry_points or not isinstance(spec, Mapping):
+        return []
+    recorded = spec.get("additional_wrappers") or []
+    plan = plan_wrappers(recorded if isinstance(recorded, list) else [recorded])
+    return plan.notes if plan.refused is None else []
 
 
 def _from_factory(env_factory: str | EnvFactory) -> gym.Env[Any, Any]:
@@ -93,16 +122,22 @@ def _from_factory(env_factory: str | EnvFactory) -> gym.Env[Any, Any]:
 
 
 def _from_registry(
-    env_id: str, spec: Mapping[str, Any], wrappers: list[Mapping[str, Any]]
+    env_id: str,
+    spec: Mapping[str, Any],
+    wrappers: Sequence[Mapping[str, Any]],
+    load: Callable[[str], Any],
 ) -> gym.Env[Any, Any]:
-    """The registered ``env_id`` made with the recorded kwargs, in its (Gymnasium's) wrappers."""
+    """The registered ``env_id`` made with the recorded kwargs, in its wrappers.
+
+    ``wrappers`` innermost first, each class loaded by ``load`` from its entry point.
+    """
     try:
         kwargs = dict(spec.get("kwargs") or {})
         if "max_episode_steps" in spec:
             kwargs["max_episode_steps"] = spec["max_episode_steps"]
         env = gym.make(_without_checks(gym.spec(env_id)), **kwargs)
         for wrapper in wrappers:
-            cls = load_callable(str(wrapper["entry_point"]))
+            cls = load(str(wrapper["entry_point"]))
             if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
                 raise ReplayError(
                     f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
@@ -111,8 +146,63 @@ def _from_registry(
     except ConfigurationError:
         raise
     except Exception as exc:  # the env's own code, given what the file recorded
-        raise ReplayError(f"cannot make {env_id!r} with the recorded kwargs: {exc}") from None
+        raise ReplayError(
+            f"cannot make {env_id!r} with the recorded kwargs: {error_text(exc)}"
+        ) from None
     return env
+
+
+def _load_wrapper(entry_point: str) -> Any:
+    """A wrapper class a trusted file names (this imports its module)."""
+    return load_callable(entry_point)
+
+
+def _gymnasium_wrapper(name: str) -> Any:
+    """``gymnasium.wrappers.<name>``, for a name in the registry of recorded wrappers."""
+    return getattr(gym.wrappers, name)
+
+
+def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
+    """Refuse recorded env kwargs too deeply nested or too large to build an env from.
+
+    Raises :class:`~episode_audit.errors.ReplayError` naming the kwarg (the largest one, for
+    the total size) and its size.
+    """
+    if kwargs is None:
+        return
+    if not isinstance(kwargs, Mapping):
+        raise ReplayError(
+            f"the recorded {what}s are not a mapping ({type(kwargs).__name__}); {_WAY_AROUND}"
+        )
+    for name, value in kwargs.items():
+        depth = _depth(value)
+        if depth > MAX_ENV_KWARGS_DEPTH:
+            raise ReplayError(
+                f"the recorded {what} {str(name)[:80]!r} is nested {depth} deep, more than the "
+                f"{MAX_ENV_KWARGS_DEPTH} replay builds an env from; {_WAY_AROUND}"
+            )
+    sizes = {str(name): len(json.dumps(value)) for name, value in kwargs.items()}
+    total = sum(sizes.values())
+    if total > MAX_ENV_KWARGS_BYTES:
+        name = max(sizes, key=lambda k: sizes[k])
+        raise ReplayError(
+            f"the recorded {what} {name[:80]!r} is {sizes[name]} bytes of JSON (all: {total}), "
+            f"more than the {MAX_ENV_KWARGS_BYTES} replay builds an env from; {_WAY_AROUND}"
+        )
+
+
+_WAY_AROUND = "pass --env-factory MODULE:CALLABLE that builds the env"
+
+
+def _depth(value: Any) -> int:
+    """How deeply lists and dicts nest in a JSON value (a scalar: 0), without recursion."""
+    deepest, level = 0, [value]
+    while True:
+        containers = [item for item in level if isinstance(item, (list, dict))]
+        if not containers:
+            return deepest
+        deepest += 1
+        level = [v for c in containers for v in (c.values() if isinstance(c, dict) else c)]
 
 
 def _no_spec_reason(run: RunInfo) -> str:
@@ -132,13 +222,6 @@ def _no_spec_reason(run: RunInfo) -> str:
 def _without_checks(spec: gym.envs.registration.EnvSpec) -> gym.envs.registration.EnvSpec:
     """``spec`` without the passive env checker and the order check (see docs/replay.md)."""
     return replace(spec, disable_env_checker=True, order_enforce=False)
-
-
-def _gymnasium_wrapper(wrapper: Mapping[str, Any]) -> bool:
-    """Whether a recorded wrapper's entry point is a plain name in ``gymnasium.wrappers``."""
-    module, sep, attr = str(wrapper.get("entry_point", "")).partition(":")
-    inside = module == _TRUSTED_WRAPPER_PREFIX or module.startswith(_TRUSTED_WRAPPER_PREFIX + ".")
-    return bool(sep) and inside and attr.isidentifier() and not attr.startswith("_")
 
 
 def build_pettingzoo_env(
@@ -162,6 +245,8 @@ def build_pettingzoo_env(
     api = "ParallelEnv" if parallel else "AECEnv"
     env_id = layout.get("env_id")
     kwargs = layout.get("env_kwargs") or {}
+    if env_factory is None:
+        _check_env_kwargs(kwargs)
     if env_factory is not None:
         factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
         env = factory()
@@ -215,3 +300,96 @@ def _from_pettingzoo_module(
             f"cannot make {module_name} with the recorded kwargs {kwargs!r}: "
             f"{type(exc).__name__}: {exc}"
         ) from None
+
+
+_MISMATCH = "the rebuilt env does not match the recording: "
+
+
+def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
+    """How the env replay built differs from the recorded description, or ``None``.
+
+    Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s) and, when
+    it has a spec, the env kwargs both name (``render_mode`` aside) against the recorded ones.
+    Never raises: what cannot be read of the rebuilt env is not compared.
+    """
+    spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
+    try:
+        checks: list[tuple[str, Any, Any]] = [
+            ("observation space", run.observation_space, _described(env.observation_space)),
+            ("action space", run.action_space, _described(env.action_space)),
+        ]
+        limit = getattr(find_time_limit(env), "_max_episode_steps", None)
+        if limit is not None and spec.get("max_episode_steps") is not None:
+            checks.append(("max episode steps", spec.get("max_episode_steps"), limit))
+        rebuilt = getattr(env.spec, "kwargs", None)
+        if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):
+            recorded, now = _kwargs(spec["kwargs"]), _kwargs(rebuilt)
+            for name in [k for k in recorded if k in now and recorded[k] != now[k]][:1]:
+                checks.append((f"env kwarg {name[:80]!r}", recorded[name], now[name]))
+    except Exception:  # the env's own attributes: compare nothing more
+        return None
+    for what, recorded, now in checks:
+        if recorded != now:
+            return f"{_MISMATCH}{what} {_shown(recorded)} recorded vs {_shown(now)} rebuilt"
+    return None
+
+
+def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | None:
+    """How a rebuilt PettingZoo env differs from the recording (agents, spaces), or ``None``."""
+    try:
+        agents = [str(a) for a in env.possible_agents]
+        recorded = layout.get("agents")
+        if isinstance(recorded, list) and [str(a) for a in recorded] != agents:
+            return f"{_MISMATCH}agents {_shown(recorded)} recorded vs {_shown(agents)} rebuilt"
+        if agents:
+            env_spaces = (env.observation_space(agents[0]), env.action_space(agents[0]))
+            for what, rec, space in zip(
+                ("observation space", "action space"),
+                (run.observation_space, run.action_space),
+                env_spaces,
+                strict=True,
+            ):
+                if rec != _described(space):
+                    shown = _shown(_described(space))
+                    return f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt"
+    except Exception:  # the env's own attributes: compare nothing more
+        return None
+    return None
+
+
+def _described(space: Any) -> Any:
+    """A space's description as a file holds it (after a JSON round trip)."""
+    return json.loads(json.dumps(describe_space(space)))
+
+
+_COMPARED_KWARG_BYTES = 4096
+
+
+def _kwargs(kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """Env kwargs as a file holds them, those :func:`env_mismatch` compares.
+
+    Not ``render_mode`` (it changes no step), nor a value nested deeper than
+    :data:`MAX_ENV_KWARGS_DEPTH` or larger than 4 KiB of JSON (a map, a table: too large to
+    show, and a file's may be made up to be slow to compare).
+    """
+    plain = {
+        str(k): v
+        for k, v in kwargs.items()
+        if k != "render_mode"
+        and _depth(v) <= MAX_ENV_KWARGS_DEPTH
+        and len(json.dumps(v, default=repr)) <= _COMPARED_KWARG_BYTES
+    }
+    try:
+        loaded = json.loads(json.dumps(plain, default=repr))
+    except (TypeError, ValueError):
+        return plain
+    return loaded if isinstance(loaded, dict) else plain
+
+
+def _shown(value: Any) -> str:
+    """A value in a mismatch reason: JSON, cut to 120 characters."""
+    try:
+        text = json.dumps(value, sort_keys=True)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return text if len(text) <= 120 else text[:117] + "..."

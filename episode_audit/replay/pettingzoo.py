@@ -10,7 +10,6 @@ evidence (:class:`_AgentEpisode`). How games replay, and what a game cut by a to
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -20,16 +19,16 @@ import pyarrow as pa
 from ..errors import ReplayError
 from ..format import names as fmt
 from ..format.columns import number_or_nan, one_array
-from ..format.records import EpisodeRanges
+from ..format.records import EpisodeRanges, from_json
 from ..format.spaces import SpaceCodec
 from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
-from .envs import build_pettingzoo_env
+from .envs import agents_mismatch, build_pettingzoo_env
 from .recorded import row_ranges, rules_of
 from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, none_replayable, short
-from .returned import recorded_terms
+from .returned import encoded, recorded_terms
 
 __all__ = ["replay_agents_evidence"]
 
@@ -253,6 +252,10 @@ def replay_agents_evidence(
         )
     except ReplayError as exc:
         return none_replayable(path, records, str(exc))
+    why = agents_mismatch(ev.run.layout or {}, ev.run, env)
+    if why is not None:
+        env.close()
+        return none_replayable(path, records, why)
     file = _File.read(ev, obs_codec, act_codec, atol)
     try:
         done = _replay_games(env, file, records, progress)
@@ -314,7 +317,11 @@ def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> l
             if count
             else []
         )
-    options = json.loads(first["options"]) if first.get("options") else None
+    try:
+        options = from_json(first["options"], "options") if first.get("options") else None
+        state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
+    except ValueError as exc:
+        return none_replayable(file.path, members.values(), f"its game's reset record: {exc}")
     game = _Game()
     limit = sum(len(q) for q in queues.values()) + 2 * len(members) + 2
     # how the recorded game ended, if not by its rules, a reset or close (see docs/replay.md)
@@ -327,7 +334,7 @@ def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> l
         cut_kind = None if failure is None else _FAILED
     try:
         if seed is None:
-            restore_rng_state(env, json.loads(str(rng_state)))
+            restore_rng_state(env, state)
         out = env.reset(seed=None if seed is None else int(seed), options=options)
     except Exception as exc:  # the recorded reset did not raise (see above): as a single env
         divergence = Divergence(None, "reset", "a reset", env_error(exc))
@@ -366,7 +373,7 @@ def _recorded_error(
         start, count = rows.get(int(r["episode"]), (0, 0))
         notes = steps.column(fmt.COL_NOTES)[start + count - 1].as_py() if count else None
         try:
-            items = json.loads(notes) if notes else []
+            items = from_json(notes, "notes") if notes else []
         except ValueError:  # a garbled notes value: no error to read from it
             continue
         for item in items if isinstance(items, list) else ():
@@ -514,7 +521,7 @@ class _AgentEpisode:
         """How the replayed reset observation ``obs`` differs from reset row ``at``, if it does."""
         obs_codec, atol = self.file.obs_codec, self.file.atol
         expected = one_array(self.file.resets.column(fmt.COL_OBSERVATION).slice(at, 1))
-        equal, diff = obs_codec.compare(expected, obs_codec.encode([obs]), atol=atol)
+        equal, diff = obs_codec.compare(expected, encoded(obs_codec, [obs]), atol=atol)
         if equal[0]:
             return None
         return Divergence.of_observation(
@@ -527,7 +534,7 @@ class _AgentEpisode:
         exp = self.file.steps.slice(self.start, n)
         obs_equal, obs_diff = obs_codec.compare(
             one_array(exp.column(fmt.COL_OBSERVATION)),
-            obs_codec.encode([g[1] for g in got[:n]]),
+            encoded(obs_codec, [g[1] for g in got[:n]]),
             atol=atol,
         )
         exp_r = exp.column(fmt.COL_REWARD).to_numpy()

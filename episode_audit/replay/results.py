@@ -14,6 +14,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..format.columns import error_message
 from ..format.spaces import equal_elements
 from ..read.inputs import Unreadable
 
@@ -100,27 +101,45 @@ class ReplayResult:
     """Replays of many episodes, with the library versions that differ from the recording.
 
     ``unreadable``: the inputs that could not be read (``replay(..., keep_going=True)``);
-    ``missing``: the selected episode indices that no file replayed had.
+    ``missing``: the selected episode indices that no file replayed had; ``notes``: by file,
+    what its env was replayed without (recorded wrappers that never change a step, and why);
+    ``live``: the files a live recorder is still writing, and by whom (their flushed steps were
+    replayed).
     """
 
     episodes: list[EpisodeReplay] = field(default_factory=list)
     version_differences: dict[str, dict[str, tuple[str, str]]] = field(default_factory=dict)
     unreadable: list[Unreadable] = field(default_factory=list)
     missing: list[int] = field(default_factory=list)
+    notes: dict[str, list[str]] = field(default_factory=dict)
+    live: list[tuple[str, str]] = field(default_factory=list)
 
     def count(self, status: Status) -> int:
         """How many episodes ended with ``status``."""
         return sum(1 for e in self.episodes if e.status == status)
 
     @property
+    def verified(self) -> int:
+        """How many episodes were actually replayed and compared: identical or diverged.
+
+        0 when every episode was ``not_replayable`` (or there was none): then nothing confirms
+        the evidence, though :attr:`ok` holds; the command fails so unless told it is expected.
+        """
+        return sum(1 for e in self.episodes if e.status != "not_replayable")
+
+    @property
     def ok(self) -> bool:
-        """True when no episode diverged (not-replayable episodes do not fail a replay)."""
+        """True when no episode diverged (not-replayable episodes do not fail a replay).
+
+        See :attr:`verified` for whether anything was compared at all.
+        """
         return self.count("diverged") == 0
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-able form: ``{"summary": {...}, "episodes": [...], "version_differences"}``."""
+        """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes", "live"}``."""
         return {
             "summary": {
+                "verified": self.verified,
                 "identical": self.count("identical"),
                 "diverged": self.count("diverged"),
                 "not_replayable": self.count("not_replayable"),
@@ -130,6 +149,8 @@ class ReplayResult:
                 file: {lib: {"recorded": a, "current": b} for lib, (a, b) in diffs.items()}
                 for file, diffs in self.version_differences.items()
             },
+            "notes": {file: list(notes) for file, notes in self.notes.items()},
+            "live": [{"file": file, "why": why} for file, why in self.live],
         }
 
 
@@ -143,18 +164,27 @@ def none_replayable(
 
 
 def env_error(exc: BaseException) -> str:
-    """``"Type: message"`` of an exception the replay's env raised, as a divergence shows it."""
-    return f"{type(exc).__name__}: {exc}"
+    """``"Type: message"`` of an exception the replay's env raised, as a divergence shows it.
+
+    (Never raises: an exception whose ``str()`` raises says so.)
+    """
+    return f"{type(exc).__name__}: {error_message(exc)}"
 
 
 def short(value: Any) -> str:
-    """A value as a divergence shows it: its ``repr``, cut to 80 characters."""
-    if isinstance(value, np.ndarray) and value.size > 16:
-        # (a camera frame's list would be millions of characters)
-        text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
-        text = " ".join(text.split())
-    else:
-        text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    """A value as a divergence shows it: its ``repr``, cut to 80 characters.
+
+    Never raises: a value whose ``repr()`` raises (an env's own object) is named by its type.
+    """
+    try:
+        if isinstance(value, np.ndarray) and value.size > 16:
+            # (a camera frame's list would be millions of characters)
+            text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")
+            text = " ".join(text.split())
+        else:
+            text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    except Exception as exc:
+        text = f"<a {type(value).__name__} whose repr() raised {env_error(exc)}>"
     return text if len(text) <= 80 else text[:77] + "..."
 
 

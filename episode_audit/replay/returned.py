@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from io import BytesIO
 from itertools import chain
@@ -22,9 +22,9 @@ import pyarrow as pa
 from ..format.columns import PLAIN_NUMBERS, number_or_nan, terms_column, terms_matrix_column
 from ..format.spaces import SpaceCodec
 from ..record.rules import RewardTerms, named_terms, plain_names
-from .results import Divergence
+from .results import Divergence, env_error
 
-__all__ = ["Got", "Ran", "Rows", "Stepped", "Steps", "Terms", "recorded_terms"]
+__all__ = ["Got", "Ran", "Rows", "Stepped", "Steps", "Terms", "encoded", "recorded_terms"]
 
 
 @dataclass(slots=True)
@@ -177,6 +177,8 @@ class Got:
     terminated: np.ndarray[Any, Any]  # int8: 0, 1, or 2 for a value bool() refused
     truncated: np.ndarray[Any, Any]
     terms: Terms
+    reward_errors: dict[int, str] = field(default_factory=dict)
+    """By compared row: what ``float()`` of a reward that is not a number raised."""
 
     @classmethod
     def collect(
@@ -193,7 +195,7 @@ class Got:
         Each episode took ``ran`` steps and its recorded rows start at ``firsts`` in the
         compared columns.
         """
-        rewards = _rewards(steps.rewards)
+        rewards, refused = _rewards(steps.rewards)
         total = len(steps.rewards)
         terminated = np.zeros(total, dtype=np.int8)
         truncated = np.zeros(total, dtype=np.int8)
@@ -216,7 +218,19 @@ class Got:
         terms = Terms(n)
         if terms_rule is not None and steps.infos:
             terms.read(terms_rule, positions[steps.info_rows], steps.infos)
-        return cls(obs, rewards, terminated, truncated, terms)
+        errors = {int(positions[i]): why for i, why in refused.items()}
+        return cls(obs, rewards, terminated, truncated, terms, errors)
+
+
+def encoded(codec: SpaceCodec, values: Iterable[Any]) -> pa.Array:
+    """The column of ``values``: a null row for one it cannot hold (whatever that raised)."""
+    buffer = codec.new_buffer()
+    for value in values:
+        try:
+            buffer.append(value)
+        except Exception:  # the env's own object, not encodable
+            buffer.append_null()
+    return buffer.finish()
 
 
 def recorded_terms(
@@ -339,19 +353,26 @@ def _scatter(
     return out
 
 
-def _rewards(values: list[Any]) -> np.ndarray[Any, Any]:
-    """Rewards as float64; one that is not a number is NaN (a text reward is not parsed)."""
+def _rewards(values: list[Any]) -> tuple[np.ndarray[Any, Any], dict[int, str]]:
+    """Rewards as float64, and why each one that is not a number is NaN, by position.
+
+    As the recorder reads them (:func:`~episode_audit.format.columns.number_or_nan`): a text
+    reward is not parsed; an int too large for a float, or a value whose ``float()`` raises
+    whatever it raises, is NaN too.
+    """
     try:
-        return np.frombuffer(array("d", values), dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
+        return np.frombuffer(array("d", values), dtype=np.float64), {}
+    except Exception:
         pass
     out = array("d")
-    for value in values:
+    refused: dict[int, str] = {}
+    for i, value in enumerate(values):
         try:
             out.append(value)
-        except (TypeError, ValueError, OverflowError):  # (an int too large for a float)
+        except Exception as exc:  # the env's own object: whatever its __float__ raised
             out.append(math.nan)
-    return np.frombuffer(out, dtype=np.float64)
+            refused[i] = env_error(exc)
+    return np.frombuffer(out, dtype=np.float64), refused
 
 
 def _flags(values: list[Any]) -> np.ndarray[Any, Any]:

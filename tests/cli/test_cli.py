@@ -3,8 +3,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import gymnasium as gym
@@ -82,10 +85,14 @@ def test_check_clean_file_exit_0() -> None:
 
 
 def test_check_strict_fails_on_warnings() -> None:
-    code, _, _ = run("check", "fixtures/unlabeled_failure.mcap")
+    code, _, _ = run("check", "fixtures/torn.mcap")
     assert code == 0
-    code, _, _ = run("check", "fixtures/unlabeled_failure.mcap", "--strict")
+    code, _, _ = run("check", "fixtures/torn.mcap", "--strict")
     assert code == 1
+    # CartPole labels no failure and reports no terms: notes, which --strict lets pass
+    code, out, _ = run("check", "fixtures/unlabeled_failure.mcap", "--strict")
+    assert code == 0, out
+    assert out.strip().endswith("0 error(s), 0 warning(s), 2 note(s)"), out
 
 
 def test_check_ignore_leaves_findings_out_of_output_and_exit_code() -> None:
@@ -103,11 +110,11 @@ def test_check_ignore_leaves_findings_out_of_output_and_exit_code() -> None:
     assert all(f["code"] != "terms_sum_mismatch" for f in data["findings"])
     assert data["counts"]["error"] == before["counts"]["error"] - len(mismatches)
     # --strict: the warnings left fail; ignored too, they do not
-    args = ["check", "fixtures/unlabeled_failure.mcap", "--strict"]
+    args = ["check", "fixtures/torn.mcap", "--strict"]
     assert run(*args)[0] == 1
-    code, out, _ = run(*args, "--ignore", "unlabeled_failure", "--ignore", "missing_terms")
+    code, out, _ = run(*args, "--ignore", "file_unfinished", "--ignore", "incomplete_episode")
     assert code == 0
-    assert out.strip().endswith("0 error(s), 0 warning(s), 0 note(s), 2 ignored"), out
+    assert out.strip().endswith("0 error(s), 0 warning(s), 2 note(s), 2 ignored"), out
     for fmt in ("table", "markdown"):
         _, out, _ = run("check", "fixtures/clean.mcap", "-f", fmt)
         assert "ignored" not in out, fmt
@@ -554,14 +561,87 @@ def test_export_says_an_input_is_unfinished(tmp_path: Path) -> None:
     assert "exported what it holds" in err
 
 
-def test_recover_refuses_to_replace_a_pipe(tmp_path: Path) -> None:
-    import os
+SPECIAL = {
+    "fifo": "a FIFO (named pipe)",
+    "device": "a character device",
+    "socket": "a socket",
+    "directory": "a directory",
+}
 
-    fifo = tmp_path / "fifo"
-    os.mkfifo(fifo)
-    code, _, err = run("recover", "fixtures/torn.mcap", "--out", str(fifo), "--overwrite")
-    assert code == 2 and fifo.is_fifo()
-    one_error_line(err, "fifo: not a regular file (a device or a pipe)")
+
+@contextmanager
+def special_file(tmp_path: Path, kind: str) -> Iterator[Path]:
+    """A path that exists and is not a regular file. A FIFO has a reader while the block runs:
+    a command that (wrongly) opened it to write would not wait forever."""
+    path = tmp_path / kind
+    if kind == "device":
+        path = Path(os.devnull)
+    elif kind == "directory":
+        path.mkdir()
+    elif kind == "socket":
+        with socket.socket(socket.AF_UNIX) as sock:
+            sock.bind(str(path))
+    elif kind == "fifo":
+        os.mkfifo(path)
+        reader = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        try:
+            yield path
+        finally:
+            os.close(reader)
+        return
+    yield path
+
+
+def _same_kind(path: Path, kind: str) -> bool:
+    checks = {"fifo": path.is_fifo, "device": path.is_char_device, "socket": path.is_socket}
+    return path.is_dir() and not any(path.iterdir()) if kind == "directory" else checks[kind]()
+
+
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]], ids=["", "overwrite"])
+@pytest.mark.parametrize("kind", SPECIAL)
+def test_record_refuses_an_out_that_is_not_a_regular_file(
+    tmp_path: Path, kind: str, overwrite: list[str]
+) -> None:
+    """Before the env is built (its bad --env-kwargs is not what the error says), one line."""
+    with special_file(tmp_path, kind) as out:
+        args = ["record", "CartPole-v1", "--out", str(out), "--episodes", "1", *overwrite]
+        code, _, err = run(*args, "--env-kwargs", '{"render_mode": 3}')
+        assert code == 2 and _same_kind(out, kind)
+        refused = f"{out}: is {SPECIAL[kind]}" + (", not a regular file" * (kind != "directory"))
+        one_error_line(err, refused)
+        code, out_text, err = run(*args)  # and with nothing else wrong: nothing recorded
+        assert code == 2 and out_text == "" and _same_kind(out, kind)
+        one_error_line(err, refused)
+
+
+@pytest.mark.parametrize("name", ["episodes.parquet", "clean.steps.parquet"])
+@pytest.mark.parametrize("kind", ["fifo", "socket", "directory"])
+def test_export_refuses_an_output_file_that_is_not_a_regular_file(
+    tmp_path: Path, kind: str, name: str
+) -> None:
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    with special_file(out_dir, kind) as special:
+        target = special.rename(out_dir / name)
+        code, out, err = run("export", "fixtures/clean.mcap", "--out", str(out_dir), "--overwrite")
+        assert code == 2 and out == "" and _same_kind(target, kind)
+        one_error_line(err, f"{target}: is {SPECIAL[kind]}, not a regular file")
+        assert sorted(p.name for p in out_dir.iterdir()) == [name]  # nothing written
+    code, _, err = run("export", "fixtures/clean.mcap", "--out", os.devnull, "--overwrite")
+    assert code == 2
+    one_error_line(err, f"{os.devnull}: not a directory")
+
+
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]], ids=["", "overwrite"])
+@pytest.mark.parametrize("kind", SPECIAL)
+def test_recover_refuses_an_out_that_is_not_a_regular_file(
+    tmp_path: Path, kind: str, overwrite: list[str]
+) -> None:
+    with special_file(tmp_path, kind) as out:
+        code, _, err = run("recover", "fixtures/torn.mcap", "--out", str(out), *overwrite)
+        assert code == 2 and _same_kind(out, kind)
+        message = "is a directory" if kind == "directory" else "not a regular file"
+        one_error_line(err, f"{out}: {message}")
 
 
 def test_an_os_error_no_command_names_is_one_line_and_exit_2(

@@ -2,6 +2,7 @@
 
 from .check import check_output
 from .common import (
+    WORD_JOINER,
     Output,
     OutputFormat,
     fmt_number,
@@ -18,6 +19,7 @@ from .report import REPORT_HEADERS, report_output
 
 __all__ = [
     "REPORT_HEADERS",
+    "WORD_JOINER",
     "Output",
     "OutputFormat",
     "check_output",

@@ -1,22 +1,27 @@
 r"""The renderers' shared parts: Rich tables, Markdown tables (CI job summaries) and JSON.
 
 Every string from an evidence file is made safe before display (:func:`safe`,
-:func:`markdown_text`; the rules: ``docs/security.md``, "Inject markup"):
+:func:`markdown_text`, :func:`to_json`; the rules: ``docs/security.md``, "Inject markup"):
 
 >>> safe("[red]x[/red]\x1b[2J")
 '[red]x[/red]\\x1b[2J'
+>>> safe("::error::x ##[group]")  # no CI workflow command: a word joiner (U+2060) inside
+':\u2060:error:\u2060:x ##\u2060[group]'
 >>> print(markdown_table(["a", "b"], [["1", "x|y"]]))
 | a | b |
 | --- | --- |
 | 1 | x\|y |
 >>> markdown_text("[a](x) <b>|`c`")
 '[a\\](x) \\<b\\>\\|\\`c\\`'
+>>> markdown_text("https://e.invalid www.e.invalid u@e.invalid")  # no autolink
+'https\\://e.invalid www\\.e.invalid u@\u2060e.invalid'
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Iterable, Sequence
 from typing import Any, Literal
 
@@ -29,6 +34,7 @@ from rich.text import Text
 from ...read.inputs import Unreadable
 
 __all__ = [
+    "WORD_JOINER",
     "Output",
     "OutputFormat",
     "fmt_number",
@@ -45,12 +51,31 @@ OutputFormat = Literal["table", "markdown", "json"]
 Output = RenderableType | str
 
 
+WORD_JOINER = "\u2060"
+"""An invisible character that splits a CI workflow command or an e-mail autolink apart.
+
+Neither GFM nor the GitHub Actions runner (which ``TrimStart()``s a line, then looks for
+``::`` at its start and ``##[`` anywhere) treats U+2060 as whitespace, and Rich counts it as
+zero cells wide, so the value reads as it was.
+"""
+
+_CI_COMMAND = re.compile(r":(?=:)|##(?=[\[A-Za-z])")
+"""``::`` (GitHub Actions ``::cmd::``) and ``##[`` / ``##vso[`` / ``##teamcity[`` (GitHub,
+Azure Pipelines, TeamCity): a word joiner goes after the first ``:`` / the ``##``."""
+
+
 def safe(value: Any) -> str:
-    """``str(value)`` with control characters written as escapes (no ANSI, no newlines)."""
+    """``str(value)`` shown literally: escapes for control characters, no workflow command.
+
+    Control characters are written as escapes (no ANSI, no newlines); a :data:`WORD_JOINER`
+    goes inside ``::`` and ``##[``, so no CI runner reads a workflow command in the value.
+    """
     text = str(value)
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    if "::" in text or "##" in text:
+        text = _CI_COMMAND.sub("\\g<0>" + WORD_JOINER, text)
+    return text
 
 
 def fmt_number(value: float | None, digits: int = 3) -> str:
@@ -100,13 +125,32 @@ def table(title: str | None, headers: Sequence[str], rows: Iterable[Sequence[Any
     return out
 
 
-_MARKDOWN_ESCAPES = str.maketrans({c: "\\" + c for c in "\\|`<>&"})
+_MARKDOWN_ESCAPES = str.maketrans({c: "\\" + c for c in "\\|`<>&*~"})
+
+_EMPHASIS_UNDERSCORE = re.compile(r"(?<![^\W_])_|_(?![^\W_])")
+"""A ``_`` that could open or close emphasis: one not between two letters or digits
+(``time_limit`` stays as it is, ``__main__`` is escaped)."""
+
+_AUTOLINK = re.compile(r"(?=://)|(?i:(?<=www)(?=\.))")
+"""Where GFM's extended autolinks of URLs start (``http://``, ``https://``, ``ftp://``,
+``www.``): a backslash goes before ``://`` and before ``www``'s ``.``. An e-mail autolink
+(also ``mailto:`` and ``xmpp:``) needs an ``@``, which a backslash does not hide from GFM:
+a word joiner goes after it."""
 
 
 def markdown_text(value: Any) -> str:
-    """``safe(value)`` for Markdown: one line, shown literally (no link, code span or HTML)."""
+    """``safe(value)`` for Markdown: one line, shown literally.
+
+    No link (autolinks included), code span, emphasis or HTML (docs/security.md, rule 3).
+    """
     text = safe(value).translate(_MARKDOWN_ESCAPES)
-    return text.replace("](", "\\](").replace("][", "\\][") if "]" in text else text
+    if "_" in text:
+        text = _EMPHASIS_UNDERSCORE.sub("\\\\_", text)
+    if "]" in text:
+        text = text.replace("](", "\\](").replace("][", "\\][")
+    if "://" in text or "www." in text.lower():
+        text = _AUTOLINK.sub("\\\\", text)
+    return text.replace("@", "@" + WORD_JOINER) if "@" in text else text
 
 
 def markdown_table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
@@ -122,10 +166,25 @@ def markdown_table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str
 
 
 def to_json(data: Any) -> str:
-    """Stable, indented JSON (keys in insertion order, non-finite floats as strings)."""
+    r"""Stable, indented JSON (keys in insertion order, non-finite floats as strings).
+
+    A ``##`` that could start a CI workflow command is followed by a ``\u`` escape (the
+    same value once parsed); every line starts with indentation and a JSON token, never ``::``.
+
+    >>> print(to_json({"label": "##[error]x"}))
+    {
+      "label": "##\u005berror]x"
+    }
+    """
     from ...format.records import to_jsonable
 
-    return json.dumps(to_jsonable(data), indent=2, allow_nan=False)
+    text = json.dumps(to_jsonable(data), indent=2, allow_nan=False)
+    if "##" not in text:
+        return text
+    return _JSON_CI_COMMAND.sub(lambda m: f"##\\u{ord(m.group(1)):04x}", text)
+
+
+_JSON_CI_COMMAND = re.compile(r"##([\[A-Za-z])")
 
 
 def unreadable_json(unreadable: Iterable[Unreadable]) -> list[dict[str, str]]:

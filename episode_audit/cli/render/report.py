@@ -13,6 +13,7 @@ from .common import (
     OutputFormat,
     fmt_number,
     markdown_table,
+    markdown_text,
     rate,
     table,
     to_json,
@@ -95,7 +96,7 @@ def report_output(
     unfinished_headers = ["file", "why"]
     if output == "markdown":
         parts = [
-            f"### episode-audit report (by {result.by}{_unit(result)})\n",
+            f"### episode-audit report (by {markdown_text(result.by)}{_unit(result)})\n",
             markdown_table(REPORT_HEADERS, rows) + "\n",
         ]
         if term_rows:

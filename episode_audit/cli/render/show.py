@@ -160,12 +160,12 @@ def summary_output(
     parts: list[RenderableType] = [table("Evidence file", ["field", "value"], rows)]
     if episode_rows:
         parts.append(table(title, headers, episode_rows))
-    parts.append(Text("env spec: " + spec))
+    parts.append(Text("env spec: " + safe_block(spec)))
     return Group(*parts)
 
 
 def safe_block(text: str) -> str:
-    """Text for a fenced code block: control characters escaped line by line."""
+    """Lines of text made :func:`safe` one by one (the lines kept, e.g. of a code block)."""
     return "\n".join(safe(line) for line in text.splitlines())
 
 

@@ -2,8 +2,9 @@
 
 - :class:`ResetRngInfo` — a sub-env wrapper that puts the RNG state from just before an unseeded
   reset into the reset's info (for ``SAME_STEP`` autoresets, which run inside ``step()``).
-- :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (``SyncVectorEnv``
-  directly, ``AsyncVectorEnv`` through ``get_attr``) or from the reset infos.
+- :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (in this process:
+  ``SyncVectorEnv``, SB3's ``DummyVecEnv``; in workers through ``get_attr``: ``AsyncVectorEnv``,
+  SB3's ``SubprocVecEnv``) or from the reset infos.
 
 Which mode reads them when, and why: ``docs/format.md``, "Vector files".
 """
@@ -12,19 +13,31 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
-from gymnasium.vector import AsyncVectorEnv, SyncVectorEnv
 
 from ...format import names as fmt
 from ...format.records import to_json
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 
-__all__ = ["ResetRngInfo", "SubEnvRng"]
+__all__ = ["LocalSubEnvs", "RemoteSubEnvs", "ResetRngInfo", "SubEnvRng"]
 
 RngState = dict[str, Any]
+
+
+class LocalSubEnvs(Protocol):
+    """A vector env whose sub-envs live in this process (``SyncVectorEnv``, SB3 ``DummyVecEnv``)."""
+
+    envs: Any  # the list of sub-envs (replaced in place to install ResetRngInfo)
+
+
+class RemoteSubEnvs(Protocol):
+    """A vector env whose sub-envs are asked by name (``AsyncVectorEnv``, SB3 ``SubprocVecEnv``)."""
+
+    def get_attr(self, name: str, /) -> Any:
+        """Each sub-env's attribute ``name``, in a sequence."""
 
 
 class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
@@ -103,7 +116,7 @@ class SubEnvRng:
     (:meth:`from_info`, :class:`ResetRngInfo`); from then on only from the infos (``in_info``).
     """
 
-    def __init__(self, sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None) -> None:
+    def __init__(self, sync: LocalSubEnvs | None, async_env: RemoteSubEnvs | None) -> None:
         self.sync = sync
         self._async = async_env
         # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)

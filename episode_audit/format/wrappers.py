@@ -1,0 +1,404 @@
+"""The wrappers a file's env spec names, and what replay does with each (docs/security.md, rule 2).
+
+One registry (:data:`RECORDED_WRAPPERS`, by entry point) classifies every wrapper replay knows:
+``rebuilt`` (no state beyond an episode, no side effect: re-applied, each argument checked to be
+plain data of the expected type and size), ``transparent`` (never changes a step: left out,
+saying so), ``stateful`` (keeps state across episodes that the file does not hold: not
+replayable until a state snapshot can restore it) or ``refused`` (takes callables, converts
+through an optional array library). Any other wrapper is unknown, refused too. Nothing here
+imports what a file names: a wrapper is rebuilt only from ``gymnasium.wrappers`` by a name in
+the registry. :func:`plan_wrappers` reads a spec's ``additional_wrappers`` into a
+:class:`WrapperPlan`; ``--trust-entry-points`` bypasses all of this (the spec as recorded).
+:func:`state_causes` says, from a file's run metadata alone, what makes the state its episodes
+began in unrestorable (the recorder warns of the same at construction; ``check`` and replay
+report it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+__all__ = [
+    "LAYOUT_VECTOR_WRAPPERS",
+    "RECORDED_WRAPPERS",
+    "WrapperKind",
+    "WrapperPlan",
+    "WrapperRule",
+    "plan_wrappers",
+    "state_causes",
+    "stateful_wrapper",
+    "vector_wrapper_cause",
+]
+
+WrapperKind = Literal["rebuilt", "transparent", "stateful", "refused"]
+
+Check = Callable[[Any], str | None]
+"""What is wrong with an argument's value (``None``: nothing), said as "expected …"."""
+
+_MAX_ITEMS = 4096
+_MAX_TEXT = 256
+
+
+def _real(value: Any) -> bool:
+    return type(value) in (int, float) and math.isfinite(value)
+
+
+def _int(low: int, high: int) -> Check:
+    def check(value: Any) -> str | None:
+        if type(value) is int and low <= value <= high:
+            return None
+        return f"an int from {low} to {high}"
+
+    return check
+
+
+def _ints(low: int, high: int, most: int) -> Check:
+    """An int, or a list of at most ``most`` of them, each from ``low`` to ``high``."""
+    one = _int(low, high)
+
+    def check(value: Any) -> str | None:
+        items = value if isinstance(value, list) and 0 < len(value) <= most else [value]
+        if all(one(v) is None for v in items):
+            return None
+        return f"an int from {low} to {high}, or a list of at most {most}"
+
+    return check
+
+
+def _numbers(optional: bool = False) -> Check:
+    """A finite number, or a list of at most 4096 (``optional``: or None)."""
+
+    def check(value: Any) -> str | None:
+        if optional and value is None:
+            return None
+        items = value if isinstance(value, list) and 0 < len(value) <= _MAX_ITEMS else [value]
+        if all(_real(v) for v in items):
+            return None
+        return f"a finite number or a list of at most {_MAX_ITEMS}" + (", or null" * optional)
+
+    return check
+
+
+def _probability(value: Any) -> str | None:
+    return None if _real(value) and 0 <= value <= 1 else "a number from 0 to 1"
+
+
+def _bool(value: Any) -> str | None:
+    return None if type(value) is bool else "true or false"
+
+
+def _text(*choices: str) -> Check:
+    """A short string (``choices``: one of them)."""
+
+    def check(value: Any) -> str | None:
+        if choices:
+            return None if value in choices else f"one of {', '.join(map(repr, choices))}"
+        if isinstance(value, str) and 0 < len(value) <= _MAX_TEXT:
+            return None
+        return f"a string of 1 to {_MAX_TEXT} characters"
+
+    return check
+
+
+def _keys(value: Any) -> str | None:
+    ok = isinstance(value, list) and 0 < len(value) <= _MAX_ITEMS
+    if ok and all(_text()(k) is None or _int(-(2**31), 2**31)(k) is None for k in value):
+        return None
+    return f"a list of at most {_MAX_ITEMS} keys (short strings or ints)"
+
+
+_DTYPES = frozenset(
+    {"bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64"}
+    | {"float16", "float32", "float64"}
+)
+_LARGE = 2**31 - 1
+_SIZE = _ints(1, 4096, 2)  # a screen size: one side, or both
+
+
+@dataclass(frozen=True)
+class WrapperRule:
+    """What replay does with one recorded wrapper.
+
+    ``args``: for a ``rebuilt`` wrapper, each argument it may be given and its check (an
+    argument not listed is refused); ``why``: for the others, the reason in words.
+    ``renders``: it calls ``render()`` inside a step (left out, it no longer does);
+    ``render_bound``: a rebuilt wrapper whose step depends on those calls.
+    """
+
+    kind: WrapperKind
+    args: Mapping[str, Check] = field(default_factory=dict)
+    why: str = ""
+    renders: bool = False
+    render_bound: bool = False
+
+
+def _rebuilt(render_bound: bool = False, **args: Check) -> WrapperRule:
+    return WrapperRule("rebuilt", args, render_bound=render_bound)
+
+
+_NO_STEP = "it never changes a step"
+_CALLABLE = "its argument {} is a function, which a file cannot hold"
+_CONVERTS = "it converts arrays through an optional library (jax / torch) the file names"
+_STATS = "it keeps running statistics across episodes, which the file does not hold"
+_GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
+    # module in gymnasium.wrappers, rule; by class name (Gymnasium 1.x)
+    "TimeLimit": ("common", _rebuilt(max_episode_steps=_int(1, _LARGE))),
+    "Autoreset": ("common", _rebuilt()),
+    "RecordEpisodeStatistics": (
+        "common",
+        _rebuilt(buffer_length=_int(1, 1_000_000), stats_key=_text()),
+    ),
+    "OrderEnforcing": ("common", WrapperRule("transparent", why=_NO_STEP)),
+    "PassiveEnvChecker": ("common", WrapperRule("transparent", why=_NO_STEP)),
+    "FlattenObservation": ("transform_observation", _rebuilt()),
+    "FilterObservation": ("transform_observation", _rebuilt(filter_keys=_keys)),
+    "GrayscaleObservation": ("transform_observation", _rebuilt(keep_dim=_bool)),
+    "ResizeObservation": ("transform_observation", _rebuilt(shape=_SIZE)),
+    "ReshapeObservation": ("transform_observation", _rebuilt(shape=_ints(1, _LARGE, 32))),
+    "RescaleObservation": (
+        "transform_observation",
+        _rebuilt(min_obs=_numbers(), max_obs=_numbers()),
+    ),
+    "DtypeObservation": ("transform_observation", _rebuilt(dtype=_text(*sorted(_DTYPES)))),
+    "DiscretizeObservation": (
+        "transform_observation",
+        _rebuilt(bins=_ints(1, 1_000_000, _MAX_ITEMS), multidiscrete=_bool),
+    ),
+    "AddRenderObservation": (
+        "transform_observation",
+        _rebuilt(True, render_only=_bool, render_key=_text(), obs_key=_text()),
+    ),
+    "TransformObservation": (
+        "transform_observation",
+        WrapperRule("refused", why=_CALLABLE.format("func")),
+    ),
+    "ClipAction": ("transform_action", _rebuilt()),
+    "RescaleAction": (
+        "transform_action",
+        _rebuilt(min_action=_numbers(), max_action=_numbers()),
+    ),
+    "DiscretizeAction": (
+        "transform_action",
+        _rebuilt(bins=_ints(1, 1_000_000, _MAX_ITEMS), multidiscrete=_bool),
+    ),
+    "TransformAction": ("transform_action", WrapperRule("refused", why=_CALLABLE.format("func"))),
+    "ClipReward": (
+        "transform_reward",
+        _rebuilt(min_reward=_numbers(optional=True), max_reward=_numbers(optional=True)),
+    ),
+    "TransformReward": ("transform_reward", WrapperRule("refused", why=_CALLABLE.format("func"))),
+    "DelayObservation": ("stateful_observation", _rebuilt(delay=_int(0, 10_000))),
+    "FrameStackObservation": (
+        "stateful_observation",
+        _rebuilt(stack_size=_int(1, 10_000), padding_type=_text("reset", "zero")),
+    ),
+    "TimeAwareObservation": (
+        "stateful_observation",
+        _rebuilt(flatten=_bool, normalize_time=_bool, dict_time_key=_text()),
+    ),
+    "MaxAndSkipObservation": ("stateful_observation", _rebuilt(skip=_int(1, 1_000))),
+    "NormalizeObservation": ("stateful_observation", WrapperRule("stateful", why=_STATS)),
+    "StickyAction": (
+        "stateful_action",
+        _rebuilt(
+            repeat_action_probability=_probability, repeat_action_duration=_ints(1, 10_000, 2)
+        ),
+    ),
+    "RepeatAction": ("stateful_action", _rebuilt(num_repeats=_int(1, 1_000))),
+    "NormalizeReward": ("stateful_reward", WrapperRule("stateful", why=_STATS)),
+    "AtariPreprocessing": (
+        "atari_preprocessing",
+        _rebuilt(
+            noop_max=_int(0, 10_000),
+            frame_skip=_int(1, 1_000),
+            screen_size=_SIZE,
+            terminal_on_life_loss=_bool,
+            grayscale_obs=_bool,
+            grayscale_newaxis=_bool,
+            scale_obs=_bool,
+        ),
+    ),
+    # render() only; they draw from the env's RNG there, so a step depends on who renders
+    "AddWhiteNoise": (
+        "rendering",
+        _rebuilt(
+            True,
+            probability_of_noise_per_pixel=_probability,
+            is_noise_grayscale=_bool,
+        ),
+    ),
+    "ObstructView": (
+        "rendering",
+        _rebuilt(
+            True,
+            obstructed_pixels_ratio=_probability,
+            obstruction_width=_int(1, 100_000),
+            is_noise_grayscale=_bool,
+        ),
+    ),
+    # they write files / open a window / keep every frame when built, and never change a step
+    "RecordVideo": ("rendering", WrapperRule("transparent", why=_NO_STEP, renders=True)),
+    "HumanRendering": ("rendering", WrapperRule("transparent", why=_NO_STEP, renders=True)),
+    "RenderCollection": ("rendering", WrapperRule("transparent", why=_NO_STEP, renders=True)),
+    "ArrayConversion": ("array_conversion", WrapperRule("refused", why=_CONVERTS)),
+    "JaxToNumpy": ("jax_to_numpy", WrapperRule("refused", why=_CONVERTS)),
+    "JaxToTorch": ("jax_to_torch", WrapperRule("refused", why=_CONVERTS)),
+    "NumpyToTorch": ("numpy_to_torch", WrapperRule("refused", why=_CONVERTS)),
+}
+
+RECORDED_WRAPPERS: Mapping[str, WrapperRule] = {
+    **{
+        f"gymnasium.wrappers.{module}:{name}": rule
+        for name, (module, rule) in _GYMNASIUM_WRAPPERS.items()
+    },
+    **{f"gymnasium.wrappers:{name}": rule for name, (_, rule) in _GYMNASIUM_WRAPPERS.items()},
+    # Stable-Baselines3's episode statistics (it writes a CSV file when built with one)
+    "stable_baselines3.common.monitor:Monitor": WrapperRule("transparent", why=_NO_STEP),
+}
+"""Every wrapper replay knows, by the entry point a spec names it with."""
+
+
+@dataclass
+class WrapperPlan:
+    """What replay does with a spec's recorded wrappers, innermost first.
+
+    ``rebuild``: the ``gymnasium.wrappers`` class names to re-apply, with their kwargs;
+    ``notes``: what was left out, and why; ``refused``: why the env cannot be rebuilt
+    (``None``: it can).
+    """
+
+    rebuild: list[tuple[str, dict[str, Any]]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    refused: str | None = None
+
+
+_WAY_AROUND = (
+    "pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to "
+    "build the recorded wrappers as they are"
+)
+
+
+def plan_wrappers(recorded: Sequence[Any]) -> WrapperPlan:
+    """What to do with a spec's ``additional_wrappers`` (see :data:`RECORDED_WRAPPERS`)."""
+    plan = WrapperPlan()
+    renders: list[str] = []  # left out, though they call render() in a step
+    bound: list[str] = []  # rebuilt, whose step depends on those calls
+    for wrapper in recorded:
+        entry = str(wrapper.get("entry_point")) if isinstance(wrapper, Mapping) else repr(wrapper)
+        rule = RECORDED_WRAPPERS.get(entry)
+        name = entry.rpartition(":")[2]
+        if rule is None:
+            plan.refused = f"the recorded wrapper {entry[:200]!r} is not one replay knows"
+        elif rule.kind == "transparent":
+            plan.notes.append(f"replayed without the recorded wrapper {name}: {rule.why}")
+            renders += [name] if rule.renders else []
+        elif rule.kind != "rebuilt":
+            plan.refused = f"the recorded wrapper {name}: {rule.why}"
+        else:
+            assert isinstance(wrapper, Mapping)
+            plan.refused = _bad_argument(name, rule, wrapper.get("kwargs"))
+            plan.rebuild.append((name, dict(wrapper.get("kwargs") or {})))
+            bound += [name] if rule.render_bound else []
+        if plan.refused is not None:
+            break
+    if plan.refused is None and renders and bound:
+        plan.refused = (
+            f"the recorded wrapper {bound[0]} depends on the render() calls the recorded "
+            f"{renders[0]} made in each step, and replay leaves {renders[0]} out (it has side "
+            "effects)"
+        )
+    if plan.refused is not None:
+        plan.refused += f"; {_WAY_AROUND}"
+    return plan
+
+
+def _bad_argument(name: str, rule: WrapperRule, kwargs: Any) -> str | None:
+    """What is wrong with a rebuilt wrapper's recorded kwargs, naming the argument."""
+    if kwargs is None:
+        return None
+    if not isinstance(kwargs, Mapping):
+        return f"the recorded wrapper {name}'s kwargs are not a mapping"
+    for arg, value in kwargs.items():
+        check = rule.args.get(arg)
+        if check is None:
+            arg = str(arg)[:80]
+            return f"the recorded wrapper {name} has an argument {arg!r} replay does not know"
+        expected = check(value)
+        if expected is not None:
+            shown = repr(value)
+            shown = shown if len(shown) <= 80 else shown[:77] + "..."
+            return f"the recorded wrapper {name}'s argument {arg}: expected {expected}, got {shown}"
+    return None
+
+
+LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
+"""The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
+first; absent in files that predate it, and when there were none)."""
+
+
+def stateful_wrapper(entry_point: str) -> str | None:
+    """Why the wrapper of ``entry_point`` keeps state a file does not hold, or ``None``.
+
+    ``None`` for every wrapper but those the registry calls ``stateful``.
+    """
+    rule = RECORDED_WRAPPERS.get(entry_point)
+    return rule.why if rule is not None and rule.kind == "stateful" else None
+
+
+_VECTOR_STEP_SAFE = frozenset(
+    f"gymnasium.wrappers.vector.{module}:{name}"
+    for module, name in (
+        ("dict_info_to_list", "DictInfoToList"),  # the recorder reads infos either way
+        ("common", "RecordEpisodeStatistics"),  # adds episode totals to the infos
+    )
+)
+"""Vector wrappers that change no sub-env's observation, action, reward or flags."""
+
+
+def vector_wrapper_cause(entry_point: str) -> str | None:
+    """Why a vector wrapper under the vector recorder makes its episodes unreplayable.
+
+    ``None`` for those that change no sub-env's step (they only rearrange or add infos).
+    """
+    if entry_point in _VECTOR_STEP_SAFE:
+        return None
+    module, _, name = entry_point.rpartition(":")
+    return (
+        f"the recorder wrapped the vector wrapper {name[:80]} ({module[:120]}): the steps it "
+        "recorded are that wrapper's, which no sub-env rebuilt alone gives; wrap the vector env "
+        f"in RecordVectorEvidence first (innermost), then in {name[:80]}"
+    )
+
+
+def state_causes(env_spec: Any, layout: Any) -> list[str]:
+    """What makes the state a file's episodes began in unrestorable, one reason per cause.
+
+    From the run metadata alone (``env_spec``: the recorded env spec, a sub-env's for a vector
+    file; ``layout``: the file's layout): each recorded wrapper that keeps state across episodes
+    (:func:`stateful_wrapper`), and each vector wrapper the vector recorder wrapped.
+    """
+    causes: list[str] = []
+    wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    for wrapper in _listed(wrappers):
+        entry = str(wrapper.get("entry_point")) if isinstance(wrapper, Mapping) else ""
+        why = stateful_wrapper(entry)
+        if why is not None:
+            name = entry.rpartition(":")[2]
+            causes.append(
+                f"the recorded wrapper {name} {why.removeprefix('it ')} (no state snapshot): "
+                f"its episodes cannot begin in the state they were recorded in; record with the "
+                f"recorder inside {name} (innermost)"
+            )
+    vector = layout.get(LAYOUT_VECTOR_WRAPPERS) if isinstance(layout, Mapping) else None
+    causes += [c for entry in _listed(vector) if (c := vector_wrapper_cause(str(entry)))]
+    return causes
+
+
+def _listed(value: Any) -> Iterable[Any]:
+    """A recorded list (a single value: a list of it; none: empty), at most 64 items."""
+    if value is None:
+        return []
+    return (value if isinstance(value, list) else [value])[:64]

@@ -1,0 +1,136 @@
+"""PettingZoo replay (replay/pettingzoo.py) given hostile files and misbehaving envs.
+
+The usual games are replayed in tests/record/test_pettingzoo.py; here a file's hand-edited
+reset records and notes, and an env whose returned values raise when read.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pytest
+from pettingzoo.utils.wrappers import BaseParallelWrapper
+
+from episode_audit import RecordParallelEvidence, replay
+from episode_audit.format import names as fmt
+from tests.replay.test_misbehaving_env import UnprintableError, Unreadable
+from tests.support.hostile import replace_column, rewrite
+
+with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
+    warnings.simplefilter("ignore", DeprecationWarning)
+    from pettingzoo.classic import rps_v2
+
+DEEP = "[" * 100_000
+
+
+def _rps(path: Path, games: int = 2) -> Path:
+    with RecordParallelEvidence(
+        rps_v2.parallel_env(max_cycles=3), path, env_kwargs={"max_cycles": 3}
+    ) as env:
+        for seed in range(games):
+            env.reset(seed=seed)
+            while env.agents:
+                env.step(dict.fromkeys(env.agents, 1))
+    return path
+
+
+@pytest.fixture(scope="module")
+def rps(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _rps(tmp_path_factory.mktemp("rps") / "rps.mcap")
+
+
+def test_deeply_nested_reset_records_are_not_replayable_not_a_recursion_error(
+    rps: Path, tmp_path: Path
+) -> None:
+    """Game 0's options and game 1's RNG state (its seed removed) are nested too deeply."""
+
+    def episodes(batch: pa.RecordBatch) -> pa.RecordBatch:
+        games = batch.column("game").to_pylist()
+        batch = replace_column(batch, "options", [DEEP if g == 0 else None for g in games])
+        batch = replace_column(batch, "seed", [0 if g == 0 else None for g in games])
+        return replace_column(batch, "rng_state", [None if g == 0 else DEEP for g in games])
+
+    evil = rewrite(rps, tmp_path / "deep.mcap", episodes=episodes)
+    result = replay([evil])
+    why = "its game's reset record: {} is nested too deeply to be JSON episode-audit wrote"
+    assert [(e.status, e.reason) for e in result.episodes] == [
+        ("not_replayable", why.format("options")),
+        ("not_replayable", why.format("options")),
+        ("not_replayable", why.format("rng_state")),
+        ("not_replayable", why.format("rng_state")),
+    ]
+
+
+def test_deeply_nested_notes_are_read_as_no_notes(rps: Path, tmp_path: Path) -> None:
+    """(Replay reads a game's notes for the error its step raised when recorded.)"""
+
+    def steps(batch: pa.RecordBatch) -> pa.RecordBatch:
+        return replace_column(batch, fmt.COL_NOTES, [DEEP] * batch.num_rows)
+
+    evil = rewrite(rps, tmp_path / "notes.mcap", steps=steps)
+    assert replay([evil]).count("identical") == 4
+
+
+class _Spoiled(BaseParallelWrapper):  # type: ignore[misc]
+    """rps whose second step returns an unreadable value for one agent (or raises)."""
+
+    def __init__(self, field: str) -> None:
+        super().__init__(rps_v2.parallel_env(max_cycles=3))
+        self.field = field
+        self.steps = 0
+
+    def step(self, actions: dict[str, Any]) -> Any:
+        self.steps += 1
+        if self.steps == 2 and self.field == "raise":
+            raise UnprintableError
+        obs, rewards, term, trunc, infos = self.env.step(actions)
+        if self.steps == 2:
+            first = self.agents[0]
+            if self.field == "observation":
+                obs = {**obs, first: Unreadable()}
+            if self.field == "reward":
+                rewards = {**rewards, first: Unreadable()}
+        return obs, rewards, term, trunc, infos
+
+
+@pytest.mark.parametrize(
+    ("field", "described"),
+    [
+        ("observation", "step 1: observation expected 1, got <a Unreadable whose repr() raised"),
+        ("reward", "step 1: reward expected 0.0, got nan"),
+        (
+            "raise",
+            "step 1: step expected a step, got UnprintableError: <str() raised RuntimeError>",
+        ),
+    ],
+)
+def test_a_value_the_replayed_game_returns_that_raises_is_a_divergence_not_a_traceback(
+    rps: Path, field: str, described: str
+) -> None:
+    first, *_ = replay([rps], env_factory=lambda: _Spoiled(field)).episodes
+    assert first.status == "diverged" and first.divergence is not None
+    assert first.divergence.describe().startswith(described)
+
+
+def test_recorded_env_kwargs_are_bounded_before_a_game_env_is_built(
+    rps: Path, tmp_path: Path
+) -> None:
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        layout = json.loads(meta["layout"])
+        layout["env_kwargs"] = {**layout["env_kwargs"], "extra": "x" * 70_000}
+        return {**meta, "layout": json.dumps(layout)}
+
+    evil = rewrite(rps, tmp_path / "big.mcap", run=run)
+    results = replay([evil]).episodes
+    assert {(e.status, e.reason) for e in results} == {
+        (
+            "not_replayable",
+            "the recorded env kwarg 'extra' is 70002 bytes of JSON (all: 70003), more than the "
+            "65536 replay builds an env from; pass --env-factory MODULE:CALLABLE that builds "
+            "the env",
+        )
+    }
