@@ -199,8 +199,14 @@ def run_info(
     action_space: dict[str, Any],
     layout: dict[str, Any],
     notes: Sequence[str] = (),
+    info_of: str | None = None,
 ) -> RunInfo:
-    """The run metadata of a recording of an env with ``spec`` (an ``EnvSpec`` or ``None``)."""
+    """The run metadata of a recording of an env with ``spec`` (an ``EnvSpec`` or ``None``).
+
+    ``info_of``: the entry point of the object whose ``info`` the recorder reads (the env or
+    wrapper it wraps; a sub-env's for a vector recorder), kept in ``reward_terms`` as
+    ``info_of`` when the terms are found automatically, so a reader knows whose keys they are.
+    """
     spec_json: dict[str, Any] | None = None
     notes = list(notes)
     if spec is not None:
@@ -216,7 +222,7 @@ def run_info(
         env_spec=spec_json,
         observation_space=observation_space,
         action_space=action_space,
-        reward_terms=settings.terms_rule.describe(),
+        reward_terms=_terms(settings, info_of),
         ending_rules=settings.rules.describe(),
         versions=library_versions(),
         platform=platform.platform(),
@@ -226,3 +232,11 @@ def run_info(
         recorder=settings.recorder_metadata(notes),
         layout=layout,
     )
+
+
+def _terms(settings: RecorderSettings, info_of: str | None) -> dict[str, Any]:
+    """The ``reward_terms`` key of the run metadata."""
+    described = settings.terms_rule.describe()
+    if info_of is not None and described.get("source") == "auto":
+        described["info_of"] = info_of
+    return described

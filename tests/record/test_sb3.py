@@ -217,6 +217,24 @@ def test_over_vec_normalize_is_recorded_and_says_it_cannot_replay(tmp_path: Path
     assert any(f.code == "not_replayable" for f in check([path]).findings)
 
 
+def test_over_vec_normalize_of_reacher_names_it_in_the_terms_mismatch(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    path = tmp_path / "over.mcap"
+    base = DummyVecEnv([lambda: gym.make("Reacher-v5", max_episode_steps=20)] * 2)
+    venv = RecordVecEnvEvidence(VecNormalize(base, norm_obs=False), path)
+    venv.seed(0)
+    venv.reset()
+    for _ in range(60):
+        venv.step(np.zeros((2, 2), dtype=np.float32) + 0.5)
+    venv.close()
+    layout = open_evidence(path).run.layout
+    assert layout["reward_wrappers"] == [
+        "stable_baselines3.common.vec_env.vec_normalize:VecNormalize"
+    ]
+    found = [f.message for f in check([path]).findings if f.code == "terms_sum_mismatch"]
+    assert found and all("changed by VecNormalize between" in m for m in found), found
+
+
 def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:
     path = tmp_path / "over.mcap"
     venv = RecordVecEnvEvidence(
