@@ -75,7 +75,8 @@ class RecordEvidence(
             ``overwrite=True``.
         **options: The recorder options (``tags``, ``reward_terms``, ``constant_terms``,
             ``ending_rules``, ``info_keys``, ``digest_min_bytes``, ``block_steps``,
-            ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``): see
+            ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``,
+            ``transparent_wrappers``): see
             :class:`~episode_audit.record.settings.RecorderSettings`.
     """
 
