@@ -23,12 +23,16 @@ def test_kill_harness_never_loses_flushed_steps(tmp_path: Path) -> None:
 
 
 def _sb3_checked(path: Path) -> None:
-    """Every episode of ``path`` replays identical and ``check`` finds no error."""
-    from episode_audit import check, open_evidence, replay
+    """Every episode of ``path`` replays identical; ``check --strict`` exits 0, no ``--ignore``."""
+    from typer.testing import CliRunner
+
+    from episode_audit import open_evidence, replay
+    from episode_audit.cli import app
 
     result = replay([path])
     assert result.count("identical") == open_evidence(path).episodes().num_rows
-    assert not [f for f in check([path]).findings if f.severity == "error"]
+    strict = CliRunner().invoke(app, ["check", str(path), "--strict"])
+    assert strict.exit_code == 0, strict.output
 
 
 @pytest.mark.slow

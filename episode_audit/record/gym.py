@@ -6,7 +6,8 @@ PettingZoo recorders); its options are those of
 :class:`~episode_audit.record.settings.RecorderSettings`. How steps are recorded, flushed and
 noted: ``docs/recording.md``. The wrapper raises only for misuse, e.g. stepping after
 ``close()``; a bad value from the env is recorded and noted. :func:`warn_unrestorable` warns,
-when a recorder is built, of what will make its episodes' state unrestorable on replay.
+when a recorder is built, of what will make its episodes' state unrestorable on replay;
+:func:`reward_wrappers` finds the wrappers under a recorder that change the reward.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from gymnasium.envs.registration import EnvSpec
 from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
-from ..format.wrappers import state_causes
+from ..format.wrappers import LAYOUT_REWARD_WRAPPERS, REWARD_CHANGING, state_causes
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -34,7 +35,14 @@ from .settings import (
     run_info,
 )
 
-__all__ = ["RecordEvidence", "library_versions", "warn_unrestorable", "wrapper_chain"]
+__all__ = [
+    "RecordEvidence",
+    "entry_point",
+    "library_versions",
+    "reward_wrappers",
+    "warn_unrestorable",
+    "wrapper_chain",
+]
 
 
 class RecordEvidence(
@@ -67,7 +75,8 @@ class RecordEvidence(
             ``overwrite=True``.
         **options: The recorder options (``tags``, ``reward_terms``, ``constant_terms``,
             ``ending_rules``, ``info_keys``, ``digest_min_bytes``, ``block_steps``,
-            ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``): see
+            ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``,
+            ``transparent_wrappers``): see
             :class:`~episode_audit.record.settings.RecorderSettings`.
     """
 
@@ -84,12 +93,17 @@ class RecordEvidence(
         obs_codec = codec_for(env.observation_space, digest_min_bytes=digest_min_bytes)
         act_codec = codec_for(env.action_space)
         self._unwrapped = env.unwrapped
+        layout: dict[str, Any] = {"kind": "single", "num_envs": 1, "agents": []}
+        changing = reward_wrappers(env)
+        if changing:
+            layout[LAYOUT_REWARD_WRAPPERS] = changing
         self.run_info = run_info(
             settings=settings,
             spec=env.spec,
             observation_space=describe_space(env.observation_space),
             action_space=describe_space(env.action_space),
-            layout={"kind": "single", "num_envs": 1, "agents": []},
+            layout=layout,
+            info_of=entry_point(env),
         )
         warn_unrestorable(type(self).__name__, wrapper_chain(env), self.run_info.layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
@@ -189,6 +203,32 @@ def wrapper_chain(env: Any) -> list[str]:
     except Exception:  # an env's own attribute access: the chain walked so far
         pass
     return chain[::-1]
+
+
+def entry_point(obj: Any) -> str:
+    """The entry point (``module:Class``) of ``obj``'s class."""
+    return f"{type(obj).__module__}:{type(obj).__qualname__}"
+
+
+def reward_wrappers(env: Any) -> list[str]:
+    """The entry points of the wrappers around ``env`` that change its reward, innermost first.
+
+    Single or vector wrappers: each ``RewardWrapper`` / ``VectorRewardWrapper``, and those
+    :data:`~episode_audit.format.wrappers.REWARD_CHANGING` names (``NormalizeReward``). Never
+    raises: a chain that cannot be walked gives what was walked.
+    """
+    found: list[str] = []
+    kinds = (gym.RewardWrapper, gym.vector.VectorRewardWrapper)
+    try:
+        for _ in range(64):
+            if not isinstance(env, (gym.Wrapper, gym.vector.VectorWrapper)):
+                break
+            if isinstance(env, kinds) or type(env).__name__ in REWARD_CHANGING:
+                found.append(entry_point(env))
+            env = env.env
+    except Exception:  # an env's own attribute access: the chain walked so far
+        pass
+    return found[::-1]
 
 
 def warn_unrestorable(recorder: str, wrappers: Iterable[str], layout: Mapping[str, Any]) -> None:

@@ -24,7 +24,7 @@ from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
 from ..format.records import RunInfo
 from ..format.spaces import describe_space
-from ..format.wrappers import plan_wrappers
+from ..format.wrappers import declared_transparent, plan_wrappers
 from ..record.rules import find_time_limit
 
 __all__ = [
@@ -74,7 +74,7 @@ def build_env(
         trusted = [w for w in recorded if isinstance(w, Mapping)]
         return _from_registry(env_id, spec, trusted, _load_wrapper)
     if registered:
-        plan = plan_wrappers(recorded)
+        plan = plan_wrappers(recorded, declared_transparent(run.recorder))
         if plan.refused is not None:
             raise ReplayError(plan.refused)
         rebuilt = [{"entry_point": name, "kwargs": kwargs} for name, kwargs in plan.rebuild]
@@ -99,7 +99,9 @@ def replay_notes(run: RunInfo, *, env_factory: Any, trust_entry_points: bool) ->
     if env_factory is not None or trust_entry_points or not isinstance(spec, Mapping):
         return []
     recorded = spec.get("additional_wrappers") or []
-    plan = plan_wrappers(recorded if isinstance(recorded, list) else [recorded])
+    plan = plan_wrappers(
+        recorded if isinstance(recorded, list) else [recorded], declared_transparent(run.recorder)
+    )
     return plan.notes if plan.refused is None else []
 
 

@@ -80,6 +80,16 @@ def assert_checks_clean(path: Path) -> None:
     assert not errors, errors
 
 
+def assert_strict_clean(path: Path) -> None:
+    """``episode-audit check --strict`` on ``path`` exits 0, with no ``--ignore``."""
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    result = CliRunner().invoke(app, ["check", str(path), "--strict"])
+    assert result.exit_code == 0, result.output
+
+
 def step_random(venv: Any, steps: int, seed: int = 0) -> None:
     rng = np.random.default_rng(seed)
     venv.seed(seed)
@@ -187,6 +197,7 @@ def test_sac_on_mujoco_records_rewards_exactly(tmp_path: Path) -> None:
     assert sum(e["length"] for e in episodes(path)) == 301
     assert_replays_identical(path)
     assert_checks_clean(path)
+    assert_strict_clean(path)
 
 
 # ---------------------------------------------------------------- stacks
@@ -215,6 +226,24 @@ def test_over_vec_normalize_is_recorded_and_says_it_cannot_replay(tmp_path: Path
     result = replay([path])
     assert result.count("not_replayable") == len(episodes(path))
     assert any(f.code == "not_replayable" for f in check([path]).findings)
+
+
+def test_over_vec_normalize_of_reacher_names_it_in_the_terms_mismatch(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    path = tmp_path / "over.mcap"
+    base = DummyVecEnv([lambda: gym.make("Reacher-v5", max_episode_steps=20)] * 2)
+    venv = RecordVecEnvEvidence(VecNormalize(base, norm_obs=False), path)
+    venv.seed(0)
+    venv.reset()
+    for _ in range(60):
+        venv.step(np.zeros((2, 2), dtype=np.float32) + 0.5)
+    venv.close()
+    layout = open_evidence(path).run.layout
+    assert layout["reward_wrappers"] == [
+        "stable_baselines3.common.vec_env.vec_normalize:VecNormalize"
+    ]
+    found = [f.message for f in check([path]).findings if f.code == "terms_sum_mismatch"]
+    assert found and all("changed by VecNormalize between" in m for m in found), found
 
 
 def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:
@@ -369,6 +398,64 @@ def test_make_vec_env_with_an_index_template(tmp_path: Path) -> None:
     step_random(venv, 50)
     venv.close()
     assert sorted(p.name for p in tmp_path.glob("*.mcap")) == [f"train-{i}.mcap" for i in range(N)]
+
+
+# ---------------------------------------------------------------- check --strict
+
+
+def _train_recorder(tmp_path: Path) -> tuple[list[Path], list[Monitor]]:
+    path = tmp_path / "train.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([monitored_cartpole] * N), path)
+    PPO("MlpPolicy", venv, n_steps=128, n_epochs=1, batch_size=256, seed=0).learn(2048)
+    monitors = [venv.venv.envs[i].env for i in range(N)]  # ResetRngInfo(Monitor(...))
+    venv.close()
+    return [path] * N, monitors
+
+
+def _train_make_vec_env(tmp_path: Path) -> tuple[list[Path], list[Monitor]]:
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from episode_audit import RecordEvidence
+
+    template = str(tmp_path / "train-{index}.mcap")
+    venv = make_vec_env(
+        "CartPole-v1", N, seed=0, wrapper_class=RecordEvidence, wrapper_kwargs={"path": template}
+    )
+    PPO("MlpPolicy", venv, n_steps=128, n_epochs=1, batch_size=256, seed=0).learn(2048)
+    monitors = [e.env for e in venv.envs]  # RecordEvidence(Monitor(...))
+    venv.close()
+    return [tmp_path / f"train-{i}.mcap" for i in range(N)], monitors
+
+
+@pytest.mark.parametrize("train", [_train_recorder, _train_make_vec_env])
+def test_check_strict_passes_ppo_training_on_cartpole(tmp_path: Path, train: Any) -> None:
+    """Strict check clean with no --ignore; returns equal Monitor's; every episode identical."""
+    paths, monitors = train(tmp_path)
+    one_file = len(set(paths)) == 1  # sub-env i is stream i of it; else file i
+    for i, (path, monitor) in enumerate(zip(paths, monitors, strict=True)):
+        index = i if one_file else 0
+        mine = [
+            (e["length"], round(e["return"], 6)) for e in ended(path) if e["env_index"] == index
+        ]
+        assert monitor.get_episode_lengths()  # episodes ended
+        assert mine == list(
+            zip(monitor.get_episode_lengths(), monitor.get_episode_rewards(), strict=True)
+        )
+    for path in sorted(set(paths)):
+        assert_strict_clean(path)
+        assert_replays_identical(path)
+
+
+def test_check_strict_passes_ppo_training_on_reacher(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    path = tmp_path / "reacher.mcap"
+    make = [lambda: Monitor(gym.make("Reacher-v5"))] * 2
+    venv = RecordVecEnvEvidence(DummyVecEnv(make), path)
+    PPO("MlpPolicy", venv, n_steps=128, n_epochs=1, batch_size=256, seed=0).learn(512)
+    venv.close()
+    assert ended(path)
+    assert_strict_clean(path)
+    assert_replays_identical(path)
 
 
 # ---------------------------------------------------------------- evaluation

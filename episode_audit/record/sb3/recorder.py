@@ -19,6 +19,7 @@ from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
 from ...format.spaces import codec_for, describe_space
+from ...format.wrappers import LAYOUT_REWARD_WRAPPERS
 from ..file import EvidenceFile, FileRecorder
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..vector.infos import env_infos
@@ -118,19 +119,24 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             )
         spec = stack.sub_env_spec()
         obs_space, act_space = venv.observation_space, venv.action_space
+        layout = vector_layout(
+            n,
+            AutoresetMode.SAME_STEP,
+            type(base).__name__,
+            not stack.changing,
+            stack.replay_note() if stack.changing else None,
+        )
+        changing = stack.reward_wrappers()
+        if changing:
+            layout[LAYOUT_REWARD_WRAPPERS] = changing
         self.run_info = run_info(
             settings=settings,
             spec=spec,
             observation_space=describe_space(obs_space),
             action_space=describe_space(act_space),
-            layout=vector_layout(
-                n,
-                AutoresetMode.SAME_STEP,
-                type(base).__name__,
-                not stack.changing,
-                stack.replay_note() if stack.changing else None,
-            ),
+            layout=layout,
             notes=notes,
+            info_of=stack.info_of(),
         )
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path

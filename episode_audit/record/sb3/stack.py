@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import (
     VecVideoRecorder,
 )
 
+from ..gym import entry_point, reward_wrappers
 from ..rules import find_time_limit
 
 __all__ = ["TRANSPARENT", "VecStack"]
@@ -55,6 +56,10 @@ class VecStack:
         """The class names of the wrappers between the recorder and the base, outermost first."""
         self.changing = [type(w).__name__ for w in wrappers if _changes_steps(w)]
         """Those of them that change observations, rewards or spaces."""
+        self.rewards = [
+            entry_point(w) for w in wrappers[::-1] if isinstance(w, VecNormalize) and w.norm_reward
+        ]
+        """The entry points of those of them that change the reward, innermost first."""
         self.local = env if isinstance(env, DummyVecEnv) else None
         """The base if its sub-envs live in this process (``DummyVecEnv``)."""
         self.direct = not wrappers
@@ -80,6 +85,22 @@ class VecStack:
             "RecordVecEnvEvidence directly over the DummyVecEnv / SubprocVecEnv, under "
             "those wrappers"
         )
+
+    def reward_wrappers(self) -> list[str]:
+        """The wrappers that change the reward under the recorder, innermost first.
+
+        A sub-env's (in this process only), then the VecEnv wrappers' (``VecNormalize``).
+        """
+        inner: list[str] = []
+        if self.local is not None and self.local.envs:
+            inner = reward_wrappers(self.local.envs[0])
+        return inner + self.rewards
+
+    def info_of(self) -> str:
+        """The entry point of the object whose infos the recorder reads the terms from."""
+        if self.local is not None and self.local.envs:
+            return entry_point(self.local.envs[0])
+        return entry_point(self.base)
 
     def sub_env_spec(self) -> Any:
         """One sub-env's spec (what replay rebuilds), or ``None``."""

@@ -20,9 +20,9 @@ from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
 from ...format.spaces import codec_for, describe_space
-from ...format.wrappers import LAYOUT_VECTOR_WRAPPERS
+from ...format.wrappers import LAYOUT_REWARD_WRAPPERS, LAYOUT_VECTOR_WRAPPERS, REWARD_CHANGING
 from ..file import EvidenceFile, FileRecorder
-from ..gym import warn_unrestorable, wrapper_chain
+from ..gym import entry_point, reward_wrappers, warn_unrestorable, wrapper_chain
 from ..rules import find_time_limit
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from .infos import env_infos
@@ -101,6 +101,9 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         vector_wrappers = _vector_wrappers(env)
         if vector_wrappers:
             layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
+        changing = _sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
+        if changing:
+            layout[LAYOUT_REWARD_WRAPPERS] = changing
         self.run_info = run_info(
             settings=settings,
             spec=sub_spec,
@@ -108,6 +111,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             action_space=describe_space(act_space),
             layout=layout,
             notes=notes,
+            info_of=entry_point(sync.envs[0] if sync is not None and sync.envs else env),
         )
         warn_unrestorable(type(self).__name__, _sub_wrappers(sync, sub_spec), layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
@@ -302,3 +306,11 @@ def _sub_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]:
         return wrapper_chain(sync.envs[0])
     wrappers = getattr(sub_spec, "additional_wrappers", None) or ()
     return [str(getattr(w, "entry_point", "")) for w in wrappers]
+
+
+def _sub_reward_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]:
+    """The first sub-env's wrappers that change its reward: walked, else as its spec names them."""
+    if sync is not None and sync.envs:
+        return reward_wrappers(sync.envs[0])
+    wrappers = _sub_wrappers(None, sub_spec)
+    return [w for w in wrappers if w.rpartition(":")[2] in REWARD_CHANGING]
