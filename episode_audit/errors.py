@@ -9,7 +9,8 @@ Every error the library raises on purpose derives from :class:`EpisodeAuditError
     │   └── UnsupportedVersionError written by a newer major format version
     ├── RecorderError              the recorder was misused (e.g. stepping after close)
     ├── ConfigurationError         a wrong argument or option
-    └── ReplayError                an episode cannot be replayed (no env, no seed or RNG state)
+    ├── ReplayError                an episode cannot be replayed (no env, no seed or RNG state)
+    └── ContractViolation          an environment broke its contract (also an AssertionError)
 
 Messages say what was expected, what was found, and what to do.
 """
@@ -20,6 +21,7 @@ from os import PathLike
 
 __all__ = [
     "ConfigurationError",
+    "ContractViolation",
     "CorruptEvidenceError",
     "EpisodeAuditError",
     "EvidenceError",
@@ -78,3 +80,15 @@ class ConfigurationError(EpisodeAuditError):
 
 class ReplayError(EpisodeAuditError):
     """An episode cannot be replayed: no environment can be built, or no seed / RNG state."""
+
+
+class ContractViolation(EpisodeAuditError, AssertionError):
+    """An environment broke its contract (``episode_audit.testing``): a test failure.
+
+    The message names each broken clause (step, term, expected vs got) and the evidence file
+    kept; ``result`` is the :class:`~episode_audit.testing.ContractResult` that showed it.
+    """
+
+    def __init__(self, message: str, result: object = None) -> None:
+        super().__init__(message)
+        self.result = result

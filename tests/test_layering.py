@@ -7,8 +7,9 @@ Every import counts, at module level or inside a function (a lazy import is stil
     1  format, tasks
     2  _usercode, record, read
     3  check, replay, report, recover, export, rollout
-    4  cli
-    5  demo, __main__, the package's __init__
+    4  testing
+    5  cli
+    6  demo, __main__, the package's __init__
 
 A module may import its own wing and the wings of lower rank, never a wing of its own rank or
 above (``record`` and ``read`` are siblings: neither imports the other).
@@ -38,10 +39,11 @@ RANK = {
     "recover": 3,
     "export": 3,
     "rollout": 3,
-    "cli": 4,
-    "demo": 5,
-    "__main__": 5,
-    "": 5,  # episode_audit/__init__.py
+    "testing": 4,
+    "cli": 5,
+    "demo": 6,
+    "__main__": 6,
+    "": 6,  # episode_audit/__init__.py
 }
 
 
@@ -150,7 +152,7 @@ def test_no_wing_imports_a_wing_at_or_above_its_rank() -> None:
 def test_the_lower_wings_never_import_the_higher_ones() -> None:
     graph = import_graph()
     lower = [m for m in graph if wing(m) in ("format", "read", "record", "errors")]
-    higher = ("check", "replay", "report", "cli", "recover", "export", "rollout")
+    higher = ("check", "replay", "report", "cli", "recover", "export", "rollout", "testing")
     assert [(m, t) for m in lower for t in graph[m] if wing(t) in higher] == []
 
 
