@@ -12,6 +12,10 @@ from tests.support.envs import ScriptedEnv
 
 REPO = Path(__file__).resolve().parents[1]
 
+# pytester for the plugin's own tests; the plugin itself (loaded by its pytest11 entry point
+# once installed, named here for a checkout) for the reference tasks' contract tests.
+pytest_plugins = ["pytester", "episode_audit_pytest"]
+
 
 @pytest.fixture
 def repo() -> Path:

@@ -101,8 +101,9 @@ class ContractCase:
         make_policy: Instead of ``actions``: called once with the case's env, returns the policy.
         expect: The expected ending (``"success"``, ``"failure:LABEL"``,
             ``"truncated:REASON"``; see :func:`expected_ending`); ``None`` accepts any.
-        terms_present: Reward terms the last step must have.
-        terms_absent: Reward terms the last step must not have.
+        terms_present: Reward terms the last step must have, non-zero (envs that report
+            every term on every step report the inactive ones as 0).
+        terms_absent: Reward terms the last step must not have, or have as 0.
         random_episodes: If > 0, also record this many random episodes (seeds ``seed``,
             ``seed + 1``, ...) and fail on any incentive warning of their report.
         max_steps: A policy that has not ended the episode after this many steps fails.

@@ -201,13 +201,13 @@ def _term_problems(case: ContractCase, last: dict[str, float], steps: int) -> li
     shown = ", ".join(f"{k}={v:.6g}" for k, v in last.items()) or "none"
     where = f"step {steps - 1} (the last)"
     return [
-        f"terms: {where}: expected term {name!r} present, got terms {shown}"
+        f"terms: {where}: expected term {name!r} present (non-zero), got terms {shown}"
         for name in case.terms_present
-        if name not in last
+        if not last.get(name)
     ] + [
-        f"terms: {where}: expected term {name!r} absent, got {name}={last[name]:.6g}"
+        f"terms: {where}: expected term {name!r} absent (or zero), got {name}={last[name]:.6g}"
         for name in case.terms_absent
-        if name in last
+        if last.get(name)
     ]
 
 

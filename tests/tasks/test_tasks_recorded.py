@@ -1,9 +1,11 @@
-"""The reference tasks' recipes, checked from the *recorded evidence file*, not only the env.
+"""The reference tasks' contracts, checked from the *recorded evidence file*, not only the env.
 
-For each task: a success, a task failure with its label and a time-limit truncation (scripted
-policy, hacker policy, doing nothing — from fixed seeds); terms sum to reward through `check`;
-replay is identical in a fresh process; the hacker on `proxy_reward=True` out-earns the competent
-policy while failing, and the report flags it.
+For each task, with the ``env_contract`` fixture of the pytest plugin: a success (scripted
+policy), a task failure with its label (hacker policy) and a time-limit truncation (doing
+nothing), from seed 0 -- each ending, its terms at the last step, terms summing to the reward
+on every step, and an identical replay in a fresh env. Then: replay is identical in a fresh
+process too, and the hacker on ``proxy_reward=True`` out-earns the competent policy while
+failing, and the report flags it.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +21,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from episode_audit import RecordEvidence, check, open_evidence, report
+from episode_audit import RecordEvidence, report
 from episode_audit.tasks import TASK_IDS, make_policy
+from episode_audit.testing import ContractCase, ContractResult
 
 pytest.importorskip("mujoco")
 
@@ -29,79 +33,52 @@ FAILURE_LABELS = {
     "episode_audit/DrawerOpen-v0": "drawer_yanked",
     "episode_audit/Grasp-v0": "dropped_object",
 }
+Contract = Callable[[ContractCase], ContractResult]
 
 
-def record(path: Path, task: str, policy: str, seeds: list[int], **kwargs: Any) -> Path:
-    env = gym.make(task, **kwargs)
-    act = (
-        (lambda obs: np.zeros(env.action_space.shape, np.float32))
-        if policy == "nothing"
-        else make_policy(policy, env, seed=0)
-    )
-    with RecordEvidence(env, path, tags={"policy": policy}) as rec:
-        for seed in seeds:
-            obs, _ = rec.reset(seed=seed)
-            done = False
-            while not done:
-                obs, _, term, trunc, _ = rec.step(act(obs))
-                done = term or trunc
-    return path
+def nothing(env: gym.Env[Any, Any]) -> Callable[[Any], Any]:
+    zero = np.zeros(env.action_space.shape, np.float32)
+    return lambda obs: zero
 
 
-@pytest.fixture(scope="module", params=TASK_IDS)
-def recorded(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> dict[str, Any]:
-    task = request.param
-    out = tmp_path_factory.mktemp(task.split("/")[-1])
-    return {
-        "task": task,
-        "scripted": record(out / "scripted.mcap", task, "scripted", [0]),
-        "hacker": record(out / "hacker.mcap", task, "hacker", [0]),
-        "nothing": record(out / "nothing.mcap", task, "nothing", [0]),
-    }
+def cases(task: str) -> list[ContractCase]:
+    """Success, the labelled failure and the time-limit truncation of ``task``, from seed 0."""
+    common: dict[str, Any] = {"seed": 0, "require_terms": True}
+    return [
+        ContractCase(
+            task,
+            make_policy=lambda env: make_policy("scripted", env),
+            expect="success",
+            terms_present=["success_bonus"],
+            terms_absent=["failure_penalty"],
+            **common,
+        ),
+        ContractCase(
+            task,
+            make_policy=lambda env: make_policy("hacker", env),
+            expect=f"failure:{FAILURE_LABELS[task]}",
+            terms_present=["failure_penalty"],
+            terms_absent=["success_bonus"],
+            **common,
+        ),
+        ContractCase(task, make_policy=nothing, expect="truncated:time_limit", **common),
+    ]
 
 
-def only_episode(path: Path) -> dict[str, Any]:
-    (episode,) = open_evidence(path).episodes().to_pylist()
-    return episode
+@pytest.mark.parametrize("case", [c for task in TASK_IDS for c in cases(task)], ids=str)
+def test_the_contract_of_each_ending(case: ContractCase, env_contract: Contract) -> None:
+    result = env_contract(case)
+    if result.outcome == "truncated":
+        assert result.steps == gym.spec(str(case.env)).max_episode_steps
+    elif result.outcome == "success":
+        assert result.last_terms["success_bonus"] > 0
+    else:
+        assert result.last_terms["failure_penalty"] < 0
 
 
-def test_success_from_the_file(recorded: dict[str, Any]) -> None:
-    episode = only_episode(recorded["scripted"])
-    assert (episode["outcome"], episode["terminated"], episode["truncated"]) == (
-        "success",
-        True,
-        False,
-    )
-    steps = open_evidence(recorded["scripted"]).steps()
-    assert steps["outcome"].to_pylist()[-1] == "success"
-    assert dict(steps["terms"].to_pylist()[-1])["success_bonus"] > 0
-
-
-def test_failure_with_its_label_from_the_file(recorded: dict[str, Any]) -> None:
-    episode = only_episode(recorded["hacker"])
-    assert episode["outcome"] == "failure"
-    assert episode["failure_label"] == FAILURE_LABELS[recorded["task"]]
-    assert episode["terminated"] and not episode["truncated"]
-
-
-def test_time_limit_truncation_from_the_file(recorded: dict[str, Any]) -> None:
-    episode = only_episode(recorded["nothing"])
-    assert (episode["outcome"], episode["truncation_reason"]) == ("truncated", "time_limit")
-    assert not episode["terminated"]
-    assert episode["length"] == gym.spec(recorded["task"]).max_episode_steps
-
-
-def test_terms_sum_to_reward_on_every_step_through_check(recorded: dict[str, Any]) -> None:
-    result = check([recorded[k] for k in ("scripted", "hacker", "nothing")], require_terms=True)
-    codes = {f.code for f in result.findings}
-    assert "terms_sum_mismatch" not in codes and "missing_terms" not in codes
-    assert result.ok, result.findings
-
-
-def test_replay_is_identical_in_a_fresh_process(recorded: dict[str, Any]) -> None:
-    paths = [str(recorded[k]) for k in ("scripted", "hacker", "nothing")]
+@pytest.mark.parametrize("task", TASK_IDS)
+def test_replay_is_identical_in_a_fresh_process(task: str, env_contract: Contract) -> None:
+    paths = [str(env_contract(case).path) for case in cases(task)]
     script = textwrap.dedent(
         f"""
         from episode_audit import replay
@@ -110,6 +87,19 @@ def test_replay_is_identical_in_a_fresh_process(recorded: dict[str, Any]) -> Non
         """
     )
     subprocess.run([sys.executable, "-c", script], check=True, cwd=REPO)
+
+
+def record(path: Path, task: str, policy: str, seeds: list[int], **kwargs: Any) -> Path:
+    env = gym.make(task, **kwargs)
+    act = make_policy(policy, env, seed=0)
+    with RecordEvidence(env, path, tags={"policy": policy}) as rec:
+        for seed in seeds:
+            obs, _ = rec.reset(seed=seed)
+            done = False
+            while not done:
+                obs, _, term, trunc, _ = rec.step(act(obs))
+                done = term or trunc
+    return path
 
 
 @pytest.mark.parametrize("task", TASK_IDS)

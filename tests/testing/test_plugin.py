@@ -11,8 +11,6 @@ from pathlib import Path
 
 import pytest
 
-pytest_plugins = ["pytester"]
-
 WALK = (Path(__file__).resolve().parents[1] / "support" / "walk.py").read_text()
 PLUGIN = "episode_audit_pytest"
 

@@ -1,0 +1,209 @@
+"""``check_contract`` on real envs (Gymnasium classic, MuJoCo v5, a user env) and its errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from episode_audit import EpisodeAuditError, RecordEvidence, open_evidence
+from episode_audit.errors import ConfigurationError, ContractViolation
+from episode_audit.testing import (
+    ContractCase,
+    RolloutRecorder,
+    check_contract,
+    contract_cases,
+    evidence_actions,
+    expected_ending,
+)
+from tests.support.walk import Walk
+
+CLASSIC = ["CartPole-v1", "Acrobot-v1", "MountainCar-v0", "Pendulum-v1"]
+
+
+@pytest.mark.parametrize(
+    "case",
+    contract_cases(CLASSIC, env_kwargs={"max_episode_steps": 12}, actions="random", seed=5),
+    ids=str,
+)
+def test_classic_envs_keep_the_contract_under_random_actions(
+    case: ContractCase, tmp_path: Path
+) -> None:
+    result = check_contract(case, tmp_path)
+    assert result.replayed is not None and result.replayed.status == "identical"
+    assert result.outcome in ("truncated", "failure")
+
+
+def test_cartpole_time_limit_from_a_recorded_file(tmp_path: Path) -> None:
+    recorded = tmp_path / "kept.mcap"
+    env = gym.make("CartPole-v1", max_episode_steps=10)
+    with RecordEvidence(env, recorded) as rec:
+        rec.reset(seed=4)
+        for i in range(10):
+            rec.step(i % 2)
+    assert evidence_actions(recorded) == [i % 2 for i in range(10)]
+    case = ContractCase(
+        "CartPole-v1",
+        {"max_episode_steps": 10},
+        seed=4,
+        actions=recorded,
+        expect="truncated:time_limit",
+    )
+    result = check_contract(case, tmp_path / "out")
+    assert (result.outcome, result.detail, result.steps) == ("truncated", "time_limit", 10)
+
+
+def test_cartpole_falling_is_a_failure_not_a_truncation(tmp_path: Path) -> None:
+    case = ContractCase("CartPole-v1", seed=0, actions=[0] * 100, expect="truncated:time_limit")
+    with pytest.raises(ContractViolation, match=r"got failure \(unlabeled\) at step 10: ") as info:
+        check_contract(case, tmp_path)
+    result = info.value.result
+    assert isinstance(info.value, AssertionError) and isinstance(info.value, EpisodeAuditError)
+    assert result.path.exists() and result.outcome == "failure"
+    assert f"replay it: episode-audit replay {result.path}" in str(info.value)
+
+
+@pytest.mark.mujoco
+def test_mujoco_v5_time_limit_and_unhealthy_ending_with_their_terms(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    still = ContractCase(
+        "Hopper-v5",
+        {"max_episode_steps": 10},
+        actions=[np.zeros(3, np.float32)] * 10,
+        expect="truncated:time_limit",
+        terms_present=["reward_forward", "reward_survive"],
+        terms_absent=["reward_ctrl"],  # no control, no control cost
+        require_terms=True,
+    )
+    assert check_contract(still, tmp_path).steps == 10
+    falls = ContractCase(
+        "Hopper-v5",
+        seed=1,
+        actions="random",
+        expect="failure",
+        terms_present=["reward_forward", "reward_ctrl"],
+        terms_absent=["reward_survive"],  # an unhealthy step earns no survival reward
+    )
+    result = check_contract(falls, tmp_path)
+    assert (result.outcome, result.last_terms["reward_survive"]) == ("failure", 0.0)
+    wrong = ContractCase(
+        "Hopper-v5", seed=1, actions="random", expect="failure", terms_absent=["reward_ctrl"]
+    )
+    with pytest.raises(
+        ContractViolation,
+        match=r"expected term 'reward_ctrl' absent \(or zero\), got reward_ctrl=-",
+    ):
+        check_contract(wrong, tmp_path)
+
+
+def test_a_user_env_with_terms_declared_constants_and_a_policy(tmp_path: Path) -> None:
+    case = ContractCase(
+        Walk,
+        seed=2,
+        make_policy=lambda env: lambda obs: 1,
+        expect="success",
+        terms_present=["success_bonus"],
+        terms_absent=["fall_penalty"],
+    )
+    assert check_contract(case, tmp_path).outcome == "success"
+    shifted = ContractCase(
+        lambda **kw: gym.wrappers.TransformReward(Walk(**kw), lambda r: r + 0.5),
+        seed=2,
+        actions=[1] * 10,
+        expect="success",
+        recorder_options={"constant_terms": {"alive": 0.5}},
+    )
+    assert check_contract(shifted, tmp_path).ok
+
+
+def test_running_out_of_actions_or_steps_says_so(tmp_path: Path) -> None:
+    short = ContractCase(Walk, actions=[1, 0], expect="success")
+    with pytest.raises(
+        ContractViolation, match=r"expected success, got none: the actions ran out after 2 step"
+    ):
+        check_contract(short, tmp_path)
+    endless = ContractCase(Walk, actions=lambda obs: int(obs[0] < 0), max_steps=7)
+    with pytest.raises(ContractViolation, match=r"got none: max_steps was reached after 7 step"):
+        check_contract(endless, tmp_path)
+
+
+class Raising(Walk):
+    def step(self, action: Any) -> Any:
+        if self.t == 2:
+            raise RuntimeError("the simulator exploded")
+        return super().step(action)
+
+
+def test_an_env_that_raises_is_a_broken_contract_with_its_error(tmp_path: Path) -> None:
+    case = ContractCase(Raising, actions=[1] * 10, expect="success")
+    with pytest.raises(
+        ContractViolation, match=r"the env raised at step 2: RuntimeError: the simulator exploded"
+    ):
+        check_contract(case, tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("fields", "match"),
+    [
+        ({}, "expected exactly one of actions= and make_policy=, got neither"),
+        (
+            {"actions": [0], "make_policy": lambda env: env.action_space.sample},
+            "expected exactly one of actions= and make_policy=, got both",
+        ),
+        ({"actions": "run.mcap"}, "as a Path, got the string 'run.mcap'"),
+        ({"actions": [0], "expect": "done"}, "expect: expected 'success', "),
+        ({"actions": [0], "max_steps": 0}, "expected random_episodes >= 0 and max_steps >= 1"),
+    ],
+)
+def test_a_case_that_cannot_run_is_a_configuration_error(
+    fields: dict[str, Any], match: str
+) -> None:
+    with pytest.raises(ConfigurationError, match=match):
+        ContractCase("CartPole-v1", **fields)
+
+
+def test_an_env_that_cannot_be_made_is_a_configuration_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigurationError, match="the env factory returned str"):
+        check_contract(ContractCase(lambda: "CartPole-v1", actions=[0]), tmp_path)
+    with pytest.raises(ConfigurationError, match=r"cannot make the env: .*NoSuchEnv"):
+        check_contract(ContractCase("NoSuchEnv-v0", actions=[0]), tmp_path)
+
+
+def test_expected_endings_parse_and_match() -> None:
+    assert expected_ending("failure").matches("failure", "anything")
+    assert not expected_ending("failure:fell").matches("failure", "unlabeled")
+    assert expected_ending("truncated:time_limit").matches("truncated", "time_limit")
+    assert not expected_ending("success").matches("truncated", "time_limit")
+    for bad in ("success:yes", "failure:", "truncated:", "done"):
+        with pytest.raises(ConfigurationError, match="expect: expected"):
+            expected_ending(bad)
+
+
+def test_evidence_actions_of_a_missing_episode(tmp_path: Path) -> None:
+    path = tmp_path / "one.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as rec:
+        rec.reset(seed=0)
+        rec.step(1)
+    with pytest.raises(ConfigurationError, match="no steps of episode 3 to take actions from"):
+        evidence_actions(path, episode=3)
+
+
+def test_the_rollout_recorder_refuses_a_name_twice_and_nothing_recorded(tmp_path: Path) -> None:
+    record = RolloutRecorder(tmp_path)
+    with pytest.raises(ConfigurationError, match="no env recorded yet"):
+        record.evidence()
+    env = record(gym.make("CartPole-v1"), name="a")
+    with pytest.raises(ConfigurationError, match=r"a\.mcap is already recorded by this test"):
+        record(gym.make("CartPole-v1"), name="a")
+    env.reset(seed=0)
+    env.step(0)
+    record(gym.make("CartPole-v1"), name="b")
+    assert record.evidence("a").episodes().num_rows == 1
+    with pytest.raises(ConfigurationError, match="no env recorded as 'c'"):
+        record.evidence("c")
+    record.close()
+    record.close()
+    assert open_evidence(tmp_path / "b.mcap").finished
