@@ -6,6 +6,7 @@ the numbers), with the replay command of the evidence file kept.
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -163,3 +164,13 @@ def test_unused_the_plugin_changes_nothing(pytester: pytest.Pytester) -> None:
     ours = "sorted(m for m in sys.modules if m.startswith('episode_audit'))"
     loaded = pytester.run(sys.executable, "-c", f"import sys, {PLUGIN}; print({ours})")
     assert loaded.outlines[-1] == f"[{PLUGIN!r}]"
+
+
+def test_the_examples_of_docs_testing_md_pass(pytester: pytest.Pytester) -> None:
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "testing.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", doc, flags=re.S)
+    assert len(blocks) == 3  # a case; CartPole's time limit; a user env with reward terms
+    pytester.makepyfile(**{f"test_doc_{i}": block for i, block in enumerate(blocks)})
+    pytester.syspathinsert()
+    result = pytester.runpytest("-p", PLUGIN, "-p", "no:cacheprovider", "-q")
+    result.assert_outcomes(passed=10)
