@@ -7,7 +7,8 @@ fixtures, so loading it costs next to nothing (importing the package pulls in Gy
 pyarrow and mcap).
 
 - ``env_contract``: ``env_contract(case)`` checks a
-  :class:`~episode_audit.testing.ContractCase` with the evidence in the test's ``tmp_path``.
+  :class:`~episode_audit.testing.ContractCase` (or a ``GameCase``) with the evidence in the
+  test's ``tmp_path``.
 - ``record_evidence``: a :class:`~episode_audit.testing.RolloutRecorder` writing to
   ``tmp_path``; recorders left open are closed after the test.
 """
@@ -21,19 +22,26 @@ from typing import TYPE_CHECKING
 import pytest
 
 if TYPE_CHECKING:
-    from episode_audit.testing import ContractCase, ContractResult, RolloutRecorder
+    from episode_audit.testing import ContractCase, ContractResult, GameCase, RolloutRecorder
 
 __all__ = ["env_contract", "record_evidence"]
 
 
 @pytest.fixture
-def env_contract(tmp_path: Path) -> Callable[[ContractCase], ContractResult]:
-    """Check an environment contract case, keeping its evidence in ``tmp_path``."""
-    from episode_audit.testing import ContractViolation, check_contract
+def env_contract(tmp_path: Path) -> Callable[[ContractCase | GameCase], ContractResult]:
+    """Check an environment contract case (or a game's), keeping its evidence in ``tmp_path``."""
+    from episode_audit.testing import (
+        ContractViolation,
+        GameCase,
+        check_contract,
+        check_game_contract,
+    )
 
-    def run(case: ContractCase) -> ContractResult:
+    def run(case: ContractCase | GameCase) -> ContractResult:
         __tracebackhide__ = True
         try:
+            if isinstance(case, GameCase):
+                return check_game_contract(case, tmp_path)
             return check_contract(case, tmp_path)
         except ContractViolation as exc:
             broken = str(exc)

@@ -6,6 +6,8 @@
 - :func:`check_contract` records a case and checks it with the library's own ``check``,
   ``replay`` and ``report``; a broken contract raises
   :class:`~episode_audit.errors.ContractViolation` (an ``AssertionError``).
+- :class:`GameCase` and :func:`check_game_contract`: the same for a PettingZoo ``ParallelEnv``,
+  each agent's ending.
 - :class:`RolloutRecorder` records a test's own rollout.
 
 The pytest plugin (module ``episode_audit_pytest``, loaded when the package is installed) gives
@@ -24,6 +26,7 @@ from .cases import (
     expected_ending,
 )
 from .contract import ContractResult, check_contract
+from .games import GameCase, check_game_contract
 from .rollouts import RolloutRecorder
 
 __all__ = [
@@ -33,9 +36,11 @@ __all__ = [
     "ContractViolation",
     "EnvMaker",
     "Expected",
+    "GameCase",
     "Policy",
     "RolloutRecorder",
     "check_contract",
+    "check_game_contract",
     "contract_cases",
     "evidence_actions",
     "expected_ending",

@@ -12,10 +12,10 @@ and term, and the ``episode-audit replay`` command for the evidence file it keep
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 
@@ -29,14 +29,54 @@ from ..replay import EpisodeReplay, replay
 from ..report import report
 from .cases import ContractCase, Expected, Policy, evidence_actions
 
-__all__ = ["ContractResult", "check_contract"]
+__all__ = [
+    "CaseLike",
+    "ContractResult",
+    "check_contract",
+    "check_file",
+    "ending_problem",
+    "file_stem",
+    "replay_file",
+    "violation_message",
+]
+
+
+class CaseLike(Protocol):
+    """What the shared clauses read of a case (:class:`ContractCase`, ``GameCase``)."""
+
+    @property
+    def env(self) -> Any:
+        """An env id or a factory."""
+
+    @property
+    def env_kwargs(self) -> Mapping[str, Any]:
+        """The factory's or ``gym.make``'s keyword arguments."""
+
+    @property
+    def seed(self) -> int:
+        """The reset seed."""
+
+    @property
+    def atol(self) -> float:
+        """Absolute tolerance of the terms-sum check."""
+
+    @property
+    def rtol(self) -> float:
+        """Relative tolerance of the terms-sum check."""
+
+    @property
+    def require_terms(self) -> bool:
+        """Whether steps without terms are a finding."""
+
+    def make_env(self) -> Any:
+        """A fresh env of the case."""
 
 
 @dataclass
 class ContractResult:
     """What a case's recording showed (also on :class:`ContractViolation`: ``.result``)."""
 
-    case: ContractCase
+    case: CaseLike
     path: Path
     outcome: str
     detail: str | None
@@ -77,7 +117,7 @@ def check_contract(case: ContractCase, directory: str | os.PathLike[str]) -> Con
     """
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{_file_stem(case)}.mcap"
+    path = out / f"{file_stem(case)}.mcap"
     steps = _record(case, path)
     episode = open_evidence(path).episodes().to_pylist()[0]
     outcome = str(episode["outcome"])
@@ -98,19 +138,20 @@ def check_contract(case: ContractCase, directory: str | os.PathLike[str]) -> Con
             f"step(s) with terminated and truncated both False"
         )
     elif case.expected is not None and not case.expected.matches(outcome, detail):
-        result.problems.append(_ending_problem(case.expected, episode, steps))
+        result.problems.append(ending_problem(case.expected, episode, steps - 1))
     result.problems += _term_problems(case, last, steps)
-    result.findings = _check(case, path, result)
+    result.findings = check_file(case, path, result)
     if case.replay and outcome != fmt.OUTCOME_ERROR:
-        result.replayed = _replay(case, path, result)
+        result.replayed = replay_file(case, path, result)
     if case.random_episodes:
-        _incentives(case, out / f"{_file_stem(case)}-random.mcap", result)
+        _incentives(case, out / f"{file_stem(case)}-random.mcap", result)
     if result.problems:
-        raise ContractViolation(_message(result), result)
+        raise ContractViolation(violation_message(result), result)
     return result
 
 
-def _file_stem(case: ContractCase) -> str:
+def file_stem(case: CaseLike) -> str:
+    """The case's name as a file name."""
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in str(case))[:120]
 
 
@@ -173,15 +214,18 @@ def _last_terms(path: Path) -> dict[str, float]:
     return dict(steps.column(fmt.COL_TERMS)[-1].as_py() or [])
 
 
-def _ending_problem(expected: Expected, episode: dict[str, Any], steps: int) -> str:
-    """The line saying how the ending differs, and what the flags say about it."""
+def ending_problem(expected: Expected, episode: dict[str, Any], step: int, who: str = "") -> str:
+    """The line saying how an episode's ending (its record) differs from ``expected``.
+
+    ``step`` is its last step; ``who`` names the agent of a game (`` of agent 'a'``).
+    """
     outcome = episode["outcome"]
     got = outcome
     if outcome == fmt.OUTCOME_FAILURE:
         got = f"failure ({episode['failure_label']})"
     elif outcome == fmt.OUTCOME_TRUNCATED:
         got = f"truncated ({episode['truncation_reason']})"
-    head = f"ending: expected {expected}, got {got} at step {steps - 1}"
+    head = f"ending{who}: expected {expected}, got {got} at step {step}"
     if expected.outcome == fmt.OUTCOME_TRUNCATED and outcome != fmt.OUTCOME_TRUNCATED:
         return (
             f"{head}: terminated=True, truncated={episode['truncated']}, so the task ended it; "
@@ -211,7 +255,7 @@ def _term_problems(case: ContractCase, last: dict[str, float], steps: int) -> li
     ]
 
 
-def _check(case: ContractCase, path: Path, result: ContractResult) -> list[Finding]:
+def check_file(case: CaseLike, path: Path, result: ContractResult) -> list[Finding]:
     """``check`` the file; every error or warning is a broken clause."""
     # a factory's env has no spec to record: the contract replays it with the factory
     ignore = () if isinstance(case.env, str) else ("missing_env_spec",)
@@ -245,9 +289,11 @@ def _terms_at(path: Path, episode: int, step: int) -> str:
     return f"no step {step} in the file"
 
 
-def _replay(case: ContractCase, path: Path, result: ContractResult) -> EpisodeReplay:
+def replay_file(case: CaseLike, path: Path, result: ContractResult) -> EpisodeReplay:
+    """Replay the file's first episode (or game) in a fresh env; a difference is a clause."""
     factory = None if isinstance(case.env, str) else case.make_env
-    replayed = replay([path], env_factory=factory).episodes[0]
+    episodes = replay([path], env_factory=factory).episodes
+    replayed = next((e for e in episodes if e.status != "identical"), episodes[0])
     if replayed.status == "diverged" and replayed.divergence is not None:
         result.problems.append(
             f"replay: not reproducible in a fresh env with seed {case.seed}: "
@@ -280,7 +326,7 @@ def _incentives(case: ContractCase, path: Path, result: ContractResult) -> None:
     ]
 
 
-def _message(result: ContractResult) -> str:
+def violation_message(result: ContractResult) -> str:
     """The violation's text: the case, one line per broken clause, the replay command."""
     n = len(result.problems)
     lines = [f"{result.case}: {n} broken clause{'s' if n != 1 else ''}"]
@@ -292,7 +338,7 @@ def _message(result: ContractResult) -> str:
     return "\n".join(lines)
 
 
-def _replay_command(case: ContractCase, path: Path) -> str:
+def _replay_command(case: CaseLike, path: Path) -> str:
     command = f"episode-audit replay {path}"
     if isinstance(case.env, str):
         return command

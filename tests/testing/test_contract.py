@@ -13,8 +13,10 @@ from episode_audit import EpisodeAuditError, RecordEvidence, open_evidence
 from episode_audit.errors import ConfigurationError, ContractViolation
 from episode_audit.testing import (
     ContractCase,
+    GameCase,
     RolloutRecorder,
     check_contract,
+    check_game_contract,
     contract_cases,
     evidence_actions,
     expected_ending,
@@ -207,3 +209,50 @@ def test_the_rollout_recorder_refuses_a_name_twice_and_nothing_recorded(tmp_path
     record.close()
     record.close()
     assert open_evidence(tmp_path / "b.mcap").finished
+
+
+# ------------------------------------------------------------------ PettingZoo games
+
+
+def test_a_game_checks_each_agents_ending(tmp_path: Path) -> None:
+    from tests.support.walk_game import WalkGame
+
+    apart = [{"left": 1, "right": 0}] * 6
+    ends = GameCase(
+        WalkGame, seed=0, actions=apart, expect={"left": "success", "right": "failure:fell"}
+    )
+    result = check_game_contract(ends, tmp_path)
+    assert (result.outcome, result.replayed and result.replayed.status) == ("mixed", "identical")
+    back_and_forth = [{"left": 1, "right": 0}, {"left": 0, "right": 1}] * 2
+    cut = {"left": "truncated:time_limit", "right": "truncated:time_limit"}
+    assert (
+        check_game_contract(
+            GameCase(WalkGame, {"max_cycles": 4}, seed=0, actions=back_and_forth, expect=cut),
+            tmp_path,
+        ).outcome
+        == "truncated"
+    )
+    assert check_game_contract(GameCase(WalkGame, seed=3), tmp_path).steps > 0  # random
+    wrong = GameCase(
+        WalkGame, {"max_cycles": 4, "cutoff_terminates": True}, actions=back_and_forth, expect=cut
+    )
+    with pytest.raises(
+        ContractViolation,
+        match=r"ending of agent 'left': expected truncated:time_limit, got failure \(unlabeled\) "
+        r"at step 3: terminated=True, truncated=False, so the task ended it; .*"
+        r"the env reports a truncation as termination",
+    ):
+        check_game_contract(wrong, tmp_path)
+
+
+def test_a_game_case_that_cannot_run_is_a_configuration_error(tmp_path: Path) -> None:
+    from tests.support.walk_game import WalkGame
+
+    with pytest.raises(ConfigurationError, match="agent 'left': expect: expected 'success'"):
+        GameCase(WalkGame, expect={"left": "won"})
+    with pytest.raises(ConfigurationError, match="expected joint actions, a policy or 'random'"):
+        GameCase(WalkGame, actions="scripted")
+    with pytest.raises(
+        ConfigurationError, match="the env factory returned Walk, not a ParallelEnv"
+    ):
+        check_game_contract(GameCase(Walk), tmp_path)

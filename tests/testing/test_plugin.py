@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-WALK = (Path(__file__).resolve().parents[1] / "support" / "walk.py").read_text()
+SUPPORT = Path(__file__).resolve().parents[1] / "support"
+WALK = (SUPPORT / "walk.py").read_text()
+GAME = (SUPPORT / "walk_game.py").read_text().replace("tests.support.walk", "walk")
 PLUGIN = "episode_audit_pytest"
 
 HEADER = """
@@ -169,8 +171,26 @@ def test_unused_the_plugin_changes_nothing(pytester: pytest.Pytester) -> None:
 def test_the_examples_of_docs_testing_md_pass(pytester: pytest.Pytester) -> None:
     doc = (Path(__file__).resolve().parents[2] / "docs" / "testing.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", doc, flags=re.S)
-    assert len(blocks) == 3  # a case; CartPole's time limit; a user env with reward terms
+    assert len(blocks) == 4  # a case; CartPole's time limit; a user env with terms; PettingZoo
     pytester.makepyfile(**{f"test_doc_{i}": block for i, block in enumerate(blocks)})
     pytester.syspathinsert()
     result = pytester.runpytest("-p", PLUGIN, "-p", "no:cacheprovider", "-q")
-    result.assert_outcomes(passed=10)
+    result.assert_outcomes(passed=11)
+
+
+def test_a_games_broken_contract_names_the_agent(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile(walk_game=GAME)
+    result = run(
+        pytester,
+        """
+from episode_audit.testing import GameCase
+from walk_game import WalkGame
+
+def test_game(env_contract):
+    env_contract(GameCase(WalkGame, seed=0, actions=[{"left": 1, "right": 0}] * 6,
+                          expect={"left": "success", "right": "success"}))
+""",
+    )
+    text = failure_text(result)
+    assert "WalkGame-seed0: 1 broken clause" in text
+    assert "ending of agent 'right': expected success, got failure (fell) at step 2" in text
