@@ -126,10 +126,10 @@ def check_contract(case: ContractCase, directory: str | os.PathLike[str]) -> Con
         detail = episode["truncation_reason"]
     last = _last_terms(path)
     result = ContractResult(case, path, outcome, detail, steps, last)
-    if episode["outcome"] == fmt.OUTCOME_ERROR:
+    if outcome == fmt.OUTCOME_ERROR:
+        where = f"at step {steps - 1}" if steps else "in reset"
         result.problems.append(
-            f"ending: the env raised at step {steps - 1}: {episode['error_type']}: "
-            f"{episode['error_message']}"
+            f"ending: the env raised {where}: {episode['error_type']}: {episode['error_message']}"
         )
     elif not episode["ended"] or outcome == fmt.OUTCOME_INCOMPLETE:
         why = "the actions ran out" if steps < case.max_steps else "max_steps was reached"
@@ -160,7 +160,7 @@ def _step_actions(case: ContractCase, env: gym.Env[Any, Any]) -> Iterator[Any] |
     if case.make_policy is not None:
         return case.make_policy(env)
     actions = case.actions
-    if actions == "random":
+    if isinstance(actions, str):  # "random" (the case refuses any other string)
         space = env.action_space
         space.seed(case.seed)
         return lambda obs: space.sample()

@@ -139,12 +139,27 @@ class Raising(Walk):
         return super().step(action)
 
 
+class RaisingReset(Walk):
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        raise ValueError("no scene file")
+
+
 def test_an_env_that_raises_is_a_broken_contract_with_its_error(tmp_path: Path) -> None:
     case = ContractCase(Raising, actions=[1] * 10, expect="success")
     with pytest.raises(
         ContractViolation, match=r"the env raised at step 2: RuntimeError: the simulator exploded"
     ):
         check_contract(case, tmp_path)
+    case = ContractCase(RaisingReset, actions=[1] * 10, expect="success")
+    with pytest.raises(ContractViolation, match=r"the env raised in reset: ValueError: no scene"):
+        check_contract(case, tmp_path)
+
+
+def test_an_array_of_actions_steps_row_by_row(tmp_path: Path) -> None:
+    case = ContractCase(
+        "Pendulum-v1", {"max_episode_steps": 6}, actions=np.zeros((6, 1), np.float32)
+    )
+    assert check_contract(case, tmp_path).detail == "time_limit"
 
 
 @pytest.mark.parametrize(
