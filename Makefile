@@ -21,8 +21,8 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff format --check episode_audit tests bench fixtures
-	$(BIN)/ruff check episode_audit tests bench fixtures
+	$(BIN)/ruff format --check episode_audit episode_audit_pytest.py tests bench fixtures
+	$(BIN)/ruff check episode_audit episode_audit_pytest.py tests bench fixtures
 
 typecheck: $(STAMP)
 	$(BIN)/mypy

@@ -115,8 +115,18 @@ def check_game_contract(case: GameCase, directory: str | os.PathLike[str]) -> Co
     result = ContractResult(
         case, path, kinds.pop() if len(kinds) == 1 else "mixed", None, steps, {}
     )
+    running = sorted(
+        str(r["agent"]) for r in rows if not r["ended"] or r["outcome"] == fmt.OUTCOME_INCOMPLETE
+    )
+    if running:
+        why = "the actions ran out" if steps < case.max_steps else "max_steps was reached"
+        result.problems.append(
+            f"ending: the game did not end: {why} after {steps} step(s), agents "
+            f"{', '.join(running)} still playing"
+        )
     for agent, ending in case.expect.items():
-        result.problems += _agent_problem(agent, expected_ending(ending), outcomes.get(agent))
+        if agent not in running:
+            result.problems += _agent_problem(agent, expected_ending(ending), outcomes.get(agent))
     result.findings = check_file(case, path, result)
     if case.replay:
         result.replayed = replay_file(case, path, result)

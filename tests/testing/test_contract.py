@@ -248,6 +248,11 @@ def test_a_game_checks_each_agents_ending(tmp_path: Path) -> None:
         == "truncated"
     )
     assert check_game_contract(GameCase(WalkGame, seed=3), tmp_path).steps > 0  # random
+    with pytest.raises(
+        ContractViolation,
+        match=r"the game did not end: the actions ran out after 2 step\(s\), agents left, right",
+    ):
+        check_game_contract(GameCase(WalkGame, actions=back_and_forth[:2]), tmp_path)
     wrong = GameCase(
         WalkGame, {"max_cycles": 4, "cutoff_terminates": True}, actions=back_and_forth, expect=cut
     )
