@@ -7,8 +7,9 @@ Every import counts, at module level or inside a function (a lazy import is stil
     1  format, tasks
     2  _usercode, record, read
     3  check, replay, report, recover, export, rollout
-    4  cli
-    5  demo, __main__, the package's __init__
+    4  compare
+    5  cli
+    6  demo, __main__, the package's __init__
 
 A module may import its own wing and the wings of lower rank, never a wing of its own rank or
 above (``record`` and ``read`` are siblings: neither imports the other).
@@ -38,10 +39,11 @@ RANK = {
     "recover": 3,
     "export": 3,
     "rollout": 3,
-    "cli": 4,
-    "demo": 5,
-    "__main__": 5,
-    "": 5,  # episode_audit/__init__.py
+    "compare": 4,
+    "cli": 5,
+    "demo": 6,
+    "__main__": 6,
+    "": 6,  # episode_audit/__init__.py
 }
 
 
