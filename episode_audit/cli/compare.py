@@ -88,6 +88,8 @@ def compare(
     comparison = result.comparison
     for mismatch in comparison.mismatches:
         warn(str(mismatch))
+    for name, why in comparison.unfinished:
+        warn(f"{name}: unfinished ({why}): compared with the episodes it holds so far")
     emit(compare_output(comparison, fmt, unreadable=result.unreadable))
     if result.unreadable:
         raise typer.Exit(EXIT_USAGE)

@@ -44,7 +44,8 @@ class Comparison:
 
     ``verdict`` combines the groups' (:func:`~.groups.combine`); ``passed`` is false when it is
     ``regressed`` or a gate failed. ``only_baseline`` / ``only_candidate`` name the groups one
-    side lacks (not compared).
+    side lacks (not compared); ``unfinished`` the files still being written or torn (compared
+    with what was flushed so far), with why.
     """
 
     by: str
@@ -52,6 +53,7 @@ class Comparison:
     groups: list[GroupComparison]
     only_baseline: list[str] = field(default_factory=list)
     only_candidate: list[str] = field(default_factory=list)
+    unfinished: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def verdict(self) -> Verdict:
@@ -100,6 +102,7 @@ class Comparison:
             "groups": [g.to_dict() for g in self.groups],
             "only_baseline": list(self.only_baseline),
             "only_candidate": list(self.only_candidate),
+            "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
             "cases": [
                 {"name": c.name, "status": c.status, "passed": c.passed, "message": c.message}
                 for c in self.cases()
@@ -163,6 +166,11 @@ def compare_tables(
         groups,
         sorted(set(sides_b) - set(sides_c)),
         sorted(set(sides_c) - set(sides_b)),
+        [
+            (name, ev.torn or "no run-end record")
+            for name, ev in baseline + candidate
+            if not ev.finished
+        ],
     )
 
 

@@ -107,3 +107,13 @@ def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_pat
     assert code == 2 and "different tasks" in err and "--different-tasks" in err
     code, _, err = run("compare", runs["base"], "--candidate", str(cart), "--different-tasks")
     assert code in (0, 1) and "env_id differs" in err
+
+
+def test_an_unfinished_file_is_compared_and_named() -> None:
+    torn = str(Path(__file__).resolve().parents[2] / "fixtures" / "torn.mcap")
+    code, out, err = run("compare", torn, "--candidate", torn, "-f", "json")
+    assert code == 0, err
+    assert "unfinished" in err
+    data = json.loads(out)
+    assert [u["file"] for u in data["unfinished"]] == [torn, torn]
+    assert data["groups"][0]["pairs"] > 0
