@@ -144,6 +144,11 @@ def compare_tables(
     sides_b, sides_c = sides(*tables_b), sides(*tables_c)
     _check_sides(sides_b, "baseline")
     _check_sides(sides_c, "candidate")
+    if not set(sides_b) & set(sides_c):
+        raise ConfigurationError(
+            f"by={by!r}: no group is on both sides (baseline: {_keys(sides_b)}; candidate: "
+            f"{_keys(sides_c)}): group by a key the sides share, e.g. 'all' or 'env'"
+        )
     warned_b = {g.key: {w.code for w in g.warnings} for g in group_reports(*tables_b)}
     warned_c = {g.key: g.warnings for g in group_reports(*tables_c)}
     groups = [
@@ -172,6 +177,11 @@ def compare_tables(
             if not ev.finished
         ],
     )
+
+
+def _keys(found: dict[str, Any]) -> str:
+    keys = sorted(found)
+    return ", ".join(map(repr, keys[:5])) + (f" and {len(keys) - 5} more" if len(keys) > 5 else "")
 
 
 def _check_sides(found: dict[str, Any], side: str) -> None:

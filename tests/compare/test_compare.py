@@ -137,3 +137,28 @@ def test_identical_sides_are_held_and_a_drop_regresses() -> None:
     success = drop.metrics[0]
     success.verdict = decide(success)
     assert success.verdict == "regressed" and success.paired
+
+
+def test_no_shared_group_is_refused_not_passed(runs: dict[str, Path]) -> None:
+    # tag:policy is 'scripted' on one side and 'hacker' on the other: nothing to compare
+    with pytest.raises(
+        ConfigurationError, match=r"no group is on both sides \(baseline: 'scripted'"
+    ):
+        compare([runs["scripted"]], [runs["hacker"]], by="tag:policy")
+
+
+def test_holm_adjusts_the_primary_metrics_of_all_groups_as_one_family() -> None:
+    from episode_audit.compare.core import _decide
+    from episode_audit.compare.stats import holm
+
+    seeds = list(range(60))
+    base = Side.of(["success"] * 50 + ["truncated"] * 10, seed=seeds)
+    cand = Side.of(["success"] * 44 + ["truncated"] * 16, seed=seeds)
+    groups = [compare_group(k, base, cand, CompareGates(), []) for k in ("a", "b")]
+    _decide(groups)
+    family = [m for g in groups for m in g.metrics if m.better != "none"]
+    assert [m.p_adjusted for m in family] == holm([m.p_value for m in family])
+    truncation = next(m for m in groups[0].metrics if m.name == "truncation_rate")
+    assert truncation.name == "truncation_rate" and truncation.p_value < 0.05
+    assert truncation.p_adjusted is not None and truncation.p_adjusted >= 0.05
+    assert truncation.verdict != "regressed"  # significant alone, not after Holm
