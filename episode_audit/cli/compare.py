@@ -36,8 +36,8 @@ def compare(
     by: Annotated[
         str,
         typer.Option(
-            help="Group both sides by: all, env, env_index, agent, label or tag:NAME; groups "
-            "of the same key are compared."
+            help="Group both sides by: all, env, env_index, agent or tag:NAME; groups of the "
+            "same key are compared."
         ),
     ] = "all",
     max_success_drop: Annotated[

@@ -126,10 +126,13 @@ def compare_tables(
 ) -> Comparison:
     """Compare opened evidence files, given as ``(name, evidence)`` pairs; see :func:`compare`."""
     check_by(by)
-    if by == "file":
+    if by in ("file", "label"):
+        why = {
+            "file": "the two sides have different files, so no group would match",
+            "label": "each group would hold one outcome, so every rate would be 0 or 1",
+        }[by]
         raise ConfigurationError(
-            "by='file': the two sides have different files, so no group would match; "
-            "group by 'all', 'env', 'env_index', 'agent', 'label' or 'tag:NAME'"
+            f"by={by!r}: {why}; group by 'all', 'env', 'env_index', 'agent' or 'tag:NAME'"
         )
     baseline, candidate = list(baseline), list(candidate)
     found = mismatches(baseline, candidate)
@@ -212,8 +215,8 @@ def compare(
     """Compare the episodes of the ``candidate`` files with those of the ``baseline`` files.
 
     Episodes are grouped as :func:`~episode_audit.report.report` groups them (``by``; not
-    ``"file"``), and groups of the same key are compared. Where the sides share reset seeds the
-    comparison is paired. Files of different env ids raise
+    ``"file"`` nor ``"label"``), and groups of the same key are compared. Where the sides
+    share reset seeds the comparison is paired. Files of different env ids raise
     :class:`~episode_audit.errors.ConfigurationError` unless ``different_tasks``; other
     differences (env kwargs, time limit, library versions) are listed in
     :attr:`Comparison.mismatches`. A rate without a gate is ``held`` when its interval stays

@@ -86,6 +86,7 @@ def test_a_missed_gate_exits_1(runs: dict[str, str]) -> None:
         (["--max-return-drop", "nan"], "--max-return-drop: expected a finite number"),
         (["--rate-margin", "0"], "--rate-margin: expected a rate in"),
         (["--by", "file"], "by='file'"),
+        (["--by", "label"], "by='label': each group would hold one outcome"),
         (["--by", "nope"], "by: expected"),
     ],
 )
