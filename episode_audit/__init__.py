@@ -12,6 +12,7 @@ read it back as Arrow tables.
 from . import tasks as _tasks  # noqa: F401 - registers the reference tasks' Gymnasium ids
 from ._version import __version__
 from .check import CheckResult, Finding, check
+from .compare import CompareGates, Comparison, compare
 from .errors import (
     ConfigurationError,
     CorruptEvidenceError,
@@ -39,6 +40,8 @@ from .report import Gates, Report, report
 
 __all__ = [
     "CheckResult",
+    "CompareGates",
+    "Comparison",
     "ConfigurationError",
     "CorruptEvidenceError",
     "DamagedRegion",
@@ -71,6 +74,7 @@ __all__ = [
     "UnsupportedVersionError",
     "__version__",
     "check",
+    "compare",
     "export",
     "open_evidence",
     "record_evaluation",

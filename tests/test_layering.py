@@ -7,7 +7,7 @@ Every import counts, at module level or inside a function (a lazy import is stil
     1  format, tasks
     2  _usercode, record, read
     3  check, replay, report, recover, export, rollout
-    4  testing
+    4  compare, testing
     5  cli
     6  demo, __main__, the package's __init__
 
@@ -40,6 +40,7 @@ RANK = {
     "export": 3,
     "rollout": 3,
     "testing": 4,
+    "compare": 4,
     "cli": 5,
     "demo": 6,
     "__main__": 6,

@@ -5,7 +5,7 @@ each command is a module of its own, registered on the app when imported here, i
 ``--help`` lists them; :mod:`.render` turns results into tables, Markdown or JSON.
 """
 
-from . import check, replay, report, show, export, recover, record  # noqa: F401, I001 - the order of --help
+from . import check, replay, report, compare, show, export, recover, record  # noqa: F401, I001 - the order of --help
 from ._app import app, main
 
 __all__ = ["app", "main"]

@@ -1,7 +1,8 @@
 """The episodes of opened evidence files as the two tables a report groups.
 
 :func:`collect` returns one row per episode (or per PettingZoo game) with its group key, and one
-row per (ended episode, reward term) with the term's episode total. The key comes from ``by``:
+row per (ended episode, reward term) with the term's episode total; ``row`` numbers the episodes
+(it joins the two tables) and ``seed`` is an episode's reset seed. The key comes from ``by``:
 :data:`BY_KEYS` or ``tag:NAME`` (:func:`is_by`, :func:`check_by`); an episode without a value
 for it is in the group :data:`NONE_KEY`.
 """
@@ -54,10 +55,18 @@ _EPISODES_SCHEMA = pa.schema(
         ("return", pa.float64()),
         ("key", pa.string()),
         ("success_signal", pa.bool_()),
+        ("seed", pa.int64()),
+        ("row", pa.int64()),
     ]
 )
 _TERM_SCHEMA = pa.schema(
-    [("key", pa.string()), ("outcome", pa.string()), ("term", pa.string()), ("total", pa.float64())]
+    [
+        ("key", pa.string()),
+        ("outcome", pa.string()),
+        ("term", pa.string()),
+        ("total", pa.float64()),
+        ("row", pa.int64()),
+    ]
 )
 
 
@@ -90,6 +99,7 @@ def collect(
     """
     parts: list[pa.Table] = []
     term_parts: list[pa.Table] = []
+    first = 0  # the row number of the file's first episode
     for name, ev in sources:
         table = ev.episodes()
         unstarted_rows = unstarted(table)
@@ -102,12 +112,17 @@ def collect(
             continue
         key = _keys(name, ev, table, by, games)
         signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
+        seed = table.column("seed") if "seed" in table.column_names else pa.nulls(n, pa.int64())
+        row = pa.array(np.arange(first, first + n, dtype=np.int64))
+        first += n
         parts.append(
             table.select(list(OUTCOME_FIELDS))
             .append_column("key", key)
             .append_column("success_signal", signal)
+            .append_column("seed", pc.cast(seed, pa.int64()))
+            .append_column("row", row)
         )
-        term_parts.extend(_term_rows(table, key, ev))
+        term_parts.extend(_term_rows(table, key, row, ev))
     if not parts:
         return _EPISODES_SCHEMA.empty_table(), _TERM_SCHEMA.empty_table()
     terms = pa.concat_tables(term_parts) if term_parts else _TERM_SCHEMA.empty_table()
@@ -157,7 +172,7 @@ def _label_keys(table: pa.Table) -> pa.Array:
     return keys.combine_chunks() if isinstance(keys, pa.ChunkedArray) else keys
 
 
-def _term_rows(table: pa.Table, key: pa.Array, ev: Evidence) -> list[pa.Table]:
+def _term_rows(table: pa.Table, key: pa.Array, row: pa.Array, ev: Evidence) -> list[pa.Table]:
     """Per (episode, term): the term's episode total, for ended episodes only."""
     ended = pc.is_in(table.column("outcome"), pa.array(ENDED)).to_numpy(zero_copy_only=False)
     if not ended.any():
@@ -165,6 +180,7 @@ def _term_rows(table: pa.Table, key: pa.Array, ev: Evidence) -> list[pa.Table]:
     mask = pa.array(ended)
     outcome = table.column("outcome").combine_chunks().filter(mask)
     keys = key.filter(mask)
+    rows = row.filter(mask)
     out: list[pa.Table] = []
     totals = table.column("term_totals").combine_chunks().filter(mask)
     if len(totals) and totals.null_count < len(totals):
@@ -180,15 +196,21 @@ def _term_rows(table: pa.Table, key: pa.Array, ev: Evidence) -> list[pa.Table]:
                     "outcome": outcome.take(parents),
                     "term": totals.keys.slice(lo, hi - lo),
                     "total": totals.items.slice(lo, hi - lo),
+                    "row": rows.take(parents),
                 },
                 schema=_TERM_SCHEMA,
             )
         )
-    return out + _constant_rows(ev, table, mask, keys, outcome)
+    return out + _constant_rows(ev, table, mask, keys, outcome, rows)
 
 
 def _constant_rows(
-    ev: Evidence, table: pa.Table, mask: pa.Array, keys: pa.Array, outcome: pa.Array
+    ev: Evidence,
+    table: pa.Table,
+    mask: pa.Array,
+    keys: pa.Array,
+    outcome: pa.Array,
+    rows: pa.Array,
 ) -> list[pa.Table]:
     """Per (ended episode, declared constant term): the constant times the episode's length."""
     constants = (ev.run.reward_terms or {}).get("constants") or {}
@@ -202,6 +224,7 @@ def _constant_rows(
                 "outcome": outcome,
                 "term": pa.array([str(name)] * len(keys), pa.string()),
                 "total": pc.multiply(steps, float(value)),
+                "row": rows,
             },
             schema=_TERM_SCHEMA,
         )

@@ -1,0 +1,97 @@
+"""``episode-audit compare``: whether the candidate regressed against the baseline."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ..errors import EpisodeAuditError
+from ._app import (
+    EXIT_FINDINGS,
+    EXIT_USAGE,
+    FormatOption,
+    PathsArgument,
+    _error_line,
+    _format,
+    app,
+    emit,
+    fail,
+    warn,
+)
+
+
+@app.command()
+def compare(
+    baseline: PathsArgument,
+    candidate: Annotated[
+        list[Path],
+        typer.Option(
+            "--candidate",
+            help="The candidate's evidence files or directories (repeatable; required).",
+            metavar="<path>",
+        ),
+    ],
+    by: Annotated[
+        str,
+        typer.Option(
+            help="Group both sides by: all, env, env_index, agent or tag:NAME; groups of the "
+            "same key are compared."
+        ),
+    ] = "all",
+    max_success_drop: Annotated[
+        float | None,
+        typer.Option(help="Gate: fail (exit 1) unless the success rate's drop is within this."),
+    ] = None,
+    max_failure_increase: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Gate: RATE for all failures, or LABEL=RATE for one label (repeatable): fail "
+            "unless the rise is within it.",
+            metavar="<[label=]rate>",
+        ),
+    ] = None,
+    max_return_drop: Annotated[
+        float | None,
+        typer.Option(help="Gate: fail unless the mean return's drop is within this."),
+    ] = None,
+    rate_margin: Annotated[
+        float,
+        typer.Option(help="A rate without a gate is 'held' when its change is within this."),
+    ] = 0.05,
+    different_tasks: Annotated[
+        bool,
+        typer.Option("--different-tasks", help="Compare even though the sides' env ids differ."),
+    ] = False,
+    output: FormatOption = "table",
+) -> None:
+    """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates."""
+    from ..compare import compare_inputs
+    from .render.compare import compare_output
+
+    fmt = _format(output)
+    try:
+        result = compare_inputs(
+            baseline,
+            candidate,
+            by=by,
+            max_success_drop=max_success_drop,
+            max_failure_increase=max_failure_increase or (),
+            max_return_drop=max_return_drop,
+            rate_margin=rate_margin,
+            different_tasks=different_tasks,
+            on_error=_error_line,
+        )
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    comparison = result.comparison
+    for mismatch in comparison.mismatches:
+        warn(str(mismatch))
+    for name, why in comparison.unfinished:
+        warn(f"{name}: unfinished ({why}): compared with the episodes it holds so far")
+    emit(compare_output(comparison, fmt, unreadable=result.unreadable))
+    if result.unreadable:
+        raise typer.Exit(EXIT_USAGE)
+    if not comparison.passed:
+        raise typer.Exit(EXIT_FINDINGS)

@@ -1,0 +1,112 @@
+"""Render a comparison: mismatches first, then metrics with verdicts, new warnings, gates."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from rich.console import Group, RenderableType
+
+from ...compare import Comparison, MetricComparison
+from ...read.inputs import Unreadable
+from .common import (
+    Output,
+    OutputFormat,
+    fmt_number,
+    markdown_table,
+    markdown_text,
+    table,
+    to_json,
+    unreadable_json,
+)
+
+__all__ = ["COMPARE_HEADERS", "compare_output"]
+
+COMPARE_HEADERS = [
+    "group",
+    "metric",
+    "baseline",
+    "candidate",
+    "difference (95% CI)",
+    "test",
+    "p (Holm)",
+    "verdict",
+    "MDE",
+    "n needed",
+]
+
+
+def _value(m: MetricComparison, value: float | None) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.1%}" if m.kind == "rate" else fmt_number(value)
+
+
+def _difference(m: MetricComparison) -> str:
+    if m.kind == "rate":
+        return f"{m.difference:+.1%} [{m.interval.low:+.1%}, {m.interval.high:+.1%}]"
+    return (
+        f"{fmt_number(m.difference)} [{fmt_number(m.interval.low)}, {fmt_number(m.interval.high)}]"
+    )
+
+
+def _test(m: MetricComparison) -> str:
+    how = f"{m.pairs} pairs" if m.paired else f"unpaired, {m.pairs} pairs"
+    return f"{m.test} ({how})"
+
+
+def _row(key: str, m: MetricComparison) -> list[str]:
+    p = "-" if m.p_adjusted is None else fmt_number(m.p_adjusted)
+    iqm = ""
+    if m.kind == "mean" and m.baseline_iqm is not None and m.candidate_iqm is not None:
+        iqm = f" (IQM {fmt_number(m.baseline_iqm)} -> {fmt_number(m.candidate_iqm)})"
+    return [
+        key,
+        m.name + iqm,
+        f"{_value(m, m.baseline)} (n {m.baseline_n})",
+        f"{_value(m, m.candidate)} (n {m.candidate_n})",
+        _difference(m),
+        _test(m),
+        f"{fmt_number(m.p_value)} ({p})",
+        m.verdict or "-",
+        _value(m, m.mde),
+        str(m.n_needed) if m.verdict is not None else "-",
+    ]
+
+
+def compare_output(
+    result: Comparison, output: OutputFormat, *, unreadable: Sequence[Unreadable] = ()
+) -> Output:
+    """The mismatches, the metrics with their verdicts, new warnings, gates and the verdict."""
+    if output == "json":
+        return to_json({**result.to_dict(), "unreadable": unreadable_json(unreadable)})
+    sections: list[tuple[str, list[str], list[list[str]]]] = []
+    if result.mismatches:
+        rows = [[m.field, ", ".join(m.baseline), ", ".join(m.candidate)] for m in result.mismatches]
+        sections.append(("Runs differ", ["field", "baseline", "candidate"], rows))
+    rows = [_row(g.key, m) for g in result.groups for m in g.metrics]
+    sections.append((f"Candidate against baseline (by {result.by})", COMPARE_HEADERS, rows))
+    warned = [[g.key, w.code, w.message] for g in result.groups for w in g.new_warnings]
+    if warned:
+        sections.append(
+            ("Incentive warnings new in the candidate", ["group", "warning", "why"], warned)
+        )
+    gates = [
+        [r.gate, r.group, "pass" if r.passed else "FAIL", r.message]
+        for g in result.groups
+        for r in g.gates
+    ]
+    if gates:
+        sections.append(("Gates", ["gate", "group", "result", "detail"], gates))
+    alone = [[k, "baseline"] for k in result.only_baseline]
+    alone += [[k, "candidate"] for k in result.only_candidate]
+    if alone:
+        sections.append(("Groups on one side only (not compared)", ["group", "side"], alone))
+    verdicts = [[g.key, g.verdict] for g in result.groups] + [["overall", result.verdict]]
+    sections.append(("Verdict", ["group", "verdict"], verdicts))
+    if output == "markdown":
+        parts = [f"### episode-audit compare: {markdown_text(result.verdict)}\n"]
+        for title, headers, body in sections:
+            parts += [f"#### {markdown_text(title)}\n", markdown_table(headers, body) + "\n"]
+        return "\n".join(parts)
+    out: list[RenderableType] = [table(title, headers, body) for title, headers, body in sections]
+    return Group(*out)

@@ -1,0 +1,247 @@
+"""Did the candidate regress? :func:`compare` and the :class:`Comparison` it returns.
+
+:func:`compare` opens two sets of evidence files, :func:`compare_tables` compares files already
+opened: what differs between the runs first (a different task is refused unless allowed), then
+per group (report's ``by``) every metric with its interval, test and verdict, the p-values of the
+primary metrics of all groups Holm-adjusted as one family, the gates, and the incentive warnings
+new in the candidate. :meth:`Comparison.cases` lists it all as named pass/fail cases (one test
+case each in a JUnit file). Statistics and verdicts: ``docs/compare.md``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import ConfigurationError
+from ..read import Evidence, open_evidence
+from ..report.collect import check_by, collect
+from ..report.groups import group_reports
+from .groups import RATE_MARGIN, CompareGates, GroupComparison, check_gates, combine, compare_group
+from .metrics import Verdict, decide
+from .sides import sides
+from .spec import Mismatch, mismatches
+from .stats import holm
+
+__all__ = ["Case", "Comparison", "compare", "compare_tables"]
+
+
+@dataclass(frozen=True)
+class Case:
+    """One named outcome of a comparison: a mismatch, a metric's verdict, a gate, a warning."""
+
+    name: str
+    status: str
+    passed: bool
+    message: str
+
+
+@dataclass
+class Comparison:
+    """Two sets of runs compared: mismatches first, then one :class:`GroupComparison` a group.
+
+    ``verdict`` combines the groups' (:func:`~.groups.combine`); ``passed`` is false when it is
+    ``regressed`` or a gate failed. ``only_baseline`` / ``only_candidate`` name the groups one
+    side lacks (not compared); ``unfinished`` the files still being written or torn (compared
+    with what was flushed so far), with why.
+    """
+
+    by: str
+    mismatches: list[Mismatch]
+    groups: list[GroupComparison]
+    only_baseline: list[str] = field(default_factory=list)
+    only_candidate: list[str] = field(default_factory=list)
+    unfinished: list[tuple[str, str]] = field(default_factory=list)
+
+    @property
+    def verdict(self) -> Verdict:
+        """The overall verdict."""
+        return combine(g.verdict for g in self.groups)
+
+    @property
+    def passed(self) -> bool:
+        """Whether the candidate did not regress and every gate passed."""
+        gates = all(g.passed for group in self.groups for g in group.gates)
+        return self.verdict != "regressed" and gates
+
+    def cases(self) -> list[Case]:
+        """Every outcome as a named case, mismatches first (a mismatch alone does not fail)."""
+        out = [Case(f"spec/{m.field}", "mismatch", True, str(m)) for m in self.mismatches]
+        for group in self.groups:
+            for m in group.metrics:
+                if m.verdict is not None:
+                    message = _metric_line(m.name, m.difference, m.interval, m.verdict)
+                    out.append(
+                        Case(f"{group.key}/{m.name}", m.verdict, m.verdict != "regressed", message)
+                    )
+            for w in group.new_warnings:
+                out.append(Case(f"{group.key}/incentive:{w.code}", "new", False, w.message))
+            for g in group.gates:
+                out.append(
+                    Case(
+                        f"{group.key}/gate:{g.gate}",
+                        "passed" if g.passed else "failed",
+                        g.passed,
+                        g.message,
+                    )
+                )
+        return out  # fmt: skip
+
+    def to_dict(self) -> dict[str, Any]:
+        """The comparison as JSON-able values (the shape: ``docs/compare.md``)."""
+        return {
+            "by": self.by,
+            "verdict": self.verdict,
+            "passed": self.passed,
+            "mismatches": [
+                {"field": m.field, "baseline": m.baseline, "candidate": m.candidate}
+                for m in self.mismatches
+            ],
+            "groups": [g.to_dict() for g in self.groups],
+            "only_baseline": list(self.only_baseline),
+            "only_candidate": list(self.only_candidate),
+            "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
+            "cases": [
+                {"name": c.name, "status": c.status, "passed": c.passed, "message": c.message}
+                for c in self.cases()
+            ],
+        }
+
+
+def _metric_line(name: str, diff: float, interval: Any, verdict: str) -> str:
+    ci = f"95 % CI {interval.low:+.4g} to {interval.high:+.4g}"
+    return f"{name}: {verdict}, difference {diff:+.4g} ({ci})"
+
+
+def compare_tables(
+    baseline: Iterable[tuple[str, Evidence]],
+    candidate: Iterable[tuple[str, Evidence]],
+    *,
+    by: str = "all",
+    gates: CompareGates | None = None,
+    different_tasks: bool = False,
+    rate_margin: float = RATE_MARGIN,
+) -> Comparison:
+    """Compare opened evidence files, given as ``(name, evidence)`` pairs; see :func:`compare`."""
+    check_by(by)
+    if by in ("file", "label"):
+        why = {
+            "file": "the two sides have different files, so no group would match",
+            "label": "each group would hold one outcome, so every rate would be 0 or 1",
+        }[by]
+        raise ConfigurationError(
+            f"by={by!r}: {why}; group by 'all', 'env', 'env_index', 'agent' or 'tag:NAME'"
+        )
+    baseline, candidate = list(baseline), list(candidate)
+    found = mismatches(baseline, candidate)
+    tasks = [m for m in found if m.task]
+    if tasks and not different_tasks:
+        raise ConfigurationError(
+            f"the sides run different tasks ({tasks[0]}); to compare them anyway pass "
+            "different_tasks=True (--different-tasks)"
+        )
+    gates = gates or CompareGates()
+    tables_b, tables_c = collect(baseline, by), collect(candidate, by)
+    sides_b, sides_c = sides(*tables_b), sides(*tables_c)
+    _check_sides(sides_b, "baseline")
+    _check_sides(sides_c, "candidate")
+    if not set(sides_b) & set(sides_c):
+        raise ConfigurationError(
+            f"by={by!r}: no group is on both sides (baseline: {_keys(sides_b)}; candidate: "
+            f"{_keys(sides_c)}): group by a key the sides share, e.g. 'all' or 'env'"
+        )
+    warned_b = {g.key: {w.code for w in g.warnings} for g in group_reports(*tables_b)}
+    warned_c = {g.key: g.warnings for g in group_reports(*tables_c)}
+    groups = [
+        compare_group(
+            key,
+            sides_b[key],
+            sides_c[key],
+            gates,
+            [w for w in warned_c.get(key, []) if w.code not in warned_b.get(key, set())],
+            rate_margin,
+        )
+        for key in sorted(set(sides_b) & set(sides_c))
+    ]
+    _decide(groups)
+    for group in groups:
+        group.gates = check_gates(group, gates)
+    return Comparison(
+        by,
+        found,
+        groups,
+        sorted(set(sides_b) - set(sides_c)),
+        sorted(set(sides_c) - set(sides_b)),
+        [
+            (name, ev.torn or "no run-end record")
+            for name, ev in baseline + candidate
+            if not ev.finished
+        ],
+    )
+
+
+def _keys(found: dict[str, Any]) -> str:
+    keys = sorted(found)
+    return ", ".join(map(repr, keys[:5])) + (f" and {len(keys) - 5} more" if len(keys) > 5 else "")
+
+
+def _check_sides(found: dict[str, Any], side: str) -> None:
+    if not found:
+        raise ConfigurationError(
+            f"the {side} has no ended episode (success, failure or truncated) to compare: "
+            f"record some, or check its files with `episode-audit report`"
+        )
+
+
+def _decide(groups: Sequence[GroupComparison]) -> None:
+    """Holm-adjust the primary metrics' p-values of all groups as one family; set verdicts."""
+    family = [m for g in groups for m in g.metrics if m.better != "none"]
+    for metric, adjusted in zip(family, holm([m.p_value for m in family]), strict=True):
+        metric.p_adjusted = adjusted
+        metric.verdict = decide(metric)
+
+
+def compare(
+    baseline: Iterable[str | os.PathLike[str]],
+    candidate: Iterable[str | os.PathLike[str]],
+    *,
+    by: str = "all",
+    gates: CompareGates | None = None,
+    different_tasks: bool = False,
+    rate_margin: float = RATE_MARGIN,
+) -> Comparison:
+    """Compare the episodes of the ``candidate`` files with those of the ``baseline`` files.
+
+    Episodes are grouped as :func:`~episode_audit.report.report` groups them (``by``; not
+    ``"file"`` nor ``"label"``), and groups of the same key are compared. Where the sides
+    share reset seeds the comparison is paired. Files of different env ids raise
+    :class:`~episode_audit.errors.ConfigurationError` unless ``different_tasks``; other
+    differences (env kwargs, time limit, library versions) are listed in
+    :attr:`Comparison.mismatches`. A rate without a gate is ``held`` when its interval stays
+    within ``rate_margin`` of no change (a return without a gate: half the baseline's standard
+    deviation).
+
+    Example:
+        >>> import tempfile, pathlib
+        >>> from episode_audit.rollout import record_episodes
+        >>> out = pathlib.Path(tempfile.mkdtemp())
+        >>> for name in ("base", "cand"):
+        ...     _ = record_episodes("CartPole-v1", out / f"{name}.mcap", episodes=5,
+        ...                         max_episode_steps=20)
+        >>> result = compare([out / "base.mcap"], [out / "cand.mcap"])
+        >>> result.verdict, result.groups[0].pairs, result.passed
+        ('underpowered', 5, True)
+    """
+    check_by(by)
+    opened_b = [(str(p), open_evidence(p)) for p in baseline]
+    opened_c = [(str(p), open_evidence(p)) for p in candidate]
+    return compare_tables(
+        opened_b,
+        opened_c,
+        by=by,
+        gates=gates,
+        different_tasks=different_tasks,
+        rate_margin=rate_margin,
+    )

@@ -1,0 +1,199 @@
+"""One group compared: its metrics, gates and new incentive warnings (:class:`GroupComparison`).
+
+:func:`compare_group` builds every metric of a group from its two :class:`~.sides.Side`
+values: the success rate, the failure rate and each failure label's, the truncation rate, the
+return, and each reward term's episode total. :class:`CompareGates` are the non-inferiority
+gates; :func:`combine` is how verdicts add up to one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..format import names as fmt
+from ..report import GateResult, IncentiveWarning
+from .metrics import MetricComparison, Verdict, mean_metric, rate_metric
+from .sides import Side, pair
+
+__all__ = [
+    "RATE_MARGIN",
+    "CompareGates",
+    "GroupComparison",
+    "check_gates",
+    "combine",
+    "compare_group",
+]
+
+RATE_MARGIN = 0.05
+"""The margin a rate is ``held`` within when no gate declares one."""
+
+
+@dataclass(frozen=True)
+class CompareGates:
+    """Non-inferiority gates: each passes when its metric's 95 % interval stays within it.
+
+    ``max_success_drop``: the success rate may fall at most this much;
+    ``max_failure_increase`` (all failures) and ``max_failure_increase_by_label`` may rise at
+    most this much; ``max_return_drop``: the mean return may fall at most this much. A gate is
+    also the margin its metric is ``held`` within.
+    """
+
+    max_success_drop: float | None = None
+    max_failure_increase: float | None = None
+    max_failure_increase_by_label: Mapping[str, float] = field(default_factory=dict)
+    max_return_drop: float | None = None
+
+    def limits(self) -> dict[str, float]:
+        """Metric name to its gate's limit, for the gates that are on."""
+        out: dict[str, float] = {}
+        if self.max_success_drop is not None:
+            out["success_rate"] = self.max_success_drop
+        if self.max_failure_increase is not None:
+            out["failure_rate"] = self.max_failure_increase
+        for label, limit in self.max_failure_increase_by_label.items():
+            out[f"failure_rate:{label}"] = limit
+        if self.max_return_drop is not None:
+            out["return"] = self.max_return_drop
+        return out
+
+
+@dataclass
+class GroupComparison:
+    """A group's metrics (primary ones first, then reward terms), gates and new warnings."""
+
+    key: str
+    baseline_episodes: int
+    candidate_episodes: int
+    pairs: int
+    metrics: list[MetricComparison]
+    new_warnings: list[IncentiveWarning]
+    gates: list[GateResult] = field(default_factory=list)
+
+    @property
+    def verdict(self) -> Verdict:
+        """The group's verdict: :func:`combine` of its metrics' (a new warning regresses)."""
+        verdicts = [m.verdict for m in self.metrics if m.verdict is not None]
+        return combine(verdicts + (["regressed"] if self.new_warnings else []))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The group as JSON-able values (``docs/compare.md``)."""
+        return {
+            "key": self.key,
+            "verdict": self.verdict,
+            "baseline_episodes": self.baseline_episodes,
+            "candidate_episodes": self.candidate_episodes,
+            "pairs": self.pairs,
+            "metrics": [m.to_dict() for m in self.metrics],
+            "new_warnings": [{"code": w.code, "message": w.message} for w in self.new_warnings],
+            "gates": [
+                {"gate": g.gate, "group": g.group, "passed": g.passed, "message": g.message}
+                for g in self.gates
+            ],
+        }
+
+
+def combine(verdicts: Iterable[Verdict]) -> Verdict:
+    """Many verdicts as one.
+
+    ``regressed`` if any is; else ``improved`` if any is; else ``held`` if all are; else
+    ``underpowered`` if any is; else ``inconclusive``.
+
+    >>> combine(["held", "improved"]), combine(["held", "underpowered", "inconclusive"])
+    ('improved', 'underpowered')
+    """
+    seen = set(verdicts)
+    for verdict in ("regressed", "improved"):
+        if verdict in seen:
+            return verdict
+    if seen <= {"held"}:
+        return "held"
+    return "underpowered" if "underpowered" in seen else "inconclusive"
+
+
+def compare_group(
+    key: str,
+    base: Side,
+    cand: Side,
+    gates: CompareGates,
+    new_warnings: list[IncentiveWarning],
+    rate_margin: float = RATE_MARGIN,
+) -> GroupComparison:
+    """Every metric of one group (verdicts are set later, after the Holm adjustment).
+
+    A rate is ``held`` within its gate, or ``rate_margin`` when it has none.
+    """
+    pairs = pair(base, cand)
+    limits = gates.limits()
+
+    def rate(name: str, b: Any, c: Any, better: Any) -> MetricComparison:
+        margin = limits.get(name, rate_margin)
+        return rate_metric(name, b, c, pairs, better=better, margin=margin)
+
+    metrics = [rate("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher")]
+    failed_b, failed_c = _is(base, cand, fmt.OUTCOME_FAILURE)
+    metrics.append(rate("failure_rate", failed_b, failed_c, "lower"))
+    labels = set(base.failure_label[failed_b]) | set(cand.failure_label[failed_c])
+    labels |= set(gates.max_failure_increase_by_label)
+    for label in sorted(str(x) for x in labels):
+        b = failed_b & (base.failure_label == label)
+        c = failed_c & (cand.failure_label == label)
+        metrics.append(rate(f"failure_rate:{label}", b, c, "lower"))
+    metrics.append(rate("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
+    metrics.append(
+        mean_metric(
+            "return", base.returns, cand.returns, pairs, better="higher",
+            margin=gates.max_return_drop,
+        )
+    )  # fmt: skip
+    for term in sorted(set(base.terms) & set(cand.terms)):
+        metrics.append(
+            mean_metric(
+                f"term:{term}", base.terms[term], cand.terms[term], pairs, better="none",
+                margin=None,
+            )
+        )  # fmt: skip
+    return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings)
+
+
+def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
+    return np.asarray(base.outcome == outcome, bool), np.asarray(cand.outcome == outcome, bool)
+
+
+def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
+    """Each gate that is on, checked against the group's metric: its interval's worse end."""
+    by_name = {m.name: m for m in group.metrics}
+    out: list[GateResult] = []
+    for name, limit in gates.limits().items():
+        metric = by_name[name]
+        worse = metric.worse_bound()
+        passed = worse <= limit
+        what = "drop" if metric.better == "higher" else "increase"
+        verb = "within" if passed else "beyond"
+        out.append(
+            GateResult(
+                _gate_name(name),
+                group.key,
+                passed,
+                f"{name}: the 95 % interval allows a {what} of up to {_num(worse)}, {verb} "
+                f"{_num(limit)} (group {group.key})",
+            )
+        )
+    return out
+
+
+def _gate_name(metric: str) -> str:
+    """The gate of a metric: ``failure_rate:L`` -> ``max_failure_increase:L``."""
+    if metric == "success_rate":
+        return "max_success_drop"
+    if metric == "return":
+        return "max_return_drop"
+    label = metric.partition(":")[2]
+    return "max_failure_increase" + (f":{label}" if label else "")
+
+
+def _num(value: float) -> str:
+    return f"{value:.4g}"

@@ -1,0 +1,207 @@
+"""One metric compared between two sides: its difference, interval, test, plan and verdict.
+
+:func:`rate_metric` compares a rate (success, failure, one label's failure, truncation);
+:func:`mean_metric` a mean (return, a reward term's episode total). Both are paired on matched
+reset seeds when at least half of the smaller side's episodes found a pair
+(:data:`PAIRED_SHARE`), else unpaired over every ended episode. :func:`decide` gives the
+verdict once the p-values are Holm-adjusted. The formulas: ``docs/compare.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from ..report.stats import Interval
+from . import stats
+from .sides import Pairs
+
+__all__ = [
+    "PAIRED_SHARE",
+    "VERDICTS",
+    "MetricComparison",
+    "Verdict",
+    "decide",
+    "mean_metric",
+    "rate_metric",
+]
+
+Verdict = Literal["regressed", "improved", "held", "inconclusive", "underpowered"]
+VERDICTS: tuple[Verdict, ...] = ("regressed", "improved", "held", "inconclusive", "underpowered")
+PAIRED_SHARE = 0.5
+"""Paired when the matched pairs are at least this share of the smaller side's episodes."""
+
+Array = np.ndarray[Any, Any]
+
+
+@dataclass
+class MetricComparison:
+    """One metric of both sides: ``difference`` is the candidate's value minus the baseline's.
+
+    ``better`` says which way is better (``"higher"``, ``"lower"``, or ``"none"`` for reward
+    terms, which get no verdict). ``n_needed`` counts pairs when ``paired``, else episodes a
+    side; ``mde`` is the difference detectable now with the power of :data:`~.stats.POWER`.
+    """
+
+    name: str
+    kind: Literal["rate", "mean"]
+    better: Literal["higher", "lower", "none"]
+    baseline: float | None
+    candidate: float | None
+    baseline_n: int
+    candidate_n: int
+    difference: float
+    interval: Interval
+    paired: bool
+    pairs: int
+    test: str
+    p_value: float
+    margin: float
+    mde: float
+    n_needed: int
+    p_adjusted: float | None = None
+    verdict: Verdict | None = None
+    baseline_iqm: float | None = None
+    candidate_iqm: float | None = None
+
+    @property
+    def analysed(self) -> int:
+        """The number of units the comparison rests on: pairs, or the smaller side's episodes."""
+        return self.pairs if self.paired else min(self.baseline_n, self.candidate_n)
+
+    def worse_bound(self) -> float:
+        """The interval's end in the worse direction, as a loss (positive = worse)."""
+        return -self.interval.low if self.better == "higher" else self.interval.high
+
+    def to_dict(self) -> dict[str, Any]:
+        """The metric as JSON-able values (``docs/compare.md``)."""
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "better": self.better,
+            "baseline": _finite(self.baseline),
+            "candidate": _finite(self.candidate),
+            "baseline_n": self.baseline_n,
+            "candidate_n": self.candidate_n,
+            "difference": _finite(self.difference),
+            "interval": {"low": _finite(self.interval.low), "high": _finite(self.interval.high)},
+            "paired": self.paired,
+            "pairs": self.pairs,
+            "test": self.test,
+            "p_value": _finite(self.p_value),
+            "p_adjusted": _finite(self.p_adjusted),
+            "margin": _finite(self.margin),
+            "mde": _finite(self.mde),
+            "n_needed": self.n_needed,
+            "verdict": self.verdict,
+            "baseline_iqm": _finite(self.baseline_iqm),
+            "candidate_iqm": _finite(self.candidate_iqm),
+        }
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+def use_pairs(pairs: Pairs, nb: int, nc: int) -> bool:
+    """Whether to compare paired: enough of the smaller side found a pair (and at least two)."""
+    return len(pairs) >= 2 and len(pairs) >= PAIRED_SHARE * min(nb, nc)
+
+
+def rate_metric(
+    name: str,
+    base: Array,
+    cand: Array,
+    pairs: Pairs,
+    *,
+    better: Literal["higher", "lower"],
+    margin: float,
+) -> MetricComparison:
+    """Compare the rate of ``True`` in two boolean arrays (one value per ended episode)."""
+    nb, nc = len(base), len(cand)
+    if use_pairs(pairs, nb, nc):
+        x, y = base[pairs.base], cand[pairs.cand]
+        n = len(x)
+        a, b = int(np.sum(x & y)), int(np.sum(x & ~y))
+        c, d = int(np.sum(~x & y)), int(np.sum(~x & ~y))
+        diff = (c - b) / n
+        psi = (b + c + 1) / (n + 2)  # discordant share, kept off 0 for planning
+        variance = max(psi - diff * diff, psi / (n + 2))
+        mde, needed = stats.planning(variance, math.sqrt(variance / n), margin)
+        return MetricComparison(
+            name, "rate", better, (a + b) / n, (a + c) / n, n, n, diff,
+            stats.newcombe_paired(a, b, c, d), True, n, "McNemar exact",
+            stats.mcnemar_exact(b, c), margin, mde, needed,
+        )  # fmt: skip
+    xb, xc = int(np.sum(base)), int(np.sum(cand))
+    vb, vc = _plan_variance(xb, nb), _plan_variance(xc, nc)
+    mde, needed = stats.planning(vb + vc, math.sqrt(vb / nb + vc / nc), margin)
+    return MetricComparison(
+        name, "rate", better, xb / nb, xc / nc, nb, nc, xc / nc - xb / nb,
+        stats.newcombe_unpaired(xb, nb, xc, nc), False, len(pairs), "Fisher exact",
+        stats.fisher_p_value(xb, nb, xc, nc), margin, mde, needed,
+    )  # fmt: skip
+
+
+def _plan_variance(x: int, n: int) -> float:
+    """A rate's Bernoulli variance for planning, from ``(x + 1) / (n + 2)`` (never 0)."""
+    p = (x + 1) / (n + 2)
+    return p * (1 - p)
+
+
+def mean_metric(
+    name: str,
+    base: Array,
+    cand: Array,
+    pairs: Pairs,
+    *,
+    better: Literal["higher", "none"],
+    margin: float | None,
+) -> MetricComparison:
+    """Compare the means of two float arrays (one value per ended episode).
+
+    ``margin`` ``None`` takes half the baseline's standard deviation (Cohen's d = 0.5).
+    """
+    nb, nc = len(base), len(cand)
+    paired = use_pairs(pairs, nb, nc)
+    if paired:
+        x, y = base[pairs.base], cand[pairs.cand]
+        variance = float(np.var(y - x, ddof=1))
+        se = math.sqrt(variance / len(x))
+    else:
+        x, y = base, cand
+        vb = float(np.var(x, ddof=1)) if nb > 1 else math.inf
+        vc = float(np.var(y, ddof=1)) if nc > 1 else math.inf
+        variance, se = vb + vc, math.sqrt(vb / nb + vc / nc)
+    if margin is None:
+        spread = base if nb > 1 else cand
+        margin = 0.5 * float(np.std(spread, ddof=1)) if len(spread) > 1 else 0.0
+    mde, needed = stats.planning(variance, se, margin)
+    return MetricComparison(
+        name, "mean", better, float(np.mean(x)), float(np.mean(y)), len(x), len(y),
+        float(np.mean(y) - np.mean(x)), stats.bootstrap_difference(x, y, paired=paired),
+        paired, len(pairs), "paired t" if paired else "Welch t",
+        stats.mean_p_value(x, y, paired=paired), margin, mde, needed,
+        baseline_iqm=stats.iqm(x), candidate_iqm=stats.iqm(y),
+    )  # fmt: skip
+
+
+def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:
+    """The verdict of a metric whose ``p_adjusted`` is set.
+
+    ``regressed`` / ``improved``: the adjusted p-value is below ``alpha``, the difference worse /
+    better; ``held``: the interval's worse end is within the margin; ``underpowered``: neither,
+    and fewer units than ``n_needed``; ``inconclusive``: neither, with enough units.
+    """
+    p = metric.p_value if metric.p_adjusted is None else metric.p_adjusted
+    gain = metric.difference if metric.better == "higher" else -metric.difference
+    if p < alpha and gain != 0:
+        return "improved" if gain > 0 else "regressed"
+    if metric.worse_bound() <= metric.margin:
+        return "held"
+    if metric.analysed < metric.n_needed:
+        return "underpowered"
+    return "inconclusive"

@@ -1,0 +1,73 @@
+"""What differs between the runs of the two sides: task, env kwargs, time limit, versions.
+
+:func:`mismatches` lists each difference as a :class:`Mismatch`; a different env id means a
+different task, which :func:`~.core.compare` refuses unless told ``different_tasks=True``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ..read import Evidence
+
+__all__ = ["Mismatch", "mismatches"]
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """One field whose values differ between the sides (each side's values, sorted)."""
+
+    field: str
+    baseline: list[str]
+    candidate: list[str]
+
+    @property
+    def task(self) -> bool:
+        """Whether the sides run different tasks (env ids)."""
+        return self.field == "env_id"
+
+    def __str__(self) -> str:
+        return (
+            f"{self.field} differs: baseline {', '.join(self.baseline) or '(none)'}; "
+            f"candidate {', '.join(self.candidate) or '(none)'}"
+        )
+
+
+def _fields(ev: Evidence) -> dict[str, str]:
+    run = ev.run
+    spec = run.env_spec or {}
+    out = {
+        "env_id": str(run.env_id),
+        "env_kwargs": json.dumps(spec.get("kwargs") or {}, sort_keys=True, default=str),
+        "max_episode_steps": str(spec.get("max_episode_steps")),
+    }
+    for name, version in sorted((run.versions or {}).items()):
+        if name not in ("python", "episode_audit"):
+            out[f"version:{name}"] = str(version)
+    return out
+
+
+def mismatches(
+    baseline: Sequence[tuple[str, Evidence]], candidate: Sequence[tuple[str, Evidence]]
+) -> list[Mismatch]:
+    """The fields whose sets of values differ between the sides' files, env id first."""
+    base: dict[str, set[str]] = {}
+    cand: dict[str, set[str]] = {}
+    for into, files in ((base, baseline), (cand, candidate)):
+        for _, ev in files:
+            for name, value in _fields(ev).items():
+                into.setdefault(name, set()).add(value)
+    names = sorted(set(base) | set(cand), key=_order)
+    return [
+        Mismatch(name, sorted(base.get(name, ())), sorted(cand.get(name, ())))
+        for name in names
+        if base.get(name, set()) != cand.get(name, set())
+    ]
+
+
+def _order(name: str) -> Any:
+    fixed = ("env_id", "env_kwargs", "max_episode_steps")
+    return (fixed.index(name), "") if name in fixed else (len(fixed), name)

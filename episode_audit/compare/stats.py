@@ -1,0 +1,234 @@
+"""The statistics of a comparison, each cited in ``docs/compare.md``.
+
+- rates: :func:`newcombe_unpaired` (Newcombe 1998a, method 10) with Fisher's exact test;
+  :func:`newcombe_paired` (Newcombe 1998b, method 10) with :func:`mcnemar_exact`;
+- means: :func:`bootstrap_difference` (scipy's BCa bootstrap, paired or not) with a t-test
+  (:func:`mean_p_value`); :func:`iqm`;
+- :func:`holm` (Holm 1979); :func:`planning` (minimum detectable effect, n needed).
+
+The tests and intervals are scipy's (``scipy.stats``); Newcombe's intervals are sums of squares of
+Wilson limits (:func:`~episode_audit.report.stats.wilson_interval`) scipy has no function for.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..report.stats import Interval, wilson_interval
+
+__all__ = [
+    "ALPHA",
+    "POWER",
+    "bootstrap_difference",
+    "fisher_p_value",
+    "holm",
+    "iqm",
+    "mcnemar_exact",
+    "mean_p_value",
+    "newcombe_paired",
+    "newcombe_unpaired",
+    "planning",
+]
+
+ALPHA = 0.05
+"""Two-sided level of the tests; the intervals are ``1 - ALPHA``."""
+POWER = 0.8
+"""The power the minimum detectable effect and the n needed are stated for."""
+NEVER = 2**31 - 1
+"""The n needed when no n is enough (a margin of 0 with spread, or no spread known)."""
+BOOTSTRAP_RESAMPLES = 4999
+BOOTSTRAP_SEED = 20260
+"""The bootstrap's resamples are seeded: the same files give the same interval."""
+
+Array = np.ndarray[Any, Any]
+
+
+def _stats() -> Any:
+    """``scipy.stats``, imported on first use (it takes a while; most commands never need it)."""
+    import scipy.stats
+
+    return scipy.stats
+
+
+def newcombe_unpaired(x1: int, n1: int, x2: int, n2: int) -> Interval:
+    """Newcombe's hybrid score interval (1998a, method 10) for ``x2/n2 - x1/n1``.
+
+    >>> ci = newcombe_unpaired(48, 80, 56, 70)  # Newcombe 1998a, example (a)
+    >>> round(ci.low, 4), round(ci.high, 4)
+    (0.0524, 0.3339)
+    """
+    p1, p2 = x1 / n1, x2 / n2
+    w1, w2 = wilson_interval(x1, n1), wilson_interval(x2, n2)
+    d = p2 - p1
+    low = d - math.sqrt((p2 - w2.low) ** 2 + (w1.high - p1) ** 2)
+    high = d + math.sqrt((w2.high - p2) ** 2 + (p1 - w1.low) ** 2)
+    return Interval(max(-1.0, low), min(1.0, high))
+
+
+def newcombe_paired(a: int, b: int, c: int, d: int) -> Interval:
+    """Newcombe's score interval (1998b, method 10) for a paired difference of proportions.
+
+    The pairs: ``a`` both sides succeed, ``b`` only the baseline, ``c`` only the candidate,
+    ``d`` neither; the difference is the candidate's rate minus the baseline's, ``(c - b) / n``.
+
+    >>> ci = newcombe_paired(59, 16, 6, 80)  # Fagerland et al. 2017, ch. 8 (Cavo et al.)
+    >>> round(ci.low, 4), round(ci.high, 4)
+    (-0.1186, -0.0046)
+    """
+    n = a + b + c + d
+    base, cand = a + b, a + c  # successes of each side
+    p1, p2 = base / n, cand / n
+    w1, w2 = wilson_interval(base, n), wilson_interval(cand, n)
+    phi = 0.0
+    margins = base * (n - base) * cand * (n - cand)
+    if margins > 0:
+        cross = a * d - b * c
+        if cross > n / 2:  # Newcombe's correction of phi for a positive association
+            phi = (cross - n / 2) / math.sqrt(margins)
+        elif cross < 0:
+            phi = cross / math.sqrt(margins)
+    diff = p2 - p1
+    lo2, hi1 = p2 - w2.low, w1.high - p1
+    hi2, lo1 = w2.high - p2, p1 - w1.low
+    low = diff - math.sqrt(max(0.0, lo2**2 - 2 * phi * lo2 * hi1 + hi1**2))
+    high = diff + math.sqrt(max(0.0, hi2**2 - 2 * phi * hi2 * lo1 + lo1**2))
+    return Interval(max(-1.0, low), min(1.0, high))
+
+
+def mcnemar_exact(b: int, c: int) -> float:
+    """The exact McNemar p-value (``scipy.stats.binomtest``).
+
+    A two-sided binomial test of ``c`` of the ``b + c`` discordant pairs at 1/2; 1.0 without
+    discordant pairs.
+
+    >>> round(mcnemar_exact(16, 6), 4)
+    0.0525
+    """
+    if b + c == 0:
+        return 1.0
+    return float(_stats().binomtest(c, b + c, 0.5).pvalue)
+
+
+def fisher_p_value(x1: int, n1: int, x2: int, n2: int) -> float:
+    """Fisher's exact two-sided p-value for ``x1/n1`` against ``x2/n2``."""
+    table = [[x1, n1 - x1], [x2, n2 - x2]]
+    return float(_stats().fisher_exact(table).pvalue)
+
+
+def bootstrap_difference(base: Array, cand: Array, *, paired: bool) -> Interval:
+    """The BCa bootstrap interval of ``mean(cand) - mean(base)`` (``scipy.stats.bootstrap``).
+
+    ``paired`` resamples the pairs (``base[i]``, ``cand[i]``) together; otherwise each side is
+    resampled on its own. Constant data (no spread to resample) give the point difference; a
+    side of one value cannot be resampled and gives ``(-inf, inf)``.
+    """
+    diff = float(np.mean(cand) - np.mean(base))
+    if paired:
+        data: tuple[Array, ...] = (cand - base,)
+        if np.ptp(data[0]) == 0:
+            return Interval(diff, diff)
+    else:
+        data = (base, cand)
+        if np.ptp(base) == 0 and np.ptp(cand) == 0:
+            return Interval(diff, diff)
+    if min(len(d) for d in data) < 2:
+        return Interval(-math.inf, math.inf)
+    statistic = _mean if paired else _mean_difference
+    low, high = _bootstrap(data, statistic, "BCa")
+    if not (math.isfinite(low) and math.isfinite(high)):  # BCa undefined: percentiles
+        low, high = _bootstrap(data, statistic, "percentile")
+    return Interval(low, high)
+
+
+def _mean(x: Array, axis: int = -1) -> Array:
+    return np.asarray(np.mean(x, axis=axis))
+
+
+def _mean_difference(x: Array, y: Array, axis: int = -1) -> Array:
+    return np.asarray(np.mean(y, axis=axis) - np.mean(x, axis=axis))
+
+
+def _bootstrap(data: tuple[Array, ...], statistic: Any, method: str) -> tuple[float, float]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # (DegenerateDataWarning included)
+        result = _stats().bootstrap(
+            data,
+            statistic,
+            n_resamples=BOOTSTRAP_RESAMPLES,
+            confidence_level=1 - ALPHA,
+            method=method,
+            rng=np.random.default_rng(BOOTSTRAP_SEED),
+        )
+    ci = result.confidence_interval
+    return float(ci.low), float(ci.high)
+
+
+def mean_p_value(base: Array, cand: Array, *, paired: bool) -> float:
+    """The two-sided p-value of a difference of means: paired t-test or Welch's t-test.
+
+    1.0 when it is undefined (fewer than two values a side, or no spread at all).
+    """
+    if min(len(base), len(cand)) < 2:
+        return 1.0
+    if paired:
+        if np.ptp(cand - base) == 0:
+            return 1.0 if float(np.mean(cand - base)) == 0 else 0.0
+        p = _stats().ttest_rel(cand, base).pvalue
+    else:
+        if np.ptp(base) == 0 and np.ptp(cand) == 0:
+            return 1.0 if float(np.mean(cand)) == float(np.mean(base)) else 0.0
+        p = _stats().ttest_ind(cand, base, equal_var=False).pvalue
+    return 1.0 if math.isnan(float(p)) else float(p)
+
+
+def iqm(values: Array) -> float | None:
+    """The interquartile mean (mean of the middle 50 %, ``scipy.stats.trim_mean(x, 0.25)``).
+
+    >>> iqm(np.array([0.0, 1.0, 2.0, 3.0, 100.0]))
+    2.0
+    """
+    return float(_stats().trim_mean(values, 0.25)) if len(values) else None
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjusted p-values (Holm 1979), in the order given.
+
+    scipy has no Holm adjustment (``false_discovery_control`` is Benjamini-Hochberg).
+
+    >>> [round(p, 6) for p in holm([0.01, 0.04, 0.03])]
+    [0.03, 0.06, 0.06]
+    """
+    order = sorted(range(len(p_values)), key=lambda i: p_values[i])
+    adjusted = [1.0] * len(p_values)
+    running = 0.0
+    m = len(p_values)
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p_values[i]))
+        adjusted[i] = running
+    return adjusted
+
+
+def planning(variance: float, se: float, margin: float) -> tuple[float, int]:
+    """The minimum detectable effect now and the n (a side, or pairs) needed to detect ``margin``.
+
+    ``variance`` is the difference's variance per unit (the sum of one episode's variance on each
+    side, or one pair's), ``se`` the difference's standard error now. With
+    ``z = z(1 - ALPHA/2) + z(POWER)``: ``MDE = z * se`` and
+    ``n_needed = ceil(z**2 * variance / margin**2)`` (at least 2).
+
+    >>> mde, needed = planning(0.5, 0.05, 0.2)
+    >>> round(mde, 4), needed
+    (0.1401, 99)
+    """
+    norm = _stats().norm
+    z = float(norm.ppf(1 - ALPHA / 2) + norm.ppf(POWER))
+    if not math.isfinite(variance):  # a side of one episode: no spread to plan with
+        return math.inf, NEVER
+    if margin <= 0:
+        return z * se, 2 if variance == 0 else NEVER
+    return z * se, max(2, math.ceil(z * z * variance / (margin * margin)))

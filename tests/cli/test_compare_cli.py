@@ -1,0 +1,120 @@
+"""`episode-audit compare`: outputs and exit codes (0 held/improved, 1 regressed or a gate
+missed, 2 usage or unreadable input)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cmarkgfm
+import pytest
+from typer.testing import CliRunner
+
+from episode_audit.cli import app
+from episode_audit.rollout import record_episodes
+from episode_audit.tasks import DRAWER_OPEN_ID
+
+pytestmark = pytest.mark.mujoco
+runner = CliRunner()
+
+
+def run(*args: str) -> tuple[int, str, str]:
+    result = runner.invoke(app, list(args))
+    if result.exception and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    out = tmp_path_factory.mktemp("cli")
+    made = {}
+    for name, policy, seed in [
+        ("base", "scripted", 0),
+        ("same", "scripted", 100),
+        ("hack", "hacker", 0),
+    ]:
+        path = out / name / f"{name}.mcap"
+        path.parent.mkdir()
+        record_episodes(
+            DRAWER_OPEN_ID, path, policy=policy, episodes=20, seed=seed,
+            env_kwargs={"proxy_reward": True},
+        )  # fmt: skip
+        made[name] = str(path)
+    return made
+
+
+def test_regressed_exits_1_with_the_verdict_in_every_format(runs: dict[str, str]) -> None:
+    code, out, _ = run("compare", runs["base"], "--candidate", runs["hack"], "-f", "json")
+    assert code == 1
+    data = json.loads(out)
+    assert data["verdict"] == "regressed" and data["passed"] is False
+    success = data["groups"][0]["metrics"][0]
+    assert success["name"] == "success_rate" and success["paired"] and success["pairs"] == 20
+    assert {c["status"] for c in data["cases"]} >= {"regressed", "new"}
+    code, out, _ = run("compare", runs["base"], "--candidate", runs["hack"], "-f", "markdown")
+    assert code == 1
+    html = cmarkgfm.github_flavored_markdown_to_html(out)
+    assert "<table>" in html and "<td>regressed</td>" in html
+    assert "Incentive warnings new in the candidate" in html
+    code, out, _ = run("compare", runs["base"], "--candidate", runs["hack"])
+    assert code == 1 and "regressed" in out
+
+
+def test_same_policy_other_seeds_exits_0(runs: dict[str, str]) -> None:
+    base_dir = str(Path(runs["base"]).parent)  # a directory is searched for *.mcap
+    code, out, err = run("compare", base_dir, "--candidate", runs["same"], "-f", "json")
+    assert code == 0, err
+    assert json.loads(out)["verdict"] in ("held", "inconclusive", "underpowered")
+
+
+def test_a_missed_gate_exits_1(runs: dict[str, str]) -> None:
+    args = ["compare", runs["base"], "--candidate", runs["same"], "-f", "json"]
+    code, out, _ = run(*args, "--max-success-drop", "0.01")
+    assert code == 1
+    (gate,) = json.loads(out)["groups"][0]["gates"]
+    assert gate["gate"] == "max_success_drop" and not gate["passed"]
+    code, _, _ = run(*args, "--max-success-drop", "0.9", "--max-failure-increase", "0.9")
+    assert code == 0
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--max-failure-increase", "drawer_yanked=2"], "--max-failure-increase: expected a rate"),
+        (["--max-success-drop", "-1"], "--max-success-drop: expected a rate"),
+        (["--max-return-drop", "nan"], "--max-return-drop: expected a finite number"),
+        (["--rate-margin", "0"], "--rate-margin: expected a rate in"),
+        (["--by", "file"], "by='file'"),
+        (["--by", "label"], "by='label': each group would hold one outcome"),
+        (["--by", "nope"], "by: expected"),
+    ],
+)
+def test_usage_errors_exit_2(runs: dict[str, str], extra: list[str], message: str) -> None:
+    code, _, err = run("compare", runs["base"], "--candidate", runs["same"], *extra)
+    assert code == 2 and message in err, err
+
+
+def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file")
+    code, _, err = run("compare", runs["base"], str(bad), "--candidate", runs["same"])
+    assert code == 2 and "bad.mcap" in err
+    code, _, err = run("compare", runs["base"], "--candidate", str(tmp_path / "missing.mcap"))
+    assert code == 2 and "no such file" in err
+    cart = tmp_path / "cart.mcap"
+    record_episodes("CartPole-v1", cart, episodes=3, max_episode_steps=10)
+    code, _, err = run("compare", runs["base"], "--candidate", str(cart))
+    assert code == 2 and "different tasks" in err and "--different-tasks" in err
+    code, _, err = run("compare", runs["base"], "--candidate", str(cart), "--different-tasks")
+    assert code in (0, 1) and "env_id differs" in err
+
+
+def test_an_unfinished_file_is_compared_and_named() -> None:
+    torn = str(Path(__file__).resolve().parents[2] / "fixtures" / "torn.mcap")
+    code, out, err = run("compare", torn, "--candidate", torn, "-f", "json")
+    assert code == 0, err
+    assert "unfinished" in err
+    data = json.loads(out)
+    assert [u["file"] for u in data["unfinished"]] == [torn, torn]
+    assert data["groups"][0]["pairs"] > 0

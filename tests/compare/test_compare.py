@@ -1,0 +1,164 @@
+"""compare() on the reference tasks, on synthetic sides, and what it refuses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from episode_audit import CompareGates, ConfigurationError, compare
+from episode_audit.compare.groups import compare_group
+from episode_audit.compare.metrics import decide
+from episode_audit.compare.sides import Side, pair
+from episode_audit.rollout import record_episodes
+from episode_audit.tasks import DRAWER_OPEN_ID
+
+pytestmark = pytest.mark.mujoco
+PROXY = {"proxy_reward": True}
+
+
+def drawer(path: Path, policy: str, episodes: int, seed: int = 0) -> Path:
+    record_episodes(
+        DRAWER_OPEN_ID, path, policy=policy, episodes=episodes, seed=seed, env_kwargs=PROXY
+    )
+    return path
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    out = tmp_path_factory.mktemp("runs")
+    return {
+        "scripted": drawer(out / "scripted.mcap", "scripted", 40),
+        "hacker": drawer(out / "hacker.mcap", "hacker", 40),
+        "scripted_other": drawer(out / "scripted_other.mcap", "scripted", 40, seed=1000),
+        "five": drawer(out / "five.mcap", "scripted", 5),
+        "five_other": drawer(out / "five_other.mcap", "scripted", 5, seed=500),
+    }
+
+
+def test_hacker_regresses_on_success_paired_with_a_new_incentive_signature(
+    runs: dict[str, Path],
+) -> None:
+    result = compare([runs["scripted"]], [runs["hacker"]])
+    (group,) = result.groups
+    metrics = {m.name: m for m in group.metrics}
+    success = metrics["success_rate"]
+    assert success.verdict == "regressed" and success.paired and success.pairs == 40
+    assert success.test == "McNemar exact"
+    assert success.interval.high < 0 < success.baseline - success.candidate  # type: ignore[operator]
+    assert {w.code for w in group.new_warnings} & {
+        "no_success_positive_return",
+        "shaping_dominates",
+    }
+    assert result.verdict == "regressed" and not result.passed
+    cases = {c.name: c for c in result.cases()}
+    assert not cases["all/success_rate"].passed
+    assert any(name.startswith("all/incentive:") and not c.passed for name, c in cases.items())
+
+
+def test_scripted_against_itself_on_other_seeds_never_regresses(runs: dict[str, Path]) -> None:
+    result = compare([runs["scripted"]], [runs["scripted_other"]], rate_margin=0.15)
+    (group,) = result.groups
+    assert group.pairs == 0 and not any(m.paired for m in group.metrics)
+    assert {m.test for m in group.metrics if m.kind == "rate"} == {"Fisher exact"}
+    assert result.verdict in ("held", "inconclusive"), [(m.name, m.verdict) for m in group.metrics]
+    assert result.passed
+    default = compare([runs["scripted"]], [runs["scripted_other"]])
+    assert default.verdict != "regressed" and default.passed
+
+
+def test_five_episodes_a_side_is_underpowered_with_the_n_needed(runs: dict[str, Path]) -> None:
+    result = compare([runs["five"]], [runs["five_other"]])
+    assert result.verdict == "underpowered"
+    success = result.groups[0].metrics[0]
+    assert success.verdict == "underpowered"
+    assert success.n_needed > 5 and success.mde > 0.05
+    assert result.passed  # nothing regressed, no gate: not a failure
+
+
+def test_gates_are_non_inferiority_on_the_interval(runs: dict[str, Path]) -> None:
+    loose = CompareGates(max_success_drop=0.5, max_return_drop=100.0)
+    result = compare([runs["scripted"]], [runs["scripted_other"]], gates=loose)
+    assert [g.gate for g in result.groups[0].gates] == ["max_success_drop", "max_return_drop"]
+    assert all(g.passed for g in result.groups[0].gates) and result.passed
+    tight = CompareGates(max_success_drop=0.01, max_failure_increase_by_label={"collision": 0.01})
+    missed = compare([runs["scripted"]], [runs["scripted_other"]], gates=tight)
+    gates = {g.gate: g for g in missed.groups[0].gates}
+    assert not gates["max_success_drop"].passed and not missed.passed
+    assert "beyond 0.01" in gates["max_success_drop"].message
+    assert "failure_rate:collision" in {m.name for m in missed.groups[0].metrics}
+
+
+def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
+    runs: dict[str, Path], tmp_path: Path
+) -> None:
+    cart = tmp_path / "cart.mcap"
+    record_episodes("CartPole-v1", cart, episodes=5, max_episode_steps=20)
+    with pytest.raises(ConfigurationError, match=r"different tasks \(env_id differs.*--different"):
+        compare([runs["scripted"]], [cart])
+    allowed = compare([runs["scripted"]], [cart], different_tasks=True)
+    assert allowed.mismatches[0].field == "env_id"
+    plain = tmp_path / "plain.mcap"
+    record_episodes(DRAWER_OPEN_ID, plain, policy="scripted", episodes=5)
+    result = compare([runs["five"]], [plain])
+    assert [m.field for m in result.mismatches] == ["env_kwargs"]
+    assert result.cases()[0].name == "spec/env_kwargs"
+
+
+def test_by_file_is_refused(runs: dict[str, Path]) -> None:
+    with pytest.raises(ConfigurationError, match="by='file'"):
+        compare([runs["five"]], [runs["five"]], by="file")
+
+
+def test_pairs_match_the_kth_episode_of_each_seed() -> None:
+    base = Side.of(["success"] * 4, seed=[1, 1, 2, None])
+    cand = Side.of(["success"] * 4, seed=[2, 1, None, 1])
+    pairs = pair(base, cand)
+    assert list(zip(pairs.base.tolist(), pairs.cand.tolist(), strict=True)) == [
+        (2, 0),
+        (0, 1),
+        (1, 3),
+    ]
+
+
+def test_identical_sides_are_held_and_a_drop_regresses() -> None:
+    outcomes = ["success"] * 90 + ["failure"] * 10
+    seeds = list(range(100))
+    same = compare_group(
+        "g", Side.of(outcomes, seed=seeds), Side.of(outcomes, seed=seeds), CompareGates(), []
+    )
+    for m in same.metrics:
+        m.verdict = decide(m)
+    assert {m.verdict for m in same.metrics} == {"held"}
+    worse = ["success"] * 60 + ["failure"] * 40
+    drop = compare_group(
+        "g", Side.of(outcomes, seed=seeds), Side.of(worse, seed=seeds), CompareGates(), []
+    )
+    success = drop.metrics[0]
+    success.verdict = decide(success)
+    assert success.verdict == "regressed" and success.paired
+
+
+def test_no_shared_group_is_refused_not_passed(runs: dict[str, Path]) -> None:
+    # tag:policy is 'scripted' on one side and 'hacker' on the other: nothing to compare
+    with pytest.raises(
+        ConfigurationError, match=r"no group is on both sides \(baseline: 'scripted'"
+    ):
+        compare([runs["scripted"]], [runs["hacker"]], by="tag:policy")
+
+
+def test_holm_adjusts_the_primary_metrics_of_all_groups_as_one_family() -> None:
+    from episode_audit.compare.core import _decide
+    from episode_audit.compare.stats import holm
+
+    seeds = list(range(60))
+    base = Side.of(["success"] * 50 + ["truncated"] * 10, seed=seeds)
+    cand = Side.of(["success"] * 44 + ["truncated"] * 16, seed=seeds)
+    groups = [compare_group(k, base, cand, CompareGates(), []) for k in ("a", "b")]
+    _decide(groups)
+    family = [m for g in groups for m in g.metrics if m.better != "none"]
+    assert [m.p_adjusted for m in family] == holm([m.p_value for m in family])
+    truncation = next(m for m in groups[0].metrics if m.name == "truncation_rate")
+    assert truncation.name == "truncation_rate" and truncation.p_value < 0.05
+    assert truncation.p_adjusted is not None and truncation.p_adjusted >= 0.05
+    assert truncation.verdict != "regressed"  # significant alone, not after Holm

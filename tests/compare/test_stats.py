@@ -1,0 +1,114 @@
+"""The statistics against published worked examples and scipy's own results."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+from episode_audit.compare import stats
+
+
+@pytest.mark.parametrize(
+    ("x2", "n2", "x1", "n1", "low", "high"),
+    [  # Newcombe (1998a) Table II, method 10: x2/n2 - x1/n1
+        (56, 70, 48, 80, 0.0524, 0.3339),
+        (9, 10, 3, 10, 0.1705, 0.8090),
+        (6, 7, 2, 7, 0.0582, 0.8062),
+        (5, 56, 0, 29, -0.0381, 0.1926),
+        (0, 10, 0, 20, -0.1611, 0.2775),
+        (0, 10, 0, 10, -0.2775, 0.2775),
+        (10, 10, 0, 20, 0.6791, 1.0),
+        (10, 10, 0, 10, 0.6075, 1.0),
+        # Fagerland, Lydersen & Laake (2017), ch. 4: Perondi et al. 2004, 7/34 - 1/34
+        (7, 34, 1, 34, 0.0189, 0.3404),
+    ],
+)
+def test_newcombe_unpaired_matches_the_published_examples(
+    x2: int, n2: int, x1: int, n1: int, low: float, high: float
+) -> None:
+    ci = stats.newcombe_unpaired(x1, n1, x2, n2)
+    assert (round(ci.low, 4), round(ci.high, 4)) == (low, high)
+
+
+def test_newcombe_paired_matches_the_published_example() -> None:
+    # Fagerland, Lydersen & Laake (2017), ch. 8: Cavo et al. 2012, table [[59, 6], [16, 80]]:
+    # p1 - p2 = (6 - 16) / 161 = -0.0621, 95 % CI -0.1186 to -0.0046. Ours is candidate minus
+    # baseline, so the baseline is the table's second margin: a=59, b=16, c=6, d=80.
+    ci = stats.newcombe_paired(59, 16, 6, 80)
+    assert (round(ci.low, 4), round(ci.high, 4)) == (-0.1186, -0.0046)
+    mirrored = stats.newcombe_paired(59, 6, 16, 80)
+    assert (round(mirrored.low, 4), round(mirrored.high, 4)) == (0.0046, 0.1186)
+
+
+def test_newcombe_paired_phi_correction_only_past_n_over_2() -> None:
+    # ad - bc = 1 <= n/2: phi is 0, so the interval is the unpaired square-and-add of the margins
+    ci = stats.newcombe_paired(1, 1, 7, 12)
+    n = 21
+    w1, w2 = stats.wilson_interval(2, n), stats.wilson_interval(8, n)
+    d = 8 / n - 2 / n
+    assert ci.low == pytest.approx(d - math.hypot(8 / n - w2.low, w1.high - 2 / n))
+
+
+@pytest.mark.parametrize(
+    ("b", "c", "p"), [(16, 6, 0.0525), (3, 3, 1.0), (0, 0, 1.0), (0, 7, 0.0156)]
+)
+def test_mcnemar_exact_is_the_binomial_test_of_discordant_pairs(b: int, c: int, p: float) -> None:
+    assert round(stats.mcnemar_exact(b, c), 4) == p
+
+
+def test_fisher_p_value_is_scipys() -> None:
+    assert stats.fisher_p_value(48, 80, 56, 70) == pytest.approx(
+        sps.fisher_exact([[48, 32], [56, 14]]).pvalue
+    )
+
+
+def test_holm_step_down() -> None:
+    # Holm (1979): sorted p times (m, m-1, ...), made monotone, capped at 1
+    assert stats.holm([0.01, 0.02, 0.03, 0.5]) == pytest.approx([0.04, 0.06, 0.06, 0.5])
+    assert stats.holm([0.9, 0.8]) == [1.0, 1.0]  # 2 * 0.8, capped
+    assert stats.holm([]) == []
+
+
+def test_planning_formulas() -> None:
+    z = sps.norm.ppf(0.975) + sps.norm.ppf(0.8)
+    mde, needed = stats.planning(0.5, 0.1, 0.1)
+    assert mde == pytest.approx(z * 0.1)
+    assert needed == math.ceil(z * z * 0.5 / 0.01)
+    assert stats.planning(math.inf, math.inf, 0.1) == (math.inf, stats.NEVER)
+
+
+def test_bootstrap_paired_resamples_pairs_and_covers_the_mean_difference() -> None:
+    rng = np.random.default_rng(1)
+    base = rng.normal(0, 10, 60)
+    cand = base + rng.normal(1.0, 0.5, 60)  # strongly paired: the spread is in the base
+    paired = stats.bootstrap_difference(base, cand, paired=True)
+    unpaired = stats.bootstrap_difference(base, cand, paired=False)
+    diff = float(np.mean(cand - base))
+    assert paired.low < diff < paired.high
+    assert paired.high - paired.low < 0.5  # about 2 * 1.96 * 0.5 / sqrt(60)
+    assert unpaired.high - unpaired.low > 5 * (paired.high - paired.low)
+
+
+def test_bootstrap_degenerate_data() -> None:
+    same = np.ones(5)
+    assert stats.bootstrap_difference(same, same + 2, paired=True) == stats.Interval(2.0, 2.0)
+    assert stats.bootstrap_difference(same, same, paired=False) == stats.Interval(0.0, 0.0)
+    one = stats.bootstrap_difference(np.array([1.0]), np.array([1.0, 2.0]), paired=False)
+    assert one.low == -math.inf and one.high == math.inf
+
+
+def test_mean_p_value_is_scipys_t_tests() -> None:
+    rng = np.random.default_rng(2)
+    a, b = rng.normal(0, 1, 30), rng.normal(0.5, 2, 30)
+    assert stats.mean_p_value(a, b, paired=True) == pytest.approx(sps.ttest_rel(b, a).pvalue)
+    assert stats.mean_p_value(a, b, paired=False) == pytest.approx(
+        sps.ttest_ind(b, a, equal_var=False).pvalue
+    )
+
+
+def test_iqm() -> None:
+    assert stats.iqm(np.arange(8.0)) == pytest.approx(3.5)
+    assert stats.iqm(np.array([])) is None
