@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -17,8 +18,12 @@ from ._app import (
     app,
     emit,
     fail,
+    note,
     warn,
 )
+
+if TYPE_CHECKING:
+    from ..report.inputs import InputsReport
 
 
 @app.command()
@@ -63,6 +68,15 @@ def report(
         typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
     ] = False,
     output: FormatOption = "table",
+    html: Annotated[
+        Path | None,
+        typer.Option(
+            "--html",
+            help="Also write the report as one self-contained HTML page (charts, episodes "
+            "with their replay commands) to this file.",
+            metavar="<file.html>",
+        ),
+    ] = None,
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
     from ..report.inputs import report_inputs
@@ -86,9 +100,22 @@ def report(
     if not result.readable and fmt != "json":  # (JSON is still one document: its unreadable list)
         raise typer.Exit(EXIT_USAGE)
     emit(report_output(result.report, fmt, unreadable=result.unreadable))
+    if html is not None:
+        _write_html(result, html, games)
     for line in result.report.notes:
         warn(line)
     if result.unreadable:
         raise typer.Exit(EXIT_USAGE)
     if not result.report.passed:
         raise typer.Exit(EXIT_FINDINGS)
+
+
+def _write_html(result: InputsReport, path: Path, games: bool) -> None:
+    """Write the HTML report and say where on stderr (stdout keeps its format)."""
+    from ..report.html import write_report_html
+
+    try:
+        written = write_report_html(result.report, result.sources, path, games=games)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    note(f"HTML report written to {written}")
