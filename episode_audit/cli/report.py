@@ -32,7 +32,9 @@ def report(
     by: Annotated[
         str,
         typer.Option(
-            help="Group by: file, env, env_index, agent, label, all, or tag:NAME (e.g. tag:policy)."
+            help="Group by: file, env, env_index, agent, label, all, or tag:NAME "
+            "(e.g. tag:policy).",
+            metavar="<grouping>",
         ),
     ] = "file",
     games: Annotated[
@@ -44,7 +46,10 @@ def report(
         ),
     ] = False,
     min_success_rate: Annotated[
-        float | None, typer.Option(help="Gate: fail (exit 1) if a group's success rate is lower.")
+        float | None,
+        typer.Option(
+            help="Gate: fail (exit 1) if a group's success rate is lower.", metavar="<rate>"
+        ),
     ] = None,
     max_failure_rate: Annotated[
         list[str] | None,
@@ -54,13 +59,15 @@ def report(
         ),
     ] = None,
     max_truncation_rate: Annotated[
-        float | None, typer.Option(help="Gate: fail if a group's truncation rate is higher.")
+        float | None,
+        typer.Option(help="Gate: fail if a group's truncation rate is higher.", metavar="<rate>"),
     ] = None,
     max_error_rate: Annotated[
         float | None,
         typer.Option(
             help="Gate: fail if a group's error rate (episodes whose env raised, of all its "
-            "episodes; the other rates leave them out) is higher."
+            "episodes; the other rates leave them out) is higher.",
+            metavar="<rate>",
         ),
     ] = None,
     fail_on_incentive_warning: Annotated[
