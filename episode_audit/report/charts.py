@@ -31,15 +31,20 @@ _RC: dict[Any, Any] = {
 
 
 def chart_text(value: object) -> str:
-    r"""A label as a chart shows it: control characters escaped, cut to 40 characters.
+    r"""A label as a chart shows it: control characters escaped, at most 40 characters.
 
-    >>> chart_text("a\x1b[2Jb"), chart_text("x" * 50)[-3:]
-    ('a\\x1b[2Jb', 'xx…')
+    A longer one keeps its start and its end (a file path's name):
+
+    >>> chart_text("a\x1b[2Jb"), chart_text("/runs/" + "x" * 50 + "/hacker.mcap")
+    ('a\\x1b[2Jb', '/runs/xxxxxxxxx…xxxxxxxxxxxx/hacker.mcap')
     """
     text = str(value)
     if not text.isprintable():
         text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-    return text if len(text) <= _MAX_LABEL else text[: _MAX_LABEL - 1] + "…"
+    if len(text) <= _MAX_LABEL:
+        return text
+    head = (_MAX_LABEL - 1) * 2 // 5
+    return text[:head] + "…" + text[-(_MAX_LABEL - 1 - head) :]
 
 
 def _figure(rows: int, width: float = 7.0) -> Figure:

@@ -85,8 +85,9 @@ def episode_rows(
         gone = unstarted(table)
         if gone.any():
             table = table.filter(pa.array(~gone))
-        if games:
+        if games:  # one row per game: no seed of its own
             table = game_table(table)
+            table = table.append_column("seed", pa.nulls(table.num_rows, pa.int64()))
         cols = table.select(["episode", "seed", "outcome", "failure_label", "truncation_reason"])
         for i, (episode, seed, outcome, label, reason) in enumerate(
             zip(*cols.to_pydict().values(), strict=True)

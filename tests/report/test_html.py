@@ -142,3 +142,23 @@ def test_report_command_writes_html_beside_its_table(tmp_path: Path) -> None:
     bad = CliRunner().invoke(app, ["report", str(path), "--html", str(path)])
     assert bad.exit_code == 2
     assert bad.stderr.count("\n") == 1 and "looks like an evidence file" in bad.stderr
+
+
+@pytest.mark.parametrize("games", [False, True])
+def test_html_report_of_pettingzoo_games_and_agents(tmp_path: Path, games: bool) -> None:
+    rps = pytest.importorskip("pettingzoo.classic.rps_v2")
+    from episode_audit import RecordParallelEvidence
+
+    path = tmp_path / "rps.mcap"
+    with RecordParallelEvidence(rps.parallel_env(max_cycles=3), path) as env:
+        for seed in range(2):
+            env.reset(seed=seed)
+            while env.agents:
+                env.step({a: env.action_space(a).sample() for a in env.agents})
+    result = report_inputs([path], by="all" if games else "agent", games=games)
+    out = write_report_html(result.report, result.sources, tmp_path / "r.html", games=games)
+    page = out.read_text(encoding="utf-8")
+    assert page.count("<svg") >= 2
+    rows = page[page.index("<h2>Episodes</h2>") :].count("<tr>") - 1
+    assert rows == (2 if games else 4)  # two games, or two agents' episodes in each
+    assert ("episode-audit replay" in page) is not games  # a game is no episode to replay
