@@ -125,4 +125,6 @@ def _write_html(result: InputsReport, path: Path, games: bool) -> None:
         written = write_report_html(result.report, result.sources, path, games=games)
     except EpisodeAuditError as exc:
         fail(str(exc))
+    except OSError as exc:  # no such directory, permission denied
+        fail(f"--html: cannot write {path}: {exc.strerror or exc}")
     note(f"HTML report written to {written}")

@@ -307,8 +307,12 @@ def write_report_html(
         )
     page = report_html(result, episode_rows(sources, result.by, games))
     partial = out.with_name(out.name + ".partial")
-    partial.write_text(page, encoding="utf-8")
-    os.replace(partial, out)  # a reader never sees half a page
+    try:
+        partial.write_text(page, encoding="utf-8")
+        os.replace(partial, out)  # a reader never sees half a page
+    except OSError:
+        partial.unlink(missing_ok=True)
+        raise
     return out
 
 

@@ -142,6 +142,14 @@ def test_report_command_writes_html_beside_its_table(tmp_path: Path) -> None:
     bad = CliRunner().invoke(app, ["report", str(path), "--html", str(path)])
     assert bad.exit_code == 2
     assert bad.stderr.count("\n") == 1 and "looks like an evidence file" in bad.stderr
+    nowhere = tmp_path / "no" / "r.html"
+    missing = CliRunner().invoke(app, ["report", str(path), "--html", str(nowhere)])
+    assert missing.exit_code == 2, missing.output
+    assert (
+        missing.stderr
+        == f"episode-audit: error: --html: cannot write {nowhere}: No such file or directory\n"
+    )
+    assert not nowhere.parent.exists()
 
 
 @pytest.mark.parametrize("games", [False, True])
