@@ -47,7 +47,7 @@ def chart_text(value: object) -> str:
     return text[:head] + "…" + text[-(_MAX_LABEL - 1 - head) :]
 
 
-def _figure(rows: int, width: float = 7.0) -> Figure:
+def _figure(rows: int, width: float = 9.0) -> Figure:
     try:
         from matplotlib.figure import Figure
     except ImportError:
@@ -107,7 +107,7 @@ def rate_chart(
         ax.invert_yaxis()
         ax.set_xlim(0, 1)
         ax.set_xlabel("rate of ended episodes (bars), 95% Wilson interval (whiskers)")
-        ax.legend(loc="lower right", fontsize=8)
+        fig.legend(loc="outside right upper", fontsize=8)
         return fig
 
     return _svg(_with_rc(draw))
@@ -153,7 +153,7 @@ def term_chart(term_means: Mapping[str, Mapping[str, Mapping[str, float]]]) -> s
         ax.axvline(0, color="black", linewidth=0.8)
         ax.set_xlabel("mean total per episode")
         handles, labels = ax.get_legend_handles_labels()
-        ax.legend(handles, [chart_text(t) for t in labels], loc="best", fontsize=8)
+        fig.legend(handles, [chart_text(t) for t in labels], loc="outside right upper", fontsize=8)
         return fig
 
     return _svg(_with_rc(draw))

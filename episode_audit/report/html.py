@@ -35,8 +35,9 @@ _CSP = "default-src 'none'; style-src 'unsafe-inline'; img-src data:"
 _STYLE = """
 body{font:14px/1.4 system-ui,sans-serif;margin:1.5em auto;max-width:75em;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:.5em 0 1.5em}td,th{padding:.2em .6em;text-align:left;
-border-bottom:1px solid #ddd;vertical-align:top}th{background:#f4f4f4}td.n{text-align:right}
-.warn{background:#fff3cd}.warn-note{color:#8a4b00;font-size:.9em}code{font-size:.85em;
+border-bottom:1px solid #ddd;vertical-align:top}th{background:#f4f4f4}
+td.n{text-align:right;white-space:nowrap}.warn{background:#fff3cd}
+.warn-note{color:#8a4b00;font-size:.9em;white-space:normal;max-width:28em}code{font-size:.85em;
 white-space:nowrap}figure{margin:.5em 0 1.5em}figure svg{max-width:100%;height:auto}
 .failure{color:#c62828}.success{color:#2e7d32}.truncated{color:#9a6b00}
 """
