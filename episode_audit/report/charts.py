@@ -64,7 +64,10 @@ def _svg(fig: Figure) -> str:
 
     buf = io.StringIO()
     with matplotlib.rc_context(_RC):
-        fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": None})
+        # no <metadata> block: no date (the same report, the same page), no RDF namespaces
+        fig.savefig(
+            buf, format="svg", metadata=dict.fromkeys(("Date", "Creator", "Format", "Type"))
+        )
     text = buf.getvalue()
     return text[text.index("<svg") :]
 

@@ -109,13 +109,8 @@ def episode_rows(
     return out
 
 
-def _e(value: object) -> str:
-    """A value from a file as HTML text (control characters escaped, markup escaped)."""
-    return html.escape(charts.chart_text(value) if value is not None else "-", quote=True)
-
-
 def _full(value: object) -> str:
-    """As :func:`_e`, not cut (tables show the whole value)."""
+    """A value from a file as HTML text: control characters as escapes, markup escaped."""
     text = str(value)
     if not text.isprintable():
         text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)

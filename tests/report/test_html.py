@@ -170,3 +170,11 @@ def test_html_report_of_pettingzoo_games_and_agents(tmp_path: Path, games: bool)
     rows = page[page.index("<h2>Episodes</h2>") :].count("<tr>") - 1
     assert rows == (2 if games else 4)  # two games, or two agents' episodes in each
     assert ("episode-audit replay" in page) is not games  # a game is no episode to replay
+
+
+def test_html_report_is_the_same_page_for_the_same_report(tmp_path: Path) -> None:
+    _, page = _page(tmp_path)
+    result = report_inputs([tmp_path / "run one.mcap"], by="tag:policy")
+    again = write_report_html(result.report, result.sources, tmp_path / "again.html")
+    assert again.read_text(encoding="utf-8") == page  # no date, stable ids
+    assert "<metadata" not in page and "purl.org" not in page
