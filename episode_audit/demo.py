@@ -10,6 +10,7 @@ Run it with ``python -m episode_audit.demo [OUT_DIR]``.
 
 from __future__ import annotations
 
+import shlex
 import shutil
 import sys
 import time
@@ -25,7 +26,7 @@ EPISODES = 10
 
 def run(*args: str) -> int:
     """Run one ``episode-audit`` command in-process, echoing it; return its exit code."""
-    print(f"\n$ episode-audit {' '.join(args)}", flush=True)
+    print(f"\n$ episode-audit {shlex.join(args)}", flush=True)
     try:
         code = app(list(args), prog_name="episode-audit", standalone_mode=False)
     except SystemExit as exc:  # usage errors still exit the standard way
@@ -56,7 +57,10 @@ def main(argv: list[str] | None = None) -> int:
         problems.append("check found errors")
     if run("replay", str(out)) != 0:
         problems.append("replay diverged")
-    run("report", str(out), "--by", "tag:policy")
+    html = out / "report.html"
+    run("report", str(out), "--by", "tag:policy", "--html", str(html))
+    # The Foxglove export goes here (issue 27, part A): one `export --to foxglove` run whose
+    # output path joins the list printed at the end.
     print("\nThe same report as a CI gate: it must fail (exit 1) because of the hacker run.")
     gate = run(
         "report", str(out), "--by", "tag:policy", "--min-success-rate", "0.7",
@@ -70,6 +74,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\ndemo: {len(problems)} problem(s): " + "; ".join(problems), file=sys.stderr)
         return 1
     print(f"\ndemo finished in {elapsed:.1f} s; evidence files are in {out}/")
+    print(f"HTML report: {html} (open it in a browser; it needs no network)")
+    print(
+        "Run the commands above yourself with .venv/bin/episode-audit "
+        "(or `source .venv/bin/activate` first)."
+    )
     return 0
 
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from typer.core import TyperArgument, TyperGroup
 
 from .._version import __version__
 from ..errors import ConfigurationError, EpisodeAuditError
@@ -25,7 +26,23 @@ from .render import OutputFormat, safe
 if TYPE_CHECKING:
     from ..read import Evidence
 
+
+class _Group(TyperGroup):
+    """The command group; an argument with a metavar shows just that in ``--help``.
+
+    (Typer adds the Python type to an argument's name: ``paths <list[Path]>``.)
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        for command in self.commands.values():
+            for param in command.params:
+                if isinstance(param, TyperArgument) and param.metavar:
+                    param.display_type_rich = lambda ctx: None  # type: ignore[method-assign]
+
+
 app = typer.Typer(
+    cls=_Group,
     name="episode-audit",
     help=(
         "Record, replay and audit reinforcement-learning episodes kept as MCAP evidence files."
@@ -147,7 +164,11 @@ FormatOption = Annotated[
 # other inputs go on (Click's own check is a three-line usage error that stops them all)
 PathsArgument = Annotated[
     list[Path],
-    typer.Argument(help="Evidence files, or directories searched for *.mcap.", readable=False),
+    typer.Argument(
+        help="Evidence files, or directories searched for *.mcap.",
+        readable=False,
+        metavar="PATHS",
+    ),
 ]
 
 

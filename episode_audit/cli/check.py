@@ -26,9 +26,16 @@ from ._app import (
 @app.command()
 def check(
     paths: PathsArgument,
-    atol: Annotated[float, typer.Option(help="Absolute tolerance of the terms-sum check.")] = 1e-6,
+    atol: Annotated[
+        float,
+        typer.Option(help="Absolute tolerance of the terms-sum check.", metavar="<tolerance>"),
+    ] = 1e-6,
     rtol: Annotated[
-        float, typer.Option(help="Relative tolerance (times |reward|) of the terms-sum check.")
+        float,
+        typer.Option(
+            help="Relative tolerance (times |reward|) of the terms-sum check.",
+            metavar="<tolerance>",
+        ),
     ] = 1e-6,
     require_terms: Annotated[
         bool, typer.Option("--require-terms", help="Steps without reward terms are errors.")

@@ -27,7 +27,9 @@ from .render import safe
 @app.command()
 def export(
     paths: PathsArgument,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Directory for the Parquet files.")],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Directory for the Parquet files.", metavar="<dir>")
+    ],
     overwrite: Annotated[
         bool,
         typer.Option(

@@ -15,25 +15,33 @@ from .render import safe
 
 @app.command()
 def record(
-    env_id: Annotated[str, typer.Argument(help="A registered Gymnasium id, e.g. CartPole-v1.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="The evidence file to write.")],
+    env_id: Annotated[
+        str, typer.Argument(help="A registered Gymnasium id, e.g. CartPole-v1.", metavar="ENV_ID")
+    ],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="The evidence file to write.", metavar="<file.mcap>")
+    ],
     policy: Annotated[
         str,
         typer.Option(
             help="random, scripted or hacker (reference tasks), or MODULE:CALLABLE taking "
-            "(env, seed) and returning obs -> action."
+            "(env, seed) and returning obs -> action.",
+            metavar="<policy>",
         ),
     ] = "random",
-    episodes: Annotated[int, typer.Option(help="Number of episodes.", min=1)] = 10,
-    seed: Annotated[int, typer.Option(help="Seed of the first episode (then seed+1, ...).")] = 0,
+    episodes: Annotated[int, typer.Option(help="Number of episodes.", min=1, metavar="<n>")] = 10,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the first episode (then seed+1, ...).", metavar="<seed>")
+    ] = 0,
     env_kwargs: Annotated[
         str | None,
         typer.Option(
-            help="Keyword arguments for gym.make as JSON, e.g. '{\"proxy_reward\": true}'."
+            help="Keyword arguments for gym.make as JSON, e.g. '{\"proxy_reward\": true}'.",
+            metavar="<json>",
         ),
     ] = None,
     max_episode_steps: Annotated[
-        int | None, typer.Option(help="Override the registered time limit.")
+        int | None, typer.Option(help="Override the registered time limit.", metavar="<steps>")
     ] = None,
     tag: Annotated[
         list[str] | None,

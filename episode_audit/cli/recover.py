@@ -19,9 +19,12 @@ def recover(
         typer.Argument(
             help="A torn evidence file (left by a killed recorder) or a damaged one.",
             readable=False,
+            metavar="FILE",
         ),
     ],
-    out: Annotated[Path, typer.Option("--out", "-o", help="The finished file to write.")],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="The finished file to write.", metavar="<file.mcap>")
+    ],
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Replace an existing output file (never the input).")
     ] = False,

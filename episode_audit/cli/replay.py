@@ -29,15 +29,21 @@ def replay(
     episode: Annotated[
         list[int] | None,
         typer.Option(
-            "--episode", "-e", help="Replay only this episode (repeatable).", metavar="<int>"
+            "--episode", "-e", help="Replay only this episode (repeatable).", metavar="<index>"
         ),
     ] = None,
     atol: Annotated[
-        float, typer.Option(help="Tolerance for numeric comparisons (0: exact, the default).")
+        float,
+        typer.Option(
+            help="Tolerance for numeric comparisons (0: exact, the default).", metavar="<tolerance>"
+        ),
     ] = 0.0,
     env_factory: Annotated[
         str | None,
-        typer.Option(help="MODULE:CALLABLE that returns the environment to replay in."),
+        typer.Option(
+            help="MODULE:CALLABLE that returns the environment to replay in.",
+            metavar="<module:callable>",
+        ),
     ] = None,
     import_: Annotated[
         list[str] | None,

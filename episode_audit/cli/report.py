@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -17,8 +18,12 @@ from ._app import (
     app,
     emit,
     fail,
+    note,
     warn,
 )
+
+if TYPE_CHECKING:
+    from ..report.inputs import InputsReport
 
 
 @app.command()
@@ -27,7 +32,9 @@ def report(
     by: Annotated[
         str,
         typer.Option(
-            help="Group by: file, env, env_index, agent, label, all, or tag:NAME (e.g. tag:policy)."
+            help="Group by: file, env, env_index, agent, label, all, or tag:NAME "
+            "(e.g. tag:policy).",
+            metavar="<grouping>",
         ),
     ] = "file",
     games: Annotated[
@@ -39,7 +46,10 @@ def report(
         ),
     ] = False,
     min_success_rate: Annotated[
-        float | None, typer.Option(help="Gate: fail (exit 1) if a group's success rate is lower.")
+        float | None,
+        typer.Option(
+            help="Gate: fail (exit 1) if a group's success rate is lower.", metavar="<rate>"
+        ),
     ] = None,
     max_failure_rate: Annotated[
         list[str] | None,
@@ -49,13 +59,15 @@ def report(
         ),
     ] = None,
     max_truncation_rate: Annotated[
-        float | None, typer.Option(help="Gate: fail if a group's truncation rate is higher.")
+        float | None,
+        typer.Option(help="Gate: fail if a group's truncation rate is higher.", metavar="<rate>"),
     ] = None,
     max_error_rate: Annotated[
         float | None,
         typer.Option(
             help="Gate: fail if a group's error rate (episodes whose env raised, of all its "
-            "episodes; the other rates leave them out) is higher."
+            "episodes; the other rates leave them out) is higher.",
+            metavar="<rate>",
         ),
     ] = None,
     fail_on_incentive_warning: Annotated[
@@ -63,6 +75,15 @@ def report(
         typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
     ] = False,
     output: FormatOption = "table",
+    html: Annotated[
+        Path | None,
+        typer.Option(
+            "--html",
+            help="Also write the report as one self-contained HTML page (charts, episodes "
+            "with their replay commands) to this file.",
+            metavar="<file.html>",
+        ),
+    ] = None,
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
     from ..report.inputs import report_inputs
@@ -86,9 +107,24 @@ def report(
     if not result.readable and fmt != "json":  # (JSON is still one document: its unreadable list)
         raise typer.Exit(EXIT_USAGE)
     emit(report_output(result.report, fmt, unreadable=result.unreadable))
+    if html is not None:
+        _write_html(result, html, games)
     for line in result.report.notes:
         warn(line)
     if result.unreadable:
         raise typer.Exit(EXIT_USAGE)
     if not result.report.passed:
         raise typer.Exit(EXIT_FINDINGS)
+
+
+def _write_html(result: InputsReport, path: Path, games: bool) -> None:
+    """Write the HTML report and say where on stderr (stdout keeps its format)."""
+    from ..report.html import write_report_html
+
+    try:
+        written = write_report_html(result.report, result.sources, path, games=games)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    except OSError as exc:  # no such directory, permission denied
+        fail(f"--html: cannot write {path}: {exc.strerror or exc}")
+    note(f"HTML report written to {written}")

@@ -41,12 +41,14 @@ def _steps(
 
 @app.command()
 def show(
-    path: Annotated[Path, typer.Argument(help="An evidence file.", readable=False)],
+    path: Annotated[Path, typer.Argument(help="An evidence file.", readable=False, metavar="FILE")],
     episode: Annotated[
-        int | None, typer.Option("--episode", "-e", help="Show this episode's steps.")
+        int | None,
+        typer.Option("--episode", "-e", help="Show this episode's steps.", metavar="<index>"),
     ] = None,
     steps: Annotated[
-        str | None, typer.Option(help="Slice of steps A:B (with --episode), e.g. 0:50.")
+        str | None,
+        typer.Option(help="Slice of steps A:B (with --episode), e.g. 0:50.", metavar="<A:B>"),
     ] = None,
     all_episodes: Annotated[
         bool,

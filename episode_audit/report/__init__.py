@@ -6,7 +6,8 @@
 - :mod:`.groups`: one group's counts, rates and statistics (:class:`GroupReport`);
 - :mod:`.incentives`: :class:`IncentiveWarning` and the rules that raise them;
 - :mod:`.gates`: :class:`Gates` and :class:`GateResult`;
-- :mod:`.stats`: :func:`wilson_interval` and :class:`Interval`; :mod:`.games`: PettingZoo games.
+- :mod:`.stats`: :func:`wilson_interval` and :class:`Interval`; :mod:`.games`: PettingZoo games;
+- :mod:`.html`: :func:`write_report_html`, the self-contained HTML page (charts: :mod:`.charts`).
 
 Rates, denominators, warnings and the JSON shape: ``docs/reporting.md``.
 """
@@ -14,6 +15,7 @@ Rates, denominators, warnings and the JSON shape: ``docs/reporting.md``.
 from .core import Report, report, report_tables
 from .gates import GateResult, Gates
 from .groups import GroupReport
+from .html import write_report_html
 from .incentives import IncentiveWarning
 from .inputs import InputsReport, report_inputs
 from .stats import Interval, wilson_interval
@@ -30,4 +32,5 @@ __all__ = [
     "report_inputs",
     "report_tables",
     "wilson_interval",
+    "write_report_html",
 ]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import ConfigurationError, EpisodeAuditError
@@ -31,6 +31,8 @@ class InputsReport:
     unreadable: list[Unreadable]
     readable: int
     """How many inputs were read (the report is of those)."""
+    sources: list[tuple[str, Evidence]] = field(default_factory=list)
+    """The readable inputs as ``(name, evidence)``, opened (for the HTML report's episodes)."""
 
 
 def report_inputs(
@@ -74,7 +76,7 @@ def report_inputs(
             _check_games_fit(path, ev)
     sources = [(str(path), ev) for path, ev in readable]
     result = report_tables(sources, by=by, gates=gates, games=games)
-    return InputsReport(result, unreadable, len(readable))
+    return InputsReport(result, unreadable, len(readable), sources)
 
 
 def gates_from_options(

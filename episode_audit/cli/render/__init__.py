@@ -3,6 +3,7 @@
 from .check import check_output
 from .common import (
     WORD_JOINER,
+    FittedTable,
     Output,
     OutputFormat,
     fmt_number,
@@ -20,6 +21,7 @@ from .report import REPORT_HEADERS, report_output
 __all__ = [
     "REPORT_HEADERS",
     "WORD_JOINER",
+    "FittedTable",
     "Output",
     "OutputFormat",
     "check_output",

@@ -27,7 +27,8 @@ from typing import Any, Literal
 
 import numpy as np
 from rich import box
-from rich.console import RenderableType
+from rich.console import Console, ConsoleOptions, RenderableType, RenderResult
+from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
@@ -35,6 +36,7 @@ from ...read.inputs import Unreadable
 
 __all__ = [
     "WORD_JOINER",
+    "FittedTable",
     "Output",
     "OutputFormat",
     "fmt_number",
@@ -110,19 +112,82 @@ def rate(value: float | None) -> str:
     return "-" if value is None else f"{value:.1%}"
 
 
-def table(title: str | None, headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> Table:
-    """A Rich table of plain text: title, headers and cells are never parsed as markup."""
-    out = Table(
-        title=None if title is None else Text(safe(title), style="table.title"),
-        box=box.SIMPLE_HEAD,
-        title_justify="left",
-        pad_edge=False,
-    )
-    for header in headers:
-        out.add_column(Text(safe(header), style="table.header"), overflow="fold")
-    for row in rows:
-        out.add_row(*(Text(safe(cell)) for cell in row))
-    return out
+def table(title: str | None, headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> FittedTable:
+    """A Rich table of plain text: title, headers and cells are never parsed as markup.
+
+    It fits the console (:class:`FittedTable`): no header or cell word is broken.
+    """
+    return FittedTable(title, headers, [[safe(cell) for cell in row] for row in rows])
+
+
+class FittedTable:
+    """A table that fits its console's width without breaking a word.
+
+    Side by side when every column can keep its longest word (header included): columns wider
+    than that are narrowed first, wrapping at spaces. Else one line per (row, column): the row's
+    first cell, the column's header and the value (the vertical layout).
+    """
+
+    def __init__(
+        self, title: str | None, headers: Sequence[str], rows: Sequence[Sequence[str]]
+    ) -> None:
+        self.title, self.rows = title, [list(r) for r in rows]
+        self.headers = [safe(h) for h in headers]
+
+    def _table(self, headers: Sequence[str], rows: Sequence[Sequence[str]]) -> Table:
+        out = Table(
+            title=None if self.title is None else Text(safe(self.title), style="table.title"),
+            box=box.SIMPLE_HEAD,
+            title_justify="left",
+            pad_edge=False,
+            collapse_padding=True,  # two spaces between columns, not three
+        )
+        for header in headers:
+            out.add_column(Text(header, style="table.header"), overflow="fold")
+        for row in rows:
+            out.add_row(*(Text(cell) for cell in row))  # cells and headers: already safe
+        return out
+
+    def _vertical(self) -> Table:
+        rows = [
+            [row[0] if i == 0 else "", header, cell]
+            for row in self.rows
+            for i, (header, cell) in enumerate(zip(self.headers[1:], row[1:], strict=True))
+        ]
+        return self._table([self.headers[0], "", "value"], rows)
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        wide = self._table(self.headers, self.rows)
+        if _fit(wide, console, options) or len(self.headers) < 3:
+            yield wide
+            return
+        vertical = self._vertical()
+        _fit(vertical, console, options)
+        yield vertical
+
+    def __rich_measure__(self, console: Console, options: ConsoleOptions) -> Measurement:
+        return Measurement.get(console, options, self._table(self.headers, self.rows))
+
+
+def _fit(table: Table, console: Console, options: ConsoleOptions) -> bool:
+    """Give ``table``'s columns widths that keep every word whole; whether it could."""
+    free = options.update_width(1 << 20)  # natural widths
+    cells = [[col.header, *col.cells] for col in table.columns]
+    sizes = [[Measurement.get(console, free, c) for c in col] for col in cells]
+    low = [max(m.minimum for m in col) for col in sizes]
+    high = [max(m.maximum for m in col) for col in sizes]
+    padding = Measurement.get(console, free, table).maximum - sum(high)
+    room = options.max_width - padding
+    if sum(high) <= room:
+        return True
+    if sum(low) > room:
+        return False
+    spare, want = room - sum(low), [h - lo for h, lo in zip(high, low, strict=True)]
+    widths = [lo + spare * w // sum(want) for lo, w in zip(low, want, strict=True)]
+    widths[want.index(max(want))] += room - sum(widths)
+    for column, width in zip(table.columns, widths, strict=True):
+        column.width = width
+    return True
 
 
 _MARKDOWN_ESCAPES = str.maketrans({c: "\\" + c for c in "\\|`<>&*~"})

@@ -114,9 +114,25 @@ def report_output(
                 markdown_table(unfinished_headers, unfinished) + "\n",
             ]
         return "\n".join(parts)
+    # The terminal keeps labels and reasons in a table of their own: the outcomes fit 100
+    # columns side by side (80 in the vertical layout), each label on its own line
+    narrow = [i for i, h in enumerate(REPORT_HEADERS) if h not in _LABEL_HEADERS]
     out: list[RenderableType] = [
-        table(f"Outcomes (by {result.by}{_unit(result)})", REPORT_HEADERS, rows)
+        table(
+            f"Outcomes (by {result.by}{_unit(result)})",
+            [REPORT_HEADERS[i] for i in narrow],
+            [[row[i] for i in narrow] for row in rows],
+        )
     ]
+    endings = _ending_rows(result)
+    if endings:
+        out.append(
+            table(
+                "Failure labels and truncation reasons",
+                ["group", "outcome", "label / reason", "episodes"],
+                endings,
+            )
+        )
     if term_rows:
         out.append(table("Reward terms by outcome", term_headers, term_rows))
     if warnings:
@@ -126,6 +142,19 @@ def report_output(
     if unfinished:
         out.append(table(unfinished_title, unfinished_headers, unfinished))
     return Group(*out)
+
+
+_LABEL_HEADERS = ("failure labels", "truncation reasons")
+
+
+def _ending_rows(result: Report) -> list[list[str]]:
+    """Per group, outcome and failure label / truncation reason: the episodes."""
+    return [
+        [g.key, outcome, label, str(n)]
+        for g in result.groups
+        for outcome, counted in (("failure", g.failures), ("truncated", g.truncations))
+        for label, n in sorted(counted.items())
+    ]
 
 
 def _unit(result: Report) -> str:

@@ -1,0 +1,319 @@
+"""The report as one self-contained HTML file: tables, inline SVG charts, no script, offline.
+
+:func:`report_html` returns the page, :func:`write_report_html` writes it. Every value from an
+evidence file is HTML-escaped (``docs/security.md``); the page's Content-Security-Policy
+forbids any script and any load from outside the file. Each episode row carries the exact
+``episode-audit replay`` / ``show`` command, shell-quoted (:func:`episode_commands`).
+"""
+
+from __future__ import annotations
+
+import html
+import os
+import shlex
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyarrow as pa
+
+from ..errors import ConfigurationError
+from ..format import names as fmt
+from ..format.records import unstarted
+from ..read import Evidence
+from . import charts
+from .collect import ENDED, collect
+from .core import Report
+from .games import game_table
+from .groups import GroupReport
+from .incentives import SHAPING_DOMINATES
+from .stats import Interval
+
+__all__ = ["EpisodeRow", "episode_commands", "episode_rows", "report_html", "write_report_html"]
+
+_CSP = "default-src 'none'; style-src 'unsafe-inline'; img-src data:"
+_STYLE = """
+body{font:14px/1.4 system-ui,sans-serif;margin:1.5em auto;max-width:75em;padding:0 1em;color:#222}
+table{border-collapse:collapse;margin:.5em 0 1.5em}td,th{padding:.2em .6em;text-align:left;
+border-bottom:1px solid #ddd;vertical-align:top}th{background:#f4f4f4}
+td.n{text-align:right;white-space:nowrap}.warn{background:#fff3cd}
+.warn-note{color:#8a4b00;font-size:.9em;white-space:normal;max-width:28em}code{font-size:.85em;
+white-space:nowrap}figure{margin:.5em 0 1.5em}figure svg{max-width:100%;height:auto}
+.failure{color:#c62828}.success{color:#2e7d32}.truncated{color:#9a6b00}
+"""
+
+
+@dataclass(frozen=True)
+class EpisodeRow:
+    """One episode (or PettingZoo game) of the report, with its group key."""
+
+    file: str
+    episode: int
+    seed: int | None
+    group: str
+    outcome: str
+    label: str | None
+    """The failure label or the truncation reason."""
+    ret: float | None
+    length: int
+    game: bool = False
+    """A PettingZoo game (its index is a game's, not an episode's: no replay command)."""
+
+
+def episode_commands(row: EpisodeRow) -> list[str]:
+    """The ``replay`` and ``show`` commands of ``row``, ready to paste into a POSIX shell.
+
+    >>> row = EpisodeRow("runs/a b.mcap", 3, 7, "x", "failure", "fell", -1.0, 20)
+    >>> for command in episode_commands(row):
+    ...     print(command)
+    episode-audit replay 'runs/a b.mcap' --episode 3
+    episode-audit show 'runs/a b.mcap' --episode 3
+    """
+    if row.game:
+        return []
+    where = f"{shlex.quote(row.file)} --episode {row.episode}"
+    return [f"episode-audit replay {where}", f"episode-audit show {where}"]
+
+
+def episode_rows(
+    sources: Iterable[tuple[str, Evidence]], by: str, games: bool = False
+) -> list[EpisodeRow]:
+    """The episodes a report of ``sources`` counts (unstarted ones left out), with group keys."""
+    out: list[EpisodeRow] = []
+    for name, ev in sources:
+        keyed, _ = collect([(name, ev)], by, games)
+        table = ev.episodes()
+        gone = unstarted(table)
+        if gone.any():
+            table = table.filter(pa.array(~gone))
+        if games:  # one row per game: no seed of its own
+            table = game_table(table)
+            table = table.append_column("seed", pa.nulls(table.num_rows, pa.int64()))
+        cols = table.select(["episode", "seed", "outcome", "failure_label", "truncation_reason"])
+        for i, (episode, seed, outcome, label, reason) in enumerate(
+            zip(*cols.to_pydict().values(), strict=True)
+        ):
+            out.append(
+                EpisodeRow(
+                    name,
+                    int(episode),
+                    seed,
+                    keyed["key"][i].as_py(),
+                    outcome,
+                    label if outcome == fmt.OUTCOME_FAILURE else reason,
+                    keyed["return"][i].as_py(),
+                    int(keyed["length"][i].as_py()),
+                    games,
+                )
+            )
+    return out
+
+
+def _full(value: object) -> str:
+    """A value from a file as HTML text: control characters as escapes, markup escaped."""
+    text = str(value)
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return html.escape(text, quote=True)
+
+
+def _num(value: float | None) -> str:
+    return "-" if value is None else f"{value:.4g}"
+
+
+def _rate(value: float | None, ci: Interval | None) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.1%}" + ("" if ci is None else f" [{ci.low:.2f}, {ci.high:.2f}]")
+
+
+def _warning_notes(group: GroupReport, shaping: bool) -> str:
+    notes = [w for w in group.warnings if (w.code == SHAPING_DOMINATES) == shaping]
+    return "".join(
+        f'<div class="warn-note">⚠ {_full(w.code)}: {_full(w.message)}</div>' for w in notes
+    )
+
+
+def _outcome_table(result: Report) -> str:
+    head = (
+        "<tr><th>group</th><th>episodes</th><th>success (95% CI)</th><th>failure (95% CI)</th>"
+        "<th>truncated (95% CI)</th><th>incomplete</th><th>error</th><th>return (mean ± std)"
+        "</th><th>length (mean ± std)</th></tr>"
+    )
+    rows = []
+    for g in result.groups:
+        warned = _warning_notes(g, shaping=False)
+        rows.append(
+            f"<tr><td>{_full(g.key)}</td><td class=n>{g.episodes}</td>"
+            f"<td class=n>{g.success} ({_rate(g.success_rate, g.success_ci)})</td>"
+            f"<td class=n>{g.failure} ({_rate(g.failure_rate, g.failure_ci)})</td>"
+            f"<td class=n>{g.truncated} ({_rate(g.truncation_rate, g.truncation_ci)})</td>"
+            f"<td class=n>{g.incomplete}</td><td class=n>{g.errors}</td>"
+            f'<td class="n{" warn" if warned else ""}">{_num(g.return_mean)} ± '
+            f"{_num(g.return_std)}{warned}</td>"
+            f"<td class=n>{_num(g.length_mean)} ± {_num(g.length_std)}</td></tr>"
+        )
+    return f"<table>{head}{''.join(rows)}</table>"
+
+
+def _endings_table(result: Report) -> str:
+    rows = [
+        f"<tr><td>{_full(g.key)}</td><td>{kind}</td><td>{_full(label)}</td>"
+        f"<td class=n>{n}</td></tr>"
+        for g in result.groups
+        for kind, counted in (("failure", g.failures), ("truncated", g.truncations))
+        for label, n in sorted(counted.items())
+    ]
+    if not rows:
+        return "<p>No failure or truncation.</p>"
+    head = "<tr><th>group</th><th>outcome</th><th>label / reason</th><th>episodes</th></tr>"
+    return f"<table>{head}{''.join(rows)}</table>"
+
+
+def _terms_section(result: Report) -> str:
+    means = {g.key: g.term_means for g in result.groups if g.term_means}
+    if not means:
+        return "<p>No reward terms recorded.</p>"
+    notes = "".join(
+        f"<p><b>{_full(g.key)}</b>{_warning_notes(g, shaping=True)}</p>"
+        for g in result.groups
+        if any(w.code == SHAPING_DOMINATES for w in g.warnings)
+    )
+    rows = "".join(
+        f"<tr><td>{_full(g)}</td><td>{_full(o)}</td><td>{_full(t)}</td><td class=n>{_num(v)}</td>"
+        "</tr>"
+        for g, by_outcome in means.items()
+        for o, terms in by_outcome.items()
+        for t, v in terms.items()
+    )
+    head = "<tr><th>group</th><th>outcome</th><th>term</th><th>mean total per episode</th></tr>"
+    return (
+        f'<figure class="chart">{charts.term_chart(means)}</figure>{notes}'
+        f"<table>{head}{rows}</table>"
+    )
+
+
+def _episode_table(rows: Sequence[EpisodeRow]) -> str:
+    head = (
+        "<tr><th>file</th><th>episode</th><th>seed</th><th>group</th><th>outcome</th>"
+        "<th>label / reason</th><th>return</th><th>length</th><th>commands</th></tr>"
+    )
+    body = "".join(
+        f"<tr><td>{_full(r.file)}</td><td class=n>{r.episode}</td><td class=n>"
+        f"{_full(r.seed) if r.seed is not None else '-'}</td><td>{_full(r.group)}</td>"
+        f'<td class="{_full(r.outcome)}">{_full(r.outcome)}</td>'
+        f"<td>{_full(r.label) if r.label is not None else ''}</td><td class=n>{_num(r.ret)}</td>"
+        f"<td class=n>{r.length}</td><td>"
+        + "<br>".join(f"<code>{_full(c)}</code>" for c in episode_commands(r))
+        + "</td></tr>"
+        for r in rows
+    )
+    return f"<table>{head}{body}</table>"
+
+
+def _charts(result: Report, rows: Sequence[EpisodeRow]) -> tuple[str, str, str]:
+    """The rate chart, the endings chart and the return / length distributions."""
+    keys = [g.key for g in result.groups]
+
+    def triple(rate: float | None, ci: Interval | None) -> tuple[float, float, float] | None:
+        return None if rate is None or ci is None else (rate, ci.low, ci.high)
+
+    rates = {
+        fmt.OUTCOME_SUCCESS: [triple(g.success_rate, g.success_ci) for g in result.groups],
+        fmt.OUTCOME_FAILURE: [triple(g.failure_rate, g.failure_ci) for g in result.groups],
+        fmt.OUTCOME_TRUNCATED: [triple(g.truncation_rate, g.truncation_ci) for g in result.groups],
+    }
+    endings = {
+        f"{g.key}": {**{f"failure: {k}": v for k, v in g.failures.items()},
+                     **{f"truncated: {k}": v for k, v in g.truncations.items()}}
+        for g in result.groups
+    }  # fmt: skip
+    returns: dict[tuple[str, str], list[float]] = {}
+    lengths: dict[tuple[str, str], list[float]] = {}
+    for r in rows:
+        if r.outcome in ENDED:
+            if r.ret is not None:
+                returns.setdefault((r.group, r.outcome), []).append(r.ret)
+            lengths.setdefault((r.group, r.outcome), []).append(r.length)
+    rate_svg = charts.rate_chart(keys, rates) if keys else ""
+    end_svg = (
+        charts.count_chart(endings, "failures and truncations") if any(endings.values()) else ""
+    )
+    dist = "".join(
+        f'<figure class="chart">{charts.distribution_chart(v, what)}</figure>'
+        for v, what in ((returns, "return"), (lengths, "length (steps)"))
+        if v
+    )
+    return rate_svg, end_svg, dist
+
+
+def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") -> str:
+    """The report as one HTML page: charts inline (SVG), no script, nothing loaded from outside.
+
+    ``rows`` are the report's episodes (:func:`episode_rows`), listed with their commands.
+    """
+    rate_svg, end_svg, dist = _charts(result, rows)
+    unit = "games" if result.unit == "game" else "episodes"
+    heading = f"episode-audit report (by {_full(result.by)}, {unit})"
+    gates = "".join(
+        f"<tr><td>{_full(g.gate)}</td><td>{_full(g.group)}</td>"
+        f"<td>{'pass' if g.passed else '<b>FAIL</b>'}</td><td>{_full(g.message)}</td></tr>"
+        for g in result.gates
+    )
+    parts = [
+        "<!doctype html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">',
+        f"<title>{_full(title or heading)}</title><style>{_STYLE}</style></head><body>",
+        f"<h1>{heading}</h1>",
+        "<h2>Outcomes</h2>",
+        f'<figure class="chart">{rate_svg}</figure>' if rate_svg else "",
+        _outcome_table(result),
+        "<h2>Failure labels and truncation reasons</h2>",
+        f'<figure class="chart">{end_svg}</figure>' if end_svg else "",
+        _endings_table(result),
+        "<h2>Reward terms by outcome</h2>",
+        _terms_section(result),
+        "<h2>Return and length by outcome</h2>",
+        dist or "<p>No episode ended.</p>",
+    ]
+    if gates:
+        parts += ["<h2>Gates</h2><table><tr><th>gate</th><th>group</th><th>result</th>"
+                  f"<th>detail</th></tr>{gates}</table>"]  # fmt: skip
+    parts += ["<h2>Episodes</h2>", _episode_table(rows), "</body></html>"]
+    return "\n".join(p for p in parts if p)
+
+
+def write_report_html(
+    result: Report,
+    sources: Sequence[tuple[str, Evidence]],
+    path: str | os.PathLike[str],
+    *,
+    games: bool = False,
+) -> Path:
+    """Write the HTML report of ``result`` (made of ``sources``) to ``path``; return the path.
+
+    A path ending in ``.mcap``, or naming one of the inputs, raises
+    :class:`~episode_audit.errors.ConfigurationError` (a report never overwrites evidence).
+    """
+    out = Path(path)
+    if out.suffix.lower() == ".mcap" or any(_same(out, name) for name, _ in sources):
+        raise ConfigurationError(
+            f"--html: {out} looks like an evidence file; name the report e.g. report.html"
+        )
+    page = report_html(result, episode_rows(sources, result.by, games))
+    partial = out.with_name(out.name + ".partial")
+    try:
+        partial.write_text(page, encoding="utf-8")
+        os.replace(partial, out)  # a reader never sees half a page
+    except OSError:
+        partial.unlink(missing_ok=True)
+        raise
+    return out
+
+
+def _same(out: Path, name: str) -> bool:
+    try:
+        return out.exists() and out.samefile(name)
+    except OSError:
+        return False

@@ -1,0 +1,29 @@
+"""Every command's ``--help`` names its values in words, never by a Python type."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from typer.main import get_command
+from typer.testing import CliRunner
+
+from episode_audit.cli import app
+
+COMMANDS = sorted(get_command(app).commands)  # type: ignore[attr-defined]
+PYTHON_TYPE = re.compile(r"<(?:list|dict|tuple|str|int|float|bool|path|Path)\b[^>]*>|\brange>")
+
+
+@pytest.mark.parametrize("command", [[], *([c] for c in COMMANDS)], ids=lambda c: " ".join(c))
+def test_help_shows_no_python_type(command: list[str]) -> None:
+    result = CliRunner().invoke(app, [*command, "--help"], terminal_width=100)
+    assert result.exit_code == 0, result.output
+    assert not PYTHON_TYPE.search(result.output), PYTHON_TYPE.findall(result.output)
+    assert "Usage:" in result.output
+
+
+def test_every_option_with_a_value_has_a_metavar() -> None:
+    for name, command in get_command(app).commands.items():  # type: ignore[attr-defined]
+        for param in command.params:
+            if not getattr(param, "is_flag", False) and param.name != "help":
+                assert param.metavar, f"{name} {param.name}: no metavar"

@@ -1,0 +1,109 @@
+"""The terminal tables at 80, 100 and 120 columns: no header or label is broken mid-word."""
+
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+from rich.console import Console, Group
+
+from episode_audit import RecordEvidence
+from episode_audit.check import check
+from episode_audit.cli.render import FittedTable, check_output, replay_output, report_output, table
+from episode_audit.replay import replay
+from episode_audit.report import report_inputs
+from tests.report.test_report import Plan, _record_plans
+from tests.support.factories import heavy_cartpole
+
+WIDTHS = [80, 100, 120]
+
+
+def _render(renderable: object, width: int) -> str:
+    console = Console(file=io.StringIO(), width=width, color_system=None)
+    console.print(renderable)
+    text = console.file.getvalue()  # type: ignore[attr-defined]
+    assert max(map(len, text.splitlines())) <= width
+    return str(text)
+
+
+def _tables(renderable: object) -> list[FittedTable]:
+    if isinstance(renderable, FittedTable):
+        return [renderable]
+    if isinstance(renderable, Group):
+        return [t for r in renderable.renderables for t in _tables(r)]
+    return []
+
+
+def _assert_words_whole(renderable: object, width: int) -> str:
+    """Every word of every header and cell appears whole on one line of the output."""
+    text = _render(renderable, width)
+    tokens = set(text.split())
+    tables = _tables(renderable)
+    assert tables
+    for t in tables:
+        words = {w for cell in [*t.headers, *(c for r in t.rows for c in r)] for w in cell.split()}
+        broken = sorted(w for w in words if len(w) <= width // 2 and w not in tokens)
+        assert not broken, f"split across lines at width {width}: {broken}\n{text}"
+    return text
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("runs")
+    for policy, plans in {
+        "scripted": [Plan("success"), Plan("truncated:time_limit"), Plan("success")],
+        "hacker": [
+            Plan("failure:door_slammed"),
+            Plan("failure:drawer_yanked", reward=3.0),
+            Plan("failure:dropped_object", terms={"progress_velocity": 2.0, "ctrl_cost": -1.0}),
+        ],
+    }.items():
+        _record_plans(root / f"{policy}.mcap", plans, tags={"policy": policy})
+    return root
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+@pytest.mark.parametrize("by", ["tag:policy", "file", "label"])
+def test_report_fits_without_breaking_words(runs: Path, by: str, width: int) -> None:
+    result = report_inputs([runs], by=by).report
+    text = _assert_words_whole(report_output(result, "table"), width)
+    for header in ("success", "episodes", "truncated", "incomplete", "drawer_yanked"):
+        assert re.search(rf"(?<!\S){re.escape(header)}", text), header
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_report_of_short_groups_is_side_by_side_at_100_columns(runs: Path, width: int) -> None:
+    text = _render(report_output(report_inputs([runs], by="tag:policy").report, "table"), width)
+    header = next(line for line in text.splitlines() if "episodes" in line)
+    assert ("incomplete" in header) == (width >= 100)  # else the vertical layout
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_check_findings_fit_without_breaking_words(repo: Path, width: int) -> None:
+    result = check([repo / "fixtures" / "terms_mismatch.mcap", repo / "fixtures" / "torn.mcap"])
+    assert result.findings
+    _assert_words_whole(check_output(result, "table"), width)
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_replay_divergences_fit_without_breaking_words(tmp_path: Path, width: int) -> None:
+    path = tmp_path / "cartpole.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        for seed in range(2):
+            env.reset(seed=seed)
+            for _ in range(8):  # (CartPole falls after ~9 steps of one action)
+                env.step(seed % 2)
+    result = replay([path], env_factory=heavy_cartpole)
+    assert result.count("diverged")
+    _assert_words_whole(replay_output(result, "table"), width)
+
+
+@pytest.mark.parametrize("width", [40, 60, *WIDTHS])
+def test_a_table_too_wide_for_the_console_turns_vertical(width: int) -> None:
+    rows = [["/runs/" + "a" * 30 + ".mcap", "failure", "door_slammed", "3", "long " * 20]]
+    out = table("t", ["file", "outcome", "failure label", "episodes", "why"], rows)
+    text = _assert_words_whole(out, width)
+    assert ("failure label" in text) or ("failure" in text and "label" in text)

@@ -1,0 +1,180 @@
+from __future__ import annotations
+
+import html.parser
+import re
+from pathlib import Path
+
+import pytest
+
+from episode_audit import ConfigurationError
+from episode_audit.report import report_inputs
+from episode_audit.report.html import EpisodeRow, episode_commands, write_report_html
+from tests.report.test_report import Plan, _record_plans
+from tests.support.chromium import open_page
+
+pytest.importorskip("matplotlib")
+
+EVIL = (
+    "</svg><script>alert(1)</script><img src=http://e.invalid/x onerror=alert(2)>$x^2$ --> \x1b[2J"
+)
+"""A failure label, tag and term name that try HTML, SVG, mathtext, a comment end and ANSI."""
+
+CHECKS = """({
+  charts: [...document.querySelectorAll("figure svg")].map(
+    s => [s.getBBox().width, s.getBBox().height, s.querySelectorAll("path, text").length]),
+  scripts: document.scripts.length,
+  imgs: document.images.length,
+  remote: [...document.querySelectorAll("[src], [href]")].map(
+    e => e.getAttribute("src") || e.getAttribute("href")).filter(u => !u.startsWith("#")),
+  text: document.body.innerText,
+})"""
+
+
+class _Tags(html.parser.HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.tags: list[tuple[str, dict[str, str | None]]] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.tags.append((tag, dict(attrs)))
+
+
+def _evidence(tmp_path: Path) -> Path:
+    plans = [
+        Plan("success", terms={"progress": 1.0, EVIL: 0.5}),
+        Plan(f"failure:{EVIL}", terms={"progress": 3.0, EVIL: 0.5}),
+        Plan("truncated:time_limit", terms={"progress": 0.1, EVIL: 0.0}),
+        Plan("failure:fell", reward=2.0, terms={"progress": 2.0, EVIL: 0.0}),
+    ]
+    return _record_plans(tmp_path / "run one.mcap", plans, tags={"policy": EVIL})
+
+
+def _page(tmp_path: Path, by: str = "tag:policy") -> tuple[Path, str]:
+    path = _evidence(tmp_path)
+    result = report_inputs([path], by=by)
+    out = write_report_html(result.report, result.sources, tmp_path / "report.html")
+    return out, out.read_text(encoding="utf-8")
+
+
+def test_html_report_escapes_every_value_from_the_file(tmp_path: Path) -> None:
+    _, page = _page(tmp_path)
+    parser = _Tags()
+    parser.feed(page)
+    tags = [tag for tag, _ in parser.tags]
+    assert "script" not in tags and "img" not in tags
+    assert not any(k.startswith("on") for _, attrs in parser.tags for k in attrs)
+    assert "&lt;/svg&gt;&lt;script&gt;" in page  # shown, as text
+    assert "\x1b" not in page and "\\x1b[2J" in page
+    assert tags.count("svg") == 5  # rates, endings, terms, returns, lengths
+
+
+def test_html_report_has_no_network_reference(tmp_path: Path) -> None:
+    _, page = _page(tmp_path)
+    parser = _Tags()
+    parser.feed(page)
+    for tag, attrs in parser.tags:
+        for name in ("src", "href"):
+            assert not (attrs.get(name) or "").startswith(("http", "//")), (tag, attrs)
+    assert "default-src 'none'" in page  # the page's CSP: no load from outside, no script
+    assert "<!DOCTYPE svg" not in page
+
+
+def test_html_report_lists_each_episode_with_its_commands(tmp_path: Path) -> None:
+    _, page = _page(tmp_path)
+    path = tmp_path / "run one.mcap"
+    for episode in range(4):
+        assert f"episode-audit replay &#x27;{path}&#x27; --episode {episode}</code>" in page
+        assert f"episode-audit show &#x27;{path}&#x27; --episode {episode}</code>" in page
+
+
+def test_episode_commands_are_shell_quoted() -> None:
+    row = EpisodeRow("a b;rm -rf x.mcap", 2, None, "g", "failure", None, 1.0, 3)
+    assert episode_commands(row) == [
+        "episode-audit replay 'a b;rm -rf x.mcap' --episode 2",
+        "episode-audit show 'a b;rm -rf x.mcap' --episode 2",
+    ]
+    assert episode_commands(EpisodeRow("g.mcap", 0, 1, "g", "success", None, 1.0, 3, True)) == []
+
+
+def test_html_report_puts_each_warning_next_to_its_numbers(tmp_path: Path) -> None:
+    # fell earns more than the success: failure_outearns_success, by the return column
+    _, page = _page(tmp_path, by="all")
+    assert re.search(r'<td class="n warn">[^<]*<div class="warn-note">⚠ failure_outearns', page)
+
+
+@pytest.mark.parametrize("name", ["report.mcap", "run one.mcap"])
+def test_html_report_never_overwrites_evidence(tmp_path: Path, name: str) -> None:
+    path = _evidence(tmp_path)
+    before = path.read_bytes()
+    result = report_inputs([path])
+    with pytest.raises(ConfigurationError, match="looks like an evidence file"):
+        write_report_html(result.report, result.sources, tmp_path / name)
+    assert path.read_bytes() == before
+
+
+def test_html_report_renders_in_headless_chromium(tmp_path: Path) -> None:
+    page, _ = _page(tmp_path)
+    shot = tmp_path / "report.png"
+    result = open_page(page, CHECKS, shot)
+    assert result.errors == []
+    value = result.value
+    assert len(value["charts"]) == 5
+    for width, height, marks in value["charts"]:
+        assert width > 100 and height > 50 and marks > 10
+    assert value["scripts"] == 0 and value["imgs"] == 0 and value["remote"] == []
+    assert "</svg><script>alert(1)</script>" in value["text"]  # shown as text
+    assert shot.stat().st_size > 10_000
+    print(f"screenshot: {shot}")
+
+
+def test_report_command_writes_html_beside_its_table(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    path = _evidence(tmp_path)
+    out = tmp_path / "r.html"
+    result = CliRunner().invoke(app, ["report", str(path), "--by", "all", "--html", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "Outcomes (by all)" in result.stdout
+    assert f"note: HTML report written to {out}" in result.stderr
+    assert "<svg" in out.read_text(encoding="utf-8")
+    bad = CliRunner().invoke(app, ["report", str(path), "--html", str(path)])
+    assert bad.exit_code == 2
+    assert bad.stderr.count("\n") == 1 and "looks like an evidence file" in bad.stderr
+    nowhere = tmp_path / "no" / "r.html"
+    missing = CliRunner().invoke(app, ["report", str(path), "--html", str(nowhere)])
+    assert missing.exit_code == 2, missing.output
+    assert (
+        missing.stderr
+        == f"episode-audit: error: --html: cannot write {nowhere}: No such file or directory\n"
+    )
+    assert not nowhere.parent.exists()
+
+
+@pytest.mark.parametrize("games", [False, True])
+def test_html_report_of_pettingzoo_games_and_agents(tmp_path: Path, games: bool) -> None:
+    rps = pytest.importorskip("pettingzoo.classic.rps_v2")
+    from episode_audit import RecordParallelEvidence
+
+    path = tmp_path / "rps.mcap"
+    with RecordParallelEvidence(rps.parallel_env(max_cycles=3), path) as env:
+        for seed in range(2):
+            env.reset(seed=seed)
+            while env.agents:
+                env.step({a: env.action_space(a).sample() for a in env.agents})
+    result = report_inputs([path], by="all" if games else "agent", games=games)
+    out = write_report_html(result.report, result.sources, tmp_path / "r.html", games=games)
+    page = out.read_text(encoding="utf-8")
+    assert page.count("<svg") >= 2
+    rows = page[page.index("<h2>Episodes</h2>") :].count("<tr>") - 1
+    assert rows == (2 if games else 4)  # two games, or two agents' episodes in each
+    assert ("episode-audit replay" in page) is not games  # a game is no episode to replay
+
+
+def test_html_report_is_the_same_page_for_the_same_report(tmp_path: Path) -> None:
+    _, page = _page(tmp_path)
+    result = report_inputs([tmp_path / "run one.mcap"], by="tag:policy")
+    again = write_report_html(result.report, result.sources, tmp_path / "again.html")
+    assert again.read_text(encoding="utf-8") == page  # no date, stable ids
+    assert "<metadata" not in page and "purl.org" not in page
