@@ -76,3 +76,27 @@ def test_rerun_reads_the_recording(tmp_path: Path, name: str) -> None:
         assert rows["/steps/observation/state"] == rows["/steps/observation/mode"] == 10
         assert rows["/camera/observation.camera"] == result.frames == 10
         assert "EncodedImage:blob" in columns["/camera/observation.camera"]
+
+
+def test_a_disabled_sdk_is_an_error_not_a_missing_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from episode_audit import ConfigurationError
+
+    monkeypatch.setenv("RERUN", "off")
+    out = tmp_path / "none.rrd"
+    with pytest.raises(ConfigurationError, match=r"rerun-sdk wrote nothing; is logging turned"):
+        export([ROOT / "fixtures" / "clean.mcap"], out, to="rerun")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_missing_viewer_library_names_the_extra() -> None:
+    from episode_audit import ConfigurationError
+    from episode_audit.export._output import require
+
+    with pytest.raises(
+        ConfigurationError,
+        match=r"--to rerun: needs the 'no_such_sdk' package; install it with pip install "
+        r"'episode-audit\[rerun\]'",
+    ):
+        require("no_such_sdk", "rerun")

@@ -21,6 +21,7 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, require, staged
 from ._values import Leaf, Split, ending_text, split_batch, stream_prefix
@@ -61,6 +62,10 @@ def export_rerun(
         finally:
             rec.flush()
             rec.disconnect()
+        if not temporary.exists():  # a disabled SDK (RERUN=off in the environment) writes none
+            raise ConfigurationError(
+                f"{out}: rerun-sdk wrote nothing; is logging turned off (RERUN=off)?"
+            )
     result.paths = sorted(writer.paths)
     result.left_out = sorted(writer.left_out)
     return result
