@@ -100,3 +100,32 @@ def test_a_missing_viewer_library_names_the_extra() -> None:
         r"'episode-audit\[rerun\]'",
     ):
         require("no_such_sdk", "rerun")
+
+
+def test_cli_export_to_rerun_notes_what_is_not_plotted(tmp_path: Path) -> None:
+    import gymnasium as gym
+    import numpy as np
+    from typer.testing import CliRunner
+
+    from episode_audit import RecordEvidence
+    from episode_audit.cli import app
+    from tests.support.envs import ScriptedEnv
+
+    wide = gym.spaces.Box(-1, 1, (80,), np.float32)
+    env = ScriptedEnv(
+        step_fn=lambda e, a: (np.zeros(80, np.float32), 1.0, e.t == 3, False, {}),
+        reset_fn=lambda e: (np.zeros(80, np.float32), {}),
+        observation_space=wide,
+    )
+    source = tmp_path / "wide.mcap"
+    with RecordEvidence(env, source) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            rec.step(0)
+    out = tmp_path / "wide.rrd"
+    result = CliRunner().invoke(app, ["export", str(source), "--to", "rerun", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "not plotted (more than 64 numbers, digests or text): observation" in result.output
+    assert "wrote 1 episodes, 3 steps" in result.output
+    rows, _ = _rows(out)
+    assert rows["/steps/reward"] == 3 and "/steps/observation" not in rows

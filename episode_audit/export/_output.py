@@ -18,6 +18,7 @@ from types import ModuleType
 
 from ..errors import ConfigurationError
 from ..record.lock import output_kind
+from ._values import SMALL
 
 __all__ = ["ViewerExport", "require", "staged"]
 
@@ -51,7 +52,7 @@ class ViewerExport:
             lines.append(f"{self.source} is unfinished ({self.unfinished}): exported what it holds")
         if self.left_out:
             lines.append(
-                f"{self.source}: not plotted (more than 64 numbers, digests or text): "
+                f"{self.source}: not plotted (more than {SMALL} numbers, digests or text): "
                 + ", ".join(self.left_out)
             )
         return lines
