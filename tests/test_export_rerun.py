@@ -90,16 +90,16 @@ def test_a_disabled_sdk_is_an_error_not_a_missing_file(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_missing_viewer_library_names_the_extra() -> None:
+def test_a_missing_viewer_library_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
     from episode_audit import ConfigurationError
-    from episode_audit.export._output import require
 
+    monkeypatch.setitem(sys.modules, "rerun", None)  # as if rerun-sdk were not installed
     with pytest.raises(
         ConfigurationError,
-        match=r"--to rerun: needs the 'no_such_sdk' package; install it with pip install "
+        match=r"--to rerun: needs the 'rerun-sdk' package; install it with pip install "
         r"'episode-audit\[rerun\]'",
     ):
-        require("no_such_sdk", "rerun")
+        export([ROOT / "fixtures" / "clean.mcap"], Path("unused.rrd"), to="rerun")
 
 
 def test_cli_export_to_rerun_notes_what_is_not_plotted(tmp_path: Path) -> None:

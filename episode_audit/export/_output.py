@@ -3,24 +3,22 @@
 :func:`staged` checks the output path (not the input, not a special file, not an existing file
 unless ``overwrite``), yields a temporary path beside it and renames it into place only when the
 export finished, so a failed export leaves nothing that looks complete. :class:`ViewerExport`
-says what was written; :func:`require` imports a viewer's optional library or names the extra.
+says what was written; :func:`missing` is the error naming the extra a viewer library needs.
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
 
 from ..errors import ConfigurationError
 from ..record.lock import output_kind
 from ._values import SMALL
 
-__all__ = ["ViewerExport", "require", "staged"]
+__all__ = ["ViewerExport", "missing", "staged"]
 
 
 @dataclass
@@ -66,15 +64,12 @@ class ViewerExport:
         )
 
 
-def require(module: str, extra: str) -> ModuleType:
-    """Import ``module``, or raise a :class:`ConfigurationError` naming the extra to install."""
-    try:
-        return importlib.import_module(module)
-    except ImportError:
-        raise ConfigurationError(
-            f"--to {extra}: needs the {module!r} package; install it with "
-            f"pip install 'episode-audit[{extra}]'"
-        ) from None
+def missing(module: str, extra: str) -> ConfigurationError:
+    """The error for a viewer library that is not installed: it names the extra to install."""
+    return ConfigurationError(
+        f"--to {extra}: needs the {module!r} package; install it with "
+        f"pip install 'episode-audit[{extra}]'"
+    )
 
 
 @contextmanager

@@ -23,7 +23,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..read import Evidence, open_evidence
-from ._output import ViewerExport, require, staged
+from ._output import ViewerExport, missing, staged
 from ._values import (
     Frames,
     Split,
@@ -56,7 +56,10 @@ def export_foxglove(
     installed or ``out`` cannot be written, :class:`~episode_audit.errors.EvidenceError` when
     ``source`` cannot be read; either way no ``out`` is left behind.
     """
-    foxglove = require("foxglove", "foxglove")
+    try:
+        import foxglove
+    except ImportError:
+        raise missing("foxglove", "foxglove") from None
     source, out = Path(source), Path(out)
     ev = open_evidence(source)
     result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))

@@ -11,7 +11,7 @@ import json
 from collections.abc import Sequence
 from typing import Final
 
-from ._output import require
+from ._output import missing
 
 __all__ = ["REFERENCE_TERMS", "foxglove_layout"]
 
@@ -36,7 +36,10 @@ def foxglove_layout(
     ``prefix`` is the stream's topic prefix (``"/env_0"``, ``"/player_1"``; empty for
     single-env files); ``terms`` the reward terms to plot, one series each.
     """
-    fl = require("foxglove.layouts", "foxglove")
+    try:
+        import foxglove.layouts as fl
+    except ImportError:
+        raise missing("foxglove-sdk", "foxglove") from None
     steps = f"{prefix}/steps"
     reward = fl.PlotPanel(
         title="reward",
@@ -67,7 +70,7 @@ def foxglove_layout(
     )
     log = fl.LogPanel(title="endings", config=fl.LogConfig(topic_to_render="/log"))
 
-    def column(*panels: object, sizes: Sequence[float]) -> object:
+    def column(*panels: fl.BasePanel, sizes: Sequence[float]) -> fl.SplitContainer:
         return fl.SplitContainer(
             direction="column",
             items=[

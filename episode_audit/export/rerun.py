@@ -23,7 +23,7 @@ import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
-from ._output import ViewerExport, require, staged
+from ._output import ViewerExport, missing, staged
 from ._values import Leaf, Split, ending_text, split_batch, stream_prefix
 
 __all__ = ["export_rerun"]
@@ -44,7 +44,10 @@ def export_rerun(
     installed or ``out`` cannot be written, :class:`~episode_audit.errors.EvidenceError` when
     ``source`` cannot be read; either way no ``out`` is left behind.
     """
-    rr = require("rerun", "rerun")
+    try:
+        import rerun as rr
+    except ImportError:
+        raise missing("rerun-sdk", "rerun") from None
     source, out = Path(source), Path(out)
     ev = open_evidence(source)
     unfinished = None if ev.finished else ev.torn or "no run-end record"
@@ -52,6 +55,7 @@ def export_rerun(
     with staged(source, out, overwrite=overwrite) as temporary:
         rec = rr.RecordingStream("episode-audit", send_properties=False)
         rec.save(str(temporary))
+        rec.send_recording_name(source.name)
         try:
             writer = _Writer(rr, rec, ev, result)
             for batch in ev.iter_step_batches():
