@@ -7,8 +7,10 @@ Targets (docs/benchmarks.md): recording overhead <= 1.15x on CartPole-v1 and <= 
 Reacher-v5 / HalfCheetah-v5; <= 32 bytes per CartPole step; recorder memory flat (<= 64 MB
 growth) over a 1 M-step episode; check >= 5 M steps/s; replay <= 1.05x bare stepping; vector
 recording overhead per sub-env step no worse than the single-env recorder's (CartPole x8, Sync);
-SB3 (bench_sb3.py): a real PPO run with / without RecordVecEnvEvidence, and its cost per
-sub-env step (skipped when SB3 is not installed).
+export to Foxglove MCAP >= 1 M steps per minute on one core (a CartPole file, pinned to one
+CPU; process CPU time and wall time, with the load average); SB3 (bench_sb3.py): a real PPO
+run with / without RecordVecEnvEvidence, and its cost per sub-env step (skipped when SB3 is
+not installed).
 Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
 """
 
@@ -302,6 +304,41 @@ def bench_replay(env_id: str, episodes: int, rounds: int) -> dict[str, Any]:
     }
 
 
+def bench_export(steps: int, rounds: int) -> dict[str, Any]:
+    """``export --to foxglove`` of a CartPole file, pinned to one CPU: steps per minute.
+
+    Process CPU time is what the export costs the core it runs on (other processes on a busy
+    host do not add to it); wall time is what a user waits on a host as loaded as the load
+    average says.
+    """
+    from episode_audit.export import export
+
+    path = big_cartpole_file(steps)
+    out = TMP / "export.foxglove.mcap"
+    affinity = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(affinity)})
+    try:
+        cpu, wall = [], []
+        for _ in range(rounds):
+            gc.collect()
+            c0, w0 = time.process_time(), time.perf_counter()
+            result = export([path], out, to="foxglove", overwrite=True)
+            cpu.append(time.process_time() - c0)
+            wall.append(time.perf_counter() - w0)
+    finally:
+        os.sched_setaffinity(0, affinity)
+    return {
+        "steps": result.steps,
+        "rounds": rounds,
+        "cpu_seconds_min": min(cpu),
+        "wall_seconds_min": min(wall),
+        "steps_per_minute_cpu": result.steps / min(cpu) * 60,
+        "steps_per_minute_wall": result.steps / min(wall) * 60,
+        "bytes_per_step": out.stat().st_size / result.steps,
+        "load_average": os.getloadavg(),
+    }
+
+
 class Playback(gym.Env[Any, Any]):
     """Hands back a file's recorded resets and steps, whatever the action: an env whose own
     cost is next to nothing, so that replaying in it times replay's own work."""
@@ -390,6 +427,7 @@ BENCHES: dict[str, Callable[[], Any]] = {
         bench_replay("Reacher-v5", 200, 41),
         bench_replay("HalfCheetah-v5", 10, 41),
     ],
+    "export": lambda: bench_export(200_000, 3),
     # inside a real PPO run, and per sub-env step; "skipped: SB3 not installed" without it
     "sb3": lambda: bench_sb3.bench(TMP),
 }

@@ -52,3 +52,54 @@ def test_the_result_names_unfinished_inputs_and_sums_up(tmp_path: Path) -> None:
         f"wrote {result.episodes} episodes to {out / 'episodes.parquet'} and {result.steps} "
         f"steps to 2 *.steps.parquet file(s) in {out}"
     )
+
+
+def _tagged_run(path: Path, tags: dict[str, str], seeds: range, limit: int) -> Path:
+    import gymnasium as gym
+
+    from episode_audit import RecordEvidence
+
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=limit), path, tags=tags) as env:
+        for seed in seeds:
+            env.reset(seed=seed)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = env.step(seed % 2)
+                done = term or trunc
+    return path
+
+
+def test_report_by_tag_is_reproduced_from_the_parquet_export(tmp_path: Path) -> None:
+    """episodes and steps carry env_id and tag:NAME, so `report --by tag:policy` can be redone."""
+    import pyarrow as pa
+
+    from episode_audit import report
+
+    runs = [
+        _tagged_run(tmp_path / "a.mcap", {"policy": "left", "seed": "1"}, range(0, 4), 200),
+        _tagged_run(tmp_path / "b.mcap", {"policy": "right"}, range(4, 7), 9),
+        _tagged_run(tmp_path / "c.mcap", {"policy": "left"}, range(7, 9), 9),
+    ]
+    result = export(runs, tmp_path / "out")
+    episodes = pq.read_table(result.episodes_file)
+    assert set(episodes.column("env_id").to_pylist()) == {"CartPole-v1"}
+    assert episodes.column("tag:seed").to_pylist().count("1") == 4  # null for b and c
+    counts = episodes.group_by(["tag:policy", "outcome"]).aggregate([("episode", "count")])
+    got = {(row["tag:policy"], row["outcome"]): row["episode_count"] for row in counts.to_pylist()}
+    expected = {}
+    for group in report(runs, by="tag:policy").groups:
+        if group.success:
+            expected[(group.key, "success")] = group.success
+        if sum(group.failures.values()):
+            expected[(group.key, "failure")] = sum(group.failures.values())
+        if sum(group.truncations.values()):
+            expected[(group.key, "truncated")] = sum(group.truncations.values())
+    assert got == expected
+    assert {outcome for _, outcome in got} == {"failure", "truncated"}, got
+    steps = ds.dataset(result.steps_files, format="parquet").to_table()  # one schema for all
+    by_policy = steps.group_by("tag:policy").aggregate([("reward", "sum")])
+    returns = episodes.group_by("tag:policy").aggregate([("return", "sum")])
+    assert dict(zip(*by_policy.to_pydict().values(), strict=True)) == pytest.approx(
+        dict(zip(*returns.to_pydict().values(), strict=True))
+    )
+    assert steps.schema.field("env_id").type == pa.string()

@@ -1,9 +1,9 @@
-"""``episode-audit export``: steps and episodes as Parquet."""
+"""``episode-audit export``: steps and episodes as Parquet, or a file for Foxglove or Rerun."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal, cast
 
 import typer
 
@@ -28,8 +28,23 @@ from .render import safe
 def export(
     paths: PathsArgument,
     out: Annotated[
-        Path, typer.Option("--out", "-o", help="Directory for the Parquet files.", metavar="<dir>")
+        Path,
+        typer.Option(
+            "--out",
+            "-o",
+            help="Directory for the Parquet files; with --to foxglove or rerun, the file to write.",
+            metavar="<path>",
+        ),
     ],
+    to: Annotated[
+        str,
+        typer.Option(
+            "--to",
+            help="parquet (tables), foxglove (an MCAP file for Foxglove) or rerun (an .rrd "
+            "recording); docs/viewers.md.",
+            metavar="<target>",
+        ),
+    ] = "parquet",
     overwrite: Annotated[
         bool,
         typer.Option(
@@ -39,8 +54,15 @@ def export(
         ),
     ] = False,
 ) -> None:
-    """Write steps and episodes as Parquet (pandas / polars / DuckDB), with a file column."""
+    """Write steps and episodes as Parquet (pandas / polars / DuckDB), or for a viewer."""
+    from ..export import TARGETS
     from ..export import export as run_export
+
+    if to not in TARGETS:
+        fail(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
+    if to != "parquet":
+        _export_for_viewer(paths, out, to, overwrite)
+        return
 
     # The inputs are opened first, so that one that cannot be is named before any output is
     # written, takes no output name, and the progress bar counts the others' steps.
@@ -60,3 +82,27 @@ def export(
     emit(safe(result.summary()))
     if unreadable or result.failed:
         raise typer.Exit(EXIT_USAGE)
+
+
+def _export_for_viewer(paths: list[Path], out: Path, to: str, overwrite: bool) -> None:
+    """``--to foxglove`` / ``--to rerun``: one input, one output file."""
+    from ..export import export as run_export
+
+    readable, unreadable = _readable(collect(paths))
+    if unreadable or not readable:
+        raise typer.Exit(EXIT_USAGE)
+    files = [path for path, _ in readable]
+    if len(files) != 1:
+        fail(
+            f"--to {to}: writes one file from one input, got {len(files)} inputs; "
+            "export them one at a time"
+        )
+    try:
+        with progress_bar("exporting", steps_total(files)) as advance:
+            viewer = cast(Literal["foxglove", "rerun"], to)
+            result = run_export(files, out, to=viewer, overwrite=overwrite, progress=advance)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    for line in result.notes:
+        note(line)
+    emit(safe(result.summary()))

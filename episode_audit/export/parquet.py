@@ -2,7 +2,8 @@
 
 For each input file ``run.mcap``, :func:`export` writes ``run.steps.parquet`` (one row per step,
 streamed block by block) and adds its episodes to ``episodes.parquet`` (all files together), both
-with a ``file`` column; :class:`ExportResult` says what it wrote. Output names come from the
+with a ``file`` column and the run's ``env_id`` and tags (``tag:NAME``, one column per tag) last;
+:class:`ExportResult` says what it wrote. Output names come from the
 input paths only, never from file content. Columns and queries: ``docs/cli.md`` ("export").
 """
 
@@ -18,9 +19,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from .errors import ConfigurationError, EvidenceError
-from .read import open_evidence
-from .record.lock import output_kind
+from ..errors import ConfigurationError, EvidenceError
+from ..read import open_evidence
+from ..record.lock import output_kind
 
 __all__ = ["ExportResult", "export"]
 
@@ -123,7 +124,12 @@ def export(
         result.steps_files.append(target)
         if exported.unfinished is not None:
             result.unfinished.append((source, exported.unfinished))
-    episodes = pa.concat_tables(episode_tables) if episode_tables else pa.table({})
+    # files with different tags: a tag column a file lacks is null for its episodes
+    episodes = (
+        pa.concat_tables(episode_tables, promote_options="default")
+        if episode_tables
+        else pa.table({})
+    )
     pq.write_table(episodes, result.episodes_file, compression="zstd")
     result.episodes = episodes.num_rows
     if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
@@ -194,6 +200,7 @@ def _export_one(source: Path, target: Path, progress: Callable[[int], None] | No
     ev = open_evidence(source)
     unfinished = None if ev.finished else ev.torn or "no run-end record"
     label = str(source)
+    run_columns = _run_columns(ev.run.env_id, ev.run.tags)
     episodes = ev.episodes()
     # Vector and PettingZoo files: each step row names its sub-env and agent too.
     multi = (ev.run.layout or {}).get("kind", "single") != "single"
@@ -206,6 +213,7 @@ def _export_one(source: Path, target: Path, progress: Callable[[int], None] | No
             table = _with_file(batch, label)
             if multi:
                 table = _with_stream(table, episodes, env_index, agent)
+            table = _with_run(table, run_columns)
             if writer is None:
                 writer = pq.ParquetWriter(target, table.schema, compression="zstd")
             writer.write_table(table)
@@ -220,13 +228,36 @@ def _export_one(source: Path, target: Path, progress: Callable[[int], None] | No
     if writer is not None:
         writer.close()
     else:  # no steps at all: still write an empty, typed file
-        pq.write_table(_with_file(ev.steps_schema.empty_table(), label), target)
-    return _Exported(_with_file(episodes, label), steps, unfinished)
+        empty = _with_file(ev.steps_schema.empty_table(), label)
+        pq.write_table(_with_run(empty, run_columns), target)
+    return _Exported(_with_run(_with_file(episodes, label), run_columns), steps, unfinished)
 
 
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:
     table = pa.Table.from_batches([batch]) if isinstance(batch, pa.RecordBatch) else batch
     return table.add_column(0, "file", pa.array([name] * table.num_rows, pa.string()))
+
+
+def _run_columns(env_id: str | None, tags: dict[str, str]) -> list[tuple[str, str | None]]:
+    """The run's columns: ``env_id``, then ``tag:NAME`` for each tag, in name order.
+
+    >>> _run_columns("CartPole-v1", {"seed": "3", "policy": "ppo"})
+    [('env_id', 'CartPole-v1'), ('tag:policy', 'ppo'), ('tag:seed', '3')]
+    """
+    return [("env_id", env_id), *((f"tag:{k}", tags[k]) for k in sorted(tags))]
+
+
+def _with_run(table: pa.Table, columns: list[tuple[str, str | None]]) -> pa.Table:
+    """``table`` with the run's columns added last (one value repeated on every row).
+
+    A tag whose column name is already taken by a step or episode column is left out there.
+    """
+    for name, value in columns:
+        if name not in table.column_names:
+            table = table.append_column(
+                name, pa.repeat(pa.scalar(value, pa.string()), table.num_rows)
+            )
+    return table
 
 
 def _with_stream(

@@ -1,0 +1,80 @@
+"""Export evidence for other tools: Parquet tables, Foxglove MCAP, Rerun recordings.
+
+:func:`export` picks the target by ``to``: ``"parquet"`` (:mod:`.parquet`: a directory of
+tables for pandas / polars / DuckDB), ``"foxglove"`` (:mod:`.foxglove`: one viewer-ready MCAP
+file) or ``"rerun"`` (:mod:`.rerun`: one ``.rrd`` recording). Viewers: ``docs/viewers.md``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from typing import Final, Literal, overload
+
+from ..errors import ConfigurationError, EvidenceError
+from ._output import ViewerExport
+from .parquet import ExportResult
+from .parquet import export as _export_parquet
+
+__all__ = ["TARGETS", "ExportResult", "ViewerExport", "export"]
+
+TARGETS: Final = ("parquet", "foxglove", "rerun")
+"""What :func:`export` writes, by its ``to``."""
+
+
+@overload
+def export(
+    paths: Iterable[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    *,
+    to: Literal["parquet"] = "parquet",
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+    on_error: Callable[[EvidenceError], None] | None = None,
+) -> ExportResult: ...
+@overload
+def export(
+    paths: Iterable[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    *,
+    to: Literal["foxglove", "rerun"],
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+    on_error: Callable[[EvidenceError], None] | None = None,
+) -> ViewerExport: ...
+def export(
+    paths: Iterable[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    *,
+    to: str = "parquet",
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+    on_error: Callable[[EvidenceError], None] | None = None,
+) -> ExportResult | ViewerExport:
+    """Export the evidence files ``paths`` to ``out``, as ``to`` says.
+
+    ``to="parquet"`` (default): ``out`` is a directory, see :func:`.parquet.export`.
+    ``to="foxglove"`` / ``to="rerun"``: ``out`` is the one file to write (an MCAP file for
+    Foxglove, an ``.rrd`` recording for Rerun) from exactly one input; ``on_error`` is not used
+    (an unreadable input raises :class:`~episode_audit.errors.EvidenceError`). An existing
+    ``out`` is replaced only with ``overwrite=True``; a failed export leaves no ``out``.
+    """
+    if to == "parquet":
+        return _export_parquet(
+            paths, out, overwrite=overwrite, progress=progress, on_error=on_error
+        )
+    if to not in TARGETS:
+        raise ConfigurationError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
+    sources = list(paths)
+    if len(sources) != 1:
+        raise ConfigurationError(
+            f"--to {to}: writes one file from one input, got {len(sources)} inputs; "
+            "export them one at a time"
+        )
+    if to == "foxglove":
+        from .foxglove import export_foxglove
+
+        return export_foxglove(sources[0], out, overwrite=overwrite, progress=progress)
+    from .rerun import export_rerun
+
+    return export_rerun(sources[0], out, overwrite=overwrite, progress=progress)

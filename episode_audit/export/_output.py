@@ -1,0 +1,95 @@
+"""One viewer file out: checks before writing, a temporary name while writing, the result.
+
+:func:`staged` checks the output path (not the input, not a special file, not an existing file
+unless ``overwrite``), yields a temporary path beside it and renames it into place only when the
+export finished, so a failed export leaves nothing that looks complete. :class:`ViewerExport`
+says what was written; :func:`missing` is the error naming the extra a viewer library needs.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import ConfigurationError
+from ..record.lock import output_kind
+from ._values import SMALL
+
+__all__ = ["ViewerExport", "missing", "staged"]
+
+
+@dataclass
+class ViewerExport:
+    """What a viewer export (``to="foxglove"`` or ``to="rerun"``) wrote."""
+
+    path: Path
+    """The file written."""
+    source: Path
+    viewer: str
+    """``"foxglove"`` or ``"rerun"``."""
+    episodes: int = 0
+    steps: int = 0
+    frames: int = 0
+    """Camera frames (image observations) written as images."""
+    paths: list[str] = field(default_factory=list)
+    """Topics (Foxglove) or entity paths (Rerun) written, sorted."""
+    left_out: list[str] = field(default_factory=list)
+    """Action / observation fields neither plotted nor shown as images (too large, digests,
+    text), by name."""
+    unfinished: str | None = None
+    """Why the input is unfinished (still being written, or torn); ``None``: finished."""
+
+    @property
+    def notes(self) -> list[str]:
+        """Lines for people: what of the input is not in the output, and why."""
+        lines = []
+        if self.unfinished is not None:
+            lines.append(f"{self.source} is unfinished ({self.unfinished}): exported what it holds")
+        if self.left_out:
+            lines.append(
+                f"{self.source}: not plotted (more than {SMALL} numbers, digests or text): "
+                + ", ".join(self.left_out)
+            )
+        return lines
+
+    def summary(self) -> str:
+        """One line for people: what was written where."""
+        frames = f", {self.frames} camera frames" if self.frames else ""
+        return (
+            f"wrote {self.episodes} episodes, {self.steps} steps{frames} of {self.source} "
+            f"to {self.path} (open it in {self.viewer.capitalize()}; see docs/viewers.md)"
+        )
+
+
+def missing(module: str, extra: str) -> ConfigurationError:
+    """The error for a viewer library that is not installed: it names the extra to install."""
+    return ConfigurationError(
+        f"--to {extra}: needs the {module!r} package; install it with "
+        f"pip install 'episode-audit[{extra}]'"
+    )
+
+
+@contextmanager
+def staged(source: Path, out: Path, *, overwrite: bool) -> Iterator[Path]:
+    """A temporary path beside ``out`` to write to; renamed to ``out`` if the block succeeds."""
+    kind = output_kind(out)
+    if kind is not None:
+        raise ConfigurationError(
+            f"{out}: is {kind}, not a regular file; --out names the file to write"
+        )
+    if out.exists():
+        if out.resolve() == source.resolve():
+            raise ConfigurationError(f"{out}: is the input; --out names a new file to write")
+        if not overwrite:
+            raise ConfigurationError(f"{out}: exists; pass --overwrite to replace it")
+    if not out.parent.is_dir():
+        raise ConfigurationError(f"{out.parent}: no such directory; create it first")
+    temporary = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    try:
+        yield temporary
+        os.replace(temporary, out)
+    finally:
+        temporary.unlink(missing_ok=True)

@@ -1,0 +1,250 @@
+"""What a viewer export takes from a step block: plottable numbers, camera frames, stream names.
+
+:func:`split_column` cuts an action or observation column into :class:`Leaf` arrays of at most
+:data:`SMALL` numbers per row (Box, MultiDiscrete, MultiBinary, Discrete; Dict and Tuple items
+each on their own) and :class:`Frames`: ``uint8`` arrays shaped ``(H, W)`` or ``(H, W, C)``,
+``C`` in 1, 3, 4, both sides at least :data:`IMAGE_MIN_SIDE`. :func:`json_rows` and
+:func:`json_schema` give the leaves of a column as per-row JSON values and their JSON Schema;
+:func:`stream_prefix` names a stream's topics and entity paths; :func:`ending_text` says how an
+episode ended.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+import pyarrow as pa
+
+__all__ = [
+    "IMAGE_MIN_SIDE",
+    "SMALL",
+    "Frames",
+    "Leaf",
+    "Split",
+    "ending_text",
+    "finite",
+    "json_rows",
+    "json_schema",
+    "split_batch",
+    "split_column",
+    "stream_prefix",
+]
+
+SMALL: Final = 64
+"""Arrays of at most this many numbers are plotted; larger ones are left out (not images)."""
+IMAGE_MIN_SIDE: Final = 16
+"""A ``uint8`` array is a camera frame when both its sides have at least this many pixels."""
+
+_KIND: Final = b"episode_audit.kind"
+_SHAPE: Final = b"episode_audit.shape"
+_DTYPE: Final = b"episode_audit.dtype"
+
+
+@dataclass
+class Leaf:
+    """One plottable field of a block: ``numbers[row]`` holds its values on that row."""
+
+    path: tuple[str, ...]
+    """The column, then Dict keys / Tuple indices: ``("observation", "position")``."""
+    numbers: npt.NDArray[Any]
+    """``(rows, size)``: ints or floats (non-finite floats as they are)."""
+    present: npt.NDArray[np.bool_]
+    """Rows that have a value (a null row has none)."""
+    scalar: bool
+    """One number per row (a Discrete, or a Box of shape ``()``) rather than a list."""
+    integer: bool
+
+
+@dataclass
+class Frames:
+    """One image field of a block: its path and its rows as ``(rows, H, W[, C])`` ``uint8``."""
+
+    path: tuple[str, ...]
+    pixels: npt.NDArray[np.uint8]
+    present: npt.NDArray[np.bool_]
+
+
+@dataclass
+class Split:
+    """What one column gives a viewer."""
+
+    leaves: list[Leaf] = field(default_factory=list)
+    images: list[Frames] = field(default_factory=list)
+    left_out: list[str] = field(default_factory=list)
+    """Fields neither plotted nor shown as images (too large, digests, text, JSON), by name."""
+
+
+def finite(values: Sequence[float | None]) -> list[float | None]:
+    """``values`` with NaN and infinities as ``None`` (JSON has no such numbers).
+
+    >>> finite([1.0, float("nan"), None, float("inf")])
+    [1.0, None, None, None]
+    """
+    return [v if v is not None and math.isfinite(v) else None for v in values]
+
+
+def stream_prefix(kind: str, env_index: int, agent: str | None) -> str:
+    """The topic / entity path prefix of a stream: empty for single-env files.
+
+    >>> stream_prefix("single", 0, None), stream_prefix("vector", 2, None)
+    ('', '/env_2')
+    >>> stream_prefix("pettingzoo_aec", 0, "player 1")
+    '/player_1'
+    """
+    if kind == "single":
+        return ""
+    if agent:
+        return "/" + "".join(c if c.isalnum() or c in "_-." else "_" for c in agent)
+    return f"/env_{env_index}"
+
+
+def split_batch(batch: pa.RecordBatch, name: str) -> Split:
+    """What the column ``name`` of ``batch`` gives a viewer (nothing if there is no such column)."""
+    index = batch.schema.get_field_index(name)
+    if index < 0:
+        return Split()
+    return split_column((name,), batch.column(index), batch.schema.field(index))
+
+
+def split_column(path: tuple[str, ...], array: pa.Array, field_: pa.Field) -> Split:
+    """What the column (or Dict / Tuple item) at ``path`` gives a viewer."""
+    meta = field_.metadata or {}
+    kind = meta.get(_KIND, b"").decode()
+    present = ~np.asarray(array.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+    if kind == "array":
+        return _split_array(path, array, meta, present)
+    if kind == "discrete":
+        numbers = array.fill_null(0).to_numpy(zero_copy_only=False).reshape(-1, 1)
+        return Split([Leaf(path, numbers, present, scalar=True, integer=True)])
+    if kind in ("dict", "tuple") and isinstance(array, pa.StructArray):
+        out = Split()
+        for i in range(array.type.num_fields):
+            child = array.type.field(i)
+            part = split_column((*path, child.name), array.field(i), child)
+            for leaf in part.leaves:
+                leaf.present &= present
+            out.leaves += part.leaves
+            out.images += part.images
+            out.left_out += part.left_out
+        return out
+    return Split(left_out=[".".join(path)])
+
+
+def _split_array(
+    path: tuple[str, ...], array: pa.Array, meta: dict[bytes, bytes], present: npt.NDArray[Any]
+) -> Split:
+    shape = tuple(json.loads(meta.get(_SHAPE, b"[]")))
+    dtype = np.dtype(meta.get(_DTYPE, b"float64").decode())
+    size = math.prod(shape)
+    if size > SMALL and not _is_image(shape, dtype):
+        return Split(left_out=[".".join(path)])
+    values = array.values.slice(array.offset * size, len(array) * size)
+    if values.null_count:
+        values = values.fill_null(pa.scalar(0, values.type))
+    flat = values.to_numpy(zero_copy_only=False).reshape(len(array), size)
+    if _is_image(shape, dtype):
+        pixels = flat.astype(np.uint8, copy=False).reshape(len(array), *shape)
+        return Split(images=[Frames(path, pixels, present)])
+    integer = dtype.kind in "iub"
+    if dtype.kind == "b":
+        flat = flat.astype(np.int8)
+    return Split([Leaf(path, flat, present, scalar=not shape, integer=integer)])
+
+
+def _is_image(shape: tuple[int, ...], dtype: np.dtype[Any]) -> bool:
+    if dtype != np.uint8 or len(shape) not in (2, 3):
+        return False
+    if len(shape) == 3 and shape[2] not in (1, 3, 4):
+        return False
+    return min(shape[0], shape[1]) >= IMAGE_MIN_SIDE
+
+
+def json_rows(leaves: Sequence[Leaf], rows: int) -> list[Any]:
+    """Per row, the leaves of one column as JSON values (``None``: the row has none).
+
+    A column that is one leaf gives its number or list per row; Dict / Tuple items nest as
+    objects keyed like the space. Non-finite floats become ``None`` (JSON has none).
+    """
+    if not leaves:
+        return [None] * rows
+    depth = len(leaves[0].path)
+    if len(leaves) == 1 and depth == 1:
+        return _leaf_rows(leaves[0])
+    out: list[Any] = [{} for _ in range(rows)]
+    for leaf in leaves:
+        for row, value in enumerate(_leaf_rows(leaf)):
+            if value is None:
+                continue
+            node = out[row]
+            for key in leaf.path[1:-1]:
+                node = node.setdefault(key, {})
+            node[leaf.path[-1]] = value
+    return [row or None for row in out]
+
+
+def _leaf_rows(leaf: Leaf) -> list[Any]:
+    numbers = leaf.numbers
+    if numbers.dtype.kind == "f" and not np.isfinite(numbers).all():
+        rows: list[Any] = [finite(r) for r in numbers.tolist()]
+    else:
+        rows = numbers.tolist()
+    if leaf.scalar:
+        rows = [r[0] for r in rows]
+    if not leaf.present.all():
+        rows = [r if ok else None for r, ok in zip(rows, leaf.present.tolist(), strict=True)]
+    return rows
+
+
+def json_schema(leaves: Sequence[Leaf]) -> dict[str, Any] | None:
+    """The JSON Schema of :func:`json_rows` of ``leaves`` (``None`` when there are none)."""
+    if not leaves:
+        return None
+    if len(leaves) == 1 and len(leaves[0].path) == 1:
+        return _leaf_schema(leaves[0])
+    root: dict[str, Any] = {"type": "object", "properties": {}}
+    for leaf in leaves:
+        node = root
+        for key in leaf.path[1:-1]:
+            node = node["properties"].setdefault(key, {"type": "object", "properties": {}})
+        node["properties"][leaf.path[-1]] = _leaf_schema(leaf)
+    return root
+
+
+def _leaf_schema(leaf: Leaf) -> dict[str, Any]:
+    number = {"type": "integer" if leaf.integer else "number"}
+    return number if leaf.scalar else {"type": "array", "items": number}
+
+
+def ending_text(record: dict[str, Any]) -> str:
+    """How an episode ended, in one line (the text of its ``foxglove.Log`` and Rerun log).
+
+    >>> ending_text({"episode": 3, "outcome": "failure", "failure_label": "collision",
+    ...              "length": 12, "return": -4.5, "env_index": 0, "agent": None})
+    'episode 3: failure (collision) after 12 steps, return -4.5'
+    >>> ending_text({"episode": 0, "outcome": "error", "error_type": "ValueError",
+    ...              "error_message": "boom", "error_during": "step", "length": 2,
+    ...              "return": 0.0, "env_index": 1, "agent": None}, )
+    'episode 0: error in step (ValueError: boom) after 2 steps, return 0'
+    """
+    outcome = record["outcome"]
+    detail = ""
+    if outcome == "failure":
+        detail = f" ({record.get('failure_label') or 'unlabeled'})"
+    elif outcome == "truncated":
+        detail = f" ({record.get('truncation_reason') or 'external'})"
+    elif outcome == "error":
+        detail = (
+            f" in {record.get('error_during') or 'step'} "
+            f"({record.get('error_type')}: {record.get('error_message')})"
+        )
+    ret = record.get("return")
+    returned = f", return {ret:.6g}" if isinstance(ret, float) else ""
+    return (
+        f"episode {record['episode']}: {outcome}{detail} after {record['length']} steps{returned}"
+    )

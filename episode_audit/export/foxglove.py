@@ -1,0 +1,291 @@
+"""Export an evidence file as a Foxglove-ready MCAP file, written with ``foxglove-sdk``.
+
+Per stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in single-env ones):
+``steps`` (JSON with a JSON Schema: episode, step, reward, terms, terminated, truncated and the
+plottable action and observation fields, one message per step at its log time) and
+``camera/FIELD`` (``foxglove.CompressedImage`` PNG frames of image observations). For the file:
+``/episodes`` (``foxglove.Event`` per episode, its time range and outcome) and ``/log``
+(``foxglove.Log`` per ending: failures and errors as errors, truncations and cut-off episodes as
+warnings, successes as info). Topics, the layout file and why this library: docs/viewers.md.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..read import Evidence, open_evidence
+from ._output import ViewerExport, missing, staged
+from ._values import (
+    Frames,
+    Split,
+    ending_text,
+    finite,
+    json_rows,
+    json_schema,
+    split_batch,
+    stream_prefix,
+)
+
+__all__ = ["STEP_SCHEMA_NAME", "export_foxglove"]
+
+STEP_SCHEMA_NAME: Final = "episode_audit.Step"
+"""The JSON Schema name of the ``steps`` topics."""
+_LEVELS: Final = {"success": "Info", "failure": "Error", "error": "Error"}
+"""Log level by outcome; any other (``truncated``, ``incomplete``) is a warning."""
+
+
+def export_foxglove(
+    source: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> ViewerExport:
+    """Write ``source``'s steps, endings and camera frames to ``out`` for Foxglove.
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` when ``foxglove-sdk`` is not
+    installed or ``out`` cannot be written, :class:`~episode_audit.errors.EvidenceError` when
+    ``source`` cannot be read; either way no ``out`` is left behind.
+    """
+    try:
+        import foxglove
+    except ImportError:
+        raise missing("foxglove", "foxglove") from None
+    source, out = Path(source), Path(out)
+    ev = open_evidence(source)
+    result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))
+    with staged(source, out, overwrite=overwrite) as temporary:
+        context = foxglove.Context()
+        options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
+        writer = foxglove.open_mcap(temporary, context=context, writer_options=options)
+        try:
+            writer.write_metadata("episode_audit.export", _metadata(ev, source))
+            _Steps(foxglove, context, ev, result).write(progress)
+            result.episodes = _write_episodes(foxglove, context, ev)
+            result.paths += ["/episodes", "/log"]
+        finally:
+            writer.close()
+    result.paths.sort()
+    return result
+
+
+def _unfinished(ev: Evidence) -> str | None:
+    return None if ev.finished else ev.torn or "no run-end record"
+
+
+def _metadata(ev: Evidence, source: Path) -> dict[str, str]:
+    run = ev.run
+    return {
+        "source": str(source),
+        "env_id": run.env_id or "",
+        "tags": json.dumps(run.tags, sort_keys=True),
+        "layout": json.dumps(run.layout, sort_keys=True),
+        "start_time": run.start_time,
+    }
+
+
+class _Steps:
+    """The ``steps`` and ``camera/*`` topics of every stream, written block by block."""
+
+    def __init__(self, foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> None:
+        self.fg, self.context, self.ev, self.result = foxglove, context, ev, result
+        episodes = ev.episodes()
+        kind = (ev.run.layout or {}).get("kind", "single")
+        self.prefix_of = {
+            e: stream_prefix(kind, i, a)
+            for e, i, a in zip(
+                episodes.column("episode").to_pylist(),
+                episodes.column("env_index").to_pylist(),
+                episodes.column("agent").to_pylist(),
+                strict=True,
+            )
+        }
+        self.terms = sorted(
+            {
+                name
+                for totals in episodes.column("term_totals").to_pylist()
+                for name, _ in totals or []
+            }
+        )
+        self.channels: dict[str, Any] = {}
+        self.images: dict[str, Any] = {}
+
+    def write(self, progress: Callable[[int], None] | None) -> None:
+        left_out: set[str] = set()
+        for batch in self.ev.iter_step_batches():
+            action = split_batch(batch, "action")
+            observation = split_batch(batch, "observation")
+            left_out.update(action.left_out, observation.left_out)
+            self._write_batch(batch, action, observation)
+            for frames in action.images + observation.images:
+                self._write_frames(batch, frames)
+            self.result.steps += batch.num_rows
+            if progress is not None:
+                progress(batch.num_rows)
+        self.result.left_out = sorted(left_out)
+
+    def _channel(self, prefix: str, action: Split, observation: Split) -> Any:
+        channel = self.channels.get(prefix)
+        if channel is None:
+            schema = _step_schema(self.terms, action, observation)
+            channel = self.fg.Channel(
+                f"{prefix}/steps",
+                schema=self.fg.Schema(
+                    name=STEP_SCHEMA_NAME, encoding="jsonschema", data=json.dumps(schema).encode()
+                ),
+                message_encoding="json",
+                context=self.context,
+            )
+            self.channels[prefix] = channel
+            self.result.paths.append(f"{prefix}/steps")
+        return channel
+
+    def _write_batch(self, batch: pa.RecordBatch, action: Split, observation: Split) -> None:
+        n = batch.num_rows
+        episodes = batch.column("episode").to_pylist()
+        steps = batch.column("step").to_pylist()
+        times = batch.column("time_ns").to_pylist()
+        rewards = batch.column("reward").to_pylist()
+        terms = batch.column("terms").to_pylist()
+        terminated = pc.cast(batch.column("terminated"), pa.int8()).to_pylist()
+        truncated = pc.cast(batch.column("truncated"), pa.int8()).to_pylist()
+        actions = json_rows(action.leaves, n)
+        observations = json_rows(observation.leaves, n)
+        logs: dict[int, Callable[[bytes, int], None]] = {}
+        dumps = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
+        for i in range(n):
+            episode = episodes[i]
+            log = logs.get(episode)
+            if log is None:
+                prefix = self.prefix_of.get(episode, "")
+                log = logs[episode] = self._channel(prefix, action, observation).base.log
+            message: dict[str, Any] = {
+                "episode": episode,
+                "step": steps[i],
+                "reward": rewards[i],
+                "terminated": terminated[i],
+                "truncated": truncated[i],
+            }
+            if terms[i]:
+                message["terms"] = dict(terms[i])
+            if actions[i] is not None:
+                message["action"] = actions[i]
+            if observations[i] is not None:
+                message["observation"] = observations[i]
+            try:
+                data = dumps(message)
+            except ValueError:  # a NaN or infinite reward or term: JSON has no such number
+                message["reward"] = finite([rewards[i]])[0]
+                if "terms" in message:
+                    message["terms"] = dict(
+                        zip(message["terms"], finite(list(message["terms"].values())), strict=True)
+                    )
+                data = dumps(message)
+            log(data.encode(), times[i])
+
+    def _write_frames(self, batch: pa.RecordBatch, frames: Frames) -> None:
+        from PIL import Image
+
+        messages = self.fg.messages
+        episodes = batch.column("episode").to_pylist()
+        times = batch.column("time_ns").to_pylist()
+        name = ".".join(frames.path)
+        for i in np.flatnonzero(frames.present).tolist():
+            prefix = self.prefix_of.get(episodes[i], "")
+            topic = f"{prefix}/camera/{name}"
+            channel = self.images.get(topic)
+            if channel is None:
+                channel = self.images[topic] = self.fg.channels.CompressedImageChannel(
+                    topic, context=self.context
+                )
+                self.result.paths.append(topic)
+            png = io.BytesIO()
+            Image.fromarray(frames.pixels[i].squeeze()).save(png, format="png")
+            channel.log(
+                messages.CompressedImage(
+                    timestamp=_timestamp(messages, times[i]),
+                    frame_id=name,
+                    data=png.getvalue(),
+                    format="png",
+                ),
+                log_time=times[i],
+            )
+            self.result.frames += 1
+
+
+def _step_schema(terms: list[str], action: Split, observation: Split) -> dict[str, Any]:
+    """The JSON Schema of a ``steps`` message (Foxglove reads field types from it)."""
+    properties: dict[str, Any] = {
+        "episode": {"type": "integer"},
+        "step": {"type": "integer"},
+        "reward": {"type": "number"},
+        "terminated": {"type": "integer", "description": "1 if terminated"},
+        "truncated": {"type": "integer", "description": "1 if truncated"},
+    }
+    if terms:
+        properties["terms"] = {
+            "type": "object",
+            "properties": {name: {"type": "number"} for name in terms},
+        }
+    for name, split in (("action", action), ("observation", observation)):
+        schema = json_schema(split.leaves)
+        if schema is not None:
+            properties[name] = schema
+    return {"title": STEP_SCHEMA_NAME, "type": "object", "properties": properties}
+
+
+def _timestamp(messages: Any, ns: int) -> Any:
+    return messages.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+
+
+def _write_episodes(foxglove: Any, context: Any, ev: Evidence) -> int:
+    """One ``foxglove.Event`` (``/episodes``) and one ``foxglove.Log`` (``/log``) per episode."""
+    messages, channels = foxglove.messages, foxglove.channels
+    events = channels.EventChannel("/episodes", context=context)
+    logs = channels.LogChannel("/log", context=context)
+    records = ev.episodes().to_pylist()
+    kind = (ev.run.layout or {}).get("kind", "single")
+    for record in records:
+        start, end = record.get("start_time_ns"), record.get("end_time_ns")
+        end = end if end is not None else start
+        if end is None:
+            continue
+        start = start if start is not None else end
+        stream = stream_prefix(kind, record.get("env_index") or 0, record.get("agent"))
+        pairs = {
+            "episode": record["episode"],
+            "outcome": record["outcome"],
+            "label": record.get("failure_label") or record.get("truncation_reason") or "",
+            "seed": "" if record.get("seed") is None else record["seed"],
+            "length": record["length"],
+            "return": record.get("return"),
+            "stream": stream.lstrip("/"),
+        }
+        events.log(
+            messages.Event(
+                start_time=_timestamp(messages, start),
+                end_time=_timestamp(messages, end),
+                metadata=[messages.KeyValuePair(key=k, value=str(v)) for k, v in pairs.items()],
+            ),
+            log_time=start,
+        )
+        level = getattr(messages.LogLevel, _LEVELS.get(record["outcome"], "Warning"))
+        logs.log(
+            messages.Log(
+                timestamp=_timestamp(messages, end),
+                level=level,
+                message=(f"{stream.lstrip('/')} " if stream else "") + ending_text(record),
+                name=stream.lstrip("/") or "episode_audit",
+            ),
+            log_time=end,
+        )
+    return len(records)

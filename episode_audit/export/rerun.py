@@ -1,0 +1,211 @@
+"""Export an evidence file as a Rerun recording (``.rrd``), written with ``rerun-sdk``.
+
+Timelines ``step`` (within the episode), ``episode`` and ``time`` (the step's log time). Per
+stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in single-env ones):
+scalars ``steps/reward``, ``steps/terminated``, ``steps/truncated``, ``steps/terms/NAME``,
+``steps/action[/ITEM]`` and ``steps/observation[/ITEM]`` (the plottable fields) and images
+``camera/FIELD`` (PNG). For the file: ``/log``, a text log line per ending (failures and
+errors at level ERROR, truncations and cut-off episodes WARN, successes INFO).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..errors import ConfigurationError
+from ..read import Evidence, open_evidence
+from ._output import ViewerExport, missing, staged
+from ._values import Leaf, Split, ending_text, split_batch, stream_prefix
+
+__all__ = ["export_rerun"]
+
+_LEVELS = {"success": "INFO", "failure": "ERROR", "error": "ERROR"}
+
+
+def export_rerun(
+    source: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> ViewerExport:
+    """Write ``source``'s steps, endings and camera frames to the Rerun recording ``out``.
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` when ``rerun-sdk`` is not
+    installed or ``out`` cannot be written, :class:`~episode_audit.errors.EvidenceError` when
+    ``source`` cannot be read; either way no ``out`` is left behind.
+    """
+    try:
+        import rerun as rr
+    except ImportError:
+        raise missing("rerun-sdk", "rerun") from None
+    source, out = Path(source), Path(out)
+    ev = open_evidence(source)
+    unfinished = None if ev.finished else ev.torn or "no run-end record"
+    result = ViewerExport(out, source, "rerun", unfinished=unfinished)
+    with staged(source, out, overwrite=overwrite) as temporary:
+        rec = rr.RecordingStream("episode-audit", send_properties=False)
+        rec.save(str(temporary))
+        rec.send_recording_name(source.name)
+        try:
+            writer = _Writer(rr, rec, ev, result)
+            for batch in ev.iter_step_batches():
+                writer.batch(batch)
+                if progress is not None:
+                    progress(batch.num_rows)
+            result.episodes = writer.endings()
+        finally:
+            rec.flush()
+            rec.disconnect()
+        if not temporary.exists():  # a disabled SDK (RERUN=off in the environment) writes none
+            raise ConfigurationError(
+                f"{out}: rerun-sdk wrote nothing; is logging turned off (RERUN=off)?"
+            )
+    result.paths = sorted(writer.paths)
+    result.left_out = sorted(writer.left_out)
+    return result
+
+
+class _Writer:
+    """Sends each block's columns to the recording, stream by stream."""
+
+    def __init__(self, rr: Any, rec: Any, ev: Evidence, result: ViewerExport) -> None:
+        self.rr, self.rec, self.ev, self.result = rr, rec, ev, result
+        self.kind = (ev.run.layout or {}).get("kind", "single")
+        episodes = ev.episodes()
+        self.prefix_of = {
+            e: stream_prefix(self.kind, i, a)
+            for e, i, a in zip(
+                episodes.column("episode").to_pylist(),
+                episodes.column("env_index").to_pylist(),
+                episodes.column("agent").to_pylist(),
+                strict=True,
+            )
+        }
+        self.paths: set[str] = set()
+        self.left_out: set[str] = set()
+
+    def batch(self, batch: pa.RecordBatch) -> None:
+        episodes = batch.column("episode").to_numpy(zero_copy_only=False)
+        prefixes = np.array([self.prefix_of.get(int(e), "") for e in episodes], dtype=object)
+        splits = [split_batch(batch, "action"), split_batch(batch, "observation")]
+        for split in splits:
+            self.left_out.update(split.left_out)
+        for prefix in sorted(set(prefixes.tolist())):
+            rows = np.flatnonzero(prefixes == prefix)
+            self._stream(prefix, batch, rows, splits)
+        self.result.steps += batch.num_rows
+
+    def _times(self, batch: pa.RecordBatch, rows: npt.NDArray[Any]) -> list[Any]:
+        rr = self.rr
+        column = batch.column
+
+        def take(name: str) -> npt.NDArray[Any]:
+            values = np.asarray(column(name).to_numpy(zero_copy_only=False))
+            taken: npt.NDArray[Any] = values[rows]
+            return taken
+
+        return [
+            rr.TimeColumn("step", sequence=take("step")),
+            rr.TimeColumn("episode", sequence=take("episode")),
+            rr.TimeColumn("time", timestamp=take("time_ns").astype("datetime64[ns]")),
+        ]
+
+    def _send(self, path: str, batch: pa.RecordBatch, rows: npt.NDArray[Any], values: Any) -> None:
+        if len(rows) == 0:
+            return
+        self.rec.send_columns(
+            path, indexes=self._times(batch, rows), columns=self.rr.Scalars.columns(scalars=values)
+        )
+        self.paths.add(path)
+
+    def _stream(
+        self, prefix: str, batch: pa.RecordBatch, rows: npt.NDArray[Any], splits: list[Split]
+    ) -> None:
+        def numbers(name: str) -> npt.NDArray[Any]:
+            array = pc.cast(batch.column(name), pa.float64())
+            values = np.asarray(array.to_numpy(zero_copy_only=False), dtype=np.float64)
+            taken: npt.NDArray[Any] = values[rows]
+            return taken
+
+        for name in ("reward", "terminated", "truncated"):
+            self._send(f"{prefix}/steps/{name}", batch, rows, numbers(name))
+        self._terms(prefix, batch, rows)
+        for split in splits:
+            for leaf in split.leaves:
+                self._leaf(prefix, batch, rows, leaf)
+            for frames in split.images:
+                self._frames(prefix, batch, rows, frames.path, frames.pixels, frames.present)
+
+    def _terms(self, prefix: str, batch: pa.RecordBatch, rows: npt.NDArray[Any]) -> None:
+        terms = batch.column("terms").take(pa.array(rows)).to_pylist()
+        names = sorted({name for row in terms for name, _ in row or []})
+        for name in names:
+            present, values = [], []
+            for i, row in enumerate(terms):
+                value = dict(row or []).get(name)
+                if value is not None:
+                    present.append(rows[i])
+                    values.append(value)
+            self._send(f"{prefix}/steps/terms/{name}", batch, np.array(present), np.array(values))
+
+    def _leaf(self, prefix: str, batch: pa.RecordBatch, rows: npt.NDArray[Any], leaf: Leaf) -> None:
+        keep = rows[leaf.present[rows]]
+        path = "/".join(leaf.path)
+        values = leaf.numbers[keep].astype(np.float64)
+        self._send(f"{prefix}/steps/{path}", batch, keep, values[:, 0] if leaf.scalar else values)
+
+    def _frames(
+        self,
+        prefix: str,
+        batch: pa.RecordBatch,
+        rows: npt.NDArray[Any],
+        path: tuple[str, ...],
+        pixels: npt.NDArray[np.uint8],
+        present: npt.NDArray[np.bool_],
+    ) -> None:
+        from PIL import Image
+
+        keep = rows[present[rows]]
+        if len(keep) == 0:
+            return
+        blobs = []
+        for i in keep.tolist():
+            png = io.BytesIO()
+            Image.fromarray(pixels[i].squeeze()).save(png, format="png")
+            blobs.append(png.getvalue())
+        entity = f"{prefix}/camera/{'.'.join(path)}"
+        self.rec.send_columns(
+            entity,
+            indexes=self._times(batch, keep),
+            columns=self.rr.EncodedImage.columns(blob=blobs, media_type=["image/png"] * len(blobs)),
+        )
+        self.paths.add(entity)
+        self.result.frames += len(blobs)
+
+    def endings(self) -> int:
+        """A ``/log`` line per episode, at its end time; the number of episodes."""
+        rr, rec = self.rr, self.rec
+        records = self.ev.episodes().to_pylist()
+        for record in records:
+            end = record.get("end_time_ns") or record.get("start_time_ns")
+            if end is None:
+                continue
+            stream = stream_prefix(self.kind, record.get("env_index") or 0, record.get("agent"))
+            rec.set_time("time", timestamp=np.datetime64(end, "ns"))
+            rec.set_time("episode", sequence=record["episode"])
+            rec.set_time("step", sequence=max(record["length"] - 1, 0))
+            level = getattr(rr.TextLogLevel, _LEVELS.get(record["outcome"], "WARN"))
+            text = (f"{stream.lstrip('/')} " if stream else "") + ending_text(record)
+            rec.log("/log", rr.TextLog(text, level=level))
+            self.paths.add("/log")
+        return len(records)

@@ -1,0 +1,229 @@
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+from PIL import Image
+from typer.testing import CliRunner
+
+from episode_audit import ConfigurationError, EvidenceError, open_evidence
+from episode_audit.cli import app
+from episode_audit.export import export
+from tests.support.viewer_files import aec_file, camera_file, vector_file
+
+foxglove = pytest.importorskip("foxglove")
+
+ROOT = Path(__file__).resolve().parents[1]
+JS = ROOT / "tests" / "js"
+MAKERS = {"camera": camera_file, "vector": vector_file, "aec": aec_file}
+
+
+def _foxglove_schema_names() -> set[str]:
+    """The schemas Foxglove publishes (foxglove-sdk ships each as a message class)."""
+    names = set()
+    for name in dir(foxglove.messages):
+        schema = getattr(getattr(foxglove.messages, name), "get_schema", None)
+        if schema is not None:
+            names.add(schema().name)
+    return names
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Path]]:
+    """Each kind of evidence file and its Foxglove export."""
+    tmp = tmp_path_factory.mktemp("foxglove")
+    files = {"clean": ROOT / "fixtures" / "clean.mcap"}
+    files.update({name: make(tmp / f"{name}.mcap") for name, make in MAKERS.items()})
+    out = {}
+    for name, source in files.items():
+        target = tmp / f"{name}.foxglove.mcap"
+        export([source], target, to="foxglove")
+        out[name] = (source, target)
+    return out
+
+
+@pytest.fixture(scope="module")
+def mcap_core(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """tests/js installed (``npm ci``) in a temporary directory; its reader script's path."""
+    if shutil.which("node") is None or shutil.which("npm") is None:
+        pytest.skip("Node.js and npm are not installed: the @mcap/core reader test needs them")
+    where = tmp_path_factory.mktemp("mcap-core")
+    for name in ("package.json", "package-lock.json", "list_mcap.mjs"):
+        shutil.copy(JS / name, where / name)
+    done = subprocess.run(
+        ["npm", "ci", "--no-audit", "--no-fund"], cwd=where, capture_output=True, text=True
+    )
+    if done.returncode != 0:
+        pytest.skip(f"npm ci of tests/js failed (no registry?): {done.stderr.strip()[-300:]}")
+    return where / "list_mcap.mjs"
+
+
+def _read_with_mcap_core(script: Path, path: Path, limit: int) -> dict[str, Any]:
+    done = subprocess.run(
+        ["node", str(script), str(path), str(limit)], capture_output=True, text=True, check=True
+    )
+    result: dict[str, Any] = json.loads(done.stdout)
+    return result
+
+
+@pytest.mark.parametrize("name", ["clean", "camera", "vector", "aec"])
+def test_mcap_core_reads_the_export(
+    exported: dict[str, tuple[Path, Path]], mcap_core: Path, name: str
+) -> None:
+    """The TypeScript reader lists Foxglove schemas only, and a step's reward is the file's."""
+    source, target = exported[name]
+    ev = open_evidence(source)
+    read = _read_with_mcap_core(mcap_core, target, limit=1000)
+    channels = {c["topic"]: c for c in read["channels"]}
+    published = _foxglove_schema_names()
+    for channel in channels.values():
+        if channel["schemaEncoding"] == "protobuf":  # Foxglove's own schemas
+            assert channel["schemaName"] in published, channel
+            assert channel["messageEncoding"] == "protobuf"
+        else:  # plottable numbers: JSON with a JSON Schema, as Foxglove reads them
+            assert (channel["schemaEncoding"], channel["messageEncoding"]) == ("jsonschema", "json")
+            assert channel["schemaName"] == "episode_audit.Step"
+    episodes = ev.episodes().num_rows
+    assert channels["/log"]["schemaName"] == "foxglove.Log"
+    assert channels["/log"]["messages"] == episodes
+    assert channels["/episodes"]["schemaName"] == "foxglove.Event"
+    assert channels["/episodes"]["messages"] == episodes
+    steps = ev.steps(columns=["episode", "step", "reward"]).to_pylist()
+    step_topics = [t for t in channels if t.endswith("/steps")]
+    assert sum(channels[t]["messages"] for t in step_topics) == len(steps)
+    recorded = {(s["episode"], s["step"]): s["reward"] for s in steps}
+    seen = [m for t in step_topics for m in read["first"][t]]
+    assert seen and all(recorded[(m["episode"], m["step"])] == m["reward"] for m in seen)
+    if name == "camera":
+        assert channels["/camera/observation.camera"]["schemaName"] == "foxglove.CompressedImage"
+        assert channels["/camera/observation.camera"]["messages"] == len(steps)
+
+
+def test_streams_get_their_own_topics(exported: dict[str, tuple[Path, Path]]) -> None:
+    with open(exported["vector"][1], "rb") as f:
+        topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
+    assert topics == {"/env_0/steps", "/env_1/steps", "/env_2/steps", "/episodes", "/log"}
+    with open(exported["aec"][1], "rb") as f:
+        topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
+    assert topics == {"/player_1/steps", "/player_2/steps", "/episodes", "/log"}
+
+
+def _decoded(path: Path, topic: str) -> list[Any]:
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        return [m for *_, m in reader.iter_decoded_messages(topics=[topic])]
+
+
+def test_endings_are_logs_by_outcome_and_episodes_are_events(
+    exported: dict[str, tuple[Path, Path]],
+) -> None:
+    source, target = exported["camera"]
+    logs = _decoded(target, "/log")
+    assert [(log.level, log.message) for log in logs] == [
+        (4, "episode 0: failure (collision) after 4 steps, return 1"),  # ERROR
+        (3, "episode 1: truncated (time_limit) after 6 steps, return 1.5"),  # WARNING
+    ]
+    ends = open_evidence(source).episodes().column("end_time_ns").to_pylist()
+    assert [log.timestamp.ToNanoseconds() for log in logs] == ends
+    events = _decoded(target, "/episodes")
+    first = {kv.key: kv.value for kv in events[0].metadata}
+    assert first["outcome"] == "failure" and first["label"] == "collision"
+    assert first["seed"] == "0"
+    assert events[0].end_time.ToNanoseconds() == ends[0]
+
+
+def test_camera_frames_are_lossless_png(exported: dict[str, tuple[Path, Path]]) -> None:
+    source, target = exported["camera"]
+    frames = _decoded(target, "/camera/observation.camera")
+    recorded = open_evidence(source).observation_codec
+    assert recorded is not None
+    observations = recorded.decode(open_evidence(source).steps().column("observation"))
+    assert len(frames) == len(observations) == 10
+    for frame, obs in zip(frames, observations, strict=True):
+        assert frame.format == "png"
+        np.testing.assert_array_equal(np.asarray(Image.open(io.BytesIO(frame.data))), obs["camera"])
+
+
+def test_dict_observations_plot_item_by_item(exported: dict[str, tuple[Path, Path]]) -> None:
+    _, target = exported["camera"]
+    with open(target, "rb") as f:
+        reader = make_reader(f)
+        (schema,) = [s for s in reader.get_summary().schemas.values() if s.encoding == "jsonschema"]
+        first = json.loads(next(m for *_, m in reader.iter_messages(topics=["/steps"])).data)
+    properties = json.loads(schema.data)["properties"]
+    assert properties["observation"]["properties"] == {
+        "state": {"type": "array", "items": {"type": "number"}},
+        "mode": {"type": "integer"},
+    }  # the camera is an image, not numbers
+    assert set(properties["terms"]["properties"]) == {"progress", "effort"}
+    assert first["observation"] == {"state": [pytest.approx(0.1), pytest.approx(-0.1)], "mode": 1}
+    assert first["terms"] == {"progress": 0.5, "effort": -0.25}
+    assert (first["action"], first["terminated"], first["truncated"]) == (1, 0, 0)
+
+
+def test_refuses_to_overwrite_and_leaves_nothing_on_failure(tmp_path: Path) -> None:
+    source = ROOT / "fixtures" / "clean.mcap"
+    out = tmp_path / "view.mcap"
+    out.write_bytes(b"keep")
+    with pytest.raises(ConfigurationError, match=r"view\.mcap: exists; pass --overwrite"):
+        export([source], out, to="foxglove")
+    assert out.read_bytes() == b"keep"
+    with pytest.raises(ConfigurationError, match="is the input"):
+        export([source], source, to="foxglove", overwrite=True)
+    with pytest.raises(ConfigurationError, match="one file from one input, got 2 inputs"):
+        export([source, source], out, to="foxglove")
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(source.read_bytes()[:50])
+    with pytest.raises(EvidenceError, match=r"broken\.mcap"):
+        export([broken], tmp_path / "none.mcap", to="foxglove")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.mcap", "view.mcap"]
+
+
+def test_cli_export_to_foxglove(tmp_path: Path) -> None:
+    runner = CliRunner()
+    out = tmp_path / "view.mcap"
+    args = ["export", str(ROOT / "fixtures" / "clean.mcap"), "--to", "foxglove", "-o", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "wrote 6 episodes, 447 steps" in result.output and out.is_file()
+    again = runner.invoke(app, args)
+    assert again.exit_code == 2 and "exists; pass --overwrite" in again.output
+    wrong = runner.invoke(app, [*args[:3], "vlc", *args[4:], "--overwrite"])
+    assert wrong.exit_code == 2 and "--to: expected one of parquet, foxglove, rerun" in wrong.output
+
+
+def test_docs_layout_is_the_generated_one() -> None:
+    """docs/foxglove-layout.json is what foxglove.layouts builds (regenerate it if this fails)."""
+    from episode_audit.export.layout import foxglove_layout
+
+    text = (ROOT / "docs" / "foxglove-layout.json").read_text()
+    assert text == foxglove_layout(), (
+        "python -m episode_audit.export.layout > docs/foxglove-layout.json"
+    )
+    panels: list[dict[str, Any]] = []
+
+    def walk(node: dict[str, Any]) -> None:
+        if node["type"] == "panel":
+            panels.append(node)
+        for item in node.get("items", []):
+            walk(item["content"])
+
+    walk(json.loads(text)["content"])
+    kinds = {p["title"]: p["panelType"] for p in panels}
+    assert kinds == {
+        "reward": "Plot",
+        "reward terms": "Plot",
+        "episodes and endings": "StateTransitions",
+        "camera": "Image",
+        "endings": "Log",
+    }
+    series = [s["value"] for p in panels if p["panelType"] == "Plot" for s in p["config"]["paths"]]
+    assert "/steps.reward" in series and "/steps.terms.ctrl_cost" in series

@@ -1,0 +1,131 @@
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from episode_audit import open_evidence
+from episode_audit.export import export
+from tests.support.viewer_files import aec_file, camera_file, vector_file
+
+pytest.importorskip("rerun")
+
+ROOT = Path(__file__).resolve().parents[1]
+CHUNK = re.compile(r"^Chunk\(\S+\) with (\d+) rows \([^)]*\) - (\S+) - data columns: \[(.*)\]$")
+
+
+def _rrd(*args: str) -> str:
+    """Run rerun-sdk's own ``rerun rrd`` command (the viewer's reader) and return its output."""
+    env = {**os.environ, "RERUN_ANALYTICS": "false"}
+    done = subprocess.run(
+        [sys.executable, "-c", "from rerun_cli.__main__ import main; main()", "rrd", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+    )
+    return done.stdout + done.stderr
+
+
+def _rows(path: Path) -> tuple[Counter[str], dict[str, str]]:
+    """Rows per entity path, and each path's data columns, as ``rerun rrd print`` lists them."""
+    rows: Counter[str] = Counter()
+    columns: dict[str, str] = {}
+    for line in _rrd("print", str(path)).splitlines():
+        match = CHUNK.match(line.strip())
+        if match:
+            rows[match[2]] += int(match[1])
+            columns[match[2]] = match[3]
+    return rows, columns
+
+
+@pytest.mark.parametrize("name", ["camera", "vector", "aec"])
+def test_rerun_reads_the_recording(tmp_path: Path, name: str) -> None:
+    make = {"camera": camera_file, "vector": vector_file, "aec": aec_file}[name]
+    source = make(tmp_path / f"{name}.mcap")
+    out = tmp_path / f"{name}.rrd"
+    result = export([source], out, to="rerun")
+    assert "verified without error" in _rrd("verify", str(out))
+    rows, columns = _rows(out)
+    ev = open_evidence(source)
+    episodes = ev.episodes().to_pylist()
+    steps = ev.steps(columns=["episode"]).column("episode").to_pylist()
+    assert rows["/log"] == len(episodes) and "TextLog:text" in columns["/log"]
+    per_stream: Counter[str] = Counter()
+    prefix = {
+        e["episode"]: (f"/{e['agent']}" if e["agent"] else f"/env_{e['env_index']}")
+        if name != "camera"
+        else ""
+        for e in episodes
+    }
+    for episode in steps:
+        per_stream[prefix[episode]] += 1
+    for stream, count in per_stream.items():
+        for what in ("reward", "terminated", "truncated", "action"):
+            assert rows[f"{stream}/steps/{what}"] == count, (stream, what)
+            assert "Scalars:scalars" in columns[f"{stream}/steps/{what}"]
+    assert sum(per_stream.values()) == result.steps == len(steps)
+    assert set(rows) - {"/__properties"} == set(result.paths)
+    if name == "camera":
+        assert rows["/steps/terms/progress"] == rows["/steps/terms/effort"] == 10
+        assert rows["/steps/observation/state"] == rows["/steps/observation/mode"] == 10
+        assert rows["/camera/observation.camera"] == result.frames == 10
+        assert "EncodedImage:blob" in columns["/camera/observation.camera"]
+
+
+def test_a_disabled_sdk_is_an_error_not_a_missing_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from episode_audit import ConfigurationError
+
+    monkeypatch.setenv("RERUN", "off")
+    out = tmp_path / "none.rrd"
+    with pytest.raises(ConfigurationError, match=r"rerun-sdk wrote nothing; is logging turned"):
+        export([ROOT / "fixtures" / "clean.mcap"], out, to="rerun")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_missing_viewer_library_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    from episode_audit import ConfigurationError
+
+    monkeypatch.setitem(sys.modules, "rerun", None)  # as if rerun-sdk were not installed
+    with pytest.raises(
+        ConfigurationError,
+        match=r"--to rerun: needs the 'rerun-sdk' package; install it with pip install "
+        r"'episode-audit\[rerun\]'",
+    ):
+        export([ROOT / "fixtures" / "clean.mcap"], Path("unused.rrd"), to="rerun")
+
+
+def test_cli_export_to_rerun_notes_what_is_not_plotted(tmp_path: Path) -> None:
+    import gymnasium as gym
+    import numpy as np
+    from typer.testing import CliRunner
+
+    from episode_audit import RecordEvidence
+    from episode_audit.cli import app
+    from tests.support.envs import ScriptedEnv
+
+    wide = gym.spaces.Box(-1, 1, (80,), np.float32)
+    env = ScriptedEnv(
+        step_fn=lambda e, a: (np.zeros(80, np.float32), 1.0, e.t == 3, False, {}),
+        reset_fn=lambda e: (np.zeros(80, np.float32), {}),
+        observation_space=wide,
+    )
+    source = tmp_path / "wide.mcap"
+    with RecordEvidence(env, source) as rec:
+        rec.reset(seed=0)
+        for _ in range(3):
+            rec.step(0)
+    out = tmp_path / "wide.rrd"
+    result = CliRunner().invoke(app, ["export", str(source), "--to", "rerun", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "not plotted (more than 64 numbers, digests or text): observation" in result.output
+    assert "wrote 1 episodes, 3 steps" in result.output
+    rows, _ = _rows(out)
+    assert rows["/steps/reward"] == 3 and "/steps/observation" not in rows
