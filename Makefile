@@ -45,4 +45,4 @@ fixtures: $(STAMP)
 	$(BIN)/python fixtures/make_fixtures.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info .mypy_cache .ruff_cache demo-out
+	rm -rf $(VENV) build *.egg-info .mypy_cache .ruff_cache demo-out demo-out-viewers

@@ -59,8 +59,6 @@ def main(argv: list[str] | None = None) -> int:
         problems.append("replay diverged")
     html = out / "report.html"
     run("report", str(out), "--by", "tag:policy", "--html", str(html))
-    # The Foxglove export goes here (issue 27, part A): one `export --to foxglove` run whose
-    # output path joins the list printed at the end.
     print("\nThe same report as a CI gate: it must fail (exit 1) because of the hacker run.")
     gate = run(
         "report", str(out), "--by", "tag:policy", "--min-success-rate", "0.7",
@@ -69,12 +67,23 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n(exit code {gate})")
     if gate != 1:
         problems.append(f"the gate should have failed with exit 1, got {gate}")
+    # viewer files go beside the evidence directory, not in it: commands given the directory
+    # would take an exported MCAP for evidence
+    viewers = out.parent / f"{out.name}-viewers"
+    if viewers.exists():
+        shutil.rmtree(viewers)
+    viewers.mkdir()
+    hacker = sorted(out.glob("*-hacker.mcap"))[0]
+    foxglove = viewers / hacker.name.replace(".mcap", ".foxglove.mcap")
+    if run("export", str(hacker), "--to", "foxglove", "-o", str(foxglove)) != 0:
+        problems.append("the Foxglove export failed")
     elapsed = time.perf_counter() - started
     if problems:
         print(f"\ndemo: {len(problems)} problem(s): " + "; ".join(problems), file=sys.stderr)
         return 1
     print(f"\ndemo finished in {elapsed:.1f} s; evidence files are in {out}/")
     print(f"HTML report: {html} (open it in a browser; it needs no network)")
+    print(f"Foxglove file: {foxglove} (open it in Foxglove; layout: docs/foxglove-layout.json)")
     print(
         "Run the commands above yourself with .venv/bin/episode-audit "
         "(or `source .venv/bin/activate` first)."
