@@ -30,19 +30,23 @@ def compare(
         typer.Option(
             "--candidate",
             help="The candidate's evidence files or directories (repeatable; required).",
-            metavar="<path>",
+            metavar="<file|dir>",
         ),
     ],
     by: Annotated[
         str,
         typer.Option(
             help="Group both sides by: all, env, env_index, agent or tag:NAME; groups of the "
-            "same key are compared."
+            "same key are compared.",
+            metavar="<key>",
         ),
     ] = "all",
     max_success_drop: Annotated[
         float | None,
-        typer.Option(help="Gate: fail (exit 1) unless the success rate's drop is within this."),
+        typer.Option(
+            help="Gate: fail (exit 1) unless the success rate's drop is within this.",
+            metavar="<rate>",
+        ),
     ] = None,
     max_failure_increase: Annotated[
         list[str] | None,
@@ -54,11 +58,16 @@ def compare(
     ] = None,
     max_return_drop: Annotated[
         float | None,
-        typer.Option(help="Gate: fail unless the mean return's drop is within this."),
+        typer.Option(
+            help="Gate: fail unless the mean return's drop is within this.", metavar="<amount>"
+        ),
     ] = None,
     rate_margin: Annotated[
         float,
-        typer.Option(help="A rate without a gate is 'held' when its change is within this."),
+        typer.Option(
+            help="A rate without a gate is 'held' when its change is within this.",
+            metavar="<rate>",
+        ),
     ] = 0.05,
     different_tasks: Annotated[
         bool,

@@ -33,7 +33,7 @@ def export(
             "--out",
             "-o",
             help="Directory for the Parquet files; with --to foxglove or rerun, the file to write.",
-            metavar="<path>",
+            metavar="<out>",
         ),
     ],
     to: Annotated[
