@@ -9,6 +9,7 @@ is cut, at a line, to the room the file has left, and says so (:func:`fit_summar
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable
 from typing import Annotated
 
@@ -66,11 +67,11 @@ def fit_summary(markdown: str, room: int) -> str | None:
 def append_step_summary(markdown: Callable[[], str], *, off: bool = False) -> None:
     """Append ``markdown()`` to ``$GITHUB_STEP_SUMMARY`` when it is set and not ``off``.
 
-    A file that cannot be written is a warning on stderr: the command's output and exit code
-    stand.
+    Nothing when stdout already goes to that file (``>> $GITHUB_STEP_SUMMARY``). A file that
+    cannot be written is a warning on stderr: the command's output and exit code stand.
     """
     path = os.environ.get(STEP_SUMMARY_ENV)
-    if off or not path:
+    if off or not path or _is_stdout(path):
         return
     try:
         used = os.path.getsize(path) if os.path.exists(path) else 0
@@ -83,3 +84,11 @@ def append_step_summary(markdown: Callable[[], str], *, off: bool = False) -> No
             out.write(separator + text)
     except OSError as exc:
         warn(f"${STEP_SUMMARY_ENV} {path}: cannot append the summary ({exc.strerror or exc})")
+
+
+def _is_stdout(path: str) -> bool:
+    """Whether stdout is the file ``path`` (so the summary is already being written)."""
+    try:
+        return os.path.samestat(os.fstat(sys.stdout.fileno()), os.stat(path))
+    except (OSError, ValueError, AttributeError):  # (no such file; stdout not a real file)
+        return False

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import copy
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -289,6 +292,20 @@ def test_step_summary_is_the_markdown_output_appended(
     assert summary.read_text() == before
     # unset (outside GitHub Actions): nothing written
     assert run(*argv, "--format", "json", env={"GITHUB_STEP_SUMMARY": ""})[0] == code
+
+
+def test_step_summary_once_when_stdout_is_already_appended_to_it(tmp_path: Path) -> None:
+    """``episode-audit report ... --format markdown >> $GITHUB_STEP_SUMMARY`` writes it once."""
+    summary = tmp_path / "summary.md"
+    summary.write_text("")
+    env = {**os.environ, "GITHUB_STEP_SUMMARY": str(summary), "PYTHONPATH": str(REPO)}
+    command = [sys.executable, "-m", "episode_audit", "report", "fixtures/clean.mcap"]
+    with summary.open("a") as out:
+        subprocess.run([*command, "-f", "markdown"], stdout=out, env=env, check=True, cwd=REPO)
+    once = summary.read_text()
+    assert once.count("### episode-audit report") == 1, once
+    subprocess.run([*command, "-f", "json"], capture_output=True, env=env, check=True, cwd=REPO)
+    assert summary.read_text().count("### episode-audit report") == 2
 
 
 def test_step_summary_is_cut_to_what_github_shows(tmp_path: Path) -> None:
