@@ -37,6 +37,7 @@ NoStepSummaryOption = Annotated[
         "(done when it is set, as in GitHub Actions).",
     ),
 ]
+"""``--no-step-summary`` of ``check``, ``replay`` and ``report``: :func:`append_step_summary`."""
 
 
 def fit_summary(markdown: str, room: int) -> str | None:
