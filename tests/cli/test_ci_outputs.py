@@ -63,11 +63,22 @@ def cartpole(path: Path, episodes: int = 3) -> Path:
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """A CartPole file, and a file that is not evidence."""
+    """A CartPole file, a PettingZoo tic-tac-toe game, and a file that is not evidence."""
+    import pettingzoo
+
+    from episode_audit import RecordAECEvidence
+
     tmp = tmp_path_factory.mktemp("ci")
     junk = tmp / "junk.mcap"
     junk.write_bytes(b"not evidence")
-    return {"cartpole": cartpole(tmp / "cp.mcap"), "junk": junk}
+    game = tmp / "ttt.mcap"
+    with RecordAECEvidence(pettingzoo.make("aec", "classic/tictactoe-v3"), game) as env:
+        env.reset(seed=0)
+        for move in [0, 3, 1, 4, 2]:
+            env.step(move)
+        for _ in env.agent_iter():
+            env.step(None)
+    return {"cartpole": cartpole(tmp / "cp.mcap"), "game": game, "junk": junk}
 
 
 HEAVY = ("--env-factory", "tests.support.factories:heavy_cartpole")
@@ -91,6 +102,9 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("report", "fixtures", "--max-failure-rate", "collision=0.1", "--by", "all"), 0),
     (("report", "fixtures/torn.mcap", "{junk}", "--max-truncation-rate", "0.5"), 2),
     (("report", "{junk}"), 2),
+    (("report", "{game}", "--games", "--by", "all", "--max-failure-rate", "0.5"), 1),
+    (("report", "{game}", "--by", "agent"), 0),
+    (("replay", "{game}"), 0),
 ]
 
 
