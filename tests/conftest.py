@@ -31,3 +31,9 @@ def scripted_env() -> Callable[..., ScriptedEnv]:
         return ScriptedEnv(**kwargs)
 
     return make
+
+
+@pytest.fixture(autouse=True)
+def _no_github_step_summary(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Commands append to ``$GITHUB_STEP_SUMMARY`` when it is set: never the CI's own."""
+    monkeypatch.delenv("GITHUB_STEP_SUMMARY", raising=False)

@@ -520,7 +520,12 @@ def _every_output(files: dict[str, Path], kind: str, tmp: Path) -> list[tuple[st
     for command in OUTPUTS:
         if command[0] != "show":
             run(" ".join(command), command[0], *paths, *command[1:], "--format", kind)
+    if kind == "junit":  # (reports' JUnit cases are their gates)
+        gates = ("--max-failure-rate", "0.1", "--fail-on-incentive-warning", "--format", kind)
+        run("report gates", "report", *paths, "--by", "label", *gates)
     for i, (text, path) in enumerate(files.items()):
+        if kind == "junit":  # (only check, replay and report write JUnit)
+            break
         for episode in ((), ("--episode", "0"), ("--episode", "2")):
             run(f"show {text!r} {episode}", "show", str(path), *episode, "--format", kind)
         if kind != "table":  # (the commands below have one output format)
@@ -554,6 +559,10 @@ def _assert_inert(what: str, kind: str, output: str) -> None:
         assert tags <= _HTML_TAGS, (what, tags - _HTML_TAGS, html)
     if kind == "json":
         json.loads(output)
+    if kind == "junit":
+        import xmlschema
+
+        xmlschema.XMLSchema(Path(__file__).parent / "cli" / "junit-10.xsd").validate(output)
 
 
 def _strings(data: Any) -> set[str]:
@@ -564,12 +573,13 @@ def _strings(data: Any) -> set[str]:
     return {data} if isinstance(data, str) else set()
 
 
-@pytest.mark.parametrize("kind", ["table", "markdown", "json"])
+@pytest.mark.parametrize("kind", ["table", "markdown", "json", "junit"])
 def test_no_output_can_inject_links_html_or_ci_workflow_commands(
     injected: dict[str, Path], tmp_path: Path, kind: str
 ) -> None:
     outputs = _every_output(injected, kind, tmp_path)
-    assert len(outputs) >= 2 * (5 + 3 * len(injected))
+    runs = len(OUTPUTS) - 1 if kind == "junit" else 5 + 3 * len(injected)
+    assert len(outputs) >= 2 * runs
     for what, output_kind, output in outputs:
         _assert_inert(what, output_kind, output)
 

@@ -160,6 +160,16 @@ FormatOption = Annotated[
         metavar="<format>",
     ),
 ]
+CIFormatOption = Annotated[
+    str,
+    typer.Option(
+        "--format",
+        "-f",
+        help="Output format: table, markdown (CI summaries), json, or junit (CI test reporters).",
+        metavar="<format>",
+    ),
+]
+"""``--format`` of the commands whose result a CI job gates on (``check``, ``replay``, ...)."""
 # readable=False: the library says "cannot open: Permission denied" in one line, and the
 # other inputs go on (Click's own check is a three-line usage error that stops them all)
 PathsArgument = Annotated[
@@ -172,9 +182,12 @@ PathsArgument = Annotated[
 ]
 
 
-def _format(value: str) -> OutputFormat:
+def _format(value: str, *, junit: bool = False) -> OutputFormat:
+    if junit and value == "junit":
+        return "junit"
     if value not in ("table", "markdown", "json"):
-        fail(f"--format: expected table, markdown or json, got {value!r}")
+        expected = "table, markdown, json or junit" if junit else "table, markdown or json"
+        fail(f"--format: expected {expected}, got {value!r}")
     return value  # type: ignore[return-value]
 
 

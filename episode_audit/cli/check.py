@@ -11,7 +11,7 @@ from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
-    FormatOption,
+    CIFormatOption,
     PathsArgument,
     _error_line,
     _format,
@@ -21,6 +21,7 @@ from ._app import (
     fail,
     progress_bar,
 )
+from ._summary import NoStepSummaryOption, append_step_summary
 
 
 @app.command()
@@ -50,14 +51,15 @@ def check(
             metavar="<code>",
         ),
     ] = None,
-    output: FormatOption = "table",
+    output: CIFormatOption = "table",
+    no_step_summary: NoStepSummaryOption = False,
 ) -> None:
     """Check integrity and consistency: terms sum to reward, endings labelled, nothing missing."""
     from ..check import check as run_check
     from ..check import ignored_codes
     from .render import check_output
 
-    fmt = _format(output)
+    fmt = _format(output, junit=True)
     try:
         ignored = ignored_codes(ignore or (), option="--ignore")
     except ConfigurationError as exc:
@@ -77,7 +79,8 @@ def check(
             )
         except ConfigurationError as exc:
             fail(str(exc))
-    emit(check_output(result, fmt))
+    emit(check_output(result, fmt, strict=strict, ignored=ignored))
+    append_step_summary(lambda: str(check_output(result, "markdown")), off=no_step_summary)
     if result.unreadable:
         raise typer.Exit(EXIT_USAGE)
     if result.errors or (strict and result.warnings):

@@ -11,7 +11,7 @@ from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
-    FormatOption,
+    CIFormatOption,
     PathsArgument,
     _error_line,
     _format,
@@ -21,6 +21,7 @@ from ._app import (
     fail,
     progress_bar,
 )
+from ._summary import NoStepSummaryOption, append_step_summary
 
 
 @app.command()
@@ -67,14 +68,16 @@ def replay(
             help="Exit 0 even when no episode could be verified (every one not replayable).",
         ),
     ] = False,
-    output: FormatOption = "table",
+    output: CIFormatOption = "table",
+    no_step_summary: NoStepSummaryOption = False,
 ) -> None:
     """Re-run episodes from their recorded seed / RNG state and compare them step by step."""
     from ..replay import replay as run_replay
     from ..replay import replay_options
     from .render import replay_output
+    from .render.replay import unverified
 
-    fmt = _format(output)
+    fmt = _format(output, junit=True)
     try:
         episodes = replay_options(atol, episode, atol_option="--atol", episode_option="--episode")
     except ConfigurationError as exc:
@@ -95,7 +98,8 @@ def replay(
             )
         except ConfigurationError as exc:
             fail(str(exc))
-    emit(replay_output(result, fmt))
+    emit(replay_output(result, fmt, allow_unverified=allow_unverified))
+    append_step_summary(lambda: str(replay_output(result, "markdown")), off=no_step_summary)
     if result.missing and not result.unreadable:
         listed = ", ".join(map(str, result.missing))
         fail(
@@ -107,14 +111,4 @@ def replay(
     if not result.ok:
         raise typer.Exit(EXIT_FINDINGS)
     if not result.verified and not allow_unverified:
-        fail(_unverified(result.count("not_replayable")), EXIT_FINDINGS)
-
-
-def _unverified(not_replayable: int) -> str:
-    """Why a replay that compared no episode fails."""
-    what = (
-        f"all {not_replayable} episode(s) are not replayable (the output says why)"
-        if not_replayable
-        else "the file(s) hold no episode"
-    )
-    return f"replay verified no episode: {what}; pass --allow-unverified when that is expected"
+        fail(unverified(result.count("not_replayable")), EXIT_FINDINGS)

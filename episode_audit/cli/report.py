@@ -11,7 +11,7 @@ from ..errors import EpisodeAuditError
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
-    FormatOption,
+    CIFormatOption,
     PathsArgument,
     _error_line,
     _format,
@@ -21,6 +21,7 @@ from ._app import (
     note,
     warn,
 )
+from ._summary import NoStepSummaryOption, append_step_summary
 
 if TYPE_CHECKING:
     from ..report.inputs import InputsReport
@@ -74,7 +75,8 @@ def report(
         bool,
         typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
     ] = False,
-    output: FormatOption = "table",
+    output: CIFormatOption = "table",
+    no_step_summary: NoStepSummaryOption = False,
     html: Annotated[
         Path | None,
         typer.Option(
@@ -89,7 +91,7 @@ def report(
     from ..report.inputs import report_inputs
     from .render import report_output
 
-    fmt = _format(output)
+    fmt = _format(output, junit=True)
     try:
         result = report_inputs(
             paths,
@@ -104,11 +106,14 @@ def report(
         )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    if not result.readable and fmt != "json":  # (JSON is still one document: its unreadable list)
+    if not result.readable and fmt not in ("json", "junit"):  # (still one document: the errors)
         raise typer.Exit(EXIT_USAGE)
     emit(report_output(result.report, fmt, unreadable=result.unreadable))
     if html is not None:
         _write_html(result, html, games)
+    if result.readable:
+        markdown = lambda: str(report_output(result.report, "markdown"))  # noqa: E731
+        append_step_summary(markdown, off=no_step_summary)
     for line in result.report.notes:
         warn(line)
     if result.unreadable:

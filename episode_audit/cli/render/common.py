@@ -35,6 +35,7 @@ from rich.text import Text
 from ...read.inputs import Unreadable
 
 __all__ = [
+    "JSON_SCHEMA_VERSION",
     "WORD_JOINER",
     "FittedTable",
     "Output",
@@ -47,9 +48,10 @@ __all__ = [
     "table",
     "to_json",
     "unreadable_json",
+    "versioned",
 ]
 
-OutputFormat = Literal["table", "markdown", "json"]
+OutputFormat = Literal["table", "markdown", "json", "junit"]
 Output = RenderableType | str
 
 
@@ -255,3 +257,17 @@ _JSON_CI_COMMAND = re.compile(r"##([\[A-Za-z])")
 def unreadable_json(unreadable: Iterable[Unreadable]) -> list[dict[str, str]]:
     """``[{"file", "why"}]``: the inputs a command could not read (each also named on stderr)."""
     return [{"file": u.file, "why": u.why} for u in unreadable]
+
+
+JSON_SCHEMA_VERSION = 1
+"""The version of the JSON outputs' shapes (``docs/schemas/<command>.json``): a key removed or
+changed in meaning raises it; a key added does not."""
+
+
+def versioned(command: str, data: dict[str, Any]) -> dict[str, Any]:
+    """A command's JSON output: ``data`` after ``command`` and ``schema_version``.
+
+    >>> versioned("check", {"ok": True})
+    {'command': 'check', 'schema_version': 1, 'ok': True}
+    """
+    return {"command": command, "schema_version": JSON_SCHEMA_VERSION, **data}

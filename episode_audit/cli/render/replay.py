@@ -5,7 +5,7 @@ from __future__ import annotations
 from rich.console import Group, RenderableType
 from rich.text import Text
 
-from ...replay import ReplayResult
+from ...replay import EpisodeReplay, ReplayResult
 from .common import (
     Output,
     OutputFormat,
@@ -15,18 +15,30 @@ from .common import (
     table,
     to_json,
     unreadable_json,
+    versioned,
 )
+from .junit import JUnitCase, junit_xml
 
-__all__ = ["replay_output"]
+__all__ = ["REPLAY_SUITE", "replay_cases", "replay_output", "unverified"]
+
+REPLAY_SUITE = "episode-audit replay"
+"""The JUnit suite of what is about the whole replay, not one file."""
 
 
-def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
+def replay_output(
+    result: ReplayResult, output: OutputFormat, *, allow_unverified: bool = False
+) -> Output:
     """Replay results: one row per episode that was not identical, plus a summary.
 
-    JSON also lists the inputs that could not be read (``result.unreadable``).
+    JSON also lists the inputs that could not be read (``result.unreadable``); JUnit has the
+    cases of :func:`replay_cases`.
     """
     if output == "json":
-        return to_json({**result.to_dict(), "unreadable": unreadable_json(result.unreadable)})
+        data = {**result.to_dict(), "unreadable": unreadable_json(result.unreadable)}
+        return to_json(versioned("replay", data))
+    if output == "junit":
+        cases = replay_cases(result, allow_unverified=allow_unverified)
+        return junit_xml(cases, name="episode-audit replay")
     headers = ["file", "episode", "status", "steps", "where", "detail"]
     rows = []
     for e in result.episodes:
@@ -74,3 +86,65 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
     out.extend(Text(safe(line)) for line in live)
     out.append(Text(summary))
     return Group(*out)
+
+
+def unverified(not_replayable: int) -> str:
+    """Why a replay that compared no episode fails."""
+    what = (
+        f"all {not_replayable} episode(s) are not replayable (the output says why)"
+        if not_replayable
+        else "the file(s) hold no episode"
+    )
+    return f"replay verified no episode: {what}; pass --allow-unverified when that is expected"
+
+
+def _episode_case(e: EpisodeReplay, context: str) -> JUnitCase:
+    name = f"episode {e.episode}"
+    if e.status == "identical":
+        return JUnitCase(e.file, name, "passed")
+    if e.status == "not_replayable":
+        reason = e.reason or "not replayable"
+        return JUnitCase(
+            e.file, name, "skipped", reason, "\n".join(filter(None, [reason, context]))
+        )
+    message = e.divergence.describe() if e.divergence is not None else (e.reason or "diverged")
+    restored = f"restored before its reset: {e.restored}" if e.restored else ""
+    return JUnitCase(
+        e.file, name, "failed", message, "\n".join(filter(None, [message, restored, context]))
+    )
+
+
+def _file_context(result: ReplayResult) -> dict[str, str]:
+    """By file: its notes, live recorder and differing library versions, as lines."""
+    lines: dict[str, list[str]] = {}
+    for file, said in result.notes.items():
+        lines.setdefault(file, []).extend(f"note: {note}" for note in said)
+    for file, why in result.live:
+        lines.setdefault(file, []).append(f"live: {why}")
+    for file, diffs in result.version_differences.items():
+        lines.setdefault(file, []).extend(
+            f"{lib}: recorded {recorded}, here {current}"
+            for lib, (recorded, current) in diffs.items()
+        )
+    return {file: "\n".join(said) for file, said in lines.items()}
+
+
+def replay_cases(result: ReplayResult, *, allow_unverified: bool = False) -> list[JUnitCase]:
+    """A suite per file, a case per episode: passed, failed (diverged) or skipped.
+
+    A diverged episode's message is its first difference; a not replayable one's, why. An
+    input that could not be read is an error case; so is each ``--episode`` no file has; a
+    replay that verified no episode (unless ``allow_unverified``) fails the case ``verified``
+    of the suite :data:`REPLAY_SUITE`: the document fails when the command does.
+    """
+    context = _file_context(result)
+    cases = [_episode_case(e, context.get(e.file, "")) for e in result.episodes]
+    cases += [JUnitCase(u.file, "read", "error", u.why) for u in result.unreadable]
+    cases += [
+        JUnitCase(REPLAY_SUITE, f"episode {n}", "error", f"no episode {n} in the file(s) given")
+        for n in result.missing
+    ]
+    if not result.verified and not allow_unverified:
+        why = unverified(result.count("not_replayable"))
+        cases.append(JUnitCase(REPLAY_SUITE, "verified", "failed", why))
+    return cases

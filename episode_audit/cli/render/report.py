@@ -18,9 +18,11 @@ from .common import (
     table,
     to_json,
     unreadable_json,
+    versioned,
 )
+from .junit import JUnitCase, junit_xml
 
-__all__ = ["REPORT_HEADERS", "report_output"]
+__all__ = ["REPORT_HEADERS", "report_cases", "report_output"]
 
 
 def _counts(counts: dict[str, int]) -> str:
@@ -78,7 +80,10 @@ def report_output(
     ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
     """
     if output == "json":
-        return to_json({**result.to_dict(), "unreadable": unreadable_json(unreadable)})
+        data = {**result.to_dict(), "unreadable": unreadable_json(unreadable)}
+        return to_json(versioned("report", data))
+    if output == "junit":
+        return junit_xml(report_cases(result, unreadable), name="episode-audit report")
     rows = [_group_row(g) for g in result.groups]
     term_rows = [
         [g.key, outcome, term, fmt_number(value)]
@@ -155,6 +160,43 @@ def _ending_rows(result: Report) -> list[list[str]]:
         for outcome, counted in (("failure", g.failures), ("truncated", g.truncations))
         for label, n in sorted(counted.items())
     ]
+
+
+def _group_line(g: GroupReport, unit: str) -> str:
+    """One line of a group's outcomes, as the table shows them."""
+    return (
+        f"group {g.key}: {g.episodes} {unit}s; success {g.success} "
+        f"({rate(g.success_rate)}{_ci(g.success_ci)}), failure {g.failure} "
+        f"({rate(g.failure_rate)}{_ci(g.failure_ci)}; {_counts(g.failures)}), truncated "
+        f"{g.truncated} ({rate(g.truncation_rate)}{_ci(g.truncation_ci)}; "
+        f"{_counts(g.truncations)}), incomplete {g.incomplete}, error {g.errors}; "
+        f"return {_mean_std(g.return_mean, g.return_std)}"
+    )
+
+
+def report_cases(result: Report, unreadable: Sequence[Unreadable] = ()) -> list[JUnitCase]:
+    """A suite per group, a case per gate; an input not read is an error case.
+
+    A gate's message states its numbers; its details, the group's outcomes and incentive
+    warnings. A report without gates has no case but the unreadable inputs'.
+    """
+    groups = {g.key: g for g in result.groups}
+    details: dict[str, str] = {}
+    for key, g in groups.items():
+        lines = [_group_line(g, result.unit)]
+        lines += [f"incentive warning {w.code}: {w.message}" for w in g.warnings]
+        details[key] = "\n".join(lines)
+    cases = [
+        JUnitCase(
+            r.group,
+            r.gate,
+            "passed" if r.passed else "failed",
+            "" if r.passed else r.message,
+            "\n".join(filter(None, [r.message, details.get(r.group, "")])),
+        )
+        for r in result.gates
+    ]
+    return cases + [JUnitCase(u.file, "read", "error", u.why) for u in unreadable]
 
 
 def _unit(result: Report) -> str:
