@@ -11,7 +11,7 @@ from ..errors import EpisodeAuditError
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
-    FormatOption,
+    CIFormatOption,
     PathsArgument,
     _error_line,
     _format,
@@ -20,6 +20,7 @@ from ._app import (
     fail,
     warn,
 )
+from ._summary import NoStepSummaryOption, append_step_summary
 
 
 @app.command()
@@ -73,13 +74,14 @@ def compare(
         bool,
         typer.Option("--different-tasks", help="Compare even though the sides' env ids differ."),
     ] = False,
-    output: FormatOption = "table",
+    output: CIFormatOption = "table",
+    no_step_summary: NoStepSummaryOption = False,
 ) -> None:
     """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates."""
     from ..compare import compare_inputs
     from .render.compare import compare_output
 
-    fmt = _format(output)
+    fmt = _format(output, junit=True)
     try:
         result = compare_inputs(
             baseline,
@@ -100,6 +102,8 @@ def compare(
     for name, why in comparison.unfinished:
         warn(f"{name}: unfinished ({why}): compared with the episodes it holds so far")
     emit(compare_output(comparison, fmt, unreadable=result.unreadable))
+    markdown = lambda: str(compare_output(comparison, "markdown"))  # noqa: E731
+    append_step_summary(markdown, off=no_step_summary)
     if result.unreadable:
         raise typer.Exit(EXIT_USAGE)
     if not comparison.passed:

@@ -61,9 +61,14 @@ def compare_inputs(
         raise ConfigurationError("--candidate: expected at least one file or directory")
     opened: list[list[tuple[str, Evidence]]] = []
     unreadable: list[Unreadable] = []
-    for paths in (baseline, candidate):
+    for side, paths in (("baseline", baseline), ("candidate", candidate)):
         files = evidence_files([Path(p) for p in paths])
         readable, bad = open_all(files, Evidence.episodes, on_error=on_error)
+        if files and not readable:
+            raise ConfigurationError(
+                f"the {side}: none of its {len(files)} evidence file(s) could be read "
+                "(the lines above say why); give readable files"
+            )
         opened.append([(str(path), ev) for path, ev in readable])
         unreadable += bad
     comparison = compare_tables(

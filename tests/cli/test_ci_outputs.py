@@ -78,7 +78,14 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             env.step(move)
         for _ in env.agent_iter():
             env.step(None)
-    return {"cartpole": cartpole(tmp / "cp.mcap"), "game": game, "junk": junk}
+    left = tmp / "left.mcap"  # the same seeds, always pushing left: a shorter return
+    with RecordEvidence(gym.make("CartPole-v1"), left) as env:
+        for e in range(20):
+            env.reset(seed=e)
+            while not any(env.step(0)[2:4]):
+                pass
+    files = {"cartpole": cartpole(tmp / "cp.mcap"), "game": game, "junk": junk, "left": left}
+    return {**files, "random20": cartpole(tmp / "random20.mcap", episodes=20)}
 
 
 HEAVY = ("--env-factory", "tests.support.factories:heavy_cartpole")
@@ -105,6 +112,10 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("report", "{game}", "--games", "--by", "all", "--max-failure-rate", "0.5"), 1),
     (("report", "{game}", "--by", "agent"), 0),
     (("replay", "{game}"), 0),
+    (("compare", "{cartpole}", "--candidate", "{cartpole}"), 0),
+    (("compare", "{random20}", "--candidate", "{left}"), 1),
+    (("compare", "{random20}", "--candidate", "{random20}", "--max-return-drop", "1"), 0),
+    (("compare", "{cartpole}", "--candidate", "{cartpole}", "--candidate", "{junk}"), 2),
 ]
 
 
@@ -260,6 +271,15 @@ def test_junit_xml_keeps_any_text_well_formed_and_literal(
     assert messages == [safe(text)] * 3
 
 
+def test_compare_with_a_side_unreadable_says_so_in_one_line(recorded: dict[str, Path]) -> None:
+    code, out, err = run("compare", str(recorded["cartpole"]), "--candidate", str(recorded["junk"]))
+    assert code == 2 and not out
+    assert err.splitlines()[-1] == (
+        "episode-audit: error: the candidate: none of its 1 evidence file(s) could be read "
+        "(the lines above say why); give readable files"
+    )
+
+
 def test_format_junit_only_where_offered() -> None:
     code, _, err = run("show", "fixtures/clean.mcap", "--format", "junit")
     assert code == 2 and "expected table, markdown or json, got 'junit'" in err
@@ -267,7 +287,7 @@ def test_format_junit_only_where_offered() -> None:
     assert code == 2 and "expected table, markdown, json or junit, got 'xml'" in err
 
 
-@pytest.mark.parametrize("command", ["check", "replay", "report"])
+@pytest.mark.parametrize("command", ["check", "replay", "report", "compare"])
 def test_help_lists_junit_and_the_step_summary_in_80_columns(command: str) -> None:
     code, out, _ = run(command, "--help", env={"COLUMNS": "80", "TERMINAL_WIDTH": "80"})
     assert code == 0
@@ -376,7 +396,7 @@ def _closed(schema: Any) -> Any:
     return schema
 
 
-@pytest.mark.parametrize("command", ["check", "replay", "report"])
+@pytest.mark.parametrize("command", ["check", "replay", "report", "compare"])
 def test_published_json_schemas_are_valid(command: str) -> None:
     schema = json.loads((SCHEMAS / f"{command}.json").read_text())
     jsonschema.Draft202012Validator.check_schema(schema)

@@ -17,9 +17,11 @@ from .common import (
     table,
     to_json,
     unreadable_json,
+    versioned,
 )
+from .junit import JUnitCase, JUnitStatus, junit_xml
 
-__all__ = ["COMPARE_HEADERS", "compare_output"]
+__all__ = ["COMPARE_HEADERS", "compare_cases", "compare_output"]
 
 COMPARE_HEADERS = [
     "group",
@@ -78,7 +80,10 @@ def compare_output(
 ) -> Output:
     """The mismatches, the metrics with their verdicts, new warnings, gates and the verdict."""
     if output == "json":
-        return to_json({**result.to_dict(), "unreadable": unreadable_json(unreadable)})
+        data = {**result.to_dict(), "unreadable": unreadable_json(unreadable)}
+        return to_json(versioned("compare", data))
+    if output == "junit":
+        return junit_xml(compare_cases(result, unreadable), name="episode-audit compare")
     sections: list[tuple[str, list[str], list[list[str]]]] = []
     if result.mismatches:
         rows = [[m.field, ", ".join(m.baseline), ", ".join(m.candidate)] for m in result.mismatches]
@@ -110,3 +115,33 @@ def compare_output(
         return "\n".join(parts)
     out: list[RenderableType] = [table(title, headers, body) for title, headers, body in sections]
     return Group(*out)
+
+
+# A metric that could not be decided either way is skipped: a reporter shows it, CI does not fail.
+_METRIC_STATUS: dict[str, JUnitStatus] = {
+    "regressed": "failed",
+    "improved": "passed",
+    "held": "passed",
+    "inconclusive": "skipped",
+    "underpowered": "skipped",
+    "mismatch": "passed",
+    "passed": "passed",
+    "failed": "failed",
+    "new": "failed",
+}
+
+
+def compare_cases(result: Comparison, unreadable: Sequence[Unreadable] = ()) -> list[JUnitCase]:
+    """A suite per group (``spec`` for the runs' differences), a case per verdict, warning, gate.
+
+    Fails exactly when the command exits 1 (a regression, a new incentive warning, a gate
+    missed); an input not read is an error case, as the command exits 2.
+    """
+    cases = []
+    for c in result.cases():
+        suite, _, name = c.name.partition("/")
+        status = _METRIC_STATUS.get(c.status, "passed" if c.passed else "failed")
+        cases.append(
+            JUnitCase(suite, name, status, "" if status == "passed" else c.message, c.message)
+        )
+    return cases + [JUnitCase(u.file, "read", "error", u.why) for u in unreadable]
