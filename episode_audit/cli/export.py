@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -27,7 +26,12 @@ from .render import safe
 @app.command()
 def export(
     paths: PathsArgument,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Directory for the Parquet files.")],
+    out: Annotated[
+        str,
+        typer.Option(
+            "--out", "-o", help="Directory for the Parquet files (or a URL prefix: s3://b/p)."
+        ),
+    ],
     overwrite: Annotated[
         bool,
         typer.Option(

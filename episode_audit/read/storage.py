@@ -1,0 +1,335 @@
+"""Evidence in object storage and at URLs (``s3://``, ``gs://``, ``az://``, ``http(s)://``).
+
+:func:`is_url` tells a URL from a local path; :func:`remote_file` names a file through
+``fsspec`` as a :class:`RemoteFile` (a ``str``: its URL, printed without secrets, that carries
+its filesystem); :func:`open_source` opens a local path or a remote file for reading, remote
+ones as seekable file objects that fetch byte ranges on demand (:data:`BLOCK_BYTES` a request
+at least); :func:`list_remote` finds ``*.mcap`` files under a prefix; :func:`upload` copies a
+finished local file to a URL. ``fsspec`` is imported only when a URL is met. Timeouts, retries
+and credentials: ``docs/storage.md``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, Any
+from urllib.parse import urlsplit, urlunsplit
+
+from ..errors import ConfigurationError, EvidenceError
+
+__all__ = [
+    "BLOCK_BYTES",
+    "CONNECT_TIMEOUT_S",
+    "READ_TIMEOUT_S",
+    "RETRIES",
+    "RemoteFile",
+    "Source",
+    "as_source",
+    "download",
+    "exists",
+    "file_size",
+    "is_url",
+    "list_remote",
+    "open_source",
+    "remote_file",
+    "shown_url",
+    "upload",
+]
+
+CONNECT_TIMEOUT_S = 10.0
+"""Seconds to wait for a connection to an object store or web server."""
+READ_TIMEOUT_S = 60.0
+"""Seconds to wait for data on an open connection."""
+RETRIES = 3
+"""Attempts at one request (S3: botocore's standard retry mode; s3fs retries as often)."""
+BLOCK_BYTES = 1 << 16
+"""Bytes a ranged read fetches past what it asks for (64 KiB: the next small records)."""
+
+_URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
+_FSSPEC_PROTOCOL = {"s3a": "s3", "gs": "gcs", "az": "abfs", "abfss": "abfs"}
+
+
+def is_url(path: object) -> bool:
+    """Whether ``path`` is a URL (``scheme://…``) other than ``file://``.
+
+    >>> is_url("s3://bucket/runs/a.mcap"), is_url("runs/a.mcap"), is_url("file:///tmp/a.mcap")
+    (True, False, False)
+    """
+    if isinstance(path, RemoteFile):
+        return True
+    match = _URL.match(path) if isinstance(path, str) else None
+    return match is not None and match.group(1).lower() != "file"
+
+
+def shown_url(url: str) -> str:
+    """``url`` as printed: without a user name, password or query string (signatures, tokens).
+
+    >>> shown_url("https://user:secret@host:8080/a.mcap?X-Amz-Signature=abc")
+    'https://host:8080/a.mcap?…'
+    """
+    parts = urlsplit(url)
+    netloc = parts.netloc.rpartition("@")[2]
+    return urlunsplit((parts.scheme, netloc, parts.path, "…" if parts.query else "", ""))
+
+
+class RemoteFile(str):
+    """A file in object storage or at a URL: a ``str`` (its URL without secrets) with its fs.
+
+    Attributes:
+        url: The full URL, as given.
+        fs: The ``fsspec`` filesystem that reads it.
+        fs_path: Its path on ``fs``.
+    """
+
+    url: str
+    fs: Any
+    fs_path: str
+
+    def __new__(cls, url: str, fs: Any, fs_path: str) -> RemoteFile:
+        """The file at ``fs_path`` on ``fs``; ``url`` names it (shown without secrets)."""
+        self = super().__new__(cls, shown_url(url))
+        self.url, self.fs, self.fs_path = url, fs, fs_path
+        return self
+
+    def __reduce__(self) -> tuple[Any, ...]:  # pickled with its filesystem (worker processes)
+        return (RemoteFile, (self.url, self.fs, self.fs_path))
+
+    @property
+    def name(self) -> str:
+        """The last part of its path, as :attr:`pathlib.Path.name`."""
+        return self.fs_path.rstrip("/").rpartition("/")[2]
+
+    @property
+    def parent(self) -> str:
+        """The URL of the prefix it is in (shown without secrets)."""
+        return str(self).rpartition("/")[0]
+
+    @property
+    def stem(self) -> str:
+        """:attr:`name` without its suffix, as :attr:`pathlib.Path.stem`."""
+        return Path(self.name).stem
+
+
+Source = Path | RemoteFile
+"""An evidence file: a local path, or a :class:`RemoteFile`."""
+
+
+def _fsspec() -> Any:
+    try:
+        import fsspec  # type: ignore[import-untyped]
+    except ImportError:
+        raise ConfigurationError(
+            "reading URLs needs fsspec: pip install 'episode-audit[s3]' (or [gcs], [azure])"
+        ) from None
+    return fsspec
+
+
+def _default_options(protocol: str) -> dict[str, Any]:
+    """Timeouts and bounded retries for the protocols whose options are known here."""
+    if protocol == "s3":
+        return {
+            "config_kwargs": {
+                "connect_timeout": CONNECT_TIMEOUT_S,
+                "read_timeout": READ_TIMEOUT_S,
+                "retries": {"max_attempts": RETRIES, "mode": "standard"},
+            },
+        }
+    if protocol in ("http", "https"):
+        try:
+            import aiohttp
+        except ImportError:
+            return {}
+        timeout = aiohttp.ClientTimeout(
+            total=None, connect=CONNECT_TIMEOUT_S, sock_read=READ_TIMEOUT_S
+        )
+        return {"client_kwargs": {"timeout": timeout}}
+    return {}
+
+
+def remote_file(
+    url: str, *, filesystem: Any = None, storage_options: Mapping[str, Any] | None = None
+) -> RemoteFile:
+    """The file at ``url``, read through ``filesystem`` or one ``fsspec`` makes for it.
+
+    ``storage_options`` go to that filesystem (credentials, ``endpoint_url`` …) over the
+    defaults here (:data:`CONNECT_TIMEOUT_S`, :data:`READ_TIMEOUT_S`, :data:`RETRIES`).
+    Raises :class:`~episode_audit.errors.ConfigurationError` when no filesystem reads the
+    URL's scheme (naming the package to install).
+    """
+    if isinstance(url, RemoteFile) and filesystem is None and not storage_options:
+        return url
+    url = url.url if isinstance(url, RemoteFile) else url
+    if filesystem is not None and not _URL.match(url):  # a path on the filesystem given
+        return RemoteFile(filesystem.unstrip_protocol(url), filesystem, url)
+    match = _URL.match(url)
+    scheme = match.group(1).lower() if match else ""
+    protocol = _FSSPEC_PROTOCOL.get(scheme, scheme)
+    fsspec = _fsspec()
+    if filesystem is None:
+        options = {**_default_options(protocol), **(storage_options or {})}
+        try:
+            filesystem = fsspec.filesystem(protocol, **options)
+        except (ImportError, ValueError) as exc:
+            raise ConfigurationError(
+                f"{shown_url(url)}: cannot read {scheme}:// URLs: {exc}"
+            ) from None
+        if protocol == "s3":
+            filesystem.retries = RETRIES  # s3fs's own retries (a class attribute, 5)
+    path = url if protocol in ("http", "https") else filesystem._strip_protocol(url)
+    return RemoteFile(url, filesystem, path)
+
+
+def as_source(
+    path: str | os.PathLike[str],
+    *,
+    filesystem: Any = None,
+    storage_options: Mapping[str, Any] | None = None,
+) -> Source:
+    """``path`` as a :data:`Source`: a :class:`RemoteFile` for a URL (or with ``filesystem``).
+
+    See :func:`remote_file` for ``filesystem`` and ``storage_options``.
+    """
+    if isinstance(path, RemoteFile) or filesystem is not None or is_url(path):
+        return remote_file(os.fspath(path), filesystem=filesystem, storage_options=storage_options)
+    return Path(path)
+
+
+def _why(exc: BaseException) -> str:
+    """One line on a storage failure: what went wrong, and what to do when it is known."""
+    name = type(exc).__name__
+    text = " ".join(str(exc).split())[:200]
+    if isinstance(exc, FileNotFoundError):
+        return "no such file, bucket or prefix"
+    if isinstance(exc, PermissionError) or "AccessDenied" in text or "Forbidden" in text:
+        return f"access denied ({text}); check the credentials and their permissions"
+    if name == "NoCredentialsError" or "Unable to locate credentials" in text:
+        return (
+            "no credentials found: set them as the storage's own tools expect (environment, "
+            "profile, instance role), or read a public bucket anonymously (anon=True)"
+        )
+    if isinstance(exc, TimeoutError) or "timeout" in name.lower() or "timed out" in text:
+        return f"timed out ({name}); is the endpoint reachable?"
+    if "connect" in name.lower() or "connect" in text.lower():
+        return f"cannot connect ({text or name}); is the endpoint reachable?"
+    return f"{name}: {text}" if text else name
+
+
+@contextmanager
+def _storage_errors(path: RemoteFile, what: str, error: type[Exception]) -> Iterator[None]:
+    """Any failure of the storage client inside: ``error`` with one line naming ``path``."""
+    try:
+        yield
+    except (EvidenceError, ConfigurationError):
+        raise
+    except Exception as exc:
+        if error is ConfigurationError:
+            raise ConfigurationError(f"{path}: {what}: {_why(exc)}") from None
+        raise EvidenceError(path, f"{what}: {_why(exc)}") from None
+
+
+def list_remote(path: RemoteFile) -> list[RemoteFile]:
+    """``path`` if it is a file, else the ``*.mcap`` files under it (recursively, sorted).
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` for a URL that names nothing,
+    a prefix without evidence files, or storage that cannot be reached or read.
+    """
+    fs = path.fs
+    with _storage_errors(path, "cannot read", ConfigurationError):
+        info = fs.info(path.fs_path)
+        if info.get("type") != "directory":
+            return [path]
+        found = sorted(p for p in fs.find(path.fs_path) if p.endswith(".mcap"))
+    if not found:
+        raise ConfigurationError(f"{path}: no *.mcap files under this prefix")
+    return [RemoteFile(fs.unstrip_protocol(p), fs, p) for p in found]
+
+
+def open_source(path: Source) -> IO[bytes]:
+    """``path`` opened for reading: a local file, or a remote one read by byte ranges.
+
+    Raises :class:`~episode_audit.errors.EvidenceError` when it cannot be opened.
+    """
+    if isinstance(path, RemoteFile):
+        with _storage_errors(path, "cannot open", EvidenceError):
+            f: IO[bytes] = path.fs.open(
+                path.fs_path, "rb", block_size=BLOCK_BYTES, cache_type="readahead"
+            )
+        return _Guarded(f, path)  # type: ignore[return-value]
+    try:
+        return open(path, "rb")
+    except OSError as exc:
+        raise EvidenceError(path, f"cannot open: {exc.strerror}") from None
+
+
+class _Guarded:
+    """A remote file object whose read failures are :class:`EvidenceError` with one line."""
+
+    def __init__(self, f: Any, path: RemoteFile) -> None:
+        self._f, self._path = f, path
+        self.size: int = f.size
+
+    def read(self, n: int = -1) -> bytes:
+        with _storage_errors(self._path, "cannot read", EvidenceError):
+            data: bytes = self._f.read(n)
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return int(self._f.seek(offset, whence))
+
+    def tell(self) -> int:
+        return int(self._f.tell())
+
+    def seekable(self) -> bool:
+        return True
+
+    def readable(self) -> bool:
+        return True
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> _Guarded:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def file_size(f: IO[bytes]) -> int:
+    """The size of an open file: a local one's ``fstat``, a remote one's listed size."""
+    size = getattr(f, "size", None)
+    if isinstance(size, int):
+        return size
+    return os.fstat(f.fileno()).st_size
+
+
+def download(url: RemoteFile, local: Path) -> None:
+    """Copy the remote file ``url`` to the local path ``local``.
+
+    Raises :class:`~episode_audit.errors.EvidenceError` when it cannot be read.
+    """
+    with _storage_errors(url, "cannot read", EvidenceError):
+        url.fs.get_file(url.fs_path, os.fspath(local))
+
+
+def exists(url: RemoteFile) -> bool:
+    """Whether something is at ``url``.
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` when the storage cannot say.
+    """
+    with _storage_errors(url, "cannot read", ConfigurationError):
+        return bool(url.fs.exists(url.fs_path))
+    raise AssertionError  # pragma: no cover - (for type checkers: the block returns or raises)
+
+
+def upload(local: Path, url: RemoteFile) -> None:
+    """Copy the finished local file ``local`` to ``url``.
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` when the storage refuses it.
+    """
+    with _storage_errors(url, "cannot write", ConfigurationError):
+        url.fs.put_file(os.fspath(local), url.fs_path)
