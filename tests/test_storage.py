@@ -24,7 +24,7 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from episode_audit import RecordEvidence, open_evidence
+from episode_audit import RecordEvidence, check, open_evidence, replay
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError, EvidenceError
 from episode_audit.read import evidence_files
@@ -224,6 +224,9 @@ def test_library_takes_a_filesystem_or_storage_options(runs: Path, endpoint: str
     assert [e.index for e in ev.iter_episodes()] == [0, 1, 2]
     result = report_inputs(files)
     assert result.readable == 2
+    # the files evidence_files lists carry their filesystem into every library function
+    assert check(files).files == files
+    assert {r.status for r in replay(files).episodes} == {"identical"}
     with pytest.raises(EvidenceError, match=r"a\.mcap: cannot open: no such file, bucket"):
         open_evidence(f"s3://{BUCKET}/nothing/a.mcap", filesystem=fs)
     with pytest.raises(ConfigurationError, match=r"nothing: cannot read: no such file, bucket"):
@@ -324,3 +327,33 @@ def test_bad_storage_is_one_line_and_exit_2(
 def test_urls_print_without_secrets() -> None:
     url = "https://user:pw@example.org/runs/a.mcap?X-Amz-Credential=AKIA&X-Amz-Signature=f00"
     assert shown_url(url) == "https://example.org/runs/a.mcap?…"
+
+
+@pytest.fixture
+def web(runs: Path) -> Iterator[str]:
+    """The local runs directory served over HTTP on a free loopback port (with Range)."""
+    from werkzeug.utils import send_from_directory
+    from werkzeug.wrappers import Request
+
+    @Request.application  # type: ignore[untyped-decorator]
+    def files(request: Request) -> Any:
+        return send_from_directory(runs, request.path.lstrip("/"), request.environ)
+
+    srv = werkzeug_serving.make_server("127.0.0.1", 0, files, threaded=True)
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{srv.server_port}"
+    finally:
+        srv.shutdown()
+        thread.join()
+
+
+def test_http_urls_are_read_by_ranges(web: str, runs: Path) -> None:
+    code, out, err = run("report", f"{web}/a.mcap", "--format", "json")
+    assert code == 0, err
+    code, local, err = run("report", str(runs / "a.mcap"), "--format", "json")
+    assert out == local.replace(str(runs), web)
+    code, _, err = run("check", f"{web}/zzz.mcap")
+    assert code == 2
+    assert err.startswith(f"episode-audit: error: {web}/zzz.mcap: cannot read: no such file")
