@@ -7,8 +7,10 @@ count the bytes it serves, so that ``report`` is shown to read a small part of a
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
+import pickle
 import socket
 import subprocess
 import sys
@@ -217,6 +219,8 @@ def test_library_takes_a_filesystem_or_storage_options(runs: Path, endpoint: str
     files = evidence_files([f"{BUCKET}/runs"], filesystem=fs)
     assert files == [f"s3://{BUCKET}/runs/a.mcap", f"s3://{BUCKET}/runs/b.mcap"]
     assert all(isinstance(f, RemoteFile) and f.fs is fs for f in files)
+    again = pickle.loads(pickle.dumps(files[0]))  # as a worker process receives it
+    assert (again, again.url, again.fs_path) == (files[0], files[0].url, files[0].fs_path)
     ev = open_evidence(f"s3://{BUCKET}/runs/a.mcap", storage_options={"endpoint_url": endpoint})
     assert ev.episodes().num_rows == 3
     local = open_evidence(runs / "a.mcap")
@@ -357,3 +361,17 @@ def test_http_urls_are_read_by_ranges(web: str, runs: Path) -> None:
     code, _, err = run("check", f"{web}/zzz.mcap")
     assert code == 2
     assert err.startswith(f"episode-audit: error: {web}/zzz.mcap: cannot read: no such file")
+
+
+@pytest.mark.parametrize(("url", "extra"), [("gs://b/k.mcap", "gcs"), ("az://c/k.mcap", "azure")])
+def test_a_scheme_without_its_filesystem_names_the_extra(url: str, extra: str) -> None:
+    pytest.importorskip("fsspec")
+    module = {"gcs": "gcsfs", "azure": "adlfs"}[extra]
+    if importlib.util.find_spec(module):
+        pytest.skip("its filesystem is installed")
+    code, _, err = run("show", url)
+    assert code == 2
+    assert err == (
+        f"episode-audit: error: {url}: reading {url[:2]}:// URLs needs an fsspec filesystem "
+        f"that is not installed: pip install 'episode-audit[{extra}]'\n"
+    )

@@ -45,12 +45,13 @@ CONNECT_TIMEOUT_S = 10.0
 READ_TIMEOUT_S = 60.0
 """Seconds to wait for data on an open connection."""
 RETRIES = 3
-"""Attempts at one request (S3: botocore's standard retry mode; s3fs retries as often)."""
+"""Attempts at one request (S3: botocore's standard retry mode; s3fs's own loop runs once)."""
 BLOCK_BYTES = 1 << 16
 """Bytes a ranged read fetches past what it asks for (64 KiB: the next small records)."""
 
 _URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
 _FSSPEC_PROTOCOL = {"s3a": "s3", "gs": "gcs", "az": "abfs", "abfss": "abfs"}
+_EXTRA = {"gcs": "gcs", "abfs": "azure", "https": "http"}
 
 
 def is_url(path: object) -> bool:
@@ -173,12 +174,18 @@ def remote_file(
         options = {**_default_options(protocol), **(storage_options or {})}
         try:
             filesystem = fsspec.filesystem(protocol, **options)
-        except (ImportError, ValueError) as exc:
+        except ImportError:
+            extra = _EXTRA.get(protocol, protocol)
+            raise ConfigurationError(
+                f"{shown_url(url)}: reading {scheme}:// URLs needs an fsspec filesystem that is "
+                f"not installed: pip install 'episode-audit[{extra}]'"
+            ) from None
+        except ValueError as exc:
             raise ConfigurationError(
                 f"{shown_url(url)}: cannot read {scheme}:// URLs: {exc}"
             ) from None
         if protocol == "s3":
-            filesystem.retries = RETRIES  # s3fs's own retries (a class attribute, 5)
+            filesystem.retries = 1  # s3fs's own loop (a class attribute, 5) around botocore's
     path = url if protocol in ("http", "https") else filesystem._strip_protocol(url)
     return RemoteFile(url, filesystem, path)
 
@@ -208,8 +215,8 @@ def _why(exc: BaseException) -> str:
         return f"access denied ({text}); check the credentials and their permissions"
     if name == "NoCredentialsError" or "Unable to locate credentials" in text:
         return (
-            "no credentials found: set them as the storage's own tools expect (environment, "
-            "profile, instance role), or read a public bucket anonymously (anon=True)"
+            "no credentials found: set them as the storage's own tools expect (environment "
+            "variables, a profile, an instance role; docs/storage.md)"
         )
     if isinstance(exc, TimeoutError) or "timeout" in name.lower() or "timed out" in text:
         return f"timed out ({name}); is the endpoint reachable?"
