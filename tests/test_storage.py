@@ -375,3 +375,26 @@ def test_a_scheme_without_its_filesystem_names_the_extra(url: str, extra: str) -
         f"episode-audit: error: {url}: reading {url[:2]}:// URLs needs an fsspec filesystem "
         f"that is not installed: pip install 'episode-audit[{extra}]'\n"
     )
+
+
+def test_record_uploads_the_finished_file(s3: Any, tmp_path: Path) -> None:
+    out = tmp_path / "rec.mcap"
+    code, text, err = run(
+        "record",
+        "CartPole-v1",
+        "--out",
+        str(out),
+        "--episodes",
+        "2",
+        "--upload",
+        f"s3://{BUCKET}/rec/",
+    )
+    assert code == 0, err
+    assert f"uploaded {out} to s3://{BUCKET}/rec/rec.mcap" in text
+    assert s3.cat_file(f"{BUCKET}/rec/rec.mcap") == out.read_bytes()
+    code, _, err = run("check", f"s3://{BUCKET}/rec/rec.mcap")
+    assert code == 0, err
+    code, _, err = run("record", "CartPole-v1", "--out", str(tmp_path / "b.mcap"), "--upload", "x/")
+    assert code == 2
+    assert "--upload: expected a URL" in err
+    assert not (tmp_path / "b.mcap").exists()

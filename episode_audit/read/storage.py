@@ -80,6 +80,10 @@ def shown_url(url: str) -> str:
 class RemoteFile(str):
     """A file in object storage or at a URL: a ``str`` (its URL without secrets) with its fs.
 
+    >>> f = RemoteFile("https://h/runs/a.mcap?X-Amz-Signature=f00", None, "https://h/runs/a.mcap?X")
+    >>> f, f.name, f.stem, f.parent
+    ('https://h/runs/a.mcap?…', 'a.mcap', 'a', 'https://h/runs')
+
     Attributes:
         url: The full URL, as given.
         fs: The ``fsspec`` filesystem that reads it.
@@ -102,12 +106,13 @@ class RemoteFile(str):
     @property
     def name(self) -> str:
         """The last part of its path, as :attr:`pathlib.Path.name`."""
-        return self.fs_path.rstrip("/").rpartition("/")[2]
+        path = urlsplit(self.fs_path).path if _URL.match(self.fs_path) else self.fs_path
+        return path.rstrip("/").rpartition("/")[2]
 
     @property
     def parent(self) -> str:
         """The URL of the prefix it is in (shown without secrets)."""
-        return str(self).rpartition("/")[0]
+        return shown_url(self.url).partition("?")[0].rpartition("/")[0]
 
     @property
     def stem(self) -> str:
@@ -199,9 +204,14 @@ def as_source(
     """``path`` as a :data:`Source`: a :class:`RemoteFile` for a URL (or with ``filesystem``).
 
     See :func:`remote_file` for ``filesystem`` and ``storage_options``.
+
+    >>> as_source("file:///tmp/run.mcap"), as_source("runs/a.mcap")
+    (PosixPath('/tmp/run.mcap'), PosixPath('runs/a.mcap'))
     """
     if isinstance(path, RemoteFile) or filesystem is not None or is_url(path):
         return remote_file(os.fspath(path), filesystem=filesystem, storage_options=storage_options)
+    if isinstance(path, str) and path.lower().startswith("file://"):
+        return Path(urlsplit(path).path)
     return Path(path)
 
 
