@@ -49,6 +49,7 @@ class _CountingApp:
     def __init__(self, app: Any) -> None:
         self.app = app
         self.served = 0
+        self.requests = 0
         self._lock = threading.Lock()
 
     def __call__(self, environ: dict[str, Any], start_response: Any) -> Iterable[bytes]:
@@ -60,6 +61,7 @@ class _CountingApp:
         if environ["REQUEST_METHOD"] == "GET":
             with self._lock:
                 self.served += len(data)
+                self.requests += 1
         return [data]
 
 
@@ -203,6 +205,12 @@ def test_recover_reads_and_writes_s3(s3: Any, tmp_path: Path) -> None:
     (tmp_path / "torn.mcap").write_bytes(whole[: len(whole) // 3])
     s3.put_file(str(tmp_path / "torn.mcap"), f"{BUCKET}/torn/run.mcap")
     src, out = f"s3://{BUCKET}/torn/run.mcap", f"s3://{BUCKET}/fixed/run.mcap"
+    # a torn file is scanned from its start, remotely as locally
+    code, remote, err = run("report", src, "--format", "json")
+    assert code == 0, err
+    code, local, err = run("report", str(tmp_path / "torn.mcap"), "--format", "json")
+    assert remote == local.replace(str(tmp_path / "torn.mcap"), src)
+    assert json.loads(remote)["unfinished"], remote
     code, text, err = run("recover", src, "--out", out)
     assert code == 1, err  # the torn tail is lost
     assert out in text

@@ -108,7 +108,7 @@ def _decoded(
 
     With ``ahead``, a worker thread reads and decompresses ahead.
     """
-    f = open_source(path)
+    f = open_source(path, edges=False)
     with f:
         if not ahead or len(refs) < _THREADED_MIN_CHUNKS:
             for ref in refs:

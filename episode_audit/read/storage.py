@@ -23,6 +23,7 @@ from ..errors import ConfigurationError, EvidenceError
 
 __all__ = [
     "BLOCK_BYTES",
+    "EDGE_BYTES",
     "CONNECT_TIMEOUT_S",
     "READ_TIMEOUT_S",
     "RETRIES",
@@ -46,6 +47,8 @@ READ_TIMEOUT_S = 60.0
 """Seconds to wait for data on an open connection."""
 RETRIES = 3
 """Attempts at one request (S3: botocore's standard retry mode; s3fs's own loop runs once)."""
+EDGE_BYTES = 1 << 18
+"""Bytes at each end of a remote file read in one request and kept while it is open (256 KiB)."""
 BLOCK_BYTES = 1 << 16
 """Bytes a ranged read fetches past what it asks for (64 KiB: the next small records)."""
 
@@ -265,17 +268,19 @@ def list_remote(path: RemoteFile) -> list[RemoteFile]:
     return [RemoteFile(fs.unstrip_protocol(p), fs, p) for p in found]
 
 
-def open_source(path: Source) -> IO[bytes]:
+def open_source(path: Source, *, edges: bool = True) -> IO[bytes]:
     """``path`` opened for reading: a local file, or a remote one read by byte ranges.
 
-    Raises :class:`~episode_audit.errors.EvidenceError` when it cannot be opened.
+    ``edges``: keep a remote file's first and last bytes (see :class:`_Guarded`), for opening
+    it; a pass over its chunks does without. Raises
+    :class:`~episode_audit.errors.EvidenceError` when it cannot be opened.
     """
     if isinstance(path, RemoteFile):
         with _storage_errors(path, "cannot open", EvidenceError):
             f: IO[bytes] = path.fs.open(
                 path.fs_path, "rb", block_size=BLOCK_BYTES, cache_type="readahead"
             )
-        return _Guarded(f, path)  # type: ignore[return-value]
+        return _Guarded(f, path, edges)  # type: ignore[return-value]
     try:
         return open(path, "rb")
     except OSError as exc:
@@ -283,22 +288,62 @@ def open_source(path: Source) -> IO[bytes]:
 
 
 class _Guarded:
-    """A remote file object whose read failures are :class:`EvidenceError` with one line."""
+    """A remote file object whose read failures are :class:`EvidenceError` with one line.
 
-    def __init__(self, f: Any, path: RemoteFile) -> None:
-        self._f, self._path = f, path
+    A small read in the first or last :data:`EDGE_BYTES` reads that whole edge in one request
+    and keeps it (the header and run metadata; the footer, summary and run-end record), so
+    that opening a file costs two requests; other reads are passed on.
+    """
+
+    def __init__(self, f: Any, path: RemoteFile, edges: bool = True) -> None:
+        self._f, self._path, self._edges_kept = f, path, edges
         self.size: int = f.size
+        self._pos = 0
+        self._edges: list[tuple[int, bytes]] = []  # (offset, bytes) of the edges read
 
     def read(self, n: int = -1) -> bytes:
+        pos = self._pos
+        end = self.size if n is None or n < 0 else min(self.size, pos + n)
+        if pos >= end:
+            return b""
+        kept = self._kept(pos, end)
+        if kept is None:
+            kept = self._fetch(pos, end - pos)
+        self._pos = pos + len(kept)
+        return kept
+
+    def _kept(self, pos: int, end: int) -> bytes | None:
+        """Bytes ``pos`` to ``end`` from an edge of the file, read first if need be."""
+        for start, data in self._edges:
+            if start <= pos and end <= start + len(data):
+                return data[pos - start : end - start]
+        if end - pos > BLOCK_BYTES or not self._edges_kept:  # a chunk: read as asked
+            return None
+        if end <= EDGE_BYTES:
+            start = 0
+        elif pos >= self.size - EDGE_BYTES:
+            start = max(0, self.size - EDGE_BYTES)
+        else:
+            return None
+        data = self._fetch(start, min(self.size, start + EDGE_BYTES) - start)
+        self._edges.append((start, data))
+        return data[pos - start : end - start]
+
+    def _fetch(self, pos: int, n: int) -> bytes:
         with _storage_errors(self._path, "cannot read", EvidenceError):
+            self._f.seek(pos)
             data: bytes = self._f.read(n)
         return data
 
     def seek(self, offset: int, whence: int = 0) -> int:
-        return int(self._f.seek(offset, whence))
+        base = {0: 0, 1: self._pos, 2: self.size}[whence]
+        if base + offset < 0:
+            raise ValueError(f"negative seek position {base + offset}")
+        self._pos = base + offset
+        return self._pos
 
     def tell(self) -> int:
-        return int(self._f.tell())
+        return self._pos
 
     def seekable(self) -> bool:
         return True
