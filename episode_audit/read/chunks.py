@@ -146,7 +146,8 @@ def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Source) -> _RawChunk:
         f.seek(offset)
         file_end = file_size(f)
         known = ref.record_length
-        guess = known if _RECORD_HEAD.size < known <= file_end - offset else 0
+        most = min(file_end - offset, _RECORD_HEAD.size + MAX_RECORD_BYTES)
+        guess = known if _RECORD_HEAD.size < known <= most else 0  # (the summary may lie)
         first = f.read(guess or _RECORD_HEAD.size)
         head = first[: _RECORD_HEAD.size]
         if len(head) < _RECORD_HEAD.size:
