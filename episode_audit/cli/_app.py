@@ -21,6 +21,7 @@ from typer.core import TyperArgument, TyperGroup
 from .._version import __version__
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read.inputs import Unreadable, evidence_files, open_all
+from ..read.storage import Source, is_url
 from .render import OutputFormat, safe
 
 if TYPE_CHECKING:
@@ -90,15 +91,21 @@ def note(message: str) -> None:
     _say("note", message)
 
 
-def existing(path: Path) -> Path:
-    """``path``, or exit 2 saying there is no such file (a command that takes one file)."""
-    if not path.exists():
+def existing(path: str | Path) -> str | Path:
+    """``path``, or exit 2 saying there is no such file (a command that takes one file).
+
+    A URL is checked by the library, which reads it (``docs/storage.md``).
+    """
+    if not is_url(path) and not Path(path).exists():
         fail(f"{path}: no such file or directory")
     return path
 
 
-def collect(paths: Sequence[Path]) -> list[Path]:
-    """The evidence files ``paths`` name (see :func:`~episode_audit.read.evidence_files`)."""
+def collect(paths: Sequence[str | Path]) -> list[Source]:
+    """The evidence files ``paths`` name (see :func:`~episode_audit.read.evidence_files`).
+
+    URLs (``s3://`` …) are listed through ``fsspec`` (``docs/storage.md``).
+    """
     try:
         return evidence_files(paths)
     except ConfigurationError as exc:
@@ -170,13 +177,12 @@ CIFormatOption = Annotated[
     ),
 ]
 """``--format`` of the commands whose result a CI job gates on (``check``, ``replay``, ...)."""
-# readable=False: the library says "cannot open: Permission denied" in one line, and the
-# other inputs go on (Click's own check is a three-line usage error that stops them all)
+# str, not Path: a URL (s3://bucket/key) must reach the library as written
 PathsArgument = Annotated[
-    list[Path],
+    list[str],
     typer.Argument(
-        help="Evidence files, or directories searched for *.mcap.",
-        readable=False,
+        help="Evidence files, or directories searched for *.mcap; or URLs (s3://, gs://, "
+        "az://, https://) of files or prefixes.",
         metavar="PATHS",
     ),
 ]
@@ -202,8 +208,8 @@ def _unreadable(path: Path, exc: EpisodeAuditError, into: list[Unreadable]) -> N
 
 
 def _readable(
-    files: Sequence[Path], load: Callable[[Evidence], object] | None = None
-) -> tuple[list[tuple[Path, Evidence]], list[Unreadable]]:
+    files: Sequence[Source], load: Callable[[Evidence], object] | None = None
+) -> tuple[list[tuple[Source, Evidence]], list[Unreadable]]:
     """The files that open as evidence (and whose ``load`` reads), opened; and the others.
 
     One stderr line for each file that does not, so one bad file costs the others nothing.

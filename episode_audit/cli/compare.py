@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -27,7 +26,7 @@ from ._summary import NoStepSummaryOption, append_step_summary
 def compare(
     baseline: PathsArgument,
     candidate: Annotated[
-        list[Path],
+        list[str],
         typer.Option(
             "--candidate",
             help="The candidate's evidence files or directories (repeatable; required).",

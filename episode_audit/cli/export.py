@@ -28,11 +28,12 @@ from .render import safe
 def export(
     paths: PathsArgument,
     out: Annotated[
-        Path,
+        str,
         typer.Option(
             "--out",
             "-o",
-            help="Directory for the Parquet files; with --to foxglove or rerun, the file to write.",
+            help="Directory for the Parquet files (or a URL prefix: s3://b/p); with --to foxglove "
+            "or rerun, the file to write.",
             metavar="<out>",
         ),
     ],
@@ -84,9 +85,13 @@ def export(
         raise typer.Exit(EXIT_USAGE)
 
 
-def _export_for_viewer(paths: list[Path], out: Path, to: str, overwrite: bool) -> None:
-    """``--to foxglove`` / ``--to rerun``: one input, one output file."""
+def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> None:
+    """``--to foxglove`` / ``--to rerun``: one input, one output file (a local one)."""
     from ..export import export as run_export
+    from ..read.storage import is_url
+
+    if is_url(out):
+        fail(f"--to {to}: --out must be a local file path, got the URL {out!r}; export, then copy")
 
     readable, unreadable = _readable(collect(paths))
     if unreadable or not readable:
@@ -100,7 +105,7 @@ def _export_for_viewer(paths: list[Path], out: Path, to: str, overwrite: bool) -
     try:
         with progress_bar("exporting", steps_total(files)) as advance:
             viewer = cast(Literal["foxglove", "rerun"], to)
-            result = run_export(files, out, to=viewer, overwrite=overwrite, progress=advance)
+            result = run_export(files, Path(out), to=viewer, overwrite=overwrite, progress=advance)
     except EpisodeAuditError as exc:
         fail(str(exc))
     for line in result.notes:

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from ..errors import EpisodeAuditError
 from ._app import app, emit, fail, progress_bar
 from .render import safe
+
+if TYPE_CHECKING:
+    from ..read.storage import RemoteFile
 
 
 @app.command()
@@ -58,11 +61,21 @@ def record(
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Replace an existing file.")
     ] = False,
+    upload_to: Annotated[
+        str | None,
+        typer.Option(
+            "--upload",
+            help="Copy the finished file to this URL (s3://bucket/key.mcap, or a prefix "
+            "ending in /).",
+            metavar="<url>",
+        ),
+    ] = None,
 ) -> None:
     """Record episodes of a Gymnasium environment with a built-in or given policy."""
     from ..rollout import record_episodes
 
     kwargs, tags = _env_kwargs(env_kwargs), _tags(tag or [])
+    target = None if upload_to is None else _upload_target(upload_to, out)
     try:
         with progress_bar(f"recording {env_id}", episodes) as advance:
             summary = record_episodes(
@@ -81,6 +94,31 @@ def record(
     except EpisodeAuditError as exc:
         fail(str(exc))
     emit(safe(summary))
+    if target is not None:
+        from ..read.storage import upload
+
+        try:
+            upload(out, target)
+        except EpisodeAuditError as exc:
+            fail(f"{exc} (the recording is kept in {out})")
+        emit(safe(f"uploaded {out} to {target}"))
+
+
+def _upload_target(url: str, out: Path) -> RemoteFile:
+    """``--upload``: the URL the file goes to (a prefix ending in ``/`` gets its name).
+
+    Resolved before recording, so that a scheme without its filesystem fails at once.
+    """
+    from ..read.storage import is_url, remote_file
+
+    if not is_url(url):
+        fail(
+            f"--upload: expected a URL (s3://, gs://, az://), got {url!r}; --out is the local file"
+        )
+    try:
+        return remote_file(url + out.name if url.endswith("/") else url)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
 
 
 def _env_kwargs(text: str | None) -> dict[str, Any]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -15,15 +14,17 @@ from .render import safe
 @app.command()
 def recover(
     path: Annotated[
-        Path,
+        str,
         typer.Argument(
-            help="A torn evidence file (left by a killed recorder) or a damaged one.",
-            readable=False,
+            help="A torn evidence file (left by a killed recorder) or a damaged one; or its URL.",
             metavar="FILE",
         ),
     ],
     out: Annotated[
-        Path, typer.Option("--out", "-o", help="The finished file to write.", metavar="<file.mcap>")
+        str,
+        typer.Option(
+            "--out", "-o", help="The finished file to write (a path or a URL).", metavar="<file>"
+        ),
     ],
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Replace an existing output file (never the input).")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -41,7 +40,10 @@ def _steps(
 
 @app.command()
 def show(
-    path: Annotated[Path, typer.Argument(help="An evidence file.", readable=False, metavar="FILE")],
+    path: Annotated[
+        str,
+        typer.Argument(help="An evidence file, or its URL (s3://, https:// …).", metavar="FILE"),
+    ],
     episode: Annotated[
         int | None,
         typer.Option("--episode", "-e", help="Show this episode's steps.", metavar="<index>"),

@@ -12,7 +12,6 @@ import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import Evidence
@@ -62,7 +61,7 @@ def compare_inputs(
     opened: list[list[tuple[str, Evidence]]] = []
     unreadable: list[Unreadable] = []
     for side, paths in (("baseline", baseline), ("candidate", candidate)):
-        files = evidence_files([Path(p) for p in paths])
+        files = evidence_files(list(paths))
         readable, bad = open_all(files, Evidence.episodes, on_error=on_error)
         if files and not readable:
             raise ConfigurationError(

@@ -10,10 +10,11 @@ input paths only, never from file content. Columns and queries: ``docs/cli.md`` 
 from __future__ import annotations
 
 import os
+import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -21,6 +22,7 @@ import pyarrow.parquet as pq
 
 from ..errors import ConfigurationError, EvidenceError
 from ..read import open_evidence
+from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
 from ..record.lock import output_kind
 
 __all__ = ["ExportResult", "export"]
@@ -30,17 +32,17 @@ __all__ = ["ExportResult", "export"]
 class ExportResult:
     """What :func:`export` wrote."""
 
-    episodes_file: Path
-    steps_files: list[Path] = field(default_factory=list)
+    episodes_file: Source
+    steps_files: list[Source] = field(default_factory=list)
     episodes: int = 0
     steps: int = 0
-    failed: list[Path] = field(default_factory=list)
+    failed: list[Source] = field(default_factory=list)
     """Inputs that could not be read to the end (only with ``on_error``); nothing of theirs
     is in the output."""
-    removed: list[Path] = field(default_factory=list)
+    removed: list[Source] = field(default_factory=list)
     """With ``overwrite``: ``*.steps.parquet`` files of an earlier export that this one did not
     write, removed so that ``read_parquet('DIR/*.steps.parquet')`` reads this export only."""
-    unfinished: list[tuple[Path, str]] = field(default_factory=list)
+    unfinished: list[tuple[Source, str]] = field(default_factory=list)
     """Inputs exported while unfinished (still being written, or torn), and why."""
 
     @property
@@ -78,8 +80,14 @@ def export(
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ExportResult:
     """Write the steps and episodes of ``paths`` as Parquet files into ``out_dir``.
+
+    ``paths`` and ``out_dir`` may be URLs (``s3://bucket/prefix`` …), reached through
+    ``filesystem`` or one made with ``storage_options`` (``docs/storage.md``): the export is
+    written to a local temporary directory, then each finished file is uploaded.
 
     Existing output files are not replaced unless ``overwrite=True``, which replaces the export
     in ``out_dir``: ``*.steps.parquet`` files there that this export does not write (an earlier
@@ -98,13 +106,18 @@ def export(
     >>> pq.read_table(result.steps_files[0]).column("file").to_pylist() == [str(tmp / "run.mcap")]
     True
     """
+    options = {"filesystem": filesystem, "storage_options": storage_options}
+    sources = [as_source(p, **options) for p in paths]
+    if is_url(out_dir):
+        out_url = remote_file(os.fspath(out_dir), **options)
+        return _export_to_url(sources, out_url, overwrite, progress, on_error)
     out = _output_directory(Path(out_dir))
-    result = ExportResult(out / "episodes.parquet")
-    sources = [Path(p) for p in paths]
+    episodes_file = out / "episodes.parquet"
+    result = ExportResult(episodes_file)
     targets = [out / f"{name}.steps.parquet" for name in _step_file_names(sources)]
-    _refuse_special_files([result.episodes_file, *targets])
+    _refuse_special_files([episodes_file, *targets])
     if not overwrite:
-        existing = [t for t in [result.episodes_file, *targets] if t.exists()]
+        existing = [t for t in [episodes_file, *targets] if t.exists()]
         if existing:
             raise ConfigurationError(
                 f"{existing[0]}: exists; pass --overwrite to replace exported files"
@@ -130,11 +143,61 @@ def export(
         if episode_tables
         else pa.table({})
     )
-    pq.write_table(episodes, result.episodes_file, compression="zstd")
+    pq.write_table(episodes, episodes_file, compression="zstd")
     result.episodes = episodes.num_rows
     if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
         result.removed = _remove_stale(out, set(result.steps_files))
     return result
+
+
+def _export_to_url(
+    sources: list[Source],
+    out: RemoteFile,
+    overwrite: bool,
+    progress: Callable[[int], None] | None,
+    on_error: Callable[[EvidenceError], None] | None,
+) -> ExportResult:
+    """Export into a local temporary directory, then upload each file to ``out``."""
+    fs = out.fs
+    names = ["episodes.parquet", *(f"{n}.steps.parquet" for n in _step_file_names(sources))]
+    remote = {
+        name: RemoteFile(f"{out.url.rstrip('/')}/{name}", fs, f"{out.fs_path}/{name}")
+        for name in names
+    }
+    if not overwrite:
+        for target in remote.values():
+            if exists(target):
+                raise ConfigurationError(
+                    f"{target}: exists; pass --overwrite to replace exported files"
+                )
+    with tempfile.TemporaryDirectory(prefix="episode-audit-export-") as tmp:
+        local = export(sources, tmp, overwrite=True, progress=progress, on_error=on_error)
+        uploaded = [local.episodes_file, *local.steps_files]
+        for path in uploaded:
+            upload(Path(path), remote[Path(path).name])
+    written = {remote[Path(p).name].fs_path for p in local.steps_files}
+    result = ExportResult(
+        remote["episodes.parquet"],
+        [remote[Path(p).name] for p in local.steps_files],
+        local.episodes,
+        local.steps,
+        local.failed,
+        unfinished=local.unfinished,
+    )
+    if overwrite:
+        result.removed = _remove_stale_remote(out, written)
+    return result
+
+
+def _remove_stale_remote(out: RemoteFile, written: set[str]) -> list[Source]:
+    """Remove the ``*.steps.parquet`` objects under ``out`` that this export did not write."""
+    fs = out.fs
+    removed: list[Source] = []
+    for stale in sorted(fs.glob(f"{out.fs_path.rstrip('/')}/*.steps.parquet")):
+        if stale not in written:
+            fs.rm_file(stale)
+            removed.append(RemoteFile(fs.unstrip_protocol(stale), fs, stale))
+    return removed
 
 
 def _output_directory(out: Path) -> Path:
@@ -163,7 +226,7 @@ def _refuse_special_files(targets: Sequence[Path]) -> None:
             )
 
 
-def _step_file_names(sources: Sequence[Path]) -> list[str]:
+def _step_file_names(sources: Sequence[Source]) -> list[str]:
     """Each input's steps file name: its stem, then ``stem-2``, ``stem-3``, … for repeats.
 
     >>> _step_file_names([Path("a/run.mcap"), Path("b/run.mcap"), Path("x.mcap")])
@@ -182,9 +245,9 @@ def _step_file_names(sources: Sequence[Path]) -> list[str]:
     return names
 
 
-def _remove_stale(out: Path, written: set[Path]) -> list[Path]:
+def _remove_stale(out: Path, written: set[Source]) -> list[Source]:
     """Remove the ``*.steps.parquet`` files in ``out`` this export did not write."""
-    removed: list[Path] = []
+    removed: list[Source] = []
     for stale in sorted(out.glob("*.steps.parquet")):
         if stale not in written and stale.is_file():
             stale.unlink()
@@ -192,7 +255,7 @@ def _remove_stale(out: Path, written: set[Path]) -> list[Path]:
     return removed
 
 
-def _export_one(source: Path, target: Path, progress: Callable[[int], None] | None) -> _Exported:
+def _export_one(source: Source, target: Path, progress: Callable[[int], None] | None) -> _Exported:
     """Write ``source``'s steps to ``target``; return its episodes (with ``file``), steps, state.
 
     On any failure no ``target`` is left behind: a half-written file must not look complete.

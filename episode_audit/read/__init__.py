@@ -8,7 +8,8 @@ and its items, :func:`summary_definitions` and :func:`step_block_rows`.
 Modules, lowest first: ``layout`` (the MCAP record layout), ``chunks`` (reading, decompressing
 and splitting chunks; read-ahead), ``blocks`` (one Arrow block, checked), ``passes`` (the chunk
 loop, what a pass keeps), ``episodes`` (the episodes table), ``evidence`` (the API),
-``opening`` (indexed and linear opening), ``records`` (recovery's record walk), ``inputs``.
+``opening`` (indexed and linear opening), ``records`` (recovery's record walk), ``inputs``;
+``storage`` (URLs through fsspec) sits under ``chunks``.
 """
 
 from .blocks import step_block_rows

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterable, Sequence
-from pathlib import Path
 
 import pyarrow as pa
 from mcap.records import Channel
@@ -24,6 +23,7 @@ from ..format.schemas import (
     not_null_columns,
     required_columns,
 )
+from .storage import Source
 
 # Blocks are read in place from the decompressed chunk, at any offset: buffers that are not
 # aligned for their type are copied (compute kernels and numpy want them aligned).
@@ -43,7 +43,7 @@ _GOOD_SCHEMA_MESSAGES: dict[str, bytes] = {}
 """Per topic, the bytes of the last IPC schema message of a block found good."""
 
 
-def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordBatch:
+def _arrow_batch(data: bytes | memoryview, path: Source, topic: str) -> pa.RecordBatch:
     """Decode one block; check its framing, its data and (steps, resets) its columns."""
     # Blocks of one topic share their schema message: one already found good is not walked
     # or checked again (the record batch after it still is).
@@ -93,7 +93,7 @@ def _nulls_problem(where: str, nulls: int, name: str) -> str:
     )
 
 
-def step_block_rows(data: bytes | memoryview, path: Path) -> int:
+def step_block_rows(data: bytes | memoryview, path: Source) -> int:
     """How many rows one step block holds, the block checked as the reader checks it.
 
     Raises :class:`~episode_audit.errors.CorruptEvidenceError` (naming ``path``) for a block
@@ -121,12 +121,12 @@ def _one_line(exc: BaseException, limit: int = 200) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _reset_block(data: bytes, path: Path) -> pa.RecordBatch:
+def _reset_block(data: bytes, path: Source) -> pa.RecordBatch:
     """One reset block, decoded and checked."""
     return _arrow_batch(data, path, fmt.TOPIC_RESETS)
 
 
-def _episode_part(data: bytes, path: Path) -> pa.RecordBatch:
+def _episode_part(data: bytes, path: Source) -> pa.RecordBatch:
     """One episode block, decoded and checked: the columns of ``EPISODE_BLOCK_SCHEMA`` it has.
 
     Blocks hold at least the columns of format 1.0's first files (``EPISODE_BLOCK_BASE``); the
@@ -145,7 +145,7 @@ def _episode_part(data: bytes, path: Path) -> pa.RecordBatch:
     return part
 
 
-def _check_episode_block(schema: pa.Schema, path: Path) -> None:
+def _check_episode_block(schema: pa.Schema, path: Source) -> None:
     """An episode block starts with the base columns and has the episode columns' types."""
     names = schema.names
     if names[: len(EPISODE_BLOCK_BASE)] != EPISODE_BLOCK_BASE.names:
@@ -189,7 +189,7 @@ def _declared_schema(
     return None
 
 
-def _topic_schema(path: Path, declared: pa.Schema | None, topic: str) -> pa.Schema:
+def _topic_schema(path: Source, declared: pa.Schema | None, topic: str) -> pa.Schema:
     """The topic's schema as its Schema record declares it (checked like its blocks).
 
     A file without the topic's channel or schema (torn before any block) gets the
@@ -205,7 +205,7 @@ def _topic_schema(path: Path, declared: pa.Schema | None, topic: str) -> pa.Sche
     return declared
 
 
-def _blocks_table(parts: list[pa.RecordBatch], topic: str, path: Path) -> pa.Table:
+def _blocks_table(parts: list[pa.RecordBatch], topic: str, path: Source) -> pa.Table:
     """Blocks of ``topic`` as one table (they must share one schema)."""
     try:
         return pa.Table.from_batches(parts)

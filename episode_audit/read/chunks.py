@@ -10,13 +10,11 @@ decompressed, and its records against its CRC. :class:`_ChunkRef` locates a chun
 from __future__ import annotations
 
 import importlib
-import os
 import struct
 from collections import deque
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import IO, Any
 
 import pyarrow as pa
@@ -39,6 +37,7 @@ from .layout import (
     _U64,
     _Exact,
 )
+from .storage import Source, file_size, open_source
 
 try:  # zlib-ng's CRC-32 (the same checksum) runs ~4x faster than the system zlib's
     from zlib_ng.zlib_ng import crc32 as _crc32
@@ -83,6 +82,9 @@ class _ChunkRef:
     # finished files: file offsets of the chunk's MessageIndex records, by channel id
     index_offsets: tuple[tuple[int, int], ...] = ()
     index_length: int = 0
+    # finished files: the chunk record's length (opcode and length prefix included), as the
+    # summary's chunk index gives it; the record is then read in one request (object storage)
+    record_length: int = 0
 
 
 @dataclass(frozen=True)
@@ -95,21 +97,18 @@ class _RawChunk:
     data: bytes | memoryview
 
 
-def _damaged(path: Path, offset: int, why: str) -> CorruptEvidenceError:
+def _damaged(path: Source, offset: int, why: str) -> CorruptEvidenceError:
     return CorruptEvidenceError(path, f"chunk at byte {offset} is damaged ({why}){RECOVER_HINT}")
 
 
 def _decoded(
-    path: Path, refs: Sequence[_ChunkRef], *, ahead: bool, want: frozenset[int] | None = None
+    path: Source, refs: Sequence[_ChunkRef], *, ahead: bool, want: frozenset[int] | None = None
 ) -> Iterator[tuple[_ChunkRef, tuple[memoryview, list[int] | None]]]:
     """Yield each chunk's decompressed records and its wanted messages' offsets.
 
     With ``ahead``, a worker thread reads and decompresses ahead.
     """
-    try:
-        f = open(path, "rb")  # noqa: SIM115 - closed by the with statement below
-    except OSError as exc:
-        raise EvidenceError(path, f"cannot open: {exc.strerror}") from None
+    f = open_source(path, edges=False)
     with f:
         if not ahead or len(refs) < _THREADED_MIN_CHUNKS:
             for ref in refs:
@@ -140,12 +139,17 @@ def _decoded(
             pool.shutdown(wait=True)
 
 
-def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Path) -> _RawChunk:
+def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Source) -> _RawChunk:
     """Read and check the chunk record at ``ref.offset`` (its records still compressed)."""
     offset = ref.offset
     try:
         f.seek(offset)
-        head = f.read(_RECORD_HEAD.size)
+        file_end = file_size(f)
+        known = ref.record_length
+        most = min(file_end - offset, _RECORD_HEAD.size + MAX_RECORD_BYTES)
+        guess = known if _RECORD_HEAD.size < known <= most else 0  # (the summary may lie)
+        first = f.read(guess or _RECORD_HEAD.size)
+        head = first[: _RECORD_HEAD.size]
         if len(head) < _RECORD_HEAD.size:
             raise _damaged(path, offset, "the file ends inside it")
         opcode, length = _RECORD_HEAD.unpack(head)
@@ -157,9 +161,13 @@ def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Path) -> _RawChunk:
                 f"chunk at byte {offset} declares a record of {length} bytes "
                 f"(limit {MAX_RECORD_BYTES})",
             )
-        if offset + _RECORD_HEAD.size + length > os.fstat(f.fileno()).st_size:
+        if offset + _RECORD_HEAD.size + length > file_end:
             raise _damaged(path, offset, f"its {length}-byte record runs past the end of the file")
-        body = f.read(length)
+        if len(first) == _RECORD_HEAD.size + length:  # the index's length was right: read
+            body: bytes | memoryview = memoryview(first)[_RECORD_HEAD.size :]
+        else:
+            f.seek(offset + _RECORD_HEAD.size)
+            body = f.read(length)
     except OSError as exc:
         raise EvidenceError(path, f"cannot read chunk at byte {offset}: {exc}") from None
     if len(body) < length:
@@ -167,7 +175,7 @@ def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Path) -> _RawChunk:
     try:
         _, _, size, crc, name_length = _CHUNK_HEAD.unpack_from(body, 0)
         pos = _CHUNK_HEAD.size + name_length
-        compression = body[_CHUNK_HEAD.size : pos].decode("utf-8")
+        compression = bytes(body[_CHUNK_HEAD.size : pos]).decode("utf-8")
         (records_length,) = _U64.unpack_from(body, pos)
     except (struct.error, UnicodeDecodeError):
         raise _damaged(path, offset, "its header is cut off or garbled") from None
@@ -181,7 +189,7 @@ def _read_chunk_record(f: IO[bytes], ref: _ChunkRef, path: Path) -> _RawChunk:
 
 
 def _raw_chunk(
-    compression: str, size: int, crc: int, data: bytes | memoryview, path: Path, offset: int
+    compression: str, size: int, crc: int, data: bytes | memoryview, path: Source, offset: int
 ) -> _RawChunk:
     if size > MAX_RECORD_BYTES:
         raise CorruptEvidenceError(
@@ -195,7 +203,7 @@ def _raw_chunk(
     return _RawChunk(compression, size, crc, data)
 
 
-def _decompress(raw: _RawChunk, path: Path, offset: int) -> memoryview:
+def _decompress(raw: _RawChunk, path: Source, offset: int) -> memoryview:
     """Decompress a chunk's records to exactly their declared size and check their CRC.
 
     A zstd chunk is decompressed into Arrow's memory pool, which keeps its pages for the
@@ -236,7 +244,7 @@ def _decompress(raw: _RawChunk, path: Path, offset: int) -> memoryview:
 
 
 def _read_and_decompress(
-    f: IO[bytes], ref: _ChunkRef, path: Path, want: frozenset[int] | None = None
+    f: IO[bytes], ref: _ChunkRef, path: Source, want: frozenset[int] | None = None
 ) -> tuple[memoryview, list[int] | None]:
     """The chunk's decompressed records and the offsets of the ``want`` channels' messages.
 
@@ -304,7 +312,7 @@ def _crc32_of(f: IO[bytes], start: int, end: int) -> int:
     return crc
 
 
-def _lz4_frame(path: Path) -> Any:
+def _lz4_frame(path: Source) -> Any:
     try:
         return importlib.import_module("lz4.frame")
     except ImportError:
@@ -315,7 +323,7 @@ def _lz4_frame(path: Path) -> Any:
 
 def _split(
     data: bytes | memoryview,
-    path: Path,
+    path: Source,
     offset: int,
     route: dict[int, int] | None,
     wanted: tuple[bool, bool, bool],
@@ -408,7 +416,7 @@ def _split_indexed(
     return out
 
 
-def _inner_record(kind: Any, body: bytes | memoryview, path: Path, offset: int, pos: int) -> Any:
+def _inner_record(kind: Any, body: bytes | memoryview, path: Source, offset: int, pos: int) -> Any:
     """Read a Channel or Schema record from its body (trailing bytes are allowed, per MCAP)."""
     try:
         return kind.read(ReadDataStream(_Exact(body)))

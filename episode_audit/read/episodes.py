@@ -13,7 +13,6 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import pairwise
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,6 +25,7 @@ from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from ..format.schemas import EPISODE_TABLE_SCHEMA as EPISODE_SCHEMA
 from .blocks import _episode_part, _nulls_problem, _one_line
 from .passes import _decode_kept, _StepStats
+from .storage import Source
 
 MAX_JSON_BYTES = 1 << 20
 """Largest JSON episode record or metadata value the reader accepts: 1 MiB."""
@@ -70,7 +70,7 @@ def _number(value: Any) -> float | None:
 
 
 def _build_episodes(
-    path: Path,
+    path: Source,
     records: list[pa.RecordBatch | bytes],
     *,
     arrow: bool,
@@ -123,7 +123,7 @@ def _starts(resets: pa.Table, ended: set[int]) -> dict[int, Any]:
     return starts
 
 
-def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
+def _episode_record(data: bytes, path: Source) -> dict[str, Any]:
     if len(data) > MAX_JSON_BYTES:
         raise CorruptEvidenceError(
             path, f"episode record of {len(data)} bytes exceeds the 1 MiB limit"
@@ -150,7 +150,7 @@ def _episode_record(data: bytes, path: Path) -> dict[str, Any]:
     return record
 
 
-def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Path) -> pa.Table:
+def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Source) -> pa.Table:
     """The episode Arrow blocks as one table of :data:`EPISODE_SCHEMA` (``ended`` all true).
 
     ``blocks`` are raw blocks or those :func:`_episode_part` already decoded.
@@ -187,7 +187,7 @@ def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Path) -> pa.Tabl
     return table.append_column(EPISODE_SCHEMA.field("ended"), ended)
 
 
-def _end_record_columns(records: list[bytes], path: Path) -> dict[str, list[Any]]:
+def _end_record_columns(records: list[bytes], path: Source) -> dict[str, list[Any]]:
     """Parse and check the episode end records; return their columns, in file order.
 
     Records are parsed :data:`_GROUP` at a time, each group from one string, and turned into
@@ -303,7 +303,7 @@ class _Unconvertible:
 
 
 def _episode_table(
-    path: Path, columns: dict[str, list[Any]], starts: dict[int, Any], stats: _StepStats
+    path: Source, columns: dict[str, list[Any]], starts: dict[int, Any], stats: _StepStats
 ) -> pa.Table:
     """Order the end records' columns by episode and add the episodes that have none."""
     episodes = columns["episode"]

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
@@ -36,6 +35,7 @@ from .passes import (
     _read_chunks,
     _StepStats,
 )
+from .storage import Source
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ class Evidence:
             process (the holder of the file's lock, ``docs/format.md``); ``None`` otherwise.
     """
 
-    path: Path
+    path: Source
     run: RunInfo
     finished: bool
     run_end: dict[str, str] | None
@@ -159,12 +159,18 @@ class Evidence:
         records: bool,
         start_time: int | None = None,
         ahead: bool = True,
+        indexed_only: bool = False,
     ) -> Iterator[_Chunk]:
-        """The wanted messages of every chunk (from ``start_time`` on), in file order."""
+        """The wanted messages of every chunk (from ``start_time`` on), in file order.
+
+        ``indexed_only``: skip the chunks a finished file's index says hold none of them.
+        """
         refs = [r for r in self._chunks if start_time is None or r.end_time >= start_time]
         expected = _declared_schema(self._channels, self._schemas, fmt.TOPIC_STEPS)
         wanted = (steps, resets, records)
-        return _read_chunks(self.path, refs, self._channels, self._slots, expected, wanted, ahead)
+        return _read_chunks(
+            self.path, refs, self._channels, self._slots, expected, wanted, ahead, indexed_only
+        )
 
     def _pass(
         self,
@@ -173,11 +179,12 @@ class Evidence:
         resets: bool = False,
         records: bool = False,
         keep_all: bool = False,
+        indexed_only: bool = False,
     ) -> Iterator[_Chunk]:
         """Read every chunk once; a complete pass also keeps resets and episode records.
 
         They are kept by the first complete pass only, and (unless ``keep_all``) only up to
-        :data:`KEEP_LIMIT` bytes.
+        :data:`KEEP_LIMIT` bytes. ``indexed_only``: see :meth:`_read`.
         """
         gather = None
         if self._gathered is None:
@@ -188,7 +195,9 @@ class Evidence:
                 arrow_records=self._slots is _ARROW_SLOTS,
             )
         keep = gather is not None
-        for chunk in self._read(steps=steps, resets=resets or keep, records=records or keep):
+        for chunk in self._read(
+            steps=steps, resets=resets or keep, records=records or keep, indexed_only=indexed_only
+        ):
             if gather is not None:
                 gather.add(chunk)
             yield chunk
@@ -283,7 +292,9 @@ class Evidence:
         """Reset blocks and episode records, from the last complete pass or a new one."""
         if self._gathered is None:
             # A torn file's episodes need counts from its steps: count them in the same pass.
-            for _ in self._pass(steps=not self.finished, keep_all=True):
+            # A finished file's index says which chunks hold resets and episode records: only
+            # those are read (``report`` of a file in object storage fetches little of it).
+            for _ in self._pass(steps=not self.finished, keep_all=True, indexed_only=True):
                 pass
         assert self._gathered is not None
         return self._gathered

@@ -11,11 +11,12 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any
 
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
 from .evidence import Evidence
 from .opening import open_evidence
+from .storage import RemoteFile, Source, as_source, list_remote
 
 __all__ = ["Unreadable", "evidence_files", "open_all", "skipped", "steps_total"]
 
@@ -28,7 +29,7 @@ class Unreadable:
     why: str
 
     @classmethod
-    def of(cls, path: str | Path, exc: EpisodeAuditError) -> Unreadable:
+    def of(cls, path: str | os.PathLike[str], exc: EpisodeAuditError) -> Unreadable:
         """The input ``path`` that failed with ``exc``."""
         return cls(str(path), exc.problem if isinstance(exc, EvidenceError) else str(exc))
 
@@ -52,16 +53,31 @@ def skipped(
     return Unreadable.of(os.fspath(path), exc)
 
 
-def evidence_files(paths: Sequence[Path]) -> list[Path]:
+def evidence_files(
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
+) -> list[Source]:
     """Files as given and ``*.mcap`` files under directories (recursively, sorted).
 
     A file reached twice (named twice, or also found in a directory given) counts once.
+    URLs (``s3://bucket/prefix`` …) are listed the same way, through ``filesystem`` or one
+    made with ``storage_options`` (see :func:`open_evidence`); each is a
+    :class:`~episode_audit.read.storage.RemoteFile` that carries its filesystem.
     Raises :class:`~episode_audit.errors.ConfigurationError` for a path that does not exist,
     a directory without evidence files, or one that cannot be listed.
     """
-    out: list[Path] = []
-    seen: set[Path] = set()
-    for path in paths:
+    out: list[Source] = []
+    seen: set[object] = set()
+    for given in paths:
+        path = as_source(given, filesystem=filesystem, storage_options=storage_options)
+        if isinstance(path, RemoteFile):
+            for remote in list_remote(path):
+                if remote.url not in seen:
+                    seen.add(remote.url)
+                    out.append(remote)
+            continue
         try:
             if path.is_dir():
                 found = sorted(p for p in path.rglob("*.mcap") if p.is_file())
@@ -82,15 +98,15 @@ def evidence_files(paths: Sequence[Path]) -> list[Path]:
 
 
 def open_all(
-    files: Sequence[Path],
+    files: Sequence[Source],
     load: Callable[[Evidence], object] | None = None,
     on_error: Callable[[EpisodeAuditError], None] | None = None,
-) -> tuple[list[tuple[Path, Evidence]], list[Unreadable]]:
+) -> tuple[list[tuple[Source, Evidence]], list[Unreadable]]:
     """The files that open as evidence (and whose ``load`` reads), opened; and the others.
 
     ``on_error`` is told of each file that does not, as it is found.
     """
-    readable: list[tuple[Path, Evidence]] = []
+    readable: list[tuple[Source, Evidence]] = []
     unreadable: list[Unreadable] = []
     for path in files:
         try:
@@ -105,7 +121,7 @@ def open_all(
     return readable, unreadable
 
 
-def steps_total(paths: Sequence[Path]) -> int | None:
+def steps_total(paths: Sequence[Source]) -> int | None:
     """The steps the files' run-end records declare, or ``None`` if one does not say."""
     total = 0
     for path in paths:

@@ -15,8 +15,7 @@ import struct
 import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import IO, NamedTuple
+from typing import IO, Any, NamedTuple
 
 import pyarrow as pa
 from mcap.exceptions import McapError
@@ -43,10 +42,20 @@ from .layout import (
     _Unreadable,
 )
 from .liveness import Holder, probe, still_written
+from .storage import RemoteFile, Source, as_source, file_size, open_source
 
 
-def open_evidence(path: str | os.PathLike[str]) -> Evidence:
+def open_evidence(
+    path: str | os.PathLike[str],
+    *,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
+) -> Evidence:
     """Open an evidence file (finished, or torn by a crash) for reading.
+
+    ``path`` may be a URL (``s3://``, ``gs://``, ``az://``, ``http(s)://``), read by byte
+    ranges through ``fsspec``: ``filesystem`` (an ``fsspec`` filesystem) reads it, or one made
+    with ``storage_options`` (``docs/storage.md``).
 
     Raises :class:`~episode_audit.errors.NotEvidenceError` for a file that is not evidence,
     :class:`~episode_audit.errors.UnsupportedVersionError` for a newer major format version, and
@@ -57,13 +66,13 @@ def open_evidence(path: str | os.PathLike[str]) -> Evidence:
     ...
     episode_audit.errors.EvidenceError: no/such/file.mcap: cannot open: No such file or directory
     """
-    p = Path(path)
+    p = as_source(path, filesystem=filesystem, storage_options=storage_options)
     with _open_mcap(p) as f:
         damage = _summary_damage(f)
         f.seek(0)
         indexed = None if damage else _open_indexed(f, p)
         if indexed is None:
-            writer = probe(f.fileno())  # a file without a summary: torn, or still being written
+            writer = _writer(f, p)  # a file without a summary: torn, or still being written
             f.seek(0)
             ev = _open_linear(f, p, past_data_end=damage is None, writer=writer)
             ev.summary_damage = damage
@@ -71,23 +80,31 @@ def open_evidence(path: str | os.PathLike[str]) -> Evidence:
         return indexed
 
 
-def _open_mcap(p: Path) -> IO[bytes]:
+def _writer(f: IO[bytes], p: Source) -> Holder | None:
+    """The live recorder writing a local file (a remote file has none: recording is local)."""
+    return None if isinstance(p, RemoteFile) else probe(f.fileno())
+
+
+def _open_mcap(p: Source) -> IO[bytes]:
     """Open ``p`` for reading, just after the MCAP magic bytes.
 
     Raises :class:`~episode_audit.errors.NotEvidenceError` for what is not a regular file
     (a FIFO would block) or does not start like MCAP, and
     :class:`~episode_audit.errors.EvidenceError` for a file that cannot be opened.
     """
-    try:
-        if not stat.S_ISREG(os.stat(p).st_mode):
-            raise NotEvidenceError(p, "not a regular file")
-        f = open(p, "rb")  # noqa: SIM115
-    except OSError as exc:
-        raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
+    if isinstance(p, RemoteFile):
+        f = open_source(p)
+    else:
+        try:
+            if not stat.S_ISREG(os.stat(p).st_mode):
+                raise NotEvidenceError(p, "not a regular file")
+        except OSError as exc:
+            raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
+        f = open_source(p)
     try:
         head = f.read(len(_MAGIC))
         if len(head) == 0:
-            writer = probe(f.fileno())
+            writer = _writer(f, p)
             if writer is not None:
                 raise EvidenceError(p, f"{still_written(writer)}: it holds nothing yet; {_WAIT}")
             raise NotEvidenceError(p, "the file is empty")
@@ -100,7 +117,10 @@ def _open_mcap(p: Path) -> IO[bytes]:
 
 
 def _parse_run(
-    path: Path, metadata: dict[str, dict[str, str]], header: Header | None, torn: str | None = None
+    path: Source,
+    metadata: dict[str, dict[str, str]],
+    header: Header | None,
+    torn: str | None = None,
 ) -> tuple[RunInfo, dict[str, str] | None]:
     if header is not None and header.profile != fmt.MCAP_PROFILE:
         raise NotEvidenceError(
@@ -152,7 +172,7 @@ def _schemas_of(schemas: Iterable[Schema]) -> dict[int, pa.Schema]:
     return out
 
 
-def _open_indexed(f: IO[bytes], path: Path) -> Evidence | None:
+def _open_indexed(f: IO[bytes], path: Source) -> Evidence | None:
     """Open through the summary; ``None`` when the file has no usable summary (torn)."""
     try:
         reader = SeekingReader(f, record_size_limit=chunks.MAX_RECORD_BYTES)
@@ -191,6 +211,7 @@ def _open_indexed(f: IO[bytes], path: Path) -> Evidence | None:
                 c.uncompressed_size,
                 tuple(sorted(c.message_index_offsets.items())),
                 c.message_index_length,
+                c.chunk_length,
             )
             for c in summary.chunk_indexes
         ),
@@ -229,7 +250,7 @@ def _summary_damage(f: IO[bytes]) -> str | None:
     footer's CRC covers the summary section through the footer's own offset fields (MCAP
     spec); a writer may leave it 0 (not computed), which is accepted.
     """
-    size = os.fstat(f.fileno()).st_size
+    size = file_size(f)
     tail = _tail(f, size)
     if tail is None:
         return None
@@ -277,7 +298,7 @@ def _tail(f: IO[bytes], size: int) -> _Tail | None:
 
 def _footer(f: IO[bytes]) -> tuple[int, int] | None:
     """A whole footer's (summary start, summary CRC) before the closing magic, if any."""
-    tail = _tail(f, os.fstat(f.fileno()).st_size)
+    tail = _tail(f, file_size(f))
     if tail is None or not (tail.footer_ok and tail.magic_ok):
         return None
     return tail.summary_start, tail.summary_crc
@@ -297,7 +318,7 @@ _CUT_SHORT = (McapError, EvidenceError, ValueError, EOFError, zlib.error, OSErro
 class _Scan:
     """What a linear scan found: the records it keeps, and whether the file was torn."""
 
-    path: Path
+    path: Source
     header: Header | None = None
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     chunks: list[_ChunkRef] = field(default_factory=list)
@@ -348,7 +369,7 @@ class _Scan:
 
 
 def _open_linear(
-    f: IO[bytes], path: Path, *, past_data_end: bool = True, writer: Holder | None = None
+    f: IO[bytes], path: Source, *, past_data_end: bool = True, writer: Holder | None = None
 ) -> Evidence:
     """Scan a file without a usable summary; keep every complete chunk.
 
@@ -360,7 +381,7 @@ def _open_linear(
     reader = StreamReader(f, emit_chunks=True, record_size_limit=chunks.MAX_RECORD_BYTES)
     scan = _Scan(path)
     good_end = 0
-    size = os.fstat(f.fileno()).st_size
+    size = file_size(f)
     records = reader.records
     while True:
         start = good_end

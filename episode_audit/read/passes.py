@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,6 +22,7 @@ from ..errors import CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
 from .blocks import _arrow_batch, _episode_part, _reset_block
 from .chunks import _OTHER, _RESETS, _STEPS, _ChunkRef, _decoded, _split
+from .storage import Source
 
 KEEP_LIMIT = 256 << 20
 """Most bytes of reset blocks and episode records a pass over the steps keeps for later."""
@@ -40,23 +40,31 @@ class _Chunk:
 
 
 def _read_chunks(
-    path: Path,
+    path: Source,
     refs: list[_ChunkRef],
     channels: dict[int, Channel],
     slots: dict[str, int],
     expected: pa.Schema | None,
     wanted: tuple[bool, bool, bool],
     ahead: bool,
+    indexed_only: bool = False,
 ) -> Iterator[_Chunk]:
     """Yield the wanted (steps, resets, records) messages of each chunk of ``refs``, in order.
 
     ``channels`` learns the Channel records the chunks hold. Every step block must have the
     schema ``expected`` (the file's declared one), or if None the first block's: a reader
     streaming blocks can rely on one schema. With ``ahead`` (for whole-file passes) a worker
-    thread reads and decompresses the next chunks while the caller works on this one.
+    thread reads and decompresses the next chunks while the caller works on this one. With
+    ``indexed_only``, chunks whose index (a finished file's summary) lists no message on a
+    wanted channel are not read at all (nor yielded): ``Evidence.episodes`` of a finished
+    file reads only the chunks with reset blocks and episode records.
     """
     route = {cid: slots.get(ch.topic, _OTHER) for cid, ch in channels.items()}
     want = frozenset(c for c, slot in route.items() if slot != _OTHER and wanted[slot])
+    if indexed_only:
+        refs = [
+            r for r in refs if not r.index_offsets or any(c in want for c, _ in r.index_offsets)
+        ]
     for ref, (data, positions) in _decoded(path, refs, ahead=ahead, want=want):
         found: list[Channel] = []
         messages = _split(data, path, ref.offset, route, wanted, found, None, slots, positions)
@@ -84,7 +92,7 @@ def _read_chunks(
 
 
 def _episode_rows(
-    chunks: Iterable[_Chunk], index: int, start: int | None, end: int | None, path: Path
+    chunks: Iterable[_Chunk], index: int, start: int | None, end: int | None, path: Source
 ) -> tuple[list[pa.RecordBatch], dict[str, Any] | None]:
     """Episode ``index``'s step rows and reset row, from the chunks from its start time on.
 
@@ -166,7 +174,7 @@ class _Gathered:
 
     stats: _StepStats | None = None
     limit: int | None = None
-    path: Path | None = None
+    path: Source | None = None
     arrow_records: bool = False
     resets: list[pa.RecordBatch | bytes] = field(default_factory=list)
     records: list[pa.RecordBatch | bytes] = field(default_factory=list)
@@ -175,7 +183,7 @@ class _Gathered:
 
     @classmethod
     def for_pass(
-        cls, path: Path, *, count_steps: bool, keep_all: bool, arrow_records: bool
+        cls, path: Source, *, count_steps: bool, keep_all: bool, arrow_records: bool
     ) -> _Gathered:
         """What a new pass keeps: everything with ``keep_all``, else :data:`KEEP_LIMIT` bytes."""
         limit = None if keep_all else KEEP_LIMIT
@@ -206,7 +214,7 @@ class _Gathered:
         self,
         data: bytes,
         kept: list[pa.RecordBatch | bytes],
-        decode: Callable[[bytes, Path], pa.RecordBatch] | None,
+        decode: Callable[[bytes, Source], pa.RecordBatch] | None,
     ) -> pa.RecordBatch | bytes:
         if decode is None or self.path is None or (kept and isinstance(kept[-1], bytes)):
             return data
@@ -217,7 +225,9 @@ class _Gathered:
 
 
 def _decode_kept(
-    kept: list[pa.RecordBatch | bytes], decode: Callable[[bytes, Path], pa.RecordBatch], path: Path
+    kept: list[pa.RecordBatch | bytes],
+    decode: Callable[[bytes, Source], pa.RecordBatch],
+    path: Source,
 ) -> list[pa.RecordBatch]:
     """The blocks a pass kept, decoding those it kept as bytes (see :class:`_Gathered`)."""
     return [data if isinstance(data, pa.RecordBatch) else decode(data, path) for data in kept]

@@ -50,6 +50,7 @@ from .layout import (
 )
 from .opening import _footer, _open_mcap, _summary_damage
 from .resync import Resync, index_framing_holds
+from .storage import Source
 
 
 @dataclass(frozen=True)
@@ -218,7 +219,7 @@ def _bad_framing(
 
 
 def _chunk_item(
-    f: IO[bytes], path: Path, pos: int, stop: int, skip_damaged: bool
+    f: IO[bytes], path: Source, pos: int, stop: int, skip_damaged: bool
 ) -> ChunkRecords | DamagedRegion:
     """The records of the chunk at ``pos`` (``stop`` is where it ends), or the damage."""
     try:
@@ -277,7 +278,7 @@ def summary_definitions(path: str | os.PathLike[str]) -> tuple[list[Schema], lis
     return list(summary.schemas.values()), list(summary.channels.values())
 
 
-def _chunk_records(data: bytes, path: Path, offset: int) -> list[Schema | Channel | Message]:
+def _chunk_records(data: bytes, path: Source, offset: int) -> list[Schema | Channel | Message]:
     """Every Schema, Channel and Message record of a decompressed chunk, in order.
 
     The walk is :func:`~episode_audit.read.chunks._split`'s, which keeps its own inline: it is

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from ..format.records import EpisodeRanges, listing
 from ..read import DamagedRegion
+from ..read.storage import Source
 
 __all__ = ["RecoveryResult", "record_name"]
 
@@ -82,8 +82,8 @@ class RecoveryResult:
             and counts are lost.
     """
 
-    source: Path
-    output: Path
+    source: Source
+    output: Source
     already_finished: bool
     chunks: int
     messages: int

@@ -16,10 +16,12 @@ from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
 from ..read.liveness import still_written, writer_of
+from ..read.storage import is_url
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
 from .files import Temporary, check_paths
 from .kept import Kept
+from .remote import recover_remote
 from .result import RecoveryResult, record_name
 
 __all__ = ["recover"]
@@ -37,7 +39,8 @@ def recover(
     torn file sees them. A finished input that reads whole (as ``check`` reads it) is copied
     unchanged; one whose content the reader refuses is refused with the reader's error. The
     input is never changed; the output is written next to ``out`` and renamed into place once
-    finished.
+    finished. Either may be a URL (``s3://`` …, ``docs/storage.md``): a remote input is
+    downloaded to a temporary file first, and a remote output uploaded once finished.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
     (without ``overwrite``) or cannot be created, when either file is still being written by a
@@ -61,6 +64,8 @@ def recover(
     >>> open_evidence(d / "fixed.mcap").run_end["status"]
     'recovered'
     """
+    if is_url(path) or is_url(out):  # object storage: through a local temporary copy
+        return recover_remote(path, out, overwrite, recover)
     src, dst = Path(path), Path(out)
     check_paths(src, dst, overwrite)
     ev = _open_input(src)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Any
 
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import Evidence
@@ -46,8 +46,13 @@ def report_inputs(
     max_error_rate: float | None = None,
     fail_on_incentive_warning: bool = False,
     on_error: Callable[[EpisodeAuditError], None] | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> InputsReport:
     """Report the evidence files ``paths`` name (directories are searched for ``*.mcap``).
+
+    ``paths`` may be URLs, read through ``filesystem`` or ``storage_options``
+    (:func:`~episode_audit.read.evidence_files`).
 
     The options are those of ``episode-audit report``, checked in that order, each problem a
     :class:`~episode_audit.errors.ConfigurationError` naming the option. A file that cannot be
@@ -67,7 +72,7 @@ def report_inputs(
         max_error_rate=max_error_rate,
         fail_on_incentive_warning=fail_on_incentive_warning,
     )
-    files = evidence_files([Path(p) for p in paths])
+    files = evidence_files(paths, filesystem=filesystem, storage_options=storage_options)
     # Reading each file's episodes here (they are cached) puts a file damaged past its start
     # with the unreadable ones instead of stopping the report of the others.
     readable, unreadable = open_all(files, Evidence.episodes, on_error=on_error)
@@ -143,7 +148,7 @@ def _rate_option(name: str, value: float | None) -> float | None:
     return value
 
 
-def _check_games_fit(path: Path, ev: Evidence) -> None:
+def _check_games_fit(path: object, ev: Evidence) -> None:
     """``--games`` counts PettingZoo games: a file of another kind has none."""
     kind = str((ev.run.layout or {}).get("kind", "single"))
     if not kind.startswith("pettingzoo"):

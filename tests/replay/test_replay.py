@@ -326,7 +326,11 @@ def test_replay_reads_a_file_once_when_it_fits_one_window(
     monkeypatch.setattr(replay_module, "REPLAY_WINDOW_ROWS", window)
     assert replay([path]).count("identical") == 8
     chunks = len(set(reads))
-    assert chunks > 3 and len(reads) == passes * chunks
+    assert chunks > 3
+    if passes == 1:
+        assert len(reads) == chunks
+    else:  # the episodes table first: only the chunks with reset blocks or episode records
+        assert chunks < len(reads) < passes * chunks
 
 
 def pixel_cartpole(heavier: bool = False) -> gym.Env[Any, Any]:
