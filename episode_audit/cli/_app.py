@@ -89,12 +89,19 @@ def collect(paths: Sequence[Path]) -> list[Path]:
 
 
 @contextmanager
-def progress_bar(description: str, total: int | None) -> Iterator[Callable[[int], None]]:
-    """A Rich progress bar on stderr when it is a terminal; a no-op otherwise."""
+def progress_bar(
+    description: str, total: int | Callable[[], int | None] | None
+) -> Iterator[Callable[[int], None]]:
+    """A Rich progress bar on stderr when it is a terminal; a no-op otherwise.
+
+    ``total`` may be a function, called only when there is a bar to show.
+    """
     console = _stderr()
     if not console.is_terminal:
         yield lambda n: None
         return
+    if callable(total):
+        total = total()
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -149,6 +156,41 @@ PathsArgument = Annotated[
     list[Path],
     typer.Argument(help="Evidence files, or directories searched for *.mcap.", readable=False),
 ]
+
+
+JobsOption = Annotated[
+    int | None,
+    typer.Option(
+        "--jobs",
+        "-j",
+        help="Worker processes, a file (or a batch of episodes) each at a time; default: every "
+        "usable core; 1: in this process. Output is the same whatever the number.",
+        metavar="<n>",
+        min=1,
+        show_default=False,
+    ),
+]
+RayOption = Annotated[
+    str | None,
+    typer.Option(
+        "--ray",
+        help="Run the work as Ray tasks instead: on the cluster at ADDRESS (auto, ray://HOST:PORT "
+        "or HOST:PORT), or on a Ray started here (local). Needs episode-audit[ray].",
+        metavar="<address>",
+        show_default=False,
+    ),
+]
+EXIT_INTERRUPTED = 130
+
+
+@contextmanager
+def interruptible() -> Iterator[None]:
+    """Ctrl-C: one line on stderr and exit 130 (the workers are stopped by then)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        _say("error", "interrupted (Ctrl-C): stopped")
+        raise typer.Exit(EXIT_INTERRUPTED) from None
 
 
 def _format(value: str) -> OutputFormat:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated
 
 import typer
@@ -12,13 +13,16 @@ from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     FormatOption,
+    JobsOption,
     PathsArgument,
+    RayOption,
     _error_line,
     _format,
     app,
     collect,
     emit,
     fail,
+    interruptible,
     progress_bar,
 )
 
@@ -62,6 +66,8 @@ def replay(
         ),
     ] = False,
     output: FormatOption = "table",
+    jobs: JobsOption = None,
+    ray: RayOption = None,
 ) -> None:
     """Re-run episodes from their recorded seed / RNG state and compare them step by step."""
     from ..replay import replay as run_replay
@@ -74,7 +80,8 @@ def replay(
     except ConfigurationError as exc:
         fail(str(exc))
     files = collect(paths)
-    with progress_bar("replaying", steps_total(files) if episode is None else None) as advance:
+    total = partial(steps_total, files) if episode is None else None
+    with interruptible(), progress_bar("replaying", total) as advance:
         try:
             result = run_replay(
                 files,
@@ -86,6 +93,8 @@ def replay(
                 progress=advance,
                 keep_going=True,
                 on_error=_error_line,
+                jobs=jobs,
+                ray_address=ray,
             )
         except ConfigurationError as exc:
             fail(str(exc))

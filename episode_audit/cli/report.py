@@ -11,12 +11,15 @@ from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     FormatOption,
+    JobsOption,
     PathsArgument,
+    RayOption,
     _error_line,
     _format,
     app,
     emit,
     fail,
+    interruptible,
     warn,
 )
 
@@ -63,6 +66,8 @@ def report(
         typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
     ] = False,
     output: FormatOption = "table",
+    jobs: JobsOption = None,
+    ray: RayOption = None,
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
     from ..report.inputs import report_inputs
@@ -70,17 +75,20 @@ def report(
 
     fmt = _format(output)
     try:
-        result = report_inputs(
-            paths,
-            by=by,
-            games=games,
-            min_success_rate=min_success_rate,
-            max_failure_rate=max_failure_rate or (),
-            max_truncation_rate=max_truncation_rate,
-            max_error_rate=max_error_rate,
-            fail_on_incentive_warning=fail_on_incentive_warning,
-            on_error=_error_line,
-        )
+        with interruptible():
+            result = report_inputs(
+                paths,
+                by=by,
+                games=games,
+                min_success_rate=min_success_rate,
+                max_failure_rate=max_failure_rate or (),
+                max_truncation_rate=max_truncation_rate,
+                max_error_rate=max_error_rate,
+                fail_on_incentive_warning=fail_on_incentive_warning,
+                on_error=_error_line,
+                jobs=jobs,
+                ray_address=ray,
+            )
     except EpisodeAuditError as exc:
         fail(str(exc))
     if not result.readable and fmt != "json":  # (JSON is still one document: its unreadable list)

@@ -29,7 +29,9 @@ __all__ = [
     "SUCCESS_KEY",
     "check_by",
     "collect",
+    "file_rows",
     "is_by",
+    "joined",
 ]
 
 NONE_KEY = "(none)"
@@ -88,30 +90,46 @@ def collect(
     Unstarted episodes (reset and never stepped, :func:`~episode_audit.format.records.unstarted`)
     are left out. With ``games``, one row per game of a PettingZoo file instead (see :mod:`.games`).
     """
+    return joined([file_rows(name, ev, by, games) for name, ev in sources])
+
+
+FileRows = tuple[pa.Table | None, list[pa.Table]]
+"""One file's part of :func:`collect`: its episode rows (``None``: none) and term rows."""
+
+
+def file_rows(name: str, ev: Evidence, by: str, games: bool = False) -> FileRows:
+    """The rows :func:`collect` takes from one file (``name``: its group key by file)."""
+    table = ev.episodes()
+    unstarted_rows = unstarted(table)
+    if unstarted_rows.any():  # reset and never stepped: no episode to count
+        table = table.filter(pa.array(~unstarted_rows))
+    if games:
+        table = game_table(table)
+    n = table.num_rows
+    if n == 0:
+        return None, []
+    key = _keys(name, ev, table, by, games)
+    signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
+    episodes = (
+        table.select(list(OUTCOME_FIELDS))
+        .append_column("key", key)
+        .append_column("success_signal", signal)
+    )
+    return episodes, _term_rows(table, key, ev)
+
+
+def joined(rows: Iterable[FileRows]) -> tuple[pa.Table, pa.Table]:
+    """The files' rows (of :func:`file_rows`) as the two tables of :func:`collect`."""
     parts: list[pa.Table] = []
     term_parts: list[pa.Table] = []
-    for name, ev in sources:
-        table = ev.episodes()
-        unstarted_rows = unstarted(table)
-        if unstarted_rows.any():  # reset and never stepped: no episode to count
-            table = table.filter(pa.array(~unstarted_rows))
-        if games:
-            table = game_table(table)
-        n = table.num_rows
-        if n == 0:
-            continue
-        key = _keys(name, ev, table, by, games)
-        signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
-        parts.append(
-            table.select(list(OUTCOME_FIELDS))
-            .append_column("key", key)
-            .append_column("success_signal", signal)
-        )
-        term_parts.extend(_term_rows(table, key, ev))
+    for episodes, terms in rows:
+        if episodes is not None:
+            parts.append(episodes)
+        term_parts.extend(terms)
     if not parts:
         return _EPISODES_SCHEMA.empty_table(), _TERM_SCHEMA.empty_table()
-    terms = pa.concat_tables(term_parts) if term_parts else _TERM_SCHEMA.empty_table()
-    return pa.concat_tables(parts), terms
+    terms_table = pa.concat_tables(term_parts) if term_parts else _TERM_SCHEMA.empty_table()
+    return pa.concat_tables(parts), terms_table
 
 
 def _keys(name: str, ev: Evidence, table: pa.Table, by: str, games: bool) -> pa.Array:
