@@ -8,7 +8,8 @@ Reacher-v5 / HalfCheetah-v5; <= 32 bytes per CartPole step; recorder memory flat
 growth) over a 1 M-step episode; check >= 5 M steps/s; replay <= 1.05x bare stepping; vector
 recording overhead per sub-env step no worse than the single-env recorder's (CartPole x8, Sync);
 SB3 (bench_sb3.py): a real PPO run with / without RecordVecEnvEvidence, and its cost per
-sub-env step (skipped when SB3 is not installed).
+sub-env step (skipped when SB3 is not installed); jobs (bench_jobs.py): check, report and
+replay over 1 000 files with --jobs 1 vs 2 (replay >= 1.8x), and an Amdahl estimate to N cores.
 Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
 """
 
@@ -25,6 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import bench_jobs
 import bench_sb3
 import gymnasium as gym
 import numpy as np
@@ -392,6 +394,8 @@ BENCHES: dict[str, Callable[[], Any]] = {
     ],
     # inside a real PPO run, and per sub-env step; "skipped: SB3 not installed" without it
     "sb3": lambda: bench_sb3.bench(TMP),
+    # --jobs 1 vs 2 over 1 000 files (+ 50 MuJoCo episodes for replay); Amdahl estimate to N
+    "jobs": lambda: bench_jobs.bench(TMP),
 }
 
 

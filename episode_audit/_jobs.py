@@ -124,18 +124,27 @@ class _Done(Generic[R]):
         return self.result  # type: ignore[return-value]
 
 
-def _call(fn: Work[T, R], item: T) -> _Done[R]:
-    """Run one item in a worker, counting its progress instead of reporting it."""
-    steps = 0
+def _call(fn: Work[T, R], chunk: Sequence[T]) -> list[_Done[R]]:
+    """Run a chunk of items in a worker, counting their progress instead of reporting it."""
+    done: list[_Done[R]] = []
+    for item in chunk:
+        steps = 0
 
-    def count(n: int) -> None:
-        nonlocal steps
-        steps += n
+        def count(n: int) -> None:
+            nonlocal steps
+            steps += n
 
-    try:
-        return _Done(fn(item, count), None, steps)
-    except EpisodeAuditError as exc:
-        return _Done(None, exc, steps)
+        try:
+            done.append(_Done(fn(item, count), None, steps))
+        except EpisodeAuditError as exc:
+            done.append(_Done(None, exc, steps))
+    return done
+
+
+def _chunks(work: Sequence[T], workers: int) -> list[Sequence[T]]:
+    """``work`` cut in runs of items, about 8 a worker: few round trips, workers kept busy."""
+    size = max(1, len(work) // (8 * workers))
+    return [work[i : i + size] for i in range(0, len(work), size)]
 
 
 def _quiet_worker() -> None:
@@ -150,11 +159,12 @@ def _pool_map(
 
     context = multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_quiet_worker)
-    futures: list[Future[_Done[R]]] = []
+    futures: list[Future[list[_Done[R]]]] = []
     try:
-        futures = [pool.submit(_call, fn, item) for item in work]
+        futures = [pool.submit(_call, fn, chunk) for chunk in _chunks(work, workers)]
         for future in futures:
-            yield future.result().unwrap(progress)
+            for done in future.result():
+                yield done.unwrap(progress)
     except BaseException:
         _stop(pool, futures)
         raise
@@ -182,10 +192,11 @@ def _ray_map(
     remote = ray.remote(num_cpus=1, max_retries=0)(_call)
     refs: list[Any] = []
     try:
-        refs = [remote.remote(fn, item) for item in work]
+        refs = [remote.remote(fn, chunk) for chunk in _chunks(work, workers(None, address))]
         for ref in refs:
-            done: _Done[R] = ray.get(ref)
-            yield done.unwrap(progress)
+            chunk_done: list[_Done[R]] = ray.get(ref)
+            for done in chunk_done:
+                yield done.unwrap(progress)
     except BaseException:
         for ref in refs:
             ray.cancel(ref, force=True)

@@ -198,7 +198,8 @@ def _double_or_fail(item: int, progress: object) -> int:
 
 
 def test_map_ordered_keeps_the_order_and_raises_at_the_failing_item() -> None:
-    got = map_ordered(_double_or_fail, [1, 2, 3, 4], jobs=2)
+    assert list(map_ordered(_double_or_fail, range(4, 100), jobs=2)) == list(range(8, 200, 2))
+    got = map_ordered(_double_or_fail, range(1, 41), jobs=2)  # 40 items in runs of 2
     assert [next(got), next(got)] == [2, 4]
     with pytest.raises(EvidenceError, match=r"three\.mcap: cannot be read"):
         next(got)
