@@ -91,7 +91,7 @@ def bench(tmp: Path, rounds: int = 3) -> dict[str, Any]:
     """The three commands, --jobs 1 vs --jobs 2, with the load average around the run."""
     files, reacher = campaign(tmp)
     load_before = os.getloadavg()
-    out = {
+    out: dict[str, Any] = {
         "files": len(files),
         "check": compare(lambda jobs: check(files, jobs=jobs), rounds),
         "report": compare(lambda jobs: report_inputs(files, jobs=jobs), rounds),

@@ -209,3 +209,15 @@ def test_jobs_must_be_a_positive_number() -> None:
     assert check_jobs(None) == usable_cores() >= 1
     with pytest.raises(ConfigurationError, match="jobs: expected a number of processes >= 1"):
         check_jobs(0)
+
+
+def test_small_inputs_stay_in_this_process_unless_jobs_is_given(tmp_path: Path) -> None:
+    from episode_audit.cli._app import SMALL_INPUTS, jobs_for
+
+    small, large = tmp_path / "small.mcap", tmp_path / "large.mcap"
+    small.write_bytes(b"x" * 100)
+    with large.open("wb") as f:  # sparse: its size without writing it
+        f.truncate(SMALL_INPUTS)
+    assert jobs_for(None, [small]) == 1
+    assert jobs_for(None, [small, large]) is None  # every usable core
+    assert jobs_for(3, [small]) == 3

@@ -181,6 +181,22 @@ RayOption = Annotated[
     ),
 ]
 EXIT_INTERRUPTED = 130
+SMALL_INPUTS = 8 << 20
+"""Inputs totalling fewer bytes are read in this process unless ``--jobs`` says otherwise:
+starting workers (an interpreter and the imports each) would cost more than it saves."""
+
+
+def jobs_for(jobs: int | None, files: Sequence[Path], small: int = SMALL_INPUTS) -> int | None:
+    """``--jobs`` as given; not given: ``None`` (every usable core), or 1 for small inputs."""
+    if jobs is not None:
+        return jobs
+    total = 0
+    for file in files:
+        try:
+            total += file.stat().st_size
+        except OSError:
+            pass
+    return 1 if total < small else None
 
 
 @contextmanager

@@ -23,6 +23,7 @@ from ._app import (
     emit,
     fail,
     interruptible,
+    jobs_for,
     progress_bar,
 )
 
@@ -74,7 +75,7 @@ def check(
                 progress=advance,
                 keep_going=True,
                 on_error=_error_line,
-                jobs=jobs,
+                jobs=jobs_for(jobs, files),
                 ray_address=ray,
             )
         except ConfigurationError as exc:

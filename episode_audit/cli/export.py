@@ -22,6 +22,7 @@ from ._app import (
     emit,
     fail,
     interruptible,
+    jobs_for,
     note,
     progress_bar,
 )
@@ -61,7 +62,7 @@ def export(
                 overwrite=overwrite,
                 progress=advance,
                 on_error=_error_line,
-                jobs=jobs,
+                jobs=jobs_for(jobs, files),
                 ray_address=ray,
             )
     except EpisodeAuditError as exc:

@@ -12,6 +12,7 @@ from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
+    SMALL_INPUTS,
     FormatOption,
     JobsOption,
     PathsArgument,
@@ -23,6 +24,7 @@ from ._app import (
     emit,
     fail,
     interruptible,
+    jobs_for,
     progress_bar,
 )
 
@@ -93,7 +95,7 @@ def replay(
                 progress=advance,
                 keep_going=True,
                 on_error=_error_line,
-                jobs=jobs,
+                jobs=jobs_for(jobs, files, SMALL_INPUTS // 8),
                 ray_address=ray,
             )
         except ConfigurationError as exc:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from ..errors import EpisodeAuditError
+from ..read.inputs import evidence_files
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
@@ -20,6 +22,7 @@ from ._app import (
     emit,
     fail,
     interruptible,
+    jobs_for,
     warn,
 )
 
@@ -86,7 +89,7 @@ def report(
                 max_error_rate=max_error_rate,
                 fail_on_incentive_warning=fail_on_incentive_warning,
                 on_error=_error_line,
-                jobs=jobs,
+                jobs=_jobs(jobs, paths),
                 ray_address=ray,
             )
     except EpisodeAuditError as exc:
@@ -100,3 +103,13 @@ def report(
         raise typer.Exit(EXIT_USAGE)
     if not result.report.passed:
         raise typer.Exit(EXIT_FINDINGS)
+
+
+def _jobs(jobs: int | None, paths: list[Path]) -> int | None:
+    """``--jobs`` for ``paths`` (a path that cannot be listed: the report says so itself)."""
+    if jobs is not None:
+        return jobs
+    try:
+        return jobs_for(jobs, evidence_files(paths))
+    except EpisodeAuditError:
+        return None
