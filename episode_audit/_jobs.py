@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
@@ -161,7 +162,8 @@ def _pool_map(
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_quiet_worker)
     futures: list[Future[list[_Done[R]]]] = []
     try:
-        futures = [pool.submit(_call, fn, chunk) for chunk in _chunks(work, workers)]
+        with _workers_ignore_sigint():
+            futures = [pool.submit(_call, fn, chunk) for chunk in _chunks(work, workers)]
         for future in futures:
             for done in future.result():
                 yield done.unwrap(progress)
@@ -169,6 +171,24 @@ def _pool_map(
         _stop(pool, futures)
         raise
     pool.shutdown(wait=True)
+
+
+@contextmanager
+def _workers_ignore_sigint() -> Iterator[None]:
+    """Workers started in here ignore Ctrl-C from their first instruction on.
+
+    An ignored signal stays ignored in a started program, and Python then sets no handler of
+    its own: a worker still importing when Ctrl-C comes prints no traceback; the parent,
+    which handles it, stops the workers.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _stop(pool: ProcessPoolExecutor, futures: Sequence[Future[Any]]) -> None:
@@ -217,9 +237,9 @@ def _connect(address: str) -> Any:
         import ray
     except ImportError:
         raise ConfigurationError("--ray needs Ray: pip install 'episode-audit[ray]'") from None
-    if ray.is_initialized():
-        return ray
     _reachable(address)
+    if ray.is_initialized():  # (this process's own connection, whatever ``address`` says)
+        return ray
     import logging
 
     try:

@@ -162,6 +162,17 @@ def test_an_unreachable_ray_cluster_is_one_line_and_exit_2(campaign: Path) -> No
     assert code == 2 and "expected local, auto, ray://HOST:PORT or HOST:PORT" in err
 
 
+def _wait_for_workers(pid: int, workers: int, timeout: float = 120) -> None:
+    """Until ``pid`` has started ``workers`` worker processes (besides its resource tracker)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        if len(children) > workers:
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"no {workers} workers after {timeout} s")
+
+
 def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     factory = "tests.support.factories:slow_cartpole"
@@ -175,7 +186,8 @@ def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
         text=True,
         start_new_session=True,
     )
-    time.sleep(8)  # the workers are started and mid-replay (200 files x 0.5 s builds)
+    _wait_for_workers(proc.pid, 2)  # and then mid-replay (200 files x 0.5 s builds)
+    time.sleep(3)
     assert proc.poll() is None
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
     out, err = proc.communicate(timeout=60)
@@ -221,3 +233,10 @@ def test_small_inputs_stay_in_this_process_unless_jobs_is_given(tmp_path: Path) 
     assert jobs_for(None, [small]) == 1
     assert jobs_for(None, [small, large]) is None  # every usable core
     assert jobs_for(3, [small]) == 3
+
+
+def test_the_library_report_takes_jobs(campaign: Path) -> None:
+    from episode_audit.report import report
+
+    files = sorted(p for p in campaign.glob("*.mcap") if "unreadable" not in p.name)[:40]
+    assert report(files, by="env", jobs=2).to_dict() == report(files, by="env").to_dict()

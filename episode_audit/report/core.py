@@ -10,8 +10,10 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
+from .._jobs import map_ordered
 from ..read import Evidence, open_evidence
 from .collect import NONE_KEY, FileRows, check_by, file_rows, joined
 from .gates import GateResult, Gates, check_gates, unmatched_labels, unmatched_why
@@ -152,6 +154,8 @@ def report(
     by: str = "file",
     gates: Gates | None = None,
     games: bool = False,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> Report:
     """Open evidence files and report their episodes, grouped, with gates checked per group.
 
@@ -165,6 +169,8 @@ def report(
     :class:`~episode_audit.errors.EvidenceError`. With ``games``, PettingZoo files are
     counted by game instead of by agent-episode, each game's outcome derived from its agents'
     by the rule of :mod:`episode_audit.report.games` (files without games then count nothing).
+    ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
+    read the files (see :mod:`episode_audit._jobs`); the report is the same as with ``jobs=1``.
 
     Example:
         >>> import tempfile, pathlib, gymnasium as gym
@@ -183,5 +189,11 @@ def report(
         (False, 'truncation rate 1.00 > 0.50 (group CartPole-v1)')
     """
     check_by(by)
-    opened = [(str(p), open_evidence(p)) for p in paths]
-    return report_tables(opened, by=by, gates=gates, games=games)
+    one = partial(_part_of, by=by, games=games)
+    parts = list(map_ordered(one, list(paths), jobs=jobs, ray_address=ray_address))
+    return report_parts(parts, by=by, gates=gates, games=games)
+
+
+def _part_of(path: str | os.PathLike[str], progress: object, *, by: str, games: bool) -> FilePart:
+    """Open one file and take its part of the report (in a worker, maybe)."""
+    return file_part(str(path), open_evidence(path), by, games)
