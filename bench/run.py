@@ -11,6 +11,9 @@ export to Foxglove MCAP >= 1 M steps per minute on one core (a CartPole file, pi
 CPU; process CPU time and wall time, with the load average); SB3 (bench_sb3.py): a real PPO
 run with / without RecordVecEnvEvidence, and its cost per sub-env step (skipped when SB3 is
 not installed).
+SB3 (bench_sb3.py): a real PPO run with / without RecordVecEnvEvidence, and its cost per
+sub-env step (skipped when SB3 is not installed); jobs (bench_jobs.py): check, report and
+replay over 1 000 files with --jobs 1 vs 2 (replay >= 1.8x), and an Amdahl estimate to N cores.
 Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
 """
 
@@ -27,6 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import bench_jobs
 import bench_sb3
 import gymnasium as gym
 import numpy as np
@@ -430,6 +434,8 @@ BENCHES: dict[str, Callable[[], Any]] = {
     "export": lambda: bench_export(200_000, 3),
     # inside a real PPO run, and per sub-env step; "skipped: SB3 not installed" without it
     "sb3": lambda: bench_sb3.bench(TMP),
+    # --jobs 1 vs 2 over 1 000 files (+ 50 MuJoCo episodes for replay); Amdahl estimate to N
+    "jobs": lambda: bench_jobs.bench(TMP),
 }
 
 

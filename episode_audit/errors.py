@@ -18,6 +18,7 @@ Messages say what was expected, what was found, and what to do.
 from __future__ import annotations
 
 from os import PathLike
+from typing import Any
 
 __all__ = [
     "ConfigurationError",
@@ -52,6 +53,17 @@ class EvidenceError(EpisodeAuditError):
             problem = f"{problem[:MAX_PROBLEM]}... ({len(problem) - MAX_PROBLEM} more characters)"
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Pickled as built (a worker process sends it back): the problem is not cut again
+        return (_rebuilt, (type(self), self.path, self.problem))
+
+
+def _rebuilt(cls: type[EvidenceError], path: str, problem: str) -> EvidenceError:
+    exc = cls.__new__(cls)
+    exc.path, exc.problem = path, problem
+    Exception.__init__(exc, f"{path}: {problem}")
+    return exc
 
 
 MAX_PROBLEM = 1000

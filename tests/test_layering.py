@@ -4,7 +4,7 @@ Every import counts, at module level or inside a function (a lazy import is stil
 ``TYPE_CHECKING`` blocks included. The wings, lowest first (docs/architecture.md):
 
     0  errors, _version
-    1  format, tasks
+    1  format, tasks, _jobs
     2  _usercode, record, read
     3  check, replay, report, recover, export, rollout
     4  compare, testing
@@ -30,6 +30,7 @@ RANK = {
     "_version": 0,
     "format": 1,
     "tasks": 1,
+    "_jobs": 1,
     "_usercode": 2,
     "record": 2,
     "read": 2,

@@ -15,9 +15,12 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from functools import partial
 
 import pyarrow as pa
 
+from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..format.columns import one_array
@@ -204,6 +207,8 @@ def check(
     progress: Callable[[int], None] | None = None,
     keep_going: bool = False,
     on_error: Callable[[EpisodeAuditError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> CheckResult:
     """Open and check each evidence file; return every finding with what was checked.
 
@@ -221,6 +226,10 @@ def check(
     :class:`~episode_audit.errors.ConfigurationError`. ``progress`` is called after each block
     of steps with the number of steps in that block.
 
+    ``jobs`` files are checked at a time, each in a worker process (``None``: one per usable
+    core), or as Ray tasks on ``ray_address`` (see :func:`~episode_audit._jobs.map_ordered`);
+    the result is the same as with ``jobs=1``.
+
     >>> import tempfile, pathlib, gymnasium as gym
     >>> from episode_audit import RecordEvidence
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "run.mcap"
@@ -237,24 +246,55 @@ def check(
     _check_options(atol, rtol)
     ignored = ignored_codes(ignore)
     result = CheckResult(findings=[], files=[], episodes=0, steps=0)
-    for path in paths:
-        try:
-            ev = open_evidence(path)
-            checker = _FileCheck(
-                ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=progress
-            )
-            found = checker.run()
-        except EpisodeAuditError as exc:
+    one = partial(_check_path, atol=atol, rtol=rtol, require_terms=require_terms)
+    paths = list(paths)
+    checked_files = map_ordered(one, paths, jobs=jobs, ray_address=ray_address, progress=progress)
+    for path, checked in zip(paths, checked_files, strict=True):
+        found = checked.findings
+        if checked.error is not None:
+            exc = checked.error
             result.unreadable.append(skipped(path, exc, keep_going=keep_going, on_error=on_error))
             found = [Finding("error", FILE_UNREADABLE, str(exc), str(path), None, None)]
-            result.files.append(str(path))
         else:
-            result.files.append(str(ev.path))
-            result.episodes += checker.state.episodes
-            result.steps += checker.state.steps
+            result.episodes += checked.episodes
+            result.steps += checked.steps
+        result.files.append(checked.file)
         for finding in found:
             if is_ignored(finding.code, ignored):
                 result.ignored += 1
             else:
                 result.findings.append(finding)
     return result
+
+
+@dataclass(frozen=True)
+class _Checked:
+    """One file checked (in a worker, maybe): its findings and counts, or why it was not."""
+
+    file: str
+    findings: list[Finding]
+    episodes: int = 0
+    steps: int = 0
+    error: EpisodeAuditError | None = None
+
+
+def _check_path(
+    path: str | os.PathLike[str],
+    progress: Callable[[int], None] | None,
+    *,
+    atol: float,
+    rtol: float,
+    require_terms: bool,
+) -> _Checked:
+    """Open and check one file (a ``ConfigurationError`` is raised, not kept)."""
+    try:
+        ev = open_evidence(path)
+        checker = _FileCheck(
+            ev, atol=atol, rtol=rtol, require_terms=require_terms, progress=progress
+        )
+        found = checker.run()
+    except ConfigurationError:
+        raise
+    except EpisodeAuditError as exc:
+        return _Checked(str(path), [], error=exc)
+    return _Checked(str(ev.path), found, checker.state.episodes, checker.state.steps)

@@ -113,12 +113,19 @@ def collect(paths: Sequence[str | Path]) -> list[Source]:
 
 
 @contextmanager
-def progress_bar(description: str, total: int | None) -> Iterator[Callable[[int], None]]:
-    """A Rich progress bar on stderr when it is a terminal; a no-op otherwise."""
+def progress_bar(
+    description: str, total: int | Callable[[], int | None] | None
+) -> Iterator[Callable[[int], None]]:
+    """A Rich progress bar on stderr when it is a terminal; a no-op otherwise.
+
+    ``total`` may be a function, called only when there is a bar to show.
+    """
     console = _stderr()
     if not console.is_terminal:
         yield lambda n: None
         return
+    if callable(total):
+        total = total()
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -186,6 +193,62 @@ PathsArgument = Annotated[
         metavar="PATHS",
     ),
 ]
+
+
+JobsOption = Annotated[
+    int | None,
+    typer.Option(
+        "--jobs",
+        "-j",
+        help="Worker processes, a file (or a batch of episodes) each at a time; default: every "
+        "usable core; 1: in this process. Output is the same whatever the number.",
+        metavar="<n>",
+        min=1,
+        show_default=False,
+    ),
+]
+RayOption = Annotated[
+    str | None,
+    typer.Option(
+        "--ray",
+        help="Run the work as Ray tasks instead: on the cluster at ADDRESS (auto, ray://HOST:PORT "
+        "or HOST:PORT), or on a Ray started here (local). Needs episode-audit[ray].",
+        metavar="<address>",
+        show_default=False,
+    ),
+]
+EXIT_INTERRUPTED = 130
+SMALL_INPUTS = 8 << 20
+"""Inputs totalling fewer bytes are read in this process unless ``--jobs`` says otherwise:
+starting workers (an interpreter and the imports each) would cost more than it saves."""
+
+
+def jobs_for(jobs: int | None, files: Sequence[Source], small: int = SMALL_INPUTS) -> int | None:
+    """``--jobs`` as given; not given: ``None`` (every usable core), or 1 for small inputs.
+
+    A URL counts as large: its size is not looked up here (one request each).
+    """
+    if jobs is not None:
+        return jobs
+    total = 0
+    for file in files:
+        if not isinstance(file, Path):
+            return None
+        try:
+            total += file.stat().st_size
+        except OSError:
+            pass
+    return 1 if total < small else None
+
+
+@contextmanager
+def interruptible() -> Iterator[None]:
+    """Ctrl-C: one line on stderr and exit 130 (the workers are stopped by then)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        _say("error", "interrupted (Ctrl-C): stopped")
+        raise typer.Exit(EXIT_INTERRUPTED) from None
 
 
 def _format(value: str, *, junit: bool = False) -> OutputFormat:

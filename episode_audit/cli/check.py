@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated
 
 import typer
@@ -12,13 +13,17 @@ from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     CIFormatOption,
+    JobsOption,
     PathsArgument,
+    RayOption,
     _error_line,
     _format,
     app,
     collect,
     emit,
     fail,
+    interruptible,
+    jobs_for,
     progress_bar,
 )
 from ._summary import NoStepSummaryOption, append_step_summary
@@ -53,6 +58,8 @@ def check(
     ] = None,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
+    jobs: JobsOption = None,
+    ray: RayOption = None,
 ) -> None:
     """Check integrity and consistency: terms sum to reward, endings labelled, nothing missing."""
     from ..check import check as run_check
@@ -65,7 +72,8 @@ def check(
     except ConfigurationError as exc:
         fail(str(exc))
     files = collect(paths)
-    with progress_bar("checking", steps_total(files)) as advance:
+    total = partial(steps_total, files)
+    with interruptible(), progress_bar("checking", total) as advance:
         try:
             result = run_check(
                 files,
@@ -76,6 +84,8 @@ def check(
                 progress=advance,
                 keep_going=True,
                 on_error=_error_line,
+                jobs=jobs_for(jobs, files),
+                ray_address=ray,
             )
         except ConfigurationError as exc:
             fail(str(exc))

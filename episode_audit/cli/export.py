@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 from typing import Annotated, Literal, cast
 
@@ -11,13 +12,17 @@ from ..errors import EpisodeAuditError
 from ..read.inputs import steps_total
 from ._app import (
     EXIT_USAGE,
+    JobsOption,
     PathsArgument,
+    RayOption,
     _error_line,
     _readable,
     app,
     collect,
     emit,
     fail,
+    interruptible,
+    jobs_for,
     note,
     progress_bar,
 )
@@ -54,6 +59,8 @@ def export(
             "write are removed).",
         ),
     ] = False,
+    jobs: JobsOption = None,
+    ray: RayOption = None,
 ) -> None:
     """Write steps and episodes as Parquet (pandas / polars / DuckDB), or for a viewer."""
     from ..export import TARGETS
@@ -72,9 +79,16 @@ def export(
         raise typer.Exit(EXIT_USAGE)
     files = [path for path, _ in readable]
     try:
-        with progress_bar("exporting", steps_total(files)) as advance:
+        total = partial(steps_total, files)
+        with interruptible(), progress_bar("exporting", total) as advance:
             result = run_export(
-                files, out, overwrite=overwrite, progress=advance, on_error=_error_line
+                files,
+                out,
+                overwrite=overwrite,
+                progress=advance,
+                on_error=_error_line,
+                jobs=jobs_for(jobs, files),
+                ray_address=ray,
             )
     except EpisodeAuditError as exc:
         fail(str(exc))

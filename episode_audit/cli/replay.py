@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated
 
 import typer
@@ -11,14 +12,19 @@ from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
+    SMALL_INPUTS,
     CIFormatOption,
+    JobsOption,
     PathsArgument,
+    RayOption,
     _error_line,
     _format,
     app,
     collect,
     emit,
     fail,
+    interruptible,
+    jobs_for,
     progress_bar,
 )
 from ._summary import NoStepSummaryOption, append_step_summary
@@ -70,6 +76,8 @@ def replay(
     ] = False,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
+    jobs: JobsOption = None,
+    ray: RayOption = None,
 ) -> None:
     """Re-run episodes from their recorded seed / RNG state and compare them step by step."""
     from ..replay import replay as run_replay
@@ -83,7 +91,8 @@ def replay(
     except ConfigurationError as exc:
         fail(str(exc))
     files = collect(paths)
-    with progress_bar("replaying", steps_total(files) if episode is None else None) as advance:
+    total = partial(steps_total, files) if episode is None else None
+    with interruptible(), progress_bar("replaying", total) as advance:
         try:
             result = run_replay(
                 files,
@@ -95,6 +104,8 @@ def replay(
                 progress=advance,
                 keep_going=True,
                 on_error=_error_line,
+                jobs=jobs_for(jobs, files, SMALL_INPUTS // 8),
+                ray_address=ray,
             )
         except ConfigurationError as exc:
             fail(str(exc))

@@ -8,16 +8,21 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from ..errors import EpisodeAuditError
+from ..read.inputs import evidence_files
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     CIFormatOption,
+    JobsOption,
     PathsArgument,
+    RayOption,
     _error_line,
     _format,
     app,
     emit,
     fail,
+    interruptible,
+    jobs_for,
     note,
     warn,
 )
@@ -86,6 +91,8 @@ def report(
             metavar="<file.html>",
         ),
     ] = None,
+    jobs: JobsOption = None,
+    ray: RayOption = None,
 ) -> None:
     """Success / failure / truncation rates side by side, term breakdown, warnings, gates."""
     from ..report.inputs import report_inputs
@@ -93,17 +100,20 @@ def report(
 
     fmt = _format(output, junit=True)
     try:
-        result = report_inputs(
-            paths,
-            by=by,
-            games=games,
-            min_success_rate=min_success_rate,
-            max_failure_rate=max_failure_rate or (),
-            max_truncation_rate=max_truncation_rate,
-            max_error_rate=max_error_rate,
-            fail_on_incentive_warning=fail_on_incentive_warning,
-            on_error=_error_line,
-        )
+        with interruptible():
+            result = report_inputs(
+                paths,
+                by=by,
+                games=games,
+                min_success_rate=min_success_rate,
+                max_failure_rate=max_failure_rate or (),
+                max_truncation_rate=max_truncation_rate,
+                max_error_rate=max_error_rate,
+                fail_on_incentive_warning=fail_on_incentive_warning,
+                on_error=_error_line,
+                jobs=_jobs(jobs, paths),
+                ray_address=ray,
+            )
     except EpisodeAuditError as exc:
         fail(str(exc))
     if not result.readable and fmt not in ("json", "junit"):  # (still one document: the errors)
@@ -133,3 +143,13 @@ def _write_html(result: InputsReport, path: Path, games: bool) -> None:
     except OSError as exc:  # no such directory, permission denied
         fail(f"--html: cannot write {path}: {exc.strerror or exc}")
     note(f"HTML report written to {written}")
+
+
+def _jobs(jobs: int | None, paths: list[str]) -> int | None:
+    """``--jobs`` for ``paths`` (a path that cannot be listed: the report says so itself)."""
+    if jobs is not None:
+        return jobs
+    try:
+        return jobs_for(jobs, evidence_files(paths))
+    except EpisodeAuditError:
+        return None

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterable
-from typing import Final, Literal, overload
+from typing import Any, Final, Literal, overload
 
 from ..errors import ConfigurationError, EvidenceError
 from ._output import ViewerExport
@@ -31,6 +31,10 @@ def export(
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ExportResult: ...
 @overload
 def export(
@@ -41,6 +45,10 @@ def export(
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ViewerExport: ...
 def export(
     paths: Iterable[str | os.PathLike[str]],
@@ -50,6 +58,10 @@ def export(
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ExportResult | ViewerExport:
     """Export the evidence files ``paths`` to ``out``, as ``to`` says.
 
@@ -58,10 +70,20 @@ def export(
     Foxglove, an ``.rrd`` recording for Rerun) from exactly one input; ``on_error`` is not used
     (an unreadable input raises :class:`~episode_audit.errors.EvidenceError`). An existing
     ``out`` is replaced only with ``overwrite=True``; a failed export leaves no ``out``.
+    ``jobs`` / ``ray_address`` (workers) and ``filesystem`` / ``storage_options`` (URLs) are
+    the Parquet export's (:func:`.parquet.export`).
     """
     if to == "parquet":
         return _export_parquet(
-            paths, out, overwrite=overwrite, progress=progress, on_error=on_error
+            paths,
+            out,
+            overwrite=overwrite,
+            progress=progress,
+            on_error=on_error,
+            jobs=jobs,
+            ray_address=ray_address,
+            filesystem=filesystem,
+            storage_options=storage_options,
         )
     if to not in TARGETS:
         raise ConfigurationError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")

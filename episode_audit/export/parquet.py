@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from .._jobs import map_ordered
 from ..errors import ConfigurationError, EvidenceError
 from ..read import open_evidence
 from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
@@ -82,6 +83,8 @@ def export(
     on_error: Callable[[EvidenceError], None] | None = None,
     filesystem: Any = None,
     storage_options: dict[str, Any] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> ExportResult:
     """Write the steps and episodes of ``paths`` as Parquet files into ``out_dir``.
 
@@ -95,6 +98,11 @@ def export(
     be read to the end (e.g. a damaged chunk) raises :class:`~episode_audit.errors.EvidenceError`;
     with ``on_error``, it is handed the error instead, the input is listed in
     :attr:`ExportResult.failed` with nothing of it in the output, and the others are exported.
+
+    ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
+    export a file each (see :mod:`episode_audit._jobs`); Ray workers must see ``out_dir``.
+    The output is the same as with ``jobs=1`` (without ``on_error``, files after an unreadable
+    one may have been written by then).
 
     >>> import tempfile, pathlib, gymnasium as gym
     >>> from episode_audit import RecordEvidence
@@ -110,7 +118,7 @@ def export(
     sources = [as_source(p, **options) for p in paths]
     if is_url(out_dir):
         out_url = remote_file(os.fspath(out_dir), **options)
-        return _export_to_url(sources, out_url, overwrite, progress, on_error)
+        return _export_to_url(sources, out_url, overwrite, progress, on_error, jobs, ray_address)
     out = _output_directory(Path(out_dir))
     episodes_file = out / "episodes.parquet"
     result = ExportResult(episodes_file)
@@ -123,13 +131,13 @@ def export(
                 f"{existing[0]}: exists; pass --overwrite to replace exported files"
             )
     episode_tables: list[pa.Table] = []
-    for source, target in zip(sources, targets, strict=True):
-        try:
-            exported = _export_one(source, target, progress)
-        except EvidenceError as exc:
+    pairs = list(zip(sources, targets, strict=True))
+    done = map_ordered(_export_pair, pairs, jobs=jobs, ray_address=ray_address, progress=progress)
+    for (source, target), exported in zip(pairs, done, strict=True):
+        if isinstance(exported, EvidenceError):
             if on_error is None:
-                raise
-            on_error(exc)
+                raise exported
+            on_error(exported)
             result.failed.append(source)
             continue
         episode_tables.append(exported.episodes)
@@ -156,6 +164,8 @@ def _export_to_url(
     overwrite: bool,
     progress: Callable[[int], None] | None,
     on_error: Callable[[EvidenceError], None] | None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> ExportResult:
     """Export into a local temporary directory, then upload each file to ``out``."""
     fs = out.fs
@@ -171,7 +181,15 @@ def _export_to_url(
                     f"{target}: exists; pass --overwrite to replace exported files"
                 )
     with tempfile.TemporaryDirectory(prefix="episode-audit-export-") as tmp:
-        local = export(sources, tmp, overwrite=True, progress=progress, on_error=on_error)
+        local = export(
+            sources,
+            tmp,
+            overwrite=True,
+            progress=progress,
+            on_error=on_error,
+            jobs=jobs,
+            ray_address=ray_address,
+        )
         uploaded = [local.episodes_file, *local.steps_files]
         for path in uploaded:
             upload(Path(path), remote[Path(path).name])
@@ -253,6 +271,16 @@ def _remove_stale(out: Path, written: set[Source]) -> list[Source]:
             stale.unlink()
             removed.append(stale)
     return removed
+
+
+def _export_pair(
+    pair: tuple[Source, Path], progress: Callable[[int], None] | None
+) -> _Exported | EvidenceError:
+    """Export one input to its steps file, or say why it could not be (in a worker, maybe)."""
+    try:
+        return _export_one(*pair, progress)
+    except EvidenceError as exc:
+        return exc
 
 
 def _export_one(source: Source, target: Path, progress: Callable[[int], None] | None) -> _Exported:

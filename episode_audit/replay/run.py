@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import replace
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, replace
+from functools import partial
 
+from .._jobs import check_jobs, map_ordered, workers
 from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import Evidence, open_evidence
@@ -77,6 +79,8 @@ def replay(
     progress: Callable[[int], None] | None = None,
     keep_going: bool = False,
     on_error: Callable[[EpisodeAuditError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> ReplayResult:
     """Replay every (or the selected) episode of each file and compare it with the evidence.
 
@@ -86,41 +90,163 @@ def replay(
     ``ConfigurationError``) does not stop the others: none of its episodes is in the result,
     it is listed in :attr:`ReplayResult.unreadable`, and ``on_error`` is told of it as it is
     found. :attr:`ReplayResult.missing` lists the selected ``episodes`` no file had.
+
+    ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
+    replay a file, or a batch of a large single-env file's episodes, each (see
+    :mod:`episode_audit._jobs`); a batch starts in a fresh env, as ``episodes`` does. Each
+    worker imports ``imports`` itself; ``env_factory`` must then be ``"MODULE:CALLABLE"`` or a
+    module-level callable. The result is the same as with ``jobs=1``.
     """
     if atol < 0:
         raise ConfigurationError(f"atol: expected a number >= 0, actually: {atol!r}")
     import_modules(imports)
     selected = None if episodes is None else list(episodes)
+    files = list(paths)
+    one = partial(
+        _replay_batch,
+        atol=atol,
+        env_factory=env_factory,
+        imports=tuple(imports),
+        trust_entry_points=trust_entry_points,
+    )
+    parallel = ray_address is not None or check_jobs(jobs) > 1
+    batches = _batches(files, selected, ray_address, jobs) if parallel else []
+    if not batches:
+        batches = [(k, path, selected) for k, path in enumerate(files)]
+    done = map_ordered(one, batches, jobs=jobs, ray_address=ray_address, progress=progress)
     result = ReplayResult()
-    for path in paths:
-        try:
-            ev = open_evidence(path)
-            replayed = replay_evidence(
-                ev,
-                episodes=selected,
-                atol=atol,
-                env_factory=env_factory,
-                trust_entry_points=trust_entry_points,
-                progress=progress,
+    for k, parts in _by_file(batches, done):
+        path = files[k]
+        errors = [part for part in parts if isinstance(part, EpisodeAuditError)]
+        if errors:
+            result.unreadable.append(
+                skipped(path, errors[0], keep_going=keep_going, on_error=on_error)
             )
-        except EpisodeAuditError as exc:
-            result.unreadable.append(skipped(path, exc, keep_going=keep_going, on_error=on_error))
             continue
-        result.episodes.extend(replayed)
-        if any(e.status != "not_replayable" for e in replayed):
-            notes = replay_notes(
-                ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points
-            )
-            if notes:
-                result.notes[str(ev.path)] = notes
-        if ev.writer is not None:
-            result.live.append((str(ev.path), ev.torn or still_written(ev.writer)))
-        diffs = _version_differences(ev)
-        if diffs:
-            result.version_differences[str(ev.path)] = diffs
+        _add_file([p for p in parts if not isinstance(p, EpisodeAuditError)], result)
     if selected is not None:
         result.missing = sorted(set(selected) - {e.episode for e in result.episodes})
     return result
+
+
+@dataclass(frozen=True)
+class _Replayed:
+    """A batch of a file's episodes replayed, and what the result says of the file."""
+
+    file: str
+    episodes: list[EpisodeReplay]
+    notes: list[str]
+    live: str | None
+    versions: dict[str, tuple[str, str]]
+
+
+def _replay_batch(
+    batch: _Batch,
+    progress: Callable[[int], None] | None,
+    *,
+    atol: float,
+    env_factory: str | EnvFactory | None,
+    imports: Sequence[str],
+    trust_entry_points: bool,
+) -> _Replayed | EpisodeAuditError:
+    """Open a file and replay a batch of its episodes (in a worker, maybe)."""
+    _, path, selected = batch
+    import_modules(imports)
+    try:
+        ev = open_evidence(path)
+        replayed = replay_evidence(
+            ev,
+            episodes=selected,
+            atol=atol,
+            env_factory=env_factory,
+            trust_entry_points=trust_entry_points,
+            progress=progress,
+        )
+    except ConfigurationError:
+        raise
+    except EpisodeAuditError as exc:
+        return exc
+    notes = replay_notes(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
+    live = None if ev.writer is None else ev.torn or still_written(ev.writer)
+    return _Replayed(str(ev.path), replayed, notes, live, _version_differences(ev))
+
+
+def _add_file(parts: Sequence[_Replayed], result: ReplayResult) -> None:
+    """One file's replayed batches into ``result``."""
+    first = parts[0]
+    replayed = [e for part in parts for e in part.episodes]
+    result.episodes.extend(replayed)
+    if any(e.status != "not_replayable" for e in replayed) and first.notes:
+        result.notes[first.file] = first.notes
+    if first.live is not None:
+        result.live.append((first.file, first.live))
+    if first.versions:
+        result.version_differences[first.file] = first.versions
+
+
+_Batch = tuple[int, "str | os.PathLike[str]", "list[int] | None"]
+"""(the file's place among the inputs, the file, its episodes to replay or ``None``: all)."""
+
+
+def _by_file(
+    batches: Sequence[_Batch], done: Iterable[_Replayed | EpisodeAuditError]
+) -> Iterator[tuple[int, list[_Replayed | EpisodeAuditError]]]:
+    """The batches' results grouped by file, in order (a file's batches are next to each other)."""
+    current: list[_Replayed | EpisodeAuditError] = []
+    index = -1
+    for (k, _, _), part in zip(batches, done, strict=True):
+        if current and k != index:
+            yield index, current
+            current = []
+        index = k
+        current.append(part)
+    if current:
+        yield index, current
+
+
+def _batches(
+    files: Sequence[str | os.PathLike[str]],
+    selected: list[int] | None,
+    ray_address: str | None,
+    jobs: int | None,
+) -> list[_Batch]:
+    """One batch per file; a large single-env file's episodes in several batches.
+
+    A file is large when it holds more than a share of the bytes of all (a share per worker,
+    halved): its episodes go in batches of about that share, so the workers stay busy.
+    """
+    sizes = []
+    for path in files:
+        try:
+            sizes.append(os.path.getsize(path))
+        except OSError:
+            sizes.append(0)
+    share = max(1, sum(sizes) // (2 * workers(jobs, ray_address)))
+    out: list[_Batch] = []
+    for k, (path, size) in enumerate(zip(files, sizes, strict=True)):
+        pieces = -(-size // share)
+        episodes = _single_env_episodes(path, selected) if pieces > 1 else None
+        if episodes is None or len(episodes) < 2:
+            out.append((k, path, selected))
+            continue
+        step = -(-len(episodes) // min(pieces, len(episodes)))
+        out += [(k, path, episodes[i : i + step]) for i in range(0, len(episodes), step)]
+    return out
+
+
+def _single_env_episodes(
+    path: str | os.PathLike[str], selected: list[int] | None
+) -> list[int] | None:
+    """The (selected) episodes of a finished single-env file, in order; else ``None``."""
+    try:
+        ev = open_evidence(path)
+        if ev.writer is not None or str(ev.run.layout.get("kind", "single")) != "single":
+            return None
+        listed = ev.episodes().column("episode").to_pylist()
+    except EpisodeAuditError:
+        return None  # its worker says why
+    wanted = None if selected is None else set(selected)
+    return [e for e in listed if wanted is None or e in wanted]
 
 
 def replay_options(

@@ -30,7 +30,9 @@ __all__ = [
     "SUCCESS_KEY",
     "check_by",
     "collect",
+    "file_rows",
     "is_by",
+    "joined",
 ]
 
 NONE_KEY = "(none)"
@@ -97,36 +99,59 @@ def collect(
     Unstarted episodes (reset and never stepped, :func:`~episode_audit.format.records.unstarted`)
     are left out. With ``games``, one row per game of a PettingZoo file instead (see :mod:`.games`).
     """
+    return joined([file_rows(name, ev, by, games) for name, ev in sources])
+
+
+FileRows = tuple[pa.Table | None, list[pa.Table]]
+"""One file's part of :func:`collect`: its episode rows (``None``: none) and term rows."""
+
+
+def file_rows(name: str, ev: Evidence, by: str, games: bool = False) -> FileRows:
+    """The rows :func:`collect` takes from one file (``name``: its group key by file)."""
+    table = ev.episodes()
+    unstarted_rows = unstarted(table)
+    if unstarted_rows.any():  # reset and never stepped: no episode to count
+        table = table.filter(pa.array(~unstarted_rows))
+    if games:
+        table = game_table(table)
+    n = table.num_rows
+    if n == 0:
+        return None, []
+    key = _keys(name, ev, table, by, games)
+    signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
+    seed = table.column("seed") if "seed" in table.column_names else pa.nulls(n, pa.int64())
+    row = pa.array(np.arange(n, dtype=np.int64))  # within the file: joined() numbers them all
+    episodes = (
+        table.select(list(OUTCOME_FIELDS))
+        .append_column("key", key)
+        .append_column("success_signal", signal)
+        .append_column("seed", pc.cast(seed, pa.int64()))
+        .append_column("row", row)
+    )
+    return episodes, _term_rows(table, key, row, ev)
+
+
+def _shifted(table: pa.Table, first: int) -> pa.Table:
+    """``table`` with its ``row`` numbers (an episode's, within its file) counted from ``first``."""
+    i = table.schema.get_field_index("row")
+    return table.set_column(i, "row", pc.add(table.column("row"), pa.scalar(first, pa.int64())))
+
+
+def joined(rows: Iterable[FileRows]) -> tuple[pa.Table, pa.Table]:
+    """The files' rows (of :func:`file_rows`) as the two tables of :func:`collect`."""
     parts: list[pa.Table] = []
     term_parts: list[pa.Table] = []
     first = 0  # the row number of the file's first episode
-    for name, ev in sources:
-        table = ev.episodes()
-        unstarted_rows = unstarted(table)
-        if unstarted_rows.any():  # reset and never stepped: no episode to count
-            table = table.filter(pa.array(~unstarted_rows))
-        if games:
-            table = game_table(table)
-        n = table.num_rows
-        if n == 0:
+    for episodes, terms in rows:
+        if episodes is None:
             continue
-        key = _keys(name, ev, table, by, games)
-        signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
-        seed = table.column("seed") if "seed" in table.column_names else pa.nulls(n, pa.int64())
-        row = pa.array(np.arange(first, first + n, dtype=np.int64))
-        first += n
-        parts.append(
-            table.select(list(OUTCOME_FIELDS))
-            .append_column("key", key)
-            .append_column("success_signal", signal)
-            .append_column("seed", pc.cast(seed, pa.int64()))
-            .append_column("row", row)
-        )
-        term_parts.extend(_term_rows(table, key, row, ev))
+        parts.append(_shifted(episodes, first))
+        term_parts.extend(_shifted(t, first) for t in terms)
+        first += episodes.num_rows
     if not parts:
         return _EPISODES_SCHEMA.empty_table(), _TERM_SCHEMA.empty_table()
-    terms = pa.concat_tables(term_parts) if term_parts else _TERM_SCHEMA.empty_table()
-    return pa.concat_tables(parts), terms
+    terms_table = pa.concat_tables(term_parts) if term_parts else _TERM_SCHEMA.empty_table()
+    return pa.concat_tables(parts), terms_table
 
 
 def _keys(name: str, ev: Evidence, table: pa.Table, by: str, games: bool) -> pa.Array:

@@ -10,14 +10,16 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
+from .._jobs import map_ordered
 from ..read import Evidence, open_evidence
-from .collect import NONE_KEY, check_by, collect
+from .collect import NONE_KEY, FileRows, check_by, file_rows, joined
 from .gates import GateResult, Gates, check_gates, unmatched_labels, unmatched_why
 from .groups import GroupReport, group_reports
 
-__all__ = ["Report", "report", "report_tables"]
+__all__ = ["FilePart", "Report", "file_part", "report", "report_parts", "report_tables"]
 
 
 @dataclass
@@ -93,9 +95,40 @@ def report_tables(
     ``games``.
     """
     check_by(by)
-    sources = list(sources)
-    unfinished = [(name, ev.torn or "no run-end record") for name, ev in sources if not ev.finished]
-    groups = group_reports(*collect(sources, by, games))
+    parts = [file_part(name, ev, by, games) for name, ev in sources]
+    return report_parts(parts, by=by, gates=gates, games=games)
+
+
+@dataclass(frozen=True)
+class FilePart:
+    """What a report takes from one file (:func:`file_part`), small enough to send back."""
+
+    name: str
+    rows: FileRows
+    unfinished: str | None
+    """Why the file is unfinished (``None``: finished)."""
+    tags: frozenset[str]
+    """The names of the file's run tags."""
+
+
+def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart:
+    """The part of a report that comes from the file ``ev`` (``name``: its key by file)."""
+    unfinished = None if ev.finished else ev.torn or "no run-end record"
+    tags = frozenset(map(str, ev.run.tags or {}))
+    return FilePart(name, file_rows(name, ev, by, games), unfinished, tags)
+
+
+def report_parts(
+    parts: Sequence[FilePart],
+    *,
+    by: str = "file",
+    gates: Gates | None = None,
+    games: bool = False,
+) -> Report:
+    """Report files from their parts (:func:`file_part`), as :func:`report_tables` does."""
+    check_by(by)
+    unfinished = [(p.name, p.unfinished) for p in parts if p.unfinished is not None]
+    groups = group_reports(*joined(p.rows for p in parts))
     return Report(
         by,
         groups,
@@ -103,16 +136,16 @@ def report_tables(
         unfinished,
         "game" if games else "episode",
         unmatched_labels(gates, groups),
-        _missing_tag(by, sources),
+        _missing_tag(by, parts),
     )
 
 
-def _missing_tag(by: str, sources: Sequence[tuple[str, Evidence]]) -> str | None:
+def _missing_tag(by: str, parts: Sequence[FilePart]) -> str | None:
     """The tag of ``by="tag:NAME"`` when no file has it (every episode would be ``(none)``)."""
-    if not by.startswith("tag:") or not sources:
+    if not by.startswith("tag:") or not parts:
         return None
     name = by[4:]
-    return None if any(name in (ev.run.tags or {}) for _, ev in sources) else name
+    return None if any(name in part.tags for part in parts) else name
 
 
 def report(
@@ -121,6 +154,8 @@ def report(
     by: str = "file",
     gates: Gates | None = None,
     games: bool = False,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> Report:
     """Open evidence files and report their episodes, grouped, with gates checked per group.
 
@@ -134,6 +169,8 @@ def report(
     :class:`~episode_audit.errors.EvidenceError`. With ``games``, PettingZoo files are
     counted by game instead of by agent-episode, each game's outcome derived from its agents'
     by the rule of :mod:`episode_audit.report.games` (files without games then count nothing).
+    ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
+    read the files (see :mod:`episode_audit._jobs`); the report is the same as with ``jobs=1``.
 
     Example:
         >>> import tempfile, pathlib, gymnasium as gym
@@ -152,5 +189,11 @@ def report(
         (False, 'truncation rate 1.00 > 0.50 (group CartPole-v1)')
     """
     check_by(by)
-    opened = [(str(p), open_evidence(p)) for p in paths]
-    return report_tables(opened, by=by, gates=gates, games=games)
+    one = partial(_part_of, by=by, games=games)
+    parts = list(map_ordered(one, list(paths), jobs=jobs, ray_address=ray_address))
+    return report_parts(parts, by=by, gates=gates, games=games)
+
+
+def _part_of(path: str | os.PathLike[str], progress: object, *, by: str, games: bool) -> FilePart:
+    """Open one file and take its part of the report (in a worker, maybe)."""
+    return file_part(str(path), open_evidence(path), by, games)

@@ -11,13 +11,16 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property, partial
 from typing import Any
 
+from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
-from ..read import Evidence
-from ..read.inputs import Unreadable, evidence_files, open_all
+from ..read import Evidence, open_evidence
+from ..read.inputs import Unreadable, evidence_files
+from ..read.storage import Source
 from .collect import is_by
-from .core import Report, report_tables
+from .core import FilePart, Report, file_part, report_parts
 from .gates import Gates, is_rate
 
 __all__ = ["InputsReport", "gates_from_options", "report_inputs"]
@@ -31,8 +34,16 @@ class InputsReport:
     unreadable: list[Unreadable]
     readable: int
     """How many inputs were read (the report is of those)."""
-    sources: list[tuple[str, Evidence]] = field(default_factory=list)
-    """The readable inputs as ``(name, evidence)``, opened (for the HTML report's episodes)."""
+    files: list[Source] = field(default_factory=list)
+    """The inputs that were read, in order."""
+
+    @cached_property
+    def sources(self) -> list[tuple[str, Evidence]]:
+        """The inputs read, as ``(name, evidence)``, opened again here.
+
+        For the HTML report's episodes: the report itself may have been read in workers.
+        """
+        return [(str(path), open_evidence(path)) for path in self.files]
 
 
 def report_inputs(
@@ -48,6 +59,8 @@ def report_inputs(
     on_error: Callable[[EpisodeAuditError], None] | None = None,
     filesystem: Any = None,
     storage_options: dict[str, Any] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> InputsReport:
     """Report the evidence files ``paths`` name (directories are searched for ``*.mcap``).
 
@@ -57,7 +70,8 @@ def report_inputs(
     The options are those of ``episode-audit report``, checked in that order, each problem a
     :class:`~episode_audit.errors.ConfigurationError` naming the option. A file that cannot be
     read (its episodes included) is handed to ``on_error`` and listed in
-    :attr:`InputsReport.unreadable`, so one bad file costs the others nothing.
+    :attr:`InputsReport.unreadable`, so one bad file costs the others nothing. ``jobs`` and
+    ``ray_address`` spread the reading of the files as :func:`~episode_audit.check.check` does.
     """
     if not is_by(by):
         raise ConfigurationError(
@@ -73,15 +87,44 @@ def report_inputs(
         fail_on_incentive_warning=fail_on_incentive_warning,
     )
     files = evidence_files(paths, filesystem=filesystem, storage_options=storage_options)
-    # Reading each file's episodes here (they are cached) puts a file damaged past its start
-    # with the unreadable ones instead of stopping the report of the others.
-    readable, unreadable = open_all(files, Evidence.episodes, on_error=on_error)
+    parts: list[FilePart] = []
+    read_files: list[Source] = []
+    unreadable: list[Unreadable] = []
+    one = partial(_file_part, by=by, games=games)
+    kinds: list[str] = []
+    read = map_ordered(one, files, jobs=jobs, ray_address=ray_address)
+    for path, got in zip(files, read, strict=True):
+        if isinstance(got, EpisodeAuditError):
+            if on_error is not None:
+                on_error(got)
+            unreadable.append(Unreadable.of(path, got))
+        else:
+            parts.append(got[0])
+            read_files.append(path)
+            kinds.append(got[1])
     if games:  # a file without games would count nothing, and every gate would pass
-        for path, ev in readable:
-            _check_games_fit(path, ev)
-    sources = [(str(path), ev) for path, ev in readable]
-    result = report_tables(sources, by=by, gates=gates, games=games)
-    return InputsReport(result, unreadable, len(readable), sources)
+        for part, kind in zip(parts, kinds, strict=True):
+            _check_games_fit(part.name, kind)
+    result = report_parts(parts, by=by, gates=gates, games=games)
+    return InputsReport(result, unreadable, len(parts), read_files)
+
+
+def _file_part(
+    path: Source, progress: Callable[[int], None] | None, *, by: str, games: bool
+) -> tuple[FilePart, str] | EpisodeAuditError:
+    """One input's part of the report and its layout kind, or why it cannot be read.
+
+    (Run in a worker, maybe.)
+
+    Reading the file's episodes here puts a file damaged past its start with the unreadable
+    ones instead of stopping the report of the others.
+    """
+    try:
+        ev = open_evidence(path)
+        part = file_part(str(path), ev, by, games)
+    except EpisodeAuditError as exc:
+        return exc
+    return part, str((ev.run.layout or {}).get("kind", "single"))
 
 
 def gates_from_options(
@@ -148,9 +191,8 @@ def _rate_option(name: str, value: float | None) -> float | None:
     return value
 
 
-def _check_games_fit(path: object, ev: Evidence) -> None:
-    """``--games`` counts PettingZoo games: a file of another kind has none."""
-    kind = str((ev.run.layout or {}).get("kind", "single"))
+def _check_games_fit(path: str, kind: str) -> None:
+    """``--games`` counts PettingZoo games: a file of another ``kind`` has none."""
     if not kind.startswith("pettingzoo"):
         what = "single-env" if kind == "single" else kind
         raise ConfigurationError(

@@ -38,3 +38,11 @@ def crashing_policy(env: gym.Env[Any, Any], seed: int) -> Any:
         return env.action_space.sample()
 
     return act
+
+
+def slow_cartpole() -> gym.Env[Any, Any]:
+    """CartPole that takes a while to build (a replay to interrupt)."""
+    import time
+
+    time.sleep(0.5)
+    return gym.make("CartPole-v1")
