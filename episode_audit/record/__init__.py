@@ -9,6 +9,7 @@ Public: :class:`RecordEvidence` (Gymnasium), :class:`RecordVectorEvidence` and
 
 from __future__ import annotations
 
+from . import adapters as adapters  # registers the shipped state adapters
 from .gym import RecordEvidence
 from .rules import Ending, EndingRules, RewardTerms
 from .settings import RecorderOptions, RecorderSettings

@@ -29,6 +29,7 @@ from .settings import (
     library_versions,
     run_info,
 )
+from .state import StateTargets
 
 __all__ = ["RecordEvidence", "library_versions"]
 
@@ -89,8 +90,14 @@ class RecordEvidence(
         )
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
+        # the wrappers (and env) below whose state is snapshot at each reset (.state)
+        self._state = StateTargets(env)
         self._stream = self._file.add_stream(
-            obs_codec, act_codec, env_index=0, time_limit=find_time_limit(env)
+            obs_codec,
+            act_codec,
+            env_index=0,
+            time_limit=find_time_limit(env),
+            state=bool(self._state),
         )
         self._file.start()
         self._record_step = self._stream.step
@@ -113,15 +120,21 @@ class RecordEvidence(
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[gym.core.ObsType, dict[str, Any]]:
-        """Reset the env, recording the seed (or the RNG state), options and observation."""
+        """Reset the env, recording the seed (or the RNG state), options and observation.
+
+        The state of the wrappers below that have a state adapter (e.g.
+        ``NormalizeObservation``) is snapshot just before the reset (docs/recording.md).
+        """
         file = self._file
         file.check_open()
         stream = self._stream
         notes: list[str] = []
         episode = None
+        state = None
         try:
             stream.end_open()
             rng_state = capture_rng_state(self._unwrapped) if seed is None else None
+            state = self._state.capture(notes) if self._state else None
             episode = stream.begin(seed, options, rng_state, notes)
         except Exception as exc:  # never break the training loop over recording trouble
             file.trouble(exc)
@@ -137,7 +150,7 @@ class RecordEvidence(
                 notes.append(note("reset_result_invalid", f"reset() returned {short(result)}"))
                 obs, info = None, {}
             if episode is not None:
-                stream.record_reset(episode, obs, info, notes)
+                stream.record_reset(episode, obs, info, notes, state)
             if file.due():
                 file.auto_flush()
         except Exception as exc:

@@ -9,6 +9,7 @@ makes an episode not replayable: docs/replay.md.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
@@ -20,6 +21,7 @@ from ..format.records import EpisodeRanges, from_json
 from ..read import Evidence
 from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
+from ..record.state import StateTargets, restore_snapshot
 from .compare import Comparison
 from .recorded import replay_actions, rules_of
 from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error
@@ -60,6 +62,10 @@ class EpisodeRunner:
         # An outermost Gymnasium TimeLimit is counted by the stepping loop, not called: the
         # same flags, without a wrapper call per step (see plain_time_limit).
         self.counted = plain_time_limit(env)
+        # state snapshots (record/state.py): the reset rows' column, the env's adapted objects
+        self.states: pa.ChunkedArray | None = None
+        self.adapted = bool(StateTargets(env))
+        self.restored: dict[int, str] = {}  # what was restored before each episode's reset
 
     def _not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
@@ -87,11 +93,17 @@ class EpisodeRunner:
                 done[index] = self._not_replayable(index, 0, "the file's spaces cannot be rebuilt")
             return [done[int(r["episode"])] for r in records]
         actions, null_rows = replay_actions(steps.column(fmt.COL_ACTION), self.act_codec)
+        names = resets.column_names
+        self.states = resets.column(fmt.COL_STATE) if fmt.COL_STATE in names else None
         ran, returned, got_obs, got_reset = self._step_all(
             records, actions, null_rows, rows, reset_rows, done
         )
         if ran.records:
             self.comparison.episodes(ran, returned, got_obs, got_reset, steps, resets, done)
+        for index, restored in self.restored.items():
+            result = done.get(index)
+            if result is not None and result.status == "diverged" and result.reason is None:
+                done[index] = replace(result, reason=f"state restored: {restored}")
         return [done[int(r["episode"])] for r in records]
 
     def _step_all(
@@ -236,6 +248,15 @@ class EpisodeRunner:
         except ValueError as exc:
             done[index] = self._not_replayable(index, count, f"its reset record: {exc}")
             return _SKIPPED
+        if self.adapted or self.states is not None:
+            try:
+                snapshot = None if self.states is None else self.states[reset_at].as_py()
+                restored = restore_snapshot(env, snapshot, seeded=seed is not None)
+            except ValueError as exc:
+                done[index] = self._not_replayable(index, count, str(exc))
+                return _SKIPPED
+            if restored is not None:
+                self.restored[index] = restored
         try:
             if seed is not None:
                 obs, _ = env.reset(seed=seed, options=options)

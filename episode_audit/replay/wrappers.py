@@ -2,9 +2,10 @@
 
 One registry (:data:`RECORDED_WRAPPERS`, by entry point) classifies every wrapper replay knows:
 ``rebuilt`` (no state beyond an episode, no side effect: re-applied, each argument checked to be
-plain data of the expected type and size), ``transparent`` (never changes a step: left out,
-saying so), ``stateful`` (keeps state across episodes that the file does not hold: not
-replayable until a state snapshot can restore it) or ``refused`` (takes callables, converts
+plain data of the expected type and size), ``snapshot`` (rebuilt so, and its state across
+episodes restored from the snapshot each episode's reset row holds: ``record/state.py``),
+``transparent`` (never changes a step: left out, saying so), ``stateful`` (keeps state across
+episodes that the file does not hold: not replayable) or ``refused`` (takes callables, converts
 through an optional array library). Any other wrapper is unknown, refused too. Nothing here
 imports what a file names: a wrapper is rebuilt only from ``gymnasium.wrappers`` by a name in
 the registry. :func:`plan_wrappers` reads a spec's ``additional_wrappers`` into a
@@ -20,7 +21,7 @@ from typing import Any, Literal
 
 __all__ = ["RECORDED_WRAPPERS", "WrapperKind", "WrapperPlan", "WrapperRule", "plan_wrappers"]
 
-WrapperKind = Literal["rebuilt", "transparent", "stateful", "refused"]
+WrapperKind = Literal["rebuilt", "snapshot", "transparent", "stateful", "refused"]
 
 Check = Callable[[Any], str | None]
 """What is wrong with an argument's value (``None``: nothing), said as "expected …"."""
@@ -73,6 +74,10 @@ def _probability(value: Any) -> str | None:
     return None if _real(value) and 0 <= value <= 1 else "a number from 0 to 1"
 
 
+def _positive(value: Any) -> str | None:
+    return None if _real(value) and value > 0 else "a finite number > 0"
+
+
 def _bool(value: Any) -> str | None:
     return None if type(value) is bool else "true or false"
 
@@ -109,8 +114,8 @@ _SIZE = _ints(1, 4096, 2)  # a screen size: one side, or both
 class WrapperRule:
     """What replay does with one recorded wrapper.
 
-    ``args``: for a ``rebuilt`` wrapper, each argument it may be given and its check (an
-    argument not listed is refused); ``why``: for the others, the reason in words.
+    ``args``: for a ``rebuilt`` (or ``snapshot``) wrapper, each argument it may be given and
+    its check (an argument not listed is refused); ``why``: for the others, the reason in words.
     ``renders``: it calls ``render()`` inside a step (left out, it no longer does);
     ``render_bound``: a rebuilt wrapper whose step depends on those calls.
     """
@@ -129,7 +134,7 @@ def _rebuilt(render_bound: bool = False, **args: Check) -> WrapperRule:
 _NO_STEP = "it never changes a step"
 _CALLABLE = "its argument {} is a function, which a file cannot hold"
 _CONVERTS = "it converts arrays through an optional library (jax / torch) the file names"
-_STATS = "it keeps running statistics across episodes, which the file does not hold"
+_STATS = "it keeps running statistics across episodes (restored from each episode's snapshot)"
 _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
     # module in gymnasium.wrappers, rule; by class name (Gymnasium 1.x)
     "TimeLimit": ("common", _rebuilt(max_episode_steps=_int(1, _LARGE))),
@@ -187,7 +192,10 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
         _rebuilt(flatten=_bool, normalize_time=_bool, dict_time_key=_text()),
     ),
     "MaxAndSkipObservation": ("stateful_observation", _rebuilt(skip=_int(1, 1_000))),
-    "NormalizeObservation": ("stateful_observation", WrapperRule("stateful", why=_STATS)),
+    "NormalizeObservation": (
+        "stateful_observation",
+        WrapperRule("snapshot", {"epsilon": _positive}, why=_STATS),
+    ),
     "StickyAction": (
         "stateful_action",
         _rebuilt(
@@ -195,7 +203,10 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
         ),
     ),
     "RepeatAction": ("stateful_action", _rebuilt(num_repeats=_int(1, 1_000))),
-    "NormalizeReward": ("stateful_reward", WrapperRule("stateful", why=_STATS)),
+    "NormalizeReward": (
+        "stateful_reward",
+        WrapperRule("snapshot", {"gamma": _probability, "epsilon": _positive}, why=_STATS),
+    ),
     "AtariPreprocessing": (
         "atari_preprocessing",
         _rebuilt(
@@ -282,7 +293,7 @@ def plan_wrappers(recorded: Sequence[Any]) -> WrapperPlan:
         elif rule.kind == "transparent":
             plan.notes.append(f"replayed without the recorded wrapper {name}: {rule.why}")
             renders += [name] if rule.renders else []
-        elif rule.kind != "rebuilt":
+        elif rule.kind not in ("rebuilt", "snapshot"):
             plan.refused = f"the recorded wrapper {name}: {rule.why}"
         else:
             assert isinstance(wrapper, Mapping)
