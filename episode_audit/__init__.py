@@ -32,6 +32,8 @@ from .record import (
     RecordVectorEvidence,
     ResetRngInfo,
     RewardTerms,
+    StateAdapter,
+    register_state_adapter,
 )
 from .recover import RecoveryResult, recover
 from .replay import ReplayResult, replay
@@ -66,12 +68,14 @@ __all__ = [
     "ResetRngInfo",
     "RewardTerms",
     "RunInfo",
+    "StateAdapter",
     "UnsupportedVersionError",
     "__version__",
     "check",
     "export",
     "open_evidence",
     "recover",
+    "register_state_adapter",
     "replay",
     "report",
 ]

@@ -55,8 +55,10 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
     Args:
         env: The vector env to record (wrap it directly: replay rebuilds one sub-env).
         path: The evidence file to create (never overwritten unless ``overwrite=True``).
-        install_rng_info: For a ``SyncVectorEnv`` in ``SAME_STEP`` mode, wrap its sub-envs in
-            :class:`ResetRngInfo` in place (default), so autoreset episodes are replayable.
+        install_rng_info: For a ``SyncVectorEnv`` in ``SAME_STEP`` mode, or whose sub-envs have
+            state to snapshot (e.g. ``NormalizeObservation``), wrap its sub-envs in
+            :class:`ResetRngInfo` in place (default), so autoreset episodes are replayable. An
+            ``AsyncVectorEnv``'s sub-envs: ``gym.make_vec(..., wrappers=[..., ResetRngInfo])``.
         **options: The recorder options, as for :class:`~episode_audit.RecordEvidence` (see
             :class:`~episode_audit.record.settings.RecorderSettings`; ``block_steps`` counts
             rows per sub-env).
@@ -90,7 +92,9 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             )
             notes.append(no_rng_note)
         self._rng = SubEnvRng(sync, async_env)
-        if mode is AutoresetMode.SAME_STEP and sync is not None and install_rng_info:
+        snapshots = self._rng.snapshots()
+        same_step = mode is AutoresetMode.SAME_STEP
+        if (same_step or snapshots) and sync is not None and install_rng_info:
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
         self.run_info = run_info(
@@ -106,7 +110,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
         codecs = obs_codec, codec_for(act_space)
         self._streams = [
-            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit)
+            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit, state=snapshots)
             for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env))
         ]
         self._file.start()
