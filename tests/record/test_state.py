@@ -76,9 +76,9 @@ def test_a_registered_adapter_applies_to_the_class_and_its_subclasses(
 def test_registering_refuses_a_second_adapter_and_what_lacks_the_protocol(
     count_adapter: CountAdapter,
 ) -> None:
-    with pytest.raises(ConfigurationError, match="has the adapter 'tests.CountResets' already"):
+    with pytest.raises(ConfigurationError, match=r"has the adapter 'tests\.CountResets' already"):
         register_state_adapter(CountResets, CountAdapter())
-    with pytest.raises(ConfigurationError, match="expected an adapter with name, needed"):
+    with pytest.raises(ConfigurationError, match=r"expected an adapter with name, needed"):
         register_state_adapter("x:Y", object())  # type: ignore[arg-type]
 
     class Sometimes(CountAdapter):
@@ -119,7 +119,7 @@ def test_gymnasium_normalize_wrappers_round_trip(wrapper: Any) -> None:
     warmed, fresh = wrapper(gym.make("CartPole-v1")), wrapper(gym.make("CartPole-v1"))
     _warm(warmed)
     warmed.update_running_mean = False  # a frozen evaluation wrapper stays frozen
-    [(obj, adapter)] = StateTargets(warmed).targets
+    assert len(StateTargets(warmed).targets) == 1
     restore_snapshot(fresh, _snapshot(warmed), seeded=True)
     assert fresh.update_running_mean is False
     _same_rollout(warmed, fresh)
@@ -194,9 +194,9 @@ def _snapshot(env: Any) -> str:
 
 def test_restoring_says_what_is_missing_or_left_over() -> None:
     normalized = gym.wrappers.NormalizeObservation(gym.make("CartPole-v1"))
-    with pytest.raises(ValueError, match="holds no gymnasium.NormalizeObservation snapshot"):
+    with pytest.raises(ValueError, match=r"holds no gymnasium\.NormalizeObservation snapshot"):
         restore_snapshot(normalized, None, seeded=True)
-    with pytest.raises(ValueError, match="rebuilt env has nothing it restores into"):
+    with pytest.raises(ValueError, match=r"rebuilt env has nothing it restores into"):
         restore_snapshot(gym.make("CartPole-v1"), _snapshot(normalized), seeded=True)
     other = gym.wrappers.NormalizeObservation(gym.make("Pendulum-v1"))
     with pytest.raises(ValueError, match="does not fit the rebuilt env's NormalizeObservation"):
