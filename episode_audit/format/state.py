@@ -44,6 +44,7 @@ STATE_DTYPES = frozenset(
 )
 """The numpy dtypes a snapshot's arrays may have (no objects, no structured dtypes)."""
 
+_DTYPE_NAMES = {np.dtype(name): name for name in STATE_DTYPES}  # (dtype.name is slow)
 _MAX_DIMS = 32
 _MAX_NAME = 256
 
@@ -71,10 +72,11 @@ def _encode_value(where: str, value: Any) -> dict[str, Any]:
     if isinstance(value, np.generic):
         value = np.asarray(value)
     if isinstance(value, np.ndarray):
-        if value.dtype.name not in STATE_DTYPES:
+        dtype = _DTYPE_NAMES.get(value.dtype)
+        if dtype is None:
             raise TypeError(f"{where}: arrays of dtype {value.dtype} cannot be a state value")
-        data = base64.b64encode(np.ascontiguousarray(value).tobytes()).decode("ascii")
-        array = {"dtype": value.dtype.name, "shape": list(value.shape), "data": data}
+        data = base64.b64encode(value.tobytes()).decode("ascii")  # (C order)
+        array = {"dtype": dtype, "shape": list(value.shape), "data": data}
         return {"array": array}
     if isinstance(value, (bytes, bytearray, memoryview)):
         return {"bytes": base64.b64encode(bytes(value)).decode("ascii")}

@@ -143,6 +143,7 @@ def test_gymnasium_vector_normalize_wrappers_round_trip(wrapper: Any) -> None:
 
 
 def test_sb3_vec_normalize_round_trips_without_the_sb3_recorder() -> None:
+    pytest.importorskip("stable_baselines3")
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
