@@ -240,9 +240,10 @@ _REFUSED = [
         "the recorded wrapper TimeLimit has an argument 'path' replay does not know",
     ),
     (
-        [_wrapper("gymnasium.wrappers.stateful_observation:NormalizeObservation", epsilon=1e-8)],
-        "the recorded wrapper NormalizeObservation: it keeps running statistics across "
-        "episodes, which the file does not hold",
+        # rebuilt with its state from each episode's snapshot (tests/replay/test_state.py)
+        [_wrapper("gymnasium.wrappers.stateful_observation:NormalizeObservation", epsilon="x")],
+        "the recorded wrapper NormalizeObservation's argument epsilon: expected a finite number "
+        "> 0, got 'x'",
     ),
     (
         [
