@@ -79,7 +79,7 @@ def register_state_adapter(
     ...     name, needed = "demo.Counter", "always"
     ...     def get_state(self, obj): return {"n": obj.n}
     ...     def set_state(self, obj, state): obj.n = state["n"]
-    >>> register_state_adapter("my_package.envs:CountingEnv", Counter())
+    >>> register_state_adapter("my_package.envs:CountingEnv", Counter(), replace=True)
     """
     key = target if isinstance(target, str) else _key(target)
     if not isinstance(adapter, StateAdapter) or getattr(adapter, "needed", None) not in (
