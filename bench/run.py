@@ -6,7 +6,9 @@
 Targets (docs/benchmarks.md): recording overhead <= 1.15x on CartPole-v1 and <= 1.02x on
 Reacher-v5 / HalfCheetah-v5; <= 32 bytes per CartPole step; recorder memory flat (<= 64 MB
 growth) over a 1 M-step episode; check >= 5 M steps/s; replay <= 1.05x bare stepping; vector
-recording overhead per sub-env step no worse than the single-env recorder's (CartPole x8, Sync).
+recording overhead per sub-env step no worse than the single-env recorder's (CartPole x8, Sync);
+SB3 (bench_sb3.py): a real PPO run with / without RecordVecEnvEvidence, and its cost per
+sub-env step (skipped when SB3 is not installed).
 Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
 """
 
@@ -23,6 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import bench_sb3
 import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import TimeLimit
@@ -469,6 +472,8 @@ BENCHES: dict[str, Callable[[], Any]] = {
         bench_replay("Reacher-v5", 200, 41),
         bench_replay("HalfCheetah-v5", 10, 41),
     ],
+    # inside a real PPO run, and per sub-env step; "skipped: SB3 not installed" without it
+    "sb3": lambda: bench_sb3.bench(TMP),
     "state": bench_state,
 }
 

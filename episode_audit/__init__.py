@@ -57,8 +57,10 @@ __all__ = [
     "Gates",
     "NotEvidenceError",
     "RecordAECEvidence",
+    "RecordEvalCallback",
     "RecordEvidence",
     "RecordParallelEvidence",
+    "RecordVecEnvEvidence",
     "RecordVectorEvidence",
     "RecorderError",
     "RecoveryResult",
@@ -74,14 +76,22 @@ __all__ = [
     "check",
     "export",
     "open_evidence",
+    "record_evaluation",
     "recover",
     "register_state_adapter",
     "replay",
     "report",
 ]
 
-# The PettingZoo recorders import pettingzoo (optional): loaded on first access.
-_LAZY = {"RecordAECEvidence": "record.pettingzoo", "RecordParallelEvidence": "record.pettingzoo"}
+# The PettingZoo and SB3 recorders import pettingzoo / stable_baselines3 (optional extras):
+# loaded on first access.
+_LAZY = {
+    "RecordAECEvidence": "record.pettingzoo",
+    "RecordEvalCallback": "record.sb3",
+    "RecordParallelEvidence": "record.pettingzoo",
+    "RecordVecEnvEvidence": "record.sb3",
+    "record_evaluation": "record.sb3",
+}
 
 
 def __getattr__(name: str) -> object:

@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 
 from .errors import ConfigurationError, EvidenceError
 from .read import open_evidence
-from .record.writer import output_kind
+from .record.lock import output_kind
 
 __all__ = ["ExportResult", "export"]
 

@@ -8,6 +8,7 @@ The library behind ``episode-audit record``: :func:`record_episodes` makes the e
 from __future__ import annotations
 
 import os
+import warnings
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ from ._usercode import import_modules, load_callable
 from .errors import ConfigurationError, RecorderError
 from .format.columns import error_text
 from .record.gym import RecordEvidence
-from .record.writer import check_output_path
+from .record.lock import check_output_path
 
 __all__ = ["RecordSummary", "RecordingError", "record_episodes"]
 
@@ -107,12 +108,20 @@ def record_episodes(
         raise
     steps = 0
     run_tags = {"policy": policy, **(tags or {})}
-    with RecordEvidence(env, out, tags=run_tags, overwrite=overwrite) as recorder:
-        path = str(recorder.path)
-        for i in range(episodes):
-            steps += _record_episode(recorder, act, i, seed + i, path)
-            if on_episode is not None:
-                on_episode()
+    with warnings.catch_warnings():
+        # the recorder's own trouble (a full disk) is said once, by the error below
+        warnings.filterwarnings("ignore", category=RuntimeWarning, module="episode_audit")
+        with RecordEvidence(env, out, tags=run_tags, overwrite=overwrite) as recorder:
+            path = str(recorder.path)
+            for i in range(episodes):
+                steps += _record_episode(recorder, act, i, seed + i, path)
+                if on_episode is not None:
+                    on_episode()
+    if recorder.trouble is not None:
+        raise RecorderError(
+            f"{path}: recording failed ({recorder.trouble}); the file keeps what could be "
+            f"written and says what could not: `episode-audit check {path}`"
+        )
     from .read import open_evidence
 
     outcomes = Counter(open_evidence(path).episodes().column("outcome").to_pylist())

@@ -593,6 +593,41 @@ def zstd_bomb(data: bytes, rng: random.Random) -> bytes:
     return data[: c.record.offset] + head + bytes(body) + data[c.record.end :]
 
 
+def chunks(data: bytes, rng: random.Random) -> bytes:
+    """Whole chunk records (each with its message indexes) duplicated, spliced or moved; or a
+    partial chunk left in the middle, as a failed write leaves one before a writer that went
+    on (the file then torn where it stopped, or finished)."""
+    records, infos = layout(data)
+    if not infos:
+        return truncate(data, rng)
+    spans = []  # each chunk with the message indexes after it
+    for info in infos:
+        start = info.record.offset
+        after = [r for r in records if r.offset >= info.record.end]
+        end = info.record.end
+        for r in after:
+            if r.opcode != 0x07:
+                break
+            end = r.end
+        spans.append((start, end))
+    start, end = rng.choice(spans)
+    piece = data[start:end]
+    kind = rng.randrange(4)
+    if kind == 0:  # the same chunk twice
+        return data[:end] + piece + data[end:]
+    if kind == 1:  # a partial chunk, the writer going on after it
+        return data[:start] + piece[: rng.randrange(1, len(piece))] + data[start:]
+    if kind == 2:  # a chunk moved after another
+        other_start, other_end = rng.choice(spans)
+        rest = data[:start] + data[end:]
+        at = other_end - (end - start if other_start > start else 0)
+        return rest[:at] + piece + rest[at:]
+    # a chunk from one place spliced into the middle of another's records
+    other_start, other_end = rng.choice(spans)
+    at = rng.randrange(other_start, other_end)
+    return data[:at] + piece + data[at:]
+
+
 def random_bytes(data: bytes, rng: random.Random) -> bytes:
     n = rng.choice([1, 7, 8, 9, 100, 4096, 65536])
     noise = rng.randbytes(n)
@@ -702,6 +737,39 @@ def arrow_block(model: Model, rng: random.Random) -> Model:
         with pa.ipc.new_stream(schema_only, batch.schema):
             pass
         m.data = rng.choice([m.data + m.data, schema_only.getvalue().to_pybytes()])
+    return model
+
+
+def _with_nulls(array: pa.Array, rng: random.Random) -> pa.Array:
+    """``array`` with a new validity bitmap (some rows null), its values buffers untouched."""
+    n = len(array)
+    valid = [rng.random() < 0.7 for _ in range(n)]
+    valid[rng.randrange(n)] = False
+    bitmap = pa.array(valid, pa.bool_()).buffers()[1]
+    buffers = array.buffers()
+    return pa.Array.from_buffers(
+        array.type, n, [bitmap, *buffers[1:]], null_count=valid.count(False), offset=0
+    )
+
+
+def null_block(model: Model, rng: random.Random) -> Model:
+    """Nulls in a column the format declares never null (the block's validity bitmap
+    rewritten), in a step, reset or episode block."""
+    from episode_audit.format.schemas import EPISODE_BLOCK_SCHEMA, not_null_columns
+
+    never = {
+        fmt.TOPIC_STEPS: not_null_columns(fmt.TOPIC_STEPS),
+        fmt.TOPIC_RESETS: not_null_columns(fmt.TOPIC_RESETS),
+        fmt.TOPIC_EPISODES: tuple(f.name for f in EPISODE_BLOCK_SCHEMA if not f.nullable),
+    }
+    topic = rng.choice([t for t in never if model.on(t)])
+    m = model.messages[rng.choice(model.on(topic))]
+    batch = _batch_of(m.data)
+    names = [c for c in never[topic] if c in batch.schema.names]
+    if batch.num_rows == 0 or not names:
+        return model
+    i = batch.schema.get_field_index(rng.choice(names))
+    m.data = _arrow_stream(batch.set_column(i, batch.schema.field(i), _with_nulls(batch[i], rng)))
     return model
 
 
@@ -852,10 +920,12 @@ MODEL_MUTATIONS: dict[str, Callable[[Model, random.Random], Model]] = {
     "episode_json": episode_json,
     "schema_channel": schema_channel,
     "messages": messages,
+    "null_block": null_block,
 }
 RAW_MUTATIONS: dict[str, Callable[[bytes, random.Random], bytes]] = {
     "truncate": truncate,
     "flip": flip,
+    "chunks": chunks,
     "flip_crc_fixed": flip_crc_fixed,
     "inner_length": inner_length,
     "huge_length": huge_length,
@@ -960,10 +1030,15 @@ def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
     _call(outcome, "export", lambda: export([path], scratch / "export", overwrite=True))
     _call(outcome, "replay", lambda: replay([path]))
 
+    # a file the audit refuses is never "already finished: copied unchanged"
+    refused = sorted({"reading", "streaming", "check"} & set(outcome.errors))
+
     def recovering() -> None:
         # what recover writes is finished evidence the audit reads (it skips damaged chunks)
         out = scratch / "recovered.mcap"
-        recover(path, out, overwrite=True)
+        result = recover(path, out, overwrite=True)
+        if result.already_finished and refused:
+            raise Escaped(f"recover copied unchanged a file that {refused} refused")
         if not open_evidence(out).finished:
             raise Escaped("recover wrote an unfinished file")
         check([out])

@@ -11,7 +11,13 @@ kernel sees it, and whether the step ended an episode. Kills land in four ways:
 - ``step``: the child SIGKILLs itself right after a random step;
 - ``flush``: the child arms its file so that the next flush dies inside a write — the chunk or
   its message index — after handing a random prefix of that write to the OS;
-- ``close``: the same inside ``close()`` (final chunk, index, run-end record, summary, footer).
+- ``close``: the same inside ``close()`` (final chunk, index, run-end record, summary, footer);
+- ``diskfull``: the disk fills up, for real: after a random step the child's file size limit
+  (``RLIMIT_FSIZE``, no root needed) is set a random few bytes above the file's size, so the
+  OS refuses (or takes a part of) the next flushes, one of them a ``flush()`` call; then space
+  returns, the child records more, calls ``flush()`` and SIGKILLs itself. Half of these runs
+  hold refused flushes for a retry (the default), half drop them (``RETRY_LIMIT_BYTES`` 0).
+  Their progress log goes through a FIFO (the size limit would refuse it too).
 
 The file is the library's own: only ``open`` in ``episode_audit.record.writer`` is shadowed by
 one that returns a pass-through wrapper of the real file (``_Disk``); unarmed, it changes nothing.
@@ -21,6 +27,9 @@ completed); every step written before the last growth of the file (a completed f
 every step reported more than ``flush_every_s`` + :data:`MARGIN` before the child's last
 progress record is in it; the episodes with an end record are exactly those whose last step is
 in the file; and ``recover`` rewrites it into a finished file with the same episodes and steps.
+For ``diskfull`` (:func:`judge_disk_full`): ``check`` reads the file as it is (no ``recover``),
+it holds every step recorded but the rows of the refused flushes the writer dropped (none when
+it held them for a retry), and ``recover`` keeps the same steps.
 
 Run directly for figures: ``python -m tests.kill_harness --kills 120``.
 """
@@ -36,6 +45,7 @@ import signal
 import struct
 import subprocess
 import sys
+import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -43,12 +53,12 @@ from pathlib import Path
 from typing import IO, Any
 
 REPO = Path(__file__).resolve().parents[1]
-MODES = ("timer", "step", "flush", "close")
+MODES = ("timer", "step", "flush", "close", "diskfull")
 MARGIN = 0.25
 """Seconds allowed beyond ``flush_every_s`` (a flush's own duration, scheduling)."""
 
 _REC = struct.Struct("<qqqq")  # kind, steps so far, monotonic ns, evidence file size
-STEP, ENDED, RESET, KILL, CLOSED = range(5)
+STEP, ENDED, RESET, KILL, CLOSED, FLUSHED, LOST = range(7)
 
 
 # ----------------------------------------------------------------------------- child side
@@ -100,8 +110,8 @@ def _child(cfg: dict[str, Any]) -> None:
     log = os.open(cfg["log"], os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     disks: list[_Disk] = []
 
-    def open_disk(path: Any, mode: str) -> _Disk:
-        disks.append(_Disk(builtins.open(path, mode), log, rng))  # noqa: SIM115 - kept open
+    def open_disk(path: Any, mode: str, **kwargs: Any) -> _Disk:
+        disks.append(_Disk(builtins.open(path, mode, **kwargs), log, rng))  # noqa: SIM115
         return disks[-1]
 
     writer_module.open = open_disk  # type: ignore[attr-defined]  # shadows the builtin there
@@ -135,11 +145,42 @@ def _child(cfg: dict[str, Any]) -> None:
             env.close()
             _log(log, CLOSED, n, os.path.getsize(cfg["path"]))
             os.kill(os.getpid(), signal.SIGKILL)
+        if mode == "diskfull" and n >= arm:
+            _disk_full(env, cfg, n - arm, log, fd)
         if ended:
             episode += 1
             env.reset(seed=cfg["seed"] * 1000 + episode)
             _log(log, RESET, n, os.fstat(fd).st_size)
     os._exit(3)  # never killed: the parent reports it
+
+
+def _disk_full(env: Any, cfg: dict[str, Any], n: int, log: int, fd: int) -> None:
+    """The ``diskfull`` mode, ``n`` steps after it began: fill, refuse, free, flush, die."""
+    import resource
+
+    import episode_audit.record.writer as writer_module
+
+    full, after = cfg["full_steps"], cfg["after_steps"]
+    _, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if n == 0:
+        import warnings
+
+        warnings.simplefilter("ignore", RuntimeWarning)  # (the recorder's one-line warning)
+        if cfg["drop"]:
+            writer_module.RETRY_LIMIT_BYTES = 0  # type: ignore[misc]
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit: EFBIG, not a signal
+        size = os.fstat(fd).st_size
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size + cfg["slack"], hard))
+    elif n == full // 2:
+        env.flush()  # a user's flush() on the full disk (refused, unless it fits the slack)
+    elif n == full:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))  # space returns
+    elif n == full + after:
+        env.flush()
+        _log(log, FLUSHED, n + cfg["arm"], os.fstat(fd).st_size)
+        stream = env._stream
+        _log(log, LOST, env._file.writer.lost[stream.channels[0]], 0)
+        os.kill(os.getpid(), signal.SIGKILL)
 
 
 def zygote() -> None:
@@ -192,6 +233,10 @@ class Plan:
     arm: int  # step: the step to die after; flush: the step after which to arm; close: when
     write: int  # flush / close: which non-empty write dies (0 = the first)
     delay_s: float  # timer: when the parent kills
+    full_steps: int = 0  # diskfull (from arm): steps while the disk is full
+    after_steps: int = 0  # diskfull: steps after space returned, before the flush and the kill
+    slack: int = 0  # diskfull: bytes the full disk still takes
+    drop: bool = False  # diskfull: drop refused flushes (RETRY_LIMIT_BYTES 0), not retry them
 
 
 def plans(kills: int, seed: int, scale: float = 1.0) -> list[Plan]:
@@ -210,6 +255,10 @@ def plans(kills: int, seed: int, scale: float = 1.0) -> list[Plan]:
             arm=rng.randint(1, max(1, int(10_000 * scale))),
             write=rng.randrange(2) if MODES[i % len(MODES)] == "flush" else rng.randrange(7),
             delay_s=rng.uniform(0.0, 0.4 * scale),
+            full_steps=rng.randint(2, max(2, int(8_000 * scale))),
+            after_steps=rng.randint(1, max(1, int(3_000 * scale))),
+            slack=rng.choice([0, rng.randrange(4096)]),
+            drop=i // len(MODES) % 2 == 1,
         )
         for i in range(kills)
     ]
@@ -231,6 +280,51 @@ class Verdict:
     problems: list[str] = field(default_factory=list)
 
 
+def _records(log: Path) -> list[tuple[int, int, int, int]]:
+    raw = log.read_bytes()
+    return [_REC.unpack_from(raw, i) for i in range(0, len(raw) - _REC.size + 1, _REC.size)]
+
+
+def judge_disk_full(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
+    """Check what a ``diskfull`` run left: readable as it is, lost = dropped refused rows."""
+    from episode_audit import check, open_evidence, recover
+    from episode_audit.errors import EpisodeAuditError
+
+    verdict = Verdict(plan)
+    records = _records(log)
+    flushed = [r for r in records if r[0] == FLUSHED]
+    lost = [r[1] for r in records if r[0] == LOST]
+    if not flushed or not lost:
+        verdict.problems.append("the child did not reach its last flush")
+        return verdict
+    verdict.reported = verdict.flushed = flushed[0][1]
+    verdict.lost = lost[0]
+    try:
+        checked = check([path])
+        verdict.in_file = open_evidence(path).steps(columns=["episode"]).num_rows
+    except EpisodeAuditError as exc:
+        verdict.problems.append(f"unreadable: {exc}")
+        return verdict
+    if checked.steps != verdict.in_file:
+        verdict.problems.append(f"check read {checked.steps} steps, the reader {verdict.in_file}")
+    if verdict.in_file != verdict.reported - verdict.lost:
+        verdict.problems.append(
+            f"{verdict.in_file} steps in the file, {verdict.reported} recorded, "
+            f"{verdict.lost} dropped"
+        )
+    if verdict.lost and not plan.drop:
+        verdict.problems.append(f"{verdict.lost} steps dropped although held for a retry")
+    if verdict.lost > plan.full_steps + plan.block_steps:  # (+ the rows unflushed at the fill)
+        verdict.problems.append(f"{verdict.lost} steps dropped, {plan.full_steps} while full")
+    try:
+        recover(path, out)
+        if open_evidence(out).steps(columns=["episode"]).num_rows != verdict.in_file:
+            verdict.problems.append("the recovered file's steps differ")
+    except EpisodeAuditError as exc:
+        verdict.problems.append(f"recover failed: {exc}")
+    return verdict
+
+
 def judge(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
     """Check what one killed recording left (see the module docstring)."""
     import pyarrow.compute as pc
@@ -238,9 +332,10 @@ def judge(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
     from episode_audit import open_evidence, recover
     from episode_audit.errors import EpisodeAuditError
 
+    if plan.mode == "diskfull":
+        return judge_disk_full(plan, path, log, out)
     verdict = Verdict(plan)
-    raw = log.read_bytes()
-    records = [_REC.unpack_from(raw, i) for i in range(0, len(raw) - _REC.size + 1, _REC.size)]
+    records = _records(log)
     probes = [r for r in records if r[0] in (STEP, ENDED, RESET)]
     verdict.closed = any(r[0] == CLOSED for r in records)
     if not probes:
@@ -327,6 +422,9 @@ def run(kills: int, directory: Path, seed: int = 2026, scale: float = 1.0) -> li
             path = directory / f"kill-{plan.index}.mcap"
             log = directory / f"kill-{plan.index}.log"
             cfg = {**plan.__dict__, "path": str(path), "log": str(log)}
+            relay = _Relay(log) if plan.mode == "diskfull" else None
+            if relay is not None:
+                cfg["log"] = str(relay.fifo)
             zyg.stdin.write(json.dumps(cfg) + "\n")
             zyg.stdin.flush()
             pid = int(zyg.stdout.readline())
@@ -337,6 +435,8 @@ def run(kills: int, directory: Path, seed: int = 2026, scale: float = 1.0) -> li
                 time.sleep(plan.delay_s)
                 os.kill(pid, signal.SIGKILL)
             _, status = map(int, zyg.stdout.readline().split())
+            if relay is not None:
+                relay.finish()
             verdict = judge(plan, path, log, directory / f"kill-{plan.index}.recovered.mcap")
             if not (os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL):
                 verdict.problems.append(f"the child was not killed (wait status {status})")
@@ -348,29 +448,63 @@ def run(kills: int, directory: Path, seed: int = 2026, scale: float = 1.0) -> li
     return verdicts
 
 
+class _Relay(threading.Thread):
+    """Copies a child's progress log from a FIFO to ``log`` (a file size limit spares FIFOs)."""
+
+    def __init__(self, log: Path) -> None:
+        super().__init__(daemon=True)
+        self.log = log
+        self.fifo = log.with_suffix(".fifo")
+        os.mkfifo(self.fifo)
+        self.start()
+
+    def run(self) -> None:
+        with open(self.fifo, "rb") as src, open(self.log, "wb") as dst:
+            while chunk := src.read(1 << 16):
+                dst.write(chunk)
+
+    def finish(self) -> None:
+        """Wait for the copy (the child is dead: its end of the FIFO is closed)."""
+        if self.is_alive():
+            try:  # a child that died before opening its log: let the reader see an end
+                os.close(os.open(self.fifo, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:
+                pass
+        self.join(timeout=30)
+        self.fifo.unlink()
+
+
 def summary(verdicts: list[Verdict]) -> str:
     """The figures of a run, in one paragraph."""
     modes = Counter(v.plan.mode for v in verdicts)
     unreadable = sum(any(p.startswith("unreadable") for p in v.problems) for v in verdicts)
-    missing = sum(max(0, v.flushed - v.in_file) for v in verdicts)
+    missing = sum(max(0, v.flushed - v.in_file) for v in verdicts if v.plan.mode != "diskfull")
     late = sum(any(p.startswith("lost a step") for p in v.problems) for v in verdicts)
-    worst = max(verdicts, key=lambda v: v.oldest_lost_s - v.plan.flush_every_s)
+    killed = [v for v in verdicts if v.plan.mode != "diskfull"] or verdicts
+    worst = max(killed, key=lambda v: v.oldest_lost_s - v.plan.flush_every_s)
     excess = worst.oldest_lost_s - worst.plan.flush_every_s
     problems = sum(bool(v.problems) for v in verdicts)
     exits = {
         m: Counter(int(bool(v.recover_lost)) for v in verdicts if v.plan.mode == m) for m in MODES
     }
-    cut = Counter(v.dropped_record or "nothing" for v in verdicts)
+    cut = Counter(v.dropped_record or "nothing" for v in verdicts if v.plan.mode != "diskfull")
+    full = [v for v in verdicts if v.plan.mode == "diskfull"]
+    held = [v for v in full if not v.plan.drop]
+    dropping = [v for v in full if v.plan.drop]
     return (
         f"{len(verdicts)} kills ({', '.join(f'{m} {modes[m]}' for m in MODES)}), "
         f"{sum(v.closed for v in verdicts)} close() completed before the armed write: "
         f"{unreadable} unreadable files, {missing} flushed steps missing, "
         f"{late} kills lost a step older than flush_every_s + {MARGIN} s; "
-        f"max steps lost {max(v.lost for v in verdicts)}, oldest lost step "
+        f"max steps lost {max(v.lost for v in killed)}, oldest lost step "
         f"{worst.oldest_lost_s:.3f} s at flush_every_s {worst.plan.flush_every_s} "
         f"(excess {excess:+.3f} s); torn ends: "
         f"{', '.join(f'{k} {n}' for k, n in sorted(cut.items()))}; recover exit 0/1 by mode: "
-        f"{', '.join(f'{m} {exits[m][0]}/{exits[m][1]}' for m in MODES)}; "
+        f"{', '.join(f'{m} {exits[m][0]}/{exits[m][1]}' for m in MODES if m != 'diskfull')}; "
+        f"disk full: {len(full)} runs ({len(held)} retrying refused flushes, steps lost "
+        f"{sum(v.lost for v in held)}; {len(full) - len(held)} dropping them, steps lost "
+        f"{sum(v.lost for v in dropping)} of {sum(v.reported for v in dropping)} recorded; "
+        f"{sum(v.in_file for v in full)} steps read by check without recover); "
         f"{problems} kills with problems"
     )
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -162,7 +163,8 @@ def test_check_and_report_see_what_a_live_recorder_flushed(tmp_path: Path) -> No
             assert (result.episodes, result.steps) == (flushed["episodes"], flushed["steps"])
             (unfinished,) = [f for f in result.findings if f.code == "file_unfinished"]
             assert unfinished.severity == "warning"
-            assert unfinished.message.startswith("the writer did not finish the file (")
+            live = f"still being written by pid {child.pid}"
+            assert unfinished.message.startswith(f"the file is {live}: what it had flushed was")
             assert result.ok  # warnings: exit 0, or 1 with --strict (docs/cli.md)
             assert cli("check", str(path))[0] == 0
             code, out, _ = cli("check", str(path), "--strict", "--format", "json")
@@ -176,8 +178,21 @@ def test_check_and_report_see_what_a_live_recorder_flushed(tmp_path: Path) -> No
             assert group.episodes == flushed["episodes"] and group.incomplete == running
             code, out, _ = cli("report", str(path))
             assert code == 0 and "Unfinished files (still being written, or torn)" in out
+            assert rep.unfinished[0][1].startswith(f"{live}: what it had flushed by byte ")
             code, out, _ = cli("show", str(path))
-            assert code == 0 and "UNFINISHED" in out
+            assert code == 0 and f"UNFINISHED ({live}" in out
+            code, out, _ = cli("replay", str(path), "--format", "json")
+            replayed = json.loads(out)
+            assert code == 0 and replayed["summary"]["identical"] == flushed["episodes"]
+            assert [r["file"] for r in replayed["live"]] == [str(path)]
+            reasons = [e["reason"] for e in replayed["episodes"]]
+            assert reasons[-1] == (
+                f"still being recorded (the file is {live}): its flushed steps replayed"
+                if running
+                else None
+            )
+            code, _, err = cli("recover", str(path), "--out", str(tmp_path / "out.mcap"))
+            assert code == 2 and f"is {live}, not torn; wait for it to close" in err
             child.stdin.write("go on\n")
             child.stdin.flush()
         assert json.loads(child.stdout.readline()) == {"closed": True}
@@ -224,11 +239,13 @@ def test_a_second_recorder_on_the_same_path_is_refused_and_the_first_file_is_int
     first.step(0)
     first.flush()
     size = path.stat().st_size
-    with pytest.raises(ConfigurationError, match="file exists; evidence is never overwritten"):
-        RecordEvidence(gym.make("CartPole-v1"), path)
-    # another process (the CLI here) is refused too, with one line on stderr
-    code, _, err = cli("record", "CartPole-v1", "--out", str(path), "--episodes", "1")
-    assert code == 2 and "never overwritten" in err and len(err.strip().splitlines()) == 1
+    held = f"another live recorder is writing this file \\(this process \\(pid {os.getpid()}\\)"
+    for overwrite in (False, True):  # overwrite=True never clobbers a file that is held
+        with pytest.raises(ConfigurationError, match=f"^{re.escape(str(path))}: {held}"):
+            RecordEvidence(gym.make("CartPole-v1"), path, overwrite=overwrite)
+    # the CLI (another recorder) is refused too, with one line on stderr
+    code, _, err = cli("record", "CartPole-v1", "--out", str(path), "--overwrite")
+    assert code == 2 and "another live recorder" in err and len(err.strip().splitlines()) == 1
     assert path.stat().st_size == size
     for _ in range(3):
         first.step(0)
@@ -238,19 +255,48 @@ def test_a_second_recorder_on_the_same_path_is_refused_and_the_first_file_is_int
     assert check([path]).ok
 
 
+# Tries to record to a path (with overwrite or not) and prints the error it gets.
+SECOND = """
+import sys
+import gymnasium as gym
+from episode_audit import RecordEvidence
+from episode_audit.errors import ConfigurationError
+
+try:
+    RecordEvidence(gym.make("CartPole-v1"), sys.argv[1], overwrite=sys.argv[2] == "1")
+except ConfigurationError as exc:
+    print(exc, flush=True)
+"""
+
+
 def test_a_second_process_is_refused_while_the_first_records(tmp_path: Path) -> None:
     path = tmp_path / "shared.mcap"
-    child = python(STREAMING, str(path), "1.0")
-    assert child.stdout is not None
+    child = python(STEPPED, str(path), stdin=subprocess.PIPE)
+    assert child.stdin is not None and child.stdout is not None
     try:
-        assert child.stdout.readline().strip() == "started"
-        other = python(RECORDER, str(path), "1", "9")
-        _, err = other.communicate(timeout=60)
-        assert other.returncode != 0
-        assert "file exists; evidence is never overwritten" in err
+        flushed = _progress(child.stdout)
+        size = path.stat().st_size
+        for overwrite in ("0", "1"):
+            other = python(SECOND, str(path), overwrite)
+            out, err = other.communicate(timeout=60)
+            assert other.returncode == 0, err
+            assert out == (
+                f"{path}: another live recorder is writing this file (pid {child.pid} holds its "
+                "lock); a file has one writer — give each recorder its own path, e.g. the "
+                "template 'runs/train-{index}.mcap'\n"
+            )
+            assert path.stat().st_size == size  # not a byte written, nothing truncated
+        child.stdin.write("go on\n")
+        child.stdin.flush()
+        flushed = _progress(child.stdout)
+        child.stdin.write("go on\n")
+        child.stdin.flush()
+        assert _progress(child.stdout) == {"closed": True}
         assert child.wait(timeout=60) == 0
     finally:
         stop(child)
     ev = open_evidence(path)
-    assert ev.finished and ev.run.tags == {}  # the first recorder's file, not the worker's
+    assert ev.finished and ev.run.tags == {}  # the first recorder's file, complete
+    assert ev.steps().num_rows == int(ev.run_end["steps"]) == flushed["steps"]  # type: ignore[index]
+    assert ev.episodes().num_rows == flushed["episodes"]
     assert check([path]).ok

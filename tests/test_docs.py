@@ -16,7 +16,7 @@ def test_readme_python_example_runs(tmp_path: Path) -> None:
     pytest.importorskip("mujoco")
     text = (REPO / "README.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert len(blocks) == 3  # Gymnasium, vector env, PettingZoo
+    assert len(blocks) == 5  # Gymnasium, path templates, vector env, Stable-Baselines3, PettingZoo
     for block in blocks:
         assert len(block.strip().splitlines()) <= 15
         subprocess.run([sys.executable, "-c", block], cwd=tmp_path, check=True, capture_output=True)

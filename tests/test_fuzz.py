@@ -480,6 +480,29 @@ def test_fuzz_sample(corpus: dict[str, Path]) -> None:
     _assert_clean(summary, count)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_nulls_where_the_format_allows_none_are_refused_everywhere(
+    bases: dict[str, bytes], tmp_path: Path, seed: int
+) -> None:
+    """The mutation class that found them: a block's validity bitmap rewritten."""
+    data = fuzzing.mutate(bases["terms"], "null_block", seed)
+    outcome = _drive_bytes(data, tmp_path, cli=["check"])
+    assert "CorruptEvidenceError" in (
+        outcome.errors.get("reading"),
+        outcome.errors.get("streaming"),
+    )
+    assert outcome.errors.get("recover") == "CorruptEvidenceError"  # refused, never copied
+    assert outcome.cli["check"] == 2
+
+
+@pytest.mark.parametrize("base", ["cartpole", "cartpole_torn"])
+@pytest.mark.parametrize("seed", range(4))
+def test_duplicated_spliced_and_partial_chunks_raise_only_library_errors(
+    bases: dict[str, bytes], tmp_path: Path, base: str, seed: int
+) -> None:
+    _drive_bytes(fuzzing.mutate(bases[base], "chunks", seed), tmp_path, cli=["check"])
+
+
 @pytest.mark.slow
 def test_fuzz_long(corpus: dict[str, Path]) -> None:
     """``EPISODE_AUDIT_FUZZ`` (default 10 000) inputs, seeds apart from the quick sample's."""

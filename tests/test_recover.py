@@ -2,8 +2,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import random
 import shutil
+import signal
 import struct
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -32,8 +38,10 @@ from episode_audit import (
 )
 from episode_audit.cli import app
 from episode_audit.read import iter_records
+from episode_audit.recover.files import Temporary
 from episode_audit.replay import replay as replay_files
 from tests import kill_harness
+from tests.support.hostile import replace_column, rewrite
 
 runner = CliRunner()
 
@@ -639,3 +647,203 @@ def test_recovering_a_recovered_file_again_keeps_its_cut_off_episodes(
     assert set(second.damaged_episodes.first(100)) == evidence_in_chunk(once, damaged_at[0])
     out = open_evidence(twice)
     assert json.loads(out.run_end["cut_off_episodes"]) == sorted(cut_off)  # type: ignore[index]
+
+
+def chunk_steps(path: Path) -> dict[int, pa.Table]:
+    """The step rows of each chunk of ``path``, by the chunk's offset."""
+    return {
+        chunk.offset: pa.Table.from_batches(chunk.steps).select(["episode", "step", "reward"])
+        for chunk in open_evidence(path).scan()
+        if chunk.steps
+    }
+
+
+def disk_full_copy(recorded: Path, directory: Path, k: int, written: int) -> Path:
+    """``recorded`` as a brief disk-full leaves it: of chunk ``k`` (and its message indexes)
+    only the first ``written`` bytes reached the file; the writer went on appending the later
+    chunks after them, flushed, and was killed before writing its last chunk."""
+    chunks, _ = layout(recorded)
+    data = recorded.read_bytes()
+    (offset, _), (following, _) = chunks[k], chunks[k + 1]
+    spliced = data[: offset + written] + data[following : chunks[-1][0]]
+    out = directory / f"disk-full-{k}-{written}.mcap"
+    out.write_bytes(spliced)
+    return out
+
+
+@pytest.mark.parametrize("written", [1, 5, 40, "half", "index"])
+def test_recover_resynchronises_after_a_partial_chunk_and_keeps_every_later_step(
+    recorded: Path, tmp_path: Path, written: int | str
+) -> None:
+    """Found by the issue's disk-full run: recover kept the chunks before a partial one and
+    dropped every intact chunk after it as "a partial unknown record"."""
+    chunks, _ = layout(recorded)
+    k = 1  # the first chunk holds the channel definitions
+    offset, length = chunks[k]
+    # cut inside the chunk's record head, its header, its records; or after the whole chunk,
+    # inside the message index records that follow it
+    cut = {"half": length // 2, "index": length + 10}.get(str(written), written)
+    assert isinstance(cut, int)
+    spliced = disk_full_copy(recorded, tmp_path, k, cut)
+    result = recover(spliced, tmp_path / "out.mcap")
+    # the partial record is one damaged stretch, up to the next intact chunk (where the
+    # writer went on); nothing is dropped at the end (the kill came after a flush)
+    lost = offset if written != "index" else None
+    start = offset if lost is not None else offset + length
+    assert [(d.offset, d.length) for d in result.damaged] == [(start, offset + cut - start)]
+    assert result.dropped_bytes == 0
+    assert result.chunks == len(chunks) - 1 - (lost is not None)
+    # every step of every later chunk comes back, untouched
+    by_chunk = chunk_steps(recorded)
+    expected = pa.concat_tables(
+        table for at, table in by_chunk.items() if at not in (lost, chunks[-1][0])
+    )
+    out = open_evidence(tmp_path / "out.mcap")
+    assert out.steps(columns=["episode", "step", "reward"]).equals(expected)
+    later = sum(t.num_rows for at, t in by_chunk.items() if offset < at < chunks[-1][0])
+    assert later >= 2 * 32 and result.steps == expected.num_rows
+    # the episodes with evidence in the lost chunk are named as damaged, no others
+    truth = evidence_in_chunk(recorded, offset) if lost is not None else set()
+    assert set(result.damaged_episodes.first(1000)) == truth
+    text = result.summary()
+    assert "1 damaged stretch(es) skipped (" in text and f" at byte {start} " in text
+
+
+def _nulls_in(column: str) -> Any:
+    def edit(batch: pa.RecordBatch) -> pa.RecordBatch:
+        values = batch.column(column).to_pylist()
+        values[0] = None
+        return replace_column(batch, column, values)
+
+    return edit
+
+
+def _unknown_outcome(batch: pa.RecordBatch) -> pa.RecordBatch:
+    return replace_column(batch, "outcome", ["won"] * batch.num_rows)
+
+
+def _reward_as_text(batch: pa.RecordBatch) -> pa.RecordBatch:
+    i = batch.schema.get_field_index("reward")
+    return batch.set_column(i, "reward", pa.array([str(v) for v in batch.column(i).to_pylist()]))
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        {"steps": _nulls_in("terminated")},
+        {"steps": _reward_as_text},
+        {"resets": _nulls_in("env_index")},
+        {"episodes": _unknown_outcome},
+    ],
+    ids=["null flags", "wrong type", "null reset key", "unknown outcome"],
+)
+def test_a_finished_file_the_reader_refuses_is_refused_not_copied(
+    recorded: Path, tmp_path: Path, edit: dict[str, Any]
+) -> None:
+    """Found by the issue's fuzzing: recover said "already finished: copied unchanged
+    (nothing to recover)" and exited 0 on files every other command refused."""
+    bad = rewrite(recorded, tmp_path / "bad.mcap", **edit)
+    code, _, refused = run("check", str(bad))
+    assert code == 2 and str(bad) in refused
+    code, out, err = run("recover", str(bad), "-o", str(tmp_path / "out.mcap"))
+    assert (code, out, err) == (2, "", refused)  # the same one line as the other commands
+    with pytest.raises(CorruptEvidenceError):
+        recover(bad, tmp_path / "out.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap"]  # nothing written
+
+
+_RECOVER_CHILD = """
+import sys, time
+from episode_audit import recover
+print("go", flush=True)
+start = time.perf_counter()
+recover(sys.argv[1], sys.argv[2])
+print(time.perf_counter() - start, flush=True)
+"""
+
+
+def _recover_child(torn: Path, out: Path) -> subprocess.Popen[str]:
+    """A ``recover`` in a child process; returns once it is about to start recovering."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    child = subprocess.Popen(
+        [sys.executable, "-c", _RECOVER_CHILD, str(torn), str(out)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    assert child.stdout is not None and child.stdout.readline() == "go\n"
+    return child
+
+
+def test_a_killed_recover_leaves_nothing_behind(tmp_path: Path) -> None:
+    """Found by the issue's kills: 11 of 20 SIGKILLs left a hidden ``.NAME.XXXX.recovering``.
+    The output is written to an unnamed file (O_TMPFILE) linked into place when finished."""
+    if not hasattr(os, "O_TMPFILE"):
+        pytest.skip("no unnamed files (O_TMPFILE) on this OS: the named temporary remains")
+    source = tmp_path / "src"
+    source.mkdir()
+    path = source / "run.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path, block_steps=4, flush_every_s=3600) as env:
+        env.action_space.seed(0)
+        env.reset(seed=0)
+        for _ in range(2_000):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+    torn = torn_copy(path, source, path.stat().st_size * 9 // 10)
+    out = tmp_path / "out"
+    out.mkdir()
+    child = _recover_child(torn, out / "calibrate.mcap")  # how long a recovery takes
+    assert child.stdout is not None
+    took = float(child.stdout.readline())
+    child.stdout.close()
+    assert child.wait() == 0 and (out / "calibrate.mcap").exists()
+    rng = random.Random(0)
+    killed = 0
+    for n in range(5):
+        child = _recover_child(torn, out / f"killed-{n}.mcap")
+        time.sleep(rng.uniform(0, took))
+        child.send_signal(signal.SIGKILL)
+        killed += child.wait() == -signal.SIGKILL
+        child.stdout.close()  # type: ignore[union-attr]
+    assert killed >= 3  # most kills landed mid-recovery
+    left = sorted(p.name for p in out.iterdir())
+    assert all(name == "calibrate.mcap" or name.startswith("killed-") for name in left), left
+    for name in left:  # an output there is whole (published only once finished)
+        assert open_evidence(out / name).finished
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_the_output_has_no_name_until_it_is_published(tmp_path: Path, overwrite: bool) -> None:
+    """Where the OS has unnamed files, nothing of a recovery shows in the output's directory
+    until the finished file is linked into place (and then only the output)."""
+    dst = tmp_path / "out.mcap"
+    if overwrite:
+        dst.write_bytes(b"old")
+    tmp = Temporary(dst)
+    try:
+        assert tmp.unnamed == hasattr(os, "O_TMPFILE")
+        tmp.path.write_bytes(b"recovered")
+        listing = sorted(p.name for p in tmp_path.iterdir())
+        assert listing == (["out.mcap"] if overwrite else []) or not tmp.unnamed
+        tmp.publish(overwrite)
+    finally:
+        tmp.discard()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mcap"]
+    assert dst.read_bytes() == b"recovered"
+    assert dst.stat().st_mode & 0o777 == 0o666 & ~_umask()
+    if not overwrite:  # never over an existing file unless asked
+        again = Temporary(dst)
+        try:
+            again.path.write_bytes(b"again")
+            with pytest.raises(ConfigurationError, match="file exists"):
+                again.publish(False)
+        finally:
+            again.discard()
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mcap"]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

@@ -231,8 +231,8 @@ def check(
     >>> result = check([path])
     >>> result.ok, result.episodes, result.steps
     (True, 1, 5)
-    >>> [(f.severity, f.code) for f in result.findings]
-    [('warning', 'missing_terms')]
+    >>> [(f.severity, f.code) for f in result.findings]  # CartPole reports no terms
+    [('note', 'missing_terms')]
     """
     _check_options(atol, rtol)
     ignored = ignored_codes(ignore)

@@ -14,7 +14,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..format import names as fmt
-from ..format.records import listing
+from ..format.records import listing, unstarted
+from ..record.rules import EndingRules
 from ._state import BoolArray, FileState, IntArray
 from .endings import EndingChecks
 from .registry import (
@@ -24,9 +25,12 @@ from .registry import (
     NOT_REPLAYABLE,
     TERMINATED_AND_TRUNCATED,
     UNLABELED_FAILURE,
+    Severity,
 )
 
 __all__ = ["check_episode_records"]
+
+_DEFAULT_RULES = EndingRules()
 
 _COLUMNS = [
     "episode",
@@ -41,6 +45,9 @@ _COLUMNS = [
     "error_message",
     "error_during",
     "ended",
+    "env_index",
+    "agent",
+    "game",
 ]
 
 
@@ -58,11 +65,18 @@ class _Records:
         chosen: list[int] = self.episode[np.asarray(mask, dtype=np.bool_)].tolist()
         return chosen
 
-    def finding_over(self, code: str, mask: Any, says: Callable[[list[int]], str]) -> None:
+    def finding_over(
+        self,
+        code: str,
+        mask: Any,
+        says: Callable[[list[int]], str],
+        *,
+        severity: Severity | None = None,
+    ) -> None:
         """One finding for the episodes ``mask`` selects, if any, at the first of them."""
         episodes = self.listed(mask)
         if episodes:
-            self.state.finding(code, says(episodes), episodes[0])
+            self.state.finding(code, says(episodes), episodes[0], severity=severity)
 
 
 def check_episode_records(state: FileState, endings: EndingChecks) -> None:
@@ -95,19 +109,49 @@ def _both_flags(records: _Records) -> None:
 
 
 def _unlabeled_failures(records: _Records) -> None:
+    """``unlabeled_failure``: a warning, or a note when the env labels no failure at all.
+
+    A failure without a label is worth a warning where labels are expected: the recording
+    declared where they come from (a ``failure_fn`` or another ``failure_key``), or another
+    failure of the file has one. Otherwise the env gives none (CartPole, Hopper): a note.
+    """
     is_failure = pc.equal(records.outcome, fmt.OUTCOME_FAILURE)
     label = records.rows.column("failure_label")
     unlabeled = pc.fill_null(pc.and_(is_failure, pc.equal(label, fmt.UNLABELED)), False)
+    mask = unlabeled.to_numpy(zero_copy_only=False)
+    if not mask.any():
+        return
+    failures = int(pc.sum(is_failure).as_py() or 0)
+    rules = records.state.ev.run.ending_rules or {}
+    key = rules.get("failure_key") or _DEFAULT_RULES.failure_key
+    declared = bool(rules.get("failure_fn")) or key != _DEFAULT_RULES.failure_key
+    severity: Severity = "warning" if declared or int(mask.sum()) < failures else "note"
 
     def says(eps: list[int]) -> str:
-        failures = int(pc.sum(is_failure).as_py() or 0)
-        return f"{len(eps)} of {failures} failure(s) have no label (episodes {listing(eps)})"
+        text = f"{len(eps)} of {failures} failure(s) have no label (episodes {listing(eps)})"
+        if severity == "warning":
+            return text
+        text += f"; the env labels no failure (no info[{key!r}] when it ends one)"
+        if records.state.ev.reports_success is False:
+            text += (
+                " and reports no success, so every episode it ends counts as a failure; where "
+                "an ending can be a success, record with ending_rules=EndingRules(success_fn=...)"
+            )
+        return text
 
-    records.finding_over(UNLABELED_FAILURE, unlabeled.to_numpy(zero_copy_only=False), says)
+    records.finding_over(UNLABELED_FAILURE, mask, says, severity=severity)
 
 
 def _incomplete(records: _Records, ended: BoolArray) -> None:
+    """``incomplete_episode``: a warning for the cut-off episodes, a note for those close() cut.
+
+    Unstarted episodes (reset, never stepped) are left out: nothing of them stopped early.
+    """
     incomplete = pc.equal(records.outcome, fmt.OUTCOME_INCOMPLETE).to_numpy(zero_copy_only=False)
+    if not incomplete.any():
+        return
+    incomplete &= ~unstarted(records.rows)
+    at_close = incomplete & _cut_at_close(records, ended)
 
     def says(eps: list[int]) -> str:
         cut_off = incomplete & ~ended
@@ -117,9 +161,42 @@ def _incomplete(records: _Records, ended: BoolArray) -> None:
             cut_off &= ~np.array([e in lost for e in episodes])
         cut = int(cut_off.sum())
         torn = f", {cut} of them cut off by the torn end of the file" if cut else ""
+        if cut and records.state.ev.writer is not None:
+            torn = f", {cut} of them still being recorded (the file is still being written)"
         return f"{len(eps)} episode(s) stopped before they ended{torn} (episodes {listing(eps)})"
 
-    records.finding_over(INCOMPLETE_EPISODE, incomplete, says)
+    def closed(eps: list[int]) -> str:
+        return (
+            f"{len(eps)} episode(s) were running when the recorder was closed, at the end of "
+            f"the recording: their outcome is unknown and report counts them apart "
+            f"(episodes {listing(eps)})"
+        )
+
+    records.finding_over(INCOMPLETE_EPISODE, incomplete & ~at_close, says)
+    records.finding_over(INCOMPLETE_EPISODE, at_close, closed, severity="note")
+
+
+def _cut_at_close(records: _Records, ended: BoolArray) -> BoolArray:
+    """The episodes whose end record ``close()`` wrote: the last of each stream.
+
+    A stream's episode that is not its last was ended by the next one's reset; its last one,
+    when it has an end record and did not end by itself, by the recorder's ``close()`` (in a
+    file with games, only in the file's last game: a new game ends every open episode). A
+    file that lost episodes to damage is not read so: a lost later episode would not show.
+    """
+    rows = records.rows
+    if records.state.ev.damaged_episodes:
+        return np.zeros(rows.num_rows, dtype=np.bool_)
+    streams = rows.select([fmt.COL_ENV_INDEX, fmt.COL_AGENT, fmt.COL_EPISODE])
+    tops = streams.group_by([fmt.COL_ENV_INDEX, fmt.COL_AGENT]).aggregate(
+        [(fmt.COL_EPISODE, "max")]
+    )
+    last: BoolArray = np.isin(records.episode, tops.column(f"{fmt.COL_EPISODE}_max").to_numpy())
+    games = rows.column(fmt.COL_GAME)
+    if games.null_count < len(games):
+        top = pc.max(games).as_py()
+        last &= pc.fill_null(pc.equal(games, top), False).to_numpy(zero_copy_only=False)
+    return last & ended
 
 
 def _errors(records: _Records) -> None:

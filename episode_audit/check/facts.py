@@ -2,14 +2,16 @@
 
 :func:`check_file_facts` runs before the steps (``recorder_trouble``, ``file_recovered``,
 ``evidence_damaged``, ``summary_damaged``, ``run_end_damaged``, ``missing_env_spec``, a vector
-file's ``not_replayable``, ``format_version``); :func:`check_unfinished` after them
-(``file_unfinished``, which says whether the file held anything).
+file's ``not_replayable`` and those of :mod:`.replayable`, ``format_version``);
+:func:`check_unfinished` after them (``file_unfinished``, which says whether the file held
+anything).
 """
 
 from __future__ import annotations
 
 from ..format import names as fmt
 from ..format.records import listing
+from ..read.liveness import still_written
 from ._state import FileState
 from .registry import (
     EVIDENCE_DAMAGED,
@@ -22,6 +24,7 @@ from .registry import (
     RUN_END_DAMAGED,
     SUMMARY_DAMAGED,
 )
+from .replayable import check_state_causes
 
 __all__ = ["check_file_facts", "check_unfinished"]
 
@@ -105,6 +108,7 @@ def _replayable(state: FileState) -> None:
     if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
         why = layout.get("replay_note") or "the vector env had no sub-envs"
         state.finding(NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
+    check_state_causes(state)
 
 
 def _format_version(state: FileState) -> None:
@@ -127,6 +131,16 @@ def check_unfinished(state: FileState) -> None:
     """After the pass over the file: an unfinished file, and whether it held anything."""
     ev = state.ev
     if ev.finished:
+        return
+    if ev.writer is not None:  # not torn: a live recorder still writes it
+        read = "what it had flushed was checked"
+        if not state.steps and not state.episodes and not ev.resets().num_rows:
+            read = "it holds no complete chunk yet: no episode, reset or step to check"
+        state.finding(
+            FILE_UNFINISHED,
+            f"the file is {still_written(ev.writer)}: {read}; wait for its recorder to close "
+            "it, then check it again",
+        )
         return
     # the reader's reason may end by saying it too ("ends at byte N without a summary: the
     # writer did not finish"): the message says it once

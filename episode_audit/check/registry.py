@@ -135,10 +135,11 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "with their count and the file's terms source.",
         "Their rewards cannot be checked against terms, nor broken down by term in a report.",
         'Put the terms in `info["reward_terms"]` or tell the recorder where they are '
-        "(`reward_terms=`); for an env that has none, record with `reward_terms=None` (the "
-        "finding is then a note) or `--ignore missing_terms`.",
-        "an error with `--require-terms` (`require_terms=True`); a note when the file was "
-        "recorded with `reward_terms=None`",
+        "(`reward_terms=`). An env that has none needs nothing: the finding is a note.",
+        "an error with `--require-terms` (`require_terms=True`); a note when the env reports "
+        "no terms at all — the file was recorded with `reward_terms=None`, or with the default "
+        '`"auto"` source and no step has terms (CartPole); a warning when the recording named '
+        "where terms come from (a list of keys, a callable) or some steps have them",
     ),
     FindingKind(
         NONFINITE_REWARD,
@@ -236,18 +237,32 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "A failure rate without reasons cannot tell a fall from a collision from a hacked "
         "reward: `report` counts these failures under `unlabeled`.",
         'Put a label in `info["failure"]` on the terminating step, or read it with '
-        "`EndingRules(failure_fn=...)`.",
+        "`EndingRules(failure_fn=...)`. An env that labels no failure needs nothing: the "
+        "finding is a note; but where it reports no success either, every episode it ends "
+        "counts as a failure — where an ending can be a success (a goal reached), declare it "
+        "with `EndingRules(success_fn=...)`.",
+        "a note when the env labels no failure of the file and the recording named no label "
+        "source (no `failure_fn`, the default `failure_key`): CartPole, Hopper; a warning "
+        "when another failure of the file has a label, or the recording named a source",
     ),
     FindingKind(
         INCOMPLETE_EPISODE,
         "warning",
         "Episodes that did not end.",
-        "Episodes whose recording stopped before they ended, or that the torn end of a file "
-        "cut off. One finding per file, listing the episodes.",
+        "Episodes whose recording stopped before they ended: a `reset()` before the end, the "
+        "torn end of a file, or the recorder's `close()` (the run stopped mid-episode). One "
+        "finding per file for the first two, listing the episodes, and one for the last. An "
+        "episode that was reset and never stepped (a vector env's autoreset after the last "
+        "episode a loop ran, a `reset()` followed by `close()`) is *unstarted*: not reported, "
+        "and `report` leaves it out.",
         "Their outcome is unknown: `report` counts them apart, outside the ended episodes its "
-        "rates are over.",
-        "Let the last episode end before closing the recorder. A torn file's lost steps cannot "
-        "be brought back.",
+        "rates are over. A training run that stops mid-episode always leaves one per env; an "
+        "episode cut by a reset or a crash may hide an ending that never got recorded.",
+        "Nothing for the episodes `close()` cut; let an episode end before resetting. A torn "
+        "file's lost steps cannot be brought back.",
+        "a note for the episodes `close()` cut: the last episode of each stream (env, "
+        "sub-env or agent, in the last game of a PettingZoo file) of a file whose end record "
+        "the recorder wrote",
     ),
     FindingKind(
         ERROR_EPISODE,
@@ -291,12 +306,13 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "warning",
         "The writer did not finish the file.",
         "The file has no run-end record: the recorder was killed or crashed, or is still "
-        "recording. The message says what the reader dropped, or that the file holds no "
-        "complete chunk at all.",
+        "recording. The message says which: a live recorder holds the file's lock, and is "
+        "named (its pid); for a torn file it says what the reader dropped, or that the file "
+        "holds no complete chunk at all.",
         "Steps after the recorder's last flush are in no file, and the episodes it was "
         "recording are incomplete.",
-        "Close the recorder (`with RecordEvidence(...)`, or `close()`). "
-        "`episode-audit recover` writes a finished copy of a torn file.",
+        "Close the recorder (`with RecordEvidence(...)`, or `close()`); a live one, wait for "
+        "it. `episode-audit recover` writes a finished copy of a torn file.",
     ),
     FindingKind(
         RECORDER_TROUBLE,
@@ -354,10 +370,14 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "warning",
         "Episodes that cannot be replayed.",
         "Episodes with neither a reset seed nor an RNG state, one finding per file listing up "
-        "to five; or a vector file whose vector env had no sub-envs, so no episode can be "
-        "replayed on its own.",
+        "to five; a vector file whose vector env had no sub-envs, so no episode can be "
+        "replayed on its own; or, one finding per cause, state replay cannot restore: a "
+        "recorded wrapper that keeps state across episodes (running statistics) without a "
+        "state snapshot, or a vector wrapper the vector recorder wrapped.",
         "`replay` cannot re-run them, so nothing confirms that their steps are what the env does.",
-        "Reset before stepping, with a seed (`env.reset(seed=...)`) where you can.",
+        "Reset before stepping, with a seed (`env.reset(seed=...)`) where you can; put the "
+        "recorder innermost, directly around the env (or the vector env), under wrappers that "
+        "keep state.",
     ),
     FindingKind(
         MISSING_ENV_SPEC,

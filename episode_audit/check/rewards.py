@@ -2,7 +2,8 @@
 
 :class:`RewardChecks` reports ``nonfinite_reward``, ``nonfinite_term``, ``terms_sum_mismatch``
 and ``missing_terms``. A step's terms match its reward when ``|reward - (sum(terms) +
-sum(constants))| <= atol + rtol * |reward|``, the constants being those the file declares.
+sum(constants))| <= atol + rtol * |reward|``, the constants being those the file declares; a
+mismatch names the reward-changing wrappers the recorder sat over, and whose info held the terms.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..format.columns import null_mask
+from ..format.wrappers import reward_cause
 from ._state import BoolArray, FileState, FloatArray, Hit, HitMessage, IntArray, first_per_episode
 from .registry import MISSING_TERMS, NONFINITE_REWARD, NONFINITE_TERM, TERMS_SUM_MISMATCH, Severity
 
@@ -68,6 +70,14 @@ class RewardChecks:
             str(k): float(v) for k, v in constants.items() if isinstance(v, (int, float))
         }
         self.constant_sum = math.fsum(self.constants.values())
+        self.cause = reward_cause(state.ev.run.layout)
+        """Why rewards and terms may differ: the reward-changing wrappers under the recorder."""
+        info_of = (state.ev.run.reward_terms or {}).get("info_of")
+        self.source = (
+            f"; terms read automatically from the info of {str(info_of)[:200]}"
+            if isinstance(info_of, str)
+            else ""
+        )
         self.missing_terms = 0
         self.first_missing: tuple[int, int] | None = None
 
@@ -164,21 +174,38 @@ class RewardChecks:
         return (
             f"{hit.detail} {where}; {hit.count} step(s) of the episode mismatch, worst residual "
             f"{hit.worst:.3g} (tolerance {self.atol:g} + {self.rtol:g}*|reward|)"
+            + (f"; {self.cause}" if self.cause else "")
+            + self.source
         )
 
     def missing_terms_finding(self) -> None:
-        """After the steps: one finding for the steps without terms, if any."""
+        """After the steps: one finding for the steps without terms, if any.
+
+        A warning where terms are expected: the recording named where they come from (a list
+        of keys, a callable), or some step of the file has terms. With the default source
+        (``"auto"``) and no step with terms, the env reports none (CartPole): a note, as for
+        ``reward_terms=None``. An error with ``require_terms``.
+        """
         if not self.missing_terms:
             return
         source = (self.state.ev.run.reward_terms or {}).get("source")
-        severity: Severity = "error" if self.require_terms else "warning"
-        if source is None and not self.require_terms:
+        severity: Severity = "warning"
+        why = "; their rewards cannot be checked against terms"
+        if source is None:
             severity = "note"  # reward_terms=None: the recording was told to keep none
+        elif source == "auto" and self.missing_terms == self.state.steps:
+            severity = "note"
+            why = (
+                ": the env reports none (no info['reward_terms'], no info['reward_*'] keys); "
+                "name them with reward_terms= to check its rewards against them"
+            )
+        if self.require_terms:
+            severity = "error"
         episode, step = self.first_missing or (None, None)
         self.state.finding(
             MISSING_TERMS,
             f"{self.missing_terms} of {self.state.steps} steps have no reward terms "
-            f"(terms source {source!r}); their rewards cannot be checked against terms",
+            f"(terms source {source!r}){why}",
             episode,
             step,
             severity=severity,

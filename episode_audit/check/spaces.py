@@ -10,7 +10,7 @@ from __future__ import annotations
 import pyarrow as pa
 
 from ..format import names as fmt
-from ..format.spaces import SpaceCodec
+from ..format.spaces import SpaceCodec, unknown_spaces
 from ._state import FileState, Hit, HitMessage, IntArray, first_per_episode, short, steps_of
 from .registry import (
     ACTION_OUT_OF_SPACE,
@@ -38,7 +38,19 @@ class SpaceChecks:
         }
 
     def unrebuildable(self) -> None:
-        """Before the steps: a note for each space the file's description cannot rebuild."""
+        """Before the steps: a note for each space that is not checked.
+
+        A space the file's description cannot rebuild, or a sub-space of a class episode-audit
+        does not know (stored as JSON, its values unchecked).
+        """
+        run = self.state.ev.run
+        for column, code, codec in (
+            ("observation", OBSERVATION_SPACE_UNCHECKED, self.obs_codec),
+            ("action", ACTION_SPACE_UNCHECKED, self.act_codec),
+        ):
+            if codec is not None:
+                for where in unknown_spaces(getattr(run, f"{column}_space"), column):
+                    self.state.finding(code, f"{where}; its values were not checked against it")
         if self.obs_codec is None:
             self.state.finding(
                 OBSERVATION_SPACE_UNCHECKED,

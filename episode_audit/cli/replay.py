@@ -54,6 +54,13 @@ def replay(
             help="Allow importing the entry point named inside the file (trusted files only).",
         ),
     ] = False,
+    allow_unverified: Annotated[
+        bool,
+        typer.Option(
+            "--allow-unverified",
+            help="Exit 0 even when no episode could be verified (every one not replayable).",
+        ),
+    ] = False,
     output: FormatOption = "table",
 ) -> None:
     """Re-run episodes from their recorded seed / RNG state and compare them step by step."""
@@ -93,3 +100,15 @@ def replay(
         raise typer.Exit(EXIT_USAGE)
     if not result.ok:
         raise typer.Exit(EXIT_FINDINGS)
+    if not result.verified and not allow_unverified:
+        fail(_unverified(result.count("not_replayable")), EXIT_FINDINGS)
+
+
+def _unverified(not_replayable: int) -> str:
+    """Why a replay that compared no episode fails."""
+    what = (
+        f"all {not_replayable} episode(s) are not replayable (the output says why)"
+        if not_replayable
+        else "the file(s) hold no episode"
+    )
+    return f"replay verified no episode: {what}; pass --allow-unverified when that is expected"

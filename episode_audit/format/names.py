@@ -53,6 +53,9 @@ __all__ = [
     "REASON_EXTERNAL",
     "REASON_TIME_LIMIT",
     "RUN_END_FIRST_TROUBLE",
+    "RUN_END_LOST_EPISODES",
+    "RUN_END_LOST_RESETS",
+    "RUN_END_LOST_STEPS",
     "RUN_END_SUCCESS_REPORTED",
     "RUN_END_TROUBLE",
     "RUN_STATUS_FINISHED",
@@ -106,6 +109,11 @@ RUN_STATUS_RECOVERED: Final = "recovered"
 # into the loop): how many times, and the first failure as "Type: message".
 RUN_END_TROUBLE: Final = "recorder_trouble"
 RUN_END_FIRST_TROUBLE: Final = "recorder_trouble_first"
+# Run-end keys present when the OS refused flushes for longer than the recorder could hold them
+# (a full disk): the step rows, reset rows and episode records dropped.
+RUN_END_LOST_STEPS: Final = "recorder_lost_steps"
+RUN_END_LOST_RESETS: Final = "recorder_lost_resets"
+RUN_END_LOST_EPISODES: Final = "recorder_lost_episode_records"
 # Run-end key: how many episodes the task ended (or cut off) with an info that said anything
 # about success (``EndingRules.reports_success``); 0 for a task without a success signal.
 RUN_END_SUCCESS_REPORTED: Final = "success_reported"

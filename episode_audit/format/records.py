@@ -19,6 +19,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from . import names as fmt
 
@@ -30,6 +32,7 @@ __all__ = [
     "from_json",
     "to_json",
     "to_jsonable",
+    "unstarted",
 ]
 
 MAX_JSON_TEXT = 1 << 20
@@ -99,6 +102,28 @@ def listing(indices: Sequence[int], count: int | None = None, limit: int = 5) ->
     shown = ", ".join(str(i) for i in indices[:limit])
     more = (len(indices) if count is None else count) - limit
     return shown + (f" and {more} more" if more > 0 else "")
+
+
+def unstarted(episodes: pa.Table) -> np.ndarray[Any, np.dtype[np.bool_]]:
+    """Which rows of an episodes table (``Evidence.episodes()``) are *unstarted* episodes.
+
+    An unstarted episode was reset and never stepped: its end record says ``incomplete`` with
+    length 0 (a vector env's autoreset after the last episode a loop ran, or a ``reset()``
+    followed by ``close()``). It is not an episode that stopped before it ended: ``check``
+    does not warn about it and ``report`` leaves it out of its counts. An episode a torn
+    file cut off has no end record (``ended`` is false) and is never one of them.
+    """
+    mask = pc.and_(
+        pc.and_(
+            pc.equal(episodes.column("outcome"), fmt.OUTCOME_INCOMPLETE),
+            pc.equal(episodes.column("length"), 0),
+        ),
+        episodes.column("ended"),
+    )
+    out: np.ndarray[Any, np.dtype[np.bool_]] = np.asarray(
+        pc.fill_null(mask, False).to_numpy(zero_copy_only=False), dtype=np.bool_
+    )
+    return out
 
 
 @dataclass(frozen=True)

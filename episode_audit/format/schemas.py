@@ -3,13 +3,16 @@
 The recorder builds its step, reset and episode blocks from these definitions; the reader checks
 every block it decodes against them; ``check`` and replay read the columns by these names.
 A column's type is ``None`` where the space decides it (action, observation: see
-:mod:`.spaces`). ``key`` columns locate rows: the reader refuses a block with nulls in them.
+:mod:`.spaces`). A column not ``nullable`` never holds a null: the reader refuses a block that
+has one there (:func:`not_null_columns`).
 
 >>> names = [c.name for c in STEP_COLUMNS]
 >>> names[:4], names[-2:]
 (['episode', 'step', 'time_ns', 'action'], ['info', 'notes'])
 >>> required_columns(TOPIC_RESETS)["seed"]
 DataType(int64)
+>>> not_null_columns(TOPIC_STEPS)
+('episode', 'step', 'time_ns', 'reward', 'terminated', 'truncated')
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ __all__ = [
     "RESET_STREAM_COLUMNS",
     "STEP_COLUMNS",
     "Column",
-    "key_columns",
+    "not_null_columns",
     "required_columns",
     "reset_schema",
     "step_schema",
@@ -68,13 +71,12 @@ class Column:
     name: str
     type: pa.DataType | None
     nullable: bool = True
-    key: bool = False
 
 
 STEP_COLUMNS: tuple[Column, ...] = (
-    Column(COL_EPISODE, pa.int64(), nullable=False, key=True),
-    Column(COL_STEP, pa.int64(), nullable=False, key=True),
-    Column(COL_TIME, pa.int64(), nullable=False, key=True),
+    Column(COL_EPISODE, pa.int64(), nullable=False),
+    Column(COL_STEP, pa.int64(), nullable=False),
+    Column(COL_TIME, pa.int64(), nullable=False),
     Column(COL_ACTION, None),
     Column(COL_OBSERVATION, None),
     Column(COL_REWARD, pa.float64(), nullable=False),
@@ -89,9 +91,9 @@ STEP_COLUMNS: tuple[Column, ...] = (
 """Columns of a step block (topic ``episode_audit/steps``), in order: one row per step."""
 
 RESET_COLUMNS: tuple[Column, ...] = (
-    Column(COL_EPISODE, pa.int64(), nullable=False, key=True),
-    Column(COL_ENV_INDEX, pa.int64(), nullable=False, key=True),
-    Column(COL_TIME, pa.int64(), nullable=False, key=True),
+    Column(COL_EPISODE, pa.int64(), nullable=False),
+    Column(COL_ENV_INDEX, pa.int64(), nullable=False),
+    Column(COL_TIME, pa.int64(), nullable=False),
     Column(COL_SEED, pa.int64()),
     Column(COL_RNG_STATE, pa.string()),
     Column(COL_OPTIONS, pa.string()),
@@ -151,9 +153,13 @@ def required_columns(topic: str) -> dict[str, pa.DataType | None]:
     return {c.name: c.type for c in _BLOCK_COLUMNS[topic]}
 
 
-def key_columns(topic: str) -> tuple[str, ...]:
-    """The columns of ``topic``'s blocks that must have no nulls (they locate rows)."""
-    return tuple(c.name for c in _BLOCK_COLUMNS[topic] if c.key)
+def not_null_columns(topic: str) -> tuple[str, ...]:
+    """The columns of ``topic``'s blocks that must have no nulls (declared not ``nullable``).
+
+    Those that locate rows (episode, step, env_index, time) and those every row has a value
+    in (reward, terminated, truncated); the space columns' nulls are the space's to decide.
+    """
+    return tuple(c.name for c in _BLOCK_COLUMNS[topic] if not c.nullable)
 
 
 EPISODE_TABLE_SCHEMA = pa.schema(

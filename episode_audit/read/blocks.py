@@ -18,18 +18,23 @@ from mcap.records import Channel
 
 from ..errors import CorruptEvidenceError
 from ..format import names as fmt
-from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA, key_columns, required_columns
+from ..format.schemas import (
+    EPISODE_BLOCK_BASE,
+    EPISODE_BLOCK_SCHEMA,
+    not_null_columns,
+    required_columns,
+)
 
 # Blocks are read in place from the decompressed chunk, at any offset: buffers that are not
 # aligned for their type are copied (compute kernels and numpy want them aligned).
 _IPC_OPTIONS = pa.ipc.IpcReadOptions(ensure_alignment=pa.ipc.Alignment.DataTypeSpecific)
 # Columns a block must have, with their types (None: any type; the space decides), and those
-# that must have no nulls: from the block schemas' one definition.
+# that must have no nulls (declared not nullable): from the block schemas' one definition.
 _REQUIRED: dict[str, dict[str, pa.DataType | None]] = {
     topic: required_columns(topic) for topic in (fmt.TOPIC_STEPS, fmt.TOPIC_RESETS)
 }
 _NOT_NULL: dict[str, tuple[str, ...]] = {
-    topic: key_columns(topic) for topic in (fmt.TOPIC_STEPS, fmt.TOPIC_RESETS)
+    topic: not_null_columns(topic) for topic in (fmt.TOPIC_STEPS, fmt.TOPIC_RESETS)
 }
 _NO_SCHEMA = pa.schema([])
 _CHECKED: dict[str, pa.Schema] = {}
@@ -74,13 +79,18 @@ def _arrow_batch(data: bytes | memoryview, path: Path, topic: str) -> pa.RecordB
         first = _first_message_end(data)
         if first is not None:
             _GOOD_SCHEMA_MESSAGES[topic] = bytes(data[:first])
-    if topic in _NOT_NULL:
-        for name in _NOT_NULL[topic]:
-            if batch.column(name).null_count:
-                raise CorruptEvidenceError(
-                    path, f"a block on {topic} has nulls in its {name!r} column"
-                )
+    for name in _NOT_NULL.get(topic, ()):
+        nulls = batch.column(name).null_count  # (kept in the block's framing: no data read)
+        if nulls:
+            raise CorruptEvidenceError(path, _nulls_problem(f"a block on {topic}", nulls, name))
     return batch
+
+
+def _nulls_problem(where: str, nulls: int, name: str) -> str:
+    """What is wrong with a block that has ``nulls`` nulls in the never-null column ``name``."""
+    return (
+        f"{where} has {nulls} null(s) in its {name!r} column, which the format declares never null"
+    )
 
 
 def step_block_rows(data: bytes | memoryview, path: Path) -> int:

@@ -24,7 +24,7 @@ from ..errors import CorruptEvidenceError
 from ..format import names as fmt
 from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from ..format.schemas import EPISODE_TABLE_SCHEMA as EPISODE_SCHEMA
-from .blocks import _episode_part, _one_line
+from .blocks import _episode_part, _nulls_problem, _one_line
 from .passes import _decode_kept, _StepStats
 
 MAX_JSON_BYTES = 1 << 20
@@ -48,6 +48,8 @@ _RESET_START_COLUMNS = [
 _SCAN_ONCE: Any = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
 _COMPACT = json.JSONEncoder(separators=(",", ":"))  # as json.dumps(..., separators=(",", ":"))
 _OUTCOMES = frozenset(fmt.OUTCOMES)
+_NOT_NULL = tuple(f.name for f in EPISODE_BLOCK_SCHEMA if not f.nullable)
+"""The columns of an episode block that must have no nulls (episode, outcome, length)."""
 _NO_ERROR: dict[str, Any] = {}
 _NO_TERMS: tuple[tuple[str, float], ...] = ()
 _GROUP = 128  # end records parsed at a time (few parsed objects alive: less GC work)
@@ -169,9 +171,10 @@ def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Path) -> pa.Tabl
             for part in parts
         ]
         table = pa.Table.from_batches(parts, schema=EPISODE_BLOCK_SCHEMA).combine_chunks()
-    for name in ("episode", "outcome", "length"):
-        if table.column(name).null_count:
-            raise CorruptEvidenceError(path, f"an episode block has nulls in its {name!r} column")
+    for name in _NOT_NULL:
+        nulls = table.column(name).null_count
+        if nulls:
+            raise CorruptEvidenceError(path, _nulls_problem("an episode block", nulls, name))
     unknown = pc.filter(
         table.column("outcome"),
         pc.invert(pc.is_in(table.column("outcome"), pa.array(fmt.OUTCOMES, pa.string()))),

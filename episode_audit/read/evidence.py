@@ -21,6 +21,7 @@ from mcap.records import Channel
 
 from ..errors import EvidenceError
 from ..format import names as fmt
+from ..format.locking import Holder
 from ..format.records import EpisodeRanges, RunInfo
 from ..format.spaces import SpaceCodec, codec_for, space_from_description
 from .blocks import _blocks_table, _declared_schema, _empty_table, _reset_block, _topic_schema
@@ -88,6 +89,8 @@ class Evidence:
             locates) is garbled, what is wrong. The writer finished the file and every chunk
             is there; the record's status and counts are lost, and :attr:`run_end` is
             ``None``.
+        writer: For an unfinished file a live recorder is still writing, that recorder's
+            process (the holder of the file's lock, ``docs/format.md``); ``None`` otherwise.
     """
 
     path: Path
@@ -104,6 +107,7 @@ class Evidence:
     _resets_cache: pa.Table | None = field(default=None, repr=False)
     _gathered: _Gathered | None = field(default=None, repr=False)
     _stats: _StepStats | None = field(default=None, repr=False)
+    writer: Holder | None = None
 
     @property
     def damaged_episodes(self) -> EpisodeRanges:

@@ -42,6 +42,7 @@ from .layout import (
     _top_level,
     _Unreadable,
 )
+from .liveness import Holder, probe, still_written
 
 
 def open_evidence(path: str | os.PathLike[str]) -> Evidence:
@@ -62,8 +63,9 @@ def open_evidence(path: str | os.PathLike[str]) -> Evidence:
         f.seek(0)
         indexed = None if damage else _open_indexed(f, p)
         if indexed is None:
+            writer = probe(f.fileno())  # a file without a summary: torn, or still being written
             f.seek(0)
-            ev = _open_linear(f, p, past_data_end=damage is None)
+            ev = _open_linear(f, p, past_data_end=damage is None, writer=writer)
             ev.summary_damage = damage
             return ev
         return indexed
@@ -85,6 +87,9 @@ def _open_mcap(p: Path) -> IO[bytes]:
     try:
         head = f.read(len(_MAGIC))
         if len(head) == 0:
+            writer = probe(f.fileno())
+            if writer is not None:
+                raise EvidenceError(p, f"{still_written(writer)}: it holds nothing yet; {_WAIT}")
             raise NotEvidenceError(p, "the file is empty")
         if head != _MAGIC:
             raise NotEvidenceError(p, "not an MCAP file (wrong magic bytes)")
@@ -342,12 +347,15 @@ class _Scan:
         self.channels.update((channel.id, channel) for channel in found)
 
 
-def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evidence:
+def _open_linear(
+    f: IO[bytes], path: Path, *, past_data_end: bool = True, writer: Holder | None = None
+) -> Evidence:
     """Scan a file without a usable summary; keep every complete chunk.
 
     With ``past_data_end`` false (a file whose footer and closing magic are there, but whose
     summary does not match the footer's CRC) the scan stops at the data section's end record:
     what follows is the summary, which only repeats and indexes the data section.
+    ``writer``: the live recorder still writing the file, if any.
     """
     reader = StreamReader(f, emit_chunks=True, record_size_limit=chunks.MAX_RECORD_BYTES)
     scan = _Scan(path)
@@ -374,7 +382,7 @@ def _open_linear(f: IO[bytes], path: Path, *, past_data_end: bool = True) -> Evi
             scan.footer = True  # (the footer was found already, behind the damaged summary)
             break
         scan.add(record, start)
-    return _scanned_evidence(scan, size)
+    return _scanned_evidence(scan, size, writer)
 
 
 def _cut_short(start: int, size: int, footer: bool) -> str | None:
@@ -389,13 +397,23 @@ def _cut_short(start: int, size: int, footer: bool) -> str | None:
     )
 
 
-def _scanned_evidence(scan: _Scan, size: int) -> Evidence:
-    """The evidence a linear scan found (finished only with a footer and a run-end record)."""
+def _scanned_evidence(scan: _Scan, size: int, writer: Holder | None) -> Evidence:
+    """The evidence a linear scan found (finished only with a footer and a run-end record).
+
+    An unfinished file that a live recorder (``writer``) still writes is not torn: its
+    ``torn`` says it is still being written, and what was read.
+    """
     path, torn = scan.path, scan.torn
+    live = writer is not None and not (scan.footer and torn is None)
+    if live and (scan.header is None or fmt.METADATA_RUN not in scan.metadata):
+        assert writer is not None
+        raise EvidenceError(path, f"{still_written(writer)}: it holds no evidence yet; {_WAIT}")
     if scan.header is None:
         raise NotEvidenceError(path, "no MCAP header: the file is torn before any evidence")
     if torn is None and not scan.footer:
         torn = f"ends at byte {size} without a summary: the writer did not finish"
+    if live and writer is not None:
+        torn = f"{still_written(writer)}: what it had flushed by byte {size} was read"
     run, run_end = _parse_run(path, scan.metadata, scan.header, torn)
     finished = scan.footer and run_end is not None and torn is None
     return Evidence(
@@ -407,4 +425,8 @@ def _scanned_evidence(scan: _Scan, size: int) -> Evidence:
         scan.chunks,
         scan.channels,
         _schemas=_schemas_of(scan.schemas),
+        writer=None if finished else writer,
     )
+
+
+_WAIT = "wait for its recorder to flush or close it"

@@ -39,6 +39,7 @@ from .layout import (
     _OP_DATA_END,
     _OP_FOOTER,
     _OP_MESSAGE,
+    _OP_MESSAGE_INDEX,
     _OP_METADATA,
     _OP_SCHEMA,
     _RECORD_HEAD,
@@ -48,6 +49,7 @@ from .layout import (
     _Unreadable,
 )
 from .opening import _footer, _open_mcap, _summary_damage
+from .resync import Resync, index_framing_holds
 
 
 @dataclass(frozen=True)
@@ -118,12 +120,15 @@ def iter_records(
     with ``skip_damaged`` the walk yields a :class:`DamagedRegion` for it instead and goes on
     with the next record. When the file has a readable summary (it was finished), garbled
     framing is skipped too, up to the next chunk or metadata record the summary locates: only
-    bytes after the last of those end the walk.
+    bytes after the last of those end the walk. Without one (a torn file), it goes on at the
+    next record that checks (:class:`~.resync.Resync`), if any.
     """
     p = Path(path)
     with _open_mcap(p) as f:
         size = os.fstat(f.fileno()).st_size
         known, names = _record_starts(f) if skip_damaged else ([], {})
+        # without a summary to say where records start, the walk looks for them after damage
+        resync = Resync(f, p, size) if skip_damaged and not known else None
         f.seek(len(_MAGIC))
         pos = len(_MAGIC)
         summary = False  # past the data-end record: the summary section, skipped
@@ -140,7 +145,11 @@ def iter_records(
             name = names.get(pos)  # the metadata record the summary locates here, if any
             what = "a record" if name is None else f"the {name} metadata record"
             bad = _bad_framing(what, pos, opcode, length, size, None if summary else nxt, name)
+            index = resync is not None and opcode == _OP_MESSAGE_INDEX  # (it may be partial)
+            if bad is None and index and not index_framing_holds(f.read(length)):
+                bad = f"a message index at byte {pos} is garbled"
             if bad is not None:
+                nxt = _resume_at(pos, nxt, resync)
                 if nxt is None:
                     yield FileEnd(pos, size, opcode, False)
                     return
@@ -149,8 +158,13 @@ def iter_records(
                 f.seek(pos)
                 continue
             if opcode == _OP_CHUNK and not summary:
-                yield _chunk_item(f, p, pos, stop, skip_damaged)
-            else:
+                item = _chunk_item(f, p, pos, stop, skip_damaged)
+                if resync is not None and isinstance(item, DamagedRegion):
+                    # a partial chunk declares bytes of the records written after it
+                    stop = resync.after(pos) or stop
+                    item = DamagedRegion(pos, stop - pos, item.why)
+                yield item
+            elif not index:
                 body = f.read(length)
                 if opcode == _OP_FOOTER:
                     yield FileEnd(stop, size, None, True)
@@ -161,6 +175,7 @@ def iter_records(
                     try:
                         yield _top_level(opcode, body)
                     except _Unreadable:
+                        nxt = _resume_at(pos, nxt, resync)
                         if nxt is None:
                             yield FileEnd(pos, size, opcode, False)
                             return
@@ -170,6 +185,18 @@ def iter_records(
                         stop = nxt
             pos = stop
             f.seek(pos)
+
+
+def _resume_at(pos: int, nxt: int | None, resync: Resync | None) -> int | None:
+    """Where a walk goes on after damage at ``pos`` (None: the damage ends it).
+
+    At the next record the summary locates (``nxt``), else, with ``resync``, at the next one
+    that checks: a failed write leaves a partial record, and a writer that went on, whole ones
+    after it.
+    """
+    if nxt is None and resync is not None:
+        return resync.after(pos)
+    return nxt
 
 
 def _bad_framing(

@@ -2,10 +2,12 @@
 
 Public: :class:`RecordEvidence` (Gymnasium), :class:`RecordVectorEvidence` and
 :class:`ResetRngInfo` (vector envs), ``RecordParallelEvidence`` and ``RecordAECEvidence``
-(PettingZoo, imported on first use), their options (:class:`RecorderOptions`, checked by
-:class:`RecorderSettings`), and the rules that read an env's info: :class:`RewardTerms`,
-:class:`EndingRules`, :class:`Ending`; state snapshots beyond the seed:
-:class:`StateAdapter`, :func:`register_state_adapter`. How recording works: ``docs/recording.md``.
+(PettingZoo, imported on first use), ``RecordVecEnvEvidence``, ``RecordEvalCallback`` and
+``record_evaluation`` (Stable-Baselines3, :mod:`.sb3`, imported on first use), their options
+(:class:`RecorderOptions`, checked by :class:`RecorderSettings`), the rules that read an
+env's info: :class:`RewardTerms`, :class:`EndingRules`, :class:`Ending`, and state snapshots
+beyond the seed: :class:`StateAdapter`, :func:`register_state_adapter`. How recording works:
+``docs/recording.md``.
 """
 
 from __future__ import annotations
@@ -21,21 +23,29 @@ __all__ = [
     "Ending",
     "EndingRules",
     "RecordAECEvidence",
+    "RecordEvalCallback",
     "RecordEvidence",
     "RecordParallelEvidence",
+    "RecordVecEnvEvidence",
     "RecordVectorEvidence",
     "RecorderOptions",
     "RecorderSettings",
     "ResetRngInfo",
     "RewardTerms",
     "StateAdapter",
+    "record_evaluation",
     "register_state_adapter",
 ]
 
 
 def __getattr__(name: str) -> object:
-    if name not in ("RecordAECEvidence", "RecordParallelEvidence"):
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from . import pettingzoo  # imports pettingzoo (optional): only when asked for
+    # the extras' packages (optional): imported only when asked for
+    if name in ("RecordAECEvidence", "RecordParallelEvidence"):
+        from . import pettingzoo
 
-    return getattr(pettingzoo, name)
+        return getattr(pettingzoo, name)
+    if name in ("RecordEvalCallback", "RecordVecEnvEvidence", "record_evaluation"):
+        from . import sb3
+
+        return getattr(sb3, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

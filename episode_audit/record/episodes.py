@@ -120,6 +120,8 @@ class EpisodeStream:
         except BaseException:
             writer.abandon()
             raise
+        self.channels = (self._steps_channel, self._resets_channel)
+        """The stream's step and reset channels."""
         self.episode: Episode | None = None
         self.block = Block(obs_codec, act_codec, None)
 

@@ -5,16 +5,21 @@
 - The episode records of ended episodes are written at each flush (one JSON message each and
   one Arrow block, ``docs/format.md``, "Episode records").
 - Files whose recorder was never closed are finished when the interpreter exits normally.
+- Disk trouble (a refused flush, a close that cannot finish) is the recorder's trouble: warned
+  once in one line, said in the run-end record, never raised into the training loop.
 """
 
 from __future__ import annotations
 
 import atexit
 import os
+import sys
+import threading
 import time
 import weakref
 from collections.abc import Callable, Iterable
 from datetime import datetime, timezone
+from types import FrameType
 from typing import Any, Protocol
 
 import pyarrow as pa
@@ -41,6 +46,7 @@ the rows a recorder holds stay small and files stay far inside the reader's 1 Gi
 (``read.chunks.MAX_RECORD_BYTES``)."""
 
 _TROUBLE_TEXT = 500  # characters of the first trouble kept in the run-end record
+_CLOSE_WAIT_S = 10.0  # longest close() waits for another thread's step() or reset() to end
 
 
 class _Owner(Protocol):
@@ -50,32 +56,90 @@ class _Owner(Protocol):
 class FileRecorder:
     """What every recorder does with its evidence file (``_file``, which the recorder opens).
 
-    ``flush()``; finishing the file once, on the recorder's ``close()``; and a warning when a
-    recorder that warns (``_warns_unclosed``) is dropped with its file still open.
+    ``flush()``, from any thread; finishing the file once, on the recorder's ``close()``; and a
+    warning when a recorder that warns (``_warns_unclosed``) is dropped with its file still open.
+
+    Threads: the recorder's ``step()`` and ``reset()`` take no lock. They begin with
+    ``if self._gated: self._enter()`` (one attribute read, as a closed check costs anyway);
+    ``flush()`` and ``close()`` set the gate under a lock, then look whether another thread is
+    inside ``step()`` or ``reset()`` (its stack, ``sys._current_frames``): if none, they write
+    while the gate holds new calls back; if one is, ``flush()`` leaves the flush to the end of
+    that call (``flush_at``) and ``close()`` waits for it to return.
     """
 
     _file: EvidenceFile
     _closed: bool
+    _gated: bool  # closed, or a flush() / close() under way: step() and reset() go by _enter()
+    _flush_lock: threading.Lock
     _warns_unclosed = True
 
-    def flush(self) -> None:
-        """Write everything recorded so far to the file now."""
+    def _opened(self) -> None:
+        """Mark the recorder open (the last thing a recorder's ``__init__`` does)."""
+        self._flush_lock = threading.Lock()
+        self._closed = False
+        self._gated = False
+
+    def _enter(self) -> None:
+        """The way into ``step()`` / ``reset()`` when gated: raise if closed.
+
+        Else wait for the ``flush()`` under way in another thread.
+        """
         self._file.check_open()
-        self._file.flush()
+        if self._gated:
+            with self._flush_lock:
+                pass
+            self._file.check_open()
+
+    def flush(self) -> None:
+        """Write everything recorded so far to the file now; safe from any thread.
+
+        From another thread while a ``step()`` or ``reset()`` is under way, that call flushes as
+        it ends. A flush the OS refuses (a full disk) is the recorder's trouble, as in the loop:
+        warned once, retried by the next flush, said in the run-end record; it does not raise.
+        """
+        self._file.check_open()
+        with self._flush_lock:
+            self._gated = True
+            try:
+                if _inside(self):
+                    self._file.flush_at = 0  # (read at the end of every step and reset)
+                else:
+                    self._file.auto_flush()
+            finally:
+                self._gated = self._closed
+
+    @property
+    def trouble(self) -> str | None:
+        """The recorder's first failure inside itself (``Type: message``), if any.
+
+        Such a failure (a full disk) was warned once and never raised; the run-end record
+        says it too.
+        """
+        return self._file.first_trouble
 
     def _before_close(self) -> None:
         """Called before the file is finished (by :meth:`_close_file`)."""
 
     def _close_file(self, close_env: Callable[[], None]) -> None:
-        """Finish the file; safe to call more than once. ``close_env`` runs even if it fails."""
+        """Finish the file; safe to call more than once. ``close_env`` runs even if it fails.
+
+        From another thread, a ``step()`` or ``reset()`` under way ends first (within
+        :data:`_CLOSE_WAIT_S`: a thread stuck in its env does not hold the exit).
+        """
         if getattr(self, "_closed", True):
             return
-        self._closed = True
-        try:
-            self._before_close()
-            self._file.close()
-        finally:
-            close_env()
+        with self._flush_lock:
+            if self._closed:
+                return
+            self._closed = self._gated = True
+            deadline = time.monotonic() + _CLOSE_WAIT_S
+            while _inside(self) and time.monotonic() < deadline:
+                time.sleep(0.001)
+            try:
+                self._before_close()
+                self._file.close()
+            finally:
+                close_env()
 
     def __del__(self) -> None:
         if self._warns_unclosed and not getattr(self, "_closed", True):
@@ -89,6 +153,26 @@ class FileRecorder:
             )
 
 
+def _inside(recorder: FileRecorder) -> bool:
+    """Whether a thread other than this one is inside ``recorder``'s ``step()`` or ``reset()``.
+
+    A thread held at the gate (in :meth:`FileRecorder._enter`) has touched nothing yet: it is not.
+    """
+    cls = type(recorder)
+    entries = {cls.step.__code__, cls.reset.__code__}  # type: ignore[attr-defined]
+    gate = FileRecorder._enter.__code__
+    me = threading.get_ident()
+    for ident, frame in sys._current_frames().items():
+        f: FrameType | None = None if ident == me else frame
+        while f is not None:  # innermost first: the gate is above the call it holds back
+            if (f.f_code is gate or f.f_code in entries) and f.f_locals.get("self") is recorder:
+                if f.f_code is not gate:
+                    return True
+                break
+            f = f.f_back
+    return False
+
+
 class EvidenceFile:
     """One evidence file being recorded: run metadata, episode channels, flushes, close.
 
@@ -96,7 +180,9 @@ class EvidenceFile:
     blocks and the records of the episodes ended since the previous flush, in one chunk.
 
     Args:
-        path: The evidence file to create (never overwritten unless ``settings.overwrite``).
+        path: The evidence file to create (never overwritten unless ``settings.overwrite``): a
+            path template (``runs/train-{index}.mcap``, :class:`~.lock.PathTemplate`); the
+            resolved path is :attr:`path`.
         run: The run metadata (``layout`` says how many streams there are and of what kind).
         settings: The recorder settings (the same for every stream; ``fsync``, ``overwrite``).
         games: Whether episode records and reset rows carry a ``game`` (PettingZoo files).
@@ -131,6 +217,7 @@ class EvidenceFile:
             library=f"episode-audit {__version__}",
             fsync=settings.fsync,
             overwrite=settings.overwrite,
+            template=True,
         )
         self.path = self.writer.path
         try:
@@ -240,13 +327,9 @@ class EvidenceFile:
             self.first_trouble = error_text(exc)[:_TROUBLE_TEXT]
         if not self._warned:
             self._warned = True
-            import warnings
-
-            warnings.warn(
-                f"episode-audit: recording to {self.path} failed ({type(exc).__name__}: {exc}); "
-                "the training loop continues",
-                RuntimeWarning,
-                stacklevel=4,
+            _warn_line(
+                f"episode-audit: recording to {self.path} failed ({error_text(exc)}); "
+                "the training loop continues and the file's run-end record says so"
             )
 
     # ------------------------------------------------------------------ episode records
@@ -312,7 +395,11 @@ class EvidenceFile:
     def close(self) -> None:
         """End every open episode as ``incomplete``, flush, and finish the file.
 
-        Safe to call more than once.
+        A file whose path ``{index}`` claimed and that never held an episode is removed, so
+        its index is free again. Safe to call more than once. Disk trouble does not raise: what
+        could not be written is dropped and the run-end record says so; if even that cannot be
+        written, the file ends after its last good flush (``episode-audit recover`` finishes it)
+        and a warning says so.
         """
         if self.closed:
             return
@@ -323,21 +410,64 @@ class EvidenceFile:
             for stream in self.streams:
                 stream.end_open()
             self.flush()
-            run_end = {
-                "status": "finished",
-                "episodes": str(self.counts["episodes"]),
-                "steps": str(self.counts["steps"]),
-                "blocks": str(self.counts["blocks"]),
-                "end_time": datetime.now(timezone.utc).isoformat(),
-                fmt.RUN_END_SUCCESS_REPORTED: str(self.counts["success_reported"]),
-            }
-            if self.troubles:
-                run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
-                run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
-            self.writer.finish(run_end)
+        except OSError as exc:  # (kept staged: finishing writes it, or drops and counts it)
+            self.trouble(exc)
         except BaseException:
             self.writer.abandon()
             raise
+        if self.writer.indexed and self.next_episode == 0:
+            # an {index} file that never held an episode gives its index back (gymnasium's
+            # AsyncVectorEnv builds a sub-env it never steps): removed while still locked
+            self.path.unlink(missing_ok=True)
+        for _ in range(2):  # the second time with what the first could not write dropped
+            try:
+                self.writer.finish(self._run_end())
+                return
+            except OSError as exc:
+                self.trouble(exc)
+            except BaseException:
+                self.writer.abandon()
+                raise
+        self.writer.abandon()
+        _warn_line(
+            f"episode-audit: {self.path} could not be finished ({self.first_trouble}); it ends "
+            f"after its last good flush: `episode-audit recover {self.path}` finishes a copy"
+        )
+
+    def _run_end(self) -> dict[str, str]:
+        """The run-end record: counts of what is in the file, and the recorder's trouble."""
+        lost, lost_messages = self.writer.lost, self.writer.lost_messages
+        steps = sum(lost[s.channels[0]] for s in self.streams)
+        resets = sum(lost[s.channels[1]] for s in self.streams)
+        blocks = sum(lost_messages[s.channels[0]] for s in self.streams)
+        run_end = {
+            "status": "finished",
+            "episodes": str(self.counts["episodes"]),
+            "steps": str(self.counts["steps"] - steps),
+            "blocks": str(self.counts["blocks"] - blocks),
+            "end_time": datetime.now(timezone.utc).isoformat(),
+            fmt.RUN_END_SUCCESS_REPORTED: str(self.counts["success_reported"]),
+        }
+        if self.troubles:
+            run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
+            run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
+        episodes = lost[self._episode_blocks_channel]
+        if steps or resets or episodes:
+            run_end[fmt.RUN_END_LOST_STEPS] = str(steps)
+            run_end[fmt.RUN_END_LOST_RESETS] = str(resets)
+            run_end[fmt.RUN_END_LOST_EPISODES] = str(episodes)
+        return run_end
+
+
+def _warn_line(message: str) -> None:
+    """Warn ``message`` (a ``RuntimeWarning``) as one line, without a source line under it."""
+    import warnings
+
+    # A location with no source: the warning prints as "<episode-audit>:0: RuntimeWarning: ...",
+    # never with a line of the recorder's code (or the user's) under it.
+    warnings.warn_explicit(
+        message, RuntimeWarning, "<episode-audit>", 0, module="episode_audit", registry={}
+    )
 
 
 def _episode_record(

@@ -5,12 +5,16 @@ The wrapper is a thin layer over one :class:`~episode_audit.record.stream.Stream
 PettingZoo recorders); its options are those of
 :class:`~episode_audit.record.settings.RecorderSettings`. How steps are recorded, flushed and
 noted: ``docs/recording.md``. The wrapper raises only for misuse, e.g. stepping after
-``close()``; a bad value from the env is recorded and noted.
+``close()``; a bad value from the env is recorded and noted. :func:`warn_unrestorable` warns,
+when a recorder is built, of what will make its episodes' state unrestorable on replay;
+:func:`reward_wrappers` finds the wrappers under a recorder that change the reward.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
+from collections.abc import Iterable, Mapping
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -18,6 +22,7 @@ from gymnasium.envs.registration import EnvSpec
 from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
+from ..format.wrappers import LAYOUT_REWARD_WRAPPERS, REWARD_CHANGING, state_causes
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -31,7 +36,14 @@ from .settings import (
 )
 from .state import StateTargets
 
-__all__ = ["RecordEvidence", "library_versions"]
+__all__ = [
+    "RecordEvidence",
+    "entry_point",
+    "library_versions",
+    "reward_wrappers",
+    "warn_unrestorable",
+    "wrapper_chain",
+]
 
 
 class RecordEvidence(
@@ -64,7 +76,8 @@ class RecordEvidence(
             ``overwrite=True``.
         **options: The recorder options (``tags``, ``reward_terms``, ``constant_terms``,
             ``ending_rules``, ``info_keys``, ``digest_min_bytes``, ``block_steps``,
-            ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``): see
+            ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``,
+            ``transparent_wrappers``): see
             :class:`~episode_audit.record.settings.RecorderSettings`.
     """
 
@@ -81,13 +94,19 @@ class RecordEvidence(
         obs_codec = codec_for(env.observation_space, digest_min_bytes=digest_min_bytes)
         act_codec = codec_for(env.action_space)
         self._unwrapped = env.unwrapped
+        layout: dict[str, Any] = {"kind": "single", "num_envs": 1, "agents": []}
+        changing = reward_wrappers(env)
+        if changing:
+            layout[LAYOUT_REWARD_WRAPPERS] = changing
         self.run_info = run_info(
             settings=settings,
             spec=env.spec,
             observation_space=describe_space(env.observation_space),
             action_space=describe_space(env.action_space),
-            layout={"kind": "single", "num_envs": 1, "agents": []},
+            layout=layout,
+            info_of=entry_point(env),
         )
+        warn_unrestorable(type(self).__name__, wrapper_chain(env), self.run_info.layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         # the wrappers (and env) below whose state is snapshot at each reset (.state)
@@ -101,7 +120,7 @@ class RecordEvidence(
         )
         self._file.start()
         self._record_step = self._stream.step
-        self._closed = False
+        self._opened()
 
     @property
     def spec(self) -> EnvSpec | None:  # type: ignore[override]
@@ -111,9 +130,6 @@ class RecordEvidence(
         to the same file.
         """
         return self.env.spec
-
-    def _check_open(self) -> None:
-        self._file.check_open()
 
     # ------------------------------------------------------------------ gymnasium API
 
@@ -125,8 +141,8 @@ class RecordEvidence(
         The state of the wrappers below that have a state adapter (e.g.
         ``NormalizeObservation``) is snapshot just before the reset (docs/recording.md).
         """
+        self._enter()
         file = self._file
-        file.check_open()
         stream = self._stream
         notes: list[str] = []
         episode = None
@@ -161,8 +177,8 @@ class RecordEvidence(
         self, action: gym.core.ActType
     ) -> tuple[gym.core.ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
         """Step the env and record the step; the 5-tuple is returned untouched."""
-        if self._closed:
-            self._check_open()
+        if self._gated:
+            self._enter()
         try:
             result = self.env.step(action)
         except Exception as exc:
@@ -185,3 +201,56 @@ class RecordEvidence(
     def closed(self) -> bool:
         """Whether the evidence file has been finished."""
         return self._closed
+
+
+def wrapper_chain(env: Any) -> list[str]:
+    """The entry points (``module:Class``) of the wrappers around ``env``, innermost first.
+
+    Never raises: a chain that cannot be walked gives what was walked.
+    """
+    chain: list[str] = []
+    try:
+        while isinstance(env, gym.Wrapper) and len(chain) < 64:
+            chain.append(f"{type(env).__module__}:{type(env).__qualname__}")
+            env = env.env
+    except Exception:  # an env's own attribute access: the chain walked so far
+        pass
+    return chain[::-1]
+
+
+def entry_point(obj: Any) -> str:
+    """The entry point (``module:Class``) of ``obj``'s class."""
+    return f"{type(obj).__module__}:{type(obj).__qualname__}"
+
+
+def reward_wrappers(env: Any) -> list[str]:
+    """The entry points of the wrappers around ``env`` that change its reward, innermost first.
+
+    Single or vector wrappers: each ``RewardWrapper`` / ``VectorRewardWrapper``, and those
+    :data:`~episode_audit.format.wrappers.REWARD_CHANGING` names (``NormalizeReward``). Never
+    raises: a chain that cannot be walked gives what was walked.
+    """
+    found: list[str] = []
+    kinds = (gym.RewardWrapper, gym.vector.VectorRewardWrapper)
+    try:
+        for _ in range(64):
+            if not isinstance(env, (gym.Wrapper, gym.vector.VectorWrapper)):
+                break
+            if isinstance(env, kinds) or type(env).__name__ in REWARD_CHANGING:
+                found.append(entry_point(env))
+            env = env.env
+    except Exception:  # an env's own attribute access: the chain walked so far
+        pass
+    return found[::-1]
+
+
+def warn_unrestorable(recorder: str, wrappers: Iterable[str], layout: Mapping[str, Any]) -> None:
+    """Warn once per cause that will make the recorded episodes' state unrestorable on replay.
+
+    ``wrappers``: entry points of the wrappers under the recorder (a sub-env's, for a vector
+    env); ``layout``: the file's layout (its vector wrappers). The causes are those ``check``
+    and replay read from the file (:func:`~episode_audit.format.wrappers.state_causes`).
+    """
+    spec = {"additional_wrappers": [{"entry_point": str(w)} for w in wrappers]}
+    for cause in state_causes(spec, layout):
+        warnings.warn(f"episode-audit: {recorder}: {cause}", UserWarning, stacklevel=3)

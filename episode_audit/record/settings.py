@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import platform
+import re
 import sys
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
@@ -24,6 +25,7 @@ from .._version import __version__
 from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import RunInfo
+from ..format.wrappers import RUN_TRANSPARENT_WRAPPERS
 from .rules import EndingRules, RewardTerms, TermsFn
 
 __all__ = [
@@ -55,6 +57,7 @@ class RecorderOptions(TypedDict, total=False):
     fsync: bool
     overwrite: bool
     command_line: Sequence[str] | None
+    transparent_wrappers: Sequence[str | type] | None
 
 
 _OPTIONS = frozenset(RecorderOptions.__annotations__)
@@ -97,6 +100,10 @@ class RecorderSettings:
         fsync: ``fsync`` the file on every flush.
         overwrite: Allow replacing an existing file (never overwritten otherwise).
         command_line: The command line to store (defaults to ``sys.argv``).
+        transparent_wrappers: Your own wrappers that never change a step (a logger, a
+            statistics wrapper): classes or ``"module:Class"`` entry points. Stored in the run
+            metadata; replay rebuilds the env without them, saying so (a step one of them did
+            change diverges). Gymnasium's and SB3's known wrappers keep their own rule.
 
     Raises:
         ConfigurationError: An option's value is out of its range.
@@ -116,6 +123,7 @@ class RecorderSettings:
         "tags",
         "terms_rule",
         "track_info",
+        "transparent",
     )
 
     def __init__(self, **options: Unpack[RecorderOptions]) -> None:
@@ -156,6 +164,7 @@ class RecorderSettings:
         self.command_line = options.get("command_line")
         self.fsync = options.get("fsync", False)
         self.overwrite = options.get("overwrite", False)
+        self.transparent = _entry_points(options.get("transparent_wrappers"))
 
     def recorder_metadata(self, notes: Sequence[str] = ()) -> dict[str, Any]:
         """The ``recorder`` key of the run metadata."""
@@ -165,7 +174,34 @@ class RecorderSettings:
             "digest_min_bytes": self.digest_min_bytes,
             "info_keys": "all" if self.keep_all_info else list(self.info_keys or ()),
             "notes": list(notes),
-        }
+        } | ({RUN_TRANSPARENT_WRAPPERS: list(self.transparent)} if self.transparent else {})
+
+
+def _entry_points(wrappers: Sequence[str | type] | None) -> tuple[str, ...]:
+    """The entry points of ``transparent_wrappers=``, checked."""
+    if wrappers is None:
+        return ()
+    if isinstance(wrappers, (str, type)):
+        wrappers = [wrappers]
+    out: list[str] = []
+    for wrapper in wrappers:
+        if isinstance(wrapper, type):
+            out.append(f"{wrapper.__module__}:{wrapper.__qualname__}")
+        elif isinstance(wrapper, str) and _ENTRY_POINT.fullmatch(wrapper):
+            out.append(wrapper)
+        else:
+            raise ConfigurationError(
+                "transparent_wrappers: expected wrapper classes or 'module:Class' entry points, "
+                f"actually: {wrapper!r}"
+            )
+    if len(out) > 64:
+        raise ConfigurationError(
+            f"transparent_wrappers: expected at most 64 wrappers, actually: {len(out)}"
+        )
+    return tuple(dict.fromkeys(out))
+
+
+_ENTRY_POINT = re.compile(r"[A-Za-z_][\w.]{0,200}:[A-Za-z_][\w.]{0,80}")
 
 
 def library_versions() -> dict[str, str]:
@@ -199,8 +235,14 @@ def run_info(
     action_space: dict[str, Any],
     layout: dict[str, Any],
     notes: Sequence[str] = (),
+    info_of: str | None = None,
 ) -> RunInfo:
-    """The run metadata of a recording of an env with ``spec`` (an ``EnvSpec`` or ``None``)."""
+    """The run metadata of a recording of an env with ``spec`` (an ``EnvSpec`` or ``None``).
+
+    ``info_of``: the entry point of the object whose ``info`` the recorder reads (the env or
+    wrapper it wraps; a sub-env's for a vector recorder), kept in ``reward_terms`` as
+    ``info_of`` when the terms are found automatically, so a reader knows whose keys they are.
+    """
     spec_json: dict[str, Any] | None = None
     notes = list(notes)
     if spec is not None:
@@ -216,7 +258,7 @@ def run_info(
         env_spec=spec_json,
         observation_space=observation_space,
         action_space=action_space,
-        reward_terms=settings.terms_rule.describe(),
+        reward_terms=_terms(settings, info_of),
         ending_rules=settings.rules.describe(),
         versions=library_versions(),
         platform=platform.platform(),
@@ -226,3 +268,11 @@ def run_info(
         recorder=settings.recorder_metadata(notes),
         layout=layout,
     )
+
+
+def _terms(settings: RecorderSettings, info_of: str | None) -> dict[str, Any]:
+    """The ``reward_terms`` key of the run metadata."""
+    described = settings.terms_rule.describe()
+    if info_of is not None and described.get("source") == "auto":
+        described["info_of"] = info_of
+    return described

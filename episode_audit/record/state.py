@@ -160,10 +160,10 @@ class StateTargets:
         return text
 
 
-def restore_snapshot(env: Any, text: str | None, *, seeded: bool) -> str | None:
+def restore_snapshot(env: Any, text: str | None, *, seeded: bool) -> list[str]:
     """Set the state of ``env``'s adapted objects from a snapshot; say what was restored.
 
-    Returns e.g. ``"NormalizeObservation snapshot"`` (``None``: nothing to restore). Raises
+    Returns the class name of each object restored, e.g. ``["NormalizeObservation"]``. Raises
     ``ValueError`` (the reason the episode is not replayable) when the snapshot is not one
     episode-audit wrote, when an object whose state the episode needs (``seeded``: its reset
     had a seed) has no snapshot, or when the rebuilt env has no object for a recorded one.
@@ -197,4 +197,4 @@ def restore_snapshot(env: Any, text: str | None, *, seeded: bool) -> str | None:
             f"the file holds a {left[0]} snapshot, and the rebuilt env has nothing it restores "
             "into (build the env as it was recorded)"
         )
-    return ", ".join(restored) + " snapshot" if restored else None
+    return restored

@@ -3,73 +3,95 @@
 :class:`EvidenceWriter` lays out one evidence file: run metadata as MCAP metadata records,
 columnar step blocks as Arrow IPC stream messages, per-episode records as JSON messages, and a
 run-end metadata record written by :meth:`EvidenceWriter.finish`. Every :meth:`flush` closes the
-current MCAP chunk, so a process killed afterwards leaves every flushed block readable.
+current MCAP chunk and hands it to the OS whole (``sink.StagedFile``), so a process killed
+afterwards leaves every flushed block readable. A flush the OS refuses (a full disk) leaves the
+file as it was and is retried by the next one; past :data:`RETRY_LIMIT_BYTES` it is dropped,
+the MCAP writer's own state going back to the last good flush, and counted (:attr:`lost`).
 """
 
 from __future__ import annotations
 
+import copy
+import errno
 import json
 import os
-import stat
+from collections import Counter
 from collections.abc import Mapping
-from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import pyarrow as pa
 from mcap.writer import CompressionType, Writer
 
 from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
+from .lock import LockedStream, claim_output
+from .sink import StagedFile
 
-__all__ = ["EvidenceWriter", "check_output_path", "output_kind"]
+__all__ = ["RETRY_LIMIT_BYTES", "EvidenceWriter"]
 
 # Chunks are closed by our own flushes, not by size: one chunk holds one flushed block
 # plus the JSON records written since the previous flush.
 _CHUNK_SIZE = 64 * 1024 * 1024
 
-
-_KINDS = {
-    stat.S_IFDIR: "a directory",
-    stat.S_IFIFO: "a FIFO (named pipe)",
-    stat.S_IFCHR: "a character device",
-    stat.S_IFBLK: "a block device",
-    stat.S_IFSOCK: "a socket",
-}
+RETRY_LIMIT_BYTES = 64 << 20
+"""Most bytes of refused flushes a writer keeps in memory to retry; beyond, it drops them."""
 
 
-def output_kind(path: str | os.PathLike[str]) -> str | None:
-    """What ``path`` is if it exists and is not a regular file; ``None`` if it is one, or is not.
+class _McapState:
+    """What ``mcap.Writer`` keeps about the file written so far: saved at each good flush.
 
-    >>> output_kind("/dev/null"), output_kind("/no/such/file")
-    ('a character device', None)
+    Going back to it after dropping what the OS refused keeps the summary's indexes and
+    statistics true to the file. ``None`` from :meth:`of` when this ``mcap`` keeps its state
+    elsewhere (the writer then stops writing after a drop rather than write a false summary).
     """
-    try:
-        mode = os.stat(path).st_mode
-    except (OSError, ValueError):  # no such file (opening it says why if it cannot be made)
-        return None
-    return None if stat.S_ISREG(mode) else _KINDS.get(stat.S_IFMT(mode), "a special file")
+
+    _LISTS = ("chunk_indices", "metadata_indexes", "attachment_indexes", "summary_offsets")
+    _OTHERS = ("statistics", "chunk_builder", "record_builder")
+
+    def __init__(self, writer: Writer) -> None:
+        self._writer = writer
+        self._lengths: list[int] = []
+        self._statistics: Any = None
+        self.save()
+
+    @classmethod
+    def of(cls, writer: Writer) -> _McapState | None:
+        names = (*cls._LISTS, *cls._OTHERS)
+        return cls(writer) if all(hasattr(writer, f"_Writer__{n}") for n in names) else None
+
+    def _get(self, name: str) -> Any:
+        return getattr(self._writer, f"_Writer__{name}")
+
+    def save(self) -> None:
+        """Remember the state now (after a good flush: no chunk in progress)."""
+        self._lengths = [len(self._get(name)) for name in self._LISTS]
+        self._statistics = _copy_statistics(self._get("statistics"))
+
+    def restore(self) -> None:
+        """Go back to the state saved last, dropping the chunk in progress."""
+        for name, length in zip(self._LISTS, self._lengths, strict=True):
+            del self._get(name)[length:]
+        self._writer._Writer__statistics = _copy_statistics(self._statistics)  # type: ignore[attr-defined]
+        builder = self._get("chunk_builder")
+        if builder is not None:
+            builder.reset()
+        self._get("record_builder").end()
 
 
-def check_output_path(path: str | os.PathLike[str]) -> None:
-    """Refuse an evidence path that exists and is not a regular file.
-
-    Opening a FIFO for writing waits for a reader (``--overwrite`` would hang), a device such as
-    ``/dev/null`` swallows the evidence: a :class:`ConfigurationError` names the path instead.
-    """
-    kind = output_kind(path)
-    if kind == "a directory":
-        raise ConfigurationError(f"{path}: is a directory; give the evidence file's path")
-    if kind is not None:
-        raise ConfigurationError(
-            f"{path}: is {kind}, not a regular file; give the evidence file's path"
-        )
+def _copy_statistics(statistics: Any) -> Any:
+    saved = copy.copy(statistics)
+    saved.channel_message_counts = copy.copy(statistics.channel_message_counts)
+    return saved
 
 
 class EvidenceWriter:
     """Write one evidence file.
 
     The file is created exclusively: an existing file is never overwritten unless
-    ``overwrite=True``, so a mistyped path cannot destroy earlier evidence.
+    ``overwrite=True``, so a mistyped path cannot destroy earlier evidence; and it is locked
+    before a byte is written, so a file another live recorder writes is refused even then
+    (:func:`~episode_audit.record.lock.claim_output`; with ``template``, ``path`` is a
+    :class:`~episode_audit.record.lock.PathTemplate`). :attr:`path` is the file's path.
 
     >>> import tempfile, pathlib
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "run.mcap"
@@ -88,33 +110,38 @@ class EvidenceWriter:
         fsync: bool = False,
         overwrite: bool = False,
         compression: str = "zstd",
+        template: bool = False,
     ) -> None:
-        self.path = Path(path)
         self._fsync = fsync
         modes = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": None}
         if compression not in modes:
             raise ConfigurationError(
                 f"compression: expected one of {sorted(modes)}, actually: {compression!r}"
             )
-        check_output_path(self.path)
-        try:
-            self._stream: IO[bytes] = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115
-        except FileExistsError:
-            raise ConfigurationError(
-                f"{self.path}: file exists; evidence is never overwritten — "
-                "choose another path, or pass overwrite=True (--overwrite on the command line)"
-            ) from None
-        except OSError as exc:
-            raise ConfigurationError(f"{self.path}: cannot create: {exc.strerror}") from None
+        # the file is created (or, with overwrite, opened) and locked before a byte is written
+        output = claim_output(path, overwrite=overwrite, template=template)
+        self.path = output.path
+        self.indexed = output.indexed  # (an {index} path: its recorder may give it back)
+        raw = open(output.fd, "wb", buffering=0)  # noqa: SIM115 - closed by finish() or abandon()
+        f = cast(IO[bytes], LockedStream(raw, output))
         kind = modes[compression]
+        self._sink = StagedFile(f)
         self._writer = Writer(
-            self._stream,
+            self._sink,  # type: ignore[arg-type]
             chunk_size=_CHUNK_SIZE,
             compression=kind if kind is not None else CompressionType.NONE,
         )
         self._writer.start(profile=fmt.MCAP_PROFILE, library=library)
         self._finished = False
         self._messages = 0
+        self._state = _McapState.of(self._writer)
+        self._dead = False  # the file's end is unknown after a failure: write nothing more
+        self._staged_rows: Counter[int] = Counter()  # rows of Arrow blocks since the last commit
+        self._staged_messages: Counter[int] = Counter()
+        self.lost: Counter[int] = Counter()
+        """Rows of Arrow blocks dropped after the OS refused them, by channel."""
+        self.lost_messages: Counter[int] = Counter()
+        """Messages dropped after the OS refused them, by channel."""
         self.flush()
 
     @property
@@ -202,6 +229,7 @@ class EvidenceWriter:
             ipc.write_batch(batch)
         data = memoryview(sink.getvalue())  # (the chunk copies it: no bytes copy before that)
         self._add(channel_id, data, log_time)
+        self._staged_rows[channel_id] += batch.num_rows
         return len(data)
 
     def write_json(self, channel_id: int, data: bytes, log_time: int) -> None:
@@ -219,30 +247,78 @@ class EvidenceWriter:
             sequence=self._messages & 0xFFFFFFFF,
         )
         self._messages += 1
+        self._staged_messages[channel_id] += 1
 
     def flush(self) -> None:
-        """Close the current chunk and hand everything to the OS (and ``fsync`` if asked)."""
+        """Close the current chunk and hand it to the OS whole (and ``fsync`` if asked).
+
+        Raises ``OSError`` when the OS refuses it: the file then ends where it did before, and
+        what was refused is written by the next flush (or dropped and counted in :attr:`lost`,
+        past :data:`RETRY_LIMIT_BYTES`).
+        """
         self._check_open()
         self._writer.flush()  # type: ignore[no-untyped-call]
-        if self._fsync:
-            os.fsync(self._stream.fileno())
+        self._commit()
+
+    def _commit(self) -> None:
+        sink = self._sink
+        try:
+            if self._dead:
+                raise OSError(
+                    errno.EIO,
+                    f"{self.path}: the file could not be cut back after a failed write; "
+                    "nothing more is written to it",
+                )
+            sink.commit(self._fsync)
+        except OSError:
+            if sink.broken:
+                self._dead = True
+            if self._dead or sink.staged_bytes > RETRY_LIMIT_BYTES:
+                self.drop()
+            raise
+        if self._state is not None:
+            self._state.save()
+        self._staged_rows.clear()
+        self._staged_messages.clear()
+
+    def drop(self) -> None:
+        """Drop what was refused since the last good flush, counting it in :attr:`lost`."""
+        self.lost.update(self._staged_rows)
+        self.lost_messages.update(self._staged_messages)
+        self._staged_rows.clear()
+        self._staged_messages.clear()
+        self._sink.drop()
+        if self._state is None:
+            self._dead = True  # (the summary would index what is not there)
+        else:
+            self._state.restore()
 
     def finish(self, run_end: Mapping[str, str]) -> None:
-        """Write the run-end record, the summary and the footer, and close the file."""
+        """Write the run-end record, the summary and the footer, and close the file.
+
+        Raises ``OSError`` when the OS refuses them: the file then ends after the last good
+        flush, still open, what was refused dropped (:attr:`lost`); call again with a run-end
+        record that says so, or :meth:`abandon`.
+        """
         if self._finished:
             return
         try:
             self._writer.add_metadata(fmt.METADATA_RUN_END, dict(run_end))
             self._writer.finish()  # type: ignore[no-untyped-call]
-            self._stream.flush()
-            if self._fsync:
-                os.fsync(self._stream.fileno())
-        finally:
-            self._finished = True
-            self._stream.close()
+            self._commit()
+        except OSError:
+            if self._sink.staged_bytes:
+                self.drop()
+            raise
+        except BaseException:
+            self.abandon()
+            raise
+        self._finished = True
+        self._sink.close()
 
     def abandon(self) -> None:
         """Close the file without a summary (used only when finishing itself failed)."""
         if not self._finished:
             self._finished = True
-            self._stream.close()
+            self._sink.drop()
+            self._sink.close()

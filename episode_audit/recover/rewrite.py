@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import shutil
 from datetime import datetime, timezone
 from pathlib import Path
@@ -16,9 +15,10 @@ from .._version import __version__
 from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
+from ..read.liveness import still_written, writer_of
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
-from .files import check_paths, fsync, publish
+from .files import Temporary, check_paths
 from .kept import Kept
 from .result import RecoveryResult, record_name
 
@@ -34,11 +34,14 @@ def recover(
     tail are dropped; the run-end record has ``status=recovered`` and says what was dropped
     (see ``docs/format.md``).
     Episodes without an end record stay ``incomplete`` (``ended`` false), as a reader of the
-    torn file sees them. A finished, intact input is copied unchanged. The input is never
-    changed; the output is written next to ``out`` and renamed into place once finished.
+    torn file sees them. A finished input that reads whole (as ``check`` reads it) is copied
+    unchanged; one whose content the reader refuses is refused with the reader's error. The
+    input is never changed; the output is written next to ``out`` and renamed into place once
+    finished.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
-    (without ``overwrite``) or cannot be created, and
+    (without ``overwrite``) or cannot be created, when either file is still being written by a
+    live recorder (``path`` is then not torn: its ``close()`` will finish it), and
     :class:`~episode_audit.errors.EvidenceError` (and its subclasses) when the input is not
     readable evidence.
 
@@ -61,19 +64,19 @@ def recover(
     src, dst = Path(path), Path(out)
     check_paths(src, dst, overwrite)
     ev = _open_input(src)
-    tmp = dst.with_name(f".{dst.name}.{secrets.token_hex(4)}.recovering")
+    _refuse_live(ev, dst)
+    tmp = Temporary(dst)
     try:
-        if ev.finished and not (ev.summary_damage or ev.run_end_damage) and not _damage_in(src):
-            result = _copy_unchanged(src, ev, tmp, dst)
+        if ev.finished and not (ev.summary_damage or ev.run_end_damage) and _intact(src, ev):
+            result = _copy_unchanged(src, ev, tmp.path, dst)
         else:
             result = _rewrite(src, tmp, dst, ev.summary_damage)
-            check = open_evidence(tmp)
+            check = open_evidence(tmp.path)
             if not check.finished:  # pragma: no cover - the writer finished it just now
-                raise CorruptEvidenceError(tmp, f"the recovered file is unfinished: {check.torn}")
-        fsync(tmp)
-        publish(tmp, dst, overwrite)
+                raise CorruptEvidenceError(dst, f"the recovered file is unfinished: {check.torn}")
+        tmp.publish(overwrite)
     finally:
-        tmp.unlink(missing_ok=True)
+        tmp.discard()
     return result
 
 
@@ -92,9 +95,44 @@ def _open_input(src: Path) -> Evidence:
         ) from None
 
 
-def _damage_in(path: Path) -> bool:
-    """Whether a walk over the finished file ``path`` meets damage (every chunk checked)."""
-    return any(isinstance(item, DamagedRegion) for item in iter_records(path, skip_damaged=True))
+def _refuse_live(ev: Evidence, dst: Path) -> None:
+    """A file a live recorder still writes is not torn: neither input nor output of a recovery."""
+    if ev.writer is not None:
+        raise ConfigurationError(
+            f"{ev.path}: is {still_written(ev.writer)}, not torn; wait for it to close (its "
+            "close() finishes the file: nothing to recover), or stop that recorder first"
+        )
+    writer = writer_of(dst)
+    if writer is not None:
+        raise ConfigurationError(
+            f"{dst}: is {still_written(writer)}; recovery never replaces a live recorder's "
+            "file — choose another output path"
+        )
+
+
+def _intact(path: Path, ev: Evidence) -> bool:
+    """Whether the finished file ``path`` (opened as ``ev``) reads whole, as the audit reads it.
+
+    A walk over every record meets no damage, and a full read (every block decoded and
+    checked, the spaces' codecs built) raises nothing. Damage a recovery can skip gives
+    False; anything else the reader refuses is raised, as the other commands raise it:
+    copying the file would not make it readable.
+    """
+    if any(isinstance(item, DamagedRegion) for item in iter_records(path, skip_damaged=True)):
+        return False
+    try:  # in the order ``check`` reads a file, so that the first problem is the same
+        ev.observation_codec  # noqa: B018 - built (and checked) on first use
+        ev.action_codec  # noqa: B018
+        ev.steps_schema  # noqa: B018
+        for _ in ev.iter_step_batches():
+            pass
+        ev.resets()
+        ev.episodes()
+    except CorruptEvidenceError as exc:
+        if exc.problem.endswith(RECOVER_HINT):
+            return False
+        raise
+    return True
 
 
 def _copy_unchanged(src: Path, ev: Evidence, tmp: Path, dst: Path) -> RecoveryResult:
@@ -102,27 +140,27 @@ def _copy_unchanged(src: Path, ev: Evidence, tmp: Path, dst: Path) -> RecoveryRe
     try:
         shutil.copyfile(src, tmp)
     except OSError as exc:
-        raise ConfigurationError(f"{tmp}: cannot write: {exc.strerror}") from None
+        raise ConfigurationError(f"{dst}: cannot write: {exc.strerror}") from None
     lengths = ev.episodes()["length"]
     steps = int(pc.sum(lengths).as_py() or 0)
     size = src.stat().st_size
     return RecoveryResult(src, dst, True, 0, 0, len(lengths), steps, (), 0, None, size)
 
 
-def _rewrite(src: Path, tmp: Path, dst: Path, summary_damage: str | None) -> RecoveryResult:
+def _rewrite(src: Path, tmp: Temporary, dst: Path, summary_damage: str | None) -> RecoveryResult:
     """Copy ``src``'s complete, intact records into the new file ``tmp`` and finish it."""
     records = iter_records(src, skip_damaged=True)
     header = next(records)
     if not isinstance(header, Header):  # open_evidence found one: the walk does too
         raise CorruptEvidenceError(src, "the first record is not an MCAP header")
-    writer = EvidenceWriter(tmp, library=header.library)
+    writer = EvidenceWriter(tmp.path, library=header.library, overwrite=tmp.unnamed)
     try:
         copy = RecordCopy(src, writer)
         end = copy.copy(records)
         # What the output holds so far (an unfinished file, read as a torn one) says which
         # episodes were cut off, and with damage, which lost evidence.
         try:
-            kept = Kept.of(tmp, copy.damage, closed=copy.closed, run_end=copy.run_end or {})
+            kept = Kept.of(tmp.path, copy.damage, closed=copy.closed, run_end=copy.run_end or {})
         except EvidenceError as exc:  # what it copied from src: name src
             raise type(exc)(src, exc.problem) from None
         result = _result(src, dst, copy, end, kept, summary_damage)

@@ -5,6 +5,7 @@
 when called): the user's ``env_factory``, else the recorded env id when it is registered in
 this process, else only with ``trust_entry_points`` what the file names. The order and what each
 step may import: docs/replay.md (how the env is built) and docs/security.md (rule 2).
+:func:`env_mismatch` and :func:`agents_mismatch` say how a built env differs from the recording.
 """
 
 from __future__ import annotations
@@ -22,14 +23,18 @@ from .._usercode import load_callable
 from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
 from ..format.records import RunInfo
-from .wrappers import plan_wrappers
+from ..format.spaces import describe_space
+from ..format.wrappers import declared_transparent, plan_wrappers
+from ..record.rules import find_time_limit
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",
     "MAX_ENV_KWARGS_DEPTH",
     "EnvFactory",
+    "agents_mismatch",
     "build_env",
     "build_pettingzoo_env",
+    "env_mismatch",
     "replay_notes",
 ]
 
@@ -69,7 +74,7 @@ def build_env(
         trusted = [w for w in recorded if isinstance(w, Mapping)]
         return _from_registry(env_id, spec, trusted, _load_wrapper)
     if registered:
-        plan = plan_wrappers(recorded)
+        plan = plan_wrappers(recorded, declared_transparent(run.recorder))
         if plan.refused is not None:
             raise ReplayError(plan.refused)
         rebuilt = [{"entry_point": name, "kwargs": kwargs} for name, kwargs in plan.rebuild]
@@ -94,7 +99,9 @@ def replay_notes(run: RunInfo, *, env_factory: Any, trust_entry_points: bool) ->
     if env_factory is not None or trust_entry_points or not isinstance(spec, Mapping):
         return []
     recorded = spec.get("additional_wrappers") or []
-    plan = plan_wrappers(recorded if isinstance(recorded, list) else [recorded])
+    plan = plan_wrappers(
+        recorded if isinstance(recorded, list) else [recorded], declared_transparent(run.recorder)
+    )
     return plan.notes if plan.refused is None else []
 
 
@@ -295,3 +302,96 @@ def _from_pettingzoo_module(
             f"cannot make {module_name} with the recorded kwargs {kwargs!r}: "
             f"{type(exc).__name__}: {exc}"
         ) from None
+
+
+_MISMATCH = "the rebuilt env does not match the recording: "
+
+
+def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
+    """How the env replay built differs from the recorded description, or ``None``.
+
+    Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s) and, when
+    it has a spec, the env kwargs both name (``render_mode`` aside) against the recorded ones.
+    Never raises: what cannot be read of the rebuilt env is not compared.
+    """
+    spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
+    try:
+        checks: list[tuple[str, Any, Any]] = [
+            ("observation space", run.observation_space, _described(env.observation_space)),
+            ("action space", run.action_space, _described(env.action_space)),
+        ]
+        limit = getattr(find_time_limit(env), "_max_episode_steps", None)
+        if limit is not None and spec.get("max_episode_steps") is not None:
+            checks.append(("max episode steps", spec.get("max_episode_steps"), limit))
+        rebuilt = getattr(env.spec, "kwargs", None)
+        if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):
+            recorded, now = _kwargs(spec["kwargs"]), _kwargs(rebuilt)
+            for name in [k for k in recorded if k in now and recorded[k] != now[k]][:1]:
+                checks.append((f"env kwarg {name[:80]!r}", recorded[name], now[name]))
+    except Exception:  # the env's own attributes: compare nothing more
+        return None
+    for what, recorded, now in checks:
+        if recorded != now:
+            return f"{_MISMATCH}{what} {_shown(recorded)} recorded vs {_shown(now)} rebuilt"
+    return None
+
+
+def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | None:
+    """How a rebuilt PettingZoo env differs from the recording (agents, spaces), or ``None``."""
+    try:
+        agents = [str(a) for a in env.possible_agents]
+        recorded = layout.get("agents")
+        if isinstance(recorded, list) and [str(a) for a in recorded] != agents:
+            return f"{_MISMATCH}agents {_shown(recorded)} recorded vs {_shown(agents)} rebuilt"
+        if agents:
+            env_spaces = (env.observation_space(agents[0]), env.action_space(agents[0]))
+            for what, rec, space in zip(
+                ("observation space", "action space"),
+                (run.observation_space, run.action_space),
+                env_spaces,
+                strict=True,
+            ):
+                if rec != _described(space):
+                    shown = _shown(_described(space))
+                    return f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt"
+    except Exception:  # the env's own attributes: compare nothing more
+        return None
+    return None
+
+
+def _described(space: Any) -> Any:
+    """A space's description as a file holds it (after a JSON round trip)."""
+    return json.loads(json.dumps(describe_space(space)))
+
+
+_COMPARED_KWARG_BYTES = 4096
+
+
+def _kwargs(kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """Env kwargs as a file holds them, those :func:`env_mismatch` compares.
+
+    Not ``render_mode`` (it changes no step), nor a value nested deeper than
+    :data:`MAX_ENV_KWARGS_DEPTH` or larger than 4 KiB of JSON (a map, a table: too large to
+    show, and a file's may be made up to be slow to compare).
+    """
+    plain = {
+        str(k): v
+        for k, v in kwargs.items()
+        if k != "render_mode"
+        and _depth(v) <= MAX_ENV_KWARGS_DEPTH
+        and len(json.dumps(v, default=repr)) <= _COMPARED_KWARG_BYTES
+    }
+    try:
+        loaded = json.loads(json.dumps(plain, default=repr))
+    except (TypeError, ValueError):
+        return plain
+    return loaded if isinstance(loaded, dict) else plain
+
+
+def _shown(value: Any) -> str:
+    """A value in a mismatch reason: JSON, cut to 120 characters."""
+    try:
+        text = json.dumps(value, sort_keys=True)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return text if len(text) <= 120 else text[:117] + "..."

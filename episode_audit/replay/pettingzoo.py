@@ -25,7 +25,7 @@ from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
-from .envs import build_pettingzoo_env
+from .envs import agents_mismatch, build_pettingzoo_env
 from .recorded import row_ranges, rules_of
 from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, none_replayable, short
 from .returned import encoded, recorded_terms
@@ -252,6 +252,10 @@ def replay_agents_evidence(
         )
     except ReplayError as exc:
         return none_replayable(path, records, str(exc))
+    why = agents_mismatch(ev.run.layout or {}, ev.run, env)
+    if why is not None:
+        env.close()
+        return none_replayable(path, records, why)
     file = _File.read(ev, obs_codec, act_codec, atol)
     try:
         done = _replay_games(env, file, records, progress)

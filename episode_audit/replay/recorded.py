@@ -2,7 +2,8 @@
 
 :func:`episode_records` (the records a replay reads), :func:`row_ranges` and :func:`to_end`
 (each episode's rows), :func:`replay_actions` (the actions to step with), :func:`rules_of` (the
-recorded ending rules and reward terms) and :func:`layout_not_replayable`.
+recorded ending rules and reward terms), :func:`layout_not_replayable` and
+:func:`state_not_restorable`.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.columns import one_array
 from ..format.records import RunInfo
+from ..format.wrappers import state_causes
 from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
 
@@ -25,11 +27,13 @@ __all__ = [
     "replay_actions",
     "row_ranges",
     "rules_of",
+    "state_not_restorable",
     "to_end",
 ]
 
 _RECORD_COLUMNS = (
     fmt.COL_EPISODE,
+    fmt.COL_ENV_INDEX,
     "seed",
     "rng_state",
     "options",
@@ -150,3 +154,14 @@ def layout_not_replayable(layout: Mapping[str, Any]) -> str | None:
             return None
         return str(layout.get("replay_note") or "the vector env had no sub-envs")
     return f"layout {kind!r} is not replayable yet"
+
+
+def state_not_restorable(run: RunInfo) -> str | None:
+    """Why no episode of a file can begin in the state it was recorded in, or ``None``.
+
+    Every cause :func:`~episode_audit.format.wrappers.state_causes` finds in the run metadata,
+    in one line. Whatever env replay would build (a user's ``env_factory`` too), comparing would
+    only show that state, as a false divergence.
+    """
+    causes = state_causes(run.env_spec, run.layout)
+    return "; ".join(causes) if causes else None

@@ -26,6 +26,7 @@ __all__ = [
     "Status",
     "env_error",
     "none_replayable",
+    "restored_state",
     "short",
 ]
 
@@ -94,6 +95,9 @@ class EpisodeReplay:
     steps: int
     divergence: Divergence | None = None
     reason: str | None = None
+    restored: str | None = None
+    """For a diverged episode: the state replay restored before its reset, e.g.
+    ``"seed 7; 2 earlier episodes in this env"`` (:func:`restored_state`)."""
 
 
 @dataclass
@@ -102,7 +106,9 @@ class ReplayResult:
 
     ``unreadable``: the inputs that could not be read (``replay(..., keep_going=True)``);
     ``missing``: the selected episode indices that no file replayed had; ``notes``: by file,
-    what its env was replayed without (recorded wrappers that never change a step, and why).
+    what its env was replayed without (recorded wrappers that never change a step, and why);
+    ``live``: the files a live recorder is still writing, and by whom (their flushed steps were
+    replayed).
     """
 
     episodes: list[EpisodeReplay] = field(default_factory=list)
@@ -110,20 +116,34 @@ class ReplayResult:
     unreadable: list[Unreadable] = field(default_factory=list)
     missing: list[int] = field(default_factory=list)
     notes: dict[str, list[str]] = field(default_factory=dict)
+    live: list[tuple[str, str]] = field(default_factory=list)
 
     def count(self, status: Status) -> int:
         """How many episodes ended with ``status``."""
         return sum(1 for e in self.episodes if e.status == status)
 
     @property
+    def verified(self) -> int:
+        """How many episodes were actually replayed and compared: identical or diverged.
+
+        0 when every episode was ``not_replayable`` (or there was none): then nothing confirms
+        the evidence, though :attr:`ok` holds; the command fails so unless told it is expected.
+        """
+        return sum(1 for e in self.episodes if e.status != "not_replayable")
+
+    @property
     def ok(self) -> bool:
-        """True when no episode diverged (not-replayable episodes do not fail a replay)."""
+        """True when no episode diverged (not-replayable episodes do not fail a replay).
+
+        See :attr:`verified` for whether anything was compared at all.
+        """
         return self.count("diverged") == 0
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes"}``."""
+        """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes", "live"}``."""
         return {
             "summary": {
+                "verified": self.verified,
                 "identical": self.count("identical"),
                 "diverged": self.count("diverged"),
                 "not_replayable": self.count("not_replayable"),
@@ -134,7 +154,37 @@ class ReplayResult:
                 for file, diffs in self.version_differences.items()
             },
             "notes": {file: list(notes) for file, notes in self.notes.items()},
+            "live": [{"file": file, "why": why} for file, why in self.live],
         }
+
+
+def restored_state(
+    record: Mapping[str, Any],
+    earlier: int,
+    *,
+    env: str = "this env",
+    snapshots: Iterable[str] = (),
+) -> str:
+    """What replay restored before an episode's reset, in one line.
+
+    ``record`` is its episode record (its ``seed``, else its ``rng_state``: an unseeded reset);
+    ``earlier`` how many episodes ``env`` (a vector file: the sub-env's own) replayed before it;
+    ``snapshots`` names each state snapshot set before the reset (e.g.
+    ``"snapshot of NormalizeObservation"``).
+
+    >>> restored_state({"seed": 7}, 0)
+    'seed 7; first episode in this env'
+    >>> restored_state({"seed": None, "rng_state": "{}"}, 2, env="sub-env 1's env")
+    "the recorded RNG state (an unseeded reset); sub-env 1's env after 2 earlier episodes"
+    """
+    seed = record.get("seed")
+    parts = [f"seed {seed}" if seed is not None else "the recorded RNG state (an unseeded reset)"]
+    parts.extend(snapshots)
+    if earlier:
+        parts.append(f"{env} after {earlier} earlier episode{'s' if earlier != 1 else ''}")
+    else:
+        parts.append(f"first episode in {env}")
+    return "; ".join(parts)
 
 
 def none_replayable(

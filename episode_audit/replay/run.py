@@ -12,11 +12,13 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import replace
 
 from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import Evidence, open_evidence
 from ..read.inputs import skipped
+from ..read.liveness import Holder, still_written
 from ..record.gym import library_versions
 from .envs import EnvFactory, replay_notes
 from .pettingzoo import replay_agents_evidence
@@ -41,7 +43,7 @@ def replay_evidence(
         if str(ev.run.layout.get("kind", "")).startswith("pettingzoo_")
         else replay_single_evidence
     )
-    return run(
+    results = run(
         ev,
         episodes=episodes,
         atol=atol,
@@ -49,6 +51,19 @@ def replay_evidence(
         trust_entry_points=trust_entry_points,
         progress=progress,
     )
+    return results if ev.writer is None else _still_recorded(ev, ev.writer, results)
+
+
+def _still_recorded(
+    ev: Evidence, writer: Holder, results: list[EpisodeReplay]
+) -> list[EpisodeReplay]:
+    """A live file's episodes still being recorded say so: only their flushed steps replayed."""
+    table = ev.episodes()
+    ended = table.column("ended").to_pylist()
+    episodes = table.column("episode").to_pylist()
+    running = {e for e, done in zip(episodes, ended, strict=True) if not done}
+    why = f"still being recorded (the file is {still_written(writer)}): its flushed steps replayed"
+    return [replace(r, reason=r.reason or why) if r.episode in running else r for r in results]
 
 
 def replay(
@@ -98,6 +113,8 @@ def replay(
             )
             if notes:
                 result.notes[str(ev.path)] = notes
+        if ev.writer is not None:
+            result.live.append((str(ev.path), ev.torn or still_written(ev.writer)))
         diffs = _version_differences(ev)
         if diffs:
             result.version_differences[str(ev.path)] = diffs

@@ -18,13 +18,14 @@ import pyarrow as pa
 
 from ..format import names as fmt
 from ..format.records import EpisodeRanges, from_json
+from ..format.spaces import codec_in
 from ..read import Evidence
 from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
 from ..record.state import StateTargets, restore_snapshot
 from .compare import Comparison
 from .recorded import replay_actions, rules_of
-from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error
+from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, restored_state
 from .returned import Ran, Rows, Steps
 
 __all__ = ["EpisodeRunner"]
@@ -48,8 +49,15 @@ class EpisodeRunner:
         self.file = str(ev.path)
         self.env = env
         self.progress = progress
-        self.obs_codec = ev.observation_codec
-        self.act_codec = ev.action_codec
+        # a space of a class episode-audit does not know: the env's own converts its JSON
+        obs_codec, act_codec = ev.observation_codec, ev.action_codec
+        digest = ev.run.recorder.get("digest_min_bytes")
+        self.obs_codec = (
+            None
+            if obs_codec is None
+            else codec_in(obs_codec, env.observation_space, digest_min_bytes=digest)
+        )
+        self.act_codec = None if act_codec is None else codec_in(act_codec, env.action_space)
         rules, terms_rule = rules_of(ev.run)
         self.comparison = (
             None
@@ -58,6 +66,9 @@ class EpisodeRunner:
                 self.file, self.obs_codec, atol=atol, rules=rules, terms_rule=terms_rule
             )
         )
+        self.vector = ev.run.layout.get("kind") == "vector"
+        self.earlier: dict[int, int] = {}
+        """Per episode reset: how many episodes this env was reset for before it."""
         self.time_limit = find_time_limit(env)
         # An outermost Gymnasium TimeLimit is counted by the stepping loop, not called: the
         # same flags, without a wrapper call per step (see plain_time_limit).
@@ -65,7 +76,7 @@ class EpisodeRunner:
         # state snapshots (record/state.py): the reset rows' column, the env's adapted objects
         self.states: pa.ChunkedArray | None = None
         self.adapted = bool(StateTargets(env))
-        self.restored: dict[int, str] = {}  # what was restored before each episode's reset
+        self.restored: dict[int, list[str]] = {}  # what was restored before each reset
 
     def _not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
@@ -100,11 +111,29 @@ class EpisodeRunner:
         )
         if ran.records:
             self.comparison.episodes(ran, returned, got_obs, got_reset, steps, resets, done)
-        for index, restored in self.restored.items():
-            result = done.get(index)
-            if result is not None and result.status == "diverged" and result.reason is None:
-                done[index] = replace(result, reason=f"state restored: {restored}")
-        return [done[int(r["episode"])] for r in records]
+        return [self._with_restored(done[int(r["episode"])], r) for r in records]
+
+    def restored_snapshots(self, record: dict[str, Any]) -> list[str]:
+        """The state snapshots set before ``record``'s reset, one name each.
+
+        E.g. ``"snapshot of NormalizeObservation"`` (record/state.py, :func:`restore_snapshot`).
+        """
+        return [f"snapshot of {name}" for name in self.restored.get(int(record["episode"]), ())]
+
+    def _with_restored(self, result: EpisodeReplay, record: dict[str, Any]) -> EpisodeReplay:
+        """A diverged ``result``, with what replay restored before its reset."""
+        if result.status != "diverged":
+            return result
+        env = "this env"
+        if self.vector:
+            env = f"sub-env {int(record.get(fmt.COL_ENV_INDEX) or 0)}'s env"
+        restored = restored_state(
+            record,
+            self.earlier.get(result.episode, 0),
+            env=env,
+            snapshots=self.restored_snapshots(record),
+        )
+        return replace(result, restored=restored)
 
     def _step_all(
         self,
@@ -255,8 +284,9 @@ class EpisodeRunner:
             except ValueError as exc:
                 done[index] = self._not_replayable(index, count, str(exc))
                 return _SKIPPED
-            if restored is not None:
+            if restored:
                 self.restored[index] = restored
+        self.earlier[index] = len(self.earlier)
         try:
             if seed is not None:
                 obs, _ = env.reset(seed=seed, options=options)

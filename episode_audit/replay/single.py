@@ -1,9 +1,11 @@
 """Replay one single-env or vector evidence file: its episodes, in windows of whole episodes.
 
-:func:`replay_single_evidence` builds the env (:func:`~.envs.build_env`), reads the file's
-steps once, in windows of whole episodes (:data:`REPLAY_WINDOW_ROWS` steps or
-:data:`REPLAY_WINDOW_BYTES` bytes, at least one episode: memory stays bounded), and replays each
-window's episodes with an :class:`~.runner.EpisodeRunner`. How episodes replay: docs/replay.md.
+:func:`replay_single_evidence` reads the file's steps once, in windows of whole episodes
+(:data:`REPLAY_WINDOW_ROWS` steps or :data:`REPLAY_WINDOW_BYTES` bytes, at least one episode:
+memory stays bounded), and replays each window's episodes with an
+:class:`~.runner.EpisodeRunner` per sub-env (:class:`SubEnvs`): the episodes of ``env_index``
+k run in recorded order through one env built for k (:func:`~.envs.build_env`), so state a
+sub-env keeps across episodes evolves as it did. How episodes replay: docs/replay.md.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -18,12 +21,18 @@ import pyarrow.compute as pc
 from ..errors import ReplayError
 from ..format import names as fmt
 from ..read import Evidence
-from .envs import EnvFactory, build_env
-from .recorded import episode_records, layout_not_replayable, row_ranges, to_end
+from .envs import EnvFactory, build_env, env_mismatch
+from .recorded import (
+    episode_records,
+    layout_not_replayable,
+    row_ranges,
+    state_not_restorable,
+    to_end,
+)
 from .results import EpisodeReplay, none_replayable
 from .runner import EpisodeRunner
 
-__all__ = ["REPLAY_WINDOW_BYTES", "REPLAY_WINDOW_ROWS", "replay_single_evidence"]
+__all__ = ["REPLAY_WINDOW_BYTES", "REPLAY_WINDOW_ROWS", "SubEnvs", "replay_single_evidence"]
 
 REPLAY_WINDOW_ROWS = 65_536
 """Replay compares this many steps (of whole episodes) at a time, so memory stays bounded."""
@@ -43,24 +52,93 @@ def replay_single_evidence(
 ) -> list[EpisodeReplay]:
     """Replay the episodes of one open single-env or vector evidence file."""
     wanted = None if episodes is None else set(episodes)
-    why_not = layout_not_replayable(ev.run.layout)
+    why_not = layout_not_replayable(ev.run.layout) or state_not_restorable(ev.run)
     if why_not is not None:
         return none_replayable(str(ev.path), episode_records(ev, wanted), why_not)
-    try:
+
+    def build() -> gym.Env[Any, Any]:
         env = build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
+        why = env_mismatch(ev.run, env)
+        if why is not None:
+            env.close()
+            raise ReplayError(why)
+        return env
+
+    def runner(env: gym.Env[Any, Any]) -> EpisodeRunner:
+        return EpisodeRunner(ev, env, atol=atol, progress=progress)
+
+    subs = SubEnvs(build, runner)
+    try:
+        subs.runner(0)  # an env that cannot be built: no episode is replayable
     except ReplayError as exc:
         return none_replayable(str(ev.path), episode_records(ev, wanted), str(exc))
     try:
-        runner = EpisodeRunner(ev, env, atol=atol, progress=progress)
-        return _Pass(ev, runner, wanted).run()
+        return _Pass(ev, subs, wanted).run()
     finally:
-        env.close()
+        subs.close()
+
+
+class SubEnvs:
+    """One env and its :class:`~.runner.EpisodeRunner` per sub-env, built when first needed.
+
+    A single env's file has one (``env_index`` 0). :meth:`run_all` replays each sub-env's
+    episodes in their own env, in episode order (the order a sub-env began them).
+    """
+
+    def __init__(
+        self,
+        build: Callable[[], gym.Env[Any, Any]],
+        make_runner: Callable[[gym.Env[Any, Any]], EpisodeRunner],
+    ) -> None:
+        self._build = build
+        self._make_runner = make_runner
+        self._runners: dict[int, EpisodeRunner] = {}
+
+    def runner(self, env_index: int) -> EpisodeRunner:
+        """The runner of sub-env ``env_index`` (its env built now if it was not yet)."""
+        runner = self._runners.get(env_index)
+        if runner is None:
+            env = self._build()
+            try:
+                runner = self._runners[env_index] = self._make_runner(env)
+            except BaseException:
+                env.close()
+                raise
+        return runner
+
+    def run_all(
+        self,
+        records: list[dict[str, Any]],
+        steps: pa.Table,
+        rows: dict[int, tuple[int, int]],
+        reset_rows: dict[int, int],
+        resets: pa.Table,
+    ) -> list[EpisodeReplay]:
+        """Replay ``records``, each in its sub-env's env (see :meth:`EpisodeRunner.run_all`)."""
+        by_env: dict[int, list[dict[str, Any]]] = {}
+        for record in records:
+            by_env.setdefault(int(record.get(fmt.COL_ENV_INDEX) or 0), []).append(record)
+        out: list[EpisodeReplay] = []
+        for env_index, group in sorted(by_env.items()):
+            group.sort(key=lambda r: int(r[fmt.COL_EPISODE]))
+            out += self.runner(env_index).run_all(group, steps, rows, reset_rows, resets)
+        return out
+
+    def close(self) -> None:
+        """Close every env built (each once, even if one raises)."""
+        runners, self._runners = list(self._runners.values()), {}
+        try:
+            while runners:
+                runners.pop().env.close()
+        finally:
+            for runner in runners:
+                runner.env.close()
 
 
 class _Pass:
     """One pass over a file's steps, replaying each window's episodes as it comes."""
 
-    def __init__(self, ev: Evidence, runner: EpisodeRunner, wanted: set[int] | None) -> None:
+    def __init__(self, ev: Evidence, runner: SubEnvs, wanted: set[int] | None) -> None:
         self.ev = ev
         self.runner = runner
         self.wanted = wanted

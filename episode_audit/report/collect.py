@@ -16,6 +16,7 @@ import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
 from ..format import names as fmt
+from ..format.records import unstarted
 from ..read import Evidence
 from .games import OUTCOME_FIELDS, game_table
 
@@ -84,12 +85,16 @@ def collect(
 ) -> tuple[pa.Table, pa.Table]:
     """Return (episodes, terms): one row per episode, one row per (episode, term) total.
 
-    With ``games``, one row per game of a PettingZoo file instead (see :mod:`.games`).
+    Unstarted episodes (reset and never stepped, :func:`~episode_audit.format.records.unstarted`)
+    are left out. With ``games``, one row per game of a PettingZoo file instead (see :mod:`.games`).
     """
     parts: list[pa.Table] = []
     term_parts: list[pa.Table] = []
     for name, ev in sources:
         table = ev.episodes()
+        unstarted_rows = unstarted(table)
+        if unstarted_rows.any():  # reset and never stepped: no episode to count
+            table = table.filter(pa.array(~unstarted_rows))
         if games:
             table = game_table(table)
         n = table.num_rows

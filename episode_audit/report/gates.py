@@ -107,16 +107,7 @@ def _group_gates(gates: Gates, group: GroupReport, unmatched: set[str]) -> list[
     """The gates that are on, checked against one group (in a fixed order)."""
     results: list[GateResult] = []
     if gates.min_success_rate is not None:
-        results.append(
-            _gate(
-                "min_success_rate",
-                group,
-                "success rate",
-                group.success_rate,
-                gates.min_success_rate,
-                minimum=True,
-            )
-        )
+        results.append(_success_gate(group, gates.min_success_rate))
     if gates.max_failure_rate is not None:
         results.append(
             _gate(
@@ -168,6 +159,26 @@ def _gate(
     else:
         op = "<=" if passed else ">"
     return GateResult(gate, group.key, passed, f"{what} {shown} {op} {limit} {where}")
+
+
+def _success_gate(group: GroupReport, bound: float) -> GateResult:
+    """The success rate against its lower bound; a task that reports no success fails so.
+
+    Its success rate is 0 by construction (CartPole: every ending is a fall or a time
+    limit), so the gate cannot pass, and the message says why rather than "0.00 < bound".
+    """
+    if group.success_signal or not group.ended:
+        return _gate(
+            "min_success_rate", group, "success rate", group.success_rate, bound, minimum=True
+        )
+    return GateResult(
+        "min_success_rate",
+        group.key,
+        False,
+        f"success rate: the env reports no success (group {group.key}): no episode's final "
+        "info has a success key and no success_fn was given; to gate on success, record with "
+        "ending_rules=EndingRules(success_fn=...) or success_keys=(...)",
+    )
 
 
 def _label_gate(group: GroupReport, label: str, bound: float, unmatched: set[str]) -> GateResult:

@@ -16,6 +16,7 @@ import pytest
 from episode_audit import (
     ConfigurationError,
     CorruptEvidenceError,
+    EndingRules,
     EpisodeAuditError,
     EvidenceError,
     RecordEvidence,
@@ -91,8 +92,14 @@ def test_clean_cartpole_file_is_ok(tmp_path: Path) -> None:
     assert "missing_terms" in _codes(result)
     assert not {"file_unfinished", "not_replayable", "missing_env_spec"} & set(_codes(result))
     missing = _only(result, "missing_terms")
-    assert missing.severity == "warning" and missing.episode == 0 and missing.step == 0
-    assert f"{result.steps} of {result.steps} steps have no reward terms" in missing.message
+    # CartPole reports no terms at all: a note, not a warning (the default "auto" source)
+    assert missing.severity == "note" and missing.episode == 0 and missing.step == 0
+    assert missing.message == (
+        f"{result.steps} of {result.steps} steps have no reward terms (terms source 'auto'): "
+        "the env reports none (no info['reward_terms'], no info['reward_*'] keys); name them "
+        "with reward_terms= to check its rewards against them"
+    )
+    assert result.warnings == 0
 
 
 def test_terms_that_do_not_sum_name_the_episode_and_first_step(tmp_path: Path) -> None:
@@ -173,6 +180,25 @@ def test_missing_terms_is_a_note_when_recorded_without_terms(tmp_path: Path) -> 
     assert _only(check([path], require_terms=True), "missing_terms").severity == "error"
 
 
+@pytest.mark.parametrize(
+    ("source", "severity"),
+    [("auto", "note"), (["reward_dist"], "warning"), (lambda info: None, "warning")],
+)
+def test_missing_terms_warns_only_where_terms_were_named(
+    tmp_path: Path, source: Any, severity: str
+) -> None:
+    """No step has terms: the env reports none unless the recording said where they are."""
+    path = _record(
+        tmp_path / "none.mcap",
+        lambda env, action: (OBS, 1.0, env.t == 4, False, {"x": 1.0}),
+        reward_terms=source,
+    )
+    finding = _only(check([path]), "missing_terms")
+    assert finding.severity == severity
+    assert finding.message.startswith("4 of 4 steps have no reward terms")
+    assert _only(check([path], require_terms=True), "missing_terms").severity == "error"
+
+
 def test_nonfinite_reward_and_term(tmp_path: Path) -> None:
     def step(env: ScriptedEnv, action: Any) -> Step:
         terms = {"a": 1.0, "b": math.inf if env.t in (3, 4) else 0.0}
@@ -243,9 +269,60 @@ def test_endings_unlabeled_failure_and_both_flags(tmp_path: Path) -> None:
         "the task ending counts (episodes 0, 1, 2)"
     )
     unlabeled = _only(result, "unlabeled_failure")
-    assert unlabeled.severity == "warning"
-    assert unlabeled.message == "3 of 3 failure(s) have no label (episodes 0, 1, 2)"
+    # the env labels no failure and the recording named no source of labels: a note
+    assert unlabeled.severity == "note"
+    assert unlabeled.message.startswith(
+        "3 of 3 failure(s) have no label (episodes 0, 1, 2); the env labels no failure "
+        "(no info['failure'] when it ends one)"
+    )
     assert result.ok
+
+
+def test_unlabeled_failures_of_an_env_without_success_say_endings_count_as_failures(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "cartpole.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=3)
+        while not env.step(0)[2]:
+            pass
+    unlabeled = _only(check([path]), "unlabeled_failure")
+    assert unlabeled.severity == "note"
+    assert unlabeled.message == (
+        "1 of 1 failure(s) have no label (episodes 0); the env labels no failure (no "
+        "info['failure'] when it ends one) and reports no success, so every episode it ends "
+        "counts as a failure; where an ending can be a success, record with "
+        "ending_rules=EndingRules(success_fn=...)"
+    )
+
+
+@pytest.mark.parametrize(
+    ("infos", "rules", "severity"),
+    [
+        ({}, None, "note"),  # no failure labelled, no source named
+        ({0: {"failure": "fell"}}, None, "warning"),  # the env labels some failures
+        ({0: {"cause": "fell"}}, EndingRules(failure_key="cause"), "warning"),  # named key
+        ({}, EndingRules(failure_fn=lambda info: None), "warning"),  # a failure_fn
+    ],
+)
+def test_unlabeled_failure_warns_where_labels_are_expected(
+    tmp_path: Path, infos: dict[int, Any], rules: EndingRules | None, severity: str
+) -> None:
+    def step(env: ScriptedEnv, action: Any) -> Step:
+        info = infos.get(env.episode, {}) if env.t == 2 else {}
+        return OBS, 1.0, env.t == 2, False, info
+
+    path = tmp_path / "labels.mcap"
+    with RecordEvidence(ScriptedEnv(step_fn=step), path, ending_rules=rules) as env:
+        for seed in range(3):
+            env.reset(seed=seed)
+            env.unwrapped.episode = seed  # type: ignore[attr-defined]
+            env.step(0)
+            env.step(0)
+    unlabeled = _only(check([path]), "unlabeled_failure")
+    assert unlabeled.severity == severity
+    expected = 2 if 0 in infos else 3
+    assert unlabeled.message.startswith(f"{expected} of 3 failure(s) have no label")
 
 
 def test_labelled_failures_and_successes_are_not_flagged(tmp_path: Path) -> None:
@@ -287,9 +364,14 @@ def test_incomplete_episode(tmp_path: Path) -> None:
         env.step(0)
         env.reset(seed=2)
         env.step(0)
-    finding = _only(check([path]), "incomplete_episode")
-    assert finding.severity == "warning" and finding.episode == 0
-    assert finding.message == "2 episode(s) stopped before they ended (episodes 0, 1)"
+    cut = [f for f in check([path]).findings if f.code == "incomplete_episode"]
+    # episode 0 was cut by a reset: a warning; episode 1 by close(): a note
+    assert [(f.severity, f.episode) for f in cut] == [("warning", 0), ("note", 1)]
+    assert cut[0].message == "1 episode(s) stopped before they ended (episodes 0)"
+    assert cut[1].message == (
+        "1 episode(s) were running when the recorder was closed, at the end of the recording: "
+        "their outcome is unknown and report counts them apart (episodes 1)"
+    )
 
 
 def test_torn_file(tmp_path: Path) -> None:

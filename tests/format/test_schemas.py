@@ -14,7 +14,7 @@ from episode_audit.format.schemas import (
     RESET_COLUMNS,
     RESET_STREAM_COLUMNS,
     STEP_COLUMNS,
-    key_columns,
+    not_null_columns,
     required_columns,
     reset_schema,
     step_schema,
@@ -61,9 +61,15 @@ def test_reset_schema_takes_the_space_field() -> None:
     assert reset_schema(obs, multi_stream=True).names[-2:] == [fmt.COL_AGENT, fmt.COL_GAME]
 
 
-def test_required_and_key_columns_come_from_the_same_definition() -> None:
+def test_required_and_not_null_columns_come_from_the_same_definition() -> None:
     required = required_columns(fmt.TOPIC_STEPS)
     assert list(required) == [c.name for c in STEP_COLUMNS]
     assert required[fmt.COL_ACTION] is None and required[fmt.COL_REWARD] == pa.float64()
-    assert key_columns(fmt.TOPIC_STEPS) == (fmt.COL_EPISODE, fmt.COL_STEP, fmt.COL_TIME)
-    assert key_columns(fmt.TOPIC_RESETS) == (fmt.COL_EPISODE, fmt.COL_ENV_INDEX, fmt.COL_TIME)
+    assert not_null_columns(fmt.TOPIC_STEPS) == (
+        *(fmt.COL_EPISODE, fmt.COL_STEP, fmt.COL_TIME),
+        *(fmt.COL_REWARD, fmt.COL_TERMINATED, fmt.COL_TRUNCATED),
+    )
+    assert not_null_columns(fmt.TOPIC_RESETS) == (fmt.COL_EPISODE, fmt.COL_ENV_INDEX, fmt.COL_TIME)
+    # what the writer declares is what the reader requires
+    schema = step_schema(pa.field("action", pa.int64()), pa.field("observation", pa.int64()))
+    assert not_null_columns(fmt.TOPIC_STEPS) == tuple(f.name for f in schema if not f.nullable)

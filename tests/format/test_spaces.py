@@ -19,9 +19,12 @@ from episode_audit.errors import ConfigurationError
 from episode_audit.format.spaces import (
     ColumnBuffer,
     SpaceCodec,
+    UnknownSpace,
     codec_for,
+    codec_in,
     describe_space,
     space_from_description,
+    unknown_spaces,
 )
 
 ARRAY_SPACES = (spaces.Box, spaces.MultiDiscrete, spaces.MultiBinary)
@@ -823,13 +826,46 @@ class Custom(spaces.Space[int]):
         return x == 1
 
 
-def test_custom_space_is_described_but_cannot_be_rebuilt() -> None:
+def test_custom_space_is_described_and_rebuilt_as_an_unknown_space() -> None:
     description = describe_space(Custom())
     json.dumps(description)
     assert description["type"] == "Custom"
     assert description["class"].endswith("Custom")
-    with pytest.raises(ConfigurationError, match="Cannot rebuild the custom space"):
-        space_from_description(description)
+    rebuilt = space_from_description(description)
+    assert isinstance(rebuilt, UnknownSpace)
+    assert rebuilt.name == "Custom"
+    assert rebuilt == space_from_description(description)
+    with pytest.raises(ConfigurationError, match="Cannot sample Custom: the file describes it"):
+        rebuilt.sample()
+
+
+def test_an_unknown_sub_space_is_json_and_the_rest_of_the_dict_keeps_its_columns() -> None:
+    space = spaces.Dict({"pos": spaces.Box(-1.0, 1.0, (2,)), "custom": Custom()})
+    recorded = codec_for(space)
+    rebuilt = codec_for(space_from_description(describe_space(space)))
+    assert rebuilt.arrow_type.equals(recorded.arrow_type)
+    assert str(rebuilt.arrow_type) == "struct<custom: string, pos: fixed_size_list<item: float>[2]>"
+    array = recorded.encode([{"pos": np.zeros(2, np.float32), "custom": 1}])
+    decoded = rebuilt.decode(array)[0]
+    assert decoded["custom"] == 1 and decoded["pos"].tolist() == [0.0, 0.0]
+    assert rebuilt.contains(array).tolist() == [True]
+    assert codec_in(rebuilt, space) is not rebuilt  # the env's own space converts its JSON
+    assert codec_in(recorded, space) is recorded  # no unknown space: the file's codec
+
+
+def test_unknown_spaces_names_each_by_where_it_is() -> None:
+    space = spaces.Dict(
+        {"a": Custom(), "b": spaces.Tuple([spaces.Discrete(2), Custom()]), "c": spaces.Discrete(2)}
+    )
+    unknown = ": Custom is not a Gymnasium space episode-audit knows: stored as JSON"
+    assert unknown_spaces(describe_space(space), "observation") == [
+        "observation['a']" + unknown,
+        "observation['b'][1]" + unknown,
+    ]
+    assert unknown_spaces(describe_space(spaces.Discrete(2)), "action") == []
+    assert unknown_spaces(describe_space(Custom()), "action") == [
+        "action: Custom is not a Gymnasium space episode-audit knows: stored as JSON"
+    ]
 
 
 def test_custom_space_uses_the_json_fallback() -> None:

@@ -75,6 +75,7 @@ def test_every_recorder_takes_every_option(name: str, tmp_path: Path) -> None:
         "fsync": True,
         "overwrite": True,
         "command_line": ["train.py", "--seed", "1"],
+        "transparent_wrappers": ["my_pkg.wrappers:MyLogger"],
     }
     assert set(options) == set(RecorderOptions.__annotations__)
     (tmp_path / "x.mcap").write_bytes(b"")  # overwrite=True replaces it
@@ -88,6 +89,7 @@ def test_every_recorder_takes_every_option(name: str, tmp_path: Path) -> None:
     assert run.recorder["info_keys"] == "all"
     assert run.recorder["flush_every_s"] == 5.0
     assert run.recorder["digest_min_bytes"] == 1 << 20
+    assert run.recorder["transparent_wrappers"] == ["my_pkg.wrappers:MyLogger"]
 
 
 def test_the_settings_defaults() -> None:

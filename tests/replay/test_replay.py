@@ -773,7 +773,7 @@ def test_a_file_without_its_env_spec_is_replayed_only_with_an_env_factory(tmp_pa
 
 
 # --------------------------------------------------------------------------------------------
-# the CLI: exit 0 for identical and for not replayable (only a divergence is exit 1)
+# the CLI: exit 0 for identical, 1 for a divergence or when no episode could be verified
 # --------------------------------------------------------------------------------------------
 
 
@@ -791,20 +791,36 @@ def test_cli_replays_an_info_the_recorder_tolerated_and_exits_0(tmp_path: Path) 
     assert "3 identical, 0 diverged, 0 not replayable" in out
 
 
-def test_cli_says_why_a_file_without_its_env_spec_is_not_replayable_and_exits_0(
+def test_cli_says_why_a_file_without_its_env_spec_is_not_replayable_and_exits_1(
     tmp_path: Path,
 ) -> None:
     path = record_doubled(tmp_path / "doubled.mcap")
-    code, out = _cli("replay", str(path), "--format", "json")
-    assert code == 0, out
-    data = json.loads(out)
-    assert data["summary"] == {"identical": 0, "diverged": 0, "not_replayable": 2}
+    result = CliRunner().invoke(app, ["replay", str(path), "--format", "json"])
+    assert result.exit_code == 1, result.output  # nothing was verified
+    data = json.loads(result.stdout)
+    assert data["summary"] == {"verified": 0, "identical": 0, "diverged": 0, "not_replayable": 2}
     assert re.fullmatch(_NO_SPEC, data["episodes"][0]["reason"])
+    assert result.stderr == (
+        "episode-audit: error: replay verified no episode: all 2 episode(s) are not replayable "
+        "(the output says why); pass --allow-unverified when that is expected\n"
+    )
+    code, out = _cli("replay", str(path), "--allow-unverified")
+    assert code == 0, out
+    assert out.strip().endswith("0 identical, 0 diverged, 2 not replayable: 0 episode(s) verified")
     code, out = _cli(
         "replay", str(path), "--env-factory", "tests.replay.test_replay:doubled_cartpole"
     )
     assert code == 0, out
-    assert "2 identical, 0 diverged, 0 not replayable" in out
+    assert "2 identical, 0 diverged, 0 not replayable: 2 episode(s) verified" in out
+
+
+def test_the_result_counts_the_episodes_verified(tmp_path: Path) -> None:
+    path = record_doubled(tmp_path / "doubled.mcap")
+    unverified = replay([path])
+    assert unverified.ok and unverified.verified == 0
+    verified = replay([path], env_factory=doubled_cartpole)
+    assert verified.verified == verified.count("identical") == 2
+    assert verified.to_dict()["summary"]["verified"] == 2
 
 
 def test_a_library_installed_but_not_imported_is_not_called_missing() -> None:

@@ -11,7 +11,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from episode_audit import ConfigurationError, EvidenceError, RecordEvidence, open_evidence
+from episode_audit import (
+    ConfigurationError,
+    EvidenceError,
+    RecordEvidence,
+    RecordVectorEvidence,
+    open_evidence,
+)
 from episode_audit.report import (
     Gates,
     GroupReport,
@@ -373,6 +379,53 @@ def test_cartpole_is_a_task_without_success(tmp_path: Path) -> None:
     group = _one(report([path]))
     assert group.failures == {"unlabeled": 5} and group.return_mean is not None
     assert group.return_mean > 0 and group.warnings == []
+
+
+def test_a_success_gate_on_a_task_without_success_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "cartpole.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        for seed in range(3):
+            env.reset(seed=seed)
+            while not env.step(0)[2]:
+                pass
+    result = report([path], by="env", gates=Gates(min_success_rate=0.7))
+    assert not result.passed
+    (gate,) = result.gates
+    assert gate.gate == "min_success_rate" and not gate.passed
+    assert gate.message == (
+        "success rate: the env reports no success (group CartPole-v1): no episode's final "
+        "info has a success key and no success_fn was given; to gate on success, record with "
+        "ending_rules=EndingRules(success_fn=...) or success_keys=(...)"
+    )
+    # a task that reports success (never true here) gets the rate against its bound
+    told = _record_plans(tmp_path / "told.mcap", [Plan("failure")] * 2)
+    (gate,) = report([told], gates=Gates(min_success_rate=0.7)).gates
+    assert gate.message == f"success rate 0.00 < 0.70 (group {told})"
+
+
+def test_unstarted_episodes_are_left_out_of_the_counts(tmp_path: Path) -> None:
+    """A vector loop that stops right after an episode ends leaves autoreset 0-step episodes."""
+    path = tmp_path / "vec.mcap"
+    envs = gym.make_vec(
+        "CartPole-v1",
+        2,
+        vectorization_mode="sync",
+        vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
+    )
+    with RecordVectorEvidence(envs, path) as recorder:
+        recorder.reset(seed=0)
+        while True:  # stop as sub-env 1's episode ends: its autoreset is never stepped
+            _, _, terminated, truncated, _ = recorder.step(np.array([0, 1]))
+            if terminated[1] or truncated[1]:
+                break
+    episodes = open_evidence(path).episodes().to_pylist()
+    zero = [e for e in episodes if e["length"] == 0]
+    assert zero and all(e["outcome"] == "incomplete" for e in zero)
+    group = _one(report([path]))
+    assert group.episodes == len(episodes) - len(zero)
+    assert group.incomplete == sum(
+        e["outcome"] == "incomplete" and e["length"] > 0 for e in episodes
+    )
 
 
 def test_shaping_dominates(tmp_path: Path) -> None:

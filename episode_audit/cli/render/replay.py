@@ -10,6 +10,8 @@ from .common import (
     Output,
     OutputFormat,
     markdown_table,
+    markdown_text,
+    safe,
     table,
     to_json,
     unreadable_json,
@@ -33,10 +35,12 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
         d = e.divergence
         where = "-" if d is None else ("reset" if d.step is None else f"step {d.step}")
         detail = d.describe() if d is not None else (e.reason or "")
+        if e.restored:
+            detail += f" (restored: {e.restored})"
         rows.append([e.file, e.episode, e.status, e.steps, where, detail])
     summary = (
         f"{result.count('identical')} identical, {result.count('diverged')} diverged, "
-        f"{result.count('not_replayable')} not replayable"
+        f"{result.count('not_replayable')} not replayable: {result.verified} episode(s) verified"
     )
     versions = [
         [file, lib, recorded, current]
@@ -45,6 +49,10 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
     ]
     version_headers = ["file", "library", "recorded", "current"]
     notes = [[file, note] for file, said in result.notes.items() for note in said]
+    live = [
+        f"{file}: {why}; replay it again once its recorder has closed it"
+        for file, why in result.live
+    ]
     if output == "markdown":
         parts = [f"### episode-audit replay\n\n{summary}\n"]
         if rows:
@@ -54,6 +62,7 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
         if versions and result.count("diverged"):
             parts.append("Library versions differ from the recording:\n\n")
             parts.append(markdown_table(version_headers, versions) + "\n")
+        parts.extend(f"{markdown_text(line)}\n" for line in live)
         return "\n".join(parts)
     out: list[RenderableType] = []
     if rows:
@@ -62,5 +71,6 @@ def replay_output(result: ReplayResult, output: OutputFormat) -> Output:
         out.append(table("Replayed without recorded wrappers", ["file", "note"], notes))
     if versions and result.count("diverged"):
         out.append(table("Library versions differ from the recording", version_headers, versions))
+    out.extend(Text(safe(line)) for line in live)
     out.append(Text(summary))
     return Group(*out)

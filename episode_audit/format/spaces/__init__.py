@@ -28,14 +28,17 @@ array([ True, False])
 """
 
 from .buffers import ColumnBuffer
-from .codecs import SpaceCodec, codec_for, equal_elements
-from .descriptions import describe_space, space_from_description
+from .codecs import SpaceCodec, codec_for, codec_in, equal_elements
+from .descriptions import UnknownSpace, describe_space, space_from_description, unknown_spaces
 
 __all__ = [
     "ColumnBuffer",
     "SpaceCodec",
+    "UnknownSpace",
     "codec_for",
+    "codec_in",
     "describe_space",
     "equal_elements",
     "space_from_description",
+    "unknown_spaces",
 ]

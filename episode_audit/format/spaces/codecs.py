@@ -35,8 +35,9 @@ from .buffers import (
     _StructBuffer,
     _TextBuffer,
 )
+from .descriptions import UnknownSpace
 
-__all__ = ["SpaceCodec", "codec_for", "equal_elements"]
+__all__ = ["SpaceCodec", "codec_for", "codec_in", "equal_elements"]
 
 # Keys of the Arrow field metadata every codec writes (values are UTF-8 strings).
 _META_KIND: Final = "episode_audit.kind"
@@ -619,3 +620,31 @@ def codec_for(space: Space[Any], *, digest_min_bytes: int | None = None) -> Spac
             f"Expect a gymnasium.spaces.Space, actually: {type(space).__name__}"
         )
     return _JsonCodec(space)
+
+
+def _has_unknown(space: Space[Any]) -> bool:
+    if isinstance(space, UnknownSpace):
+        return True
+    if isinstance(space, spaces.Dict):
+        return any(_has_unknown(s) for s in space.spaces.values())
+    if isinstance(space, spaces.Tuple):
+        return any(_has_unknown(s) for s in space.spaces)
+    return False
+
+
+def codec_in(
+    recorded: SpaceCodec, space: Space[Any], *, digest_min_bytes: int | None = None
+) -> SpaceCodec:
+    """The codec to use for values of ``space`` (an env's own) against a column ``recorded`` reads.
+
+    Where the file's space holds an :class:`UnknownSpace` (a space class episode-audit does not
+    know), the env's space converts its values to and from JSON as the recorder did: its codec
+    is returned when it stores the same Arrow type. Otherwise ``recorded``.
+    """
+    if not _has_unknown(recorded.space):
+        return recorded
+    try:
+        codec = codec_for(space, digest_min_bytes=digest_min_bytes)
+    except ConfigurationError:
+        return recorded
+    return codec if codec.arrow_type.equals(recorded.arrow_type) else recorded

@@ -17,7 +17,70 @@ from gymnasium.spaces import Space
 
 from ...errors import ConfigurationError
 
-__all__ = ["describe_space", "space_from_description"]
+__all__ = ["UnknownSpace", "describe_space", "space_from_description", "unknown_spaces"]
+
+
+class UnknownSpace(Space[Any]):
+    """Stands in for a space of a class episode-audit does not know (a ``"Custom"`` description).
+
+    The file holds its values as JSON (``json.dumps(space.to_jsonable([value])[0])``): they
+    decode to that JSON value, are not checked against the space (``contains`` is always true)
+    and cannot be sampled.
+
+    >>> space = UnknownSpace("minigrid.core.mission.MissionSpace", "MissionSpace(...)")
+    >>> space.name, space.contains("go to the red door")
+    ('MissionSpace', True)
+    """
+
+    def __init__(self, class_path: str, text: str) -> None:
+        super().__init__()
+        self.class_path = class_path
+        """The module and qualified name of the recorded space's class."""
+        self.text = text
+        """The recorded space's ``repr``."""
+
+    @property
+    def name(self) -> str:
+        """The class name of the recorded space, without its module."""
+        return self.class_path.rsplit(".", 1)[-1] or "a custom space"
+
+    def sample(self, mask: Any = None, probability: Any = None) -> Any:
+        """Raise :class:`ConfigurationError`: the recorded space is not here to sample from."""
+        raise ConfigurationError(
+            f"Cannot sample {self.name}: the file describes it by class and repr only; "
+            "build the space in code"
+        )
+
+    def contains(self, x: Any) -> bool:
+        """Return ``True``: values of an unknown space are not checked."""
+        return True
+
+    def to_jsonable(self, sample_n: Any) -> list[Any]:
+        """Return the values with numpy arrays and scalars as lists and numbers."""
+        return [_plain(value) for value in sample_n]
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, UnknownSpace)
+            and other.class_path == self.class_path
+            and other.text == self.text
+        )
+
+    def __hash__(self) -> int:
+        return hash((self.class_path, self.text))
+
+    def __repr__(self) -> str:
+        return f"Custom({self.class_path})"
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    if isinstance(value, Mapping):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    return value
 
 
 def _json_float(value: float) -> float | str:
@@ -55,7 +118,7 @@ def describe_space(space: Space[Any]) -> dict[str, Any]:
 
     Non-finite floats are written as the strings ``"inf"``, ``"-inf"`` and ``"nan"``; a Box bound
     that is the same for every element is written once. Spaces this module does not know are
-    described by class and ``repr`` only, and cannot be rebuilt.
+    described by class and ``repr`` only, and rebuilt as an :class:`UnknownSpace`.
 
     >>> import numpy as np
     >>> from gymnasium import spaces
@@ -210,10 +273,7 @@ def _from_description(desc: Any) -> Space[Any]:
     if kind == "OneOf":
         return spaces.OneOf([_from_description(s) for s in desc["spaces"]])
     if kind == "Custom":
-        raise ConfigurationError(
-            f"Cannot rebuild the custom space {desc.get('repr')!r} (class {desc.get('class')}) "
-            "from its description; build it in code"
-        )
+        return UnknownSpace(str(desc.get("class", "")), str(desc.get("repr", "")))
     raise ConfigurationError(
         "Expect a space type Box, Discrete, MultiDiscrete, MultiBinary, Text, Dict, Tuple, "
         f"Sequence, Graph or OneOf, actually: {kind!r}"
@@ -222,6 +282,9 @@ def _from_description(desc: Any) -> Space[Any]:
 
 def space_from_description(desc: dict[str, Any]) -> Space[Any]:
     """Rebuild the space :func:`describe_space` described (its RNG state is not kept).
+
+    A space of a class this module does not know comes back as an :class:`UnknownSpace`
+    (at any depth: the other items of a Dict or Tuple are rebuilt as usual).
 
     >>> from gymnasium import spaces
     >>> space = spaces.Dict({"pos": spaces.Box(-1.0, 1.0, shape=(2,)), "id": spaces.Discrete(4)})
@@ -239,3 +302,39 @@ def space_from_description(desc: dict[str, Any]) -> Space[Any]:
             f"Expect a valid space description, actually: {desc!r:.200} "
             f"({type(exc).__name__}: {exc})"
         ) from exc
+
+
+def unknown_spaces(description: Any, name: str) -> list[str]:
+    """Where a described space holds spaces of a class episode-audit does not know, one line each.
+
+    ``name`` is what the space is (``"observation"``); a Dict item is named by its key, a Tuple
+    item by its index, the item space of a Sequence by ``[*]``.
+
+    >>> desc = {"type": "Dict", "spaces": [["mission", {"type": "Custom", "class": "m.Mission"}]]}
+    >>> unknown_spaces(desc, "observation")
+    ["observation['mission']: Mission is not a Gymnasium space episode-audit knows: stored as JSON"]
+    """
+    if not isinstance(description, Mapping):
+        return []
+    kind = description.get("type")
+    if kind == "Custom":
+        known = UnknownSpace(str(description.get("class", "")), "").name
+        return [f"{name}: {known} is not a Gymnasium space episode-audit knows: stored as JSON"]
+    found: list[str] = []
+    items: list[tuple[str, Any]] = []
+    if kind == "Dict" and isinstance(description.get("spaces"), list):
+        items = [
+            (f"{name}[{item[0]!r}]", item[1])
+            for item in description["spaces"]
+            if isinstance(item, list) and len(item) == 2
+        ]
+    elif kind in ("Tuple", "OneOf") and isinstance(description.get("spaces"), list):
+        items = [(f"{name}[{i}]", d) for i, d in enumerate(description["spaces"])]
+    elif kind == "Sequence":
+        items = [(f"{name}[*]", description.get("space"))]
+    elif kind == "Graph":
+        items = [(f"{name}.nodes", description.get("node_space"))]
+        items.append((f"{name}.edges", description.get("edge_space")))
+    for item_name, item in items:
+        found.extend(unknown_spaces(item, item_name))
+    return found

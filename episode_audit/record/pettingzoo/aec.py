@@ -144,8 +144,8 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
         """Reset the env (a new game); each agent's reset row is written at its first turn."""
+        self._enter()
         rec = self._rec
-        rec.file.check_open()
         if rec.game >= 0:
             self._cut()
         rec.new_game(seed, options)
@@ -161,7 +161,7 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
             self._begun = {agent: rec.begin(agent) for agent in agents}
             self._turns.begin(agents)
             if rec.file.due():
-                rec.file.flush()
+                rec.file.auto_flush()
         except Exception as exc:  # never break the training loop over recording trouble
             rec.file.trouble(exc)
 
@@ -171,9 +171,9 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
         The rows the turn closes are held until the env's ``step()`` returned or raised: one
         that raised after every agent-episode had ended is noted on the last of them.
         """
+        if self._gated:
+            self._enter()
         rec = self._rec
-        if self._closed:
-            rec.file.check_open()
         self._held = []
         try:
             agent, dead = None, False
@@ -197,7 +197,7 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
         try:
             self._turns.stepped()
             if rec.file.due():
-                rec.file.flush()
+                rec.file.auto_flush()
         except Exception as exc:  # never break the training loop over recording trouble
             rec.file.trouble(exc)
 

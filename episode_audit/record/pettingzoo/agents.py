@@ -242,7 +242,7 @@ class AgentRecorder(FileRecorder):
         self._file = self._rec.file
         self.run_info = self._rec.run_info
         self.path = self._rec.path
-        self._closed = False
+        self._opened()
         self._started(env)
 
     def _started(self, env: Any) -> None:

@@ -44,8 +44,8 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[Any, Any], dict[Any, dict[str, Any]]]:
         """Reset the env (a new game) and record every agent's reset row."""
+        self._enter()
         rec = self._rec
-        rec.file.check_open()
         rec.new_game(seed, options)
         try:
             obs, infos = self.env.reset(seed=seed, options=options)
@@ -57,7 +57,7 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
         try:
             self._join(obs, infos)
             if rec.file.due():
-                rec.file.flush()
+                rec.file.auto_flush()
         except Exception as exc:  # never break the training loop over recording trouble
             rec.file.trouble(exc)
         return obs, infos
@@ -72,9 +72,9 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
 
     def step(self, actions: dict[Any, Any]) -> tuple[Any, Any, Any, Any, Any]:
         """Step the env and record each acting agent's step; results are returned untouched."""
+        if self._gated:
+            self._enter()
         rec = self._rec
-        if self._closed:
-            rec.file.check_open()
         try:
             result = self.env.step(actions)
         except Exception as exc:

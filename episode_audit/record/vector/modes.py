@@ -16,12 +16,12 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
+from gymnasium.vector import AutoresetMode, VectorEnv
 
 from ..notes import note
 from ..stream import Stream
 from .infos import EMPTY, env_infos
-from .rng import RngState, SubEnvRng
+from .rng import LocalSubEnvs, RngState, SubEnvRng
 
 __all__ = ["Autoreset", "NextStep", "SameStep", "autoreset_mode", "autoreset_strategy"]
 
@@ -225,6 +225,8 @@ class SameStep(Autoreset):
 
     mode = AutoresetMode.SAME_STEP
     batches_endings = False
+    no_rng_why = _SAME_STEP_NO_RNG
+    """Why an autoreset episode has no RNG state when the reset info holds none."""
 
     def record_ending(
         self, i: int, action: Any, result: Result, now: int, noted: str | None
@@ -243,7 +245,7 @@ class SameStep(Autoreset):
             final_obs = obs
         self.streams[i].step(action, (final_obs, reward, terminated, truncated, step_info))
         rng = self.rng.from_info(reset_info)
-        why = None if rng is not None else _SAME_STEP_NO_RNG
+        why = None if rng is not None else self.no_rng_why
         self.begin(i, None, None, rng, obs, reset_info, now, why, noted)
 
     def failed_autoresets(self, exc: Exception) -> None:
@@ -273,7 +275,7 @@ def autoreset_strategy(
     return kind(streams, rng, clock, no_rng_note)
 
 
-def _sync_raiser(sync: SyncVectorEnv | None, exc: Exception) -> tuple[int, str] | None:
+def _sync_raiser(sync: LocalSubEnvs | None, exc: Exception) -> tuple[int, str] | None:
     """The ``SyncVectorEnv`` sub-env whose ``reset`` or ``step`` raised ``exc``, if known.
 
     The sub-env's own method is in the exception's traceback (the vector env calls it).

@@ -18,8 +18,11 @@ from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, Vecto
 from gymnasium.vector.utils import iterate
 from typing_extensions import Unpack
 
+from ...errors import ConfigurationError
 from ...format.spaces import codec_for, describe_space
+from ...format.wrappers import LAYOUT_REWARD_WRAPPERS, LAYOUT_VECTOR_WRAPPERS, REWARD_CHANGING
 from ..file import EvidenceFile, FileRecorder
+from ..gym import entry_point, reward_wrappers, warn_unrestorable, wrapper_chain
 from ..rules import find_time_limit
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from .infos import env_infos
@@ -28,7 +31,7 @@ from .resets import refused, reset_targets, seeds_of
 from .rng import SubEnvRng
 from .steps import VectorSteps
 
-__all__ = ["RecordVectorEvidence"]
+__all__ = ["RecordVectorEvidence", "vector_layout"]
 
 
 class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
@@ -73,6 +76,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         **options: Unpack[RecorderOptions],
     ) -> None:
         check_options(options, "RecordVectorEvidence.__init__()")
+        _check_vector_env(env)
         super().__init__(env)
         settings = RecorderSettings(**options)
         base = env.unwrapped
@@ -97,14 +101,23 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         if (same_step or snapshots) and sync is not None and install_rng_info:
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
+        layout = vector_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note)
+        vector_wrappers = _vector_wrappers(env)
+        if vector_wrappers:
+            layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
+        changing = _sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
+        if changing:
+            layout[LAYOUT_REWARD_WRAPPERS] = changing
         self.run_info = run_info(
             settings=settings,
             spec=sub_spec,
             observation_space=describe_space(obs_space),
             action_space=describe_space(act_space),
-            layout=_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note),
+            layout=layout,
             notes=notes,
+            info_of=entry_point(sync.envs[0] if sync is not None and sync.envs else env),
         )
+        warn_unrestorable(type(self).__name__, _sub_wrappers(sync, sub_spec), layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
@@ -129,7 +142,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         )
         self._record_step = self._steps.record
         self._obs_space = env.observation_space
-        self._closed = False
+        self._opened()
 
     # ------------------------------------------------------------------ gymnasium API
 
@@ -140,8 +153,8 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         options: dict[str, Any] | None = None,
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the vector env (or the sub-envs of ``options["reset_mask"]``) and record it."""
+        self._enter()
         file = self._file
-        file.check_open()
         n = self._n
         indices, recorded_options = reset_targets(options, n)
         seeds = seeds_of(seed, n, self._sub_envs)
@@ -149,49 +162,30 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         unseeded = [i for i in indices if seeds[i] is None]
         states = {} if self._rng.in_info else self._rng.capture(unseeded)
         start = file.clock()
-        steps, autoreset, streams = self._steps, self._autoreset, self._streams
-        steps.idle = None
+        per_env = [recorded_options] * n
         try:
             obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
         except Exception as exc:
-            if rejected:  # refused before any sub-env was reset: no episode changed
-                raise
-            try:
-                for i in indices:
-                    streams[i].block.pending = steps.pending_rows(i)
-                    autoreset.begin_failed(i, seeds[i], recorded_options, states.get(i), exc)
-                file.flush()
-            except Exception as trouble:  # the loop sees the env's error, not the recorder's
-                file.trouble(trouble)
+            if not rejected:  # refused before any sub-env was reset: no episode changed
+                self._steps.reset_failed(indices, seeds, per_env, states, exc)
             raise
         try:
             rows = list(iterate(self._obs_space, obs))
-            sub_infos, unmasked = env_infos(infos, n)
-            for i in indices:
-                info = sub_infos[i]
-                rng = states.get(i)
-                if seeds[i] is None:
-                    rng = self._rng.from_info(info) or rng
-                streams[i].block.pending = steps.pending_rows(i)
-                streams[i].end_open()
-                autoreset.begin(
-                    i, seeds[i], recorded_options, rng, rows[i], info, start, None, unmasked
-                )
-            autoreset.were_reset(indices)
-            if file.due():
-                file.flush()
+            self._steps.record_reset(
+                indices, seeds, per_env, states, self._rng, (rows, *env_infos(infos, n)), start
+            )
         except Exception as exc:  # never break the training loop over recording trouble
             file.trouble(exc)
         return obs, infos
 
     def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
         """Step every sub-env and record each sub-env's step; the results are returned untouched."""
-        if self._closed:
-            self._file.check_open()
+        if self._gated:
+            self._enter()
         try:
             result = self.env.step(actions)
         except Exception as exc:
-            self._on_step_error(exc)
+            self._steps.step_failed(exc)
             raise
         try:
             self._record_step(actions, result)
@@ -199,21 +193,6 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             self._steps.idle = None
             self._file.trouble(exc)
         return result
-
-    def _on_step_error(self, exc: Exception) -> None:
-        """The vector step raised ``exc``: end the open episodes as ``error`` (``step``).
-
-        An autoreset that raised is first recorded where it belongs: as a ``reset()`` that
-        raised, an episode of its sub-env ended ``error`` during ``reset``, with the RNG state
-        the reset started from (the strategy's ``failed_autoresets``).
-        """
-        self._steps.idle = None
-        try:
-            self._steps.drain()
-            self._autoreset.failed_autoresets(exc)
-        except Exception as trouble:  # the loop sees the env's error, not the recorder's
-            self._file.trouble(trouble)
-        self._file.end_with_error(self._streams, exc, "step")
 
     def close(self, **kwargs: Any) -> None:
         """Finish the evidence file (open episodes are recorded as ``incomplete``) and close.
@@ -229,7 +208,24 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         self.close()
 
 
-def _layout(
+def _check_vector_env(env: Any) -> None:
+    """Refuse what is not a ``gymnasium.vector.VectorEnv``, naming the recorder that takes it."""
+    if isinstance(env, VectorEnv):
+        return
+    kind = type(env)
+    sb3 = any(c.__module__.startswith("stable_baselines3.") for c in kind.__mro__)
+    hint = (
+        "a Stable-Baselines3 VecEnv: record it with episode_audit.RecordVecEnvEvidence(venv, path)"
+        if sb3
+        else "record a single env with RecordEvidence"
+    )
+    raise ConfigurationError(
+        f"RecordVectorEvidence records a gymnasium.vector.VectorEnv, actually: "
+        f"{kind.__module__}.{kind.__qualname__}, {hint}"
+    )
+
+
+def vector_layout(
     n: int, mode: AutoresetMode, vector_class: str, sub_envs: bool, replay_note: str | None
 ) -> dict[str, Any]:
     """The layout metadata of a vector file (``docs/format.md``, "Multi-stream files")."""
@@ -294,3 +290,31 @@ def _max_steps(
         if isinstance(limit, int) and not isinstance(limit, bool):
             limits[i] = limit
     return limits
+
+
+def _vector_wrappers(env: Any) -> list[str]:
+    """The entry points of the vector wrappers the recorder wraps, innermost first."""
+    chain: list[str] = []
+    try:
+        while isinstance(env, gym.vector.VectorWrapper) and len(chain) < 64:
+            chain.append(f"{type(env).__module__}:{type(env).__qualname__}")
+            env = env.env
+    except Exception:  # an env's own attribute access: the chain walked so far
+        pass
+    return chain[::-1]
+
+
+def _sub_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]:
+    """The entry points of the first sub-env's wrappers: walked, else as its spec names them."""
+    if sync is not None and sync.envs:
+        return wrapper_chain(sync.envs[0])
+    wrappers = getattr(sub_spec, "additional_wrappers", None) or ()
+    return [str(getattr(w, "entry_point", "")) for w in wrappers]
+
+
+def _sub_reward_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]:
+    """The first sub-env's wrappers that change its reward: walked, else as its spec names them."""
+    if sync is not None and sync.envs:
+        return reward_wrappers(sync.envs[0])
+    wrappers = _sub_wrappers(None, sub_spec)
+    return [w for w in wrappers if w.rpartition(":")[2] in REWARD_CHANGING]

@@ -3,8 +3,9 @@
 - :class:`ResetRngInfo` — a sub-env wrapper that puts the RNG state from just before an unseeded
   reset into the reset's info (for ``SAME_STEP`` autoresets, which run inside ``step()``), and
   the state snapshot of the wrappers below it (:mod:`..state`) before every reset.
-- :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (``SyncVectorEnv``
-  directly, ``AsyncVectorEnv`` through ``get_attr``) or from the reset infos.
+- :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (in this process:
+  ``SyncVectorEnv``, SB3's ``DummyVecEnv``; in workers through ``get_attr``: ``AsyncVectorEnv``,
+  SB3's ``SubprocVecEnv``) or from the reset infos.
 
 Which mode reads them when, and why: ``docs/format.md``, "Vector files".
 """
@@ -13,10 +14,9 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
-from gymnasium.vector import AsyncVectorEnv, SyncVectorEnv
 
 from ...format import names as fmt
 from ...format.records import to_json
@@ -24,9 +24,22 @@ from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets
 
-__all__ = ["ResetRngInfo", "SubEnvRng"]
+__all__ = ["LocalSubEnvs", "RemoteSubEnvs", "ResetRngInfo", "SubEnvRng"]
 
 RngState = dict[str, Any]
+
+
+class LocalSubEnvs(Protocol):
+    """A vector env whose sub-envs live in this process (``SyncVectorEnv``, SB3 ``DummyVecEnv``)."""
+
+    envs: Any  # the list of sub-envs (replaced in place to install ResetRngInfo)
+
+
+class RemoteSubEnvs(Protocol):
+    """A vector env whose sub-envs are asked by name (``AsyncVectorEnv``, SB3 ``SubprocVecEnv``)."""
+
+    def get_attr(self, name: str, /) -> Any:
+        """Each sub-env's attribute ``name``, in a sequence."""
 
 
 class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
@@ -116,7 +129,7 @@ class SubEnvRng:
     (:meth:`from_info`, :class:`ResetRngInfo`); from then on only from the infos (``in_info``).
     """
 
-    def __init__(self, sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None) -> None:
+    def __init__(self, sync: LocalSubEnvs | None, async_env: RemoteSubEnvs | None) -> None:
         self.sync = sync
         self._async = async_env
         # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
@@ -126,16 +139,18 @@ class SubEnvRng:
     def snapshots(self) -> bool:
         """Whether a sub-env has state to snapshot at its resets (:mod:`..state`).
 
-        A ``SyncVectorEnv``'s sub-envs are looked at directly; an ``AsyncVectorEnv``'s are
-        asked whether they are wrapped in a :class:`ResetRngInfo` that snapshots.
+        Sub-envs in this process are looked at directly; an ``AsyncVectorEnv``'s are asked
+        whether they are wrapped in a :class:`ResetRngInfo` that snapshots (``has_wrapper_attr``
+        first: a worker asked for an attribute its env lacks raises, and ends).
         """
         if self.sync is not None:
             return any(StateTargets(sub) for sub in self.sync.envs)
-        if self._async is None:
+        call = getattr(self._async, "call", None)
+        if self._async is None or call is None:
             return False
         name = "episode_audit_snapshots"
         try:
-            if not all(self._async.call("has_wrapper_attr", name)):
+            if not all(call("has_wrapper_attr", name)):
                 return False
             return any(self._async.get_attr(name))
         except Exception:

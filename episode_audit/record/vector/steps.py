@@ -10,6 +10,7 @@ Any other step goes to the autoreset strategy, sub-env by sub-env (``docs/record
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ from ..file import EvidenceFile
 from ..stream import Stream
 from .infos import EMPTY
 from .modes import Autoreset
+from .rng import RngState, SubEnvRng
 
 __all__ = ["BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
 
@@ -238,6 +240,74 @@ class VectorSteps:
             file.auto_flush()
         elif self._p_len >= BATCH_STEPS:
             self.drain()
+
+    def record_reset(
+        self,
+        indices: Sequence[int],
+        seeds: Sequence[Any],
+        options: Sequence[Any],
+        states: dict[int, RngState | None],
+        rng: SubEnvRng,
+        result: tuple[list[Any], list[Any], str | None],
+        start: int,
+    ) -> None:
+        """Begin the episodes a ``reset()`` began: sub-envs ``indices``, with their arguments.
+
+        ``seeds`` and ``options`` hold each sub-env's, ``states`` the RNG states read before the
+        reset (an unseeded sub-env's reset info may hold its own: :class:`ResetRngInfo`);
+        ``result`` is each sub-env's reset observation and info, and the ``info_unmasked`` note.
+        """
+        rows, infos, unmasked = result
+        streams, autoreset = self._streams, self._autoreset
+        self.idle = None
+        for i in indices:
+            state = states.get(i)
+            if seeds[i] is None:
+                state = rng.from_info(infos[i]) or state
+            streams[i].block.pending = self.pending_rows(i)
+            streams[i].end_open()
+            autoreset.begin(
+                i, seeds[i], options[i], state, rows[i], infos[i], start, None, unmasked
+            )
+        autoreset.were_reset(indices)
+        if self._file.due():
+            self._file.auto_flush()
+
+    def reset_failed(
+        self,
+        indices: Sequence[int],
+        seeds: Sequence[Any],
+        options: Sequence[Any],
+        states: dict[int, RngState | None],
+        exc: Exception,
+    ) -> None:
+        """``reset()`` raised ``exc``: each sub-env of ``indices`` gets an episode ended ``error``.
+
+        Never raises (the loop sees the env's error, not the recorder's).
+        """
+        self.idle = None
+        try:
+            for i in indices:
+                self._streams[i].block.pending = self.pending_rows(i)
+                self._autoreset.begin_failed(i, seeds[i], options[i], states.get(i), exc)
+            self._file.flush()
+        except Exception as trouble:
+            self._file.trouble(trouble)
+
+    def step_failed(self, exc: Exception) -> None:
+        """The vector step raised ``exc``: end the open episodes as ``error`` (``step``).
+
+        An autoreset that raised is first recorded where it belongs: as a ``reset()`` that
+        raised, an episode of its sub-env ended ``error`` during ``reset``, with the RNG state
+        the reset started from (the strategy's ``failed_autoresets``).
+        """
+        self.idle = None
+        try:
+            self.drain()
+            self._autoreset.failed_autoresets(exc)
+        except Exception as trouble:  # the loop sees the env's error, not the recorder's
+            self._file.trouble(trouble)
+        self._file.end_with_error(self._streams, exc, "step")
 
     def pending_rows(self, i: int) -> int:
         """Rows batched for sub-env ``i`` and not yet handed to its stream."""

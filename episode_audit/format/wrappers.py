@@ -10,16 +10,36 @@ through an optional array library). Any other wrapper is unknown, refused too. N
 imports what a file names: a wrapper is rebuilt only from ``gymnasium.wrappers`` by a name in
 the registry. :func:`plan_wrappers` reads a spec's ``additional_wrappers`` into a
 :class:`WrapperPlan`; ``--trust-entry-points`` bypasses all of this (the spec as recorded).
+:func:`state_causes` says, from a file's run metadata alone, what makes the state its episodes
+began in unrestorable (the recorder warns of the same at construction; ``check`` and replay
+report it). :func:`reward_cause` names the reward-changing wrappers a recorder sat over
+(:data:`LAYOUT_REWARD_WRAPPERS`); :data:`RUN_TRANSPARENT_WRAPPERS` holds the wrappers a user
+declared transparent, which replay leaves out as it does the registry's.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-__all__ = ["RECORDED_WRAPPERS", "WrapperKind", "WrapperPlan", "WrapperRule", "plan_wrappers"]
+__all__ = [
+    "LAYOUT_REWARD_WRAPPERS",
+    "LAYOUT_VECTOR_WRAPPERS",
+    "RECORDED_WRAPPERS",
+    "REWARD_CHANGING",
+    "RUN_TRANSPARENT_WRAPPERS",
+    "WrapperKind",
+    "WrapperPlan",
+    "WrapperRule",
+    "declared_transparent",
+    "plan_wrappers",
+    "reward_cause",
+    "state_causes",
+    "stateful_wrapper",
+    "vector_wrapper_cause",
+]
 
 WrapperKind = Literal["rebuilt", "snapshot", "transparent", "stateful", "refused"]
 
@@ -279,8 +299,13 @@ _WAY_AROUND = (
 )
 
 
-def plan_wrappers(recorded: Sequence[Any]) -> WrapperPlan:
-    """What to do with a spec's ``additional_wrappers`` (see :data:`RECORDED_WRAPPERS`)."""
+def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) -> WrapperPlan:
+    """What to do with a spec's ``additional_wrappers`` (see :data:`RECORDED_WRAPPERS`).
+
+    ``transparent``: entry points the recording declared transparent (never changing a step,
+    :data:`RUN_TRANSPARENT_WRAPPERS`); they are left out, saying so, unless the registry
+    knows them (its rule wins: a file cannot make a wrapper it knows transparent).
+    """
     plan = WrapperPlan()
     renders: list[str] = []  # left out, though they call render() in a step
     bound: list[str] = []  # rebuilt, whose step depends on those calls
@@ -288,7 +313,12 @@ def plan_wrappers(recorded: Sequence[Any]) -> WrapperPlan:
         entry = str(wrapper.get("entry_point")) if isinstance(wrapper, Mapping) else repr(wrapper)
         rule = RECORDED_WRAPPERS.get(entry)
         name = entry.rpartition(":")[2]
-        if rule is None:
+        if rule is None and entry in transparent:
+            plan.notes.append(
+                f"replayed without the recorded wrapper {name[:80]}: the recording declared it "
+                "transparent (it never changes a step; a step it did change diverges)"
+            )
+        elif rule is None:
             plan.refused = f"the recorded wrapper {entry[:200]!r} is not one replay knows"
         elif rule.kind == "transparent":
             plan.notes.append(f"replayed without the recorded wrapper {name}: {rule.why}")
@@ -330,3 +360,110 @@ def _bad_argument(name: str, rule: WrapperRule, kwargs: Any) -> str | None:
             shown = shown if len(shown) <= 80 else shown[:77] + "..."
             return f"the recorded wrapper {name}'s argument {arg}: expected {expected}, got {shown}"
     return None
+
+
+LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
+"""The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
+first; absent in files that predate it, and when there were none)."""
+
+
+RUN_TRANSPARENT_WRAPPERS = "transparent_wrappers"
+"""The key, in the run metadata's ``recorder`` record, of the entry points of the wrappers the
+user declared transparent (``transparent_wrappers=``; absent when none)."""
+
+
+def declared_transparent(recorder: Any) -> frozenset[str]:
+    """The entry points a run's ``recorder`` metadata declares transparent (at most 64)."""
+    listed = recorder.get(RUN_TRANSPARENT_WRAPPERS) if isinstance(recorder, Mapping) else None
+    return frozenset(str(e)[:_MAX_TEXT] for e in _listed(listed) if isinstance(e, str))
+
+
+LAYOUT_REWARD_WRAPPERS = "reward_wrappers"
+"""The layout key of the wrappers that change the reward between the env and the recorder (entry
+points, innermost first; absent when there were none, and in files that predate it)."""
+
+REWARD_CHANGING = frozenset({"NormalizeReward", "TransformReward", "ClipReward", "VecNormalize"})
+"""The class names of the Gymnasium (single and vector) and SB3 wrappers that change the reward
+(``VecNormalize`` only with ``norm_reward``; the recorder decides)."""
+
+
+def reward_cause(layout: Any) -> str | None:
+    """Why a file's rewards differ from what the env gave, naming the wrappers; or ``None``.
+
+    From the layout's :data:`LAYOUT_REWARD_WRAPPERS`: the recorder sat over them, so it recorded
+    the reward they changed, while the terms in the info are still the env's.
+    """
+    listed = layout.get(LAYOUT_REWARD_WRAPPERS) if isinstance(layout, Mapping) else None
+    names = [str(e).rpartition(":")[2][:80] for e in _listed(listed)]
+    if not names:
+        return None
+    return (
+        f"the reward was changed by {', '.join(names)} between the env and the recorder (the "
+        "terms in the info are the env's): record beneath it (innermost), or pass "
+        "reward_terms=None"
+    )
+
+
+def stateful_wrapper(entry_point: str) -> str | None:
+    """Why the wrapper of ``entry_point`` keeps state a file does not hold, or ``None``.
+
+    ``None`` for every wrapper but those the registry calls ``stateful``.
+    """
+    rule = RECORDED_WRAPPERS.get(entry_point)
+    return rule.why if rule is not None and rule.kind == "stateful" else None
+
+
+_VECTOR_STEP_SAFE = frozenset(
+    f"gymnasium.wrappers.vector.{module}:{name}"
+    for module, name in (
+        ("dict_info_to_list", "DictInfoToList"),  # the recorder reads infos either way
+        ("common", "RecordEpisodeStatistics"),  # adds episode totals to the infos
+    )
+)
+"""Vector wrappers that change no sub-env's observation, action, reward or flags."""
+
+
+def vector_wrapper_cause(entry_point: str) -> str | None:
+    """Why a vector wrapper under the vector recorder makes its episodes unreplayable.
+
+    ``None`` for those that change no sub-env's step (they only rearrange or add infos).
+    """
+    if entry_point in _VECTOR_STEP_SAFE:
+        return None
+    module, _, name = entry_point.rpartition(":")
+    return (
+        f"the recorder wrapped the vector wrapper {name[:80]} ({module[:120]}): the steps it "
+        "recorded are that wrapper's, which no sub-env rebuilt alone gives; wrap the vector env "
+        f"in RecordVectorEvidence first (innermost), then in {name[:80]}"
+    )
+
+
+def state_causes(env_spec: Any, layout: Any) -> list[str]:
+    """What makes the state a file's episodes began in unrestorable, one reason per cause.
+
+    From the run metadata alone (``env_spec``: the recorded env spec, a sub-env's for a vector
+    file; ``layout``: the file's layout): each recorded wrapper that keeps state across episodes
+    (:func:`stateful_wrapper`), and each vector wrapper the vector recorder wrapped.
+    """
+    causes: list[str] = []
+    wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    for wrapper in _listed(wrappers):
+        entry = str(wrapper.get("entry_point")) if isinstance(wrapper, Mapping) else ""
+        why = stateful_wrapper(entry)
+        if why is not None:
+            name = entry.rpartition(":")[2]
+            causes.append(
+                f"the recorded wrapper {name} {why.removeprefix('it ')} (no state snapshot): "
+                f"its episodes cannot begin in the state they were recorded in; record with the "
+                f"recorder inside {name} (innermost)"
+            )
+    vector = layout.get(LAYOUT_VECTOR_WRAPPERS) if isinstance(layout, Mapping) else None
+    causes += [c for entry in _listed(vector) if (c := vector_wrapper_cause(str(entry)))]
+    return causes
+
+
+def _listed(value: Any) -> Iterable[Any]:
+    """A recorded list (a single value: a list of it; none: empty), at most 64 items."""
+    if value is None:
+        return []
+    return (value if isinstance(value, list) else [value])[:64]

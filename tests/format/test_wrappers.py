@@ -1,13 +1,14 @@
-"""The registry of recorded wrappers (replay/wrappers.py) against the installed Gymnasium."""
+"""The registry of recorded wrappers (format/wrappers.py) against the installed Gymnasium."""
 
 from __future__ import annotations
 
+import importlib
 import inspect
 
 import gymnasium as gym
 import pytest
 
-from episode_audit.replay.wrappers import RECORDED_WRAPPERS, plan_wrappers
+from episode_audit.format.wrappers import RECORDED_WRAPPERS, plan_wrappers
 
 _GYMNASIUM = {
     entry: rule
@@ -54,3 +55,14 @@ def test_rebuilt_arguments_are_plain_data_of_the_expected_type_and_size(
         assert plan.refused.startswith("the recorded wrapper RescaleAction's argument min_action")
     else:
         assert plan.rebuild == [("RescaleAction", kwargs)]
+
+
+def test_vector_wrappers_that_change_no_step_are_those_of_the_installed_gymnasium() -> None:
+    from episode_audit.format.wrappers import _VECTOR_STEP_SAFE, vector_wrapper_cause
+
+    for entry in _VECTOR_STEP_SAFE:
+        module, _, name = entry.partition(":")
+        assert getattr(importlib.import_module(module), name).__module__ == module
+        assert vector_wrapper_cause(entry) is None
+    cause = vector_wrapper_cause("gymnasium.wrappers.vector:RescaleAction")
+    assert cause is not None and cause.startswith("the recorder wrapped the vector wrapper")

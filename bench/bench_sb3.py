@@ -1,0 +1,130 @@
+"""Stable-Baselines3 benchmarks (run by bench/run.py when SB3 is installed).
+
+- ``ppo``: a real PPO training run on CartPole-v1 (single-thread torch, DummyVecEnv x4), with
+  and without RecordVecEnvEvidence, alternating in one process; the wall-time ratio.
+- ``vecenv``: RecordVecEnvEvidence's cost per sub-env step over a bare DummyVecEnv of
+  CartPole-v1 (fixed random actions, SB3's autoreset), interleaved rounds.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+
+def available() -> bool:
+    try:
+        import stable_baselines3  # noqa: F401
+        import torch  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _cartpole() -> gym.Env[Any, Any]:
+    return gym.make("CartPole-v1")
+
+
+def _ratios(base: list[float], other: list[float]) -> dict[str, Any]:
+    per_round = [o / b for b, o in zip(base, other, strict=True)]
+    return {
+        "ratio_median": statistics.median(per_round),
+        "ratio_of_minimums": min(other) / min(base),
+        "ratios": [round(x, 4) for x in per_round],
+    }
+
+
+def bench_ppo(tmp: Path, steps: int, rounds: int) -> dict[str, Any]:
+    """Wall time of ``PPO(...).learn(steps)`` recorded / bare, alternating which goes first."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from episode_audit.record.sb3 import RecordVecEnvEvidence
+
+    torch.set_num_threads(1)
+
+    def run(recorded: bool, r: int, name: str = "ppo") -> float:
+        venv: Any = DummyVecEnv([_cartpole] * 4)
+        if recorded:
+            venv = RecordVecEnvEvidence(venv, tmp / f"{name}-{r}.mcap", overwrite=True)
+        model = PPO("MlpPolicy", venv, n_steps=256, seed=r)
+        start = time.perf_counter()
+        model.learn(steps)
+        venv.close()
+        return time.perf_counter() - start
+
+    run(True, 0, "warm")  # warm up (imports, first torch kernels)
+    bare: list[float] = []
+    rec: list[float] = []
+    for r in range(rounds):
+        order = (False, True) if r % 2 == 0 else (True, False)
+        for recorded in order:
+            (rec if recorded else bare).append(run(recorded, r))
+    return {
+        "env": "CartPole-v1 x4 (DummyVecEnv), PPO n_steps=256, torch 1 thread",
+        "steps": steps,
+        "rounds": rounds,
+        "bare_s": [round(t, 3) for t in bare],
+        "recorded_s": [round(t, 3) for t in rec],
+        **_ratios(bare, rec),
+    }
+
+
+def _run_vecenv(venv: Any, actions: np.ndarray[Any, Any]) -> float:
+    venv.seed(0)
+    venv.reset()
+    start = time.perf_counter()
+    for row in actions:
+        venv.step(row)
+    return time.perf_counter() - start
+
+
+def bench_vecenv(tmp: Path, num_envs: int, steps: int, rounds: int) -> dict[str, Any]:
+    """Per-sub-env-step overhead of RecordVecEnvEvidence over a bare DummyVecEnv."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from episode_audit.record.sb3 import RecordVecEnvEvidence
+
+    actions = np.random.default_rng(0).integers(0, 2, size=(steps, num_envs))
+    warm = RecordVecEnvEvidence(DummyVecEnv([_cartpole] * num_envs), tmp / "w.mcap", overwrite=True)
+    _run_vecenv(warm, actions[:1000])
+    warm.close()
+    bare_t, rec_t = [], []
+    for r in range(rounds):
+        venv = DummyVecEnv([_cartpole] * num_envs)
+        bare_t.append(_run_vecenv(venv, actions))
+        venv.close()
+        path = tmp / f"sb3-vecenv-{r}.mcap"
+        rec = RecordVecEnvEvidence(DummyVecEnv([_cartpole] * num_envs), path, overwrite=True)
+        recorded = _run_vecenv(rec, actions)
+        t0 = time.perf_counter()
+        rec.close()
+        rec_t.append(recorded + time.perf_counter() - t0)
+    sub_steps = steps * num_envs
+    return {
+        "env": f"CartPole-v1 x{num_envs} (SB3 DummyVecEnv)",
+        "vector_steps": steps,
+        "rounds": rounds,
+        "bare_us_per_sub_env_step": statistics.median(bare_t) / sub_steps * 1e6,
+        "recorded_us_per_sub_env_step": statistics.median(rec_t) / sub_steps * 1e6,
+        "overhead_us_per_sub_env_step": statistics.median(
+            [(rt - bt) / sub_steps * 1e6 for rt, bt in zip(rec_t, bare_t, strict=True)]
+        ),
+        **_ratios(bare_t, rec_t),
+    }
+
+
+def bench(tmp: Path) -> dict[str, Any]:
+    """Both SB3 benchmarks, or why they were skipped."""
+    if not available():
+        return {"skipped": "SB3 not installed (pip install 'episode-audit[sb3]')"}
+    return {
+        "ppo_training": bench_ppo(tmp, 4096, 3),
+        "vecenv_recorder": bench_vecenv(tmp, 8, 5000, 5),
+    }

@@ -1,0 +1,133 @@
+"""What an SB3 ``VecEnv`` stack is made of, as the recorder needs it.
+
+:class:`VecStack` finds the base VecEnv under the VecEnv wrappers the recorder wraps, which
+of those change what a sub-env returns (then the file cannot be replayed one sub-env at a time),
+where the sub-envs are (in this process: ``DummyVecEnv``; in workers: ``SubprocVecEnv``), one
+sub-env's spec and each sub-env's step limit. Asking a worker for an attribute its env lacks
+ends the worker, so an attribute is read from workers only after ``has_attr`` says it is there.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import (
+    DummyVecEnv,
+    VecCheckNan,
+    VecEnv,
+    VecEnvWrapper,
+    VecMonitor,
+    VecNormalize,
+    VecVideoRecorder,
+)
+
+from ..gym import entry_point, reward_wrappers
+from ..rules import find_time_limit
+
+__all__ = ["TRANSPARENT", "VecStack"]
+
+TRANSPARENT: tuple[type[VecEnvWrapper], ...] = (VecMonitor, VecCheckNan, VecVideoRecorder)
+"""VecEnv wrappers that never change a step (``VecNormalize`` too while it normalizes nothing)."""
+
+
+def _changes_steps(wrapper: VecEnvWrapper) -> bool:
+    if isinstance(wrapper, VecNormalize):
+        return bool(wrapper.norm_obs or wrapper.norm_reward)
+    return not isinstance(wrapper, TRANSPARENT)
+
+
+class VecStack:
+    """The VecEnv stack under a recorder: its base, its wrappers, its sub-envs.
+
+    Args:
+        venv: The VecEnv the recorder wraps.
+    """
+
+    def __init__(self, venv: VecEnv) -> None:
+        wrappers: list[VecEnvWrapper] = []
+        env: Any = venv
+        while isinstance(env, VecEnvWrapper):
+            wrappers.append(env)
+            env = env.venv
+        self.base: VecEnv = env
+        """The VecEnv under every wrapper (whose sub-envs step)."""
+        self.wrappers = [type(w).__name__ for w in wrappers]
+        """The class names of the wrappers between the recorder and the base, outermost first."""
+        self.changing = [type(w).__name__ for w in wrappers if _changes_steps(w)]
+        """Those of them that change observations, rewards or spaces."""
+        self.rewards = [
+            entry_point(w) for w in wrappers[::-1] if isinstance(w, VecNormalize) and w.norm_reward
+        ]
+        """The entry points of those of them that change the reward, innermost first."""
+        self.local = env if isinstance(env, DummyVecEnv) else None
+        """The base if its sub-envs live in this process (``DummyVecEnv``)."""
+        self.direct = not wrappers
+        """Whether the recorder wraps the base itself."""
+
+    def notes(self) -> list[str]:
+        """Run notes on the stack: the wrappers under the recorder, and what they change."""
+        if not self.wrappers:
+            return []
+        out = [
+            f"the recorder sits over {', '.join(self.wrappers)} (outermost first), "
+            f"over {type(self.base).__name__}"
+        ]
+        if self.changing:
+            out.append(self.replay_note())
+        return out
+
+    def replay_note(self) -> str:
+        """Why the file's episodes cannot be replayed on their own (wrappers that change steps)."""
+        return (
+            f"{', '.join(self.changing)} under the recorder changed what the sub-envs returned "
+            "(observations, rewards or spaces): one sub-env cannot replay it; record with "
+            "RecordVecEnvEvidence directly over the DummyVecEnv / SubprocVecEnv, under "
+            "those wrappers"
+        )
+
+    def reward_wrappers(self) -> list[str]:
+        """The wrappers that change the reward under the recorder, innermost first.
+
+        A sub-env's (in this process only), then the VecEnv wrappers' (``VecNormalize``).
+        """
+        inner: list[str] = []
+        if self.local is not None and self.local.envs:
+            inner = reward_wrappers(self.local.envs[0])
+        return inner + self.rewards
+
+    def info_of(self) -> str:
+        """The entry point of the object whose infos the recorder reads the terms from."""
+        if self.local is not None and self.local.envs:
+            return entry_point(self.local.envs[0])
+        return entry_point(self.base)
+
+    def sub_env_spec(self) -> Any:
+        """One sub-env's spec (what replay rebuilds), or ``None``."""
+        try:
+            if self.local is not None:
+                return self.local.envs[0].spec
+            if self.base.has_attr("spec"):
+                return self.base.get_attr("spec", indices=[0])[0]
+        except Exception:
+            return None
+        return None
+
+    def step_limits(self, n: int, spec: Any) -> list[int | None]:
+        """Each sub-env's step limit: its ``TimeLimit``'s, else its spec's."""
+        limits: list[int | None] = [getattr(spec, "max_episode_steps", None)] * n
+        found: list[Any] = []
+        try:
+            if self.local is not None:
+                found = [
+                    getattr(find_time_limit(sub), "_max_episode_steps", None)
+                    for sub in self.local.envs
+                ]
+            elif self.base.has_attr("_max_episode_steps"):
+                found = list(self.base.get_attr("_max_episode_steps"))
+        except Exception:  # the spec's limit, then
+            found = []
+        for i, limit in enumerate(found[:n]):
+            if isinstance(limit, (int, np.integer)) and not isinstance(limit, bool):
+                limits[i] = int(limit)
+        return limits

@@ -1,0 +1,145 @@
+"""``check`` is quiet on ordinary Gymnasium envs: what they do not report is a note.
+
+CartPole reports no success, no failure label and no reward terms; Reacher never terminates;
+a training loop stops mid-episode and closes its recorder; a vector loop stops right after an
+episode ends and leaves a sub-env autoreset and never stepped. None of that is a warning, so
+``check --strict`` passes their clean recordings with no ``--ignore``; a file a crash tore
+still warns.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+from typer.testing import CliRunner
+
+from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
+from episode_audit.check import Finding, check
+from episode_audit.cli import app
+
+FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
+LIMIT = {"CartPole-v1": 30, "Reacher-v5": 20}
+"""A time limit short enough that some episodes of each env end by it."""
+
+
+def _action(env_id: str, space: gym.Space[Any], episode: int, t: int) -> Any:
+    """Scripted CartPole (alternate pushes: balances past the time limit; or push one way:
+    falls in ~10 steps), by episode; random otherwise (``space`` is seeded)."""
+    if env_id == "CartPole-v1":
+        return t % 2 if episode % 2 == 0 else 0
+    return space.sample()
+
+
+def _record_single(env_id: str, path: Path, steps: int) -> Path:
+    """Record ``steps`` steps with RecordEvidence, resetting as episodes end; close() cuts."""
+    with RecordEvidence(gym.make(env_id, max_episode_steps=LIMIT[env_id]), path) as env:
+        env.action_space.seed(0)
+        env.reset(seed=0)
+        episode = t = 0
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(_action(env_id, env.action_space, episode, t))
+            t += 1
+            if terminated or truncated:
+                episode, t = episode + 1, 0
+                env.reset()
+    return path
+
+
+def _record_vector(env_id: str, path: Path, steps: int, mode: AutoresetMode) -> Path:
+    """Record ``steps`` steps of a 2-env SyncVectorEnv with RecordVectorEvidence."""
+    envs = gym.make_vec(
+        env_id,
+        2,
+        vectorization_mode="sync",
+        vector_kwargs={"autoreset_mode": mode},
+        max_episode_steps=LIMIT[env_id],
+    )
+    with RecordVectorEvidence(envs, path) as recorder:
+        recorder.action_space.seed(0)
+        recorder.reset(seed=0)
+        for _ in range(steps):
+            recorder.step(recorder.action_space.sample())
+    return path
+
+
+def _strict(path: Path) -> tuple[int, str]:
+    result = CliRunner().invoke(app, ["check", str(path), "--strict"])
+    return result.exit_code, result.stdout
+
+
+def _not_notes(findings: list[Finding]) -> list[Finding]:
+    return [f for f in findings if f.severity != "note"]
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "Reacher-v5"])
+@pytest.mark.parametrize("recorder", ["single", "next_step", "same_step"])
+def test_check_strict_passes_clean_recordings_of_ordinary_envs(
+    tmp_path: Path, env_id: str, recorder: str
+) -> None:
+    path = tmp_path / "run.mcap"
+    if recorder == "single":
+        _record_single(env_id, path, steps=107)
+    else:
+        mode = AutoresetMode.NEXT_STEP if recorder == "next_step" else AutoresetMode.SAME_STEP
+        _record_vector(env_id, path, steps=75, mode=mode)
+    episodes = open_evidence(path).episodes().to_pylist()
+    # several episodes, a time-limit truncation among them, and the run cut by close()
+    assert len(episodes) >= 4
+    assert any(e["truncation_reason"] == "time_limit" for e in episodes)
+    assert any(e["outcome"] == "incomplete" and e["length"] > 0 for e in episodes)
+    result = check([path])
+    assert _not_notes(result.findings) == []
+    assert "incomplete_episode" in {f.code for f in result.findings}
+    code, out = _strict(path)
+    assert code == 0, out
+    assert "0 error(s), 0 warning(s)" in out
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_a_vector_loop_that_stops_right_after_an_episode_ends(
+    tmp_path: Path, mode: AutoresetMode
+) -> None:
+    """Sub-env 0 falls first and is autoreset; the loop stops when sub-env 1's episode ends.
+
+    Sub-env 0's new episode runs on until close() cuts it (a note). Under ``SAME_STEP``
+    sub-env 1's autoreset begins a 0-step episode at once; under ``NEXT_STEP`` one more step
+    does (the loop takes it, as ``evaluate_policy``-style loops do): neither is reported.
+    """
+    path = tmp_path / "vec.mcap"
+    envs = gym.make_vec(
+        "CartPole-v1", 2, vectorization_mode="sync", vector_kwargs={"autoreset_mode": mode}
+    )
+    with RecordVectorEvidence(envs, path) as recorder:
+        recorder.reset(seed=0)
+        pushes = np.array([0, 1])  # push one way: falls; the other way, starting elsewhere
+        while True:
+            _, _, terminated, truncated, _ = recorder.step(pushes)
+            if terminated[1] or truncated[1]:
+                break
+        if mode is AutoresetMode.NEXT_STEP:
+            recorder.step(pushes)  # sub-env 1's reset step
+    episodes = open_evidence(path).episodes().to_pylist()
+    unstarted = [e["episode"] for e in episodes if e["length"] == 0]
+    assert len(unstarted) == 1
+    assert [e["env_index"] for e in episodes if e["episode"] in unstarted] == [1]
+    running = [e["episode"] for e in episodes if e["outcome"] == "incomplete" and e["length"]]
+    assert len(running) == 1
+    findings = check([path]).findings
+    assert _not_notes(findings) == []
+    (cut,) = [f for f in findings if f.code == "incomplete_episode"]
+    assert cut.severity == "note" and cut.episode == running[0]
+    assert cut.message.endswith(f"(episodes {running[0]})")
+
+
+def test_a_file_a_crash_tore_still_warns() -> None:
+    """fixtures/torn.mcap: its recorder was killed (SIGKILL) mid-episode, never closed."""
+    findings = check([FIXTURES / "torn.mcap"]).findings
+    (cut,) = [f for f in findings if f.code == "incomplete_episode"]
+    assert cut.severity == "warning"
+    assert "cut off by the torn end of the file" in cut.message
+    assert _strict(FIXTURES / "torn.mcap")[0] == 1

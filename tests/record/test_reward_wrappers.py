@@ -1,0 +1,120 @@
+"""Where the recorder sits: the reward-changing wrappers under it are recorded and named.
+
+A CleanRL-style ``SyncVectorEnv`` loop on Reacher-v5 (whose info holds ``reward_dist`` and
+``reward_ctrl``, the reward being their sum): with ``NormalizeReward`` (and ``TransformReward``)
+inside each sub-env, under the recorder, ``check``'s ``terms_sum_mismatch`` names them; with a
+vector ``NormalizeReward`` over the recorder, the file holds the env's own rewards and checks
+clean.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
+from episode_audit.check import check
+from episode_audit.format.wrappers import LAYOUT_REWARD_WRAPPERS
+
+NORMALIZE = "gymnasium.wrappers.stateful_reward:NormalizeReward"
+TRANSFORM = "gymnasium.wrappers.transform_reward:TransformReward"
+
+
+def cleanrl_env(normalize_reward: bool) -> gym.Env[Any, Any]:
+    """CleanRL's continuous-control stack (ppo_continuous_action.py), on Reacher-v5."""
+    env = gym.make("Reacher-v5", max_episode_steps=20)
+    env = gym.wrappers.FlattenObservation(env)
+    env = gym.wrappers.RecordEpisodeStatistics(env)
+    env = gym.wrappers.ClipAction(env)
+    if normalize_reward:
+        env = gym.wrappers.NormalizeReward(env, gamma=0.99)
+        env = gym.wrappers.TransformReward(env, lambda r: float(np.clip(r, -10, 10)))
+    return env
+
+
+def run_loop(envs: gym.vector.VectorEnv[Any, Any, Any], steps: int = 60) -> None:
+    envs.action_space.seed(0)
+    envs.reset(seed=0)
+    for _ in range(steps):
+        envs.step(envs.action_space.sample())
+    envs.close()
+
+
+def mismatches(path: Path) -> list[str]:
+    return [f.message for f in check([path]).findings if f.code == "terms_sum_mismatch"]
+
+
+def test_normalize_reward_under_the_recorder_is_named_in_the_finding(tmp_path: Path) -> None:
+    path = tmp_path / "below.mcap"
+    sync = gym.vector.SyncVectorEnv([lambda: cleanrl_env(True)] * 2)
+    with pytest.warns(UserWarning, match="NormalizeReward keeps running statistics"):
+        envs = RecordVectorEvidence(sync, path)
+    run_loop(envs)
+    run = open_evidence(path).run
+    assert run.layout[LAYOUT_REWARD_WRAPPERS] == [NORMALIZE, TRANSFORM]
+    found = mismatches(path)
+    assert found, "the normalised reward must not match the env's terms"
+    assert all(
+        "the reward was changed by NormalizeReward, TransformReward between the env and the "
+        "recorder"
+        in m
+        and "record beneath it" in m
+        for m in found
+    ), found
+    assert all("terms read automatically from the info of " in m for m in found)
+
+
+def test_vector_normalize_reward_over_the_recorder_checks_clean(tmp_path: Path) -> None:
+    path = tmp_path / "above.mcap"
+    sync = gym.vector.SyncVectorEnv([lambda: cleanrl_env(False)] * 2)
+    envs = gym.wrappers.vector.NormalizeReward(RecordVectorEvidence(sync, path), gamma=0.99)
+    run_loop(envs)
+    run = open_evidence(path).run
+    assert LAYOUT_REWARD_WRAPPERS not in run.layout
+    result = check([path])
+    assert not [f for f in result.findings if f.severity != "note"], result.findings
+    assert "missing_terms" not in {f.code for f in result.findings}  # terms were checked
+
+
+def test_a_vector_reward_wrapper_under_the_recorder_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "vector-below.mcap"
+    sync = gym.vector.SyncVectorEnv([lambda: cleanrl_env(False)] * 2)
+    scaled = gym.wrappers.vector.TransformReward(sync, lambda r: r * 2.0)
+    with pytest.warns(UserWarning, match="TransformReward"):
+        envs = RecordVectorEvidence(scaled, path)
+    run_loop(envs)
+    assert open_evidence(path).run.layout[LAYOUT_REWARD_WRAPPERS] == [
+        "gymnasium.wrappers.vector.vectorize_reward:TransformReward"
+    ]
+    found = mismatches(path)
+    assert found and all("changed by TransformReward between" in m for m in found), found
+
+
+def test_single_env_recorder_names_clip_reward_and_whose_info_it_read(tmp_path: Path) -> None:
+    path = tmp_path / "clip.mcap"
+    env = gym.wrappers.ClipReward(gym.make("Reacher-v5", max_episode_steps=20), -0.05, 0.0)
+    with RecordEvidence(env, path) as recorded:
+        recorded.action_space.seed(0)
+        recorded.reset(seed=0)
+        for _ in range(20):
+            recorded.step(recorded.action_space.sample())
+    run = open_evidence(path).run
+    assert run.layout[LAYOUT_REWARD_WRAPPERS] == ["gymnasium.wrappers.transform_reward:ClipReward"]
+    assert run.reward_terms["info_of"] == "gymnasium.wrappers.transform_reward:ClipReward"
+    found = mismatches(path)
+    assert found and all("changed by ClipReward between" in m for m in found), found
+
+
+def test_no_reward_wrapper_records_no_key_and_names_the_env(tmp_path: Path) -> None:
+    path = tmp_path / "plain.mcap"
+    with RecordEvidence(gym.make("Reacher-v5", max_episode_steps=5), path) as env:
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+    run = open_evidence(path).run
+    assert LAYOUT_REWARD_WRAPPERS not in run.layout
+    assert run.reward_terms["info_of"] == "gymnasium.wrappers.common:TimeLimit"
+    assert not mismatches(path)

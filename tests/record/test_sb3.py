@@ -1,0 +1,506 @@
+"""The Stable-Baselines3 recorder (record/sb3/) with real SB3: DummyVecEnv, SubprocVecEnv, stacks.
+
+Each recording is checked against SB3's own accounting (``Monitor`` / ``VecMonitor`` returns
+and lengths), replayed episode by episode, and checked. Training runs are short here; the
+longer ones are in tests/test_long.py (``-m slow``).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+torch = pytest.importorskip("torch")
+
+from stable_baselines3 import PPO  # noqa: E402
+from stable_baselines3.common.monitor import Monitor  # noqa: E402
+from stable_baselines3.common.vec_env import (  # noqa: E402
+    DummyVecEnv,
+    SubprocVecEnv,
+    VecFrameStack,
+    VecMonitor,
+    VecNormalize,
+)
+
+from episode_audit import (  # noqa: E402
+    ConfigurationError,
+    ResetRngInfo,
+    check,
+    open_evidence,
+    replay,
+)
+from episode_audit.record.sb3 import RecordVecEnvEvidence  # noqa: E402
+
+torch.set_num_threads(1)
+N = 4
+# SubprocVecEnv's default start methods import SB3 (and torch) again in every worker: seconds
+# each on a busy machine. The tests fork instead (the recorder does not care how).
+START = "fork"
+
+
+def cartpole(**kwargs: Any) -> gym.Env[Any, Any]:
+    return gym.make("CartPole-v1", **kwargs)
+
+
+def monitored_cartpole() -> gym.Env[Any, Any]:
+    return Monitor(gym.make("CartPole-v1"))
+
+
+def rng_cartpole() -> gym.Env[Any, Any]:
+    return ResetRngInfo(gym.make("CartPole-v1"))
+
+
+def episodes(path: Path) -> list[dict[str, Any]]:
+    return open_evidence(path).episodes().to_pylist()
+
+
+def ended(path: Path) -> list[dict[str, Any]]:
+    return [e for e in episodes(path) if e["outcome"] != "incomplete"]
+
+
+def assert_replays_identical(path: Path) -> None:
+    result = replay([path])
+    bad = [(e.episode, e.status, e.reason, e.divergence) for e in result.episodes]
+    bad = [b for b in bad if b[1] != "identical"]
+    assert not bad, bad
+    assert result.count("identical") == len(episodes(path))
+
+
+def assert_checks_clean(path: Path) -> None:
+    result = check([path])
+    errors = [f for f in result.findings if f.severity == "error"]
+    assert not errors, errors
+
+
+def assert_strict_clean(path: Path) -> None:
+    """``episode-audit check --strict`` on ``path`` exits 0, with no ``--ignore``."""
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    result = CliRunner().invoke(app, ["check", str(path), "--strict"])
+    assert result.exit_code == 0, result.output
+
+
+def step_random(venv: Any, steps: int, seed: int = 0) -> None:
+    rng = np.random.default_rng(seed)
+    venv.seed(seed)
+    venv.reset()
+    for _ in range(steps):
+        venv.step(rng.integers(0, 2, size=venv.num_envs))
+
+
+# ---------------------------------------------------------------- training with PPO
+
+
+def test_ppo_on_dummy_vec_env_replays_identical(tmp_path: Path) -> None:
+    path = tmp_path / "train.mcap"
+    venv = DummyVecEnv([cartpole] * N)
+    monitor = VecMonitor(RecordVecEnvEvidence(venv, path), str(tmp_path / "vm"))
+    model = PPO("MlpPolicy", monitor, n_steps=128, n_epochs=1, batch_size=256, seed=3)
+    model.learn(1024)
+    monitor.close()
+    eps = episodes(path)
+    assert [e["seed"] for e in eps[:N]] == [3, 4, 5, 6]  # PPO(seed=3) seeds sub-env i with 3+i
+    assert all(e["rng_state"] for e in eps[N:])  # autoreset episodes: the RNG state instead
+    assert sum(e["length"] for e in eps) == 1024
+    # VecMonitor's episodes are the file's ended ones (order: by ending step, per sub-env)
+    csv = np.loadtxt(tmp_path / "vm.monitor.csv", delimiter=",", skiprows=2, ndmin=2)
+    assert sorted((int(r[1]), float(r[0])) for r in csv) == sorted(
+        (e["length"], round(e["return"], 6)) for e in ended(path)
+    )
+    assert_replays_identical(path)
+    assert_checks_clean(path)
+
+
+def test_returns_equal_monitor_for_every_episode_of_every_sub_env(tmp_path: Path) -> None:
+    path = tmp_path / "train.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([monitored_cartpole] * N), path)
+    model = PPO("MlpPolicy", venv, n_steps=128, n_epochs=1, batch_size=256, seed=0)
+    model.learn(1024)
+    monitors = [venv.venv.envs[i].env for i in range(N)]  # ResetRngInfo(Monitor(...))
+    assert all(isinstance(m, Monitor) for m in monitors)
+    venv.close()
+    by_env: dict[int, list[tuple[int, float]]] = defaultdict(list)
+    for e in ended(path):
+        by_env[e["env_index"]].append((e["length"], round(e["return"], 6)))
+    for i, monitor in enumerate(monitors):
+        assert by_env[i] == list(
+            zip(monitor.get_episode_lengths(), monitor.get_episode_rewards(), strict=True)
+        )
+    assert_checks_clean(path)
+
+
+def test_monitor_inside_the_sub_envs_replays(tmp_path: Path) -> None:
+    path = tmp_path / "train.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([monitored_cartpole] * 2), path)
+    step_random(venv, 200)
+    venv.close()
+    assert_replays_identical(path)
+
+
+def test_subproc_vec_env_with_reset_rng_info_replays_identical(tmp_path: Path) -> None:
+    path = tmp_path / "subproc.mcap"
+    venv = RecordVecEnvEvidence(SubprocVecEnv([rng_cartpole] * 2, start_method=START), path)
+    step_random(venv, 300)
+    venv.close()
+    eps = episodes(path)
+    assert len(eps) > 10
+    assert [e["seed"] for e in eps[:2]] == [0, 1]
+    assert_replays_identical(path)
+    # the same actions on a DummyVecEnv give the same episodes
+    local = tmp_path / "dummy.mcap"
+    with RecordVecEnvEvidence(DummyVecEnv([cartpole] * 2), local) as dummy:
+        step_random(dummy, 300)
+    assert [(e["env_index"], e["length"], e["return"]) for e in episodes(local)] == [
+        (e["env_index"], e["length"], e["return"]) for e in eps
+    ]
+
+
+def test_subproc_vec_env_without_reset_rng_info_says_what_to_do(tmp_path: Path) -> None:
+    path = tmp_path / "subproc.mcap"
+    with RecordVecEnvEvidence(SubprocVecEnv([cartpole] * 2, start_method=START), path) as venv:
+        step_random(venv, 60)
+    result = replay([path])
+    assert result.count("identical") == 2  # the seeded first episodes
+    auto = [e for e in result.episodes if e.status != "identical"]
+    assert auto and all(e.status == "not_replayable" for e in auto)
+    notes = [f.message for f in check([path]).findings if "rng_state" in f.code]
+    assert notes
+    ev = open_evidence(path)
+    reset_notes = " ".join(str(n) for n in ev.resets().column("notes").to_pylist() if n)
+    assert "wrapper_class=ResetRngInfo" in reset_notes
+
+
+# ---------------------------------------------------------------- SAC on MuJoCo
+
+
+def test_sac_on_mujoco_records_rewards_exactly(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    from stable_baselines3 import SAC
+
+    path = tmp_path / "sac.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([lambda: gym.make("Reacher-v5")]), path)
+    model = SAC("MlpPolicy", venv, learning_starts=100, batch_size=32, train_freq=10, seed=1)
+    model.learn(300)
+    _, rewards, _, _ = venv.step(np.zeros((1, 2), dtype=np.float32))
+    assert rewards.dtype == np.float32  # what DummyVecEnv hands on, widened only for the file
+    venv.close()
+    assert sum(e["length"] for e in episodes(path)) == 301
+    assert_replays_identical(path)
+    assert_checks_clean(path)
+    assert_strict_clean(path)
+
+
+# ---------------------------------------------------------------- stacks
+
+
+def test_under_vec_normalize_and_vec_frame_stack_replays_identical(tmp_path: Path) -> None:
+    path = tmp_path / "norm.mcap"
+    rec = RecordVecEnvEvidence(DummyVecEnv([cartpole] * 2), path)
+    venv = VecFrameStack(VecNormalize(rec), 2)
+    model = PPO("MlpPolicy", venv, n_steps=64, n_epochs=1, batch_size=128, seed=0)
+    model.learn(256)
+    venv.close()
+    assert open_evidence(path).run.observation_space["shape"] == [4]
+    assert_replays_identical(path)
+
+
+def test_over_vec_normalize_is_recorded_and_says_it_cannot_replay(tmp_path: Path) -> None:
+    path = tmp_path / "over.mcap"
+    venv = RecordVecEnvEvidence(VecNormalize(VecMonitor(DummyVecEnv([cartpole] * 2))), path)
+    step_random(venv, 100)
+    venv.close()
+    run = open_evidence(path).run
+    assert run.layout["sub_envs"] is False
+    assert "VecNormalize under the recorder" in run.layout["replay_note"]
+    assert any("VecNormalize, VecMonitor" in n for n in run.recorder["notes"])
+    result = replay([path])
+    assert result.count("not_replayable") == len(episodes(path))
+    assert any(f.code == "not_replayable" for f in check([path]).findings)
+
+
+def test_over_vec_normalize_of_reacher_names_it_in_the_terms_mismatch(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    path = tmp_path / "over.mcap"
+    base = DummyVecEnv([lambda: gym.make("Reacher-v5", max_episode_steps=20)] * 2)
+    venv = RecordVecEnvEvidence(VecNormalize(base, norm_obs=False), path)
+    venv.seed(0)
+    venv.reset()
+    for _ in range(60):
+        venv.step(np.zeros((2, 2), dtype=np.float32) + 0.5)
+    venv.close()
+    layout = open_evidence(path).run.layout
+    assert layout["reward_wrappers"] == [
+        "stable_baselines3.common.vec_env.vec_normalize:VecNormalize"
+    ]
+    found = [f.message for f in check([path]).findings if f.code == "terms_sum_mismatch"]
+    assert found and all("changed by VecNormalize between" in m for m in found), found
+
+
+def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:
+    path = tmp_path / "over.mcap"
+    venv = RecordVecEnvEvidence(
+        VecNormalize(VecMonitor(DummyVecEnv([cartpole] * 2)), norm_obs=False, norm_reward=False),
+        path,
+    )
+    step_random(venv, 100)
+    venv.close()
+    assert open_evidence(path).run.layout["sub_envs"] is True
+    assert_replays_identical(path)
+
+
+# ---------------------------------------------------------------- SB3's step, read right
+
+
+def _steps_to_fall(seed: int) -> int:
+    env = gym.make("CartPole-v1")
+    env.reset(seed=seed)
+    for t in range(1, 500):
+        if env.step(0)[2]:
+            return t
+    raise AssertionError("CartPole did not fall")
+
+
+def test_terminated_at_the_step_limit_keeps_both_flags(tmp_path: Path) -> None:
+    limit = _steps_to_fall(7)
+    path = tmp_path / "both.mcap"
+    with RecordVecEnvEvidence(
+        DummyVecEnv([lambda: cartpole(max_episode_steps=limit)]), path
+    ) as venv:
+        venv.seed(7)
+        venv.reset()
+        for _ in range(limit):
+            venv.step(np.array([0]))
+    first = episodes(path)[0]
+    assert (first["length"], first["terminated"], first["truncated"]) == (limit, True, True)
+    assert first["outcome"] == "failure"  # the task's ending counts
+    assert_replays_identical(path)
+
+
+def test_seeds_and_options_set_before_reset_are_recorded(tmp_path: Path) -> None:
+    path = tmp_path / "options.mcap"
+    with RecordVecEnvEvidence(DummyVecEnv([cartpole] * 2), path) as venv:
+        venv.seed(40)
+        venv.set_options([{"low": -0.01, "high": 0.01}, {}])
+        venv.reset()
+        venv.step(np.array([0, 1]))
+        venv.reset()  # unseeded: RNG states
+        venv.step(np.array([0, 1]))
+    eps = episodes(path)
+    assert [(e["seed"], e["options"]) for e in eps[:2]] == [
+        (40, '{"low":-0.01,"high":0.01}'),
+        (41, None),
+    ]
+    assert [e["seed"] for e in eps[2:]] == [None, None]
+    assert all(e["rng_state"] for e in eps[2:])
+    assert_replays_identical(path)
+
+
+def test_a_sub_env_that_raises_ends_the_episodes_as_error(tmp_path: Path) -> None:
+    def broken() -> gym.Env[Any, Any]:
+        env = cartpole()
+        env.unwrapped.step = lambda action: (_ for _ in ()).throw(RuntimeError("boom"))  # type: ignore[method-assign]
+        return env
+
+    path = tmp_path / "error.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([cartpole, broken]), path)
+    venv.reset()
+    with pytest.raises(RuntimeError, match="boom"):
+        venv.step(np.array([0, 0]))
+    venv.close()
+    assert [e["outcome"] for e in episodes(path)] == ["error", "error"]
+
+
+# ---------------------------------------------------------------- misuse, packaging
+
+
+def test_record_vector_evidence_refuses_an_sb3_vec_env(tmp_path: Path) -> None:
+    from episode_audit import RecordVectorEvidence
+
+    with pytest.raises(ConfigurationError, match=r"DummyVecEnv, a Stable-Baselines3 VecEnv: .*"):
+        RecordVectorEvidence(DummyVecEnv([cartpole]), tmp_path / "x.mcap")  # type: ignore[arg-type]
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_record_vec_env_evidence_refuses_a_gymnasium_env(tmp_path: Path) -> None:
+    with pytest.raises(ConfigurationError, match="records a Stable-Baselines3 VecEnv, actually"):
+        RecordVecEnvEvidence(cartpole(), tmp_path / "x.mcap")  # type: ignore[arg-type]
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_importing_episode_audit_imports_neither_sb3_nor_torch() -> None:
+    code = (
+        "import sys, episode_audit; "
+        "print(sorted(m for m in ('stable_baselines3', 'torch') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+    from episode_audit import RecordVecEnvEvidence as lazy
+
+    assert lazy is RecordVecEnvEvidence
+
+
+# ---------------------------------------------------------------- make_vec_env + RecordEvidence
+
+
+class PathPerSubEnv:
+    """A ``wrapper_class`` giving each sub-env of a ``DummyVecEnv`` a path of its own (in order)."""
+
+    def __init__(self, template: str) -> None:
+        self.template = template
+        self.made = 0
+
+    def __call__(self, env: gym.Env[Any, Any]) -> gym.Env[Any, Any]:
+        from episode_audit import RecordEvidence
+
+        path = self.template.format(self.made)
+        self.made += 1
+        return RecordEvidence(env, path)
+
+
+def test_make_vec_env_with_record_evidence_per_sub_env(tmp_path: Path) -> None:
+    from stable_baselines3.common.env_util import make_vec_env
+
+    venv = make_vec_env(
+        "CartPole-v1", N, seed=0, wrapper_class=PathPerSubEnv(str(tmp_path / "train-{}.mcap"))
+    )
+    model = PPO("MlpPolicy", venv, n_steps=64, n_epochs=1, batch_size=256, seed=0)
+    model.learn(256)
+    monitors = [e.env for e in venv.envs]  # RecordEvidence(Monitor(...))
+    venv.close()
+    for i, monitor in enumerate(monitors):
+        path = tmp_path / f"train-{i}.mcap"
+        assert [(e["length"], round(e["return"], 6)) for e in ended(path)] == list(
+            zip(monitor.get_episode_lengths(), monitor.get_episode_rewards(), strict=True)
+        )
+        assert episodes(path)[0]["seed"] == i
+        assert_checks_clean(path)
+
+
+def test_make_vec_env_with_an_index_template(tmp_path: Path) -> None:
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from episode_audit import RecordEvidence
+
+    template = str(tmp_path / "train-{index}.mcap")
+    venv = make_vec_env(
+        "CartPole-v1", N, wrapper_class=RecordEvidence, wrapper_kwargs={"path": template}
+    )
+    step_random(venv, 50)
+    venv.close()
+    assert sorted(p.name for p in tmp_path.glob("*.mcap")) == [f"train-{i}.mcap" for i in range(N)]
+
+
+# ---------------------------------------------------------------- check --strict
+
+
+def _train_recorder(tmp_path: Path) -> tuple[list[Path], list[Monitor]]:
+    path = tmp_path / "train.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([monitored_cartpole] * N), path)
+    PPO("MlpPolicy", venv, n_steps=128, n_epochs=1, batch_size=256, seed=0).learn(2048)
+    monitors = [venv.venv.envs[i].env for i in range(N)]  # ResetRngInfo(Monitor(...))
+    venv.close()
+    return [path] * N, monitors
+
+
+def _train_make_vec_env(tmp_path: Path) -> tuple[list[Path], list[Monitor]]:
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from episode_audit import RecordEvidence
+
+    template = str(tmp_path / "train-{index}.mcap")
+    venv = make_vec_env(
+        "CartPole-v1", N, seed=0, wrapper_class=RecordEvidence, wrapper_kwargs={"path": template}
+    )
+    PPO("MlpPolicy", venv, n_steps=128, n_epochs=1, batch_size=256, seed=0).learn(2048)
+    monitors = [e.env for e in venv.envs]  # RecordEvidence(Monitor(...))
+    venv.close()
+    return [tmp_path / f"train-{i}.mcap" for i in range(N)], monitors
+
+
+@pytest.mark.parametrize("train", [_train_recorder, _train_make_vec_env])
+def test_check_strict_passes_ppo_training_on_cartpole(tmp_path: Path, train: Any) -> None:
+    """Strict check clean with no --ignore; returns equal Monitor's; every episode identical."""
+    paths, monitors = train(tmp_path)
+    one_file = len(set(paths)) == 1  # sub-env i is stream i of it; else file i
+    for i, (path, monitor) in enumerate(zip(paths, monitors, strict=True)):
+        index = i if one_file else 0
+        mine = [
+            (e["length"], round(e["return"], 6)) for e in ended(path) if e["env_index"] == index
+        ]
+        assert monitor.get_episode_lengths()  # episodes ended
+        assert mine == list(
+            zip(monitor.get_episode_lengths(), monitor.get_episode_rewards(), strict=True)
+        )
+    for path in sorted(set(paths)):
+        assert_strict_clean(path)
+        assert_replays_identical(path)
+
+
+def test_check_strict_passes_ppo_training_on_reacher(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    path = tmp_path / "reacher.mcap"
+    make = [lambda: Monitor(gym.make("Reacher-v5"))] * 2
+    venv = RecordVecEnvEvidence(DummyVecEnv(make), path)
+    PPO("MlpPolicy", venv, n_steps=128, n_epochs=1, batch_size=256, seed=0).learn(512)
+    venv.close()
+    assert ended(path)
+    assert_strict_clean(path)
+    assert_replays_identical(path)
+
+
+# ---------------------------------------------------------------- evaluation
+
+
+def test_record_evaluation_tags_the_checkpoint_and_step(tmp_path: Path) -> None:
+    from episode_audit.record.sb3 import record_evaluation
+
+    model = PPO("MlpPolicy", DummyVecEnv([cartpole]), n_steps=64, n_epochs=1, seed=0)
+    model.learn(64)
+    eval_env = VecNormalize(VecMonitor(DummyVecEnv([cartpole] * 2)), norm_reward=False)
+    eval_env.seed(100)
+    path = tmp_path / "eval.mcap"
+    rewards, lengths = record_evaluation(
+        model, eval_env, path, n_eval_episodes=4, checkpoint="ckpt/ppo_{step}.zip"
+    )
+    assert len(rewards) == len(lengths) == 4
+    run = open_evidence(path).run
+    assert run.tags["training_step"] == str(model.num_timesteps)
+    assert run.tags["checkpoint"] == f"ckpt/ppo_{model.num_timesteps}.zip"
+    assert run.tags["evaluation"] == "evaluate_policy"
+    assert eval_env.venv.venv is not None and not isinstance(
+        eval_env.venv.venv, RecordVecEnvEvidence
+    )  # the recorder came out again
+    counted = sorted((n, round(r, 4)) for n, r in zip(lengths, rewards, strict=True))
+    recorded = sorted((e["length"], round(e["return"], 4)) for e in ended(path))
+    assert set(counted) <= set(recorded)
+    assert_replays_identical(path)  # recorded under VecNormalize: raw steps
+    assert_checks_clean(path)
+
+
+def test_record_eval_callback_writes_one_file_per_evaluation(tmp_path: Path) -> None:
+    from episode_audit import RecordEvalCallback
+
+    eval_env = VecMonitor(DummyVecEnv([cartpole]))
+    callback = RecordEvalCallback(
+        eval_env, str(tmp_path / "evals" / "eval-{step}.mcap"), eval_freq=64, n_eval_episodes=2
+    )
+    train_env = VecMonitor(DummyVecEnv([cartpole]))
+    model = PPO("MlpPolicy", train_env, n_steps=64, n_epochs=1, seed=0)
+    model.learn(128, callback=callback)
+    assert [p.name for p in callback.recorded] == ["eval-64.mcap", "eval-128.mcap"]
+    for path, step in zip(callback.recorded, (64, 128), strict=True):
+        tags = open_evidence(path).run.tags
+        assert (tags["evaluation"], tags["training_step"]) == ("EvalCallback", str(step))
+        assert len(ended(path)) >= 2
+        assert_replays_identical(path)
+    assert callback.eval_env is eval_env

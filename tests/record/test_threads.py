@@ -1,0 +1,145 @@
+"""``flush()`` from another thread: a timer thread hammering it while the loop steps loses no row,
+numbers every step right and raises nothing in either thread; an idle recorder flushed from
+another thread has its rows on disk."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from episode_audit import RecordEvidence, RecordVectorEvidence, check, open_evidence
+
+
+@pytest.fixture(autouse=True)
+def _switch_often() -> Iterator[None]:
+    """Switch threads every microsecond, so a race shows within a short run."""
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    yield
+    sys.setswitchinterval(interval)
+
+
+class Hammer(threading.Thread):
+    """Calls ``flush()`` every millisecond until stopped; keeps what it raised."""
+
+    def __init__(self, recorder: Any) -> None:
+        super().__init__(daemon=True)
+        self.recorder = recorder
+        self.stop = threading.Event()
+        self.raised: list[BaseException] = []
+        self.flushes = 0
+
+    def run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                self.recorder.flush()
+            except BaseException as exc:
+                self.raised.append(exc)
+                return
+            self.flushes += 1
+            time.sleep(0.001)
+
+
+def assert_whole(path: Path, rows: int) -> None:
+    ev = open_evidence(path)
+    steps = ev.steps(columns=["episode", "step"])
+    assert steps.num_rows == rows
+    assert [f.code for f in check([path]).findings if f.severity == "error"] == []
+    lengths = {e["episode"]: e["length"] for e in ev.episodes().to_pylist()}
+    assert sum(lengths.values()) == rows
+
+
+def test_a_timer_thread_hammering_flush_loses_no_row(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path, block_steps=512, flush_every_s=3600)
+    hammer = Hammer(env)
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    hammer.start()
+    episode = 0
+    for _ in range(20_000):
+        if any(env.step(env.action_space.sample())[2:4]):
+            episode += 1
+            env.reset(seed=episode)
+    hammer.stop.set()
+    hammer.join()
+    env.close()
+    assert hammer.raised == [] and hammer.flushes > 10
+    assert_whole(path, 20_000)
+
+
+def test_a_timer_thread_hammering_a_vector_recorders_flush_loses_no_row(tmp_path: Path) -> None:
+    path = tmp_path / "vec.mcap"
+    venv = gym.make_vec("CartPole-v1", num_envs=4, vectorization_mode="sync")
+    env = RecordVectorEvidence(venv, path, block_steps=512, flush_every_s=3600)
+    hammer = Hammer(env)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    hammer.start()
+    for _ in range(3_000):
+        env.step(env.action_space.sample())
+    hammer.stop.set()
+    hammer.join()
+    env.close()
+    assert hammer.raised == [] and hammer.flushes > 10
+    ev = open_evidence(path)
+    assert [f.code for f in check([path]).findings if f.severity == "error"] == []
+    assert ev.steps(columns=["episode"]).num_rows == 3_000 * 4 - ev.resets().num_rows + 4
+
+
+def test_an_idle_recorder_flushed_from_another_thread_has_its_rows_on_disk(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "idle.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path, flush_every_s=3600)
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(np.int64(0))
+    flusher = threading.Thread(target=env.flush)
+    flusher.start()
+    flusher.join()
+    shutil.copyfile(path, tmp_path / "killed.mcap")  # what a SIGKILL now leaves on disk
+    env.close()
+    assert open_evidence(tmp_path / "killed.mcap").steps(columns=["episode"]).num_rows == 5
+
+
+def test_close_from_another_thread_keeps_every_step_that_returned(tmp_path: Path) -> None:
+    """The step under way ends first; a later one raises the closed recorder's error."""
+    from episode_audit.errors import RecorderError
+
+    path = tmp_path / "closed.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path, block_steps=64, flush_every_s=3600)
+    env.action_space.seed(0)
+    returned = 0
+    refused: list[BaseException] = []
+
+    def loop() -> None:
+        nonlocal returned
+        episode = 0
+        env.reset(seed=0)
+        try:
+            while True:
+                if any(env.step(env.action_space.sample())[2:4]):
+                    episode += 1
+                    env.reset(seed=episode)
+                returned += 1
+        except RecorderError as exc:
+            refused.append(exc)
+
+    stepper = threading.Thread(target=loop)
+    stepper.start()
+    time.sleep(0.5)
+    env.close()
+    stepper.join(timeout=30)
+    assert len(refused) == 1 and "the recorder is closed" in str(refused[0])
+    ev = open_evidence(path)
+    assert ev.finished and ev.steps(columns=["episode"]).num_rows in (returned, returned + 1)

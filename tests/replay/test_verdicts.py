@@ -1,0 +1,262 @@
+"""Replay's verdicts: per-sub-env replay, causes classified before comparing, real divergence."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import pytest
+from typer.testing import CliRunner
+
+from episode_audit import (
+    RecordEvidence,
+    RecordParallelEvidence,
+    RecordVectorEvidence,
+    check,
+    open_evidence,
+)
+from episode_audit.cli import app
+from episode_audit.replay import replay
+from tests.support.mission import mission_env
+from tests.support.stateful import (
+    cartpole8,
+    counted_cartpole,
+    mutating_cartpole,
+    normalized_cartpole,
+    random_module_cartpole,
+)
+
+
+def record_vector(path: Path, vectorization: str, n: int = 3, steps: int = 60) -> Path:
+    """Random steps of ``n`` CartPoles, each in its own episode counter."""
+    make = gym.vector.SyncVectorEnv if vectorization == "sync" else gym.vector.AsyncVectorEnv
+    envs: Any = make([counted_cartpole] * n)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=11)
+        rec.action_space.seed(3)
+        for _ in range(steps):
+            rec.step(rec.action_space.sample())
+    return path
+
+
+@pytest.mark.parametrize("vectorization", ["sync", "async"])
+def test_each_sub_env_replays_in_its_own_env_in_recorded_order(
+    tmp_path: Path, vectorization: str
+) -> None:
+    path = record_vector(tmp_path / "v.mcap", vectorization)
+    result = replay([path], env_factory=counted_cartpole)
+    statuses = [(e.episode, e.status, e.divergence) for e in result.episodes]
+    assert len(statuses) > 12
+    assert all(s == "identical" for _, s, _ in statuses), statuses
+
+
+def run_episodes(env: Any, episodes: int, seed: int = 100) -> None:
+    env.action_space.seed(seed)
+    for e in range(episodes):
+        env.reset(seed=seed + e)
+        done = False
+        while not done:
+            _, _, term, trunc, _ = env.step(env.action_space.sample())
+            done = term or trunc
+
+
+def test_warmed_up_normalize_observation_is_not_replayable_never_diverged(
+    tmp_path: Path,
+) -> None:
+    env = normalized_cartpole()
+    run_episodes(env, 5, seed=1)  # warmed up: running statistics the file will not hold
+    path = tmp_path / "n.mcap"
+    with pytest.warns(UserWarning, match=r"RecordEvidence: the recorded wrapper NormalizeObs"):
+        rec = RecordEvidence(env, path)
+    with rec:
+        run_episodes(rec, 6)
+    for factory in (None, normalized_cartpole):
+        result = replay([path], env_factory=factory)
+        assert [e.status for e in result.episodes] == ["not_replayable"] * 6
+        reason = result.episodes[0].reason or ""
+        assert "NormalizeObservation keeps running statistics" in reason, reason
+        assert "(no state snapshot)" in reason
+    findings = [f for f in check([path]).findings if f.code == "not_replayable"]
+    assert [f.message for f in findings] == [
+        "no episode can be replayed as recorded: " + (result.episodes[0].reason or "")
+    ]
+
+
+def test_vector_wrapper_under_the_recorder_is_recorded_warned_and_not_replayable(
+    tmp_path: Path,
+) -> None:
+    envs: Any = gym.vector.SyncVectorEnv([cartpole8] * 2)
+    envs = gym.wrappers.vector.NormalizeObservation(gym.wrappers.vector.ClipReward(envs, 0, 1))
+    path = tmp_path / "vw.mcap"
+    with pytest.warns(UserWarning, match=r"RecordVectorEvidence: the recorder wrapped") as caught:
+        rec = RecordVectorEvidence(envs, path)
+    warned = [str(w.message) for w in caught]
+    assert len(warned) == 2  # one warning per cause, the innermost first
+    assert "the vector wrapper ClipReward (gymnasium.wrappers.vector." in warned[0]
+    assert "the vector wrapper NormalizeObservation" in warned[1]
+    assert "wrap the vector env in RecordVectorEvidence first (innermost)" in warned[1]
+    with rec:
+        rec.reset(seed=1)
+        for _ in range(20):
+            rec.step(rec.action_space.sample())
+    ev = open_evidence(path)
+    assert ev.run.layout["vector_wrappers"] == [
+        "gymnasium.wrappers.vector.vectorize_reward:ClipReward",
+        "gymnasium.wrappers.vector.stateful_observation:NormalizeObservation",
+    ]
+    result = replay([path], env_factory=cartpole8)
+    assert result.count("diverged") == 0
+    assert result.count("not_replayable") == len(result.episodes) > 2
+    reason = result.episodes[0].reason or ""
+    assert "vector wrapper ClipReward" in reason and "vector wrapper NormalizeObservation" in reason
+    findings = [f.message for f in check([path]).findings if f.code == "not_replayable"]
+    assert len(findings) == 2
+    assert "ClipReward" in findings[0] and "NormalizeObservation" in findings[1]
+
+
+def test_pistonball_rebuilt_with_other_agents_names_the_difference(tmp_path: Path) -> None:
+    pytest.importorskip("pymunk")
+    with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.butterfly import pistonball_v6
+
+    path = tmp_path / "pb.mcap"
+    with RecordParallelEvidence(pistonball_v6.parallel_env(n_pistons=5, max_cycles=3), path) as env:
+        env.reset(seed=1)
+        while env.agents:
+            env.step({a: env.action_space(a).sample() for a in env.agents})
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert len(result.episodes) == 5
+    reason = result.episodes[0].reason or ""
+    assert reason.startswith(
+        'the rebuilt env does not match the recording: agents ["piston_0", "piston_1", '
+        '"piston_2", "piston_3", "piston_4"] recorded vs ["piston_0", '
+    ), reason
+
+
+@pytest.mark.parametrize(
+    ("factory", "reason"),
+    [
+        (
+            "tests.support.stateful:cartpole8",
+            "the rebuilt env does not match the recording: max episode steps 5 recorded vs 8 "
+            "rebuilt",
+        ),
+        (
+            "tests.support.stateful:mountain_car5",
+            "the rebuilt env does not match the recording: observation space "
+            '{"dtype": "float32", "high": [4.800000190734863, "inf"',
+        ),
+    ],
+)
+def test_a_rebuilt_env_that_differs_is_named_not_diverged(
+    tmp_path: Path, factory: str, reason: str
+) -> None:
+    path = tmp_path / "cp.mcap"
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=5), path) as env:
+        run_episodes(env, 2)
+    result = replay([path], env_factory=factory)
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2
+    assert (result.episodes[0].reason or "").startswith(reason), result.episodes[0].reason
+
+
+def test_an_env_kwarg_the_rebuilt_env_has_otherwise_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "fl.mcap"
+    with RecordEvidence(gym.make("FrozenLake-v1", is_slippery=False), path) as env:
+        run_episodes(env, 1)
+    result = replay([path], env_factory=lambda: gym.make("FrozenLake-v1", is_slippery=True))
+    assert result.episodes[0].reason == (
+        "the rebuilt env does not match the recording: env kwarg 'is_slippery' false recorded "
+        "vs true rebuilt"
+    )
+
+
+@pytest.mark.parametrize(
+    ("factory", "where", "field"),
+    [(random_module_cartpole, None, "reset_observation"), (mutating_cartpole, 0, "reward")],
+    ids=["random-module-reset", "mutating-wrapper"],
+)
+def test_real_nondeterminism_still_diverges_at_the_right_step(
+    tmp_path: Path, factory: Any, where: int | None, field: str
+) -> None:
+    path = tmp_path / "nd.mcap"
+    with RecordEvidence(factory(), path) as env:
+        run_episodes(env, 3)
+    result = replay([path], env_factory=factory)
+    assert [e.status for e in result.episodes] == ["diverged"] * 3
+    divergence = result.episodes[0].divergence
+    assert divergence is not None
+    assert (divergence.step, divergence.field) == (where, field)
+    assert [e.restored for e in result.episodes] == [
+        "seed 100; first episode in this env",
+        "seed 101; this env after 1 earlier episode",
+        "seed 102; this env after 2 earlier episodes",
+    ]
+
+
+def test_a_divergence_names_the_rng_state_and_the_sub_env_it_restored(tmp_path: Path) -> None:
+    path = tmp_path / "v.mcap"
+    envs: Any = gym.vector.SyncVectorEnv([mutating_cartpole] * 2)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=5)  # seeded once: every later reset of a sub-env is unseeded
+        rec.action_space.seed(3)
+        for _ in range(20):
+            rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=mutating_cartpole)
+    by_env: dict[int, list[str | None]] = {}
+    for e in result.episodes:
+        assert e.status == "diverged", e
+        env_index = int(open_evidence(path).episodes().to_pylist()[e.episode]["env_index"])
+        by_env.setdefault(env_index, []).append(e.restored)
+    assert by_env[1][:2] == [
+        "seed 6; first episode in sub-env 1's env",
+        "the recorded RNG state (an unseeded reset); sub-env 1's env after 1 earlier episode",
+    ]
+    args = ["replay", str(path), "--env-factory", "tests.support.stateful:mutating_cartpole"]
+    shown = CliRunner().invoke(app, [*args, "--format", "markdown"])
+    assert shown.exit_code == 1
+    assert "(restored: seed 5; first episode in sub-env 0's env) |" in shown.stdout
+    as_json = json.loads(CliRunner().invoke(app, [*args, "--format", "json"]).stdout)
+    assert as_json["episodes"][0]["restored"] == "seed 5; first episode in sub-env 0's env"
+
+
+def record_missions(path: Path, episodes: int = 4) -> Path:
+    """Random steps of :class:`MissionEnv`: a Dict observation with a space of its own class."""
+    with RecordEvidence(mission_env(), path) as rec:
+        rec.action_space.seed(1)
+        for e in range(episodes):
+            rec.reset(seed=e)
+            done = False
+            while not done:
+                _, _, term, trunc, _ = rec.step(rec.action_space.sample())
+                done = term or trunc
+    return path
+
+
+def test_an_unknown_sub_space_is_stored_as_json_and_the_file_replays(tmp_path: Path) -> None:
+    path = record_missions(tmp_path / "m.mcap")
+    ev = open_evidence(path)
+    stored = ev.steps_schema.field("observation").type
+    assert str(stored) == "struct<mission: string, pos: fixed_size_list<item: float>[2]>"
+    result = replay([path], env_factory=mission_env)
+    assert [(e.status, e.reason) for e in result.episodes] == [("identical", None)] * 4
+    notes = [(f.severity, f.code, f.message) for f in check([path]).findings]
+    assert (
+        "note",
+        "observation_space_unchecked",
+        "observation['mission']: MissionSpace is not a Gymnasium space episode-audit knows: "
+        "stored as JSON; its values were not checked against it",
+    ) in notes
+    assert not [n for n in notes if n[1] == "not_replayable"]
+
+
+def test_the_cli_replays_a_file_with_an_unknown_sub_space(tmp_path: Path) -> None:
+    path = record_missions(tmp_path / "m.mcap", episodes=2)
+    factory = "tests.support.mission:mission_env"
+    result = CliRunner().invoke(app, ["replay", str(path), "--env-factory", factory])
+    assert result.exit_code == 0, result.output
+    assert "2 identical, 0 diverged, 0 not replayable" in result.stdout
