@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
+    "LAYOUT_STATE_SNAPSHOTS",
     "LAYOUT_VECTOR_WRAPPERS",
     "RECORDED_WRAPPERS",
     "REWARD_CHANGING",
@@ -154,7 +155,7 @@ def _rebuilt(render_bound: bool = False, **args: Check) -> WrapperRule:
 _NO_STEP = "it never changes a step"
 _CALLABLE = "its argument {} is a function, which a file cannot hold"
 _CONVERTS = "it converts arrays through an optional library (jax / torch) the file names"
-_STATS = "it keeps running statistics across episodes (restored from each episode's snapshot)"
+_STATS = "it keeps running statistics across episodes, which the file does not hold"
 _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
     # module in gymnasium.wrappers, rule; by class name (Gymnasium 1.x)
     "TimeLimit": ("common", _rebuilt(max_episode_steps=_int(1, _LARGE))),
@@ -362,6 +363,9 @@ def _bad_argument(name: str, rule: WrapperRule, kwargs: Any) -> str | None:
     return None
 
 
+LAYOUT_STATE_SNAPSHOTS = "state_snapshots"
+"""Layout key: ``true`` when every reset row holds a state snapshot (``format/state.py``), so a
+``snapshot`` wrapper's state is restored (absent otherwise)."""
 LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
 """The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
 first; absent in files that predate it, and when there were none)."""
@@ -404,13 +408,16 @@ def reward_cause(layout: Any) -> str | None:
     )
 
 
-def stateful_wrapper(entry_point: str) -> str | None:
+def stateful_wrapper(entry_point: str, *, snapshots: bool = False) -> str | None:
     """Why the wrapper of ``entry_point`` keeps state a file does not hold, or ``None``.
 
-    ``None`` for every wrapper but those the registry calls ``stateful``.
+    ``None`` for every wrapper but those the registry calls ``stateful``, and those it calls
+    ``snapshot`` in a file without state snapshots (``snapshots``: the file has them).
     """
     rule = RECORDED_WRAPPERS.get(entry_point)
-    return rule.why if rule is not None and rule.kind == "stateful" else None
+    if rule is None or rule.kind not in ("stateful", "snapshot"):
+        return None
+    return None if rule.kind == "snapshot" and snapshots else rule.why
 
 
 _VECTOR_STEP_SAFE = frozenset(
@@ -447,9 +454,10 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
     """
     causes: list[str] = []
     wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    snapshots = isinstance(layout, Mapping) and layout.get(LAYOUT_STATE_SNAPSHOTS) is True
     for wrapper in _listed(wrappers):
         entry = str(wrapper.get("entry_point")) if isinstance(wrapper, Mapping) else ""
-        why = stateful_wrapper(entry)
+        why = stateful_wrapper(entry, snapshots=snapshots)
         if why is not None:
             name = entry.rpartition(":")[2]
             causes.append(

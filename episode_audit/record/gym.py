@@ -22,7 +22,12 @@ from gymnasium.envs.registration import EnvSpec
 from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
-from ..format.wrappers import LAYOUT_REWARD_WRAPPERS, REWARD_CHANGING, state_causes
+from ..format.wrappers import (
+    LAYOUT_REWARD_WRAPPERS,
+    LAYOUT_STATE_SNAPSHOTS,
+    REWARD_CHANGING,
+    state_causes,
+)
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -95,6 +100,10 @@ class RecordEvidence(
         act_codec = codec_for(env.action_space)
         self._unwrapped = env.unwrapped
         layout: dict[str, Any] = {"kind": "single", "num_envs": 1, "agents": []}
+        # the wrappers (and env) below whose state is snapshot at each reset (.state)
+        self._state = StateTargets(env)
+        if self._state:
+            layout[LAYOUT_STATE_SNAPSHOTS] = True
         changing = reward_wrappers(env)
         if changing:
             layout[LAYOUT_REWARD_WRAPPERS] = changing
@@ -109,8 +118,6 @@ class RecordEvidence(
         warn_unrestorable(type(self).__name__, wrapper_chain(env), self.run_info.layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
-        # the wrappers (and env) below whose state is snapshot at each reset (.state)
-        self._state = StateTargets(env)
         self._stream = self._file.add_stream(
             obs_codec,
             act_codec,

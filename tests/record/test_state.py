@@ -202,9 +202,9 @@ def test_restoring_says_what_is_missing_or_left_over() -> None:
     other = gym.wrappers.NormalizeObservation(gym.make("Pendulum-v1"))
     with pytest.raises(ValueError, match="does not fit the rebuilt env's NormalizeObservation"):
         restore_snapshot(other, _snapshot(normalized), seeded=True)
-    assert restore_snapshot(normalized, _snapshot(normalized), seeded=True) == (
-        "NormalizeObservation snapshot"
-    )
+    assert restore_snapshot(normalized, _snapshot(normalized), seeded=True) == [
+        "NormalizeObservation"
+    ]
 
 
 # ---------------------------------------------------------------------- the recorders

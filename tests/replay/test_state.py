@@ -65,7 +65,8 @@ def test_a_file_without_the_snapshots_is_not_replayable_naming_them(
     # as a file recorded before snapshots existed: no adapter registered while recording
     monkeypatch.setattr(state_module, "_ADAPTERS", {})
     monkeypatch.setattr(state_module, "_BY_TYPE", {})
-    path = _record(_warmed(gym.wrappers.NormalizeObservation), tmp_path / "old.mcap")
+    with pytest.warns(UserWarning, match=r"NormalizeObservation .* \(no state snapshot\)"):
+        path = _record(_warmed(gym.wrappers.NormalizeObservation), tmp_path / "old.mcap")
     monkeypatch.undo()
     state_module._BY_TYPE.clear()
     results = replay([path]).episodes
@@ -147,7 +148,9 @@ def test_state_outside_any_adapter_still_diverges_and_says_what_was_restored(
     [result] = replay([path], episodes=[3], env_factory=_counting).episodes
     assert result.status == "diverged"
     assert result.divergence is not None and result.divergence.step is None  # at the reset
-    assert result.reason == "state restored: NormalizeObservation snapshot"
+    assert result.restored == (
+        "seed 3; snapshot of NormalizeObservation; first episode in this env"
+    )
 
 
 @pytest.fixture

@@ -20,7 +20,12 @@ from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
 from ...format.spaces import codec_for, describe_space
-from ...format.wrappers import LAYOUT_REWARD_WRAPPERS, LAYOUT_VECTOR_WRAPPERS, REWARD_CHANGING
+from ...format.wrappers import (
+    LAYOUT_REWARD_WRAPPERS,
+    LAYOUT_STATE_SNAPSHOTS,
+    LAYOUT_VECTOR_WRAPPERS,
+    REWARD_CHANGING,
+)
 from ..file import EvidenceFile, FileRecorder
 from ..gym import entry_point, reward_wrappers, warn_unrestorable, wrapper_chain
 from ..rules import find_time_limit
@@ -96,12 +101,15 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             )
             notes.append(no_rng_note)
         self._rng = SubEnvRng(sync, async_env)
-        snapshots = self._rng.snapshots()
+        # sub-envs in this process snapshot through the ResetRngInfo installed on them
+        snapshots = self._rng.snapshots() and (sync is None or install_rng_info)
         same_step = mode is AutoresetMode.SAME_STEP
         if (same_step or snapshots) and sync is not None and install_rng_info:
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
         layout = vector_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note)
+        if snapshots:
+            layout[LAYOUT_STATE_SNAPSHOTS] = True
         vector_wrappers = _vector_wrappers(env)
         if vector_wrappers:
             layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
