@@ -15,7 +15,7 @@ from typing import Any
 import gymnasium as gym
 import pytest
 
-from episode_audit import RecordEvidence, RecordVectorEvidence, ResetRngInfo, replay
+from episode_audit import RecordEvidence, RecordVectorEvidence, ResetRngInfo, check, replay
 from episode_audit.record import state as state_module
 
 EPISODES = 6
@@ -71,10 +71,13 @@ def test_a_file_without_the_snapshots_is_not_replayable_naming_them(
     state_module._BY_TYPE.clear()
     results = replay([path]).episodes
     assert {e.status for e in results} == {"not_replayable"}
-    assert results[0].reason == (
-        "the env's NormalizeObservation keeps state a seed does not set, and the file holds "
-        "no gymnasium.NormalizeObservation snapshot for this episode's reset"
+    assert results[0].reason is not None
+    assert results[0].reason.startswith(
+        "the recorded wrapper NormalizeObservation keeps running statistics across episodes, "
+        "which the file does not hold (no state snapshot)"
     )
+    findings = [f for f in check([path]).findings if f.code == "not_replayable"]
+    assert len(findings) == 1 and "NormalizeObservation" in findings[0].message
 
 
 @pytest.mark.parametrize("mode", ["sync", "async"])
