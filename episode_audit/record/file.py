@@ -535,6 +535,8 @@ def _episode_batch(
 
 
 _OPEN_RECORDERS: weakref.WeakSet[Any] = weakref.WeakSet()
+if hasattr(os, "register_at_fork"):  # a forked child's exit must not finish its parent's files
+    os.register_at_fork(after_in_child=_OPEN_RECORDERS.clear)
 
 
 @atexit.register

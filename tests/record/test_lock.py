@@ -311,3 +311,29 @@ def test_the_record_command_takes_a_template_and_names_the_file(tmp_path: Path) 
         assert f"to {tmp_path / f'run-{index}.mcap'}:" in result.stdout
     result = CliRunner().invoke(app, ["record", "CartPole-v1", "--out", out, "--overwrite"])
     assert result.exit_code == 2 and "overwrite=True with {index}" in result.stderr
+
+
+_FORKED = """
+import os, sys
+import gymnasium as gym
+from episode_audit import RecordEvidence
+env = RecordEvidence(gym.make("CartPole-v1"), sys.argv[1])
+env.reset(seed=0)
+for _ in range(5):
+    env.step(0)
+if os.fork() == 0:
+    sys.exit(0)  # a child that ends normally runs the interpreter's exit hooks
+os.wait()
+for _ in range(3):
+    env.step(1)
+env.close()
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_a_forked_child_ending_normally_leaves_the_parents_file_alone(tmp_path: Path) -> None:
+    path = tmp_path / "forked.mcap"
+    subprocess.run([sys.executable, "-c", _FORKED, str(path)], check=True, timeout=120)
+    result = check([path])
+    assert result.ok and not result.warnings, [f.message for f in result.findings]
+    assert open_evidence(path).steps(columns=["episode"]).num_rows == 8
