@@ -62,6 +62,11 @@ def child(kind: str, env_id: str, steps: int, out: str) -> None:
     env.close()
 
 
+# numpy's OpenBLAS threads spin after a call, adding millions of instructions that vary from run
+# to run; one hash seed keeps dict and set layouts (and so lookup costs) the same
+_STEADY = {**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"}
+
+
 def _cachegrind(
     args: list[str], out_file: str, env: dict[str, str] | None = None
 ) -> dict[str, int]:
@@ -87,7 +92,9 @@ def _cachegrind(
 def counts(kind: str, env_id: str, steps: int, tmp: Path) -> dict[str, int]:
     """cachegrind's totals for one child run."""
     out = str(tmp / f"{kind}-{steps}.mcap")
-    return _cachegrind(["--child", kind, env_id, str(steps), out], str(tmp / f"{kind}-{steps}.cg"))
+    return _cachegrind(
+        ["--child", kind, env_id, str(steps), out], str(tmp / f"{kind}-{steps}.cg"), _STEADY
+    )
 
 
 def measure(env_id: str) -> dict[str, Any]:
@@ -158,9 +165,7 @@ def replay_counts(kind: str, env_id: str, path: Path, warm_path: Path) -> dict[s
     return _cachegrind(
         ["--replay-child", kind, env_id, str(path), str(warm_path)],
         "/dev/null",
-        # numpy's OpenBLAS threads spin after a call, adding millions of instructions that
-        # vary from run to run; one hash seed keeps dict and set layouts the same
-        {**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"},
+        _STEADY,
     )
 
 

@@ -416,6 +416,88 @@ def replay_own_seconds(path: Path, env_id: str, rounds: int, actions: list[Any])
     return min(rep_t) - min(bare_t)
 
 
+def _state_cases() -> dict[str, Callable[[], Any]]:
+    """What each shipped state adapter snapshots, built and warmed up (optional libs if there)."""
+    wrappers = gym.wrappers
+
+    def warm(env: Any, steps: int = 500) -> Any:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        for _ in range(steps):
+            result = env.step(env.action_space.sample())
+            if not hasattr(env, "num_envs") and (result[2] or result[3]):
+                env.reset()
+        return env
+
+    cases: dict[str, Callable[[], Any]] = {
+        "NormalizeObservation, CartPole-v1": lambda: warm(
+            wrappers.NormalizeObservation(gym.make("CartPole-v1"))
+        ),
+        "NormalizeReward, CartPole-v1": lambda: warm(
+            wrappers.NormalizeReward(gym.make("CartPole-v1"))
+        ),
+        "NormalizeObservation, HalfCheetah-v5": lambda: warm(
+            wrappers.NormalizeObservation(gym.make("HalfCheetah-v5"))
+        ),
+        "vector NormalizeObservation, CartPole-v1 x8": lambda: warm(
+            wrappers.vector.NormalizeObservation(gym.make_vec("CartPole-v1", 8))
+        ),
+    }
+    try:
+        from stable_baselines3.common.env_util import make_vec_env
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        def vec_normalize() -> Any:
+            env = VecNormalize(make_vec_env("CartPole-v1", n_envs=8, seed=0))
+            env.reset()
+            for _ in range(500):
+                env.step(np.zeros(8, dtype=np.int64))
+            return env
+
+        cases["SB3 VecNormalize, CartPole-v1 x8"] = vec_normalize
+    except ImportError:
+        pass
+    try:
+        import ale_py
+
+        gym.register_envs(ale_py)
+        cases["ALE Pong-v5"] = lambda: warm(gym.make("ALE/Pong-v5"), 200)
+    except ImportError:
+        pass
+    return cases
+
+
+def bench_state(rounds: int = 200) -> list[dict[str, Any]]:
+    """Per shipped state adapter: bytes of the snapshot a reset row holds, and the time to take
+    it (at every recorded reset) and to restore it (replay, before each episode's reset)."""
+    from episode_audit.record.state import StateTargets, restore_snapshot
+
+    out = []
+    for name, make in _state_cases().items():
+        env = make()
+        targets = StateTargets(env)
+        text = targets.capture([])
+        assert text is not None, name
+        take, put = [], []
+        for _ in range(rounds):
+            t0 = time.perf_counter()
+            targets.capture([])
+            t1 = time.perf_counter()
+            restore_snapshot(env, text, seeded=False)
+            put.append(time.perf_counter() - t1)
+            take.append(t1 - t0)
+        out.append(
+            {
+                "adapter": name,
+                "bytes_per_episode": len(text),
+                "us_per_reset": round(statistics.median(take) * 1e6, 1),
+                "us_per_restore": round(statistics.median(put) * 1e6, 1),
+            }
+        )
+        env.close()
+    return out
+
+
 BENCHES: dict[str, Callable[[], Any]] = {
     "record": lambda: [
         bench_record("CartPole-v1", 200_000, 7),
@@ -436,6 +518,7 @@ BENCHES: dict[str, Callable[[], Any]] = {
     "sb3": lambda: bench_sb3.bench(TMP),
     # --jobs 1 vs 2 over 1 000 files (+ 50 MuJoCo episodes for replay); Amdahl estimate to N
     "jobs": lambda: bench_jobs.bench(TMP),
+    "state": bench_state,
 }
 
 

@@ -33,6 +33,8 @@ from .record import (
     RecordVectorEvidence,
     ResetRngInfo,
     RewardTerms,
+    StateAdapter,
+    register_state_adapter,
 )
 from .recover import RecoveryResult, recover
 from .replay import ReplayResult, replay
@@ -71,6 +73,7 @@ __all__ = [
     "ResetRngInfo",
     "RewardTerms",
     "RunInfo",
+    "StateAdapter",
     "UnsupportedVersionError",
     "__version__",
     "check",
@@ -79,6 +82,7 @@ __all__ = [
     "open_evidence",
     "record_evaluation",
     "recover",
+    "register_state_adapter",
     "replay",
     "report",
 ]

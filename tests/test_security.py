@@ -240,6 +240,7 @@ _REFUSED = [
         "the recorded wrapper TimeLimit has an argument 'path' replay does not know",
     ),
     (
+        # (a file without state snapshots: tests/replay/test_state.py restores those)
         [_wrapper("gymnasium.wrappers.stateful_observation:NormalizeObservation", epsilon=1e-8)],
         # (a cause replay reads from the file, whatever env it could build: no way around)
         "the recorded wrapper NormalizeObservation keeps running statistics across episodes, "

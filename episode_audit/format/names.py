@@ -29,6 +29,7 @@ __all__ = [
     "COL_REWARD",
     "COL_RNG_STATE",
     "COL_SEED",
+    "COL_STATE",
     "COL_STEP",
     "COL_TERMINATED",
     "COL_TERMS",
@@ -37,6 +38,7 @@ __all__ = [
     "FORMAT_MAJOR",
     "FORMAT_VERSION",
     "INFO_RNG_STATE",
+    "INFO_STATE",
     "JSON_ENCODING",
     "JSONSCHEMA_ENCODING",
     "MCAP_PROFILE",
@@ -95,6 +97,8 @@ SCHEMA_EPISODE_BLOCK: Final = "episode_audit.EpisodeBlock"
 
 INFO_RNG_STATE: Final = "episode_audit.rng_state"
 """Reset-info key where ``ResetRngInfo`` puts the RNG state before an unseeded reset (JSON)."""
+INFO_STATE: Final = "episode_audit.state"
+"""Reset-info key where ``ResetRngInfo`` puts the state snapshot taken before a reset (JSON)."""
 
 METADATA_RUN: Final = "episode_audit.run"
 METADATA_RUN_END: Final = "episode_audit.run_end"
@@ -131,6 +135,8 @@ COL_NOTES: Final = "notes"
 COL_ENV_INDEX: Final = "env_index"
 COL_SEED: Final = "seed"
 COL_RNG_STATE: Final = "rng_state"
+COL_STATE: Final = "state"
+"""Reset column (optional): the state snapshot taken before the reset (``format/state.py``)."""
 COL_OPTIONS: Final = "options"
 COL_AGENT: Final = "agent"
 COL_GAME: Final = "game"

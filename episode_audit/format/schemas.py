@@ -38,6 +38,7 @@ from .names import (
     COL_REWARD,
     COL_RNG_STATE,
     COL_SEED,
+    COL_STATE,
     COL_STEP,
     COL_TERMINATED,
     COL_TERMS,
@@ -52,6 +53,7 @@ __all__ = [
     "EPISODE_BLOCK_SCHEMA",
     "EPISODE_TABLE_SCHEMA",
     "RESET_COLUMNS",
+    "RESET_STATE_COLUMN",
     "RESET_STREAM_COLUMNS",
     "STEP_COLUMNS",
     "Column",
@@ -107,6 +109,9 @@ RESET_STREAM_COLUMNS: tuple[Column, ...] = (
 )
 """Reset columns multi-stream files add (vector, PettingZoo): whose reset, in which game."""
 
+RESET_STATE_COLUMN = Column(COL_STATE, pa.string())
+"""The reset column of files that snapshot state (optional: files without it read as before)."""
+
 _BLOCK_COLUMNS = {TOPIC_STEPS: STEP_COLUMNS, TOPIC_RESETS: RESET_COLUMNS}
 
 
@@ -130,9 +135,13 @@ def step_schema(action: pa.Field, observation: pa.Field) -> pa.Schema:
     return _schema(STEP_COLUMNS, {COL_ACTION: action, COL_OBSERVATION: observation})
 
 
-def reset_schema(observation: pa.Field, *, multi_stream: bool) -> pa.Schema:
-    """The schema of a stream's reset blocks (with ``agent`` and ``game`` if ``multi_stream``)."""
+def reset_schema(observation: pa.Field, *, multi_stream: bool, state: bool = False) -> pa.Schema:
+    """The schema of a stream's reset blocks.
+
+    With ``agent`` and ``game`` if ``multi_stream``, and ``state`` last if ``state``.
+    """
     columns = RESET_COLUMNS + RESET_STREAM_COLUMNS if multi_stream else RESET_COLUMNS
+    columns += (RESET_STATE_COLUMN,) if state else ()
     return _schema(columns, {COL_OBSERVATION: observation})
 
 

@@ -2,9 +2,10 @@
 
 One registry (:data:`RECORDED_WRAPPERS`, by entry point) classifies every wrapper replay knows:
 ``rebuilt`` (no state beyond an episode, no side effect: re-applied, each argument checked to be
-plain data of the expected type and size), ``transparent`` (never changes a step: left out,
-saying so), ``stateful`` (keeps state across episodes that the file does not hold: not
-replayable until a state snapshot can restore it) or ``refused`` (takes callables, converts
+plain data of the expected type and size), ``snapshot`` (rebuilt so, and its state across
+episodes restored from the snapshot each episode's reset row holds: ``record/state.py``),
+``transparent`` (never changes a step: left out, saying so), ``stateful`` (keeps state across
+episodes that the file does not hold: not replayable) or ``refused`` (takes callables, converts
 through an optional array library). Any other wrapper is unknown, refused too. Nothing here
 imports what a file names: a wrapper is rebuilt only from ``gymnasium.wrappers`` by a name in
 the registry. :func:`plan_wrappers` reads a spec's ``additional_wrappers`` into a
@@ -25,6 +26,7 @@ from typing import Any, Literal
 
 __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
+    "LAYOUT_STATE_SNAPSHOTS",
     "LAYOUT_VECTOR_WRAPPERS",
     "RECORDED_WRAPPERS",
     "REWARD_CHANGING",
@@ -40,7 +42,7 @@ __all__ = [
     "vector_wrapper_cause",
 ]
 
-WrapperKind = Literal["rebuilt", "transparent", "stateful", "refused"]
+WrapperKind = Literal["rebuilt", "snapshot", "transparent", "stateful", "refused"]
 
 Check = Callable[[Any], str | None]
 """What is wrong with an argument's value (``None``: nothing), said as "expected …"."""
@@ -93,6 +95,10 @@ def _probability(value: Any) -> str | None:
     return None if _real(value) and 0 <= value <= 1 else "a number from 0 to 1"
 
 
+def _positive(value: Any) -> str | None:
+    return None if _real(value) and value > 0 else "a finite number > 0"
+
+
 def _bool(value: Any) -> str | None:
     return None if type(value) is bool else "true or false"
 
@@ -129,8 +135,8 @@ _SIZE = _ints(1, 4096, 2)  # a screen size: one side, or both
 class WrapperRule:
     """What replay does with one recorded wrapper.
 
-    ``args``: for a ``rebuilt`` wrapper, each argument it may be given and its check (an
-    argument not listed is refused); ``why``: for the others, the reason in words.
+    ``args``: for a ``rebuilt`` (or ``snapshot``) wrapper, each argument it may be given and
+    its check (an argument not listed is refused); ``why``: for the others, the reason in words.
     ``renders``: it calls ``render()`` inside a step (left out, it no longer does);
     ``render_bound``: a rebuilt wrapper whose step depends on those calls.
     """
@@ -207,7 +213,10 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
         _rebuilt(flatten=_bool, normalize_time=_bool, dict_time_key=_text()),
     ),
     "MaxAndSkipObservation": ("stateful_observation", _rebuilt(skip=_int(1, 1_000))),
-    "NormalizeObservation": ("stateful_observation", WrapperRule("stateful", why=_STATS)),
+    "NormalizeObservation": (
+        "stateful_observation",
+        WrapperRule("snapshot", {"epsilon": _positive}, why=_STATS),
+    ),
     "StickyAction": (
         "stateful_action",
         _rebuilt(
@@ -215,7 +224,10 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
         ),
     ),
     "RepeatAction": ("stateful_action", _rebuilt(num_repeats=_int(1, 1_000))),
-    "NormalizeReward": ("stateful_reward", WrapperRule("stateful", why=_STATS)),
+    "NormalizeReward": (
+        "stateful_reward",
+        WrapperRule("snapshot", {"gamma": _probability, "epsilon": _positive}, why=_STATS),
+    ),
     "AtariPreprocessing": (
         "atari_preprocessing",
         _rebuilt(
@@ -312,7 +324,7 @@ def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) ->
         elif rule.kind == "transparent":
             plan.notes.append(f"replayed without the recorded wrapper {name}: {rule.why}")
             renders += [name] if rule.renders else []
-        elif rule.kind != "rebuilt":
+        elif rule.kind not in ("rebuilt", "snapshot"):
             plan.refused = f"the recorded wrapper {name}: {rule.why}"
         else:
             assert isinstance(wrapper, Mapping)
@@ -351,6 +363,9 @@ def _bad_argument(name: str, rule: WrapperRule, kwargs: Any) -> str | None:
     return None
 
 
+LAYOUT_STATE_SNAPSHOTS = "state_snapshots"
+"""Layout key: ``true`` when every reset row holds a state snapshot (``format/state.py``), so a
+``snapshot`` wrapper's state is restored (absent otherwise)."""
 LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
 """The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
 first; absent in files that predate it, and when there were none)."""
@@ -393,13 +408,16 @@ def reward_cause(layout: Any) -> str | None:
     )
 
 
-def stateful_wrapper(entry_point: str) -> str | None:
+def stateful_wrapper(entry_point: str, *, snapshots: bool = False) -> str | None:
     """Why the wrapper of ``entry_point`` keeps state a file does not hold, or ``None``.
 
-    ``None`` for every wrapper but those the registry calls ``stateful``.
+    ``None`` for every wrapper but those the registry calls ``stateful``, and those it calls
+    ``snapshot`` in a file without state snapshots (``snapshots``: the file has them).
     """
     rule = RECORDED_WRAPPERS.get(entry_point)
-    return rule.why if rule is not None and rule.kind == "stateful" else None
+    if rule is None or rule.kind not in ("stateful", "snapshot"):
+        return None
+    return None if rule.kind == "snapshot" and snapshots else rule.why
 
 
 _VECTOR_STEP_SAFE = frozenset(
@@ -436,9 +454,10 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
     """
     causes: list[str] = []
     wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    snapshots = isinstance(layout, Mapping) and layout.get(LAYOUT_STATE_SNAPSHOTS) is True
     for wrapper in _listed(wrappers):
         entry = str(wrapper.get("entry_point")) if isinstance(wrapper, Mapping) else ""
-        why = stateful_wrapper(entry)
+        why = stateful_wrapper(entry, snapshots=snapshots)
         if why is not None:
             name = entry.rpartition(":")[2]
             causes.append(

@@ -4,16 +4,19 @@ Public: :class:`RecordEvidence` (Gymnasium), :class:`RecordVectorEvidence` and
 :class:`ResetRngInfo` (vector envs), ``RecordParallelEvidence`` and ``RecordAECEvidence``
 (PettingZoo, imported on first use), ``RecordVecEnvEvidence``, ``RecordEvalCallback`` and
 ``record_evaluation`` (Stable-Baselines3, :mod:`.sb3`, imported on first use), their options
-(:class:`RecorderOptions`, checked by :class:`RecorderSettings`), and the rules that read an
-env's info: :class:`RewardTerms`, :class:`EndingRules`, :class:`Ending`. How recording works:
+(:class:`RecorderOptions`, checked by :class:`RecorderSettings`), the rules that read an
+env's info: :class:`RewardTerms`, :class:`EndingRules`, :class:`Ending`, and state snapshots
+beyond the seed: :class:`StateAdapter`, :func:`register_state_adapter`. How recording works:
 ``docs/recording.md``.
 """
 
 from __future__ import annotations
 
+from . import adapters as adapters  # registers the shipped state adapters
 from .gym import RecordEvidence
 from .rules import Ending, EndingRules, RewardTerms
 from .settings import RecorderOptions, RecorderSettings
+from .state import StateAdapter, register_state_adapter
 from .vector import RecordVectorEvidence, ResetRngInfo
 
 __all__ = [
@@ -29,7 +32,9 @@ __all__ = [
     "RecorderSettings",
     "ResetRngInfo",
     "RewardTerms",
+    "StateAdapter",
     "record_evaluation",
+    "register_state_adapter",
 ]
 
 

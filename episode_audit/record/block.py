@@ -143,9 +143,11 @@ class Block:
         self.ends: dict[int, tuple[str, str | None]] = {}
         self.info: dict[int, dict[str, Any]] = {}
         self.notes: dict[int, list[str]] = {}
-        # resets: (episode, monotonic ns, seed, rng_state JSON, options JSON, game)
+        # resets: (episode, monotonic ns, seed, rng_state JSON, options JSON, game, state JSON)
         self.reset_obs: ColumnBuffer = obs_codec.new_buffer()
-        self.resets: list[tuple[int, int, int | None, str | None, str | None, int | None]] = []
+        self.resets: list[
+            tuple[int, int, int | None, str | None, str | None, int | None, str | None]
+        ] = []
         self.reset_info: dict[int, dict[str, Any]] = {}
         self.reset_notes: dict[int, list[str]] = {}
         # rows a batching recorder has taken but not yet handed over with Stream.extend
@@ -389,7 +391,7 @@ def reset_batch(
     Reset rows of a multi-stream file also say whose they are (``agent``) and their game.
     """
     n = len(block.resets)
-    episode_r, mono_r, seeds, rng, options, games = zip(*block.resets, strict=True)
+    episode_r, mono_r, seeds, rng, options, games, states = zip(*block.resets, strict=True)
     times = np.fromiter(mono_r, dtype=np.int64, count=n) + wall_offset
     columns = {
         fmt.COL_EPISODE: pa.array(np.fromiter(episode_r, dtype=np.int64, count=n)),
@@ -410,6 +412,8 @@ def reset_batch(
     if multi_stream:
         columns[fmt.COL_AGENT] = pa.array([agent] * n, pa.string())
         columns[fmt.COL_GAME] = pa.array(games, pa.int64())
+    if fmt.COL_STATE in schema.names:
+        columns[fmt.COL_STATE] = pa.array(states, pa.string())
     return _batch(columns, schema), int(times[-1])
 
 

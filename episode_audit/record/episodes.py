@@ -72,6 +72,7 @@ class EpisodeStream:
         agent: str | None = None,
         time_limit: TimeLimit[Any, Any] | None = None,
         max_episode_steps: int | None = None,
+        state: bool = False,
     ) -> None:
         settings = file.settings
         self.file = file
@@ -105,7 +106,7 @@ class EpisodeStream:
         # Multi-stream files: reset rows also say whose they are (and, with games, which game).
         self._reset_extra = file.multi
         self._reset_schema = reset_schema(
-            obs_codec.field(fmt.COL_OBSERVATION), multi_stream=file.multi
+            obs_codec.field(fmt.COL_OBSERVATION), multi_stream=file.multi, state=state
         )
         channel_meta = {"agent": agent or "", "env_index": str(env_index)}
         writer = file.writer
@@ -166,8 +167,13 @@ class EpisodeStream:
         self.block.add_segment(self.block.rows(), episode, 0, True)
         return episode
 
-    def record_reset(self, episode: Episode, obs: Any, info: Any, notes: list[str]) -> None:
-        """Record the reset row of ``episode`` (just begun); never raises."""
+    def record_reset(
+        self, episode: Episode, obs: Any, info: Any, notes: list[str], state: str | None = None
+    ) -> None:
+        """Record the reset row of ``episode`` (just begun); never raises.
+
+        ``state``: the snapshot taken before the reset (JSON text, :mod:`.state`).
+        """
         try:
             block = self.block
             row = len(block.resets)
@@ -185,6 +191,7 @@ class EpisodeStream:
                     rng_json,
                     episode.options_json,
                     episode.game,
+                    state,
                 )
             )
             if notes:

@@ -276,12 +276,13 @@ class EvidenceFile:
         agent: str | None = None,
         time_limit: TimeLimit[Any, Any] | None = None,
         max_episode_steps: int | None = None,
+        state: bool = False,
     ) -> Stream:
         """Register a stream's step and reset channels and return the stream.
 
         Truncations count as ``time_limit`` when ``time_limit`` (a Gymnasium ``TimeLimit``
         wrapper) says its limit was hit, or, without one, when the episode reached
-        ``max_episode_steps``.
+        ``max_episode_steps``. ``state``: its reset rows have a ``state`` column (snapshots).
         """
         if self.started:
             raise RecorderError(f"{self.path}: streams are added before start()")
@@ -293,6 +294,7 @@ class EvidenceFile:
             agent=agent,
             time_limit=time_limit,
             max_episode_steps=max_episode_steps,
+            state=state,
         )
         self.streams.append(stream)
         return stream

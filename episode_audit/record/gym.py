@@ -22,7 +22,12 @@ from gymnasium.envs.registration import EnvSpec
 from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
-from ..format.wrappers import LAYOUT_REWARD_WRAPPERS, REWARD_CHANGING, state_causes
+from ..format.wrappers import (
+    LAYOUT_REWARD_WRAPPERS,
+    LAYOUT_STATE_SNAPSHOTS,
+    REWARD_CHANGING,
+    state_causes,
+)
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -34,6 +39,7 @@ from .settings import (
     library_versions,
     run_info,
 )
+from .state import StateTargets
 
 __all__ = [
     "RecordEvidence",
@@ -94,6 +100,10 @@ class RecordEvidence(
         act_codec = codec_for(env.action_space)
         self._unwrapped = env.unwrapped
         layout: dict[str, Any] = {"kind": "single", "num_envs": 1, "agents": []}
+        # the wrappers (and env) below whose state is snapshot at each reset (.state)
+        self._state = StateTargets(env)
+        if self._state:
+            layout[LAYOUT_STATE_SNAPSHOTS] = True
         changing = reward_wrappers(env)
         if changing:
             layout[LAYOUT_REWARD_WRAPPERS] = changing
@@ -109,7 +119,11 @@ class RecordEvidence(
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         self._stream = self._file.add_stream(
-            obs_codec, act_codec, env_index=0, time_limit=find_time_limit(env)
+            obs_codec,
+            act_codec,
+            env_index=0,
+            time_limit=find_time_limit(env),
+            state=bool(self._state),
         )
         self._file.start()
         self._record_step = self._stream.step
@@ -129,15 +143,21 @@ class RecordEvidence(
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[gym.core.ObsType, dict[str, Any]]:
-        """Reset the env, recording the seed (or the RNG state), options and observation."""
+        """Reset the env, recording the seed (or the RNG state), options and observation.
+
+        The state of the wrappers below that have a state adapter (e.g.
+        ``NormalizeObservation``) is snapshot just before the reset (docs/recording.md).
+        """
         self._enter()
         file = self._file
         stream = self._stream
         notes: list[str] = []
         episode = None
+        state = None
         try:
             stream.end_open()
             rng_state = capture_rng_state(self._unwrapped) if seed is None else None
+            state = self._state.capture(notes) if self._state else None
             episode = stream.begin(seed, options, rng_state, notes)
         except Exception as exc:  # never break the training loop over recording trouble
             file.trouble(exc)
@@ -153,7 +173,7 @@ class RecordEvidence(
                 notes.append(note("reset_result_invalid", f"reset() returned {short(result)}"))
                 obs, info = None, {}
             if episode is not None:
-                stream.record_reset(episode, obs, info, notes)
+                stream.record_reset(episode, obs, info, notes, state)
             if file.due():
                 file.auto_flush()
         except Exception as exc:

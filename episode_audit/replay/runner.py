@@ -22,6 +22,7 @@ from ..format.spaces import codec_in
 from ..read import Evidence
 from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
+from ..record.state import StateTargets, restore_snapshot
 from .compare import Comparison
 from .recorded import replay_actions, rules_of
 from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, restored_state
@@ -72,6 +73,10 @@ class EpisodeRunner:
         # An outermost Gymnasium TimeLimit is counted by the stepping loop, not called: the
         # same flags, without a wrapper call per step (see plain_time_limit).
         self.counted = plain_time_limit(env)
+        # state snapshots (record/state.py): the reset rows' column, the env's adapted objects
+        self.states: pa.ChunkedArray | None = None
+        self.adapted = bool(StateTargets(env))
+        self.restored: dict[int, list[str]] = {}  # what was restored before each reset
 
     def _not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
@@ -99,6 +104,8 @@ class EpisodeRunner:
                 done[index] = self._not_replayable(index, 0, "the file's spaces cannot be rebuilt")
             return [done[int(r["episode"])] for r in records]
         actions, null_rows = replay_actions(steps.column(fmt.COL_ACTION), self.act_codec)
+        names = resets.column_names
+        self.states = resets.column(fmt.COL_STATE) if fmt.COL_STATE in names else None
         ran, returned, got_obs, got_reset = self._step_all(
             records, actions, null_rows, rows, reset_rows, done
         )
@@ -109,10 +116,9 @@ class EpisodeRunner:
     def restored_snapshots(self, record: dict[str, Any]) -> list[str]:
         """The state snapshots set before ``record``'s reset, one name each.
 
-        The hook where a restored snapshot is named (``"snapshot of NormalizeObservation"``);
-        none yet.
+        E.g. ``"snapshot of NormalizeObservation"`` (record/state.py, :func:`restore_snapshot`).
         """
-        return []
+        return [f"snapshot of {name}" for name in self.restored.get(int(record["episode"]), ())]
 
     def _with_restored(self, result: EpisodeReplay, record: dict[str, Any]) -> EpisodeReplay:
         """A diverged ``result``, with what replay restored before its reset."""
@@ -271,6 +277,15 @@ class EpisodeRunner:
         except ValueError as exc:
             done[index] = self._not_replayable(index, count, f"its reset record: {exc}")
             return _SKIPPED
+        if self.adapted or self.states is not None:
+            try:
+                snapshot = None if self.states is None else self.states[reset_at].as_py()
+                restored = restore_snapshot(env, snapshot, seeded=seed is not None)
+            except ValueError as exc:
+                done[index] = self._not_replayable(index, count, str(exc))
+                return _SKIPPED
+            if restored:
+                self.restored[index] = restored
         self.earlier[index] = len(self.earlier)
         try:
             if seed is not None:

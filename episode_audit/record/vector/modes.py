@@ -90,7 +90,7 @@ class Autoreset:
                 note("rng_state_unavailable", why_no_rng or self._no_rng_note or "no np_random")
             )
         episode = stream.begin(seed, options, rng_state, notes, start_ns=start_ns)
-        stream.record_reset(episode, obs, info, notes)
+        stream.record_reset(episode, obs, info, notes, self.rng.state_from_info(info))
 
     def begin_failed(
         self, i: int, seed: Any, options: Any, rng_state: RngState | None, exc: Exception

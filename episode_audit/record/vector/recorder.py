@@ -20,7 +20,12 @@ from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
 from ...format.spaces import codec_for, describe_space
-from ...format.wrappers import LAYOUT_REWARD_WRAPPERS, LAYOUT_VECTOR_WRAPPERS, REWARD_CHANGING
+from ...format.wrappers import (
+    LAYOUT_REWARD_WRAPPERS,
+    LAYOUT_STATE_SNAPSHOTS,
+    LAYOUT_VECTOR_WRAPPERS,
+    REWARD_CHANGING,
+)
 from ..file import EvidenceFile, FileRecorder
 from ..gym import entry_point, reward_wrappers, warn_unrestorable, wrapper_chain
 from ..rules import find_time_limit
@@ -58,8 +63,10 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
     Args:
         env: The vector env to record (wrap it directly: replay rebuilds one sub-env).
         path: The evidence file to create (never overwritten unless ``overwrite=True``).
-        install_rng_info: For a ``SyncVectorEnv`` in ``SAME_STEP`` mode, wrap its sub-envs in
-            :class:`ResetRngInfo` in place (default), so autoreset episodes are replayable.
+        install_rng_info: For a ``SyncVectorEnv`` in ``SAME_STEP`` mode, or whose sub-envs have
+            state to snapshot (e.g. ``NormalizeObservation``), wrap its sub-envs in
+            :class:`ResetRngInfo` in place (default), so autoreset episodes are replayable. An
+            ``AsyncVectorEnv``'s sub-envs: ``gym.make_vec(..., wrappers=[..., ResetRngInfo])``.
         **options: The recorder options, as for :class:`~episode_audit.RecordEvidence` (see
             :class:`~episode_audit.record.settings.RecorderSettings`; ``block_steps`` counts
             rows per sub-env).
@@ -94,10 +101,15 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             )
             notes.append(no_rng_note)
         self._rng = SubEnvRng(sync, async_env)
-        if mode is AutoresetMode.SAME_STEP and sync is not None and install_rng_info:
+        # sub-envs in this process snapshot through the ResetRngInfo installed on them
+        snapshots = self._rng.snapshots() and (sync is None or install_rng_info)
+        same_step = mode is AutoresetMode.SAME_STEP
+        if (same_step or snapshots) and sync is not None and install_rng_info:
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
         layout = vector_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note)
+        if snapshots:
+            layout[LAYOUT_STATE_SNAPSHOTS] = True
         vector_wrappers = _vector_wrappers(env)
         if vector_wrappers:
             layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
@@ -119,7 +131,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
         codecs = obs_codec, codec_for(act_space)
         self._streams = [
-            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit)
+            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit, state=snapshots)
             for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env))
         ]
         self._file.start()

@@ -1,7 +1,8 @@
 """The sub-envs' RNG states, so that episodes a vector env resets by itself replay on their own.
 
 - :class:`ResetRngInfo` — a sub-env wrapper that puts the RNG state from just before an unseeded
-  reset into the reset's info (for ``SAME_STEP`` autoresets, which run inside ``step()``).
+  reset into the reset's info (for ``SAME_STEP`` autoresets, which run inside ``step()``), and
+  the state snapshot of the wrappers below it (:mod:`..state`) before every reset.
 - :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (in this process:
   ``SyncVectorEnv``, SB3's ``DummyVecEnv``; in workers through ``get_attr``: ``AsyncVectorEnv``,
   SB3's ``SubprocVecEnv``) or from the reset infos.
@@ -21,6 +22,7 @@ from ...format import names as fmt
 from ...format.records import to_json
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
+from ..state import StateTargets
 
 __all__ = ["LocalSubEnvs", "RemoteSubEnvs", "ResetRngInfo", "SubEnvRng"]
 
@@ -45,8 +47,10 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
 
     The state (``env.unwrapped.np_random.bit_generator.state``) goes to
     ``info["episode_audit.rng_state"]`` as JSON text. :class:`RecordVectorEvidence` reads it to make
-    episodes that a vector env resets by itself replayable on their own. The wrapper changes
-    nothing else, and it is invisible in the env's spec (replay does not need it).
+    episodes that a vector env resets by itself replayable on their own. Before every reset it
+    also snapshots the wrappers below it that have a state adapter (e.g. ``NormalizeObservation``)
+    into ``info["episode_audit.state"]``: wrap it outermost. The wrapper changes nothing else,
+    and it is invisible in the env's spec (replay does not need it).
 
     It also remembers its last step since a reset, and a reset that raised (with that step and
     the RNG state it started from), so that the recorder of a ``SyncVectorEnv`` can record an
@@ -65,6 +69,9 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
 
     def __init__(self, env: gym.Env[Any, Any]) -> None:
         super().__init__(env)
+        self._state = StateTargets(env)
+        self.episode_audit_snapshots = bool(self._state)
+        """Whether it snapshots state (an adapted wrapper or env is below it)."""
         self._last_step: tuple[Any, Any] | None = None  # (action, result) since the last reset
         # a reset that raised: (the exception, the RNG state before it, the step before it)
         self._failed_reset: tuple[BaseException, Any, tuple[Any, Any] | None] | None = None
@@ -78,7 +85,11 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[Any, dict[str, Any]]:
-        """Reset the env; an unseeded reset's info gains the RNG state it started from."""
+        """Reset the env; an unseeded reset's info gains the RNG state it started from.
+
+        Every reset's info gains the state snapshot taken before it, if there is state to take.
+        """
+        snapshot = self._state.capture([]) if self._state else None
         state = capture_rng_state(self.env) if seed is None else None
         last, self._last_step = self._last_step, None
         try:
@@ -90,6 +101,8 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         obs, info = result
         if state is not None:
             info = {**info, fmt.INFO_RNG_STATE: to_json(state).decode()}
+        if snapshot is not None:
+            info = {**info, fmt.INFO_STATE: snapshot}
         return obs, info
 
     @property
@@ -122,6 +135,33 @@ class SubEnvRng:
         # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
         self._sync_unwrapped = [] if sync is None else [e.unwrapped for e in sync.envs]
         self.in_info = False
+
+    def snapshots(self) -> bool:
+        """Whether a sub-env has state to snapshot at its resets (:mod:`..state`).
+
+        Sub-envs in this process are looked at directly; an ``AsyncVectorEnv``'s are asked
+        whether they are wrapped in a :class:`ResetRngInfo` that snapshots (``has_wrapper_attr``
+        first: a worker asked for an attribute its env lacks raises, and ends).
+        """
+        if self.sync is not None:
+            return any(StateTargets(sub) for sub in self.sync.envs)
+        call = getattr(self._async, "call", None)
+        if self._async is None or call is None:
+            return False
+        name = "episode_audit_snapshots"
+        try:
+            if not all(call("has_wrapper_attr", name)):
+                return False
+            return any(self._async.get_attr(name))
+        except Exception:
+            return False
+
+    def state_from_info(self, info: Any) -> str | None:
+        """The snapshot :class:`ResetRngInfo` put in a reset info (JSON text), if any."""
+        if not isinstance(info, Mapping):
+            return None
+        text = info.get(fmt.INFO_STATE)
+        return text if isinstance(text, str) else None
 
     def install_wrappers(self) -> None:
         """Wrap every sub-env of the ``SyncVectorEnv`` in :class:`ResetRngInfo` (in place)."""
