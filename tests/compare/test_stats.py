@@ -13,7 +13,7 @@ from episode_audit.compare import stats
 
 @pytest.mark.parametrize(
     ("x2", "n2", "x1", "n1", "low", "high"),
-    [  # Newcombe (1998a) Table II, method 10: x2/n2 - x1/n1; statsmodels 0.14.6's
+    [  # Newcombe (1998a) Table II, method 10: x2/n2 - x1/n1; statsmodels 0.15.0's
         # confint_proportions_2indep(x2, n2, x1, n1, method="newcomb") gives the same 8 rows
         (56, 70, 48, 80, 0.0524, 0.3339),
         (9, 10, 3, 10, 0.1705, 0.8090),
