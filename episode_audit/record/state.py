@@ -121,10 +121,22 @@ def chain(env: Any) -> Iterator[Any]:
     while env is not None and id(env) not in seen and len(seen) < _MAX_CHAIN:
         seen.add(id(env))
         yield env
-        inner = env.__dict__.get("env") if hasattr(env, "__dict__") else None
-        if inner is None and hasattr(env, "__dict__"):
-            inner = env.__dict__.get("venv")
-        env = inner
+        inner = _inner(env, "env")
+        env = inner if inner is not None else _inner(env, "venv")
+
+
+def _inner(env: Any, name: str) -> Any:
+    """``env``'s own attribute ``name``, or ``None``.
+
+    Read with ``object.__getattribute__``: no ``__getattr__`` forwarding (SB3's wrappers pass
+    unknown names to what they wrap), and never through ``__dict__``, whose first access gives
+    the object a real dict for good, and every later attribute read on it (each step's) the
+    interpreter's slow path.
+    """
+    try:
+        return object.__getattribute__(env, name)
+    except Exception:  # no such attribute, or a property that raised: the chain ends here
+        return None
 
 
 class StateTargets:
