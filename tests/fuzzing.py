@@ -1108,12 +1108,26 @@ def _alarm(signum: int, frame: Any) -> None:
     raise Deadline
 
 
+def _peak_rss_kib() -> int:
+    """This process's peak resident set since its exec (``VmHWM``), in KiB."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # no /proc: an upper bound
+
+
 def worker(corpus: Path, deadline_s: float) -> None:
     """Answer ``BASE KIND SEED`` lines on stdin with one JSON line each on stdout.
 
     The answer: ``status`` (``ok``, ``escaped``, ``timeout``), the error names, seconds taken,
-    and the worker's peak RSS so far (``ru_maxrss``, KiB). A hang inside C code that the alarm
-    cannot interrupt is the parent's to catch (it kills the worker after its own deadline).
+    and the worker's peak RSS so far (``VmHWM``, KiB: ``ru_maxrss`` would count the parent's
+    memory, which Linux carries across the fork and exec that start the worker). A hang inside
+    C code that the alarm cannot interrupt is the parent's to catch (it kills the worker after
+    its own deadline).
     """
     global BOMB_DIR
     bases = {p.stem: p.read_bytes() for p in corpus.glob("*.mcap")}
@@ -1145,7 +1159,7 @@ def worker(corpus: Path, deadline_s: float) -> None:
             finally:
                 signal.setitimer(signal.ITIMER_REAL, 0)
             answer["seconds"] = round(time.perf_counter() - start, 4)
-            answer["maxrss_kib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            answer["maxrss_kib"] = _peak_rss_kib()
             out.write(json.dumps(answer) + "\n")
             out.flush()
     finally:
