@@ -236,7 +236,7 @@ _REFUSED = [
         "list of at most 4096, or null, got '../../x'",
     ),
     (
-        [_wrapper("gymnasium.wrappers.common:TimeLimit", max_episode_steps=5, path="/tmp/x")],
+        [_wrapper("gymnasium.wrappers.common:TimeLimit", max_episode_steps=5, path="/srv/x")],
         "the recorded wrapper TimeLimit has an argument 'path' replay does not know",
     ),
     (
@@ -618,7 +618,7 @@ def test_output_paths_never_come_from_file_content(tmp_path: Path) -> None:
             env.step(0)
 
     def run(meta: dict[str, str]) -> dict[str, str]:
-        return {**meta, "env_id": "../../../escaped", "writer": "/tmp/escaped"}
+        return {**meta, "env_id": "../../../escaped", "writer": "/srv/escaped"}
 
     evil = rewrite(source, tmp_path / "in" / "evil.mcap", run=run)
     before = {p for p in tmp_path.rglob("*")}

@@ -60,7 +60,7 @@ _EXTRA = {"gcs": "gcs", "abfs": "azure", "https": "http"}
 def is_url(path: object) -> bool:
     """Whether ``path`` is a URL (``scheme://…``) other than ``file://``.
 
-    >>> is_url("s3://bucket/runs/a.mcap"), is_url("runs/a.mcap"), is_url("file:///tmp/a.mcap")
+    >>> is_url("s3://bucket/runs/a.mcap"), is_url("runs/a.mcap"), is_url("file:///data/a.mcap")
     (True, False, False)
     """
     if isinstance(path, RemoteFile):
@@ -208,8 +208,8 @@ def as_source(
 
     See :func:`remote_file` for ``filesystem`` and ``storage_options``.
 
-    >>> as_source("file:///tmp/run.mcap"), as_source("runs/a.mcap")
-    (PosixPath('/tmp/run.mcap'), PosixPath('runs/a.mcap'))
+    >>> as_source("file:///data/run.mcap"), as_source("runs/a.mcap")
+    (PosixPath('/data/run.mcap'), PosixPath('runs/a.mcap'))
     """
     if isinstance(path, RemoteFile) or filesystem is not None or is_url(path):
         return remote_file(os.fspath(path), filesystem=filesystem, storage_options=storage_options)
