@@ -11,21 +11,23 @@ export MUJOCO_GL ?= egl
 
 all: test
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py episode_audit/record/_stepfast.c
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 10) else "episode-audit needs Python >= 3.10")'
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	@# torch on its own first, with pyproject's pin: alone it resolves to a wheel already on the
 	@# machine (e.g. a CPU build); inside the whole dev set, pip >= 25 picks PyPI's CUDA build (3 GB)
 	$(BIN)/python -m pip install --quiet 'torch==2.13.*'
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	@# the compiled step must build here (a C compiler and Python's headers): a failure stops
+	@# make test rather than silently testing the pure-Python path alone
+	EPISODE_AUDIT_REQUIRE_EXTENSION=1 $(BIN)/python -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
 venv: $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff format --check episode_audit episode_audit_pytest.py tests bench fixtures
-	$(BIN)/ruff check episode_audit episode_audit_pytest.py tests bench fixtures
+	$(BIN)/ruff format --check episode_audit episode_audit_pytest.py setup.py tests bench fixtures
+	$(BIN)/ruff check episode_audit episode_audit_pytest.py setup.py tests bench fixtures
 
 typecheck: $(STAMP)
 	$(BIN)/mypy
@@ -48,4 +50,4 @@ fixtures: $(STAMP)
 	$(BIN)/python fixtures/make_fixtures.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info .mypy_cache .ruff_cache demo-out demo-out-viewers
+	rm -rf $(VENV) build *.egg-info episode_audit/record/_stepfast.*.so .mypy_cache .ruff_cache demo-out demo-out-viewers

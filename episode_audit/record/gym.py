@@ -28,6 +28,7 @@ from ..format.wrappers import (
     REWARD_CHANGING,
     state_causes,
 )
+from .fast import step_function
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -126,7 +127,7 @@ class RecordEvidence(
             state=bool(self._state),
         )
         self._file.start()
-        self._record_step = self._stream.step
+        self._record_step = step_function(self._stream)
         self._opened()
 
     @property

@@ -1,0 +1,622 @@
+/* The recorder's per-step path, compiled: episode_audit.record._stepfast.
+
+   StepRecorder(stream) is called as stream.step(action, result) is, and records the common
+   step exactly as Stream.step's fast path does: observation and action copied into their
+   column blocks (Box / MultiBinary / MultiDiscrete arrays and Discrete integers), the reward,
+   the reward terms of a flat dict of numbers and the time appended. It checks everything
+   before it changes anything; any step it does not take as it is (an unusual value, a column
+   block or array out of room, a new set of info keys, an ended episode...) is handed, untouched,
+   to the Python method, so behaviour and the bytes written are those of the Python path.
+
+   It reads the slotted objects it writes to (Block, Episode, the column buffers) at their
+   slot offsets, resolved once from the classes' member descriptors and used only on objects
+   of exactly those classes. array.array has no C API: its object layout (CPython's
+   Modules/arraymodule.c, the same in 3.10-3.14) is declared here and checked when the module
+   loads (layout_ok); a layout that does not match leaves the module unusable, and the
+   recorder takes the Python path. The arrays written here hold 8-byte items ('d', 'q'). */
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <structmember.h>
+#include <string.h>
+#include <time.h>
+
+#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
+#include <numpy/arrayobject.h>
+
+#define MAX_TERMS 64
+
+typedef struct {
+    PyObject_VAR_HEAD
+    char *ob_item;
+    Py_ssize_t allocated;
+    const void *ob_descr;
+    PyObject *weakreflist;
+    Py_ssize_t ob_exports;
+} ArrayObject;
+
+/* Set by configure(): the classes, and their slots' offsets. */
+static PyTypeObject *array_type, *block_type, *episode_type, *flat_type, *nd_type, *int_type;
+static PyObject *monotonic_ns;
+static Py_ssize_t off_ended;
+static Py_ssize_t off_obs, off_act, off_rewards, off_times, off_term_vals, off_term_rows,
+    off_term_counts, off_term_keys;
+static Py_ssize_t off_arr_data, off_arr_n, off_arr_dtype, off_int_data, off_int_n;
+static int configured;
+
+static PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_steps, *s_file,
+    *s_flush_at, *s_end_by_flags, *s_auto_flush, *s_step, *s_clock;
+
+#define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
+
+static Py_ssize_t slot_offset(PyTypeObject *type, const char *name)
+{
+    PyObject *descr = PyObject_GetAttrString((PyObject *)type, name);
+    Py_ssize_t offset = -1;
+    if (descr == NULL)
+        return -1;
+    if (Py_IS_TYPE(descr, &PyMemberDescr_Type)) {
+        PyMemberDef *member = ((PyMemberDescrObject *)descr)->d_member;
+        if (member->type == T_OBJECT_EX || member->type == T_OBJECT)
+            offset = member->offset;
+    }
+    Py_DECREF(descr);
+    if (offset < 0)
+        PyErr_Format(PyExc_TypeError, "%s.%s is not an object slot", type->tp_name, name);
+    return offset;
+}
+
+/* ------------------------------------------------------------------ array.array, checked */
+
+static int layout_ok(void)
+{
+    /* array('d', [1.5, 2.5]): two items, room for them, and no export; then one export. */
+    PyObject *mod = PyImport_ImportModule("array"), *arr = NULL, *view = NULL;
+    int ok = 0;
+    if (mod == NULL)
+        return -1;
+    arr = PyObject_CallMethod(mod, "array", "s[dd]", "d", 1.5, 2.5);
+    if (arr == NULL)
+        goto done;
+    ArrayObject *a = (ArrayObject *)arr;
+    if (Py_SIZE(a) != 2 || a->allocated < 2 || a->ob_exports != 0)
+        goto done;
+    if (((double *)a->ob_item)[0] != 1.5 || ((double *)a->ob_item)[1] != 2.5)
+        goto done;
+    view = PyMemoryView_FromObject(arr);
+    if (view == NULL)
+        goto done;
+    ok = a->ob_exports == 1 && PyMemoryView_GET_BUFFER(view)->buf == a->ob_item;
+done:
+    Py_XDECREF(view);
+    Py_XDECREF(arr);
+    Py_DECREF(mod);
+    if (PyErr_Occurred())
+        return -1;
+    return ok;
+}
+
+/* Make room for `count` more items in `a` (an array.array of items of `itemsize` bytes) as its
+   own resize does (PyMem_Realloc of ob_item), doubling: 1, or 0 when it cannot (an exported
+   buffer, or no memory: the Python path then decides). */
+static int array_room(PyObject *a, Py_ssize_t count, Py_ssize_t itemsize)
+{
+    ArrayObject *arr = (ArrayObject *)a;
+    if (!Py_IS_TYPE(a, array_type) || arr->ob_exports != 0)
+        return 0;
+    Py_ssize_t need = Py_SIZE(arr) + count;
+    if (need <= arr->allocated)
+        return 1;
+    Py_ssize_t size = need < 128 ? 256 : 2 * need;
+    if (size > PY_SSIZE_T_MAX / itemsize)
+        return 0;
+    char *items = PyMem_Realloc(arr->ob_item, size * itemsize);
+    if (items == NULL)
+        return 0;
+    arr->ob_item = items;
+    arr->allocated = size;
+    return 1;
+}
+
+static inline void array_push_d(PyObject *a, double value)
+{
+    ArrayObject *arr = (ArrayObject *)a;
+    ((double *)arr->ob_item)[Py_SIZE(arr)] = value;
+    Py_SET_SIZE(arr, Py_SIZE(arr) + 1);
+}
+
+static inline void array_push_q(PyObject *a, long long value)
+{
+    ArrayObject *arr = (ArrayObject *)a;
+    ((long long *)arr->ob_item)[Py_SIZE(arr)] = value;
+    Py_SET_SIZE(arr, Py_SIZE(arr) + 1);
+}
+
+/* ------------------------------------------------------------------ column buffers */
+
+/* A value checked to go into a column buffer as it is: where its bytes go, from where. */
+typedef struct {
+    PyObject *buffer;
+    Py_ssize_t n;
+    char *dest;
+    const void *src;
+    Py_ssize_t nbytes;
+    long long integer;
+    int is_int;
+} Pending;
+
+/* Whether `value` goes into `buffer` as its Python append would take it without a note, and
+   the buffer's block has room: 1 (filled `p`), 0 (the Python path decides). */
+static int plan_value(PyObject *buffer, PyObject *value, Pending *p)
+{
+    PyTypeObject *type = Py_TYPE(buffer);
+    p->buffer = buffer;
+    if (type == int_type) {
+        PyObject *data = SLOT(buffer, off_int_data), *n_obj = SLOT(buffer, off_int_n);
+        if (data == NULL || n_obj == NULL || !PyArray_CheckExact(data) || !PyLong_CheckExact(n_obj))
+            return 0;
+        if (!PyLong_CheckExact(value) && !PyArray_IsScalar(value, Integer))
+            return 0;
+        PyObject *index = PyNumber_Index(value);
+        if (index == NULL) {
+            PyErr_Clear();
+            return 0;
+        }
+        int overflow = 0;
+        long long number = PyLong_AsLongLongAndOverflow(index, &overflow);
+        Py_DECREF(index);
+        if (overflow || (number == -1 && PyErr_Occurred())) {
+            PyErr_Clear();
+            return 0;
+        }
+        Py_ssize_t n = PyLong_AsSsize_t(n_obj);
+        PyArrayObject *block = (PyArrayObject *)data;
+        if (n < 0 || n >= PyArray_DIM(block, 0) || PyArray_TYPE(block) != NPY_INT64 ||
+            !PyArray_IS_C_CONTIGUOUS(block))
+            return 0;
+        p->n = n;
+        p->dest = (char *)PyArray_DATA(block) + n * (Py_ssize_t)sizeof(long long);
+        p->integer = number;
+        p->is_int = 1;
+        return 1;
+    }
+    if (type != flat_type && type != nd_type)
+        return 0;
+    PyObject *data = SLOT(buffer, off_arr_data), *n_obj = SLOT(buffer, off_arr_n),
+             *dtype = SLOT(buffer, off_arr_dtype);
+    if (data == NULL || n_obj == NULL || dtype == NULL || !PyArray_CheckExact(data) ||
+        !PyLong_CheckExact(n_obj) || !PyArray_CheckExact(value) || !PyArray_DescrCheck(dtype))
+        return 0;
+    PyArrayObject *block = (PyArrayObject *)data, *arr = (PyArrayObject *)value;
+    int ndim = PyArray_NDIM(arr);
+    if (ndim != PyArray_NDIM(block) - 1 || !PyArray_IS_C_CONTIGUOUS(arr) ||
+        !PyArray_IS_C_CONTIGUOUS(block))
+        return 0;
+    if (memcmp(PyArray_DIMS(arr), PyArray_DIMS(block) + 1, ndim * sizeof(npy_intp)) != 0)
+        return 0;
+    PyArray_Descr *want = (PyArray_Descr *)dtype;
+    if (PyArray_DESCR(arr) != want && !PyArray_EquivTypes(PyArray_DESCR(arr), want))
+        return 0;
+    if (!PyArray_EquivTypes(PyArray_DESCR(block), want))
+        return 0;
+    Py_ssize_t n = PyLong_AsSsize_t(n_obj);
+    if (n < 0 || n >= PyArray_DIM(block, 0))
+        return 0;
+    p->n = n;
+    p->nbytes = PyArray_NBYTES(arr);
+    p->dest = (char *)PyArray_DATA(block) + n * p->nbytes;
+    p->src = PyArray_DATA(arr);
+    p->is_int = 0;
+    return 1;
+}
+
+/* Write a planned value and count its row; -1 with an exception set if the count fails. */
+static int commit_value(Pending *p)
+{
+    PyObject *count = PyLong_FromSsize_t(p->n + 1);
+    if (count == NULL)
+        return -1;
+    if (p->is_int)
+        memcpy(p->dest, &p->integer, sizeof(long long));
+    else
+        memcpy(p->dest, p->src, p->nbytes);
+    Py_ssize_t off = Py_TYPE(p->buffer) == int_type ? off_int_n : off_arr_n;
+    Py_SETREF(SLOT(p->buffer, off), count);
+    return 0;
+}
+
+/* ------------------------------------------------------------------ the step */
+
+typedef struct {
+    PyObject_HEAD
+    PyObject *stream;
+    PyObject *fallback; /* stream.step, the Python path */
+    PyObject *file;
+    int system_clock; /* the stream's clock is time.monotonic_ns: read it here */
+    PyObject *clock;
+    vectorcallfunc vectorcall;
+    Py_ssize_t compiled_steps; /* steps recorded here */
+    Py_ssize_t python_steps;   /* steps handed to the Python path */
+} StepRecorder;
+
+static PyObject *python_step(StepRecorder *self, PyObject *action, PyObject *result)
+{
+    PyObject *args[2] = {action, result};
+    self->python_steps++;
+    return PyObject_Vectorcall(self->fallback, args, 2, NULL);
+}
+
+static int read_clock(StepRecorder *self, long long *now)
+{
+    if (self->system_clock) {
+        struct timespec ts;
+        if (clock_gettime(CLOCK_MONOTONIC, &ts) == 0) {
+            *now = (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+            return 0;
+        }
+    }
+    PyObject *value = PyObject_CallNoArgs(self->clock);
+    if (value == NULL)
+        return -1;
+    *now = PyLong_AsLongLong(value);
+    Py_DECREF(value);
+    return (*now == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* The terms of `info` as the stream's plan reads them: their count in *count, their values
+   in values, the names tuple (borrowed) in *names; 1 ok, 0 the Python path decides. */
+static int read_terms(PyObject *stream, PyObject *info, double *values, Py_ssize_t *count,
+                      PyObject **names_out)
+{
+    int ok = 0;
+    PyObject *keys = PyObject_GetAttr(stream, s_terms_keys), *names = NULL;
+    if (keys == NULL || !PyTuple_CheckExact(keys) ||
+        PyTuple_GET_SIZE(keys) != PyDict_GET_SIZE(info))
+        goto done;
+    Py_ssize_t pos = 0, i = 0;
+    PyObject *key, *value;
+    while (PyDict_Next(info, &pos, &key, &value)) {
+        PyObject *planned = PyTuple_GET_ITEM(keys, i++);
+        if (key != planned) {
+            int same = PyObject_RichCompareBool(key, planned, Py_EQ);
+            if (same != 1)
+                goto done;
+        }
+    }
+    names = PyObject_GetAttr(stream, s_terms_names);
+    if (names == NULL || !PyTuple_CheckExact(names) || PyTuple_GET_SIZE(names) > MAX_TERMS)
+        goto done;
+    Py_ssize_t k = PyTuple_GET_SIZE(names);
+    for (Py_ssize_t j = 0; j < k; j++) {
+        PyObject *term = PyDict_GetItemWithError(info, PyTuple_GET_ITEM(names, j));
+        if (term == NULL)
+            goto done;
+        double number = PyFloat_AsDouble(term);
+        if (number == -1.0 && PyErr_Occurred())
+            goto done;
+        values[j] = number;
+    }
+    *count = k;
+    *names_out = names; /* a new reference, the caller's */
+    names = NULL;
+    ok = 1;
+done:
+    PyErr_Clear();
+    Py_XDECREF(keys);
+    Py_XDECREF(names);
+    return ok;
+}
+
+static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *result)
+{
+    if (!PyTuple_CheckExact(result) || PyTuple_GET_SIZE(result) != 5)
+        return python_step(self, action, result);
+    PyObject *obs = PyTuple_GET_ITEM(result, 0), *reward = PyTuple_GET_ITEM(result, 1),
+             *terminated = PyTuple_GET_ITEM(result, 2), *truncated = PyTuple_GET_ITEM(result, 3),
+             *info = PyTuple_GET_ITEM(result, 4);
+    if (!PyBool_Check(terminated) || !PyBool_Check(truncated) || !PyDict_CheckExact(info))
+        return python_step(self, action, result);
+    PyObject *stream = self->stream, *episode = NULL, *block = NULL, *names = NULL;
+    PyObject *ret = NULL;
+    double terms[MAX_TERMS];
+    Py_ssize_t nterms = 0;
+    Pending obs_p, act_p;
+
+    episode = PyObject_GetAttr(stream, s_episode);
+    block = PyObject_GetAttr(stream, s_block);
+    if (episode == NULL || block == NULL)
+        goto python;
+    if (!Py_IS_TYPE(episode, episode_type) || SLOT(episode, off_ended) != Py_False ||
+        !Py_IS_TYPE(block, block_type))
+        goto python;
+    if (PyDict_GET_SIZE(info) && !read_terms(stream, info, terms, &nterms, &names))
+        goto python;
+    PyObject *rewards = SLOT(block, off_rewards), *times = SLOT(block, off_times);
+    PyObject *term_vals = SLOT(block, off_term_vals), *term_rows = SLOT(block, off_term_rows),
+             *term_counts = SLOT(block, off_term_counts), *term_keys = SLOT(block, off_term_keys);
+    if (!array_room(rewards, 1, 8) || !array_room(times, 1, 8))
+        goto python;
+    if (nterms && (!array_room(term_vals, nterms, 8) || !array_room(term_rows, 1, 8) ||
+                   !array_room(term_counts, 1, 8) || !PyList_CheckExact(term_keys)))
+        goto python;
+    double r = PyFloat_AsDouble(reward);
+    if (r == -1.0 && PyErr_Occurred())
+        goto python;
+    if (!plan_value(SLOT(block, off_obs), obs, &obs_p) ||
+        !plan_value(SLOT(block, off_act), action, &act_p))
+        goto python;
+    long long now;
+    Py_ssize_t row = Py_SIZE(times);
+    if (row != obs_p.n || row != act_p.n || row != Py_SIZE(rewards))
+        goto python; /* (columns not aligned: never, but the Python path would cope) */
+    if (read_clock(self, &now) < 0)
+        goto python;
+    /* Everything checked: record the row (the time last: it commits the row). */
+    if (nterms) {
+        Py_ssize_t before = PyList_GET_SIZE(term_keys);
+        if (PyList_SetSlice(term_keys, before, before, names) < 0)
+            goto python;
+    }
+    if (commit_value(&obs_p) < 0 || commit_value(&act_p) < 0)
+        goto trouble;
+    array_push_d(rewards, r);
+    if (nterms) {
+        array_push_q(term_rows, row);
+        array_push_q(term_counts, nterms);
+        for (Py_ssize_t j = 0; j < nterms; j++)
+            array_push_d(term_vals, terms[j]);
+    }
+    array_push_q(times, now);
+    self->compiled_steps++;
+    Py_CLEAR(names);
+    if (terminated == Py_True || truncated == Py_True) {
+        PyObject *row_obj = PyLong_FromSsize_t(row);
+        if (row_obj == NULL)
+            goto done;
+        PyObject *args[7] = {stream, episode, block, row_obj, terminated, truncated, info};
+        PyObject *end = PyObject_VectorcallMethod(
+            s_end_by_flags, args, 7 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
+        Py_DECREF(row_obj);
+        if (end == NULL)
+            goto done;
+        Py_DECREF(end);
+    }
+    PyObject *limit = PyObject_GetAttr(stream, s_block_steps);
+    if (limit == NULL)
+        goto done;
+    Py_ssize_t block_steps = PyLong_AsSsize_t(limit);
+    Py_DECREF(limit);
+    int due = row + 1 >= block_steps;
+    if (!due) {
+        PyObject *flush_at = PyObject_GetAttr(self->file, s_flush_at);
+        if (flush_at == NULL)
+            goto done;
+        long long at = PyLong_AsLongLong(flush_at);
+        Py_DECREF(flush_at);
+        due = now >= at;
+    }
+    if (PyErr_Occurred())
+        goto done;
+    if (due) {
+        PyObject *flushed = PyObject_CallMethodNoArgs(self->file, s_auto_flush);
+        if (flushed == NULL)
+            goto done;
+        Py_DECREF(flushed);
+    }
+    ret = Py_NewRef(Py_None);
+    goto done;
+trouble:
+    /* A count could not be made (no memory): the Python path rolls the columns back. */
+    PyErr_Clear();
+python:
+    PyErr_Clear();
+    Py_CLEAR(names);
+    ret = python_step(self, action, result);
+done:
+    Py_XDECREF(names);
+    Py_XDECREF(episode);
+    Py_XDECREF(block);
+    return ret;
+}
+
+static PyObject *StepRecorder_vectorcall(PyObject *callable, PyObject *const *args,
+                                         size_t nargsf, PyObject *kwnames)
+{
+    if (PyVectorcall_NARGS(nargsf) != 2 || kwnames != NULL) {
+        PyErr_SetString(PyExc_TypeError, "StepRecorder(action, result): two arguments");
+        return NULL;
+    }
+    return step_impl((StepRecorder *)callable, args[0], args[1]);
+}
+
+static PyObject *StepRecorder_new(PyTypeObject *type, PyObject *args, PyObject *kwargs)
+{
+    PyObject *stream;
+    static char *kw[] = {"stream", NULL};
+    if (!configured) {
+        PyErr_SetString(PyExc_RuntimeError, "_stepfast.configure() was not called");
+        return NULL;
+    }
+    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O:StepRecorder", kw, &stream))
+        return NULL;
+    StepRecorder *self = (StepRecorder *)type->tp_alloc(type, 0);
+    if (self == NULL)
+        return NULL;
+    self->vectorcall = StepRecorder_vectorcall;
+    self->stream = Py_NewRef(stream);
+    self->fallback = PyObject_GetAttr(stream, s_step);
+    self->file = self->fallback ? PyObject_GetAttr(stream, s_file) : NULL;
+    self->clock = self->file ? PyObject_GetAttr(stream, s_clock) : NULL;
+    if (self->clock == NULL) {
+        Py_DECREF(self);
+        return NULL;
+    }
+    self->system_clock = self->clock == monotonic_ns;
+    return (PyObject *)self;
+}
+
+static int StepRecorder_traverse(StepRecorder *self, visitproc visit, void *arg)
+{
+    Py_VISIT(self->stream);
+    Py_VISIT(self->fallback);
+    Py_VISIT(self->file);
+    Py_VISIT(self->clock);
+    return 0;
+}
+
+static int StepRecorder_clear(StepRecorder *self)
+{
+    Py_CLEAR(self->stream);
+    Py_CLEAR(self->fallback);
+    Py_CLEAR(self->file);
+    Py_CLEAR(self->clock);
+    return 0;
+}
+
+static void StepRecorder_dealloc(StepRecorder *self)
+{
+    PyObject_GC_UnTrack(self);
+    StepRecorder_clear(self);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+static PyObject *StepRecorder_call(PyObject *self, PyObject *args, PyObject *kwargs)
+{
+    PyObject *action, *result;
+    if (kwargs != NULL && PyDict_GET_SIZE(kwargs)) {
+        PyErr_SetString(PyExc_TypeError, "StepRecorder(action, result): two arguments");
+        return NULL;
+    }
+    if (!PyArg_ParseTuple(args, "OO:StepRecorder", &action, &result))
+        return NULL;
+    return step_impl((StepRecorder *)self, action, result);
+}
+
+static PyMemberDef StepRecorder_members[] = {
+    {"stream", T_OBJECT_EX, offsetof(StepRecorder, stream), READONLY, "The stream recorded."},
+    {"compiled_steps", T_PYSSIZET, offsetof(StepRecorder, compiled_steps), READONLY,
+     "Steps recorded by the compiled path."},
+    {"python_steps", T_PYSSIZET, offsetof(StepRecorder, python_steps), READONLY,
+     "Steps handed to the Python path."},
+    {NULL}};
+
+static PyTypeObject StepRecorderType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "episode_audit.record._stepfast.StepRecorder",
+    .tp_basicsize = sizeof(StepRecorder),
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC | Py_TPFLAGS_HAVE_VECTORCALL,
+    .tp_doc = "StepRecorder(stream): stream.step(action, result), compiled for the common step.",
+    .tp_new = StepRecorder_new,
+    .tp_traverse = (traverseproc)StepRecorder_traverse,
+    .tp_clear = (inquiry)StepRecorder_clear,
+    .tp_dealloc = (destructor)StepRecorder_dealloc,
+    .tp_call = StepRecorder_call,
+    .tp_vectorcall_offset = offsetof(StepRecorder, vectorcall),
+    .tp_members = StepRecorder_members,
+};
+
+/* ------------------------------------------------------------------ configure */
+
+static PyObject *configure(PyObject *module, PyObject *args)
+{
+    PyObject *types[6];
+    if (!PyArg_ParseTuple(args, "O!O!O!O!O!O!:configure", &PyType_Type, &types[0], &PyType_Type,
+                          &types[1], &PyType_Type, &types[2], &PyType_Type, &types[3],
+                          &PyType_Type, &types[4], &PyType_Type, &types[5]))
+        return NULL;
+    int layout = layout_ok();
+    if (layout < 0)
+        return NULL;
+    if (!layout) {
+        PyErr_SetString(PyExc_RuntimeError, "array.array's layout is not the one compiled in");
+        return NULL;
+    }
+    block_type = (PyTypeObject *)types[0];
+    episode_type = (PyTypeObject *)types[1];
+    flat_type = (PyTypeObject *)types[2];
+    nd_type = (PyTypeObject *)types[3];
+    int_type = (PyTypeObject *)types[4];
+    array_type = (PyTypeObject *)types[5];
+    for (int i = 0; i < 6; i++)
+        Py_INCREF(types[i]);
+    struct {
+        PyTypeObject *type;
+        const char *name;
+        Py_ssize_t *offset;
+    } slots[] = {
+        {episode_type, "ended", &off_ended},
+        {block_type, "obs", &off_obs},
+        {block_type, "act", &off_act},
+        {block_type, "rewards", &off_rewards},
+        {block_type, "times", &off_times},
+        {block_type, "term_vals", &off_term_vals},
+        {block_type, "term_rows", &off_term_rows},
+        {block_type, "term_counts", &off_term_counts},
+        {block_type, "term_keys", &off_term_keys},
+        {nd_type, "_data", &off_arr_data},
+        {nd_type, "_n", &off_arr_n},
+        {nd_type, "_dtype", &off_arr_dtype},
+        {int_type, "_data", &off_int_data},
+        {int_type, "_n", &off_int_n},
+    };
+    for (size_t i = 0; i < sizeof(slots) / sizeof(slots[0]); i++) {
+        *slots[i].offset = slot_offset(slots[i].type, slots[i].name);
+        if (*slots[i].offset < 0)
+            return NULL;
+    }
+    /* the flat buffer is a subclass of the n-d one: the same slots, at the same offsets */
+    if (slot_offset(flat_type, "_data") != off_arr_data || slot_offset(flat_type, "_n") != off_arr_n ||
+        slot_offset(flat_type, "_dtype") != off_arr_dtype) {
+        if (!PyErr_Occurred())
+            PyErr_SetString(PyExc_TypeError, "the flat buffer's slots differ from the n-d one's");
+        return NULL;
+    }
+    configured = 1;
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef module_methods[] = {
+    {"configure", configure, METH_VARARGS,
+     "configure(Block, Episode, FlatArrayBuffer, ArrayBuffer, IntBuffer, array.array)"},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module_def = {
+    PyModuleDef_HEAD_INIT, "_stepfast",
+    "The recorder's per-step path, compiled (episode_audit.record.fast uses it).", -1,
+    module_methods};
+
+#define INTERN(var, text)                                                                          \
+    do {                                                                                           \
+        if ((var = PyUnicode_InternFromString(text)) == NULL)                                      \
+            return NULL;                                                                           \
+    } while (0)
+
+PyMODINIT_FUNC PyInit__stepfast(void)
+{
+    import_array();
+    INTERN(s_episode, "episode");
+    INTERN(s_block, "block");
+    INTERN(s_terms_keys, "_terms_keys");
+    INTERN(s_terms_names, "_terms_names");
+    INTERN(s_block_steps, "_block_steps");
+    INTERN(s_file, "file");
+    INTERN(s_flush_at, "flush_at");
+    INTERN(s_end_by_flags, "_end_by_flags");
+    INTERN(s_auto_flush, "auto_flush");
+    INTERN(s_step, "step");
+    INTERN(s_clock, "_clock");
+    PyObject *time = PyImport_ImportModule("time");
+    if (time == NULL)
+        return NULL;
+    monotonic_ns = PyObject_GetAttrString(time, "monotonic_ns");
+    Py_DECREF(time);
+    if (monotonic_ns == NULL || PyType_Ready(&StepRecorderType) < 0)
+        return NULL;
+    PyObject *module = PyModule_Create(&module_def);
+    if (module == NULL)
+        return NULL;
+    if (PyModule_AddObjectRef(module, "StepRecorder", (PyObject *)&StepRecorderType) < 0) {
+        Py_DECREF(module);
+        return NULL;
+    }
+    return module;
+}

@@ -1,0 +1,64 @@
+"""The compiled step: :func:`step_function` gives a stream's step, compiled when it can be.
+
+``episode_audit.record._stepfast`` (C, built with the package when a compiler is there) records
+the common step — array or integer observations and actions, a number reward, ``bool`` flags, a
+plain ``dict`` info whose terms the stream's plan reads — as :meth:`Stream.step
+<episode_audit.record.stream.Stream.step>` does, and hands every other step to that method
+untouched: the file is the same either way. ``EPISODE_AUDIT_PURE_PYTHON=1`` in the environment
+(read when a recorder is made) keeps the pure-Python path. See ``docs/recording.md``.
+"""
+
+from __future__ import annotations
+
+import array
+import os
+from collections.abc import Callable
+from typing import Any
+
+from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
+from .block import Block, Episode
+from .stream import Stream
+
+__all__ = ["PURE_PYTHON_ENV", "compiled", "step_function"]
+
+PURE_PYTHON_ENV = "EPISODE_AUDIT_PURE_PYTHON"
+"""The environment variable that, set to ``1``, keeps recorders on the pure-Python step."""
+
+_FAST_BUFFERS = (_FlatArrayBuffer, _ArrayBuffer, _IntBuffer)
+
+
+def _load() -> Any:
+    try:
+        import importlib
+
+        _stepfast: Any = importlib.import_module(f"{__package__}._stepfast")
+        _stepfast.configure(Block, Episode, _FlatArrayBuffer, _ArrayBuffer, _IntBuffer, array.array)
+    except Exception:  # not built, or built for another layout: the Python path
+        return None
+    return _stepfast
+
+
+_STEPFAST = _load()
+
+
+def compiled() -> bool:
+    """Whether the compiled step is built and recorders made now use it."""
+    return _STEPFAST is not None and os.environ.get(PURE_PYTHON_ENV) != "1"
+
+
+def step_function(stream: Stream) -> Callable[[Any, Any], None]:
+    """``stream``'s step (``step(action, result)``): the compiled one where it applies.
+
+    It applies when the extension is built and not switched off, the stream does not keep
+    info keys (``info_keys`` / ``keep_all_info``), and both columns are arrays or integers.
+    """
+    block = stream.block
+    if (
+        not compiled()
+        or stream._track_info
+        or type(block.obs) not in _FAST_BUFFERS
+        or type(block.act) not in _FAST_BUFFERS
+    ):
+        return stream.step
+    step: Callable[[Any, Any], None] = _STEPFAST.StepRecorder(stream)
+    return step

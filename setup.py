@@ -1,0 +1,46 @@
+"""Builds the compiled per-step recorder, ``episode_audit.record._stepfast``, when it can.
+
+Everything else is in ``pyproject.toml``. Without a C compiler (or with a build that fails) the
+package installs without the extension and the recorder takes its pure-Python path, which writes
+the same files, a little slower (``docs/recording.md``, "The compiled step");
+``EPISODE_AUDIT_REQUIRE_EXTENSION=1`` makes a failed build an error instead (the Makefile sets it).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy
+from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
+
+
+class OptionalBuildExt(build_ext):
+    """``build_ext`` that warns and goes on when the extension cannot be built."""
+
+    def build_extension(self, ext: Extension) -> None:
+        """Build ``ext``; on failure warn (or raise, if the environment requires it)."""
+        try:
+            super().build_extension(ext)
+        except Exception as exc:  # the compiler's failure, in whatever class distutils gave it
+            if os.environ.get("EPISODE_AUDIT_REQUIRE_EXTENSION") == "1":
+                raise
+            print(
+                f"episode-audit: the compiled step ({ext.name}) was not built ({exc}); "
+                "the recorder takes its pure-Python path",
+                file=sys.stderr,
+            )
+
+
+setup(
+    ext_modules=[
+        Extension(
+            "episode_audit.record._stepfast",
+            ["episode_audit/record/_stepfast.c"],
+            include_dirs=[numpy.get_include()],
+            extra_compile_args=["-O2"] if os.name != "nt" else [],
+        )
+    ],
+    cmdclass={"build_ext": OptionalBuildExt},
+)

@@ -1,0 +1,171 @@
+"""The compiled step (record/fast.py, record/_stepfast.c) against the pure-Python path.
+
+Each scenario is recorded twice in this process, compiled and pure Python, on the same
+deterministic clock: every message, channel and metadata record of the two files must be the
+same bytes (but the run's wall-clock start and end times).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from episode_audit import RecordEvidence
+from episode_audit.record import fast
+from tests.support.envs import ScriptedEnv
+
+needs_compiled = pytest.mark.skipif(
+    fast._STEPFAST is None, reason="the compiled step is not built (no C compiler at install)"
+)
+
+
+def test_the_compiled_step_is_built_where_the_install_requires_it() -> None:
+    # make test installs with EPISODE_AUDIT_REQUIRE_EXTENSION=1: a failed build fails there
+    if os.environ.get("EPISODE_AUDIT_REQUIRE_EXTENSION") != "1":
+        pytest.skip("EPISODE_AUDIT_REQUIRE_EXTENSION is not set: the extension is optional")
+    assert fast._STEPFAST is not None
+
+
+def _odd_env() -> ScriptedEnv:
+    """Common steps mixed with every kind of step the compiled path hands to Python."""
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        t = env.t
+        obs: Any = np.full(3, t / 100, np.float32)
+        reward: Any = 0.25 * t
+        terminated: Any = t % 29 == 0
+        truncated: Any = False
+        info: dict[str, Any] = {"reward_dist": -0.1 * t, "reward_ctrl": 0.01}
+        if t % 7 == 0:
+            obs = obs.astype(np.float64)  # cast, noted
+        if t % 11 == 0:
+            obs = [0.1, 0.2, 0.3]  # converted, noted
+        if t % 13 == 0:
+            reward = np.float32(0.5)
+        if t % 17 == 0:
+            reward = "1.5"  # not a number: recorded as null, noted
+        if t % 19 == 0:
+            info["reward_bonus"] = 1.0  # a new key set: the plan changes
+        if t % 23 == 0:
+            terminated = np.bool_(t % 2 == 0)  # a numpy bool
+        if t % 31 == 0:
+            info = {}
+        if t % 37 == 0:
+            obs = np.full(3, np.nan, np.float32)[::-1]  # not contiguous
+        return obs, reward, terminated, truncated, info
+
+    return ScriptedEnv(
+        step_fn=step,
+        observation_space=gym.spaces.Box(-1.0, 1.0, (3,), np.float32),
+        action_space=gym.spaces.MultiDiscrete([3, 4]),
+    )
+
+
+def _image_env() -> ScriptedEnv:
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        obs = np.full((8, 8, 3), env.t % 256, np.uint8)
+        return obs, 1.0, False, env.t % 50 == 0, {}
+
+    def reset(env: ScriptedEnv) -> tuple[Any, Any]:
+        return np.zeros((8, 8, 3), np.uint8), {}
+
+    return ScriptedEnv(
+        step_fn=step,
+        reset_fn=reset,
+        observation_space=gym.spaces.Box(0, 255, (8, 8, 3), np.uint8),
+        action_space=gym.spaces.MultiBinary(4),
+    )
+
+
+SCENARIOS: dict[str, tuple[Callable[[], gym.Env[Any, Any]], int, dict[str, Any]]] = {
+    "cartpole": (lambda: gym.make("CartPole-v1"), 700, {"block_steps": 100}),
+    "halfcheetah_terms": (lambda: gym.make("HalfCheetah-v5"), 400, {"block_steps": 64}),
+    "odd_values": (_odd_env, 300, {"block_steps": 40}),
+    "images": (_image_env, 160, {"block_steps": 1000}),
+}
+
+
+def _record(
+    make: Callable[[], gym.Env[Any, Any]], steps: int, options: dict[str, Any], path: Path
+) -> tuple[int, int]:
+    """Record; return the steps the compiled path took and those it handed to Python."""
+    env = make()
+    env.action_space.seed(3)
+    with RecordEvidence(env, path, flush_every_s=1e9, **options) as rec:
+        rec.reset(seed=0)
+        episode = 0
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = rec.step(env.action_space.sample())
+            if terminated or truncated:
+                episode += 1
+                rec.reset(seed=episode)
+        if steps % 3 == 0:
+            rec.step(env.action_space.sample())  # a step after an ending, maybe
+            rec.step(env.action_space.sample())
+        step = rec._record_step
+        return getattr(step, "compiled_steps", 0), getattr(step, "python_steps", steps)
+
+
+_WALL = {"start_time", "end_time"}  # datetime.now(), not the clock patched here
+
+
+def _contents(path: Path) -> list[Any]:
+    with path.open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert summary is not None
+        out: list[Any] = [
+            sorted((c.id, c.topic, c.schema_id, c.metadata) for c in summary.channels.values())
+        ]
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            out.append((channel.topic, message.log_time, message.publish_time, message.data))
+        for record in reader.iter_metadata():
+            out.append((record.name, {k: v for k, v in record.metadata.items() if k not in _WALL}))
+    return out
+
+
+@needs_compiled
+@pytest.mark.parametrize("name", sorted(SCENARIOS))
+def test_compiled_and_pure_python_write_the_same_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, name: str
+) -> None:
+    make, steps, options = SCENARIOS[name]
+    files, taken = {}, {}
+    for mode in ("compiled", "pure"):
+        ticks = itertools.count(1_000_000_000, 1_000)
+        monkeypatch.setattr(time, "monotonic_ns", ticks.__next__)
+        monkeypatch.setattr(time, "time_ns", lambda: 1_700_000_000_000_000_000)
+        monkeypatch.setenv(fast.PURE_PYTHON_ENV, "1" if mode == "pure" else "0")
+        files[mode] = tmp_path / f"{mode}.mcap"
+        taken[mode] = _record(make, steps, options, files[mode])
+    assert taken["pure"][0] == 0
+    compiled_steps, python_steps = taken["compiled"]
+    if name == "odd_values":  # about 2 steps in 5 are odd: handed to Python
+        assert compiled_steps > steps // 2 and python_steps > steps // 4
+    else:  # all but those that find a column block full
+        assert compiled_steps > steps * 0.95
+    compiled, pure = _contents(files["compiled"]), _contents(files["pure"])
+    assert len(compiled) == len(pure)
+    for a, b in zip(compiled, pure, strict=True):
+        assert a == b
+
+
+@needs_compiled
+def test_the_compiled_step_is_used_and_the_switch_turns_it_off(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "a.mcap") as rec:
+        assert type(rec._record_step).__name__ == "StepRecorder"
+    monkeypatch.setenv(fast.PURE_PYTHON_ENV, "1")
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "b.mcap") as rec:
+        assert type(rec._record_step).__name__ != "StepRecorder"
+    assert not fast.compiled()
