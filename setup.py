@@ -19,10 +19,16 @@ from setuptools.command.build_ext import build_ext
 class OptionalBuildExt(build_ext):
     """``build_ext`` that warns and goes on when the extension cannot be built."""
 
-    def build_extension(self, ext: Extension) -> None:
+    def build_extensions(self) -> None:
+        """Build each extension; one that fails is left out of what is installed."""
+        for ext in list(self.extensions):
+            if not self._built(ext):
+                self.extensions.remove(ext)  # (an editable install would copy its output)
+
+    def _built(self, ext: Extension) -> bool:
         """Build ``ext``; on failure warn (or raise, if the environment requires it)."""
         try:
-            super().build_extension(ext)
+            self.build_extension(ext)
         except Exception as exc:  # the compiler's failure, in whatever class distutils gave it
             if os.environ.get("EPISODE_AUDIT_REQUIRE_EXTENSION") == "1":
                 raise
@@ -31,6 +37,8 @@ class OptionalBuildExt(build_ext):
                 "the recorder takes its pure-Python path",
                 file=sys.stderr,
             )
+            return False
+        return True
 
 
 setup(

@@ -37,6 +37,8 @@ import numpy as np
 from gymnasium.wrappers import TimeLimit
 
 from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
+from episode_audit.record.fast import PURE_PYTHON_ENV
+from episode_audit.record.fast import compiled as fast_compiled
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TMP = Path(tempfile.mkdtemp(prefix="episode-audit-bench-"))
@@ -92,32 +94,56 @@ def noise_floor(first: list[float], second: list[float]) -> dict[str, Any]:
     return {"aa_median": statistics.median(per_round), "aa_quartiles": [round(q1, 4), round(q3, 4)]}
 
 
+def _recorded(env_id: str, path: Path, pure: bool) -> RecordEvidence[Any, Any]:
+    """A recorder of ``env_id``: the compiled step, or (``pure``) the pure-Python one."""
+    os.environ[PURE_PYTHON_ENV] = "1" if pure else "0"
+    try:
+        return RecordEvidence(gym.make(env_id), path, overwrite=True)
+    finally:
+        del os.environ[PURE_PYTHON_ENV]
+
+
 def bench_record(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
-    """Interleaved bare/recorded runs over the same actions; median of per-round ratios."""
+    """Interleaved runs over the same actions: bare, two reference wrappers, and recorded
+    with the compiled and the pure-Python step; medians of per-round ratios to bare."""
     actions = actions_for(env_id, steps)
     warm = RecordEvidence(gym.make(env_id), TMP / f"warm-{env_id}.mcap", overwrite=True)
     run_steps(warm, actions[: min(steps, 5000)])
     warm.close()
-    bare_t, rec_t = [], []
+    times: dict[str, list[float]] = {k: [] for k in ("bare", "wrapper", "stats", "pure", "rec")}
     size = 0
     for r in range(rounds):
-        bare = run_steps(gym.make(env_id), actions)
-        path = TMP / f"{env_id}-{r}.mcap"
-        env = RecordEvidence(gym.make(env_id), path, overwrite=True)
-        recorded = run_steps(env, actions)
-        t0 = time.perf_counter()
-        env.close()
-        recorded += time.perf_counter() - t0
-        size = path.stat().st_size
-        bare_t.append(bare)
-        rec_t.append(recorded)
+        times["bare"].append(run_steps(gym.make(env_id), actions))
+        times["wrapper"].append(run_steps(gym.Wrapper(gym.make(env_id)), actions))
+        stats = gym.wrappers.RecordEpisodeStatistics(gym.make(env_id))
+        times["stats"].append(run_steps(stats, actions))
+        for kind in ("pure", "rec"):
+            path = TMP / f"{env_id}-{kind}-{r}.mcap"
+            env = _recorded(env_id, path, pure=kind == "pure")
+            recorded = run_steps(env, actions)
+            t0 = time.perf_counter()
+            env.close()
+            times[kind].append(recorded + time.perf_counter() - t0)
+            size = path.stat().st_size
+    bare_t = times["bare"]
+    per_step = {k: statistics.median(v) / steps * 1e6 for k, v in times.items()}
     return {
         "env": env_id,
         "steps": steps,
         "rounds": rounds,
-        "bare_us_per_step": statistics.median(bare_t) / steps * 1e6,
-        "recorded_us_per_step": statistics.median(rec_t) / steps * 1e6,
-        **ratios(bare_t, rec_t),
+        "compiled_step": fast_compiled(),
+        "bare_us_per_step": per_step["bare"],
+        "recorded_us_per_step": per_step["rec"],
+        **ratios(bare_t, times["rec"]),
+        "pure_python_ratio_median": ratios(bare_t, times["pure"])["ratio_median"],
+        "empty_wrapper_ratio_median": ratios(bare_t, times["wrapper"])["ratio_median"],
+        "episode_statistics_ratio_median": ratios(bare_t, times["stats"])["ratio_median"],
+        "overhead_us": {
+            "recorder": per_step["rec"] - per_step["bare"],
+            "pure_python": per_step["pure"] - per_step["bare"],
+            "empty_wrapper": per_step["wrapper"] - per_step["bare"],
+            "RecordEpisodeStatistics": per_step["stats"] - per_step["bare"],
+        },
         "bytes_per_step": size / steps,
     }
 
