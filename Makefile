@@ -32,8 +32,14 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# the single-env recorder's tests run twice: on the compiled step, and on the pure-Python one
+# that machines without a C compiler take (the files must be the same: tests/record/test_fast.py)
+PURE_TESTS := $(addprefix tests/record/test_,gym.py misbehaving.py stream.py disk_full.py \
+	threads.py settings.py reward_wrappers.py)
+
 pytest: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow"
+	EPISODE_AUDIT_REQUIRE_EXTENSION=1 $(BIN)/python -m pytest -q -m "not slow"
+	EPISODE_AUDIT_PURE_PYTHON=1 $(BIN)/python -m pytest -q -m "not slow" $(PURE_TESTS)
 
 test: lint typecheck pytest
 
