@@ -198,9 +198,17 @@ def _context() -> Any:
     return context
 
 
-def _quiet_worker() -> None:
-    """A worker leaves Ctrl-C to the parent (which stops it): no traceback per worker."""
+def _start_worker(environ: dict[str, str]) -> None:
+    """A worker takes this process's environment variables and leaves Ctrl-C to the parent.
+
+    The fork server's environment is this process's as it was when the server started (a
+    credential set since would be missing); the parent stops the workers on Ctrl-C, so no
+    traceback is printed per worker.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if dict(os.environ) != environ:
+        os.environ.clear()
+        os.environ.update(environ)
 
 
 def _pool_map(
@@ -211,7 +219,12 @@ def _pool_map(
     progress: Progress | None,
 ) -> Iterator[R]:
     """The runs handed to ``processes - 1`` workers; this process takes runs from the back."""
-    pool = ProcessPoolExecutor(processes - 1, mp_context=_context(), initializer=_quiet_worker)
+    pool = ProcessPoolExecutor(
+        processes - 1,
+        mp_context=_context(),
+        initializer=_start_worker,
+        initargs=(dict(os.environ),),
+    )
     futures: dict[int, Future[list[_Done[R]]]] = {}
     try:
         with _workers_ignore_sigint():

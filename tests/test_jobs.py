@@ -310,6 +310,17 @@ def test_this_process_works_too_and_workers_inherit_nothing_of_it(
     assert list(by.values()) == ["as imported"]  # a fresh worker: not a fork of this process
 
 
+def _environ(item: int, progress: object) -> str | None:
+    time.sleep(0.02)
+    return os.environ.get("EPISODE_AUDIT_TEST_MARK")
+
+
+def test_workers_see_the_environment_as_it_is_now(monkeypatch: pytest.MonkeyPatch) -> None:
+    list(map_ordered(_environ, range(10), jobs=2))  # the fork server is up: its env is older
+    monkeypatch.setenv("EPISODE_AUDIT_TEST_MARK", "set since")  # as credentials may be
+    assert set(map_ordered(_environ, range(100), jobs=2)) == {"set since"}
+
+
 def _steps(item: int, progress: Callable[[int], None] | None) -> int:
     assert progress is not None
     progress(item)
