@@ -6,9 +6,12 @@ timed two ways, in alternating rounds: as library calls in this process (``jobs=
 the workers' fork server, started by the first call, stays up for the next ones, as in any
 long-lived process) and as the command line, a fresh ``python -m episode_audit`` each time
 (interpreter, imports and fork server included). A speedup is the median of the per-round
-ratios. The scaling estimate to N cores is Amdahl's law with the serial fraction the measured
-2-core speedup implies: s = 2 / S2 - 1, S(N) = 1 / (s + (1 - s) / N) (an upper bound: it assumes
-the parallel part scales perfectly, and takes no account of other load on the host).
+ratios. The CPU seconds of the whole process tree are taken too: the host's other load moves
+them much less than the wall-clock time, and ``2 * cpu(jobs=1) / cpu(jobs=2)`` is the speedup
+two idle cores give when the work divides evenly (an upper bound on a busy host's). The scaling
+estimate to N cores is Amdahl's law with the serial fraction the measured 2-core speedup
+implies: s = 2 / S2 - 1, S(N) = 1 / (s + (1 - s) / N) (an upper bound: it assumes the parallel
+part scales perfectly, and takes no account of other load on the host).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import shutil
 import statistics
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -68,10 +72,63 @@ def campaign(tmp: Path) -> tuple[list[Path], Path]:
     return files, reacher
 
 
-def timed(fn: Callable[[], Any]) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
+def _descendants(pid: int) -> list[int]:
+    out: list[int] = []
+    try:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return out
+    for child in map(int, children):
+        out += [child, *_descendants(child)]
+    return out
+
+
+def _ticks(pid: int) -> int:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0
+    return int(fields[11]) + int(fields[12])  # utime + stime
+
+
+class TreeCPU:
+    """CPU seconds of this process and its descendants over a ``with`` block (Linux).
+
+    The descendants (the fork server, its workers) are sampled from /proc every 20 ms, so a
+    worker's last 20 ms may be missed. The host's other load does not change these seconds
+    much (it does a wall-clock time), so ``2 * cpu(jobs=1) / cpu(jobs=2)`` is the speedup two
+    idle cores would give if the work divides evenly, as the scheduling makes it.
+    """
+
+    def __enter__(self) -> TreeCPU:
+        self._stop = threading.Event()
+        self._start = {pid: _ticks(pid) for pid in _descendants(os.getpid())}
+        self._seen: dict[int, int] = {}
+        self._own = time.process_time()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def _sample(self) -> None:
+        while not self._stop.wait(0.02):
+            for pid in _descendants(os.getpid()):
+                self._seen[pid] = max(self._seen.get(pid, 0), _ticks(pid))
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        own = time.process_time() - self._own
+        ticks = sum(t - self._start.get(pid, 0) for pid, t in self._seen.items())
+        self.seconds = own + ticks / os.sysconf("SC_CLK_TCK")
+
+
+def timed(fn: Callable[[], Any]) -> tuple[float, float]:
+    """Wall-clock seconds of ``fn()``, and the CPU seconds of this process tree."""
+    with TreeCPU() as cpu:
+        t0 = time.perf_counter()
+        fn()
+        wall = time.perf_counter() - t0
+    return wall, cpu.seconds
 
 
 def cli(*args: str) -> Callable[[int], Any]:
@@ -89,9 +146,13 @@ def compare(run: Callable[[int], Any], rounds: int) -> dict[str, Any]:
     """Alternating rounds of ``run(1)`` and ``run(2)``: seconds and the median speedup."""
     one: list[float] = []
     two: list[float] = []
+    cpu_one: list[float] = []
+    cpu_two: list[float] = []
     for _ in range(rounds):
-        one.append(timed(lambda: run(1)))
-        two.append(timed(lambda: run(2)))
+        for times, cpus, jobs in ((one, cpu_one, 1), (two, cpu_two, 2)):
+            wall, cpu = timed(lambda: run(jobs))  # noqa: B023 - called at once
+            times.append(wall)
+            cpus.append(cpu)
     speedup = statistics.median(a / b for a, b in zip(one, two, strict=True))
     serial = min(1.0, max(0.0, 2 / speedup - 1))
     return {
@@ -99,6 +160,11 @@ def compare(run: Callable[[int], Any], rounds: int) -> dict[str, Any]:
         "jobs2_seconds_median": round(statistics.median(two), 3),
         "speedup_median": round(speedup, 3),
         "speedups": [round(a / b, 3) for a, b in zip(one, two, strict=True)],
+        "jobs1_cpu_seconds_median": round(statistics.median(cpu_one), 3),
+        "jobs2_cpu_seconds_median": round(statistics.median(cpu_two), 3),
+        "even_split_speedup_from_cpu": round(
+            statistics.median(2 * a / b for a, b in zip(cpu_one, cpu_two, strict=True)), 3
+        ),
         "serial_fraction_amdahl": round(serial, 3),
         "estimated_speedup": {
             str(n): round(1 / (serial + (1 - serial) / n), 2) for n in (4, 8, 16, 32, 64)
