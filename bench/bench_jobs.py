@@ -7,8 +7,9 @@ the workers' fork server, started by the first call, stays up for the next ones,
 long-lived process) and as the command line, a fresh ``python -m episode_audit`` each time
 (interpreter, imports and fork server included). A speedup is the median of the per-round
 ratios. The CPU seconds of the whole process tree are taken too: the host's other load moves
-them much less than the wall-clock time, and ``2 * cpu(jobs=1) / cpu(jobs=2)`` is the speedup
-two idle cores give when the work divides evenly (an upper bound on a busy host's). The scaling
+them less than the wall-clock time (though contention adds to them), and
+``2 * cpu(jobs=1) / cpu(jobs=2)`` is the speedup two idle cores give when the work divides
+evenly. The scaling
 estimate to N cores is Amdahl's law with the serial fraction the measured 2-core speedup
 implies: s = 2 / S2 - 1, S(N) = 1 / (s + (1 - s) / N) (an upper bound: it assumes the parallel
 part scales perfectly, and takes no account of other load on the host).
@@ -95,9 +96,9 @@ class TreeCPU:
     """CPU seconds of this process and its descendants over a ``with`` block (Linux).
 
     The descendants (the fork server, its workers) are sampled from /proc every 20 ms, so a
-    worker's last 20 ms may be missed. The host's other load does not change these seconds
-    much (it does a wall-clock time), so ``2 * cpu(jobs=1) / cpu(jobs=2)`` is the speedup two
-    idle cores would give if the work divides evenly, as the scheduling makes it.
+    worker's last 20 ms may be missed. The host's other load changes these seconds less than a
+    wall-clock time, so ``2 * cpu(jobs=1) / cpu(jobs=2)`` estimates the speedup two idle cores
+    would give if the work divides evenly, as the scheduling makes it.
     """
 
     def __enter__(self) -> TreeCPU:
