@@ -13,7 +13,9 @@ run with / without RecordVecEnvEvidence, and its cost per sub-env step (skipped 
 not installed).
 SB3 (bench_sb3.py): a real PPO run with / without RecordVecEnvEvidence, and its cost per
 sub-env step (skipped when SB3 is not installed); jobs (bench_jobs.py): check, report and
-replay over 1 000 files with --jobs 1 vs 2 (replay >= 1.8x), and an Amdahl estimate to N cores.
+replay over 1 000 files (+ 50 Reacher-v5 episodes for replay) with --jobs 1 vs 2, as library
+calls and as fresh command-line processes, 3 rounds, medians (replay >= 1.8x), the load
+average, and an Amdahl estimate to N cores.
 Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
 """
 

@@ -1,11 +1,12 @@
 """Work spread over local processes or Ray tasks, results back in input order.
 
 :func:`map_ordered` runs ``fn(item, progress)`` for each item: in this process (``jobs=1``),
-in a :class:`~concurrent.futures.ProcessPoolExecutor` of spawned workers (``jobs > 1``), or as
-Ray tasks (``ray_address``). Workers read their inputs themselves (an item is a path, or a path
-and a batch of episodes); only results travel back. Results come back in input order whatever
-the order the work ends in, so the output of a command does not depend on ``jobs``.
-:func:`usable_cores` is the default ``jobs`` of the command line. How to choose: docs/scale.md.
+in this process and a :class:`~concurrent.futures.ProcessPoolExecutor` of workers forked from a
+fork server (``jobs > 1``), or as Ray tasks (``ray_address``). Workers read their inputs
+themselves (an item is a path, or a path and a batch of episodes); only results travel back.
+Results come back in input order whatever the order the work ends in, so the output of a
+command does not depend on ``jobs``. :func:`usable_cores` is the default ``jobs`` of the command
+line. How to choose: docs/scale.md.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import signal
 import socket
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
@@ -80,15 +81,20 @@ def map_ordered(
     jobs: int | None = 1,
     ray_address: str | None = None,
     progress: Progress | None = None,
+    costs: Sequence[float] | None = None,
 ) -> Iterator[R]:
     """``fn(item, progress)`` for each of ``items``, yielded in the order of ``items``.
 
     ``jobs=1`` runs them here, one after another; ``jobs > 1`` (``None``: every usable core)
-    in that many worker processes (at most one per item), each started afresh (``spawn``:
-    nothing of this process, an env or a GL context, is inherited); ``ray_address`` as Ray
-    tasks (``"local"``: a Ray started here, ``"auto"`` or ``"ray://HOST:PORT"``: a running
-    cluster). ``fn`` and the items must then be picklable (a module-level function, or a
-    :func:`functools.partial` of one). Progress from workers counts when an item is done.
+    in this process and ``jobs - 1`` worker processes (at most one process per item), forked
+    from a fork server that imported episode-audit (nothing of this process, an env or a GL
+    context, is inherited); ``ray_address`` as Ray tasks (``"local"``: a Ray started here,
+    ``"auto"`` or ``"ray://HOST:PORT"``: a running cluster). ``fn`` and the items must then be
+    picklable (a module-level function, or a :func:`functools.partial` of one).
+
+    ``costs`` (one per item; default: the size of an item that is a local file's path, else 1)
+    orders the work: the costliest first, so that no large item is left for the end. Progress
+    from workers counts when a run of items is done.
 
     An :class:`~episode_audit.errors.EpisodeAuditError` ``fn`` raises is raised here, at its
     item's place in the order. On any exit before the end (an error, ``KeyboardInterrupt``, the
@@ -98,15 +104,17 @@ def map_ordered(
     [2, 4, 6]
     """
     work = list(items)
-    if ray_address is not None:
-        yield from _ray_map(fn, work, ray_address, progress)
-        return
-    workers = min(check_jobs(jobs), len(work))
-    if workers <= 1:
+    processes = min(check_jobs(jobs), len(work))
+    if ray_address is None and processes <= 1:
         for item in work:
             yield fn(item, progress)
         return
-    yield from _pool_map(fn, work, workers, progress)
+    weights = [float(c) for c in costs] if costs is not None else [_size(i) for i in work]
+    if ray_address is not None:
+        runs = _chunks(weights, workers(None, ray_address))
+        yield from _ray_map(fn, work, runs, ray_address, progress)
+    else:
+        yield from _pool_map(fn, work, _chunks(weights, processes), processes, progress)
 
 
 @dataclass(frozen=True)
@@ -117,16 +125,14 @@ class _Done(Generic[R]):
     error: EpisodeAuditError | None
     steps: int
 
-    def unwrap(self, progress: Progress | None) -> R:
-        if progress is not None and self.steps:
-            progress(self.steps)
+    def unwrap(self) -> R:
         if self.error is not None:
             raise self.error
         return self.result  # type: ignore[return-value]
 
 
 def _call(fn: Work[T, R], chunk: Sequence[T]) -> list[_Done[R]]:
-    """Run a chunk of items in a worker, counting their progress instead of reporting it."""
+    """Run a chunk of items, counting their progress instead of reporting it."""
     done: list[_Done[R]] = []
     for item in chunk:
         steps = 0
@@ -142,35 +148,129 @@ def _call(fn: Work[T, R], chunk: Sequence[T]) -> list[_Done[R]]:
     return done
 
 
-def _chunks(work: Sequence[T], workers: int) -> list[Sequence[T]]:
-    """``work`` cut in runs of items, about 8 a worker: few round trips, workers kept busy."""
-    size = max(1, len(work) // (8 * workers))
-    return [work[i : i + size] for i in range(0, len(work), size)]
+def _size(item: object) -> float:
+    """An item's default cost: the size of the local file it names, else 1."""
+    if isinstance(item, str | os.PathLike) and "://" not in str(os.fspath(item)):
+        try:
+            return float(max(1, os.path.getsize(item)))
+        except (OSError, ValueError):
+            pass
+    return 1.0
 
 
-def _quiet_worker() -> None:
-    """A worker leaves Ctrl-C to the parent (which stops it): no traceback per worker."""
+def _chunks(costs: Sequence[float], processes: int) -> list[list[int]]:
+    """The items' indices in runs, costliest first (longest-processing-time-first order).
+
+    A run holds items of about ``1 / (8 * processes)`` of the whole cost (an item above it,
+    alone): few round trips, and the runs left for the end are the cheapest, so the
+    processes end together.
+    """
+    order = sorted(range(len(costs)), key=lambda i: -costs[i])  # stable: ties in input order
+    budget = sum(costs) / (8 * processes)
+    runs: list[list[int]] = []
+    run: list[int] = []
+    total = 0.0
+    for i in order:
+        if run and total + costs[i] > budget:
+            runs.append(run)
+            run, total = [], 0.0
+        run.append(i)
+        total += costs[i]
+    return [*runs, run] if run else runs
+
+
+PRELOAD = ("__main__", "episode_audit")
+"""What the workers' fork server imports once, before it forks a worker per process."""
+
+
+def _context() -> Any:
+    """Workers forked from a fork server (a fresh interpreter that imported :data:`PRELOAD`).
+
+    A worker so starts in milliseconds, with nothing of this process. Where there is no fork
+    server (Windows), workers are spawned: each a fresh interpreter importing on its own.
+    """
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(PRELOAD))
+    return context
+
+
+def _start_worker(environ: dict[str, str]) -> None:
+    """A worker takes this process's environment variables and leaves Ctrl-C to the parent.
+
+    The fork server's environment is this process's as it was when the server started (a
+    credential set since would be missing); the parent stops the workers on Ctrl-C, so no
+    traceback is printed per worker.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if dict(os.environ) != environ:
+        os.environ.clear()
+        os.environ.update(environ)
 
 
 def _pool_map(
-    fn: Work[T, R], work: Sequence[T], workers: int, progress: Progress | None
+    fn: Work[T, R],
+    work: Sequence[T],
+    runs: Sequence[Sequence[int]],
+    processes: int,
+    progress: Progress | None,
 ) -> Iterator[R]:
-    import multiprocessing
-
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_quiet_worker)
-    futures: list[Future[list[_Done[R]]]] = []
+    """The runs handed to ``processes - 1`` workers; this process takes runs from the back."""
+    pool = ProcessPoolExecutor(
+        processes - 1,
+        mp_context=_context(),
+        initializer=_start_worker,
+        initargs=(dict(os.environ),),
+    )
+    futures: dict[int, Future[list[_Done[R]]]] = {}
     try:
         with _workers_ignore_sigint():
-            futures = [pool.submit(_call, fn, chunk) for chunk in _chunks(work, workers)]
-        for future in futures:
-            for done in future.result():
-                yield done.unwrap(progress)
+            for k, run in enumerate(runs):
+                futures[k] = pool.submit(_call, fn, [work[i] for i in run])
+        yield from _gather(fn, work, runs, futures, progress)
     except BaseException:
-        _stop(pool, futures)
+        _stop(pool, list(futures.values()))
         raise
     pool.shutdown(wait=True)
+
+
+def _gather(
+    fn: Work[T, R],
+    work: Sequence[T],
+    runs: Sequence[Sequence[int]],
+    futures: dict[int, Future[list[_Done[R]]]],
+    progress: Progress | None,
+) -> Iterator[R]:
+    """The results in input order; waiting for a worker, this process does a run itself.
+
+    It takes the last run no worker has started (the cheapest), so it works while the
+    workers start, and ends when they do. Progress is told as each run ends.
+    """
+    pending = dict(futures)
+    results: dict[int, _Done[R]] = {}
+
+    def take(k: int, done: list[_Done[R]]) -> None:
+        for i, outcome in zip(runs[k], done, strict=True):
+            results[i] = outcome
+            if progress is not None and outcome.steps:
+                progress(outcome.steps)
+
+    for i in range(len(work)):
+        while i not in results:
+            for k in [k for k, future in pending.items() if future.done()]:
+                take(k, pending.pop(k).result())
+            if i in results:
+                break
+            stolen = next((k for k in reversed(pending) if pending[k].cancel()), None)
+            if stolen is not None:
+                del pending[stolen]
+                take(stolen, _call(fn, [work[j] for j in runs[stolen]]))
+            else:
+                wait(pending.values(), return_when=FIRST_COMPLETED)
+        yield results.pop(i).unwrap()
 
 
 @contextmanager
@@ -206,19 +306,31 @@ def _stop(pool: ProcessPoolExecutor, futures: Sequence[Future[Any]]) -> None:
 
 
 def _ray_map(
-    fn: Work[T, R], work: Sequence[T], address: str, progress: Progress | None
+    fn: Work[T, R],
+    work: Sequence[T],
+    runs: Sequence[Sequence[int]],
+    address: str,
+    progress: Progress | None,
 ) -> Iterator[R]:
+    """The runs as Ray tasks (costliest first), their results in input order."""
     ray = _connect(address)
     remote = ray.remote(num_cpus=1, max_retries=0)(_call)
-    refs: list[Any] = []
+    refs: dict[int, Any] = {}
     try:
-        refs = [remote.remote(fn, chunk) for chunk in _chunks(work, workers(None, address))]
-        for ref in refs:
-            chunk_done: list[_Done[R]] = ray.get(ref)
-            for done in chunk_done:
-                yield done.unwrap(progress)
+        for k, run in enumerate(runs):
+            refs[k] = remote.remote(fn, [work[i] for i in run])
+        where = {i: k for k, run in enumerate(runs) for i in run}
+        results: dict[int, _Done[R]] = {}
+        for i in range(len(work)):
+            if i not in results:
+                k = where[i]
+                for j, outcome in zip(runs[k], ray.get(refs[k]), strict=True):
+                    results[j] = outcome
+                    if progress is not None and outcome.steps:
+                        progress(outcome.steps)
+            yield results.pop(i).unwrap()
     except BaseException:
-        for ref in refs:
+        for ref in refs.values():
             ray.cancel(ref, force=True)
         raise
 

@@ -7,6 +7,7 @@ unreadable) is checked, reported, replayed and exported with ``--jobs 1``, ``--j
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import shutil
@@ -16,7 +17,7 @@ import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import gymnasium as gym
@@ -116,6 +117,41 @@ def test_jobs_and_ray_give_the_same_json_and_exit_code(
         assert got_err == err, options
 
 
+@pytest.fixture(scope="module")
+def reference_sides(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The drawer task's evidence: a scripted baseline and a reward-hacking candidate, six
+    files of four episodes a side (the candidate's files on other seeds but two), and an
+    unreadable file among the candidate's."""
+    from episode_audit.rollout import record_episodes
+    from episode_audit.tasks import DRAWER_OPEN_ID
+
+    out = tmp_path_factory.mktemp("sides")
+    for side, policy in (("base", "scripted"), ("cand", "hacker")):
+        (out / side).mkdir()
+        for i in range(6):
+            seed = 40 * i + (1000 if side == "cand" and i > 1 else 0)
+            record_episodes(
+                DRAWER_OPEN_ID, out / side / f"{i}.mcap", policy=policy, episodes=4, seed=seed,
+                env_kwargs={"proxy_reward": True},
+            )  # fmt: skip
+    (out / "cand" / "3-unreadable.mcap").write_bytes(b"not an evidence file\n" * 10)
+    return out / "base", out / "cand"
+
+
+@pytest.mark.mujoco
+@pytest.mark.parametrize("by", ["all", "env"])
+def test_compare_gives_the_same_json_and_exit_code_with_jobs_and_ray(
+    reference_sides: tuple[Path, Path], ray_local: str, by: str
+) -> None:
+    base, cand = map(str, reference_sides)
+    args = ["compare", base, "--candidate", cand, "--by", by, "-f", "json"]
+    code, one, err = run(*args, "--jobs", "1")
+    assert code == 2 and "3-unreadable.mcap" in err  # compared, and the unreadable file named
+    assert json.loads(one)["verdict"] == "regressed"
+    for options in (["--jobs", "2"], ["--jobs", "3"], ["--ray", ray_local]):
+        assert run(*args, *options) == (code, one, err), options
+
+
 def test_export_writes_the_same_files_with_jobs(campaign: Path, tmp_path: Path) -> None:
     outs = []
     for jobs in ("1", "2"):
@@ -129,7 +165,9 @@ def test_export_writes_the_same_files_with_jobs(campaign: Path, tmp_path: Path) 
         assert pq.read_table(outs[0] / name).equals(pq.read_table(outs[1] / name)), name
 
 
-def test_replay_splits_a_large_file_into_batches_with_the_same_result(tmp_path: Path) -> None:
+def test_replay_splits_a_large_file_into_batches_with_the_same_result(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     path = tmp_path / "many.mcap"
     with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=10), path) as env:
         for e in range(12):
@@ -138,9 +176,13 @@ def test_replay_splits_a_large_file_into_batches_with_the_same_result(tmp_path: 
             while not done:
                 *_, terminated, truncated, _ = env.step(e % 2)
                 done = terminated or truncated
-    from episode_audit.replay.run import _batches
+    from episode_audit.replay import run as replay_run
 
-    assert len(_batches([path], None, None, 2)) == 4  # 12 episodes in 4 batches of 3
+    assert len(replay_run._batches([path], None, None, 2)[0]) == 1  # small: one batch
+    monkeypatch.setattr(replay_run, "MIN_BATCH_BYTES", path.stat().st_size // 4)
+    batches, costs = replay_run._batches([path], None, None, 2)
+    assert [b[2] for b in batches] == [[0, 1, 2], [3, 4, 5], [6, 7, 8], [9, 10, 11]]
+    assert sum(costs) == pytest.approx(path.stat().st_size)
     code, one, _ = run("replay", str(path), "-f", "json", "--jobs", "1")
     assert code == 0
     assert run("replay", str(path), "-f", "json", "--jobs", "2")[:2] == (code, one)
@@ -162,15 +204,35 @@ def test_an_unreachable_ray_cluster_is_one_line_and_exit_2(campaign: Path) -> No
     assert code == 2 and "expected local, auto, ray://HOST:PORT or HOST:PORT" in err
 
 
-def _wait_for_workers(pid: int, workers: int, timeout: float = 120) -> None:
-    """Until ``pid`` has started ``workers`` worker processes (besides its resource tracker)."""
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except FileNotFoundError:  # gone
+        return []
+
+
+def _wait_for_a_worker(pid: int, timeout: float = 120) -> int:
+    """A worker of ``pid``: a process its fork server (a child of ``pid``) forked."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
-        if len(children) > workers:
-            return
+        for child in _children(pid):
+            if _children(child):
+                return _children(child)[0]
         time.sleep(0.2)
-    raise AssertionError(f"no {workers} workers after {timeout} s")
+    raise AssertionError(f"no worker after {timeout} s")
+
+
+def _gone(pid: int, timeout: float = 30) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except FileNotFoundError:
+            return True
+        if state == "Z":
+            return True
+        time.sleep(0.2)
+    return False
 
 
 def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
@@ -186,7 +248,7 @@ def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
         text=True,
         start_new_session=True,
     )
-    _wait_for_workers(proc.pid, 2)  # and then mid-replay (200 files x 0.5 s builds)
+    worker = _wait_for_a_worker(proc.pid)  # and then mid-replay (200 files x 0.5 s builds)
     time.sleep(3)
     assert proc.poll() is None
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
@@ -194,6 +256,7 @@ def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
     assert proc.returncode == 130, err
     assert "Traceback" not in err and out == ""
     assert err.splitlines()[-1] == "episode-audit: error: interrupted (Ctrl-C): stopped"
+    assert _gone(worker)
 
 
 def test_evidence_errors_come_back_from_a_worker_as_raised() -> None:
@@ -215,6 +278,59 @@ def test_map_ordered_keeps_the_order_and_raises_at_the_failing_item() -> None:
     assert [next(got), next(got)] == [2, 4]
     with pytest.raises(EvidenceError, match=r"three\.mcap: cannot be read"):
         next(got)
+
+
+def test_runs_go_costliest_first_and_a_large_item_alone() -> None:
+    from episode_audit._jobs import _chunks
+
+    costs = [1.0] * 30 + [50.0] + [1.0] * 19  # one large item among small ones
+    runs = _chunks(costs, 2)  # a run: about 100 / 16 of the cost
+    assert runs[0] == [30]
+    assert sorted(i for run in runs for i in run) == list(range(50))
+    assert all(sum(costs[i] for i in run) <= 100 / 16 for run in runs[1:])
+    assert [run[0] for run in runs[1:]] == sorted(run[0] for run in runs[1:])  # ties: in order
+
+
+_MARK = "as imported"
+
+
+def _where(item: int, progress: object) -> tuple[int, int, str]:
+    time.sleep(0.02)
+    return item, os.getpid(), _MARK
+
+
+def test_this_process_works_too_and_workers_inherit_nothing_of_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(sys.modules[__name__], "_MARK", "set in this process")
+    done = list(map_ordered(_where, range(200), jobs=2))
+    assert [item for item, _, _ in done] == list(range(200))
+    by = {pid: mark for _, pid, mark in done}
+    assert len(by) == 2 and by.pop(os.getpid()) == "set in this process"
+    assert list(by.values()) == ["as imported"]  # a fresh worker: not a fork of this process
+
+
+def _environ(item: int, progress: object) -> str | None:
+    time.sleep(0.02)
+    return os.environ.get("EPISODE_AUDIT_TEST_MARK")
+
+
+def test_workers_see_the_environment_as_it_is_now(monkeypatch: pytest.MonkeyPatch) -> None:
+    list(map_ordered(_environ, range(10), jobs=2))  # the fork server is up: its env is older
+    monkeypatch.setenv("EPISODE_AUDIT_TEST_MARK", "set since")  # as credentials may be
+    assert set(map_ordered(_environ, range(100), jobs=2)) == {"set since"}
+
+
+def _steps(item: int, progress: Callable[[int], None] | None) -> int:
+    assert progress is not None
+    progress(item)
+    return item
+
+
+def test_progress_counts_every_step_once_whoever_does_the_work() -> None:
+    told: list[int] = []
+    assert list(map_ordered(_steps, range(100), jobs=2, progress=told.append)) == list(range(100))
+    assert sum(told) == sum(range(100))
 
 
 def test_jobs_must_be_a_positive_number() -> None:

@@ -220,7 +220,8 @@ RayOption = Annotated[
 EXIT_INTERRUPTED = 130
 SMALL_INPUTS = 8 << 20
 """Inputs totalling fewer bytes are read in this process unless ``--jobs`` says otherwise:
-starting workers (an interpreter and the imports each) would cost more than it saves."""
+starting the workers' fork server (an interpreter importing episode-audit, about a second)
+would cost more than it saves."""
 
 
 def jobs_for(jobs: int | None, files: Sequence[Source], small: int = SMALL_INPUTS) -> int | None:

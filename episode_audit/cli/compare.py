@@ -7,16 +7,21 @@ from typing import Annotated
 import typer
 
 from ..errors import EpisodeAuditError
+from ..read.inputs import evidence_files
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     CIFormatOption,
+    JobsOption,
     PathsArgument,
+    RayOption,
     _error_line,
     _format,
     app,
     emit,
     fail,
+    interruptible,
+    jobs_for,
     warn,
 )
 from ._summary import NoStepSummaryOption, append_step_summary
@@ -75,6 +80,8 @@ def compare(
     ] = False,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
+    jobs: JobsOption = None,
+    ray: RayOption = None,
 ) -> None:
     """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates."""
     from ..compare import compare_inputs
@@ -82,17 +89,20 @@ def compare(
 
     fmt = _format(output, junit=True)
     try:
-        result = compare_inputs(
-            baseline,
-            candidate,
-            by=by,
-            max_success_drop=max_success_drop,
-            max_failure_increase=max_failure_increase or (),
-            max_return_drop=max_return_drop,
-            rate_margin=rate_margin,
-            different_tasks=different_tasks,
-            on_error=_error_line,
-        )
+        with interruptible():
+            result = compare_inputs(
+                baseline,
+                candidate,
+                by=by,
+                max_success_drop=max_success_drop,
+                max_failure_increase=max_failure_increase or (),
+                max_return_drop=max_return_drop,
+                rate_margin=rate_margin,
+                different_tasks=different_tasks,
+                on_error=_error_line,
+                jobs=_jobs(jobs, [*baseline, *candidate]),
+                ray_address=ray,
+            )
     except EpisodeAuditError as exc:
         fail(str(exc))
     comparison = result.comparison
@@ -107,3 +117,13 @@ def compare(
         raise typer.Exit(EXIT_USAGE)
     if not comparison.passed:
         raise typer.Exit(EXIT_FINDINGS)
+
+
+def _jobs(jobs: int | None, paths: list[str]) -> int | None:
+    """``--jobs`` for ``paths`` (a path that cannot be listed: the comparison says so itself)."""
+    if jobs is not None:
+        return jobs
+    try:
+        return jobs_for(jobs, evidence_files(paths))
+    except EpisodeAuditError:
+        return None

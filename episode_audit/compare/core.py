@@ -1,7 +1,8 @@
 """Did the candidate regress? :func:`compare` and the :class:`Comparison` it returns.
 
 :func:`compare` opens two sets of evidence files, :func:`compare_tables` compares files already
-opened: what differs between the runs first (a different task is refused unless allowed), then
+opened, :func:`compare_parts` the parts taken from each file (:func:`side_file`, in a worker
+maybe): what differs between the runs first (a different task is refused unless allowed), then
 per group (report's ``by``) every metric with its interval, test and verdict, the p-values of the
 primary metrics of all groups Holm-adjusted as one family, the gates, and the incentive warnings
 new in the candidate. :meth:`Comparison.cases` lists it all as named pass/fail cases (one test
@@ -17,15 +18,25 @@ from typing import Any
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
-from ..report.collect import check_by, collect
+from ..report.collect import check_by, joined
+from ..report.core import FilePart, file_part
 from ..report.groups import group_reports
 from .groups import RATE_MARGIN, CompareGates, GroupComparison, check_gates, combine, compare_group
 from .metrics import Verdict, decide
 from .sides import sides
-from .spec import Mismatch, mismatches
+from .spec import Mismatch, field_mismatches, run_fields
 from .stats import holm
 
-__all__ = ["Case", "Comparison", "compare", "compare_tables"]
+__all__ = [
+    "Case",
+    "Comparison",
+    "SideFile",
+    "check_compare_by",
+    "compare",
+    "compare_parts",
+    "compare_tables",
+    "side_file",
+]
 
 
 @dataclass(frozen=True)
@@ -125,6 +136,19 @@ def compare_tables(
     rate_margin: float = RATE_MARGIN,
 ) -> Comparison:
     """Compare opened evidence files, given as ``(name, evidence)`` pairs; see :func:`compare`."""
+    check_compare_by(by)
+    return compare_parts(
+        [side_file(name, ev, by) for name, ev in baseline],
+        [side_file(name, ev, by) for name, ev in candidate],
+        by=by,
+        gates=gates,
+        different_tasks=different_tasks,
+        rate_margin=rate_margin,
+    )
+
+
+def check_compare_by(by: str) -> None:
+    """``by`` checked: a report's grouping (:func:`~.report.collect.check_by`) two sides share."""
     check_by(by)
     if by in ("file", "label"):
         why = {
@@ -134,8 +158,34 @@ def compare_tables(
         raise ConfigurationError(
             f"by={by!r}: {why}; group by 'all', 'env', 'env_index', 'agent' or 'tag:NAME'"
         )
-    baseline, candidate = list(baseline), list(candidate)
-    found = mismatches(baseline, candidate)
+
+
+@dataclass(frozen=True)
+class SideFile:
+    """What a comparison takes from one file (:func:`side_file`), small enough to send back."""
+
+    part: FilePart
+    fields: dict[str, str]
+    """The run's fields the sides are compared on (:func:`~.spec.run_fields`)."""
+
+
+def side_file(name: str, ev: Evidence, by: str) -> SideFile:
+    """The part of a comparison that comes from the file ``ev`` (``name``: as listed)."""
+    return SideFile(file_part(name, ev, by), run_fields(ev))
+
+
+def compare_parts(
+    baseline: Sequence[SideFile],
+    candidate: Sequence[SideFile],
+    *,
+    by: str = "all",
+    gates: CompareGates | None = None,
+    different_tasks: bool = False,
+    rate_margin: float = RATE_MARGIN,
+) -> Comparison:
+    """Compare the sides' files from their parts (:func:`side_file`), as :func:`compare_tables`."""
+    check_compare_by(by)
+    found = field_mismatches([f.fields for f in baseline], [f.fields for f in candidate])
     tasks = [m for m in found if m.task]
     if tasks and not different_tasks:
         raise ConfigurationError(
@@ -143,7 +193,8 @@ def compare_tables(
             "different_tasks=True (--different-tasks)"
         )
     gates = gates or CompareGates()
-    tables_b, tables_c = collect(baseline, by), collect(candidate, by)
+    tables_b = joined(f.part.rows for f in baseline)
+    tables_c = joined(f.part.rows for f in candidate)
     sides_b, sides_c = sides(*tables_b), sides(*tables_c)
     _check_sides(sides_b, "baseline")
     _check_sides(sides_c, "candidate")
@@ -168,17 +219,14 @@ def compare_tables(
     _decide(groups)
     for group in groups:
         group.gates = check_gates(group, gates)
+    parts = [f.part for f in [*baseline, *candidate]]
     return Comparison(
         by,
         found,
         groups,
         sorted(set(sides_b) - set(sides_c)),
         sorted(set(sides_c) - set(sides_b)),
-        [
-            (name, ev.torn or "no run-end record")
-            for name, ev in baseline + candidate
-            if not ev.finished
-        ],
+        [(p.name, p.unfinished) for p in parts if p.unfinished is not None],
     )
 
 

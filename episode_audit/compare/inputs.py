@@ -2,8 +2,9 @@
 
 :func:`compare_inputs` takes the options as the command line gives them
 (``--max-failure-increase`` as ``RATE`` or ``LABEL=RATE`` strings), checks them in its words,
-opens the files each side's paths name (directories are searched for ``*.mcap``; unreadable
-files are listed, not compared) and compares them with :func:`~.core.compare_tables`.
+reads the files each side's paths name (directories are searched for ``*.mcap``; unreadable
+files are listed, not compared; ``jobs`` workers read them) and compares them with
+:func:`~.core.compare_parts`.
 """
 
 from __future__ import annotations
@@ -12,12 +13,15 @@ import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 
+from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
-from ..read import Evidence
-from ..read.inputs import Unreadable, evidence_files, open_all
+from ..read import open_evidence
+from ..read.inputs import Unreadable, evidence_files
+from ..read.storage import Source
 from ..report.gates import is_rate
-from .core import Comparison, compare_tables
+from .core import Comparison, SideFile, check_compare_by, compare_parts, side_file
 from .groups import RATE_MARGIN, CompareGates
 
 __all__ = ["InputsComparison", "compare_inputs", "gates_from_options"]
@@ -42,12 +46,16 @@ def compare_inputs(
     different_tasks: bool = False,
     rate_margin: float = RATE_MARGIN,
     on_error: Callable[[EpisodeAuditError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
 ) -> InputsComparison:
     """Compare the evidence files ``candidate`` names with those ``baseline`` names.
 
     Each problem with the options is a :class:`~episode_audit.errors.ConfigurationError`
     naming the option; a file that cannot be read is handed to ``on_error`` and listed in
-    :attr:`InputsComparison.unreadable`.
+    :attr:`InputsComparison.unreadable`. ``jobs`` worker processes (``None``: one per usable
+    core) or Ray tasks on ``ray_address`` read the files (see :mod:`episode_audit._jobs`);
+    the comparison is the same as with ``jobs=1``.
     """
     gates = gates_from_options(
         max_success_drop=max_success_drop,
@@ -58,27 +66,43 @@ def compare_inputs(
         raise ConfigurationError(f"--rate-margin: expected a rate in (0, 1], got {rate_margin}")
     if not candidate:
         raise ConfigurationError("--candidate: expected at least one file or directory")
-    opened: list[list[tuple[str, Evidence]]] = []
+    check_compare_by(by)
+    files = [evidence_files(list(paths)) for paths in (baseline, candidate)]
+    one = partial(_side_file, by=by)
+    read = iter(list(map_ordered(one, [*files[0], *files[1]], jobs=jobs, ray_address=ray_address)))
+    parts: list[list[SideFile]] = []
     unreadable: list[Unreadable] = []
-    for side, paths in (("baseline", baseline), ("candidate", candidate)):
-        files = evidence_files(list(paths))
-        readable, bad = open_all(files, Evidence.episodes, on_error=on_error)
-        if files and not readable:
+    for side, side_files in zip(("baseline", "candidate"), files, strict=True):
+        parts.append([])
+        for path, got in zip(side_files, read, strict=False):
+            if isinstance(got, EpisodeAuditError):
+                if on_error is not None:
+                    on_error(got)
+                unreadable.append(Unreadable.of(path, got))
+            else:
+                parts[-1].append(got)
+        if side_files and not parts[-1]:
             raise ConfigurationError(
-                f"the {side}: none of its {len(files)} evidence file(s) could be read "
+                f"the {side}: none of its {len(side_files)} evidence file(s) could be read "
                 "(the lines above say why); give readable files"
             )
-        opened.append([(str(path), ev) for path, ev in readable])
-        unreadable += bad
-    comparison = compare_tables(
-        opened[0],
-        opened[1],
+    comparison = compare_parts(
+        parts[0],
+        parts[1],
         by=by,
         gates=gates,
         different_tasks=different_tasks,
         rate_margin=rate_margin,
     )
     return InputsComparison(comparison, unreadable)
+
+
+def _side_file(path: Source, progress: object, *, by: str) -> SideFile | EpisodeAuditError:
+    """One input's part of the comparison, or why it cannot be read (in a worker, maybe)."""
+    try:
+        return side_file(str(path), open_evidence(path), by)
+    except EpisodeAuditError as exc:
+        return exc
 
 
 def gates_from_options(

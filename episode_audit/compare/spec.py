@@ -13,7 +13,7 @@ from typing import Any
 
 from ..read import Evidence
 
-__all__ = ["Mismatch", "mismatches"]
+__all__ = ["Mismatch", "field_mismatches", "mismatches", "run_fields"]
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,8 @@ class Mismatch:
         )
 
 
-def _fields(ev: Evidence) -> dict[str, str]:
+def run_fields(ev: Evidence) -> dict[str, str]:
+    """The fields of a file's run that the sides are compared on, as strings."""
     run = ev.run
     spec = run.env_spec or {}
     out = {
@@ -54,11 +55,20 @@ def mismatches(
     baseline: Sequence[tuple[str, Evidence]], candidate: Sequence[tuple[str, Evidence]]
 ) -> list[Mismatch]:
     """The fields whose sets of values differ between the sides' files, env id first."""
+    return field_mismatches(
+        [run_fields(ev) for _, ev in baseline], [run_fields(ev) for _, ev in candidate]
+    )
+
+
+def field_mismatches(
+    baseline: Sequence[dict[str, str]], candidate: Sequence[dict[str, str]]
+) -> list[Mismatch]:
+    """:func:`mismatches` of the sides' files given by their :func:`run_fields`."""
     base: dict[str, set[str]] = {}
     cand: dict[str, set[str]] = {}
     for into, files in ((base, baseline), (cand, candidate)):
-        for _, ev in files:
-            for name, value in _fields(ev).items():
+        for fields in files:
+            for name, value in fields.items():
                 into.setdefault(name, set()).add(value)
     names = sorted(set(base) | set(cand), key=_order)
     return [

@@ -110,10 +110,12 @@ def replay(
         trust_entry_points=trust_entry_points,
     )
     parallel = ray_address is not None or check_jobs(jobs) > 1
-    batches = _batches(files, selected, ray_address, jobs) if parallel else []
+    batches, costs = _batches(files, selected, ray_address, jobs) if parallel else ([], [])
     if not batches:
         batches = [(k, path, selected) for k, path in enumerate(files)]
-    done = map_ordered(one, batches, jobs=jobs, ray_address=ray_address, progress=progress)
+    done = map_ordered(
+        one, batches, jobs=jobs, ray_address=ray_address, progress=progress, costs=costs or None
+    )
     result = ReplayResult()
     for k, parts in _by_file(batches, done):
         path = files[k]
@@ -204,16 +206,22 @@ def _by_file(
         yield index, current
 
 
+MIN_BATCH_BYTES = 128 << 10
+"""A file is cut into batches of its episodes no smaller than this (each starts a fresh env)."""
+
+
 def _batches(
     files: Sequence[str | os.PathLike[str]],
     selected: list[int] | None,
     ray_address: str | None,
     jobs: int | None,
-) -> list[_Batch]:
-    """One batch per file; a large single-env file's episodes in several batches.
+) -> tuple[list[_Batch], list[float]]:
+    """One batch per file, a large single-env file's episodes in several; and their sizes.
 
-    A file is large when it holds more than a share of the bytes of all (a share per worker,
-    halved): its episodes go in batches of about that share, so the workers stay busy.
+    A share is an eighth of a process's part of all the bytes (at least
+    :data:`MIN_BATCH_BYTES`): a file larger is cut into batches of about a share, so the
+    processes take a large file's batches first and end together. A batch's size (its share
+    of its file's bytes) is its cost for :func:`~episode_audit._jobs.map_ordered`.
     """
     sizes = []
     for path in files:
@@ -221,17 +229,21 @@ def _batches(
             sizes.append(os.path.getsize(path))
         except OSError:
             sizes.append(0)
-    share = max(1, sum(sizes) // (2 * workers(jobs, ray_address)))
+    share = max(MIN_BATCH_BYTES, sum(sizes) // (8 * workers(jobs, ray_address)))
     out: list[_Batch] = []
+    costs: list[float] = []
     for k, (path, size) in enumerate(zip(files, sizes, strict=True)):
         pieces = -(-size // share)
         episodes = _single_env_episodes(path, selected) if pieces > 1 else None
         if episodes is None or len(episodes) < 2:
             out.append((k, path, selected))
+            costs.append(max(1, size))
             continue
         step = -(-len(episodes) // min(pieces, len(episodes)))
-        out += [(k, path, episodes[i : i + step]) for i in range(0, len(episodes), step)]
-    return out
+        for i in range(0, len(episodes), step):
+            out.append((k, path, episodes[i : i + step]))
+            costs.append(max(1, size * len(out[-1][2] or ()) / len(episodes)))
+    return out, costs
 
 
 def _single_env_episodes(

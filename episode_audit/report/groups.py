@@ -109,6 +109,8 @@ def group_reports(episodes: pa.Table, terms: pa.Table) -> list[GroupReport]:
     """One report per group key of ``episodes`` (sorted by key), with its ``terms`` rows."""
     if not episodes.num_rows:
         return []
+    # one chunk a table (a chunk a file once joined): each group's filter a pass over one array
+    episodes, terms = episodes.combine_chunks(), terms.combine_chunks()
     return [
         _group(
             key,
