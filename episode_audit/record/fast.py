@@ -31,7 +31,7 @@ def _load() -> Any:
     try:
         import importlib
 
-        _stepfast: Any = importlib.import_module(f"{__package__}._stepfast")
+        _stepfast: Any = importlib.import_module("episode_audit.record._stepfast")
         _stepfast.configure(Block, Episode, _FlatArrayBuffer, _ArrayBuffer, _IntBuffer, array.array)
     except Exception:  # not built, or built for another layout: the Python path
         return None
