@@ -275,14 +275,23 @@ def _gather(
 
 @contextmanager
 def _workers_ignore_sigint() -> Iterator[None]:
-    """Workers started in here ignore Ctrl-C from their first instruction on.
+    """Workers (and their fork server) started in here never see Ctrl-C; this process does.
 
-    An ignored signal stays ignored in a started program, and Python then sets no handler of
-    its own: a worker still importing when Ctrl-C comes prints no traceback; the parent,
-    which handles it, stops the workers.
+    Ctrl-C is blocked in this thread meanwhile: a blocked signal stays blocked in a started
+    program (the mask survives fork and exec), so a worker still importing prints no
+    traceback, and one that comes now is held, not lost, and raised here when it is unblocked
+    (starting the fork server waits for its imports: seconds on a busy host). The parent then
+    stops the workers. Without ``pthread_sigmask`` (Windows) the signal is ignored meanwhile.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
+        return
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         return
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
@@ -293,16 +302,40 @@ def _workers_ignore_sigint() -> Iterator[None]:
 
 def _stop(pool: ProcessPoolExecutor, futures: Sequence[Future[Any]]) -> None:
     """Cancel what has not started and end the workers now (they may be mid-item)."""
-    for future in futures:
-        future.cancel()
-    terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
-    if terminate is not None:
-        terminate()
-    else:
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            process.terminate()
-    pool.shutdown(wait=True, cancel_futures=True)
+    hook = threading.excepthook
+    threading.excepthook = _without_manager_errors(hook)
+    try:
+        for future in futures:
+            future.cancel()
+        terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+        if terminate is not None:
+            terminate()
+        else:
+            processes = list((getattr(pool, "_processes", None) or {}).values())
+            for process in processes:
+                process.terminate()
+            for process in processes:  # gone before shutdown unlinks the queues' semaphores,
+                process.join(timeout=10)  # which a worker still starting would fail to open
+        pool.shutdown(wait=True, cancel_futures=True)
+    finally:
+        threading.excepthook = hook
     wait(futures, timeout=0)
+
+
+def _without_manager_errors(hook: Any) -> Any:
+    """``hook`` but for the pool's manager thread failing while the workers are stopped.
+
+    Python < 3.12's manager thread, finding a worker terminated, sets an error on every work
+    item it holds, the runs this process took over (cancelled) included, and dies printing a
+    traceback (``InvalidStateError``): noise, the workers are being stopped on purpose.
+    """
+    from concurrent.futures.process import _ExecutorManagerThread
+
+    def quiet(args: Any) -> None:
+        if not isinstance(args.thread, _ExecutorManagerThread):
+            hook(args)
+
+    return quiet
 
 
 def _ray_map(
