@@ -235,6 +235,14 @@ def _gone(pid: int, timeout: float = 30) -> bool:
     return False
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+# slow (make test-long): under a full parallel `make test` it has hung past its 60 s (the
+# interrupted replay going on) in one of two fresh-clone runs, which alone, under two CPU
+# hogs, did not happen in 5 runs since Ctrl-C is blocked rather than ignored while workers start
+@pytest.mark.slow
 def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     factory = "tests.support.factories:slow_cartpole"
@@ -247,6 +255,9 @@ def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        # as from a shell: Ctrl-C not ignored (pytest-xdist's workers ignore it, and an ignored
+        # signal stays ignored in the programs they start)
+        preexec_fn=_default_sigint,
     )
     worker = _wait_for_a_worker(proc.pid)  # and then mid-replay (200 files x 0.5 s builds)
     time.sleep(3)
