@@ -137,6 +137,7 @@ static inline void array_push_q(PyObject *a, long long value)
 /* A value checked to go into a column buffer as it is: where its bytes go, from where. */
 typedef struct {
     PyObject *buffer;
+    PyObject *count; /* the row count after the value (a new reference), made before any write */
     Py_ssize_t n;
     char *dest;
     const void *src;
@@ -178,6 +179,11 @@ static int plan_value(PyObject *buffer, PyObject *value, Pending *p)
         p->dest = (char *)PyArray_DATA(block) + n * (Py_ssize_t)sizeof(long long);
         p->integer = number;
         p->is_int = 1;
+        p->count = PyLong_FromSsize_t(n + 1);
+        if (p->count == NULL) {
+            PyErr_Clear();
+            return 0;
+        }
         return 1;
     }
     if (type != flat_type && type != nd_type)
@@ -207,22 +213,24 @@ static int plan_value(PyObject *buffer, PyObject *value, Pending *p)
     p->dest = (char *)PyArray_DATA(block) + n * p->nbytes;
     p->src = PyArray_DATA(arr);
     p->is_int = 0;
+    p->count = PyLong_FromSsize_t(n + 1);
+    if (p->count == NULL) {
+        PyErr_Clear();
+        return 0;
+    }
     return 1;
 }
 
-/* Write a planned value and count its row; -1 with an exception set if the count fails. */
-static int commit_value(Pending *p)
+/* Write a planned value and count its row (cannot fail: the count was made by plan_value). */
+static void commit_value(Pending *p)
 {
-    PyObject *count = PyLong_FromSsize_t(p->n + 1);
-    if (count == NULL)
-        return -1;
     if (p->is_int)
         memcpy(p->dest, &p->integer, sizeof(long long));
     else
         memcpy(p->dest, p->src, p->nbytes);
     Py_ssize_t off = Py_TYPE(p->buffer) == int_type ? off_int_n : off_arr_n;
-    Py_SETREF(SLOT(p->buffer, off), count);
-    return 0;
+    Py_SETREF(SLOT(p->buffer, off), p->count);
+    p->count = NULL;
 }
 
 /* ------------------------------------------------------------------ the step */
@@ -320,7 +328,7 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     PyObject *ret = NULL;
     double terms[MAX_TERMS];
     Py_ssize_t nterms = 0;
-    Pending obs_p, act_p;
+    Pending obs_p = {0}, act_p = {0};
 
     episode = PyObject_GetAttr(stream, s_episode);
     block = PyObject_GetAttr(stream, s_block);
@@ -357,8 +365,8 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
         if (PyList_SetSlice(term_keys, before, before, names) < 0)
             goto python;
     }
-    if (commit_value(&obs_p) < 0 || commit_value(&act_p) < 0)
-        goto trouble;
+    commit_value(&obs_p);
+    commit_value(&act_p);
     array_push_d(rewards, r);
     if (nterms) {
         array_push_q(term_rows, row);
@@ -405,14 +413,13 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     }
     ret = Py_NewRef(Py_None);
     goto done;
-trouble:
-    /* A count could not be made (no memory): the Python path rolls the columns back. */
-    PyErr_Clear();
 python:
     PyErr_Clear();
     Py_CLEAR(names);
     ret = python_step(self, action, result);
 done:
+    Py_XDECREF(obs_p.count); /* (a plan not committed) */
+    Py_XDECREF(act_p.count);
     Py_XDECREF(names);
     Py_XDECREF(episode);
     Py_XDECREF(block);
