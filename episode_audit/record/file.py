@@ -342,17 +342,18 @@ class EvidenceFile:
         self.pending = []
         offset, games = self.wall_offset, self.games
         records = [_episode_record(ep, ending, offset, games) for ep, ending in ended]
-        write_json = self.writer.write_json
-        channel = self._episodes_channel
+        datas = []
         for record, (episode, _) in zip(records, ended, strict=True):
             # Optional fields that are null are left out (the JSON Schema marks them optional).
             # rng_state is already JSON (made once at reset): spliced in, not re-encoded.
             data = to_json({k: v for k, v in record.items() if v is not None})
             if episode.rng_json is not None:
                 data = data[:-1] + b',"rng_state":' + episode.rng_json + b"}"
-            write_json(channel, data, record["end_time_ns"])
+            datas.append(data)
+        ends = [record["end_time_ns"] for record in records]
+        self.writer.write_json_many(self._episodes_channel, datas, ends)
         batch = _episode_batch(records, [ep for ep, _ in ended], self._episode_schema)
-        self.writer.write_batch(self._episode_blocks_channel, batch, records[-1]["end_time_ns"])
+        self.writer.write_batch(self._episode_blocks_channel, batch, ends[-1])
 
     # ------------------------------------------------------------------ flushing, closing
 

@@ -1,0 +1,74 @@
+"""The evidence writer: many JSON messages at once write the bytes one at a time would."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow as pa
+import pytest
+from mcap.reader import make_reader
+
+import episode_audit.record.writer as writer_module
+from episode_audit.record.writer import EvidenceWriter
+
+_SCHEMA = {"type": "object"}
+_BLOCK = pa.schema([("x", pa.int64())])
+
+
+def _write(path: Path, many: bool, *, chunk: bool = True) -> bytes:
+    """A file of two JSON channels and an Arrow channel, its messages written one at a time
+    or a list at a time (times out of order, a flush between, a channel's first message in a
+    list of several)."""
+    w = EvidenceWriter(path, library="test")
+    if not chunk:
+        w._chunk = None  # as with an mcap whose writer keeps its state otherwise
+    w.add_metadata("episode_audit.run", {"format_version": "1.0"})
+    a = w.register_json_channel("/a", "a", _SCHEMA)
+    b = w.register_json_channel("/b", "b", _SCHEMA)
+    blocks = w.register_arrow_channel("/blocks", "block", _BLOCK)
+    batches = [
+        (a, [b'{"i":1}', b'{"i":2,"s":"x"}', b"{}"], [30, 10, 20]),
+        (b, [b'{"j":[1,2]}'], [5]),
+        (a, [b'{"i":3}', b'{"i":4}'], [40, 41]),
+    ]
+    for n, (channel, datas, times) in enumerate(batches):
+        if many:
+            w.write_json_many(channel, datas, times)
+        else:
+            for data, t in zip(datas, times, strict=True):
+                w.write_json(channel, data, t)
+        w.write_batch(blocks, pa.record_batch([pa.array([n])], schema=_BLOCK), 50 + n)
+        if n == 1:
+            w.flush()
+    w.finish({"status": "finished"})
+    return path.read_bytes()
+
+
+def test_a_list_of_messages_is_written_as_the_same_bytes_as_one_at_a_time(
+    tmp_path: Path,
+) -> None:
+    one = _write(tmp_path / "one.mcap", many=False)
+    assert _write(tmp_path / "many.mcap", many=True) == one
+    # and without the chunk's internals, through add_message
+    assert _write(tmp_path / "fallback.mcap", many=True, chunk=False) == one
+    with open(tmp_path / "many.mcap", "rb") as f:
+        got = [
+            (c.topic, m.log_time, m.sequence, m.data)
+            for _, c, m in make_reader(f).iter_messages(log_time_order=False)
+            if c.topic != "/blocks"
+        ]
+    assert got[:4] == [
+        ("/a", 30, 0, b'{"i":1}'),
+        ("/a", 10, 1, b'{"i":2,"s":"x"}'),
+        ("/a", 20, 2, b"{}"),
+        ("/b", 5, 4, b'{"j":[1,2]}'),
+    ]
+
+
+def test_a_list_that_would_overflow_the_chunk_goes_one_at_a_time(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a chunk closed by size in the middle of a list: add_message decides where
+    monkeypatch.setattr(writer_module, "_CHUNK_SIZE", 40)
+    one = _write(tmp_path / "one.mcap", many=False)
+    assert _write(tmp_path / "many.mcap", many=True) == one
