@@ -29,6 +29,7 @@ __all__ = [
     "Progress",
     "check_jobs",
     "map_ordered",
+    "sigint_held",
     "usable_cores",
     "workers",
 ]
@@ -218,7 +219,11 @@ def _pool_map(
     processes: int,
     progress: Progress | None,
 ) -> Iterator[R]:
-    """The runs handed to ``processes - 1`` workers; this process takes runs from the back."""
+    """The runs handed to ``processes - 1`` workers; this process takes runs from the back.
+
+    While the first worker starts (a fork server that is not up yet imports episode-audit
+    first: about a second), this process does runs from the back instead of waiting.
+    """
     pool = ProcessPoolExecutor(
         processes - 1,
         mp_context=_context(),
@@ -226,15 +231,66 @@ def _pool_map(
         initargs=(dict(os.environ),),
     )
     futures: dict[int, Future[list[_Done[R]]]] = {}
+    results: dict[int, _Done[R]] = {}
+    first = _FirstSubmit(pool, fn, [work[i] for i in runs[0]])
     try:
-        with _workers_ignore_sigint():
-            for k, run in enumerate(runs):
-                futures[k] = pool.submit(_call, fn, [work[i] for i in run])
-        yield from _gather(fn, work, runs, futures, progress)
+        last = len(runs) - 1
+        while last > 0 and first.starting():
+            _take(runs[last], _call(fn, [work[i] for i in runs[last]]), results, progress)
+            last -= 1
+        futures[0] = first.future()
+        with sigint_held():
+            for k in range(1, last + 1):
+                futures[k] = pool.submit(_call, fn, [work[i] for i in runs[k]])
+        yield from _gather(fn, work, runs, futures, progress, results)
     except BaseException:
-        _stop(pool, list(futures.values()))
+        first.wait()  # (its worker, once started, is stopped with the others)
+        _stop(pool, [*futures.values(), *first.submitted()])
         raise
     pool.shutdown(wait=True)
+
+
+class _FirstSubmit(Generic[R]):
+    """The first run, submitted from a thread of its own, so this process works meanwhile.
+
+    Starting the first worker can wait for the fork server's imports. The thread blocks
+    Ctrl-C for itself, so the fork server and the workers it starts are never interrupted by
+    it (see :func:`sigint_held`); this process still is.
+    """
+
+    def __init__(self, pool: ProcessPoolExecutor, fn: Work[Any, R], items: list[Any]) -> None:
+        self._result: list[Future[list[_Done[R]]]] = []
+        self._error: list[BaseException] = []
+
+        def submit() -> None:
+            if hasattr(signal, "pthread_sigmask"):
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                self._result.append(pool.submit(_call, fn, items))
+            except BaseException as exc:  # raised in the caller's thread by future()
+                self._error.append(exc)
+
+        self._thread = threading.Thread(target=submit, name="episode-audit-first-worker")
+        self._thread.start()
+
+    def starting(self) -> bool:
+        """Whether the first worker is still being started."""
+        return self._thread.is_alive()
+
+    def wait(self) -> None:
+        """Wait until the first worker has started (or failed to)."""
+        self._thread.join()
+
+    def submitted(self) -> list[Future[list[_Done[R]]]]:
+        """The first run's future, if it was submitted."""
+        return list(self._result)
+
+    def future(self) -> Future[list[_Done[R]]]:
+        """The first run's future, once submitted; what submitting raised is raised here."""
+        self.wait()
+        if self._error:
+            raise self._error[0]
+        return self._result[0]
 
 
 def _gather(
@@ -243,20 +299,18 @@ def _gather(
     runs: Sequence[Sequence[int]],
     futures: dict[int, Future[list[_Done[R]]]],
     progress: Progress | None,
+    results: dict[int, _Done[R]],
 ) -> Iterator[R]:
     """The results in input order; waiting for a worker, this process does a run itself.
 
     It takes the last run no worker has started (the cheapest), so it works while the
-    workers start, and ends when they do. Progress is told as each run ends.
+    workers start, and ends when they do. Progress is told as each run ends. ``results``:
+    those of the items done already, by index.
     """
     pending = dict(futures)
-    results: dict[int, _Done[R]] = {}
 
     def take(k: int, done: list[_Done[R]]) -> None:
-        for i, outcome in zip(runs[k], done, strict=True):
-            results[i] = outcome
-            if progress is not None and outcome.steps:
-                progress(outcome.steps)
+        _take(runs[k], done, results, progress)
 
     for i in range(len(work)):
         while i not in results:
@@ -273,15 +327,29 @@ def _gather(
         yield results.pop(i).unwrap()
 
 
-@contextmanager
-def _workers_ignore_sigint() -> Iterator[None]:
-    """Workers (and their fork server) started in here never see Ctrl-C; this process does.
+def _take(
+    run: Sequence[int],
+    done: list[_Done[R]],
+    results: dict[int, _Done[R]],
+    progress: Progress | None,
+) -> None:
+    """A run's outcomes into ``results`` (by item index), their steps told to ``progress``."""
+    for i, outcome in zip(run, done, strict=True):
+        results[i] = outcome
+        if progress is not None and outcome.steps:
+            progress(outcome.steps)
 
-    Ctrl-C is blocked in this thread meanwhile: a blocked signal stays blocked in a started
-    program (the mask survives fork and exec), so a worker still importing prints no
-    traceback, and one that comes now is held, not lost, and raised here when it is unblocked
-    (starting the fork server waits for its imports: seconds on a busy host). The parent then
-    stops the workers. Without ``pthread_sigmask`` (Windows) the signal is ignored meanwhile.
+
+@contextmanager
+def sigint_held() -> Iterator[None]:
+    """Ctrl-C held (blocked) in this thread meanwhile, and raised when it is let go.
+
+    Held, not lost: a signal that comes meanwhile stays pending and is raised when unblocked.
+    A blocked signal stays blocked in a program started meanwhile (the mask survives fork and
+    exec): workers and their fork server started in here never see Ctrl-C (a worker still
+    importing prints no traceback); this process does, and stops them. Outside the main
+    thread it does nothing (Ctrl-C is the main thread's); without ``pthread_sigmask``
+    (Windows) the signal is ignored meanwhile.
     """
     if threading.current_thread() is not threading.main_thread():
         yield

@@ -7,17 +7,20 @@ stderr, never a traceback.
 
 from __future__ import annotations
 
+import importlib
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
+import pyarrow as pa
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from typer.core import TyperArgument, TyperGroup
 
+from .._jobs import sigint_held
 from .._version import __version__
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read.inputs import Unreadable, evidence_files, open_all
@@ -244,12 +247,31 @@ def jobs_for(jobs: int | None, files: Sequence[Source], small: int = SMALL_INPUT
 
 @contextmanager
 def interruptible() -> Iterator[None]:
-    """Ctrl-C: one line on stderr and exit 130 (the workers are stopped by then)."""
+    """Ctrl-C: one line on stderr and exit 130 (the workers are stopped by then).
+
+    pyarrow imports pandas (when installed) the first time it converts a column, and a Ctrl-C
+    during that import is lost, or leaves pandas half-imported (a traceback): it is imported
+    first here, with Ctrl-C held meanwhile (:func:`~episode_audit._jobs.sigint_held`).
+    """
     try:
+        with sigint_held():
+            _pyarrow_pandas()
         yield
     except KeyboardInterrupt:
         _say("error", "interrupted (Ctrl-C): stopped")
         raise typer.Exit(EXIT_INTERRUPTED) from None
+
+
+def _pyarrow_pandas() -> None:
+    """Have pyarrow import pandas now, if it is installed (check, report and replay would)."""
+    shim = getattr(getattr(pa, "lib", None), "_pandas_api", None)
+    if shim is not None:
+        shim.have_pandas  # noqa: B018 - the property imports it
+        return
+    try:
+        importlib.import_module("pandas")
+    except ImportError:
+        pass
 
 
 def _format(value: str, *, junit: bool = False) -> OutputFormat:
