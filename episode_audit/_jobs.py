@@ -162,18 +162,23 @@ def _size(item: object) -> float:
 def _chunks(costs: Sequence[float], processes: int) -> list[list[int]]:
     """The items' indices in runs, costliest first (longest-processing-time-first order).
 
-    A run holds items of about ``1 / (8 * processes)`` of the whole cost (an item above it,
-    alone): few round trips, and the runs left for the end are the cheapest, so the
-    processes end together.
+    A run holds items of about ``1 / (8 * processes)`` of the cost not yet in a run, down to
+    ``1 / (64 * processes)`` of the whole (an item above it, alone): few round trips, and the
+    runs left for the end are small, so the processes end together. (A worker holds two runs
+    at a time, one running and one queued, which this process cannot take over at the end.)
     """
     order = sorted(range(len(costs)), key=lambda i: -costs[i])  # stable: ties in input order
-    budget = sum(costs) / (8 * processes)
+    left = sum(costs)
+    floor = left / (64 * processes)
+    budget = left / (8 * processes)
     runs: list[list[int]] = []
     run: list[int] = []
     total = 0.0
     for i in order:
         if run and total + costs[i] > budget:
             runs.append(run)
+            left -= total
+            budget = max(floor, left / (8 * processes))
             run, total = [], 0.0
         run.append(i)
         total += costs[i]

@@ -344,6 +344,16 @@ def test_runs_go_costliest_first_and_a_large_item_alone() -> None:
     assert [run[0] for run in runs[1:]] == sorted(run[0] for run in runs[1:])  # ties: in order
 
 
+def test_the_last_runs_are_small_so_the_processes_end_together() -> None:
+    from episode_audit._jobs import _chunks
+
+    costs = [1.0] * 1000
+    runs = _chunks(costs, 2)
+    assert len(runs[0]) == 1000 // 16  # the first: 1 / (8 * processes) of the whole
+    assert [len(run) for run in runs] == sorted((len(run) for run in runs), reverse=True)
+    assert all(len(run) <= 1000 // 64 for run in runs[-4:])  # a worker holds two at the end
+
+
 _MARK = "as imported"
 
 
