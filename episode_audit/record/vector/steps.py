@@ -2,7 +2,7 @@
 
 :class:`VectorSteps` is the vector recorder's hot path. A step without info (and without what
 the batched path cannot take: endings in ``SAME_STEP`` mode, values that need a cast, flags
-that are not a bool array) keeps copies of the batch arrays and one time; every
+that are not a bool array) is written into preallocated batch buffers with its time; every
 :data:`BATCH_STEPS` vector steps, and at each flush, each sub-env's rows are handed to its
 stream in bulk. Only episode boundaries are handled per sub-env, at the rows they will have.
 Any other step goes to the autoreset strategy, sub-env by sub-env (``docs/recording.md``).
