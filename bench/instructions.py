@@ -10,6 +10,12 @@ steps, so the per-step figures (the difference over the 2 000 extra steps) leave
 ``est_cycles`` weighs an L1 miss as 10 instructions and a last-level miss as 100. Needs
 ``valgrind`` (not part of ``make bench``; about 4 minutes per env on 2 cores).
 
+    python bench/instructions.py --vector CartPole-v1 [N=8]
+
+counts the same for a ``SyncVectorEnv`` of N sub-envs (``gym.make_vec``, seeded random action
+batches, Gymnasium's autoreset) bare and wrapped in ``RecordVectorEvidence`` (time-based
+flushes off), for 500 and 2 500 vector steps; per-step figures are per sub-env step.
+
     python bench/instructions.py --replay CartPole-v1 [Reacher-v5 ...]
 
 counts replay instead: the episodes ``make bench`` replays (same counts, seeds and actions)
@@ -62,6 +68,25 @@ def child(kind: str, env_id: str, steps: int, out: str) -> None:
     env.close()
 
 
+def vector_child(kind: str, env_id: str, num_envs: int, steps: int, out: str) -> None:
+    """Step a ``SyncVectorEnv`` of ``num_envs`` (bare or recorded) through ``steps`` batches."""
+    import gymnasium as gym
+    import numpy as np
+
+    from episode_audit import RecordVectorEvidence
+
+    envs: Any = gym.make_vec(env_id, num_envs, vectorization_mode="sync")
+    space = envs.action_space
+    space.seed(0)
+    actions = [np.asarray(space.sample()) for _ in range(steps)]
+    if kind == "recorded":
+        envs = RecordVectorEvidence(envs, out, overwrite=True, flush_every_s=1e9)
+    envs.reset(seed=0)
+    for action in actions:
+        envs.step(action)
+    envs.close()
+
+
 # numpy's OpenBLAS threads spin after a call, adding millions of instructions that vary from run
 # to run; one hash seed keeps dict and set layouts (and so lookup costs) the same
 _STEADY = {**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"}
@@ -89,30 +114,35 @@ def _cachegrind(
     return {m[1]: int(m[2].replace(",", "")) for m in _LINE.finditer(run.stderr)}
 
 
-def counts(kind: str, env_id: str, steps: int, tmp: Path) -> dict[str, int]:
-    """cachegrind's totals for one child run."""
+def counts(kind: str, env_id: str, steps: int, tmp: Path, num_envs: int = 0) -> dict[str, int]:
+    """cachegrind's totals for one child run (a vector env of ``num_envs`` if not 0)."""
     out = str(tmp / f"{kind}-{steps}.mcap")
-    return _cachegrind(
-        ["--child", kind, env_id, str(steps), out], str(tmp / f"{kind}-{steps}.cg"), _STEADY
-    )
+    args = ["--child", kind, env_id, str(steps), out]
+    if num_envs:
+        args = ["--vector-child", kind, env_id, str(num_envs), str(steps), out]
+    return _cachegrind(args, str(tmp / f"{kind}-{steps}.cg"), _STEADY)
 
 
-def measure(env_id: str) -> dict[str, Any]:
-    """Per-step counts of the bare and the recorded loop, and the recorder's share."""
+def measure(env_id: str, num_envs: int = 0) -> dict[str, Any]:
+    """Per-step counts of the bare and the recorded loop, and the recorder's share.
+
+    With ``num_envs``: a ``SyncVectorEnv`` of that many sub-envs, counts per sub-env step.
+    """
     with tempfile.TemporaryDirectory(prefix="episode-audit-instr-") as d:
         jobs = [(kind, n) for kind in ("bare", "recorded") for n in STEPS]
         with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            runs = pool.map(lambda j: counts(j[0], env_id, j[1], Path(d)), jobs)
+            runs = pool.map(lambda j: counts(j[0], env_id, j[1], Path(d), num_envs), jobs)
             got = dict(zip(jobs, runs, strict=True))
     lo, hi = STEPS
+    sub = max(num_envs, 1)
     per = {
-        kind: {k: (got[kind, hi][k] - got[kind, lo][k]) / (hi - lo) for k in got[kind, lo]}
+        kind: {k: (got[kind, hi][k] - got[kind, lo][k]) / ((hi - lo) * sub) for k in got[kind, lo]}
         for kind in ("bare", "recorded")
     }
 
     bare, rec = per["bare"], per["recorded"]
     return {
-        "env": env_id,
+        "env": f"{env_id} x{num_envs} (sync)" if num_envs else env_id,
         "per_step_bare": {k: round(v) for k, v in bare.items()},
         "per_step_recorder": {k: round(rec[k] - bare[k]) for k in bare},
         "instructions_ratio": rec["I"] / bare["I"],
@@ -208,6 +238,9 @@ def main(argv: list[str]) -> int:
     if argv[:1] == ["--child"]:
         child(argv[1], argv[2], int(argv[3]), argv[4])
         return 0
+    if argv[:1] == ["--vector-child"]:
+        vector_child(argv[1], argv[2], int(argv[3]), int(argv[4]), argv[5])
+        return 0
     if argv[:1] == ["--replay-child"]:
         replay_child(argv[1], argv[2], argv[3], argv[4])
         return 0
@@ -217,6 +250,11 @@ def main(argv: list[str]) -> int:
     if argv[:1] == ["--replay"]:
         for env_id in argv[1:] or ["CartPole-v1"]:
             print(json.dumps(measure_replay(env_id), indent=2), flush=True)
+        return 0
+    if argv[:1] == ["--vector"]:
+        env_id = argv[1] if len(argv) > 1 else "CartPole-v1"
+        num_envs = int(argv[2]) if len(argv) > 2 else 8
+        print(json.dumps(measure(env_id, num_envs), indent=2), flush=True)
         return 0
     for env_id in argv or ["Reacher-v5"]:
         print(json.dumps(measure(env_id), indent=2), flush=True)

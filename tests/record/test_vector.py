@@ -7,7 +7,10 @@ actions), and every sub-env episode is replayed on its own.
 
 from __future__ import annotations
 
+import hashlib
+import itertools
 import json
+import time
 import warnings
 from collections import Counter
 from pathlib import Path
@@ -19,6 +22,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from episode_audit import (
@@ -1006,3 +1010,40 @@ def test_after_a_failed_autoreset_the_sync_vector_env_goes_on(tmp_path: Path) ->
     # each failed reset started from the state the sub-env was in then (the first one drew)
     first, second = [e["rng_state"] for e in episodes[2:4]]
     assert first is not None and second is not None and first != second
+
+
+# sha-256 of every message (topic, log and publish time, data) of the file below as main wrote
+# it before the batched steps were kept in preallocated buffers (same numpy, pyarrow, zstd);
+# change it only with a change that means to change what a vector recording writes
+_GOLDEN_MESSAGES = "9a2fcbea700df8d31000af54d7b12312acced89420096c5b8fffe5f78b53f6b1"
+
+
+def test_a_vector_recording_writes_the_same_messages_as_before(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Batched steps (int64 and int32 action batches mixed), a flush, a reset, full blocks."""
+    ticks = itertools.count(1_000_000_000, 1_000)
+    monkeypatch.setattr(time, "monotonic_ns", ticks.__next__)
+    monkeypatch.setattr(time, "time_ns", lambda: 1_700_000_000_000_000_000)
+    path = tmp_path / "golden.mcap"
+    n = 4
+    rng = np.random.default_rng(5)
+    envs = gym.make_vec("CartPole-v1", n, vectorization_mode="sync")
+    with RecordVectorEvidence(envs, path, block_steps=50, flush_every_s=1e9) as rec:
+        rec.reset(seed=3)
+        for t in range(700):
+            action = rng.integers(0, 2, n)
+            if 200 <= t < 230 or t % 97 == 0:
+                action = action.astype(np.int32)
+            rec.step(action)
+            if t == 333:
+                rec.flush()
+            if t == 500:
+                rec.reset(seed=9)
+    digest = hashlib.sha256()
+    with path.open("rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            digest.update(
+                repr((channel.topic, message.log_time, message.publish_time, message.data)).encode()
+            )
+    assert digest.hexdigest() == _GOLDEN_MESSAGES

@@ -2,7 +2,7 @@
 
 :class:`VectorSteps` is the vector recorder's hot path. A step without info (and without what
 the batched path cannot take: endings in ``SAME_STEP`` mode, values that need a cast, flags
-that are not a bool array) keeps copies of the batch arrays and one time; every
+that are not a bool array) is written into preallocated batch buffers with its time; every
 :data:`BATCH_STEPS` vector steps, and at each flush, each sub-env's rows are handed to its
 stream in bulk. Only episode boundaries are handled per sub-env, at the rows they will have.
 Any other step goes to the autoreset strategy, sub-env by sub-env (``docs/recording.md``).
@@ -124,10 +124,12 @@ class VectorSteps:
         )
         self._p_len = 0  # vector steps batched
         self._p_skip = [0] * n  # of those, the ones each sub-env spent resetting (no row)
-        self._p_obs: list[np.ndarray[Any, Any]] = []
-        self._p_act: list[np.ndarray[Any, Any]] = []
-        self._p_rew: list[np.ndarray[Any, Any]] = []
-        self._p_time: list[int] = []
+        # the batched steps, written in place (one fresh set per drain: rows handed over may
+        # be kept by reference); ``None`` until a step gives the dtypes of its batches
+        self._p_obs: np.ndarray[Any, Any] | None = None
+        self._p_act: np.ndarray[Any, Any] = np.empty(0)
+        self._p_rew: np.ndarray[Any, Any] = np.empty(0)
+        self._p_time: np.ndarray[Any, Any] = np.empty(0)
         self._p_mask: list[list[int]] = []  # per batched step: the sub-envs that only reset
         self._since_flush = 0
         self._block_steps = file.block_steps  # capped by start() for big rows
@@ -210,13 +212,18 @@ class VectorSteps:
         """
         file = self._file
         now = file.clock()
-        rew = np.array(rewards, dtype=np.float64)  # every conversion before any append
-        self._p_obs.append(obs.copy())
-        self._p_act.append(actions.copy())
-        self._p_rew.append(rew)
-        self._p_time.append(now)
+        held = self._p_obs
+        if held is None or held.dtype != obs.dtype or self._p_act.dtype != actions.dtype:
+            self._hold(obs, actions)  # a batch as numpy would stack it: one dtype per column
+            held = self._p_obs
+            assert held is not None
+        t = self._p_len
+        self._p_rew[t] = rewards  # (a number of any kind: never fails) before the rest
+        held[t] = obs
+        self._p_act[t] = actions
+        self._p_time[t] = now
         self._p_mask.append(resetting)
-        self._p_len += 1
+        self._p_len = t + 1
         if resetting or ends:
             streams, skipped, pending = self._streams, self._p_skip, self._p_len
             for i in resetting:
@@ -238,7 +245,7 @@ class VectorSteps:
         self._since_flush += 1
         if self._since_flush >= self._block_steps or now >= file.flush_at:
             file.auto_flush()
-        elif self._p_len >= BATCH_STEPS:
+        if self._p_len >= BATCH_STEPS:  # (a flush has drained them, unless it could not)
             self.drain()
 
     def record_reset(
@@ -315,14 +322,13 @@ class VectorSteps:
 
     def drain(self) -> None:
         """Hand the batched rows over to each sub-env's stream (before any other row)."""
-        if not self._p_obs:
+        t = self._p_len
+        if not t or self._p_obs is None:
             return
-        obs = np.stack(self._p_obs)
-        act = np.stack(self._p_act)
-        rew = np.stack(self._p_rew)
-        times = np.array(self._p_time, dtype=np.int64)
+        obs, act = self._p_obs[:t], self._p_act[:t]
+        rew, times = self._p_rew[:t], self._p_time[:t]
         masks = self._p_mask
-        self._p_obs, self._p_act, self._p_rew, self._p_time, self._p_mask = [], [], [], [], []
+        self._p_obs, self._p_mask = None, []  # fresh buffers for the next steps
         self._p_len = 0
         if not any(self._p_skip):
             for i, stream in enumerate(self._streams):
@@ -336,6 +342,15 @@ class VectorSteps:
         for i, stream in enumerate(self._streams):
             rows = stepped[:, i]
             stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
+
+    def _hold(self, obs: np.ndarray[Any, Any], actions: np.ndarray[Any, Any]) -> None:
+        """Hand over what is batched; new buffers for :data:`BATCH_STEPS` steps of these dtypes."""
+        self.drain()
+        rows = BATCH_STEPS
+        self._p_obs = np.empty((rows, *obs.shape), dtype=obs.dtype)
+        self._p_act = np.empty((rows, *actions.shape), dtype=actions.dtype)
+        self._p_rew = np.empty((rows, self._n), dtype=np.float64)
+        self._p_time = np.empty(rows, dtype=np.int64)
 
     def _on_flush(self) -> None:
         self.drain()
