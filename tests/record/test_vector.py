@@ -1046,4 +1046,7 @@ def test_a_vector_recording_writes_the_same_messages_as_before(
             digest.update(
                 repr((channel.topic, message.log_time, message.publish_time, message.data)).encode()
             )
-    assert digest.hexdigest() == _GOLDEN_MESSAGES
+    assert digest.hexdigest() == _GOLDEN_MESSAGES, (
+        "what a vector recording writes changed; if numpy, pyarrow, zstandard or gymnasium did "
+        "(not this code), put the new digest in _GOLDEN_MESSAGES"
+    )
