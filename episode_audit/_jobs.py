@@ -185,8 +185,10 @@ def _chunks(costs: Sequence[float], processes: int) -> list[list[int]]:
     return [*runs, run] if run else runs
 
 
-PRELOAD = ("__main__", "episode_audit")
-"""What the workers' fork server imports once, before it forks a worker per process."""
+PRELOAD = ("__main__", "episode_audit", "pandas")
+"""What the workers' fork server imports once, before it forks a worker per process (pandas,
+when installed, because pyarrow imports it on a worker's first conversion of a column: half
+a second per worker otherwise; a module that is not installed is skipped)."""
 
 
 def _context() -> Any:
