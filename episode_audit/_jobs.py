@@ -316,19 +316,16 @@ def _gather(
     """
     pending = dict(futures)
 
-    def take(k: int, done: list[_Done[R]]) -> None:
-        _take(runs[k], done, results, progress)
-
     for i in range(len(work)):
         while i not in results:
             for k in [k for k, future in pending.items() if future.done()]:
-                take(k, pending.pop(k).result())
+                _take(runs[k], pending.pop(k).result(), results, progress)
             if i in results:
                 break
             stolen = next((k for k in reversed(pending) if pending[k].cancel()), None)
             if stolen is not None:
                 del pending[stolen]
-                take(stolen, _call(fn, [work[j] for j in runs[stolen]]))
+                _take(runs[stolen], _call(fn, [work[j] for j in runs[stolen]]), results, progress)
             else:
                 wait(pending.values(), return_when=FIRST_COMPLETED)
         yield results.pop(i).unwrap()

@@ -83,6 +83,7 @@ class _McapState:
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, times
 _MESSAGE_OPCODE = 0x05
 _MESSAGE_FIXED = _MESSAGE_HEAD.size - 9  # a message record's length beside its data
+_TIMES = ("message_start_time", "message_end_time")
 
 
 class _OpenChunk:
@@ -102,27 +103,16 @@ class _OpenChunk:
     @classmethod
     def of(cls, writer: Writer) -> _OpenChunk | None:
         builder = getattr(writer, "_Writer__chunk_builder", None)
-        stats = getattr(writer, "_Writer__statistics", None)
-        ok = (
-            builder is not None
-            and stats is not None
-            and hasattr(writer, "_Writer__chunk_size")
-            and all(
-                hasattr(builder, name)
-                for name in ("message_indices", "num_messages", "message_start_time")
-            )
-            and hasattr(builder, "message_end_time")
-            and hasattr(getattr(builder, "record_writer", None), "_buffer")
-            and all(
-                hasattr(stats, name)
-                for name in (
-                    "message_count",
-                    "message_start_time",
-                    "message_end_time",
-                    "channel_message_counts",
-                )
-            )
+        needed = (
+            (writer, ("_Writer__chunk_size", "_Writer__statistics")),
+            (builder, ("message_indices", "num_messages", *_TIMES)),
+            (getattr(builder, "record_writer", None), ("_buffer",)),
+            (
+                getattr(writer, "_Writer__statistics", None),
+                ("message_count", "channel_message_counts", *_TIMES),
+            ),
         )
+        ok = builder is not None and all(hasattr(o, n) for o, names in needed for n in names)
         return cls(writer) if ok else None
 
     def fits(self, size: int) -> bool:
@@ -150,11 +140,7 @@ class _OpenChunk:
             sequence += 1
         buffer.write(b"".join(parts))
         first, last = min(times), max(times)
-        if builder.num_messages == 0:
-            builder.message_start_time = first
-        else:
-            builder.message_start_time = min(builder.message_start_time, first)
-        builder.message_end_time = max(builder.message_end_time, last)
+        _widen(builder, builder.num_messages, first, last)
         index = builder.message_indices.get(channel_id)
         if not index:
             index = builder.message_indices[channel_id] = MessageIndex(
@@ -162,13 +148,19 @@ class _OpenChunk:
             )
         index.records.extend(entries)
         builder.num_messages += len(datas)
-        if stats.message_count == 0:
-            stats.message_start_time = first
-        else:
-            stats.message_start_time = min(stats.message_start_time, first)
-        stats.message_end_time = max(stats.message_end_time, last)
+        _widen(stats, stats.message_count, first, last)
         stats.channel_message_counts[channel_id] += len(datas)
         stats.message_count += len(datas)
+
+
+def _widen(times: Any, count: int, first: int, last: int) -> None:
+    """Widen the message times of ``times`` (``count`` messages so far), as ``add_message``.
+
+    ``first`` and ``last`` are the earliest and latest log times of the messages added.
+    """
+    start = first if count == 0 else min(times.message_start_time, first)
+    times.message_start_time = start
+    times.message_end_time = max(times.message_end_time, last)
 
 
 def _copy_statistics(statistics: Any) -> Any:
@@ -339,7 +331,11 @@ class EvidenceWriter:
         """
         self._check_open()
         chunk = self._chunk
-        if chunk is None or not datas or not chunk.fits(sum(map(len, datas)) + 31 * len(datas)):
+        if (
+            chunk is None
+            or not datas
+            or not chunk.fits(sum(map(len, datas)) + _MESSAGE_HEAD.size * len(datas))
+        ):
             for data, log_time in zip(datas, log_times, strict=True):
                 self._add(channel_id, data, log_time)
             return
