@@ -48,7 +48,7 @@ class _McapState:
     """
 
     _LISTS = ("chunk_indices", "metadata_indexes", "attachment_indexes", "summary_offsets")
-    _OTHERS = ("statistics", "chunk_builder", "record_builder")
+    _OTHERS = ("statistics", "chunk_builder", "record_builder", "schemas", "channels")
 
     def __init__(self, writer: Writer) -> None:
         self._writer = writer
@@ -70,13 +70,22 @@ class _McapState:
         self._statistics = _copy_statistics(self._get("statistics"))
 
     def restore(self) -> None:
-        """Go back to the state saved last, dropping the chunk in progress."""
+        """Go back to the state saved last, dropping the chunk in progress.
+
+        The chunk dropped may have held the file's first Schema and Channel records (``mcap``
+        writes them into the chunk open when they are registered): all of them go into the
+        next chunk again, so that what follows stays readable without a summary.
+        """
         for name, length in zip(self._LISTS, self._lengths, strict=True):
             del self._get(name)[length:]
         self._writer._Writer__statistics = _copy_statistics(self._statistics)  # type: ignore[attr-defined]
         builder = self._get("chunk_builder")
         if builder is not None:
             builder.reset()
+            for schema in self._get("schemas").values():
+                builder.add_schema(schema)
+            for channel in self._get("channels").values():
+                builder.add_channel(channel)
         self._get("record_builder").end()
 
 

@@ -53,9 +53,12 @@ def run(n):
             episode += 1
             env.reset(seed=episode)
 
-run(cfg["rows"])  # (each block of `rows` rows is flushed by the loop's own step)
+if not cfg["refuse_first"]:
+    run(cfg["rows"])  # (each block of `rows` rows is flushed by the loop's own step, in the
+    env.flush()  # background: this waits for it, so that the size limit comes after it)
 resource.setrlimit(resource.RLIMIT_FSIZE, (os.path.getsize(path) + cfg["slack"], hard))
 run(cfg["refused"] * cfg["rows"])
+env.flush()  # (refused too: it waits for the loop's last flush, before space returns)
 if cfg["end"] != "close_full":
     resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))
     run(cfg["rows"])
@@ -72,7 +75,7 @@ print(json.dumps({"closed": True}), flush=True)
 
 def record(tmp_path: Path, **cfg: Any) -> tuple[dict[str, Any], list[str], int]:
     cfg = {"path": str(tmp_path / "run.mcap"), "rows": 3000, "slack": 0, "refused": 2,
-           "retry_limit": None, "end": "kill", **cfg}  # fmt: skip
+           "retry_limit": None, "end": "kill", "refuse_first": False, **cfg}  # fmt: skip
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     done = subprocess.run(
         [sys.executable, "-c", CHILD, json.dumps(cfg)],
@@ -121,6 +124,19 @@ def test_rows_dropped_past_the_retry_limit_are_the_refused_flushes_rows_only(
     # the rows kept are the first flush's and the last one's, whole
     result = recover(tmp_path / "run.mcap", tmp_path / "fixed.mcap")
     assert not result.data_dropped and not result.damaged
+
+
+def test_a_dropped_first_flush_leaves_what_follows_readable(tmp_path: Path) -> None:
+    """The first chunk holds the Schema and Channel records: dropped, they come again."""
+    report, stderr, code = record(tmp_path, retry_limit=0, refuse_first=True)
+    assert code == -signal.SIGKILL
+    assert report == {"steps": 3 * 3000, "lost": 2 * 3000}
+    ev = open_evidence(tmp_path / "run.mcap")
+    assert ev.steps(columns=["episode"]).num_rows == 3000
+    assert len(stderr) == 1, stderr
+    # (an episode cut by the dropped rows is a length_mismatch: the file reads, as it is)
+    codes = {f.code for f in check([tmp_path / "run.mcap"]).findings if f.severity == "error"}
+    assert codes <= {"file_unfinished", "length_mismatch"}, codes
 
 
 @pytest.mark.parametrize("slack", [0, 64 << 10], ids=["no_room", "room_for_the_end"])
