@@ -310,9 +310,11 @@ def _gather(
 ) -> Iterator[R]:
     """The results in input order; waiting for a worker, this process does a run itself.
 
-    It takes the last run no worker has started (the cheapest), so it works while the
-    workers start, and ends when they do. Progress is told as each run ends. ``results``:
-    those of the items done already, by index.
+    It takes the next run no worker has started, in the runs' order (costliest first), as
+    the workers do: all of them end on the smallest runs, so they end together (taking the
+    last runs instead, it met the workers at the middle runs, and waited a whole one for
+    them at the end). Progress is told as each run ends. ``results``: those of the items
+    done already, by index.
     """
     pending = dict(futures)
 
@@ -322,7 +324,7 @@ def _gather(
                 _take(runs[k], pending.pop(k).result(), results, progress)
             if i in results:
                 break
-            stolen = next((k for k in reversed(pending) if pending[k].cancel()), None)
+            stolen = next((k for k in pending if pending[k].cancel()), None)
             if stolen is not None:
                 del pending[stolen]
                 _take(runs[stolen], _call(fn, [work[j] for j in runs[stolen]]), results, progress)

@@ -354,6 +354,28 @@ def test_the_last_runs_are_small_so_the_processes_end_together() -> None:
     assert all(len(run) <= 1000 // 64 for run in runs[-4:])  # a worker holds two at the end
 
 
+def _started(item: int, progress: object) -> tuple[int, int, float]:
+    start = time.perf_counter()
+    time.sleep(0.005)
+    return item, os.getpid(), start
+
+
+def test_this_process_and_the_worker_both_end_on_the_last_runs() -> None:
+    """Both go through the runs in their order, so neither waits out a large one at the end."""
+    from episode_audit._jobs import _chunks
+
+    list(map_ordered(_started, range(4), jobs=2))  # the fork server up: workers start at once
+    done = list(map_ordered(_started, range(400), jobs=2))  # equal costs: runs in input order
+    last = {pid: max(when for _, p, when in done if p == pid) for _, pid, _ in done}
+    assert len(last) == 2
+    ends = {pid: next(item for item, p, when in done if p == pid and when == t)
+            for pid, t in last.items()}  # fmt: skip
+    # each ends on a small run (of the last ~100 items), not on one of the middle's, twice
+    # as large (where it met the worker when it took the runs from the back)
+    size = {item: len(run) for run in _chunks([1.0] * 400, 2) for item in run}
+    assert all(size[item] <= 400 // 64 for item in ends.values()), ends
+
+
 _MARK = "as imported"
 
 
