@@ -19,6 +19,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -354,26 +355,22 @@ def test_the_last_runs_are_small_so_the_processes_end_together() -> None:
     assert all(len(run) <= 1000 // 64 for run in runs[-4:])  # a worker holds two at the end
 
 
-def _started(item: int, progress: object) -> tuple[int, int, float]:
-    start = time.perf_counter()
-    time.sleep(0.005)
-    return item, os.getpid(), start
+def test_this_process_takes_the_runs_no_worker_started_in_their_order() -> None:
+    """As the workers do, so that all end on the smallest runs (the last), together."""
+    from concurrent.futures import Future
 
+    from episode_audit._jobs import _gather
 
-def test_this_process_and_the_worker_both_end_on_the_last_runs() -> None:
-    """Both go through the runs in their order, so neither waits out a large one at the end."""
-    from episode_audit._jobs import _chunks
+    order: list[int] = []
 
-    list(map_ordered(_started, range(4), jobs=2))  # the fork server up: workers start at once
-    done = list(map_ordered(_started, range(400), jobs=2))  # equal costs: runs in input order
-    last = {pid: max(when for _, p, when in done if p == pid) for _, pid, _ in done}
-    assert len(last) == 2
-    ends = {pid: next(item for item, p, when in done if p == pid and when == t)
-            for pid, t in last.items()}  # fmt: skip
-    # each ends on a small run (of the last ~100 items), not on one of the middle's, twice
-    # as large (where it met the worker when it took the runs from the back)
-    size = {item: len(run) for run in _chunks([1.0] * 400, 2) for item in run}
-    assert all(size[item] <= 400 // 64 for item in ends.values()), ends
+    def work(item: int, progress: object) -> int:
+        order.append(item)
+        return item
+
+    runs = [[0, 1], [2, 3], [4, 5]]  # costliest first, as _chunks makes them
+    futures: dict[int, Future[Any]] = {k: Future() for k in range(3)}  # no worker took any
+    assert list(_gather(work, list(range(6)), runs, futures, None, {})) == list(range(6))
+    assert order == [0, 1, 2, 3, 4, 5]  # (taken from the back: 4, 5, 2, 3, 0, 1)
 
 
 _MARK = "as imported"
