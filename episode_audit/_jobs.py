@@ -164,8 +164,8 @@ def _chunks(costs: Sequence[float], processes: int) -> list[list[int]]:
 
     A run holds items of about ``1 / (8 * processes)`` of the cost not yet in a run, down to
     ``1 / (64 * processes)`` of the whole (an item above it, alone): few round trips, and the
-    runs left for the end are small, so the processes end together. (A worker holds two runs
-    at a time, one running and one queued, which this process cannot take over at the end.)
+    runs left for the end are small, so the processes end together. (A worker holds up to
+    three runs, one running and two queued, which this process cannot take over at the end.)
     """
     order = sorted(range(len(costs)), key=lambda i: -costs[i])  # stable: ties in input order
     left = sum(costs)
@@ -226,10 +226,11 @@ def _pool_map(
     processes: int,
     progress: Progress | None,
 ) -> Iterator[R]:
-    """The runs handed to ``processes - 1`` workers; this process takes runs from the back.
+    """The runs handed to ``processes - 1`` workers; this process takes runs too.
 
     While the first worker starts (a fork server that is not up yet imports episode-audit
-    first: about a second), this process does runs from the back instead of waiting.
+    first: about a second), this process does the last runs (the cheapest) instead of
+    waiting; then it takes runs as :func:`_gather` says.
     """
     pool = ProcessPoolExecutor(
         processes - 1,
@@ -312,9 +313,9 @@ def _gather(
 
     It takes the next run no worker has started, in the runs' order (costliest first), as
     the workers do: all of them end on the smallest runs, so they end together (taking the
-    last runs instead, it met the workers at the middle runs, and waited a whole one for
-    them at the end). Progress is told as each run ends. ``results``: those of the items
-    done already, by index.
+    last runs instead, it would meet the workers at the middle runs and wait a whole one out
+    at the end). Progress is told as each run ends. ``results``: those of the items done
+    already, by index.
     """
     pending = dict(futures)
 

@@ -54,11 +54,11 @@ def run(n):
             env.reset(seed=episode)
 
 if not cfg["refuse_first"]:
-    run(cfg["rows"])  # (each block of `rows` rows is flushed by the loop's own step, in the
-    env.flush()  # background: this waits for it, so that the size limit comes after it)
+    run(cfg["rows"])  # (each block of `rows` rows is flushed by the loop's own step)
+    env.flush()  # (nothing left to write: the size limit comes after a completed flush)
 resource.setrlimit(resource.RLIMIT_FSIZE, (os.path.getsize(path) + cfg["slack"], hard))
 run(cfg["refused"] * cfg["rows"])
-env.flush()  # (refused too: it waits for the loop's last flush, before space returns)
+env.flush()  # (refused too, before space returns)
 if cfg["end"] != "close_full":
     resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))
     run(cfg["rows"])
