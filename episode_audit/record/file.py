@@ -86,8 +86,9 @@ class FileRecorder:
         """
         self._file.check_open()
         if self._gated:
+            waiting = True  # (read by _inside: held at the lock, this thread touches nothing)
             with self._flush_lock:
-                pass
+                waiting = False  # noqa: F841
             self._file.check_open()
 
     def flush(self) -> None:
@@ -156,7 +157,9 @@ class FileRecorder:
 def _inside(recorder: FileRecorder) -> bool:
     """Whether a thread other than this one is inside ``recorder``'s ``step()`` or ``reset()``.
 
-    A thread held at the gate (in :meth:`FileRecorder._enter`) has touched nothing yet: it is not.
+    Called holding the gate's lock. A thread waiting at that lock (in :meth:`FileRecorder._enter`)
+    touches nothing until it is released: it is not inside. One anywhere else in ``_enter()``
+    (past the lock, or before it saw the gate) goes on into the call: it is.
     """
     cls = type(recorder)
     entries = {cls.step.__code__, cls.reset.__code__}  # type: ignore[attr-defined]
@@ -165,10 +168,12 @@ def _inside(recorder: FileRecorder) -> bool:
     for ident, frame in sys._current_frames().items():
         f: FrameType | None = None if ident == me else frame
         while f is not None:  # innermost first: the gate is above the call it holds back
-            if (f.f_code is gate or f.f_code in entries) and f.f_locals.get("self") is recorder:
-                if f.f_code is not gate:
+            if f.f_code is gate or f.f_code in entries:
+                local = f.f_locals
+                if local.get("self") is recorder:
+                    if f.f_code is gate and local.get("waiting") is True:
+                        break
                     return True
-                break
             f = f.f_back
     return False
 

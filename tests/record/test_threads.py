@@ -143,3 +143,59 @@ def test_close_from_another_thread_keeps_every_step_that_returned(tmp_path: Path
     assert len(refused) == 1 and "the recorder is closed" in str(refused[0])
     ev = open_evidence(path)
     assert ev.finished and ev.steps(columns=["episode"]).num_rows in (returned, returned + 1)
+
+
+def _innermost(thread: threading.Thread) -> Any:
+    """The innermost Python frame ``thread`` is running."""
+    return sys._current_frames()[thread.ident]  # type: ignore[index]
+
+
+def _wait_for(condition: Any) -> None:
+    deadline = time.monotonic() + 30
+    while not condition():
+        assert time.monotonic() < deadline, "the stepping thread never got there"
+        time.sleep(0.001)
+
+
+def test_a_thread_past_the_gate_counts_as_inside_and_one_held_at_it_does_not(
+    tmp_path: Path,
+) -> None:
+    """A flush from another thread writes only while no thread can touch the recorder's rows.
+
+    A thread held at the gate's lock touches nothing until the flush ends; one that got past the
+    lock, still in ``_enter()``, steps next: a flush now would race its row (it must wait).
+    """
+    from episode_audit.record.file import _inside
+
+    env = RecordEvidence(gym.make("CartPole-v1"), tmp_path / "gate.mcap", flush_every_s=3600)
+    env.reset(seed=0)
+    file = env._file
+    past_the_lock = threading.Event()
+    go_on = threading.Event()
+    check_open = file.check_open
+
+    def pausing_check_open() -> None:
+        check_open()
+        if threading.current_thread() is stepper and not env._flush_lock.locked():
+            past_the_lock.set()
+            go_on.wait(30)
+
+    stepper = threading.Thread(target=env.step, args=(np.int64(0),))
+    with env._flush_lock:
+        env._gated = True  # (as flush() does, holding its lock)
+        stepper.start()
+        _wait_for(lambda: _innermost(stepper).f_locals.get("waiting") is True)
+        file.check_open = pausing_check_open  # type: ignore[method-assign]
+        assert not _inside(env)  # held at the lock
+    _wait_for(past_the_lock.is_set)
+    with env._flush_lock:
+        assert _inside(env)  # past the lock: it steps next
+    env._gated = False
+    env.flush()  # from this thread: left to the end of the stepper's step
+    assert file.flush_at == 0
+    go_on.set()
+    stepper.join()
+    file.check_open = check_open  # type: ignore[method-assign]
+    assert file.flush_at > 0  # the stepper flushed as its step ended
+    env.close()
+    assert open_evidence(tmp_path / "gate.mcap").steps(columns=["step"]).num_rows == 1
