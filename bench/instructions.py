@@ -7,8 +7,10 @@ here in one run when the wall clock (``make bench``) needs many. Each env is ste
 the same seeded random actions bare and wrapped in ``RecordEvidence`` (time-based flushes off:
 under valgrind a second is a few steps; blocks and ``close()`` are counted), for 500 and 2 500
 steps, so the per-step figures (the difference over the 2 000 extra steps) leave out start-up.
-``est_cycles`` weighs an L1 miss as 10 instructions and a last-level miss as 100. Needs
-``valgrind`` (not part of ``make bench``; about 4 minutes per env on 2 cores).
+``est_cycles`` weighs an L1 miss as 10 instructions and a last-level miss as 100. The children
+run under callgrind with a count per thread: ``main_thread`` is the recorder's share of the
+loop's own thread, the rest is its writer thread's (compressing and writing chunks, beside the
+loop). Needs ``valgrind`` (not part of ``make bench``; about 5 minutes per env on 2 cores).
 
     python bench/instructions.py --vector CartPole-v1 [N=8]
 
@@ -114,13 +116,63 @@ def _cachegrind(
     return {m[1]: int(m[2].replace(",", "")) for m in _LINE.finditer(run.stderr)}
 
 
-def counts(kind: str, env_id: str, steps: int, tmp: Path, num_envs: int = 0) -> dict[str, int]:
-    """cachegrind's totals for one child run (a vector env of ``num_envs`` if not 0)."""
+# callgrind's events, as cachegrind's summary names them
+_EVENTS = {
+    "I": ("Ir",),
+    "I1": ("I1mr",),
+    "LLi": ("ILmr",),
+    "D": ("Dr", "Dw"),
+    "D1": ("D1mr", "D1mw"),
+    "LLd": ("DLmr", "DLmw"),
+    "LL": ("ILmr", "DLmr", "DLmw"),
+}
+
+
+def _callgrind(args: list[str], out_file: str, env: dict[str, str]) -> dict[str, dict[str, int]]:
+    """callgrind's totals for this script run as a child: ``all`` threads, and ``main``'s."""
+    subprocess.run(
+        [
+            "valgrind",
+            "--tool=callgrind",
+            "--cache-sim=yes",
+            "--separate-threads=yes",
+            f"--callgrind-out-file={out_file}",
+            sys.executable,
+            __file__,
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+    )
+    threads: dict[str, dict[str, int]] = {}
+    for path in Path(out_file).parent.glob(Path(out_file).name + "-*"):
+        text = path.read_text()
+        names = re.search(r"^events: (.*)$", text, re.M)
+        totals = re.search(r"^totals: (.*)$", text, re.M)
+        if names is None or totals is None:
+            raise RuntimeError(f"{path}: no events or totals line in callgrind's output")
+        got = dict(zip(names[1].split(), map(int, totals[1].split()), strict=True))
+        threads[path.name.rsplit("-", 1)[1]] = {
+            k: sum(got[e] for e in events) for k, events in _EVENTS.items()
+        }
+        path.unlink()
+    return {
+        "all": {k: sum(t[k] for t in threads.values()) for k in _EVENTS},
+        "main": threads["01"],
+    }
+
+
+def counts(
+    kind: str, env_id: str, steps: int, tmp: Path, num_envs: int = 0
+) -> dict[str, dict[str, int]]:
+    """callgrind's totals for one child run (a vector env of ``num_envs`` if not 0)."""
     out = str(tmp / f"{kind}-{steps}.mcap")
     args = ["--child", kind, env_id, str(steps), out]
     if num_envs:
         args = ["--vector-child", kind, env_id, str(num_envs), str(steps), out]
-    return _cachegrind(args, str(tmp / f"{kind}-{steps}.cg"), _STEADY)
+    return _callgrind(args, str(tmp / f"{kind}-{steps}.cg"), _STEADY)
 
 
 def measure(env_id: str, num_envs: int = 0) -> dict[str, Any]:
@@ -135,18 +187,25 @@ def measure(env_id: str, num_envs: int = 0) -> dict[str, Any]:
             got = dict(zip(jobs, runs, strict=True))
     lo, hi = STEPS
     sub = max(num_envs, 1)
-    per = {
-        kind: {k: (got[kind, hi][k] - got[kind, lo][k]) / ((hi - lo) * sub) for k in got[kind, lo]}
-        for kind in ("bare", "recorded")
-    }
 
-    bare, rec = per["bare"], per["recorded"]
+    def per_step(kind: str, threads: str) -> dict[str, float]:
+        a, b = got[kind, lo][threads], got[kind, hi][threads]
+        return {k: (b[k] - a[k]) / ((hi - lo) * sub) for k in a}
+
+    bare, rec, main = (
+        per_step("bare", "all"),
+        per_step("recorded", "all"),
+        per_step("recorded", "main"),
+    )
     return {
         "env": f"{env_id} x{num_envs} (sync)" if num_envs else env_id,
         "per_step_bare": {k: round(v) for k, v in bare.items()},
         "per_step_recorder": {k: round(rec[k] - bare[k]) for k in bare},
         "instructions_ratio": rec["I"] / bare["I"],
         "est_cycles_ratio": _cycles(rec) / _cycles(bare),
+        "per_step_recorder_main_thread": {k: round(main[k] - bare[k]) for k in bare},
+        "main_thread_instructions_ratio": main["I"] / bare["I"],
+        "main_thread_est_cycles_ratio": _cycles(main) / _cycles(bare),
     }
 
 

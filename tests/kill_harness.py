@@ -5,12 +5,15 @@ once, then forks one recording child per kill, so a kill costs the recording, no
 start. Each child records CartPole-v1 with a random ``block_steps`` and ``flush_every_s`` and,
 after every ``step()`` and ``reset()``, appends a fixed-size progress record to a log file with
 ``os.write`` (it survives the kill): the step count, the time, the evidence file's size as the
-kernel sees it, and whether the step ended an episode. Kills land in four ways:
+kernel sees it, and whether the step ended an episode. The recorder's writer thread logs too:
+as each flush's chunk is being written (with the steps it brings the file to) and once it is.
+Kills land in five ways:
 
 - ``timer``: the parent sends SIGKILL after a random delay (anywhere: mid-step, mid-flush);
 - ``step``: the child SIGKILLs itself right after a random step;
 - ``flush``: the child arms its file so that the next flush dies inside a write — the chunk or
-  its message index — after handing a random prefix of that write to the OS;
+  its message index — after handing a random prefix of that write to the OS (armed as that
+  flush's writing begins, so a flush already under way in the writer thread is not cut);
 - ``close``: the same inside ``close()`` (final chunk, index, run-end record, summary, footer);
 - ``diskfull``: the disk fills up, for real: after a random step the child's file size limit
   (``RLIMIT_FSIZE``, no root needed) is set a random few bytes above the file's size, so the
@@ -23,7 +26,7 @@ The file is the library's own: only ``open`` in ``episode_audit.record.writer`` 
 one that returns a pass-through wrapper of the real file (``_Disk``); unarmed, it changes nothing.
 
 For each kill :func:`judge` checks: the file reads; it is unfinished (unless ``close()``
-completed); every step written before the last growth of the file (a completed flush) is in it;
+completed); every step of a flush whose writing completed is in it;
 every step reported more than ``flush_every_s`` + :data:`MARGIN` before the child's last
 progress record is in it; the episodes with an end record are exactly those whose last step is
 in the file; and ``recover`` rewrites it into a finished file with the same episodes and steps.
@@ -58,7 +61,7 @@ MARGIN = 0.25
 """Seconds allowed beyond ``flush_every_s`` (a flush's own duration, scheduling)."""
 
 _REC = struct.Struct("<qqqq")  # kind, steps so far, monotonic ns, evidence file size
-STEP, ENDED, RESET, KILL, CLOSED, FLUSHED, LOST = range(7)
+STEP, ENDED, RESET, KILL, CLOSED, FLUSHED, LOST, WRITING, WRITTEN = range(9)
 
 
 # ----------------------------------------------------------------------------- child side
@@ -124,6 +127,20 @@ def _child(cfg: dict[str, Any]) -> None:
     disk = disks[0]
     fd = disk.fileno()
     mode, arm = cfg["mode"], cfg["arm"]
+    arming: list[int] = []  # flush / close: armed as the next flush's writing begins
+    writer = env._file.writer
+    write_flush = writer._flush_now
+
+    def flush_now(failed: list[Exception]) -> None:  # (in the recorder's writer thread)
+        steps = env._file.counts["steps"]  # (the steps the file holds once this is written)
+        if arming:
+            disk.armed = arming.pop()
+        _log(log, WRITING, steps, 0)
+        write_flush(failed)
+        if not failed:
+            _log(log, WRITTEN, steps, os.fstat(fd).st_size)
+
+    writer._flush_now = flush_now  # type: ignore[method-assign]
     env.action_space.seed(cfg["seed"])
     episode = 0
     env.reset(seed=cfg["seed"] * 1000)
@@ -139,9 +156,9 @@ def _child(cfg: dict[str, Any]) -> None:
             _log(log, KILL, n, os.fstat(fd).st_size)
             os.kill(os.getpid(), signal.SIGKILL)
         if n == arm and mode == "flush":
-            disk.armed = cfg["write"]
+            arming.append(cfg["write"])
         if n == arm and mode == "close":
-            disk.armed = cfg["write"]
+            arming.append(cfg["write"])
             env.close()
             _log(log, CLOSED, n, os.path.getsize(cfg["path"]))
             os.kill(os.getpid(), signal.SIGKILL)
@@ -271,7 +288,7 @@ class Verdict:
     plan: Plan
     reported: int = 0  # steps the child reported
     in_file: int = 0  # step rows in the file
-    flushed: int = 0  # steps the child saw on disk (file growth) before it died
+    flushed: int = 0  # steps of the flushes whose writing completed before the child died
     lost: int = 0  # reported steps not in the file
     oldest_lost_s: float = 0.0  # age of the oldest lost step at the child's last report
     closed: bool = False
@@ -343,8 +360,9 @@ def judge(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
         return verdict
     _, last_n, last_t, _ = probes[-1]
     verdict.reported = last_n
-    top = max(r[3] for r in probes)
-    verdict.flushed = next(r[1] for r in probes if r[3] == top)
+    written = [r[1] for r in records if r[0] == WRITTEN]
+    verdict.flushed = max(written, default=0)
+    writing = sum(1 for r in records if r[0] == WRITING) > len(written)  # (when it died)
     try:
         ev = open_evidence(path)
         verdict.in_file = ev.steps(columns=["episode"]).num_rows
@@ -391,7 +409,9 @@ def judge(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
         cut = episodes.filter(pc.invert(episodes["ended"]))["episode"].to_pylist()
         if list(result.cut_off_episodes) != cut:
             verdict.problems.append(f"recover cut off {result.cut_off_episodes}, reader {cut}")
-        between_calls = plan.mode == "step" or (plan.mode == "flush" and plan.write == 1)
+        between_calls = (plan.mode == "step" and not writing) or (
+            plan.mode == "flush" and plan.write == 1
+        )
         if between_calls and result.data_dropped:
             verdict.problems.append(f"recover dropped data after a clean cut: {result.dropped}")
         if plan.mode != "close" and not result.lost:

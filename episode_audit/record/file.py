@@ -105,7 +105,7 @@ class FileRecorder:
                 if _inside(self):
                     self._file.flush_at = 0  # (read at the end of every step and reset)
                 else:
-                    self._file.auto_flush()
+                    self._file.auto_flush(background=False)
             finally:
                 self._gated = self._closed
 
@@ -362,14 +362,23 @@ class EvidenceFile:
 
     # ------------------------------------------------------------------ flushing, closing
 
-    def flush(self) -> None:
-        """Write every stream's pending rows and the ended episodes' records, in one chunk."""
-        for hook in self.before_flush:
-            hook()
-        for stream in self.streams:
-            stream.write_blocks()
-        self._write_episodes()
-        self.writer.flush()
+    def flush(self, *, background: bool = False) -> None:
+        """Write every stream's pending rows and the ended episodes' records, in one chunk.
+
+        ``background``: the chunk is compressed and written while the caller goes on (see
+        :meth:`EvidenceWriter.flush`); a failure there is the recorder's trouble, told by the
+        next flush.
+        """
+        try:
+            for hook in self.before_flush:
+                hook()
+            for stream in self.streams:
+                stream.write_blocks()
+            self._write_episodes()
+            self.writer.flush(background=background)
+        finally:
+            for exc in self.writer.take_failures():  # (an earlier background flush's)
+                self.trouble(exc)
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns
 
@@ -386,14 +395,14 @@ class EvidenceFile:
         except Exception as trouble:
             self.trouble(trouble)
 
-    def auto_flush(self) -> None:
-        """:meth:`flush` because a block filled or ``flush_every_s`` passed.
+    def auto_flush(self, *, background: bool = True) -> None:
+        """:meth:`flush` because a block filled or ``flush_every_s`` passed (``background``).
 
         This runs inside the training loop: a failure is the recorder's trouble (warned once),
         never the loop's.
         """
         try:
-            self.flush()
+            self.flush(background=background)
         except Exception as exc:
             self.flush_at = self.clock() + self.flush_ns  # not again on every step
             self.trouble(exc)

@@ -7,6 +7,11 @@ current MCAP chunk and hands it to the OS whole (``sink.StagedFile``), so a proc
 afterwards leaves every flushed block readable. A flush the OS refuses (a full disk) leaves the
 file as it was and is retried by the next one; past :data:`RETRY_LIMIT_BYTES` it is dropped,
 the MCAP writer's own state going back to the last good flush, and counted (:attr:`lost`).
+
+Closing a chunk (zstd, its CRC, its indexes) and writing it run in a writer thread, so that a
+recorder's flush costs its training loop little: zstd, the CRC and the write release the GIL
+and run beside the loop (MuJoCo's physics releases it too). The writer thread is started per
+flush and ends with it; every other call waits for it first.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import errno
 import json
 import os
 import struct
+import threading
 from collections import Counter
 from collections.abc import Mapping
 from typing import IO, Any, cast
@@ -237,6 +243,8 @@ class EvidenceWriter:
         """Rows of Arrow blocks dropped after the OS refused them, by channel."""
         self.lost_messages: Counter[int] = Counter()
         """Messages dropped after the OS refused them, by channel."""
+        self._flushing: tuple[threading.Thread, list[Exception]] | None = None
+        self._failures: list[Exception] = []  # of background flushes, for take_failures()
         self.flush()
 
     @property
@@ -245,6 +253,7 @@ class EvidenceWriter:
         return self._finished
 
     def _check_open(self) -> None:
+        self._wait()
         if self._finished:
             raise RecorderError(
                 f"{self.path}: the evidence file is finished; nothing more can be written"
@@ -364,16 +373,73 @@ class EvidenceWriter:
         self._messages += 1
         self._staged_messages[channel_id] += 1
 
-    def flush(self) -> None:
+    def flush(self, *, background: bool = False) -> None:
         """Close the current chunk and hand it to the OS whole (and ``fsync`` if asked).
 
         Raises ``OSError`` when the OS refuses it: the file then ends where it did before, and
         what was refused is written by the next flush (or dropped and counted in :attr:`lost`,
         past :data:`RETRY_LIMIT_BYTES`).
+
+        The chunk is closed and written by a writer thread; this waits for it, unless
+        ``background``: then the caller goes on at once, the next call to this writer waits
+        for the thread, and what failed in it is kept for :meth:`take_failures`, not raised.
         """
         self._check_open()
-        self._writer.flush()  # type: ignore[no-untyped-call]
-        self._commit()
+        failed: list[Exception] = []
+        thread = threading.Thread(
+            target=self._flush_now, args=(failed,), name="episode-audit-writer"
+        )
+        try:
+            thread.start()
+        except RuntimeError:  # (no thread to be had: the caller's thread does it)
+            self._flush_now(failed)
+        else:
+            self._flushing = thread, failed
+            if background:
+                return
+            self._wait(keep=False)
+        if failed:
+            raise failed[0]
+
+    def _flush_now(self, failed: list[Exception]) -> None:
+        """Close the chunk and commit it; what fails is put in ``failed``."""
+        try:
+            self._writer.flush()  # type: ignore[no-untyped-call]
+            self._commit()
+        except Exception as exc:
+            failed.append(exc)
+
+    def _wait(self, *, keep: bool = True) -> None:
+        """Wait for the writer thread, if one is under way; ``keep`` its failure for later.
+
+        A Ctrl-C while waiting is raised once the thread has ended (it is short: a chunk's
+        compression and write), so nothing here sees the writer half way through a flush.
+        """
+        flushing = self._flushing
+        if flushing is None:
+            return
+        thread, failed = flushing
+        interrupted: BaseException | None = None
+        while True:
+            try:
+                thread.join()
+                break
+            except BaseException as exc:  # (KeyboardInterrupt)
+                interrupted = exc
+        self._flushing = None
+        if keep:
+            self._failures.extend(failed)
+            del failed[:]
+        if interrupted is not None:
+            raise interrupted
+
+    def take_failures(self) -> list[Exception]:
+        """What failed in the background flushes waited for since the last call (each once).
+
+        A flush the OS refused is retried by the next, as in :meth:`flush`.
+        """
+        failures, self._failures = self._failures, []
+        return failures
 
     def _commit(self) -> None:
         sink = self._sink
@@ -389,7 +455,7 @@ class EvidenceWriter:
             if sink.broken:
                 self._dead = True
             if self._dead or sink.staged_bytes > RETRY_LIMIT_BYTES:
-                self.drop()
+                self._drop()
             raise
         if self._state is not None:
             self._state.save()
@@ -398,6 +464,10 @@ class EvidenceWriter:
 
     def drop(self) -> None:
         """Drop what was refused since the last good flush, counting it in :attr:`lost`."""
+        self._wait()
+        self._drop()
+
+    def _drop(self) -> None:
         self.lost.update(self._staged_rows)
         self.lost_messages.update(self._staged_messages)
         self._staged_rows.clear()
@@ -415,6 +485,7 @@ class EvidenceWriter:
         flush, still open, what was refused dropped (:attr:`lost`); call again with a run-end
         record that says so, or :meth:`abandon`.
         """
+        self._wait()
         if self._finished:
             return
         try:
@@ -423,7 +494,7 @@ class EvidenceWriter:
             self._commit()
         except OSError:
             if self._sink.staged_bytes:
-                self.drop()
+                self._drop()
             raise
         except BaseException:
             self.abandon()
@@ -433,6 +504,7 @@ class EvidenceWriter:
 
     def abandon(self) -> None:
         """Close the file without a summary (used only when finishing itself failed)."""
+        self._wait()
         if not self._finished:
             self._finished = True
             self._sink.drop()

@@ -55,12 +55,13 @@ def recover(
     >>> _ = env.reset(seed=0)
     >>> for _ in range(20):
     ...     _ = env.step(np.zeros(1, np.float32))
-    >>> data = (d / "run.mcap").read_bytes()   # 16 steps flushed; as a killed process leaves it
+    >>> env.flush()  # (the loop's own flushes write in the background: this waits)
+    >>> data = (d / "run.mcap").read_bytes()   # 20 steps flushed; as a killed process leaves it
     >>> _ = (d / "torn.mcap").write_bytes(data[:-10])
     >>> env.close()
     >>> result = recover(d / "torn.mcap", d / "fixed.mcap")
     >>> result.lost, result.steps, result.cut_off_episodes
-    (True, 16, (0,))
+    (True, 20, (0,))
     >>> open_evidence(d / "fixed.mcap").run_end["status"]
     'recovered'
     """

@@ -72,3 +72,57 @@ def test_a_list_that_would_overflow_the_chunk_goes_one_at_a_time(
     monkeypatch.setattr(writer_module, "_CHUNK_SIZE", 40)
     one = _write(tmp_path / "one.mcap", many=False)
     assert _write(tmp_path / "many.mcap", many=True) == one
+
+
+class _Refusing:
+    """The evidence file, writing through ``f``; refuses every write while ``full``."""
+
+    def __init__(self, f: object) -> None:
+        self.f = f
+        self.full = False
+        self.threads: set[str] = set()
+
+    def write(self, data: bytes) -> int:
+        import errno
+        import threading
+
+        self.threads.add(threading.current_thread().name)
+        if self.full:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return self.f.write(data)  # type: ignore[attr-defined,no-any-return]
+
+    def close(self) -> None:
+        self.f.close()  # type: ignore[attr-defined]
+
+
+def test_a_background_flush_is_written_by_the_writer_thread_and_keeps_its_failure(
+    tmp_path: Path,
+) -> None:
+    """Its failure is not raised: the next call waits for it, take_failures() has it once;
+    the next flush writes what it could not."""
+    path = tmp_path / "run.mcap"
+    w = EvidenceWriter(path, library="test")
+    disk = _Refusing(w._sink._f)
+    w._sink._f = disk  # type: ignore[assignment]
+    blocks = w.register_arrow_channel("/blocks", "block", _BLOCK)
+    w.write_batch(blocks, pa.record_batch([pa.array([1])], schema=_BLOCK), 1)
+    disk.full = True
+    w.flush(background=True)  # (refused in the writer thread: not raised here)
+    w.write_batch(blocks, pa.record_batch([pa.array([2])], schema=_BLOCK), 2)
+    (failure,) = w.take_failures()
+    assert isinstance(failure, OSError)
+    assert w.take_failures() == []
+    with pytest.raises(OSError, match="No space left"):
+        w.flush()  # a flush waited for raises its own failure
+    disk.full = False
+    w.flush(background=True)
+    w.drop()  # (waits for the flush: nothing left to drop)
+    assert disk.threads == {"episode-audit-writer"}
+    w.finish({"status": "finished"})
+    with open(path, "rb") as f:
+        rows = [
+            pa.ipc.open_stream(m.data).read_all()["x"][0].as_py()
+            for _, _, m in make_reader(f).iter_messages()
+        ]
+    assert rows == [1, 2]
+    assert w.take_failures() == []
