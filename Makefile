@@ -42,10 +42,11 @@ PURE_TESTS := $(addprefix tests/record/test_,gym.py misbehaving.py stream.py dis
 	threads.py settings.py reward_wrappers.py)
 
 # -n 2 --dist loadfile: two worker processes, each test file whole on one of them (its
-# module-scoped fixtures built once; one Ray, one moto server per file)
+# module-scoped fixtures built once; one Ray, one moto server per file); a worker that crashes
+# fails the run at once (--max-worker-restart=0) rather than being restarted to crash again
 pytest: $(STAMP)
-	EPISODE_AUDIT_REQUIRE_EXTENSION=1 $(BIN)/python -m pytest -q -m "not slow" -n 2 --dist loadfile
-	EPISODE_AUDIT_PURE_PYTHON=1 $(BIN)/python -m pytest -q -m "not slow" -n 2 --dist loadfile $(PURE_TESTS)
+	EPISODE_AUDIT_REQUIRE_EXTENSION=1 $(BIN)/python -m pytest -q -m "not slow" -n 2 --dist loadfile --max-worker-restart=0
+	EPISODE_AUDIT_PURE_PYTHON=1 $(BIN)/python -m pytest -q -m "not slow" -n 2 --dist loadfile --max-worker-restart=0 $(PURE_TESTS)
 
 test: lint typecheck pytest
 
