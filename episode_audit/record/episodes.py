@@ -21,7 +21,7 @@ from ..format.schemas import reset_schema, step_schema
 from ..format.spaces import SpaceCodec
 from .block import Block, Episode, count_block, reset_batch, row_bytes, step_batch
 from .notes import add_notes, append_noted, has_note, note, short
-from .rules import time_limit_hit
+from .rules import Ending, time_limit_hit
 from .settings import RecorderSettings
 from .values import kept_info, recordable_options, recordable_seed
 from .writer import EvidenceWriter
@@ -288,6 +288,12 @@ class EpisodeStream:
         truncated: bool,
         info: Mapping[str, Any],
     ) -> None:
+        hit = self._limit_hit(block)
+        if type(info) is dict and type(terminated) is bool and type(truncated) is bool:
+            plain = self._rules.ending_by_flags(terminated, truncated, info, hit)
+            if plain is not None:  # (the common case: nothing to note, no success reported)
+                self._end_as(episode, block, row, plain, terminated, truncated)
+                return
         read: list[str] = []  # notes on the flags and values read (a success that is no bool)
         if type(terminated) not in _BOOLS or type(truncated) not in _BOOLS:
             # e.g. the text "False", which is true: the episode ends, and the step says why
@@ -297,7 +303,7 @@ class EpisodeStream:
             bool(terminated),
             bool(truncated),
             info,
-            time_limit_hit=self._limit_hit(block),
+            time_limit_hit=hit,
             notes=read,
         )
         if why is not None:  # the ending by the flags alone; say why
@@ -306,16 +312,28 @@ class EpisodeStream:
             self.file.counts["success_reported"] += 1
         if read:
             add_notes(episode, block.notes, row, read)
+        self._end_as(episode, block, row, ending, bool(terminated), bool(truncated))
+
+    def _end_as(
+        self,
+        episode: Episode,
+        block: Block,
+        row: int,
+        ending: Ending,
+        terminated: bool,
+        truncated: bool,
+    ) -> None:
+        """End ``episode`` at its step ``row`` as ``ending`` says."""
         label = ending.failure_label if terminated else ending.truncation_reason
         block.ends[row] = (ending.outcome, label)
-        block.flags[row] = (bool(terminated), bool(truncated))
+        block.flags[row] = (terminated, truncated)
         self.end_episode(
             episode,
             ending.outcome,
             failure_label=ending.failure_label,
             truncation_reason=ending.truncation_reason,
-            terminated=bool(terminated),
-            truncated=bool(truncated),
+            terminated=terminated,
+            truncated=truncated,
         )
 
     # ------------------------------------------------------------------ blocks
