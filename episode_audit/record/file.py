@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import atexit
+import json
 import os
 import sys
 import threading
@@ -346,18 +347,13 @@ class EvidenceFile:
             return
         self.pending = []
         offset, games = self.wall_offset, self.games
-        records = [_episode_record(ep, ending, offset, games) for ep, ending in ended]
-        datas = []
-        for record, (episode, _) in zip(records, ended, strict=True):
-            # Optional fields that are null are left out (the JSON Schema marks them optional).
-            # rng_state is already JSON (made once at reset): spliced in, not re-encoded.
-            data = to_json({k: v for k, v in record.items() if v is not None})
-            if episode.rng_json is not None:
-                data = data[:-1] + b',"rng_state":' + episode.rng_json + b"}"
-            datas.append(data)
-        ends = [record["end_time_ns"] for record in records]
+        ends = [ending.pop("error_ns", ep.end_ns) + offset for ep, ending in ended]
+        datas = [
+            _episode_json(ep, ending, end, offset, games)
+            for (ep, ending), end in zip(ended, ends, strict=True)
+        ]
         self.writer.write_json_many(self._episodes_channel, datas, ends)
-        batch = _episode_batch(records, [ep for ep, _ in ended], self._episode_schema)
+        batch = _episode_batch(ended, ends, offset, games, self._episode_schema)
         self.writer.write_batch(self._episode_blocks_channel, batch, ends[-1])
 
     # ------------------------------------------------------------------ flushing, closing
@@ -485,11 +481,65 @@ def _warn_line(message: str) -> None:
     )
 
 
+def _episode_json(
+    episode: Episode, ending: dict[str, Any], end_ns: int, offset: int, games: bool
+) -> bytes:
+    """The JSON record of an ended episode (``ending``: what ``Stream.end_episode`` said).
+
+    Optional fields that are null are left out (the JSON Schema marks them optional); the
+    ``rng_state`` is already JSON (made once at reset): spliced in, not encoded again. The
+    common record (no error, no options, a finite return and term totals) is written straight
+    from the episode, the same bytes as :func:`~episode_audit.format.records.to_json` of it.
+    """
+    data = _plain_episode_json(episode, ending, end_ns, offset, games)
+    if data is None:
+        record = _episode_record(episode, ending, end_ns, offset, games)
+        data = to_json({k: v for k, v in record.items() if v is not None})
+    if episode.rng_json is not None:
+        data = data[:-1] + b',"rng_state":' + episode.rng_json + b"}"
+    return data
+
+
+def _plain_episode_json(
+    episode: Episode, ending: dict[str, Any], end_ns: int, offset: int, games: bool
+) -> bytes | None:
+    """The JSON record of a common episode, ``None`` for any other (see :func:`_episode_json`)."""
+    ret, totals, agent = episode.ret, episode.totals, episode.agent
+    if (
+        ending["error"] is not None
+        or episode.options is not None
+        or type(ret) is not float
+        or ret - ret != 0.0  # (NaN, an infinity: the general path's text for them)
+        or (agent is not None and type(agent) is not str)
+    ):
+        return None
+    seed, label, reason = episode.seed, ending["failure_label"], ending["truncation_reason"]
+    game = episode.game if games else None
+    agent_json = "" if agent is None else ',"agent":' + _quote(agent)
+    seed_json = "" if seed is None else f',"seed":{seed:d}'
+    label_json = "" if label is None else ',"failure_label":' + _quote(label)
+    reason_json = "" if reason is None else ',"truncation_reason":' + _quote(reason)
+    game_json = "" if game is None else f',"game":{game:d}'
+    return (
+        f'{{"episode":{episode.index:d},"env_index":{episode.env_index:d}{agent_json}'
+        f'{seed_json},"outcome":{_quote(ending["outcome"])}{label_json}{reason_json}'
+        f',"terminated":{_BOOL_JSON[ending["terminated"]]}'
+        f',"truncated":{_BOOL_JSON[ending["truncated"]]}'
+        f',"length":{episode.steps:d},"return":{ret!r}'
+        f',"term_totals":{to_json(totals).decode() if totals else "{}"}'
+        f',"start_time_ns":{episode.start_ns + offset:d},"end_time_ns":{end_ns:d}'
+        f',"notes":{episode.notes:d}{game_json}}}'
+    ).encode()
+
+
+_quote = json.encoder.encode_basestring_ascii  # (json.dumps' strings: ASCII, escaped)
+_BOOL_JSON = {False: "false", True: "true"}
+
+
 def _episode_record(
-    episode: Episode, ending: dict[str, Any], wall_offset: int, games: bool
+    episode: Episode, ending: dict[str, Any], end_ns: int, offset: int, games: bool
 ) -> dict[str, Any]:
-    """The episode record of an ended episode (``ending``: what ``Stream.end_episode`` said)."""
-    end_ns = ending.pop("error_ns", episode.end_ns)
+    """The episode record of an ended episode, as a dict (its JSON: :func:`_episode_json`)."""
     record = {
         "episode": episode.index,
         "env_index": episode.env_index,
@@ -500,8 +550,8 @@ def _episode_record(
         "length": episode.steps,
         "return": episode.ret,
         "term_totals": episode.totals,
-        "start_time_ns": episode.start_ns + wall_offset,
-        "end_time_ns": end_ns + wall_offset,
+        "start_time_ns": episode.start_ns + offset,
+        "end_time_ns": end_ns,
         "notes": episode.notes,
     }
     if games:
@@ -510,38 +560,40 @@ def _episode_record(
 
 
 def _episode_batch(
-    records: list[dict[str, Any]], episodes: list[Episode], schema: pa.Schema
+    ended: list[tuple[Episode, dict[str, Any]]],
+    ends: list[int],
+    offset: int,
+    games: bool,
+    schema: pa.Schema,
 ) -> pa.RecordBatch:
-    """The episode block of ``records`` (of ``episodes``, for their JSON-encoded values)."""
-
-    def col(name: str) -> list[Any]:
-        return [r[name] for r in records]
-
-    errors = [r["error"] or {} for r in records]
+    """The episode block of the ``ended`` episodes (``ends``: their end times)."""
+    episodes = [ep for ep, _ in ended]
+    endings = [ending for _, ending in ended]
+    errors = [ending["error"] or {} for ending in endings]
     columns = {
-        "episode": col("episode"),
-        "env_index": col("env_index"),
-        "agent": col("agent"),
-        "seed": col("seed"),
+        "episode": [ep.index for ep in episodes],
+        "env_index": [ep.env_index for ep in episodes],
+        "agent": [ep.agent for ep in episodes],
+        "seed": [ep.seed for ep in episodes],
         "rng_state": [None if ep.rng_json is None else ep.rng_json.decode() for ep in episodes],
         "options": [ep.options_json for ep in episodes],
-        "outcome": col("outcome"),
-        "failure_label": col("failure_label"),
-        "truncation_reason": col("truncation_reason"),
-        "terminated": col("terminated"),
-        "truncated": col("truncated"),
-        "length": col("length"),
-        "return": col("return"),
-        "start_time_ns": col("start_time_ns"),
-        "end_time_ns": col("end_time_ns"),
+        "outcome": [ending["outcome"] for ending in endings],
+        "failure_label": [ending["failure_label"] for ending in endings],
+        "truncation_reason": [ending["truncation_reason"] for ending in endings],
+        "terminated": [ending["terminated"] for ending in endings],
+        "truncated": [ending["truncated"] for ending in endings],
+        "length": [ep.steps for ep in episodes],
+        "return": [ep.ret for ep in episodes],
+        "start_time_ns": [ep.start_ns + offset for ep in episodes],
+        "end_time_ns": ends,
         "error_type": [e.get("type") for e in errors],
         "error_message": [e.get("message") for e in errors],
         "error_during": [e.get("during") for e in errors],
-        "notes": col("notes"),
-        "game": [r.get("game") for r in records],
+        "notes": [ep.notes for ep in episodes],
+        "game": [ep.game for ep in episodes] if games else [None] * len(episodes),
     }
     arrays = [
-        terms_column(len(records), dict(enumerate(col("term_totals"))))
+        terms_column(len(episodes), {i: ep.totals for i, ep in enumerate(episodes)})
         if name == "term_totals"
         else pa.array(columns[name], schema.field(name).type)
         for name in schema.names

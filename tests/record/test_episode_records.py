@@ -1,0 +1,89 @@
+"""An episode's JSON record: the common one, written straight from the episode, is the same bytes
+as the general encoding of its record; every other one takes the general encoding."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from episode_audit.format.records import to_json
+from episode_audit.record.block import Episode
+from episode_audit.record.file import _episode_json, _episode_record, _plain_episode_json
+
+_TEXT = st.text(max_size=12)
+_FLOATS = st.floats(allow_nan=True, allow_infinity=True) | st.sampled_from([0.0, -0.0, 1e300])
+
+
+@st.composite
+def ended(draw: Any) -> tuple[Episode, dict[str, Any], int, int, bool]:
+    options = draw(st.none() | st.dictionaries(_TEXT, st.integers(), max_size=2))
+    episode = Episode(
+        draw(st.integers(0, 2**40)),
+        draw(st.none() | st.integers(0, 2**63 - 1)),
+        draw(st.none() | st.just({"bit_generator": "PCG64", "state": {"state": 1}})),
+        options,
+        draw(st.integers(0, 2**62)),
+        draw(st.integers(0, 64)),
+        draw(st.none() | _TEXT),
+        draw(st.none() | st.integers(0, 1000)),
+    )
+    episode.steps = draw(st.integers(0, 2**31))
+    episode.ret = draw(_FLOATS)
+    episode.totals = draw(st.dictionaries(_TEXT, _FLOATS, max_size=3))
+    episode.notes = draw(st.integers(0, 5))
+    error = draw(
+        st.none() | st.just({"type": "ValueError", "message": "x\u00e9", "during": "step"})
+    )
+    ending = {
+        "outcome": draw(st.sampled_from(["success", "failure", "truncated", "incomplete"])),
+        "failure_label": draw(st.none() | _TEXT),
+        "truncation_reason": draw(st.none() | _TEXT),
+        "terminated": draw(st.booleans()),
+        "truncated": draw(st.booleans()),
+        "error": error,
+    }
+    return (
+        episode,
+        ending,
+        draw(st.integers(0, 2**62)),
+        draw(st.integers(0, 2**60)),
+        draw(st.booleans()),
+    )
+
+
+def general(episode: Episode, ending: dict[str, Any], end: int, offset: int, games: bool) -> bytes:
+    record = _episode_record(episode, ending, end, offset, games)
+    data = to_json({k: v for k, v in record.items() if v is not None})
+    if episode.rng_json is not None:
+        data = data[:-1] + b',"rng_state":' + episode.rng_json + b"}"
+    return data
+
+
+@settings(max_examples=300, deadline=None)
+@given(ended())
+def test_an_episode_record_is_the_general_encodings_bytes(
+    case: tuple[Episode, dict[str, Any], int, int, bool],
+) -> None:
+    assert _episode_json(*case) == general(*case)
+
+
+def test_the_common_record_is_written_straight_and_others_are_not() -> None:
+    episode = Episode(3, 7, None, None, 10, 0, None)
+    episode.steps, episode.ret, episode.totals = 21, 21.0, {"ctrl": -0.5, "dist": 1e-3}
+    ending = {
+        "outcome": "failure",
+        "failure_label": "unlabeled",
+        "truncation_reason": None,
+        "terminated": True,
+        "truncated": False,
+        "error": None,
+    }
+    plain = _plain_episode_json(episode, ending, 99, 1000, False)
+    assert plain == general(episode, ending, 99, 1000, False)
+    assert plain is not None and b'"term_totals":{"ctrl":-0.5,"dist":0.001}' in plain
+    episode.ret = math.nan
+    assert _plain_episode_json(episode, ending, 99, 1000, False) is None
+    assert b'"return":"nan"' in _episode_json(episode, ending, 99, 1000, False)
