@@ -331,7 +331,9 @@ def judge_disk_full(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
         )
     if verdict.lost and not plan.drop:
         verdict.problems.append(f"{verdict.lost} steps dropped although held for a retry")
-    if verdict.lost > plan.full_steps + plan.block_steps:  # (+ the rows unflushed at the fill)
+    # + the rows not yet flushed when the disk filled, and those of a flush whose write the
+    # writer thread had not yet made (each at most a block): refused by the full disk too
+    if verdict.lost > plan.full_steps + 2 * plan.block_steps:
         verdict.problems.append(f"{verdict.lost} steps dropped, {plan.full_steps} while full")
     try:
         recover(path, out)

@@ -149,7 +149,8 @@ class RecordEvidence(
         The state of the wrappers below that have a state adapter (e.g.
         ``NormalizeObservation``) is snapshot just before the reset (docs/recording.md).
         """
-        self._enter()
+        if self._gated:  # (closed, or a flush() / close() under way in another thread)
+            self._enter()
         file = self._file
         stream = self._stream
         notes: list[str] = []
