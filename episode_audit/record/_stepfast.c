@@ -38,14 +38,16 @@ typedef struct {
 /* Set by configure(): the classes, and their slots' offsets. */
 static PyTypeObject *array_type, *block_type, *episode_type, *flat_type, *nd_type, *int_type;
 static PyObject *monotonic_ns;
-static Py_ssize_t off_ended;
+static Py_ssize_t off_ended, off_ends, off_flags;
 static Py_ssize_t off_obs, off_act, off_rewards, off_times, off_term_vals, off_term_rows,
     off_term_counts, off_term_keys;
 static Py_ssize_t off_arr_data, off_arr_n, off_arr_dtype, off_int_data, off_int_n;
 static int configured;
 
 static PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_steps, *s_file,
-    *s_flush_at, *s_end_by_flags, *s_auto_flush, *s_step, *s_clock;
+    *s_flush_at, *s_end_by_flags, *s_auto_flush, *s_step, *s_clock, *s_flag_endings,
+    *s_ending_keys, *s_limit_hit, *s_pending, *s_counts, *s_episodes, *s_outcome,
+    *s_failure_label, *s_truncation_reason, *s_terminated, *s_truncated, *s_error;
 
 #define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
 
@@ -315,6 +317,121 @@ done:
     return ok;
 }
 
+/* The common ending, as EpisodeStream._end_by_flags (with _end_as and end_episode) records it:
+   a final step whose info holds none of the ending rules' keys ends as the stream's
+   _flag_endings table says for its flags and whether the time limit was hit (the stream's
+   _limit_hit, in Python). 1: recorded; 0: the Python method decides (nothing was changed);
+   -1: an error (raised, as from the Python method). */
+static int end_plain(PyObject *stream, PyObject *episode, PyObject *block, PyObject *row_obj,
+                     PyObject *terminated, PyObject *truncated, PyObject *info)
+{
+    int done = 0;
+    PyObject *table = NULL, *keys = NULL, *hit = NULL, *key = NULL, *file = NULL,
+             *pending = NULL, *counts = NULL, *ends_value = NULL, *flags_value = NULL,
+             *ending = NULL, *pair = NULL, *count = NULL;
+    table = PyObject_GetAttr(stream, s_flag_endings);
+    keys = table == NULL ? NULL : PyObject_GetAttr(stream, s_ending_keys);
+    if (keys == NULL) {
+        PyErr_Clear();
+        goto out;
+    }
+    if (!PyDict_CheckExact(table) || PyDict_GET_SIZE(table) == 0 || !PyFrozenSet_CheckExact(keys))
+        goto out;
+    Py_ssize_t pos = 0;
+    PyObject *name, *value;
+    while (PyDict_Next(info, &pos, &name, &value)) {
+        int found = PySet_Contains(keys, name);
+        if (found != 0) { /* a key the rules read (or one that cannot be looked up) */
+            PyErr_Clear();
+            goto out;
+        }
+    }
+    hit = PyObject_CallMethodOneArg(stream, s_limit_hit, block);
+    if (hit == NULL) {
+        done = -1;
+        goto out;
+    }
+    if (!PyBool_Check(hit))
+        goto out;
+    key = PyTuple_Pack(3, terminated, truncated, hit);
+    if (key == NULL) {
+        done = -1;
+        goto out;
+    }
+    PyObject *plain = PyDict_GetItemWithError(table, key); /* borrowed */
+    if (plain == NULL) {
+        done = PyErr_Occurred() ? -1 : 0;
+        goto out;
+    }
+    if (!PyTuple_Check(plain) || PyTuple_GET_SIZE(plain) != 3)
+        goto out;
+    PyObject *outcome = PyTuple_GET_ITEM(plain, 0), *failure_label = PyTuple_GET_ITEM(plain, 1),
+             *truncation_reason = PyTuple_GET_ITEM(plain, 2);
+    PyObject *ends = SLOT(block, off_ends), *flags = SLOT(block, off_flags);
+    file = PyObject_GetAttr(stream, s_file);
+    pending = file == NULL ? NULL : PyObject_GetAttr(file, s_pending);
+    counts = pending == NULL ? NULL : PyObject_GetAttr(file, s_counts);
+    if (counts == NULL) {
+        PyErr_Clear();
+        goto out;
+    }
+    if (ends == NULL || flags == NULL || !PyDict_CheckExact(ends) || !PyDict_CheckExact(flags) ||
+        !PyList_CheckExact(pending) || !PyDict_CheckExact(counts))
+        goto out;
+    PyObject *episodes = PyDict_GetItemWithError(counts, s_episodes); /* borrowed */
+    if (episodes == NULL || !PyLong_CheckExact(episodes)) {
+        PyErr_Clear();
+        goto out;
+    }
+    /* Everything made before anything changes (only memory can fail after). */
+    ends_value = PyTuple_Pack(
+        2, outcome, terminated == Py_True ? failure_label : truncation_reason);
+    flags_value = PyTuple_Pack(2, terminated, truncated);
+    ending = PyDict_New();
+    Py_ssize_t so_far = PyLong_AsSsize_t(episodes);
+    if (so_far < 0) {
+        PyErr_Clear();
+        goto out;
+    }
+    count = PyLong_FromSsize_t(so_far + 1);
+    if (ends_value == NULL || flags_value == NULL || ending == NULL || count == NULL ||
+        PyDict_SetItem(ending, s_outcome, outcome) < 0 ||
+        PyDict_SetItem(ending, s_failure_label, failure_label) < 0 ||
+        PyDict_SetItem(ending, s_truncation_reason, truncation_reason) < 0 ||
+        PyDict_SetItem(ending, s_terminated, terminated) < 0 ||
+        PyDict_SetItem(ending, s_truncated, truncated) < 0 ||
+        PyDict_SetItem(ending, s_error, Py_None) < 0 ||
+        (pair = PyTuple_Pack(2, episode, ending)) == NULL) {
+        done = -1;
+        goto out;
+    }
+    if (PyDict_SetItem(ends, row_obj, ends_value) < 0 ||
+        PyDict_SetItem(flags, row_obj, flags_value) < 0) {
+        done = -1;
+        goto out;
+    }
+    Py_SETREF(SLOT(episode, off_ended), Py_NewRef(Py_True));
+    if (PyList_Append(pending, pair) < 0 || PyDict_SetItem(counts, s_episodes, count) < 0) {
+        done = -1;
+        goto out;
+    }
+    done = 1;
+out:
+    Py_XDECREF(table);
+    Py_XDECREF(keys);
+    Py_XDECREF(hit);
+    Py_XDECREF(key);
+    Py_XDECREF(file);
+    Py_XDECREF(pending);
+    Py_XDECREF(counts);
+    Py_XDECREF(ends_value);
+    Py_XDECREF(flags_value);
+    Py_XDECREF(ending);
+    Py_XDECREF(pair);
+    Py_XDECREF(count);
+    return done;
+}
+
 static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *result)
 {
     if (!PyTuple_CheckExact(result) || PyTuple_GET_SIZE(result) != 5)
@@ -381,13 +498,17 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
         PyObject *row_obj = PyLong_FromSsize_t(row);
         if (row_obj == NULL)
             goto done;
-        PyObject *args[7] = {stream, episode, block, row_obj, terminated, truncated, info};
-        PyObject *end = PyObject_VectorcallMethod(
-            s_end_by_flags, args, 7 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
+        int plain = end_plain(stream, episode, block, row_obj, terminated, truncated, info);
+        if (plain == 0) {
+            PyObject *args[7] = {stream, episode, block, row_obj, terminated, truncated, info};
+            PyObject *end = PyObject_VectorcallMethod(
+                s_end_by_flags, args, 7 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
+            plain = end == NULL ? -1 : 1;
+            Py_XDECREF(end);
+        }
         Py_DECREF(row_obj);
-        if (end == NULL)
+        if (plain < 0)
             goto done;
-        Py_DECREF(end);
     }
     PyObject *limit = PyObject_GetAttr(stream, s_block_steps);
     if (limit == NULL)
@@ -551,6 +672,8 @@ static PyObject *configure(PyObject *module, PyObject *args)
         Py_ssize_t *offset;
     } slots[] = {
         {episode_type, "ended", &off_ended},
+        {block_type, "ends", &off_ends},
+        {block_type, "flags", &off_flags},
         {block_type, "obs", &off_obs},
         {block_type, "act", &off_act},
         {block_type, "rewards", &off_rewards},
@@ -611,6 +734,18 @@ PyMODINIT_FUNC PyInit__stepfast(void)
     INTERN(s_auto_flush, "auto_flush");
     INTERN(s_step, "step");
     INTERN(s_clock, "_clock");
+    INTERN(s_flag_endings, "_flag_endings");
+    INTERN(s_ending_keys, "_ending_keys");
+    INTERN(s_limit_hit, "_limit_hit");
+    INTERN(s_pending, "pending");
+    INTERN(s_counts, "counts");
+    INTERN(s_episodes, "episodes");
+    INTERN(s_outcome, "outcome");
+    INTERN(s_failure_label, "failure_label");
+    INTERN(s_truncation_reason, "truncation_reason");
+    INTERN(s_terminated, "terminated");
+    INTERN(s_truncated, "truncated");
+    INTERN(s_error, "error");
     PyObject *time = PyImport_ImportModule("time");
     if (time == NULL)
         return NULL;

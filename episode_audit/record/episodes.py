@@ -82,6 +82,8 @@ class EpisodeStream:
         self._obs_codec = obs_codec
         self._act_codec = act_codec
         self._rules = settings.rules
+        # endings by the flags alone, for final infos without the rules' keys (_stepfast reads them)
+        self._flag_endings, self._ending_keys = settings.rules.flag_endings()
         self._terms_rule = settings.terms_rule
         self._extract_terms = settings.terms_rule.extractor
         # How the terms of infos with the last key tuple seen are read (see Stream._plan_terms):
@@ -294,9 +296,14 @@ class EpisodeStream:
         info: Mapping[str, Any],
     ) -> None:
         hit = self._limit_hit(block)
-        if type(info) is dict and type(terminated) is bool and type(truncated) is bool:
-            plain = self._rules.ending_by_flags(terminated, truncated, info, hit)
-            if plain is not None:  # (the common case: nothing to note, no success reported)
+        if (
+            type(info) is dict
+            and type(terminated) is bool
+            and type(truncated) is bool
+            and info.keys().isdisjoint(self._ending_keys)
+        ):  # the common case: nothing to note, no success reported
+            plain = self._flag_endings.get((terminated, truncated, hit))
+            if plain is not None:
                 self._end_as(episode, block, row, plain, terminated, truncated)
                 return
         read: list[str] = []  # notes on the flags and values read (a success that is no bool)

@@ -522,30 +522,23 @@ class EndingRules:
         # by the flags alone: the default rules over an empty info (no user functions)
         return _BY_FLAGS.classify(terminated, truncated, {}, time_limit_hit=time_limit_hit), why
 
-    def ending_by_flags(
-        self, terminated: bool, truncated: bool, info: dict[str, Any], time_limit_hit: bool
-    ) -> Ending | None:
-        """:meth:`classify` of a final step whose ``info`` holds none of the keys read here.
+    def flag_endings(self) -> tuple[dict[tuple[bool, bool, bool], Ending], frozenset[str]]:
+        """Each final step's ending by its flags alone, and the ``info`` keys these rules read.
 
-        Such an ending depends on the flags alone (the common case: CartPole, MuJoCo), so it is
-        made once per flags and kept. ``None`` when ``info`` holds one of the keys, or when
-        more than keys decide (a ``success_fn`` / ``failure_fn``, a subclass): classify then.
+        A final step whose ``info`` (a ``dict``) holds none of the keys ends as the table says
+        for ``(terminated, truncated, time_limit_hit)``: the common case (CartPole, MuJoCo),
+        made once. The table is empty when more than keys decide (a ``success_fn`` /
+        ``failure_fn``, a subclass): :meth:`classify` every ending then.
 
-        >>> rules = EndingRules()
-        >>> rules.ending_by_flags(True, False, {"x_position": 0.3}, False)
+        >>> endings, keys = EndingRules().flag_endings()
+        >>> endings[True, False, False]
         Ending(outcome='failure', failure_label='unlabeled', truncation_reason=None)
-        >>> rules.ending_by_flags(True, False, {"is_success": True}, False) is None
-        True
+        >>> endings[False, True, True].truncation_reason, sorted(keys)[:2]
+        ('time_limit', ['failure', 'is_success'])
         """
-        endings: dict[tuple[bool, bool, bool], Ending] | None = self.__dict__.get("_endings")
-        if endings is None:
-            endings = self._flag_endings()
-        if not endings or not info.keys().isdisjoint(self.__dict__["_keys"]):
-            return None
-        return endings.get((terminated, truncated, time_limit_hit))
-
-    def _flag_endings(self) -> dict[tuple[bool, bool, bool], Ending]:
-        """Each final step's ending by its flags alone, made once (empty: more than keys decide)."""
+        made = self.__dict__.get("_flag_endings")
+        if made is not None:
+            return made  # type: ignore[no-any-return]
         endings: dict[tuple[bool, bool, bool], Ending] = {}
         if type(self) is EndingRules and self.success_fn is None and self.failure_fn is None:
             for terminated, truncated in ((True, False), (False, True), (True, True)):
@@ -553,9 +546,9 @@ class EndingRules:
                     ending = self._classify(terminated, truncated, {}, hit, None)
                     endings[terminated, truncated, hit] = ending
         keys = frozenset((*self.success_keys, self.failure_key, self.truncation_reason_key))
-        object.__setattr__(self, "_keys", keys)  # frozen: a cache, not state
-        object.__setattr__(self, "_endings", endings)
-        return endings
+        made = endings, keys
+        object.__setattr__(self, "_flag_endings", made)  # frozen: a cache, not state
+        return made
 
     def describe(self) -> dict[str, Any]:
         """A JSON-able description for the run metadata."""

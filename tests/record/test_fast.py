@@ -86,7 +86,36 @@ def _image_env() -> ScriptedEnv:
     )
 
 
+def _endings_env() -> gym.Env[Any, Any]:
+    """Endings of every kind: by the flags alone (the time limit too) and by the rules' keys."""
+    infos: list[dict[str, Any]] = [
+        {},
+        {"is_success": True},
+        {"failure": "fell", "x": 1.0},
+        {"truncation_reason": "budget"},
+        {"success": np.bool_(False)},
+        {"x": 0.5},
+    ]
+
+    steps = itertools.count(1)
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        n = next(steps)  # (across episodes: each info's keys hold for 40 steps)
+        info = infos[n // 40 % len(infos)]
+        return np.full(2, n, np.float32), 1.0, n % 5 == 0, n % 7 == 0, dict(info)
+
+    return gym.wrappers.TimeLimit(
+        ScriptedEnv(
+            step_fn=step,
+            observation_space=gym.spaces.Box(-1e6, 1e6, (2,), np.float32),
+            action_space=gym.spaces.Discrete(3),
+        ),
+        max_episode_steps=4,
+    )
+
+
 SCENARIOS: dict[str, tuple[Callable[[], gym.Env[Any, Any]], int, dict[str, Any]]] = {
+    "endings": (_endings_env, 480, {"block_steps": 32}),
     "cartpole": (lambda: gym.make("CartPole-v1"), 700, {"block_steps": 100}),
     "halfcheetah_terms": (lambda: gym.make("HalfCheetah-v5"), 400, {"block_steps": 64}),
     "odd_values": (_odd_env, 300, {"block_steps": 40}),
