@@ -23,7 +23,7 @@ from .block import Block, Episode, count_block, reset_batch, row_bytes, step_bat
 from .notes import add_notes, append_noted, has_note, note, short
 from .rules import Ending, time_limit_hit
 from .settings import RecorderSettings
-from .values import _INT64_MAX, kept_info, recordable_options, recordable_seed
+from .values import kept_info, recordable_options, recordable_seed
 from .writer import EvidenceWriter
 
 __all__ = ["EpisodeStream", "StreamFile"]
@@ -149,17 +149,12 @@ class EpisodeStream:
         if episode is not None and not episode.ended:
             self.end_episode(episode, fmt.OUTCOME_INCOMPLETE)
         file = self.file
-        if type(seed) is int and 0 <= seed <= _INT64_MAX:  # (the common seed, as it is)
-            recorded_seed: int | None = seed
-        else:
-            recorded_seed = recordable_seed(seed, notes)
-            if seed is None and rng_state is None and not has_note(notes, "rng_state_unavailable"):
-                notes.append(
-                    note(
-                        "rng_state_unavailable", "reset without a seed and the env has no np_random"
-                    )
-                )
-        recorded_options = None if options is None else recordable_options(options, notes)
+        recorded_seed = recordable_seed(seed, notes)
+        if seed is None and rng_state is None and not has_note(notes, "rng_state_unavailable"):
+            notes.append(
+                note("rng_state_unavailable", "reset without a seed and the env has no np_random")
+            )
+        recorded_options = recordable_options(options, notes)
         episode = Episode(
             file.take_episode_index(),
             recorded_seed,

@@ -488,7 +488,7 @@ def _episode_json(
 
     Optional fields that are null are left out (the JSON Schema marks them optional); the
     ``rng_state`` is already JSON (made once at reset): spliced in, not encoded again. The
-    common record (no error, no options, a finite return and term totals) is written straight
+    common record (no error, no options, a finite return) is written straight
     from the episode, the same bytes as :func:`~episode_audit.format.records.to_json` of it.
     """
     data = _plain_episode_json(episode, ending, end_ns, offset, games)

@@ -527,7 +527,7 @@ class EndingRules:
 
         A final step whose ``info`` (a ``dict``) holds none of the keys ends as the table says
         for ``(terminated, truncated, time_limit_hit)``: the common case (CartPole, MuJoCo),
-        made once. The table is empty when more than keys decide (a ``success_fn`` /
+        made once per stream. The table is empty when more than keys decide (a ``success_fn`` /
         ``failure_fn``, a subclass): :meth:`classify` every ending then.
 
         >>> endings, keys = EndingRules().flag_endings()
@@ -536,9 +536,6 @@ class EndingRules:
         >>> endings[False, True, True].truncation_reason, sorted(keys)[:2]
         ('time_limit', ['failure', 'is_success'])
         """
-        made = self.__dict__.get("_flag_endings")
-        if made is not None:
-            return made  # type: ignore[no-any-return]
         endings: dict[tuple[bool, bool, bool], Ending] = {}
         if type(self) is EndingRules and self.success_fn is None and self.failure_fn is None:
             for terminated, truncated in ((True, False), (False, True), (True, True)):
@@ -546,9 +543,7 @@ class EndingRules:
                     ending = self._classify(terminated, truncated, {}, hit, None)
                     endings[terminated, truncated, hit] = ending
         keys = frozenset((*self.success_keys, self.failure_key, self.truncation_reason_key))
-        made = endings, keys
-        object.__setattr__(self, "_flag_endings", made)  # frozen: a cache, not state
-        return made
+        return endings, keys
 
     def describe(self) -> dict[str, Any]:
         """A JSON-able description for the run metadata."""
