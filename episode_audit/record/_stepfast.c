@@ -38,7 +38,17 @@ typedef struct {
 /* Set by configure(): the classes, and their slots' offsets. */
 static PyTypeObject *array_type, *block_type, *episode_type, *flat_type, *nd_type, *int_type;
 static PyObject *monotonic_ns;
-static Py_ssize_t off_ended, off_ends, off_flags;
+static Py_ssize_t off_ends, off_flags, off_segments, off_episodes, off_pending,
+    off_reset_obs, off_resets;
+/* Episode's slots, all of them: begin() makes an Episode as its __init__ would (EPISODE_SLOTS
+   must name every slot the class has: configure() checks). */
+#define EPISODE_SLOTS 17
+static const char *episode_slots[EPISODE_SLOTS] = {
+    "after_end", "agent", "end_ns", "ended", "env_index", "game", "index", "notes", "options",
+    "options_json", "ret", "rng_json", "rng_state", "seed", "start_ns", "steps", "totals"};
+enum { E_AFTER_END, E_AGENT, E_END_NS, E_ENDED, E_ENV_INDEX, E_GAME, E_INDEX, E_NOTES, E_OPTIONS,
+       E_OPTIONS_JSON, E_RET, E_RNG_JSON, E_RNG_STATE, E_SEED, E_START_NS, E_STEPS, E_TOTALS };
+static Py_ssize_t off_ep[EPISODE_SLOTS];
 static Py_ssize_t off_obs, off_act, off_rewards, off_times, off_term_vals, off_term_rows,
     off_term_counts, off_term_keys;
 static Py_ssize_t off_arr_data, off_arr_n, off_arr_dtype, off_int_data, off_int_n;
@@ -47,7 +57,9 @@ static int configured;
 static PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_steps, *s_file,
     *s_flush_at, *s_end_by_flags, *s_auto_flush, *s_step, *s_clock, *s_flag_endings,
     *s_ending_keys, *s_limit_hit, *s_pending, *s_counts, *s_episodes, *s_outcome,
-    *s_failure_label, *s_truncation_reason, *s_terminated, *s_truncated, *s_error;
+    *s_failure_label, *s_truncation_reason, *s_terminated, *s_truncated, *s_error,
+    *s_time_limit, *s_elapsed_steps, *s_max_episode_steps, *s_next_episode, *s_env_index,
+    *s_agent, *s_slots, *s_file_clock;
 
 #define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
 
@@ -247,6 +259,7 @@ typedef struct {
     vectorcallfunc vectorcall;
     Py_ssize_t compiled_steps; /* steps recorded here */
     Py_ssize_t python_steps;   /* steps handed to the Python path */
+    Py_ssize_t compiled_resets; /* resets recorded here (begin and reset_row) */
 } StepRecorder;
 
 static PyObject *python_step(StepRecorder *self, PyObject *action, PyObject *result)
@@ -317,6 +330,29 @@ done:
     return ok;
 }
 
+/* Whether the episode's time limit is hit, as the stream's _limit_hit says: its TimeLimit's
+   counts read here when both are ints, else the method is called. A new reference. */
+static PyObject *limit_hit(PyObject *stream, PyObject *block)
+{
+    PyObject *time_limit = PyObject_GetAttr(stream, s_time_limit), *elapsed = NULL,
+             *limit = NULL, *hit = NULL;
+    if (time_limit == NULL)
+        return NULL;
+    if (time_limit != Py_None) {
+        elapsed = PyObject_GetAttr(time_limit, s_elapsed_steps);
+        limit = elapsed == NULL ? NULL : PyObject_GetAttr(time_limit, s_max_episode_steps);
+        if (limit != NULL && PyLong_CheckExact(elapsed) && PyLong_CheckExact(limit))
+            hit = PyObject_RichCompare(elapsed, limit, Py_GE);
+        PyErr_Clear();
+    }
+    if (hit == NULL)
+        hit = PyObject_CallMethodOneArg(stream, s_limit_hit, block);
+    Py_DECREF(time_limit);
+    Py_XDECREF(elapsed);
+    Py_XDECREF(limit);
+    return hit;
+}
+
 /* The common ending, as EpisodeStream._end_by_flags (with _end_as and end_episode) records it:
    a final step whose info holds none of the ending rules' keys ends as the stream's
    _flag_endings table says for its flags and whether the time limit was hit (the stream's
@@ -346,7 +382,7 @@ static int end_plain(PyObject *stream, PyObject *episode, PyObject *block, PyObj
             goto out;
         }
     }
-    hit = PyObject_CallMethodOneArg(stream, s_limit_hit, block);
+    hit = limit_hit(stream, block);
     if (hit == NULL) {
         done = -1;
         goto out;
@@ -410,7 +446,7 @@ static int end_plain(PyObject *stream, PyObject *episode, PyObject *block, PyObj
         done = -1;
         goto out;
     }
-    Py_SETREF(SLOT(episode, off_ended), Py_NewRef(Py_True));
+    Py_SETREF(SLOT(episode, off_ep[E_ENDED]), Py_NewRef(Py_True));
     if (PyList_Append(pending, pair) < 0 || PyDict_SetItem(counts, s_episodes, count) < 0) {
         done = -1;
         goto out;
@@ -451,7 +487,7 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     block = PyObject_GetAttr(stream, s_block);
     if (episode == NULL || block == NULL)
         goto python;
-    if (!Py_IS_TYPE(episode, episode_type) || SLOT(episode, off_ended) != Py_False ||
+    if (!Py_IS_TYPE(episode, episode_type) || SLOT(episode, off_ep[E_ENDED]) != Py_False ||
         !Py_IS_TYPE(block, block_type))
         goto python;
     if (PyDict_GET_SIZE(info) && !read_terms(stream, info, terms, &nterms, &names))
@@ -547,6 +583,202 @@ done:
     return ret;
 }
 
+/* ------------------------------------------------------------------ the reset
+
+   A seeded reset of a stream with no open episode, as RecordEvidence.reset records it on the
+   Python path: begin(seed) is EpisodeStream.begin(seed, None, None, []) (the reset's
+   arguments: an int64 seed, no options) and reset_row(episode, result) is
+   EpisodeStream.record_reset(episode, obs, info, [], None) followed by the flush when due.
+   Each changes nothing and returns None when its case is not this one. */
+
+/* The file's clock (EvidenceFile.clock, read as the Python path reads it): 0, or -1 on an error. */
+static int read_file_clock(StepRecorder *self, long long *now)
+{
+    PyObject *clock = PyObject_GetAttr(self->file, s_file_clock), *value = NULL;
+    if (clock == NULL)
+        return -1;
+    if (clock == monotonic_ns) {
+        struct timespec ts;
+        if (clock_gettime(CLOCK_MONOTONIC, &ts) == 0) {
+            Py_DECREF(clock);
+            *now = (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+            return 0;
+        }
+    }
+    value = PyObject_CallNoArgs(clock);
+    Py_DECREF(clock);
+    if (value == NULL)
+        return -1;
+    *now = PyLong_AsLongLong(value);
+    Py_DECREF(value);
+    return (*now == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
+static PyObject *StepRecorder_begin(StepRecorder *self, PyObject *seed)
+{
+    PyObject *stream = self->stream, *episode = NULL, *block = NULL, *next = NULL,
+             *env_index = NULL, *agent = NULL, *ret = NULL, *fresh = NULL, *next_after = NULL,
+             *start = NULL, *segment = NULL, *values[EPISODE_SLOTS] = {0};
+    if (!PyLong_CheckExact(seed))
+        Py_RETURN_NONE;
+    int overflow = 0;
+    long long number = PyLong_AsLongLongAndOverflow(seed, &overflow);
+    if (overflow || number < 0) { /* (-1 with an error cannot happen for an exact int) */
+        PyErr_Clear();
+        Py_RETURN_NONE;
+    }
+    episode = PyObject_GetAttr(stream, s_episode);
+    block = episode == NULL ? NULL : PyObject_GetAttr(stream, s_block);
+    next = block == NULL ? NULL : PyObject_GetAttr(self->file, s_next_episode);
+    env_index = next == NULL ? NULL : PyObject_GetAttr(stream, s_env_index);
+    agent = env_index == NULL ? NULL : PyObject_GetAttr(stream, s_agent);
+    if (agent == NULL)
+        goto done;
+    if (episode != Py_None && (!Py_IS_TYPE(episode, episode_type) ||
+                               SLOT(episode, off_ep[E_ENDED]) != Py_True))
+        goto decline; /* an open episode: ended as incomplete by the Python path */
+    if (!Py_IS_TYPE(block, block_type) || !PyLong_CheckExact(next))
+        goto decline;
+    PyObject *segments = SLOT(block, off_segments), *episodes = SLOT(block, off_episodes),
+             *times = SLOT(block, off_times), *pending = SLOT(block, off_pending);
+    if (segments == NULL || episodes == NULL || times == NULL || pending == NULL ||
+        !PyList_CheckExact(segments) || !PyDict_CheckExact(episodes) ||
+        !Py_IS_TYPE(times, array_type) || !PyLong_CheckExact(pending))
+        goto decline;
+    Py_ssize_t waiting = PyLong_AsSsize_t(pending), index = PyLong_AsSsize_t(next);
+    if (waiting < 0 || index < 0 || index == PY_SSIZE_T_MAX)
+        goto decline;
+    long long now;
+    if (read_file_clock(self, &now) < 0)
+        goto done;
+    /* Everything made before anything changes. */
+    start = PyLong_FromLongLong(now);
+    next_after = PyLong_FromSsize_t(index + 1);
+    segment = Py_BuildValue("(nOiO)", Py_SIZE(times) + waiting, next, 0, Py_True);
+    fresh = episode_type->tp_alloc(episode_type, 0);
+    values[E_AFTER_END] = PyLong_FromLong(0);
+    values[E_RET] = PyFloat_FromDouble(0.0);
+    values[E_TOTALS] = PyDict_New();
+    if (start == NULL || next_after == NULL || segment == NULL || fresh == NULL ||
+        values[E_AFTER_END] == NULL || values[E_RET] == NULL || values[E_TOTALS] == NULL)
+        goto done;
+    values[E_AGENT] = Py_NewRef(agent);
+    values[E_END_NS] = Py_NewRef(start);
+    values[E_ENDED] = Py_NewRef(Py_False);
+    values[E_ENV_INDEX] = Py_NewRef(env_index);
+    values[E_GAME] = Py_NewRef(Py_None);
+    values[E_INDEX] = Py_NewRef(next);
+    values[E_NOTES] = Py_NewRef(values[E_AFTER_END]);
+    values[E_OPTIONS] = Py_NewRef(Py_None);
+    values[E_OPTIONS_JSON] = Py_NewRef(Py_None);
+    values[E_RNG_JSON] = Py_NewRef(Py_None);
+    values[E_RNG_STATE] = Py_NewRef(Py_None);
+    values[E_SEED] = Py_NewRef(seed);
+    values[E_START_NS] = Py_NewRef(start);
+    values[E_STEPS] = Py_NewRef(values[E_AFTER_END]);
+    for (int i = 0; i < EPISODE_SLOTS; i++) {
+        SLOT(fresh, off_ep[i]) = values[i];
+        values[i] = NULL;
+    }
+    /* The file's next index first: if that fails, nothing else has changed. */
+    if (PyObject_SetAttr(self->file, s_next_episode, next_after) < 0 ||
+        PyList_Append(segments, segment) < 0 || PyDict_SetItem(episodes, next, fresh) < 0 ||
+        PyObject_SetAttr(stream, s_episode, fresh) < 0)
+        goto done;
+    ret = Py_NewRef(fresh);
+    goto done;
+decline:
+    PyErr_Clear();
+    ret = Py_NewRef(Py_None);
+done:
+    for (int i = 0; i < EPISODE_SLOTS; i++)
+        Py_XDECREF(values[i]);
+    Py_XDECREF(episode);
+    Py_XDECREF(block);
+    Py_XDECREF(next);
+    Py_XDECREF(env_index);
+    Py_XDECREF(agent);
+    Py_XDECREF(fresh);
+    Py_XDECREF(next_after);
+    Py_XDECREF(start);
+    Py_XDECREF(segment);
+    return ret;
+}
+
+/* Flush the file when its flush is due (EvidenceFile.due, then auto_flush); -1 on an error. */
+static int flush_if_due(StepRecorder *self, long long now)
+{
+    PyObject *flush_at = PyObject_GetAttr(self->file, s_flush_at);
+    if (flush_at == NULL)
+        return -1;
+    long long at = PyLong_AsLongLong(flush_at);
+    Py_DECREF(flush_at);
+    if (at == -1 && PyErr_Occurred())
+        return -1;
+    if (now < at)
+        return 0;
+    PyObject *flushed = PyObject_CallMethodNoArgs(self->file, s_auto_flush);
+    if (flushed == NULL)
+        return -1;
+    Py_DECREF(flushed);
+    return 0;
+}
+
+static PyObject *StepRecorder_reset_row(StepRecorder *self, PyObject *const *args,
+                                        Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "reset_row(episode, result): two arguments");
+        return NULL;
+    }
+    PyObject *episode = args[0], *result = args[1], *block = NULL, *row = NULL, *ret = NULL;
+    Pending obs_p = {0};
+    if (!Py_IS_TYPE(episode, episode_type) || !PyTuple_CheckExact(result) ||
+        PyTuple_GET_SIZE(result) != 2 || !PyDict_CheckExact(PyTuple_GET_ITEM(result, 1)) ||
+        SLOT(episode, off_ep[E_RNG_JSON]) != Py_None)
+        Py_RETURN_NONE;
+    block = PyObject_GetAttr(self->stream, s_block);
+    if (block == NULL)
+        return NULL;
+    PyObject *resets = SLOT(block, off_resets);
+    if (!Py_IS_TYPE(block, block_type) || resets == NULL || !PyList_CheckExact(resets) ||
+        !plan_value(SLOT(block, off_reset_obs), PyTuple_GET_ITEM(result, 0), &obs_p) ||
+        obs_p.n != PyList_GET_SIZE(resets))
+        goto decline;
+    long long now;
+    if (read_file_clock(self, &now) < 0)
+        goto done;
+    row = PyTuple_Pack(7, SLOT(episode, off_ep[E_INDEX]), SLOT(episode, off_ep[E_START_NS]),
+                       SLOT(episode, off_ep[E_SEED]), Py_None,
+                       SLOT(episode, off_ep[E_OPTIONS_JSON]), SLOT(episode, off_ep[E_GAME]),
+                       Py_None);
+    if (row == NULL || PyList_Append(resets, row) < 0)
+        goto done;
+    commit_value(&obs_p);
+    self->compiled_resets++;
+    if (flush_if_due(self, now) < 0)
+        goto done;
+    ret = Py_NewRef(Py_True);
+    goto done;
+decline:
+    PyErr_Clear();
+    ret = Py_NewRef(Py_None);
+done:
+    Py_XDECREF(obs_p.count);
+    Py_XDECREF(block);
+    Py_XDECREF(row);
+    return ret;
+}
+
+static PyMethodDef StepRecorder_methods[] = {
+    {"begin", (PyCFunction)StepRecorder_begin, METH_O,
+     "begin(seed): the stream's new Episode for a reset with this seed and no options, or "
+     "None (nothing changed: the Python path decides)."},
+    {"reset_row", (PyCFunction)(void (*)(void))StepRecorder_reset_row, METH_FASTCALL,
+     "reset_row(episode, result): record the reset row of the episode begin() made and flush "
+     "when due: True, or None (nothing changed: the Python path decides)."},
+    {NULL}};
+
 static PyObject *StepRecorder_vectorcall(PyObject *callable, PyObject *const *args,
                                          size_t nargsf, PyObject *kwnames)
 {
@@ -626,6 +858,8 @@ static PyMemberDef StepRecorder_members[] = {
      "Steps recorded by the compiled path."},
     {"python_steps", T_PYSSIZET, offsetof(StepRecorder, python_steps), READONLY,
      "Steps handed to the Python path."},
+    {"compiled_resets", T_PYSSIZET, offsetof(StepRecorder, compiled_resets), READONLY,
+     "Resets recorded by the compiled path (begin and reset_row)."},
     {NULL}};
 
 static PyTypeObject StepRecorderType = {
@@ -640,9 +874,28 @@ static PyTypeObject StepRecorderType = {
     .tp_call = StepRecorder_call,
     .tp_vectorcall_offset = offsetof(StepRecorder, vectorcall),
     .tp_members = StepRecorder_members,
+    .tp_methods = StepRecorder_methods,
 };
 
 /* ------------------------------------------------------------------ configure */
+
+/* Episode's __slots__ are those of episode_slots, and their offsets are read. */
+static int episode_layout_ok(void)
+{
+    PyObject *names = PyObject_GetAttr((PyObject *)episode_type, s_slots);
+    if (names == NULL)
+        return 0;
+    int same = PyTuple_Check(names) && PyTuple_GET_SIZE(names) == EPISODE_SLOTS;
+    Py_DECREF(names);
+    if (!same) {
+        PyErr_SetString(PyExc_TypeError, "Episode's slots are not those compiled in");
+        return 0;
+    }
+    for (int i = 0; i < EPISODE_SLOTS; i++)
+        if ((off_ep[i] = slot_offset(episode_type, episode_slots[i])) < 0)
+            return 0;
+    return 1;
+}
 
 static PyObject *configure(PyObject *module, PyObject *args)
 {
@@ -671,9 +924,13 @@ static PyObject *configure(PyObject *module, PyObject *args)
         const char *name;
         Py_ssize_t *offset;
     } slots[] = {
-        {episode_type, "ended", &off_ended},
         {block_type, "ends", &off_ends},
         {block_type, "flags", &off_flags},
+        {block_type, "segments", &off_segments},
+        {block_type, "episodes", &off_episodes},
+        {block_type, "pending", &off_pending},
+        {block_type, "reset_obs", &off_reset_obs},
+        {block_type, "resets", &off_resets},
         {block_type, "obs", &off_obs},
         {block_type, "act", &off_act},
         {block_type, "rewards", &off_rewards},
@@ -693,6 +950,8 @@ static PyObject *configure(PyObject *module, PyObject *args)
         if (*slots[i].offset < 0)
             return NULL;
     }
+    if (!episode_layout_ok())
+        return NULL;
     /* the flat buffer is a subclass of the n-d one: the same slots, at the same offsets */
     if (slot_offset(flat_type, "_data") != off_arr_data || slot_offset(flat_type, "_n") != off_arr_n ||
         slot_offset(flat_type, "_dtype") != off_arr_dtype) {
@@ -746,6 +1005,14 @@ PyMODINIT_FUNC PyInit__stepfast(void)
     INTERN(s_terminated, "terminated");
     INTERN(s_truncated, "truncated");
     INTERN(s_error, "error");
+    INTERN(s_time_limit, "_time_limit");
+    INTERN(s_elapsed_steps, "_elapsed_steps");
+    INTERN(s_max_episode_steps, "_max_episode_steps");
+    INTERN(s_next_episode, "next_episode");
+    INTERN(s_env_index, "env_index");
+    INTERN(s_agent, "agent");
+    INTERN(s_slots, "__slots__");
+    INTERN(s_file_clock, "clock");
     PyObject *time = PyImport_ImportModule("time");
     if (time == NULL)
         return NULL;

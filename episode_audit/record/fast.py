@@ -13,13 +13,13 @@ from __future__ import annotations
 import array
 import os
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
 from .block import Block, Episode
 from .stream import Stream
 
-__all__ = ["PURE_PYTHON_ENV", "compiled", "step_function"]
+__all__ = ["PURE_PYTHON_ENV", "CompiledReset", "compiled", "reset_function", "step_function"]
 
 PURE_PYTHON_ENV = "EPISODE_AUDIT_PURE_PYTHON"
 """The environment variable that, set to ``1``, keeps recorders on the pure-Python step."""
@@ -62,3 +62,29 @@ def step_function(stream: Stream) -> Callable[[Any, Any], None]:
         return stream.step
     step: Callable[[Any, Any], None] = _STEPFAST.StepRecorder(stream)
     return step
+
+
+class CompiledReset(Protocol):
+    """The compiled reset of a stream: a seeded reset with no options, recorded in C."""
+
+    def begin(self, seed: Any) -> Episode | None:
+        """Begin the stream's next episode for a reset with this seed and no options.
+
+        As ``EpisodeStream.begin(seed, None, None, [])`` for an int64 ``seed`` when the stream
+        has no open episode: the new episode; else ``None``, nothing changed.
+        """
+
+    def reset_row(self, episode: Episode, result: Any) -> bool | None:
+        """Record the reset row of ``episode``, then flush when due.
+
+        As ``record_reset`` for what ``reset()`` returned: ``True``; else ``None``, nothing
+        changed (the Python path records it).
+        """
+
+
+def reset_function(step: Callable[[Any, Any], None]) -> CompiledReset | None:
+    """The compiled reset that goes with ``step`` (from :func:`step_function`), or ``None``."""
+    if _STEPFAST is None or not isinstance(step, _STEPFAST.StepRecorder):
+        return None
+    reset: CompiledReset = step
+    return reset

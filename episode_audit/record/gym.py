@@ -28,7 +28,8 @@ from ..format.wrappers import (
     REWARD_CHANGING,
     state_causes,
 )
-from .fast import step_function
+from .block import Episode
+from .fast import reset_function, step_function
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -128,6 +129,8 @@ class RecordEvidence(
         )
         self._file.start()
         self._record_step = step_function(self._stream)
+        # (the state snapshot is taken on the Python path only)
+        self._fast_reset = None if self._state else reset_function(self._record_step)
         self._opened()
 
     @property
@@ -151,36 +154,69 @@ class RecordEvidence(
         """
         if self._gated:  # (closed, or a flush() / close() under way in another thread)
             self._enter()
-        file = self._file
-        stream = self._stream
-        notes: list[str] = []
-        episode = None
-        state = None
+        fast = self._fast_reset
+        if fast is None or options is not None:
+            return self._reset(seed, options, begin=True)
         try:
-            stream.end_open()
-            rng_state = capture_rng_state(self._unwrapped) if seed is None else None
-            state = self._state.capture(notes) if self._state else None
-            episode = stream.begin(seed, options, rng_state, notes)
+            episode = fast.begin(seed)  # (the common case: a seeded reset, compiled)
         except Exception as exc:  # never break the training loop over recording trouble
-            file.trouble(exc)
+            self._file.trouble(exc)
+            return self._reset(seed, options, begin=False)
+        if episode is None:
+            return self._reset(seed, options, begin=True)
         try:
             result = self.env.reset(seed=seed, options=options)
         except Exception as exc:
             self._on_error(exc, "reset")
             raise
         try:
-            try:
-                obs, info = result
-            except Exception:
-                notes.append(note("reset_result_invalid", f"reset() returned {short(result)}"))
-                obs, info = None, {}
-            if episode is not None:
-                stream.record_reset(episode, obs, info, notes, state)
-            if file.due():
-                file.auto_flush()
+            if fast.reset_row(episode, result) is None:  # (not the common case)
+                self._record_reset(episode, result, [], None)
         except Exception as exc:
-            file.trouble(exc)
+            self._file.trouble(exc)
         return result
+
+    def _reset(
+        self, seed: int | None, options: dict[str, Any] | None, *, begin: bool
+    ) -> tuple[gym.core.ObsType, dict[str, Any]]:
+        """:meth:`reset` on the Python path (``begin``: the episode too; else only the reset)."""
+        stream = self._stream
+        notes: list[str] = []
+        episode = None
+        state = None
+        if begin:
+            try:
+                stream.end_open()
+                rng_state = capture_rng_state(self._unwrapped) if seed is None else None
+                state = self._state.capture(notes) if self._state else None
+                episode = stream.begin(seed, options, rng_state, notes)
+            except Exception as exc:  # never break the training loop over recording trouble
+                self._file.trouble(exc)
+        try:
+            result = self.env.reset(seed=seed, options=options)
+        except Exception as exc:
+            self._on_error(exc, "reset")
+            raise
+        try:
+            self._record_reset(episode, result, notes, state)
+        except Exception as exc:
+            self._file.trouble(exc)
+        return result
+
+    def _record_reset(
+        self, episode: Episode | None, result: Any, notes: list[str], state: str | None
+    ) -> None:
+        """Record the reset row of ``episode`` (if it began), then flush when due."""
+        try:
+            obs, info = result
+        except Exception:
+            notes.append(note("reset_result_invalid", f"reset() returned {short(result)}"))
+            obs, info = None, {}
+        if episode is not None:
+            self._stream.record_reset(episode, obs, info, notes, state)
+        file = self._file
+        if file.due():
+            file.auto_flush()
 
     def step(
         self, action: gym.core.ActType

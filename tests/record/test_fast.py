@@ -114,7 +114,53 @@ def _endings_env() -> gym.Env[Any, Any]:
     )
 
 
+class _AnySeedEnv(ScriptedEnv):
+    """Takes any seed (Gymnasium's own reset refuses those that are not a Python int >= 0)."""
+
+    def reset(
+        self, *, seed: Any = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        plain = type(seed) is int and 0 <= seed < 2**63
+        return super().reset(seed=seed if plain else None, options=options)
+
+
+def _resets_env() -> ScriptedEnv:
+    """Resets of every kind: observations the compiled reset takes, and ones it hands on."""
+
+    def reset(env: ScriptedEnv) -> Any:
+        n = next(resets)
+        if n % 5 == 3:
+            return np.zeros(2, np.float64), {}  # cast, noted
+        if n % 5 == 4:
+            return np.zeros(2, np.float32), {"x": 1.0}
+        if n % 11 == 10:
+            return [np.zeros(2, np.float32), {}]  # not a tuple
+        return np.full(2, n, np.float32), {}
+
+    resets = itertools.count()
+    return _AnySeedEnv(
+        step_fn=lambda env, action: (np.ones(2, np.float32), 1.0, env.t % 6 == 0, False, {}),
+        reset_fn=reset,
+        observation_space=gym.spaces.Box(-1e6, 1e6, (2,), np.float32),
+        action_space=gym.spaces.Discrete(2),
+    )
+
+
+def _reset_arguments(episode: int) -> dict[str, Any]:
+    """A seeded reset, mostly; every few episodes one of the kinds the compiled reset hands on."""
+    kinds: list[dict[str, Any]] = [
+        {"seed": None},
+        {"seed": np.int64(episode)},
+        {"seed": episode, "options": {"level": 2}},
+        {"seed": -1},
+        {"seed": 2**64},
+    ]
+    return kinds[episode // 2 % len(kinds)] if episode % 2 else {"seed": 100 + episode}
+
+
 SCENARIOS: dict[str, tuple[Callable[[], gym.Env[Any, Any]], int, dict[str, Any]]] = {
+    # flushes due at resets too (the clock ticks 1 us a read)
+    "resets": (_resets_env, 400, {"block_steps": 1000, "flush_every_s": 40e-6}),
     "endings": (_endings_env, 480, {"block_steps": 32}),
     "cartpole": (lambda: gym.make("CartPole-v1"), 700, {"block_steps": 100}),
     "halfcheetah_terms": (lambda: gym.make("HalfCheetah-v5"), 400, {"block_steps": 64}),
@@ -129,19 +175,24 @@ def _record(
     """Record; return the steps the compiled path took and those it handed to Python."""
     env = make()
     env.action_space.seed(3)
-    with RecordEvidence(env, path, flush_every_s=1e9, **options) as rec:
+    odd_resets = make is _resets_env
+    with RecordEvidence(env, path, **{"flush_every_s": 1e9, **options}) as rec:
         rec.reset(seed=0)
         episode = 0
-        for _ in range(steps):
+        for t in range(steps):
             _, _, terminated, truncated, _ = rec.step(env.action_space.sample())
-            if terminated or truncated:
+            if terminated or truncated or t % 97 == 96:  # (and now and then mid-episode)
                 episode += 1
-                rec.reset(seed=episode)
+                rec.reset(**_reset_arguments(episode) if odd_resets else {"seed": 100 + episode})
         if steps % 3 == 0:
             rec.step(env.action_space.sample())  # a step after an ending, maybe
             rec.step(env.action_space.sample())
         step = rec._record_step
+        resets[path.stem] = getattr(step, "compiled_resets", 0)
         return getattr(step, "compiled_steps", 0), getattr(step, "python_steps", steps)
+
+
+resets: dict[str, int] = {}  # the resets the compiled path recorded, by file stem
 
 
 _WALL = {"start_time", "end_time"}  # datetime.now(), not the clock patched here
@@ -182,6 +233,11 @@ def test_compiled_and_pure_python_write_the_same_file(
         assert compiled_steps > steps // 2 and python_steps > steps // 4
     else:  # all but those that find a column block full
         assert compiled_steps > steps * 0.95
+    assert resets["pure"] == 0
+    # (odd_values resets to an observation of the wrong shape: the Python path records it)
+    assert resets["compiled"] >= {"odd_values": 0, "halfcheetah_terms": 1, "images": 1}.get(
+        name, 20
+    )
     compiled, pure = _contents(files["compiled"]), _contents(files["pure"])
     assert len(compiled) == len(pure)
     for a, b in zip(compiled, pure, strict=True):
