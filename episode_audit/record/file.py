@@ -60,18 +60,22 @@ class FileRecorder:
     ``flush()``, from any thread; finishing the file once, on the recorder's ``close()``; and a
     warning when a recorder that warns (``_warns_unclosed``) is dropped with its file still open.
 
-    Threads: the recorder's ``step()`` and ``reset()`` take no lock. They begin with
-    ``if self._gated: self._enter()`` (one attribute read, as a closed check costs anyway);
-    ``flush()`` and ``close()`` set the gate under a lock, then look whether another thread is
-    inside ``step()`` or ``reset()`` (its stack, ``sys._current_frames``): if none, they write
-    while the gate holds new calls back; if one is, ``flush()`` leaves the flush to the end of
-    that call (``flush_at``) and ``close()`` waits for it to return.
+    Threads: the recorder's ``step()`` and ``reset()`` take no lock. They set ``_busy`` (one
+    attribute store), then read the gate, ``if self._gated: self._enter()``, and clear ``_busy``
+    as they return or raise. ``flush()`` and ``close()`` set the gate under a lock, then read
+    ``_busy``: if it is clear, they write while the gate holds new calls back (a thread that
+    reads the gate set clears ``_busy`` while it waits at the lock); if a thread is inside,
+    ``flush()`` leaves the flush to the end of that call (``flush_at``) and ``close()`` waits
+    for it to return. The stepping thread's own ``flush()`` or ``close()`` (from inside its
+    env) writes at once, as between calls.
     """
 
     _file: EvidenceFile
     _closed: bool
     _gated: bool  # closed, or a flush() / close() under way: step() and reset() go by _enter()
+    _busy: bool  # a thread is inside step() or reset(), past the gate or about to read it
     _flush_lock: threading.Lock
+    _entries: tuple[str, ...] = ("step", "reset")  # the methods that set _busy
     _warns_unclosed = True
 
     def _opened(self) -> None:
@@ -79,17 +83,19 @@ class FileRecorder:
         self._flush_lock = threading.Lock()
         self._closed = False
         self._gated = False
+        self._busy = False
 
     def _enter(self) -> None:
         """The way into ``step()`` / ``reset()`` when gated: raise if closed.
 
-        Else wait for the ``flush()`` under way in another thread.
+        Else wait for the ``flush()`` under way in another thread (``_busy`` clear meanwhile:
+        held at the lock, this thread touches nothing).
         """
         self._file.check_open()
         if self._gated:
-            waiting = True  # (read by _inside: held at the lock, this thread touches nothing)
+            self._busy = False
             with self._flush_lock:
-                waiting = False  # noqa: F841
+                self._busy = True
             self._file.check_open()
 
     def flush(self) -> None:
@@ -158,25 +164,22 @@ class FileRecorder:
 def _inside(recorder: FileRecorder) -> bool:
     """Whether a thread other than this one is inside ``recorder``'s ``step()`` or ``reset()``.
 
-    Called holding the gate's lock. A thread waiting at that lock (in :meth:`FileRecorder._enter`)
-    touches nothing until it is released: it is not inside. One anywhere else in ``_enter()``
-    (past the lock, or before it saw the gate) goes on into the call: it is.
+    Called holding the gate's lock: ``_busy`` says a thread is inside (set before it reads the
+    gate, cleared while it waits at the gate's lock). If it is this thread (a ``flush()`` from
+    inside its own env's step), none other is. Only this thread's own stack is read: reading
+    another thread's frames while it runs is not safe on CPython 3.11 (their ``f_back`` can
+    point at a freed frame).
     """
+    if not recorder._busy:
+        return False
     cls = type(recorder)
-    entries = {cls.step.__code__, cls.reset.__code__}  # type: ignore[attr-defined]
-    gate = FileRecorder._enter.__code__
-    me = threading.get_ident()
-    for ident, frame in sys._current_frames().items():
-        f: FrameType | None = None if ident == me else frame
-        while f is not None:  # innermost first: the gate is above the call it holds back
-            if f.f_code is gate or f.f_code in entries:
-                local = f.f_locals
-                if local.get("self") is recorder:
-                    if f.f_code is gate and local.get("waiting") is True:
-                        break
-                    return True
-            f = f.f_back
-    return False
+    entries = {getattr(cls, name).__code__ for name in recorder._entries}
+    f: FrameType | None = sys._getframe(1)
+    while f is not None:
+        if f.f_code in entries and f.f_locals.get("self") is recorder:
+            return False  # (this thread is the one inside)
+        f = f.f_back
+    return True
 
 
 class EvidenceFile:

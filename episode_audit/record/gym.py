@@ -29,7 +29,7 @@ from ..format.wrappers import (
     state_causes,
 )
 from .block import Episode
-from .fast import reset_function, step_function
+from .fast import CompiledReset, reset_function, step_function
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -152,20 +152,30 @@ class RecordEvidence(
         The state of the wrappers below that have a state adapter (e.g.
         ``NormalizeObservation``) is snapshot just before the reset (docs/recording.md).
         """
-        if self._gated:  # (closed, or a flush() / close() under way in another thread)
-            self._enter()
-        fast = self._fast_reset
-        if fast is None or options is not None:
-            return self._reset(seed, options, begin=True)
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
+        try:
+            if self._gated:  # (closed, or a flush() / close() under way in another thread)
+                self._enter()
+            fast = self._fast_reset
+            if fast is None or options is not None:
+                return self._reset(seed, options, begin=True)
+            return self._reset_compiled(fast, seed)
+        finally:
+            self._busy = False
+
+    def _reset_compiled(
+        self, fast: CompiledReset, seed: int | None
+    ) -> tuple[gym.core.ObsType, dict[str, Any]]:
+        """:meth:`reset` with no options, begun and recorded in C when it is the common case."""
         try:
             episode = fast.begin(seed)  # (the common case: a seeded reset, compiled)
         except Exception as exc:  # never break the training loop over recording trouble
             self._file.trouble(exc)
-            return self._reset(seed, options, begin=False)
+            return self._reset(seed, None, begin=False)
         if episode is None:
-            return self._reset(seed, options, begin=True)
+            return self._reset(seed, None, begin=True)
         try:
-            result = self.env.reset(seed=seed, options=options)
+            result = self.env.reset(seed=seed, options=None)
         except Exception as exc:
             self._on_error(exc, "reset")
             raise
@@ -222,15 +232,19 @@ class RecordEvidence(
         self, action: gym.core.ActType
     ) -> tuple[gym.core.ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
         """Step the env and record the step; the 5-tuple is returned untouched."""
-        if self._gated:
-            self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
-            result = self.env.step(action)
-        except Exception as exc:
-            self._on_error(exc, "step")
-            raise
-        self._record_step(action, result)
-        return result
+            if self._gated:
+                self._enter()
+            try:
+                result = self.env.step(action)
+            except Exception as exc:
+                self._on_error(exc, "step")
+                raise
+            self._record_step(action, result)
+            return result
+        finally:
+            self._busy = False
 
     def _on_error(self, exc: Exception, during: str) -> None:
         self._file.end_with_error((self._stream,), exc, during)

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from episode_audit import RecordEvidence, RecordVectorEvidence, check, open_evidence
+from tests.support.envs import ScriptedEnv
 
 
 @pytest.fixture(autouse=True)
@@ -145,11 +146,6 @@ def test_close_from_another_thread_keeps_every_step_that_returned(tmp_path: Path
     assert ev.finished and ev.steps(columns=["episode"]).num_rows in (returned, returned + 1)
 
 
-def _innermost(thread: threading.Thread) -> Any:
-    """The innermost Python frame ``thread`` is running."""
-    return sys._current_frames()[thread.ident]  # type: ignore[index]
-
-
 def _wait_for(condition: Any) -> None:
     deadline = time.monotonic() + 30
     while not condition():
@@ -181,10 +177,11 @@ def test_a_thread_past_the_gate_counts_as_inside_and_one_held_at_it_does_not(
             go_on.wait(30)
 
     stepper = threading.Thread(target=env.step, args=(np.int64(0),))
+    assert not _inside(env)  # between steps
     with env._flush_lock:
         env._gated = True  # (as flush() does, holding its lock)
         stepper.start()
-        _wait_for(lambda: _innermost(stepper).f_locals.get("waiting") is True)
+        _wait_for(lambda: not env._busy and stepper.is_alive())
         file.check_open = pausing_check_open  # type: ignore[method-assign]
         assert not _inside(env)  # held at the lock
     _wait_for(past_the_lock.is_set)
@@ -197,5 +194,54 @@ def test_a_thread_past_the_gate_counts_as_inside_and_one_held_at_it_does_not(
     stepper.join()
     file.check_open = check_open  # type: ignore[method-assign]
     assert file.flush_at > 0  # the stepper flushed as its step ended
+    assert not env._busy and not _inside(env)
     env.close()
-    assert open_evidence(tmp_path / "gate.mcap").steps(columns=["step"]).num_rows == 1
+
+
+def test_a_thread_inside_its_envs_step_counts_as_inside_and_flushes_as_it_ends(
+    tmp_path: Path,
+) -> None:
+    """Another thread's flush never writes while a step is under way; that step writes it."""
+    from episode_audit.record.file import _inside
+
+    in_step, go_on = threading.Event(), threading.Event()
+
+    def slow_step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        in_step.set()
+        go_on.wait(30)
+        return np.zeros(2, np.float32), 1.0, False, False, {}
+
+    env = RecordEvidence(ScriptedEnv(step_fn=slow_step), tmp_path / "slow.mcap", flush_every_s=3600)
+    env.reset(seed=0)
+    stepper = threading.Thread(target=env.step, args=(np.int64(0),))
+    stepper.start()
+    _wait_for(in_step.is_set)
+    assert _inside(env)
+    blocks = env._file.counts["blocks"]
+    env.flush()  # left to the end of the step under way
+    assert env._file.flush_at == 0 and env._file.counts["blocks"] == blocks
+    go_on.set()
+    stepper.join()
+    assert env._file.counts["blocks"] == blocks + 1 and env._file.flush_at > 0
+    env.close()
+    assert open_evidence(tmp_path / "slow.mcap").steps(columns=["episode"]).num_rows == 1
+
+
+def test_a_flush_from_inside_the_stepping_threads_own_env_writes_at_once(
+    tmp_path: Path,
+) -> None:
+    flushed: list[int] = []
+
+    def flushing_step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        recorder.flush()  # (a callback of the env's own, in the stepping thread)
+        flushed.append(recorder._file.counts["blocks"])
+        return np.zeros(2, np.float32), 1.0, False, False, {}
+
+    recorder = RecordEvidence(
+        ScriptedEnv(step_fn=flushing_step), tmp_path / "own.mcap", flush_every_s=3600
+    )
+    recorder.reset(seed=0)
+    recorder.step(np.int64(0))
+    recorder.step(np.int64(0))
+    recorder.close()
+    assert flushed == [0, 1]  # the first flush had only the reset row; the second, a step too

@@ -144,7 +144,14 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
         """Reset the env (a new game); each agent's reset row is written at its first turn."""
-        self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
+        try:
+            self._enter()
+            self._reset(seed, options)
+        finally:
+            self._busy = False
+
+    def _reset(self, seed: int | None, options: dict[str, Any] | None) -> None:
         rec = self._rec
         if rec.game >= 0:
             self._cut()
@@ -171,8 +178,15 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
         The rows the turn closes are held until the env's ``step()`` returned or raised: one
         that raised after every agent-episode had ended is noted on the last of them.
         """
-        if self._gated:
-            self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
+        try:
+            if self._gated:
+                self._enter()
+            self._step(action)
+        finally:
+            self._busy = False
+
+    def _step(self, action: Any) -> None:
         rec = self._rec
         self._held = []
         try:

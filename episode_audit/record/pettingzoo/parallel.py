@@ -44,7 +44,16 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[Any, Any], dict[Any, dict[str, Any]]]:
         """Reset the env (a new game) and record every agent's reset row."""
-        self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
+        try:
+            self._enter()
+            return self._reset(seed, options)
+        finally:
+            self._busy = False
+
+    def _reset(
+        self, seed: int | None, options: dict[str, Any] | None
+    ) -> tuple[dict[Any, Any], dict[Any, dict[str, Any]]]:
         rec = self._rec
         rec.new_game(seed, options)
         try:
@@ -72,8 +81,15 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
 
     def step(self, actions: dict[Any, Any]) -> tuple[Any, Any, Any, Any, Any]:
         """Step the env and record each acting agent's step; results are returned untouched."""
-        if self._gated:
-            self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
+        try:
+            if self._gated:
+                self._enter()
+            return self._step(actions)
+        finally:
+            self._busy = False
+
+    def _step(self, actions: dict[Any, Any]) -> tuple[Any, Any, Any, Any, Any]:
         rec = self._rec
         try:
             result = self.env.step(actions)

@@ -83,6 +83,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
 
     _closed = True  # until the file is open (read by a half-built object's __del__ too)
 
+    _entries = ("step", "reset", "step_async", "step_wait")  # (see FileRecorder)
+
     def __init__(
         self,
         venv: VecEnv,
@@ -193,7 +195,14 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
 
     def reset(self) -> Any:
         """Reset every sub-env (with the seeds and options set before) and record it."""
-        self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
+        try:
+            self._enter()
+            return self._reset()
+        finally:
+            self._busy = False
+
+    def _reset(self) -> Any:
         file = self._file
         n, base = self._n, self._base
         seeds = _per_env(getattr(base, "_seeds", None), n)
@@ -218,16 +227,27 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
 
     def step_async(self, actions: np.ndarray[Any, Any]) -> None:
         """Start a step of every sub-env (the actions are kept for the record)."""
-        if self._gated:  # closed, or a flush() / close() under way in another thread
-            self._enter()
-        self._actions = actions
-        self.venv.step_async(actions)
+        self._busy = True  # until step_wait() returns (read by a flush() in another thread)
+        try:
+            if self._gated:  # closed, or a flush() / close() under way in another thread
+                self._enter()
+            self._actions = actions
+            self.venv.step_async(actions)
+        except BaseException:
+            self._busy = False
+            raise
 
     def step_wait(self) -> Any:
         """Finish the step and record each sub-env's share; hand the results on as they are.
 
         (Rewards in the dtype the VecEnv gave them.)
         """
+        try:
+            return self._step_wait()
+        finally:
+            self._busy = False
+
+    def _step_wait(self) -> Any:
         try:
             result = self.venv.step_wait()
         except Exception as exc:

@@ -161,7 +161,16 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         options: dict[str, Any] | None = None,
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the vector env (or the sub-envs of ``options["reset_mask"]``) and record it."""
-        self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
+        try:
+            self._enter()
+            return self._reset(seed, options)
+        finally:
+            self._busy = False
+
+    def _reset(
+        self, seed: int | list[int | None] | None, options: dict[str, Any] | None
+    ) -> tuple[Any, dict[str, Any]]:
         file = self._file
         n = self._n
         indices, recorded_options = reset_targets(options, n)
@@ -188,19 +197,23 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
 
     def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
         """Step every sub-env and record each sub-env's step; the results are returned untouched."""
-        if self._gated:
-            self._enter()
+        self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
-            result = self.env.step(actions)
-        except Exception as exc:
-            self._steps.step_failed(exc)
-            raise
-        try:
-            self._record_step(actions, result)
-        except Exception as exc:  # never break the training loop over recording trouble
-            self._steps.idle = None
-            self._file.trouble(exc)
-        return result
+            if self._gated:
+                self._enter()
+            try:
+                result = self.env.step(actions)
+            except Exception as exc:
+                self._steps.step_failed(exc)
+                raise
+            try:
+                self._record_step(actions, result)
+            except Exception as exc:  # never break the training loop over recording trouble
+                self._steps.idle = None
+                self._file.trouble(exc)
+            return result
+        finally:
+            self._busy = False
 
     def close(self, **kwargs: Any) -> None:
         """Finish the evidence file (open episodes are recorded as ``incomplete``) and close.
