@@ -231,19 +231,30 @@ def count_block(block: Block, n: int) -> tuple[_Int64s, _Int64s, pa.Array]:
     after an episode ended are not counted.
     """
     episode_col, step_col = _index_columns(block.segments, n)
-    rewards = np.frombuffer(block.rewards, dtype=np.float64)
-    segments = block.segments
-    counted = np.zeros(n, dtype=np.bool_)
-    for i, (start, index, _, live) in enumerate(segments):
-        end = segments[i + 1][0] if i + 1 < len(segments) else n
-        if end > start and live:
-            ep = block.episodes[index]
+    # the segments that hold rows: their sums at once (each a run of rows, in order)
+    spans = [
+        (start, end, index, live)
+        for (start, index, _, live), end in zip(
+            block.segments, [*(s[0] for s in block.segments[1:]), n], strict=True
+        )
+        if end > start
+    ]
+    rewards = np.frombuffer(block.rewards, dtype=np.float64)[:n]
+    sums: list[float] = np.add.reduceat(rewards, [s[0] for s in spans]).tolist() if spans else []
+    times, episodes = block.times, block.episodes
+    for (start, end, index, live), total in zip(spans, sums, strict=True):
+        ep = episodes[index]
+        if live:
             ep.steps += end - start
-            ep.ret += float(np.add.reduce(rewards[start:end]))
-            ep.end_ns = block.times[end - 1]
-            counted[start:end] = True
-        elif end > start:  # stepped after the end: numbered on, not counted
-            block.episodes[index].after_end += end - start
+            ep.ret += total
+            ep.end_ns = times[end - 1]
+        else:  # stepped after the end: numbered on, not counted
+            ep.after_end += end - start
+    counted = np.repeat(
+        np.array([s[3] for s in spans], dtype=np.bool_), [s[1] - s[0] for s in spans]
+    )
+    if len(counted) != n:  # (rows before any reset: not counted)
+        counted = np.concatenate([np.zeros(n - len(counted), dtype=np.bool_), counted])
     return episode_col, step_col, _terms_column(block, n, episode_col, counted)
 
 
