@@ -254,7 +254,6 @@ typedef struct {
     PyObject *stream;
     PyObject *fallback; /* stream.step, the Python path */
     PyObject *file;
-    int system_clock; /* the stream's clock is time.monotonic_ns: read it here */
     PyObject *clock;
     vectorcallfunc vectorcall;
     Py_ssize_t compiled_steps; /* steps recorded here */
@@ -269,21 +268,50 @@ static PyObject *python_step(StepRecorder *self, PyObject *action, PyObject *res
     return PyObject_Vectorcall(self->fallback, args, 2, NULL);
 }
 
-static int read_clock(StepRecorder *self, long long *now)
+/* Read `clock` (time.monotonic_ns read here, any other clock called): 0, or -1 on an error. */
+static int call_clock(PyObject *clock, long long *now)
 {
-    if (self->system_clock) {
+    if (clock == monotonic_ns) {
         struct timespec ts;
         if (clock_gettime(CLOCK_MONOTONIC, &ts) == 0) {
             *now = (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec;
             return 0;
         }
     }
-    PyObject *value = PyObject_CallNoArgs(self->clock);
+    PyObject *value = PyObject_CallNoArgs(clock);
     if (value == NULL)
         return -1;
     *now = PyLong_AsLongLong(value);
     Py_DECREF(value);
     return (*now == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* The stream's clock (Stream._clock). */
+static int read_clock(StepRecorder *self, long long *now)
+{
+    return call_clock(self->clock, now);
+}
+
+/* Flush the file (auto_flush) when `full`, or when its flush is due at `now` (EvidenceFile.due);
+   -1 on an error. */
+static int flush_if_due(StepRecorder *self, long long now, int full)
+{
+    if (!full) {
+        PyObject *flush_at = PyObject_GetAttr(self->file, s_flush_at);
+        if (flush_at == NULL)
+            return -1;
+        long long at = PyLong_AsLongLong(flush_at);
+        Py_DECREF(flush_at);
+        if (at == -1 && PyErr_Occurred())
+            return -1;
+        if (now < at)
+            return 0;
+    }
+    PyObject *flushed = PyObject_CallMethodNoArgs(self->file, s_auto_flush);
+    if (flushed == NULL)
+        return -1;
+    Py_DECREF(flushed);
+    return 0;
 }
 
 /* The terms of `info` as the stream's plan reads them: their count in *count, their values
@@ -551,23 +579,9 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
         goto done;
     Py_ssize_t block_steps = PyLong_AsSsize_t(limit);
     Py_DECREF(limit);
-    int due = row + 1 >= block_steps;
-    if (!due) {
-        PyObject *flush_at = PyObject_GetAttr(self->file, s_flush_at);
-        if (flush_at == NULL)
-            goto done;
-        long long at = PyLong_AsLongLong(flush_at);
-        Py_DECREF(flush_at);
-        due = now >= at;
-    }
-    if (PyErr_Occurred())
+    if ((block_steps == -1 && PyErr_Occurred()) ||
+        flush_if_due(self, now, row + 1 >= block_steps) < 0)
         goto done;
-    if (due) {
-        PyObject *flushed = PyObject_CallMethodNoArgs(self->file, s_auto_flush);
-        if (flushed == NULL)
-            goto done;
-        Py_DECREF(flushed);
-    }
     ret = Py_NewRef(Py_None);
     goto done;
 python:
@@ -591,27 +605,15 @@ done:
    EpisodeStream.record_reset(episode, obs, info, [], None) followed by the flush when due.
    Each changes nothing and returns None when its case is not this one. */
 
-/* The file's clock (EvidenceFile.clock, read as the Python path reads it): 0, or -1 on an error. */
+/* The file's clock (EvidenceFile.clock, read as the Python path reads it): 0, or -1. */
 static int read_file_clock(StepRecorder *self, long long *now)
 {
-    PyObject *clock = PyObject_GetAttr(self->file, s_file_clock), *value = NULL;
+    PyObject *clock = PyObject_GetAttr(self->file, s_file_clock);
     if (clock == NULL)
         return -1;
-    if (clock == monotonic_ns) {
-        struct timespec ts;
-        if (clock_gettime(CLOCK_MONOTONIC, &ts) == 0) {
-            Py_DECREF(clock);
-            *now = (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec;
-            return 0;
-        }
-    }
-    value = PyObject_CallNoArgs(clock);
+    int got = call_clock(clock, now);
     Py_DECREF(clock);
-    if (value == NULL)
-        return -1;
-    *now = PyLong_AsLongLong(value);
-    Py_DECREF(value);
-    return (*now == -1 && PyErr_Occurred()) ? -1 : 0;
+    return got;
 }
 
 static PyObject *StepRecorder_begin(StepRecorder *self, PyObject *seed)
@@ -705,25 +707,6 @@ done:
     return ret;
 }
 
-/* Flush the file when its flush is due (EvidenceFile.due, then auto_flush); -1 on an error. */
-static int flush_if_due(StepRecorder *self, long long now)
-{
-    PyObject *flush_at = PyObject_GetAttr(self->file, s_flush_at);
-    if (flush_at == NULL)
-        return -1;
-    long long at = PyLong_AsLongLong(flush_at);
-    Py_DECREF(flush_at);
-    if (at == -1 && PyErr_Occurred())
-        return -1;
-    if (now < at)
-        return 0;
-    PyObject *flushed = PyObject_CallMethodNoArgs(self->file, s_auto_flush);
-    if (flushed == NULL)
-        return -1;
-    Py_DECREF(flushed);
-    return 0;
-}
-
 static PyObject *StepRecorder_reset_row(StepRecorder *self, PyObject *const *args,
                                         Py_ssize_t nargs)
 {
@@ -756,7 +739,7 @@ static PyObject *StepRecorder_reset_row(StepRecorder *self, PyObject *const *arg
         goto done;
     commit_value(&obs_p);
     self->compiled_resets++;
-    if (flush_if_due(self, now) < 0)
+    if (flush_if_due(self, now, 0) < 0)
         goto done;
     ret = Py_NewRef(Py_True);
     goto done;
@@ -811,7 +794,6 @@ static PyObject *StepRecorder_new(PyTypeObject *type, PyObject *args, PyObject *
         Py_DECREF(self);
         return NULL;
     }
-    self->system_clock = self->clock == monotonic_ns;
     return (PyObject *)self;
 }
 
