@@ -3,16 +3,14 @@
     python bench/run.py                 # everything (a few minutes on 2 cores)
     python bench/run.py record check    # a selection
 
-Targets (docs/benchmarks.md): recording overhead <= 1.15x on CartPole-v1 and <= 1.02x on
-Reacher-v5 / HalfCheetah-v5; <= 32 bytes per CartPole step; recorder memory flat (<= 64 MB
-growth) over a 1 M-step episode; check >= 5 M steps/s; replay <= 1.05x bare stepping; vector
-recording overhead per sub-env step no worse than the single-env recorder's (CartPole x8, Sync);
-export to Foxglove MCAP >= 1 M steps per minute on one core (a CartPole file, pinned to one
-CPU; process CPU time and wall time, with the load average); SB3 (bench_sb3.py): a real PPO
-run with / without RecordVecEnvEvidence, and its cost per sub-env step (skipped when SB3 is
-not installed).
-SB3 (bench_sb3.py): a real PPO run with / without RecordVecEnvEvidence, and its cost per
-sub-env step (skipped when SB3 is not installed); jobs (bench_jobs.py): check, report and
+Targets (docs/benchmarks.md): recording overhead <= 1.15x on CartPole-v1 and <= 1.03x on
+Reacher-v5 / HalfCheetah-v5, <= 1.20x per sub-env step of a CartPole x8 SyncVectorEnv (each
+side stepped in turns of a few ms, so that the host's slowdowns land on both); <= 22 bytes per
+CartPole step; recorder memory flat (<= 64 MB growth) over a 1 M-step episode; check >= 5 M
+steps/s; replay <= 1.05x bare stepping; export to Foxglove MCAP >= 1 M steps per minute on one
+core (a CartPole file, pinned to one CPU; process CPU time and wall time, with the load
+average). SB3 (bench_sb3.py): a real PPO run with / without RecordVecEnvEvidence, and its cost
+per sub-env step (skipped when SB3 is not installed); jobs (bench_jobs.py): check, report and
 replay over 1 000 files (+ 50 Reacher-v5 episodes for replay) with --jobs 1 vs 2, as library
 calls and as fresh command-line processes, 3 rounds, medians (replay >= 1.8x), the load
 average, and an Amdahl estimate to N cores.
@@ -28,7 +26,7 @@ import statistics
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -62,16 +60,53 @@ def actions_for(env_id: str, n: int, seed: int = 0) -> list[Any]:
 
 def run_steps(env: gym.Env[Any, Any], actions: list[Any]) -> float:
     """Seconds to step through `actions`, resetting (seeded) at episode ends."""
-    env.reset(seed=0)
-    episode = 0
+    loop = stepper(env)
     gc.collect()
     start = time.perf_counter()
-    for action in actions:
-        _, _, terminated, truncated, _ = env.step(action)
-        if terminated or truncated:
-            episode += 1
-            env.reset(seed=episode)
+    loop(actions)
     return time.perf_counter() - start
+
+
+def stepper(env: gym.Env[Any, Any]) -> Callable[[list[Any]], None]:
+    """Reset ``env`` (seed 0); a function that steps it through a slice of actions, resetting
+    (seeded 1, 2, ...) at episode ends, from where the previous slice left it."""
+    env.reset(seed=0)
+    episode = 0
+
+    def loop(actions: list[Any]) -> None:
+        nonlocal episode
+        for action in actions:
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                episode += 1
+                env.reset(seed=episode)
+
+    return loop
+
+
+def interleaved(
+    loops: Mapping[str, Callable[[Any], None]],
+    actions: Sequence[Any] | np.ndarray[Any, Any],
+    slice_steps: int,
+) -> dict[str, float]:
+    """Seconds each loop takes over ``actions``, the loops taking turns a slice at a time.
+
+    Each slice of ``slice_steps`` actions is stepped by every loop in turn (the order rotating
+    from slice to slice), each turn timed on its own: a slowdown of the host that lasts longer
+    than a slice (a few ms) lands on every side alike, where whole runs one after another each
+    meet a different host.
+    """
+    names = list(loops)
+    seconds = dict.fromkeys(names, 0.0)
+    gc.collect()
+    for k, start in enumerate(range(0, len(actions), slice_steps)):
+        chunk = actions[start : start + slice_steps]
+        turn = k % len(names)
+        for name in names[turn:] + names[:turn]:
+            t0 = time.perf_counter()
+            loops[name](chunk)
+            seconds[name] += time.perf_counter() - t0
+    return seconds
 
 
 def ratios(base: list[float], other: list[float]) -> dict[str, Any]:
@@ -105,38 +140,46 @@ def _recorded(env_id: str, path: Path, pure: bool) -> RecordEvidence[Any, Any]:
         del os.environ[PURE_PYTHON_ENV]
 
 
-def bench_record(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
-    """Interleaved runs over the same actions: bare, two reference wrappers, and recorded
-    with the compiled and the pure-Python step; medians of per-round ratios to bare."""
+def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict[str, Any]:
+    """Bare, two reference wrappers, and recorded with the compiled and the pure-Python step,
+    over the same actions, stepped in turns of ``slice_steps`` (:func:`interleaved`), a second
+    bare env among them for the A/A noise; medians of per-round ratios to bare."""
     actions = actions_for(env_id, steps)
     warm = RecordEvidence(gym.make(env_id), TMP / f"warm-{env_id}.mcap", overwrite=True)
     run_steps(warm, actions[: min(steps, 5000)])
     warm.close()
-    times: dict[str, list[float]] = {k: [] for k in ("bare", "wrapper", "stats", "pure", "rec")}
+    kinds = ("bare", "bare_again", "wrapper", "stats", "pure", "rec")
+    times: dict[str, list[float]] = {k: [] for k in kinds}
     size = 0
     for r in range(rounds):
-        times["bare"].append(run_steps(gym.make(env_id), actions))
-        times["wrapper"].append(run_steps(gym.Wrapper(gym.make(env_id)), actions))
-        stats = gym.wrappers.RecordEpisodeStatistics(gym.make(env_id))
-        times["stats"].append(run_steps(stats, actions))
+        paths = {kind: TMP / f"{env_id}-{kind}-{r}.mcap" for kind in ("pure", "rec")}
+        envs: dict[str, gym.Env[Any, Any]] = {
+            "bare": gym.make(env_id),
+            "bare_again": gym.make(env_id),
+            "wrapper": gym.Wrapper(gym.make(env_id)),
+            "stats": gym.wrappers.RecordEpisodeStatistics(gym.make(env_id)),
+            **{kind: _recorded(env_id, path, pure=kind == "pure") for kind, path in paths.items()},
+        }
+        seconds = interleaved({k: stepper(env) for k, env in envs.items()}, actions, slice_steps)
         for kind in ("pure", "rec"):
-            path = TMP / f"{env_id}-{kind}-{r}.mcap"
-            env = _recorded(env_id, path, pure=kind == "pure")
-            recorded = run_steps(env, actions)
             t0 = time.perf_counter()
-            env.close()
-            times[kind].append(recorded + time.perf_counter() - t0)
-            size = path.stat().st_size
+            envs[kind].close()
+            seconds[kind] += time.perf_counter() - t0
+        for kind in kinds:
+            times[kind].append(seconds[kind])
+        size = paths["rec"].stat().st_size
     bare_t = times["bare"]
     per_step = {k: statistics.median(v) / steps * 1e6 for k, v in times.items()}
     return {
         "env": env_id,
         "steps": steps,
         "rounds": rounds,
+        "slice_steps": slice_steps,
         "compiled_step": fast_compiled(),
         "bare_us_per_step": per_step["bare"],
         "recorded_us_per_step": per_step["rec"],
         **ratios(bare_t, times["rec"]),
+        **noise_floor(bare_t, times["bare_again"]),
         "pure_python_ratio_median": ratios(bare_t, times["pure"])["ratio_median"],
         "empty_wrapper_ratio_median": ratios(bare_t, times["wrapper"])["ratio_median"],
         "episode_statistics_ratio_median": ratios(bare_t, times["stats"])["ratio_median"],
@@ -161,13 +204,25 @@ def run_vector(envs: Any, actions: np.ndarray[Any, Any]) -> float:
     envs.reset(seed=0)
     gc.collect()
     start = time.perf_counter()
-    for action in actions:
-        envs.step(action)
+    vector_stepper(envs)(actions)
     return time.perf_counter() - start
 
 
-def bench_vector(num_envs: int, steps: int, rounds: int, mode: str = "sync") -> dict[str, Any]:
-    """Per-sub-env-step overhead of RecordVectorEvidence on a vector CartPole-v1 (interleaved)."""
+def vector_stepper(envs: Any) -> Callable[[np.ndarray[Any, Any]], None]:
+    """A function that steps ``envs`` through a slice of action rows (Gymnasium's autoreset)."""
+
+    def loop(actions: np.ndarray[Any, Any]) -> None:
+        for action in actions:
+            envs.step(action)
+
+    return loop
+
+
+def bench_vector(
+    num_envs: int, steps: int, rounds: int, slice_steps: int, mode: str = "sync"
+) -> dict[str, Any]:
+    """Per-sub-env-step overhead of RecordVectorEvidence on a vector CartPole-v1, bare and
+    recorded (and bare again, for the A/A noise) taking turns a slice at a time."""
     actions = np.random.default_rng(0).integers(0, 2, size=(steps, num_envs))
 
     def make() -> Any:
@@ -176,32 +231,42 @@ def bench_vector(num_envs: int, steps: int, rounds: int, mode: str = "sync") -> 
     warm = RecordVectorEvidence(make(), TMP / "warm-vector.mcap", overwrite=True)
     run_vector(warm, actions[: min(steps, 1000)])
     warm.close()
-    bare_t, rec_t = [], []
+    times: dict[str, list[float]] = {"bare": [], "bare_again": [], "rec": []}
     size = 0
     for r in range(rounds):
-        envs = make()
-        bare = run_vector(envs, actions)
-        envs.close()
         path = TMP / f"vector-{r}.mcap"
-        rec = RecordVectorEvidence(make(), path, overwrite=True)
-        recorded = run_vector(rec, actions)
+        envs = {
+            "bare": make(),
+            "bare_again": make(),
+            "rec": RecordVectorEvidence(make(), path, overwrite=True),
+        }
+        for env in envs.values():
+            env.reset(seed=0)
+        seconds = interleaved(
+            {k: vector_stepper(env) for k, env in envs.items()}, actions, slice_steps
+        )
         t0 = time.perf_counter()
-        rec.close()
-        recorded += time.perf_counter() - t0
+        envs["rec"].close()
+        seconds["rec"] += time.perf_counter() - t0
+        envs["bare"].close()
+        envs["bare_again"].close()
         size = path.stat().st_size
-        bare_t.append(bare)
-        rec_t.append(recorded)
+        for kind, t in seconds.items():
+            times[kind].append(t)
+    bare_t, rec_t = times["bare"], times["rec"]
     sub_steps = steps * num_envs
     return {
         "env": f"CartPole-v1 x{num_envs} ({mode})",
         "vector_steps": steps,
         "rounds": rounds,
+        "slice_steps": slice_steps,
         "bare_us_per_sub_env_step": statistics.median(bare_t) / sub_steps * 1e6,
         "recorded_us_per_sub_env_step": statistics.median(rec_t) / sub_steps * 1e6,
         "overhead_us_per_sub_env_step": statistics.median(
             [(rt - bt) / sub_steps * 1e6 for rt, bt in zip(rec_t, bare_t, strict=True)]
         ),
         **ratios(bare_t, rec_t),
+        **noise_floor(bare_t, times["bare_again"]),
         "bytes_per_sub_env_step": size / sub_steps,
     }
 
@@ -534,11 +599,12 @@ def bench_state(rounds: int = 200) -> list[dict[str, Any]]:
 
 BENCHES: dict[str, Callable[[], Any]] = {
     "record": lambda: [
-        bench_record("CartPole-v1", 200_000, 7),
-        bench_record("Reacher-v5", 30_000, 7),
-        bench_record("HalfCheetah-v5", 30_000, 7),
+        # slices of ~5 ms of bare stepping
+        bench_record("CartPole-v1", 200_000, 7, 1000),
+        bench_record("Reacher-v5", 30_000, 7, 200),
+        bench_record("HalfCheetah-v5", 30_000, 7, 200),
     ],
-    "vector": lambda: bench_vector(8, 25_000, 7),
+    "vector": lambda: bench_vector(8, 25_000, 7, 100),
     "memory": lambda: bench_memory(1_000_000),
     "check": lambda: bench_check(1_000_000, 5),
     # 41 interleaved rounds: on a shared VM one round's ratio moves by +-10 %
