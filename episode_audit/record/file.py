@@ -258,6 +258,9 @@ class EvidenceFile:
         """
         if self.started:
             raise RecorderError(f"{self.path}: the evidence file is already started")
+        # pyarrow imports pandas (when installed) at its first conversion: 0.3-1 s, paid here
+        # rather than in the training loop at the first flush
+        pa.array([0])
         writer = self.writer
         try:
             self._episodes_channel = writer.register_json_channel(

@@ -168,6 +168,26 @@ class _OpenChunk:
         stats.message_count += len(datas)
 
 
+def ipc_stream(batch: pa.RecordBatch) -> pa.Buffer:
+    """``batch`` as a self-contained Arrow IPC stream (schema, batch, end), in one buffer.
+
+    The stream is measured first and written into a buffer of its size: a growing output
+    stream copies itself as it grows, into fresh pages each time (about 3x slower for a block
+    of steps, in the recorder's flush).
+
+    >>> batch = pa.record_batch([pa.array([1, 2])], names=["x"])
+    >>> pa.ipc.open_stream(ipc_stream(batch)).read_all().column("x").to_pylist()
+    [1, 2]
+    """
+    size = pa.MockOutputStream()
+    with pa.ipc.new_stream(size, batch.schema) as ipc:
+        ipc.write_batch(batch)
+    buffer = pa.allocate_buffer(size.size())
+    with pa.ipc.new_stream(pa.FixedSizeBufferWriter(buffer), batch.schema) as ipc:
+        ipc.write_batch(batch)
+    return buffer
+
+
 def _widen(times: Any, count: int, first: int, last: int) -> None:
     """Widen the message times of ``times`` (``count`` messages so far), as ``add_message``.
 
@@ -328,10 +348,7 @@ class EvidenceWriter:
     def write_batch(self, channel_id: int, batch: pa.RecordBatch, log_time: int) -> int:
         """Write one record batch as a self-contained Arrow IPC stream; returns its byte size."""
         self._check_open()
-        sink = pa.BufferOutputStream()
-        with pa.ipc.new_stream(sink, batch.schema) as ipc:
-            ipc.write_batch(batch)
-        data = memoryview(sink.getvalue())  # (the chunk copies it: no bytes copy before that)
+        data = memoryview(ipc_stream(batch))  # (the chunk copies it: no bytes copy before that)
         self._add(channel_id, data, log_time)
         self._staged_rows[channel_id] += batch.num_rows
         return len(data)
