@@ -150,7 +150,6 @@ def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict
     warm.close()
     kinds = ("bare", "bare_again", "wrapper", "stats", "pure", "rec")
     times: dict[str, list[float]] = {k: [] for k in kinds}
-    size = 0
     for r in range(rounds):
         paths = {kind: TMP / f"{env_id}-{kind}-{r}.mcap" for kind in ("pure", "rec")}
         envs: dict[str, gym.Env[Any, Any]] = {
@@ -167,7 +166,12 @@ def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict
             seconds[kind] += time.perf_counter() - t0
         for kind in kinds:
             times[kind].append(seconds[kind])
-        size = paths["rec"].stat().st_size
+    # the file's size from a run alone: interleaved, a recorder gets a sixth of the steps
+    # between its flushes (every second), so its blocks are smaller than a real run's
+    alone = _recorded(env_id, TMP / f"{env_id}-alone.mcap", pure=False)
+    run_steps(alone, actions)
+    alone.close()
+    size = alone.path.stat().st_size
     bare_t = times["bare"]
     per_step = {k: statistics.median(v) / steps * 1e6 for k, v in times.items()}
     return {
@@ -232,7 +236,6 @@ def bench_vector(
     run_vector(warm, actions[: min(steps, 1000)])
     warm.close()
     times: dict[str, list[float]] = {"bare": [], "bare_again": [], "rec": []}
-    size = 0
     for r in range(rounds):
         path = TMP / f"vector-{r}.mcap"
         envs = {
@@ -250,9 +253,12 @@ def bench_vector(
         seconds["rec"] += time.perf_counter() - t0
         envs["bare"].close()
         envs["bare_again"].close()
-        size = path.stat().st_size
         for kind, t in seconds.items():
             times[kind].append(t)
+    alone = RecordVectorEvidence(make(), TMP / "vector-alone.mcap", overwrite=True)
+    run_vector(alone, actions)  # (the file's size from a run alone, as in bench_record)
+    alone.close()
+    size = alone.path.stat().st_size
     bare_t, rec_t = times["bare"], times["rec"]
     sub_steps = steps * num_envs
     return {
