@@ -80,6 +80,24 @@ static Py_ssize_t slot_offset(PyTypeObject *type, const char *name)
     return offset;
 }
 
+/* The offset of `type`'s object slot `name`, or -1 when it has none by that name (an error
+   set only when the lookup itself failed otherwise). */
+static Py_ssize_t member_offset(PyTypeObject *type, PyObject *name)
+{
+    PyObject *descr = PyObject_GetAttr((PyObject *)type, name);
+    if (descr == NULL) {
+        if (PyErr_ExceptionMatches(PyExc_AttributeError))
+            PyErr_Clear();
+        return -1;
+    }
+    Py_ssize_t offset = -1;
+    if (Py_IS_TYPE(descr, &PyMemberDescr_Type) &&
+        ((PyMemberDescrObject *)descr)->d_member->type == T_OBJECT_EX)
+        offset = ((PyMemberDescrObject *)descr)->d_member->offset;
+    Py_DECREF(descr);
+    return offset;
+}
+
 /* ------------------------------------------------------------------ array.array, checked */
 
 static int layout_ok(void)
@@ -249,6 +267,11 @@ static void commit_value(Pending *p)
 
 /* ------------------------------------------------------------------ the step */
 
+/* The stream attributes the step reads every time. */
+enum { S_EPISODE, S_BLOCK, S_TERMS_KEYS, S_TERMS_NAMES, S_BLOCK_STEPS, S_COUNT };
+static PyObject **stream_names[S_COUNT] = {&s_episode, &s_block, &s_terms_keys, &s_terms_names,
+                                           &s_block_steps};
+
 typedef struct {
     PyObject_HEAD
     PyObject *stream;
@@ -259,7 +282,21 @@ typedef struct {
     Py_ssize_t compiled_steps; /* steps recorded here */
     Py_ssize_t python_steps;   /* steps handed to the Python path */
     Py_ssize_t compiled_resets; /* resets recorded here (begin and reset_row) */
+    Py_ssize_t stream_off[S_COUNT]; /* the stream's slots read per step (-1: looked up) */
 } StepRecorder;
+
+/* A stream attribute read per step (a new reference; NULL with an error): from its slot when
+   the stream's class has one (Stream's __slots__), else looked up by name. */
+static PyObject *stream_attr(StepRecorder *self, int which)
+{
+    Py_ssize_t off = self->stream_off[which];
+    if (off >= 0) {
+        PyObject *value = SLOT(self->stream, off);
+        if (value != NULL)
+            return Py_NewRef(value);
+    }
+    return PyObject_GetAttr(self->stream, *stream_names[which]);
+}
 
 static PyObject *python_step(StepRecorder *self, PyObject *action, PyObject *result)
 {
@@ -316,11 +353,11 @@ static int flush_if_due(StepRecorder *self, long long now, int full)
 
 /* The terms of `info` as the stream's plan reads them: their count in *count, their values
    in values, the names tuple (borrowed) in *names; 1 ok, 0 the Python path decides. */
-static int read_terms(PyObject *stream, PyObject *info, double *values, Py_ssize_t *count,
+static int read_terms(StepRecorder *self, PyObject *info, double *values, Py_ssize_t *count,
                       PyObject **names_out)
 {
     int ok = 0;
-    PyObject *keys = PyObject_GetAttr(stream, s_terms_keys), *names = NULL;
+    PyObject *keys = stream_attr(self, S_TERMS_KEYS), *names = NULL;
     if (keys == NULL || !PyTuple_CheckExact(keys) ||
         PyTuple_GET_SIZE(keys) != PyDict_GET_SIZE(info))
         goto done;
@@ -334,7 +371,7 @@ static int read_terms(PyObject *stream, PyObject *info, double *values, Py_ssize
                 goto done;
         }
     }
-    names = PyObject_GetAttr(stream, s_terms_names);
+    names = stream_attr(self, S_TERMS_NAMES);
     if (names == NULL || !PyTuple_CheckExact(names) || PyTuple_GET_SIZE(names) > MAX_TERMS)
         goto done;
     Py_ssize_t k = PyTuple_GET_SIZE(names);
@@ -511,14 +548,14 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     Py_ssize_t nterms = 0;
     Pending obs_p = {0}, act_p = {0};
 
-    episode = PyObject_GetAttr(stream, s_episode);
-    block = PyObject_GetAttr(stream, s_block);
+    episode = stream_attr(self, S_EPISODE);
+    block = stream_attr(self, S_BLOCK);
     if (episode == NULL || block == NULL)
         goto python;
     if (!Py_IS_TYPE(episode, episode_type) || SLOT(episode, off_ep[E_ENDED]) != Py_False ||
         !Py_IS_TYPE(block, block_type))
         goto python;
-    if (PyDict_GET_SIZE(info) && !read_terms(stream, info, terms, &nterms, &names))
+    if (PyDict_GET_SIZE(info) && !read_terms(self, info, terms, &nterms, &names))
         goto python;
     PyObject *rewards = SLOT(block, off_rewards), *times = SLOT(block, off_times);
     PyObject *term_vals = SLOT(block, off_term_vals), *term_rows = SLOT(block, off_term_rows),
@@ -574,7 +611,7 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
         if (plain < 0)
             goto done;
     }
-    PyObject *limit = PyObject_GetAttr(stream, s_block_steps);
+    PyObject *limit = stream_attr(self, S_BLOCK_STEPS);
     if (limit == NULL)
         goto done;
     Py_ssize_t block_steps = PyLong_AsSsize_t(limit);
@@ -629,8 +666,8 @@ static PyObject *StepRecorder_begin(StepRecorder *self, PyObject *seed)
         PyErr_Clear();
         Py_RETURN_NONE;
     }
-    episode = PyObject_GetAttr(stream, s_episode);
-    block = episode == NULL ? NULL : PyObject_GetAttr(stream, s_block);
+    episode = stream_attr(self, S_EPISODE);
+    block = episode == NULL ? NULL : stream_attr(self, S_BLOCK);
     next = block == NULL ? NULL : PyObject_GetAttr(self->file, s_next_episode);
     env_index = next == NULL ? NULL : PyObject_GetAttr(stream, s_env_index);
     agent = env_index == NULL ? NULL : PyObject_GetAttr(stream, s_agent);
@@ -720,7 +757,7 @@ static PyObject *StepRecorder_reset_row(StepRecorder *self, PyObject *const *arg
         PyTuple_GET_SIZE(result) != 2 || !PyDict_CheckExact(PyTuple_GET_ITEM(result, 1)) ||
         SLOT(episode, off_ep[E_RNG_JSON]) != Py_None)
         Py_RETURN_NONE;
-    block = PyObject_GetAttr(self->stream, s_block);
+    block = stream_attr(self, S_BLOCK);
     if (block == NULL)
         return NULL;
     PyObject *resets = SLOT(block, off_resets);
@@ -787,6 +824,13 @@ static PyObject *StepRecorder_new(PyTypeObject *type, PyObject *args, PyObject *
         return NULL;
     self->vectorcall = StepRecorder_vectorcall;
     self->stream = Py_NewRef(stream);
+    for (int i = 0; i < S_COUNT; i++) {
+        self->stream_off[i] = member_offset(Py_TYPE(stream), *stream_names[i]);
+        if (self->stream_off[i] < 0 && PyErr_Occurred()) {
+            Py_DECREF(self);
+            return NULL;
+        }
+    }
     self->fallback = PyObject_GetAttr(stream, s_step);
     self->file = self->fallback ? PyObject_GetAttr(stream, s_file) : NULL;
     self->clock = self->file ? PyObject_GetAttr(stream, s_clock) : NULL;

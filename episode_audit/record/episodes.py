@@ -62,6 +62,41 @@ class EpisodeStream:
     constructor sets up the whole stream, what :class:`~.stream.Stream`'s steps read included.
     """
 
+    # slots: the compiled step reads episode, block, _block_steps and the terms plan from them
+    __slots__ = (
+        "_act_codec",
+        "_block_steps",
+        "_clock",
+        "_ending_keys",
+        "_extract_terms",
+        "_flag_endings",
+        "_info_keys",
+        "_keep_all_info",
+        "_max_steps",
+        "_obs_codec",
+        "_reset_extra",
+        "_reset_schema",
+        "_resets_channel",
+        "_rules",
+        "_step_schema",
+        "_steps_channel",
+        "_terms_get",
+        "_terms_keys",
+        "_terms_names",
+        "_terms_one",
+        "_terms_plans",
+        "_terms_rule",
+        "_time_limit",
+        "_track_info",
+        "agent",
+        "block",
+        "channels",
+        "env_index",
+        "episode",
+        "file",
+        "row_bytes",
+    )
+
     def __init__(
         self,
         file: StreamFile,

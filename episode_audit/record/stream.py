@@ -29,6 +29,8 @@ class Stream(EpisodeStream):
     by :meth:`end_open` (``incomplete``) or by :meth:`end_error`.
     """
 
+    __slots__ = ()
+
     # ------------------------------------------------------------------ steps
 
     def step(self, action: Any, result: Any) -> None:
