@@ -23,6 +23,7 @@
 
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
 #include <numpy/arrayobject.h>
+#include <numpy/arrayscalars.h>
 
 #define MAX_TERMS 64
 
@@ -188,19 +189,24 @@ static int plan_value(PyObject *buffer, PyObject *value, Pending *p)
         PyObject *data = SLOT(buffer, off_int_data), *n_obj = SLOT(buffer, off_int_n);
         if (data == NULL || n_obj == NULL || !PyArray_CheckExact(data) || !PyLong_CheckExact(n_obj))
             return 0;
-        if (!PyLong_CheckExact(value) && !PyArray_IsScalar(value, Integer))
-            return 0;
-        PyObject *index = PyNumber_Index(value);
-        if (index == NULL) {
-            PyErr_Clear();
-            return 0;
-        }
-        int overflow = 0;
-        long long number = PyLong_AsLongLongAndOverflow(index, &overflow);
-        Py_DECREF(index);
-        if (overflow || (number == -1 && PyErr_Occurred())) {
-            PyErr_Clear();
-            return 0;
+        long long number;
+        if (PyArray_IsScalar(value, Int64)) { /* (Discrete.sample()'s): its value, no int made */
+            number = PyArrayScalar_VAL(value, Int64);
+        } else {
+            if (!PyLong_CheckExact(value) && !PyArray_IsScalar(value, Integer))
+                return 0;
+            PyObject *index = PyNumber_Index(value);
+            if (index == NULL) {
+                PyErr_Clear();
+                return 0;
+            }
+            int overflow = 0;
+            number = PyLong_AsLongLongAndOverflow(index, &overflow);
+            Py_DECREF(index);
+            if (overflow || (number == -1 && PyErr_Occurred())) {
+                PyErr_Clear();
+                return 0;
+            }
         }
         Py_ssize_t n = PyLong_AsSsize_t(n_obj);
         PyArrayObject *block = (PyArrayObject *)data;
@@ -268,9 +274,9 @@ static void commit_value(Pending *p)
 /* ------------------------------------------------------------------ the step */
 
 /* The stream attributes the step reads every time. */
-enum { S_EPISODE, S_BLOCK, S_TERMS_KEYS, S_TERMS_NAMES, S_BLOCK_STEPS, S_COUNT };
-static PyObject **stream_names[S_COUNT] = {&s_episode, &s_block, &s_terms_keys, &s_terms_names,
-                                           &s_block_steps};
+enum { S_EPISODE, S_BLOCK, S_TERMS_KEYS, S_TERMS_NAMES, S_BLOCK_STEPS, S_FLUSH_AT, S_COUNT };
+static PyObject **stream_names[S_COUNT] = {&s_episode,     &s_block,       &s_terms_keys,
+                                           &s_terms_names, &s_block_steps, &s_flush_at};
 
 typedef struct {
     PyObject_HEAD
@@ -305,6 +311,20 @@ static PyObject *python_step(StepRecorder *self, PyObject *action, PyObject *res
     return PyObject_Vectorcall(self->fallback, args, 2, NULL);
 }
 
+/* An int as a long long: 0, or -1 with an error (too large, or not an int). Not
+   PyLong_AsLongLong, which reads an int of more than one digit (a time in ns) through a byte
+   array: ~250 instructions, where this digit loop takes ~20. */
+static int as_long_long(PyObject *value, long long *out)
+{
+    int overflow = 0;
+    *out = PyLong_AsLongLongAndOverflow(value, &overflow);
+    if (overflow) {
+        PyErr_SetString(PyExc_OverflowError, "int too large for a 64-bit time");
+        return -1;
+    }
+    return (*out == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
 /* Read `clock` (time.monotonic_ns read here, any other clock called): 0, or -1 on an error. */
 static int call_clock(PyObject *clock, long long *now)
 {
@@ -318,9 +338,9 @@ static int call_clock(PyObject *clock, long long *now)
     PyObject *value = PyObject_CallNoArgs(clock);
     if (value == NULL)
         return -1;
-    *now = PyLong_AsLongLong(value);
+    int failed = as_long_long(value, now);
     Py_DECREF(value);
-    return (*now == -1 && PyErr_Occurred()) ? -1 : 0;
+    return failed;
 }
 
 /* The stream's clock (Stream._clock). */
@@ -334,12 +354,13 @@ static int read_clock(StepRecorder *self, long long *now)
 static int flush_if_due(StepRecorder *self, long long now, int full)
 {
     if (!full) {
-        PyObject *flush_at = PyObject_GetAttr(self->file, s_flush_at);
+        PyObject *flush_at = stream_attr(self, S_FLUSH_AT); /* (the file's, kept by it) */
         if (flush_at == NULL)
             return -1;
-        long long at = PyLong_AsLongLong(flush_at);
+        long long at;
+        int failed = as_long_long(flush_at, &at);
         Py_DECREF(flush_at);
-        if (at == -1 && PyErr_Occurred())
+        if (failed)
             return -1;
         if (now < at)
             return 0;

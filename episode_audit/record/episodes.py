@@ -62,7 +62,7 @@ class EpisodeStream:
     constructor sets up the whole stream, what :class:`~.stream.Stream`'s steps read included.
     """
 
-    # slots: the compiled step reads episode, block, _block_steps and the terms plan from them
+    # slots: the compiled step reads episode, block, _block_steps, flush_at and the terms plan
     __slots__ = (
         "_act_codec",
         "_block_steps",
@@ -94,6 +94,7 @@ class EpisodeStream:
         "env_index",
         "episode",
         "file",
+        "flush_at",
         "row_bytes",
     )
 
@@ -161,6 +162,8 @@ class EpisodeStream:
         """The stream's step and reset channels."""
         self.episode: Episode | None = None
         self.block = Block(obs_codec, act_codec, None)
+        self.flush_at = file.flush_at
+        """The file's ``flush_at``, kept here by the file (read on every step)."""
 
     # ------------------------------------------------------------------ episodes
 

@@ -248,6 +248,22 @@ class EvidenceFile:
             _OPEN_RECORDERS.add(owner)
         self._owner = owner
 
+    @property
+    def flush_at(self) -> int:
+        """When (:attr:`clock`, ns) the next flush is due.
+
+        ``flush_every_s`` after the last flush, or 0 when a flush from another thread was left
+        to the end of a step. Each stream keeps a copy (``Stream.flush_at``, a slot its
+        compiled step reads), set here.
+        """
+        return self._flush_at
+
+    @flush_at.setter
+    def flush_at(self, at: int) -> None:
+        self._flush_at = at
+        for stream in self.streams:
+            stream.flush_at = at
+
     def start(self) -> None:
         """Register the episode channels (after every stream's) and flush the file's head.
 

@@ -81,7 +81,7 @@ class Stream(EpisodeStream):
         block.times.append(now)  # commits the row
         if not running:
             self._end_by_flags(episode, block, row, terminated, truncated, info)
-        if row + 1 >= self._block_steps or now >= self.file.flush_at:
+        if row + 1 >= self._block_steps or now >= self.flush_at:
             self.file.auto_flush()
 
     def _plan_terms(self, keys: tuple[Any, ...]) -> None:
@@ -162,5 +162,5 @@ class Stream(EpisodeStream):
             self._end_by_flags(
                 episode, block, rows, *raw_flags, info if isinstance(info, Mapping) else {}
             )
-        if len(block.times) >= self._block_steps or now >= file.flush_at:
+        if len(block.times) >= self._block_steps or now >= self.flush_at:
             file.auto_flush()
