@@ -60,6 +60,7 @@ def child(kind: str, env_id: str, steps: int, out: str) -> None:
     env: Any = gym.make(env_id)
     if kind == "recorded":
         env = RecordEvidence(env, out, overwrite=True, flush_every_s=1e9)
+    _steady_heap()
     env.reset(seed=0)
     episode = 0
     for action in actions:
@@ -68,6 +69,16 @@ def child(kind: str, env_id: str, steps: int, out: str) -> None:
             episode += 1
             env.reset(seed=episode)
     env.close()
+
+
+def _steady_heap() -> None:
+    """Collect, then freeze what start-up made (imports, envs, recorder) out of the garbage
+    collector's passes: a full collection over it costs millions of instructions, and landing
+    in one child's loop and not the other's it moved a per-step figure by thousands."""
+    import gc
+
+    gc.collect()
+    gc.freeze()
 
 
 def vector_child(kind: str, env_id: str, num_envs: int, steps: int, out: str) -> None:
@@ -83,6 +94,7 @@ def vector_child(kind: str, env_id: str, num_envs: int, steps: int, out: str) ->
     actions = [np.asarray(space.sample()) for _ in range(steps)]
     if kind == "recorded":
         envs = RecordVectorEvidence(envs, out, overwrite=True, flush_every_s=1e9)
+    _steady_heap()
     envs.reset(seed=0)
     for action in actions:
         envs.step(action)
