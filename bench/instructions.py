@@ -72,13 +72,13 @@ def child(kind: str, env_id: str, steps: int, out: str) -> None:
 
 
 def _steady_heap() -> None:
-    """Collect, then freeze what start-up made (imports, envs, recorder) out of the garbage
-    collector's passes: a full collection over it costs millions of instructions, and landing
-    in one child's loop and not the other's it moved a per-step figure by thousands."""
+    """Collect, then switch the garbage collector off for the loop: its full passes over the
+    start-up heap, landing in one child's loop and not the other's, moved a per-step figure by
+    thousands of instructions. (The counts leave out the collector's work.)"""
     import gc
 
     gc.collect()
-    gc.freeze()
+    gc.disable()
 
 
 def vector_child(kind: str, env_id: str, num_envs: int, steps: int, out: str) -> None:
