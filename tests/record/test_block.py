@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -15,35 +14,28 @@ import episode_audit.record.block as block_module
 from episode_audit import RecordEvidence, open_evidence
 from episode_audit.format.columns import text_array
 from episode_audit.record.block import repeated_text, uniform_names
+from tests.support.envs import ScriptedEnv
 
 
-class _Terms(gym.Env[np.ndarray, np.int64]):
-    """Reward terms on every step: the same names, or (``changing``) names that change."""
+def _terms_step(changing: bool) -> Any:
+    """A step with reward terms: the same names every time, or (``changing``) other names, in
+    another order, on every third step."""
 
-    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
-    action_space = gym.spaces.Discrete(2)
-
-    def __init__(self, changing: bool = False) -> None:
-        self.changing = changing
-        self.t = 0
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
-        super().reset(seed=seed)
-        self.t = 0
-        return np.zeros(2, np.float32), {}
-
-    def step(self, action: Any) -> Any:
-        self.t += 1
-        a, b = self.np_random.uniform(-1, 1, 2)
+    def step(env: ScriptedEnv, action: Any) -> Any:
+        a, b = env.np_random.uniform(-1, 1, 2)
         terms = {"reward_dist": a, "reward_ctrl": b}
-        if self.changing and self.t % 3 == 0:
-            terms = {"reward_ctrl": b, "reward_extra": a}  # other names, another order
-        obs = np.full(2, self.t / 100, np.float32)
-        return obs, float(sum(terms.values())), self.t >= 7, False, terms
+        if changing and env.t % 3 == 0:
+            terms = {"reward_ctrl": b, "reward_extra": a}
+        obs = np.full(2, env.t / 100, np.float32)
+        return obs, float(sum(terms.values())), env.t >= 7, False, terms
+
+    return step
 
 
 def _record(path: Path, changing: bool) -> None:
-    with RecordEvidence(_Terms(changing), path, block_steps=16, flush_every_s=3600) as env:
+    with RecordEvidence(
+        ScriptedEnv(_terms_step(changing)), path, block_steps=16, flush_every_s=3600
+    ) as env:
         for episode in range(9):
             env.reset(seed=episode)
             done = False
