@@ -64,23 +64,6 @@ static PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_st
 
 #define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
 
-static Py_ssize_t slot_offset(PyTypeObject *type, const char *name)
-{
-    PyObject *descr = PyObject_GetAttrString((PyObject *)type, name);
-    Py_ssize_t offset = -1;
-    if (descr == NULL)
-        return -1;
-    if (Py_IS_TYPE(descr, &PyMemberDescr_Type)) {
-        PyMemberDef *member = ((PyMemberDescrObject *)descr)->d_member;
-        if (member->type == T_OBJECT_EX || member->type == T_OBJECT)
-            offset = member->offset;
-    }
-    Py_DECREF(descr);
-    if (offset < 0)
-        PyErr_Format(PyExc_TypeError, "%s.%s is not an object slot", type->tp_name, name);
-    return offset;
-}
-
 /* The offset of `type`'s object slot `name`, or -1 when it has none by that name (an error
    set only when the lookup itself failed otherwise). */
 static Py_ssize_t member_offset(PyTypeObject *type, PyObject *name)
@@ -96,6 +79,19 @@ static Py_ssize_t member_offset(PyTypeObject *type, PyObject *name)
         ((PyMemberDescrObject *)descr)->d_member->type == T_OBJECT_EX)
         offset = ((PyMemberDescrObject *)descr)->d_member->offset;
     Py_DECREF(descr);
+    return offset;
+}
+
+/* The offset of `type`'s object slot `name`; -1 with a TypeError when it has none. */
+static Py_ssize_t slot_offset(PyTypeObject *type, const char *name)
+{
+    PyObject *text = PyUnicode_InternFromString(name);
+    if (text == NULL)
+        return -1;
+    Py_ssize_t offset = member_offset(type, text);
+    Py_DECREF(text);
+    if (offset < 0 && !PyErr_Occurred())
+        PyErr_Format(PyExc_TypeError, "%s.%s is not an object slot", type->tp_name, name);
     return offset;
 }
 
@@ -341,12 +337,6 @@ static int call_clock(PyObject *clock, long long *now)
     int failed = as_long_long(value, now);
     Py_DECREF(value);
     return failed;
-}
-
-/* The stream's clock (Stream._clock). */
-static int read_clock(StepRecorder *self, long long *now)
-{
-    return call_clock(self->clock, now);
 }
 
 /* Flush the file (auto_flush) when `full`, or when its flush is due at `now` (EvidenceFile.due);
@@ -596,7 +586,7 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     Py_ssize_t row = Py_SIZE(times);
     if (row != obs_p.n || row != act_p.n || row != Py_SIZE(rewards))
         goto python; /* (columns not aligned: never, but the Python path would cope) */
-    if (read_clock(self, &now) < 0)
+    if (call_clock(self->clock, &now) < 0) /* (the stream's clock) */
         goto python;
     /* Everything checked: record the row (the time last: it commits the row). */
     if (nterms) {
