@@ -429,18 +429,15 @@ static PyObject *limit_hit(PyObject *stream, PyObject *block)
     return hit;
 }
 
-/* The common ending, as EpisodeStream._end_by_flags (with _end_as and end_episode) records it:
-   a final step whose info holds none of the ending rules' keys ends as the stream's
-   _flag_endings table says for its flags and whether the time limit was hit (the stream's
-   _limit_hit, in Python). 1: recorded; 0: the Python method decides (nothing was changed);
-   -1: an error (raised, as from the Python method). */
-static int end_plain(PyObject *stream, PyObject *episode, PyObject *block, PyObject *row_obj,
-                     PyObject *terminated, PyObject *truncated, PyObject *info)
+/* The plain ending of a final step, as EpisodeStream._end_by_flags finds it: when its info holds
+   none of the ending rules' keys, the stream's _flag_endings table's entry for its flags and
+   whether the time limit was hit (the stream's _limit_hit, in Python). A new reference to an
+   (outcome, failure_label, truncation_reason) tuple; NULL with no error set when the case is
+   not plain (the Python method decides), NULL with an error set on an error. */
+static PyObject *plain_ending(PyObject *stream, PyObject *block, PyObject *terminated,
+                              PyObject *truncated, PyObject *info)
 {
-    int done = 0;
-    PyObject *table = NULL, *keys = NULL, *hit = NULL, *key = NULL, *file = NULL,
-             *pending = NULL, *counts = NULL, *ends_value = NULL, *flags_value = NULL,
-             *ending = NULL, *pair = NULL, *count = NULL;
+    PyObject *table = NULL, *keys = NULL, *hit = NULL, *key = NULL, *plain = NULL;
     table = PyObject_GetAttr(stream, s_flag_endings);
     keys = table == NULL ? NULL : PyObject_GetAttr(stream, s_ending_keys);
     if (keys == NULL) {
@@ -459,24 +456,31 @@ static int end_plain(PyObject *stream, PyObject *episode, PyObject *block, PyObj
         }
     }
     hit = limit_hit(stream, block);
-    if (hit == NULL) {
-        done = -1;
-        goto out;
-    }
-    if (!PyBool_Check(hit))
-        goto out;
+    if (hit == NULL || !PyBool_Check(hit))
+        goto out; /* (an error stays set) */
     key = PyTuple_Pack(3, terminated, truncated, hit);
-    if (key == NULL) {
-        done = -1;
-        goto out;
-    }
-    PyObject *plain = PyDict_GetItemWithError(table, key); /* borrowed */
-    if (plain == NULL) {
-        done = PyErr_Occurred() ? -1 : 0;
-        goto out;
-    }
-    if (!PyTuple_Check(plain) || PyTuple_GET_SIZE(plain) != 3)
-        goto out;
+    plain = key == NULL ? NULL : PyDict_GetItemWithError(table, key); /* borrowed */
+    if (plain != NULL && (!PyTuple_Check(plain) || PyTuple_GET_SIZE(plain) != 3))
+        plain = NULL;
+    Py_XINCREF(plain);
+out:
+    Py_XDECREF(table);
+    Py_XDECREF(keys);
+    Py_XDECREF(hit);
+    Py_XDECREF(key);
+    return plain;
+}
+
+/* Record the ending `plain` (from plain_ending) of `episode` at its step `row_obj`, as
+   EpisodeStream._end_as and end_episode do: the block's ends and flags, the episode ended,
+   pending in its file, the file's episode count. 1: recorded; 0: the Python method decides
+   (nothing was changed); -1: an error. */
+static int record_ending(PyObject *stream, PyObject *episode, PyObject *block, PyObject *row_obj,
+                         PyObject *terminated, PyObject *truncated, PyObject *plain)
+{
+    int done = 0;
+    PyObject *file = NULL, *pending = NULL, *counts = NULL, *ends_value = NULL,
+             *flags_value = NULL, *ending = NULL, *pair = NULL, *count = NULL;
     PyObject *outcome = PyTuple_GET_ITEM(plain, 0), *failure_label = PyTuple_GET_ITEM(plain, 1),
              *truncation_reason = PyTuple_GET_ITEM(plain, 2);
     PyObject *ends = SLOT(block, off_ends), *flags = SLOT(block, off_flags);
@@ -506,6 +510,7 @@ static int end_plain(PyObject *stream, PyObject *episode, PyObject *block, PyObj
         goto out;
     }
     count = PyLong_FromSsize_t(so_far + 1);
+    done = -1;
     if (ends_value == NULL || flags_value == NULL || ending == NULL || count == NULL ||
         PyDict_SetItem(ending, s_outcome, outcome) < 0 ||
         PyDict_SetItem(ending, s_failure_label, failure_label) < 0 ||
@@ -513,26 +518,15 @@ static int end_plain(PyObject *stream, PyObject *episode, PyObject *block, PyObj
         PyDict_SetItem(ending, s_terminated, terminated) < 0 ||
         PyDict_SetItem(ending, s_truncated, truncated) < 0 ||
         PyDict_SetItem(ending, s_error, Py_None) < 0 ||
-        (pair = PyTuple_Pack(2, episode, ending)) == NULL) {
-        done = -1;
+        (pair = PyTuple_Pack(2, episode, ending)) == NULL ||
+        PyDict_SetItem(ends, row_obj, ends_value) < 0 ||
+        PyDict_SetItem(flags, row_obj, flags_value) < 0)
         goto out;
-    }
-    if (PyDict_SetItem(ends, row_obj, ends_value) < 0 ||
-        PyDict_SetItem(flags, row_obj, flags_value) < 0) {
-        done = -1;
-        goto out;
-    }
     Py_SETREF(SLOT(episode, off_ep[E_ENDED]), Py_NewRef(Py_True));
-    if (PyList_Append(pending, pair) < 0 || PyDict_SetItem(counts, s_episodes, count) < 0) {
-        done = -1;
+    if (PyList_Append(pending, pair) < 0 || PyDict_SetItem(counts, s_episodes, count) < 0)
         goto out;
-    }
     done = 1;
 out:
-    Py_XDECREF(table);
-    Py_XDECREF(keys);
-    Py_XDECREF(hit);
-    Py_XDECREF(key);
     Py_XDECREF(file);
     Py_XDECREF(pending);
     Py_XDECREF(counts);
@@ -542,6 +536,47 @@ out:
     Py_XDECREF(pair);
     Py_XDECREF(count);
     return done;
+}
+
+/* End `episode` by the flags of its step `row` (one of them true): its plain ending recorded
+   here, any other by the stream's _end_by_flags. 0, or -1 on an error. */
+static int end_by_flags(PyObject *stream, PyObject *episode, PyObject *block, Py_ssize_t row,
+                        PyObject *terminated, PyObject *truncated, PyObject *info)
+{
+    PyObject *row_obj = PyLong_FromSsize_t(row);
+    if (row_obj == NULL)
+        return -1;
+    int done = 0;
+    PyObject *plain = plain_ending(stream, block, terminated, truncated, info);
+    if (plain != NULL) {
+        done = record_ending(stream, episode, block, row_obj, terminated, truncated, plain);
+        Py_DECREF(plain);
+    }
+    else if (PyErr_Occurred())
+        done = -1;
+    if (done == 0) {
+        PyObject *args[7] = {stream, episode, block, row_obj, terminated, truncated, info};
+        PyObject *end = PyObject_VectorcallMethod(
+            s_end_by_flags, args, 7 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
+        done = end == NULL ? -1 : 1;
+        Py_XDECREF(end);
+    }
+    Py_DECREF(row_obj);
+    return done < 0 ? -1 : 0;
+}
+
+/* After the step at `row` (read at `now`): flush when the block is full or the flush is due.
+   0, or -1 on an error. */
+static int flush_after_step(StepRecorder *self, long long now, Py_ssize_t row)
+{
+    PyObject *limit = stream_attr(self, S_BLOCK_STEPS);
+    if (limit == NULL)
+        return -1;
+    Py_ssize_t block_steps = PyLong_AsSsize_t(limit);
+    Py_DECREF(limit);
+    if (block_steps == -1 && PyErr_Occurred())
+        return -1;
+    return flush_if_due(self, now, row + 1 >= block_steps);
 }
 
 static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *result)
@@ -606,29 +641,10 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     array_push_q(times, now);
     self->compiled_steps++;
     Py_CLEAR(names);
-    if (terminated == Py_True || truncated == Py_True) {
-        PyObject *row_obj = PyLong_FromSsize_t(row);
-        if (row_obj == NULL)
-            goto done;
-        int plain = end_plain(stream, episode, block, row_obj, terminated, truncated, info);
-        if (plain == 0) {
-            PyObject *args[7] = {stream, episode, block, row_obj, terminated, truncated, info};
-            PyObject *end = PyObject_VectorcallMethod(
-                s_end_by_flags, args, 7 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
-            plain = end == NULL ? -1 : 1;
-            Py_XDECREF(end);
-        }
-        Py_DECREF(row_obj);
-        if (plain < 0)
-            goto done;
-    }
-    PyObject *limit = stream_attr(self, S_BLOCK_STEPS);
-    if (limit == NULL)
+    if ((terminated == Py_True || truncated == Py_True) &&
+        end_by_flags(stream, episode, block, row, terminated, truncated, info) < 0)
         goto done;
-    Py_ssize_t block_steps = PyLong_AsSsize_t(limit);
-    Py_DECREF(limit);
-    if ((block_steps == -1 && PyErr_Occurred()) ||
-        flush_if_due(self, now, row + 1 >= block_steps) < 0)
+    if (flush_after_step(self, now, row) < 0)
         goto done;
     ret = Py_NewRef(Py_None);
     goto done;
@@ -664,11 +680,49 @@ static int read_file_clock(StepRecorder *self, long long *now)
     return got;
 }
 
+/* A new Episode, as Episode(index, seed, None, None, start_ns, env_index, agent) makes it: a
+   new reference, or NULL with an error. */
+static PyObject *new_episode(PyObject *index, PyObject *seed, long long start_ns,
+                             PyObject *env_index, PyObject *agent)
+{
+    PyObject *values[EPISODE_SLOTS] = {0};
+    PyObject *fresh = episode_type->tp_alloc(episode_type, 0);
+    PyObject *start = PyLong_FromLongLong(start_ns);
+    values[E_AFTER_END] = PyLong_FromLong(0);
+    values[E_RET] = PyFloat_FromDouble(0.0);
+    values[E_TOTALS] = PyDict_New();
+    if (fresh == NULL || start == NULL || values[E_AFTER_END] == NULL || values[E_RET] == NULL ||
+        values[E_TOTALS] == NULL) {
+        for (int i = 0; i < EPISODE_SLOTS; i++)
+            Py_XDECREF(values[i]);
+        Py_XDECREF(fresh);
+        Py_XDECREF(start);
+        return NULL;
+    }
+    values[E_AGENT] = Py_NewRef(agent);
+    values[E_END_NS] = Py_NewRef(start);
+    values[E_ENDED] = Py_NewRef(Py_False);
+    values[E_ENV_INDEX] = Py_NewRef(env_index);
+    values[E_GAME] = Py_NewRef(Py_None);
+    values[E_INDEX] = Py_NewRef(index);
+    values[E_NOTES] = Py_NewRef(values[E_AFTER_END]);
+    values[E_OPTIONS] = Py_NewRef(Py_None);
+    values[E_OPTIONS_JSON] = Py_NewRef(Py_None);
+    values[E_RNG_JSON] = Py_NewRef(Py_None);
+    values[E_RNG_STATE] = Py_NewRef(Py_None);
+    values[E_SEED] = Py_NewRef(seed);
+    values[E_START_NS] = start; /* (the reference made here) */
+    values[E_STEPS] = Py_NewRef(values[E_AFTER_END]);
+    for (int i = 0; i < EPISODE_SLOTS; i++)
+        SLOT(fresh, off_ep[i]) = values[i];
+    return fresh;
+}
+
 static PyObject *StepRecorder_begin(StepRecorder *self, PyObject *seed)
 {
     PyObject *stream = self->stream, *episode = NULL, *block = NULL, *next = NULL,
              *env_index = NULL, *agent = NULL, *ret = NULL, *fresh = NULL, *next_after = NULL,
-             *start = NULL, *segment = NULL, *values[EPISODE_SLOTS] = {0};
+             *segment = NULL;
     if (!PyLong_CheckExact(seed))
         Py_RETURN_NONE;
     int overflow = 0;
@@ -702,34 +756,13 @@ static PyObject *StepRecorder_begin(StepRecorder *self, PyObject *seed)
     if (read_file_clock(self, &now) < 0)
         goto done;
     /* Everything made before anything changes. */
-    start = PyLong_FromLongLong(now);
     next_after = PyLong_FromSsize_t(index + 1);
     segment = Py_BuildValue("(nOiO)", Py_SIZE(times) + waiting, next, 0, Py_True);
-    fresh = episode_type->tp_alloc(episode_type, 0);
-    values[E_AFTER_END] = PyLong_FromLong(0);
-    values[E_RET] = PyFloat_FromDouble(0.0);
-    values[E_TOTALS] = PyDict_New();
-    if (start == NULL || next_after == NULL || segment == NULL || fresh == NULL ||
-        values[E_AFTER_END] == NULL || values[E_RET] == NULL || values[E_TOTALS] == NULL)
+    fresh = next_after == NULL || segment == NULL
+                ? NULL
+                : new_episode(next, seed, now, env_index, agent);
+    if (fresh == NULL)
         goto done;
-    values[E_AGENT] = Py_NewRef(agent);
-    values[E_END_NS] = Py_NewRef(start);
-    values[E_ENDED] = Py_NewRef(Py_False);
-    values[E_ENV_INDEX] = Py_NewRef(env_index);
-    values[E_GAME] = Py_NewRef(Py_None);
-    values[E_INDEX] = Py_NewRef(next);
-    values[E_NOTES] = Py_NewRef(values[E_AFTER_END]);
-    values[E_OPTIONS] = Py_NewRef(Py_None);
-    values[E_OPTIONS_JSON] = Py_NewRef(Py_None);
-    values[E_RNG_JSON] = Py_NewRef(Py_None);
-    values[E_RNG_STATE] = Py_NewRef(Py_None);
-    values[E_SEED] = Py_NewRef(seed);
-    values[E_START_NS] = Py_NewRef(start);
-    values[E_STEPS] = Py_NewRef(values[E_AFTER_END]);
-    for (int i = 0; i < EPISODE_SLOTS; i++) {
-        SLOT(fresh, off_ep[i]) = values[i];
-        values[i] = NULL;
-    }
     /* The file's next index first: if that fails, nothing else has changed. */
     if (PyObject_SetAttr(self->file, s_next_episode, next_after) < 0 ||
         PyList_Append(segments, segment) < 0 || PyDict_SetItem(episodes, next, fresh) < 0 ||
@@ -741,8 +774,6 @@ decline:
     PyErr_Clear();
     ret = Py_NewRef(Py_None);
 done:
-    for (int i = 0; i < EPISODE_SLOTS; i++)
-        Py_XDECREF(values[i]);
     Py_XDECREF(episode);
     Py_XDECREF(block);
     Py_XDECREF(next);
@@ -750,7 +781,6 @@ done:
     Py_XDECREF(agent);
     Py_XDECREF(fresh);
     Py_XDECREF(next_after);
-    Py_XDECREF(start);
     Py_XDECREF(segment);
     return ret;
 }
