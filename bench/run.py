@@ -131,10 +131,20 @@ def noise_floor(first: list[float], second: list[float]) -> dict[str, Any]:
     return {"aa_median": statistics.median(per_round), "aa_quartiles": [round(q1, 4), round(q3, 4)]}
 
 
-def _recorded(env_id: str, path: Path, pure: bool) -> RecordEvidence[Any, Any]:
-    """A recorder of ``env_id``: the compiled step, or (``pure``) the pure-Python one."""
+def _recorded(
+    env_id: str, path: Path, pure: bool, *, deferred: bool = False
+) -> RecordEvidence[Any, Any]:
+    """A recorder of ``env_id``: the compiled step, or (``pure``) the pure-Python one.
+
+    ``deferred``: one block for the whole run, flushed at ``close()`` only (what the loop would
+    cost if writing blocks and episode records cost it nothing).
+    """
     os.environ[PURE_PYTHON_ENV] = "1" if pure else "0"
     try:
+        if deferred:
+            return RecordEvidence(
+                gym.make(env_id), path, overwrite=True, flush_every_s=1e9, block_steps=1 << 40
+            )
         return RecordEvidence(gym.make(env_id), path, overwrite=True)
     finally:
         del os.environ[PURE_PYTHON_ENV]
@@ -143,30 +153,39 @@ def _recorded(env_id: str, path: Path, pure: bool) -> RecordEvidence[Any, Any]:
 def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict[str, Any]:
     """Bare, two reference wrappers, and recorded with the compiled and the pure-Python step,
     over the same actions, stepped in turns of ``slice_steps`` (:func:`interleaved`), a second
-    bare env among them for the A/A noise; medians of per-round ratios to bare."""
+    bare env among them for the A/A noise; medians of per-round ratios to bare.
+
+    A recorder's ``close()`` (its last flush) counts in its time. One more recorder, ``loop``,
+    writes nothing until ``close()``, which does not count: the cost of the step and reset
+    paths alone, about what the loop would pay if its flushes moved off the loop's thread (a
+    little more: its ended episodes stay in memory, for the garbage collector to walk)."""
     actions = actions_for(env_id, steps)
     warm = RecordEvidence(gym.make(env_id), TMP / f"warm-{env_id}.mcap", overwrite=True)
     run_steps(warm, actions[: min(steps, 5000)])
     warm.close()
-    kinds = ("bare", "bare_again", "wrapper", "stats", "pure", "rec")
+    kinds = ("bare", "bare_again", "wrapper", "stats", "pure", "rec", "loop")
     times: dict[str, list[float]] = {k: [] for k in kinds}
     for r in range(rounds):
-        paths = {kind: TMP / f"{env_id}-{kind}-{r}.mcap" for kind in ("pure", "rec")}
+        paths = {kind: TMP / f"{env_id}-{kind}-{r}.mcap" for kind in ("pure", "rec", "loop")}
         envs: dict[str, gym.Env[Any, Any]] = {
             "bare": gym.make(env_id),
             "bare_again": gym.make(env_id),
             "wrapper": gym.Wrapper(gym.make(env_id)),
             "stats": gym.wrappers.RecordEpisodeStatistics(gym.make(env_id)),
-            **{kind: _recorded(env_id, path, pure=kind == "pure") for kind, path in paths.items()},
+            **{
+                kind: _recorded(env_id, path, pure=kind == "pure", deferred=kind == "loop")
+                for kind, path in paths.items()
+            },
         }
         seconds = interleaved({k: stepper(env) for k, env in envs.items()}, actions, slice_steps)
         for kind in ("pure", "rec"):
             t0 = time.perf_counter()
             envs[kind].close()
             seconds[kind] += time.perf_counter() - t0
+        envs["loop"].close()  # (not counted: its one flush is what it leaves out)
         for kind in kinds:
             times[kind].append(seconds[kind])
-    # the file's size from a run alone: interleaved, a recorder gets a sixth of the steps
+    # the file's size from a run alone: interleaved, a recorder gets a seventh of the steps
     # between its flushes (every second), so its blocks are smaller than a real run's
     alone = _recorded(env_id, TMP / f"{env_id}-alone.mcap", pure=False)
     run_steps(alone, actions)
@@ -187,6 +206,7 @@ def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict
         "pure_python_ratio_median": ratios(bare_t, times["pure"])["ratio_median"],
         "empty_wrapper_ratio_median": ratios(bare_t, times["wrapper"])["ratio_median"],
         "episode_statistics_ratio_median": ratios(bare_t, times["stats"])["ratio_median"],
+        "flushes_deferred_ratio_median": ratios(bare_t, times["loop"])["ratio_median"],
         # per round, the extra time over that round's bare run; the median of those
         "overhead_us": {
             name: statistics.median(
@@ -194,6 +214,7 @@ def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict
             )
             for name, kind in (
                 ("recorder", "rec"),
+                ("recorder_flushes_deferred", "loop"),
                 ("pure_python", "pure"),
                 ("empty_wrapper", "wrapper"),
                 ("RecordEpisodeStatistics", "stats"),
