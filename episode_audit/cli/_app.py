@@ -8,6 +8,7 @@ stderr, never a traceback.
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -64,9 +65,11 @@ EXIT_CLEAN, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 
 
 def _stdout() -> Console:
-    # Plain output when not a terminal: no colour, and wide enough for CI logs; no emoji
-    # codes (a label ``:warning:`` prints as written, not as an emoji)
-    return Console(highlight=False, emoji=False, width=None if sys.stdout.isatty() else 200)
+    # Plain output when not a terminal: no colour, and wide enough for CI logs (200 columns,
+    # unless COLUMNS says otherwise); no emoji codes (a label ``:warning:`` prints as written,
+    # not as an emoji)
+    sized = sys.stdout.isatty() or os.environ.get("COLUMNS", "").isdigit()
+    return Console(highlight=False, emoji=False, width=None if sized else 200)
 
 
 def _stderr() -> Console:

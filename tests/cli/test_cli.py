@@ -145,6 +145,19 @@ def test_unreadable_file_exit_2_one_line(tmp_path: Path) -> None:
     assert code == 2 and "no such file" in err
 
 
+def test_output_not_to_a_terminal_is_200_columns_unless_columns_says(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    args = ("check", "fixtures/torn.mcap")  # (a finding whose message is long)
+    monkeypatch.delenv("COLUMNS", raising=False)
+    _, wide, _ = run(*args)
+    assert max(map(len, wide.splitlines())) == 200
+    monkeypatch.setenv("COLUMNS", "80")
+    code, out, _ = run(*args)
+    assert code == 0 and max(map(len, out.splitlines())) <= 80
+    assert "file_unfinished" in out
+
+
 def test_torn_file_check_reports_unfinished_and_report_counts_episodes() -> None:
     code, out, _ = run("check", "fixtures/torn.mcap", "--format", "json")
     assert code == 0
