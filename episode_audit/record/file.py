@@ -125,6 +125,14 @@ class FileRecorder:
         """
         return self._file.first_trouble
 
+    def _busy_here(self) -> bool:
+        """Whether ``_busy`` is this thread's, left set by a call that has returned.
+
+        SB3's ``step_async()``, before its ``step_wait()``: no other thread is inside then, and
+        this thread's own ``close()`` must not wait for itself.
+        """
+        return False
+
     def _before_close(self) -> None:
         """Called before the file is finished (by :meth:`_close_file`)."""
 
@@ -170,7 +178,7 @@ def _inside(recorder: FileRecorder) -> bool:
     another thread's frames while it runs is not safe on CPython 3.11 (their ``f_back`` can
     point at a freed frame).
     """
-    if not recorder._busy:
+    if not recorder._busy or recorder._busy_here():
         return False
     cls = type(recorder)
     entries = {getattr(cls, name).__code__ for name in recorder._entries}

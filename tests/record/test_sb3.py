@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import threading
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -347,6 +348,27 @@ def test_importing_episode_audit_imports_neither_sb3_nor_torch() -> None:
     from episode_audit import RecordVecEnvEvidence as lazy
 
     assert lazy is RecordVecEnvEvidence
+
+
+def test_between_step_async_and_step_wait_only_another_thread_counts_as_inside(
+    tmp_path: Path,
+) -> None:
+    from episode_audit.record.file import _inside
+
+    path = tmp_path / "a.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([cartpole] * 2), path)
+    venv.reset()
+    venv.step(np.zeros(2, dtype=np.int64))
+    venv.step_async(np.ones(2, dtype=np.int64))
+    # close() from this thread (an exception between the two calls) need not wait for itself
+    assert venv._busy and not _inside(venv)
+    seen: list[bool] = []
+    other = threading.Thread(target=lambda: seen.append(_inside(venv)))
+    other.start()
+    other.join()
+    assert seen == [True]  # another thread's close() waits for the step to end
+    venv.close()
+    assert open_evidence(path).finished and open_evidence(path).steps().num_rows == 2
 
 
 # ---------------------------------------------------------------- make_vec_env + RecordEvidence

@@ -9,6 +9,7 @@ reset). See ``docs/recording.md``, "Stable-Baselines3".
 from __future__ import annotations
 
 import os
+import threading
 from typing import Any
 
 import numpy as np
@@ -84,6 +85,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
     _closed = True  # until the file is open (read by a half-built object's __del__ too)
 
     _entries = ("step", "reset", "step_async", "step_wait")  # (see FileRecorder)
+    _async_thread: int | None = None  # the thread of the last step_async()
 
     def __init__(
         self,
@@ -227,6 +229,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
 
     def step_async(self, actions: np.ndarray[Any, Any]) -> None:
         """Start a step of every sub-env (the actions are kept for the record)."""
+        self._async_thread = threading.get_ident()  # (whose _busy it is: _busy_here)
         self._busy = True  # until step_wait() returns (read by a flush() in another thread)
         try:
             if self._gated:  # closed, or a flush() / close() under way in another thread
@@ -236,6 +239,9 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         except BaseException:
             self._busy = False
             raise
+
+    def _busy_here(self) -> bool:
+        return self._async_thread == threading.get_ident()
 
     def step_wait(self) -> Any:
         """Finish the step and record each sub-env's share; hand the results on as they are.
