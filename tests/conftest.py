@@ -37,3 +37,13 @@ def scripted_env() -> Callable[..., ScriptedEnv]:
 def _no_github_step_summary(monkeypatch: pytest.MonkeyPatch) -> None:
     """Commands append to ``$GITHUB_STEP_SUMMARY`` when it is set: never the CI's own."""
     monkeypatch.delenv("GITHUB_STEP_SUMMARY", raising=False)
+
+
+@pytest.fixture(autouse=True)
+def _no_columns(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every test starts without ``$COLUMNS`` (a test that wants it sets it).
+
+    Output not to a terminal is ``$COLUMNS`` wide when it is set, and pytest-xdist's workers
+    set ``COLUMNS=80``.
+    """
+    monkeypatch.delenv("COLUMNS", raising=False)
