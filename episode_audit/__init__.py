@@ -22,6 +22,7 @@ from .errors import (
     RecorderError,
     ReplayError,
     UnsupportedVersionError,
+    WorkerError,
 )
 from .export import export
 from .format import FORMAT_VERSION, EpisodeRanges, RunInfo
@@ -75,6 +76,7 @@ __all__ = [
     "RunInfo",
     "StateAdapter",
     "UnsupportedVersionError",
+    "WorkerError",
     "__version__",
     "check",
     "compare",

@@ -17,12 +17,13 @@ import socket
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 from urllib.parse import urlsplit
 
-from .errors import ConfigurationError, EpisodeAuditError
+from .errors import ConfigurationError, EpisodeAuditError, WorkerError
 
 __all__ = [
     "RAY_CONNECT_TIMEOUT",
@@ -115,7 +116,24 @@ def map_ordered(
         runs = _chunks(weights, workers(None, ray_address))
         yield from _ray_map(fn, work, runs, ray_address, progress)
     else:
+        _refuse_while_importing_main()
         yield from _pool_map(fn, work, _chunks(weights, processes), processes, progress)
+
+
+def _refuse_while_importing_main() -> None:
+    """Raise if this is a worker importing the main module (a script without a main guard).
+
+    Each worker imports the script that started the run; a call with ``jobs > 1`` at its top
+    level would start workers again, from inside a worker.
+    """
+    import multiprocessing.process
+
+    if getattr(multiprocessing.process.current_process(), "_inheriting", False):
+        raise ConfigurationError(
+            "jobs > 1 was asked for while a worker process was importing the main module: in "
+            'a script, make the call under `if __name__ == "__main__":` (each worker imports '
+            "the script), or pass jobs=1"
+        )
 
 
 @dataclass(frozen=True)
@@ -240,22 +258,33 @@ def _pool_map(
     )
     futures: dict[int, Future[list[_Done[R]]]] = {}
     results: dict[int, _Done[R]] = {}
-    first = _FirstSubmit(pool, fn, [work[i] for i in runs[0]])
-    try:
-        last = len(runs) - 1
-        while last > 0 and first.starting():
-            _take(runs[last], _call(fn, [work[i] for i in runs[last]]), results, progress)
-            last -= 1
-        futures[0] = first.future()
-        with sigint_held():
-            for k in range(1, last + 1):
-                futures[k] = pool.submit(_call, fn, [work[i] for i in runs[k]])
-        yield from _gather(fn, work, runs, futures, progress, results)
-    except BaseException:
-        first.wait()  # (its worker, once started, is stopped with the others)
-        _stop(pool, [*futures.values(), *first.submitted()])
-        raise
-    pool.shutdown(wait=True)
+    with _no_invalid_state_noise():
+        first = _FirstSubmit(pool, fn, [work[i] for i in runs[0]])
+        try:
+            last = len(runs) - 1
+            while last > 0 and first.starting():
+                _take(runs[last], _call(fn, [work[i] for i in runs[last]]), results, progress)
+                last -= 1
+            futures[0] = first.future()
+            with sigint_held():
+                for k in range(1, last + 1):
+                    futures[k] = pool.submit(_call, fn, [work[i] for i in runs[k]])
+            yield from _gather(fn, work, runs, futures, progress, results)
+        except BaseException as exc:
+            first.wait()  # (its worker, once started, is stopped with the others)
+            _stop(pool, [*futures.values(), *first.submitted()])
+            if isinstance(exc, BrokenProcessPool):
+                raise WorkerError(_BROKEN) from None
+            raise
+        pool.shutdown(wait=True)
+
+
+_BROKEN = (
+    "a worker process ended before it returned its results (killed, out of memory, or a crash "
+    "in native code; or, in a script that asks for jobs > 1 outside "
+    '`if __name__ == "__main__":`, it could not start: its error is above): run with jobs=1 to '
+    "see the failure in this process"
+)
 
 
 class _FirstSubmit(Generic[R]):
@@ -395,6 +424,34 @@ def _stop(pool: ProcessPoolExecutor, futures: Sequence[Future[Any]]) -> None:
     finally:
         threading.excepthook = hook
     wait(futures, timeout=0)
+
+
+@contextmanager
+def _no_invalid_state_noise() -> Iterator[None]:
+    """Meanwhile, a pool's manager thread dying of ``InvalidStateError`` prints nothing.
+
+    Python < 3.12's manager thread, finding a worker dead (a crash, the OOM killer), sets an
+    error on every work item it holds, the runs this process took over (cancelled) included,
+    and dies of it: a traceback after the :class:`~episode_audit.errors.WorkerError` that says
+    what happened.
+    """
+    from concurrent.futures import InvalidStateError
+    from concurrent.futures.process import _ExecutorManagerThread
+
+    hook = threading.excepthook
+
+    def quiet(args: Any) -> None:
+        if not (
+            isinstance(args.thread, _ExecutorManagerThread)
+            and isinstance(args.exc_value, InvalidStateError)
+        ):
+            hook(args)
+
+    threading.excepthook = quiet
+    try:
+        yield
+    finally:
+        threading.excepthook = hook
 
 
 def _without_manager_errors(hook: Any) -> Any:

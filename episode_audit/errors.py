@@ -10,6 +10,7 @@ Every error the library raises on purpose derives from :class:`EpisodeAuditError
     ├── RecorderError              the recorder was misused (e.g. stepping after close)
     ├── ConfigurationError         a wrong argument or option
     ├── ReplayError                an episode cannot be replayed (no env, no seed or RNG state)
+    ├── WorkerError                a worker process of a jobs > 1 run ended before its results
     └── ContractViolation          an environment broke its contract (also an AssertionError)
 
 Messages say what was expected, what was found, and what to do.
@@ -30,6 +31,7 @@ __all__ = [
     "RecorderError",
     "ReplayError",
     "UnsupportedVersionError",
+    "WorkerError",
 ]
 
 
@@ -92,6 +94,14 @@ class ConfigurationError(EpisodeAuditError):
 
 class ReplayError(EpisodeAuditError):
     """An episode cannot be replayed: no environment can be built, or no seed / RNG state."""
+
+
+class WorkerError(EpisodeAuditError):
+    """A worker process of a ``jobs > 1`` run ended before it returned its results.
+
+    It was killed, ran out of memory or crashed in native code, or it could not start: a script
+    that asks for ``jobs > 1`` outside ``if __name__ == "__main__":`` (each worker imports it).
+    """
 
 
 class ContractViolation(EpisodeAuditError, AssertionError):

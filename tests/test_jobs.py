@@ -30,7 +30,12 @@ from typer.testing import CliRunner
 from episode_audit import RecordEvidence, RecordParallelEvidence, RecordVectorEvidence
 from episode_audit._jobs import check_jobs, map_ordered, usable_cores
 from episode_audit.cli import app
-from episode_audit.errors import ConfigurationError, CorruptEvidenceError, EvidenceError
+from episode_audit.errors import (
+    ConfigurationError,
+    CorruptEvidenceError,
+    EvidenceError,
+    WorkerError,
+)
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
     warnings.simplefilter("ignore", DeprecationWarning)
@@ -332,6 +337,45 @@ def test_map_ordered_keeps_the_order_and_raises_at_the_failing_item() -> None:
     assert [next(got), next(got)] == [2, 4]
     with pytest.raises(EvidenceError, match=r"three\.mcap: cannot be read"):
         next(got)
+
+
+def _die_in_a_worker(item: int, progress: object) -> int:
+    if _MARK == "as imported":  # (a worker: this process set the mark)
+        os._exit(3)  # as a crash in native code, or the OOM killer
+    time.sleep(0.05)  # (this process is slow: the worker takes its first run)
+    return item
+
+
+def test_a_worker_that_dies_is_a_worker_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sys.modules[__name__], "_MARK", "set in this process")
+    with pytest.raises(WorkerError, match=r"a worker process ended .* run with jobs=1 to see"):
+        list(map_ordered(_die_in_a_worker, range(20), jobs=2))
+    assert list(map_ordered(_die_in_a_worker, range(20), jobs=1)) == list(range(20))
+
+
+_UNGUARDED = """
+import sys
+from episode_audit import WorkerError, check
+try:
+    check(sys.argv[1:], jobs=2)
+except WorkerError as exc:
+    print("WorkerError:", exc)
+"""
+
+
+def test_a_script_asking_for_jobs_without_a_main_guard_is_told_what_to_do(
+    campaign: Path, tmp_path: Path
+) -> None:
+    script = tmp_path / "unguarded.py"
+    script.write_text(_UNGUARDED)
+    files = [str(p) for p in sorted(campaign.glob("*.mcap"))[:3]]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    run = subprocess.run(
+        [sys.executable, str(script), *files], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert run.stdout.startswith("WorkerError: a worker process ended"), run.stderr
+    assert 'make the call under `if __name__ == "__main__":`' in run.stderr  # the worker's
+    assert "BrokenProcessPool" not in run.stderr and "leaked" not in run.stderr
 
 
 def test_runs_go_costliest_first_and_a_large_item_alone() -> None:
