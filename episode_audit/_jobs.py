@@ -282,8 +282,8 @@ def _pool_map(
 _BROKEN = (
     "a worker process ended before it returned its results (killed, out of memory, or a crash "
     "in native code; or, in a script that asks for jobs > 1 outside "
-    '`if __name__ == "__main__":`, it could not start: its error is above): run with jobs=1 to '
-    "see the failure in this process"
+    '`if __name__ == "__main__":`, it could not start: its error is above): run again with '
+    "jobs=1 (--jobs 1) to see the failure in this process"
 )
 
 

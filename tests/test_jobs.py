@@ -348,7 +348,9 @@ def _die_in_a_worker(item: int, progress: object) -> int:
 
 def test_a_worker_that_dies_is_a_worker_error(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(sys.modules[__name__], "_MARK", "set in this process")
-    with pytest.raises(WorkerError, match=r"a worker process ended .* run with jobs=1 to see"):
+    with pytest.raises(
+        WorkerError, match=r"a worker process ended .* run again with jobs=1 \(--jobs 1\) to see"
+    ):
         list(map_ordered(_die_in_a_worker, range(20), jobs=2))
     assert list(map_ordered(_die_in_a_worker, range(20), jobs=1)) == list(range(20))
 
