@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -109,16 +110,34 @@ def group_reports(episodes: pa.Table, terms: pa.Table) -> list[GroupReport]:
     """One report per group key of ``episodes`` (sorted by key), with its ``terms`` rows."""
     if not episodes.num_rows:
         return []
-    # one chunk a table (a chunk a file once joined): each group's filter a pass over one array
-    episodes, terms = episodes.combine_chunks(), terms.combine_chunks()
-    return [
-        _group(
-            key,
-            episodes.filter(pc.equal(episodes.column("key"), key)),
-            terms.filter(pc.equal(terms.column("key"), key)),
-        )
-        for key in sorted(set(episodes.column("key").to_pylist()))
-    ]
+    rows, term_rows = by_key(episodes), by_key(terms)
+    no_terms = terms.slice(0, 0)
+    return [_group(key, rows[key], term_rows.get(key, no_terms)) for key in sorted(rows)]
+
+
+def by_key(table: pa.Table) -> dict[str, pa.Table]:
+    """The rows of ``table`` by their ``key`` column, in their order in ``table``.
+
+    One stable sort of the keys' codes, then a slice per key: a campaign reported by file has
+    a group per file, and a filter per group would pass over every row once per file.
+
+    >>> t = pa.table({"key": ["b", "a", "b"], "x": [1, 2, 3]})
+    >>> {k: v.column("x").to_pylist() for k, v in by_key(t).items()}
+    {'b': [1, 3], 'a': [2]}
+    """
+    if not table.num_rows:
+        return {}
+    encoded = pc.dictionary_encode(table.column("key")).combine_chunks()
+    keys = encoded.dictionary.to_pylist()
+    codes = encoded.indices.to_numpy(zero_copy_only=False)
+    order = np.argsort(codes, kind="stable")
+    ordered = table.take(pa.array(order)).combine_chunks()
+    sorted_codes = codes[order]
+    starts = [*np.flatnonzero(np.diff(sorted_codes, prepend=-1)).tolist(), len(order)]
+    return {
+        keys[sorted_codes[start]]: ordered.slice(start, end - start)
+        for start, end in pairwise(starts)
+    }
 
 
 def _group(key: str, rows: pa.Table, terms: pa.Table) -> GroupReport:

@@ -613,3 +613,24 @@ def test_a_tag_no_file_has_is_said(tmp_path: Path) -> None:
         "is the tag spelt as recorded?"
     ]
     assert missing.to_dict()["notes"] == missing.notes
+
+
+def test_rows_by_key_are_each_keys_rows_in_their_order() -> None:
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from episode_audit.report.groups import by_key
+
+    rng = np.random.default_rng(0)
+    keys = [f"runs/file-{k:04d}.mcap" for k in rng.integers(0, 300, 3000)]
+    chunks = [  # joined tables have a chunk per file
+        pa.table({"key": keys[i : i + 250], "row": np.arange(i, i + 250)})
+        for i in range(0, 3000, 250)
+    ]
+    table = pa.concat_tables(chunks)
+    got = by_key(table)
+    assert list(got) == list(dict.fromkeys(keys))  # (first seen first)
+    for key, rows in got.items():
+        want = table.filter(pc.equal(table.column("key"), key))
+        assert rows.column("row").to_pylist() == want.column("row").to_pylist()
+    assert by_key(table.slice(0, 0)) == {}
