@@ -19,6 +19,7 @@ import pyarrow.compute as pc
 
 from ..format import names as fmt
 from ..report.collect import ENDED
+from ..report.groups import by_key
 
 __all__ = ["Pairs", "Side", "pair", "sides"]
 
@@ -95,11 +96,9 @@ class Pairs:
 def sides(episodes: pa.Table, terms: pa.Table) -> dict[str, Side]:
     """One :class:`Side` per group key of ``collect``'s tables, of its ended episodes."""
     ended = episodes.filter(pc.is_in(episodes.column("outcome"), pa.array(ENDED)))
-    out: dict[str, Side] = {}
-    for key in sorted(set(ended.column("key").to_pylist())):
-        rows = ended.filter(pc.equal(ended.column("key"), key))
-        out[key] = _side(rows, terms.filter(pc.equal(terms.column("key"), key)))
-    return out
+    rows, term_rows = by_key(ended), by_key(terms)
+    no_terms = terms.slice(0, 0)
+    return {key: _side(rows[key], term_rows.get(key, no_terms)) for key in sorted(rows)}
 
 
 def _side(rows: pa.Table, terms: pa.Table) -> Side:
