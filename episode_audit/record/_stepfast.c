@@ -551,9 +551,9 @@ static int end_by_flags(PyObject *stream, PyObject *episode, PyObject *block, Py
     if (plain != NULL) {
         done = record_ending(stream, episode, block, row_obj, terminated, truncated, plain);
         Py_DECREF(plain);
-    }
-    else if (PyErr_Occurred())
+    } else if (PyErr_Occurred()) {
         done = -1;
+    }
     if (done == 0) {
         PyObject *args[7] = {stream, episode, block, row_obj, terminated, truncated, info};
         PyObject *end = PyObject_VectorcallMethod(
