@@ -258,7 +258,7 @@ def _pool_map(
     )
     futures: dict[int, Future[list[_Done[R]]]] = {}
     results: dict[int, _Done[R]] = {}
-    with _no_invalid_state_noise():
+    with _MANAGER_NOISE.hidden(stopping=False):
         first = _FirstSubmit(pool, fn, [work[i] for i in runs[0]])
         try:
             last = len(runs) - 1
@@ -406,9 +406,7 @@ def sigint_held() -> Iterator[None]:
 
 def _stop(pool: ProcessPoolExecutor, futures: Sequence[Future[Any]]) -> None:
     """Cancel what has not started and end the workers now (they may be mid-item)."""
-    hook = threading.excepthook
-    threading.excepthook = _without_manager_errors(hook)
-    try:
+    with _MANAGER_NOISE.hidden(stopping=True):
         for future in futures:
             future.cancel()
         terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
@@ -421,53 +419,58 @@ def _stop(pool: ProcessPoolExecutor, futures: Sequence[Future[Any]]) -> None:
             for process in processes:  # gone before shutdown unlinks the queues' semaphores,
                 process.join(timeout=10)  # which a worker still starting would fail to open
         pool.shutdown(wait=True, cancel_futures=True)
-    finally:
-        threading.excepthook = hook
     wait(futures, timeout=0)
 
 
-@contextmanager
-def _no_invalid_state_noise() -> Iterator[None]:
-    """Meanwhile, a pool's manager thread dying of ``InvalidStateError`` prints nothing.
+class _ManagerThreadNoise:
+    """While a scope is open, a process pool's manager thread dying prints nothing.
 
-    Python < 3.12's manager thread, finding a worker dead (a crash, the OOM killer), sets an
-    error on every work item it holds, the runs this process took over (cancelled) included,
-    and dies of it: a traceback after the :class:`~episode_audit.errors.WorkerError` that says
-    what happened.
+    Python < 3.12's manager thread, finding a worker dead (a crash, the OOM killer, or workers
+    terminated on purpose), sets an error on every work item it holds, the runs this process
+    took over (cancelled) included, and dies of it (``InvalidStateError``): a traceback after
+    the :class:`~episode_audit.errors.WorkerError` that says what happened, or noise while the
+    workers are being stopped. One ``threading.excepthook`` is installed while any scope is
+    open, in whatever threads they are, and the one found is put back after the last.
     """
-    from concurrent.futures import InvalidStateError
-    from concurrent.futures.process import _ExecutorManagerThread
 
-    hook = threading.excepthook
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._previous: Callable[[Any], object] | None = None
+        self._running = 0  # scopes hiding InvalidStateError (a jobs > 1 call under way)
+        self._stopping = 0  # scopes hiding any error (workers being stopped)
 
-    def quiet(args: Any) -> None:
-        if not (
-            isinstance(args.thread, _ExecutorManagerThread)
-            and isinstance(args.exc_value, InvalidStateError)
+    def _hook(self, args: Any) -> None:
+        from concurrent.futures import InvalidStateError
+        from concurrent.futures.process import _ExecutorManagerThread
+
+        if isinstance(args.thread, _ExecutorManagerThread) and (
+            self._stopping or (self._running and isinstance(args.exc_value, InvalidStateError))
         ):
-            hook(args)
+            return
+        (self._previous or threading.__excepthook__)(args)
 
-    threading.excepthook = quiet
-    try:
-        yield
-    finally:
-        threading.excepthook = hook
+    @contextmanager
+    def hidden(self, *, stopping: bool) -> Iterator[None]:
+        """Meanwhile, hide the manager thread's ``InvalidStateError`` (any error: ``stopping``)."""
+        with self._lock:
+            if not self._running + self._stopping:
+                self._previous = threading.excepthook
+                threading.excepthook = self._hook
+            self._running += not stopping
+            self._stopping += stopping
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._running -= not stopping
+                self._stopping -= stopping
+                if not self._running + self._stopping:
+                    if threading.excepthook == self._hook:  # (else someone set their own since)
+                        threading.excepthook = self._previous or threading.__excepthook__
+                    self._previous = None
 
 
-def _without_manager_errors(hook: Any) -> Any:
-    """``hook`` but for the pool's manager thread failing while the workers are stopped.
-
-    Python < 3.12's manager thread, finding a worker terminated, sets an error on every work
-    item it holds, the runs this process took over (cancelled) included, and dies printing a
-    traceback (``InvalidStateError``): noise, the workers are being stopped on purpose.
-    """
-    from concurrent.futures.process import _ExecutorManagerThread
-
-    def quiet(args: Any) -> None:
-        if not isinstance(args.thread, _ExecutorManagerThread):
-            hook(args)
-
-    return quiet
+_MANAGER_NOISE = _ManagerThreadNoise()
 
 
 def _ray_map(

@@ -355,6 +355,41 @@ def test_a_worker_that_dies_is_a_worker_error(monkeypatch: pytest.MonkeyPatch) -
     assert list(map_ordered(_die_in_a_worker, range(20), jobs=1)) == list(range(20))
 
 
+def test_overlapping_jobs_calls_leave_the_threads_excepthook_as_it_was(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import threading
+
+    from episode_audit._jobs import _MANAGER_NOISE
+
+    original = threading.excepthook
+    first = _MANAGER_NOISE.hidden(stopping=False)
+    second = _MANAGER_NOISE.hidden(stopping=True)
+    first.__enter__()
+    second.__enter__()
+    first.__exit__(None, None, None)  # (not in the order they began: as from two threads)
+    assert threading.excepthook is not original  # (the second still hides the noise)
+    second.__exit__(None, None, None)
+    assert threading.excepthook is original
+    # two calls whose workers die, at once from two threads: each a WorkerError, no hook left
+    monkeypatch.setattr(sys.modules[__name__], "_MARK", "set in this process")
+    errors: list[BaseException] = []
+
+    def call() -> None:
+        try:
+            list(map_ordered(_die_in_a_worker, range(20), jobs=2))
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=call) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert [type(e) for e in errors] == [WorkerError, WorkerError]
+    assert threading.excepthook is original
+
+
 _UNGUARDED = """
 import sys
 from episode_audit import WorkerError, check
