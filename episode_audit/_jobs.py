@@ -497,10 +497,40 @@ def _ray_map(
                     if progress is not None and outcome.steps:
                         progress(outcome.steps)
             yield results.pop(i).unwrap()
-    except BaseException:
+    except BaseException as exc:
         for ref in refs.values():
             ray.cancel(ref, force=True)
+        _settle(ray, list(refs.values()))
+        if isinstance(exc, ray.exceptions.RayError) and not isinstance(
+            exc,
+            ray.exceptions.RayTaskError,  # (what the task raised: as it is)
+        ):
+            raise WorkerError(_RAY_LOST.format(type(exc).__name__)) from None
         raise
+
+
+def _settle(ray: Any, refs: list[Any]) -> None:
+    """Take the outcome of each of ``refs`` that ends within a second, and drop it.
+
+    Ray prints the error of a task whose outcome nobody took ("Unhandled error") when its
+    reference is dropped: after one task's worker died, the others' errors are noise.
+    """
+    try:
+        ready, _ = ray.wait(refs, num_returns=len(refs), timeout=1.0)
+    except Exception:
+        return
+    for ref in ready:
+        try:
+            ray.get(ref, timeout=0)
+        except Exception:
+            pass
+
+
+_RAY_LOST = (
+    "a Ray task ended before it returned its results ({}: its worker killed, out of memory, "
+    "or a crash in native code; or its node lost): run again with jobs=1 (--jobs 1) to see "
+    "the failure in this process"
+)
 
 
 def _connect(address: str) -> Any:

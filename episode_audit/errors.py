@@ -10,7 +10,7 @@ Every error the library raises on purpose derives from :class:`EpisodeAuditError
     ├── RecorderError              the recorder was misused (e.g. stepping after close)
     ├── ConfigurationError         a wrong argument or option
     ├── ReplayError                an episode cannot be replayed (no env, no seed or RNG state)
-    ├── WorkerError                a worker process of a jobs > 1 run ended before its results
+    ├── WorkerError                a jobs > 1 worker or a Ray task ended before its results
     └── ContractViolation          an environment broke its contract (also an AssertionError)
 
 Messages say what was expected, what was found, and what to do.
@@ -97,10 +97,11 @@ class ReplayError(EpisodeAuditError):
 
 
 class WorkerError(EpisodeAuditError):
-    """A worker process of a ``jobs > 1`` run ended before it returned its results.
+    """A worker process of a ``jobs > 1`` run (or a Ray task) ended before its results.
 
-    It was killed, ran out of memory or crashed in native code, or it could not start: a script
-    that asks for ``jobs > 1`` outside ``if __name__ == "__main__":`` (each worker imports it).
+    It was killed, ran out of memory or crashed in native code (or its Ray node was lost), or it
+    could not start: a script that asks for ``jobs > 1`` outside ``if __name__ == "__main__":``
+    (each worker imports it).
     """
 
 

@@ -7,6 +7,7 @@ unreadable) is checked, reported, replayed and exported with ``--jobs 1``, ``--j
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import pickle
@@ -353,6 +354,25 @@ def test_a_worker_that_dies_is_a_worker_error(monkeypatch: pytest.MonkeyPatch) -
     ):
         list(map_ordered(_die_in_a_worker, range(20), jobs=2))
     assert list(map_ordered(_die_in_a_worker, range(20), jobs=1)) == list(range(20))
+
+
+def test_a_ray_task_whose_worker_dies_is_a_worker_error(
+    monkeypatch: pytest.MonkeyPatch, ray_local: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    monkeypatch.setattr(sys.modules[__name__], "_MARK", "set in this process")
+    with pytest.raises(
+        WorkerError,
+        match=r"a Ray task ended .* \(WorkerCrashedError: .* run again with jobs=1 \(--jobs 1\)",
+    ):
+        list(map_ordered(_die_in_a_worker, range(8), ray_address=ray_local))
+    gc.collect()  # (Ray logs an error nobody took when its reference goes, from a thread)
+    time.sleep(1.0)
+    assert "Unhandled error" not in caplog.text  # (the other tasks' errors: taken)
+    assert list(map_ordered(_square, range(4), ray_address=ray_local)) == [0, 1, 4, 9]
+
+
+def _square(item: int, progress: object) -> int:
+    return item * item
 
 
 def test_overlapping_jobs_calls_leave_the_threads_excepthook_as_it_was(
