@@ -201,6 +201,15 @@ PathsArgument = Annotated[
 ]
 
 
+ImportOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--import",
+        help="Import MODULE first (e.g. a package that registers envs; repeatable).",
+        metavar="<module>",
+    ),
+]
+
 JobsOption = Annotated[
     int | None,
     typer.Option(

@@ -26,58 +26,72 @@ from ._app import (
 )
 from ._summary import NoStepSummaryOption, append_step_summary
 
+_CandidateOption = Annotated[
+    list[str],
+    typer.Option(
+        "--candidate",
+        help="The candidate's evidence files or directories (repeatable; required).",
+        metavar="<file|dir>",
+    ),
+]
+
+_ByOption = Annotated[
+    str,
+    typer.Option(
+        help="Group both sides by: all, env, env_index, agent or tag:NAME; groups of the "
+        "same key are compared.",
+        metavar="<key>",
+    ),
+]
+
+_MaxSuccessDropOption = Annotated[
+    float | None,
+    typer.Option(
+        help="Gate: fail (exit 1) unless the success rate's drop is within this.",
+        metavar="<rate>",
+    ),
+]
+
+_MaxFailureIncreaseOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        help="Gate: RATE for all failures, or LABEL=RATE for one label (repeatable): fail "
+        "unless the rise is within it.",
+        metavar="<[label=]rate>",
+    ),
+]
+
+_MaxReturnDropOption = Annotated[
+    float | None,
+    typer.Option(
+        help="Gate: fail unless the mean return's drop is within this.", metavar="<amount>"
+    ),
+]
+
+_RateMarginOption = Annotated[
+    float,
+    typer.Option(
+        help="A rate without a gate is 'held' when its change is within this.",
+        metavar="<rate>",
+    ),
+]
+
+_DifferentTasksOption = Annotated[
+    bool,
+    typer.Option("--different-tasks", help="Compare even though the sides' env ids differ."),
+]
+
 
 @app.command()
 def compare(
     baseline: PathsArgument,
-    candidate: Annotated[
-        list[str],
-        typer.Option(
-            "--candidate",
-            help="The candidate's evidence files or directories (repeatable; required).",
-            metavar="<file|dir>",
-        ),
-    ],
-    by: Annotated[
-        str,
-        typer.Option(
-            help="Group both sides by: all, env, env_index, agent or tag:NAME; groups of the "
-            "same key are compared.",
-            metavar="<key>",
-        ),
-    ] = "all",
-    max_success_drop: Annotated[
-        float | None,
-        typer.Option(
-            help="Gate: fail (exit 1) unless the success rate's drop is within this.",
-            metavar="<rate>",
-        ),
-    ] = None,
-    max_failure_increase: Annotated[
-        list[str] | None,
-        typer.Option(
-            help="Gate: RATE for all failures, or LABEL=RATE for one label (repeatable): fail "
-            "unless the rise is within it.",
-            metavar="<[label=]rate>",
-        ),
-    ] = None,
-    max_return_drop: Annotated[
-        float | None,
-        typer.Option(
-            help="Gate: fail unless the mean return's drop is within this.", metavar="<amount>"
-        ),
-    ] = None,
-    rate_margin: Annotated[
-        float,
-        typer.Option(
-            help="A rate without a gate is 'held' when its change is within this.",
-            metavar="<rate>",
-        ),
-    ] = 0.05,
-    different_tasks: Annotated[
-        bool,
-        typer.Option("--different-tasks", help="Compare even though the sides' env ids differ."),
-    ] = False,
+    candidate: _CandidateOption,
+    by: _ByOption = "all",
+    max_success_drop: _MaxSuccessDropOption = None,
+    max_failure_increase: _MaxFailureIncreaseOption = None,
+    max_return_drop: _MaxReturnDropOption = None,
+    rate_margin: _RateMarginOption = 0.05,
+    different_tasks: _DifferentTasksOption = False,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
     jobs: JobsOption = None,

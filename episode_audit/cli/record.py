@@ -9,67 +9,78 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import app, emit, fail, progress_bar
+from ._app import ImportOption, app, emit, fail, progress_bar
 from .render import safe
 
 if TYPE_CHECKING:
     from ..read.storage import RemoteFile
 
 
+_EnvIdArgument = Annotated[
+    str, typer.Argument(help="A registered Gymnasium id, e.g. CartPole-v1.", metavar="ENV_ID")
+]
+
+_OutOption = Annotated[
+    Path, typer.Option("--out", "-o", help="The evidence file to write.", metavar="<file.mcap>")
+]
+
+_PolicyOption = Annotated[
+    str,
+    typer.Option(
+        help="random, scripted or hacker (reference tasks), or MODULE:CALLABLE taking "
+        "(env, seed) and returning obs -> action.",
+        metavar="<policy>",
+    ),
+]
+
+_EpisodesOption = Annotated[int, typer.Option(help="Number of episodes.", min=1, metavar="<n>")]
+
+_SeedOption = Annotated[
+    int, typer.Option(help="Seed of the first episode (then seed+1, ...).", metavar="<seed>")
+]
+
+_EnvKwargsOption = Annotated[
+    str | None,
+    typer.Option(
+        help="Keyword arguments for gym.make as JSON, e.g. '{\"proxy_reward\": true}'.",
+        metavar="<json>",
+    ),
+]
+
+_MaxEpisodeStepsOption = Annotated[
+    int | None, typer.Option(help="Override the registered time limit.", metavar="<steps>")
+]
+
+_TagOption = Annotated[
+    list[str] | None,
+    typer.Option(help="Run tag KEY=VALUE (repeatable), e.g. policy=ppo.", metavar="<key=value>"),
+]
+
+_OverwriteOption = Annotated[bool, typer.Option("--overwrite", help="Replace an existing file.")]
+
+_UploadToOption = Annotated[
+    str | None,
+    typer.Option(
+        "--upload",
+        help="Copy the finished file to this URL (s3://bucket/key.mcap, or a prefix ending in /).",
+        metavar="<url>",
+    ),
+]
+
+
 @app.command()
 def record(
-    env_id: Annotated[
-        str, typer.Argument(help="A registered Gymnasium id, e.g. CartPole-v1.", metavar="ENV_ID")
-    ],
-    out: Annotated[
-        Path, typer.Option("--out", "-o", help="The evidence file to write.", metavar="<file.mcap>")
-    ],
-    policy: Annotated[
-        str,
-        typer.Option(
-            help="random, scripted or hacker (reference tasks), or MODULE:CALLABLE taking "
-            "(env, seed) and returning obs -> action.",
-            metavar="<policy>",
-        ),
-    ] = "random",
-    episodes: Annotated[int, typer.Option(help="Number of episodes.", min=1, metavar="<n>")] = 10,
-    seed: Annotated[
-        int, typer.Option(help="Seed of the first episode (then seed+1, ...).", metavar="<seed>")
-    ] = 0,
-    env_kwargs: Annotated[
-        str | None,
-        typer.Option(
-            help="Keyword arguments for gym.make as JSON, e.g. '{\"proxy_reward\": true}'.",
-            metavar="<json>",
-        ),
-    ] = None,
-    max_episode_steps: Annotated[
-        int | None, typer.Option(help="Override the registered time limit.", metavar="<steps>")
-    ] = None,
-    tag: Annotated[
-        list[str] | None,
-        typer.Option(
-            help="Run tag KEY=VALUE (repeatable), e.g. policy=ppo.", metavar="<key=value>"
-        ),
-    ] = None,
-    import_: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--import", help="Import MODULE first (registers envs; repeatable).", metavar="<module>"
-        ),
-    ] = None,
-    overwrite: Annotated[
-        bool, typer.Option("--overwrite", help="Replace an existing file.")
-    ] = False,
-    upload_to: Annotated[
-        str | None,
-        typer.Option(
-            "--upload",
-            help="Copy the finished file to this URL (s3://bucket/key.mcap, or a prefix "
-            "ending in /).",
-            metavar="<url>",
-        ),
-    ] = None,
+    env_id: _EnvIdArgument,
+    out: _OutOption,
+    policy: _PolicyOption = "random",
+    episodes: _EpisodesOption = 10,
+    seed: _SeedOption = 0,
+    env_kwargs: _EnvKwargsOption = None,
+    max_episode_steps: _MaxEpisodeStepsOption = None,
+    tag: _TagOption = None,
+    import_: ImportOption = None,
+    overwrite: _OverwriteOption = False,
+    upload_to: _UploadToOption = None,
 ) -> None:
     """Record episodes of a Gymnasium environment with a built-in or given policy."""
     from ..rollout import record_episodes

@@ -14,6 +14,7 @@ from ._app import (
     EXIT_USAGE,
     SMALL_INPUTS,
     CIFormatOption,
+    ImportOption,
     JobsOption,
     PathsArgument,
     RayOption,
@@ -29,51 +30,54 @@ from ._app import (
 )
 from ._summary import NoStepSummaryOption, append_step_summary
 
+_EpisodeOption = Annotated[
+    list[int] | None,
+    typer.Option(
+        "--episode", "-e", help="Replay only this episode (repeatable).", metavar="<index>"
+    ),
+]
+
+_AtolOption = Annotated[
+    float,
+    typer.Option(
+        help="Tolerance for numeric comparisons (0: exact, the default).", metavar="<tolerance>"
+    ),
+]
+
+_EnvFactoryOption = Annotated[
+    str | None,
+    typer.Option(
+        help="MODULE:CALLABLE that returns the environment to replay in.",
+        metavar="<module:callable>",
+    ),
+]
+
+_TrustEntryPointsOption = Annotated[
+    bool,
+    typer.Option(
+        "--trust-entry-points",
+        help="Allow importing the entry point named inside the file (trusted files only).",
+    ),
+]
+
+_AllowUnverifiedOption = Annotated[
+    bool,
+    typer.Option(
+        "--allow-unverified",
+        help="Exit 0 even when no episode could be verified (every one not replayable).",
+    ),
+]
+
 
 @app.command()
 def replay(
     paths: PathsArgument,
-    episode: Annotated[
-        list[int] | None,
-        typer.Option(
-            "--episode", "-e", help="Replay only this episode (repeatable).", metavar="<index>"
-        ),
-    ] = None,
-    atol: Annotated[
-        float,
-        typer.Option(
-            help="Tolerance for numeric comparisons (0: exact, the default).", metavar="<tolerance>"
-        ),
-    ] = 0.0,
-    env_factory: Annotated[
-        str | None,
-        typer.Option(
-            help="MODULE:CALLABLE that returns the environment to replay in.",
-            metavar="<module:callable>",
-        ),
-    ] = None,
-    import_: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--import",
-            help="Import MODULE first (e.g. a package that registers envs; repeatable).",
-            metavar="<module>",
-        ),
-    ] = None,
-    trust_entry_points: Annotated[
-        bool,
-        typer.Option(
-            "--trust-entry-points",
-            help="Allow importing the entry point named inside the file (trusted files only).",
-        ),
-    ] = False,
-    allow_unverified: Annotated[
-        bool,
-        typer.Option(
-            "--allow-unverified",
-            help="Exit 0 even when no episode could be verified (every one not replayable).",
-        ),
-    ] = False,
+    episode: _EpisodeOption = None,
+    atol: _AtolOption = 0.0,
+    env_factory: _EnvFactoryOption = None,
+    import_: ImportOption = None,
+    trust_entry_points: _TrustEntryPointsOption = False,
+    allow_unverified: _AllowUnverifiedOption = False,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
     jobs: JobsOption = None,

@@ -32,65 +32,79 @@ if TYPE_CHECKING:
     from ..report.inputs import InputsReport
 
 
+_ByOption = Annotated[
+    str,
+    typer.Option(
+        help="Group by: file, env, env_index, agent, label, all, or tag:NAME (e.g. tag:policy).",
+        metavar="<grouping>",
+    ),
+]
+
+_GamesOption = Annotated[
+    bool,
+    typer.Option(
+        "--games",
+        help="PettingZoo files: count whole games (outcome derived from the agents') "
+        "instead of agent-episodes.",
+    ),
+]
+
+_MinSuccessRateOption = Annotated[
+    float | None,
+    typer.Option(help="Gate: fail (exit 1) if a group's success rate is lower.", metavar="<rate>"),
+]
+
+_MaxFailureRateOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        help="Gate: RATE overall, or LABEL=RATE for one failure label (repeatable).",
+        metavar="<[label=]rate>",
+    ),
+]
+
+_MaxTruncationRateOption = Annotated[
+    float | None,
+    typer.Option(help="Gate: fail if a group's truncation rate is higher.", metavar="<rate>"),
+]
+
+_MaxErrorRateOption = Annotated[
+    float | None,
+    typer.Option(
+        help="Gate: fail if a group's error rate (episodes whose env raised, of all its "
+        "episodes; the other rates leave them out) is higher.",
+        metavar="<rate>",
+    ),
+]
+
+_FailOnIncentiveWarningOption = Annotated[
+    bool,
+    typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
+]
+
+_HtmlOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--html",
+        help="Also write the report as one self-contained HTML page (charts, episodes "
+        "with their replay commands) to this file.",
+        metavar="<file.html>",
+    ),
+]
+
+
 @app.command()
 def report(
     paths: PathsArgument,
-    by: Annotated[
-        str,
-        typer.Option(
-            help="Group by: file, env, env_index, agent, label, all, or tag:NAME "
-            "(e.g. tag:policy).",
-            metavar="<grouping>",
-        ),
-    ] = "file",
-    games: Annotated[
-        bool,
-        typer.Option(
-            "--games",
-            help="PettingZoo files: count whole games (outcome derived from the agents') "
-            "instead of agent-episodes.",
-        ),
-    ] = False,
-    min_success_rate: Annotated[
-        float | None,
-        typer.Option(
-            help="Gate: fail (exit 1) if a group's success rate is lower.", metavar="<rate>"
-        ),
-    ] = None,
-    max_failure_rate: Annotated[
-        list[str] | None,
-        typer.Option(
-            help="Gate: RATE overall, or LABEL=RATE for one failure label (repeatable).",
-            metavar="<[label=]rate>",
-        ),
-    ] = None,
-    max_truncation_rate: Annotated[
-        float | None,
-        typer.Option(help="Gate: fail if a group's truncation rate is higher.", metavar="<rate>"),
-    ] = None,
-    max_error_rate: Annotated[
-        float | None,
-        typer.Option(
-            help="Gate: fail if a group's error rate (episodes whose env raised, of all its "
-            "episodes; the other rates leave them out) is higher.",
-            metavar="<rate>",
-        ),
-    ] = None,
-    fail_on_incentive_warning: Annotated[
-        bool,
-        typer.Option("--fail-on-incentive-warning", help="Gate: fail on any incentive warning."),
-    ] = False,
+    by: _ByOption = "file",
+    games: _GamesOption = False,
+    min_success_rate: _MinSuccessRateOption = None,
+    max_failure_rate: _MaxFailureRateOption = None,
+    max_truncation_rate: _MaxTruncationRateOption = None,
+    max_error_rate: _MaxErrorRateOption = None,
+    fail_on_incentive_warning: _FailOnIncentiveWarningOption = False,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
-    html: Annotated[
-        Path | None,
-        typer.Option(
-            "--html",
-            help="Also write the report as one self-contained HTML page (charts, episodes "
-            "with their replay commands) to this file.",
-            metavar="<file.html>",
-        ),
-    ] = None,
+    html: _HtmlOption = None,
     jobs: JobsOption = None,
     ray: RayOption = None,
 ) -> None:
