@@ -150,25 +150,17 @@ class EpisodeRunner:
         of their observations and reset observations (copied as they come: an env may
         change an array it returned).
 
-        This is replay's per-step loop, and long on purpose: everything a step does is inline
-        (no call, attribute lookup or object per step beyond the env's own step); what is done
-        once per episode and is not the usual case (:meth:`_reset`'s refusals, a null action)
-        is in its own method.
+        The steps themselves are :class:`_StepLoop`'s; what is done once per episode and is not
+        the usual case (:meth:`_reset`'s refusals, a null action) is in its own method.
         """
         assert self.obs_codec is not None
         env = self.env if self.counted is None else self.counted[0]
         limit = None if self.counted is None else self.counted[1]
-        env_step = env.step
         got_obs, got_reset = Rows(self.obs_codec), Rows(self.obs_codec)
-        keep_raw: Callable[[Any], int] = got_obs.raw.write  # (takes any C-contiguous array)
-        keep_other = got_obs.add
         keep_reset = got_reset.keep
-        raw_dtype, raw_shape, ndarray = got_obs.dtype, got_obs.shape, np.ndarray
         steps = Steps()
-        rewards = steps.rewards
-        keep_reward, keep_info = rewards.append, steps.infos.append
-        keep_info_row = steps.info_rows.append
-        ends = steps.ends
+        run_steps = _StepLoop(env.step, got_obs, steps).run
+        rewards, ends = steps.rewards, steps.ends
         ran = Ran()
         stepped = ran.stepped
         keep_stepped = stepped.append
@@ -192,32 +184,9 @@ class EpisodeRunner:
             # the TimeLimit truncates its limit-th step, so stepping ends there at the latest
             end = stop if limit is None or stop - start <= limit else start + limit
             before = len(rewards)
-            try:
-                for action in actions[start:end]:
-                    obs, reward, term, trunc, info = env_step(action)
-                    # got_obs.keep(obs), inlined
-                    if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
-                        try:
-                            keep_raw(obs)
-                        except ValueError:  # not C-contiguous
-                            keep_other(obs)
-                    else:
-                        keep_other(obs)
-                    keep_reward(reward)
-                    try:
-                        if info:
-                            keep_info_row(len(rewards) - 1)
-                            keep_info(info)
-                    except Exception:  # an info with no truth value (an array): kept
-                        keep_info_row(len(rewards) - 1)
-                        keep_info(info)
-                    try:
-                        if term or trunc:
-                            break
-                    except Exception:  # flags with no truth value: False, as the recorder took them
-                        term = trunc = False
-            except Exception as exc:
-                crash = Divergence(len(rewards) - before, "step", "a step", env_error(exc))
+            term, trunc, info, failed = run_steps(actions[start:end])
+            if failed is not None:
+                crash = Divergence(len(rewards) - before, "step", "a step", failed)
             ran_now = len(rewards) - before
             if ran_now == limit:
                 trunc = True  # what the TimeLimit sets on its limit-th step
@@ -298,6 +267,61 @@ class EpisodeRunner:
             done[index] = EpisodeReplay(self.file, index, "diverged", 0, divergence)
             return _SKIPPED
         return obs
+
+
+class _StepLoop:
+    """Replay's per-step loop: an episode's actions stepped, what each step returned kept.
+
+    Everything a step does is inline (no call, attribute lookup or object per step beyond the
+    env's own step); what it needs is read into locals once per episode.
+    """
+
+    def __init__(self, env_step: Callable[[Any], Any], got_obs: Rows, steps: Steps) -> None:
+        self._env_step = env_step
+        self._got_obs = got_obs
+        self._steps = steps
+
+    def run(self, actions: Any) -> tuple[Any, Any, Any, Any]:
+        """Step ``actions`` until one ends the episode: its flags and info, and the env's error.
+
+        The error (``None`` unless a step raised) is :func:`env_error`'s account of it; the
+        flags and info are the last step's (unset when no step ran).
+        """
+        env_step, got_obs, steps = self._env_step, self._got_obs, self._steps
+        keep_raw: Callable[[Any], int] = got_obs.raw.write  # (takes any C-contiguous array)
+        keep_other = got_obs.add
+        raw_dtype, raw_shape, ndarray = got_obs.dtype, got_obs.shape, np.ndarray
+        rewards = steps.rewards
+        keep_reward, keep_info = rewards.append, steps.infos.append
+        keep_info_row = steps.info_rows.append
+        term = trunc = info = None
+        try:
+            for action in actions:
+                obs, reward, term, trunc, info = env_step(action)
+                # got_obs.keep(obs), inlined
+                if type(obs) is ndarray and obs.dtype is raw_dtype and obs.shape == raw_shape:
+                    try:
+                        keep_raw(obs)
+                    except ValueError:  # not C-contiguous
+                        keep_other(obs)
+                else:
+                    keep_other(obs)
+                keep_reward(reward)
+                try:
+                    if info:
+                        keep_info_row(len(rewards) - 1)
+                        keep_info(info)
+                except Exception:  # an info with no truth value (an array): kept
+                    keep_info_row(len(rewards) - 1)
+                    keep_info(info)
+                try:
+                    if term or trunc:
+                        break
+                except Exception:  # flags with no truth value: False, as the recorder took them
+                    term = trunc = False
+        except Exception as exc:
+            return term, trunc, info, env_error(exc)
+        return term, trunc, info, None
 
 
 def _first_null_action(
