@@ -96,6 +96,13 @@ class Stream(EpisodeStream):
                 self._terms_plans[keys] = plan
         self._terms_keys, self._terms_names, self._terms_get, self._terms_one = plan
 
+    def takes_no_terms(self, info: dict[Any, Any]) -> bool:
+        """Whether :meth:`step` would read no reward terms from ``info`` (by its keys)."""
+        keys = tuple(info)
+        if keys != self._terms_keys:
+            self._plan_terms(keys)
+        return self._terms_names == ()
+
     def note_next_row(self, notes: list[str]) -> None:
         """Put ``notes`` on the row the next :meth:`step` writes (a caller's own accounting)."""
         if notes and self.episode is not None:

@@ -36,6 +36,7 @@ from episode_audit import (
 )
 from episode_audit.cli import app
 from episode_audit.format.records import unstarted
+from tests.support.envs import ScriptedEnv
 
 N = 4
 STEPS = 2000
@@ -383,6 +384,76 @@ def test_batched_rows_equal_the_row_by_row_ones(tmp_path: Path) -> None:
         max(b.num_rows for b in open_evidence(tmp_path / "batched.mcap").scan() for b in b.steps)
         <= 50
     )
+
+
+def _ending_infos_step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+    """Episodes of 3 to 6 steps; their last step's info says why (or has a reward term)."""
+    obs = env.np_random.uniform(-1, 1, 2).astype(np.float32)
+    length = 3 + int(env.np_random.integers(0, 4))
+    if env.t < length:
+        return obs, 1.0, False, False, {}
+    kind = int(env.np_random.integers(0, 4))
+    info: dict[str, Any] = [
+        {},
+        {"failure": "fell"},
+        {"is_success": True},
+        {"reward_bonus": 0.5, "other": 1},
+    ][kind]
+    return obs, 1.0 + (0.5 if kind == 3 else 0.0), kind != 0, kind == 0, info
+
+
+@pytest.mark.parametrize("monitor", [False, True], ids=["bare", "final info kept"])
+def test_same_step_endings_are_batched_as_the_row_by_row_path_records_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, monitor: bool
+) -> None:
+    """SAME_STEP endings whose final info has no reward terms are batched (final obs, the
+    ending by the rules, then the reset row): the same rows as the per-sub-env path."""
+    from episode_audit.record.vector.modes import SameStep
+
+    def make() -> gym.Env[Any, Any]:
+        env: gym.Env[Any, Any] = ScriptedEnv(_ending_infos_step)
+        if monitor:
+            env = gym.wrappers.RecordEpisodeStatistics(env)  # (an "episode" in the final info)
+        return ResetRngInfo(env)
+
+    taken = Counter[str]()
+    record_ending = SameStep.record_ending
+
+    def counted(self: SameStep, *args: Any) -> None:
+        taken["row by row"] += 1
+        record_ending(self, *args)
+
+    monkeypatch.setattr(SameStep, "record_ending", counted)
+    tables = []
+    for name, info_keys in (("batched", ()), ("rows", "all")):
+        taken.clear()
+        path = tmp_path / f"{name}.mcap"
+        envs = SyncVectorEnv([make] * N, autoreset_mode=AutoresetMode.SAME_STEP)
+        with RecordVectorEvidence(envs, path, block_steps=40, info_keys=info_keys) as rec:
+            rec.reset(seed=SEED)
+            for t in range(300):
+                rec.step(np.zeros(N, dtype=np.int64))
+                if t == 150:
+                    rec.flush()
+        ev = open_evidence(path)
+        keep = ["episode", "step", "observation", "reward", "terms", "terminated", "truncated"]
+        tables.append(
+            (
+                ev.steps(columns=[*keep, "outcome", "label"]),
+                ev.episodes().drop_columns(["start_time_ns", "end_time_ns"]),
+                ev.resets().select(["episode", "env_index", "seed", "rng_state", "observation"]),
+                taken["row by row"],
+            )
+        )
+    (steps_a, eps_a, resets_a, slow_a), (steps_b, eps_b, resets_b, slow_b) = tables
+    # the batched run took only the endings with a reward term the row-by-row way
+    assert 0 < slow_a < slow_b == eps_b.num_rows - N  # (the last N episodes did not end)
+    assert set(pc.unique(eps_a.column("failure_label")).to_pylist()) >= {"fell", "unlabeled"}
+    assert pc.sum(pc.equal(eps_a.column("outcome"), "success")).as_py() > 0
+    order = [("episode", "ascending"), ("step", "ascending")]
+    assert steps_a.sort_by(order).equals(steps_b.sort_by(order))
+    assert eps_a.equals(eps_b)
+    assert resets_a.sort_by("episode").equals(resets_b.sort_by("episode"))
 
 
 def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path) -> None:

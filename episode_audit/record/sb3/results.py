@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..vector.infos import EMPTY
-from ..vector.modes import Result, SameStep
+from ..vector.modes import SameStep
 
 __all__ = ["TERMINAL_OBSERVATION", "TIME_LIMIT_TRUNCATED", "Sb3SameStep", "StepReader"]
 
@@ -96,14 +96,9 @@ class Sb3SameStep(SameStep):
 
     limits: Sequence[int | None] = ()
 
-    def record_ending(
-        self, i: int, action: Any, result: Result, now: int, noted: str | None
-    ) -> None:
-        """Record the ending step (``truncated`` restored at the step limit), then the reset."""
-        obs, reward, terminated, truncated, info = result
+    def ending_flags(self, i: int, terminated: Any, truncated: Any, step: int) -> tuple[Any, Any]:
+        """``truncated`` set again when the ending step ``step`` reached the sub-env's limit."""
         limit = self.limits[i] if i < len(self.limits) else None
-        if terminated and not truncated and limit is not None:
-            block = self.streams[i].block
-            if block.segments and block.next_step_index() + 1 >= limit:
-                result = (obs, reward, terminated, True, info)
-        super().record_ending(i, action, result, now, noted)
+        if terminated and not truncated and limit is not None and step + 1 >= limit:
+            return terminated, True
+        return terminated, truncated

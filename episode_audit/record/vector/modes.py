@@ -243,7 +243,43 @@ class SameStep(Autoreset):
         else:  # neither the vector dict form nor a list of dicts (noted)
             step_info = reset_info = info
             final_obs = obs
+        block = self.streams[i].block
+        if block.segments:
+            terminated, truncated = self.ending_flags(
+                i, terminated, truncated, block.next_step_index()
+            )
         self.streams[i].step(action, (final_obs, reward, terminated, truncated, step_info))
+        self._begin_next(i, obs, reset_info, now, noted)
+
+    def end_batched(
+        self,
+        i: int,
+        flags: tuple[bool, bool],
+        final_info: dict[str, Any],
+        obs: Any,
+        reset_info: dict[str, Any],
+        now: int,
+    ) -> None:
+        """:meth:`record_ending` for a step the batched path took (its row already counted).
+
+        ``final_info`` is the step's info (``final_info``), ``obs`` and ``reset_info`` the next
+        episode's reset row.
+        """
+        stream = self.streams[i]
+        block = stream.block
+        terminated, truncated = flags
+        if block.segments:
+            step = block.next_step_index() - 1  # (the ending step's row is in block.pending)
+            terminated, truncated = self.ending_flags(i, terminated, truncated, step)
+        stream.end_step(block.rows() - 1, terminated, truncated, final_info)
+        self._begin_next(i, obs, reset_info, now, None)
+
+    def ending_flags(self, i: int, terminated: Any, truncated: Any, step: int) -> tuple[Any, Any]:
+        """The flags to record sub-env ``i``'s ending step with (``step``: its index): as given."""
+        return terminated, truncated
+
+    def _begin_next(self, i: int, obs: Any, reset_info: Any, now: int, noted: str | None) -> None:
+        """Begin sub-env ``i``'s next episode from the reset inside the ending step."""
         rng = self.rng.from_info(reset_info)
         why = None if rng is not None else self.no_rng_why
         self.begin(i, None, None, rng, obs, reset_info, now, why, noted)

@@ -20,8 +20,8 @@ from gymnasium.vector.utils import iterate
 from ...format.spaces import SpaceCodec
 from ..file import EvidenceFile
 from ..stream import Stream
-from .infos import EMPTY
-from .modes import Autoreset
+from .infos import EMPTY, env_infos
+from .modes import Autoreset, SameStep
 from .rng import RngState, SubEnvRng
 
 __all__ = ["BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
@@ -33,6 +33,8 @@ _BOOLS = frozenset({bool, np.bool_})
 _BOOL = np.dtype(np.bool_)
 
 _Bools = np.ndarray[Any, np.dtype[np.bool_]]
+_SameStepEndings = dict[int, tuple[Any, dict[str, Any], dict[str, Any]]]
+_FINAL = ("final_obs", "final_info")
 
 
 def _fits(values: Any, shape: tuple[int, ...], dtype: Any) -> bool:
@@ -162,13 +164,15 @@ class VectorSteps:
             idle = self.idle = {
                 i for i, s in enumerate(self._streams) if s.episode is None or s.episode.ended
             }
+        plain = (type(infos) is dict and not infos) or (
+            type(infos) is list and infos == self._no_infos
+        )
+        same: _SameStepEndings | None = None
+        if ends and not plain and not self._batches_endings and self._batchable:
+            same = self._same_step_endings(infos, ends)
         if (
             self._batchable
-            and (
-                (type(infos) is dict and not infos)
-                or (type(infos) is list and infos == self._no_infos)
-            )
-            and (self._batches_endings or not ends)
+            and (same is not None or (plain and (self._batches_endings or not ends)))
             and (not idle or idle.issubset(resetting))  # else: notes (before reset, after end)
             and term_given is None  # else: flags to note (not bool)
             and trunc_given is None
@@ -178,7 +182,7 @@ class VectorSteps:
             and _fits(obs, self._obs_shape, self._obs_dtype)
             and _fits(actions, self._act_shape, self._act_dtype)
         ):
-            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting)
+            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting, same)
         else:
             self.drain()
             self.idle = None
@@ -194,6 +198,36 @@ class VectorSteps:
         if ends or resetting:
             autoreset.stepped(ends)
 
+    def _same_step_endings(self, infos: Any, ends: list[int]) -> _SameStepEndings | None:
+        """A SAME_STEP step's endings, when the batched path can take the step; else ``None``.
+
+        It can when no other sub-env has an info, and each ending one's info holds a final
+        observation of the batch's shape and dtype, and a ``final_info`` dict the stream takes
+        no reward terms from (the ending rules read it as they would on the slow path).
+        """
+        subs, unmasked = env_infos(infos, self._n)
+        if unmasked is not None:
+            return None
+        shape, dtype = self._obs_shape[1:], self._obs_dtype
+        out: _SameStepEndings = {}
+        for i in ends:
+            info = subs[i]
+            if type(info) is not dict or "final_obs" not in info:
+                return None
+            final_obs, final_info = info["final_obs"], info.get("final_info")
+            if (
+                type(final_info) is not dict
+                or not _fits(final_obs, shape, dtype)
+                or (final_info and not self._streams[i].takes_no_terms(final_info))
+            ):
+                return None
+            reset_info = {k: v for k, v in info.items() if k not in _FINAL}
+            out[i] = (final_obs, final_info, reset_info)
+        for i, info in enumerate(subs):
+            if i not in out and (info is not EMPTY and (type(info) is not dict or info)):
+                return None
+        return out
+
     def _batch_step(
         self,
         obs: np.ndarray[Any, Any],
@@ -203,12 +237,14 @@ class VectorSteps:
         trunc: _Bools,
         ends: list[int],
         resetting: list[int],
+        same: _SameStepEndings | None = None,
     ) -> None:
         """A step without info: keep the whole batch; hand rows to the streams in bulk later.
 
         Only episode boundaries are handled per sub-env: the NEXT_STEP autoresets (reset rows)
         and the endings (at the rows they will have: each block's ``pending`` counts the rows
-        batched for it).
+        batched for it); ``same``: the SAME_STEP endings' final observations (their rows) and
+        infos, and the reset rows that follow them.
         """
         file = self._file
         now = file.clock()
@@ -222,6 +258,9 @@ class VectorSteps:
         held[t] = obs
         self._p_act[t] = actions
         self._p_time[t] = now
+        if same is not None:
+            for i, (final_obs, _, _) in same.items():
+                held[t, i] = final_obs
         self._p_mask.append(resetting)
         self._p_len = t + 1
         if resetting or ends:
@@ -239,7 +278,13 @@ class VectorSteps:
                     continue  # a reset step has no flags (Gymnasium clears them)
                 block = streams[i].block
                 block.pending = pending - skipped[i]
-                streams[i].end_step(block.rows() - 1, bool(term[i]), bool(trunc[i]), EMPTY)
+                flags = bool(term[i]), bool(trunc[i])
+                if same is not None:  # the ending, then the reset inside the same step
+                    _, final_info, reset_info = same[i]
+                    assert isinstance(self._autoreset, SameStep)  # (only it does not batch them)
+                    self._autoreset.end_batched(i, flags, final_info, obs[i], reset_info, now)
+                    continue
+                streams[i].end_step(block.rows() - 1, *flags, EMPTY)
                 if idle is not None:
                     idle.add(i)
         self._since_flush += 1
