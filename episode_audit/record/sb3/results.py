@@ -48,6 +48,8 @@ class StepReader:
         self._false = np.zeros(n, dtype=np.bool_)
         self._false.flags.writeable = False
         self._plain = [EMPTY] * n
+        # what SB3 >= 2's VecEnvs give on a step without an ending (compared in one go)
+        self._sb3_plain = [{TIME_LIMIT_TRUNCATED: False} for _ in range(n)]
 
     def read(self, result: tuple[Any, Any, Any, Any]) -> tuple[Any, Any, Any, Any, Any]:
         """``(obs, rewards, terminated, truncated, infos)`` of an SB3 ``step_wait()`` result."""
@@ -57,6 +59,8 @@ class StepReader:
             dones = np.asarray(dones).astype(np.bool_).reshape(n)
         if not isinstance(infos, (list, tuple)) or len(infos) != n:
             return obs, rewards, dones, self._false, infos  # handed on as it is (noted)
+        if infos == self._sb3_plain and not dones.any():
+            return obs, rewards, self._false, self._false, self._plain
         subs: list[Any] = self._plain
         for i, info in enumerate(infos):
             own = _own(info)
