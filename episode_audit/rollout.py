@@ -17,7 +17,7 @@ from typing import Any
 import gymnasium as gym
 
 from ._usercode import import_modules, load_callable
-from .errors import ConfigurationError, RecorderError
+from .errors import ConfigurationError, EpisodeAuditError, RecorderError
 from .format.columns import error_text
 from .record.gym import RecordEvidence
 from .record.lock import check_output_path
@@ -117,15 +117,31 @@ def record_episodes(
                 steps += _record_episode(recorder, act, i, seed + i, path)
                 if on_episode is not None:
                     on_episode()
-    if recorder.trouble is not None:
-        raise RecorderError(
-            f"{path}: recording failed ({recorder.trouble}); the file keeps what could be "
-            f"written and says what could not: `episode-audit check {path}`"
-        )
     from .read import open_evidence
 
+    if recorder.trouble is not None:
+        raise RecorderError(_trouble_message(path, recorder.trouble))
     outcomes = Counter(open_evidence(path).episodes().column("outcome").to_pylist())
     return RecordSummary(path, episodes, steps, dict(outcomes))
+
+
+def _trouble_message(path: str, trouble: str) -> str:
+    """What a recording that failed on the way (a full disk) left, and what to do next."""
+    from .read import open_evidence
+
+    try:
+        finished = open_evidence(path).finished
+    except EpisodeAuditError:
+        finished = False
+    if finished:
+        return (
+            f"{path}: recording failed ({trouble}); the file keeps what could be written and "
+            f"says what could not: `episode-audit check {path}`"
+        )
+    return (
+        f"{path}: recording failed ({trouble}); the file ends after its last good flush and "
+        f"could not be finished: `episode-audit recover {path} OUT.mcap` finishes a copy"
+    )
 
 
 def _check_counts(episodes: int, seed: int, max_episode_steps: int | None) -> None:

@@ -192,9 +192,41 @@ def test_record_on_a_full_disk_says_one_line_naming_the_file(tmp_path: Path) -> 
     (line,) = done.stderr.splitlines()
     assert line.startswith(f"episode-audit: error: {out}: recording failed (OSError: [Errno 27]")
     # the file reads, and says what it could not hold
-    assert "recorder_trouble" in {f.code for f in check([out]).findings}
-    run_end = open_evidence(out).run_end
-    assert run_end is not None and int(run_end["recorder_lost_steps"]) > 0
+    findings = {f.code for f in check([out]).findings}
+    ev = open_evidence(out)
+    if ev.finished:
+        assert "recorder_trouble" in findings
+        assert ev.run_end is not None and int(ev.run_end["recorder_lost_steps"]) > 0
+    else:  # a time-based flush (a loaded host) left less room than the summary needs
+        assert "file_unfinished" in findings
+        assert recover(out, tmp_path / "recovered.mcap").episodes > 0
+
+
+def test_record_that_cannot_finish_the_file_says_how_to_recover_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The run-end record and summary do not fit: the error names ``recover``, which works."""
+    import errno
+
+    from episode_audit.errors import RecorderError
+    from episode_audit.record.writer import EvidenceWriter
+    from episode_audit.rollout import record_episodes
+
+    def full(self: EvidenceWriter, run_end: Any) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(EvidenceWriter, "finish", full)
+    out = tmp_path / "unfinished.mcap"
+    with pytest.raises(
+        RecorderError,
+        match=r"unfinished\.mcap: recording failed \(OSError: \[Errno 28\] No space left on "
+        r"device\); the file ends after its last good flush and could not be finished: "
+        r"`episode-audit recover .*unfinished\.mcap OUT\.mcap` finishes a copy",
+    ):
+        record_episodes("CartPole-v1", out, episodes=3)
+    monkeypatch.undo()
+    assert not open_evidence(out).finished
+    assert recover(out, tmp_path / "fixed.mcap").episodes == 3
 
 
 @pytest.fixture
