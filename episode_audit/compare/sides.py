@@ -19,7 +19,7 @@ import pyarrow.compute as pc
 
 from ..format import names as fmt
 from ..report.collect import ENDED
-from ..report.groups import by_key
+from ..report.groups import keyed
 
 __all__ = ["Pairs", "Side", "pair", "sides"]
 
@@ -96,9 +96,7 @@ class Pairs:
 def sides(episodes: pa.Table, terms: pa.Table) -> dict[str, Side]:
     """One :class:`Side` per group key of ``collect``'s tables, of its ended episodes."""
     ended = episodes.filter(pc.is_in(episodes.column("outcome"), pa.array(ENDED)))
-    rows, term_rows = by_key(ended), by_key(terms)
-    no_terms = terms.slice(0, 0)
-    return {key: _side(rows[key], term_rows.get(key, no_terms)) for key in sorted(rows)}
+    return {key: _side(rows, key_terms) for key, rows, key_terms in keyed(ended, terms)}
 
 
 def _side(rows: pa.Table, terms: pa.Table) -> Side:

@@ -110,9 +110,14 @@ def group_reports(episodes: pa.Table, terms: pa.Table) -> list[GroupReport]:
     """One report per group key of ``episodes`` (sorted by key), with its ``terms`` rows."""
     if not episodes.num_rows:
         return []
+    return [_group(key, rows, key_terms) for key, rows, key_terms in keyed(episodes, terms)]
+
+
+def keyed(episodes: pa.Table, terms: pa.Table) -> list[tuple[str, pa.Table, pa.Table]]:
+    """Each key of ``episodes`` (sorted) with its rows and its ``terms`` rows (:func:`by_key`)."""
     rows, term_rows = by_key(episodes), by_key(terms)
     no_terms = terms.slice(0, 0)
-    return [_group(key, rows[key], term_rows.get(key, no_terms)) for key in sorted(rows)]
+    return [(key, rows[key], term_rows.get(key, no_terms)) for key in sorted(rows)]
 
 
 def by_key(table: pa.Table) -> dict[str, pa.Table]:

@@ -243,11 +243,7 @@ class SameStep(Autoreset):
         else:  # neither the vector dict form nor a list of dicts (noted)
             step_info = reset_info = info
             final_obs = obs
-        block = self.streams[i].block
-        if block.segments:
-            terminated, truncated = self.ending_flags(
-                i, terminated, truncated, block.next_step_index()
-            )
+        terminated, truncated = self._flags_at(i, terminated, truncated, counted=False)
         self.streams[i].step(action, (final_obs, reward, terminated, truncated, step_info))
         self._begin_next(i, obs, reset_info, now, noted)
 
@@ -265,14 +261,20 @@ class SameStep(Autoreset):
         ``final_info`` is the step's info (``final_info``), ``obs`` and ``reset_info`` the next
         episode's reset row.
         """
+        terminated, truncated = self._flags_at(i, *flags, counted=True)
         stream = self.streams[i]
-        block = stream.block
-        terminated, truncated = flags
-        if block.segments:
-            step = block.next_step_index() - 1  # (the ending step's row is in block.pending)
-            terminated, truncated = self.ending_flags(i, terminated, truncated, step)
-        stream.end_step(block.rows() - 1, terminated, truncated, final_info)
+        stream.end_step(stream.block.rows() - 1, terminated, truncated, final_info)
         self._begin_next(i, obs, reset_info, now, None)
+
+    def _flags_at(
+        self, i: int, terminated: Any, truncated: Any, *, counted: bool
+    ) -> tuple[Any, Any]:
+        """:meth:`ending_flags` of sub-env ``i``'s ending step (``counted``: its row is too)."""
+        block = self.streams[i].block
+        if not block.segments:
+            return terminated, truncated
+        step = block.next_step_index() - counted
+        return self.ending_flags(i, terminated, truncated, step)
 
     def ending_flags(self, i: int, terminated: Any, truncated: Any, step: int) -> tuple[Any, Any]:
         """The flags to record sub-env ``i``'s ending step with (``step``: its index): as given."""
