@@ -60,7 +60,7 @@ static PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_st
     *s_ending_keys, *s_limit_hit, *s_pending, *s_counts, *s_episodes, *s_outcome,
     *s_failure_label, *s_truncation_reason, *s_terminated, *s_truncated, *s_error,
     *s_time_limit, *s_elapsed_steps, *s_max_episode_steps, *s_next_episode, *s_env_index,
-    *s_agent, *s_slots, *s_file_clock;
+    *s_agent, *s_slots, *s_file_clock, *s_error_ns;
 
 #define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
 
@@ -944,6 +944,310 @@ static PyTypeObject StepRecorderType = {
     .tp_methods = StepRecorder_methods,
 };
 
+/* ------------------------------------------------------------------ episode records
+
+   episode_json(ended, offset, games, quote, to_json) writes the JSON records of the ended
+   episodes (the file's pending list of (Episode, ending dict)) as file._episode_json does, and
+   their end times. Only the common record is written here, the one file._plain_episode_json
+   writes: no error, no options, a finite float return, int fields, str texts. If any episode
+   is another, it returns None and the Python path writes them all. Texts that are not plain
+   printable ASCII are quoted by `quote` (json's encode_basestring_ascii), term totals by
+   `to_json`: the same bytes, made where they are made in Python. */
+
+typedef struct {
+    char *data;
+    Py_ssize_t len, cap;
+} Text;
+
+/* Append `n` bytes: 1, or 0 with MemoryError. */
+static int text_put(Text *t, const char *s, Py_ssize_t n)
+{
+    if (t->len + n > t->cap) {
+        Py_ssize_t cap = 2 * (t->len + n) + 256;
+        char *data = PyMem_Realloc(t->data, cap);
+        if (data == NULL) {
+            PyErr_NoMemory();
+            return 0;
+        }
+        t->data = data;
+        t->cap = cap;
+    }
+    memcpy(t->data + t->len, s, n);
+    t->len += n;
+    return 1;
+}
+
+static int text_cstr(Text *t, const char *s) { return text_put(t, s, (Py_ssize_t)strlen(s)); }
+
+/* Append `v` in decimal, as Python's int formats it (snprintf's locale handling is slower). */
+static int text_ll(Text *t, long long v)
+{
+    char digits[24], *p = digits + sizeof(digits);
+    unsigned long long u = v < 0 ? 0ull - (unsigned long long)v : (unsigned long long)v;
+    do {
+        *--p = (char)('0' + u % 10);
+        u /= 10;
+    } while (u);
+    if (v < 0)
+        *--p = '-';
+    return text_put(t, p, digits + sizeof(digits) - p);
+}
+
+/* Append `value` + `add` in decimal when it is an int within 64 bits: 1; 0 when it is not one
+   (not plain: no error set); -1 with an error. */
+static int text_int(Text *t, PyObject *value, long long add)
+{
+    if (!PyLong_CheckExact(value))
+        return 0;
+    int overflow = 0;
+    long long v = PyLong_AsLongLongAndOverflow(value, &overflow);
+    if (overflow || (add > 0 && v > LLONG_MAX - add) || (add < 0 && v < LLONG_MIN - add))
+        return 0;
+    if (v == -1 && PyErr_Occurred())
+        return -1;
+    return text_ll(t, v + add) ? 1 : -1;
+}
+
+/* Append `value` as json.dumps quotes a str (ASCII, escaped): 1; 0 when it is no str; -1 with
+   an error. Printable ASCII without '"' or '\\' is copied; any other text goes to `quote`. */
+static int text_str(Text *t, PyObject *value, PyObject *quote)
+{
+    if (!PyUnicode_CheckExact(value))
+        return 0;
+    if (PyUnicode_IS_ASCII(value)) {
+        const char *s = (const char *)PyUnicode_DATA(value);
+        Py_ssize_t n = PyUnicode_GET_LENGTH(value), i = 0;
+        while (i < n && s[i] >= 0x20 && s[i] < 0x7f && s[i] != '"' && s[i] != '\\')
+            i++;
+        if (i == n)
+            return text_put(t, "\"", 1) && text_put(t, s, n) && text_put(t, "\"", 1) ? 1 : -1;
+    }
+    PyObject *quoted = PyObject_CallOneArg(quote, value);
+    if (quoted == NULL)
+        return -1;
+    Py_ssize_t n;
+    const char *s = PyUnicode_Check(quoted) ? PyUnicode_AsUTF8AndSize(quoted, &n) : NULL;
+    int ok = s != NULL && text_put(t, s, n);
+    Py_DECREF(quoted);
+    if (s == NULL && !PyErr_Occurred())
+        PyErr_SetString(PyExc_TypeError, "quote() gave no str");
+    return ok ? 1 : -1;
+}
+
+/* `,"key":` and then the value as `put` writes it (text_int / text_str results). */
+#define PUT_FIELD(key, expr)                                                                       \
+    do {                                                                                           \
+        if (!text_cstr(t, key))                                                                    \
+            return -1;                                                                             \
+        int got_ = (expr);                                                                         \
+        if (got_ <= 0)                                                                             \
+            return got_;                                                                           \
+    } while (0)
+
+/* The record of one ended episode, appended to `t`: 1; 0 when it is not a common one; -1 with
+   an error. `*end` gets its end time (end_ns + offset). */
+static int episode_record(Text *t, PyObject *episode, PyObject *ending, long long offset,
+                          int games, PyObject *quote, PyObject *to_json, long long *end)
+{
+    PyObject *error = PyDict_GetItemWithError(ending, s_error);
+    if (error != Py_None || PyDict_GetItemWithError(ending, s_error_ns) != NULL ||
+        PyErr_Occurred())
+        return PyErr_Occurred() ? -1 : 0;
+    PyObject *ret = SLOT(episode, off_ep[E_RET]), *agent = SLOT(episode, off_ep[E_AGENT]);
+    if (SLOT(episode, off_ep[E_OPTIONS]) != Py_None || !PyFloat_CheckExact(ret) ||
+        !isfinite(PyFloat_AS_DOUBLE(ret)))
+        return 0;
+    PyObject *end_ns = SLOT(episode, off_ep[E_END_NS]);
+    if (!PyLong_CheckExact(end_ns))
+        return 0;
+    int overflow = 0;
+    long long end_value = PyLong_AsLongLongAndOverflow(end_ns, &overflow);
+    if (overflow || (offset > 0 && end_value > LLONG_MAX - offset) ||
+        (offset < 0 && end_value < LLONG_MIN - offset))
+        return 0;
+    *end = end_value + offset;
+    PyObject *outcome = PyDict_GetItemWithError(ending, s_outcome);
+    PyObject *label = PyDict_GetItemWithError(ending, s_failure_label);
+    PyObject *reason = PyDict_GetItemWithError(ending, s_truncation_reason);
+    PyObject *term = PyDict_GetItemWithError(ending, s_terminated);
+    PyObject *trunc = PyDict_GetItemWithError(ending, s_truncated);
+    if (outcome == NULL || label == NULL || reason == NULL || term == NULL || trunc == NULL)
+        return PyErr_Occurred() ? -1 : 0;
+    if ((term != Py_True && term != Py_False) || (trunc != Py_True && trunc != Py_False))
+        return 0;
+    PyObject *seed = SLOT(episode, off_ep[E_SEED]), *game = SLOT(episode, off_ep[E_GAME]);
+    PyObject *totals = SLOT(episode, off_ep[E_TOTALS]), *rng = SLOT(episode, off_ep[E_RNG_JSON]);
+    if (!PyDict_CheckExact(totals) || (rng != Py_None && !PyBytes_CheckExact(rng)))
+        return 0;
+    PUT_FIELD("{\"episode\":", text_int(t, SLOT(episode, off_ep[E_INDEX]), 0));
+    PUT_FIELD(",\"env_index\":", text_int(t, SLOT(episode, off_ep[E_ENV_INDEX]), 0));
+    if (agent != Py_None)
+        PUT_FIELD(",\"agent\":", text_str(t, agent, quote));
+    if (seed != Py_None)
+        PUT_FIELD(",\"seed\":", text_int(t, seed, 0));
+    PUT_FIELD(",\"outcome\":", text_str(t, outcome, quote));
+    if (label != Py_None)
+        PUT_FIELD(",\"failure_label\":", text_str(t, label, quote));
+    if (reason != Py_None)
+        PUT_FIELD(",\"truncation_reason\":", text_str(t, reason, quote));
+    if (!text_cstr(t, term == Py_True ? ",\"terminated\":true" : ",\"terminated\":false") ||
+        !text_cstr(t, trunc == Py_True ? ",\"truncated\":true" : ",\"truncated\":false"))
+        return -1;
+    PUT_FIELD(",\"length\":", text_int(t, SLOT(episode, off_ep[E_STEPS]), 0));
+    char *repr = PyOS_double_to_string(PyFloat_AS_DOUBLE(ret), 'r', 0, Py_DTSF_ADD_DOT_0, NULL);
+    if (repr == NULL)
+        return -1;
+    int ok = text_cstr(t, ",\"return\":") && text_cstr(t, repr) && text_cstr(t, ",\"term_totals\":");
+    PyMem_Free(repr);
+    if (!ok)
+        return -1;
+    if (PyDict_GET_SIZE(totals) == 0) {
+        if (!text_put(t, "{}", 2))
+            return -1;
+    }
+    else {
+        PyObject *json = PyObject_CallOneArg(to_json, totals);
+        if (json == NULL)
+            return -1;
+        ok = PyBytes_Check(json) && text_put(t, PyBytes_AS_STRING(json), PyBytes_GET_SIZE(json));
+        Py_DECREF(json);
+        if (!ok)
+            return PyErr_Occurred() ? -1 : 0;
+    }
+    PUT_FIELD(",\"start_time_ns\":", text_int(t, SLOT(episode, off_ep[E_START_NS]), offset));
+    if (!text_cstr(t, ",\"end_time_ns\":") || !text_ll(t, *end))
+        return -1;
+    PUT_FIELD(",\"notes\":", text_int(t, SLOT(episode, off_ep[E_NOTES]), 0));
+    if (games && game != Py_None)
+        PUT_FIELD(",\"game\":", text_int(t, game, 0));
+    if (rng != Py_None &&
+        !(text_cstr(t, ",\"rng_state\":") && text_put(t, PyBytes_AS_STRING(rng), PyBytes_GET_SIZE(rng))))
+        return -1;
+    return text_put(t, "}", 1) ? 1 : -1;
+}
+
+static PyObject *episode_json(PyObject *module, PyObject *args)
+{
+    PyObject *ended, *quote, *to_json;
+    long long offset;
+    int games;
+    if (!PyArg_ParseTuple(args, "O!LpOO:episode_json", &PyList_Type, &ended, &offset, &games,
+                          &quote, &to_json))
+        return NULL;
+    if (!configured) {
+        PyErr_SetString(PyExc_RuntimeError, "_stepfast is not configured");
+        return NULL;
+    }
+    Py_ssize_t n = PyList_GET_SIZE(ended);
+    PyObject *datas = PyList_New(n), *ends = PyList_New(n), *result = NULL;
+    Text t = {NULL, 0, 0};
+    if (datas == NULL || ends == NULL)
+        goto done;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *item = PyList_GET_ITEM(ended, i);
+        if (!PyTuple_CheckExact(item) || PyTuple_GET_SIZE(item) != 2 ||
+            !Py_IS_TYPE(PyTuple_GET_ITEM(item, 0), episode_type) ||
+            !PyDict_CheckExact(PyTuple_GET_ITEM(item, 1))) {
+            result = Py_NewRef(Py_None);
+            goto done;
+        }
+        long long end = 0;
+        t.len = 0;
+        int got = episode_record(&t, PyTuple_GET_ITEM(item, 0), PyTuple_GET_ITEM(item, 1),
+                                 offset, games, quote, to_json, &end);
+        if (got < 0)
+            goto done;
+        if (got == 0) {
+            result = Py_NewRef(Py_None);
+            goto done;
+        }
+        PyObject *data = PyBytes_FromStringAndSize(t.data, t.len);
+        PyObject *time = PyLong_FromLongLong(end);
+        if (data == NULL || time == NULL) {
+            Py_XDECREF(data);
+            Py_XDECREF(time);
+            goto done;
+        }
+        PyList_SET_ITEM(datas, i, data);
+        PyList_SET_ITEM(ends, i, time);
+    }
+    result = PyTuple_Pack(2, datas, ends);
+done:
+    PyMem_Free(t.data);
+    Py_XDECREF(datas);
+    Py_XDECREF(ends);
+    return result;
+}
+
+/* frame_messages(datas, times, channel, sequence, offset): the MCAP Message records of the
+   messages `datas` (bytes) on `channel` at log (and publish) times `times`, numbered from
+   `sequence`, as one bytes object; and their message index entries, (time, offset) with the
+   first record at `offset`. The same bytes as mcap's Writer.add_message one by one. */
+static PyObject *frame_messages(PyObject *module, PyObject *args)
+{
+    PyObject *datas, *times;
+    unsigned int channel;
+    unsigned long long sequence;
+    long long offset;
+    if (!PyArg_ParseTuple(args, "O!O!IKL:frame_messages", &PyList_Type, &datas, &PyList_Type,
+                          &times, &channel, &sequence, &offset))
+        return NULL;
+    Py_ssize_t n = PyList_GET_SIZE(datas), size = 0;
+    if (PyList_GET_SIZE(times) != n || channel > 0xFFFF) {
+        PyErr_SetString(PyExc_ValueError, "frame_messages: one time per message, a u16 channel");
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *data = PyList_GET_ITEM(datas, i);
+        if (!PyBytes_CheckExact(data)) {
+            PyErr_SetString(PyExc_TypeError, "frame_messages: the messages must be bytes");
+            return NULL;
+        }
+        size += 31 + PyBytes_GET_SIZE(data);
+    }
+    PyObject *framed = PyBytes_FromStringAndSize(NULL, size), *entries = PyList_New(n);
+    if (framed == NULL || entries == NULL)
+        goto fail;
+    unsigned char *out = (unsigned char *)PyBytes_AS_STRING(framed);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *data = PyList_GET_ITEM(datas, i), *time = PyList_GET_ITEM(times, i);
+        unsigned long long t = PyLong_AsUnsignedLongLong(time);
+        if (t == (unsigned long long)-1 && PyErr_Occurred())
+            goto fail;
+        PyObject *entry = Py_BuildValue("(OL)", time, offset);
+        if (entry == NULL)
+            goto fail;
+        PyList_SET_ITEM(entries, i, entry);
+        Py_ssize_t len = PyBytes_GET_SIZE(data);
+        unsigned long long fields[4] = {22 + (unsigned long long)len, channel,
+                                        (sequence + (unsigned long long)i) & 0xFFFFFFFFull, t};
+        /* opcode u8, record length u64, channel u16, sequence u32, log time u64, publish u64;
+           little-endian, as struct "<BQHIQQ" packs them */
+        unsigned char *p = out;
+        *p++ = 0x05;
+        for (int b = 0; b < 8; b++)
+            *p++ = (unsigned char)(fields[0] >> (8 * b));
+        for (int b = 0; b < 2; b++)
+            *p++ = (unsigned char)(fields[1] >> (8 * b));
+        for (int b = 0; b < 4; b++)
+            *p++ = (unsigned char)(fields[2] >> (8 * b));
+        for (int k = 0; k < 2; k++)
+            for (int b = 0; b < 8; b++)
+                *p++ = (unsigned char)(fields[3] >> (8 * b));
+        memcpy(p, PyBytes_AS_STRING(data), len);
+        out = p + len;
+        offset += 31 + len;
+    }
+    PyObject *result = PyTuple_Pack(2, framed, entries);
+    Py_DECREF(framed);
+    Py_DECREF(entries);
+    return result;
+fail:
+    Py_XDECREF(framed);
+    Py_XDECREF(entries);
+    return NULL;
+}
+
 /* ------------------------------------------------------------------ configure */
 
 /* Episode's __slots__ are those of episode_slots, and their offsets are read. */
@@ -1033,6 +1337,10 @@ static PyObject *configure(PyObject *module, PyObject *args)
 static PyMethodDef module_methods[] = {
     {"configure", configure, METH_VARARGS,
      "configure(Block, Episode, FlatArrayBuffer, ArrayBuffer, IntBuffer, array.array)"},
+    {"episode_json", episode_json, METH_VARARGS,
+     "episode_json(ended, offset, games, quote, to_json): ([record JSON], [end time]) or None"},
+    {"frame_messages", frame_messages, METH_VARARGS,
+     "frame_messages(datas, times, channel, sequence, offset): (records, index entries)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module_def = {
@@ -1080,6 +1388,7 @@ PyMODINIT_FUNC PyInit__stepfast(void)
     INTERN(s_agent, "agent");
     INTERN(s_slots, "__slots__");
     INTERN(s_file_clock, "clock");
+    INTERN(s_error_ns, "error_ns");
     PyObject *time = PyImport_ImportModule("time");
     if (time == NULL)
         return NULL;

@@ -10,40 +10,17 @@ untouched: the file is the same either way. ``EPISODE_AUDIT_PURE_PYTHON=1`` in t
 
 from __future__ import annotations
 
-import array
-import os
 from collections.abc import Callable
 from typing import Any, Protocol
 
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
-from .block import Block, Episode
+from .block import Episode
+from .native import NATIVE, PURE_PYTHON_ENV, compiled
 from .stream import Stream
 
 __all__ = ["PURE_PYTHON_ENV", "CompiledReset", "compiled", "reset_function", "step_function"]
 
-PURE_PYTHON_ENV = "EPISODE_AUDIT_PURE_PYTHON"
-"""The environment variable that, set to ``1``, keeps recorders on the pure-Python step."""
-
 _FAST_BUFFERS = (_FlatArrayBuffer, _ArrayBuffer, _IntBuffer)
-
-
-def _load() -> Any:
-    try:
-        import importlib
-
-        _stepfast: Any = importlib.import_module("episode_audit.record._stepfast")
-        _stepfast.configure(Block, Episode, _FlatArrayBuffer, _ArrayBuffer, _IntBuffer, array.array)
-    except Exception:  # not built, or built for another layout: the Python path
-        return None
-    return _stepfast
-
-
-_STEPFAST = _load()
-
-
-def compiled() -> bool:
-    """Whether the compiled step is built and recorders made now use it."""
-    return _STEPFAST is not None and os.environ.get(PURE_PYTHON_ENV) != "1"
 
 
 def step_function(stream: Stream) -> Callable[[Any, Any], None]:
@@ -60,7 +37,7 @@ def step_function(stream: Stream) -> Callable[[Any, Any], None]:
         or type(block.act) not in _FAST_BUFFERS
     ):
         return stream.step
-    step: Callable[[Any, Any], None] = _STEPFAST.StepRecorder(stream)
+    step: Callable[[Any, Any], None] = NATIVE.StepRecorder(stream)
     return step
 
 
@@ -84,7 +61,7 @@ class CompiledReset(Protocol):
 
 def reset_function(step: Callable[[Any, Any], None]) -> CompiledReset | None:
     """The compiled reset that goes with ``step`` (from :func:`step_function`), or ``None``."""
-    if _STEPFAST is None or not isinstance(step, _STEPFAST.StepRecorder):
+    if NATIVE is None or not isinstance(step, NATIVE.StepRecorder):
         return None
     reset: CompiledReset = step
     return reset

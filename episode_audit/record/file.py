@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import atexit
 import json
+import operator
 import os
 import sys
 import threading
@@ -23,6 +24,7 @@ from datetime import datetime, timezone
 from types import FrameType
 from typing import Any, Protocol
 
+import numpy as np
 import pyarrow as pa
 from gymnasium.wrappers import TimeLimit
 
@@ -33,6 +35,7 @@ from ..format.columns import error_text, terms_column, text
 from ..format.records import EPISODE_SCHEMA, RunInfo, to_json
 from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from ..format.spaces import SpaceCodec
+from . import native
 from .block import Episode
 from .settings import RecorderSettings
 from .stream import Stream
@@ -226,6 +229,7 @@ class EvidenceFile:
         self.wall_offset = time.time_ns() - time.monotonic_ns()
         self._episode_schema = EPISODE_BLOCK_SCHEMA if games else EPISODE_BLOCK_BASE
         self.pending: list[tuple[Episode, dict[str, Any]]] = []
+        self._native = native.compiled()  # (the common episode records' JSON, compiled)
         self.streams: list[Stream] = []
         # called first by every flush (a batching recorder hands over its rows)
         self.before_flush: list[Callable[[], None]] = []
@@ -377,11 +381,15 @@ class EvidenceFile:
             return
         self.pending = []
         offset, games = self.wall_offset, self.games
-        ends = [ending.pop("error_ns", ep.end_ns) + offset for ep, ending in ended]
-        datas = [
-            _episode_json(ep, ending, end, offset, games)
-            for (ep, ending), end in zip(ended, ends, strict=True)
-        ]
+        records = native.episode_json(ended, offset, games) if self._native else None
+        if records is not None:
+            datas, ends = records
+        else:
+            ends = [ending.pop("error_ns", ep.end_ns) + offset for ep, ending in ended]
+            datas = [
+                _episode_json(ep, ending, end, offset, games)
+                for (ep, ending), end in zip(ended, ends, strict=True)
+            ]
         self.writer.write_json_many(self._episodes_channel, datas, ends)
         batch = _episode_batch(ended, ends, offset, games, self._episode_schema)
         self.writer.write_batch(self._episode_blocks_channel, batch, ends[-1])
@@ -589,6 +597,26 @@ def _episode_record(
     return record
 
 
+# The episode block's columns read from each episode (and its ending), by column name.
+_FROM_EPISODE = {
+    "episode": "index",
+    "env_index": "env_index",
+    "agent": "agent",
+    "seed": "seed",
+    "rng_state": "rng_json",  # (JSON bytes, taken as UTF-8 text)
+    "options": "options_json",
+    "length": "steps",
+    "return": "ret",
+    "start_time_ns": "start_ns",
+    "notes": "notes",
+    "game": "game",
+    "term_totals": "totals",
+}
+_FROM_ENDING = ("outcome", "failure_label", "truncation_reason", "terminated", "truncated", "error")
+_episode_fields = operator.attrgetter(*_FROM_EPISODE.values())
+_ending_fields = operator.itemgetter(*_FROM_ENDING)
+
+
 def _episode_batch(
     ended: list[tuple[Episode, dict[str, Any]]],
     ends: list[int],
@@ -596,39 +624,43 @@ def _episode_batch(
     games: bool,
     schema: pa.Schema,
 ) -> pa.RecordBatch:
-    """The episode block of the ``ended`` episodes (``ends``: their end times)."""
-    episodes = [ep for ep, _ in ended]
-    endings = [ending for _, ending in ended]
-    errors = [ending["error"] or {} for ending in endings]
-    columns = {
-        "episode": [ep.index for ep in episodes],
-        "env_index": [ep.env_index for ep in episodes],
-        "agent": [ep.agent for ep in episodes],
-        "seed": [ep.seed for ep in episodes],
-        "rng_state": [None if ep.rng_json is None else ep.rng_json.decode() for ep in episodes],
-        "options": [ep.options_json for ep in episodes],
-        "outcome": [ending["outcome"] for ending in endings],
-        "failure_label": [ending["failure_label"] for ending in endings],
-        "truncation_reason": [ending["truncation_reason"] for ending in endings],
-        "terminated": [ending["terminated"] for ending in endings],
-        "truncated": [ending["truncated"] for ending in endings],
-        "length": [ep.steps for ep in episodes],
-        "return": [ep.ret for ep in episodes],
-        "start_time_ns": [ep.start_ns + offset for ep in episodes],
-        "end_time_ns": ends,
-        "error_type": [e.get("type") for e in errors],
-        "error_message": [e.get("message") for e in errors],
-        "error_during": [e.get("during") for e in errors],
-        "notes": [ep.notes for ep in episodes],
-        "game": [ep.game for ep in episodes] if games else [None] * len(episodes),
-    }
+    """The episode block of the ``ended`` episodes (``ends``: their end times).
+
+    One pass reads each episode's fields; ``zip`` turns those rows into columns.
+    """
+    n = len(ended)
+    rows = [_episode_fields(ep) + _ending_fields(e) for ep, e in ended]
+    columns: dict[str, Any] = dict(
+        zip([*_FROM_EPISODE, *_FROM_ENDING], zip(*rows, strict=True), strict=True)
+    )
+    columns["start_time_ns"] = [t + offset for t in columns["start_time_ns"]]
+    columns["end_time_ns"] = ends
+    if not games:
+        columns["game"] = None
+    errors = columns.pop("error")
+    errors = [e or {} for e in errors] if any(e is not None for e in errors) else None
+    for key in ("type", "message", "during"):
+        columns[f"error_{key}"] = None if errors is None else [e.get(key) for e in errors]
     arrays = [
-        terms_column(len(episodes), {i: ep.totals for i, ep in enumerate(episodes)})
+        _totals_column(columns[name])
         if name == "term_totals"
+        else pa.nulls(n, schema.field(name).type)
+        if columns[name] is None
         else pa.array(columns[name], schema.field(name).type)
         for name in schema.names
     ]
     return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+def _totals_column(totals: tuple[dict[str, float], ...]) -> pa.Array:
+    """The ``term_totals`` column: each episode's totals, an empty map for none."""
+    if any(totals):
+        return terms_column(len(totals), dict(enumerate(totals)))
+    return pa.MapArray.from_arrays(
+        pa.array(np.zeros(len(totals) + 1, dtype=np.int32)),
+        pa.array([], pa.string()),
+        pa.array([], pa.float64()),
+    )
 
 
 _OPEN_RECORDERS: weakref.WeakSet[Any] = weakref.WeakSet()

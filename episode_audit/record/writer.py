@@ -32,6 +32,7 @@ from mcap.writer import CompressionType, Writer
 
 from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
+from . import native
 from .lock import LockedStream, claim_output
 from .sink import StagedFile
 
@@ -109,11 +110,13 @@ class _OpenChunk:
     record costs. This writes the same records, index entries and statistics for a whole list
     in one go (the bytes are the same: tests/record/test_writer.py compares them). ``None``
     from :meth:`of` when this ``mcap`` keeps its state otherwise: messages then go one by one
-    through ``add_message``.
+    through ``add_message``. The records are framed by the extension when it is built
+    (:func:`.native.frame_messages`), else here.
     """
 
     def __init__(self, writer: Writer) -> None:
         self._writer = writer
+        self._frame = native.frame_messages if native.compiled() else None
 
     @classmethod
     def of(cls, writer: Writer) -> _OpenChunk | None:
@@ -143,17 +146,11 @@ class _OpenChunk:
         builder = self._writer._Writer__chunk_builder  # type: ignore[attr-defined]
         stats = self._writer._Writer__statistics  # type: ignore[attr-defined]
         buffer = builder.record_writer._buffer
-        offset = buffer.tell()
-        head, fixed, opcode = _MESSAGE_HEAD.pack, _MESSAGE_FIXED, _MESSAGE_OPCODE
-        parts: list[bytes] = []
-        entries: list[tuple[int, int]] = []
-        for data, t in zip(datas, times, strict=True):
-            entries.append((t, offset))
-            parts.append(head(opcode, fixed + len(data), channel_id, sequence & 0xFFFFFFFF, t, t))
-            parts.append(data)
-            offset += fixed + 9 + len(data)
-            sequence += 1
-        buffer.write(b"".join(parts))
+        if self._frame is not None:
+            framed, entries = self._frame(datas, times, channel_id, sequence, buffer.tell())
+        else:
+            framed, entries = _framed(datas, times, channel_id, sequence, buffer.tell())
+        buffer.write(framed)
         first, last = min(times), max(times)
         _widen(builder, builder.num_messages, first, last)
         index = builder.message_indices.get(channel_id)
@@ -166,6 +163,22 @@ class _OpenChunk:
         _widen(stats, stats.message_count, first, last)
         stats.channel_message_counts[channel_id] += len(datas)
         stats.message_count += len(datas)
+
+
+def _framed(
+    datas: list[bytes], times: list[int], channel_id: int, sequence: int, offset: int
+) -> tuple[bytes, list[tuple[int, int]]]:
+    """:func:`.native.frame_messages` in Python: the records, and their index entries."""
+    head, fixed, opcode = _MESSAGE_HEAD.pack, _MESSAGE_FIXED, _MESSAGE_OPCODE
+    parts: list[bytes] = []
+    entries: list[tuple[int, int]] = []
+    for data, t in zip(datas, times, strict=True):
+        entries.append((t, offset))
+        parts.append(head(opcode, fixed + len(data), channel_id, sequence & 0xFFFFFFFF, t, t))
+        parts.append(data)
+        offset += fixed + 9 + len(data)
+        sequence += 1
+    return b"".join(parts), entries
 
 
 def ipc_stream(batch: pa.RecordBatch) -> pa.Buffer:

@@ -6,10 +6,13 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from episode_audit.format.records import to_json
+from episode_audit.record import native
 from episode_audit.record.block import Episode
 from episode_audit.record.file import _episode_json, _episode_record, _plain_episode_json
 
@@ -87,3 +90,62 @@ def test_the_common_record_is_written_straight_and_others_are_not() -> None:
     episode.ret = math.nan
     assert _plain_episode_json(episode, ending, 99, 1000, False) is None
     assert b'"return":"nan"' in _episode_json(episode, ending, 99, 1000, False)
+
+
+_COMPILED = pytest.mark.skipif(
+    native.NATIVE is None, reason="the extension is not built (no C compiler at install)"
+)
+
+
+@_COMPILED
+@settings(max_examples=300, deadline=None)
+@given(ended(), st.integers(-(2**62), 2**62))
+def test_the_compiled_records_are_the_python_ones(
+    case: tuple[Episode, dict[str, Any], int, int, bool], end_ns: int
+) -> None:
+    """Each common record (and its end time) is the Python path's bytes; for any other the
+    compiled writer declines, and the Python path writes it."""
+    episode, ending, _, offset, games = case
+    episode.end_ns = end_ns
+    got = native.episode_json([(episode, ending)], offset, games)
+    if _plain_episode_json(episode, ending, end_ns + offset, offset, games) is None:
+        assert got is None
+    else:
+        assert got == (
+            [_episode_json(episode, ending, end_ns + offset, offset, games)],
+            [end_ns + offset],
+        )
+
+
+@_COMPILED
+def test_the_compiled_records_decline_the_whole_list_for_one_uncommon_episode() -> None:
+    def common(index: int) -> tuple[Episode, dict[str, Any]]:
+        episode = Episode(index, 7, None, None, 10, 0, None)
+        episode.steps, episode.ret, episode.end_ns = 21, 21.0, 50
+        ending = {
+            "outcome": "success",
+            "failure_label": None,
+            "truncation_reason": None,
+            "terminated": True,
+            "truncated": False,
+            "error": None,
+        }
+        return episode, ending
+
+    ended = [common(0), common(1)]
+    datas, ends = native.episode_json(ended, 5, False) or ([], [])
+    assert datas[1].startswith(b'{"episode":1,') and ends == [55, 55]
+    for change in (
+        lambda ep, e: setattr(ep, "index", np.int64(1)),  # (an int, but not a Python one)
+        lambda ep, e: setattr(ep, "seed", 2**64),  # (beyond 64 bits)
+        lambda ep, e: setattr(ep, "ret", math.inf),
+        lambda ep, e: setattr(ep, "options", {"a": 1}),
+        lambda ep, e: e.update(error={"type": "E", "message": "m", "during": "step"}),
+        lambda ep, e: e.update(error_ns=60),
+        lambda ep, e: e.update(terminated=1),
+        lambda ep, e: e.update(failure_label=b"bytes"),
+        lambda ep, e: e.pop("outcome"),
+    ):
+        ended = [common(0), common(1)]
+        change(*ended[1])
+        assert native.episode_json(ended, 5, False) is None

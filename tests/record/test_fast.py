@@ -20,11 +20,11 @@ import pytest
 from mcap.reader import make_reader
 
 from episode_audit import RecordEvidence
-from episode_audit.record import fast
+from episode_audit.record import fast, native
 from tests.support.envs import ScriptedEnv
 
 needs_compiled = pytest.mark.skipif(
-    fast._STEPFAST is None, reason="the compiled step is not built (no C compiler at install)"
+    native.NATIVE is None, reason="the compiled step is not built (no C compiler at install)"
 )
 
 
@@ -32,7 +32,7 @@ def test_the_compiled_step_is_built_where_the_install_requires_it() -> None:
     # make test installs with EPISODE_AUDIT_REQUIRE_EXTENSION=1: a failed build fails there
     if os.environ.get("EPISODE_AUDIT_REQUIRE_EXTENSION") != "1":
         pytest.skip("EPISODE_AUDIT_REQUIRE_EXTENSION is not set: the extension is optional")
-    assert fast._STEPFAST is not None
+    assert native.NATIVE is not None
 
 
 def _odd_env() -> ScriptedEnv:

@@ -9,6 +9,7 @@ import pytest
 from mcap.reader import make_reader
 
 import episode_audit.record.writer as writer_module
+from episode_audit.record import native
 from episode_audit.record.writer import EvidenceWriter
 
 _SCHEMA = {"type": "object"}
@@ -22,6 +23,9 @@ def _write(path: Path, many: bool, *, chunk: bool = True) -> bytes:
     w = EvidenceWriter(path, library="test")
     if not chunk:
         w._chunk = None  # as with an mcap whose writer keeps its state otherwise
+    else:
+        assert w._chunk is not None
+        assert (w._chunk._frame is not None) == native.compiled()
     w.add_metadata("episode_audit.run", {"format_version": "1.0"})
     a = w.register_json_channel("/a", "a", _SCHEMA)
     b = w.register_json_channel("/b", "b", _SCHEMA)
@@ -44,9 +48,13 @@ def _write(path: Path, many: bool, *, chunk: bool = True) -> bytes:
     return path.read_bytes()
 
 
+@pytest.mark.parametrize("framing", ["compiled", "python"])
 def test_a_list_of_messages_is_written_as_the_same_bytes_as_one_at_a_time(
-    tmp_path: Path,
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, framing: str
 ) -> None:
+    if framing == "compiled" and native.NATIVE is None:
+        pytest.skip("the extension is not built (no C compiler at install)")
+    monkeypatch.setenv(native.PURE_PYTHON_ENV, "1" if framing == "python" else "0")
     one = _write(tmp_path / "one.mcap", many=False)
     assert _write(tmp_path / "many.mcap", many=True) == one
     # and without the chunk's internals, through add_message

@@ -1,0 +1,75 @@
+"""The recorder's compiled part, ``episode_audit.record._stepfast``: loaded once, or ``None``.
+
+The extension is built with the package when a C compiler is there (``setup.py``). It holds the
+compiled step and reset (:mod:`.fast`), the common episode records' JSON (:func:`episode_json`)
+and the framing of many MCAP messages at once (:func:`frame_messages`). Each writes the same
+bytes as the Python it stands in for. ``EPISODE_AUDIT_PURE_PYTHON=1`` in the environment (read
+when a recorder is made) keeps a recorder on the pure-Python path. See ``docs/recording.md``.
+"""
+
+from __future__ import annotations
+
+import array
+import importlib
+import json
+import os
+from typing import Any
+
+from ..format.records import to_json
+from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
+from .block import Block, Episode
+
+__all__ = ["NATIVE", "PURE_PYTHON_ENV", "compiled", "episode_json", "frame_messages"]
+
+PURE_PYTHON_ENV = "EPISODE_AUDIT_PURE_PYTHON"
+"""The environment variable that, set to ``1``, keeps recorders on the pure-Python path."""
+
+
+def _load() -> Any:
+    try:
+        module: Any = importlib.import_module("episode_audit.record._stepfast")
+        module.configure(Block, Episode, _FlatArrayBuffer, _ArrayBuffer, _IntBuffer, array.array)
+    except Exception:  # not built, or built for another layout: the Python path
+        return None
+    return module
+
+
+NATIVE = _load()
+"""The configured extension module, or ``None`` when it is not built (or does not fit)."""
+
+_QUOTE = json.encoder.encode_basestring_ascii  # (json.dumps' strings: ASCII, escaped)
+
+
+def compiled() -> bool:
+    """Whether the extension is built and recorders made now use it."""
+    return NATIVE is not None and os.environ.get(PURE_PYTHON_ENV) != "1"
+
+
+def episode_json(
+    ended: list[tuple[Episode, dict[str, Any]]], offset: int, games: bool
+) -> tuple[list[bytes], list[int]] | None:
+    """The JSON records of the ended episodes and their end times (wall clock), compiled.
+
+    The same bytes as ``file._episode_json``. ``None`` when one of them is not the common
+    record (an error, options, a return that is no finite float...): the Python path then
+    writes them all. Requires the extension (:data:`NATIVE`).
+    """
+    result: tuple[list[bytes], list[int]] | None = NATIVE.episode_json(
+        ended, offset, games, _QUOTE, to_json
+    )
+    return result
+
+
+def frame_messages(
+    datas: list[bytes], times: list[int], channel: int, sequence: int, offset: int
+) -> tuple[bytes, list[tuple[int, int]]]:
+    """MCAP Message records of ``datas`` on ``channel``, and their message index entries.
+
+    Each message's log and publish time is its entry of ``times``; sequence numbers count from
+    ``sequence`` (modulo 2**32); the first record starts at byte ``offset`` of its chunk. The
+    bytes ``mcap``'s ``Writer.add_message`` writes one by one. Requires the extension.
+    """
+    result: tuple[bytes, list[tuple[int, int]]] = NATIVE.frame_messages(
+        datas, times, channel, sequence, offset
+    )
+    return result
