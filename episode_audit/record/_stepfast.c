@@ -1179,6 +1179,72 @@ done:
     return result;
 }
 
+/* A JSON value of str, int, bool, None and dicts of them with str keys (an RNG state), as
+   to_json writes it: 1; 0 for any other value (no error set); -1 with an error. */
+static int json_value(Text *t, PyObject *value, PyObject *quote, int depth)
+{
+    if (value == Py_None)
+        return text_put(t, "null", 4) ? 1 : -1;
+    if (value == Py_True || value == Py_False)
+        return text_cstr(t, value == Py_True ? "true" : "false") ? 1 : -1;
+    if (PyUnicode_CheckExact(value))
+        return text_str(t, value, quote);
+    if (PyLong_CheckExact(value)) {
+        int overflow = 0;
+        long long v = PyLong_AsLongLongAndOverflow(value, &overflow);
+        if (!overflow)
+            return v == -1 && PyErr_Occurred() ? -1 : (text_ll(t, v) ? 1 : -1);
+        PyObject *digits = PyLong_Type.tp_repr(value); /* (json's own choice for an int) */
+        if (digits == NULL)
+            return -1;
+        Py_ssize_t n;
+        const char *s = PyUnicode_AsUTF8AndSize(digits, &n);
+        int ok = s != NULL && text_put(t, s, n);
+        Py_DECREF(digits);
+        return ok ? 1 : -1;
+    }
+    if (!PyDict_CheckExact(value) || depth > 8)
+        return 0;
+    if (!text_put(t, "{", 1))
+        return -1;
+    PyObject *key, *item;
+    Py_ssize_t pos = 0;
+    int first = 1;
+    while (PyDict_Next(value, &pos, &key, &item)) {
+        if (!PyUnicode_CheckExact(key))
+            return 0;
+        if (!first && !text_put(t, ",", 1))
+            return -1;
+        first = 0;
+        int got = text_str(t, key, quote);
+        if (got <= 0)
+            return got;
+        if (!text_put(t, ":", 1))
+            return -1;
+        if ((got = json_value(t, item, quote, depth + 1)) <= 0)
+            return got;
+    }
+    return text_put(t, "}", 1) ? 1 : -1;
+}
+
+/* rng_json(state, quote): to_json(state) for a dict of str, int, bool, None and such dicts
+   (an RNG state: PCG64's and the other bit generators'), else None. */
+static PyObject *rng_json(PyObject *module, PyObject *args)
+{
+    PyObject *state, *quote;
+    if (!PyArg_ParseTuple(args, "OO:rng_json", &state, &quote))
+        return NULL;
+    if (!PyDict_CheckExact(state))
+        Py_RETURN_NONE;
+    Text t = {NULL, 0, 0};
+    int got = json_value(&t, state, quote, 0);
+    PyObject *result = got < 0   ? NULL
+                       : got == 0 ? Py_NewRef(Py_None)
+                                  : PyBytes_FromStringAndSize(t.data, t.len);
+    PyMem_Free(t.data);
+    return result;
+}
+
 /* frame_messages(datas, times, channel, sequence, offset): the MCAP Message records of the
    messages `datas` (bytes) on `channel` at log (and publish) times `times`, numbered from
    `sequence`, as one bytes object; and their message index entries, (time, offset) with the
@@ -1339,6 +1405,7 @@ static PyMethodDef module_methods[] = {
      "configure(Block, Episode, FlatArrayBuffer, ArrayBuffer, IntBuffer, array.array)"},
     {"episode_json", episode_json, METH_VARARGS,
      "episode_json(ended, offset, games, quote, to_json): ([record JSON], [end time]) or None"},
+    {"rng_json", rng_json, METH_VARARGS, "rng_json(state, quote): to_json(state), or None"},
     {"frame_messages", frame_messages, METH_VARARGS,
      "frame_messages(datas, times, channel, sequence, offset): (records, index entries)"},
     {NULL, NULL, 0, NULL}};

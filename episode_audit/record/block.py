@@ -63,11 +63,15 @@ class Episode:
         env_index: int = 0,
         agent: str | None = None,
         game: int | None = None,
+        *,
+        rng_json: bytes | None = None,
     ) -> None:
         self.index = index
         self.seed = seed
         self.rng_state = rng_state
-        self.rng_json: bytes | None = None if rng_state is None else to_json(rng_state)
+        if rng_json is None and rng_state is not None:
+            rng_json = to_json(rng_state)
+        self.rng_json = rng_json  # (``rng_json``: the state's JSON, made by the caller)
         self.options = options
         self.options_json: str | None = None if options is None else to_json(options).decode()
         self.start_ns = start_ns

@@ -42,6 +42,7 @@ class StreamFile(Protocol):
     flush_at: int
     counts: dict[str, int]
     pending: list[tuple[Episode, dict[str, Any]]]  # ended episodes, their records not written
+    rng_json: Callable[[dict[str, Any]], bytes]  # an RNG state's JSON (to_json's bytes)
 
     def take_episode_index(self) -> int:
         """The next file-global episode index."""
@@ -202,6 +203,7 @@ class EpisodeStream:
             self.env_index,
             self.agent,
             game,
+            rng_json=None if rng_state is None else file.rng_json(rng_state),
         )
         self.episode = episode
         self.block.add_segment(self.block.rows(), episode, 0, True)

@@ -230,6 +230,9 @@ class EvidenceFile:
         self._episode_schema = EPISODE_BLOCK_SCHEMA if games else EPISODE_BLOCK_BASE
         self.pending: list[tuple[Episode, dict[str, Any]]] = []
         self._native = native.compiled()  # (the common episode records' JSON, compiled)
+        self.rng_json: Callable[[dict[str, Any]], bytes] = (
+            native.rng_json if self._native else to_json
+        )
         self.streams: list[Stream] = []
         # called first by every flush (a batching recorder hands over its rows)
         self.before_flush: list[Callable[[], None]] = []

@@ -19,7 +19,7 @@ from ..format.records import to_json
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
 from .block import Block, Episode
 
-__all__ = ["NATIVE", "PURE_PYTHON_ENV", "compiled", "episode_json", "frame_messages"]
+__all__ = ["NATIVE", "PURE_PYTHON_ENV", "compiled", "episode_json", "frame_messages", "rng_json"]
 
 PURE_PYTHON_ENV = "EPISODE_AUDIT_PURE_PYTHON"
 """The environment variable that, set to ``1``, keeps recorders on the pure-Python path."""
@@ -58,6 +58,21 @@ def episode_json(
         ended, offset, games, _QUOTE, to_json
     )
     return result
+
+
+def rng_json(state: dict[str, Any]) -> bytes:
+    """``to_json(state)`` for an RNG state (a bit generator's ``state`` dict), compiled.
+
+    A dict of text, integers and such dicts (PCG64's) is written in C; any other (MT19937's
+    holds an array) by :func:`~episode_audit.format.records.to_json`. Requires the extension.
+
+    >>> import numpy as np
+    >>> state = np.random.PCG64(7).state
+    >>> NATIVE is None or rng_json(state) == to_json(state)
+    True
+    """
+    data: bytes | None = NATIVE.rng_json(state, _QUOTE)
+    return to_json(state) if data is None else data
 
 
 def frame_messages(

@@ -3,6 +3,7 @@ as the general encoding of its record; every other one takes the general encodin
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -149,3 +150,25 @@ def test_the_compiled_records_decline_the_whole_list_for_one_uncommon_episode() 
         ended = [common(0), common(1)]
         change(*ended[1])
         assert native.episode_json(ended, 5, False) is None
+
+
+@_COMPILED
+@pytest.mark.parametrize("kind", ["PCG64", "PCG64DXSM", "MT19937", "Philox", "SFC64"])
+def test_an_rng_state_compiled_is_its_to_json(kind: str) -> None:
+    generator = getattr(np.random, kind)(2**70 + 3)
+    np.random.Generator(generator).integers(0, 10, size=5)
+    state = generator.state
+    assert native.rng_json(state) == to_json(state)
+
+
+@_COMPILED
+@settings(max_examples=200, deadline=None)
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | _TEXT,
+        lambda inner: st.dictionaries(_TEXT, inner, max_size=3),
+        max_leaves=8,
+    ).filter(lambda v: isinstance(v, dict))
+)
+def test_a_dict_of_text_and_integers_compiled_is_its_to_json(state: dict[str, Any]) -> None:
+    assert native.NATIVE.rng_json(state, json.encoder.encode_basestring_ascii) == to_json(state)

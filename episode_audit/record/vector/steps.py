@@ -132,7 +132,9 @@ class VectorSteps:
         self._p_act: np.ndarray[Any, Any] = np.empty(0)
         self._p_rew: np.ndarray[Any, Any] = np.empty(0)
         self._p_time: np.ndarray[Any, Any] = np.empty(0)
-        self._p_mask: list[list[int]] = []  # per batched step: the sub-envs that only reset
+        # the (batched step, sub-env) pairs where the sub-env only reset: no row of its own
+        self._p_reset_steps: list[int] = []
+        self._p_reset_envs: list[int] = []
         self._since_flush = 0
         self._block_steps = file.block_steps  # capped by start() for big rows
         self.idle: set[int] | None = None
@@ -261,13 +263,14 @@ class VectorSteps:
         if same is not None:
             for i, (final_obs, _, _) in same.items():
                 held[t, i] = final_obs
-        self._p_mask.append(resetting)
         self._p_len = t + 1
         if resetting or ends:
             streams, skipped, pending = self._streams, self._p_skip, self._p_len
             for i in resetting:
                 # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
                 skipped[i] += 1
+                self._p_reset_steps.append(t)
+                self._p_reset_envs.append(i)
                 streams[i].block.pending = pending - skipped[i]
                 self._autoreset.autoreset(i, obs[i], EMPTY, now, None)
             idle = self.idle
@@ -372,20 +375,19 @@ class VectorSteps:
             return
         obs, act = self._p_obs[:t], self._p_act[:t]
         rew, times = self._p_rew[:t], self._p_time[:t]
-        masks = self._p_mask
-        self._p_obs, self._p_mask = None, []  # fresh buffers for the next steps
+        reset_steps, reset_envs = self._p_reset_steps, self._p_reset_envs
+        self._p_obs = None  # fresh buffers for the next steps
         self._p_len = 0
-        if not any(self._p_skip):
+        if not reset_steps:
             for i, stream in enumerate(self._streams):
                 stream.extend(obs[:, i], act[:, i], rew[:, i], times)
             return
         self._p_skip = [0] * self._n
-        stepped = np.ones((len(masks), self._n), dtype=np.bool_)
-        for t, skipped in enumerate(masks):
-            if skipped:
-                stepped[t, skipped] = False
+        self._p_reset_steps, self._p_reset_envs = [], []
+        stepped = np.ones((t, self._n), dtype=np.bool_)
+        stepped[reset_steps, reset_envs] = False
         for i, stream in enumerate(self._streams):
-            rows = stepped[:, i]
+            rows = np.flatnonzero(stepped[:, i])
             stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
 
     def _hold(self, obs: np.ndarray[Any, Any], actions: np.ndarray[Any, Any]) -> None:
