@@ -1138,13 +1138,17 @@ static PyObject *episode_json(PyObject *module, PyObject *args)
         PyErr_SetString(PyExc_RuntimeError, "_stepfast is not configured");
         return NULL;
     }
-    Py_ssize_t n = PyList_GET_SIZE(ended);
+    /* a tuple of the items: quote and to_json run Python code, which cannot change it */
+    PyObject *items = PyList_AsTuple(ended);
+    if (items == NULL)
+        return NULL;
+    Py_ssize_t n = PyTuple_GET_SIZE(items);
     PyObject *datas = PyList_New(n), *ends = PyList_New(n), *result = NULL;
     Text t = {NULL, 0, 0};
     if (datas == NULL || ends == NULL)
         goto done;
     for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *item = PyList_GET_ITEM(ended, i);
+        PyObject *item = PyTuple_GET_ITEM(items, i);
         if (!PyTuple_CheckExact(item) || PyTuple_GET_SIZE(item) != 2 ||
             !Py_IS_TYPE(PyTuple_GET_ITEM(item, 0), episode_type) ||
             !PyDict_CheckExact(PyTuple_GET_ITEM(item, 1))) {
@@ -1174,6 +1178,7 @@ static PyObject *episode_json(PyObject *module, PyObject *args)
     result = PyTuple_Pack(2, datas, ends);
 done:
     PyMem_Free(t.data);
+    Py_DECREF(items);
     Py_XDECREF(datas);
     Py_XDECREF(ends);
     return result;
