@@ -12,8 +12,6 @@
 from __future__ import annotations
 
 import atexit
-import json
-import operator
 import os
 import sys
 import threading
@@ -24,19 +22,18 @@ from datetime import datetime, timezone
 from types import FrameType
 from typing import Any, Protocol
 
-import numpy as np
 import pyarrow as pa
 from gymnasium.wrappers import TimeLimit
 
 from .._version import __version__
 from ..errors import RecorderError
 from ..format import names as fmt
-from ..format.columns import error_text, terms_column, text
-from ..format.records import EPISODE_SCHEMA, RunInfo, to_json
-from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
+from ..format.columns import error_text, text
+from ..format.records import RunInfo, to_json
 from ..format.spaces import SpaceCodec
 from . import native
 from .block import Episode
+from .episode_records import EpisodeRecords
 from .settings import RecorderSettings
 from .stream import Stream
 from .writer import EvidenceWriter
@@ -227,11 +224,10 @@ class EvidenceFile:
         # Clock: monotonic for ordering, anchored to the wall clock once.
         self.clock = time.monotonic_ns
         self.wall_offset = time.time_ns() - time.monotonic_ns()
-        self._episode_schema = EPISODE_BLOCK_SCHEMA if games else EPISODE_BLOCK_BASE
+        self.records = EpisodeRecords(games)
         self.pending: list[tuple[Episode, dict[str, Any]]] = []
-        self._native = native.compiled()  # (the common episode records' JSON, compiled)
         self.rng_json: Callable[[dict[str, Any]], bytes] = (
-            native.rng_json if self._native else to_json
+            native.rng_json if self.records.compiled else to_json
         )
         self.streams: list[Stream] = []
         # called first by every flush (a batching recorder hands over its rows)
@@ -249,7 +245,6 @@ class EvidenceFile:
         except BaseException:
             self.writer.abandon()
             raise
-        self._episodes_channel = self._episode_blocks_channel = -1
         self.started = False
         self.next_episode = 0
         self.last_flush = self.clock()
@@ -294,12 +289,7 @@ class EvidenceFile:
         pa.array([0])
         writer = self.writer
         try:
-            self._episodes_channel = writer.register_json_channel(
-                fmt.TOPIC_EPISODE_END, fmt.SCHEMA_EPISODE_END, EPISODE_SCHEMA
-            )
-            self._episode_blocks_channel = writer.register_arrow_channel(
-                fmt.TOPIC_EPISODES, fmt.SCHEMA_EPISODE_BLOCK, self._episode_schema, {"agent": ""}
-            )
+            self.records.register(writer)
             writer.flush()
         except BaseException:
             writer.abandon()
@@ -380,22 +370,9 @@ class EvidenceFile:
     def _write_episodes(self) -> None:
         """Write the episodes ended since the last flush: JSON messages and one Arrow block."""
         ended = self.pending
-        if not ended:
-            return
-        self.pending = []
-        offset, games = self.wall_offset, self.games
-        records = native.episode_json(ended, offset, games) if self._native else None
-        if records is not None:
-            datas, ends = records
-        else:
-            ends = [ending.pop("error_ns", ep.end_ns) + offset for ep, ending in ended]
-            datas = [
-                _episode_json(ep, ending, end, offset, games)
-                for (ep, ending), end in zip(ended, ends, strict=True)
-            ]
-        self.writer.write_json_many(self._episodes_channel, datas, ends)
-        batch = _episode_batch(ended, ends, offset, games, self._episode_schema)
-        self.writer.write_batch(self._episode_blocks_channel, batch, ends[-1])
+        if ended:
+            self.pending = []
+            self.records.write(self.writer, ended, self.wall_offset)
 
     # ------------------------------------------------------------------ flushing, closing
 
@@ -503,7 +480,7 @@ class EvidenceFile:
         if self.troubles:
             run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
             run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
-        episodes = lost[self._episode_blocks_channel]
+        episodes = lost[self.records.block_channel]
         if steps or resets or episodes:
             run_end[fmt.RUN_END_LOST_STEPS] = str(steps)
             run_end[fmt.RUN_END_LOST_RESETS] = str(resets)
@@ -519,150 +496,6 @@ def _warn_line(message: str) -> None:
     # never with a line of the recorder's code (or the user's) under it.
     warnings.warn_explicit(
         message, RuntimeWarning, "<episode-audit>", 0, module="episode_audit", registry={}
-    )
-
-
-def _episode_json(
-    episode: Episode, ending: dict[str, Any], end_ns: int, offset: int, games: bool
-) -> bytes:
-    """The JSON record of an ended episode (``ending``: what ``Stream.end_episode`` said).
-
-    Optional fields that are null are left out (the JSON Schema marks them optional); the
-    ``rng_state`` is already JSON (made once at reset): spliced in, not encoded again. The
-    common record (no error, no options, a finite return) is written straight
-    from the episode, the same bytes as :func:`~episode_audit.format.records.to_json` of it.
-    """
-    data = _plain_episode_json(episode, ending, end_ns, offset, games)
-    if data is None:
-        record = _episode_record(episode, ending, end_ns, offset, games)
-        data = to_json({k: v for k, v in record.items() if v is not None})
-    if episode.rng_json is not None:
-        data = data[:-1] + b',"rng_state":' + episode.rng_json + b"}"
-    return data
-
-
-def _plain_episode_json(
-    episode: Episode, ending: dict[str, Any], end_ns: int, offset: int, games: bool
-) -> bytes | None:
-    """The JSON record of a common episode, ``None`` for any other (see :func:`_episode_json`)."""
-    ret, totals, agent = episode.ret, episode.totals, episode.agent
-    if (
-        ending["error"] is not None
-        or episode.options is not None
-        or type(ret) is not float
-        or ret - ret != 0.0  # (NaN, an infinity: the general path's text for them)
-        or (agent is not None and type(agent) is not str)
-    ):
-        return None
-    seed, label, reason = episode.seed, ending["failure_label"], ending["truncation_reason"]
-    game = episode.game if games else None
-    agent_json = "" if agent is None else ',"agent":' + _quote(agent)
-    seed_json = "" if seed is None else f',"seed":{seed:d}'
-    label_json = "" if label is None else ',"failure_label":' + _quote(label)
-    reason_json = "" if reason is None else ',"truncation_reason":' + _quote(reason)
-    game_json = "" if game is None else f',"game":{game:d}'
-    return (
-        f'{{"episode":{episode.index:d},"env_index":{episode.env_index:d}{agent_json}'
-        f'{seed_json},"outcome":{_quote(ending["outcome"])}{label_json}{reason_json}'
-        f',"terminated":{_BOOL_JSON[ending["terminated"]]}'
-        f',"truncated":{_BOOL_JSON[ending["truncated"]]}'
-        f',"length":{episode.steps:d},"return":{ret!r}'
-        f',"term_totals":{to_json(totals).decode() if totals else "{}"}'
-        f',"start_time_ns":{episode.start_ns + offset:d},"end_time_ns":{end_ns:d}'
-        f',"notes":{episode.notes:d}{game_json}}}'
-    ).encode()
-
-
-_quote = json.encoder.encode_basestring_ascii  # (json.dumps' strings: ASCII, escaped)
-_BOOL_JSON = {False: "false", True: "true"}
-
-
-def _episode_record(
-    episode: Episode, ending: dict[str, Any], end_ns: int, offset: int, games: bool
-) -> dict[str, Any]:
-    """The episode record of an ended episode, as a dict (its JSON: :func:`_episode_json`)."""
-    record = {
-        "episode": episode.index,
-        "env_index": episode.env_index,
-        "agent": episode.agent,
-        "seed": episode.seed,
-        "options": episode.options,
-        **ending,
-        "length": episode.steps,
-        "return": episode.ret,
-        "term_totals": episode.totals,
-        "start_time_ns": episode.start_ns + offset,
-        "end_time_ns": end_ns,
-        "notes": episode.notes,
-    }
-    if games:
-        record["game"] = episode.game
-    return record
-
-
-# The episode block's columns read from each episode (and its ending), by column name.
-_FROM_EPISODE = {
-    "episode": "index",
-    "env_index": "env_index",
-    "agent": "agent",
-    "seed": "seed",
-    "rng_state": "rng_json",  # (JSON bytes, taken as UTF-8 text)
-    "options": "options_json",
-    "length": "steps",
-    "return": "ret",
-    "start_time_ns": "start_ns",
-    "notes": "notes",
-    "game": "game",
-    "term_totals": "totals",
-}
-_FROM_ENDING = ("outcome", "failure_label", "truncation_reason", "terminated", "truncated", "error")
-_episode_fields = operator.attrgetter(*_FROM_EPISODE.values())
-_ending_fields = operator.itemgetter(*_FROM_ENDING)
-
-
-def _episode_batch(
-    ended: list[tuple[Episode, dict[str, Any]]],
-    ends: list[int],
-    offset: int,
-    games: bool,
-    schema: pa.Schema,
-) -> pa.RecordBatch:
-    """The episode block of the ``ended`` episodes (``ends``: their end times).
-
-    One pass reads each episode's fields; ``zip`` turns those rows into columns.
-    """
-    n = len(ended)
-    rows = [_episode_fields(ep) + _ending_fields(e) for ep, e in ended]
-    columns: dict[str, Any] = dict(
-        zip([*_FROM_EPISODE, *_FROM_ENDING], zip(*rows, strict=True), strict=True)
-    )
-    columns["start_time_ns"] = [t + offset for t in columns["start_time_ns"]]
-    columns["end_time_ns"] = ends
-    if not games:
-        columns["game"] = None
-    errors = columns.pop("error")
-    errors = [e or {} for e in errors] if any(e is not None for e in errors) else None
-    for key in ("type", "message", "during"):
-        columns[f"error_{key}"] = None if errors is None else [e.get(key) for e in errors]
-    arrays = [
-        _totals_column(columns[name])
-        if name == "term_totals"
-        else pa.nulls(n, schema.field(name).type)
-        if columns[name] is None
-        else pa.array(columns[name], schema.field(name).type)
-        for name in schema.names
-    ]
-    return pa.RecordBatch.from_arrays(arrays, schema=schema)
-
-
-def _totals_column(totals: tuple[dict[str, float], ...]) -> pa.Array:
-    """The ``term_totals`` column: each episode's totals, an empty map for none."""
-    if any(totals):
-        return terms_column(len(totals), dict(enumerate(totals)))
-    return pa.MapArray.from_arrays(
-        pa.array(np.zeros(len(totals) + 1, dtype=np.int32)),
-        pa.array([], pa.string()),
-        pa.array([], pa.float64()),
     )
 
 

@@ -15,7 +15,11 @@ from hypothesis import strategies as st
 from episode_audit.format.records import to_json
 from episode_audit.record import native
 from episode_audit.record.block import Episode
-from episode_audit.record.file import _episode_json, _episode_record, _plain_episode_json
+from episode_audit.record.episode_records import (
+    _episode_json,
+    _episode_record,
+    _plain_episode_json,
+)
 
 _TEXT = st.text(max_size=12)
 _FLOATS = st.floats(allow_nan=True, allow_infinity=True) | st.sampled_from([0.0, -0.0, 1e300])

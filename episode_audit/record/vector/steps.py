@@ -85,6 +85,38 @@ def read_flags(values: Any, n: int) -> tuple[_Bools, list[Any] | None]:
     return np.array(truths, dtype=np.bool_), given if odd else None
 
 
+def _same_step_endings(
+    infos: Any, ends: list[int], streams: list[Stream], shape: tuple[int, ...], dtype: Any
+) -> _SameStepEndings | None:
+    """A SAME_STEP step's endings, when the batched path can take the step; else ``None``.
+
+    It can when no other sub-env has an info, and each ending one's info holds a final
+    observation of one row's ``shape`` and ``dtype``, and a ``final_info`` dict the stream
+    takes no reward terms from (the ending rules read it as they would on the slow path).
+    """
+    subs, unmasked = env_infos(infos, len(streams))
+    if unmasked is not None:
+        return None
+    out: _SameStepEndings = {}
+    for i in ends:
+        info = subs[i]
+        if type(info) is not dict or "final_obs" not in info:
+            return None
+        final_obs, final_info = info["final_obs"], info.get("final_info")
+        if (
+            type(final_info) is not dict
+            or not _fits(final_obs, shape, dtype)
+            or (final_info and not streams[i].takes_no_terms(final_info))
+        ):
+            return None
+        reset_info = {k: v for k, v in info.items() if k not in _FINAL}
+        out[i] = (final_obs, final_info, reset_info)
+    for i, info in enumerate(subs):
+        if i not in out and (info is not EMPTY and (type(info) is not dict or info)):
+            return None
+    return out
+
+
 class VectorSteps:
     """Record vector steps: whole batches while they need nothing per sub-env (the hot path).
 
@@ -171,7 +203,9 @@ class VectorSteps:
         )
         same: _SameStepEndings | None = None
         if ends and not plain and not self._batches_endings and self._batchable:
-            same = self._same_step_endings(infos, ends)
+            same = _same_step_endings(
+                infos, ends, self._streams, self._obs_shape[1:], self._obs_dtype
+            )
         if (
             self._batchable
             and (same is not None or (plain and (self._batches_endings or not ends)))
@@ -199,36 +233,6 @@ class VectorSteps:
             )
         if ends or resetting:
             autoreset.stepped(ends)
-
-    def _same_step_endings(self, infos: Any, ends: list[int]) -> _SameStepEndings | None:
-        """A SAME_STEP step's endings, when the batched path can take the step; else ``None``.
-
-        It can when no other sub-env has an info, and each ending one's info holds a final
-        observation of the batch's shape and dtype, and a ``final_info`` dict the stream takes
-        no reward terms from (the ending rules read it as they would on the slow path).
-        """
-        subs, unmasked = env_infos(infos, self._n)
-        if unmasked is not None:
-            return None
-        shape, dtype = self._obs_shape[1:], self._obs_dtype
-        out: _SameStepEndings = {}
-        for i in ends:
-            info = subs[i]
-            if type(info) is not dict or "final_obs" not in info:
-                return None
-            final_obs, final_info = info["final_obs"], info.get("final_info")
-            if (
-                type(final_info) is not dict
-                or not _fits(final_obs, shape, dtype)
-                or (final_info and not self._streams[i].takes_no_terms(final_info))
-            ):
-                return None
-            reset_info = {k: v for k, v in info.items() if k not in _FINAL}
-            out[i] = (final_obs, final_info, reset_info)
-        for i, info in enumerate(subs):
-            if i not in out and (info is not EMPTY and (type(info) is not dict or info)):
-                return None
-        return out
 
     def _batch_step(
         self,
