@@ -20,6 +20,7 @@ import gymnasium as gym
 
 from ...format import names as fmt
 from ...format.records import to_json
+from .. import native
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets
@@ -73,6 +74,7 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         self.episode_audit_snapshots = bool(self._state)
         """Whether it snapshots state (an adapted wrapper or env is below it)."""
         self._last_step: tuple[Any, Any] | None = None  # (action, result) since the last reset
+        self._rng_json = native.rng_json if native.compiled() else to_json  # (the same bytes)
         # a reset that raised: (the exception, the RNG state before it, the step before it)
         self._failed_reset: tuple[BaseException, Any, tuple[Any, Any] | None] | None = None
 
@@ -100,7 +102,7 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         self._failed_reset = None
         obs, info = result
         if state is not None:
-            info = {**info, fmt.INFO_RNG_STATE: to_json(state).decode()}
+            info = {**info, fmt.INFO_RNG_STATE: self._rng_json(state).decode()}
         if snapshot is not None:
             info = {**info, fmt.INFO_STATE: snapshot}
         return obs, info
