@@ -123,13 +123,7 @@ def export(
     episodes_file = out / "episodes.parquet"
     result = ExportResult(episodes_file)
     targets = [out / f"{name}.steps.parquet" for name in _step_file_names(sources)]
-    _refuse_special_files([episodes_file, *targets])
-    if not overwrite:
-        existing = [t for t in [episodes_file, *targets] if t.exists()]
-        if existing:
-            raise ConfigurationError(
-                f"{existing[0]}: exists; pass --overwrite to replace exported files"
-            )
+    _check_outputs([episodes_file, *targets], overwrite)
     episode_tables: list[pa.Table] = []
     pairs = list(zip(sources, targets, strict=True))
     done = map_ordered(_export_pair, pairs, jobs=jobs, ray_address=ray_address, progress=progress)
@@ -156,6 +150,17 @@ def export(
     if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
         result.removed = _remove_stale(out, set(result.steps_files))
     return result
+
+
+def _check_outputs(files: list[Path], overwrite: bool) -> None:
+    """Refuse outputs that are special files, or that exist when not to be overwritten."""
+    _refuse_special_files(files)
+    if not overwrite:
+        existing = [f for f in files if f.exists()]
+        if existing:
+            raise ConfigurationError(
+                f"{existing[0]}: exists; pass --overwrite to replace exported files"
+            )
 
 
 def _export_to_url(
