@@ -123,6 +123,12 @@ def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
         return pa.nulls(n, TERMS_TYPE)
     counts = np.zeros(n, dtype=np.int32)
     valid = np.zeros(n, dtype=np.bool_)
+    if not any(rows.values()):  # (no terms at all, e.g. CartPole's episode totals: empty maps)
+        if len(rows) == n:  # (distinct rows: all of them)
+            valid[:] = True
+        else:
+            valid[np.fromiter(rows, dtype=np.int64, count=len(rows))] = True
+        return _map_column(counts, valid, text_array([]), np.zeros(0))
     keys: list[str] = []
     values: list[Any] = []
     for row, terms in rows.items():

@@ -947,9 +947,9 @@ static PyTypeObject StepRecorderType = {
 /* ------------------------------------------------------------------ episode records
 
    episode_json(ended, offset, games, quote, to_json) writes the JSON records of the ended
-   episodes (the file's pending list of (Episode, ending dict)) as file._episode_json does, and
-   their end times. Only the common record is written here, the one file._plain_episode_json
-   writes: no error, no options, a finite float return, int fields, str texts. If any episode
+   episodes (the file's pending list of (Episode, ending dict)) as episode_records._episode_json
+   does, and their end times. Only the common record is written here, the one
+   episode_records._plain_episode_json writes: no error, no options, a finite float return, int fields, str texts. If any episode
    is another, it returns None and the Python path writes them all. Texts that are not plain
    printable ASCII are quoted by `quote` (json's encode_basestring_ascii), term totals by
    `to_json`: the same bytes, made where they are made in Python. */
@@ -993,9 +993,9 @@ static int text_ll(Text *t, long long v)
     return text_put(t, p, digits + sizeof(digits) - p);
 }
 
-/* Append `value` + `add` in decimal when it is an int within 64 bits: 1; 0 when it is not one
-   (not plain: no error set); -1 with an error. */
-static int text_int(Text *t, PyObject *value, long long add)
+/* `value` + `add` into `*out` when `value` is an int and the sum fits in 64 bits: 1; 0 when
+   not (not plain: no error set); -1 with an error. */
+static int int_plus(PyObject *value, long long add, long long *out)
 {
     if (!PyLong_CheckExact(value))
         return 0;
@@ -1005,7 +1005,16 @@ static int text_int(Text *t, PyObject *value, long long add)
         return 0;
     if (v == -1 && PyErr_Occurred())
         return -1;
-    return text_ll(t, v + add) ? 1 : -1;
+    *out = v + add;
+    return 1;
+}
+
+/* Append `value` + `add` in decimal (see int_plus): 1; 0 when not plain; -1 with an error. */
+static int text_int(Text *t, PyObject *value, long long add)
+{
+    long long v;
+    int got = int_plus(value, add, &v);
+    return got <= 0 ? got : (text_ll(t, v) ? 1 : -1);
 }
 
 /* Append `value` as json.dumps quotes a str (ASCII, escaped): 1; 0 when it is no str; -1 with
@@ -1057,15 +1066,9 @@ static int episode_record(Text *t, PyObject *episode, PyObject *ending, long lon
     if (SLOT(episode, off_ep[E_OPTIONS]) != Py_None || !PyFloat_CheckExact(ret) ||
         !isfinite(PyFloat_AS_DOUBLE(ret)))
         return 0;
-    PyObject *end_ns = SLOT(episode, off_ep[E_END_NS]);
-    if (!PyLong_CheckExact(end_ns))
-        return 0;
-    int overflow = 0;
-    long long end_value = PyLong_AsLongLongAndOverflow(end_ns, &overflow);
-    if (overflow || (offset > 0 && end_value > LLONG_MAX - offset) ||
-        (offset < 0 && end_value < LLONG_MIN - offset))
-        return 0;
-    *end = end_value + offset;
+    int got = int_plus(SLOT(episode, off_ep[E_END_NS]), offset, end);
+    if (got <= 0)
+        return got;
     PyObject *outcome = PyDict_GetItemWithError(ending, s_outcome);
     PyObject *label = PyDict_GetItemWithError(ending, s_failure_label);
     PyObject *reason = PyDict_GetItemWithError(ending, s_truncation_reason);

@@ -14,7 +14,6 @@ import json
 import operator
 from typing import Any
 
-import numpy as np
 import pyarrow as pa
 
 from ..format import names as fmt
@@ -197,7 +196,7 @@ def _episode_batch(
     for key in ("type", "message", "during"):
         columns[f"error_{key}"] = None if errors is None else [e.get(key) for e in errors]
     arrays = [
-        _totals_column(columns[name])
+        terms_column(n, dict(enumerate(columns[name])))
         if name == "term_totals"
         else pa.nulls(n, schema.field(name).type)
         if columns[name] is None
@@ -205,14 +204,3 @@ def _episode_batch(
         for name in schema.names
     ]
     return pa.RecordBatch.from_arrays(arrays, schema=schema)
-
-
-def _totals_column(totals: tuple[dict[str, float], ...]) -> pa.Array:
-    """The ``term_totals`` column: each episode's totals, an empty map for none."""
-    if any(totals):
-        return terms_column(len(totals), dict(enumerate(totals)))
-    return pa.MapArray.from_arrays(
-        pa.array(np.zeros(len(totals) + 1, dtype=np.int32)),
-        pa.array([], pa.string()),
-        pa.array([], pa.float64()),
-    )

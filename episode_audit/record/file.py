@@ -29,7 +29,7 @@ from .._version import __version__
 from ..errors import RecorderError
 from ..format import names as fmt
 from ..format.columns import error_text, text
-from ..format.records import RunInfo, to_json
+from ..format.records import RunInfo
 from ..format.spaces import SpaceCodec
 from . import native
 from .block import Episode
@@ -226,9 +226,7 @@ class EvidenceFile:
         self.wall_offset = time.time_ns() - time.monotonic_ns()
         self.records = EpisodeRecords(games)
         self.pending: list[tuple[Episode, dict[str, Any]]] = []
-        self.rng_json: Callable[[dict[str, Any]], bytes] = (
-            native.rng_json if self.records.compiled else to_json
-        )
+        self.rng_json = native.rng_json_function()
         self.streams: list[Stream] = []
         # called first by every flush (a batching recorder hands over its rows)
         self.before_flush: list[Callable[[], None]] = []

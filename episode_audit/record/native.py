@@ -13,13 +13,22 @@ import array
 import importlib
 import json
 import os
+from collections.abc import Callable
 from typing import Any
 
 from ..format.records import to_json
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
 from .block import Block, Episode
 
-__all__ = ["NATIVE", "PURE_PYTHON_ENV", "compiled", "episode_json", "frame_messages", "rng_json"]
+__all__ = [
+    "NATIVE",
+    "PURE_PYTHON_ENV",
+    "compiled",
+    "episode_json",
+    "frame_messages",
+    "rng_json",
+    "rng_json_function",
+]
 
 PURE_PYTHON_ENV = "EPISODE_AUDIT_PURE_PYTHON"
 """The environment variable that, set to ``1``, keeps recorders on the pure-Python path."""
@@ -73,6 +82,15 @@ def rng_json(state: dict[str, Any]) -> bytes:
     """
     data: bytes | None = NATIVE.rng_json(state, _QUOTE)
     return to_json(state) if data is None else data
+
+
+def rng_json_function() -> Callable[[dict[str, Any]], bytes]:
+    """:func:`rng_json` when the extension is used now (:func:`compiled`), else ``to_json``.
+
+    >>> rng_json_function()({"bit_generator": "PCG64"})
+    b'{"bit_generator":"PCG64"}'
+    """
+    return rng_json if compiled() else to_json
 
 
 def frame_messages(

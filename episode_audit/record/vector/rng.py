@@ -19,7 +19,6 @@ from typing import Any, Protocol
 import gymnasium as gym
 
 from ...format import names as fmt
-from ...format.records import to_json
 from .. import native
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
@@ -74,7 +73,7 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         self.episode_audit_snapshots = bool(self._state)
         """Whether it snapshots state (an adapted wrapper or env is below it)."""
         self._last_step: tuple[Any, Any] | None = None  # (action, result) since the last reset
-        self._rng_json = native.rng_json if native.compiled() else to_json  # (the same bytes)
+        self._rng_json = native.rng_json_function()
         # a reset that raised: (the exception, the RNG state before it, the step before it)
         self._failed_reset: tuple[BaseException, Any, tuple[Any, Any] | None] | None = None
 
