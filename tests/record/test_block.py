@@ -3,6 +3,7 @@ writes what the general case writes, byte for byte."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -102,3 +103,39 @@ def test_repeated_text_is_the_text_array_of_the_repeated_names(
     got.validate(full=True)
     assert got.equals(want)
     assert [b is None for b in got.buffers()] == [b is None for b in want.buffers()]
+
+
+def test_totals_sum_each_episodes_counted_values_in_the_order_names_first_appear() -> None:
+    class Running:
+        def __init__(self) -> None:
+            self.totals: dict[str, float] = {"earlier": 1.0}
+
+    episodes = {3: Running(), 4: Running()}
+    # episode 3: b, then a; episode 4: a, b, c (c's row not counted)
+    names = ["a", "b", "c"]
+    episode_of = np.array([3, 3, 3, 4, 4, 4, 4], dtype=np.int64)
+    code_of = np.array([1, 0, 1, 0, 1, 0, 2], dtype=np.int64)
+    counted = np.array([True, True, True, True, True, False, False])
+    values = np.array([0.5, 2.0, 0.25, 4.0, 8.0, 16.0, 32.0])
+    block_module._add_totals(episodes, names, episode_of, code_of, counted, values)
+    assert list(episodes[3].totals.items()) == [("earlier", 1.0), ("b", 0.75), ("a", 2.0)]
+    assert list(episodes[4].totals.items()) == [("earlier", 1.0), ("a", 4.0), ("b", 8.0)]
+
+
+def test_totals_of_many_rows_agree_with_an_exact_sum() -> None:
+    class Running:
+        def __init__(self) -> None:
+            self.totals: dict[str, float] = {}
+
+    rng = np.random.default_rng(7)
+    rows = 5_000
+    episode_of = np.sort(rng.integers(0, 40, rows)).astype(np.int64)
+    values = rng.standard_normal(rows) * 10.0 ** rng.integers(-3, 4, rows)
+    episodes = {int(e): Running() for e in episode_of}
+    zeros = np.zeros(rows, dtype=np.int64)
+    block_module._add_totals(
+        episodes, ["r"], episode_of, zeros, np.ones(rows, dtype=np.bool_), values
+    )
+    for index, episode in episodes.items():
+        exact = math.fsum(values[episode_of == index].tolist())
+        assert episode.totals["r"] == pytest.approx(exact, rel=1e-12, abs=1e-9)
