@@ -3,8 +3,9 @@
 A *stream* is the episodes of one actor: the single env of ``RecordEvidence``, one sub-env of a
 vector env, or one agent of a PettingZoo env (``docs/format.md``, "Multi-stream files").
 :class:`EpisodeStream` begins episodes (:meth:`~EpisodeStream.begin` and the reset row), ends
-them by their flags, as ``incomplete`` or as ``error``, and writes its block to its two channels;
-:class:`~.stream.Stream` adds the steps. See ``docs/recording.md``.
+them by their flags, as ``incomplete`` or as ``error``, and counts its block into them at each
+flush (:class:`~.channels.StreamChannels` writes it); :class:`~.stream.Stream` adds the steps.
+See ``docs/recording.md``.
 """
 
 from __future__ import annotations
@@ -17,11 +18,11 @@ from gymnasium.wrappers import TimeLimit
 
 from ..format import names as fmt
 from ..format.columns import error_message, text
-from ..format.schemas import reset_schema, step_schema
 from ..format.spaces import SpaceCodec
-from .block import Block, Episode, count_block, reset_batch, row_bytes, step_batch
+from .block import Block, Episode, count_block, row_bytes
+from .channels import StreamChannels
 from .notes import add_notes, append_noted, has_note, note, short
-from .rules import Ending, time_limit_hit
+from .rules import Ending, EndingRules, time_limit_hit
 from .settings import RecorderSettings
 from .values import kept_info, recordable_options, recordable_seed
 from .writer import EvidenceWriter
@@ -75,12 +76,7 @@ class EpisodeStream:
         "_keep_all_info",
         "_max_steps",
         "_obs_codec",
-        "_reset_extra",
-        "_reset_schema",
-        "_resets_channel",
         "_rules",
-        "_step_schema",
-        "_steps_channel",
         "_terms_get",
         "_terms_keys",
         "_terms_names",
@@ -139,28 +135,16 @@ class EpisodeStream:
         """Estimated bytes of one step row (for sizing blocks)."""
         self._time_limit = time_limit
         self._max_steps = max_episode_steps
-        self._step_schema = step_schema(
-            act_codec.field(fmt.COL_ACTION), obs_codec.field(fmt.COL_OBSERVATION)
+        self.channels = StreamChannels(
+            file.writer,
+            obs_codec,
+            act_codec,
+            env_index=env_index,
+            agent=agent,
+            multi=file.multi,
+            state=state,
         )
-        # Multi-stream files: reset rows also say whose they are (and, with games, which game).
-        self._reset_extra = file.multi
-        self._reset_schema = reset_schema(
-            obs_codec.field(fmt.COL_OBSERVATION), multi_stream=file.multi, state=state
-        )
-        channel_meta = {"agent": agent or "", "env_index": str(env_index)}
-        writer = file.writer
-        try:
-            self._steps_channel = writer.register_arrow_channel(
-                fmt.TOPIC_STEPS, fmt.SCHEMA_STEP_BLOCK, self._step_schema, channel_meta
-            )
-            self._resets_channel = writer.register_arrow_channel(
-                fmt.TOPIC_RESETS, fmt.SCHEMA_RESET_BLOCK, self._reset_schema, channel_meta
-            )
-        except BaseException:
-            writer.abandon()
-            raise
-        self.channels = (self._steps_channel, self._resets_channel)
-        """The stream's step and reset channels."""
+        """The stream's ``steps`` and ``resets`` channels."""
         self.episode: Episode | None = None
         self.block = Block(obs_codec, act_codec, None)
         self.flush_at = file.flush_at
@@ -276,12 +260,7 @@ class EpisodeStream:
             "error": None,
         }
         if error is not None:
-            exc, during = error
-            ending["error"] = {
-                "type": text(type(exc).__qualname__),
-                "message": error_message(exc)[:2000],
-                "during": during,
-            }
+            ending["error"] = _error_record(*error)
             ending["error_ns"] = self.file.clock()
         file = self.file
         file.pending.append((episode, ending))
@@ -341,20 +320,7 @@ class EpisodeStream:
             if plain is not None:
                 self._end_as(episode, block, row, plain, terminated, truncated)
                 return
-        read: list[str] = []  # notes on the flags and values read (a success that is no bool)
-        if type(terminated) not in _BOOLS or type(truncated) not in _BOOLS:
-            # e.g. the text "False", which is true: the episode ends, and the step says why
-            odd = f"terminated={short(terminated)}, truncated={short(truncated)}"
-            read.append(note("flags_not_bool", f"{odd} (taken by their truth value)"))
-        ending, why = self._rules.classify_or_note(
-            bool(terminated),
-            bool(truncated),
-            info,
-            time_limit_hit=hit,
-            notes=read,
-        )
-        if why is not None:  # the ending by the flags alone; say why
-            read.append(note("ending_unreadable", why))
+        ending, read = _read_ending(self._rules, terminated, truncated, info, hit)
         if self._rules.reports_success(info):
             self.file.counts["success_reported"] += 1
         if read:
@@ -392,18 +358,36 @@ class EpisodeStream:
         counted = count_block(block, len(block.times)) if block.times else None
         self.block = Block(self._obs_codec, self._act_codec, self.episode)
         file = self.file
+        self.channels.write(file.writer, block, counted, file.wall_offset)
         if counted is not None:
-            batch, last = step_batch(block, counted, self._step_schema, file.wall_offset)
-            file.writer.write_batch(self._steps_channel, batch, last)
             file.counts["steps"] += len(block.times)
             file.counts["blocks"] += 1
-        if block.resets:
-            batch, last = reset_batch(
-                block,
-                self._reset_schema,
-                file.wall_offset,
-                self.env_index,
-                self.agent,
-                self._reset_extra,
-            )
-            file.writer.write_batch(self._resets_channel, batch, last)
+
+
+def _read_ending(
+    rules: EndingRules, terminated: Any, truncated: Any, info: Mapping[str, Any], hit: bool
+) -> tuple[Ending, list[str]]:
+    """The ending of a step whose flags or info are not the plain case, and what to note.
+
+    Flags that are not bools are taken by their truth value (the text ``"False"`` is true:
+    the episode ends, and the step says why); an ending the rules cannot read is the flags'.
+    """
+    read: list[str] = []
+    if type(terminated) not in _BOOLS or type(truncated) not in _BOOLS:
+        odd = f"terminated={short(terminated)}, truncated={short(truncated)}"
+        read.append(note("flags_not_bool", f"{odd} (taken by their truth value)"))
+    ending, why = rules.classify_or_note(
+        bool(terminated), bool(truncated), info, time_limit_hit=hit, notes=read
+    )
+    if why is not None:  # the ending by the flags alone; say why
+        read.append(note("ending_unreadable", why))
+    return ending, read
+
+
+def _error_record(exc: BaseException, during: str) -> dict[str, str]:
+    """The ``error`` of an episode the env's exception ``exc`` ended, ``during`` reset or step."""
+    return {
+        "type": text(type(exc).__qualname__),
+        "message": error_message(exc)[:2000],
+        "during": during,
+    }

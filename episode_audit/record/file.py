@@ -464,9 +464,9 @@ class EvidenceFile:
     def _run_end(self) -> dict[str, str]:
         """The run-end record: counts of what is in the file, and the recorder's trouble."""
         lost, lost_messages = self.writer.lost, self.writer.lost_messages
-        steps = sum(lost[s.channels[0]] for s in self.streams)
-        resets = sum(lost[s.channels[1]] for s in self.streams)
-        blocks = sum(lost_messages[s.channels[0]] for s in self.streams)
+        steps = sum(lost[s.channels.steps] for s in self.streams)
+        resets = sum(lost[s.channels.resets] for s in self.streams)
+        blocks = sum(lost_messages[s.channels.steps] for s in self.streams)
         run_end = {
             "status": "finished",
             "episodes": str(self.counts["episodes"]),

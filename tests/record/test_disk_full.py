@@ -64,7 +64,7 @@ if cfg["end"] != "close_full":
     run(cfg["rows"])
     env.flush()
 file = env._file
-lost = getattr(file.writer, "lost", {}).get(env._stream._steps_channel, 0)
+lost = getattr(file.writer, "lost", {}).get(env._stream.channels.steps, 0)
 print(json.dumps({"steps": file.counts["steps"], "lost": lost}), flush=True)
 if cfg["end"] == "kill":
     os.kill(os.getpid(), signal.SIGKILL)
