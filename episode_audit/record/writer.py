@@ -23,7 +23,7 @@ import os
 import struct
 import threading
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import IO, Any, cast
 
 import pyarrow as pa
@@ -217,6 +217,73 @@ def _copy_statistics(statistics: Any) -> Any:
     return saved
 
 
+class _WriterThread:
+    """A writer thread's work, one piece at a time; what failed in the background, kept.
+
+    >>> thread = _WriterThread()
+    >>> thread.run(lambda failed: failed.append(OSError("full")), background=True)
+    []
+    >>> thread.wait()
+    >>> thread.take_failures()
+    [OSError('full')]
+    """
+
+    __slots__ = ("_failures", "_flushing")
+
+    def __init__(self) -> None:
+        self._flushing: tuple[threading.Thread, list[Exception]] | None = None
+        self._failures: list[Exception] = []  # of background work, for take_failures()
+
+    def run(self, work: Callable[[list[Exception]], None], *, background: bool) -> list[Exception]:
+        """Run ``work(failed)`` in a new writer thread (here, if no thread can be had).
+
+        Waits for it and returns what it put in ``failed``, unless ``background``: then it
+        returns ``[]`` at once, and :meth:`wait` keeps its failures for :meth:`take_failures`.
+        Call :meth:`wait` first: one thread at a time.
+        """
+        failed: list[Exception] = []
+        thread = threading.Thread(target=work, args=(failed,), name="episode-audit-writer")
+        try:
+            thread.start()
+        except RuntimeError:  # (no thread to be had: the caller's thread does it)
+            work(failed)
+            return failed
+        self._flushing = thread, failed
+        if background:
+            return []
+        self.wait(keep=False)
+        return failed
+
+    def wait(self, *, keep: bool = True) -> None:
+        """Wait for the writer thread, if one is under way; ``keep`` its failures for later.
+
+        A Ctrl-C while waiting is raised once the thread has ended (it is short: a chunk's
+        compression and write), so nothing here sees the writer half way through a flush.
+        """
+        flushing = self._flushing
+        if flushing is None:
+            return
+        thread, failed = flushing
+        interrupted: BaseException | None = None
+        while True:
+            try:
+                thread.join()
+                break
+            except BaseException as exc:  # (KeyboardInterrupt)
+                interrupted = exc
+        self._flushing = None
+        if keep:
+            self._failures.extend(failed)
+            del failed[:]
+        if interrupted is not None:
+            raise interrupted
+
+    def take_failures(self) -> list[Exception]:
+        """What failed in the background work waited for since the last call (each once)."""
+        failures, self._failures = self._failures, []
+        return failures
+
+
 class EvidenceWriter:
     """Write one evidence file.
 
@@ -276,8 +343,7 @@ class EvidenceWriter:
         """Rows of Arrow blocks dropped after the OS refused them, by channel."""
         self.lost_messages: Counter[int] = Counter()
         """Messages dropped after the OS refused them, by channel."""
-        self._flushing: tuple[threading.Thread, list[Exception]] | None = None
-        self._failures: list[Exception] = []  # of background flushes, for take_failures()
+        self._thread = _WriterThread()
         self.flush()
 
     @property
@@ -286,7 +352,7 @@ class EvidenceWriter:
         return self._finished
 
     def _check_open(self) -> None:
-        self._wait()
+        self._thread.wait()
         if self._finished:
             raise RecorderError(
                 f"{self.path}: the evidence file is finished; nothing more can be written"
@@ -415,19 +481,7 @@ class EvidenceWriter:
         for the thread, and what failed in it is kept for :meth:`take_failures`, not raised.
         """
         self._check_open()
-        failed: list[Exception] = []
-        thread = threading.Thread(
-            target=self._flush_now, args=(failed,), name="episode-audit-writer"
-        )
-        try:
-            thread.start()
-        except RuntimeError:  # (no thread to be had: the caller's thread does it)
-            self._flush_now(failed)
-        else:
-            self._flushing = thread, failed
-            if background:
-                return
-            self._wait(keep=False)
+        failed = self._thread.run(self._flush_now, background=background)
         if failed:
             raise failed[0]
 
@@ -439,37 +493,12 @@ class EvidenceWriter:
         except Exception as exc:
             failed.append(exc)
 
-    def _wait(self, *, keep: bool = True) -> None:
-        """Wait for the writer thread, if one is under way; ``keep`` its failure for later.
-
-        A Ctrl-C while waiting is raised once the thread has ended (it is short: a chunk's
-        compression and write), so nothing here sees the writer half way through a flush.
-        """
-        flushing = self._flushing
-        if flushing is None:
-            return
-        thread, failed = flushing
-        interrupted: BaseException | None = None
-        while True:
-            try:
-                thread.join()
-                break
-            except BaseException as exc:  # (KeyboardInterrupt)
-                interrupted = exc
-        self._flushing = None
-        if keep:
-            self._failures.extend(failed)
-            del failed[:]
-        if interrupted is not None:
-            raise interrupted
-
     def take_failures(self) -> list[Exception]:
         """What failed in the background flushes waited for since the last call (each once).
 
         A flush the OS refused is retried by the next, as in :meth:`flush`.
         """
-        failures, self._failures = self._failures, []
-        return failures
+        return self._thread.take_failures()
 
     def _commit(self) -> None:
         sink = self._sink
@@ -494,7 +523,7 @@ class EvidenceWriter:
 
     def drop(self) -> None:
         """Drop what was refused since the last good flush, counting it in :attr:`lost`."""
-        self._wait()
+        self._thread.wait()
         self._drop()
 
     def _drop(self) -> None:
@@ -515,7 +544,7 @@ class EvidenceWriter:
         flush, still open, what was refused dropped (:attr:`lost`); call again with a run-end
         record that says so, or :meth:`abandon`.
         """
-        self._wait()
+        self._thread.wait()
         if self._finished:
             return
         try:
@@ -534,7 +563,7 @@ class EvidenceWriter:
 
     def abandon(self) -> None:
         """Close the file without a summary (used only when finishing itself failed)."""
-        self._wait()
+        self._thread.wait()
         if not self._finished:
             self._finished = True
             self._sink.drop()
