@@ -19,6 +19,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv, VecEnvWrappe
 from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
+from ...format.records import RunInfo
 from ...format.spaces import codec_for, describe_space
 from ...format.wrappers import LAYOUT_REWARD_WRAPPERS
 from ..file import EvidenceFile, FileRecorder
@@ -115,33 +116,9 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         if stack.local is not None and install_rng_info:
             self._rng.install_wrappers()
         self._float_rewards = self._widen_rewards(stack)
-        notes = stack.notes()
-        if self._float_rewards is None and stack.local is not None:
-            notes.append(
-                "DummyVecEnv keeps rewards as float32 and a wrapper sits between it and the "
-                "recorder: rewards are recorded as float32"
-            )
         spec = stack.sub_env_spec()
         obs_space, act_space = venv.observation_space, venv.action_space
-        layout = vector_layout(
-            n,
-            AutoresetMode.SAME_STEP,
-            type(base).__name__,
-            not stack.changing,
-            stack.replay_note() if stack.changing else None,
-        )
-        changing = stack.reward_wrappers()
-        if changing:
-            layout[LAYOUT_REWARD_WRAPPERS] = changing
-        self.run_info = run_info(
-            settings=settings,
-            spec=spec,
-            observation_space=describe_space(obs_space),
-            action_space=describe_space(act_space),
-            layout=layout,
-            notes=notes,
-            info_of=stack.info_of(),
-        )
+        self.run_info = self._describe(stack, settings, spec)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         codecs = (
@@ -173,6 +150,34 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         self._reader = StepReader(n, lambda: base.reset_infos)
         self._actions: Any = None
         self._opened()
+
+    def _describe(self, stack: VecStack, settings: RecorderSettings, spec: Any) -> RunInfo:
+        """The run's metadata: the sub-envs' spec, the spaces, the stack's layout and notes."""
+        notes = stack.notes()
+        if self._float_rewards is None and stack.local is not None:
+            notes.append(
+                "DummyVecEnv keeps rewards as float32 and a wrapper sits between it and the "
+                "recorder: rewards are recorded as float32"
+            )
+        layout = vector_layout(
+            self._n,
+            AutoresetMode.SAME_STEP,
+            type(stack.base).__name__,
+            not stack.changing,
+            stack.replay_note() if stack.changing else None,
+        )
+        changing = stack.reward_wrappers()
+        if changing:
+            layout[LAYOUT_REWARD_WRAPPERS] = changing
+        return run_info(
+            settings=settings,
+            spec=spec,
+            observation_space=describe_space(self.venv.observation_space),
+            action_space=describe_space(self.venv.action_space),
+            layout=layout,
+            notes=notes,
+            info_of=stack.info_of(),
+        )
 
     def _widen_rewards(self, stack: VecStack) -> Any:
         """Widen a directly wrapped ``DummyVecEnv``'s float32 reward buffer to float64.

@@ -107,15 +107,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         if (same_step or snapshots) and sync is not None and install_rng_info:
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
-        layout = vector_layout(n, mode, type(base).__name__, self._sub_envs, no_rng_note)
-        if snapshots:
-            layout[LAYOUT_STATE_SNAPSHOTS] = True
-        vector_wrappers = _vector_wrappers(env)
-        if vector_wrappers:
-            layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
-        changing = _sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
-        if changing:
-            layout[LAYOUT_REWARD_WRAPPERS] = changing
+        layout = _layout(env, mode, sync, sub_spec, snapshots, no_rng_note)
         self.run_info = run_info(
             settings=settings,
             spec=sub_spec,
@@ -227,6 +219,29 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _layout(
+    env: VectorEnv[Any, Any, Any],
+    mode: AutoresetMode,
+    sync: SyncVectorEnv | None,
+    sub_spec: Any,
+    snapshots: bool,
+    no_rng_note: str | None,
+) -> dict[str, Any]:
+    """The run's vector layout: autoreset mode, sub-envs, snapshots, the wrappers around them."""
+    base = env.unwrapped
+    has_sub_envs = no_rng_note is None  # (the note says the env has none)
+    layout = vector_layout(int(env.num_envs), mode, type(base).__name__, has_sub_envs, no_rng_note)
+    if snapshots:
+        layout[LAYOUT_STATE_SNAPSHOTS] = True
+    vector_wrappers = _vector_wrappers(env)
+    if vector_wrappers:
+        layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
+    changing = _sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
+    if changing:
+        layout[LAYOUT_REWARD_WRAPPERS] = changing
+    return layout
 
 
 def _check_vector_env(env: Any) -> None:
