@@ -30,8 +30,8 @@ $(STAMP): pyproject.toml setup.py episode_audit/record/_stepfast.c
 venv: $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff format --check episode_audit episode_audit_pytest.py setup.py tests bench fixtures
-	$(BIN)/ruff check episode_audit episode_audit_pytest.py setup.py tests bench fixtures
+	$(BIN)/ruff format --check episode_audit episode_audit_cli.py episode_audit_pytest.py setup.py tests bench fixtures
+	$(BIN)/ruff check episode_audit episode_audit_cli.py episode_audit_pytest.py setup.py tests bench fixtures
 
 typecheck: $(STAMP)
 	$(BIN)/mypy

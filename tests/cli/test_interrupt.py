@@ -1,0 +1,74 @@
+"""A Ctrl-C while the command imports the package: one line and exit 130, no traceback."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+# Stalls the import of gymnasium (which importing episode_audit does) for 30 s, after leaving
+# a mark: the Ctrl-C then lands inside the package's import, every time.
+_SLOW_GYMNASIUM = """
+import importlib.abc, os, sys, time
+
+class SlowGymnasium(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == "gymnasium":
+            open(os.environ["EPISODE_AUDIT_TEST_MARK"], "w").close()
+            time.sleep(30)
+        return None
+
+sys.meta_path.insert(0, SlowGymnasium())
+"""
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def test_ctrl_c_while_the_command_imports_the_package_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "sitecustomize.py").write_text(_SLOW_GYMNASIUM)
+    mark = tmp_path / "importing"
+    env = {
+        **os.environ,
+        "PYTHONPATH": f"{REPO}{os.pathsep}{tmp_path}",
+        "EPISODE_AUDIT_TEST_MARK": str(mark),
+    }
+    # (the module the console script runs: pyproject's [project.scripts])
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "episode_audit_cli", "--help"],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=_default_sigint,  # (as from a shell: pytest-xdist's workers ignore it)
+    )
+    deadline = time.monotonic() + 60
+    while not mark.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert mark.exists(), proc.communicate()[1]
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert out == ""
+    assert err.splitlines() == ["episode-audit: error: interrupted (Ctrl-C): stopped"]
+
+
+def test_the_console_script_runs_the_command() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "episode_audit_cli", "--version"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("episode-audit"), done.stdout
