@@ -64,6 +64,18 @@ static PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_st
 
 #define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
 
+/* Take `op` out of the cyclic garbage collector's lists (as CPython does itself with a tuple
+   or dict that holds no tracked object). Only for the objects this file makes per episode
+   (its Episode, ending pair, row tuples), which hold ints, texts, bools, None, the episode's
+   own untracked dicts and each other: no reference cycle can pass through them, so the
+   collector need not scan them. Otherwise each one counts toward a collection, and the
+   episodes waiting for a flush are promoted, scanned again and again, to the oldest
+   generation, whose growth sets off full collections of the whole process. */
+static void untrack(PyObject *op)
+{
+    PyObject_GC_UnTrack(op);
+}
+
 /* The offset of `type`'s object slot `name`, or -1 when it has none by that name (an error
    set only when the lookup itself failed otherwise). */
 static Py_ssize_t member_offset(PyTypeObject *type, PyObject *name)
@@ -523,6 +535,9 @@ static int record_ending(PyObject *stream, PyObject *episode, PyObject *block, P
         PyDict_SetItem(flags, row_obj, flags_value) < 0)
         goto out;
     Py_SETREF(SLOT(episode, off_ep[E_ENDED]), Py_NewRef(Py_True));
+    untrack(ends_value);
+    untrack(flags_value);
+    untrack(pair);
     if (PyList_Append(pending, pair) < 0 || PyDict_SetItem(counts, s_episodes, count) < 0)
         goto out;
     done = 1;
@@ -763,6 +778,8 @@ static PyObject *StepRecorder_begin(StepRecorder *self, PyObject *seed)
                 : new_episode(next, seed, now, env_index, agent);
     if (fresh == NULL)
         goto done;
+    untrack(fresh);
+    untrack(segment);
     /* The file's next index first: if that fails, nothing else has changed. */
     if (PyObject_SetAttr(self->file, s_next_episode, next_after) < 0 ||
         PyList_Append(segments, segment) < 0 || PyDict_SetItem(episodes, next, fresh) < 0 ||
@@ -815,6 +832,7 @@ static PyObject *StepRecorder_reset_row(StepRecorder *self, PyObject *const *arg
                        Py_None);
     if (row == NULL || PyList_Append(resets, row) < 0)
         goto done;
+    untrack(row);
     commit_value(&obs_p);
     self->compiled_resets++;
     if (flush_if_due(self, now, 0) < 0)

@@ -254,3 +254,28 @@ def test_the_compiled_step_is_used_and_the_switch_turns_it_off(
     with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "b.mcap") as rec:
         assert type(rec._record_step).__name__ != "StepRecorder"
     assert not fast.compiled()
+
+
+@needs_compiled
+def test_the_compiled_paths_per_episode_objects_are_left_out_of_the_collector(
+    tmp_path: Path,
+) -> None:
+    # an episode, its ending and its rows hold no reference that could lead back to them: the
+    # cyclic collector need not scan them (they are freed by their reference counts)
+    import gc
+
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "a.mcap") as rec:
+        stream = rec._stream
+        for seed in (1, 2):
+            rec.reset(seed=seed)
+            done = False
+            while not done:
+                _, _, terminated, truncated, _ = rec.step(rec.action_space.sample())
+                done = terminated or truncated
+        rec.reset(seed=3)
+        block = stream.block
+        # (a block's first segment is made in Python, with the block)
+        made = [stream.episode, *block.segments[1:], *block.resets, *block.ends.values()]
+        made += [*block.flags.values(), *rec._file.pending, *(p[0] for p in rec._file.pending)]
+        assert len(made) >= 10
+        assert [item for item in made if gc.is_tracked(item)] == []
