@@ -43,12 +43,12 @@ static Py_ssize_t off_ends, off_flags, off_segments, off_episodes, off_pending,
     off_reset_obs, off_resets;
 /* Episode's slots, all of them: begin() makes an Episode as its __init__ would (EPISODE_SLOTS
    must name every slot the class has: configure() checks). */
-#define EPISODE_SLOTS 17
+#define EPISODE_SLOTS 16
 static const char *episode_slots[EPISODE_SLOTS] = {
     "after_end", "agent", "end_ns", "ended", "env_index", "game", "index", "notes", "options",
-    "options_json", "ret", "rng_json", "rng_state", "seed", "start_ns", "steps", "totals"};
+    "options_json", "ret", "rng_json", "seed", "start_ns", "steps", "totals"};
 enum { E_AFTER_END, E_AGENT, E_END_NS, E_ENDED, E_ENV_INDEX, E_GAME, E_INDEX, E_NOTES, E_OPTIONS,
-       E_OPTIONS_JSON, E_RET, E_RNG_JSON, E_RNG_STATE, E_SEED, E_START_NS, E_STEPS, E_TOTALS };
+       E_OPTIONS_JSON, E_RET, E_RNG_JSON, E_SEED, E_START_NS, E_STEPS, E_TOTALS };
 static Py_ssize_t off_ep[EPISODE_SLOTS];
 static Py_ssize_t off_obs, off_act, off_rewards, off_times, off_term_vals, off_term_rows,
     off_term_counts, off_term_keys;
@@ -64,16 +64,23 @@ static PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_st
 
 #define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
 
-/* Take `op` out of the cyclic garbage collector's lists (as CPython does itself with a tuple
-   or dict that holds no tracked object). Only for the objects this file makes per episode
-   (its Episode, ending pair, row tuples), which hold ints, texts, bools, None, the episode's
-   own untracked dicts and each other: no reference cycle can pass through them, so the
-   collector need not scan them. Otherwise each one counts toward a collection, and the
-   episodes waiting for a flush are promoted, scanned again and again, to the oldest
+/* Take `op` out of the cyclic garbage collector's lists, as CPython does itself with a tuple
+   or dict that holds no tracked object. Only for the objects a recorder makes per episode (its
+   Episode, ending pair, row tuples: native.untrack says which), which hold ints, texts, bools,
+   None, JSON data of their own and each other: no reference cycle can pass through them, so
+   the collector need not scan them. Otherwise each one is scanned at every young collection
+   it lives through, and the episodes waiting for a flush are promoted to the oldest
    generation, whose growth sets off full collections of the whole process. */
 static void untrack(PyObject *op)
 {
-    PyObject_GC_UnTrack(op);
+    if (PyObject_IS_GC(op))
+        PyObject_GC_UnTrack(op);
+}
+
+static PyObject *untrack_object(PyObject *module, PyObject *op)
+{
+    untrack(op);
+    Py_RETURN_NONE;
 }
 
 /* The offset of `type`'s object slot `name`, or -1 when it has none by that name (an error
@@ -724,7 +731,6 @@ static PyObject *new_episode(PyObject *index, PyObject *seed, long long start_ns
     values[E_OPTIONS] = Py_NewRef(Py_None);
     values[E_OPTIONS_JSON] = Py_NewRef(Py_None);
     values[E_RNG_JSON] = Py_NewRef(Py_None);
-    values[E_RNG_STATE] = Py_NewRef(Py_None);
     values[E_SEED] = Py_NewRef(seed);
     values[E_START_NS] = start; /* (the reference made here) */
     values[E_STEPS] = Py_NewRef(values[E_AFTER_END]);
@@ -1432,6 +1438,8 @@ static PyMethodDef module_methods[] = {
     {"episode_json", episode_json, METH_VARARGS,
      "episode_json(ended, offset, games, quote, to_json): ([record JSON], [end time]) or None"},
     {"rng_json", rng_json, METH_VARARGS, "rng_json(state, quote): to_json(state), or None"},
+    {"untrack", untrack_object, METH_O,
+     "untrack(obj): leave obj out of the cyclic collector (native.untrack: which objects)"},
     {"frame_messages", frame_messages, METH_VARARGS,
      "frame_messages(datas, times, channel, sequence, offset): (records, index entries)"},
     {NULL, NULL, 0, NULL}};

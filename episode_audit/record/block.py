@@ -46,7 +46,6 @@ class Episode:
         "options_json",
         "ret",
         "rng_json",
-        "rng_state",
         "seed",
         "start_ns",
         "steps",
@@ -68,10 +67,10 @@ class Episode:
     ) -> None:
         self.index = index
         self.seed = seed
-        self.rng_state = rng_state
         if rng_json is None and rng_state is not None:
             rng_json = to_json(rng_state)
-        self.rng_json = rng_json  # (``rng_json``: the state's JSON, made by the caller)
+        # only the state's JSON is kept (``rng_json``: made by the caller)
+        self.rng_json = rng_json
         self.options = options
         self.options_json: str | None = None if options is None else to_json(options).decode()
         self.start_ns = start_ns

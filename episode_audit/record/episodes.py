@@ -21,6 +21,7 @@ from ..format.columns import error_message, text
 from ..format.spaces import SpaceCodec
 from .block import Block, Episode, count_block, row_bytes
 from .channels import StreamChannels
+from .native import untrack
 from .notes import add_notes, append_noted, has_note, note, short
 from .rules import Ending, EndingRules, time_limit_hit
 from .settings import RecorderSettings
@@ -190,7 +191,10 @@ class EpisodeStream:
             rng_json=None if rng_state is None else file.rng_json(rng_state),
         )
         self.episode = episode
-        self.block.add_segment(self.block.rows(), episode, 0, True)
+        block = self.block
+        block.add_segment(block.rows(), episode, 0, True)
+        untrack(episode)
+        untrack(block.segments[-1])
         return episode
 
     def record_reset(
@@ -209,17 +213,17 @@ class EpisodeStream:
                 kept = kept_info(info, self._keep_all_info, self._info_keys, notes)
                 if kept:
                     block.reset_info[row] = kept
-            block.resets.append(
-                (
-                    episode.index,
-                    episode.start_ns,
-                    episode.seed,
-                    rng_json,
-                    episode.options_json,
-                    episode.game,
-                    state,
-                )
+            values = (
+                episode.index,
+                episode.start_ns,
+                episode.seed,
+                rng_json,
+                episode.options_json,
+                episode.game,
+                state,
             )
+            block.resets.append(values)
+            untrack(values)
             if notes:
                 add_notes(episode, block.reset_notes, row, notes)
         except Exception as exc:  # never break the training loop over recording trouble
@@ -263,7 +267,9 @@ class EpisodeStream:
             ending["error"] = _error_record(*error)
             ending["error_ns"] = self.file.clock()
         file = self.file
-        file.pending.append((episode, ending))
+        pair = (episode, ending)
+        file.pending.append(pair)
+        untrack(pair)
         file.counts["episodes"] += 1
 
     def cap_block_steps(self, rows: int) -> None:
@@ -338,8 +344,10 @@ class EpisodeStream:
     ) -> None:
         """End ``episode`` at its step ``row`` as ``ending`` says."""
         label = ending.failure_label if terminated else ending.truncation_reason
-        block.ends[row] = (ending.outcome, label)
-        block.flags[row] = (terminated, truncated)
+        untrack(ends := (ending.outcome, label))
+        untrack(flags := (terminated, truncated))
+        block.ends[row] = ends
+        block.flags[row] = flags
         self.end_episode(
             episode,
             ending.outcome,

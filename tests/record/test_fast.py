@@ -279,3 +279,25 @@ def test_the_compiled_paths_per_episode_objects_are_left_out_of_the_collector(
         made += [*block.flags.values(), *rec._file.pending, *(p[0] for p in rec._file.pending)]
         assert len(made) >= 10
         assert [item for item in made if gc.is_tracked(item)] == []
+
+
+@needs_compiled
+def test_the_vector_recorders_per_episode_objects_are_left_out_of_the_collector(
+    tmp_path: Path,
+) -> None:
+    import gc
+
+    from episode_audit import RecordVectorEvidence
+
+    env = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync")
+    with RecordVectorEvidence(env, tmp_path / "v.mcap") as rec:
+        rec.reset(seed=0)
+        actions = np.zeros(2, dtype=np.int64)
+        while len(rec._file.pending) < 4:
+            rec.step(actions)
+        made: list[Any] = [*rec._file.pending, *(pair[0] for pair in rec._file.pending)]
+        for stream in rec._streams:
+            block = stream.block
+            made += [stream.episode, *block.segments[1:], *block.resets]
+            made += [*block.ends.values(), *block.flags.values()]
+        assert [item for item in made if gc.is_tracked(item)] == []
