@@ -196,7 +196,7 @@ def _disk_full(env: Any, cfg: dict[str, Any], n: int, log: int, fd: int) -> None
         env.flush()
         _log(log, FLUSHED, n + cfg["arm"], os.fstat(fd).st_size)
         stream = env._stream
-        _log(log, LOST, env._file.writer.lost[stream.channels[0]], 0)
+        _log(log, LOST, env._file.writer.lost[stream.channels.steps], 0)
         os.kill(os.getpid(), signal.SIGKILL)
 
 
