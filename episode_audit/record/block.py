@@ -56,21 +56,16 @@ class Episode:
         self,
         index: int,
         seed: int | None,
-        rng_state: dict[str, Any] | None,
+        rng_json: bytes | None,
         options: Any,
         start_ns: int,
         env_index: int = 0,
         agent: str | None = None,
         game: int | None = None,
-        *,
-        rng_json: bytes | None = None,
     ) -> None:
         self.index = index
         self.seed = seed
-        if rng_json is None and rng_state is not None:
-            rng_json = to_json(rng_state)
-        # only the state's JSON is kept (``rng_json``: made by the caller)
-        self.rng_json = rng_json
+        self.rng_json = rng_json  # (the RNG state before an unseeded reset, as JSON)
         self.options = options
         self.options_json: str | None = None if options is None else to_json(options).decode()
         self.start_ns = start_ns
@@ -160,10 +155,14 @@ class Block:
         """Rows of the block, counting the ``pending`` ones not yet handed over."""
         return len(self.times) + self.pending
 
-    def add_segment(self, row: int, episode: Episode, first_step: int, counted: bool) -> None:
-        """From ``row`` on, rows are ``episode``'s, numbered from ``first_step``."""
-        self.segments.append((row, episode.index, first_step, counted))
+    def add_segment(
+        self, row: int, episode: Episode, first_step: int, counted: bool
+    ) -> tuple[int, int, int, bool]:
+        """From ``row`` on, rows are ``episode``'s, numbered from ``first_step``; the segment."""
+        segment = (row, episode.index, first_step, counted)
+        self.segments.append(segment)
         self.episodes[episode.index] = episode
+        return segment
 
     def next_step_index(self) -> int:
         """The step index the next row of the last segment's episode gets."""

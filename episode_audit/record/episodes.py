@@ -182,19 +182,16 @@ class EpisodeStream:
         episode = Episode(
             file.take_episode_index(),
             recorded_seed,
-            rng_state,
+            None if rng_state is None else file.rng_json(rng_state),
             recorded_options,
             file.clock() if start_ns is None else start_ns,
             self.env_index,
             self.agent,
             game,
-            rng_json=None if rng_state is None else file.rng_json(rng_state),
         )
         self.episode = episode
-        block = self.block
-        block.add_segment(block.rows(), episode, 0, True)
         untrack(episode)
-        untrack(block.segments[-1])
+        untrack(self.block.add_segment(self.block.rows(), episode, 0, True))
         return episode
 
     def record_reset(

@@ -31,7 +31,7 @@ def ended(draw: Any) -> tuple[Episode, dict[str, Any], int, int, bool]:
     episode = Episode(
         draw(st.integers(0, 2**40)),
         draw(st.none() | st.integers(0, 2**63 - 1)),
-        draw(st.none() | st.just({"bit_generator": "PCG64", "state": {"state": 1}})),
+        draw(st.none() | st.just(to_json({"bit_generator": "PCG64", "state": {"state": 1}}))),
         options,
         draw(st.integers(0, 2**62)),
         draw(st.integers(0, 64)),
