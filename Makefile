@@ -6,6 +6,10 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= egl
+# Python caches what it compiles (.venv's site-packages, and __pycache__ in this tree, which git
+# ignores): with PYTHONDONTWRITEBYTECODE set, every interpreter the tests start would compile
+# its imports again (~760 modules, ~2.8 s each time: see docs/cli.md, "Start-up time")
+unexport PYTHONDONTWRITEBYTECODE
 
 .PHONY: all venv test test-long lint typecheck pytest bench demo fixtures clean
 
@@ -15,7 +19,7 @@ $(STAMP): pyproject.toml setup.py episode_audit/record/_stepfast.c
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 10) else "episode-audit needs Python >= 3.10")'
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@# --no-compile: pip byte-compiles every installed file (torch, ray: ~70 s); Python compiles
-	@# what a run imports on first import instead
+	@# what a run imports on first import instead, and caches it (see unexport above)
 	$(BIN)/python -m pip install --quiet --no-compile --upgrade pip uv
 	@# torch on its own first, with pip and pyproject's pin: alone it resolves to a wheel already
 	@# on the machine (e.g. a CPU build; uv reads no pip.conf, so it would fetch PyPI's CUDA build)
