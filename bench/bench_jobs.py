@@ -137,7 +137,10 @@ def cli(*args: str) -> Callable[[int], Any]:
 
     def run(jobs: int) -> None:
         cmd = [sys.executable, "-m", "episode_audit", *args, "-f", "json", "--jobs", str(jobs)]
+        # as installed packages start: their modules compiled once and cached, not compiled
+        # again in every process (as PYTHONDONTWRITEBYTECODE would have it: docs/cli.md)
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
         subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, check=True, cwd=ROOT)
 
     return run
