@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from ..format import names as fmt
 from ..format.records import listing
+from ..format.run_end import RunEnd
 from ..read.liveness import still_written
 from ._state import FileState
 from .registry import (
@@ -42,10 +43,10 @@ def check_file_facts(state: FileState) -> None:
 
 
 def _recorder_trouble(state: FileState) -> None:
-    run_end = state.ev.run_end or {}
-    troubles = run_end.get(fmt.RUN_END_TROUBLE)
+    said = RunEnd.of(state.ev.run_end)
+    troubles = said.troubles
     if troubles:
-        first = str(run_end.get(fmt.RUN_END_FIRST_TROUBLE) or "not recorded")
+        first = said.first_trouble or "not recorded"
         state.finding(
             RECORDER_TROUBLE,
             f"the recorder failed inside itself {troubles} time(s) while recording (first: "
@@ -55,9 +56,10 @@ def _recorder_trouble(state: FileState) -> None:
 
 def _recovered(state: FileState) -> None:
     ev = state.ev
-    if not (ev.finished and (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED):
+    said = RunEnd.of(ev.run_end)
+    if not (ev.finished and said.recovered):
         return
-    dropped = (ev.run_end or {}).get("dropped") or "not recorded"
+    dropped = said.dropped or "not recorded"
     state.finding(
         FILE_RECOVERED,
         f"rewritten by episode-audit recover from a torn or damaged file; dropped: {dropped}",

@@ -159,10 +159,14 @@ class EpisodeRanges:
 
     @classmethod
     def from_json(cls, raw: str | None) -> EpisodeRanges:
-        """Parse :meth:`to_json`'s text; anything else (absent, garbled) is the empty set."""
+        """Parse :meth:`to_json`'s text; anything else (absent, garbled) is the empty set.
+
+        >>> EpisodeRanges.from_json("[" * 100_000)
+        EpisodeRanges(spans=())
+        """
         try:
-            values = json.loads(raw) if raw and len(raw) <= MAX_JSON_TEXT else []
-        except ValueError:
+            values = from_json(raw, "episode ranges") if raw else []
+        except ValueError:  # (too large, too deeply nested, not JSON)
             return cls()
         spans = [
             (v[0], v[1])

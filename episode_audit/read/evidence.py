@@ -9,7 +9,6 @@ episodes; both tables are cached (docs/format.md, "Reading").
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,6 +21,7 @@ from ..errors import EvidenceError
 from ..format import names as fmt
 from ..format.locking import Holder
 from ..format.records import EpisodeRanges, RunInfo
+from ..format.run_end import RunEnd
 from ..format.spaces import SpaceCodec, codec_for, space_from_description
 from .blocks import _blocks_table, _declared_schema, _empty_table, _reset_block, _topic_schema
 from .chunks import _ARROW_SLOTS, _SLOTS, _ChunkRef
@@ -116,7 +116,7 @@ class Evidence:
         Only a file rewritten by ``episode-audit recover`` from a damaged one says so (its
         run-end record lists them); for any other file this is empty.
         """
-        return EpisodeRanges.from_json((self.run_end or {}).get("damaged_episodes"))
+        return RunEnd.of(self.run_end).damaged_episodes
 
     @property
     def reports_success(self) -> bool | None:
@@ -126,21 +126,13 @@ class Evidence:
         failures or cut-offs, never successes); ``None`` when the file does not say (a torn
         file, or one written by a recorder that did not count it yet).
         """
-        raw = (self.run_end or {}).get(fmt.RUN_END_SUCCESS_REPORTED)
-        try:
-            return None if raw is None else int(raw) > 0
-        except ValueError:
-            return None
+        said = RunEnd.of(self.run_end).success_reported
+        return None if said is None else said > 0
 
     @property
     def damaged_stretches(self) -> int:
         """How many damaged stretches of the original file a recovery skipped (0 if none)."""
-        raw = (self.run_end or {}).get("damaged")
-        try:
-            value = json.loads(raw) if raw else []
-        except ValueError:
-            return 0
-        return len(value) if isinstance(value, list) else 0
+        return RunEnd.of(self.run_end).damaged_stretches
 
     # --------------------------------------------------------------- passes
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
+from ..format.run_end import RunEnd
 from .evidence import Evidence
 from .opening import open_evidence
 from .storage import RemoteFile, Source, as_source, list_remote
@@ -126,10 +127,10 @@ def steps_total(paths: Sequence[Source]) -> int | None:
     total = 0
     for path in paths:
         try:
-            run_end = open_evidence(path).run_end
+            steps = RunEnd.of(open_evidence(path).run_end).steps
         except EvidenceError:
             return None
-        if not run_end or not str(run_end.get("steps", "")).isdigit():
+        if steps is None:
             return None
-        total += int(run_end["steps"])
+        total += steps
     return total

@@ -15,6 +15,7 @@ import pyarrow as pa
 from gymnasium.spaces import Space
 
 from ..format import names as fmt
+from ..format.run_end import RunEnd
 from ..format.spaces import space_from_description
 
 if TYPE_CHECKING:
@@ -65,6 +66,7 @@ def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
     episodes = ev.episodes()
     outcomes = Counter(episodes.column("outcome").to_pylist())
     run = ev.run
+    said = RunEnd.of(ev.run_end)
     listed, omitted = episode_list(episodes, all_episodes=all_episodes)
     obs_shape, obs_dtype = space_shape_dtype(run.observation_space)
     act_shape, act_dtype = space_shape_dtype(run.action_space)
@@ -72,9 +74,7 @@ def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
         "file": str(ev.path),
         "finished": ev.finished,
         "torn": ev.torn,
-        "recovered": (ev.run_end or {}).get("dropped", "not recorded")
-        if (ev.run_end or {}).get("status") == fmt.RUN_STATUS_RECOVERED
-        else None,
+        "recovered": (said.dropped or "not recorded") if said.recovered else None,
         "format_version": run.format_version,
         "writer": run.writer,
         "env_id": run.env_id,

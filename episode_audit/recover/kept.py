@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +11,7 @@ import pyarrow as pa
 
 from ..format import names as fmt
 from ..format.records import EpisodeRanges
+from ..format.run_end import RunEnd
 from ..read import Evidence, open_evidence
 
 __all__ = ["Damage", "Kept"]
@@ -29,11 +29,11 @@ class Kept:
     damaged: EpisodeRanges
 
     @classmethod
-    def of(cls, path: Path, damage: Damage, *, closed: bool, run_end: dict[str, str]) -> Kept:
+    def of(cls, path: Path, damage: Damage, *, closed: bool, run_end: RunEnd) -> Kept:
         """Read the (still unfinished) output ``path``.
 
         ``closed``: the input has a run-end record (intact or garbled), so ``close()`` ran;
-        ``run_end``: that record's values, when it could be read (else empty). A recovered
+        ``run_end``: what that record says (nothing, when it could not be read). A recovered
         input's record lists the episodes its torn original had cut off: they stay cut off.
 
         Without damage, the episodes without an end record were cut off by the torn end. With
@@ -64,12 +64,12 @@ class Kept:
             if done and counts.get(e, 0) < (length or 0):
                 lost.add(e)
         known = sorted(set(index) | set(counts) | resets)
-        gaps = _missing(known, _declared_episodes(run_end))
+        gaps = _missing(known, run_end.episodes or 0)
         return cls(len(index), cut, EpisodeRanges.of(lost, gaps))
 
 
 def _finals(
-    table: pa.Table, index: list[int], damage: Damage, *, closed: bool, run_end: dict[str, str]
+    table: pa.Table, index: list[int], damage: Damage, *, closed: bool, run_end: RunEnd
 ) -> set[int]:
     """The episodes whose missing end record the torn end cut off (not damage)."""
     streams = zip(
@@ -83,20 +83,9 @@ def _finals(
     # off by the torn original, and stay so. Nor, when damage follows the last intact
     # chunk, can a missing end record be told from a lost one.
     finals = set() if closed or damage == "at the end" else set(last.values())
-    if run_end.get("status") == fmt.RUN_STATUS_RECOVERED:
-        finals |= _cut_off_of(run_end)
+    if run_end.recovered:
+        finals |= run_end.cut_off_episodes
     return finals
-
-
-def _cut_off_of(run_end: dict[str, str]) -> set[int]:
-    """The episodes a recovery's run-end record lists as cut off (none if it does not parse)."""
-    try:
-        listed = json.loads(run_end.get("cut_off_episodes") or "[]")
-    except ValueError:
-        return set()
-    if not isinstance(listed, list):
-        return set()
-    return {e for e in listed if isinstance(e, int) and not isinstance(e, bool)}
 
 
 def _step_rows(ev: Evidence) -> tuple[dict[int, int], set[int]]:
@@ -119,14 +108,6 @@ def _step_rows(ev: Evidence) -> tuple[dict[int, int], set[int]]:
         if low != 0 or high != n - 1:
             gapped.add(e)
     return counts, gapped
-
-
-def _declared_episodes(run_end: dict[str, str]) -> int:
-    """How many episodes the input's run-end record says it holds (0 if it does not say)."""
-    try:
-        return int(run_end.get("episodes", "0"))
-    except ValueError:
-        return 0
 
 
 def _missing(known: Sequence[int], total: int) -> list[tuple[int, int]]:

@@ -14,6 +14,7 @@ from mcap.records import Header
 from .._version import __version__
 from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
+from ..format.run_end import RunEnd
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
 from ..read.liveness import still_written, writer_of
 from ..read.storage import is_url
@@ -166,7 +167,9 @@ def _rewrite(src: Path, tmp: Temporary, dst: Path, summary_damage: str | None) -
         # What the output holds so far (an unfinished file, read as a torn one) says which
         # episodes were cut off, and with damage, which lost evidence.
         try:
-            kept = Kept.of(tmp.path, copy.damage, closed=copy.closed, run_end=copy.run_end or {})
+            kept = Kept.of(
+                tmp.path, copy.damage, closed=copy.closed, run_end=RunEnd.of(copy.run_end)
+            )
         except EvidenceError as exc:  # what it copied from src: name src
             raise type(exc)(src, exc.problem) from None
         result = _result(src, dst, copy, end, kept, summary_damage)
