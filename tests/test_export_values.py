@@ -70,3 +70,25 @@ def test_a_null_row_has_no_value() -> None:
     array = pa.concat_arrays([good, pa.nulls(1, good.type)])
     split = split_column(("action",), array, codec.field("action"))
     assert json_rows(split.leaves, 2) == [[0.0, 0.0], None]
+
+
+def test_metadata_that_does_not_describe_the_column_leaves_it_out() -> None:
+    """A file not from our recorder may say anything in a field's metadata: never a crash."""
+    codec = codec_for(spaces.Box(-1, 1, (4,), np.float32))
+    column = codec.encode([np.zeros(4, np.float32)])
+    plain = codec.field("observation")
+    for shape, dtype in [
+        (b"5", b"float32"),  # not a list
+        (b"[" * 100_000, b"float32"),  # nested past the JSON bound
+        (b'["a"]', b"float32"),
+        (b"[-1]", b"float32"),
+        (b"[3]", b"float32"),  # 3 numbers a row, where the column has 4
+        (b"[4]", b"uint8"),  # not the column's type
+        (b"[4]", b"no such dtype"),
+        (b"[4]", b"\xff"),
+    ]:
+        meta = {**(plain.metadata or {}), b"episode_audit.shape": shape}
+        meta[b"episode_audit.dtype"] = dtype
+        split = split_column(("observation",), column, plain.with_metadata(meta))
+        assert split.left_out == ["observation"] and not split.leaves, (shape, dtype)
+    assert split_column(("observation",), column, plain).leaves  # (as the recorder wrote it)

@@ -11,7 +11,6 @@ episode ended.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -20,6 +19,8 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 import pyarrow as pa
+
+from ..format.records import from_json
 
 __all__ = [
     "IMAGE_MIN_SIDE",
@@ -139,8 +140,10 @@ def split_column(path: tuple[str, ...], array: pa.Array, field_: pa.Field) -> Sp
 def _split_array(
     path: tuple[str, ...], array: pa.Array, meta: dict[bytes, bytes], present: npt.NDArray[Any]
 ) -> Split:
-    shape = tuple(json.loads(meta.get(_SHAPE, b"[]")))
-    dtype = np.dtype(meta.get(_DTYPE, b"float64").decode())
+    layout = _array_layout(array, meta)
+    if layout is None:  # (metadata that does not describe the column: not from our recorder)
+        return Split(left_out=[".".join(path)])
+    shape, dtype = layout
     size = math.prod(shape)
     if size > SMALL and not _is_image(shape, dtype):
         return Split(left_out=[".".join(path)])
@@ -155,6 +158,37 @@ def _split_array(
     if dtype.kind == "b":
         flat = flat.astype(np.int8)
     return Split([Leaf(path, flat, present, scalar=not shape, integer=integer)])
+
+
+def _array_layout(
+    array: pa.Array, meta: dict[bytes, bytes]
+) -> tuple[tuple[int, ...], np.dtype[Any]] | None:
+    """A Box column's row shape and dtype as its field's metadata says, if they describe it.
+
+    They do when the column is a fixed-size list of as many numbers per row as the shape
+    holds, of that dtype; for anything else (a file not from our recorder) ``None``.
+
+    >>> column = pa.array([[1, 2, 3, 4]], pa.list_(pa.uint8(), 4))
+    >>> _array_layout(column, {_SHAPE: b"[2, 2]", _DTYPE: b"uint8"})
+    ((2, 2), dtype('uint8'))
+    >>> _array_layout(column, {_SHAPE: b"[" * 100_000, _DTYPE: b"uint8"}) is None
+    True
+    """
+    try:
+        shape = from_json(meta.get(_SHAPE, b"[]"), "the column's shape", limit=1024)
+        dtype = np.dtype(meta.get(_DTYPE, b"float64").decode())
+        value_type = pa.from_numpy_dtype(dtype)
+    except (ValueError, TypeError, UnicodeDecodeError, pa.ArrowException):
+        return None
+    if (
+        not isinstance(shape, list)
+        or not all(type(n) is int and n >= 0 for n in shape)
+        or not pa.types.is_fixed_size_list(array.type)
+        or array.type.value_type != value_type
+        or array.type.list_size != math.prod(shape)
+    ):
+        return None
+    return tuple(shape), dtype
 
 
 def _is_image(shape: tuple[int, ...], dtype: np.dtype[Any]) -> bool:

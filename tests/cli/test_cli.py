@@ -9,8 +9,10 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
@@ -327,6 +329,39 @@ def test_show_says_which_observations_are_stored_as_digests(tmp_path: Path) -> N
     ) in out
     code, out, _ = run("show", str(path), "--format", "json")
     assert json.loads(out)["observation_digest_min_bytes"] == 16
+
+
+class _SequenceActions(gym.Env[Any, Any]):
+    """Actions of a space stored as JSON text (a Sequence)."""
+
+    observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+    action_space = gym.spaces.Sequence(gym.spaces.Discrete(3))
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        super().reset(seed=seed)
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        return np.zeros(2, np.float32), 0.0, False, False, {}
+
+
+def test_show_gives_actions_their_space_cannot_rebuild_as_stored(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "sequence.mcap"
+    with RecordEvidence(_SequenceActions(), path) as env:
+        env.reset(seed=0)
+        env.step((1, 2))
+    code, out, _ = run("show", str(path), "--episode", "0", "--format", "json")
+    assert code == 0 and json.loads(out)["rows"][0][1] == [1, 2]
+
+    def refuse(self: Any, sample_n: Any) -> Any:
+        raise KeyError("not a value of this space")
+
+    monkeypatch.setattr(gym.spaces.Sequence, "from_jsonable", refuse)
+    code, out, err = run("show", str(path), "--episode", "0", "--format", "json")
+    assert code == 0 and "Traceback" not in err
+    assert json.loads(out)["rows"][0][1] == "[1, 2]"  # (the stored JSON text)
 
 
 def test_show_summary_of_a_long_file_lists_the_first_and_last_episodes(tmp_path: Path) -> None:

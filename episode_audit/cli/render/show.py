@@ -24,6 +24,7 @@ from rich.text import Text
 from ...errors import EvidenceError
 from ...format import names as fmt
 from ...format.records import from_json, to_jsonable
+from ...format.spaces import SpaceCodec
 from ...read import Evidence
 from ...read.summary import EPISODE_LIST_HEAD, EPISODE_LIST_TAIL, rebuilt_space, summarize
 from .common import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
@@ -190,6 +191,20 @@ def _cell(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _actions(codec: SpaceCodec | None, column: pa.Array) -> list[Any]:
+    """The actions as the space's values; as stored when they do not decode.
+
+    A file not from our recorder may hold values its space cannot rebuild (its own
+    ``from_jsonable`` may raise anything): shown as they are rather than not at all.
+    """
+    if codec is not None:
+        try:
+            return codec.decode(column)
+        except Exception:  # (a display: the stored values, whatever failed)
+            pass
+    return list(column.to_pylist())
+
+
 def episode_rows(
     ev: Evidence, index: int, start: int | None, stop: int | None, *, plain: bool = False
 ) -> tuple[list[str], list[list[Any]], dict[str, Any]]:
@@ -210,9 +225,7 @@ def episode_rows(
     part = steps.slice(lo, max(hi - lo, 0))
     codec = ev.action_codec
     action_col = part.column(fmt.COL_ACTION).combine_chunks() if part.num_rows else pa.array([])
-    actions = (
-        codec.decode(action_col) if codec is not None and part.num_rows else action_col.to_pylist()
-    )
+    actions = _actions(codec, action_col) if part.num_rows else []
     terms = [dict(t) if t is not None else {} for t in part.column(fmt.COL_TERMS).to_pylist()]
     names = sorted({k for t in terms for k in t})
     headers = ["step", "action", "reward", *names, "terminated", "truncated", "outcome", "notes"]

@@ -22,6 +22,7 @@ from gymnasium.spaces import Space
 
 from ...errors import ConfigurationError
 from ..columns import null_mask, one_array
+from ..records import from_json
 from .buffers import (
     _DIGEST_SIZE,
     _INT64_MAX,
@@ -546,7 +547,7 @@ class _JsonCodec(SpaceCodec):
         return _JsonBuffer(self.space)
 
     def _from_json(self, text: str) -> Any:
-        return self.space.from_jsonable([json.loads(text)])[0]
+        return self.space.from_jsonable([from_json(text, "a JSON-coded value")])[0]
 
     def _decode_values(self, array: pa.Array) -> list[Any]:
         return [None if text is None else self._from_json(text) for text in array.to_pylist()]
