@@ -54,7 +54,7 @@ from mcap.writer import CompressionType, Writer
 if __name__ == "__main__":  # the worker: import the package from this checkout
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from episode_audit import EpisodeAuditError, RecordEvidence, open_evidence
+from episode_audit import EpisodeAuditError, RecordEvidence, open_evidence, recover
 from episode_audit.format import names as fmt
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -152,6 +152,7 @@ def build_corpus(directory: Path) -> dict[str, Path]:
             "cartpole_torn",
             "vector",
             "agents",
+            "recovered",
         )
     }
     if all(p.exists() for p in out.values()):
@@ -184,6 +185,8 @@ def build_corpus(directory: Path) -> dict[str, Path]:
         env.close()
         scratch.unlink()
     _record_multi_stream(out["vector"], out["agents"])
+    # a recovery's run-end record: its keys (cut-off and damaged episodes) for mutations to hit
+    recover(out["cartpole_torn"], out["recovered"])
     return out
 
 
@@ -897,6 +900,35 @@ def schema_channel(model: Model, rng: random.Random) -> Model:
     return model
 
 
+_WRONG_FIELD_META = {
+    b"episode_audit.shape": [b"5", b'["a"]', b"[-1]", b"[3]", b"[1e3]", b"{}", b"", b"[" * 5000],
+    b"episode_audit.dtype": [b"no such dtype", b"\xff", b"O", b"uint8", b"<U5", b"float64"],
+    b"episode_audit.kind": [b"array", b"discrete", b"dict", b"json", b"text", b""],
+}
+
+
+def field_metadata(model: Model, rng: random.Random) -> Model:
+    """An observation or action column whose metadata (shape, dtype, kind) does not describe
+    it, in the channel's schema and every block alike (as a writer of its own might)."""
+    ids = model.on(rng.choice([fmt.TOPIC_STEPS, fmt.TOPIC_RESETS]))
+    if not ids:
+        return model
+    schema = _batch_of(model.messages[ids[0]].data).schema
+    names = [n for n in (fmt.COL_OBSERVATION, fmt.COL_ACTION) if n in schema.names]
+    i = schema.get_field_index(rng.choice(names))
+    key = rng.choice(sorted(_WRONG_FIELD_META))
+    meta = {**(schema.field(i).metadata or {}), key: rng.choice(_WRONG_FIELD_META[key])}
+    schema = schema.set(i, schema.field(i).with_metadata(meta))
+    for k in ids:
+        columns = _batch_of(model.messages[k].data).columns
+        model.messages[k].data = _arrow_stream(pa.RecordBatch.from_arrays(columns, schema=schema))
+    _, _, sid, _ = model.channels[model.messages[ids[0]].channel_id]
+    if sid in model.schemas:
+        name, encoding, _ = model.schemas[sid]
+        model.schemas[sid] = (name, encoding, schema.serialize().to_pybytes())
+    return model
+
+
 def messages(model: Model, rng: random.Random) -> Model:
     """Messages dropped, duplicated, reordered or with other times."""
     ms = model.messages
@@ -921,6 +953,7 @@ MODEL_MUTATIONS: dict[str, Callable[[Model, random.Random], Model]] = {
     "schema_channel": schema_channel,
     "messages": messages,
     "null_block": null_block,
+    "field_metadata": field_metadata,
 }
 RAW_MUTATIONS: dict[str, Callable[[bytes, random.Random], bytes]] = {
     "truncate": truncate,
@@ -1028,6 +1061,11 @@ def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
     _call(outcome, "report", lambda: report([path], by="all"))
     _call(outcome, "show", show)
     _call(outcome, "export", lambda: export([path], scratch / "export", overwrite=True))
+    _call(
+        outcome,
+        "export_foxglove",
+        lambda: export([path], scratch / "foxglove", to="foxglove", overwrite=True),
+    )
     _call(outcome, "replay", lambda: replay([path]))
 
     # a file the audit refuses is never "already finished: copied unchanged"

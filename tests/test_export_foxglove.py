@@ -227,3 +227,37 @@ def test_docs_layout_is_the_generated_one() -> None:
     }
     series = [s["value"] for p in panels if p["panelType"] == "Plot" for s in p["config"]["paths"]]
     assert "/steps.reward" in series and "/steps.terms.ctrl_cost" in series
+
+
+def test_times_no_foxglove_timestamp_holds_are_left_out_and_said(tmp_path: Path) -> None:
+    """A file whose times are before 1970 (not from our recorder): those messages are left
+    out, and the notes say how many (the SDK would refuse them: OverflowError)."""
+    import gymnasium as gym
+    import pyarrow as pa
+
+    from episode_audit import RecordEvidence
+    from episode_audit.format import names as fmt
+    from tests import fuzzing
+
+    path = tmp_path / "run.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=0)
+        for _ in range(30):
+            *_, terminated, truncated, _ = env.step(0)
+            if terminated or truncated:
+                env.reset()
+    model = fuzzing.read_model(path.read_bytes())
+    for topic, column in ((fmt.TOPIC_STEPS, "time_ns"), (fmt.TOPIC_EPISODES, "end_time_ns")):
+        for k in model.on(topic):
+            batch = fuzzing._batch_of(model.messages[k].data)
+            i = batch.schema.get_field_index(column)
+            early = pa.array([-1] * batch.num_rows, pa.int64())
+            changed = batch.set_column(i, batch.schema.field(i), early)
+            model.messages[k].data = fuzzing._arrow_stream(changed)
+    early = tmp_path / "early.mcap"
+    early.write_bytes(fuzzing.write_model(model))
+    episodes = len(open_evidence(early).episodes())
+    result = export([early], tmp_path / "out", to="foxglove")
+    assert result.steps == 0 and result.episodes == 0
+    assert result.out_of_range == 30 + episodes
+    assert any("left out: their times are outside what Foxglove" in n for n in result.notes)

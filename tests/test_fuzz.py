@@ -143,7 +143,7 @@ def test_random_bytes_raise_only_library_errors(tmp_path: Path, noise: bytes, ma
 @settings(PROFILE, max_examples=80)
 @given(
     kind=st.sampled_from(sorted(fuzzing.MODEL_MUTATIONS)),
-    base=st.sampled_from(["cartpole", "terms", "terms_torn", "vector", "agents"]),
+    base=st.sampled_from(["cartpole", "terms", "terms_torn", "vector", "agents", "recovered"]),
     seed=st.integers(0, 10**6),
 )
 def test_semantic_mutations_raise_only_library_errors(
@@ -574,6 +574,9 @@ def test_a_space_description_that_does_not_fit_its_column_is_not_decoded(
         ("vector", "flip", 1003681),  # a message-index offset past ssize_t: OverflowError
         ("agents", "metadata", 1004207),  # reward_terms.constants not a dict: AttributeError
         ("terms", "metadata", 1000116),  # a Tuple description over another column: TypeError
+        # a recovery's run-end value nested 5 000 deep: RecursionError (check, replay)
+        ("recovered", "metadata", 1000307),  # damaged_episodes
+        ("recovered", "metadata", 1000537),  # damaged
     ],
 )
 def test_inputs_the_long_harness_found(

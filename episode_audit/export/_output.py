@@ -41,6 +41,9 @@ class ViewerExport:
     text), by name."""
     unfinished: str | None = None
     """Why the input is unfinished (still being written, or torn); ``None``: finished."""
+    out_of_range: int = 0
+    """Steps and episodes left out: their times are outside what the viewer's timestamps hold
+    (1970 to 2106 for Foxglove; only a file not from our recorder has such times)."""
 
     @property
     def notes(self) -> list[str]:
@@ -52,6 +55,11 @@ class ViewerExport:
             lines.append(
                 f"{self.source}: not plotted (more than {SMALL} numbers, digests or text): "
                 + ", ".join(self.left_out)
+            )
+        if self.out_of_range:
+            lines.append(
+                f"{self.source}: {self.out_of_range} step(s) or episode(s) left out: their times "
+                f"are outside what {self.viewer.capitalize()} timestamps hold"
             )
         return lines
 

@@ -120,7 +120,7 @@ def split_column(path: tuple[str, ...], array: pa.Array, field_: pa.Field) -> Sp
     present = ~np.asarray(array.is_null().to_numpy(zero_copy_only=False), dtype=bool)
     if kind == "array":
         return _split_array(path, array, meta, present)
-    if kind == "discrete":
+    if kind == "discrete" and pa.types.is_integer(array.type):
         numbers = array.fill_null(0).to_numpy(zero_copy_only=False).reshape(-1, 1)
         return Split([Leaf(path, numbers, present, scalar=True, integer=True)])
     if kind in ("dict", "tuple") and isinstance(array, pa.StructArray):

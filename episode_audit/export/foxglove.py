@@ -70,7 +70,7 @@ def export_foxglove(
         try:
             writer.write_metadata("episode_audit.export", _metadata(ev, source))
             _Steps(foxglove, context, ev, result).write(progress)
-            result.episodes = _write_episodes(foxglove, context, ev)
+            result.episodes = _write_episodes(foxglove, context, ev, result)
             result.paths += ["/episodes", "/log"]
         finally:
             writer.close()
@@ -125,10 +125,11 @@ class _Steps:
             action = split_batch(batch, "action")
             observation = split_batch(batch, "observation")
             left_out.update(action.left_out, observation.left_out)
+            skipped = self.result.out_of_range
             self._write_batch(batch, action, observation)
             for frames in action.images + observation.images:
                 self._write_frames(batch, frames)
-            self.result.steps += batch.num_rows
+            self.result.steps += batch.num_rows - (self.result.out_of_range - skipped)
             if progress is not None:
                 progress(batch.num_rows)
         self.result.left_out = sorted(left_out)
@@ -163,6 +164,9 @@ class _Steps:
         logs: dict[int, Callable[[bytes, int], None]] = {}
         dumps = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
         for i in range(n):
+            if not _in_range(times[i]):  # (a file not from our recorder)
+                self.result.out_of_range += 1
+                continue
             episode = episodes[i]
             log = logs.get(episode)
             if log is None:
@@ -200,6 +204,8 @@ class _Steps:
         times = batch.column("time_ns").to_pylist()
         name = ".".join(frames.path)
         for i in np.flatnonzero(frames.present).tolist():
+            if not _in_range(times[i]):  # (counted with its step)
+                continue
             prefix = self.prefix_of.get(episodes[i], "")
             topic = f"{prefix}/camera/{name}"
             channel = self.images.get(topic)
@@ -243,23 +249,41 @@ def _step_schema(terms: list[str], action: Split, observation: Split) -> dict[st
     return {"title": STEP_SCHEMA_NAME, "type": "object", "properties": properties}
 
 
+_LAST_NS = (1 << 32) * 1_000_000_000 - 1
+"""The latest time a ``foxglove.Timestamp`` holds (its seconds are 32 bits: early 2106)."""
+
+
+def _in_range(ns: Any) -> bool:
+    """Whether ``ns`` is a time a Foxglove message can have (1970 to 2106, in ns)."""
+    return type(ns) is int and 0 <= ns <= _LAST_NS
+
+
 def _timestamp(messages: Any, ns: int) -> Any:
     return messages.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-def _write_episodes(foxglove: Any, context: Any, ev: Evidence) -> int:
-    """One ``foxglove.Event`` (``/episodes``) and one ``foxglove.Log`` (``/log``) per episode."""
+def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> int:
+    """One ``foxglove.Event`` (``/episodes``) and one ``foxglove.Log`` (``/log``) per episode.
+
+    An episode whose times no Foxglove timestamp holds (a file not from our recorder) is left
+    out and counted (``result.out_of_range``).
+    """
     messages, channels = foxglove.messages, foxglove.channels
     events = channels.EventChannel("/episodes", context=context)
     logs = channels.LogChannel("/log", context=context)
     records = ev.episodes().to_pylist()
     kind = (ev.run.layout or {}).get("kind", "single")
+    left_out = 0
     for record in records:
         start, end = record.get("start_time_ns"), record.get("end_time_ns")
         end = end if end is not None else start
         if end is None:
             continue
         start = start if start is not None else end
+        if not (_in_range(start) and _in_range(end)):
+            result.out_of_range += 1
+            left_out += 1
+            continue
         stream = stream_prefix(kind, record.get("env_index") or 0, record.get("agent"))
         pairs = {
             "episode": record["episode"],
@@ -288,4 +312,4 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence) -> int:
             ),
             log_time=end,
         )
-    return len(records)
+    return len(records) - left_out

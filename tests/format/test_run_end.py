@@ -49,7 +49,7 @@ def test_a_recovery_record_is_read() -> None:
     assert said.damaged_episodes == EpisodeRanges.of(spans=[(1, 3)])
 
 
-# (a fullwidth 3, a superscript 2: digits to str.isdigit, not to int)
+# (a fullwidth 3, a superscript 2: str.isdigit takes both; a count is written in ASCII digits)
 @pytest.mark.parametrize("value", ["", "-1", "1.5", " 3", "\uff13", "\u00b2", "12a"])
 def test_a_count_that_is_not_digits_is_not_said(value: str) -> None:
     said = RunEnd.of({"steps": value, "episodes": value, "success_reported": value})
