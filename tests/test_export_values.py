@@ -91,7 +91,7 @@ def test_metadata_that_does_not_describe_the_column_leaves_it_out() -> None:
         meta[b"episode_audit.dtype"] = dtype
         split = split_column(("observation",), column, plain.with_metadata(meta))
         assert split.left_out == ["observation"] and not split.leaves, (shape, dtype)
-    for kind in (b"discrete", b"dict", b"json"):  # another kind of space's column
+    for kind in (b"discrete", b"dict", b"json", b"\xa3\xff"):  # another kind; not UTF-8
         meta = {**(plain.metadata or {}), b"episode_audit.kind": kind}
         split = split_column(("observation",), column, plain.with_metadata(meta))
         assert split.left_out == ["observation"] and not split.leaves, kind

@@ -116,7 +116,7 @@ def split_batch(batch: pa.RecordBatch, name: str) -> Split:
 def split_column(path: tuple[str, ...], array: pa.Array, field_: pa.Field) -> Split:
     """What the column (or Dict / Tuple item) at ``path`` gives a viewer."""
     meta = field_.metadata or {}
-    kind = meta.get(_KIND, b"").decode()
+    kind = meta.get(_KIND, b"").decode(errors="replace")  # (not UTF-8: no kind we know)
     present = ~np.asarray(array.is_null().to_numpy(zero_copy_only=False), dtype=bool)
     if kind == "array":
         return _split_array(path, array, meta, present)
