@@ -185,8 +185,14 @@ def build_corpus(directory: Path) -> dict[str, Path]:
         env.close()
         scratch.unlink()
     _record_multi_stream(out["vector"], out["agents"])
-    # a recovery's run-end record: its keys (cut-off and damaged episodes) for mutations to hit
+    # a recovery's run-end record: its keys (cut-off and damaged episodes) for mutations to hit;
+    # where from and when made fixed, so that a (base, kind, seed) names the same input again
     recover(out["cartpole_torn"], out["recovered"])
+    model = read_model(out["recovered"].read_bytes())
+    for name, values in model.metadata:
+        if name == fmt.METADATA_RUN_END:
+            values.update(recovered_from="fuzz", recovered_time="2026-01-01T00:00:00+00:00")
+    write_model(model, out["recovered"])
     return out
 
 
