@@ -2,6 +2,7 @@
 
 - :mod:`.names` — topics, encodings, metadata keys, column names, outcomes (spelled once).
 - :mod:`.records` — the run metadata (:class:`RunInfo`), episode record schemas, JSON helpers.
+- :mod:`.run_end` — the run-end record read back, its values typed (:class:`.run_end.RunEnd`).
 - :mod:`.columns` — Arrow columns and value helpers shared by the recorder and replay.
 - :mod:`.spaces` — Gymnasium spaces <-> Arrow columns (codecs, buffers, descriptions).
 
