@@ -260,4 +260,16 @@ def test_times_no_foxglove_timestamp_holds_are_left_out_and_said(tmp_path: Path)
     result = export([early], tmp_path / "out", to="foxglove")
     assert result.steps == 0 and result.episodes == 0
     assert result.out_of_range == 30 + episodes
-    assert any("left out: their times are outside what Foxglove" in n for n in result.notes)
+    assert any("their times are missing or outside what Foxglove" in n for n in result.notes)
+
+    # episodes without any time: left out and counted alike, not said to be written
+    for k in model.on(fmt.TOPIC_EPISODES):
+        batch = fuzzing._batch_of(model.messages[k].data)
+        for column in ("start_time_ns", "end_time_ns"):
+            i = batch.schema.get_field_index(column)
+            none = pa.nulls(batch.num_rows, pa.int64())
+            batch = batch.set_column(i, batch.schema.field(i), none)
+        model.messages[k].data = fuzzing._arrow_stream(batch)
+    early.write_bytes(fuzzing.write_model(model))
+    result = export([early], tmp_path / "out", to="foxglove", overwrite=True)
+    assert result.episodes == 0 and result.out_of_range == 30 + episodes

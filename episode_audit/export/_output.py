@@ -42,8 +42,8 @@ class ViewerExport:
     unfinished: str | None = None
     """Why the input is unfinished (still being written, or torn); ``None``: finished."""
     out_of_range: int = 0
-    """Steps and episodes left out: their times are outside what the viewer's timestamps hold
-    (1970 to 2106 for Foxglove; only a file not from our recorder has such times)."""
+    """Steps and episodes left out: their times are missing or outside what the viewer's
+    timestamps hold (1970 to 2106 for Foxglove; only a file not from our recorder has such)."""
 
     @property
     def notes(self) -> list[str]:
@@ -59,7 +59,7 @@ class ViewerExport:
         if self.out_of_range:
             lines.append(
                 f"{self.source}: {self.out_of_range} step(s) or episode(s) left out: their times "
-                f"are outside what {self.viewer.capitalize()} timestamps hold"
+                f"are missing or outside what {self.viewer.capitalize()} timestamps hold"
             )
         return lines
 

@@ -265,8 +265,8 @@ def _timestamp(messages: Any, ns: int) -> Any:
 def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> int:
     """One ``foxglove.Event`` (``/episodes``) and one ``foxglove.Log`` (``/log``) per episode.
 
-    An episode whose times no Foxglove timestamp holds (a file not from our recorder) is left
-    out and counted (``result.out_of_range``).
+    An episode without a time, or whose times no Foxglove timestamp holds (a file not from our
+    recorder), is left out and counted (``result.out_of_range``).
     """
     messages, channels = foxglove.messages, foxglove.channels
     events = channels.EventChannel("/episodes", context=context)
@@ -277,10 +277,8 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExp
     for record in records:
         start, end = record.get("start_time_ns"), record.get("end_time_ns")
         end = end if end is not None else start
-        if end is None:
-            continue
         start = start if start is not None else end
-        if not (_in_range(start) and _in_range(end)):
+        if not (_in_range(start) and _in_range(end)):  # (no time at all is not one either)
             result.out_of_range += 1
             left_out += 1
             continue
