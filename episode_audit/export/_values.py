@@ -178,7 +178,7 @@ def _array_layout(
         shape = from_json(meta.get(_SHAPE, b"[]"), "the column's shape", limit=1024)
         dtype = np.dtype(meta.get(_DTYPE, b"float64").decode())
         value_type = pa.from_numpy_dtype(dtype)
-    except (ValueError, TypeError, UnicodeDecodeError, pa.ArrowException):
+    except (ValueError, TypeError, pa.ArrowException):  # (UnicodeDecodeError: a ValueError)
         return None
     if (
         not isinstance(shape, list)

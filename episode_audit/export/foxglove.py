@@ -70,7 +70,7 @@ def export_foxglove(
         try:
             writer.write_metadata("episode_audit.export", _metadata(ev, source))
             _Steps(foxglove, context, ev, result).write(progress)
-            result.episodes = _write_episodes(foxglove, context, ev, result)
+            _write_episodes(foxglove, context, ev, result)
             result.paths += ["/episodes", "/log"]
         finally:
             writer.close()
@@ -125,11 +125,10 @@ class _Steps:
             action = split_batch(batch, "action")
             observation = split_batch(batch, "observation")
             left_out.update(action.left_out, observation.left_out)
-            skipped = self.result.out_of_range
-            self._write_batch(batch, action, observation)
+            written = self._write_batch(batch, action, observation)
             for frames in action.images + observation.images:
                 self._write_frames(batch, frames)
-            self.result.steps += batch.num_rows - (self.result.out_of_range - skipped)
+            self.result.steps += written
             if progress is not None:
                 progress(batch.num_rows)
         self.result.left_out = sorted(left_out)
@@ -150,7 +149,8 @@ class _Steps:
             self.result.paths.append(f"{prefix}/steps")
         return channel
 
-    def _write_batch(self, batch: pa.RecordBatch, action: Split, observation: Split) -> None:
+    def _write_batch(self, batch: pa.RecordBatch, action: Split, observation: Split) -> int:
+        """Write the batch's steps; returns how many (a time out of range leaves one out)."""
         n = batch.num_rows
         episodes = batch.column("episode").to_pylist()
         steps = batch.column("step").to_pylist()
@@ -163,9 +163,11 @@ class _Steps:
         observations = json_rows(observation.leaves, n)
         logs: dict[int, Callable[[bytes, int], None]] = {}
         dumps = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
+        left_out = 0
         for i in range(n):
             if not _in_range(times[i]):  # (a file not from our recorder)
                 self.result.out_of_range += 1
+                left_out += 1
                 continue
             episode = episodes[i]
             log = logs.get(episode)
@@ -195,6 +197,7 @@ class _Steps:
                     )
                 data = dumps(message)
             log(data.encode(), times[i])
+        return int(n) - left_out
 
     def _write_frames(self, batch: pa.RecordBatch, frames: Frames) -> None:
         from PIL import Image
@@ -262,25 +265,24 @@ def _timestamp(messages: Any, ns: int) -> Any:
     return messages.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> int:
+def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> None:
     """One ``foxglove.Event`` (``/episodes``) and one ``foxglove.Log`` (``/log``) per episode.
 
-    An episode without a time, or whose times no Foxglove timestamp holds (a file not from our
-    recorder), is left out and counted (``result.out_of_range``).
+    Counted in ``result.episodes``; an episode without a time, or whose times no Foxglove
+    timestamp holds (a file not from our recorder), is left out and counted in
+    ``result.out_of_range``.
     """
     messages, channels = foxglove.messages, foxglove.channels
     events = channels.EventChannel("/episodes", context=context)
     logs = channels.LogChannel("/log", context=context)
     records = ev.episodes().to_pylist()
     kind = (ev.run.layout or {}).get("kind", "single")
-    left_out = 0
     for record in records:
         start, end = record.get("start_time_ns"), record.get("end_time_ns")
         end = end if end is not None else start
         start = start if start is not None else end
         if not (_in_range(start) and _in_range(end)):  # (no time at all is not one either)
             result.out_of_range += 1
-            left_out += 1
             continue
         stream = stream_prefix(kind, record.get("env_index") or 0, record.get("agent"))
         pairs = {
@@ -310,4 +312,4 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExp
             ),
             log_time=end,
         )
-    return len(records) - left_out
+        result.episodes += 1

@@ -202,7 +202,7 @@ def _actions(codec: SpaceCodec | None, column: pa.Array) -> list[Any]:
             return codec.decode(column)
         except Exception:  # (a display: the stored values, whatever failed)
             pass
-    return list(column.to_pylist())
+    return column.to_pylist()  # type: ignore[no-any-return]
 
 
 def episode_rows(
