@@ -164,8 +164,9 @@ class _Steps:
         logs: dict[int, Callable[[bytes, int], None]] = {}
         dumps = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
         left_out = 0
+        every_time_fits = _all_in_range(batch.column("time_ns"))  # (else look at each row)
         for i in range(n):
-            if not _in_range(times[i]):  # (a file not from our recorder)
+            if not every_time_fits and not _in_range(times[i]):  # (not from our recorder)
                 self.result.out_of_range += 1
                 left_out += 1
                 continue
@@ -206,8 +207,9 @@ class _Steps:
         episodes = batch.column("episode").to_pylist()
         times = batch.column("time_ns").to_pylist()
         name = ".".join(frames.path)
+        every_time_fits = _all_in_range(batch.column("time_ns"))
         for i in np.flatnonzero(frames.present).tolist():
-            if not _in_range(times[i]):  # (counted with its step)
+            if not every_time_fits and not _in_range(times[i]):  # (counted with its step)
                 continue
             prefix = self.prefix_of.get(episodes[i], "")
             topic = f"{prefix}/camera/{name}"
@@ -259,6 +261,12 @@ _LAST_NS = (1 << 32) * 1_000_000_000 - 1
 def _in_range(ns: Any) -> bool:
     """Whether ``ns`` is a time a Foxglove message can have (1970 to 2106, in ns)."""
     return type(ns) is int and 0 <= ns <= _LAST_NS
+
+
+def _all_in_range(times: pa.Array) -> bool:
+    """Whether every time of a block is one a Foxglove message can have (one pass in C)."""
+    low, high = pc.min_max(times).values()
+    return low.as_py() is not None and low.as_py() >= 0 and high.as_py() <= _LAST_NS
 
 
 def _timestamp(messages: Any, ns: int) -> Any:
