@@ -281,6 +281,18 @@ class EpisodeStream:
         if episode is not None and not episode.ended:
             self._end_by_flags(episode, self.block, row, terminated, truncated, info)
 
+    def end_batched(
+        self, pending: int, terminated: bool, truncated: bool, info: dict[str, Any]
+    ) -> None:
+        """A batched vector step ended the episode (:meth:`end_step`).
+
+        ``pending`` rows are batched for the stream (its block counts them); the last is that
+        step's.
+        """
+        block = self.block
+        block.pending = pending
+        self.end_step(block.rows() - 1, terminated, truncated, info)
+
     def _implicit_episode(self, notes: list[str]) -> Episode:
         """The episode of a step before any reset (not replayable, noted)."""
         file = self.file

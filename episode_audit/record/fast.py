@@ -13,12 +13,26 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
+import numpy as np
+
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
 from .block import Episode
+from .episodes import EpisodeStream
 from .native import NATIVE, PURE_PYTHON_ENV, compiled
 from .stream import Stream
 
-__all__ = ["PURE_PYTHON_ENV", "CompiledReset", "compiled", "reset_function", "step_function"]
+__all__ = [
+    "PURE_PYTHON_ENV",
+    "BeginAutoreset",
+    "CompiledReset",
+    "VectorStep",
+    "compiled",
+    "begin_autoreset_function",
+    "end_batched_function",
+    "reset_function",
+    "step_function",
+    "vector_step_function",
+]
 
 _FAST_BUFFERS = (_FlatArrayBuffer, _ArrayBuffer, _IntBuffer)
 
@@ -65,3 +79,66 @@ def reset_function(step: Callable[[Any, Any], None]) -> CompiledReset | None:
         return None
     reset: CompiledReset = step
     return reset
+
+
+class VectorStep(Protocol):
+    """The compiled batched vector step (``_stepfast.vector_step``)."""
+
+    def __call__(
+        self,
+        obs_rows: np.ndarray[Any, Any],
+        act_rows: np.ndarray[Any, Any],
+        rew_rows: np.ndarray[Any, Any],
+        time_rows: np.ndarray[Any, Any],
+        t: int,
+        obs: Any,
+        actions: Any,
+        rewards: Any,
+        terminated: Any,
+        truncated: Any,
+        clock: Callable[[], int],
+        endings_ok: bool,
+    ) -> tuple[int, list[int]] | None:
+        """Write a vector step into row ``t`` of the batch buffers, as ``_batch_step`` does.
+
+        Only when every value goes in as it is (arrays of the buffers' dtype and row shape,
+        one number reward and bool flags per sub-env; no ending unless ``endings_ok``): the
+        time read from ``clock``, and the sub-envs whose episodes the step ended. Else
+        ``None``: no clock read, nothing written.
+        """
+
+
+def vector_step_function() -> VectorStep | None:
+    """The compiled batched vector step when the extension is used now (:func:`compiled`)."""
+    if not compiled():
+        return None
+    step: VectorStep = NATIVE.vector_step
+    return step
+
+
+EndBatched = Callable[[EpisodeStream, int, bool, bool, dict[str, Any]], None]
+"""``end_batched(stream, pending, terminated, truncated, info)``: see
+:meth:`EpisodeStream.end_batched <episode_audit.record.episodes.EpisodeStream.end_batched>`."""
+
+
+def end_batched_function() -> EndBatched:
+    """:meth:`EpisodeStream.end_batched`, compiled when the extension is used now."""
+    if not compiled():
+        return EpisodeStream.end_batched
+    end: EndBatched = NATIVE.end_batched
+    return end
+
+
+BeginAutoreset = Callable[[EpisodeStream, bytes, Any, int], "bool | None"]
+"""``begin_autoreset(stream, rng_json, obs, start_ns)``: a vector sub-env's ``NEXT_STEP``
+autoreset with no info, recorded in C as ``NextStep.autoreset`` records it (its episode begun
+from the RNG state ``rng_json``, its reset row): ``True``; ``None`` when it is not taken (the
+stream has an open episode, or ``obs`` does not go into the reset column as it is)."""
+
+
+def begin_autoreset_function() -> BeginAutoreset | None:
+    """The compiled ``NEXT_STEP`` autoreset when the extension is used now, else ``None``."""
+    if not compiled():
+        return None
+    begin: BeginAutoreset = NATIVE.begin_autoreset
+    return begin

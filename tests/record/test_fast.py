@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 import os
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -301,3 +302,113 @@ def test_the_vector_recorders_per_episode_objects_are_left_out_of_the_collector(
             made += [stream.episode, *block.segments[1:], *block.resets]
             made += [*block.ends.values(), *block.flags.values()]
         assert [item for item in made if gc.is_tracked(item)] == []
+
+
+class _OddBatches(gym.vector.VectorWrapper):
+    """A CartPole vector env whose steps now and then hold what the compiled batched step hands
+    to Python: rewards as a list or of int / float16 dtype, flags as a list, observations as
+    float64 or not contiguous, an info with a value, actions of another int dtype."""
+
+    def __init__(self, env: Any) -> None:
+        super().__init__(env)
+        self._t = 0
+
+    def step(self, actions: Any) -> Any:
+        obs, rewards, terminated, truncated, info = self.env.step(actions)
+        self._t += 1
+        kind = self._t % 11
+        if kind == 1:
+            rewards = rewards.tolist()
+        elif kind == 2:
+            rewards = rewards.astype(np.int16)
+        elif kind == 3:
+            rewards = rewards.astype(np.float16)
+        elif kind == 4:
+            terminated = terminated.tolist()
+        elif kind == 5:
+            obs = obs.astype(np.float64)
+        elif kind == 6:
+            obs = np.asfortranarray(np.repeat(obs, 2, axis=0)[::2])
+        elif kind == 7:
+            info = {"x": np.ones(len(rewards))}
+        return obs, rewards, terminated, truncated, info
+
+
+def _vector(mode: str, odd: bool = False) -> Any:
+    kwargs = {"autoreset_mode": gym.vector.AutoresetMode[mode]}
+    env = gym.make_vec("CartPole-v1", 4, vectorization_mode="sync", vector_kwargs=kwargs)
+    return _OddBatches(env) if odd else env
+
+
+VECTOR_SCENARIOS: dict[str, tuple[Callable[[], Any], int, dict[str, Any]]] = {
+    "next_step": (lambda: _vector("NEXT_STEP"), 700, {"block_steps": 300}),
+    "same_step": (lambda: _vector("SAME_STEP"), 500, {"block_steps": 200}),
+    "disabled": (lambda: _vector("DISABLED"), 400, {"block_steps": 1000}),
+    "odd_batches": (lambda: _vector("NEXT_STEP", odd=True), 600, {"block_steps": 250}),
+}
+
+
+def _record_vector(
+    make: Callable[[], Any], steps: int, options: dict[str, Any], path: Path
+) -> tuple[int, int]:
+    """Record a vector env; the vector steps the compiled path took, and those it did not."""
+    from episode_audit import RecordVectorEvidence
+
+    env = make()
+    rng = np.random.default_rng(5)
+    taken = [0, 0]
+    with warnings.catch_warnings():  # (_OddBatches: "the steps it recorded are that wrapper's")
+        warnings.simplefilter("ignore", UserWarning)
+        rec = RecordVectorEvidence(env, path, **{"flush_every_s": 1e9, **options})
+    with rec:
+        compiled = rec._steps._compiled
+        if compiled is not None:
+
+            def counted(*args: Any) -> Any:
+                ends = compiled(*args)
+                taken[ends is None] += 1
+                return ends
+
+            rec._steps._compiled = counted
+        rec.reset(seed=0)
+        disabled = rec._autoreset.mode is gym.vector.AutoresetMode.DISABLED
+        for t in range(steps):
+            actions = rng.integers(0, 2, size=4)
+            if t % 13 == 5:
+                actions = actions.astype(np.int32)
+            _, _, terminated, truncated, _ = rec.step(actions)
+            if disabled and (np.asarray(terminated) | np.asarray(truncated)).any():
+                rec.reset(options={"reset_mask": np.asarray(terminated) | truncated})
+            elif t % 150 == 149:  # a partial reset mid-episode
+                rec.reset(seed=[t, None, None, None], options={"reset_mask": np.eye(4)[0] > 0})
+    return taken[0], taken[1]
+
+
+@needs_compiled
+@pytest.mark.parametrize("name", sorted(VECTOR_SCENARIOS))
+def test_compiled_and_pure_python_write_the_same_vector_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, name: str
+) -> None:
+    make, steps, options = VECTOR_SCENARIOS[name]
+    files, taken = {}, {}
+    for mode in ("compiled", "pure"):
+        ticks = itertools.count(1_000_000_000, 1_000)
+        monkeypatch.setattr(time, "monotonic_ns", ticks.__next__)
+        monkeypatch.setattr(time, "time_ns", lambda: 1_700_000_000_000_000_000)
+        monkeypatch.setenv(fast.PURE_PYTHON_ENV, "1" if mode == "pure" else "0")
+        files[mode] = tmp_path / f"{mode}.mcap"
+        taken[mode] = _record_vector(make, steps, options, files[mode])
+    assert taken["pure"] == (0, 0)
+    compiled_steps, declined = taken["compiled"]
+    if name == "odd_batches":  # 7 steps in 11 hold a value it hands on (some, new buffers)
+        assert compiled_steps > steps // 6 and declined > steps // 6
+    elif name == "same_step":  # it takes no step that ends an episode in SAME_STEP mode
+        assert compiled_steps > steps // 2 and declined > steps // 20
+    elif name == "disabled":  # the step after each reset() finds out which sub-envs are idle
+        assert compiled_steps > steps // 2
+    else:
+        assert compiled_steps > steps * 0.8
+    compiled, pure = _contents(files["compiled"]), _contents(files["pure"])
+    assert len(compiled) == len(pure)
+    for a, b in zip(compiled, pure, strict=True):
+        assert a == b

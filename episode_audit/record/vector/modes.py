@@ -18,6 +18,7 @@ from typing import Any
 
 from gymnasium.vector import AutoresetMode, VectorEnv
 
+from ..fast import BeginAutoreset
 from ..notes import note
 from ..stream import Stream
 from .infos import EMPTY, env_infos
@@ -69,6 +70,8 @@ class Autoreset:
         self._no_rng_note = no_rng_note
         self.resetting: list[int] = []
         self.pending_rng: dict[int, RngState | None] = {}  # of the sub-envs in resetting
+        # the compiled NEXT_STEP autoreset, set by VectorSteps when the streams keep no info
+        self.compiled_begin: BeginAutoreset | None = None
 
     def begin(
         self,
@@ -170,7 +173,18 @@ class NextStep(Autoreset):
         rng = self.rng.from_info(info) if info else None
         if rng is None:
             rng = self.pending_rng.pop(i, None)
-        self.streams[i].end_open()
+        stream = self.streams[i]
+        begin = self.compiled_begin
+        if (
+            begin is not None
+            and rng is not None
+            and noted is None
+            and type(info) is dict
+            and not info
+            and begin(stream, stream.file.rng_json(rng), obs, now)
+        ):
+            return
+        stream.end_open()
         self.begin(i, None, None, rng, obs, info, now, None, noted)
 
     def stepped(self, ends: list[int]) -> None:

@@ -18,6 +18,12 @@ from gymnasium.spaces import Space
 from gymnasium.vector.utils import iterate
 
 from ...format.spaces import SpaceCodec
+from ..fast import (
+    VectorStep,
+    begin_autoreset_function,
+    end_batched_function,
+    vector_step_function,
+)
 from ..file import EvidenceFile
 from ..stream import Stream
 from .infos import EMPTY, env_infos
@@ -156,6 +162,11 @@ class VectorSteps:
             and obs_codec.new_buffer().extend(np.zeros((0, *self._obs_shape[1:]), self._obs_dtype))
             and act_codec.new_buffer().extend(np.zeros((0, *self._act_shape[1:]), self._act_dtype))
         )
+        # the common batched step in C, or None (the Python path: _batch_step)
+        self._compiled = vector_step_function() if self._batchable else None
+        self._end_batched = end_batched_function()
+        if self._batchable:  # (the streams keep no info)
+            autoreset.compiled_begin = begin_autoreset_function()
         self._p_len = 0  # vector steps batched
         self._p_skip = [0] * n  # of those, the ones each sub-env spent resetting (no row)
         # the batched steps, written in place (one fresh set per drain: rows handed over may
@@ -176,6 +187,8 @@ class VectorSteps:
 
     def record(self, actions: Any, result: tuple[Any, ...]) -> None:
         """Record one vector step (``result``: what the vector env's ``step`` returned)."""
+        if self._compiled is not None and self._compiled_step(self._compiled, actions, result):
+            return
         obs, rewards, terminated, truncated, infos = result
         n = self._n
         if (
@@ -234,6 +247,49 @@ class VectorSteps:
         if ends or resetting:
             autoreset.stepped(ends)
 
+    def _compiled_step(self, step: VectorStep, actions: Any, result: tuple[Any, ...]) -> bool:
+        """Take the common batched step in C (:func:`~..fast.vector_step_function`).
+
+        Whether it did: it does when the step has no info and needs no note, and its values go
+        into the batch buffers as they are; else nothing has changed.
+        """
+        obs, rewards, terminated, truncated, infos = result
+        held, idle, autoreset = self._p_obs, self.idle, self._autoreset
+        resetting = autoreset.resetting
+        if (
+            held is None
+            or idle is None
+            or (idle and not idle.issubset(resetting))
+            or not (
+                (type(infos) is dict and not infos)
+                or (type(infos) is list and infos == self._no_infos)
+            )
+        ):
+            return False
+        t = self._p_len
+        taken = step(
+            held,
+            self._p_act,
+            self._p_rew,
+            self._p_time,
+            t,
+            obs,
+            actions,
+            rewards,
+            terminated,
+            truncated,
+            self._file.clock,
+            self._batches_endings,
+        )
+        if taken is None:
+            return False
+        now, ends = taken
+        self._p_len = t + 1
+        self._batched(t, obs, terminated, truncated, ends, resetting, None, now)
+        if ends or resetting:
+            autoreset.stepped(ends)
+        return True
+
     def _batch_step(
         self,
         obs: np.ndarray[Any, Any],
@@ -268,6 +324,21 @@ class VectorSteps:
             for i, (final_obs, _, _) in same.items():
                 held[t, i] = final_obs
         self._p_len = t + 1
+        self._batched(t, obs, term, trunc, ends, resetting, same, now)
+
+    def _batched(
+        self,
+        t: int,
+        obs: np.ndarray[Any, Any],
+        term: _Bools,
+        trunc: _Bools,
+        ends: list[int],
+        resetting: list[int],
+        same: _SameStepEndings | None,
+        now: int,
+    ) -> None:
+        """Batched step ``t`` is written: its episode boundaries, then a flush or drain if due."""
+        file = self._file
         if resetting or ends:
             streams, skipped, pending = self._streams, self._p_skip, self._p_len
             for i in resetting:
@@ -283,15 +354,14 @@ class VectorSteps:
             for i in ends:
                 if resetting and i in resetting:
                     continue  # a reset step has no flags (Gymnasium clears them)
-                block = streams[i].block
-                block.pending = pending - skipped[i]
                 flags = bool(term[i]), bool(trunc[i])
                 if same is not None:  # the ending, then the reset inside the same step
+                    streams[i].block.pending = pending - skipped[i]
                     _, final_info, reset_info = same[i]
                     assert isinstance(self._autoreset, SameStep)  # (only it does not batch them)
                     self._autoreset.end_batched(i, flags, final_info, obs[i], reset_info, now)
                     continue
-                streams[i].end_step(block.rows() - 1, *flags, EMPTY)
+                self._end_batched(streams[i], pending - skipped[i], *flags, EMPTY)
                 if idle is not None:
                     idle.add(i)
         self._since_flush += 1
