@@ -1211,6 +1211,177 @@ done:
     return result;
 }
 
+
+/* episode_columns(ended, offset, games): the episode block's columns of the `ended` (episode,
+   ending) pairs when every one is a common record (episode_json wrote them all): a dict of
+   numpy arrays (int64: episode, env_index, seed, length, start_time_ns, end_time_ns, notes,
+   game; bool: terminated, truncated; float64: return), "seed_mask" / "game_mask" (bool arrays
+   true where the value is None, or None when none is), and lists of the objects of agent,
+   rng_state, outcome, failure_label, truncation_reason and term_totals; times plus `offset`.
+   None when one is not a common record, or a value is not of its usual type: the Python path
+   (episode_records._episode_batch) builds the block. */
+
+enum { C_EPISODE, C_ENV_INDEX, C_SEED, C_LENGTH, C_START, C_END, C_NOTES, C_GAME, C_INTS };
+
+/* An int64 column value: 1 (set), 0 (not an int that fits: decline), -1 (error). */
+static int put_int(PyObject *value, long long add, npy_int64 *out)
+{
+    long long v;
+    int got = int_plus(value, add, &v);
+    if (got == 1)
+        *out = v;
+    return got;
+}
+
+static PyObject *new_column(Py_ssize_t n, int type)
+{
+    npy_intp dims[1] = {n};
+    return PyArray_ZEROS(1, dims, type, 0);
+}
+
+static PyObject *episode_columns(PyObject *module, PyObject *args)
+{
+    PyObject *ended;
+    long long offset;
+    int games;
+    if (!PyArg_ParseTuple(args, "O!Lp:episode_columns", &PyList_Type, &ended, &offset, &games))
+        return NULL;
+    if (!configured) {
+        PyErr_SetString(PyExc_RuntimeError, "_stepfast is not configured");
+        return NULL;
+    }
+    static const char *int_names[C_INTS] = {"episode", "env_index", "seed", "length",
+                                            "start_time_ns", "end_time_ns", "notes", "game"};
+    static const char *list_names[6] = {"agent", "rng_state", "outcome", "failure_label",
+                                        "truncation_reason", "term_totals"};
+    Py_ssize_t n = PyList_GET_SIZE(ended);
+    PyObject *ints[C_INTS] = {0}, *lists[6] = {0}, *flags[2] = {0}, *ret_col = NULL,
+             *masks[2] = {0}, *result = NULL;
+    int ok = 1, any_null[2] = {0, 0};
+    for (int c = 0; c < C_INTS; c++)
+        ok = ok && (ints[c] = new_column(n, NPY_INT64)) != NULL;
+    for (int c = 0; c < 6; c++)
+        ok = ok && (lists[c] = PyList_New(n)) != NULL;
+    for (int c = 0; c < 2; c++)
+        ok = ok && (flags[c] = new_column(n, NPY_BOOL)) != NULL &&
+             (masks[c] = new_column(n, NPY_BOOL)) != NULL;
+    ok = ok && (ret_col = new_column(n, NPY_DOUBLE)) != NULL;
+    if (!ok)
+        goto done;
+    npy_int64 *col[C_INTS];
+    for (int c = 0; c < C_INTS; c++)
+        col[c] = (npy_int64 *)PyArray_DATA((PyArrayObject *)ints[c]);
+    npy_bool *term_col = PyArray_DATA((PyArrayObject *)flags[0]),
+             *trunc_col = PyArray_DATA((PyArrayObject *)flags[1]),
+             *seed_null = PyArray_DATA((PyArrayObject *)masks[0]),
+             *game_null = PyArray_DATA((PyArrayObject *)masks[1]);
+    double *returns = PyArray_DATA((PyArrayObject *)ret_col);
+    int declined = 0;
+    for (Py_ssize_t i = 0; i < n && !declined; i++) {
+        PyObject *item = PyList_GET_ITEM(ended, i);
+        if (!PyTuple_CheckExact(item) || PyTuple_GET_SIZE(item) != 2 ||
+            !Py_IS_TYPE(PyTuple_GET_ITEM(item, 0), episode_type) ||
+            !PyDict_CheckExact(PyTuple_GET_ITEM(item, 1))) {
+            declined = 1;
+            break;
+        }
+        PyObject *ep = PyTuple_GET_ITEM(item, 0), *ending = PyTuple_GET_ITEM(item, 1);
+        PyObject *got[6];
+        got[0] = SLOT(ep, off_ep[E_AGENT]);
+        got[1] = SLOT(ep, off_ep[E_RNG_JSON]);
+        got[2] = PyDict_GetItemWithError(ending, s_outcome);
+        got[3] = got[2] == NULL ? NULL : PyDict_GetItemWithError(ending, s_failure_label);
+        got[4] = got[3] == NULL ? NULL : PyDict_GetItemWithError(ending, s_truncation_reason);
+        got[5] = SLOT(ep, off_ep[E_TOTALS]);
+        PyObject *term = got[4] == NULL ? NULL : PyDict_GetItemWithError(ending, s_terminated);
+        PyObject *trunc = term == NULL ? NULL : PyDict_GetItemWithError(ending, s_truncated);
+        PyObject *error = trunc == NULL ? NULL : PyDict_GetItemWithError(ending, s_error);
+        PyObject *ret = SLOT(ep, off_ep[E_RET]), *seed = SLOT(ep, off_ep[E_SEED]),
+                 *game = SLOT(ep, off_ep[E_GAME]);
+        if (error == NULL) {
+            if (PyErr_Occurred())
+                goto done;
+            declined = 1;
+            break;
+        }
+        if (error != Py_None || PyDict_GetItemWithError(ending, s_error_ns) != NULL ||
+            SLOT(ep, off_ep[E_OPTIONS]) != Py_None || !PyFloat_CheckExact(ret) ||
+            (term != Py_True && term != Py_False) || (trunc != Py_True && trunc != Py_False) ||
+            (got[0] != Py_None && !PyUnicode_CheckExact(got[0])) ||
+            (got[1] != Py_None && !PyBytes_CheckExact(got[1])) || !PyUnicode_CheckExact(got[2]) ||
+            (got[3] != Py_None && !PyUnicode_CheckExact(got[3])) ||
+            (got[4] != Py_None && !PyUnicode_CheckExact(got[4])) || !PyDict_CheckExact(got[5])) {
+            if (PyErr_Occurred())
+                goto done;
+            declined = 1;
+            break;
+        }
+        int fits = 1, g;
+#define INT_AT(c, value, add)                                                                      \
+    if (fits == 1) {                                                                               \
+        g = put_int((value), (add), &col[c][i]);                                                   \
+        if (g < 0)                                                                                 \
+            goto done;                                                                             \
+        fits = g;                                                                                  \
+    }
+        INT_AT(C_EPISODE, SLOT(ep, off_ep[E_INDEX]), 0);
+        INT_AT(C_ENV_INDEX, SLOT(ep, off_ep[E_ENV_INDEX]), 0);
+        if (seed == Py_None) {
+            seed_null[i] = 1;
+            any_null[0] = 1;
+        } else
+            INT_AT(C_SEED, seed, 0);
+        INT_AT(C_LENGTH, SLOT(ep, off_ep[E_STEPS]), 0);
+        INT_AT(C_START, SLOT(ep, off_ep[E_START_NS]), offset);
+        INT_AT(C_END, SLOT(ep, off_ep[E_END_NS]), offset);
+        INT_AT(C_NOTES, SLOT(ep, off_ep[E_NOTES]), 0);
+        if (!games || game == Py_None) {
+            game_null[i] = 1;
+            any_null[1] = 1;
+        } else
+            INT_AT(C_GAME, game, 0);
+#undef INT_AT
+        if (fits != 1) {
+            declined = 1;
+            break;
+        }
+        term_col[i] = term == Py_True;
+        trunc_col[i] = trunc == Py_True;
+        returns[i] = PyFloat_AS_DOUBLE(ret);
+        for (int c = 0; c < 6; c++)
+            PyList_SET_ITEM(lists[c], i, Py_NewRef(got[c]));
+    }
+    if (declined) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    result = PyDict_New();
+    if (result == NULL)
+        goto done;
+    ok = PyDict_SetItemString(result, "terminated", flags[0]) == 0 &&
+         PyDict_SetItemString(result, "truncated", flags[1]) == 0 &&
+         PyDict_SetItemString(result, "return", ret_col) == 0 &&
+         PyDict_SetItemString(result, "seed_mask", any_null[0] ? masks[0] : Py_None) == 0 &&
+         PyDict_SetItemString(result, "game_mask", any_null[1] ? masks[1] : Py_None) == 0;
+    for (int c = 0; ok && c < C_INTS; c++)
+        ok = PyDict_SetItemString(result, int_names[c], ints[c]) == 0;
+    for (int c = 0; ok && c < 6; c++)
+        ok = PyDict_SetItemString(result, list_names[c], lists[c]) == 0;
+    if (!ok)
+        Py_CLEAR(result);
+done:
+    for (int c = 0; c < C_INTS; c++)
+        Py_XDECREF(ints[c]);
+    for (int c = 0; c < 6; c++) /* (a list left part-filled: its unset items are NULL) */
+        Py_XDECREF(lists[c]);
+    for (int c = 0; c < 2; c++) {
+        Py_XDECREF(flags[c]);
+        Py_XDECREF(masks[c]);
+    }
+    Py_XDECREF(ret_col);
+    return result;
+}
+
 /* A JSON value of str, int, bool, None and dicts of them with str keys (an RNG state), as
    to_json writes it: 1; 0 for any other value (no error set); -1 with an error. */
 static int json_value(Text *t, PyObject *value, PyObject *quote, int depth)
@@ -1716,6 +1887,8 @@ static PyMethodDef module_methods[] = {
      "configure(Block, Episode, FlatArrayBuffer, ArrayBuffer, IntBuffer, array.array)"},
     {"episode_json", episode_json, METH_VARARGS,
      "episode_json(ended, offset, games, quote, to_json): ([record JSON], [end time]) or None"},
+    {"episode_columns", episode_columns, METH_VARARGS,
+     "episode_columns(ended, offset, games): the episode block's columns, or None"},
     {"rng_json", rng_json, METH_VARARGS, "rng_json(state, quote): to_json(state), or None"},
     {"untrack", untrack_object, METH_O,
      "untrack(obj): leave obj out of the cyclic collector (native.untrack: which objects)"},

@@ -69,8 +69,34 @@ class EpisodeRecords:
                 for (ep, ending), end in zip(ended, ends, strict=True)
             ]
         writer.write_json_many(self.json_channel, datas, ends)
-        batch = _episode_batch(ended, ends, offset, games, self.schema)
+        columns = None if records is None else native.episode_columns(ended, offset, games)
+        if columns is None:
+            batch = _episode_batch(ended, ends, offset, games, self.schema)
+        else:
+            batch = _columns_batch(len(ended), columns, self.schema)
         writer.write_batch(self.block_channel, batch, ends[-1])
+
+
+_MASKED = {"seed": "seed_mask", "game": "game_mask"}
+
+
+def _columns_batch(n: int, columns: dict[str, Any], schema: pa.Schema) -> pa.RecordBatch:
+    """The episode block of common records from their columns (:func:`.native.episode_columns`).
+
+    The same block as :func:`_episode_batch` makes of them (``tests/record/test_fast.py``).
+    """
+    arrays = []
+    for name in schema.names:
+        kind = schema.field(name).type
+        if name == "term_totals":
+            arrays.append(terms_column(n, dict(enumerate(columns[name]))))
+        elif name in _MASKED:
+            arrays.append(pa.array(columns[name], kind, mask=columns[_MASKED[name]]))
+        elif name in columns:
+            arrays.append(pa.array(columns[name], kind))
+        else:  # options and the error's fields: a common record has none
+            arrays.append(pa.nulls(n, kind))
+    return pa.RecordBatch.from_arrays(arrays, schema=schema)
 
 
 def _episode_json(

@@ -24,6 +24,7 @@ __all__ = [
     "NATIVE",
     "PURE_PYTHON_ENV",
     "compiled",
+    "episode_columns",
     "episode_json",
     "frame_messages",
     "rng_json",
@@ -83,6 +84,19 @@ def episode_json(
     result: tuple[list[bytes], list[int]] | None = NATIVE.episode_json(
         ended, offset, games, _QUOTE, to_json
     )
+    return result
+
+
+def episode_columns(
+    ended: list[tuple[Episode, dict[str, Any]]], offset: int, games: bool
+) -> dict[str, Any] | None:
+    """The episode block's columns of the ended episodes, when all are common records.
+
+    Arrays of the numbers and flags, lists of the texts and term totals (``_stepfast.c`` says
+    which); ``None`` when one is not a common record (:func:`episode_json`'s). Requires the
+    extension (:data:`NATIVE`).
+    """
+    result: dict[str, Any] | None = NATIVE.episode_columns(ended, offset, games)
     return result
 
 

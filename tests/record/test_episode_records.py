@@ -13,21 +13,28 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from episode_audit.format.records import to_json
+from episode_audit.format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from episode_audit.record import native
 from episode_audit.record.block import Episode
 from episode_audit.record.episode_records import (
+    _columns_batch,
+    _episode_batch,
     _episode_json,
     _episode_record,
     _plain_episode_json,
 )
+from episode_audit.record.writer import ipc_stream
 
 _TEXT = st.text(max_size=12)
 _FLOATS = st.floats(allow_nan=True, allow_infinity=True) | st.sampled_from([0.0, -0.0, 1e300])
 
 
 @st.composite
-def ended(draw: Any) -> tuple[Episode, dict[str, Any], int, int, bool]:
-    options = draw(st.none() | st.dictionaries(_TEXT, st.integers(), max_size=2))
+def ended(draw: Any, common: bool = False) -> tuple[Episode, dict[str, Any], int, int, bool]:
+    """An ended episode; ``common``: one without options or error, of a finite return."""
+    options = (
+        None if common else draw(st.none() | st.dictionaries(_TEXT, st.integers(), max_size=2))
+    )
     episode = Episode(
         draw(st.integers(0, 2**40)),
         draw(st.none() | st.integers(0, 2**63 - 1)),
@@ -39,12 +46,14 @@ def ended(draw: Any) -> tuple[Episode, dict[str, Any], int, int, bool]:
         draw(st.none() | st.integers(0, 1000)),
     )
     episode.steps = draw(st.integers(0, 2**31))
-    episode.ret = draw(_FLOATS)
+    episode.ret = draw(st.floats(allow_nan=False, allow_infinity=False) if common else _FLOATS)
     episode.totals = draw(st.dictionaries(_TEXT, _FLOATS, max_size=3))
     episode.notes = draw(st.integers(0, 5))
-    error = draw(
-        st.none() | st.just({"type": "ValueError", "message": "x\u00e9", "during": "step"})
-    )
+    error = None
+    if not common:
+        error = draw(
+            st.none() | st.just({"type": "ValueError", "message": "x\u00e9", "during": "step"})
+        )
     ending = {
         "outcome": draw(st.sampled_from(["success", "failure", "truncated", "incomplete"])),
         "failure_label": draw(st.none() | _TEXT),
@@ -120,6 +129,34 @@ def test_the_compiled_records_are_the_python_ones(
             [_episode_json(episode, ending, end_ns + offset, offset, games)],
             [end_ns + offset],
         )
+
+
+@_COMPILED
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(ended(common=True), min_size=1, max_size=8),
+    st.integers(-(2**40), 2**40),
+    st.booleans(),
+)
+def test_the_compiled_episode_columns_make_the_python_block(
+    cases: list[tuple[Episode, dict[str, Any], int, int, bool]], end_ns: int, games: bool
+) -> None:
+    """The episode block from the compiled columns is the Python path's, byte for byte (its
+    Arrow IPC stream); the columns are declined where the records are."""
+    ended = [(episode, ending) for episode, ending, *_ in cases]
+    for episode, _ in ended:
+        episode.end_ns = end_ns
+    offset = cases[0][3]
+    schema = EPISODE_BLOCK_SCHEMA if games else EPISODE_BLOCK_BASE
+    records = native.episode_json(ended, offset, games)
+    columns = native.episode_columns(ended, offset, games)
+    if records is None:  # (a time past 64 bits): the Python path writes them all
+        return
+    ends = records[1]
+    expected = _episode_batch(ended, ends, offset, games, schema)
+    got = _columns_batch(len(ended), columns, schema)
+    assert got.equals(expected)
+    assert ipc_stream(got).to_pybytes() == ipc_stream(expected).to_pybytes()
 
 
 @_COMPILED
