@@ -40,10 +40,10 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# the single-env recorder's tests run twice: on the compiled step, and on the pure-Python one
-# that machines without a C compiler take (the files must be the same: tests/record/test_fast.py)
+# the recorders' tests run twice: on the compiled step, and on the pure-Python one that
+# machines without a C compiler take (the files must be the same: tests/record/test_fast.py)
 PURE_TESTS := $(addprefix tests/record/test_,gym.py misbehaving.py stream.py disk_full.py \
-	threads.py settings.py reward_wrappers.py)
+	threads.py settings.py reward_wrappers.py vector.py)
 
 # -n 2 --dist loadfile: two worker processes, each test file whole on one of them (its
 # module-scoped fixtures built once; one Ray, one moto server per file); a worker that crashes
