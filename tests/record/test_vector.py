@@ -1121,3 +1121,38 @@ def test_a_vector_recording_writes_the_same_messages_as_before(
         "what a vector recording writes changed; if numpy, pyarrow, zstandard or gymnasium did "
         "(not this code), put the new digest in _GOLDEN_MESSAGES"
     )
+
+
+def test_big_rows_are_batched_a_few_steps_at_a_time(tmp_path: Path) -> None:
+    # 4 frames of 256 KB a vector step: 8 MB of batch buffers hold 8 steps, not BATCH_STEPS
+    from episode_audit.record.vector.steps import BATCH_BYTES, BATCH_STEPS
+
+    shape = (256, 256, 4)
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        return np.full(shape, env.t % 256, np.uint8), 1.0, env.t % 30 == 0, False, {}
+
+    def make() -> ScriptedEnv:
+        return ScriptedEnv(
+            step_fn=step,
+            reset_fn=lambda env: (np.zeros(shape, np.uint8), {}),
+            observation_space=gym.spaces.Box(0, 255, shape, np.uint8),
+            action_space=gym.spaces.Discrete(2),
+        )
+
+    path = tmp_path / "frames.mcap"
+    held: set[tuple[int, int]] = set()
+    with RecordVectorEvidence(SyncVectorEnv([make] * N), path) as rec:
+        rec.reset(seed=0)
+        for _ in range(100):
+            rec.step(np.zeros(N, dtype=np.int64))
+            steps = rec._steps
+            if steps._p_obs is not None:  # (None right after a hand-over)
+                held.add((steps._p_rows, steps._p_obs.nbytes))
+    rows = BATCH_BYTES // (N * (shape[0] * shape[1] * shape[2] + 8))
+    assert held == {(rows, rows * N * shape[0] * shape[1] * shape[2])}
+    assert 1 < rows < BATCH_STEPS
+    with open_evidence(path) as evidence:
+        lengths = evidence.episodes().column("length").to_pylist()
+    assert sum(lengths) + N * (100 // 31) == 100 * N  # (each autoreset step: a reset row)
+    assert not [f for f in check([path]).findings if f.severity == "error"]
