@@ -1079,33 +1079,54 @@ static int text_str(Text *t, PyObject *value, PyObject *quote)
 
 /* The record of one ended episode, appended to `t`: 1; 0 when it is not a common one; -1 with
    an error. `*end` gets its end time (end_ns + offset). */
-static int episode_record(Text *t, PyObject *episode, PyObject *ending, long long offset,
-                          int games, PyObject *quote, PyObject *to_json, long long *end)
+/* The ending's fields of a common record (borrowed). */
+typedef struct {
+    PyObject *outcome, *label, *reason, *term, *trunc;
+} Ending;
+
+/* Whether (episode, ending) is a common record: no error, no options, a finite float return,
+   bool flags, a dict of term totals, an RNG state that is None or JSON bytes. 1 (with `e`
+   filled); 0 when it is not; -1 with an error. */
+static int common_record(PyObject *episode, PyObject *ending, Ending *e)
 {
     PyObject *error = PyDict_GetItemWithError(ending, s_error);
     if (error != Py_None || PyDict_GetItemWithError(ending, s_error_ns) != NULL ||
         PyErr_Occurred())
         return PyErr_Occurred() ? -1 : 0;
-    PyObject *ret = SLOT(episode, off_ep[E_RET]), *agent = SLOT(episode, off_ep[E_AGENT]);
+    PyObject *ret = SLOT(episode, off_ep[E_RET]);
     if (SLOT(episode, off_ep[E_OPTIONS]) != Py_None || !PyFloat_CheckExact(ret) ||
         !isfinite(PyFloat_AS_DOUBLE(ret)))
         return 0;
-    int got = int_plus(SLOT(episode, off_ep[E_END_NS]), offset, end);
+    e->outcome = PyDict_GetItemWithError(ending, s_outcome);
+    e->label = PyDict_GetItemWithError(ending, s_failure_label);
+    e->reason = PyDict_GetItemWithError(ending, s_truncation_reason);
+    e->term = PyDict_GetItemWithError(ending, s_terminated);
+    e->trunc = PyDict_GetItemWithError(ending, s_truncated);
+    if (e->outcome == NULL || e->label == NULL || e->reason == NULL || e->term == NULL ||
+        e->trunc == NULL)
+        return PyErr_Occurred() ? -1 : 0;
+    PyObject *rng = SLOT(episode, off_ep[E_RNG_JSON]);
+    return (e->term == Py_True || e->term == Py_False) &&
+           (e->trunc == Py_True || e->trunc == Py_False) &&
+           PyDict_CheckExact(SLOT(episode, off_ep[E_TOTALS])) &&
+           (rng == Py_None || PyBytes_CheckExact(rng));
+}
+
+static int episode_record(Text *t, PyObject *episode, PyObject *ending, long long offset,
+                          int games, PyObject *quote, PyObject *to_json, long long *end)
+{
+    Ending e;
+    int got = common_record(episode, ending, &e);
     if (got <= 0)
         return got;
-    PyObject *outcome = PyDict_GetItemWithError(ending, s_outcome);
-    PyObject *label = PyDict_GetItemWithError(ending, s_failure_label);
-    PyObject *reason = PyDict_GetItemWithError(ending, s_truncation_reason);
-    PyObject *term = PyDict_GetItemWithError(ending, s_terminated);
-    PyObject *trunc = PyDict_GetItemWithError(ending, s_truncated);
-    if (outcome == NULL || label == NULL || reason == NULL || term == NULL || trunc == NULL)
-        return PyErr_Occurred() ? -1 : 0;
-    if ((term != Py_True && term != Py_False) || (trunc != Py_True && trunc != Py_False))
-        return 0;
+    got = int_plus(SLOT(episode, off_ep[E_END_NS]), offset, end);
+    if (got <= 0)
+        return got;
+    PyObject *outcome = e.outcome, *label = e.label, *reason = e.reason, *term = e.term,
+             *trunc = e.trunc;
+    PyObject *ret = SLOT(episode, off_ep[E_RET]), *agent = SLOT(episode, off_ep[E_AGENT]);
     PyObject *seed = SLOT(episode, off_ep[E_SEED]), *game = SLOT(episode, off_ep[E_GAME]);
     PyObject *totals = SLOT(episode, off_ep[E_TOTALS]), *rng = SLOT(episode, off_ep[E_RNG_JSON]);
-    if (!PyDict_CheckExact(totals) || (rng != Py_None && !PyBytes_CheckExact(rng)))
-        return 0;
     PUT_FIELD("{\"episode\":", text_int(t, SLOT(episode, off_ep[E_INDEX]), 0));
     PUT_FIELD(",\"env_index\":", text_int(t, SLOT(episode, off_ep[E_ENV_INDEX]), 0));
     if (agent != Py_None)
@@ -1286,33 +1307,16 @@ static PyObject *episode_columns(PyObject *module, PyObject *args)
             break;
         }
         PyObject *ep = PyTuple_GET_ITEM(item, 0), *ending = PyTuple_GET_ITEM(item, 1);
-        PyObject *got[6];
-        got[0] = SLOT(ep, off_ep[E_AGENT]);
-        got[1] = SLOT(ep, off_ep[E_RNG_JSON]);
-        got[2] = PyDict_GetItemWithError(ending, s_outcome);
-        got[3] = got[2] == NULL ? NULL : PyDict_GetItemWithError(ending, s_failure_label);
-        got[4] = got[3] == NULL ? NULL : PyDict_GetItemWithError(ending, s_truncation_reason);
-        got[5] = SLOT(ep, off_ep[E_TOTALS]);
-        PyObject *term = got[4] == NULL ? NULL : PyDict_GetItemWithError(ending, s_terminated);
-        PyObject *trunc = term == NULL ? NULL : PyDict_GetItemWithError(ending, s_truncated);
-        PyObject *error = trunc == NULL ? NULL : PyDict_GetItemWithError(ending, s_error);
-        PyObject *ret = SLOT(ep, off_ep[E_RET]), *seed = SLOT(ep, off_ep[E_SEED]),
-                 *game = SLOT(ep, off_ep[E_GAME]);
-        if (error == NULL) {
-            if (PyErr_Occurred())
-                goto done;
-            declined = 1;
-            break;
-        }
-        if (error != Py_None || PyDict_GetItemWithError(ending, s_error_ns) != NULL ||
-            SLOT(ep, off_ep[E_OPTIONS]) != Py_None || !PyFloat_CheckExact(ret) ||
-            (term != Py_True && term != Py_False) || (trunc != Py_True && trunc != Py_False) ||
-            (got[0] != Py_None && !PyUnicode_CheckExact(got[0])) ||
-            (got[1] != Py_None && !PyBytes_CheckExact(got[1])) || !PyUnicode_CheckExact(got[2]) ||
-            (got[3] != Py_None && !PyUnicode_CheckExact(got[3])) ||
-            (got[4] != Py_None && !PyUnicode_CheckExact(got[4])) || !PyDict_CheckExact(got[5])) {
-            if (PyErr_Occurred())
-                goto done;
+        Ending e;
+        int common = common_record(ep, ending, &e);
+        if (common < 0)
+            goto done;
+        PyObject *got[6] = {SLOT(ep, off_ep[E_AGENT]), SLOT(ep, off_ep[E_RNG_JSON]), e.outcome,
+                            e.label, e.reason, SLOT(ep, off_ep[E_TOTALS])};
+        PyObject *seed = SLOT(ep, off_ep[E_SEED]), *game = SLOT(ep, off_ep[E_GAME]);
+        if (!common || (got[0] != Py_None && !PyUnicode_CheckExact(got[0])) ||
+            !PyUnicode_CheckExact(got[2]) || (got[3] != Py_None && !PyUnicode_CheckExact(got[3])) ||
+            (got[4] != Py_None && !PyUnicode_CheckExact(got[4]))) {
             declined = 1;
             break;
         }
@@ -1345,9 +1349,9 @@ static PyObject *episode_columns(PyObject *module, PyObject *args)
             declined = 1;
             break;
         }
-        term_col[i] = term == Py_True;
-        trunc_col[i] = trunc == Py_True;
-        returns[i] = PyFloat_AS_DOUBLE(ret);
+        term_col[i] = e.term == Py_True;
+        trunc_col[i] = e.trunc == Py_True;
+        returns[i] = PyFloat_AS_DOUBLE(SLOT(ep, off_ep[E_RET]));
         for (int c = 0; c < 6; c++)
             PyList_SET_ITEM(lists[c], i, Py_NewRef(got[c]));
     }

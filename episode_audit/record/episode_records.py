@@ -83,7 +83,8 @@ _MASKED = {"seed": "seed_mask", "game": "game_mask"}
 def _columns_batch(n: int, columns: dict[str, Any], schema: pa.Schema) -> pa.RecordBatch:
     """The episode block of common records from their columns (:func:`.native.episode_columns`).
 
-    The same block as :func:`_episode_batch` makes of them (``tests/record/test_fast.py``).
+    The same block as :func:`_episode_batch` makes of them
+    (``tests/record/test_episode_records.py`` compares their bytes).
     """
     arrays = []
     for name in schema.names:
