@@ -144,15 +144,40 @@ class _OpenChunk:
 
         ``sequence`` numbers the first; each time is the message's log and publish time.
         """
-        builder = self._writer._Writer__chunk_builder  # type: ignore[attr-defined]
-        stats = self._writer._Writer__statistics  # type: ignore[attr-defined]
-        buffer = builder.record_writer._buffer
+        buffer = self._writer._Writer__chunk_builder.record_writer._buffer  # type: ignore[attr-defined]
         if self._frame is not None:
             framed, entries = self._frame(datas, times, channel_id, sequence, buffer.tell())
         else:
             framed, entries = _framed(datas, times, channel_id, sequence, buffer.tell())
         buffer.write(framed)
-        first, last = min(times), max(times)
+        self._count(channel_id, entries, min(times), max(times))
+
+    def add_parts(
+        self, channel_id: int, parts: _Parts, size: int, log_time: int, sequence: int
+    ) -> None:
+        """Append one message whose data is ``parts`` (``size`` bytes in all), as ``add``."""
+        buffer = self._writer._Writer__chunk_builder.record_writer._buffer  # type: ignore[attr-defined]
+        entry = (log_time, buffer.tell())
+        buffer.write(
+            _MESSAGE_HEAD.pack(
+                _MESSAGE_OPCODE,
+                _MESSAGE_FIXED + size,
+                channel_id,
+                sequence & 0xFFFFFFFF,
+                log_time,
+                log_time,
+            )
+        )
+        for part in parts:
+            buffer.write(part)
+        self._count(channel_id, [entry], log_time, log_time)
+
+    def _count(
+        self, channel_id: int, entries: list[tuple[int, int]], first: int, last: int
+    ) -> None:
+        """Index and count messages just written (``entries``: their times and offsets)."""
+        builder = self._writer._Writer__chunk_builder  # type: ignore[attr-defined]
+        stats = self._writer._Writer__statistics  # type: ignore[attr-defined]
         _widen(builder, builder.num_messages, first, last)
         index = builder.message_indices.get(channel_id)
         if not index:
@@ -160,10 +185,10 @@ class _OpenChunk:
                 channel_id=channel_id, records=[]
             )
         index.records.extend(entries)
-        builder.num_messages += len(datas)
+        builder.num_messages += len(entries)
         _widen(stats, stats.message_count, first, last)
-        stats.channel_message_counts[channel_id] += len(datas)
-        stats.message_count += len(datas)
+        stats.channel_message_counts[channel_id] += len(entries)
+        stats.message_count += len(entries)
 
 
 class _ChunkBuffer:
@@ -260,24 +285,49 @@ def _framed(
     return b"".join(parts), entries
 
 
-def ipc_stream(batch: pa.RecordBatch) -> pa.Buffer:
-    """``batch`` as a self-contained Arrow IPC stream (schema, batch, end), in one buffer.
+_Parts = tuple[Any, ...]
+"""The pieces of one message's data, each a bytes-like object, in order."""
 
-    The stream is measured first and written into a buffer of its size: a growing output
-    stream copies itself as it grows, into fresh pages each time (about 3x slower for a block
-    of steps, in the recorder's flush).
+_IPC_END = b"\xff\xff\xff\xff\x00\x00\x00\x00"  # an Arrow IPC stream's end-of-stream marker
+
+
+def ipc_parts(batch: pa.RecordBatch, schema_message: pa.Buffer | None = None) -> _Parts:
+    """``batch`` as a self-contained Arrow IPC stream (schema, batch, end), in pieces.
+
+    The pieces are the bytes ``pa.ipc.new_stream`` writes (``tests/record/test_writer.py``
+    compares them), made without a stream: the batch is measured and written once, into one
+    buffer of its size. ``schema_message``: ``batch.schema.serialize()``, when the caller keeps
+    it. A schema with dictionaries takes ``new_stream`` (its stream holds dictionary batches).
 
     >>> batch = pa.record_batch([pa.array([1, 2])], names=["x"])
-    >>> pa.ipc.open_stream(ipc_stream(batch)).read_all().column("x").to_pylist()
+    >>> data = b"".join(ipc_parts(batch))
+    >>> pa.ipc.open_stream(data).read_all().column("x").to_pylist()
     [1, 2]
     """
-    size = pa.MockOutputStream()
-    with pa.ipc.new_stream(size, batch.schema) as ipc:
-        ipc.write_batch(batch)
-    buffer = pa.allocate_buffer(size.size())
-    with pa.ipc.new_stream(pa.FixedSizeBufferWriter(buffer), batch.schema) as ipc:
-        ipc.write_batch(batch)
-    return buffer
+    if schema_message is None:
+        if _has_dictionary(batch.schema):
+            out = pa.BufferOutputStream()
+            with pa.ipc.new_stream(out, batch.schema) as ipc:
+                ipc.write_batch(batch)
+            return (out.getvalue(),)
+        schema_message = batch.schema.serialize()
+    return schema_message, batch.serialize(), _IPC_END
+
+
+def ipc_stream(batch: pa.RecordBatch) -> bytes:
+    """``batch`` as a self-contained Arrow IPC stream (:func:`ipc_parts`), in one piece."""
+    return b"".join(ipc_parts(batch))
+
+
+def _has_dictionary(schema: pa.Schema) -> bool:
+    """Whether any field of ``schema``, at any depth, is dictionary-encoded."""
+    kinds = [field.type for field in schema]
+    while kinds:
+        kind = kinds.pop()
+        if pa.types.is_dictionary(kind):
+            return True
+        kinds.extend(kind.field(i).type for i in range(kind.num_fields))
+    return False
 
 
 def _widen(times: Any, count: int, first: int, last: int) -> None:
@@ -416,6 +466,8 @@ class EvidenceWriter:
         self._messages = 0
         self._state = _McapState.of(self._writer)
         self._chunk = _OpenChunk.of(self._writer)
+        # each Arrow channel's schema and its IPC message (a stream's first), made once
+        self._arrow_schemas: dict[int, tuple[pa.Schema, pa.Buffer]] = {}
         self._dead = False  # the file's end is unknown after a failure: write nothing more
         self._staged_rows: Counter[int] = Counter()  # rows of Arrow blocks since the last commit
         self._staged_messages: Counter[int] = Counter()
@@ -451,9 +503,12 @@ class EvidenceWriter:
         metadata: Mapping[str, str] | None = None,
     ) -> int:
         """Register a channel of Arrow IPC stream messages (the MCAP schema is the Arrow schema)."""
-        data = schema.serialize().to_pybytes()
-        schema_id = self.register_schema(schema_name, fmt.ARROW_ENCODING, data)
-        return self.register_channel(topic, fmt.ARROW_ENCODING, schema_id, metadata)
+        message = schema.serialize()
+        schema_id = self.register_schema(schema_name, fmt.ARROW_ENCODING, message.to_pybytes())
+        channel_id = self.register_channel(topic, fmt.ARROW_ENCODING, schema_id, metadata)
+        if not _has_dictionary(schema):
+            self._arrow_schemas[channel_id] = schema, message
+        return channel_id
 
     def register_json_channel(
         self,
@@ -505,12 +560,24 @@ class EvidenceWriter:
         self._messages += 1
 
     def write_batch(self, channel_id: int, batch: pa.RecordBatch, log_time: int) -> int:
-        """Write one record batch as a self-contained Arrow IPC stream; returns its byte size."""
+        """Write one record batch as a self-contained Arrow IPC stream; returns its byte size.
+
+        The stream's pieces are copied straight into the open chunk when it can take them.
+        """
         self._check_open()
-        data = memoryview(ipc_stream(batch))  # (the chunk copies it: no bytes copy before that)
-        self._add(channel_id, data, log_time)
+        known = self._arrow_schemas.get(channel_id)
+        kept = known is not None and batch.schema.equals(known[0], check_metadata=True)
+        parts = ipc_parts(batch, known[1] if kept else None)  # type: ignore[index]
+        size = sum(memoryview(part).nbytes for part in parts)
+        chunk = self._chunk
+        if chunk is not None and chunk.fits(size + _MESSAGE_HEAD.size):
+            chunk.add_parts(channel_id, parts, size, log_time, self._messages)
+            self._messages += 1
+            self._staged_messages[channel_id] += 1
+        else:
+            self._add(channel_id, b"".join(parts), log_time)
         self._staged_rows[channel_id] += batch.num_rows
-        return len(data)
+        return size
 
     def write_json(self, channel_id: int, data: bytes, log_time: int) -> None:
         """Write one JSON message (already encoded, UTF-8)."""

@@ -134,3 +134,50 @@ def test_a_background_flush_is_written_by_the_writer_thread_and_keeps_its_failur
         ]
     assert rows == [1, 2]
     assert w.take_failures() == []
+
+
+def _new_stream(batch: pa.RecordBatch) -> bytes:
+    out = pa.BufferOutputStream()
+    with pa.ipc.new_stream(out, batch.schema) as ipc:
+        ipc.write_batch(batch)
+    return bytes(out.getvalue().to_pybytes())
+
+
+def _step_batch() -> pa.RecordBatch:
+    """Steps as a recorder writes them: field metadata, a fixed-size list, a map, nulls."""
+    from episode_audit.format.schemas import step_schema
+
+    obs = pa.field("observation", pa.list_(pa.float32(), 2), metadata={"k": "v"})
+    schema = step_schema(pa.field("action", pa.int64()), obs)
+    row = {"episode": 0, "time_ns": 5, "reward": 1.0, "terminated": False, "truncated": False}
+    rows = [
+        {**row, "step": 0, "action": 1, "observation": [0.5, 1.5], "terms": [("a", 1.0)]},
+        {**row, "step": 1, "observation": [2.5, 3.5], "outcome": "success", "info": "{}"},
+        {**row, "step": 2, "terms": [("a", 2.0), ("b", float("nan"))], "terminated": True},
+    ]
+    return pa.RecordBatch.from_pylist(rows, schema=schema)
+
+
+def test_a_batch_is_written_as_the_bytes_of_an_arrow_stream() -> None:
+    batch = _step_batch()
+    assert writer_module.ipc_stream(batch) == _new_stream(batch)
+    empty = batch.slice(0, 0)
+    assert writer_module.ipc_stream(empty) == _new_stream(empty)
+    # a dictionary column: its stream holds a dictionary batch, so new_stream writes it
+    coded = pa.record_batch([pa.array(["x", "y", "x"]).dictionary_encode()], names=["d"])
+    assert writer_module.ipc_parts(coded) == (pa.py_buffer(_new_stream(coded)),)
+
+
+def test_a_batch_of_another_schema_than_its_channel_is_written_with_its_own(
+    tmp_path: Path,
+) -> None:
+    w = EvidenceWriter(tmp_path / "f.mcap", library="test")
+    channel = w.register_arrow_channel("/blocks", "block", _BLOCK)
+    other = pa.record_batch([pa.array([7])], schema=_BLOCK.with_metadata({"m": "1"}))
+    w.write_batch(channel, pa.record_batch([pa.array([1])], schema=_BLOCK), 1)
+    w.write_batch(channel, other, 2)
+    w.finish({"status": "finished"})
+    with open(tmp_path / "f.mcap", "rb") as f:
+        datas = [m.data for _, _, m in make_reader(f).iter_messages()]
+    assert datas[1] == _new_stream(other)
+    assert pa.ipc.open_stream(datas[1]).schema.metadata == {b"m": b"1"}
