@@ -15,7 +15,7 @@ unexport PYTHONDONTWRITEBYTECODE
 
 all: test
 
-$(STAMP): pyproject.toml setup.py episode_audit/record/_stepfast.c
+$(STAMP): pyproject.toml setup.py $(wildcard episode_audit/record/csrc/*.[ch])
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 10) else "episode-audit needs Python >= 3.10")'
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@# --no-compile: pip byte-compiles every installed file (torch, ray: ~70 s); Python compiles

@@ -15,6 +15,8 @@ import numpy
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
+_C_FILES = ("module", "step", "records", "vector")  # episode_audit/record/csrc/stepfast.h
+
 
 class OptionalBuildExt(build_ext):
     """``build_ext`` that warns and goes on when the extension cannot be built."""
@@ -45,9 +47,11 @@ setup(
     ext_modules=[
         Extension(
             "episode_audit.record._stepfast",
-            ["episode_audit/record/_stepfast.c"],
+            [f"episode_audit/record/csrc/{name}.c" for name in _C_FILES],
             include_dirs=[numpy.get_include()],
-            extra_compile_args=["-O2"] if os.name != "nt" else [],
+            depends=["episode_audit/record/csrc/stepfast.h"],
+            # hidden: only the module's init function is exported, not the files' shared names
+            extra_compile_args=["-O2", "-fvisibility=hidden"] if os.name != "nt" else [],
         )
     ],
     cmdclass={"build_ext": OptionalBuildExt},

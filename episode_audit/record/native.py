@@ -92,7 +92,7 @@ def episode_columns(
 ) -> dict[str, Any] | None:
     """The episode block's columns of the ended episodes, when all are common records.
 
-    Arrays of the numbers and flags, lists of the texts and term totals (``_stepfast.c`` says
+    Arrays of the numbers and flags, lists of the texts and term totals (``csrc/records.c`` says
     which); ``None`` when one is not a common record (:func:`episode_json`'s). Requires the
     extension (:data:`NATIVE`).
     """

@@ -1,4 +1,4 @@
-"""The compiled step (record/fast.py, record/_stepfast.c) against the pure-Python path.
+"""The compiled step (record/fast.py, record/csrc/) against the pure-Python path.
 
 Each scenario is recorded twice in this process, compiled and pure Python, on the same
 deterministic clock: every message, channel and metadata record of the two files must be the

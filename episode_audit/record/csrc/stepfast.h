@@ -1,0 +1,118 @@
+/* What the files of episode_audit.record._stepfast share (module.c says what it is).
+
+   The extension is one module built from these files: module.c (the shared state, configure,
+   the module), step.c (the single-env step and reset: StepRecorder), records.c (episode records,
+   RNG states, message framing) and vector.c (the vector recorder's steps). Only PyInit__stepfast
+   is exported (setup.py builds with hidden visibility). */
+
+#ifndef EPISODE_AUDIT_STEPFAST_H
+#define EPISODE_AUDIT_STEPFAST_H
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <structmember.h>
+#include <string.h>
+#include <time.h>
+
+/* numpy's C API table: filled by module.c's import_array(), read by every file */
+#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
+#define PY_ARRAY_UNIQUE_SYMBOL episode_audit_stepfast_ARRAY_API
+#ifndef STEPFAST_IMPORTS_ARRAY
+#define NO_IMPORT_ARRAY
+#endif
+#include <numpy/arrayobject.h>
+#include <numpy/arrayscalars.h>
+
+#define MAX_TERMS 64
+
+/* array.array's object layout (CPython's Modules/arraymodule.c, the same in 3.10-3.14),
+   checked when configure() runs (module.c, layout_ok). */
+typedef struct {
+    PyObject_VAR_HEAD
+    char *ob_item;
+    Py_ssize_t allocated;
+    const void *ob_descr;
+    PyObject *weakreflist;
+    Py_ssize_t ob_exports;
+} ArrayObject;
+
+/* Set by configure() (module.c): the classes, and their slots' offsets. */
+extern PyTypeObject *array_type, *block_type, *episode_type, *flat_type, *nd_type, *int_type;
+extern PyObject *monotonic_ns;
+extern Py_ssize_t off_ends, off_flags, off_segments, off_episodes, off_pending, off_reset_obs,
+    off_resets;
+/* Episode's slots, all of them (module.c's episode_slots names them in this order). */
+#define EPISODE_SLOTS 16
+enum { E_AFTER_END, E_AGENT, E_END_NS, E_ENDED, E_ENV_INDEX, E_GAME, E_INDEX, E_NOTES, E_OPTIONS,
+       E_OPTIONS_JSON, E_RET, E_RNG_JSON, E_SEED, E_START_NS, E_STEPS, E_TOTALS };
+extern Py_ssize_t off_ep[EPISODE_SLOTS];
+extern Py_ssize_t off_obs, off_act, off_rewards, off_times, off_term_vals, off_term_rows,
+    off_term_counts, off_term_keys;
+extern Py_ssize_t off_arr_data, off_arr_n, off_arr_dtype, off_int_data, off_int_n;
+extern int configured;
+
+/* Attribute names, interned when the module loads. */
+extern PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_steps, *s_file,
+    *s_flush_at, *s_end_by_flags, *s_auto_flush, *s_step, *s_clock, *s_flag_endings,
+    *s_ending_keys, *s_limit_hit, *s_pending, *s_counts, *s_episodes, *s_outcome,
+    *s_failure_label, *s_truncation_reason, *s_terminated, *s_truncated, *s_error,
+    *s_time_limit, *s_elapsed_steps, *s_max_episode_steps, *s_next_episode, *s_env_index,
+    *s_agent, *s_slots, *s_file_clock, *s_error_ns;
+
+#define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
+
+/* module.c */
+void untrack(PyObject *op);
+Py_ssize_t member_offset(PyTypeObject *type, PyObject *name);
+int array_room(PyObject *a, Py_ssize_t count, Py_ssize_t itemsize);
+
+static inline void array_push_d(PyObject *a, double value)
+{
+    ArrayObject *arr = (ArrayObject *)a;
+    ((double *)arr->ob_item)[Py_SIZE(arr)] = value;
+    Py_SET_SIZE(arr, Py_SIZE(arr) + 1);
+}
+
+static inline void array_push_q(PyObject *a, long long value)
+{
+    ArrayObject *arr = (ArrayObject *)a;
+    ((long long *)arr->ob_item)[Py_SIZE(arr)] = value;
+    Py_SET_SIZE(arr, Py_SIZE(arr) + 1);
+}
+
+/* step.c: column buffers, the single-env step and reset */
+
+/* A value checked to go into a column buffer as it is: where its bytes go, from where. */
+typedef struct {
+    PyObject *buffer;
+    PyObject *count; /* the row count after the value (a new reference), made before any write */
+    Py_ssize_t n;
+    char *dest;
+    const void *src;
+    Py_ssize_t nbytes;
+    long long integer;
+    int is_int;
+} Pending;
+
+int plan_value(PyObject *buffer, PyObject *value, Pending *p);
+void commit_value(Pending *p);
+int as_long_long(PyObject *value, long long *out);
+int call_clock(PyObject *clock, long long *now);
+int end_by_flags(PyObject *stream, PyObject *episode, PyObject *block, Py_ssize_t row,
+                 PyObject *terminated, PyObject *truncated, PyObject *info);
+PyObject *new_episode(PyObject *index, PyObject *seed, PyObject *rng_json, long long start_ns,
+                      PyObject *env_index, PyObject *agent);
+extern PyTypeObject StepRecorderType;
+
+/* records.c: episode records, RNG states, message framing */
+PyObject *episode_json(PyObject *module, PyObject *args);
+PyObject *episode_columns(PyObject *module, PyObject *args);
+PyObject *rng_json(PyObject *module, PyObject *args);
+PyObject *frame_messages(PyObject *module, PyObject *args);
+
+/* vector.c: the vector recorder's steps */
+PyObject *vector_step(PyObject *module, PyObject *const *args, Py_ssize_t nargs);
+PyObject *end_batched(PyObject *module, PyObject *const *args, Py_ssize_t nargs);
+PyObject *begin_autoreset(PyObject *module, PyObject *const *args, Py_ssize_t nargs);
+
+#endif
