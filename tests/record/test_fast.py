@@ -348,6 +348,9 @@ VECTOR_SCENARIOS: dict[str, tuple[Callable[[], Any], int, dict[str, Any]]] = {
 }
 
 
+autoresets: dict[Any, int] = {}  # the autoresets the compiled path began, by scenario
+
+
 def _record_vector(
     make: Callable[[], Any], steps: int, options: dict[str, Any], path: Path
 ) -> tuple[int, int]:
@@ -370,6 +373,15 @@ def _record_vector(
                 return ends
 
             rec._steps._compiled = counted
+        begin = rec._autoreset.compiled_begin
+        if begin is not None:
+
+            def begun(*args: Any) -> Any:
+                took = begin(*args)
+                autoresets[make] = autoresets.get(make, 0) + (took is not None)
+                return took
+
+            rec._autoreset.compiled_begin = begun
         rec.reset(seed=0)
         disabled = rec._autoreset.mode is gym.vector.AutoresetMode.DISABLED
         for t in range(steps):
@@ -408,6 +420,8 @@ def test_compiled_and_pure_python_write_the_same_vector_file(
         assert compiled_steps > steps // 2
     else:
         assert compiled_steps > steps * 0.8
+    if name in ("next_step", "odd_batches"):  # and its autoresets, begun in C
+        assert autoresets.get(make, 0) > 20
     compiled, pure = _contents(files["compiled"]), _contents(files["pure"])
     assert len(compiled) == len(pure)
     for a, b in zip(compiled, pure, strict=True):

@@ -549,72 +549,106 @@ PyObject *new_episode(PyObject *index, PyObject *seed, PyObject *rng_json,
     return fresh;
 }
 
+/* What beginning a stream's next episode reads (begin_read), checked, and makes (begin_make)
+   before it changes anything (begin_apply), as EpisodeStream.begin does. */
+
+int begin_read(Beginning *b)
+{
+    b->next = PyObject_GetAttr(b->file, s_next_episode);
+    b->env_index = b->next == NULL ? NULL : PyObject_GetAttr(b->stream, s_env_index);
+    b->agent = b->env_index == NULL ? NULL : PyObject_GetAttr(b->stream, s_agent);
+    if (b->agent == NULL)
+        return -1;
+    PyObject *episode = b->episode, *block = b->block;
+    if (episode != Py_None && (!Py_IS_TYPE(episode, episode_type) ||
+                               SLOT(episode, off_ep[E_ENDED]) != Py_True))
+        return 0; /* an open episode: ended as incomplete by the Python path */
+    if (!Py_IS_TYPE(block, block_type) || !PyLong_CheckExact(b->next))
+        return 0;
+    PyObject *pending = SLOT(block, off_pending);
+    b->segments = SLOT(block, off_segments);
+    b->episodes = SLOT(block, off_episodes);
+    b->times = SLOT(block, off_times);
+    b->resets = SLOT(block, off_resets);
+    if (b->segments == NULL || b->episodes == NULL || b->times == NULL || pending == NULL ||
+        b->resets == NULL || !PyList_CheckExact(b->segments) ||
+        !PyDict_CheckExact(b->episodes) || !Py_IS_TYPE(b->times, array_type) ||
+        !PyLong_CheckExact(pending) || !PyList_CheckExact(b->resets))
+        return 0;
+    Py_ssize_t waiting = PyLong_AsSsize_t(pending), index = PyLong_AsSsize_t(b->next);
+    if (waiting < 0 || index < 0 || index == PY_SSIZE_T_MAX)
+        return 0; /* (an error an overflow set is the caller's to clear) */
+    b->first_row = Py_SIZE(b->times) + waiting;
+    return 1;
+}
+
+int begin_make(Beginning *b, PyObject *seed, PyObject *rng_json, long long start_ns)
+{
+    b->next_after = PyLong_FromSsize_t(PyLong_AsSsize_t(b->next) + 1); /* (begin_read: fits) */
+    b->segment = b->next_after == NULL
+                     ? NULL
+                     : Py_BuildValue("(nOiO)", b->first_row, b->next, 0, Py_True);
+    b->fresh = b->segment == NULL ? NULL
+                                  : new_episode(b->next, seed, rng_json, start_ns, b->env_index,
+                                                b->agent);
+    if (b->fresh == NULL)
+        return -1;
+    untrack(b->fresh);
+    untrack(b->segment);
+    return 0;
+}
+
+int begin_apply(Beginning *b)
+{
+    /* The file's next index first: if that fails, nothing else has changed. */
+    if (PyObject_SetAttr(b->file, s_next_episode, b->next_after) < 0 ||
+        PyObject_SetAttr(b->stream, s_episode, b->fresh) < 0 ||
+        PyList_Append(b->segments, b->segment) < 0 ||
+        PyDict_SetItem(b->episodes, b->next, b->fresh) < 0)
+        return -1;
+    return 0;
+}
+
+void begin_clear(Beginning *b)
+{
+    Py_CLEAR(b->episode);
+    Py_CLEAR(b->block);
+    Py_CLEAR(b->next);
+    Py_CLEAR(b->env_index);
+    Py_CLEAR(b->agent);
+    Py_CLEAR(b->next_after);
+    Py_CLEAR(b->segment);
+    Py_CLEAR(b->fresh);
+}
+
 static PyObject *StepRecorder_begin(StepRecorder *self, PyObject *seed)
 {
-    PyObject *stream = self->stream, *episode = NULL, *block = NULL, *next = NULL,
-             *env_index = NULL, *agent = NULL, *ret = NULL, *fresh = NULL, *next_after = NULL,
-             *segment = NULL;
+    Beginning b = {.file = self->file, .stream = self->stream};
+    PyObject *ret = NULL;
+    long long number, now;
+    int overflow = 0, got;
     if (!PyLong_CheckExact(seed))
         Py_RETURN_NONE;
-    int overflow = 0;
-    long long number = PyLong_AsLongLongAndOverflow(seed, &overflow);
+    number = PyLong_AsLongLongAndOverflow(seed, &overflow);
     if (overflow || number < 0) { /* (-1 with an error cannot happen for an exact int) */
         PyErr_Clear();
         Py_RETURN_NONE;
     }
-    episode = stream_attr(self, S_EPISODE);
-    block = episode == NULL ? NULL : stream_attr(self, S_BLOCK);
-    next = block == NULL ? NULL : PyObject_GetAttr(self->file, s_next_episode);
-    env_index = next == NULL ? NULL : PyObject_GetAttr(stream, s_env_index);
-    agent = env_index == NULL ? NULL : PyObject_GetAttr(stream, s_agent);
-    if (agent == NULL)
-        goto done;
-    if (episode != Py_None && (!Py_IS_TYPE(episode, episode_type) ||
-                               SLOT(episode, off_ep[E_ENDED]) != Py_True))
-        goto decline; /* an open episode: ended as incomplete by the Python path */
-    if (!Py_IS_TYPE(block, block_type) || !PyLong_CheckExact(next))
+    b.episode = stream_attr(self, S_EPISODE);
+    b.block = b.episode == NULL ? NULL : stream_attr(self, S_BLOCK);
+    got = b.block == NULL ? -1 : begin_read(&b);
+    if (got == 0)
         goto decline;
-    PyObject *segments = SLOT(block, off_segments), *episodes = SLOT(block, off_episodes),
-             *times = SLOT(block, off_times), *pending = SLOT(block, off_pending);
-    if (segments == NULL || episodes == NULL || times == NULL || pending == NULL ||
-        !PyList_CheckExact(segments) || !PyDict_CheckExact(episodes) ||
-        !Py_IS_TYPE(times, array_type) || !PyLong_CheckExact(pending))
-        goto decline;
-    Py_ssize_t waiting = PyLong_AsSsize_t(pending), index = PyLong_AsSsize_t(next);
-    if (waiting < 0 || index < 0 || index == PY_SSIZE_T_MAX)
-        goto decline;
-    long long now;
-    if (read_file_clock(self, &now) < 0)
+    if (got < 0 || read_file_clock(self, &now) < 0 || begin_make(&b, seed, Py_None, now) < 0 ||
+        begin_apply(&b) < 0)
         goto done;
-    /* Everything made before anything changes. */
-    next_after = PyLong_FromSsize_t(index + 1);
-    segment = Py_BuildValue("(nOiO)", Py_SIZE(times) + waiting, next, 0, Py_True);
-    fresh = next_after == NULL || segment == NULL
-                ? NULL
-                : new_episode(next, seed, Py_None, now, env_index, agent);
-    if (fresh == NULL)
-        goto done;
-    untrack(fresh);
-    untrack(segment);
-    /* The file's next index first: if that fails, nothing else has changed. */
-    if (PyObject_SetAttr(self->file, s_next_episode, next_after) < 0 ||
-        PyList_Append(segments, segment) < 0 || PyDict_SetItem(episodes, next, fresh) < 0 ||
-        PyObject_SetAttr(stream, s_episode, fresh) < 0)
-        goto done;
-    ret = Py_NewRef(fresh);
+    ret = Py_NewRef(b.fresh);
     goto done;
 decline:
     PyErr_Clear();
     ret = Py_NewRef(Py_None);
 done:
-    Py_XDECREF(episode);
-    Py_XDECREF(block);
-    Py_XDECREF(next);
-    Py_XDECREF(env_index);
-    Py_XDECREF(agent);
-    Py_XDECREF(fresh);
-    Py_XDECREF(next_after);
-    Py_XDECREF(segment);
+    begin_clear(&b);
     return ret;
 }
 

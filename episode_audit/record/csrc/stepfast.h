@@ -104,6 +104,25 @@ PyObject *new_episode(PyObject *index, PyObject *seed, PyObject *rng_json, long 
                       PyObject *env_index, PyObject *agent);
 extern PyTypeObject StepRecorderType;
 
+/* Beginning a stream's next episode, as EpisodeStream.begin does (the single-env reset and the
+   vector recorder's autoreset): the caller sets file, stream, episode and block (those two new
+   references), then begin_read reads the rest and checks it (1; 0: declined, an error perhaps
+   set for the caller to clear; -1: an error), begin_make makes the episode and its segment
+   without changing anything (0, or -1), begin_apply begins it (0, or -1). begin_clear drops
+   the references, whatever the step reached. */
+typedef struct {
+    PyObject *file, *stream;                              /* borrowed */
+    PyObject *episode, *block, *next, *env_index, *agent; /* new references, read */
+    PyObject *segments, *episodes, *times, *resets;       /* the block's, borrowed */
+    Py_ssize_t first_row;                                 /* the episode's first row */
+    PyObject *next_after, *segment, *fresh;               /* new references, made */
+} Beginning;
+
+int begin_read(Beginning *b);
+int begin_make(Beginning *b, PyObject *seed, PyObject *rng_json, long long start_ns);
+int begin_apply(Beginning *b);
+void begin_clear(Beginning *b);
+
 /* records.c: episode records, RNG states, message framing */
 PyObject *episode_json(PyObject *module, PyObject *args);
 PyObject *episode_columns(PyObject *module, PyObject *args);

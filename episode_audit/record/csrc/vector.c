@@ -200,62 +200,35 @@ PyObject *begin_autoreset(PyObject *module, PyObject *const *args, Py_ssize_t na
         return NULL;
     }
     PyObject *stream = args[0], *rng_json = args[1], *obs = args[2], *start = args[3];
-    PyObject *file = NULL, *episode = NULL, *block = NULL, *next = NULL, *env_index = NULL,
-             *agent = NULL, *text = NULL, *next_after = NULL, *segment = NULL, *fresh = NULL,
-             *row = NULL, *ret = NULL;
+    PyObject *file = NULL, *text = NULL, *row = NULL, *ret = NULL;
+    Beginning b = {.stream = stream};
     Pending obs_p = {0};
     long long start_ns;
+    int got;
     if (!PyBytes_CheckExact(rng_json) || !PyLong_CheckExact(start) ||
         as_long_long(start, &start_ns) < 0)
         goto decline;
-    file = PyObject_GetAttr(stream, s_file);
-    episode = file == NULL ? NULL : PyObject_GetAttr(stream, s_episode);
-    block = episode == NULL ? NULL : PyObject_GetAttr(stream, s_block);
-    next = block == NULL ? NULL : PyObject_GetAttr(file, s_next_episode);
-    env_index = next == NULL ? NULL : PyObject_GetAttr(stream, s_env_index);
-    agent = env_index == NULL ? NULL : PyObject_GetAttr(stream, s_agent);
-    if (agent == NULL)
+    file = b.file = PyObject_GetAttr(stream, s_file);
+    b.episode = file == NULL ? NULL : PyObject_GetAttr(stream, s_episode);
+    b.block = b.episode == NULL ? NULL : PyObject_GetAttr(stream, s_block);
+    got = b.block == NULL ? -1 : begin_read(&b);
+    if (got < 0)
         goto done;
-    if (episode != Py_None && (!Py_IS_TYPE(episode, episode_type) ||
-                               SLOT(episode, off_ep[E_ENDED]) != Py_True))
-        goto decline; /* an open episode: ended as incomplete by the Python path */
-    if (!Py_IS_TYPE(block, block_type) || !PyLong_CheckExact(next))
-        goto decline;
-    PyObject *segments = SLOT(block, off_segments), *episodes = SLOT(block, off_episodes),
-             *times = SLOT(block, off_times), *pending = SLOT(block, off_pending),
-             *resets = SLOT(block, off_resets);
-    if (segments == NULL || episodes == NULL || times == NULL || pending == NULL ||
-        resets == NULL || !PyList_CheckExact(segments) || !PyDict_CheckExact(episodes) ||
-        !Py_IS_TYPE(times, array_type) || !PyLong_CheckExact(pending) ||
-        !PyList_CheckExact(resets))
-        goto decline;
-    Py_ssize_t waiting = PyLong_AsSsize_t(pending), index = PyLong_AsSsize_t(next);
-    if (waiting < 0 || index < 0 || index == PY_SSIZE_T_MAX)
-        goto decline;
-    if (!plan_value(SLOT(block, off_reset_obs), obs, &obs_p) ||
-        obs_p.n != PyList_GET_SIZE(resets))
+    if (got == 0 || !plan_value(SLOT(b.block, off_reset_obs), obs, &obs_p) ||
+        obs_p.n != PyList_GET_SIZE(b.resets))
         goto decline;
     text = PyUnicode_DecodeUTF8(PyBytes_AS_STRING(rng_json), PyBytes_GET_SIZE(rng_json), NULL);
     if (text == NULL)
         goto decline;
     /* Everything made before anything changes. */
-    next_after = PyLong_FromSsize_t(index + 1);
-    segment = Py_BuildValue("(nOiO)", Py_SIZE(times) + waiting, next, 0, Py_True);
-    fresh = next_after == NULL || segment == NULL
-                ? NULL
-                : new_episode(next, Py_None, rng_json, start_ns, env_index, agent);
-    row = fresh == NULL ? NULL
-                        : PyTuple_Pack(7, next, SLOT(fresh, off_ep[E_START_NS]), Py_None, text,
-                                       Py_None, Py_None, Py_None);
+    if (begin_make(&b, Py_None, rng_json, start_ns) < 0)
+        goto done;
+    row = PyTuple_Pack(7, b.next, SLOT(b.fresh, off_ep[E_START_NS]), Py_None, text, Py_None,
+                       Py_None, Py_None);
     if (row == NULL)
         goto done;
-    untrack(fresh);
-    untrack(segment);
     untrack(row);
-    /* The file's next index first: if that fails, nothing else has changed. */
-    if (PyObject_SetAttr(file, s_next_episode, next_after) < 0 ||
-        PyObject_SetAttr(stream, s_episode, fresh) < 0 || PyList_Append(segments, segment) < 0 ||
-        PyDict_SetItem(episodes, next, fresh) < 0 || PyList_Append(resets, row) < 0)
+    if (begin_apply(&b) < 0 || PyList_Append(b.resets, row) < 0)
         goto done;
     commit_value(&obs_p);
     ret = Py_NewRef(Py_True);
@@ -265,16 +238,9 @@ decline:
     ret = Py_NewRef(Py_None);
 done:
     Py_XDECREF(obs_p.count);
+    begin_clear(&b);
     Py_XDECREF(file);
-    Py_XDECREF(episode);
-    Py_XDECREF(block);
-    Py_XDECREF(next);
-    Py_XDECREF(env_index);
-    Py_XDECREF(agent);
     Py_XDECREF(text);
-    Py_XDECREF(next_after);
-    Py_XDECREF(segment);
-    Py_XDECREF(fresh);
     Py_XDECREF(row);
     return ret;
 }
