@@ -649,6 +649,24 @@ BENCHES: dict[str, Callable[[], Any]] = {
 }
 
 
+def warn_once() -> None:
+    """Print each distinct MuJoCo warning once, not at every model build.
+
+    Gymnasium's HalfCheetah model sets ``settotalmass``, which MuJoCo 3.3+ warns is deprecated
+    each time a model is compiled: hundreds of times in one run of the benches.
+    """
+    import mujoco
+
+    seen: set[str] = set()
+
+    def warn(text: str) -> None:
+        if text not in seen:
+            seen.add(text)
+            print(f"MuJoCo warning (shown once): {text}", file=sys.stderr, flush=True)
+
+    mujoco.set_mju_user_warning(warn)
+
+
 def main(argv: list[str]) -> int:
     wanted = argv or list(BENCHES)
     unknown = [w for w in wanted if w not in BENCHES]
@@ -658,6 +676,7 @@ def main(argv: list[str]) -> int:
     results: dict[str, Any] = {
         "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0]}
     }
+    warn_once()
     for name in wanted:
         print(f"== {name}", flush=True)
         results[name] = BENCHES[name]()
