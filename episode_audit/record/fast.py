@@ -130,14 +130,15 @@ def end_batched_function() -> EndBatched:
 
 
 BeginAutoreset = Callable[[EpisodeStream, bytes, Any, int], "bool | None"]
-"""``begin_autoreset(stream, rng_json, obs, start_ns)``: a vector sub-env's ``NEXT_STEP``
-autoreset with no info, recorded in C as ``NextStep.autoreset`` records it (its episode begun
-from the RNG state ``rng_json``, its reset row): ``True``; ``None`` when it is not taken (the
-stream has an open episode, or ``obs`` does not go into the reset column as it is)."""
+"""``begin_autoreset(stream, rng_json, obs, start_ns)``: a vector sub-env's autoreset whose
+info is not kept, recorded in C as ``NextStep.autoreset`` and ``SameStep._begin_next`` record
+it (its episode begun from the RNG state ``rng_json``, its reset row): ``True``; ``None`` when
+it is not taken (the stream has an open episode, or ``obs`` does not go into the reset column
+as it is)."""
 
 
 def begin_autoreset_function() -> BeginAutoreset | None:
-    """The compiled ``NEXT_STEP`` autoreset when the extension is used now, else ``None``."""
+    """The compiled autoreset when the extension is used now, else ``None``."""
     if not compiled():
         return None
     begin: BeginAutoreset = NATIVE.begin_autoreset

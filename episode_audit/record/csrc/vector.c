@@ -187,10 +187,10 @@ done:
 }
 
 
-/* begin_autoreset(stream, rng_json, obs, start_ns): a NEXT_STEP autoreset of a vector
-   recorder's sub-env, with no info, as NextStep.autoreset records it: the stream's next
-   Episode (no seed, no options; `rng_json` the RNG state it reset from, as JSON bytes)
-   begun at `start_ns`, and its reset row with the observation `obs`. True; or None when the
+/* begin_autoreset(stream, rng_json, obs, start_ns): an autoreset of a vector recorder's
+   sub-env, its info not kept, as NextStep.autoreset and SameStep._begin_next record it: the
+   stream's next Episode (no seed, no options; `rng_json` the RNG state it reset from, as JSON
+   bytes) begun at `start_ns`, and its reset row with the observation `obs`. True; or None when the
    stream has an open episode or `obs` does not go into the reset column as it is (nothing
    changed: the Python path records it). The stream keeps no info (the caller checks). */
 PyObject *begin_autoreset(PyObject *module, PyObject *const *args, Py_ssize_t nargs)

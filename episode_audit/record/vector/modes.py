@@ -70,7 +70,8 @@ class Autoreset:
         self._no_rng_note = no_rng_note
         self.resetting: list[int] = []
         self.pending_rng: dict[int, RngState | None] = {}  # of the sub-envs in resetting
-        # the compiled NEXT_STEP autoreset, set by VectorSteps when the streams keep no info
+        # the compiled autoreset (NEXT_STEP, SAME_STEP), set by VectorSteps when the streams
+        # keep no info
         self.compiled_begin: BeginAutoreset | None = None
 
     def begin(
@@ -297,6 +298,17 @@ class SameStep(Autoreset):
     def _begin_next(self, i: int, obs: Any, reset_info: Any, now: int, noted: str | None) -> None:
         """Begin sub-env ``i``'s next episode from the reset inside the ending step."""
         rng = self.rng.from_info(reset_info)
+        begin = self.compiled_begin
+        if (
+            begin is not None
+            and rng is not None
+            and noted is None
+            and type(reset_info) is dict  # (not kept: the streams keep no info)
+            and self.rng.state_from_info(reset_info) is None
+        ):
+            stream = self.streams[i]
+            if begin(stream, stream.file.rng_json(rng), obs, now):
+                return
         why = None if rng is not None else self.no_rng_why
         self.begin(i, None, None, rng, obs, reset_info, now, why, noted)
 
