@@ -566,14 +566,17 @@ class EvidenceWriter:
         """
         self._check_open()
         known = self._arrow_schemas.get(channel_id)
-        kept = known is not None and batch.schema.equals(known[0], check_metadata=True)
-        parts = ipc_parts(batch, known[1] if kept else None)  # type: ignore[index]
+        schema_message = (
+            known[1]
+            if known is not None and batch.schema.equals(known[0], check_metadata=True)
+            else None
+        )
+        parts = ipc_parts(batch, schema_message)
         size = sum(memoryview(part).nbytes for part in parts)
         chunk = self._chunk
         if chunk is not None and chunk.fits(size + _MESSAGE_HEAD.size):
             chunk.add_parts(channel_id, parts, size, log_time, self._messages)
-            self._messages += 1
-            self._staged_messages[channel_id] += 1
+            self._counted(channel_id, 1)
         else:
             self._add(channel_id, b"".join(parts), log_time)
         self._staged_rows[channel_id] += batch.num_rows
@@ -601,8 +604,7 @@ class EvidenceWriter:
                 self._add(channel_id, data, log_time)
             return
         chunk.add(channel_id, datas, log_times, self._messages)
-        self._messages += len(datas)
-        self._staged_messages[channel_id] += len(datas)
+        self._counted(channel_id, len(datas))
 
     def _add(self, channel_id: int, data: bytes | memoryview, log_time: int) -> None:
         self._writer.add_message(
@@ -613,8 +615,12 @@ class EvidenceWriter:
             publish_time=log_time,
             sequence=self._messages & 0xFFFFFFFF,
         )
-        self._messages += 1
-        self._staged_messages[channel_id] += 1
+        self._counted(channel_id, 1)
+
+    def _counted(self, channel_id: int, n: int) -> None:
+        """``n`` messages were added to ``channel_id``: they number on, staged until a commit."""
+        self._messages += n
+        self._staged_messages[channel_id] += n
 
     def flush(self, *, background: bool = False) -> None:
         """Close the current chunk and hand it to the OS whole (and ``fsync`` if asked).

@@ -96,6 +96,23 @@ class Autoreset:
         episode = stream.begin(seed, options, rng_state, notes, start_ns=start_ns)
         stream.record_reset(episode, obs, info, notes, self.rng.state_from_info(info))
 
+    def begin_compiled(
+        self, i: int, rng: RngState | None, obs: Any, info: Any, now: int, noted: str | None
+    ) -> bool:
+        """Begin sub-env ``i``'s autoreset episode in C (``compiled_begin``), if it can be.
+
+        It can be when the RNG state is known, nothing is to be noted, and the reset info is a
+        dict with no state snapshot (the streams keep no info: ``compiled_begin`` is set only
+        then), so that :meth:`begin` would record the same. ``False``: nothing has changed.
+        """
+        begin = self.compiled_begin
+        if begin is None or rng is None or noted is not None or type(info) is not dict:
+            return False
+        if info and self.rng.state_from_info(info) is not None:
+            return False
+        stream = self.streams[i]
+        return bool(begin(stream, stream.file.rng_json(rng), obs, now))
+
     def begin_failed(
         self, i: int, seed: Any, options: Any, rng_state: RngState | None, exc: Exception
     ) -> None:
@@ -174,18 +191,9 @@ class NextStep(Autoreset):
         rng = self.rng.from_info(info) if info else None
         if rng is None:
             rng = self.pending_rng.pop(i, None)
-        stream = self.streams[i]
-        begin = self.compiled_begin
-        if (
-            begin is not None
-            and rng is not None
-            and noted is None
-            and type(info) is dict
-            and not info
-            and begin(stream, stream.file.rng_json(rng), obs, now)
-        ):
+        if self.begin_compiled(i, rng, obs, info, now, noted):
             return
-        stream.end_open()
+        self.streams[i].end_open()
         self.begin(i, None, None, rng, obs, info, now, None, noted)
 
     def stepped(self, ends: list[int]) -> None:
@@ -298,17 +306,8 @@ class SameStep(Autoreset):
     def _begin_next(self, i: int, obs: Any, reset_info: Any, now: int, noted: str | None) -> None:
         """Begin sub-env ``i``'s next episode from the reset inside the ending step."""
         rng = self.rng.from_info(reset_info)
-        begin = self.compiled_begin
-        if (
-            begin is not None
-            and rng is not None
-            and noted is None
-            and type(reset_info) is dict  # (not kept: the streams keep no info)
-            and self.rng.state_from_info(reset_info) is None
-        ):
-            stream = self.streams[i]
-            if begin(stream, stream.file.rng_json(rng), obs, now):
-                return
+        if self.begin_compiled(i, rng, obs, reset_info, now, noted):
+            return
         why = None if rng is not None else self.no_rng_why
         self.begin(i, None, None, rng, obs, reset_info, now, why, noted)
 
