@@ -36,6 +36,7 @@ from episode_audit import (
 )
 from episode_audit.cli import app
 from episode_audit.format.records import unstarted
+from episode_audit.record.vector.rng import SubEnvRng
 from tests.support.envs import ScriptedEnv
 
 N = 4
@@ -481,6 +482,29 @@ def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path) -> Non
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         check_env(ResetRngInfo(gym.make("CartPole-v1")), skip_render_check=True)
+
+
+def test_reset_rng_info_hands_the_recorder_its_state_unparsed() -> None:
+    """The state a sub-env's ResetRngInfo wrote into a reset info reaches the recorder as the
+    dict it was written from (that very text only, once); any other text is parsed."""
+    envs = SyncVectorEnv([lambda: gym.make("CartPole-v1")] * 2)
+    rng = SubEnvRng(envs, None)
+    rng.install_wrappers()
+    envs.reset(seed=3)
+    wrapper = envs.envs[1]
+    assert isinstance(wrapper, ResetRngInfo)
+    _, info = wrapper.reset()
+    text = info["episode_audit.rng_state"]
+    copy = "".join(list(text))
+    assert copy == text and copy is not text
+    parsed = rng.from_info({"episode_audit.rng_state": copy}, 1)
+    assert parsed == json.loads(text) and parsed is not None
+    assert rng.from_info(info, 0) == parsed  # another sub-env's wrapper did not write it
+    issued = wrapper._issued
+    assert issued is not None and issued[0] is text and issued[1] == parsed
+    assert rng.from_info(info, 1) is issued[1]  # the wrapper's own dict, not parsed
+    assert wrapper._issued_state(text) is None  # taken once
+    assert rng.from_info(info, 1) == parsed  # then parsed
 
 
 class _Breaks(gym.Env[np.ndarray, np.int64]):

@@ -24,11 +24,12 @@ TIME_LIMIT_TRUNCATED = "TimeLimit.truncated"
 TERMINAL_OBSERVATION = "terminal_observation"
 """SB3's info key: the last observation of an episode the VecEnv has just reset."""
 _ADDED = (TIME_LIMIT_TRUNCATED, TERMINAL_OBSERVATION)
+_BOOL = np.dtype(np.bool_)
 
 
 def _own(info: Any) -> Any:
     """A sub-env's info without the keys SB3 added (a value that is no dict: as it is)."""
-    if not isinstance(info, Mapping):
+    if type(info) is not dict and not isinstance(info, Mapping):
         return info
     if len(info) == 1 and TIME_LIMIT_TRUNCATED in info:
         return EMPTY
@@ -55,29 +56,33 @@ class StepReader:
         """``(obs, rewards, terminated, truncated, infos)`` of an SB3 ``step_wait()`` result."""
         obs, rewards, dones, infos = result
         n = self._n
-        if type(dones) is not np.ndarray or dones.dtype != np.bool_ or dones.shape != (n,):
+        if type(dones) is not np.ndarray or dones.dtype is not _BOOL or dones.shape != (n,):
             dones = np.asarray(dones).astype(np.bool_).reshape(n)
         if not isinstance(infos, (list, tuple)) or len(infos) != n:
             return obs, rewards, dones, self._false, infos  # handed on as it is (noted)
-        if infos == self._sb3_plain and not dones.any():
+        ended = dones.tolist()
+        if True not in ended and infos == self._sb3_plain:
             return obs, rewards, self._false, self._false, self._plain
         subs: list[Any] = self._plain
+        plain = self._sb3_plain[0]
         for i, info in enumerate(infos):
+            if type(info) is dict and info == plain:
+                continue
             own = _own(info)
             if own is not EMPTY:
                 if subs is self._plain:
                     subs = list(subs)
                 subs[i] = own
-        if not dones.any():
+        if True not in ended:
             return obs, rewards, self._false, self._false, subs
         if subs is self._plain:
             subs = list(subs)
         terminated = dones.copy()
         truncated = np.zeros(n, dtype=np.bool_)
         reset_infos = self._reset_infos()
-        for i in np.flatnonzero(dones).tolist():
+        for i, done in enumerate(ended):
             info = infos[i]
-            if not isinstance(info, Mapping):
+            if not done or not isinstance(info, Mapping):
                 continue
             if info.get(TIME_LIMIT_TRUNCATED):
                 terminated[i], truncated[i] = False, True

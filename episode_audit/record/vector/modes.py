@@ -18,7 +18,7 @@ from typing import Any
 
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from ..fast import BeginAutoreset
+from ..fast import BeginAutoreset, EndBatched
 from ..notes import note
 from ..stream import Stream
 from .infos import EMPTY, env_infos
@@ -188,7 +188,7 @@ class NextStep(Autoreset):
 
     def autoreset(self, i: int, obs: Any, info: Any, now: int, noted: str | None) -> None:
         """Begin sub-env ``i``'s next episode with this step's observation as its reset row."""
-        rng = self.rng.from_info(info) if info else None
+        rng = self.rng.from_info(info, i) if info else None
         if rng is None:
             rng = self.pending_rng.pop(i, None)
         if self.begin_compiled(i, rng, obs, info, now, noted):
@@ -278,15 +278,16 @@ class SameStep(Autoreset):
         obs: Any,
         reset_info: dict[str, Any],
         now: int,
+        end: EndBatched,
     ) -> None:
         """:meth:`record_ending` for a step the batched path took (its row already counted).
 
         ``final_info`` is the step's info (``final_info``), ``obs`` and ``reset_info`` the next
-        episode's reset row.
+        episode's reset row; ``end`` ends the episode (:func:`~..fast.end_batched_function`).
         """
         terminated, truncated = self._flags_at(i, *flags, counted=True)
         stream = self.streams[i]
-        stream.end_step(stream.block.rows() - 1, terminated, truncated, final_info)
+        end(stream, stream.block.pending, terminated, truncated, final_info)
         self._begin_next(i, obs, reset_info, now, None)
 
     def _flags_at(
@@ -305,7 +306,7 @@ class SameStep(Autoreset):
 
     def _begin_next(self, i: int, obs: Any, reset_info: Any, now: int, noted: str | None) -> None:
         """Begin sub-env ``i``'s next episode from the reset inside the ending step."""
-        rng = self.rng.from_info(reset_info)
+        rng = self.rng.from_info(reset_info, i)
         if self.begin_compiled(i, rng, obs, reset_info, now, noted):
             return
         why = None if rng is not None else self.no_rng_why

@@ -74,6 +74,8 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         """Whether it snapshots state (an adapted wrapper or env is below it)."""
         self._last_step: tuple[Any, Any] | None = None  # (action, result) since the last reset
         self._rng_json = native.rng_json_function()
+        # the RNG text the last reset's info got, and the state it was written from
+        self._issued: tuple[str, RngState] | None = None
         # a reset that raised: (the exception, the RNG state before it, the step before it)
         self._failed_reset: tuple[BaseException, Any, tuple[Any, Any] | None] | None = None
 
@@ -93,6 +95,7 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         snapshot = self._state.capture([]) if self._state else None
         state = capture_rng_state(self.env) if seed is None else None
         last, self._last_step = self._last_step, None
+        self._issued = None
         try:
             result = self.env.reset(seed=seed, options=options)
         except Exception as exc:
@@ -101,7 +104,9 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         self._failed_reset = None
         obs, info = result
         if state is not None:
-            info = {**info, fmt.INFO_RNG_STATE: self._rng_json(state).decode()}
+            text = self._rng_json(state).decode()
+            self._issued = (text, state)
+            info = {**info, fmt.INFO_RNG_STATE: text}
         if snapshot is not None:
             info = {**info, fmt.INFO_STATE: snapshot}
         return obs, info
@@ -110,6 +115,17 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     def spec(self) -> Any:  # type: ignore[override]
         """The wrapped env's spec: this wrapper only observes."""
         return self.env.spec
+
+    def _issued_state(self, text: str) -> RngState | None:
+        """The state this wrapper wrote as ``text`` into its last reset's info (taken once).
+
+        ``None`` unless ``text`` is that very string: the recorder then parses the text.
+        """
+        issued = self._issued
+        if issued is None or issued[0] is not text:
+            return None
+        self._issued = None
+        return issued[1]
 
     def _take_failed_reset(self, exc: BaseException) -> tuple[Any, Any] | None:
         """``(RNG state, (action, result) of the step before)`` if its reset raised ``exc``.
@@ -136,6 +152,8 @@ class SubEnvRng:
         # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
         self._sync_unwrapped = [] if sync is None else [e.unwrapped for e in sync.envs]
         self.in_info = False
+        # each sub-env's ResetRngInfo (Sync only, once installed): its states need no parsing
+        self._issuers: list[ResetRngInfo | None] = []
 
     def snapshots(self) -> bool:
         """Whether a sub-env has state to snapshot at its resets (:mod:`..state`).
@@ -172,6 +190,7 @@ class SubEnvRng:
         for i, sub in enumerate(envs):
             if find_wrapper(sub, ResetRngInfo) is None:
                 envs[i] = ResetRngInfo(sub)
+        self._issuers = [find_wrapper(sub, ResetRngInfo) for sub in envs]
         self.in_info = True
 
     def capture(self, indices: Sequence[int]) -> dict[int, RngState | None]:
@@ -196,19 +215,27 @@ class SubEnvRng:
             return out
         return dict.fromkeys(indices)
 
-    def from_info(self, info: Any) -> RngState | None:
-        """The state :class:`ResetRngInfo` put in a reset info (then it is always used)."""
+    def from_info(self, info: Any, i: int | None = None) -> RngState | None:
+        """The state :class:`ResetRngInfo` put in a reset info (then it is always used).
+
+        ``i``: the sub-env whose info it is; when its wrapper here wrote the text, the state it
+        wrote it from (the text is not parsed back).
+        """
         if not isinstance(info, Mapping):
             return None
         text = info.get(fmt.INFO_RNG_STATE)
         if not isinstance(text, str):
             return None
-        try:
-            state = json.loads(text)
-        except ValueError:
-            return None
-        if not isinstance(state, dict):
-            return None
+        issuers = self._issuers
+        issuer = issuers[i] if i is not None and i < len(issuers) else None
+        state = None if issuer is None else issuer._issued_state(text)
+        if state is None:
+            try:
+                state = json.loads(text)
+            except ValueError:
+                return None
+            if not isinstance(state, dict):
+                return None
         self.in_info = True  # the sub-envs report it: no need to read it from outside
         return state
 

@@ -366,7 +366,9 @@ class VectorSteps:
                     streams[i].block.pending = pending - skipped[i]
                     _, final_info, reset_info = same[i]
                     assert isinstance(self._autoreset, SameStep)  # (only it does not batch them)
-                    self._autoreset.end_batched(i, flags, final_info, obs[i], reset_info, now)
+                    self._autoreset.end_batched(
+                        i, flags, final_info, obs[i], reset_info, now, self._end_batched
+                    )
                     continue
                 self._end_batched(streams[i], pending - skipped[i], *flags, EMPTY)
                 if idle is not None:
@@ -399,7 +401,7 @@ class VectorSteps:
         for i in indices:
             state = states.get(i)
             if seeds[i] is None:
-                state = rng.from_info(infos[i]) or state
+                state = rng.from_info(infos[i], i) or state
             streams[i].block.pending = self.pending_rows(i)
             streams[i].end_open()
             autoreset.begin(
