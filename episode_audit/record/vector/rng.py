@@ -55,7 +55,9 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     It also remembers its last step since a reset, and a reset that raised (with that step and
     the RNG state it started from), so that the recorder of a ``SyncVectorEnv`` can record an
     autoreset that raised inside ``step()`` where it belongs: after the step that ended the
-    episode, as an episode of its own that ended ``error`` during ``reset``.
+    episode, as an episode of its own that ended ``error`` during ``reset``. And it keeps the
+    RNG state it last wrote until a recorder in this process takes it: the recorder need not
+    parse its own text back.
 
     >>> import gymnasium as gym
     >>> env = ResetRngInfo(gym.make("CartPole-v1"))
