@@ -96,6 +96,16 @@ class Stream(EpisodeStream):
                 self._terms_plans[keys] = plan
         self._terms_keys, self._terms_names, self._terms_get, self._terms_one = plan
 
+    def term_names(self, keys: tuple[Any, ...]) -> tuple[str, ...] | None:
+        """The reward terms :meth:`step` reads by name from an info with these keys, in order.
+
+        ``()``: none; ``None``: it reads them step by step (``RewardTerms.names_for``).
+        """
+        if keys != self._terms_keys:
+            self._plan_terms(keys)
+        names: tuple[str, ...] | None = self._terms_names
+        return names
+
     def takes_no_terms(self, info: dict[Any, Any]) -> bool:
         """Whether :meth:`step` would read no reward terms from ``info`` (by its keys)."""
         keys = tuple(info)

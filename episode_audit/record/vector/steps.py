@@ -30,6 +30,7 @@ from ..stream import Stream
 from .infos import EMPTY, env_infos
 from .modes import Autoreset, SameStep
 from .rng import RngState, SubEnvRng
+from .terms import StepTerms, TermBatch, step_terms
 
 __all__ = ["BATCH_BYTES", "BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
 
@@ -185,6 +186,13 @@ class VectorSteps:
         # the (batched step, sub-env) pairs where the sub-env only reset: no row of its own
         self._p_reset_steps: list[int] = []
         self._p_reset_envs: list[int] = []
+        # the batched steps' reward terms (None until a step has some)
+        self._p_terms: TermBatch | None = None
+        # steps whose info holds reward terms are batched when the strategy batches endings
+        # (the streams read terms by the file's one rule: any stream says which)
+        self._term_names = (
+            streams[0].term_names if self._batchable and autoreset.batches_endings else None
+        )
         self._since_flush = 0
         self._block_steps = file.block_steps  # capped by start() for big rows
         self.idle: set[int] | None = None
@@ -222,13 +230,20 @@ class VectorSteps:
             type(infos) is list and infos == self._no_infos
         )
         same: _SameStepEndings | None = None
+        terms: StepTerms | None = None
         if ends and not plain and not self._batches_endings and self._batchable:
             same = _same_step_endings(
                 infos, ends, self._streams, self._obs_shape[1:], self._obs_dtype
             )
+        elif not plain and self._term_names is not None and type(infos) is dict:
+            terms = step_terms(infos, n, resetting, self._term_names)
         if (
             self._batchable
-            and (same is not None or (plain and (self._batches_endings or not ends)))
+            and (
+                same is not None
+                or terms is not None
+                or (plain and (self._batches_endings or not ends))
+            )
             and (not idle or idle.issubset(resetting))  # else: notes (before reset, after end)
             and term_given is None  # else: flags to note (not bool)
             and trunc_given is None
@@ -238,7 +253,7 @@ class VectorSteps:
             and _fits(obs, self._obs_shape, self._obs_dtype)
             and _fits(actions, self._act_shape, self._act_dtype)
         ):
-            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting, same)
+            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting, same, terms)
         else:
             self.drain()
             self.idle = None
@@ -263,16 +278,17 @@ class VectorSteps:
         obs, rewards, terminated, truncated, infos = result
         held, idle, autoreset = self._p_obs, self.idle, self._autoreset
         resetting = autoreset.resetting
-        if (
-            held is None
-            or idle is None
-            or (idle and not idle.issubset(resetting))
-            or not (
-                (type(infos) is dict and not infos)
-                or (type(infos) is list and infos == self._no_infos)
-            )
-        ):
+        if held is None or idle is None or (idle and not idle.issubset(resetting)):
             return False
+        terms = None
+        if not (
+            (type(infos) is dict and not infos) or (type(infos) is list and infos == self._no_infos)
+        ):
+            if self._term_names is None or type(infos) is not dict:
+                return False
+            terms = step_terms(infos, self._n, resetting, self._term_names)
+            if terms is None or not self._terms_fit(terms):
+                return False
         t = self._p_len
         taken = step(
             held,
@@ -291,11 +307,25 @@ class VectorSteps:
         if taken is None:
             return False
         now, ends = taken
+        if terms is not None and terms.names:
+            self._keep_terms(t, terms)
         self._p_len = t + 1
-        self._batched(t, obs, terminated, truncated, ends, resetting, None, now)
+        self._batched(t, obs, terminated, truncated, ends, resetting, None, now, terms)
         if ends or resetting:
             autoreset.stepped(ends)
         return True
+
+    def _terms_fit(self, terms: StepTerms) -> bool:
+        """Whether ``terms`` go into the batch as it is (its steps' terms have their names)."""
+        batch = self._p_terms
+        return not terms.names or batch is None or batch.names == terms.names
+
+    def _keep_terms(self, t: int, terms: StepTerms) -> None:
+        """Keep ``terms`` as batched step ``t``'s (the batch's first terms: a term batch)."""
+        batch = self._p_terms
+        if batch is None:
+            batch = self._p_terms = TermBatch(self._p_rows, self._n, terms.names)
+        batch.keep(t, terms)
 
     def _batch_step(
         self,
@@ -307,18 +337,25 @@ class VectorSteps:
         ends: list[int],
         resetting: list[int],
         same: _SameStepEndings | None = None,
+        terms: StepTerms | None = None,
     ) -> None:
         """A step without info: keep the whole batch; hand rows to the streams in bulk later.
 
         Only episode boundaries are handled per sub-env: the NEXT_STEP autoresets (reset rows)
         and the endings (at the rows they will have: each block's ``pending`` counts the rows
         batched for it); ``same``: the SAME_STEP endings' final observations (their rows) and
-        infos, and the reset rows that follow them.
+        infos, and the reset rows that follow them; ``terms``: the step's info, whose reward
+        terms are kept with the batch.
         """
         file = self._file
         now = file.clock()
         held = self._p_obs
-        if held is None or held.dtype != obs.dtype or self._p_act.dtype != actions.dtype:
+        if (
+            held is None
+            or held.dtype != obs.dtype
+            or self._p_act.dtype != actions.dtype
+            or (terms is not None and not self._terms_fit(terms))
+        ):
             self._hold(obs, actions)  # a batch as numpy would stack it: one dtype per column
             held = self._p_obs
             assert held is not None
@@ -330,8 +367,10 @@ class VectorSteps:
         if same is not None:
             for i, (final_obs, _, _) in same.items():
                 held[t, i] = final_obs
+        if terms is not None and terms.names:
+            self._keep_terms(t, terms)
         self._p_len = t + 1
-        self._batched(t, obs, term, trunc, ends, resetting, same, now)
+        self._batched(t, obs, term, trunc, ends, resetting, same, now, terms)
 
     def _batched(
         self,
@@ -343,8 +382,12 @@ class VectorSteps:
         resetting: list[int],
         same: _SameStepEndings | None,
         now: int,
+        terms: StepTerms | None = None,
     ) -> None:
-        """Batched step ``t`` is written: its episode boundaries, then a flush or drain if due."""
+        """Batched step ``t`` is written: its episode boundaries, then a flush or drain if due.
+
+        ``terms``: the step's info (its endings are read with each sub-env's).
+        """
         file = self._file
         if resetting or ends:
             streams, skipped, pending = self._streams, self._p_skip, self._p_len
@@ -370,7 +413,8 @@ class VectorSteps:
                         i, flags, final_info, obs[i], reset_info, now, self._end_batched
                     )
                     continue
-                self._end_batched(streams[i], pending - skipped[i], *flags, EMPTY)
+                info = EMPTY if terms is None else terms.env_info(i)
+                self._end_batched(streams[i], pending - skipped[i], *flags, info)
                 if idle is not None:
                     idle.add(i)
         self._since_flush += 1
@@ -459,11 +503,15 @@ class VectorSteps:
         obs, act = self._p_obs[:t], self._p_act[:t]
         rew, times = self._p_rew[:t], self._p_time[:t]
         reset_steps, reset_envs = self._p_reset_steps, self._p_reset_envs
-        self._p_obs = None  # fresh buffers for the next steps
+        terms = self._p_terms
+        self._p_obs = self._p_terms = None  # fresh buffers for the next steps
         self._p_len = 0
         if not reset_steps:
             for i, stream in enumerate(self._streams):
+                first = len(stream.block.times)
                 stream.extend(obs[:, i], act[:, i], rew[:, i], times)
+                if terms is not None:
+                    terms.hand_over(stream.block, first, slice(0, t), i)
             return
         self._p_skip = [0] * self._n
         self._p_reset_steps, self._p_reset_envs = [], []
@@ -471,14 +519,17 @@ class VectorSteps:
         stepped[reset_steps, reset_envs] = False
         for i, stream in enumerate(self._streams):
             rows = np.flatnonzero(stepped[:, i])
+            first = len(stream.block.times)
             stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
+            if terms is not None:
+                terms.hand_over(stream.block, first, rows, i)
 
     def _hold(self, obs: np.ndarray[Any, Any], actions: np.ndarray[Any, Any]) -> None:
         """Hand over what is batched; new buffers of these dtypes and shapes.
 
         For as many steps as :data:`BATCH_STEPS` and :data:`BATCH_BYTES` allow.
         """
-        self.drain()
+        self.drain()  # (and the term batch with them)
         rows = max(1, min(BATCH_STEPS, BATCH_BYTES // max(1, obs.nbytes + actions.nbytes)))
         self._p_rows = rows
         self._p_obs = np.empty((rows, *obs.shape), dtype=obs.dtype)
