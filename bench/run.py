@@ -5,7 +5,8 @@
 
 Targets (docs/benchmarks.md): recording overhead <= 1.15x on CartPole-v1 and <= 1.03x on
 Reacher-v5 / HalfCheetah-v5, <= 1.20x per sub-env step of a CartPole x8 SyncVectorEnv (each
-side stepped in turns of a few ms, so that the host's slowdowns land on both); <= 22 bytes per
+side stepped in turns of a few ms, so that the host's slowdowns land on both), and the same for
+a Reacher-v5 x8 (reward terms in every info); <= 22 bytes per
 CartPole step; recorder memory flat (<= 64 MB growth) over a 1 M-step episode; check >= 5 M
 steps/s; replay <= 1.05x bare stepping; export to Foxglove MCAP >= 1 M steps per minute on one
 core (a CartPole file, pinned to one CPU; process CPU time and wall time, with the load
@@ -243,15 +244,29 @@ def vector_stepper(envs: Any) -> Callable[[np.ndarray[Any, Any]], None]:
     return loop
 
 
+def vector_actions(env_id: str, steps: int, num_envs: int) -> np.ndarray[Any, Any]:
+    """``steps`` rows of ``num_envs`` actions of ``env_id``, the same in every run."""
+    space = gym.make(env_id).action_space
+    if isinstance(space, gym.spaces.Discrete):
+        return np.random.default_rng(0).integers(0, int(space.n), size=(steps, num_envs))
+    space.seed(0)
+    return np.array([[space.sample() for _ in range(num_envs)] for _ in range(steps)])
+
+
 def bench_vector(
-    num_envs: int, steps: int, rounds: int, slice_steps: int, mode: str = "sync"
+    num_envs: int,
+    steps: int,
+    rounds: int,
+    slice_steps: int,
+    mode: str = "sync",
+    env_id: str = "CartPole-v1",
 ) -> dict[str, Any]:
-    """Per-sub-env-step overhead of RecordVectorEvidence on a vector CartPole-v1, bare and
+    """Per-sub-env-step overhead of RecordVectorEvidence on a vector ``env_id``, bare and
     recorded (and bare again, for the A/A noise) taking turns a slice at a time."""
-    actions = np.random.default_rng(0).integers(0, 2, size=(steps, num_envs))
+    actions = vector_actions(env_id, steps, num_envs)
 
     def make() -> Any:
-        return gym.make_vec("CartPole-v1", num_envs, vectorization_mode=mode)
+        return gym.make_vec(env_id, num_envs, vectorization_mode=mode)
 
     warm = RecordVectorEvidence(make(), TMP / "warm-vector.mcap", overwrite=True)
     run_vector(warm, actions[: min(steps, 1000)])
@@ -283,7 +298,7 @@ def bench_vector(
     bare_t, rec_t = times["bare"], times["rec"]
     sub_steps = steps * num_envs
     return {
-        "env": f"CartPole-v1 x{num_envs} ({mode})",
+        "env": f"{env_id} x{num_envs} ({mode})",
         "vector_steps": steps,
         "rounds": rounds,
         "slice_steps": slice_steps,
@@ -632,6 +647,8 @@ BENCHES: dict[str, Callable[[], Any]] = {
         bench_record("HalfCheetah-v5", 30_000, 7, 200),
     ],
     "vector": lambda: bench_vector(8, 25_000, 7, 100),
+    # reward terms in every step's info (slices of ~10 ms, as above)
+    "vector_mujoco": lambda: bench_vector(8, 2_000, 7, 25, env_id="Reacher-v5"),
     "memory": lambda: bench_memory(1_000_000),
     "check": lambda: bench_check(1_000_000, 5),
     # 41 interleaved rounds: on a shared VM one round's ratio moves by +-10 %

@@ -1238,4 +1238,6 @@ def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
     assert _messages(files["batched"]) == _messages(files["sub_envs"])
     with open_evidence(files["batched"]) as evidence:
         totals = evidence.episodes().column("term_totals").to_pylist()
-    assert len(totals) >= 9 and all(dict(t).keys() == {"reward_dist", "reward_ctrl"} for t in totals)
+    assert len(totals) >= 9 and all(
+        dict(t).keys() == {"reward_dist", "reward_ctrl"} for t in totals
+    )
