@@ -1,8 +1,9 @@
 """How a vector step is recorded: batched when it can be, sub-env by sub-env otherwise.
 
-:class:`VectorSteps` is the vector recorder's hot path. A step without info (and without what
-the batched path cannot take: endings in ``SAME_STEP`` mode, values that need a cast, flags
-that are not a bool array) is written into preallocated batch buffers with its time; every
+:class:`VectorSteps` is the vector recorder's hot path. A step without info, or whose info holds
+only what the batched path takes (``SAME_STEP`` endings' final observations and infos; reward
+terms, :mod:`.terms`), and without values that need a cast or flags that are not a bool array,
+is written into preallocated batch buffers with its time; every
 :data:`BATCH_STEPS` vector steps (fewer for big rows: :data:`BATCH_BYTES`), and at each flush,
 each sub-env's rows are handed to its stream in bulk. Only episode boundaries are handled per
 sub-env, at the rows they will have.
