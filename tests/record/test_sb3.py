@@ -526,3 +526,56 @@ def test_record_eval_callback_writes_one_file_per_evaluation(tmp_path: Path) -> 
         assert len(ended(path)) >= 2
         assert_replays_identical(path)
     assert callback.eval_env is eval_env
+
+
+def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A DummyVecEnv of MuJoCo envs (reward terms in every info, SB3's own keys beside them)
+    takes the batched path, the endings included, and the file holds what recording it
+    sub-env by sub-env holds."""
+    import time
+
+    from mcap.reader import make_reader
+
+    from episode_audit.record.vector import steps as steps_module
+
+    monkeypatch.setattr(time, "monotonic_ns", lambda: 1_000_000_000)  # (rows hold one time)
+    monkeypatch.setattr(time, "time_ns", lambda: 1_700_000_000_000_000_000)
+    taken: list[bool] = []
+    real = steps_module.list_terms
+    declining = False  # (then every step with an info goes sub-env by sub-env)
+
+    def counted(*args: Any) -> Any:
+        terms = None if declining else real(*args)
+        taken.append(terms is not None)
+        return terms
+
+    monkeypatch.setattr(steps_module, "list_terms", counted)
+    actions = np.random.default_rng(3).uniform(-1, 1, size=(170, 3, 2)).astype(np.float32)
+    messages, batched = {}, {}
+    for kind in ("batched", "sub_envs"):
+        taken.clear()
+        declining = kind == "sub_envs"
+        path = tmp_path / f"{kind}.mcap"
+        venv = RecordVecEnvEvidence(DummyVecEnv([lambda: gym.make("Reacher-v5")] * 3), path)
+        venv.seed(4)
+        venv.reset()
+        for action in actions:
+            venv.step(action)
+        venv.close()
+        batched[kind] = sum(taken)
+        with path.open("rb") as stream:
+            messages[kind] = [
+                (channel.topic, message.log_time, message.data)
+                for _, channel, message in make_reader(stream).iter_messages(log_time_order=False)
+            ]
+    assert batched["batched"] > 150 and batched["sub_envs"] == 0 and len(taken) > 150
+    assert messages["batched"] == messages["sub_envs"]
+    with open_evidence(tmp_path / "batched.mcap") as evidence:
+        episodes = evidence.episodes()
+    totals = episodes.column("term_totals").to_pylist()
+    assert len(totals) >= 9 and all(
+        dict(t).keys() == {"reward_dist", "reward_ctrl"} for t in totals
+    )
+    assert set(episodes.column("outcome").to_pylist()) >= {"truncated"}

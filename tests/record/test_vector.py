@@ -407,8 +407,8 @@ def _ending_infos_step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, An
 def test_same_step_endings_are_batched_as_the_row_by_row_path_records_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, monitor: bool
 ) -> None:
-    """SAME_STEP endings whose final info has no reward terms are batched (final obs, the
-    ending by the rules, then the reset row): the same rows as the per-sub-env path."""
+    """SAME_STEP endings are batched (the final obs, the final info's reward terms, the ending
+    by the rules, then the reset row): the same rows as the per-sub-env path."""
     from episode_audit.record.vector.modes import SameStep
 
     def make() -> gym.Env[Any, Any]:
@@ -447,8 +447,9 @@ def test_same_step_endings_are_batched_as_the_row_by_row_path_records_them(
             )
         )
     (steps_a, eps_a, resets_a, slow_a), (steps_b, eps_b, resets_b, slow_b) = tables
-    # the batched run took only the endings with a reward term the row-by-row way
-    assert 0 < slow_a < slow_b == eps_b.num_rows - N  # (the last N episodes did not end)
+    # the batched run took no ending the row-by-row way, the endings with a term included
+    assert slow_a == 0 < slow_b == eps_b.num_rows - N  # (the last N episodes did not end)
+    assert any(dict(t).get("reward_bonus") for t in eps_a.column("term_totals").to_pylist())
     assert set(pc.unique(eps_a.column("failure_label")).to_pylist()) >= {"fell", "unlabeled"}
     assert pc.sum(pc.equal(eps_a.column("outcome"), "success")).as_py() > 0
     order = [("episode", "ascending"), ("step", "ascending")]

@@ -33,6 +33,10 @@ def _own(info: Any) -> Any:
         return info
     if len(info) == 1 and TIME_LIMIT_TRUNCATED in info:
         return EMPTY
+    if type(info) is dict and TERMINAL_OBSERVATION not in info:  # (SB3's one key, most steps)
+        own = info.copy()
+        own.pop(TIME_LIMIT_TRUNCATED, None)
+        return own
     return {k: v for k, v in info.items() if k not in _ADDED}
 
 

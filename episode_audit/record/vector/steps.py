@@ -31,7 +31,7 @@ from ..stream import Stream
 from .infos import EMPTY, env_infos
 from .modes import Autoreset, SameStep
 from .rng import RngState, SubEnvRng
-from .terms import StepTerms, TermBatch, step_terms
+from .terms import StepTerms, TermBatch, list_terms, step_terms
 
 __all__ = ["BATCH_BYTES", "BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
 
@@ -100,15 +100,21 @@ def read_flags(values: Any, n: int) -> tuple[_Bools, list[Any] | None]:
 
 
 def _same_step_endings(
-    infos: Any, ends: list[int], streams: list[Stream], shape: tuple[int, ...], dtype: Any
-) -> _SameStepEndings | None:
-    """A SAME_STEP step's endings, when the batched path can take the step; else ``None``.
+    infos: Any,
+    ends: list[int],
+    n: int,
+    shape: tuple[int, ...],
+    dtype: Any,
+    names_for: Any,
+) -> tuple[_SameStepEndings, StepTerms] | None:
+    """A SAME_STEP step's endings and reward terms, if the batched path can take the step.
 
-    It can when no other sub-env has an info, and each ending one's info holds a final
-    observation of one row's ``shape`` and ``dtype``, and a ``final_info`` dict the stream
-    takes no reward terms from (the ending rules read it as they would on the slow path).
+    It can when each ending sub-env's info holds a final observation of one row's ``shape``
+    and ``dtype`` and a ``final_info`` dict (the ending rules read it as they would on the
+    slow path), and :func:`~.terms.list_terms` takes the step's terms: the endings' from their
+    ``final_info``, the other sub-envs' from their infos.
     """
-    subs, unmasked = env_infos(infos, len(streams))
+    subs, unmasked = env_infos(infos, n)
     if unmasked is not None:
         return None
     out: _SameStepEndings = {}
@@ -117,18 +123,12 @@ def _same_step_endings(
         if type(info) is not dict or "final_obs" not in info:
             return None
         final_obs, final_info = info["final_obs"], info.get("final_info")
-        if (
-            type(final_info) is not dict
-            or not _fits(final_obs, shape, dtype)
-            or (final_info and not streams[i].takes_no_terms(final_info))
-        ):
+        if type(final_info) is not dict or not _fits(final_obs, shape, dtype):
             return None
         reset_info = {k: v for k, v in info.items() if k not in _FINAL}
         out[i] = (final_obs, final_info, reset_info)
-    for i, info in enumerate(subs):
-        if i not in out and (info is not EMPTY and (type(info) is not dict or info)):
-            return None
-    return out
+    terms = list_terms(subs, (), names_for, {i: e[1] for i, e in out.items()})
+    return None if terms is None else (out, terms)
 
 
 class VectorSteps:
@@ -189,11 +189,9 @@ class VectorSteps:
         self._p_reset_envs: list[int] = []
         # the batched steps' reward terms (None until a step has some)
         self._p_terms: TermBatch | None = None
-        # steps whose info holds reward terms are batched when the strategy batches endings
-        # (the streams read terms by the file's one rule: any stream says which)
-        self._term_names = (
-            streams[0].term_names if self._batchable and autoreset.batches_endings else None
-        )
+        # how the streams read reward terms from an info's keys (the file's one rule: any
+        # stream says), for the batched path; None: steps with infos are not batched
+        self._term_names = streams[0].term_names if self._batchable else None
         self._since_flush = 0
         self._block_steps = file.block_steps  # capped by start() for big rows
         self.idle: set[int] | None = None
@@ -233,11 +231,13 @@ class VectorSteps:
         same: _SameStepEndings | None = None
         terms: StepTerms | None = None
         if ends and not plain and not self._batches_endings and self._batchable:
-            same = _same_step_endings(
-                infos, ends, self._streams, self._obs_shape[1:], self._obs_dtype
+            taken = _same_step_endings(
+                infos, ends, n, self._obs_shape[1:], self._obs_dtype, self._term_names
             )
-        elif not plain and self._term_names is not None and type(infos) is dict:
-            terms = step_terms(infos, n, resetting, self._term_names)
+            if taken is not None:
+                same, terms = taken
+        elif not plain:
+            terms = self._read_terms(infos, resetting)
         if (
             self._batchable
             and (
@@ -285,9 +285,7 @@ class VectorSteps:
         if not (
             (type(infos) is dict and not infos) or (type(infos) is list and infos == self._no_infos)
         ):
-            if self._term_names is None or type(infos) is not dict:
-                return False
-            terms = step_terms(infos, self._n, resetting, self._term_names)
+            terms = self._read_terms(infos, resetting)
             if terms is None or not self._terms_fit(terms):
                 return False
         t = self._p_len
@@ -315,6 +313,17 @@ class VectorSteps:
         if ends or resetting:
             autoreset.stepped(ends)
         return True
+
+    def _read_terms(self, infos: Any, resetting: list[int]) -> StepTerms | None:
+        """A step's info as the batched path takes it (:mod:`.terms`), or ``None``."""
+        names_for = self._term_names
+        if names_for is None:
+            return None
+        if type(infos) is dict:
+            return step_terms(infos, self._n, resetting, names_for)
+        if type(infos) is list and len(infos) == self._n:
+            return list_terms(infos, resetting, names_for)
+        return None
 
     def _terms_fit(self, terms: StepTerms) -> bool:
         """Whether ``terms`` go into the batch as it is (its steps' terms have their names)."""

@@ -10,7 +10,8 @@ terms and hands each sub-env's to its block with its rows, as :meth:`Stream.step
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import operator
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -18,9 +19,10 @@ import numpy as np
 from ..block import Block
 from .infos import EMPTY
 
-__all__ = ["StepTerms", "TermBatch", "step_terms"]
+__all__ = ["StepTerms", "TermBatch", "list_terms", "step_terms"]
 
 _BOOL = np.dtype(np.bool_)
+_NUMBERS = frozenset({float, np.float64, np.float32})  # (array("d") takes them exactly)
 _Names = tuple[str, ...]
 
 
@@ -28,25 +30,28 @@ class StepTerms(NamedTuple):
     """A vector step's info as the batched path takes it.
 
     Attributes:
-        info: The vector info.
-        keys: Its keys (the masks left out).
-        names: The reward terms the streams read from infos with these keys (maybe none).
-        values: Each term's array (one entry per sub-env), in the order of ``names``.
-        present: Which sub-envs the info has entries for (all of its keys, or none).
+        names: The reward terms the step's rows have (maybe none).
+        values: Their values, a row of ``len(names)`` per sub-env (``None`` without names).
+        present: Which sub-envs' rows have them.
+        infos: The sub-envs' infos: each one's dict (a list of per-sub-env infos), or the
+            vector dict (Gymnasium's form; then ``keys`` are its keys, the masks left out).
+        keys: See ``infos``.
     """
 
-    info: dict[str, Any]
-    keys: tuple[str, ...]
     names: _Names
-    values: tuple[np.ndarray[Any, Any], ...]
+    values: np.ndarray[Any, np.dtype[np.float64]] | None
     present: list[bool]
+    infos: Any
+    keys: tuple[str, ...] | None = None
 
-    def env_info(self, i: int) -> dict[str, Any]:
-        """Sub-env ``i``'s info, as :func:`~.infos.split_info` gives it."""
+    def env_info(self, i: int) -> Any:
+        """Sub-env ``i``'s info, as :func:`~.infos.env_infos` gives it."""
+        keys, infos = self.keys, self.infos
+        if keys is None:
+            return infos[i]
         if not self.present[i]:
             return EMPTY
-        info = self.info
-        return {key: info[key][i] for key in self.keys}
+        return {key: infos[key][i] for key in keys}
 
 
 def step_terms(
@@ -55,18 +60,18 @@ def step_terms(
     resetting: Sequence[int],
     names_for: Callable[[tuple[Any, ...]], _Names | None],
 ) -> StepTerms | None:
-    """``info`` as the batched path takes it; ``None``: the step is recorded sub-env by sub-env.
+    """Gymnasium's vector dict form of an info, as the batched path takes it (or ``None``).
 
-    It takes the vector dict form when each key has a ``_key`` mask (a bool array of ``n``)
-    and an array of ``n`` entries, each sub-env has entries for all keys or for none (none for
-    the sub-envs the step only resets, ``resetting``), the streams read the terms by name
-    (``names_for``: :meth:`Stream.term_names <episode_audit.record.stream.Stream.term_names>`),
-    and each term's array holds floats.
+    ``None``: the step is recorded sub-env by sub-env. It takes the info when each key has a
+    ``_key`` mask (a bool array of ``n``) and an array of ``n`` entries, each sub-env has
+    entries for all keys or for none (none for the sub-envs the step only resets,
+    ``resetting``), the streams read the terms by name (``names_for``: :meth:`Stream.term_names
+    <episode_audit.record.stream.Stream.term_names>`), and each term's array holds floats.
 
     >>> info = {"reward_a": np.array([0.5, 1.0]), "_reward_a": np.array([True, True])}
     >>> terms = step_terms(info, 2, [], lambda keys: keys)
-    >>> terms.names, terms.env_info(1)
-    (('reward_a',), {'reward_a': np.float64(1.0)})
+    >>> terms.names, terms.values.tolist(), terms.env_info(1)
+    (('reward_a',), [[0.5], [1.0]], {'reward_a': np.float64(1.0)})
     >>> step_terms(info, 2, [1], lambda keys: keys) is None  # a reset-only step has no terms
     True
     """
@@ -99,10 +104,81 @@ def step_terms(
     names = names_for(tuple(keys))
     if names is None:
         return None
-    values = tuple(info[name] for name in names)
-    if any(v.dtype.kind != "f" for v in values):
+    values = None
+    if names:
+        columns = [info[name] for name in names]
+        if any(c.dtype.kind != "f" for c in columns):
+            return None
+        values = np.empty((n, len(names)), dtype=np.float64)
+        for j, column in enumerate(columns):
+            values[:, j] = column
+    return StepTerms(names, values, present, info, tuple(keys))
+
+
+def list_terms(
+    infos: Sequence[Any],
+    resetting: Sequence[int],
+    names_for: Callable[[tuple[Any, ...]], _Names | None],
+    finals: Mapping[int, dict[str, Any]] | None = None,
+) -> StepTerms | None:
+    """A list of per-sub-env infos as the batched path takes it (or ``None``).
+
+    ``None``: the step is recorded sub-env by sub-env. ``finals``: the ``SAME_STEP`` endings'
+    step infos (``final_info``), whose terms the ending rows have. It takes the infos when every
+    one is a dict (an empty one for the sub-envs the step only resets), the streams read the
+    terms by name, the same names in every info that has terms, and each value is a float (a
+    Python or a numpy one: the step path takes them as they are).
+
+    >>> terms = list_terms([{"reward_a": 0.5, "x": "?"}, {}], [], lambda keys: keys[:1])
+    >>> terms.names, terms.values.tolist(), terms.present
+    (('reward_a',), [[0.5], [0.0]], [True, False])
+    >>> list_terms([{"reward_a": "0.5"}], [], lambda keys: keys) is None  # text: not a number
+    True
+    """
+    names: _Names | None = None
+    flat: list[Any] = []  # the values of the infos with terms, in order
+    present: list[bool] = []
+    last_keys: tuple[Any, ...] | None = None  # (the infos of a step mostly share their keys)
+    here: _Names | None = ()
+    get: Callable[[dict[str, Any]], Any] = tuple
+    for i, info in enumerate(infos):
+        if finals is not None and i in finals:
+            info = finals[i]
+        if type(info) is not dict:
+            return None
+        if not info:
+            present.append(False)
+            continue
+        if i in resetting:
+            return None  # (a reset info: the autoreset reads it on the slow path)
+        keys = tuple(info)
+        if keys != last_keys:
+            last_keys, here = keys, names_for(keys)
+            if here is None:
+                return None
+            get = operator.itemgetter(*here) if here else tuple
+        if not here:
+            present.append(False)
+            continue
+        if names is None:
+            names = here
+        elif here != names:
+            return None
+        if len(here) == 1:
+            flat.append(get(info))
+        else:
+            flat.extend(get(info))
+        present.append(True)
+    if names is None:
+        return StepTerms((), None, present, infos)
+    if not {type(v) for v in flat} <= _NUMBERS:
         return None
-    return StepTerms(info, tuple(keys), names, values, present)
+    rows = np.array(flat, dtype=np.float64).reshape(-1, len(names))
+    if len(rows) == len(present):
+        return StepTerms(names, rows, present, infos)
+    values = np.zeros((len(present), len(names)), dtype=np.float64)
+    values[[i for i, here in enumerate(present) if here]] = rows
+    return StepTerms(names, values, present, infos)
 
 
 class TermBatch:
@@ -121,9 +197,7 @@ class TermBatch:
 
     def keep(self, t: int, terms: StepTerms) -> None:
         """Keep ``terms`` (of ``names``) as batched step ``t``'s."""
-        row = self.values[t]
-        for j, value in enumerate(terms.values):
-            row[:, j] = value
+        self.values[t] = terms.values
         self.present[t] = terms.present
 
     def hand_over(
