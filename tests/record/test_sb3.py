@@ -39,6 +39,7 @@ from episode_audit import (  # noqa: E402
     replay,
 )
 from episode_audit.record.sb3 import RecordVecEnvEvidence  # noqa: E402
+from tests.support.batching import InfoReading, messages  # noqa: E402
 
 torch.set_num_threads(1)
 N = 4
@@ -534,44 +535,21 @@ def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
     """A DummyVecEnv of MuJoCo envs (reward terms in every info, SB3's own keys beside them)
     takes the batched path, the endings included, and the file holds what recording it
     sub-env by sub-env holds."""
-    import time
-
-    from mcap.reader import make_reader
-
-    from episode_audit.record.vector import steps as steps_module
-
-    monkeypatch.setattr(time, "monotonic_ns", lambda: 1_000_000_000)  # (rows hold one time)
-    monkeypatch.setattr(time, "time_ns", lambda: 1_700_000_000_000_000_000)
-    taken: list[bool] = []
-    real = steps_module.list_terms
-    declining = False  # (then every step with an info goes sub-env by sub-env)
-
-    def counted(*args: Any) -> Any:
-        terms = None if declining else real(*args)
-        taken.append(terms is not None)
-        return terms
-
-    monkeypatch.setattr(steps_module, "list_terms", counted)
+    reading = InfoReading(monkeypatch, "list_terms")
     actions = np.random.default_rng(3).uniform(-1, 1, size=(170, 3, 2)).astype(np.float32)
-    messages, batched = {}, {}
+    files, batched = {}, {}
     for kind in ("batched", "sub_envs"):
-        taken.clear()
-        declining = kind == "sub_envs"
-        path = tmp_path / f"{kind}.mcap"
-        venv = RecordVecEnvEvidence(DummyVecEnv([lambda: gym.make("Reacher-v5")] * 3), path)
+        reading.run(declining=kind == "sub_envs")
+        files[kind] = tmp_path / f"{kind}.mcap"
+        venv = RecordVecEnvEvidence(DummyVecEnv([lambda: gym.make("Reacher-v5")] * 3), files[kind])
         venv.seed(4)
         venv.reset()
         for action in actions:
             venv.step(action)
         venv.close()
-        batched[kind] = sum(taken)
-        with path.open("rb") as stream:
-            messages[kind] = [
-                (channel.topic, message.log_time, message.data)
-                for _, channel, message in make_reader(stream).iter_messages(log_time_order=False)
-            ]
-    assert batched["batched"] > 150 and batched["sub_envs"] == 0 and len(taken) > 150
-    assert messages["batched"] == messages["sub_envs"]
+        batched[kind] = sum(reading.taken)
+    assert batched["batched"] > 150 and batched["sub_envs"] == 0 and len(reading.taken) > 150
+    assert messages(files["batched"]) == messages(files["sub_envs"])
     with open_evidence(tmp_path / "batched.mcap") as evidence:
         episodes = evidence.episodes()
     totals = episodes.column("term_totals").to_pylist()

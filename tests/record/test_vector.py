@@ -37,6 +37,7 @@ from episode_audit import (
 from episode_audit.cli import app
 from episode_audit.format.records import unstarted
 from episode_audit.record.vector.rng import SubEnvRng
+from tests.support.batching import InfoReading, messages
 from tests.support.envs import ScriptedEnv
 
 N = 4
@@ -1183,35 +1184,13 @@ def test_big_rows_are_batched_a_few_steps_at_a_time(tmp_path: Path) -> None:
     assert not [f for f in check([path]).findings if f.severity == "error"]
 
 
-def _messages(path: Path) -> list[Any]:
-    with path.open("rb") as stream:
-        reader = make_reader(stream)
-        return [
-            (channel.topic, message.log_time, message.data)
-            for _, channel, message in reader.iter_messages(log_time_order=False)
-        ]
-
-
 @pytest.mark.parametrize("mode", ["NEXT_STEP", "DISABLED"])
 def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, mode: str
 ) -> None:
     """A MuJoCo vector env's steps (reward terms in every info) take the batched path, and the
     file holds what recording them sub-env by sub-env holds."""
-    from episode_audit.record.vector import steps as steps_module
-
-    monkeypatch.setattr(time, "monotonic_ns", lambda: 1_000_000_000)  # (rows hold one time)
-    monkeypatch.setattr(time, "time_ns", lambda: 1_700_000_000_000_000_000)
-    taken: list[bool] = []
-    real = steps_module.step_terms
-    declining = False  # (then every step goes sub-env by sub-env)
-
-    def counted(*args: Any) -> Any:
-        terms = None if declining else real(*args)
-        taken.append(terms is not None)
-        return terms
-
-    monkeypatch.setattr(steps_module, "step_terms", counted)
+    reading = InfoReading(monkeypatch, "step_terms")
     actions = np.random.default_rng(3).uniform(-1, 1, size=(170, 3, 2)).astype(np.float32)
     files, batched = {}, {}
     for kind in ("batched", "sub_envs"):
@@ -1222,8 +1201,7 @@ def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
             vector_kwargs={"autoreset_mode": AutoresetMode[mode]},
         )
         files[kind] = tmp_path / f"{kind}.mcap"
-        taken.clear()
-        declining = kind == "sub_envs"
+        reading.run(declining=kind == "sub_envs")
         with RecordVectorEvidence(env, files[kind], flush_every_s=1e9) as rec:
             rec.reset(seed=1)
             for t, action in enumerate(actions):
@@ -1233,10 +1211,10 @@ def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
                     rec.reset(options={"reset_mask": ended})
                 elif t == 77:  # a reset of one sub-env mid-episode
                     rec.reset(seed=[7, None, None], options={"reset_mask": np.eye(3)[0] > 0})
-        batched[kind] = sum(taken)
+        batched[kind] = sum(reading.taken)
     assert batched["batched"] > 150 and batched["sub_envs"] == 0
-    assert len(taken) > 150  # (the infos were looked at, and declined)
-    assert _messages(files["batched"]) == _messages(files["sub_envs"])
+    assert len(reading.taken) > 150  # (the infos were looked at, and declined)
+    assert messages(files["batched"]) == messages(files["sub_envs"])
     with open_evidence(files["batched"]) as evidence:
         totals = evidence.episodes().column("term_totals").to_pylist()
     assert len(totals) >= 9 and all(
