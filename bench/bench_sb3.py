@@ -3,13 +3,15 @@
 - ``ppo``: a real PPO training run on CartPole-v1 (single-thread torch, DummyVecEnv x4), with
   and without RecordVecEnvEvidence, alternating in one process; the wall-time ratio.
 - ``vecenv``: RecordVecEnvEvidence's cost per sub-env step over a bare DummyVecEnv of
-  CartPole-v1 (fixed random actions, SB3's autoreset), interleaved rounds.
+  CartPole-v1, and of Reacher-v5 (reward terms in every info): fixed random actions, SB3's
+  autoreset, the recorded and two bare VecEnvs taking turns a slice of steps at a time.
 """
 
 from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -76,39 +78,68 @@ def bench_ppo(tmp: Path, steps: int, rounds: int) -> dict[str, Any]:
     }
 
 
-def _run_vecenv(venv: Any, actions: np.ndarray[Any, Any]) -> float:
+def _stepper(venv: Any) -> Callable[[np.ndarray[Any, Any]], None]:
     venv.seed(0)
     venv.reset()
-    start = time.perf_counter()
-    for row in actions:
-        venv.step(row)
-    return time.perf_counter() - start
+
+    def loop(actions: np.ndarray[Any, Any]) -> None:
+        for row in actions:
+            venv.step(row)
+
+    return loop
 
 
-def bench_vecenv(tmp: Path, num_envs: int, steps: int, rounds: int) -> dict[str, Any]:
-    """Per-sub-env-step overhead of RecordVecEnvEvidence over a bare DummyVecEnv."""
+Interleaved = Callable[[Mapping[str, Callable[[Any], None]], Any, int], dict[str, float]]
+
+
+def bench_vecenv(
+    tmp: Path,
+    interleaved: Interleaved,
+    num_envs: int,
+    steps: int,
+    rounds: int,
+    slice_steps: int,
+    env_id: str = "CartPole-v1",
+) -> dict[str, Any]:
+    """Per-sub-env-step overhead of RecordVecEnvEvidence over a bare DummyVecEnv of ``env_id``:
+    recorded, bare and bare again take turns ``slice_steps`` vector steps at a time
+    (``interleaved``: bench/run.py's), the recorder's ``close()`` counted."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from episode_audit.record.sb3 import RecordVecEnvEvidence
 
-    actions = np.random.default_rng(0).integers(0, 2, size=(steps, num_envs))
-    warm = RecordVecEnvEvidence(DummyVecEnv([_cartpole] * num_envs), tmp / "w.mcap", overwrite=True)
-    _run_vecenv(warm, actions[:1000])
+    def make() -> gym.Env[Any, Any]:
+        return gym.make(env_id)
+
+    space = make().action_space
+    if isinstance(space, gym.spaces.Discrete):
+        actions = np.random.default_rng(0).integers(0, int(space.n), size=(steps, num_envs))
+    else:
+        space.seed(0)
+        actions = np.array([[space.sample() for _ in range(num_envs)] for _ in range(steps)])
+    warm = RecordVecEnvEvidence(DummyVecEnv([make] * num_envs), tmp / "w.mcap", overwrite=True)
+    _stepper(warm)(actions[:1000])
     warm.close()
-    bare_t, rec_t = [], []
+    bare_t, again_t, rec_t = [], [], []
     for r in range(rounds):
-        venv = DummyVecEnv([_cartpole] * num_envs)
-        bare_t.append(_run_vecenv(venv, actions))
-        venv.close()
         path = tmp / f"sb3-vecenv-{r}.mcap"
-        rec = RecordVecEnvEvidence(DummyVecEnv([_cartpole] * num_envs), path, overwrite=True)
-        recorded = _run_vecenv(rec, actions)
+        venvs = {
+            "bare": DummyVecEnv([make] * num_envs),
+            "bare_again": DummyVecEnv([make] * num_envs),
+            "rec": RecordVecEnvEvidence(DummyVecEnv([make] * num_envs), path, overwrite=True),
+        }
+        seconds = interleaved({k: _stepper(v) for k, v in venvs.items()}, actions, slice_steps)
         t0 = time.perf_counter()
-        rec.close()
-        rec_t.append(recorded + time.perf_counter() - t0)
+        venvs["rec"].close()
+        closed = time.perf_counter() - t0
+        venvs["bare"].close()
+        venvs["bare_again"].close()
+        bare_t.append(seconds["bare"])
+        again_t.append(seconds["bare_again"])
+        rec_t.append(seconds["rec"] + closed)
     sub_steps = steps * num_envs
     return {
-        "env": f"CartPole-v1 x{num_envs} (SB3 DummyVecEnv)",
+        "env": f"{env_id} x{num_envs} (SB3 DummyVecEnv)",
         "vector_steps": steps,
         "rounds": rounds,
         "bare_us_per_sub_env_step": statistics.median(bare_t) / sub_steps * 1e6,
@@ -117,14 +148,19 @@ def bench_vecenv(tmp: Path, num_envs: int, steps: int, rounds: int) -> dict[str,
             [(rt - bt) / sub_steps * 1e6 for rt, bt in zip(rec_t, bare_t, strict=True)]
         ),
         **_ratios(bare_t, rec_t),
+        "aa_median": statistics.median(a / b for a, b in zip(again_t, bare_t, strict=True)),
     }
 
 
-def bench(tmp: Path) -> dict[str, Any]:
+def bench(tmp: Path, interleaved: Interleaved) -> dict[str, Any]:
     """Both SB3 benchmarks, or why they were skipped."""
     if not available():
         return {"skipped": "SB3 not installed (pip install 'episode-audit[sb3]')"}
     return {
         "ppo_training": bench_ppo(tmp, 4096, 3),
-        "vecenv_recorder": bench_vecenv(tmp, 8, 5000, 5),
+        "vecenv_recorder": bench_vecenv(tmp, interleaved, 8, 6000, 7, 100),
+        # reward terms in every sub-env's info
+        "vecenv_recorder_mujoco": bench_vecenv(
+            tmp, interleaved, 8, 1500, 7, 25, env_id="Reacher-v5"
+        ),
     }
