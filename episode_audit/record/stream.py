@@ -106,13 +106,6 @@ class Stream(EpisodeStream):
         names: tuple[str, ...] | None = self._terms_names
         return names
 
-    def takes_no_terms(self, info: dict[Any, Any]) -> bool:
-        """Whether :meth:`step` would read no reward terms from ``info`` (by its keys)."""
-        keys = tuple(info)
-        if keys != self._terms_keys:
-            self._plan_terms(keys)
-        return self._terms_names == ()
-
     def note_next_row(self, notes: list[str]) -> None:
         """Put ``notes`` on the row the next :meth:`step` writes (a caller's own accounting)."""
         if notes and self.episode is not None:

@@ -31,7 +31,7 @@ from ..stream import Stream
 from .infos import EMPTY, env_infos
 from .modes import Autoreset, SameStep
 from .rng import RngState, SubEnvRng
-from .terms import StepTerms, TermBatch, list_terms, step_terms
+from .terms import StepTerms, TermBatch, TermNames, list_terms, step_terms
 
 __all__ = ["BATCH_BYTES", "BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
 
@@ -105,7 +105,7 @@ def _same_step_endings(
     n: int,
     shape: tuple[int, ...],
     dtype: Any,
-    names_for: Any,
+    names_for: TermNames,
 ) -> tuple[_SameStepEndings, StepTerms] | None:
     """A SAME_STEP step's endings and reward terms, if the batched path can take the step.
 
@@ -230,9 +230,10 @@ class VectorSteps:
         )
         same: _SameStepEndings | None = None
         terms: StepTerms | None = None
-        if ends and not plain and not self._batches_endings and self._batchable:
+        names_for = self._term_names
+        if ends and not plain and not self._batches_endings and names_for is not None:
             taken = _same_step_endings(
-                infos, ends, n, self._obs_shape[1:], self._obs_dtype, self._term_names
+                infos, ends, n, self._obs_shape[1:], self._obs_dtype, names_for
             )
             if taken is not None:
                 same, terms = taken
@@ -349,7 +350,7 @@ class VectorSteps:
         same: _SameStepEndings | None = None,
         terms: StepTerms | None = None,
     ) -> None:
-        """A step without info: keep the whole batch; hand rows to the streams in bulk later.
+        """A step the batched path takes: keep it; hand rows to the streams in bulk later.
 
         Only episode boundaries are handled per sub-env: the NEXT_STEP autoresets (reset rows)
         and the endings (at the rows they will have: each block's ``pending`` counts the rows

@@ -19,11 +19,14 @@ import numpy as np
 from ..block import Block
 from .infos import EMPTY
 
-__all__ = ["StepTerms", "TermBatch", "list_terms", "step_terms"]
+__all__ = ["StepTerms", "TermBatch", "TermNames", "list_terms", "step_terms"]
 
 _BOOL = np.dtype(np.bool_)
 _NUMBERS = frozenset({float, np.float64, np.float32})  # (array("d") takes them exactly)
 _Names = tuple[str, ...]
+TermNames = Callable[[tuple[Any, ...]], "tuple[str, ...] | None"]
+"""How the streams read reward terms from an info's keys (:meth:`Stream.term_names
+<episode_audit.record.stream.Stream.term_names>`)."""
 
 
 class StepTerms(NamedTuple):
@@ -58,7 +61,7 @@ def step_terms(
     info: dict[Any, Any],
     n: int,
     resetting: Sequence[int],
-    names_for: Callable[[tuple[Any, ...]], _Names | None],
+    names_for: TermNames,
 ) -> StepTerms | None:
     """Gymnasium's vector dict form of an info, as the batched path takes it (or ``None``).
 
@@ -118,7 +121,7 @@ def step_terms(
 def list_terms(
     infos: Sequence[Any],
     resetting: Sequence[int],
-    names_for: Callable[[tuple[Any, ...]], _Names | None],
+    names_for: TermNames,
     finals: Mapping[int, dict[str, Any]] | None = None,
 ) -> StepTerms | None:
     """A list of per-sub-env infos as the batched path takes it (or ``None``).
