@@ -90,11 +90,13 @@ def _stepper(venv: Any) -> Callable[[np.ndarray[Any, Any]], None]:
 
 
 Interleaved = Callable[[Mapping[str, Callable[[Any], None]], Any, int], dict[str, float]]
+Actions = Callable[[str, int, int], np.ndarray[Any, Any]]
 
 
 def bench_vecenv(
     tmp: Path,
     interleaved: Interleaved,
+    vector_actions: Actions,
     num_envs: int,
     steps: int,
     rounds: int,
@@ -103,7 +105,8 @@ def bench_vecenv(
 ) -> dict[str, Any]:
     """Per-sub-env-step overhead of RecordVecEnvEvidence over a bare DummyVecEnv of ``env_id``:
     recorded, bare and bare again take turns ``slice_steps`` vector steps at a time
-    (``interleaved``: bench/run.py's), the recorder's ``close()`` counted."""
+    (``interleaved``: bench/run.py's), the recorder's ``close()`` counted; the actions are
+    ``vector_actions(env_id, steps, num_envs)`` (bench/run.py's)."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from episode_audit.record.sb3 import RecordVecEnvEvidence
@@ -111,12 +114,7 @@ def bench_vecenv(
     def make() -> gym.Env[Any, Any]:
         return gym.make(env_id)
 
-    space = make().action_space
-    if isinstance(space, gym.spaces.Discrete):
-        actions = np.random.default_rng(0).integers(0, int(space.n), size=(steps, num_envs))
-    else:
-        space.seed(0)
-        actions = np.array([[space.sample() for _ in range(num_envs)] for _ in range(steps)])
+    actions = vector_actions(env_id, steps, num_envs)
     warm = RecordVecEnvEvidence(DummyVecEnv([make] * num_envs), tmp / "w.mcap", overwrite=True)
     _stepper(warm)(actions[:1000])
     warm.close()
@@ -152,15 +150,15 @@ def bench_vecenv(
     }
 
 
-def bench(tmp: Path, interleaved: Interleaved) -> dict[str, Any]:
+def bench(tmp: Path, interleaved: Interleaved, vector_actions: Actions) -> dict[str, Any]:
     """Both SB3 benchmarks, or why they were skipped."""
     if not available():
         return {"skipped": "SB3 not installed (pip install 'episode-audit[sb3]')"}
     return {
         "ppo_training": bench_ppo(tmp, 4096, 3),
-        "vecenv_recorder": bench_vecenv(tmp, interleaved, 8, 6000, 7, 100),
+        "vecenv_recorder": bench_vecenv(tmp, interleaved, vector_actions, 8, 6000, 7, 100),
         # reward terms in every sub-env's info
         "vecenv_recorder_mujoco": bench_vecenv(
-            tmp, interleaved, 8, 1500, 7, 25, env_id="Reacher-v5"
+            tmp, interleaved, vector_actions, 8, 1500, 7, 25, env_id="Reacher-v5"
         ),
     }

@@ -659,7 +659,7 @@ BENCHES: dict[str, Callable[[], Any]] = {
     ],
     "export": lambda: bench_export(200_000, 3),
     # inside a real PPO run, and per sub-env step; "skipped: SB3 not installed" without it
-    "sb3": lambda: bench_sb3.bench(TMP, interleaved),
+    "sb3": lambda: bench_sb3.bench(TMP, interleaved, vector_actions),
     # --jobs 1 vs 2 over 1 000 files (+ 50 MuJoCo episodes for replay); Amdahl estimate to N
     "jobs": lambda: bench_jobs.bench(TMP),
     "state": bench_state,

@@ -11,10 +11,11 @@ import pytest
 from mcap.reader import make_reader
 
 from episode_audit.record.vector import steps as steps_module
+from episode_audit.record.vector import terms as terms_module
 
 
 class InfoReading:
-    """Counts the steps whose info ``steps_module.<name>`` read for the batched path; with
+    """Counts the steps whose info ``terms.<name>`` read for the batched path; with
     ``declining`` set, it reads none (they go sub-env by sub-env). The clocks are fixed, so
     both paths write the same times (the batched path reads one a vector step)."""
 
@@ -23,14 +24,16 @@ class InfoReading:
         monkeypatch.setattr(time, "time_ns", lambda: 1_700_000_000_000_000_000)
         self.taken: list[bool] = []
         self.declining = False
-        real = getattr(steps_module, name)
+        real = getattr(terms_module, name)
 
         def counted(*args: Any) -> Any:
             terms = None if self.declining else real(*args)
             self.taken.append(terms is not None)
             return terms
 
-        monkeypatch.setattr(steps_module, name, counted)
+        for module in (terms_module, steps_module):  # (where the vector recorder calls it)
+            if hasattr(module, name):
+                monkeypatch.setattr(module, name, counted)
 
     def run(self, declining: bool) -> None:
         """Start a run (the counts from zero), batching or not."""

@@ -31,7 +31,7 @@ from ..stream import Stream
 from .infos import EMPTY, env_infos
 from .modes import Autoreset, SameStep
 from .rng import RngState, SubEnvRng
-from .terms import StepTerms, TermBatch, TermNames, list_terms, step_terms
+from .terms import StepTerms, TermColumns, TermNames, list_terms
 
 __all__ = ["BATCH_BYTES", "BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
 
@@ -187,11 +187,9 @@ class VectorSteps:
         # the (batched step, sub-env) pairs where the sub-env only reset: no row of its own
         self._p_reset_steps: list[int] = []
         self._p_reset_envs: list[int] = []
-        # the batched steps' reward terms (None until a step has some)
-        self._p_terms: TermBatch | None = None
-        # how the streams read reward terms from an info's keys (the file's one rule: any
-        # stream says), for the batched path; None: steps with infos are not batched
-        self._term_names = streams[0].term_names if self._batchable else None
+        # the batched steps' reward terms, read by the streams' rule (the file's one rule: any
+        # stream says); None: steps with infos are not batched
+        self._terms = TermColumns(n, streams[0].term_names) if self._batchable else None
         self._since_flush = 0
         self._block_steps = file.block_steps  # capped by start() for big rows
         self.idle: set[int] | None = None
@@ -230,15 +228,15 @@ class VectorSteps:
         )
         same: _SameStepEndings | None = None
         terms: StepTerms | None = None
-        names_for = self._term_names
-        if ends and not plain and not self._batches_endings and names_for is not None:
+        columns = self._terms
+        if ends and not plain and not self._batches_endings and columns is not None:
             taken = _same_step_endings(
-                infos, ends, n, self._obs_shape[1:], self._obs_dtype, names_for
+                infos, ends, n, self._obs_shape[1:], self._obs_dtype, columns.names_for
             )
             if taken is not None:
                 same, terms = taken
-        elif not plain:
-            terms = self._read_terms(infos, resetting)
+        elif not plain and columns is not None:
+            terms = columns.read(infos, resetting)
         if (
             self._batchable
             and (
@@ -282,12 +280,14 @@ class VectorSteps:
         resetting = autoreset.resetting
         if held is None or idle is None or (idle and not idle.issubset(resetting)):
             return False
-        terms = None
+        terms, columns = None, self._terms
         if not (
             (type(infos) is dict and not infos) or (type(infos) is list and infos == self._no_infos)
         ):
-            terms = self._read_terms(infos, resetting)
-            if terms is None or not self._terms_fit(terms):
+            if columns is None:
+                return False
+            terms = columns.read(infos, resetting)
+            if terms is None or not columns.fits(terms):
                 return False
         t = self._p_len
         taken = step(
@@ -307,36 +307,13 @@ class VectorSteps:
         if taken is None:
             return False
         now, ends = taken
-        if terms is not None and terms.names:
-            self._keep_terms(t, terms)
+        if terms is not None and columns is not None:
+            columns.keep(t, self._p_rows, terms)
         self._p_len = t + 1
         self._batched(t, obs, terminated, truncated, ends, resetting, None, now, terms)
         if ends or resetting:
             autoreset.stepped(ends)
         return True
-
-    def _read_terms(self, infos: Any, resetting: list[int]) -> StepTerms | None:
-        """A step's info as the batched path takes it (:mod:`.terms`), or ``None``."""
-        names_for = self._term_names
-        if names_for is None:
-            return None
-        if type(infos) is dict:
-            return step_terms(infos, self._n, resetting, names_for)
-        if type(infos) is list and len(infos) == self._n:
-            return list_terms(infos, resetting, names_for)
-        return None
-
-    def _terms_fit(self, terms: StepTerms) -> bool:
-        """Whether ``terms`` go into the batch as it is (its steps' terms have their names)."""
-        batch = self._p_terms
-        return not terms.names or batch is None or batch.names == terms.names
-
-    def _keep_terms(self, t: int, terms: StepTerms) -> None:
-        """Keep ``terms`` as batched step ``t``'s (the batch's first terms: a term batch)."""
-        batch = self._p_terms
-        if batch is None:
-            batch = self._p_terms = TermBatch(self._p_rows, self._n, terms.names)
-        batch.keep(t, terms)
 
     def _batch_step(
         self,
@@ -360,12 +337,12 @@ class VectorSteps:
         """
         file = self._file
         now = file.clock()
-        held = self._p_obs
+        held, columns = self._p_obs, self._terms
         if (
             held is None
             or held.dtype != obs.dtype
             or self._p_act.dtype != actions.dtype
-            or (terms is not None and not self._terms_fit(terms))
+            or (terms is not None and columns is not None and not columns.fits(terms))
         ):
             self._hold(obs, actions)  # a batch as numpy would stack it: one dtype per column
             held = self._p_obs
@@ -378,8 +355,8 @@ class VectorSteps:
         if same is not None:
             for i, (final_obs, _, _) in same.items():
                 held[t, i] = final_obs
-        if terms is not None and terms.names:
-            self._keep_terms(t, terms)
+        if terms is not None and columns is not None:
+            columns.keep(t, self._p_rows, terms)
         self._p_len = t + 1
         self._batched(t, obs, term, trunc, ends, resetting, same, now, terms)
 
@@ -514,8 +491,8 @@ class VectorSteps:
         obs, act = self._p_obs[:t], self._p_act[:t]
         rew, times = self._p_rew[:t], self._p_time[:t]
         reset_steps, reset_envs = self._p_reset_steps, self._p_reset_envs
-        terms = self._p_terms
-        self._p_obs = self._p_terms = None  # fresh buffers for the next steps
+        terms = None if self._terms is None else self._terms.take()
+        self._p_obs = None  # fresh buffers for the next steps
         self._p_len = 0
         if not reset_steps:
             for i, stream in enumerate(self._streams):

@@ -19,7 +19,7 @@ import numpy as np
 from ..block import Block
 from .infos import EMPTY
 
-__all__ = ["StepTerms", "TermBatch", "TermNames", "list_terms", "step_terms"]
+__all__ = ["StepTerms", "TermBatch", "TermColumns", "TermNames", "list_terms", "step_terms"]
 
 _BOOL = np.dtype(np.bool_)
 _NUMBERS = frozenset({float, np.float64, np.float32})  # (array("d") takes them exactly)
@@ -219,3 +219,48 @@ class TermBatch:
         block.term_counts.frombytes(np.full(len(hit), len(self.names), np.int64).tobytes())
         block.term_keys.extend(self.names * len(hit))
         block.term_vals.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
+
+
+class TermColumns:
+    """A vector recorder's reward terms on the batched path.
+
+    How a step's info is read (``names_for``: the streams' rule, :data:`TermNames`), and the
+    current batch's terms.
+    """
+
+    __slots__ = ("_n", "batch", "names_for")
+
+    def __init__(self, n: int, names_for: TermNames) -> None:
+        self._n = n
+        self.names_for = names_for
+        self.batch: TermBatch | None = None  # (None until a batched step has terms)
+
+    def read(self, infos: Any, resetting: Sequence[int]) -> StepTerms | None:
+        """A step's info as the batched path takes it, or ``None`` (sub-env by sub-env)."""
+        if type(infos) is dict:
+            return step_terms(infos, self._n, resetting, self.names_for)
+        if type(infos) is list and len(infos) == self._n:
+            return list_terms(infos, resetting, self.names_for)
+        return None
+
+    def fits(self, terms: StepTerms) -> bool:
+        """Whether ``terms`` go into the current batch (its steps' terms have their names)."""
+        batch = self.batch
+        return not terms.names or batch is None or batch.names == terms.names
+
+    def keep(self, t: int, rows: int, terms: StepTerms) -> None:
+        """Keep ``terms`` as batched step ``t``'s, in a batch of ``rows`` steps.
+
+        The batch :meth:`fits` them (the caller checked).
+        """
+        if not terms.names:
+            return
+        batch = self.batch
+        if batch is None:
+            batch = self.batch = TermBatch(rows, self._n, terms.names)
+        batch.keep(t, terms)
+
+    def take(self) -> TermBatch | None:
+        """The batch's terms, for their hand-over; the next batch starts without any."""
+        batch, self.batch = self.batch, None
+        return batch
