@@ -1151,7 +1151,7 @@ def test_a_vector_recording_writes_the_same_messages_as_before(
 
 def test_big_rows_are_batched_a_few_steps_at_a_time(tmp_path: Path) -> None:
     # 4 frames of 256 KB a vector step: 8 MB of batch buffers hold 8 steps, not BATCH_STEPS
-    from episode_audit.record.vector.steps import BATCH_BYTES, BATCH_STEPS
+    from episode_audit.record.vector.batch import BATCH_BYTES, BATCH_STEPS
 
     shape = (256, 256, 4)
 
@@ -1172,9 +1172,9 @@ def test_big_rows_are_batched_a_few_steps_at_a_time(tmp_path: Path) -> None:
         rec.reset(seed=0)
         for _ in range(100):
             rec.step(np.zeros(N, dtype=np.int64))
-            steps = rec._steps
-            if steps._p_obs is not None:  # (None right after a hand-over)
-                held.add((steps._p_rows, steps._p_obs.nbytes))
+            batch = rec._steps._batch
+            if batch.obs is not None:  # (None right after a hand-over)
+                held.add((batch.rows, batch.obs.nbytes))
     rows = BATCH_BYTES // (N * (shape[0] * shape[1] * shape[2] + 8))
     assert held == {(rows, rows * N * shape[0] * shape[1] * shape[2])}
     assert 1 < rows < BATCH_STEPS

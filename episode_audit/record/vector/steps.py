@@ -28,20 +28,13 @@ from ..fast import (
 )
 from ..file import EvidenceFile
 from ..stream import Stream
+from .batch import Batch
 from .infos import EMPTY, env_infos
 from .modes import Autoreset, SameStep
 from .rng import RngState, SubEnvRng
 from .terms import StepTerms, TermColumns, TermNames, list_terms
 
-__all__ = ["BATCH_BYTES", "BATCH_STEPS", "VectorSteps", "per_env", "read_flags"]
-
-BATCH_STEPS = 1024
-"""Most vector steps batched before their rows are handed to the streams (each hand-over costs
-~25 us a sub-env besides its rows: 256 steps cost the vector x8 CartPole bench ~0.01x more)."""
-
-BATCH_BYTES = 8 << 20
-"""Most bytes of observations and actions batched: fewer steps when the rows are big (8
-Atari frames a step: ~10 steps, not 1 024)."""
+__all__ = ["VectorSteps", "per_env", "read_flags"]
 
 _BOOLS = frozenset({bool, np.bool_})
 _BOOL = np.dtype(np.bool_)
@@ -175,21 +168,11 @@ class VectorSteps:
         self._end_batched = end_batched_function()
         if self._batchable:  # (the streams keep no info)
             autoreset.compiled_begin = begin_autoreset_function()
-        self._p_len = 0  # vector steps batched
-        self._p_rows = 0  # of how many the buffers have room for
-        self._p_skip = [0] * n  # of those, the ones each sub-env spent resetting (no row)
-        # the batched steps, written in place (one fresh set per drain: rows handed over may
-        # be kept by reference); ``None`` until a step gives the dtypes of its batches
-        self._p_obs: np.ndarray[Any, Any] | None = None
-        self._p_act: np.ndarray[Any, Any] = np.empty(0)
-        self._p_rew: np.ndarray[Any, Any] = np.empty(0)
-        self._p_time: np.ndarray[Any, Any] = np.empty(0)
-        # the (batched step, sub-env) pairs where the sub-env only reset: no row of its own
-        self._p_reset_steps: list[int] = []
-        self._p_reset_envs: list[int] = []
-        # the batched steps' reward terms, read by the streams' rule (the file's one rule: any
-        # stream says); None: steps with infos are not batched
-        self._terms = TermColumns(n, streams[0].term_names) if self._batchable else None
+        # the batched steps' rows, and their reward terms read by the streams' rule (the file's
+        # one rule: any stream says); no terms: steps with infos are not batched
+        terms = TermColumns(n, streams[0].term_names) if self._batchable else None
+        self._batch = Batch(streams, terms)
+        self._terms = terms
         self._since_flush = 0
         self._block_steps = file.block_steps  # capped by start() for big rows
         self.idle: set[int] | None = None
@@ -223,27 +206,9 @@ class VectorSteps:
             idle = self.idle = {
                 i for i, s in enumerate(self._streams) if s.episode is None or s.episode.ended
             }
-        plain = (type(infos) is dict and not infos) or (
-            type(infos) is list and infos == self._no_infos
-        )
-        same: _SameStepEndings | None = None
-        terms: StepTerms | None = None
-        columns = self._terms
-        if ends and not plain and not self._batches_endings and columns is not None:
-            taken = _same_step_endings(
-                infos, ends, n, self._obs_shape[1:], self._obs_dtype, columns.names_for
-            )
-            if taken is not None:
-                same, terms = taken
-        elif not plain and columns is not None:
-            terms = columns.read(infos, resetting)
+        taken = self._infos_taken(infos, ends, resetting) if self._batchable else None
         if (
-            self._batchable
-            and (
-                same is not None
-                or terms is not None
-                or (plain and (self._batches_endings or not ends))
-            )
+            taken is not None
             and (not idle or idle.issubset(resetting))  # else: notes (before reset, after end)
             and term_given is None  # else: flags to note (not bool)
             and trunc_given is None
@@ -253,7 +218,7 @@ class VectorSteps:
             and _fits(obs, self._obs_shape, self._obs_dtype)
             and _fits(actions, self._act_shape, self._act_dtype)
         ):
-            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting, same, terms)
+            self._batch_step(obs, actions, rewards, term, trunc, ends, resetting, *taken)
         else:
             self.drain()
             self.idle = None
@@ -269,6 +234,25 @@ class VectorSteps:
         if ends or resetting:
             autoreset.stepped(ends)
 
+    def _infos_taken(
+        self, infos: Any, ends: list[int], resetting: list[int]
+    ) -> tuple[_SameStepEndings | None, StepTerms | None] | None:
+        """What the batched path keeps of a step's ``infos``, or ``None`` when it cannot.
+
+        Its ``SAME_STEP`` endings (final observations and infos, :func:`_same_step_endings`)
+        and its reward terms (:class:`~.terms.TermColumns`); a step without info has neither.
+        """
+        if (type(infos) is dict and not infos) or (type(infos) is list and infos == self._no_infos):
+            return (None, None) if self._batches_endings or not ends else None
+        columns = self._terms
+        if columns is None:
+            return None
+        if ends and not self._batches_endings:
+            shape, dtype = self._obs_shape[1:], self._obs_dtype
+            return _same_step_endings(infos, ends, self._n, shape, dtype, columns.names_for)
+        terms = columns.read(infos, resetting)
+        return None if terms is None else (None, terms)
+
     def _compiled_step(self, step: VectorStep, actions: Any, result: tuple[Any, ...]) -> bool:
         """Take the common batched step in C (:func:`~..fast.vector_step_function`).
 
@@ -276,7 +260,8 @@ class VectorSteps:
         into the batch buffers as they are; else nothing has changed.
         """
         obs, rewards, terminated, truncated, infos = result
-        held, idle, autoreset = self._p_obs, self.idle, self._autoreset
+        batch, idle, autoreset = self._batch, self.idle, self._autoreset
+        held = batch.obs
         resetting = autoreset.resetting
         if held is None or idle is None or (idle and not idle.issubset(resetting)):
             return False
@@ -289,12 +274,12 @@ class VectorSteps:
             terms = columns.read(infos, resetting)
             if terms is None or not columns.fits(terms):
                 return False
-        t = self._p_len
+        t = batch.length
         taken = step(
             held,
-            self._p_act,
-            self._p_rew,
-            self._p_time,
+            batch.act,
+            batch.rew,
+            batch.time,
             t,
             obs,
             actions,
@@ -308,8 +293,8 @@ class VectorSteps:
             return False
         now, ends = taken
         if terms is not None and columns is not None:
-            columns.keep(t, self._p_rows, terms)
-        self._p_len = t + 1
+            columns.keep(t, batch.rows, terms)
+        batch.length = t + 1
         self._batched(t, obs, terminated, truncated, ends, resetting, None, now, terms)
         if ends or resetting:
             autoreset.stepped(ends)
@@ -337,27 +322,28 @@ class VectorSteps:
         """
         file = self._file
         now = file.clock()
-        held, columns = self._p_obs, self._terms
+        batch, columns = self._batch, self._terms
+        held = batch.obs
         if (
             held is None
             or held.dtype != obs.dtype
-            or self._p_act.dtype != actions.dtype
+            or batch.act.dtype != actions.dtype
             or (terms is not None and columns is not None and not columns.fits(terms))
         ):
-            self._hold(obs, actions)  # a batch as numpy would stack it: one dtype per column
-            held = self._p_obs
+            batch.hold(obs, actions)  # a batch as numpy would stack it: one dtype per column
+            held = batch.obs
             assert held is not None
-        t = self._p_len
-        self._p_rew[t] = rewards  # (a number of any kind: never fails) before the rest
+        t = batch.length
+        batch.rew[t] = rewards  # (a number of any kind: never fails) before the rest
         held[t] = obs
-        self._p_act[t] = actions
-        self._p_time[t] = now
+        batch.act[t] = actions
+        batch.time[t] = now
         if same is not None:
             for i, (final_obs, _, _) in same.items():
                 held[t, i] = final_obs
         if terms is not None and columns is not None:
-            columns.keep(t, self._p_rows, terms)
-        self._p_len = t + 1
+            columns.keep(t, batch.rows, terms)
+        batch.length = t + 1
         self._batched(t, obs, term, trunc, ends, resetting, same, now, terms)
 
     def _batched(
@@ -378,13 +364,10 @@ class VectorSteps:
         """
         file = self._file
         if resetting or ends:
-            streams, skipped, pending = self._streams, self._p_skip, self._p_len
+            streams, batch = self._streams, self._batch
             for i in resetting:
                 # NEXT_STEP autoreset: the reset row of the sub-env's next episode, not a step.
-                skipped[i] += 1
-                self._p_reset_steps.append(t)
-                self._p_reset_envs.append(i)
-                streams[i].block.pending = pending - skipped[i]
+                streams[i].block.pending = batch.only_reset(t, i)
                 self._autoreset.autoreset(i, obs[i], EMPTY, now, None)
             idle = self.idle
             if idle:
@@ -394,7 +377,7 @@ class VectorSteps:
                     continue  # a reset step has no flags (Gymnasium clears them)
                 flags = bool(term[i]), bool(trunc[i])
                 if same is not None:  # the ending, then the reset inside the same step
-                    streams[i].block.pending = pending - skipped[i]
+                    streams[i].block.pending = batch.pending_rows(i)
                     _, final_info, reset_info = same[i]
                     assert isinstance(self._autoreset, SameStep)  # (only it does not batch them)
                     self._autoreset.end_batched(
@@ -402,14 +385,15 @@ class VectorSteps:
                     )
                     continue
                 info = EMPTY if terms is None else terms.env_info(i)
-                self._end_batched(streams[i], pending - skipped[i], *flags, info)
+                self._end_batched(streams[i], batch.pending_rows(i), *flags, info)
                 if idle is not None:
                     idle.add(i)
         self._since_flush += 1
         if self._since_flush >= self._block_steps or now >= file.flush_at:
             file.auto_flush()
-        if self._p_len >= self._p_rows:  # (a flush has drained them, unless it could not)
-            self.drain()
+        batch = self._batch
+        if batch.length >= batch.rows:  # (a flush has drained them, unless it could not)
+            batch.drain()
 
     def record_reset(
         self,
@@ -434,7 +418,7 @@ class VectorSteps:
             state = states.get(i)
             if seeds[i] is None:
                 state = rng.from_info(infos[i], i) or state
-            streams[i].block.pending = self.pending_rows(i)
+            streams[i].block.pending = self._batch.pending_rows(i)
             streams[i].end_open()
             autoreset.begin(
                 i, seeds[i], options[i], state, rows[i], infos[i], start, None, unmasked
@@ -458,7 +442,7 @@ class VectorSteps:
         self.idle = None
         try:
             for i in indices:
-                self._streams[i].block.pending = self.pending_rows(i)
+                self._streams[i].block.pending = self._batch.pending_rows(i)
                 self._autoreset.begin_failed(i, seeds[i], options[i], states.get(i), exc)
             self._file.flush()
         except Exception as trouble:
@@ -479,52 +463,10 @@ class VectorSteps:
             self._file.trouble(trouble)
         self._file.end_with_error(self._streams, exc, "step")
 
-    def pending_rows(self, i: int) -> int:
-        """Rows batched for sub-env ``i`` and not yet handed to its stream."""
-        return self._p_len - self._p_skip[i]
-
     def drain(self) -> None:
         """Hand the batched rows over to each sub-env's stream (before any other row)."""
-        t = self._p_len
-        if not t or self._p_obs is None:
-            return
-        obs, act = self._p_obs[:t], self._p_act[:t]
-        rew, times = self._p_rew[:t], self._p_time[:t]
-        reset_steps, reset_envs = self._p_reset_steps, self._p_reset_envs
-        terms = None if self._terms is None else self._terms.take()
-        self._p_obs = None  # fresh buffers for the next steps
-        self._p_len = 0
-        if not reset_steps:
-            for i, stream in enumerate(self._streams):
-                first = len(stream.block.times)
-                stream.extend(obs[:, i], act[:, i], rew[:, i], times)
-                if terms is not None:
-                    terms.hand_over(stream.block, first, slice(0, t), i)
-            return
-        self._p_skip = [0] * self._n
-        self._p_reset_steps, self._p_reset_envs = [], []
-        stepped = np.ones((t, self._n), dtype=np.bool_)
-        stepped[reset_steps, reset_envs] = False
-        for i, stream in enumerate(self._streams):
-            rows = np.flatnonzero(stepped[:, i])
-            first = len(stream.block.times)
-            stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
-            if terms is not None:
-                terms.hand_over(stream.block, first, rows, i)
-
-    def _hold(self, obs: np.ndarray[Any, Any], actions: np.ndarray[Any, Any]) -> None:
-        """Hand over what is batched; new buffers of these dtypes and shapes.
-
-        For as many steps as :data:`BATCH_STEPS` and :data:`BATCH_BYTES` allow.
-        """
-        self.drain()  # (and the term batch with them)
-        rows = max(1, min(BATCH_STEPS, BATCH_BYTES // max(1, obs.nbytes + actions.nbytes)))
-        self._p_rows = rows
-        self._p_obs = np.empty((rows, *obs.shape), dtype=obs.dtype)
-        self._p_act = np.empty((rows, *actions.shape), dtype=actions.dtype)
-        self._p_rew = np.empty((rows, self._n), dtype=np.float64)
-        self._p_time = np.empty(rows, dtype=np.int64)
+        self._batch.drain()
 
     def _on_flush(self) -> None:
-        self.drain()
+        self._batch.drain()
         self._since_flush = 0
