@@ -150,12 +150,11 @@ def iter_records(
             if bad is None and index and not index_framing_holds(f.read(length)):
                 bad = f"a message index at byte {pos} is garbled"
             if bad is not None:
-                nxt = _resume_at(pos, nxt, resync)
-                if nxt is None:
-                    yield FileEnd(pos, size, opcode, False)
+                skipped = _skipped(pos, _resume_at(pos, nxt, resync), bad, name, size, opcode)
+                yield skipped
+                if isinstance(skipped, FileEnd):
                     return
-                yield DamagedRegion(pos, nxt - pos, bad, name)
-                pos = nxt
+                pos += skipped.length
                 f.seek(pos)
                 continue
             if opcode == _OP_CHUNK and not summary:
@@ -176,16 +175,24 @@ def iter_records(
                     try:
                         yield _top_level(opcode, body)
                     except _Unreadable:
+                        bad = f"{what} at byte {pos} is garbled"
                         nxt = _resume_at(pos, nxt, resync)
-                        if nxt is None:
-                            yield FileEnd(pos, size, opcode, False)
+                        skipped = _skipped(pos, nxt, bad, name, size, opcode)
+                        yield skipped
+                        if isinstance(skipped, FileEnd):
                             return
-                        yield DamagedRegion(
-                            pos, nxt - pos, f"{what} at byte {pos} is garbled", name
-                        )
-                        stop = nxt
+                        stop = pos + skipped.length
             pos = stop
             f.seek(pos)
+
+
+def _skipped(
+    pos: int, resume: int | None, why: str, name: str | None, size: int, opcode: int
+) -> DamagedRegion | FileEnd:
+    """Damage at ``pos``: the region skipped up to ``resume``, or where the walk ends (None)."""
+    if resume is None:
+        return FileEnd(pos, size, opcode, False)
+    return DamagedRegion(pos, resume - pos, why, name)
 
 
 def _resume_at(pos: int, nxt: int | None, resync: Resync | None) -> int | None:
