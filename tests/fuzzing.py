@@ -28,6 +28,7 @@ stdin, mutates, drives, and answers one JSON line each (see :func:`worker`).
 from __future__ import annotations
 
 import functools
+import importlib.util
 import io
 import json
 import random
@@ -1011,6 +1012,9 @@ class Escaped(AssertionError):
     """An exception outside the library's tree, or a CLI answer out of contract."""
 
 
+_RERUN = importlib.util.find_spec("rerun") is not None
+
+
 def _call(outcome: Outcome, name: str, fn: Callable[[], Any]) -> Any:
     try:
         return fn()
@@ -1072,6 +1076,12 @@ def drive_library(path: Path, scratch: Path, outcome: Outcome) -> None:
         "export_foxglove",
         lambda: export([path], scratch / "foxglove", to="foxglove", overwrite=True),
     )
+    if _RERUN:  # (an extra: ``pip install 'episode-audit[rerun]'``; the dev install has it)
+        _call(
+            outcome,
+            "export_rerun",
+            lambda: export([path], scratch / "rerun", to="rerun", overwrite=True),
+        )
     _call(outcome, "replay", lambda: replay([path]))
 
     # a file the audit refuses is never "already finished: copied unchanged"

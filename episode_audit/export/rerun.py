@@ -52,27 +52,57 @@ def export_rerun(
     ev = open_evidence(source)
     unfinished = None if ev.finished else ev.torn or "no run-end record"
     result = ViewerExport(out, source, "rerun", unfinished=unfinished)
-    with staged(source, out, overwrite=overwrite) as temporary:
-        rec = rr.RecordingStream("episode-audit", send_properties=False)
-        rec.save(str(temporary))
-        rec.send_recording_name(source.name)
-        try:
-            writer = _Writer(rr, rec, ev, result)
-            for batch in ev.iter_step_batches():
-                writer.batch(batch)
-                if progress is not None:
-                    progress(batch.num_rows)
-            result.episodes = writer.endings()
-        finally:
-            rec.flush()
-            rec.disconnect()
-        if not temporary.exists():  # a disabled SDK (RERUN=off in the environment) writes none
-            raise ConfigurationError(
-                f"{out}: rerun-sdk wrote nothing; is logging turned off (RERUN=off)?"
-            )
+    try:
+        with staged(source, out, overwrite=overwrite) as temporary:
+            writer = _write(rr, temporary, ev, result, progress)
+            if not temporary.exists():  # a disabled SDK (RERUN=off in the environment): none
+                raise ConfigurationError(
+                    f"{out}: rerun-sdk wrote nothing; is logging turned off (RERUN=off)?"
+                )
+    finally:
+        _free_dropped_recordings()
     result.paths = sorted(writer.paths)
     result.left_out = sorted(writer.left_out)
     return result
+
+
+def _write(
+    rr: Any,
+    path: Path,
+    ev: Evidence,
+    result: ViewerExport,
+    progress: Callable[[int], None] | None,
+) -> _Writer:
+    """Write ``ev`` to a new recording saved at ``path``; the writer, which keeps no stream."""
+    rec = rr.RecordingStream("episode-audit", send_properties=False)
+    rec.save(str(path))
+    rec.send_recording_name(result.source.name)
+    writer = _Writer(rr, rec, ev, result)
+    try:
+        for batch in ev.iter_step_batches():
+            writer.batch(batch)
+            if progress is not None:
+                progress(batch.num_rows)
+        result.episodes = writer.endings()
+    finally:
+        rec.flush()
+        rec.disconnect()
+        writer.rec = None  # (the stream is dropped with the last reference: _free_dropped_...)
+    return writer
+
+
+def _free_dropped_recordings() -> None:
+    """End the threads of recording streams no one holds any more.
+
+    rerun-sdk gives each ``RecordingStream`` two threads (its batcher and its sink) and ends
+    them only in this sweep, which ``rr.init`` runs; one process exporting many files would
+    otherwise keep two threads per file (tests/test_export_rerun.py counts them).
+    """
+    try:
+        from rerun_bindings import flush_and_cleanup_orphaned_recordings
+    except ImportError:  # (another layout of rerun-sdk: its threads stay until the process ends)
+        return
+    flush_and_cleanup_orphaned_recordings()
 
 
 class _Writer:
