@@ -16,9 +16,10 @@ def test_readme_python_example_runs(tmp_path: Path) -> None:
     pytest.importorskip("mujoco")
     text = (REPO / "README.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert len(blocks) == 5  # Gymnasium, path templates, vector env, Stable-Baselines3, PettingZoo
+    # Gymnasium, path templates, vector env, CleanRL, Stable-Baselines3, PettingZoo
+    assert len(blocks) == 6
     for block in blocks:
-        assert len(block.strip().splitlines()) <= 15
+        assert len(block.strip().splitlines()) <= 17
         subprocess.run([sys.executable, "-c", block], cwd=tmp_path, check=True, capture_output=True)
 
 
