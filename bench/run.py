@@ -639,6 +639,54 @@ def bench_state(rounds: int = 200) -> list[dict[str, Any]]:
     return out
 
 
+def bench_atari(steps: int, rounds: int, slice_steps: int) -> dict[str, Any] | str:
+    """ALE Pong-v5 (210x160x3 frames, ~100 KB a step), bare vs recorded, in turns as
+    ``record``: frames kept losslessly (the default) and as digests (``digest_min_bytes``)."""
+    try:
+        import ale_py
+    except ImportError:
+        return "skipped: ale-py not installed"
+    gym.register_envs(ale_py)
+    env_id = "ALE/Pong-v5"
+    actions = actions_for(env_id, steps)
+    warm = RecordEvidence(gym.make(env_id), TMP / "warm-atari.mcap", overwrite=True)
+    run_steps(warm, actions[:500])
+    warm.close()
+    kinds = ("bare", "bare_again", "rec", "digest")
+    times: dict[str, list[float]] = {k: [] for k in kinds}
+    for r in range(rounds):
+        envs: dict[str, gym.Env[Any, Any]] = {
+            "bare": gym.make(env_id),
+            "bare_again": gym.make(env_id),
+            "rec": RecordEvidence(gym.make(env_id), TMP / f"atari-{r}.mcap", overwrite=True),
+            "digest": RecordEvidence(
+                gym.make(env_id),
+                TMP / f"atari-digest-{r}.mcap",
+                overwrite=True,
+                digest_min_bytes=4096,
+            ),
+        }
+        seconds = interleaved({k: stepper(env) for k, env in envs.items()}, actions, slice_steps)
+        for kind in ("rec", "digest"):
+            t0 = time.perf_counter()
+            envs[kind].close()
+            seconds[kind] += time.perf_counter() - t0
+        for kind in kinds:
+            times[kind].append(seconds[kind])
+    bare_t = times["bare"]
+    return {
+        "env": env_id,
+        "steps": steps,
+        "rounds": rounds,
+        "bare_us_per_step": statistics.median(bare_t) / steps * 1e6,
+        **ratios(bare_t, times["rec"]),
+        **noise_floor(bare_t, times["bare_again"]),
+        "digest_ratio_median": ratios(bare_t, times["digest"])["ratio_median"],
+        "bytes_per_step": (TMP / f"atari-{rounds - 1}.mcap").stat().st_size / steps,
+        "digest_bytes_per_step": (TMP / f"atari-digest-{rounds - 1}.mcap").stat().st_size / steps,
+    }
+
+
 BENCHES: dict[str, Callable[[], Any]] = {
     "record": lambda: [
         # slices of ~5 ms of bare stepping
@@ -647,6 +695,8 @@ BENCHES: dict[str, Callable[[], Any]] = {
         bench_record("HalfCheetah-v5", 30_000, 7, 200),
     ],
     "vector": lambda: bench_vector(8, 25_000, 7, 100),
+    # camera frames: ~100 KB a step (slices of ~10 ms); "skipped: ..." without ale-py
+    "atari": lambda: bench_atari(3_000, 5, 50),
     # reward terms in every step's info (slices of ~10 ms, as above)
     "vector_mujoco": lambda: bench_vector(8, 2_000, 7, 25, env_id="Reacher-v5"),
     "memory": lambda: bench_memory(1_000_000),

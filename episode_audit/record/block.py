@@ -177,6 +177,17 @@ class Block:
         self.term_keys.extend(keys)
         self.term_vals.extend(values)
 
+    def take_buffers(self, written: Block) -> None:
+        """Go on in the column buffers of ``written``, a block just written (they are empty).
+
+        Each kept its block's memory, the size its rows needed (:class:`ColumnBuffer`): the
+        rows of this block go there, not into memory new to the process.
+        """
+        for name in ("obs", "act", "reset_obs"):
+            mine, theirs = getattr(self, name), getattr(written, name)
+            if type(theirs) is type(mine) and not len(theirs) and not len(mine):
+                setattr(self, name, theirs)
+
     def roll_back(self) -> int:
         """Drop what a step appended before it was committed; return the committed rows.
 

@@ -376,6 +376,7 @@ class EpisodeStream:
         self.block = Block(self._obs_codec, self._act_codec, self.episode)
         file = self.file
         self.channels.write(file.writer, block, counted, file.wall_offset)
+        self.block.take_buffers(block)
         if counted is not None:
             file.counts["steps"] += len(block.times)
             file.counts["blocks"] += 1

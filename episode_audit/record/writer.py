@@ -172,6 +172,42 @@ class _OpenChunk:
             buffer.write(part)
         self._count(channel_id, [entry], log_time, log_time)
 
+    def add_stream(
+        self, channel_id: int, batch: pa.RecordBatch, size: int, log_time: int, sequence: int
+    ) -> bool:
+        """Append one message whose data is ``batch`` as an Arrow IPC stream of ``size`` bytes.
+
+        The stream is written straight into the chunk's memory, not serialized apart and then
+        copied in: for big blocks (camera frames) that copy, into memory new to the process,
+        cost more than the rest of the flush. Whether it was written: not when the chunk's
+        memory is ``mcap``'s own, or when the stream's size is not ``size`` (then nothing is).
+        """
+        buffer = self._writer._Writer__chunk_builder.record_writer._buffer  # type: ignore[attr-defined]
+        if type(buffer) is not _ChunkBuffer:
+            return False
+        start = buffer.tell()
+        head = _MESSAGE_HEAD.pack(
+            _MESSAGE_OPCODE,
+            _MESSAGE_FIXED + size,
+            channel_id,
+            sequence & 0xFFFFFFFF,
+            log_time,
+            log_time,
+        )
+        buffer.write(head)
+        sink = pa.FixedSizeBufferWriter(pa.py_buffer(buffer.reserve(size)))
+        try:
+            with pa.ipc.new_stream(sink, batch.schema) as ipc:
+                ipc.write_batch(batch)
+            written = sink.tell()
+        except Exception:
+            written = -1
+        if written != size:
+            buffer.cut(start)
+            return False
+        self._count(channel_id, [(log_time, start)], log_time, log_time)
+        return True
+
     def _count(
         self, channel_id: int, entries: list[tuple[int, int]], first: int, last: int
     ) -> None:
@@ -214,13 +250,29 @@ class _ChunkBuffer:
         n = memoryview(data).nbytes
         start, end = self._pos, self._pos + n
         if end > len(self._data):
-            grown = bytearray(max(end, 2 * len(self._data)))
-            grown[: self._size] = memoryview(self._data)[: self._size]
-            self._data = grown
+            self._grow(end)
         self._data[start:end] = data  # (the same length: a copy into the kept memory)
         self._pos = end
         self._size = max(self._size, end)
         return n
+
+    def reserve(self, n: int) -> memoryview:
+        """The next ``n`` bytes from the position, to be written in place (it moves past them)."""
+        start, end = self._pos, self._pos + n
+        if end > len(self._data):
+            self._grow(end)
+        self._pos = end
+        self._size = max(self._size, end)
+        return memoryview(self._data)[start:end]
+
+    def cut(self, pos: int) -> None:
+        """Drop everything from ``pos`` on (written at the end: what failed to be written)."""
+        self._pos = self._size = pos
+
+    def _grow(self, end: int) -> None:
+        grown = bytearray(max(end, 2 * len(self._data)))
+        grown[: self._size] = memoryview(self._data)[: self._size]
+        self._data = grown
 
     def tell(self) -> int:
         """The position."""
@@ -234,15 +286,23 @@ class _ChunkBuffer:
     def take(self) -> memoryview:
         """The chunk's bytes (valid until the next write), and start the next chunk."""
         data = memoryview(self._data)[: self._size]
-        if len(self._data) > _KEEP_BYTES:
+        if self._size > _KEEP_BYTES:
             self._data = bytearray(_FIRST_BYTES)
         self._pos = self._size = 0
         return data
 
 
 _FIRST_BYTES = 1 << 16
-_KEEP_BYTES = 32 << 20
-"""Most bytes of memory a writer keeps for its next chunk."""
+_KEEP_BYTES = 48 << 20
+"""The largest chunk whose memory a writer keeps for the next one (up to twice as much, as the
+buffer grew). The recorder aims for chunks of at most 32 MiB of rows (``file.CHUNK_TARGET_BYTES``),
+plus its other messages: big rows (camera frames) fill every chunk up to about that, and
+memory new to the process costs ~3 us a 4 KiB page on first write here, a chunk of them ~25 ms."""
+
+_DIRECT_BYTES = 1 << 20
+"""Blocks of at least this many bytes are written straight into the chunk
+(:meth:`_OpenChunk.add_stream`); smaller ones are serialized apart (:func:`ipc_parts`), which
+costs less for them."""
 
 
 class _KeptRecords(RecordBuilder):
@@ -571,9 +631,19 @@ class EvidenceWriter:
             if known is not None and batch.schema.equals(known[0], check_metadata=True)
             else None
         )
+        chunk = self._chunk
+        if chunk is not None and schema_message is not None:
+            size = int(schema_message.size + pa.ipc.get_record_batch_size(batch)) + len(_IPC_END)
+            if (
+                size >= _DIRECT_BYTES
+                and chunk.fits(size + _MESSAGE_HEAD.size)
+                and chunk.add_stream(channel_id, batch, size, log_time, self._messages)
+            ):
+                self._counted(channel_id, 1)
+                self._staged_rows[channel_id] += batch.num_rows
+                return size
         parts = ipc_parts(batch, schema_message)
         size = sum(memoryview(part).nbytes for part in parts)
-        chunk = self._chunk
         if chunk is not None and chunk.fits(size + _MESSAGE_HEAD.size):
             chunk.add_parts(channel_id, parts, size, log_time, self._messages)
             self._counted(channel_id, 1)

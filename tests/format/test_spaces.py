@@ -1113,3 +1113,34 @@ def test_a_buffer_of_camera_frames_takes_a_recorder_block_without_growing() -> N
     assert len(column) == rows and column[rows - 1].values[0].as_py() == rows - 1
     # small rows keep their small first block
     assert len(codec_for(spaces.Box(-1, 1, (4,))).new_buffer()._data) == 1024  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(
+    "space",
+    [spaces.Box(0, 255, (32, 32, 3), np.uint8), spaces.Box(-1, 1, (6,), np.float32)],
+    ids=["frames", "vector"],
+)
+def test_a_block_handed_to_arrow_is_taken_back_only_once_nothing_refers_to_it(
+    space: spaces.Space[Any],
+) -> None:
+    buffer = codec_for(space).new_buffer()
+    rng = np.random.default_rng(0)
+    rows = [space.sample() for _ in range(3)] + [rng.integers(0, 9, space.shape) for _ in range(3)]
+
+    def fill(values: list[Any]) -> pa.Array:
+        for value in values:
+            buffer.append(np.asarray(value, dtype=space.dtype))
+        return buffer.finish()
+
+    size = len(buffer._data)  # type: ignore[attr-defined]
+    first = fill(rows[:3] * (size // 3))  # (full blocks: handed over, not copied)
+    kept = first.to_pylist()
+    second = fill(rows[3:] * (size // 3))
+    memory = second.values.buffers()[1].address
+    del second  # its block is free again: the next hand-over takes it back, to fill
+    third = fill(rows[3:] * (size // 3))
+    fourth = fill(rows[3:] * (size // 3))  # (filled in the block second had)
+    assert fourth.values.buffers()[1].address == memory
+    assert third.values.buffers()[1].address not in (memory, first.values.buffers()[1].address)
+    assert first.to_pylist() == kept  # referred to all along: never written over
+    assert third.to_pylist() == fourth.to_pylist() != kept

@@ -181,3 +181,60 @@ def test_a_batch_of_another_schema_than_its_channel_is_written_with_its_own(
         datas = [m.data for _, _, m in make_reader(f).iter_messages()]
     assert datas[1] == _new_stream(other)
     assert pa.ipc.open_stream(datas[1]).schema.metadata == {b"m": b"1"}
+
+
+_FRAMES = pa.schema([("frame", pa.binary(1 << 18)), ("i", pa.int64())])
+
+
+def _frames(n: int, seed: int) -> pa.RecordBatch:
+    """``n`` rows of 256 KiB (camera frames): a block past ``_DIRECT_BYTES``."""
+    data = bytes((seed + k) % 251 for k in range(1 << 18))
+    return pa.record_batch([pa.array([data] * n, pa.binary(1 << 18)), pa.array(range(n))], _FRAMES)
+
+
+def _blocks_written(path: Path, direct: bool, monkeypatch: pytest.MonkeyPatch) -> list[bytes]:
+    """Write big and small blocks, the big ones straight into the chunk or (not ``direct``)
+    serialized apart; the messages' data."""
+    taken: list[bool] = []
+    real = writer_module._OpenChunk.add_stream
+
+    def add_stream(self: object, *args: object) -> bool:
+        done = real(self, *args) if direct else False  # type: ignore[arg-type]
+        taken.append(done)
+        return done
+
+    monkeypatch.setattr(writer_module._OpenChunk, "add_stream", add_stream)
+    w = EvidenceWriter(path, library="test")
+    channel = w.register_arrow_channel("/frames", "frames", _FRAMES)
+    for n, rows in enumerate([8, 1, 12, 0, 5]):
+        w.write_batch(channel, _frames(rows, n), 10 + n)
+        if n == 2:
+            w.flush()
+    w.finish({"status": "finished"})
+    assert taken == [direct] * 3  # (the blocks of 8, 12 and 5 frames: 1 MiB or more)
+    with open(path, "rb") as f:
+        return [m.data for _, _, m in make_reader(f).iter_messages()]
+
+
+def test_big_blocks_are_written_into_the_chunk_as_the_bytes_of_an_arrow_stream(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    direct = _blocks_written(tmp_path / "direct.mcap", True, monkeypatch)
+    apart = _blocks_written(tmp_path / "apart.mcap", False, monkeypatch)
+    assert direct == apart == [_new_stream(_frames(r, n)) for n, r in enumerate([8, 1, 12, 0, 5])]
+    assert (tmp_path / "direct.mcap").read_bytes() == (tmp_path / "apart.mcap").read_bytes()
+
+
+def test_a_big_block_whose_stream_is_not_the_size_foreseen_is_written_apart(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the chunk is cut back to where the message began; the block goes in as pieces
+    monkeypatch.setattr(pa.ipc, "get_record_batch_size", lambda batch: 1 << 21)
+    w = EvidenceWriter(tmp_path / "f.mcap", library="test")
+    channel = w.register_arrow_channel("/frames", "frames", _FRAMES)
+    w.write_batch(channel, _frames(1, 0), 1)
+    w.write_batch(channel, _frames(6, 1), 2)
+    w.finish({"status": "finished"})
+    with open(tmp_path / "f.mcap", "rb") as f:
+        datas = [m.data for _, _, m in make_reader(f).iter_messages()]
+    assert datas == [_new_stream(_frames(1, 0)), _new_stream(_frames(6, 1))]

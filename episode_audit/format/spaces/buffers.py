@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import operator
+import sys
 from collections.abc import Hashable, Mapping
 from typing import Any, Final
 
@@ -143,9 +144,15 @@ def _coerce_array(
 
 
 class _BlockBuffer(ColumnBuffer):
-    """Rows in a preallocated numpy block (``_data``) that doubles when full, with null rows."""
+    """Rows in a preallocated numpy block (``_data``) that doubles when full, with null rows.
 
-    __slots__ = ("_data", "_n", "_nulls")
+    The block last handed over to Arrow is kept (``_spare``): once nothing else refers to it
+    (the rows were written and their arrays dropped), the next hand-over takes it back instead
+    of a new block, whose memory would be new to the process (a page fault for each 4 KiB of
+    it on first write: for camera frames, more than copying them in).
+    """
+
+    __slots__ = ("_data", "_n", "_nulls", "_spare")
 
     _data: npt.NDArray[Any]
     _n: int
@@ -201,11 +208,17 @@ class _BlockBuffer(ColumnBuffer):
         makes its own copy, e.g. bools packed into bits) the rows are a view of the block.
         """
         n = self._n
-        data = self._data[:n]
+        block = self._data
+        data = block[:n]
         if arrow_copies:
             pass
-        elif 2 * n >= len(self._data):
-            self._set_block(np.empty_like(self._data))
+        elif 2 * n >= len(block):
+            spare = getattr(self, "_spare", None)  # (unset until the first hand-over)
+            self._spare = block
+            # free: only this name and getrefcount's argument refer to it (no view, no array)
+            if spare is None or sys.getrefcount(spare) > 2 or spare.shape != block.shape:
+                spare = np.empty_like(block)
+            self._set_block(spare)
         else:
             data = data.copy()
         mask = _null_mask_array(n, self._nulls)
