@@ -103,6 +103,18 @@ _MESSAGE_FIXED = _MESSAGE_HEAD.size - 9  # a message record's length beside its 
 _TIMES = ("message_start_time", "message_end_time")
 
 
+def _message_head(channel_id: int, size: int, sequence: int, log_time: int) -> bytes:
+    """The bytes of an MCAP Message record before its ``size`` bytes of data (at ``log_time``)."""
+    return _MESSAGE_HEAD.pack(
+        _MESSAGE_OPCODE,
+        _MESSAGE_FIXED + size,
+        channel_id,
+        sequence & 0xFFFFFFFF,
+        log_time,
+        log_time,
+    )
+
+
 class _OpenChunk:
     """Many messages of one channel written at once into ``mcap.Writer``'s open chunk.
 
@@ -158,16 +170,7 @@ class _OpenChunk:
         """Append one message whose data is ``parts`` (``size`` bytes in all), as ``add``."""
         buffer = self._writer._Writer__chunk_builder.record_writer._buffer  # type: ignore[attr-defined]
         entry = (log_time, buffer.tell())
-        buffer.write(
-            _MESSAGE_HEAD.pack(
-                _MESSAGE_OPCODE,
-                _MESSAGE_FIXED + size,
-                channel_id,
-                sequence & 0xFFFFFFFF,
-                log_time,
-                log_time,
-            )
-        )
+        buffer.write(_message_head(channel_id, size, sequence, log_time))
         for part in parts:
             buffer.write(part)
         self._count(channel_id, [entry], log_time, log_time)
@@ -186,15 +189,7 @@ class _OpenChunk:
         if type(buffer) is not _ChunkBuffer:
             return False
         start = buffer.tell()
-        head = _MESSAGE_HEAD.pack(
-            _MESSAGE_OPCODE,
-            _MESSAGE_FIXED + size,
-            channel_id,
-            sequence & 0xFFFFFFFF,
-            log_time,
-            log_time,
-        )
-        buffer.write(head)
+        buffer.write(_message_head(channel_id, size, sequence, log_time))
         sink = pa.FixedSizeBufferWriter(pa.py_buffer(buffer.reserve(size)))
         try:
             with pa.ipc.new_stream(sink, batch.schema) as ipc:
