@@ -180,12 +180,15 @@ class Block:
     def take_buffers(self, written: Block) -> None:
         """Go on in the column buffers of ``written``, a block just written (they are empty).
 
-        Each kept its block's memory, the size its rows needed (:class:`ColumnBuffer`): the
-        rows of this block go there, not into memory new to the process.
+        Its batches are written (serialized, copied into the chunk) and dropped: nothing refers
+        to the arrays its buffers gave any more, so their memory may be written again
+        (:meth:`ColumnBuffer.recycle`), and the rows of this block go into memory the process
+        has used, not new memory.
         """
         for name in ("obs", "act", "reset_obs"):
             mine, theirs = getattr(self, name), getattr(written, name)
             if type(theirs) is type(mine) and not len(theirs) and not len(mine):
+                theirs.recycle()
                 setattr(self, name, theirs)
 
     def roll_back(self) -> int:

@@ -1120,7 +1120,7 @@ def test_a_buffer_of_camera_frames_takes_a_recorder_block_without_growing() -> N
     [spaces.Box(0, 255, (32, 32, 3), np.uint8), spaces.Box(-1, 1, (6,), np.float32)],
     ids=["frames", "vector"],
 )
-def test_a_block_handed_to_arrow_is_taken_back_only_once_nothing_refers_to_it(
+def test_a_block_handed_to_arrow_is_taken_back_only_once_it_is_recycled(
     space: spaces.Space[Any],
 ) -> None:
     buffer = codec_for(space).new_buffer()
@@ -1135,12 +1135,32 @@ def test_a_block_handed_to_arrow_is_taken_back_only_once_nothing_refers_to_it(
     size = len(buffer._data)  # type: ignore[attr-defined]
     first = fill(rows[:3] * (size // 3))  # (full blocks: handed over, not copied)
     kept = first.to_pylist()
-    second = fill(rows[3:] * (size // 3))
+    second = fill(rows[3:] * (size // 3))  # (first not recycled: a new block to write into)
     memory = second.values.buffers()[1].address
-    del second  # its block is free again: the next hand-over takes it back, to fill
-    third = fill(rows[3:] * (size // 3))
-    fourth = fill(rows[3:] * (size // 3))  # (filled in the block second had)
+    buffer.recycle()  # nothing refers to second's memory any more: the next hand-over...
+    del second
+    third = fill(rows[3:] * (size // 3))  # ...takes it back, to write fourth's rows into
+    fourth = fill(rows[3:] * (size // 3))
     assert fourth.values.buffers()[1].address == memory
-    assert third.values.buffers()[1].address not in (memory, first.values.buffers()[1].address)
-    assert first.to_pylist() == kept  # referred to all along: never written over
+    fifth = fill(rows[:3] * (size // 3))  # (not recycled since: a new block again)
+    addresses = {a.values.buffers()[1].address for a in (first, third, fourth, fifth)}
+    assert len(addresses) == 4
+    assert first.to_pylist() == fifth.to_pylist() == kept  # never written over
     assert third.to_pylist() == fourth.to_pylist() != kept
+
+
+def test_a_recycling_callers_rows_go_into_two_blocks_in_turn_however_few() -> None:
+    # (a recorder's flushes: each block written and dropped, then recycled)
+    space = spaces.Box(0, 255, (32, 32, 3), np.uint8)
+    buffer = codec_for(space).new_buffer()
+    rows = [space.sample() for _ in range(3)]
+    addresses = []
+    for _ in range(6):
+        for row in rows:
+            buffer.append(row)
+        array = buffer.finish()
+        assert array.to_pylist() == pa.array([r.reshape(-1) for r in rows]).to_pylist()
+        addresses.append(array.values.buffers()[1].address)
+        del array
+        buffer.recycle()
+    assert len(set(addresses[1:])) == 2  # (the first, before any recycle, is a copy)

@@ -12,7 +12,6 @@ import hashlib
 import json
 import math
 import operator
-import sys
 from collections.abc import Hashable, Mapping
 from typing import Any, Final
 
@@ -66,6 +65,15 @@ class ColumnBuffer(abc.ABC):
     @abc.abstractmethod
     def truncate(self, length: int) -> None:
         """Drop the rows from ``length`` on (undoes the children of a failed struct append)."""
+
+    def recycle(self) -> None:
+        """Nothing refers any more to the arrays :meth:`finish` gave: their memory may be reused.
+
+        A recorder says so once it has written them; a buffer that keeps its memory takes it
+        back at a later :meth:`finish` (:class:`_BlockBuffer`). Without the call nothing is
+        reused.
+        """
+        return  # (the buffers that keep no memory of their own: nothing to take back)
 
     def extend(self, values: Any) -> bool:
         """Add many rows at once when they need no coercion; ``False`` (nothing added) if not.
@@ -146,17 +154,23 @@ def _coerce_array(
 class _BlockBuffer(ColumnBuffer):
     """Rows in a preallocated numpy block (``_data``) that doubles when full, with null rows.
 
-    The block last handed over to Arrow is kept (``_spare``): once nothing else refers to it
-    (the rows were written and their arrays dropped), the next hand-over takes it back instead
-    of a new block, whose memory would be new to the process (a page fault for each 4 KiB of
-    it on first write: for camera frames, more than copying them in).
+    The block last handed over to Arrow is kept (``_spare``): once the caller said nothing
+    refers to it any more (:meth:`recycle`), the next hand-over takes it back to write into,
+    instead of a new block, whose memory would be new to the process (a page fault for each
+    4 KiB of it on first write: for camera frames, more than copying them in).
     """
 
-    __slots__ = ("_data", "_n", "_nulls", "_spare")
+    __slots__ = ("_data", "_n", "_nulls", "_spare", "_spare_free")
 
     _data: npt.NDArray[Any]
     _n: int
     _nulls: list[int]
+    _spare: npt.NDArray[Any]  # (both unset until the first hand-over or recycle)
+    _spare_free: bool | None
+
+    def recycle(self) -> None:
+        """See :meth:`ColumnBuffer.recycle`."""
+        self._spare_free = True
 
     def _set_block(self, block: npt.NDArray[Any]) -> None:
         self._data = block
@@ -203,20 +217,22 @@ class _BlockBuffer(ColumnBuffer):
     ) -> tuple[npt.NDArray[Any], npt.NDArray[np.bool_] | None]:
         """The rows and their null mask, the buffer emptied for reuse.
 
-        A block at least half full is handed over to Arrow (a fresh one takes its place); the
-        rows of a mostly empty one are copied, so it is not pinned. With ``arrow_copies`` (Arrow
+        A block at least half full is handed over to Arrow (another takes its place); the rows
+        of a mostly empty one are copied, so it is not pinned, unless the caller recycles (then
+        it is handed over too: it is written and dropped at once). With ``arrow_copies`` (Arrow
         makes its own copy, e.g. bools packed into bits) the rows are a view of the block.
         """
         n = self._n
         block = self._data
         data = block[:n]
+        # None (or unset): the caller never recycled; True: the spare is free; False: in use
+        recycling = getattr(self, "_spare_free", None)
         if arrow_copies:
             pass
-        elif 2 * n >= len(block):
-            spare = getattr(self, "_spare", None)  # (unset until the first hand-over)
-            self._spare = block
-            # free: only this name and getrefcount's argument refer to it (no view, no array)
-            if spare is None or sys.getrefcount(spare) > 2 or spare.shape != block.shape:
+        elif 2 * n >= len(block) or recycling is not None:
+            spare = getattr(self, "_spare", None) if recycling else None
+            self._spare, self._spare_free = block, None if recycling is None else False
+            if spare is None or spare.shape != block.shape:
                 spare = np.empty_like(block)
             self._set_block(spare)
         else:
