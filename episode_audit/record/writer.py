@@ -195,8 +195,11 @@ class _OpenChunk:
             with pa.ipc.new_stream(sink, batch.schema) as ipc:
                 ipc.write_batch(batch)
             written = sink.tell()
-        except Exception:
-            written = -1
+        except BaseException as exc:  # (a Ctrl-C too: the chunk never holds half a message)
+            buffer.cut(start)
+            if not isinstance(exc, Exception):
+                raise
+            return False
         if written != size:
             buffer.cut(start)
             return False

@@ -238,3 +238,24 @@ def test_a_big_block_whose_stream_is_not_the_size_foreseen_is_written_apart(
     with open(tmp_path / "f.mcap", "rb") as f:
         datas = [m.data for _, _, m in make_reader(f).iter_messages()]
     assert datas == [_new_stream(_frames(1, 0)), _new_stream(_frames(6, 1))]
+
+
+def test_a_ctrl_c_while_a_big_block_is_written_leaves_no_half_message(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    w = EvidenceWriter(tmp_path / "f.mcap", library="test")
+    channel = w.register_arrow_channel("/frames", "frames", _FRAMES)
+    w.write_batch(channel, _frames(1, 0), 1)
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(pa.ipc, "new_stream", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            w.write_batch(channel, _frames(2, 1), 2)
+    w.write_batch(channel, _frames(3, 2), 3)
+    w.finish({"status": "finished"})
+    with open(tmp_path / "f.mcap", "rb") as f:
+        datas = [m.data for _, _, m in make_reader(f).iter_messages()]
+    assert datas == [_new_stream(_frames(1, 0)), _new_stream(_frames(3, 2))]
