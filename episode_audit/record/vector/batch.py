@@ -29,11 +29,12 @@ Atari frames a step: ~10 steps, not 1 024)."""
 class Batch:
     """Rows of vector steps batched for ``streams``, written in place, handed over in bulk.
 
-    ``obs`` is ``None`` until :meth:`hold` gives the dtypes and shapes of the steps' values
-    (and again after each :meth:`drain`: rows handed over may be kept by reference, so the
-    next steps get fresh buffers, or the drained ones back once nothing refers to them: new
-    memory faults a page at a time on first write, which for camera frames costs more than
-    the frames' copies). ``length`` steps are written, of ``rows`` there is room for.
+    ``obs`` is ``None`` until :meth:`hold` gives the dtypes and shapes of the steps' values.
+    The buffers go on from one :meth:`drain` to the next (the streams' buffers copy the rows
+    they take: ``ColumnBuffer.extend``, or ``append`` row by row), so their memory is not new
+    to the process at each drain (new memory faults a page at a time on first write, which for
+    camera frames costs more than copying them). ``length`` steps are written, of ``rows``
+    there is room for.
     ``terms``: the steps' reward terms, ``None`` when steps with infos are not batched.
     """
 
@@ -41,8 +42,6 @@ class Batch:
         "_reset_envs",
         "_reset_steps",
         "_skip",
-        "_spare_act",
-        "_spare_obs",
         "_streams",
         "act",
         "length",
@@ -62,9 +61,6 @@ class Batch:
         self.act: np.ndarray[Any, Any] = np.empty(0)
         self.rew: np.ndarray[Any, Any] = np.empty(0)
         self.time: np.ndarray[Any, Any] = np.empty(0)
-        # the observation and action buffers of the last drain, for hold() to take back
-        self._spare_obs: np.ndarray[Any, Any] | None = None
-        self._spare_act: np.ndarray[Any, Any] | None = None
         self._skip = [0] * len(streams)  # per sub-env, the batched steps it spent resetting
         # the (batched step, sub-env) pairs where the sub-env only reset: no row of its own
         self._reset_steps: list[int] = []
@@ -78,9 +74,8 @@ class Batch:
         self.drain()  # (and the term batch with them)
         rows = max(1, min(BATCH_STEPS, BATCH_BYTES // max(1, obs.nbytes + actions.nbytes)))
         self.rows = rows
-        self.obs = _taken_back(self._spare_obs, (rows, *obs.shape), obs.dtype)
-        self.act = _taken_back(self._spare_act, (rows, *actions.shape), actions.dtype)
-        self._spare_obs = self._spare_act = None
+        self.obs = np.empty((rows, *obs.shape), dtype=obs.dtype)
+        self.act = np.empty((rows, *actions.shape), dtype=actions.dtype)
         self.rew = np.empty((rows, len(self._streams)), dtype=np.float64)
         self.time = np.empty(rows, dtype=np.int64)
 
@@ -104,8 +99,6 @@ class Batch:
         rew, times = self.rew[:t], self.time[:t]
         reset_steps, reset_envs = self._reset_steps, self._reset_envs
         terms = None if self.terms is None else self.terms.take()
-        self._spare_obs, self._spare_act = self.obs, self.act
-        self.obs = None  # new buffers for the next steps (hold)
         self.length = 0
         if not reset_steps:
             for i, stream in enumerate(self._streams):
@@ -124,16 +117,3 @@ class Batch:
             stream.extend(obs[rows, i], act[rows, i], rew[rows, i], times[rows])
             if terms is not None:
                 terms.hand_over(stream.block, first, rows, i)
-
-
-def _taken_back(
-    spare: np.ndarray[Any, Any] | None, shape: tuple[int, ...], dtype: np.dtype[Any]
-) -> np.ndarray[Any, Any]:
-    """``spare``, the buffer of the last drain, when it has this shape and dtype; else a new one.
-
-    Nothing refers to it once drained: a batchable stream's buffers copy the rows they take
-    (``ColumnBuffer.extend``, or ``append`` row by row).
-    """
-    if spare is not None and spare.shape == shape and spare.dtype == dtype:
-        return spare
-    return np.empty(shape, dtype=dtype)
