@@ -1173,7 +1173,7 @@ def test_big_rows_are_batched_a_few_steps_at_a_time(tmp_path: Path) -> None:
         for _ in range(100):
             rec.step(np.zeros(N, dtype=np.int64))
             batch = rec._steps._batch
-            if batch.obs is not None:  # (None right after a hand-over)
+            if batch.obs is not None:  # (None before the first batched step)
                 held.add((batch.rows, batch.obs.nbytes))
     rows = BATCH_BYTES // (N * (shape[0] * shape[1] * shape[2] + 8))
     assert held == {(rows, rows * N * shape[0] * shape[1] * shape[2])}
