@@ -23,7 +23,7 @@ from ..format.spaces import ColumnBuffer, SpaceCodec
 from .notes import add_notes, note, short
 from .rules import named_terms, plain_names
 
-__all__ = ["Block", "Episode", "count_block", "reset_batch", "row_bytes", "step_batch"]
+__all__ = ["Block", "CountRows", "Episode", "count_block", "reset_batch", "row_bytes", "step_batch"]
 
 _Int64s = np.ndarray[Any, np.dtype[np.int64]]
 
@@ -240,38 +240,59 @@ def _type_bytes(kind: pa.DataType) -> int:
 # ---------------------------------------------------------------------- counting a block
 
 
-def count_block(block: Block, n: int) -> tuple[_Int64s, _Int64s, pa.Array]:
+CountRows = Callable[[Block, int], tuple[_Int64s, _Int64s, tuple[str, ...] | bool | None] | None]
+"""The compiled counting (``native.count_rows``): :func:`count_block`'s rows and totals in C."""
+
+
+def count_block(
+    block: Block, n: int, count_rows: CountRows | None = None
+) -> tuple[_Int64s, _Int64s, pa.Array]:
     """Add a block's ``n`` step rows to their episodes (length, return, end time, term totals).
 
     Returns the block's episode and step index columns and its ``terms`` column. Rows stepped
-    after an episode ended are not counted.
+    after an episode ended are not counted. Returns and term totals are running sums: each
+    value is added to the episode's total so far, one at a time in row order, so they do not
+    depend on where flushes cut the episode. ``count_rows``, when given, counts the rows (and
+    the terms of a block whose rows all hold the same plain names) in C, the same sums; it
+    declines (``None``) any block it does not take as it is.
     """
-    episode_col, step_col = _index_columns(block.segments, n)
-    # the segments that hold rows: their sums at once (each a run of rows, in order)
-    spans = [
-        (start, end, index, live)
-        for (start, index, _, live), end in zip(
-            block.segments, [*(s[0] for s in block.segments[1:]), n], strict=True
-        )
-        if end > start
-    ]
-    rewards = np.frombuffer(block.rewards, dtype=np.float64)[:n]
-    sums: list[float] = np.add.reduceat(rewards, [s[0] for s in spans]).tolist() if spans else []
-    times, episodes = block.times, block.episodes
-    for (start, end, index, live), total in zip(spans, sums, strict=True):
+    done = None if count_rows is None else count_rows(block, n)
+    if done is None:
+        episode_col, step_col = _index_columns(block.segments, n)
+        _count_rows(block, n)
+        names: tuple[str, ...] | bool | None = False
+    else:
+        episode_col, step_col, names = done
+    return episode_col, step_col, _terms_column(block, n, episode_col, names)
+
+
+def _count_rows(block: Block, n: int) -> None:
+    """Add the block's rows to their episodes' steps, returns and end times (or after_end)."""
+    segments, episodes, times, rewards = block.segments, block.episodes, block.times, block.rewards
+    ends = [*(s[0] for s in segments[1:]), n][: len(segments)]
+    for (start, index, _, live), end in zip(segments, ends, strict=True):
+        if end <= start:
+            continue
         ep = episodes[index]
         if live:
+            ret = ep.ret
+            for reward in rewards[start:end]:
+                ret += reward
+            ep.ret = ret
             ep.steps += end - start
-            ep.ret += total
             ep.end_ns = times[end - 1]
         else:  # stepped after the end: numbered on, not counted
             ep.after_end += end - start
-    counted = np.repeat(
-        np.array([s[3] for s in spans], dtype=np.bool_), [s[1] - s[0] for s in spans]
-    )
-    if len(counted) != n:  # (rows before any reset: not counted)
-        counted = np.concatenate([np.zeros(n - len(counted), dtype=np.bool_), counted])
-    return episode_col, step_col, _terms_column(block, n, episode_col, counted)
+
+
+def _counted(segments: Sequence[tuple[int, int, int, bool]], n: int) -> np.ndarray[Any, Any]:
+    """Per row, whether it counts in its episode (rows before any reset, or after an end, not)."""
+    counted = np.zeros(n, dtype=np.bool_)
+    ends = [*(s[0] for s in segments[1:]), n][: len(segments)]
+    for (start, _, _, live), end in zip(segments, ends, strict=True):
+        if live and end > start:
+            counted[start:end] = True
+    return counted
 
 
 def _index_columns(
@@ -288,17 +309,22 @@ def _index_columns(
 
 
 def _terms_column(
-    block: Block, n: int, episode_col: _Int64s, counted: np.ndarray[Any, np.dtype[np.bool_]]
+    block: Block, n: int, episode_col: _Int64s, counted_names: tuple[str, ...] | bool | None
 ) -> pa.Array:
-    """The block's ``terms`` column; the counted rows' terms are added to their episodes."""
+    """The block's ``terms`` column; the counted rows' terms are added to their episodes.
+
+    ``counted_names``: the names of every row's terms when :func:`count_block`'s compiled
+    counting added their totals already (``None``: it found no terms); ``False``: add them here.
+    """
     if not block.term_rows:
         return pa.nulls(n, TERMS_TYPE)
     rows = np.frombuffer(block.term_rows, dtype=np.int64)
     counts = np.frombuffer(block.term_counts, dtype=np.int64)
     values = np.frombuffer(block.term_vals, dtype=np.float64)
     keys = block.term_keys
-    names = uniform_names(keys, counts)
-    if block.raw_names and not plain_names(set(keys if names is None else names)):
+    done = counted_names if isinstance(counted_names, tuple) else None
+    names = uniform_names(keys, counts) if done is None else list(done)
+    if block.raw_names and done is None and not plain_names(set(keys if names is None else names)):
         counts, keys, values = _named_block_terms(block, episode_col)
         names = None
     if names is not None:  # (every row the same names: coded by their place, not by text)
@@ -309,8 +335,10 @@ def _terms_column(
         coded = key_array.dictionary_encode()
         names = coded.dictionary.to_pylist()
         codes = coded.indices.to_numpy().astype(np.int64)
-    per_value = np.repeat(rows, counts)
-    _add_totals(block.episodes, names, episode_col[per_value], codes, counted[per_value], values)
+    if done is None:
+        per_value = np.repeat(rows, counts)
+        counted = _counted(block.segments, n)[per_value]
+        _add_totals(block.episodes, names, episode_col[per_value], codes, counted, values)
     row_counts = np.zeros(n, dtype=np.int64)
     row_counts[rows] = counts
     offsets = np.zeros(n + 1, dtype=np.int32)
@@ -330,32 +358,20 @@ def _add_totals(
     counted: np.ndarray[Any, np.dtype[np.bool_]],
     values: np.ndarray[Any, np.dtype[np.float64]],
 ) -> None:
-    """Add each counted value to its episode's total of ``names[code]``.
+    """Add each counted value to its episode's total of ``names[code]``, one at a time.
 
-    The values of one episode and name are summed in row order by one ``reduceat`` (numpy's
-    pairwise sums; grouping in pyarrow cost several times more), however the rows name their
-    terms; an episode's totals take the names in the order they first appear.
+    In row order, onto the total so far (as the compiled counting does): an episode's totals
+    take the names in the order they first appear.
     """
-    if not counted.all():
-        episode_of, code_of, values = episode_of[counted], code_of[counted], values[counted]
-    if not len(values):
-        return
-    order = np.lexsort((code_of, episode_of))  # (stable: row order within a group)
-    episode_of, code_of = episode_of[order], code_of[order]
-    new = np.ones(len(order), dtype=np.bool_)
-    new[1:] = (episode_of[1:] != episode_of[:-1]) | (code_of[1:] != code_of[:-1])
-    starts = np.flatnonzero(new)
-    sums = np.add.reduceat(values[order], starts)
-    first_seen = np.argsort(order[starts], kind="stable")
-    for index, code, total in zip(
-        episode_of[starts][first_seen].tolist(),
-        code_of[starts][first_seen].tolist(),
-        sums[first_seen].tolist(),
+    for index, code, value in zip(
+        episode_of[counted].tolist(),
+        code_of[counted].tolist(),
+        values[counted].tolist(),
         strict=True,
     ):
         totals = episodes[index].totals
         name = names[code]
-        totals[name] = totals.get(name, 0.0) + total
+        totals[name] = totals.get(name, 0.0) + value
 
 
 def uniform_names(keys: list[Any], counts: _Int64s) -> list[Any] | None:

@@ -18,12 +18,13 @@ from typing import Any
 
 from ..format.records import to_json
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
-from .block import Block, Episode
+from .block import Block, CountRows, Episode
 
 __all__ = [
     "NATIVE",
     "PURE_PYTHON_ENV",
     "compiled",
+    "count_rows_function",
     "episode_columns",
     "episode_json",
     "frame_messages",
@@ -98,6 +99,15 @@ def episode_columns(
     """
     result: dict[str, Any] | None = NATIVE.episode_columns(ended, offset, games)
     return result
+
+
+def count_rows_function() -> CountRows | None:
+    """The compiled counting of a block's rows (``csrc/count.c``) when used now, else ``None``.
+
+    For :func:`~.block.count_block`: the same counts, returns and term totals as its Python.
+    """
+    counting: CountRows | None = NATIVE.count_rows if compiled() else None
+    return counting
 
 
 def rng_json(state: dict[str, Any]) -> bytes:

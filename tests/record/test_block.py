@@ -14,6 +14,7 @@ from mcap.reader import make_reader
 import episode_audit.record.block as block_module
 from episode_audit import RecordEvidence, open_evidence
 from episode_audit.format.columns import text_array
+from episode_audit.record import native
 from episode_audit.record.block import repeated_text, uniform_names
 from tests.support.envs import ScriptedEnv
 
@@ -139,3 +140,111 @@ def test_totals_of_many_rows_agree_with_an_exact_sum() -> None:
     for index, episode in episodes.items():
         exact = math.fsum(values[episode_of == index].tolist())
         assert episode.totals["r"] == pytest.approx(exact, rel=1e-12, abs=1e-9)
+
+
+# ---------------------------------------------------------------------- compiled counting
+
+
+def _random_block(rng: np.random.Generator) -> tuple[Any, dict[int, Any]]:
+    """A block of random segments (rows before any reset, rows after an ending, empty ones),
+    rewards and terms (the same names on every row, or not; odd names), and its episodes with
+    running totals."""
+    from array import array
+
+    from gymnasium import spaces
+
+    from episode_audit.format.spaces import codec_for
+    from episode_audit.record.block import Block, Episode
+
+    codec = codec_for(spaces.Discrete(2))
+    block = Block(codec, codec, None)
+    n = int(rng.integers(1, 60))
+    starts = sorted(rng.integers(0, n + 1, int(rng.integers(0, 6))).tolist())
+    episodes: dict[int, Any] = {}
+    for i, start in enumerate(starts):
+        episode = episodes.get(i - 1) if rng.random() < 0.2 else None
+        if episode is None:
+            episode = Episode(10 + i, None, None, None, 0)
+            episode.ret = float(rng.normal() * 10.0 ** rng.integers(-3, 4))
+            episode.totals = {"a": 0.5} if rng.random() < 0.5 else {}
+            episodes[i] = episode
+        block.add_segment(start, episode, int(rng.integers(0, 9)), bool(rng.random() < 0.8))
+    block.times = array("q", sorted(rng.integers(0, 10**12, n).tolist()))
+    block.rewards = array("d", (rng.normal(size=n) * 10.0 ** rng.integers(-8, 8, n)).tolist())
+    names = [["a", "b"], ["b", "a", "c"], ["a"], ["é", "x\udcff"], ["a", "a"], [b"a", "a"]]
+    uniform = names[int(rng.integers(0, len(names)))]
+    for row in sorted(set(rng.integers(0, n, int(rng.integers(0, n + 1))).tolist())):
+        keys = uniform if rng.random() < 0.9 else names[int(rng.integers(0, 3))]
+        block.add_terms(row, keys, rng.normal(size=len(keys)).tolist())
+    block.raw_names = bool(rng.random() < 0.5)
+    return block, {ep.index: ep for ep in episodes.values()}
+
+
+def _state(episodes: dict[int, Any]) -> list[Any]:
+    return [
+        (
+            i,
+            ep.steps,
+            ep.after_end,
+            ep.end_ns,
+            repr(ep.ret),
+            [(k, repr(v)) for k, v in ep.totals.items()],
+        )
+        for i, ep in sorted(episodes.items())
+    ]
+
+
+@pytest.mark.skipif(native.NATIVE is None, reason="the extension is not built")
+def test_the_compiled_counting_is_the_python_counting() -> None:
+    """Over random blocks: the same columns, terms column and episode counts, bit for bit."""
+    import pyarrow as pa
+
+    taken = 0
+    for seed in range(600):
+        (block, _), (twin, _), (probe, _) = (
+            _random_block(np.random.default_rng(seed)) for _ in range(3)
+        )
+        n = len(block.times)
+        taken += native.NATIVE.count_rows(probe, n) is not None
+        got = block_module.count_block(block, n, native.NATIVE.count_rows)
+        want = block_module.count_block(twin, n)
+        assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
+        a, b = (pa.RecordBatch.from_arrays([t[2]], names=["t"]) for t in (got, want))
+        assert a.serialize().to_pybytes() == b.serialize().to_pybytes()
+        assert _state(block.episodes) == _state(twin.episodes)
+    assert taken > 400  # (most blocks are counted in C)
+
+
+@pytest.mark.parametrize("pure", [False, True], ids=["compiled", "pure Python"])
+def test_returns_and_totals_do_not_depend_on_where_flushes_cut_episodes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, pure: bool
+) -> None:
+    """Running sums: the same return and totals, to the bit, whatever the blocks, and the sum
+    a loop adds up itself."""
+    if pure:
+        monkeypatch.setenv(native.PURE_PYTHON_ENV, "1")
+
+    def step(env: ScriptedEnv, action: Any) -> Any:
+        a, b = env.np_random.normal(size=2) * 10.0 ** env.np_random.integers(-6, 6, 2)
+        return np.zeros(2, np.float32), float(a + b), env.t >= 40, False, {"x": a, "y": b}
+
+    records = []
+    for block_steps in (1, 3, 7, 64):
+        path = tmp_path / f"{block_steps}.mcap"
+        sums = []
+        with RecordEvidence(
+            ScriptedEnv(step), path, block_steps=block_steps, flush_every_s=3600
+        ) as env:
+            for episode in range(3):
+                env.reset(seed=episode)
+                total, done = 0.0, False
+                while not done:
+                    _, reward, terminated, truncated, _ = env.step(0)
+                    total += reward
+                    done = terminated or truncated
+                sums.append(total)
+        table = open_evidence(path).episodes()
+        returns = table.column("return").to_pylist()
+        assert [repr(r) for r in returns] == [repr(s) for s in sums]
+        records.append((returns, table.column("term_totals").to_pylist()))
+    assert all(r == records[0] for r in records)

@@ -238,6 +238,8 @@ static PyMethodDef module_methods[] = {
      "episode_json(ended, offset, games, quote, to_json): ([record JSON], [end time]) or None"},
     {"episode_columns", episode_columns, METH_VARARGS,
      "episode_columns(ended, offset, games): the episode block's columns, or None"},
+    {"count_rows", count_rows, METH_VARARGS,
+     "count_rows(block, n): (episode column, step column, names), or None (not taken)"},
     {"rng_json", rng_json, METH_VARARGS, "rng_json(state, quote): to_json(state), or None"},
     {"untrack", untrack_object, METH_O,
      "untrack(obj): leave obj out of the cyclic collector (native.untrack: which objects)"},

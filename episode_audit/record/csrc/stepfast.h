@@ -2,7 +2,8 @@
 
    The extension is one module built from these files: module.c (the shared state, configure,
    the module), step.c (the single-env step and reset: StepRecorder), records.c (episode records,
-   RNG states, message framing) and vector.c (the vector recorder's steps). Only PyInit__stepfast
+   RNG states, message framing), count.c (a block's rows counted into their episodes) and
+   vector.c (the vector recorder's steps). Only PyInit__stepfast
    is exported (setup.py builds with hidden visibility). */
 
 #ifndef EPISODE_AUDIT_STEPFAST_H
@@ -128,6 +129,9 @@ PyObject *episode_json(PyObject *module, PyObject *args);
 PyObject *episode_columns(PyObject *module, PyObject *args);
 PyObject *rng_json(PyObject *module, PyObject *args);
 PyObject *frame_messages(PyObject *module, PyObject *args);
+
+/* count.c: counting a block's rows into their episodes */
+PyObject *count_rows(PyObject *module, PyObject *args);
 
 /* vector.c: the vector recorder's steps */
 PyObject *vector_step(PyObject *module, PyObject *const *args, Py_ssize_t nargs);
