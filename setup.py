@@ -15,7 +15,7 @@ import numpy
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-_C_FILES = ("module", "step", "records", "count", "vector")  # episode_audit/record/csrc/stepfast.h
+_C_FILES = ("module", "step", "records", "blocks", "vector")  # episode_audit/record/csrc/stepfast.h
 
 
 class OptionalBuildExt(build_ext):

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from array import array
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -23,7 +23,7 @@ from ..format.spaces import ColumnBuffer, SpaceCodec
 from .notes import add_notes, note, short
 from .rules import named_terms, plain_names
 
-__all__ = ["Block", "CountRows", "Episode", "count_block", "reset_batch", "row_bytes", "step_batch"]
+__all__ = ["Block", "Compiled", "Episode", "count_block", "reset_batch", "row_bytes", "step_batch"]
 
 _Int64s = np.ndarray[Any, np.dtype[np.int64]]
 
@@ -240,30 +240,43 @@ def _type_bytes(kind: pa.DataType) -> int:
 # ---------------------------------------------------------------------- counting a block
 
 
-CountRows = Callable[[Block, int], tuple[_Int64s, _Int64s, tuple[str, ...] | bool | None] | None]
-"""The compiled counting (``native.count_rows``): :func:`count_block`'s rows and totals in C."""
+class Compiled(Protocol):
+    """The compiled counting (``csrc/blocks.c``; ``native.counting()``): the same results."""
+
+    def count_rows(
+        self, block: Block, n: int, /
+    ) -> tuple[_Int64s, _Int64s, tuple[str, ...] | bool | None] | None:
+        """:func:`count_block`'s index columns and counts (``None``: not taken)."""
+
+    def repeated_text(self, names: tuple[str, ...], times: int, /) -> tuple[bytes, bytes] | None:
+        """:func:`repeated_text`'s value offsets and data (``None``: not taken)."""
+
+    def sparse_text(
+        self, n: int, values: dict[int, str | None], /
+    ) -> tuple[bytes, bytes, bytes, int] | None:
+        """:func:`sparse_text`'s validity, value offsets, data and null count (or ``None``)."""
 
 
 def count_block(
-    block: Block, n: int, count_rows: CountRows | None = None
+    block: Block, n: int, compiled: Compiled | None = None
 ) -> tuple[_Int64s, _Int64s, pa.Array]:
     """Add a block's ``n`` step rows to their episodes (length, return, end time, term totals).
 
     Returns the block's episode and step index columns and its ``terms`` column. Rows stepped
     after an episode ended are not counted. Returns and term totals are running sums: each
     value is added to the episode's total so far, one at a time in row order, so they do not
-    depend on where flushes cut the episode. ``count_rows``, when given, counts the rows (and
+    depend on where flushes cut the episode. ``compiled``, when given, counts the rows (and
     the terms of a block whose rows all hold the same plain names) in C, the same sums; it
-    declines (``None``) any block it does not take as it is.
+    declines any block it does not take as it is.
     """
-    done = None if count_rows is None else count_rows(block, n)
+    done = None if compiled is None else compiled.count_rows(block, n)
     if done is None:
         episode_col, step_col = _index_columns(block.segments, n)
         _count_rows(block, n)
         names: tuple[str, ...] | bool | None = False
     else:
         episode_col, step_col, names = done
-    return episode_col, step_col, _terms_column(block, n, episode_col, names)
+    return episode_col, step_col, _terms_column(block, n, episode_col, names, compiled)
 
 
 def _count_rows(block: Block, n: int) -> None:
@@ -309,7 +322,11 @@ def _index_columns(
 
 
 def _terms_column(
-    block: Block, n: int, episode_col: _Int64s, counted_names: tuple[str, ...] | bool | None
+    block: Block,
+    n: int,
+    episode_col: _Int64s,
+    counted_names: tuple[str, ...] | bool | None,
+    compiled: Compiled | None,
 ) -> pa.Array:
     """The block's ``terms`` column; the counted rows' terms are added to their episodes.
 
@@ -328,17 +345,23 @@ def _terms_column(
         counts, keys, values = _named_block_terms(block, episode_col)
         names = None
     if names is not None:  # (every row the same names: coded by their place, not by text)
-        key_array = repeated_text(names, len(rows))
-        codes: _Int64s = np.tile(np.arange(len(names), dtype=np.int64), len(rows))
+        key_array = repeated_text(names, len(rows), compiled)
+        codes: _Int64s | None = None
     else:
         key_array = text_array(keys)  # every name plain (or named): as it is
         coded = key_array.dictionary_encode()
         names = coded.dictionary.to_pylist()
         codes = coded.indices.to_numpy().astype(np.int64)
     if done is None:
+        if codes is None:
+            codes = np.tile(np.arange(len(names), dtype=np.int64), len(rows))
         per_value = np.repeat(rows, counts)
         counted = _counted(block.segments, n)[per_value]
         _add_totals(block.episodes, names, episode_col[per_value], codes, counted, values)
+    if len(rows) == n and codes is None:  # (every row the same names: no nulls, even offsets)
+        k = len(names)
+        offsets = pa.array(np.arange(0, (n + 1) * k, k, dtype=np.int32))
+        return pa.MapArray.from_arrays(offsets, key_array, pa.array(values))
     row_counts = np.zeros(n, dtype=np.int64)
     row_counts[rows] = counts
     offsets = np.zeros(n + 1, dtype=np.int32)
@@ -391,15 +414,23 @@ def uniform_names(keys: list[Any], counts: _Int64s) -> list[Any] | None:
     return names if names and keys == names * len(counts) else None
 
 
-def repeated_text(names: Sequence[Any], times: int) -> pa.Array:
+def repeated_text(names: Sequence[Any], times: int, compiled: Compiled | None = None) -> pa.Array:
     """``text_array(list(names) * times)``, from the names' text repeated.
 
     Each value is not converted again: the same buffers (offsets from 0, no validity bitmap
     when none is null) at a fraction of the cost.
 
+    ``compiled`` (:class:`Compiled`), when given, makes the buffers of plain names in C.
+
     >>> repeated_text(["ab", "c"], 2).to_pylist()
     ['ab', 'c', 'ab', 'c']
     """
+    parts = None if compiled is None or times <= 1 else compiled.repeated_text(tuple(names), times)
+    if parts is not None:
+        offsets_bytes, data_bytes = parts
+        return pa.StringArray.from_buffers(
+            len(names) * times, pa.py_buffer(offsets_bytes), pa.py_buffer(data_bytes)
+        )
     once = text_array(list(names))
     if once.null_count or times <= 1:
         return text_array(list(names) * times)
@@ -413,6 +444,33 @@ def repeated_text(names: Sequence[Any], times: int) -> pa.Array:
     tiled = np.zeros(len(every) + 1, dtype=np.int32)
     tiled[1:] = every
     return pa.StringArray.from_buffers(len(every), pa.py_buffer(tiled), pa.py_buffer(data * times))
+
+
+def sparse_text(n: int, values: dict[int, Any], compiled: Compiled | None = None) -> pa.Array:
+    """``text_array([values.get(row) for row in range(n)])``: a block's outcomes, labels, infos.
+
+    ``compiled`` (:class:`Compiled`), when given, makes the buffers of rows in order with plain
+    texts in C: the same array, without a Python object per row.
+
+    >>> sparse_text(4, {1: "success", 3: None}).to_pylist()
+    [None, 'success', None, None]
+    """
+    if not values:
+        return pa.nulls(n, pa.string())
+    parts = None if compiled is None else compiled.sparse_text(n, values)
+    if parts is None:
+        texts: list[Any] = [None] * n
+        for row, value in values.items():
+            texts[row] = value
+        return text_array(texts)
+    validity, offsets, data, nulls = parts
+    return pa.StringArray.from_buffers(
+        n,
+        pa.py_buffer(offsets),
+        pa.py_buffer(data),
+        pa.py_buffer(validity) if nulls else None,
+        nulls,
+    )
 
 
 def _named_block_terms(
@@ -454,11 +512,13 @@ def step_batch(
     counted: tuple[_Int64s, _Int64s, pa.Array],
     schema: pa.Schema,
     wall_offset: int,
+    compiled: Compiled | None = None,
 ) -> tuple[pa.RecordBatch, int]:
     """The block's step rows as a batch of ``schema`` (``counted``: :func:`count_block`'s).
 
     Also the wall-clock time of its last row. Notes found now (``info_unserializable``)
-    count in the episodes' records, written after this (flush).
+    count in the episodes' records, written after this (flush). ``compiled``: as for
+    :func:`count_block`.
     """
     episode, step, terms = counted
     n = len(block.times)
@@ -468,11 +528,9 @@ def step_batch(
     for row, (term, trunc) in block.flags.items():
         terminated[row] = term
         truncated[row] = trunc
-    outcome: list[str | None] = [None] * n
-    label: list[str | None] = [None] * n
-    for row, (out, lab) in block.ends.items():
-        outcome[row] = out
-        label[row] = lab
+    ends = block.ends
+    outcome = {row: out for row, (out, _) in ends.items()}
+    label = {row: lab for row, (_, lab) in ends.items() if lab is not None}
     episode_at = block.episodes.get
     info = _info_column(n, block.info, block.notes, lambda row: episode_at(int(episode[row])))
     columns = {
@@ -485,8 +543,8 @@ def step_batch(
         fmt.COL_TERMS: terms,
         fmt.COL_TERMINATED: pa.array(terminated),
         fmt.COL_TRUNCATED: pa.array(truncated),
-        fmt.COL_OUTCOME: pa.array(outcome, pa.string()),
-        fmt.COL_LABEL: pa.array(label, pa.string()),
+        fmt.COL_OUTCOME: sparse_text(n, outcome, compiled),
+        fmt.COL_LABEL: sparse_text(n, label, compiled),
         fmt.COL_INFO: info,
         fmt.COL_NOTES: _notes_column(n, block.notes),
     }
@@ -548,9 +606,7 @@ def _info_column(
     A value JSON cannot hold is written as its ``repr`` and noted ``info_unserializable`` in
     ``notes``, counted in the episode ``episode_of(row)`` (see :func:`~.notes.add_notes`).
     """
-    if not info:
-        return pa.nulls(rows, pa.string())
-    values: list[str | None] = [None] * rows
+    values: dict[int, str] = {}
     for row, data in info.items():
         try:
             values[row] = to_json(data).decode()
@@ -566,13 +622,8 @@ def _info_column(
                     what = f"info[{short(key)}] is a {type(value).__name__}"
                     add_notes(episode_of(row), notes, row, [note("info_unserializable", what)])
             values[row] = to_json(safe).decode()
-    return pa.array(values, pa.string())
+    return sparse_text(rows, values)
 
 
 def _notes_column(rows: int, notes: dict[int, list[str]]) -> pa.Array:
-    if not notes:
-        return pa.nulls(rows, pa.string())
-    values: list[str | None] = [None] * rows
-    for row, items in notes.items():
-        values[row] = to_json(items).decode()
-    return pa.array(values, pa.string())
+    return sparse_text(rows, {row: to_json(items).decode() for row, items in notes.items()})

@@ -14,7 +14,7 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.schemas import reset_schema, step_schema
 from ..format.spaces import SpaceCodec
-from .block import Block, reset_batch, step_batch
+from .block import Block, Compiled, reset_batch, step_batch
 from .writer import EvidenceWriter
 
 __all__ = ["StreamChannels"]
@@ -77,13 +77,15 @@ class StreamChannels:
         block: Block,
         counted: tuple[Any, Any, pa.Array] | None,
         wall_offset: int,
+        compiled: Compiled | None = None,
     ) -> None:
         """Write ``block``'s step rows and its reset rows, each as one record batch.
 
-        ``counted`` is the block's :func:`~.block.count_block` (``None``: it has no step rows).
+        ``counted`` is the block's :func:`~.block.count_block` (``None``: it has no step rows);
+        ``compiled`` the compiled part that made it, if any.
         """
         if counted is not None:
-            batch, last = step_batch(block, counted, self._step_schema, wall_offset)
+            batch, last = step_batch(block, counted, self._step_schema, wall_offset, compiled)
             writer.write_batch(self.steps, batch, last)
         if block.resets:
             batch, last = reset_batch(

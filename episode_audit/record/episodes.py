@@ -21,7 +21,7 @@ from ..format.columns import error_message, text
 from ..format.spaces import SpaceCodec
 from .block import Block, Episode, count_block, row_bytes
 from .channels import StreamChannels
-from .native import count_rows_function, untrack
+from .native import counting, untrack
 from .notes import add_notes, append_noted, has_note, note, short
 from .rules import Ending, EndingRules, time_limit_hit
 from .settings import RecorderSettings
@@ -70,7 +70,7 @@ class EpisodeStream:
         "_act_codec",
         "_block_steps",
         "_clock",
-        "_count_rows",
+        "_compiled",
         "_ending_keys",
         "_extract_terms",
         "_flag_endings",
@@ -149,7 +149,7 @@ class EpisodeStream:
         """The stream's ``steps`` and ``resets`` channels."""
         self.episode: Episode | None = None
         self.block = Block(obs_codec, act_codec, None)
-        self._count_rows = count_rows_function()
+        self._compiled = counting()  # (the compiled counting of its blocks, or None)
         self.flush_at = file.flush_at
         """The file's ``flush_at``, kept here by the file (read on every step)."""
 
@@ -374,10 +374,10 @@ class EpisodeStream:
         """Write the stream's pending step and reset rows (called by ``EvidenceFile.flush``)."""
         block = self.block
         # Count the rows into their episodes before the next block starts from them.
-        counted = count_block(block, len(block.times), self._count_rows) if block.times else None
+        counted = count_block(block, len(block.times), self._compiled) if block.times else None
         self.block = Block(self._obs_codec, self._act_codec, self.episode)
         file = self.file
-        self.channels.write(file.writer, block, counted, file.wall_offset)
+        self.channels.write(file.writer, block, counted, file.wall_offset, self._compiled)
         self.block.take_buffers(block)
         if counted is not None:
             file.counts["steps"] += len(block.times)

@@ -18,13 +18,13 @@ from typing import Any
 
 from ..format.records import to_json
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
-from .block import Block, CountRows, Episode
+from .block import Block, Compiled, Episode
 
 __all__ = [
     "NATIVE",
     "PURE_PYTHON_ENV",
     "compiled",
-    "count_rows_function",
+    "counting",
     "episode_columns",
     "episode_json",
     "frame_messages",
@@ -101,13 +101,14 @@ def episode_columns(
     return result
 
 
-def count_rows_function() -> CountRows | None:
-    """The compiled counting of a block's rows (``csrc/count.c``) when used now, else ``None``.
+def counting() -> Compiled | None:
+    """The compiled counting of a block's rows (``csrc/blocks.c``) when used now, else ``None``.
 
-    For :func:`~.block.count_block`: the same counts, returns and term totals as its Python.
+    For :func:`~.block.count_block`: the same counts, returns, term totals and terms column as
+    its Python.
     """
-    counting: CountRows | None = NATIVE.count_rows if compiled() else None
-    return counting
+    module: Compiled | None = NATIVE if compiled() else None
+    return module
 
 
 def rng_json(state: dict[str, Any]) -> bytes:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pytest
 from mcap.reader import make_reader
 
@@ -97,13 +98,19 @@ def test_uniform_names_are_told_only_when_every_row_has_them_in_order() -> None:
     "names", [["reward_dist", "reward_ctrl"], ["é", "x\udcff"], ["", "b"], ["one"]]
 )
 @pytest.mark.parametrize("times", [1, 2, 1000])
+@pytest.mark.parametrize("compiled", [False, True], ids=["Python", "compiled"])
 def test_repeated_text_is_the_text_array_of_the_repeated_names(
-    names: list[str], times: int
+    names: list[str], times: int, compiled: bool
 ) -> None:
-    got, want = repeated_text(names, times), text_array(names * times)
+    if compiled and native.NATIVE is None:
+        pytest.skip("the extension is not built")
+    got = repeated_text(names, times, native.NATIVE if compiled else None)
+    want = text_array(names * times)
     got.validate(full=True)
     assert got.equals(want)
     assert [b is None for b in got.buffers()] == [b is None for b in want.buffers()]
+    batches = [pa.RecordBatch.from_arrays([a], names=["k"]) for a in (got, want)]
+    assert batches[0].serialize().to_pybytes() == batches[1].serialize().to_pybytes()
 
 
 def test_totals_sum_each_episodes_counted_values_in_the_order_names_first_appear() -> None:
@@ -197,8 +204,6 @@ def _state(episodes: dict[int, Any]) -> list[Any]:
 @pytest.mark.skipif(native.NATIVE is None, reason="the extension is not built")
 def test_the_compiled_counting_is_the_python_counting() -> None:
     """Over random blocks: the same columns, terms column and episode counts, bit for bit."""
-    import pyarrow as pa
-
     taken = 0
     for seed in range(600):
         (block, _), (twin, _), (probe, _) = (
@@ -206,7 +211,7 @@ def test_the_compiled_counting_is_the_python_counting() -> None:
         )
         n = len(block.times)
         taken += native.NATIVE.count_rows(probe, n) is not None
-        got = block_module.count_block(block, n, native.NATIVE.count_rows)
+        got = block_module.count_block(block, n, native.NATIVE)
         want = block_module.count_block(twin, n)
         assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
         a, b = (pa.RecordBatch.from_arrays([t[2]], names=["t"]) for t in (got, want))
@@ -248,3 +253,23 @@ def test_returns_and_totals_do_not_depend_on_where_flushes_cut_episodes(
         assert [repr(r) for r in returns] == [repr(s) for s in sums]
         records.append((returns, table.column("term_totals").to_pylist()))
     assert all(r == records[0] for r in records)
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["Python", "compiled"])
+def test_sparse_text_is_the_text_array_of_the_rows(compiled: bool) -> None:
+    """The same array and IPC bytes as the dense list, for rows in any order and any texts."""
+    if compiled and native.NATIVE is None:
+        pytest.skip("the extension is not built")
+    rng = np.random.default_rng(5)
+    texts = ["truncated", "", "é", "x\udcff", None, 'q"\\', 7]
+    for _ in range(400):
+        n = int(rng.integers(1, 150))
+        rows = rng.integers(0, n, int(rng.integers(0, n + 1))).tolist()
+        if rng.random() < 0.8:
+            rows = sorted(set(rows))
+        values = {row: texts[int(rng.integers(0, len(texts)))] for row in rows}
+        got = block_module.sparse_text(n, values, native.NATIVE if compiled else None)
+        want = text_array([values.get(row) for row in range(n)])
+        got.validate(full=True)
+        batches = [pa.RecordBatch.from_arrays([a], names=["t"]) for a in (got, want)]
+        assert batches[0].serialize().to_pybytes() == batches[1].serialize().to_pybytes()

@@ -7,8 +7,8 @@
    does, and their end times. Only the common record is written here, the one
    episode_records._plain_episode_json writes: no error, no options, a finite float return, int fields, str texts. If any episode
    is another, it returns None and the Python path writes them all. Texts that are not plain
-   printable ASCII are quoted by `quote` (json's encode_basestring_ascii), term totals by
-   `to_json`: the same bytes, made where they are made in Python. */
+   printable ASCII are quoted by `quote` (json's encode_basestring_ascii), term totals other
+   than texts to finite floats by `to_json`: the same bytes, made where they are made in Python. */
 
 typedef struct {
     char *data;
@@ -99,6 +99,34 @@ static int text_str(Text *t, PyObject *value, PyObject *quote)
     return ok ? 1 : -1;
 }
 
+/* The term totals `{"name":total,...}` as to_json writes a dict of texts to finite floats
+   (json's encoder: the names quoted, each float's repr): 1; 0 (nothing written) for any other
+   dict, which to_json then writes; -1 with an error. */
+static int text_totals(Text *t, PyObject *totals, PyObject *quote)
+{
+    Py_ssize_t pos = 0, start = t->len;
+    PyObject *name, *total;
+    while (PyDict_Next(totals, &pos, &name, &total))
+        if (!PyUnicode_CheckExact(name) || !PyFloat_CheckExact(total) ||
+            !isfinite(PyFloat_AS_DOUBLE(total)))
+            return 0;
+    if (!text_put(t, "{", 1))
+        return -1;
+    pos = 0;
+    while (PyDict_Next(totals, &pos, &name, &total)) {
+        if ((t->len > start + 1 && !text_put(t, ",", 1)) || text_str(t, name, quote) <= 0)
+            return -1;
+        char *repr = PyOS_double_to_string(PyFloat_AS_DOUBLE(total), 'r', 0, Py_DTSF_ADD_DOT_0, NULL);
+        if (repr == NULL)
+            return -1;
+        int ok = text_put(t, ":", 1) && text_cstr(t, repr);
+        PyMem_Free(repr);
+        if (!ok)
+            return -1;
+    }
+    return text_put(t, "}", 1) ? 1 : -1;
+}
+
 /* `,"key":` and then the value as `put` writes it (text_int / text_str results). */
 #define PUT_FIELD(key, expr)                                                                       \
     do {                                                                                           \
@@ -181,11 +209,10 @@ static int episode_record(Text *t, PyObject *episode, PyObject *ending, long lon
     PyMem_Free(repr);
     if (!ok)
         return -1;
-    if (PyDict_GET_SIZE(totals) == 0) {
-        if (!text_put(t, "{}", 2))
-            return -1;
-    }
-    else {
+    int plain = text_totals(t, totals, quote);
+    if (plain < 0)
+        return -1;
+    if (!plain) {
         PyObject *json = PyObject_CallOneArg(to_json, totals);
         if (json == NULL)
             return -1;

@@ -2,8 +2,8 @@
 
    The extension is one module built from these files: module.c (the shared state, configure,
    the module), step.c (the single-env step and reset: StepRecorder), records.c (episode records,
-   RNG states, message framing), count.c (a block's rows counted into their episodes) and
-   vector.c (the vector recorder's steps). Only PyInit__stepfast
+   RNG states, message framing), blocks.c (a block's rows counted into their episodes, its
+   columns of text) and vector.c (the vector recorder's steps). Only PyInit__stepfast
    is exported (setup.py builds with hidden visibility). */
 
 #ifndef EPISODE_AUDIT_STEPFAST_H
@@ -130,8 +130,10 @@ PyObject *episode_columns(PyObject *module, PyObject *args);
 PyObject *rng_json(PyObject *module, PyObject *args);
 PyObject *frame_messages(PyObject *module, PyObject *args);
 
-/* count.c: counting a block's rows into their episodes */
+/* blocks.c: a block's rows counted into their episodes, and its columns of text */
 PyObject *count_rows(PyObject *module, PyObject *args);
+PyObject *repeated_text(PyObject *module, PyObject *args);
+PyObject *sparse_text(PyObject *module, PyObject *args);
 
 /* vector.c: the vector recorder's steps */
 PyObject *vector_step(PyObject *module, PyObject *const *args, Py_ssize_t nargs);

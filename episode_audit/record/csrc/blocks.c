@@ -289,3 +289,120 @@ done:
     Py_XDECREF(step);
     return result;
 }
+
+/* repeated_text(names, times): the buffers of block.repeated_text's string array, the names
+   (a tuple of exact str, UTF-8 encodable) repeated `times` times: (value offsets, int32, and
+   the UTF-8 data), as bytes; None for other names, or past 2 GiB of text. */
+PyObject *repeated_text(PyObject *module, PyObject *args)
+{
+    PyObject *names;
+    Py_ssize_t times;
+    if (!PyArg_ParseTuple(args, "O!n:repeated_text", &PyTuple_Type, &names, &times))
+        return NULL;
+    Py_ssize_t k = PyTuple_GET_SIZE(names), size = 0;
+    if (times < 1 || k < 1 || k > MAX_TERMS)
+        Py_RETURN_NONE;
+    const char *text[MAX_TERMS];
+    Py_ssize_t len[MAX_TERMS];
+    for (Py_ssize_t j = 0; j < k; j++) {
+        PyObject *name = PyTuple_GET_ITEM(names, j);
+        text[j] = PyUnicode_CheckExact(name) ? PyUnicode_AsUTF8AndSize(name, &len[j]) : NULL;
+        if (text[j] == NULL) {
+            if (PyErr_Occurred() && !PyErr_ExceptionMatches(PyExc_UnicodeEncodeError))
+                return NULL;
+            PyErr_Clear();
+            Py_RETURN_NONE;
+        }
+        size += len[j];
+    }
+    if (times > (INT32_MAX - 1) / k || (size && times > INT32_MAX / size))
+        Py_RETURN_NONE;
+    PyObject *offsets = PyBytes_FromStringAndSize(NULL, (k * times + 1) * 4);
+    PyObject *data = offsets == NULL ? NULL : PyBytes_FromStringAndSize(NULL, size * times);
+    if (data == NULL) {
+        Py_XDECREF(offsets);
+        return NULL;
+    }
+    int32_t *off = (int32_t *)PyBytes_AS_STRING(offsets), at = 0;
+    char *out = PyBytes_AS_STRING(data);
+    off[0] = 0;
+    for (Py_ssize_t i = 0; i < times; i++)
+        for (Py_ssize_t j = 0; j < k; j++) {
+            memcpy(out + at, text[j], len[j]);
+            at += (int32_t)len[j];
+            off[i * k + j + 1] = at;
+        }
+    PyObject *result = PyTuple_Pack(2, offsets, data);
+    Py_DECREF(offsets);
+    Py_DECREF(data);
+    return result;
+}
+
+/* sparse_text(n, values): the buffers of text_array([values.get(row) for row in range(n)]),
+   `values` a dict of rows (ascending, 0 to n - 1) to exact str (UTF-8 encodable) or None:
+   (validity bitmap, int32 value offsets, UTF-8 data, null count), as bytes; None for any
+   other dict (or past 2 GiB of text). */
+PyObject *sparse_text(PyObject *module, PyObject *args)
+{
+    PyObject *values, *validity = NULL, *offsets = NULL, *data = NULL, *result = NULL;
+    Py_ssize_t n, pos = 0, size = 0, last = -1, nulls;
+    PyObject *row, *value;
+    if (!PyArg_ParseTuple(args, "nO!:sparse_text", &n, &PyDict_Type, &values))
+        return NULL;
+    if (n < 1 || n > INT32_MAX)
+        Py_RETURN_NONE;
+    while (PyDict_Next(values, &pos, &row, &value)) {
+        Py_ssize_t r = PyLong_CheckExact(row) ? PyLong_AsSsize_t(row) : -1, len = 0;
+        if (r == -1 && PyErr_Occurred()) {
+            if (!PyErr_ExceptionMatches(PyExc_OverflowError))
+                return NULL;
+            PyErr_Clear();
+        }
+        if (r <= last || r >= n)
+            Py_RETURN_NONE;
+        last = r;
+        if (value == Py_None)
+            continue;
+        if (!PyUnicode_CheckExact(value) || PyUnicode_AsUTF8AndSize(value, &len) == NULL) {
+            if (PyErr_Occurred() && !PyErr_ExceptionMatches(PyExc_UnicodeEncodeError))
+                return NULL;
+            PyErr_Clear();
+            Py_RETURN_NONE;
+        }
+        if (len > INT32_MAX - size)
+            Py_RETURN_NONE;
+        size += len;
+    }
+    validity = PyBytes_FromStringAndSize(NULL, (n + 7) / 8);
+    offsets = validity == NULL ? NULL : PyBytes_FromStringAndSize(NULL, (n + 1) * 4);
+    data = offsets == NULL ? NULL : PyBytes_FromStringAndSize(NULL, size);
+    if (data == NULL)
+        goto done;
+    unsigned char *bits = (unsigned char *)PyBytes_AS_STRING(validity);
+    int32_t *off = (int32_t *)PyBytes_AS_STRING(offsets), at = 0;
+    char *out = PyBytes_AS_STRING(data);
+    memset(bits, 0, (n + 7) / 8);
+    Py_ssize_t next = 0;
+    nulls = n;
+    pos = 0;
+    while (PyDict_Next(values, &pos, &row, &value)) {
+        Py_ssize_t r = PyLong_AsSsize_t(row), len;
+        for (; next <= r; next++)
+            off[next] = at;
+        if (value == Py_None)
+            continue;
+        const char *text = PyUnicode_AsUTF8AndSize(value, &len);
+        memcpy(out + at, text, len);
+        at += (int32_t)len;
+        bits[r / 8] |= (unsigned char)(1u << (r % 8));
+        nulls--;
+    }
+    for (; next <= n; next++)
+        off[next] = at;
+    result = Py_BuildValue("(OOOn)", validity, offsets, data, nulls);
+done:
+    Py_XDECREF(validity);
+    Py_XDECREF(offsets);
+    Py_XDECREF(data);
+    return result;
+}
