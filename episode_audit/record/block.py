@@ -23,7 +23,16 @@ from ..format.spaces import ColumnBuffer, SpaceCodec
 from .notes import add_notes, note, short
 from .rules import named_terms, plain_names
 
-__all__ = ["Block", "Compiled", "Episode", "count_block", "reset_batch", "row_bytes", "step_batch"]
+__all__ = [
+    "Block",
+    "Compiled",
+    "Episode",
+    "every_row_terms",
+    "count_block",
+    "reset_batch",
+    "row_bytes",
+    "step_batch",
+]
 
 _Int64s = np.ndarray[Any, np.dtype[np.int64]]
 
@@ -359,9 +368,7 @@ def _terms_column(
         counted = _counted(block.segments, n)[per_value]
         _add_totals(block.episodes, names, episode_col[per_value], codes, counted, values)
     if len(rows) == n and codes is None:  # (every row the same names: no nulls, even offsets)
-        k = len(names)
-        offsets = pa.array(np.arange(0, (n + 1) * k, k, dtype=np.int32))
-        return pa.MapArray.from_arrays(offsets, key_array, pa.array(values))
+        return every_row_terms(n, len(names), key_array, values)
     row_counts = np.zeros(n, dtype=np.int64)
     row_counts[rows] = counts
     offsets = np.zeros(n + 1, dtype=np.int32)
@@ -371,6 +378,21 @@ def _terms_column(
     return pa.MapArray.from_arrays(
         pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
     )
+
+
+def every_row_terms(
+    n: int, k: int, key_array: pa.Array, values: np.ndarray[Any, np.dtype[np.float64]]
+) -> pa.Array:
+    """A terms column of ``n`` rows each with the same ``k`` names (``key_array``: them, repeated).
+
+    The column (and IPC bytes) :func:`~episode_audit.format.columns.terms_column` makes of such
+    rows, without its pass per row: no row is null, the offsets are every ``k``.
+
+    >>> every_row_terms(2, 1, repeated_text(["a"], 2), np.array([0.5, 1.5])).to_pylist()
+    [[('a', 0.5)], [('a', 1.5)]]
+    """
+    offsets = pa.array(np.arange(0, (n + 1) * k, k, dtype=np.int32))
+    return pa.MapArray.from_arrays(offsets, key_array, pa.array(values))
 
 
 def _add_totals(

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import json
 import operator
+from itertools import chain
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 
 from ..format import names as fmt
@@ -21,7 +23,7 @@ from ..format.columns import terms_column
 from ..format.records import EPISODE_SCHEMA, to_json
 from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from . import native
-from .block import Episode
+from .block import Episode, every_row_terms, repeated_text
 from .writer import EvidenceWriter
 
 __all__ = ["EpisodeRecords"]
@@ -90,7 +92,7 @@ def _columns_batch(n: int, columns: dict[str, Any], schema: pa.Schema) -> pa.Rec
     for name in schema.names:
         kind = schema.field(name).type
         if name == "term_totals":
-            arrays.append(terms_column(n, dict(enumerate(columns[name]))))
+            arrays.append(_totals_column(columns[name]))
         elif name in _MASKED:
             arrays.append(pa.array(columns[name], kind, mask=columns[_MASKED[name]]))
         elif name in columns:
@@ -98,6 +100,33 @@ def _columns_batch(n: int, columns: dict[str, Any], schema: pa.Schema) -> pa.Rec
         else:  # options and the error's fields: a common record has none
             arrays.append(pa.nulls(n, kind))
     return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+def _totals_column(totals: list[Any]) -> pa.Array:
+    """The ``term_totals`` column of the episodes' totals dicts (:func:`terms_column`'s).
+
+    When every episode with totals has the same names in the same order (an env's terms; an
+    episode ended before its first step has none), it is made without a pass per value: the
+    names' text repeated (in C), the values in one array.
+    """
+    n = len(totals)
+    names = next((tuple(t) for t in totals if t), None)
+    if names is None or not all(type(t) is dict and (not t or tuple(t) == names) for t in totals):
+        return terms_column(n, dict(enumerate(totals)))
+    counts = np.fromiter(map(len, totals), np.int32, n)
+    full = int(np.count_nonzero(counts))
+    try:
+        values = np.fromiter(
+            chain.from_iterable(t.values() for t in totals), np.float64, full * len(names)
+        )
+    except (TypeError, ValueError):  # (a total that is not a number: the general path)
+        return terms_column(n, dict(enumerate(totals)))
+    keys = repeated_text(names, full, native.NATIVE)
+    if full == n:
+        return every_row_terms(n, len(names), keys, values)
+    offsets = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(counts, out=offsets[1:])
+    return pa.MapArray.from_arrays(pa.array(offsets), keys, pa.array(values))
 
 
 def _episode_json(

@@ -8,6 +8,7 @@ import math
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -213,3 +214,30 @@ def test_an_rng_state_compiled_is_its_to_json(kind: str) -> None:
 )
 def test_a_dict_of_text_and_integers_compiled_is_its_to_json(state: dict[str, Any]) -> None:
     assert native.NATIVE.rng_json(state, json.encoder.encode_basestring_ascii) == to_json(state)
+
+
+def test_the_totals_column_is_the_terms_column_of_the_totals() -> None:
+    """Uniform names (some episodes without any), and any other mix: the same IPC bytes."""
+    from episode_audit.format.columns import terms_column
+    from episode_audit.record.episode_records import _totals_column
+
+    rng = np.random.default_rng(3)
+    shapes: list[Any] = [
+        {"d": 0.0, "c": 0.0},
+        {},
+        {"c": 0.0, "d": 0.0},
+        {"é": 0.0},
+        {"x\udcff": 0.0},
+        {"d": "n", "c": 0.0},
+        {"d": 1, "c": 0.0},
+    ]
+    for _ in range(300):
+        n = int(rng.integers(1, 30))
+        picks = rng.integers(0, 2 if rng.random() < 0.7 else len(shapes), n)
+        totals = [
+            {k: (float(rng.normal()) if v == 0.0 else v) for k, v in shapes[int(i)].items()}
+            for i in picks
+        ]
+        got, want = _totals_column(totals), terms_column(n, dict(enumerate(totals)))
+        batches = [pa.RecordBatch.from_arrays([a], names=["t"]) for a in (got, want)]
+        assert batches[0].serialize().to_pybytes() == batches[1].serialize().to_pybytes()
