@@ -12,7 +12,6 @@ Any other step goes to the autoreset strategy, sub-env by sub-env (``docs/record
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -29,9 +28,9 @@ from ..fast import (
 from ..file import EvidenceFile
 from ..stream import Stream
 from .batch import Batch
+from .boundaries import Boundaries
 from .infos import EMPTY, env_infos
 from .modes import Autoreset, SameStep
-from .rng import RngState, SubEnvRng
 from .terms import StepTerms, TermColumns, TermNames, list_terms
 
 __all__ = ["VectorSteps", "per_env", "read_flags"]
@@ -124,11 +123,11 @@ def _same_step_endings(
     return None if terms is None else (out, terms)
 
 
-class VectorSteps:
+class VectorSteps(Boundaries):
     """Record vector steps: whole batches while they need nothing per sub-env (the hot path).
 
     ``idle`` is the set of sub-envs without a running episode (never reset, or ended), ``None``
-    when not known (then worked out on the next step).
+    when not known (then worked out on the next step). Resets and failures: :class:`Boundaries`.
     """
 
     def __init__(
@@ -394,74 +393,6 @@ class VectorSteps:
         batch = self._batch
         if batch.length >= batch.rows:  # (a flush has drained them, unless it could not)
             batch.drain()
-
-    def record_reset(
-        self,
-        indices: Sequence[int],
-        seeds: Sequence[Any],
-        options: Sequence[Any],
-        states: dict[int, RngState | None],
-        rng: SubEnvRng,
-        result: tuple[list[Any], list[Any], str | None],
-        start: int,
-    ) -> None:
-        """Begin the episodes a ``reset()`` began: sub-envs ``indices``, with their arguments.
-
-        ``seeds`` and ``options`` hold each sub-env's, ``states`` the RNG states read before the
-        reset (an unseeded sub-env's reset info may hold its own: :class:`ResetRngInfo`);
-        ``result`` is each sub-env's reset observation and info, and the ``info_unmasked`` note.
-        """
-        rows, infos, unmasked = result
-        streams, autoreset = self._streams, self._autoreset
-        self.idle = None
-        for i in indices:
-            state = states.get(i)
-            if seeds[i] is None:
-                state = rng.from_info(infos[i], i) or state
-            streams[i].block.pending = self._batch.pending_rows(i)
-            streams[i].end_open()
-            autoreset.begin(
-                i, seeds[i], options[i], state, rows[i], infos[i], start, None, unmasked
-            )
-        autoreset.were_reset(indices)
-        if self._file.due():
-            self._file.auto_flush()
-
-    def reset_failed(
-        self,
-        indices: Sequence[int],
-        seeds: Sequence[Any],
-        options: Sequence[Any],
-        states: dict[int, RngState | None],
-        exc: Exception,
-    ) -> None:
-        """``reset()`` raised ``exc``: each sub-env of ``indices`` gets an episode ended ``error``.
-
-        Never raises (the loop sees the env's error, not the recorder's).
-        """
-        self.idle = None
-        try:
-            for i in indices:
-                self._streams[i].block.pending = self._batch.pending_rows(i)
-                self._autoreset.begin_failed(i, seeds[i], options[i], states.get(i), exc)
-            self._file.flush()
-        except Exception as trouble:
-            self._file.trouble(trouble)
-
-    def step_failed(self, exc: Exception) -> None:
-        """The vector step raised ``exc``: end the open episodes as ``error`` (``step``).
-
-        An autoreset that raised is first recorded where it belongs: as a ``reset()`` that
-        raised, an episode of its sub-env ended ``error`` during ``reset``, with the RNG state
-        the reset started from (the strategy's ``failed_autoresets``).
-        """
-        self.idle = None
-        try:
-            self.drain()
-            self._autoreset.failed_autoresets(exc)
-        except Exception as trouble:  # the loop sees the env's error, not the recorder's
-            self._file.trouble(trouble)
-        self._file.end_with_error(self._streams, exc, "step")
 
     def drain(self) -> None:
         """Hand the batched rows over to each sub-env's stream (before any other row)."""
