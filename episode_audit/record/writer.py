@@ -16,12 +16,12 @@ flush and ends with it; every other call waits for it first.
 
 from __future__ import annotations
 
-import _thread
 import copy
 import errno
 import json
 import os
 import struct
+import threading
 from collections import Counter
 from collections.abc import Callable, Mapping
 from typing import IO, Any, cast
@@ -408,11 +408,6 @@ def _copy_statistics(statistics: Any) -> Any:
 class _WriterThread:
     """A writer thread's work, one piece at a time; what failed in the background, kept.
 
-    Each piece runs in a thread of its own, started with :mod:`_thread`: ``threading``'s
-    start waits for the new thread to say it runs (two hand-overs of the GIL, ~60 µs in a hot
-    loop against ~20), which the training loop would pay at every flush. The recorder waits
-    for its thread in :meth:`wait` (``close()`` included), so none outlives its file.
-
     >>> thread = _WriterThread()
     >>> thread.run(lambda failed: failed.append(OSError("full")), background=True)
     []
@@ -424,8 +419,7 @@ class _WriterThread:
     __slots__ = ("_failures", "_flushing")
 
     def __init__(self) -> None:
-        # the piece under way: its lock (held until it ends), whether it ended, its failures
-        self._flushing: tuple[Any, list[bool], list[Exception]] | None = None
+        self._flushing: tuple[threading.Thread, list[Exception]] | None = None
         self._failures: list[Exception] = []  # of background work, for take_failures()
 
     def run(self, work: Callable[[list[Exception]], None], *, background: bool) -> list[Exception]:
@@ -436,22 +430,13 @@ class _WriterThread:
         Call :meth:`wait` first: one thread at a time.
         """
         failed: list[Exception] = []
-        lock, ended = _thread.allocate_lock(), [False]
-        lock.acquire()
-
-        def piece() -> None:
-            try:
-                work(failed)
-            finally:
-                ended[0] = True
-                lock.release()
-
+        thread = threading.Thread(target=work, args=(failed,), name="episode-audit-writer")
         try:
-            _thread.start_new_thread(piece, ())
+            thread.start()
         except RuntimeError:  # (no thread to be had: the caller's thread does it)
             work(failed)
             return failed
-        self._flushing = lock, ended, failed
+        self._flushing = thread, failed
         if background:
             return []
         self.wait(keep=False)
@@ -466,11 +451,12 @@ class _WriterThread:
         flushing = self._flushing
         if flushing is None:
             return
-        lock, ended, failed = flushing
+        thread, failed = flushing
         interrupted: BaseException | None = None
-        while not ended[0]:  # (set before the lock is let go: a Ctrl-C here cannot hang it)
+        while True:
             try:
-                lock.acquire()
+                thread.join()
+                break
             except BaseException as exc:  # (KeyboardInterrupt)
                 interrupted = exc
         self._flushing = None
