@@ -14,7 +14,8 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.schemas import reset_schema, step_schema
 from ..format.spaces import SpaceCodec
-from .block import Block, Compiled, reset_batch, step_batch
+from .block import Block, reset_batch, step_batch
+from .counting import Compiled
 from .writer import EvidenceWriter
 
 __all__ = ["StreamChannels"]

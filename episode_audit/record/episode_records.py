@@ -23,7 +23,8 @@ from ..format.columns import terms_column
 from ..format.records import EPISODE_SCHEMA, to_json
 from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from . import native
-from .block import Episode, every_row_terms, repeated_text
+from .block import Episode
+from .counting import every_row_terms, repeated_text
 from .writer import EvidenceWriter
 
 __all__ = ["EpisodeRecords"]

@@ -19,8 +19,9 @@ from gymnasium.wrappers import TimeLimit
 from ..format import names as fmt
 from ..format.columns import error_message, text
 from ..format.spaces import SpaceCodec
-from .block import Block, Episode, count_block, row_bytes
+from .block import Block, Episode, row_bytes
 from .channels import StreamChannels
+from .counting import count_block
 from .native import counting, untrack
 from .notes import add_notes, append_noted, has_note, note, short
 from .rules import Ending, EndingRules, time_limit_hit

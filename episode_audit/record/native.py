@@ -18,7 +18,8 @@ from typing import Any
 
 from ..format.records import to_json
 from ..format.spaces.buffers import _ArrayBuffer, _FlatArrayBuffer, _IntBuffer
-from .block import Block, Compiled, Episode
+from .block import Block, Episode
+from .counting import Compiled
 
 __all__ = [
     "NATIVE",

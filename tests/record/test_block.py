@@ -13,10 +13,11 @@ import pytest
 from mcap.reader import make_reader
 
 import episode_audit.record.block as block_module
+import episode_audit.record.counting as counting_module
 from episode_audit import RecordEvidence, open_evidence
 from episode_audit.format.columns import text_array
 from episode_audit.record import native
-from episode_audit.record.block import repeated_text, uniform_names
+from episode_audit.record.counting import repeated_text, uniform_names
 from tests.support.envs import ScriptedEnv
 
 
@@ -60,7 +61,7 @@ def test_the_same_names_on_every_row_write_what_the_general_case_writes(
 ) -> None:
     fast, general = tmp_path / "fast.mcap", tmp_path / "general.mcap"
     _record(fast, changing)
-    monkeypatch.setattr(block_module, "uniform_names", lambda keys, counts: None)
+    monkeypatch.setattr(counting_module, "uniform_names", lambda keys, counts: None)
     _record(general, changing)
     ev = open_evidence(fast)
     assert ev.episodes().num_rows == 9
@@ -125,7 +126,7 @@ def test_totals_sum_each_episodes_counted_values_in_the_order_names_first_appear
     code_of = np.array([1, 0, 1, 0, 1, 0, 2], dtype=np.int64)
     counted = np.array([True, True, True, True, True, False, False])
     values = np.array([0.5, 2.0, 0.25, 4.0, 8.0, 16.0, 32.0])
-    block_module._add_totals(episodes, names, episode_of, code_of, counted, values)
+    counting_module._add_totals(episodes, names, episode_of, code_of, counted, values)
     assert list(episodes[3].totals.items()) == [("earlier", 1.0), ("b", 0.75), ("a", 2.0)]
     assert list(episodes[4].totals.items()) == [("earlier", 1.0), ("a", 4.0), ("b", 8.0)]
 
@@ -141,7 +142,7 @@ def test_totals_of_many_rows_agree_with_an_exact_sum() -> None:
     values = rng.standard_normal(rows) * 10.0 ** rng.integers(-3, 4, rows)
     episodes = {int(e): Running() for e in episode_of}
     zeros = np.zeros(rows, dtype=np.int64)
-    block_module._add_totals(
+    counting_module._add_totals(
         episodes, ["r"], episode_of, zeros, np.ones(rows, dtype=np.bool_), values
     )
     for index, episode in episodes.items():
@@ -211,8 +212,8 @@ def test_the_compiled_counting_is_the_python_counting() -> None:
         )
         n = len(block.times)
         taken += native.NATIVE.count_rows(probe, n) is not None
-        got = block_module.count_block(block, n, native.NATIVE)
-        want = block_module.count_block(twin, n)
+        got = counting_module.count_block(block, n, native.NATIVE)
+        want = counting_module.count_block(twin, n)
         assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
         a, b = (pa.RecordBatch.from_arrays([t[2]], names=["t"]) for t in (got, want))
         assert a.serialize().to_pybytes() == b.serialize().to_pybytes()
