@@ -1,10 +1,11 @@
 """The recorder's compiled part, ``episode_audit.record._stepfast``: loaded once, or ``None``.
 
 The extension is built with the package when a C compiler is there (``setup.py``). It holds the
-compiled step and reset (:mod:`.fast`), the common episode records' JSON (:func:`episode_json`)
-and the framing of many MCAP messages at once (:func:`frame_messages`). Each writes the same
-bytes as the Python it stands in for. ``EPISODE_AUDIT_PURE_PYTHON=1`` in the environment (read
-when a recorder is made) keeps a recorder on the pure-Python path. See ``docs/recording.md``.
+compiled step and reset (:mod:`.fast`), the common episode records' JSON (:func:`episode_json`),
+the framing of many MCAP messages at once (:func:`frame_messages`), and a block's counting and
+text columns (:func:`counting`). Each writes the same bytes as the Python it stands in for.
+``EPISODE_AUDIT_PURE_PYTHON=1`` in the environment (read when a recorder is made) keeps a
+recorder on the pure-Python path. See ``docs/recording.md``.
 """
 
 from __future__ import annotations
