@@ -274,3 +274,40 @@ def test_sparse_text_is_the_text_array_of_the_rows(compiled: bool) -> None:
         got.validate(full=True)
         batches = [pa.RecordBatch.from_arrays([a], names=["t"]) for a in (got, want)]
         assert batches[0].serialize().to_pybytes() == batches[1].serialize().to_pybytes()
+
+
+@pytest.mark.skipif(native.NATIVE is None, reason="the extension is not built")
+@pytest.mark.parametrize(
+    "odd",
+    ["int return", "list segment", "int total", "rows past the block", "episode missing"],
+)
+def test_the_compiled_counting_declines_what_it_does_not_take(odd: str) -> None:
+    """An odd block is declined untouched (None), and counted by the Python as ever."""
+    seed = next(
+        s
+        for s in range(200)
+        if len(_random_block(np.random.default_rng(s))[0].segments) >= 2
+        and _random_block(np.random.default_rng(s))[0].term_rows
+    )
+    (block, _), (twin, _) = (_random_block(np.random.default_rng(seed)) for _ in range(2))
+    n = len(block.times)
+    for b in (block, twin):
+        first = next(iter(b.episodes.values()))
+        if odd == "int return":
+            first.ret = 3
+        elif odd == "list segment":
+            b.segments[0] = list(b.segments[0])  # type: ignore[call-overload]
+        elif odd == "int total":
+            first.totals = {"a": 1}
+        elif odd == "episode missing":
+            b.episodes.clear()
+    before = _state(block.episodes)
+    rows = n + 1 if odd == "rows past the block" else n
+    assert native.NATIVE.count_rows(block, rows) is None
+    assert _state(block.episodes) == before  # (nothing changed)
+    if odd in ("rows past the block", "episode missing"):
+        return
+    got = counting_module.count_block(block, n, native.NATIVE)
+    want = counting_module.count_block(twin, n)
+    assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
+    assert _state(block.episodes) == _state(twin.episodes)
