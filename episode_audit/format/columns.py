@@ -16,6 +16,7 @@ import pyarrow as pa
 __all__ = [
     "PLAIN_NUMBERS",
     "TERMS_TYPE",
+    "map_column",
     "null_mask",
     "one_array",
     "terms_column",
@@ -128,7 +129,7 @@ def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
             valid[:] = True
         else:
             valid[np.fromiter(rows, dtype=np.int64, count=len(rows))] = True
-        return _map_column(counts, valid, text_array([]), np.zeros(0))
+        return map_column(counts, valid, text_array([]), np.zeros(0))
     keys: list[str] = []
     values: list[Any] = []
     for row, terms in rows.items():
@@ -140,7 +141,7 @@ def terms_column(n: int, rows: Mapping[int, Mapping[str, Any]]) -> pa.Array:
         numbers = np.asarray(values, dtype=np.float64)
     except Exception:
         numbers = np.array([_as_float(v) for v in values], dtype=np.float64)
-    return _map_column(counts, valid, text_array(keys), numbers)
+    return map_column(counts, valid, text_array(keys), numbers)
 
 
 def terms_matrix_column(
@@ -159,17 +160,24 @@ def terms_matrix_column(
     valid = np.zeros(n, dtype=np.bool_)
     valid[rows] = True
     keys = pa.array(list(names), pa.string()).take(pa.array(np.tile(np.arange(k), len(rows))))
-    return _map_column(counts, valid, keys, values.reshape(-1))
+    return map_column(counts, valid, keys, values.reshape(-1))
 
 
-def _map_column(
-    counts: np.ndarray[Any, Any], valid: np.ndarray[Any, Any], keys: pa.Array, values: Any
+def map_column(
+    counts: np.ndarray[Any, Any], valid: np.ndarray[Any, Any] | None, keys: pa.Array, values: Any
 ) -> pa.Array:
-    """A ``terms`` map column from entries per row, row validity and the flat keys/values."""
+    """A ``terms`` map column from entries per row, row validity and the flat keys/values.
+
+    ``valid`` ``None``: every row is valid (the same column as an all-true ``valid``).
+
+    >>> map_column(np.array([1, 0]), None, text_array(["a"]), [0.5]).to_pylist()
+    [[('a', 0.5)], []]
+    """
     offsets = np.zeros(len(counts) + 1, dtype=np.int32)
     np.cumsum(counts, out=offsets[1:])
+    mask = None if valid is None else pa.array(~valid)
     return pa.MapArray.from_arrays(
-        pa.array(offsets), keys, pa.array(values, pa.float64()), mask=pa.array(~valid)
+        pa.array(offsets), keys, pa.array(values, pa.float64()), mask=mask
     )
 
 

@@ -11,13 +11,13 @@
 from __future__ import annotations
 
 from array import array
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any, Protocol
 
 import numpy as np
 import pyarrow as pa
 
-from ..format.columns import TERMS_TYPE, text_array
+from ..format.columns import TERMS_TYPE, map_column, text_array
 from .block import Block, Episode, TextColumns
 from .notes import add_notes, note
 from .rules import named_terms, plain_names
@@ -61,13 +61,20 @@ def count_block(
     return episode_col, step_col, _terms_column(block, n, episode_col, names, compiled)
 
 
-def _count_rows(block: Block, n: int) -> None:
-    """Add the block's rows to their episodes' steps, returns and end times (or after_end)."""
-    segments, episodes, times, rewards = block.segments, block.episodes, block.times, block.rewards
+def _spans(
+    segments: Sequence[tuple[int, int, int, bool]], n: int
+) -> Iterator[tuple[int, int, int, bool]]:
+    """The segments that hold rows of a block of ``n``: ``(start, end, episode index, live)``."""
     ends = [*(s[0] for s in segments[1:]), n][: len(segments)]
     for (start, index, _, live), end in zip(segments, ends, strict=True):
-        if end <= start:
-            continue
+        if end > start:
+            yield start, end, index, live
+
+
+def _count_rows(block: Block, n: int) -> None:
+    """Add the block's rows to their episodes' steps, returns and end times (or after_end)."""
+    episodes, times, rewards = block.episodes, block.times, block.rewards
+    for start, end, index, live in _spans(block.segments, n):
         ep = episodes[index]
         if live:
             ret = ep.ret
@@ -83,10 +90,8 @@ def _count_rows(block: Block, n: int) -> None:
 def _counted(segments: Sequence[tuple[int, int, int, bool]], n: int) -> np.ndarray[Any, Any]:
     """Per row, whether it counts in its episode (rows before any reset, or after an end, not)."""
     counted = np.zeros(n, dtype=np.bool_)
-    ends = [*(s[0] for s in segments[1:]), n][: len(segments)]
-    for (start, _, _, live), end in zip(segments, ends, strict=True):
-        if live and end > start:
-            counted[start:end] = True
+    for start, end, _, live in _spans(segments, n):
+        counted[start:end] = live
     return counted
 
 
@@ -144,13 +149,9 @@ def _terms_column(
         return every_row_terms(n, len(names), key_array, values)
     row_counts = np.zeros(n, dtype=np.int64)
     row_counts[rows] = counts
-    offsets = np.zeros(n + 1, dtype=np.int32)
-    np.cumsum(row_counts, out=offsets[1:])
     valid = np.zeros(n, dtype=np.bool_)
     valid[rows] = True
-    return pa.MapArray.from_arrays(
-        pa.array(offsets), key_array, pa.array(values), mask=pa.array(~valid)
-    )
+    return map_column(row_counts, valid, key_array, values)
 
 
 def every_row_terms(

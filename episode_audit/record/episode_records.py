@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..format import names as fmt
-from ..format.columns import terms_column
+from ..format.columns import map_column, terms_column
 from ..format.records import EPISODE_SCHEMA, to_json
 from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from . import native
@@ -125,9 +125,7 @@ def _totals_column(totals: list[Any]) -> pa.Array:
     keys = repeated_text(names, full, native.NATIVE)
     if full == n:
         return every_row_terms(n, len(names), keys, values)
-    offsets = np.zeros(n + 1, dtype=np.int32)
-    np.cumsum(counts, out=offsets[1:])
-    return pa.MapArray.from_arrays(pa.array(offsets), keys, pa.array(values))
+    return map_column(counts, None, keys, values)
 
 
 def _episode_json(
