@@ -105,8 +105,9 @@ def bench_vecenv(
 ) -> dict[str, Any]:
     """Per-sub-env-step overhead of RecordVecEnvEvidence over a bare DummyVecEnv of ``env_id``:
     recorded, bare and bare again take turns ``slice_steps`` vector steps at a time
-    (``interleaved``: bench/run.py's), the recorder's ``close()`` counted; the actions are
-    ``vector_actions(env_id, steps, num_envs)`` (bench/run.py's)."""
+    (``interleaved``: bench/run.py's). The recorder records every round as one run, flushing as
+    often as it would alone (as bench/run.py's ``bench_record``); its ``close()`` is timed
+    apart. The actions are ``vector_actions(env_id, steps, num_envs)`` (bench/run.py's)."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from episode_audit.record.sb3 import RecordVecEnvEvidence
@@ -118,23 +119,30 @@ def bench_vecenv(
     warm = RecordVecEnvEvidence(DummyVecEnv([make] * num_envs), tmp / "w.mcap", overwrite=True)
     _stepper(warm)(actions[:1000])
     warm.close()
+    # one run over every round, flushing as often as alone: bench/run.py's bench_record
+    rec = RecordVecEnvEvidence(
+        DummyVecEnv([make] * num_envs),
+        tmp / f"sb3-vecenv-{env_id}.mcap",
+        overwrite=True,
+        flush_every_s=3,
+    )
+    rec_loop = _stepper(rec)
     bare_t, again_t, rec_t = [], [], []
-    for r in range(rounds):
-        path = tmp / f"sb3-vecenv-{r}.mcap"
+    for _ in range(rounds):
         venvs = {
             "bare": DummyVecEnv([make] * num_envs),
             "bare_again": DummyVecEnv([make] * num_envs),
-            "rec": RecordVecEnvEvidence(DummyVecEnv([make] * num_envs), path, overwrite=True),
         }
-        seconds = interleaved({k: _stepper(v) for k, v in venvs.items()}, actions, slice_steps)
-        t0 = time.perf_counter()
-        venvs["rec"].close()
-        closed = time.perf_counter() - t0
-        venvs["bare"].close()
-        venvs["bare_again"].close()
+        loops = {**{k: _stepper(v) for k, v in venvs.items()}, "rec": rec_loop}
+        seconds = interleaved(loops, actions, slice_steps)
+        for venv in venvs.values():
+            venv.close()
         bare_t.append(seconds["bare"])
         again_t.append(seconds["bare_again"])
-        rec_t.append(seconds["rec"] + closed)
+        rec_t.append(seconds["rec"])
+    t0 = time.perf_counter()
+    rec.close()
+    close_ms = (time.perf_counter() - t0) * 1e3
     sub_steps = steps * num_envs
     return {
         "env": f"{env_id} x{num_envs} (SB3 DummyVecEnv)",
@@ -147,6 +155,7 @@ def bench_vecenv(
         ),
         **_ratios(bare_t, rec_t),
         "aa_median": statistics.median(a / b for a, b in zip(again_t, bare_t, strict=True)),
+        "close_ms": close_ms,
     }
 
 

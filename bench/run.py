@@ -133,7 +133,12 @@ def noise_floor(first: list[float], second: list[float]) -> dict[str, Any]:
 
 
 def _recorded(
-    env_id: str, path: Path, pure: bool, *, deferred: bool = False
+    env_id: str,
+    path: Path,
+    pure: bool,
+    *,
+    deferred: bool = False,
+    flush_every_s: float = 1.0,
 ) -> RecordEvidence[Any, Any]:
     """A recorder of ``env_id``: the compiled step, or (``pure``) the pure-Python one.
 
@@ -146,9 +151,16 @@ def _recorded(
             return RecordEvidence(
                 gym.make(env_id), path, overwrite=True, flush_every_s=1e9, block_steps=1 << 40
             )
-        return RecordEvidence(gym.make(env_id), path, overwrite=True)
+        return RecordEvidence(gym.make(env_id), path, overwrite=True, flush_every_s=flush_every_s)
     finally:
         del os.environ[PURE_PYTHON_ENV]
+
+
+def timed_close(env: Any) -> float:
+    """Milliseconds ``env.close()`` takes."""
+    t0 = time.perf_counter()
+    env.close()
+    return (time.perf_counter() - t0) * 1e3
 
 
 def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict[str, Any]:
@@ -156,42 +168,43 @@ def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict
     over the same actions, stepped in turns of ``slice_steps`` (:func:`interleaved`), a second
     bare env among them for the A/A noise; medians of per-round ratios to bare.
 
-    A recorder's ``close()`` (its last flush) counts in its time. One more recorder, ``loop``,
-    writes nothing until ``close()``, which does not count: the cost of the step and reset
-    paths alone, about what the loop would pay if its flushes moved off the loop's thread (a
-    little more: its ended episodes stay in memory, for the garbage collector to walk)."""
+    Each recorder records every round as one run, as a training run would, and flushes as
+    often, counted in its own steps, as it would alone. A recorder flushes when its block is
+    full or ``flush_every_s`` of wall time has passed; here it gets one turn in seven, so it is
+    given seven seconds. (With one second, each flush would hold a seventh of a run alone's
+    steps, and its fixed cost, ~1.3 ms, would be paid seven times as often.) Its ``close()``,
+    once a run, is timed apart (``close_ms``). One more recorder, ``loop``, writes nothing until
+    ``close()``, which does not count: the cost of the step and reset paths alone, about what
+    the loop would pay if its flushes cost nothing (a little more: its ended episodes stay in
+    memory, for the garbage collector to walk)."""
     actions = actions_for(env_id, steps)
     warm = RecordEvidence(gym.make(env_id), TMP / f"warm-{env_id}.mcap", overwrite=True)
     run_steps(warm, actions[: min(steps, 5000)])
     warm.close()
     kinds = ("bare", "bare_again", "wrapper", "stats", "pure", "rec", "loop")
+    runs = {
+        kind: _recorded(
+            env_id, TMP / f"{env_id}-{kind}.mcap", pure=kind == "pure", flush_every_s=len(kinds)
+        )
+        for kind in ("pure", "rec")
+    }
+    run_loops = {kind: stepper(env) for kind, env in runs.items()}
     times: dict[str, list[float]] = {k: [] for k in kinds}
     for r in range(rounds):
-        paths = {kind: TMP / f"{env_id}-{kind}-{r}.mcap" for kind in ("pure", "rec", "loop")}
         envs: dict[str, gym.Env[Any, Any]] = {
             "bare": gym.make(env_id),
             "bare_again": gym.make(env_id),
             "wrapper": gym.Wrapper(gym.make(env_id)),
             "stats": gym.wrappers.RecordEpisodeStatistics(gym.make(env_id)),
-            **{
-                kind: _recorded(env_id, path, pure=kind == "pure", deferred=kind == "loop")
-                for kind, path in paths.items()
-            },
+            "loop": _recorded(env_id, TMP / f"{env_id}-loop-{r}.mcap", pure=False, deferred=True),
         }
-        seconds = interleaved({k: stepper(env) for k, env in envs.items()}, actions, slice_steps)
-        for kind in ("pure", "rec"):
-            t0 = time.perf_counter()
-            envs[kind].close()
-            seconds[kind] += time.perf_counter() - t0
+        loops = {k: run_loops[k] if k in run_loops else stepper(envs[k]) for k in kinds}
+        seconds = interleaved(loops, actions, slice_steps)
         envs["loop"].close()  # (not counted: its one flush is what it leaves out)
         for kind in kinds:
             times[kind].append(seconds[kind])
-    # the file's size from a run alone: interleaved, a recorder gets a seventh of the steps
-    # between its flushes (every second), so its blocks are smaller than a real run's
-    alone = _recorded(env_id, TMP / f"{env_id}-alone.mcap", pure=False)
-    run_steps(alone, actions)
-    alone.close()
-    size = alone.path.stat().st_size
+    close_ms = {kind: timed_close(env) for kind, env in runs.items()}
+    size = runs["rec"].path.stat().st_size
     bare_t = times["bare"]
     per_step = {k: statistics.median(v) / steps * 1e6 for k, v in times.items()}
     return {
@@ -221,7 +234,8 @@ def bench_record(env_id: str, steps: int, rounds: int, slice_steps: int) -> dict
                 ("RecordEpisodeStatistics", "stats"),
             )
         },
-        "bytes_per_step": size / steps,
+        "close_ms": close_ms["rec"],
+        "bytes_per_step": size / (steps * rounds),
     }
 
 
@@ -271,30 +285,26 @@ def bench_vector(
     warm = RecordVectorEvidence(make(), TMP / "warm-vector.mcap", overwrite=True)
     run_vector(warm, actions[: min(steps, 1000)])
     warm.close()
-    times: dict[str, list[float]] = {"bare": [], "bare_again": [], "rec": []}
-    for r in range(rounds):
-        path = TMP / f"vector-{r}.mcap"
-        envs = {
-            "bare": make(),
-            "bare_again": make(),
-            "rec": RecordVectorEvidence(make(), path, overwrite=True),
-        }
+    kinds = ("bare", "bare_again", "rec")
+    # one run over every round, flushing as often as alone (see bench_record)
+    rec = RecordVectorEvidence(
+        make(), TMP / f"vector-{env_id}.mcap", overwrite=True, flush_every_s=len(kinds)
+    )
+    rec.reset(seed=0)
+    rec_loop = vector_stepper(rec)
+    times: dict[str, list[float]] = {k: [] for k in kinds}
+    for _ in range(rounds):
+        envs = {"bare": make(), "bare_again": make()}
         for env in envs.values():
             env.reset(seed=0)
-        seconds = interleaved(
-            {k: vector_stepper(env) for k, env in envs.items()}, actions, slice_steps
-        )
-        t0 = time.perf_counter()
-        envs["rec"].close()
-        seconds["rec"] += time.perf_counter() - t0
-        envs["bare"].close()
-        envs["bare_again"].close()
+        loops = {**{k: vector_stepper(env) for k, env in envs.items()}, "rec": rec_loop}
+        seconds = interleaved(loops, actions, slice_steps)
+        for env in envs.values():
+            env.close()
         for kind, t in seconds.items():
             times[kind].append(t)
-    alone = RecordVectorEvidence(make(), TMP / "vector-alone.mcap", overwrite=True)
-    run_vector(alone, actions)  # (the file's size from a run alone, as in bench_record)
-    alone.close()
-    size = alone.path.stat().st_size
+    close_ms = timed_close(rec)
+    size = rec.path.stat().st_size
     bare_t, rec_t = times["bare"], times["rec"]
     sub_steps = steps * num_envs
     return {
@@ -309,7 +319,8 @@ def bench_vector(
         ),
         **ratios(bare_t, rec_t),
         **noise_floor(bare_t, times["bare_again"]),
-        "bytes_per_sub_env_step": size / sub_steps,
+        "close_ms": close_ms,
+        "bytes_per_sub_env_step": size / (sub_steps * rounds),
     }
 
 
@@ -641,7 +652,8 @@ def bench_state(rounds: int = 200) -> list[dict[str, Any]]:
 
 def bench_atari(steps: int, rounds: int, slice_steps: int) -> dict[str, Any] | str:
     """ALE Pong-v5 (210x160x3 frames, ~100 KB a step), bare vs recorded, in turns as
-    ``record``: frames kept losslessly (the default) and as digests (``digest_min_bytes``)."""
+    ``record`` (each recorder one run over every round, its ``close()`` timed apart): frames
+    kept losslessly (the default) and as digests (``digest_min_bytes``)."""
     try:
         import ale_py
     except ImportError:
@@ -653,26 +665,28 @@ def bench_atari(steps: int, rounds: int, slice_steps: int) -> dict[str, Any] | s
     run_steps(warm, actions[:500])
     warm.close()
     kinds = ("bare", "bare_again", "rec", "digest")
+    # one run each over every round, flushing as often as alone (see bench_record)
+    runs = {
+        "rec": RecordEvidence(
+            gym.make(env_id), TMP / "atari.mcap", overwrite=True, flush_every_s=len(kinds)
+        ),
+        "digest": RecordEvidence(
+            gym.make(env_id),
+            TMP / "atari-digest.mcap",
+            overwrite=True,
+            digest_min_bytes=4096,
+            flush_every_s=len(kinds),
+        ),
+    }
+    run_loops = {kind: stepper(env) for kind, env in runs.items()}
     times: dict[str, list[float]] = {k: [] for k in kinds}
-    for r in range(rounds):
-        envs: dict[str, gym.Env[Any, Any]] = {
-            "bare": gym.make(env_id),
-            "bare_again": gym.make(env_id),
-            "rec": RecordEvidence(gym.make(env_id), TMP / f"atari-{r}.mcap", overwrite=True),
-            "digest": RecordEvidence(
-                gym.make(env_id),
-                TMP / f"atari-digest-{r}.mcap",
-                overwrite=True,
-                digest_min_bytes=4096,
-            ),
-        }
-        seconds = interleaved({k: stepper(env) for k, env in envs.items()}, actions, slice_steps)
-        for kind in ("rec", "digest"):
-            t0 = time.perf_counter()
-            envs[kind].close()
-            seconds[kind] += time.perf_counter() - t0
+    for _ in range(rounds):
+        envs = {"bare": gym.make(env_id), "bare_again": gym.make(env_id)}
+        loops = {k: run_loops[k] if k in run_loops else stepper(envs[k]) for k in kinds}
+        seconds = interleaved(loops, actions, slice_steps)
         for kind in kinds:
             times[kind].append(seconds[kind])
+    close_ms = {kind: timed_close(env) for kind, env in runs.items()}
     bare_t = times["bare"]
     return {
         "env": env_id,
@@ -682,8 +696,9 @@ def bench_atari(steps: int, rounds: int, slice_steps: int) -> dict[str, Any] | s
         **ratios(bare_t, times["rec"]),
         **noise_floor(bare_t, times["bare_again"]),
         "digest_ratio_median": ratios(bare_t, times["digest"])["ratio_median"],
-        "bytes_per_step": (TMP / f"atari-{rounds - 1}.mcap").stat().st_size / steps,
-        "digest_bytes_per_step": (TMP / f"atari-digest-{rounds - 1}.mcap").stat().st_size / steps,
+        "close_ms": close_ms["rec"],
+        "bytes_per_step": runs["rec"].path.stat().st_size / (steps * rounds),
+        "digest_bytes_per_step": runs["digest"].path.stat().st_size / (steps * rounds),
     }
 
 
