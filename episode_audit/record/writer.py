@@ -1,4 +1,4 @@
-"""The evidence writer: the only module that touches ``mcap.writer``.
+"""The evidence writer: with ``chunks.py``, the only module that touches ``mcap.writer``.
 
 :class:`EvidenceWriter` lays out one evidence file: run metadata as MCAP metadata records,
 columnar step blocks as Arrow IPC stream messages, per-episode records as JSON messages, and a
@@ -34,6 +34,7 @@ from mcap.writer import CompressionType, Writer
 from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
 from . import native
+from .chunks import ChunkWriter
 from .lock import LockedStream, claim_output
 from .sink import StagedFile
 
@@ -514,8 +515,8 @@ class EvidenceWriter:
         f = cast(IO[bytes], LockedStream(raw, output))
         kind = modes[compression]
         self._sink = StagedFile(f)
-        self._writer = Writer(
-            self._sink,  # type: ignore[arg-type]
+        self._writer = ChunkWriter(
+            self._sink,
             chunk_size=_CHUNK_SIZE,
             compression=kind if kind is not None else CompressionType.NONE,
         )
