@@ -119,12 +119,13 @@ def bench_vecenv(
     warm = RecordVecEnvEvidence(DummyVecEnv([make] * num_envs), tmp / "w.mcap", overwrite=True)
     _stepper(warm)(actions[:1000])
     warm.close()
+    kinds = ("bare", "bare_again", "rec")
     # one run over every round, flushing as often as alone: bench/run.py's bench_record
     rec = RecordVecEnvEvidence(
         DummyVecEnv([make] * num_envs),
         tmp / f"sb3-vecenv-{env_id}.mcap",
         overwrite=True,
-        flush_every_s=3,
+        flush_every_s=len(kinds),
     )
     rec_loop = _stepper(rec)
     bare_t, again_t, rec_t = [], [], []
