@@ -15,7 +15,8 @@ import numpy
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-_C_FILES = ("module", "step", "records", "blocks", "vector")  # episode_audit/record/csrc/stepfast.h
+# the files of episode_audit/record/csrc/ (stepfast.h lists them)
+_C_FILES = ("module", "step", "wrapper", "records", "blocks", "vector")
 
 
 class OptionalBuildExt(build_ext):

@@ -32,6 +32,7 @@ __all__ = [
     "reset_function",
     "step_function",
     "vector_step_function",
+    "wrapper_step_function",
 ]
 
 _FAST_BUFFERS = (_FlatArrayBuffer, _ArrayBuffer, _IntBuffer)
@@ -53,6 +54,32 @@ def step_function(stream: Stream) -> Callable[[Any, Any], None]:
         return stream.step
     step: Callable[[Any, Any], None] = NATIVE.StepRecorder(stream)
     return step
+
+
+class WrapperStep(Protocol):
+    """A recorder's ``step``, compiled (``_stepfast.WrapperStep``, ``csrc/wrapper.c``)."""
+
+    def __call__(self, action: Any) -> Any:
+        """The recorder's step: as ``RecordEvidence.step``, without a Python frame."""
+
+    def inside_here(self) -> bool:
+        """Whether this thread is inside a call of it (a flush from inside the env's step)."""
+
+
+def wrapper_step_function(
+    recorder: object, step: Callable[[Any, Any], None], python_step: Callable[..., Any]
+) -> WrapperStep | None:
+    """``recorder``'s ``step`` compiled, for its instance dict; ``None`` where it does not apply.
+
+    ``step`` is the recorder's step function (:func:`step_function`); the compiled wrapper step
+    applies when that is compiled. ``python_step`` is the class's ``step`` (a plain function),
+    which the compiled one hands every call it does not take: gated, or with other arguments
+    than one action.
+    """
+    if NATIVE is None or not isinstance(step, NATIVE.StepRecorder):
+        return None
+    wrapper: WrapperStep = NATIVE.WrapperStep(recorder, step, python_step)
+    return wrapper
 
 
 class CompiledReset(Protocol):

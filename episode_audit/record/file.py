@@ -126,10 +126,11 @@ class FileRecorder:
         return self._file.first_trouble
 
     def _busy_here(self) -> bool:
-        """Whether ``_busy`` is this thread's, left set by a call that has returned.
+        """Whether ``_busy`` is this thread's, where its stack does not show it.
 
-        SB3's ``step_async()``, before its ``step_wait()``: no other thread is inside then, and
-        this thread's own ``close()`` must not wait for itself.
+        SB3's ``step_async()``, before its ``step_wait()`` (a call that has returned), and
+        ``RecordEvidence``'s compiled ``step`` (a call with no Python frame): no other thread is
+        inside then, and this thread's own ``close()`` must not wait for itself.
         """
         return False
 

@@ -29,7 +29,13 @@ from ..format.wrappers import (
     state_causes,
 )
 from .block import Episode
-from .fast import CompiledReset, reset_function, step_function
+from .fast import (
+    CompiledReset,
+    WrapperStep,
+    reset_function,
+    step_function,
+    wrapper_step_function,
+)
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
 from .rules import find_time_limit
@@ -88,6 +94,8 @@ class RecordEvidence(
             :class:`~episode_audit.record.settings.RecorderSettings`.
     """
 
+    _compiled_step: WrapperStep | None = None  # (the instance's step, when compiled)
+
     def __init__(
         self,
         env: gym.Env[gym.core.ObsType, gym.core.ActType],
@@ -132,6 +140,23 @@ class RecordEvidence(
         # (the state snapshot is taken on the Python path only)
         self._fast_reset = None if self._state else reset_function(self._record_step)
         self._opened()
+        self._compiled_step = self._install_compiled_step()
+
+    def _install_compiled_step(self) -> WrapperStep | None:
+        """Put the compiled :meth:`step` in the instance's dict, where it applies.
+
+        Only for this class's own ``step`` (a subclass that overrides it keeps its own), read
+        as a plain attribute ``env``. Attribute lookup finds the instance's ``step`` first (a
+        method is not a data descriptor): ``recorder.step(action)`` then runs no Python frame.
+        """
+        if type(self).step is not RecordEvidence.step or any(
+            "env" in vars(cls) for cls in type(self).__mro__
+        ):
+            return None
+        step = wrapper_step_function(self, self._record_step, RecordEvidence.step)
+        if step is not None:
+            self.__dict__["step"] = step
+        return step
 
     @property
     def spec(self) -> EnvSpec | None:  # type: ignore[override]
@@ -231,7 +256,12 @@ class RecordEvidence(
     def step(
         self, action: gym.core.ActType
     ) -> tuple[gym.core.ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
-        """Step the env and record the step; the 5-tuple is returned untouched."""
+        """Step the env and record the step; the 5-tuple is returned untouched.
+
+        With the compiled step (``docs/recording.md``) a recorder's ``step`` is its compiled
+        twin, in its instance dict, which does the same and hands this method what it does not
+        take (a closed recorder, a flush under way in another thread, keyword arguments).
+        """
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             if self._gated:
@@ -245,6 +275,11 @@ class RecordEvidence(
             return result
         finally:
             self._busy = False
+
+    def _busy_here(self) -> bool:
+        """Whether ``_busy`` is this thread's: inside the compiled step (no frame to find)."""
+        step = self._compiled_step
+        return step is not None and step.inside_here()
 
     def _on_error(self, exc: Exception, during: str) -> None:
         self._file.end_with_error((self._stream,), exc, during)

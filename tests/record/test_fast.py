@@ -7,10 +7,12 @@ same bytes (but the run's wall-clock start and end times).
 
 from __future__ import annotations
 
+import gc
 import itertools
 import os
 import time
 import warnings
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,7 +22,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from episode_audit import RecordEvidence
+from episode_audit import RecordEvidence, open_evidence
+from episode_audit.errors import RecorderError
 from episode_audit.record import fast, native
 from tests.support.envs import ScriptedEnv
 
@@ -255,6 +258,95 @@ def test_the_compiled_step_is_used_and_the_switch_turns_it_off(
     with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "b.mcap") as rec:
         assert type(rec._record_step).__name__ != "StepRecorder"
     assert not fast.compiled()
+
+
+@needs_compiled
+def test_the_recorders_step_is_compiled_where_its_class_step_is_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    class Counting(RecordEvidence[Any, Any]):
+        calls = 0
+
+        def step(self, action: Any) -> Any:
+            Counting.calls += 1
+            return super().step(action)
+
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "a.mcap") as rec:
+        assert type(vars(rec)["step"]).__name__ == "WrapperStep"
+        assert rec.step is vars(rec)["step"] and rec._compiled_step is rec.step
+    with Counting(gym.make("CartPole-v1"), tmp_path / "b.mcap") as sub:
+        sub.reset(seed=0)
+        sub.step(0)
+        assert "step" not in vars(sub) and Counting.calls == 1  # (its own step kept)
+    monkeypatch.setenv(fast.PURE_PYTHON_ENV, "1")
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "c.mcap") as rec:
+        assert "step" not in vars(rec) and rec._compiled_step is None
+
+
+@needs_compiled
+def test_the_compiled_recorder_step_hands_other_calls_to_the_python_step(
+    tmp_path: Path,
+) -> None:
+    rec = RecordEvidence(gym.make("CartPole-v1"), tmp_path / "a.mcap")
+    rec.reset(seed=0)
+    _, reward, terminated, _, _ = rec.step(action=1)  # (a keyword: Python's)
+    assert reward == 1.0 and not terminated and not rec._busy
+    with pytest.raises(TypeError, match="unexpected keyword argument 'act'"):
+        rec.step(act=1)
+    assert not rec._busy
+    rec.step(np.int64(0))
+    rec.close()
+    with pytest.raises(RecorderError, match="the recorder is closed"):
+        rec.step(0)  # (gated: the Python step raises it)
+    assert open_evidence(tmp_path / "a.mcap").steps(columns=["action"]).column(0).to_pylist() == [
+        1,
+        0,
+    ]
+
+
+@needs_compiled
+def test_the_compiled_recorder_step_records_the_envs_error_and_raises_it(
+    tmp_path: Path,
+) -> None:
+    def failing(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        if env.t == 3:
+            raise ValueError("the simulator diverged")
+        return np.zeros(2, np.float32), 1.0, False, False, {}
+
+    rec = RecordEvidence(ScriptedEnv(step_fn=failing), tmp_path / "a.mcap")
+    rec.reset(seed=0)
+    rec.step(np.int64(0))
+    rec.step(np.int64(1))
+    with pytest.raises(ValueError, match="the simulator diverged") as raised:
+        rec.step(np.int64(2))
+    assert raised.value.__context__ is None and not rec._busy
+    rec.close()
+    episode = open_evidence(tmp_path / "a.mcap").episodes().to_pylist()[0]
+    assert episode["outcome"] == "error" and episode["length"] == 2
+    assert (episode["error_type"], episode["error_message"], episode["error_during"]) == (
+        "ValueError",
+        "the simulator diverged",
+        "step",
+    )
+
+
+@needs_compiled
+def test_a_compiled_recorder_step_keeps_its_recorder_as_a_bound_method_would(
+    tmp_path: Path,
+) -> None:
+    rec = RecordEvidence(gym.make("CartPole-v1"), tmp_path / "a.mcap")
+    rec.reset(seed=0)
+    step = rec.step
+    alive = weakref.ref(rec)
+    del rec
+    gc.collect()
+    recorder = alive()
+    assert recorder is not None  # (held by its step, which the collector sees)
+    assert step(0)[1] == 1.0
+    recorder.close()
+    del recorder, step
+    gc.collect()
+    assert alive() is None  # (the cycle through its dict is the collector's to free)
 
 
 @needs_compiled

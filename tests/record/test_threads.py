@@ -230,11 +230,16 @@ def test_a_thread_inside_its_envs_step_counts_as_inside_and_flushes_as_it_ends(
 def test_a_flush_from_inside_the_stepping_threads_own_env_writes_at_once(
     tmp_path: Path,
 ) -> None:
+    from episode_audit.record.file import _inside
+
     flushed: list[int] = []
+    inside: list[bool] = []
 
     def flushing_step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        inside.append(_inside(recorder))  # (this thread's own call: not another's)
         recorder.flush()  # (a callback of the env's own, in the stepping thread)
         flushed.append(recorder._file.counts["blocks"])
+        assert recorder._file.flush_at > 0  # written now, not left to the step's end
         return np.zeros(2, np.float32), 1.0, False, False, {}
 
     recorder = RecordEvidence(
@@ -245,3 +250,4 @@ def test_a_flush_from_inside_the_stepping_threads_own_env_writes_at_once(
     recorder.step(np.int64(0))
     recorder.close()
     assert flushed == [0, 1]  # the first flush had only the reset row; the second, a step too
+    assert inside == [False, False]

@@ -40,7 +40,7 @@ PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_steps, *s
     *s_ending_keys, *s_limit_hit, *s_pending, *s_counts, *s_episodes, *s_outcome,
     *s_failure_label, *s_truncation_reason, *s_terminated, *s_truncated, *s_error,
     *s_time_limit, *s_elapsed_steps, *s_max_episode_steps, *s_next_episode, *s_env_index,
-    *s_agent, *s_slots, *s_file_clock, *s_error_ns;
+    *s_agent, *s_slots, *s_file_clock, *s_error_ns, *s_busy, *s_gated, *s_env, *s_on_error;
 
 
 /* Take `op` out of the cyclic garbage collector's lists, as CPython does itself with a tuple
@@ -304,17 +304,23 @@ PyMODINIT_FUNC PyInit__stepfast(void)
     INTERN(s_slots, "__slots__");
     INTERN(s_file_clock, "clock");
     INTERN(s_error_ns, "error_ns");
+    INTERN(s_busy, "_busy");
+    INTERN(s_gated, "_gated");
+    INTERN(s_env, "env");
+    INTERN(s_on_error, "_on_error");
     PyObject *time = PyImport_ImportModule("time");
     if (time == NULL)
         return NULL;
     monotonic_ns = PyObject_GetAttrString(time, "monotonic_ns");
     Py_DECREF(time);
-    if (monotonic_ns == NULL || PyType_Ready(&StepRecorderType) < 0)
+    if (monotonic_ns == NULL || PyType_Ready(&StepRecorderType) < 0 ||
+        PyType_Ready(&WrapperStepType) < 0)
         return NULL;
     PyObject *module = PyModule_Create(&module_def);
     if (module == NULL)
         return NULL;
-    if (PyModule_AddObjectRef(module, "StepRecorder", (PyObject *)&StepRecorderType) < 0) {
+    if (PyModule_AddObjectRef(module, "StepRecorder", (PyObject *)&StepRecorderType) < 0 ||
+        PyModule_AddObjectRef(module, "WrapperStep", (PyObject *)&WrapperStepType) < 0) {
         Py_DECREF(module);
         return NULL;
     }

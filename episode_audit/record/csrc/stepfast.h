@@ -1,7 +1,8 @@
 /* What the files of episode_audit.record._stepfast share (module.c says what it is).
 
    The extension is one module built from these files: module.c (the shared state, configure,
-   the module), step.c (the single-env step and reset: StepRecorder), records.c (episode records,
+   the module), step.c (the single-env step and reset: StepRecorder), wrapper.c
+   (RecordEvidence's step: WrapperStep), records.c (episode records,
    RNG states, message framing), blocks.c (a block's rows counted into their episodes, its
    columns of text) and vector.c (the vector recorder's steps). Only PyInit__stepfast
    is exported (setup.py builds with hidden visibility). */
@@ -58,7 +59,7 @@ extern PyObject *s_episode, *s_block, *s_terms_keys, *s_terms_names, *s_block_st
     *s_ending_keys, *s_limit_hit, *s_pending, *s_counts, *s_episodes, *s_outcome,
     *s_failure_label, *s_truncation_reason, *s_terminated, *s_truncated, *s_error,
     *s_time_limit, *s_elapsed_steps, *s_max_episode_steps, *s_next_episode, *s_env_index,
-    *s_agent, *s_slots, *s_file_clock, *s_error_ns;
+    *s_agent, *s_slots, *s_file_clock, *s_error_ns, *s_busy, *s_gated, *s_env, *s_on_error;
 
 #define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
 
@@ -104,6 +105,7 @@ int end_by_flags(PyObject *stream, PyObject *episode, PyObject *block, Py_ssize_
 PyObject *new_episode(PyObject *index, PyObject *seed, PyObject *rng_json, long long start_ns,
                       PyObject *env_index, PyObject *agent);
 extern PyTypeObject StepRecorderType;
+extern PyTypeObject WrapperStepType; /* wrapper.c */
 
 /* Beginning a stream's next episode, as EpisodeStream.begin does (the single-env reset and the
    vector recorder's autoreset): the caller sets file, stream, episode and block (those two new
