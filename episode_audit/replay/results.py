@@ -9,7 +9,7 @@ versions that differ from the recording and the inputs that could not be read), 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -26,6 +26,7 @@ __all__ = [
     "Status",
     "env_error",
     "none_replayable",
+    "not_told_from_versions",
     "restored_state",
     "short",
 ]
@@ -96,7 +97,7 @@ class EpisodeReplay:
     divergence: Divergence | None = None
     reason: str | None = None
     restored: str | None = None
-    """For a diverged episode: the state replay restored before its reset, e.g.
+    """For an episode that differed: the state replay restored before its reset, e.g.
     ``"seed 7; 2 earlier episodes in this env"`` (:func:`restored_state`)."""
 
 
@@ -194,6 +195,44 @@ def none_replayable(
     return [
         EpisodeReplay(file, int(r["episode"]), "not_replayable", 0, reason=reason) for r in records
     ]
+
+
+def not_told_from_versions(
+    episodes: Iterable[EpisodeReplay], versions: Mapping[str, tuple[str, str]]
+) -> list[EpisodeReplay]:
+    """``episodes`` with each diverged one ``not_replayable``: replayed with other ``versions``.
+
+    ``versions``: the libraries that can change what an env returns whose version differs from
+    the recording, ``{library: (recorded, here)}``. A difference replayed so cannot be told from
+    the versions' own (a physics library's last bits, say): the tool cannot justify
+    ``diverged``. The episode keeps its first difference; its reason names the versions.
+
+    >>> d = EpisodeReplay("f", 0, "diverged", 3, Divergence(2, "reward", "1.0", "1.5"))
+    >>> [e.status for e in not_told_from_versions([d], {})]
+    ['diverged']
+    >>> print(not_told_from_versions([d], {"mujoco": ("3.2.0", "3.1.6")})[0].reason)
+    differed at step 2 (reward), replayed with other versions than recorded (mujoco 3.2.0 \
+recorded, 3.1.6 here): a difference cannot be told from theirs; replay where they match to \
+verify, or allow for them with --atol
+    """
+    if not versions:
+        return list(episodes)
+    changed = "; ".join(
+        f"{lib} {recorded} recorded, {now} here" for lib, (recorded, now) in versions.items()
+    )
+    out = []
+    for e in episodes:
+        if e.status == "diverged" and e.divergence is not None:
+            d = e.divergence
+            where = "the reset" if d.step is None else f"step {d.step}"
+            reason = (
+                f"differed at {where} ({d.field}), replayed with other versions than recorded "
+                f"({changed}): a difference cannot be told from theirs; replay where they "
+                "match to verify, or allow for them with --atol"
+            )
+            e = replace(e, status="not_replayable", reason=reason)
+        out.append(e)
+    return out
 
 
 def env_error(exc: BaseException) -> str:

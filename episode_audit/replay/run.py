@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
@@ -24,7 +25,7 @@ from ..read.liveness import Holder, still_written
 from ..record.gym import library_versions
 from .envs import EnvFactory, replay_notes
 from .pettingzoo import replay_agents_evidence
-from .results import EpisodeReplay, ReplayResult
+from .results import EpisodeReplay, ReplayResult, not_told_from_versions
 from .single import replay_single_evidence
 
 __all__ = ["replay", "replay_evidence", "replay_options"]
@@ -170,7 +171,9 @@ def _replay_batch(
         return exc
     notes = replay_notes(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
     live = None if ev.writer is None else ev.torn or still_written(ev.writer)
-    return _Replayed(str(ev.path), replayed, notes, live, _version_differences(ev))
+    versions = _version_differences(ev)
+    replayed = not_told_from_versions(replayed, _env_libraries(versions))
+    return _Replayed(str(ev.path), replayed, notes, live, versions)
 
 
 def _add_file(parts: Sequence[_Replayed], result: ReplayResult) -> None:
@@ -303,6 +306,23 @@ def _version_differences(ev: Evidence) -> dict[str, tuple[str, str]]:
         for lib, recorded in ev.run.versions.items()
         if (now := current.get(lib) or _installed_version(lib)) != recorded
         and lib != "episode_audit"
+    }
+
+
+_READING_ONLY = frozenset({"pyarrow", "mcap", "episode_audit"})
+"""Recorded libraries that read and write files only: their versions change no env's step."""
+
+
+def _env_libraries(versions: dict[str, tuple[str, str]]) -> dict[str, tuple[str, str]]:
+    """Of the differing ``versions``, those that can have changed the replay's steps.
+
+    Python, and the libraries loaded in this process after replaying (numpy, Gymnasium, MuJoCo
+    when the env used it…); not one that is not loaded here, which the rebuilt env did not use.
+    """
+    return {
+        lib: pair
+        for lib, pair in versions.items()
+        if lib not in _READING_ONLY and (lib == "python" or lib in sys.modules)
     }
 
 

@@ -12,6 +12,8 @@ from episode_audit.replay import replay, replay_options
 
 FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
 CLEAN = FIXTURES / "clean.mcap"
+# (a CartPole file replays the same under any library versions; a MuJoCo one may not)
+CARTPOLE = FIXTURES / "unlabeled_failure.mcap"
 
 
 @pytest.mark.parametrize(
@@ -43,12 +45,12 @@ def test_replay_raises_for_an_unreadable_file_unless_told_to_keep_going(tmp_path
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x00" * 100)
     with pytest.raises(EvidenceError, match="not an MCAP file"):
-        replay([CLEAN, bad])
+        replay([CARTPOLE, bad])
     told: list[EpisodeAuditError] = []
-    result = replay([bad, CLEAN], keep_going=True, on_error=told.append)
+    result = replay([bad, CARTPOLE], keep_going=True, on_error=told.append)
     assert [str(e) for e in told] == [f"{bad}: not an MCAP file (wrong magic bytes)"]
     assert result.unreadable == [Unreadable(str(bad), "not an MCAP file (wrong magic bytes)")]
-    assert result.count("identical") == len(result.episodes) == 6 and result.ok
+    assert result.count("identical") == len(result.episodes) == 3 and result.ok
     assert "unreadable" not in result.to_dict()  # the JSON of replay() itself is as it was
 
 

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import json
+import platform
+import sys
 import warnings
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
+import pyarrow as pa
 import pytest
 from typer.testing import CliRunner
 
@@ -19,7 +23,9 @@ from episode_audit import (
     open_evidence,
 )
 from episode_audit.cli import app
+from episode_audit.format import names as fmt
 from episode_audit.replay import replay
+from tests.support.hostile import replace_column, rewrite
 from tests.support.mission import mission_env
 from tests.support.stateful import (
     cartpole8,
@@ -252,3 +258,61 @@ def test_the_cli_replays_a_file_with_an_unknown_sub_space(tmp_path: Path) -> Non
     result = CliRunner().invoke(app, ["replay", str(path), "--env-factory", factory])
     assert result.exit_code == 0, result.output
     assert "2 identical, 0 diverged, 0 not replayable" in result.stdout
+
+
+def tampered_cartpole(tmp_path: Path, versions: dict[str, str]) -> Path:
+    """Three CartPole episodes with episode 0's step 2 reward changed, recorded ``versions``."""
+    path = tmp_path / "cartpole.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        run_episodes(env, 3)
+
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        return {**meta, "versions": json.dumps({**json.loads(meta["versions"]), **versions})}
+
+    def steps(batch: pa.RecordBatch) -> pa.RecordBatch:
+        rewards = batch.column(fmt.COL_REWARD).to_pylist()
+        rewards[2] = 1.5
+        return replace_column(batch, fmt.COL_REWARD, rewards)
+
+    return rewrite(path, tmp_path / "tampered.mcap", run=run, steps=steps)
+
+
+def test_a_difference_replayed_with_other_env_library_versions_is_not_a_divergence(
+    tmp_path: Path,
+) -> None:
+    path = tampered_cartpole(tmp_path, {"numpy": "1.0.0", "python": "2.7.18"})
+    result = replay([path])
+    first, *others = result.episodes
+    assert [e.status for e in others] == ["identical", "identical"]
+    assert first.status == "not_replayable" and first.divergence is not None
+    assert (first.divergence.step, first.divergence.field) == (2, "reward")
+    here = (
+        f"python 2.7.18 recorded, {platform.python_version()} here; "
+        f"numpy 1.0.0 recorded, {np.__version__} here"
+    )
+    assert first.reason == (
+        f"differed at step 2 (reward), replayed with other versions than recorded ({here}): a "
+        "difference cannot be told from theirs; replay where they match to verify, or allow "
+        "for them with --atol"
+    )
+    assert result.ok and result.verified == 2
+    assert result.version_differences[str(path)]["numpy"] == ("1.0.0", np.__version__)
+    shown = CliRunner().invoke(app, ["replay", str(path), "--format", "markdown"])
+    assert shown.exit_code == 0, shown.output
+    assert "| not_replayable |" in shown.stdout and "replayed with other versions" in shown.stdout
+    assert "Library versions differ from the recording" in shown.stdout
+    as_json = json.loads(CliRunner().invoke(app, ["replay", str(path), "-f", "json"]).stdout)
+    assert as_json["episodes"][0]["divergence"]["field"] == "reward"
+
+
+@pytest.mark.parametrize("library", ["pyarrow", "mcap", "jax"])
+def test_versions_of_libraries_no_replayed_step_used_leave_a_divergence_a_divergence(
+    tmp_path: Path, library: str
+) -> None:
+    """pyarrow and mcap read the file; jax (not installed here) the rebuilt env did not load."""
+    assert library != "jax" or "jax" not in sys.modules
+    path = tampered_cartpole(tmp_path, {library: "0.0.1"})
+    result = replay([path])
+    assert [e.status for e in result.episodes] == ["diverged", "identical", "identical"]
+    assert result.version_differences[str(path)][library][0] == "0.0.1"
+    assert not result.ok

@@ -46,7 +46,7 @@ def replay_output(
             continue
         d = e.divergence
         where = "-" if d is None else ("reset" if d.step is None else f"step {d.step}")
-        detail = d.describe() if d is not None else (e.reason or "")
+        detail = (e.reason or "") if d is None or e.status == "not_replayable" else d.describe()
         if e.restored:
             detail += f" (restored: {e.restored})"
         rows.append([e.file, e.episode, e.status, e.steps, where, detail])
@@ -60,6 +60,7 @@ def replay_output(
         for lib, (recorded, current) in diffs.items()
     ]
     version_headers = ["file", "library", "recorded", "current"]
+    differed = any(e.divergence is not None for e in result.episodes)
     notes = [[file, note] for file, said in result.notes.items() for note in said]
     live = [
         f"{file}: {why}; replay it again once its recorder has closed it"
@@ -71,7 +72,7 @@ def replay_output(
             parts.append(markdown_table(headers, rows) + "\n")
         if notes:
             parts.append(markdown_table(["file", "note"], notes) + "\n")
-        if versions and result.count("diverged"):
+        if versions and differed:
             parts.append("Library versions differ from the recording:\n\n")
             parts.append(markdown_table(version_headers, versions) + "\n")
         parts.extend(f"{markdown_text(line)}\n" for line in live)
@@ -81,7 +82,7 @@ def replay_output(
         out.append(table("Episodes that did not replay identically", headers, rows))
     if notes:
         out.append(table("Replayed without recorded wrappers", ["file", "note"], notes))
-    if versions and result.count("diverged"):
+    if versions and differed:
         out.append(table("Library versions differ from the recording", version_headers, versions))
     out.extend(Text(safe(line)) for line in live)
     out.append(Text(summary))
