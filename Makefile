@@ -11,7 +11,7 @@ export MUJOCO_GL ?= egl
 # its imports again (~760 modules, ~2.8 s each time: see docs/cli.md, "Start-up time")
 unexport PYTHONDONTWRITEBYTECODE
 
-.PHONY: all venv test test-long lint typecheck pytest bench demo fixtures clean
+.PHONY: all venv test test-long test-pythons lint typecheck pytest bench demo fixtures clean
 
 all: test
 
@@ -34,8 +34,8 @@ $(STAMP): pyproject.toml setup.py $(wildcard episode_audit/record/csrc/*.[ch])
 venv: $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff format --check episode_audit episode_audit_cli.py episode_audit_pytest.py setup.py tests bench fixtures
-	$(BIN)/ruff check episode_audit episode_audit_cli.py episode_audit_pytest.py setup.py tests bench fixtures
+	$(BIN)/ruff format --check episode_audit episode_audit_cli.py episode_audit_pytest.py conftest.py setup.py tests bench fixtures
+	$(BIN)/ruff check episode_audit episode_audit_cli.py episode_audit_pytest.py conftest.py setup.py tests bench fixtures
 
 typecheck: $(STAMP)
 	$(BIN)/mypy
@@ -57,6 +57,11 @@ test: lint typecheck pytest
 test-long: $(STAMP)
 	$(BIN)/python -m pytest -q -s -m slow  # -s: the harnesses print their figures
 
+# the suite ("not slow") on every other CPython >= 3.10 that pyenv has (or PYTHONS="python3.12
+# ..."), each in .venv-X.Y with the dev extra but SB3 and torch: tests/pythons.py
+test-pythons: $(STAMP)
+	$(BIN)/python tests/pythons.py $(PYTHONS)
+
 bench: $(STAMP)
 	$(BIN)/python bench/run.py
 
@@ -67,4 +72,4 @@ fixtures: $(STAMP)
 	$(BIN)/python fixtures/make_fixtures.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info episode_audit/record/_stepfast.*.so .mypy_cache .ruff_cache demo-out demo-out-viewers
+	rm -rf $(VENV) .venv-3.* build *.egg-info episode_audit/record/_stepfast.*.so .mypy_cache .ruff_cache demo-out demo-out-viewers

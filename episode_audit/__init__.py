@@ -98,6 +98,11 @@ _LAZY = {
     "RecordVecEnvEvidence": "record.sb3",
     "record_evaluation": "record.sb3",
 }
+_EXTRAS = {
+    "record.pettingzoo": ("pettingzoo", "pettingzoo"),
+    "record.sb3": ("stable_baselines3", "sb3"),
+}
+"""By lazy module: the package it imports, and the extra that installs it."""
 
 
 def __getattr__(name: str) -> object:
@@ -106,4 +111,15 @@ def __getattr__(name: str) -> object:
         raise AttributeError(f"module 'episode_audit' has no attribute {name!r}")
     import importlib
 
-    return getattr(importlib.import_module(f".{module}", __name__), name)
+    try:
+        loaded = importlib.import_module(f".{module}", __name__)
+    except ModuleNotFoundError as exc:
+        package, extra = _EXTRAS[module]
+        if (exc.name or "").partition(".")[0] != package:
+            raise
+        raise ModuleNotFoundError(
+            f"episode_audit.{name} needs the {package!r} package; install it with "
+            f"pip install 'episode-audit[{extra}]'",
+            name=package,
+        ) from None
+    return getattr(loaded, name)

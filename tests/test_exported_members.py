@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import inspect
+import subprocess
+import sys
+from importlib.util import find_spec
+
+import pytest
 
 import episode_audit
 
@@ -21,6 +26,30 @@ def test_all_is_sorted_and_complete() -> None:
 
 def test_every_export_is_documented() -> None:
     for name in episode_audit.__all__:
+        lazy = episode_audit._LAZY.get(name)
+        if lazy is not None and find_spec(episode_audit._EXTRAS[lazy][0]) is None:
+            continue  # (its extra is not installed: the test above covers the error)
         value = getattr(episode_audit, name)
         if inspect.isclass(value) or inspect.isfunction(value):
             assert value.__doc__ and value.__doc__.strip(), name
+
+
+@pytest.mark.parametrize(
+    ("name", "package", "extra"),
+    [
+        ("RecordVecEnvEvidence", "stable_baselines3", "sb3"),
+        ("record_evaluation", "stable_baselines3", "sb3"),
+        ("RecordAECEvidence", "pettingzoo", "pettingzoo"),
+    ],
+)
+def test_an_optional_recorder_without_its_package_names_the_extra(
+    name: str, package: str, extra: str
+) -> None:
+    """(In a fresh interpreter where the package cannot be imported, as if not installed.)"""
+    code = f"import sys; sys.modules[{package!r}] = None; from episode_audit import {name}"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 1
+    assert done.stderr.splitlines()[-1] == (
+        f"ModuleNotFoundError: episode_audit.{name} needs the {package!r} package; "
+        f"install it with pip install 'episode-audit[{extra}]'"
+    )

@@ -9,7 +9,8 @@ says what was written; :func:`missing` is the error naming the extra a viewer li
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+import sys
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,8 +73,27 @@ class ViewerExport:
         )
 
 
-def missing(module: str, extra: str) -> ConfigurationError:
-    """The error for a viewer library that is not installed: it names the extra to install."""
+def missing(
+    module: str,
+    extra: str,
+    *,
+    needs: tuple[int, int] | None = None,
+    running: Sequence[int] = sys.version_info[:3],
+) -> ConfigurationError:
+    """The error for a viewer library that is not installed: it names the extra to install.
+
+    ``needs``: the oldest Python the library has a release for; on an older one (``running``)
+    the error says so rather than name an extra that installs nothing there.
+
+    >>> print(missing("rerun-sdk", "rerun", needs=(3, 11), running=(3, 10, 13)))
+    --to rerun: needs the 'rerun-sdk' package, which needs Python >= 3.11 (this is Python 3.10.13)
+    """
+    if needs is not None and tuple(running[:2]) < needs:
+        this = ".".join(str(part) for part in running[:3])
+        return ConfigurationError(
+            f"--to {extra}: needs the {module!r} package, which needs Python >= "
+            f"{needs[0]}.{needs[1]} (this is Python {this})"
+        )
     return ConfigurationError(
         f"--to {extra}: needs the {module!r} package; install it with "
         f"pip install 'episode-audit[{extra}]'"

@@ -47,7 +47,7 @@ def export_rerun(
     try:
         import rerun as rr
     except ImportError:
-        raise missing("rerun-sdk", "rerun") from None
+        raise missing("rerun-sdk", "rerun", needs=(3, 11)) from None
     source, out = Path(source), Path(out)
     ev = open_evidence(source)
     unfinished = None if ev.finished else ev.torn or "no run-end record"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import subprocess
 import sys
 import textwrap
@@ -127,9 +128,9 @@ def test_constant_terms_join_a_reward_terms_rule() -> None:
 
 
 def test_every_option_is_documented_once_in_the_settings() -> None:
-    doc = RecorderSettings.__doc__ or ""
+    doc = inspect.cleandoc(RecorderSettings.__doc__ or "")  # (as Python >= 3.13 keeps it)
     for name in RecorderOptions.__annotations__:
-        assert f"\n        {name}: " in doc, name
+        assert f"\n    {name}: " in doc, name
     for recorder in (RecordEvidence, RecordVectorEvidence):
         assert "RecorderSettings" in (recorder.__doc__ or "")
 

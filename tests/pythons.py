@@ -1,0 +1,102 @@
+"""The test suite on other CPythons (``make test-pythons``; ``make test`` runs it on ``.venv``'s).
+
+For each interpreter given (default: every CPython 3.10 or newer that pyenv has, other than
+``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages but Stable-Baselines3 and
+torch (only the machine's own Python has a CPU torch wheel on disk; elsewhere pip would fetch
+gigabytes of CUDA wheels), build the compiled step, and run ``pytest -m "not slow"``. The SB3
+tests skip, and their doctests are not collected (``conftest.py``). Prints one line per Python;
+exits 1 when any suite fails or cannot be installed.
+
+    python tests/pythons.py [PYTHON ...]
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+LEFT_OUT = ("stable-baselines3", "torch")
+"""The ``dev`` extra's packages not installed on other Pythons (SB3 needs torch)."""
+
+
+def requirements() -> list[str]:
+    """The package's dependencies and its ``dev`` extra's, but :data:`LEFT_OUT`."""
+    import tomllib  # (Python >= 3.11: this runs on .venv's; pytest on 3.10 imports the module)
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    wanted = [*project["dependencies"], *project["optional-dependencies"]["dev"]]
+    return [r for r in wanted if not r.startswith(LEFT_OUT)]
+
+
+def version_of(python: str) -> str:
+    """``"3.12"`` for a Python 3.12 interpreter."""
+    code = "import sys; print('%d.%d' % sys.version_info[:2])"
+    return subprocess.run(
+        [python, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.strip()
+
+
+def pythons() -> list[str]:
+    """pyenv's CPythons 3.10 and newer, but the one ``.venv`` runs."""
+    own = f"{sys.version_info.major}.{sys.version_info.minor}"
+    found = sorted(glob.glob(os.path.expanduser("~/.pyenv/versions/3.*/bin/python3")))
+    chosen: dict[str, str] = {}
+    for python in found:
+        version = version_of(python)
+        if tuple(map(int, version.split("."))) >= (3, 10) and version != own:
+            chosen[version] = python  # (the newest patch release of each)
+    return list(chosen.values())
+
+
+def run(python: str) -> tuple[str, int, str]:
+    """Install and test on ``python``: (its version, exit status, the last line of pytest)."""
+    version = version_of(python)
+    venv = REPO / f".venv-{version}"
+    bin_ = venv / "bin"
+    env = {**os.environ, "EPISODE_AUDIT_REQUIRE_EXTENSION": "1"}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    steps = [
+        [python, "-m", "venv", str(venv)],
+        [str(bin_ / "python"), "-m", "pip", "install", "--quiet", "uv"],
+        [str(bin_ / "python"), "-m", "uv", "pip", "install", "--quiet", "--python",
+         str(bin_ / "python"), *requirements(), "-e", "."],
+    ]  # fmt: skip
+    for step in steps:
+        done = subprocess.run(step, cwd=REPO, env=env, capture_output=True, text=True)
+        if done.returncode:
+            why = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
+            return version, 1, f"install failed: {why}"
+    test = [str(bin_ / "python"), "-m", "pytest", "-q", "-m", "not slow", "-n", "2"]
+    done = subprocess.run(
+        [*test, "--dist", "loadfile"], cwd=REPO, env=env, capture_output=True, text=True
+    )
+    lines = done.stdout.strip().splitlines() or ["(no output)"]
+    if done.returncode:
+        (REPO / f".venv-{version}" / "pytest.log").write_text(done.stdout + done.stderr)
+    return version, done.returncode, lines[-1].strip("= ")
+
+
+def main(argv: list[str]) -> int:
+    chosen = argv or pythons()
+    if not chosen:
+        print("no other CPython >= 3.10 found (pass interpreters as arguments)")
+        return 1
+    failed = 0
+    for python in chosen:
+        start = time.monotonic()
+        version, code, last = run(python)
+        took = time.monotonic() - start
+        failed += code != 0
+        print(f"Python {version}: {'ok' if code == 0 else 'FAILED'} in {took:.0f} s: {last}")
+        if code:
+            print(f"  (the whole output: .venv-{version}/pytest.log)")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
