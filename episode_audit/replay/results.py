@@ -205,30 +205,28 @@ def not_told_from_versions(
     ``versions``: the libraries that can change what an env returns whose version differs from
     the recording, ``{library: (recorded, here)}``. A difference replayed so cannot be told from
     the versions' own (a physics library's last bits, say): the tool cannot justify
-    ``diverged``. The episode keeps its first difference; its reason names the versions.
+    ``diverged``. The episode keeps its first difference; its reason names the libraries (the
+    result's ``version_differences`` their versions).
 
     >>> d = EpisodeReplay("f", 0, "diverged", 3, Divergence(2, "reward", "1.0", "1.5"))
     >>> [e.status for e in not_told_from_versions([d], {})]
     ['diverged']
     >>> print(not_told_from_versions([d], {"mujoco": ("3.2.0", "3.1.6")})[0].reason)
-    differed at step 2 (reward), replayed with other versions than recorded (mujoco 3.2.0 \
-recorded, 3.1.6 here): a difference cannot be told from theirs; replay where they match to \
-verify, or allow for them with --atol
+    differed at step 2 (reward) with other versions of mujoco than recorded: a difference cannot \
+be told from theirs; replay where they match to verify, or allow for them with --atol
     """
     if not versions:
         return list(episodes)
-    changed = "; ".join(
-        f"{lib} {recorded} recorded, {now} here" for lib, (recorded, now) in versions.items()
-    )
+    changed = ", ".join(versions)
     out = []
     for e in episodes:
         if e.status == "diverged" and e.divergence is not None:
             d = e.divergence
             where = "the reset" if d.step is None else f"step {d.step}"
             reason = (
-                f"differed at {where} ({d.field}), replayed with other versions than recorded "
-                f"({changed}): a difference cannot be told from theirs; replay where they "
-                "match to verify, or allow for them with --atol"
+                f"differed at {where} ({d.field}) with other versions of {changed} than "
+                "recorded: a difference cannot be told from theirs; replay where they match "
+                "to verify, or allow for them with --atol"
             )
             e = replace(e, status="not_replayable", reason=reason)
         out.append(e)

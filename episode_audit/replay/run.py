@@ -309,20 +309,24 @@ def _version_differences(ev: Evidence) -> dict[str, tuple[str, str]]:
     }
 
 
-_READING_ONLY = frozenset({"pyarrow", "mcap", "episode_audit"})
-"""Recorded libraries that read and write files only: their versions change no env's step."""
+_STEP_LIBRARIES = frozenset(
+    {"python", "numpy", "gymnasium", "mujoco", "pettingzoo", "torch", "jax"}
+)
+"""Of the versions a recorder records (``library_versions``), those that can change an env's
+steps: not pyarrow and mcap, which read and write the file."""
 
 
 def _env_libraries(versions: dict[str, tuple[str, str]]) -> dict[str, tuple[str, str]]:
     """Of the differing ``versions``, those that can have changed the replay's steps.
 
-    Python, and the libraries loaded in this process after replaying (numpy, Gymnasium, MuJoCo
-    when the env used it…); not one that is not loaded here, which the rebuilt env did not use.
+    Python, and the :data:`_STEP_LIBRARIES` loaded in this process after replaying (numpy,
+    Gymnasium, MuJoCo when the env used it…); not one that is not loaded here, which the rebuilt
+    env did not use, nor a name no recorder writes (a hand-edited file's).
     """
     return {
         lib: pair
         for lib, pair in versions.items()
-        if lib not in _READING_ONLY and (lib == "python" or lib in sys.modules)
+        if lib in _STEP_LIBRARIES and (lib == "python" or lib in sys.modules)
     }
 
 
