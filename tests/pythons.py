@@ -1,9 +1,10 @@
 """The test suite on other CPythons (``make test-pythons``; ``make test`` runs it on ``.venv``'s).
 
 For each interpreter given (default: every CPython 3.10 or newer that pyenv has, other than
-``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages but Stable-Baselines3 and
-torch (only the machine's own Python has a CPU torch wheel on disk; elsewhere pip would fetch
-gigabytes of CUDA wheels), build the compiled step, and run ``pytest -m "not slow"``. The SB3
+``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages (numpy 1 on the oldest
+Python: :data:`OLDEST`) but Stable-Baselines3 and torch (only the machine's own Python has a
+CPU torch wheel on disk; elsewhere pip would fetch gigabytes of CUDA wheels), build the
+compiled step, and run ``pytest -m "not slow"``. The SB3
 tests skip, and their doctests are not collected (``conftest.py``). Prints one line per Python;
 exits 1 when any suite fails or cannot be installed.
 
@@ -22,6 +23,9 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 LEFT_OUT = ("stable-baselines3", "torch")
 """The ``dev`` extra's packages not installed on other Pythons (SB3 needs torch)."""
+OLDEST = ["numpy<2", "pyarrow<26"]
+"""On the oldest Python, numpy 1 (pyarrow 26 needs numpy 2 and does not say so: pip would pair
+them, and ``import pyarrow`` fails)."""
 
 
 def requirements() -> list[str]:
@@ -53,8 +57,11 @@ def pythons() -> list[str]:
     return list(chosen.values())
 
 
-def run(python: str) -> tuple[str, int, str]:
-    """Install and test on ``python``: (its version, exit status, the last line of pytest)."""
+def run(python: str, extra: list[str]) -> tuple[str, int, str]:
+    """Install (with the ``extra`` requirements) and test on ``python``.
+
+    Returns its version, the exit status and the last line of pytest.
+    """
     version = version_of(python)
     venv = REPO / f".venv-{version}"
     bin_ = venv / "bin"
@@ -64,7 +71,7 @@ def run(python: str) -> tuple[str, int, str]:
         [python, "-m", "venv", str(venv)],
         [str(bin_ / "python"), "-m", "pip", "install", "--quiet", "uv"],
         [str(bin_ / "python"), "-m", "uv", "pip", "install", "--quiet", "--python",
-         str(bin_ / "python"), *requirements(), "-e", "."],
+         str(bin_ / "python"), *requirements(), *extra, "-e", "."],
     ]  # fmt: skip
     for step in steps:
         done = subprocess.run(step, cwd=REPO, env=env, capture_output=True, text=True)
@@ -87,12 +94,15 @@ def main(argv: list[str]) -> int:
         print("no other CPython >= 3.10 found (pass interpreters as arguments)")
         return 1
     failed = 0
+    oldest = min(chosen, key=lambda python: tuple(map(int, version_of(python).split("."))))
     for python in chosen:
         start = time.monotonic()
-        version, code, last = run(python)
+        extra = OLDEST if python == oldest else []
+        version, code, last = run(python, extra)
+        label = f"{version} ({', '.join(extra)})" if extra else version
         took = time.monotonic() - start
         failed += code != 0
-        print(f"Python {version}: {'ok' if code == 0 else 'FAILED'} in {took:.0f} s: {last}")
+        print(f"Python {label}: {'ok' if code == 0 else 'FAILED'} in {took:.0f} s: {last}")
         if code:
             print(f"  (the whole output: .venv-{version}/pytest.log)")
     return 1 if failed else 0
