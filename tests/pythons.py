@@ -1,12 +1,12 @@
 """The test suite on other CPythons (``make test-pythons``; ``make test`` runs it on ``.venv``'s).
 
 For each interpreter given (default: every CPython 3.10 or newer that pyenv has, other than
-``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages (numpy 1 on the oldest
-Python: :data:`OLDEST`) but Stable-Baselines3 and torch (only the machine's own Python has a
-CPU torch wheel on disk; elsewhere pip would fetch gigabytes of CUDA wheels), build the
-compiled step, and run ``pytest -m "not slow"``. The SB3
-tests skip, and their doctests are not collected (``conftest.py``). Prints one line per Python;
-exits 1 when any suite fails or cannot be installed.
+``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages (on the oldest Python,
+numpy 1 and pyproject's floors: :data:`OLDEST`) but Stable-Baselines3 and torch (only the
+machine's own Python has a CPU torch wheel on disk; elsewhere pip would fetch gigabytes of CUDA
+wheels), build the compiled step, and run ``pytest -m "not slow"``. The SB3 tests skip, and
+their doctests are not collected (``conftest.py``). Prints one line per Python; exits 1 when
+any suite fails or cannot be installed.
 
     python tests/pythons.py [PYTHON ...]
 """
@@ -23,9 +23,18 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 LEFT_OUT = ("stable-baselines3", "torch")
 """The ``dev`` extra's packages not installed on other Pythons (SB3 needs torch)."""
-OLDEST = ["numpy<2", "pyarrow<26"]
-"""On the oldest Python, numpy 1 (pyarrow 26 needs numpy 2 and does not say so: pip would pair
-them, and ``import pyarrow`` fails)."""
+OLDEST = [
+    "numpy<2",
+    "pyarrow==21.*",
+    "gymnasium[mujoco]==1.3.*",
+    "mujoco==3.3.5",
+    "mcap==1.5.*",
+    "scipy==1.15.*",
+    "pettingzoo==1.27.*",
+]
+"""On the oldest Python: numpy 1, and pyproject's floors of the libraries whose older releases
+lack what episode-audit uses (pyarrow 26 needs numpy 2 and does not say so: pip would pair them,
+and ``import pyarrow`` fails)."""
 
 
 def requirements() -> list[str]:

@@ -3,6 +3,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -31,17 +32,18 @@ ARRAY_SPACES = (spaces.Box, spaces.MultiDiscrete, spaces.MultiBinary)
 
 IMAGE = spaces.Box(0, 255, shape=(64, 64, 3), dtype=np.uint8)
 NESTED = spaces.Dict(
-    {
-        "pos": spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32),
-        "inner": spaces.Tuple(
-            (
-                spaces.Discrete(3, start=1),
-                spaces.Dict({"flags": spaces.MultiBinary(3), "name": spaces.Text(4)}),
-            )
-        ),
-        "angle": spaces.Box(-np.pi, np.pi, shape=(), dtype=np.float64),
-    },
-    sort_keys=False,
+    OrderedDict(  # (keys in this order: Gymnasium sorts a plain dict's before 1.4's sort_keys)
+        {
+            "pos": spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32),
+            "inner": spaces.Tuple(
+                (
+                    spaces.Discrete(3, start=1),
+                    spaces.Dict({"flags": spaces.MultiBinary(3), "name": spaces.Text(4)}),
+                )
+            ),
+            "angle": spaces.Box(-np.pi, np.pi, shape=(), dtype=np.float64),
+        }
+    )
 )
 
 SPACES: dict[str, spaces.Space[Any]] = {
