@@ -214,21 +214,28 @@ def not_told_from_versions(
     >>> print(not_told_from_versions([d], {"mujoco": ("3.2.0", "3.1.6")})[0].reason)
     differed at step 2 (reward) with other versions of mujoco than recorded: a difference cannot \
 be told from theirs; replay where they match to verify, or allow for them with --atol
+    >>> noted = replace(d, reason="state restored: NormalizeObservation snapshot")
+    >>> not_told_from_versions([noted], {"numpy": ("2.4.6", "2.2.6")})[0].reason[-54:]
+    '--atol (state restored: NormalizeObservation snapshot)'
     """
     if not versions:
         return list(episodes)
     changed = ", ".join(versions)
     out = []
     for e in episodes:
-        if e.status == "diverged" and e.divergence is not None:
+        if e.status == "diverged":
             d = e.divergence
-            where = "the reset" if d.step is None else f"step {d.step}"
-            reason = (
-                f"differed at {where} ({d.field}) with other versions of {changed} than "
-                "recorded: a difference cannot be told from theirs; replay where they match "
-                "to verify, or allow for them with --atol"
+            where = (
+                "" if d is None else f" at {'the reset' if d.step is None else f'step {d.step}'}"
             )
-            e = replace(e, status="not_replayable", reason=reason)
+            what = "" if d is None else f" ({d.field})"
+            reason = (
+                f"differed{where}{what} with other versions of {changed} than recorded: a "
+                "difference cannot be told from theirs; replay where they match to verify, or "
+                "allow for them with --atol"
+            )
+            note = "" if e.reason is None else f" ({e.reason})"  # (a diverged one's note)
+            e = replace(e, status="not_replayable", reason=reason + note)
         out.append(e)
     return out
 
