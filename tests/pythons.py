@@ -39,7 +39,10 @@ and ``import pyarrow`` fails)."""
 
 def requirements() -> list[str]:
     """The package's dependencies and its ``dev`` extra's, but :data:`LEFT_OUT`."""
-    import tomllib  # (Python >= 3.11: this runs on .venv's; pytest on 3.10 imports the module)
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10 (.venv made by a python3 3.10): pip's own copy of tomli
+        from pip._vendor import tomli as tomllib
 
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
     wanted = [*project["dependencies"], *project["optional-dependencies"]["dev"]]
