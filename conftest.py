@@ -10,11 +10,14 @@ from __future__ import annotations
 from importlib.util import find_spec
 from pathlib import Path
 
-_PACKAGE = Path(__file__).resolve().parent / "episode_audit"
+import episode_audit
+
+_PACKAGE = Path(episode_audit.__file__).resolve().parent
 _NEEDS = {
-    _PACKAGE / "record" / "sb3": "stable_baselines3",
-    _PACKAGE / "record" / "pettingzoo": "pettingzoo",
+    _PACKAGE.joinpath(*module.split(".")): package
+    for module, (package, _) in episode_audit._EXTRAS.items()
 }
+"""A recorder's folder: the library it needs (the package's own map of its optional recorders)."""
 
 
 def pytest_ignore_collect(collection_path: Path) -> bool | None:

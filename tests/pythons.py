@@ -69,12 +69,11 @@ def pythons() -> list[str]:
     return list(chosen.values())
 
 
-def run(python: str, extra: list[str]) -> tuple[str, int, str]:
-    """Install (with the ``extra`` requirements) and test on ``python``.
+def run(python: str, version: str, extra: list[str]) -> tuple[str, int, str]:
+    """Install (with the ``extra`` requirements) and test on ``python`` (Python ``version``).
 
     Returns its version, the exit status and the last line of pytest.
     """
-    version = version_of(python)
     venv = REPO / f".venv-{version}"
     bin_ = venv / "bin"
     env = {**os.environ, "EPISODE_AUDIT_REQUIRE_EXTENSION": "1"}
@@ -106,11 +105,12 @@ def main(argv: list[str]) -> int:
         print("no other CPython >= 3.10 found (pass interpreters as arguments)")
         return 1
     failed = 0
-    oldest = min(chosen, key=lambda python: tuple(map(int, version_of(python).split("."))))
+    versions = {python: version_of(python) for python in chosen}
+    oldest = min(chosen, key=lambda python: tuple(map(int, versions[python].split("."))))
     for python in chosen:
         start = time.monotonic()
         extra = OLDEST if python == oldest else []
-        version, code, last = run(python, extra)
+        version, code, last = run(python, versions[python], extra)
         label = f"{version} ({', '.join(extra)})" if extra else version
         took = time.monotonic() - start
         failed += code != 0

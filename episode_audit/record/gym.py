@@ -41,6 +41,7 @@ from .notes import note, short
 from .rules import find_time_limit
 from .seeding import capture_rng_state
 from .settings import (
+    STEP_LIBRARIES,
     RecorderOptions,
     RecorderSettings,
     check_options,
@@ -50,6 +51,7 @@ from .settings import (
 from .state import StateTargets
 
 __all__ = [
+    "STEP_LIBRARIES",
     "RecordEvidence",
     "entry_point",
     "library_versions",

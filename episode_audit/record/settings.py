@@ -32,6 +32,7 @@ __all__ = [
     "DEFAULT_BLOCK_STEPS",
     "RecorderOptions",
     "RecorderSettings",
+    "STEP_LIBRARIES",
     "check_options",
     "library_versions",
     "run_info",
@@ -204,6 +205,14 @@ def _entry_points(wrappers: Sequence[str | type] | None) -> tuple[str, ...]:
 _ENTRY_POINT = re.compile(r"[A-Za-z_][\w.]{0,200}:[A-Za-z_][\w.]{0,80}")
 
 
+_LOADED_LIBRARIES = ("mujoco", "pettingzoo", "torch", "jax")
+"""Libraries an env may use, recorded when the process has imported them."""
+
+STEP_LIBRARIES = frozenset({"python", "numpy", "gymnasium", *_LOADED_LIBRARIES})
+"""Of what :func:`library_versions` records, what can change an env's steps (not pyarrow and
+mcap, which read and write the file; not episode-audit)."""
+
+
 def library_versions() -> dict[str, str]:
     """Versions of Python and of the libraries a rollout depends on (those imported).
 
@@ -220,7 +229,7 @@ def library_versions() -> dict[str, str]:
         "mcap": getattr(mcap, "__version__", "unknown"),
         "episode_audit": __version__,
     }
-    for name in ("mujoco", "pettingzoo", "torch", "jax"):
+    for name in _LOADED_LIBRARIES:
         module = sys.modules.get(name)
         if module is not None:
             versions[name] = str(getattr(module, "__version__", "unknown"))

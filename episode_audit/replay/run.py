@@ -22,7 +22,7 @@ from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import Evidence, open_evidence
 from ..read.inputs import skipped
 from ..read.liveness import Holder, still_written
-from ..record.gym import library_versions
+from ..record.gym import STEP_LIBRARIES, library_versions
 from .envs import EnvFactory, replay_notes
 from .pettingzoo import replay_agents_evidence
 from .results import EpisodeReplay, ReplayResult, not_told_from_versions
@@ -309,24 +309,17 @@ def _version_differences(ev: Evidence) -> dict[str, tuple[str, str]]:
     }
 
 
-_STEP_LIBRARIES = frozenset(
-    {"python", "numpy", "gymnasium", "mujoco", "pettingzoo", "torch", "jax"}
-)
-"""Of the versions a recorder records (``library_versions``), those that can change an env's
-steps: not pyarrow and mcap, which read and write the file."""
-
-
 def _env_libraries(versions: dict[str, tuple[str, str]]) -> dict[str, tuple[str, str]]:
     """Of the differing ``versions``, those that can have changed the replay's steps.
 
-    Python, and the :data:`_STEP_LIBRARIES` loaded in this process after replaying (numpy,
+    Python, and the ``STEP_LIBRARIES`` loaded in this process after replaying (numpy,
     Gymnasium, MuJoCo when the env used it…); not one that is not loaded here, which the rebuilt
     env did not use, nor a name no recorder writes (a hand-edited file's).
     """
     return {
         lib: pair
         for lib, pair in versions.items()
-        if lib in _STEP_LIBRARIES and (lib == "python" or lib in sys.modules)
+        if lib in STEP_LIBRARIES and (lib == "python" or lib in sys.modules)
     }
 
 
