@@ -1,12 +1,12 @@
 """The test suite on other CPythons (``make test-pythons``; ``make test`` runs it on ``.venv``'s).
 
 For each interpreter given (default: every CPython 3.10 or newer that pyenv has, other than
-``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages (on the oldest Python,
-numpy 1 and pyproject's floors: :data:`OLDEST`) but Stable-Baselines3 and torch (only the
-machine's own Python has a CPU torch wheel on disk; elsewhere pip would fetch gigabytes of CUDA
-wheels), build the compiled step, and run ``pytest -m "not slow"``. The SB3 tests skip, and
-their doctests are not collected (``conftest.py``). Prints one line per Python; exits 1 when
-any suite fails or cannot be installed.
+``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages but Stable-Baselines3 and
+torch (only the machine's own Python has a CPU torch wheel on disk; elsewhere pip would fetch
+gigabytes of CUDA wheels), build the compiled step, and run ``pytest -m "not slow"``. The oldest
+Python gets numpy 1 and pyproject's floors (:data:`OLDEST`), the next Gymnasium 1.2
+(:data:`BETWEEN`). The SB3 tests skip, and their doctests are not collected (``conftest.py``).
+Prints one line per Python; exits 1 when any suite fails or cannot be installed.
 
     python tests/pythons.py [PYTHON ...]
 """
@@ -26,7 +26,7 @@ LEFT_OUT = ("stable-baselines3", "torch")
 OLDEST = [
     "numpy<2",
     "pyarrow==21.*",
-    "gymnasium[mujoco]==1.3.*",
+    "gymnasium[mujoco]==1.1.*",
     "mujoco==3.3.5",
     "mcap==1.5.*",
     "scipy==1.15.*",
@@ -35,6 +35,9 @@ OLDEST = [
 """On the oldest Python: numpy 1, and pyproject's floors of the libraries whose older releases
 lack what episode-audit uses (pyarrow 26 needs numpy 2 and does not say so: pip would pair them,
 and ``import pyarrow`` fails)."""
+BETWEEN = ["gymnasium[mujoco]==1.2.*"]
+"""On the second-oldest Python: the Gymnasium between the floor and the newest (Stable-Baselines3
+2.7 and 2.8 cap it below 1.3)."""
 
 
 def requirements() -> list[str]:
@@ -106,10 +109,11 @@ def main(argv: list[str]) -> int:
         return 1
     failed = 0
     versions = {python: version_of(python) for python in chosen}
-    oldest = min(chosen, key=lambda python: tuple(map(int, versions[python].split("."))))
+    ordered = sorted(chosen, key=lambda python: tuple(map(int, versions[python].split("."))))
+    extras = dict(zip(ordered, [OLDEST, BETWEEN]))
     for python in chosen:
         start = time.monotonic()
-        extra = OLDEST if python == oldest else []
+        extra = extras.get(python, [])
         version, code, last = run(python, versions[python], extra)
         label = f"{version} ({', '.join(extra)})" if extra else version
         took = time.monotonic() - start

@@ -60,7 +60,9 @@ class RunningStatsAdapter:
 
     ``stats``: the attributes holding a ``RunningMeanStd`` (a dict of them for SB3's Dict
     observations); ``arrays``: numpy arrays and numbers the wrapper carries across episodes;
-    ``flags``: booleans (whether it still updates its statistics).
+    ``flags``: booleans (whether it still updates its statistics); ``versioned``: arrays only
+    some versions of the wrapper have (kept when there, and restored only into a wrapper that
+    has them too).
     """
 
     name: str
@@ -68,6 +70,7 @@ class RunningStatsAdapter:
     arrays: tuple[str, ...] = ()
     flags: tuple[str, ...] = ()
     needed: Literal["always", "unseeded"] = "always"
+    versioned: tuple[str, ...] = ()
 
     def get_state(self, obj: Any) -> Mapping[str, StateValue]:
         """The statistics, arrays and flags of ``obj``."""
@@ -84,6 +87,9 @@ class RunningStatsAdapter:
                 state.update(_rms_state(attr, rms))
         for attr in self.arrays:
             state[attr] = _value(getattr(obj, attr))
+        for attr in self.versioned:
+            if hasattr(obj, attr):
+                state[attr] = _value(getattr(obj, attr))
         for attr in self.flags:
             state[attr] = bool(getattr(obj, attr))
         return state
@@ -103,6 +109,12 @@ class RunningStatsAdapter:
                 _set_rms(attr, rms, state)
         for attr in self.arrays:
             _set_value(obj, attr, state[attr])
+        for attr in self.versioned:
+            if (attr in state) != hasattr(obj, attr):
+                only = "the recorded state has" if attr in state else "the rebuilt wrapper has"
+                raise ValueError(f"only {only} {attr} (another version of its library)")
+            if attr in state:
+                _set_value(obj, attr, state[attr])
         for attr in self.flags:
             setattr(obj, attr, bool(state[attr]))
 
@@ -145,8 +157,9 @@ def _register() -> None:
     vector_normalize_reward = RunningStatsAdapter(
         "gymnasium.vector.NormalizeReward",
         ("return_rms",),
-        ("accumulated_reward", "_prev_dones"),
+        ("accumulated_reward",),
         ("_update_running_mean",),
+        versioned=("_prev_dones",),  # (Gymnasium >= 1.3)
     )
     vector_normalize_obs = RunningStatsAdapter(
         "gymnasium.vector.NormalizeObservation", ("obs_rms",), flags=("_update_running_mean",)

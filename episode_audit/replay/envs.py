@@ -145,7 +145,7 @@ def _from_registry(
                     f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
                 )
             env = cls(env, **(wrapper.get("kwargs") or {}))
-    except ConfigurationError:
+    except (ConfigurationError, ReplayError):
         raise
     except Exception as exc:  # the env's own code, given what the file recorded
         raise ReplayError(
@@ -160,8 +160,18 @@ def _load_wrapper(entry_point: str) -> Any:
 
 
 def _gymnasium_wrapper(name: str) -> Any:
-    """``gymnasium.wrappers.<name>``, for a name in the registry of recorded wrappers."""
-    return getattr(gym.wrappers, name)
+    """``gymnasium.wrappers.<name>``, for a name in the registry of recorded wrappers.
+
+    The registry also names wrappers of newer Gymnasiums than the installed one: a file that
+    used one cannot be replayed here, and says so.
+    """
+    cls = getattr(gym.wrappers, name, None)
+    if cls is None:
+        raise ReplayError(
+            f"the recorded wrapper {name} is not in this Gymnasium ({gym.__version__}); "
+            "replay with the Gymnasium version the file recorded"
+        )
+    return cls
 
 
 def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:

@@ -142,6 +142,30 @@ def test_gymnasium_vector_normalize_wrappers_round_trip(wrapper: Any) -> None:
     _same_rollout(warmed, fresh, vector=True)
 
 
+def test_vector_normalize_reward_of_another_gymnasium_is_told_not_restored() -> None:
+    """Gymnasium 1.3 added ``_prev_dones`` to it: a snapshot and a wrapper must agree."""
+    adapter = adapter_for(gym.wrappers.vector.NormalizeReward(gym.make_vec("CartPole-v1", 2)))
+    assert adapter is not None
+
+    def make(with_prev_dones: bool) -> Any:
+        env = gym.wrappers.vector.NormalizeReward(gym.make_vec("CartPole-v1", 2))
+        if hasattr(env, "_prev_dones") and not with_prev_dones:
+            del env._prev_dones  # as Gymnasium 1.2's has none
+        elif with_prev_dones:
+            env._prev_dones = np.zeros(2, dtype=np.float32)  # as Gymnasium >= 1.3's
+        return env
+
+    newer, older = make(True), make(False)
+    assert "_prev_dones" in adapter.get_state(newer)
+    assert "_prev_dones" not in adapter.get_state(older)
+    adapter.set_state(make(True), adapter.get_state(newer))
+    adapter.set_state(make(False), adapter.get_state(older))
+    with pytest.raises(ValueError, match=r"^only the recorded state has _prev_dones \(another"):
+        adapter.set_state(older, adapter.get_state(newer))
+    with pytest.raises(ValueError, match=r"^only the rebuilt wrapper has _prev_dones \(another"):
+        adapter.set_state(newer, adapter.get_state(older))
+
+
 def test_sb3_vec_normalize_round_trips_without_the_sb3_recorder() -> None:
     pytest.importorskip("stable_baselines3")
     from stable_baselines3.common.env_util import make_vec_env

@@ -175,6 +175,23 @@ def test_the_replay_env_leaves_out_gymnasiums_development_checks(tmp_path: Path)
     assert replay([plain, wrapped]).count("identical") == 3
 
 
+def test_a_wrapper_of_another_gymnasium_is_named_not_replayed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A file made with a wrapper the installed Gymnasium lacks (ClipReward stands in for one
+    a newer release added, e.g. 1.3's RepeatAction) says so, and which version is here."""
+    wrapped = tmp_path / "wrapped.mcap"
+    with RecordEvidence(gym.wrappers.ClipReward(gym.make("CartPole-v1"), 0.0, 0.5), wrapped) as rec:
+        rec.reset(seed=1)
+        rec.step(0)
+    monkeypatch.delattr(gym.wrappers, "ClipReward")
+    with pytest.raises(ReplayError, match=r"^the recorded wrapper ClipReward is not in this Gym"):
+        build_env(open_evidence(wrapped).run)
+    [episode] = replay([wrapped]).episodes
+    assert episode.status == "not_replayable"
+    assert f"is not in this Gymnasium ({gym.__version__}); replay with" in str(episode.reason)
+
+
 def _limit_script(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
     """Action 1 ends the task, 2 makes the env truncate itself; stepping past ``env.fail_at``
     steps raises."""

@@ -6,10 +6,12 @@ their codecs (and replay their bounds) from the file alone.
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Mapping
 from typing import Any
 
+import gymnasium
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
@@ -234,6 +236,18 @@ def _box_from_description(desc: Mapping[str, Any]) -> spaces.Box[Any]:
     return box
 
 
+def _discrete(n: int, start: int, dtype: str) -> spaces.Discrete:
+    """``Discrete(n, start=start, dtype=dtype)``; int64 without the argument Gymnasium 1.1 lacks."""
+    if np.dtype(dtype) == np.int64:
+        return spaces.Discrete(n, start=start)
+    if "dtype" not in inspect.signature(spaces.Discrete).parameters:
+        raise ConfigurationError(
+            f"a Discrete space of dtype {dtype} needs Gymnasium >= 1.2 (this is "
+            f"{gymnasium.__version__}): upgrade it to rebuild this space"
+        )
+    return spaces.Discrete(n, start=start, dtype=dtype)
+
+
 def _from_description(desc: Any) -> Space[Any]:
     if not isinstance(desc, Mapping) or not isinstance(desc.get("type"), str):
         raise ConfigurationError(
@@ -243,7 +257,7 @@ def _from_description(desc: Any) -> Space[Any]:
     if kind == "Box":
         return _box_from_description(desc)
     if kind == "Discrete":
-        return spaces.Discrete(int(desc["n"]), start=int(desc["start"]), dtype=desc["dtype"])
+        return _discrete(int(desc["n"]), int(desc["start"]), desc["dtype"])
     if kind == "MultiDiscrete":
         dtype: np.dtype[Any] = np.dtype(desc["dtype"])
         nvec: npt.NDArray[np.integer[Any]] = np.array(desc["nvec"], dtype=dtype)
