@@ -58,7 +58,8 @@ test-long: $(STAMP)
 	$(BIN)/python -m pytest -q -s -m slow  # -s: the harnesses print their figures
 
 # the suite ("not slow") on every other CPython >= 3.10 that pyenv has (or PYTHONS="python3.12
-# ..."), each in .venv-X.Y with the dev extra but SB3 and torch: tests/pythons.py
+# ..."), each in .venv-X.Y with the dev extra but SB3 and torch, the oldest on pyproject's
+# floors; then on this Python with the oldest SB3 allowed, in .venv-sb3: tests/pythons.py
 test-pythons: $(STAMP)
 	$(BIN)/python tests/pythons.py $(PYTHONS)
 

@@ -5,8 +5,10 @@ For each interpreter given (default: every CPython 3.10 or newer that pyenv has,
 torch (only the machine's own Python has a CPU torch wheel on disk; elsewhere pip would fetch
 gigabytes of CUDA wheels), build the compiled step, and run ``pytest -m "not slow"``. The oldest
 Python gets numpy 1 and pyproject's floors (:data:`OLDEST`), the next Gymnasium 1.2
-(:data:`BETWEEN`). The SB3 tests skip, and their doctests are not collected (``conftest.py``).
-Prints one line per Python; exits 1 when any suite fails or cannot be installed.
+(:data:`BETWEEN`). The SB3 tests skip there, and their doctests are not collected
+(``conftest.py``). With no interpreter given, ``.venv-sb3`` on ``.venv``'s own Python tests the
+oldest Stable-Baselines3 the ``sb3`` extra allows (:data:`SB3_FLOORS`). Prints one line per
+run; exits 1 when any suite fails or cannot be installed.
 
     python tests/pythons.py [PYTHON ...]
 """
@@ -38,10 +40,13 @@ and ``import pyarrow`` fails)."""
 BETWEEN = ["gymnasium[mujoco]==1.2.*"]
 """On the second-oldest Python: the Gymnasium between the floor and the newest (Stable-Baselines3
 2.7 and 2.8 cap it below 1.3)."""
+SB3_FLOORS = ["stable-baselines3==2.6.*", "gymnasium[mujoco]==1.1.*"]
+"""On ``.venv``'s own Python, SB3 and torch included: the oldest Stable-Baselines3 the ``sb3``
+extra allows, with the newest Gymnasium it takes (``.venv-sb3``)."""
 
 
-def requirements() -> list[str]:
-    """The package's dependencies and its ``dev`` extra's, but :data:`LEFT_OUT`."""
+def requirements(sb3: bool = False) -> list[str]:
+    """The package's dependencies and its ``dev`` extra's, but :data:`LEFT_OUT` (unless ``sb3``)."""
     try:
         import tomllib
     except ImportError:  # Python 3.10 (.venv made by a python3 3.10): pip's own copy of tomli
@@ -49,7 +54,7 @@ def requirements() -> list[str]:
 
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
     wanted = [*project["dependencies"], *project["optional-dependencies"]["dev"]]
-    return [r for r in wanted if not r.startswith(LEFT_OUT)]
+    return [r for r in wanted if sb3 or not r.startswith(LEFT_OUT)]
 
 
 def version_of(python: str) -> str:
@@ -72,34 +77,37 @@ def pythons() -> list[str]:
     return list(chosen.values())
 
 
-def run(python: str, version: str, extra: list[str]) -> tuple[str, int, str]:
-    """Install (with the ``extra`` requirements) and test on ``python`` (Python ``version``).
+def run(python: str, name: str, extra: list[str], sb3: bool = False) -> tuple[int, str]:
+    """Install in ``.venv-NAME`` (with the ``extra`` requirements) and test on ``python``.
 
-    Returns its version, the exit status and the last line of pytest.
+    ``sb3``: with Stable-Baselines3 and torch (pip installs torch first, by pyproject's pin, so
+    that a wheel already on the machine is taken: uv reads no pip.conf). Returns the exit
+    status and the last line of pytest.
     """
-    venv = REPO / f".venv-{version}"
+    venv = REPO / f".venv-{name}"
     bin_ = venv / "bin"
     env = {**os.environ, "EPISODE_AUDIT_REQUIRE_EXTENSION": "1"}
     env.pop("PYTHONDONTWRITEBYTECODE", None)
+    torch = [r for r in requirements(sb3=True) if r.startswith("torch")] if sb3 else []
     steps = [
         [python, "-m", "venv", str(venv)],
-        [str(bin_ / "python"), "-m", "pip", "install", "--quiet", "uv"],
+        [str(bin_ / "python"), "-m", "pip", "install", "--quiet", "uv", *torch],
         [str(bin_ / "python"), "-m", "uv", "pip", "install", "--quiet", "--python",
-         str(bin_ / "python"), *requirements(), *extra, "-e", "."],
+         str(bin_ / "python"), *requirements(sb3), *extra, "-e", "."],
     ]  # fmt: skip
     for step in steps:
         done = subprocess.run(step, cwd=REPO, env=env, capture_output=True, text=True)
         if done.returncode:
             why = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
-            return version, 1, f"install failed: {why}"
+            return 1, f"install failed: {why}"
     test = [str(bin_ / "python"), "-m", "pytest", "-q", "-m", "not slow", "-n", "2"]
     done = subprocess.run(
         [*test, "--dist", "loadfile"], cwd=REPO, env=env, capture_output=True, text=True
     )
     lines = done.stdout.strip().splitlines() or ["(no output)"]
     if done.returncode:
-        (REPO / f".venv-{version}" / "pytest.log").write_text(done.stdout + done.stderr)
-    return version, done.returncode, lines[-1].strip("= ")
+        (venv / "pytest.log").write_text(done.stdout + done.stderr)
+    return done.returncode, lines[-1].strip("= ")
 
 
 def main(argv: list[str]) -> int:
@@ -107,20 +115,23 @@ def main(argv: list[str]) -> int:
     if not chosen:
         print("no other CPython >= 3.10 found (pass interpreters as arguments)")
         return 1
-    failed = 0
     versions = {python: version_of(python) for python in chosen}
     ordered = sorted(chosen, key=lambda python: tuple(map(int, versions[python].split("."))))
     extras = dict(zip(ordered, [OLDEST, BETWEEN]))
-    for python in chosen:
+    legs = [(python, versions[python], extras.get(python, []), False) for python in chosen]
+    if not argv:
+        legs.append((sys._base_executable, "sb3", SB3_FLOORS, True))
+    failed = 0
+    for python, name, extra, sb3 in legs:
         start = time.monotonic()
-        extra = extras.get(python, [])
-        version, code, last = run(python, versions[python], extra)
-        label = f"{version} ({', '.join(extra)})" if extra else version
-        took = time.monotonic() - start
+        code, last = run(python, name, extra, sb3)
+        label = f"Python {version_of(python)}{' with SB3' if sb3 else ''}"
+        label += f" ({', '.join(extra)})" if extra else ""
         failed += code != 0
-        print(f"Python {label}: {'ok' if code == 0 else 'FAILED'} in {took:.0f} s: {last}")
+        took = time.monotonic() - start
+        print(f"{label}: {'ok' if code == 0 else 'FAILED'} in {took:.0f} s: {last}")
         if code:
-            print(f"  (the whole output: .venv-{version}/pytest.log)")
+            print(f"  (the whole output: .venv-{name}/pytest.log)")
     return 1 if failed else 0
 
 
