@@ -473,6 +473,73 @@ class _WriterThread:
         return failures
 
 
+class _Staging:
+    """What a file holds beyond its last good flush, by channel, and what was given up of it.
+
+    :meth:`commit` hands the staged bytes to the OS and saves the MCAP writer's state. A commit
+    the OS refuses keeps them for the next one; past :data:`RETRY_LIMIT_BYTES` it drops them
+    (:meth:`drop`): their rows and messages go to ``lost`` / ``lost_messages``, and the
+    writer's state back to the last good flush.
+    """
+
+    __slots__ = (
+        "dead",
+        "fsync",
+        "lost",
+        "lost_messages",
+        "messages",
+        "path",
+        "rows",
+        "sink",
+        "state",
+    )
+
+    def __init__(self, sink: StagedFile, path: str, fsync: bool) -> None:
+        self.sink = sink
+        self.path = path
+        self.fsync = fsync
+        self.state: _McapState | None = None
+        self.dead = False  # the file's end is unknown after a failure: write nothing more
+        self.rows: Counter[int] = Counter()  # rows of Arrow blocks since the last commit
+        self.messages: Counter[int] = Counter()
+        self.lost: Counter[int] = Counter()
+        self.lost_messages: Counter[int] = Counter()
+
+    def commit(self) -> None:
+        """Hand the staged bytes to the OS; raises ``OSError`` when it refuses them."""
+        sink = self.sink
+        try:
+            if self.dead:
+                raise OSError(
+                    errno.EIO,
+                    f"{self.path}: the file could not be cut back after a failed write; "
+                    "nothing more is written to it",
+                )
+            sink.commit(self.fsync)
+        except OSError:
+            if sink.broken:
+                self.dead = True
+            if self.dead or sink.staged_bytes > RETRY_LIMIT_BYTES:
+                self.drop()
+            raise
+        if self.state is not None:
+            self.state.save()
+        self.rows.clear()
+        self.messages.clear()
+
+    def drop(self) -> None:
+        """Drop the staged bytes, counting what they held as lost."""
+        self.lost.update(self.rows)
+        self.lost_messages.update(self.messages)
+        self.rows.clear()
+        self.messages.clear()
+        self.sink.drop()
+        if self.state is None:
+            self.dead = True  # (the summary would index what is not there)
+        else:
+            self.state.restore()
+
+
 class EvidenceWriter:
     """Write one evidence file.
 
@@ -501,7 +568,6 @@ class EvidenceWriter:
         compression: str = "zstd",
         template: bool = False,
     ) -> None:
-        self._fsync = fsync
         modes = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": None}
         if compression not in modes:
             raise ConfigurationError(
@@ -515,6 +581,7 @@ class EvidenceWriter:
         f = cast(IO[bytes], LockedStream(raw, output))
         kind = modes[compression]
         self._sink = StagedFile(f)
+        self._staging = _Staging(self._sink, str(self.path), fsync)
         self._writer = ChunkWriter(
             self._sink,
             chunk_size=_CHUNK_SIZE,
@@ -524,16 +591,13 @@ class EvidenceWriter:
         self._writer.start(profile=fmt.MCAP_PROFILE, library=library)
         self._finished = False
         self._messages = 0
-        self._state = _McapState.of(self._writer)
+        self._staging.state = _McapState.of(self._writer)
         self._chunk = _OpenChunk.of(self._writer)
         # each Arrow channel's schema and its IPC message (a stream's first), made once
         self._arrow_schemas: dict[int, tuple[pa.Schema, pa.Buffer]] = {}
-        self._dead = False  # the file's end is unknown after a failure: write nothing more
-        self._staged_rows: Counter[int] = Counter()  # rows of Arrow blocks since the last commit
-        self._staged_messages: Counter[int] = Counter()
-        self.lost: Counter[int] = Counter()
+        self.lost: Counter[int] = self._staging.lost
         """Rows of Arrow blocks dropped after the OS refused them, by channel."""
-        self.lost_messages: Counter[int] = Counter()
+        self.lost_messages: Counter[int] = self._staging.lost_messages
         """Messages dropped after the OS refused them, by channel."""
         self._thread = _WriterThread()
         self.flush()
@@ -640,7 +704,7 @@ class EvidenceWriter:
                 and chunk.add_stream(channel_id, batch, size, log_time, self._messages)
             ):
                 self._counted(channel_id, 1)
-                self._staged_rows[channel_id] += batch.num_rows
+                self._staging.rows[channel_id] += batch.num_rows
                 return size
         parts = ipc_parts(batch, schema_message)
         size = sum(memoryview(part).nbytes for part in parts)
@@ -649,7 +713,7 @@ class EvidenceWriter:
             self._counted(channel_id, 1)
         else:
             self._add(channel_id, b"".join(parts), log_time)
-        self._staged_rows[channel_id] += batch.num_rows
+        self._staging.rows[channel_id] += batch.num_rows
         return size
 
     def write_json(self, channel_id: int, data: bytes, log_time: int) -> None:
@@ -690,7 +754,7 @@ class EvidenceWriter:
     def _counted(self, channel_id: int, n: int) -> None:
         """``n`` messages were added to ``channel_id``: they number on, staged until a commit."""
         self._messages += n
-        self._staged_messages[channel_id] += n
+        self._staging.messages[channel_id] += n
 
     def flush(self, *, background: bool = False) -> None:
         """Close the current chunk and hand it to the OS whole (and ``fsync`` if asked).
@@ -712,7 +776,7 @@ class EvidenceWriter:
         """Close the chunk and commit it; what fails is put in ``failed``."""
         try:
             self._writer.flush()  # type: ignore[no-untyped-call]
-            self._commit()
+            self._staging.commit()
         except Exception as exc:
             failed.append(exc)
 
@@ -723,42 +787,10 @@ class EvidenceWriter:
         """
         return self._thread.take_failures()
 
-    def _commit(self) -> None:
-        sink = self._sink
-        try:
-            if self._dead:
-                raise OSError(
-                    errno.EIO,
-                    f"{self.path}: the file could not be cut back after a failed write; "
-                    "nothing more is written to it",
-                )
-            sink.commit(self._fsync)
-        except OSError:
-            if sink.broken:
-                self._dead = True
-            if self._dead or sink.staged_bytes > RETRY_LIMIT_BYTES:
-                self._drop()
-            raise
-        if self._state is not None:
-            self._state.save()
-        self._staged_rows.clear()
-        self._staged_messages.clear()
-
     def drop(self) -> None:
         """Drop what was refused since the last good flush, counting it in :attr:`lost`."""
         self._thread.wait()
-        self._drop()
-
-    def _drop(self) -> None:
-        self.lost.update(self._staged_rows)
-        self.lost_messages.update(self._staged_messages)
-        self._staged_rows.clear()
-        self._staged_messages.clear()
-        self._sink.drop()
-        if self._state is None:
-            self._dead = True  # (the summary would index what is not there)
-        else:
-            self._state.restore()
+        self._staging.drop()
 
     def finish(self, run_end: Mapping[str, str]) -> None:
         """Write the run-end record, the summary and the footer, and close the file.
@@ -773,10 +805,10 @@ class EvidenceWriter:
         try:
             self._writer.add_metadata(fmt.METADATA_RUN_END, dict(run_end))
             self._writer.finish()  # type: ignore[no-untyped-call]
-            self._commit()
+            self._staging.commit()
         except OSError:
             if self._sink.staged_bytes:
-                self._drop()
+                self._staging.drop()
             raise
         except BaseException:
             self.abandon()
