@@ -26,17 +26,26 @@ REPO = Path(__file__).resolve().parents[1]
 LEFT_OUT = ("stable-baselines3", "torch")
 """The ``dev`` extra's packages not installed on other Pythons (SB3 needs torch)."""
 OLDEST = [
-    "numpy<2",
+    "numpy==1.24.*",
     "pyarrow==21.*",
     "gymnasium[mujoco]==1.1.*",
     "mujoco==3.3.5",
     "mcap==1.5.*",
     "scipy==1.15.*",
     "pettingzoo==1.27.*",
+    "typer==0.17.*",
+    "rich==14.3.*",
+    "zstandard==0.21.*",
+    "zlib-ng==0.4.*",
+    "typing_extensions==4.6.*",
+    "s3fs==2024.3.*",
+    "matplotlib==3.8.*",
+    "pyparsing<3.2",
+    "pillow==10.*",
 ]
-"""On the oldest Python: numpy 1, and pyproject's floors of the libraries whose older releases
-lack what episode-audit uses (pyarrow 26 needs numpy 2 and does not say so: pip would pair them,
-and ``import pyarrow`` fails)."""
+"""On the oldest Python: pyproject's floors (numpy 1; pyarrow 26 needs numpy 2 and does not say
+so: pip would pair them, and ``import pyarrow`` fails). pyparsing 3.2 deprecates names
+matplotlib 3.8 uses, and the suite makes warnings errors."""
 BETWEEN = ["gymnasium[mujoco]==1.2.*"]
 """On the second-oldest Python: the Gymnasium between the floor and the newest (Stable-Baselines3
 2.7 and 2.8 cap it below 1.3)."""

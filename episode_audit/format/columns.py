@@ -59,13 +59,20 @@ def text(value: Any) -> str:
 def number(value: Any) -> float:
     """``float(value)`` for numbers only: text such as ``"1.5"`` raises ``TypeError``.
 
-    How the recorder reads a reward or term (and replay the re-run env's, identically).
+    How the recorder reads a reward or term (and replay the re-run env's, identically). An
+    array of one or more dimensions is not a number either, with any numpy (``float()`` of one
+    of a single element gives its value before numpy 2.4, with a warning from 1.25 on).
 
-    >>> number(np.float32(0.5)), number(True)
-    (0.5, 1.0)
+    >>> number(np.float32(0.5)), number(True), number(np.array(2.0))
+    (0.5, 1.0, 2.0)
+    >>> number(np.array([1.5]))
+    Traceback (most recent call last):
+    TypeError: an array of shape (1,) is not a number
     """
     if isinstance(value, (str, bytes, bytearray)):
         raise TypeError(f"{type(value).__name__} is not a number")
+    if isinstance(value, np.ndarray) and value.ndim:
+        raise TypeError(f"an array of shape {value.shape} is not a number")
     return float(value)
 
 

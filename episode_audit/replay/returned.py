@@ -19,7 +19,13 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from ..format.columns import PLAIN_NUMBERS, number_or_nan, terms_column, terms_matrix_column
+from ..format.columns import (
+    PLAIN_NUMBERS,
+    number,
+    number_or_nan,
+    terms_column,
+    terms_matrix_column,
+)
 from ..format.spaces import SpaceCodec
 from ..record.rules import RewardTerms, named_terms, plain_names
 from .results import Divergence, env_error
@@ -360,14 +366,17 @@ def _rewards(values: list[Any]) -> tuple[np.ndarray[Any, Any], dict[int, str]]:
     reward is not parsed; an int too large for a float, or a value whose ``float()`` raises
     whatever it raises, is NaN too.
     """
-    try:
-        return np.frombuffer(array("d", values), dtype=np.float64), {}
-    except Exception:
-        pass
+    if not any(issubclass(kind, np.ndarray) for kind in set(map(type, values))):
+        try:
+            return np.frombuffer(array("d", values), dtype=np.float64), {}
+        except Exception:
+            pass
     out = array("d")
     refused: dict[int, str] = {}
     for i, value in enumerate(values):
         try:
+            if isinstance(value, np.ndarray):
+                number(value)  # (an array of one or more dimensions raises)
             out.append(value)
         except Exception as exc:  # the env's own object: whatever its __float__ raised
             out.append(math.nan)

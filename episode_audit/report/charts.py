@@ -9,6 +9,7 @@ writer escapes them for XML. matplotlib is the optional ``html`` extra.
 
 from __future__ import annotations
 
+import inspect
 import io
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -162,6 +163,13 @@ def term_chart(term_means: Mapping[str, Mapping[str, Mapping[str, float]]]) -> s
     return _svg(_with_rc(draw))
 
 
+def _horizontal(ax: Any) -> dict[str, Any]:
+    """``boxplot``'s argument for horizontal boxes: ``orientation`` since matplotlib 3.10."""
+    if "orientation" in inspect.signature(ax.boxplot).parameters:
+        return {"orientation": "horizontal"}
+    return {"vert": False}  # (matplotlib 3.8 and 3.9; deprecated by 3.10)
+
+
 def distribution_chart(values: Mapping[tuple[str, str], Sequence[float]], what: str) -> str:
     """Box plots with the episodes as dots, one row per (group, outcome)."""
     keys = [k for k in values if len(values[k])]
@@ -170,7 +178,7 @@ def distribution_chart(values: Mapping[tuple[str, str], Sequence[float]], what: 
         fig = _figure(len(keys))
         ax = fig.add_subplot()
         data = [list(values[k]) for k in keys]
-        ax.boxplot(data, orientation="horizontal", widths=0.6, showfliers=False)
+        ax.boxplot(data, **_horizontal(ax), widths=0.6, showfliers=False)
         for i, (k, points) in enumerate(zip(keys, data, strict=True)):
             colour = OUTCOME_COLOURS.get(k[1], "#607d8b")
             ax.scatter(points, [i + 1] * len(points), s=10, color=colour, alpha=0.6, zorder=3)

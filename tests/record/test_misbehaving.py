@@ -194,7 +194,7 @@ def test_nonfinite_reward_from_a_real_wrapper_is_kept_and_flagged(
     assert found[0].message == f"reward {bad} at step 0; 3 step(s) of the episode"
 
 
-@pytest.mark.parametrize("bad", ["one", "1.5", None, [1.0, 2.0]])
+@pytest.mark.parametrize("bad", ["one", "1.5", None, [1.0, 2.0], np.array([1.5])])
 def test_non_numeric_reward_is_recorded_as_nan_and_noted(tmp_path: Path, bad: Any) -> None:
     path = tmp_path / "reward.mcap"
     with scripted(path, lambda e, a: (ZEROS, bad if e.t == 2 else 1.0, False, False, {})) as env:
@@ -220,7 +220,7 @@ def test_non_numeric_reward_is_recorded_as_nan_and_noted(tmp_path: Path, bad: An
 # ---------------------------------------------------------------------------------- reward terms
 
 
-@pytest.mark.parametrize("bad", ["x", "2.0", None, {"nested": 1}])
+@pytest.mark.parametrize("bad", ["x", "2.0", None, {"nested": 1}, np.array([2.0])])
 def test_non_numeric_reward_term_is_recorded_as_nan_and_noted(tmp_path: Path, bad: Any) -> None:
     def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
         return ZEROS, 1.0, False, False, {"reward_terms": {"a": bad, "b": 1.0}}

@@ -566,6 +566,40 @@ def test_rewards_that_are_not_numbers_become_nan() -> None:
         1: "OverflowError: int too large to convert to float",
         2: "TypeError: must be real number, not str",
     }
+    # an array of one element is no number with any numpy (as the recorder reads it); 0-d is
+    got, refused = _rewards([np.array([1.5]), np.array(2.0), 3.0])
+    assert math.isnan(got[0]) and list(got[1:]) == [2.0, 3.0]
+    assert refused == {0: "TypeError: an array of shape (1,) is not a number"}
+
+
+def test_a_reward_of_one_element_arrays_replays_identically(tmp_path: Path) -> None:
+    """Recorded as NaN (noted), and replay reads the re-run env's the same way."""
+    path = tmp_path / "array.mcap"
+    with RecordEvidence(ArrayReward(), path) as env:
+        for seed in range(2):
+            env.reset(seed=seed)
+            for _ in range(3):
+                env.step(1)
+    rewards = open_evidence(path).steps().column("reward").to_pylist()
+    assert len(rewards) == 6 and all(math.isnan(r) for r in rewards)
+    result = replay([path], env_factory=ArrayReward)
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 3)] * 2, result
+
+
+class ArrayReward(gym.Env[Any, int]):
+    """Its rewards are arrays of one element (``np.array([1.0])``)."""
+
+    observation_space = gym.spaces.Box(-10.0, 10.0, (1,), np.float64)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(1), {}
+
+    def step(self, action: int) -> Any:
+        self.t += 1
+        return np.full(1, float(self.t)), np.array([1.0]), self.t == 3, False, {}
 
 
 class PrefixTerms(Counter):

@@ -11,6 +11,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ...format.columns import number
 from ..notes import note
 
 __all__ = ["AECTurns", "ResetFn", "RowFn"]
@@ -21,7 +22,7 @@ ResetFn = Callable[[str, Any, Any], None]
 
 def _float(value: Any, notes: list[str], agent: str) -> float:
     try:
-        return float(value)
+        return number(value)
     except Exception:
         notes.append(note("reward_not_numeric", f"agent {agent!r}: reward {value!r}"))
         return math.nan
