@@ -20,6 +20,13 @@ from .values import kept_info, reward_and_terms, step_result, truth_flags
 
 __all__ = ["Stream", "StreamFile"]
 
+_ARRAY = np.ndarray
+
+
+def _arrays(values: Any) -> bool:
+    """Whether any of ``values`` is an array (no number, though numpy < 2.4 gives a float())."""
+    return any(isinstance(value, _ARRAY) for value in values)
+
 
 class Stream(EpisodeStream):
     """One stream of episodes in an evidence file (make it with ``EvidenceFile.add_stream``).
@@ -56,16 +63,26 @@ class Stream(EpisodeStream):
                     # the values, straight into the block: array("d") takes numbers only (a
                     # str such as "1.5" raises: slow path, which drops what this added)
                     if self._terms_one:
-                        block.term_vals.append(self._terms_get(info))
+                        value = self._terms_get(info)
+                        if isinstance(value, _ARRAY):
+                            raise LookupError
+                        block.term_vals.append(value)
                     else:
-                        block.term_vals.extend(self._terms_get(info))
+                        several = self._terms_get(info)
+                        if _arrays(several):
+                            raise LookupError
+                        block.term_vals.extend(several)
                 elif names is None:
                     terms = self._extract_terms(info)
                     if terms is not None:
                         # __float__, not float(): a str is not a number (slow path)
+                        if _arrays(terms.values()):
+                            raise LookupError
                         values = [v.__float__() for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
                 raise LookupError  # a value was cast: note it on the slow path
+            if isinstance(reward, _ARRAY):
+                raise LookupError  # (number() decides)
             block.rewards.append(reward)  # may raise: slow path
         except Exception:
             self._record_step_slow(result, action)
