@@ -106,8 +106,19 @@ def _truth(flag: Any) -> bool:
         return False
 
 
-def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int, failed: bool) -> None:
+def _run_aec(
+    env: Any,
+    game: _Game,
+    queues: dict[str, list[Any]],
+    limit: int,
+    failed: bool,
+    dead_steps: bool = True,
+) -> None:
     """Drive an AEC game; ``failed``: the recorded game ended by a ``step()`` that raised.
+
+    ``dead_steps``: once the recorded actions are all taken, step the agents that are done
+    (``env.agent_iter()``'s loop does), rather than end the game there (a loop that stopped
+    at the game's end, then reset or closed the env).
 
     In such a game the recording raised after its last recorded action, so the game is cut
     (:meth:`_Game.cut`) at the turn that follows it, once that agent's turn has come (the
@@ -131,6 +142,8 @@ def _run_aec(env: Any, game: _Game, queues: dict[str, list[Any]], limit: int, fa
             # the recording stopped here (or its next action was lost): the agent's turn came
             turns.arrive()
             game.stopped = (agent, taken.get(agent, 0))
+            break
+        if dead and not left and not dead_steps:
             break
         action = None if dead else queue.pop(0)
         if not dead:
@@ -322,8 +335,6 @@ def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> l
         state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
     except ValueError as exc:
         return none_replayable(file.path, members.values(), f"its game's reset record: {exc}")
-    game = _Game()
-    limit = sum(len(q) for q in queues.values()) + 2 * len(members) + 2
     # how the recorded game ended, if not by its rules, a reset or close (see docs/replay.md)
     cut_kind: str | None = None
     failure: str | None = None
@@ -332,28 +343,57 @@ def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> l
     else:
         failure = _recorded_error(members, file.steps, file.rows)
         cut_kind = None if failure is None else _FAILED
-    try:
-        if seed is None:
-            restore_rng_state(env, state)
-        out = env.reset(seed=None if seed is None else int(seed), options=options)
-    except Exception as exc:  # the recorded reset did not raise (see above): as a single env
-        divergence = Divergence(None, "reset", "a reset", env_error(exc))
+    play = _Play(env, file, members, queues, (seed, options, state), cut_kind, failure)
+    results = play.run(dead_steps=True)
+    if file.aec and cut_kind is None and any(r.status == "diverged" for r in results):
+        # the recording may have ended the game at its last action, without the dead steps
+        again = play.run(dead_steps=False)
+        if not any(r.status == "diverged" for r in again):
+            return again
+    return results
+
+
+@dataclass(frozen=True)
+class _Play:
+    """One game replayed from its recorded reset and actions: each agent's episode compared."""
+
+    env: Any
+    file: _File
+    members: dict[str, dict[str, Any]]
+    queues: dict[str, list[Any]]
+    reset: tuple[Any, Any, Any]  # seed, options, RNG state (when no seed)
+    cut_kind: str | None
+    failure: str | None
+
+    def run(self, *, dead_steps: bool) -> list[EpisodeReplay]:
+        """Reset, replay (AEC: with or without the ``dead_steps`` after the last action)."""
+        env, file, members = self.env, self.file, self.members
+        seed, options, state = self.reset
+        queues = {agent: list(queue) for agent, queue in self.queues.items()}
+        game = _Game()
+        limit = sum(len(q) for q in queues.values()) + 2 * len(members) + 2
+        try:
+            if seed is None:
+                restore_rng_state(env, state)
+            out = env.reset(seed=None if seed is None else int(seed), options=options)
+        except Exception as exc:  # the recorded reset did not raise (see above): as a single env
+            divergence = Divergence(None, "reset", "a reset", env_error(exc))
+            return [
+                EpisodeReplay(file.path, int(r["episode"]), "diverged", 0, divergence)
+                for r in members.values()
+            ]
+        try:
+            if file.aec:
+                _run_aec(env, game, queues, limit, self.cut_kind == _FAILED, dead_steps)
+            else:
+                game.reset["__reset__"] = out
+                _run_parallel(env, game, queues, limit)
+        except Exception as exc:
+            game.crash = _Crash(None, None, env_error(exc))
         return [
-            EpisodeReplay(file.path, int(r["episode"]), "diverged", 0, divergence)
-            for r in members.values()
+            _AgentEpisode(agent, r, game, file, self.cut_kind, self.failure).result()
+            for agent, r in members.items()
         ]
-    try:
-        if file.aec:
-            _run_aec(env, game, queues, limit, cut_kind == _FAILED)
-        else:
-            game.reset["__reset__"] = out
-            _run_parallel(env, game, queues, limit)
-    except Exception as exc:
-        game.crash = _Crash(None, None, env_error(exc))
-    return [
-        _AgentEpisode(agent, r, game, file, cut_kind, failure).result()
-        for agent, r in members.items()
-    ]
 
 
 def _recorded_error(

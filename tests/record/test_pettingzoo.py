@@ -9,6 +9,7 @@ twin env stepped by hand with the same seed and actions, summing what PettingZoo
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 import sys
@@ -255,6 +256,52 @@ def _record_crash(path: Path, make: Any, message: str) -> None:
         assert [r["outcome"] for r in open_evidence(path).episodes().to_pylist()] == ["error"] * 2
         env.reset(seed=1)
         env.step(4)
+
+
+class _TextRewards(BaseWrapper):  # type: ignore[type-arg]
+    """Tic-tac-toe whose rewards are text (``"1"``): no numbers, as in a Gymnasium env."""
+
+    @property
+    def rewards(self) -> dict[str, Any]:
+        return {agent: str(value) for agent, value in self.env.rewards.items()}
+
+    @rewards.setter
+    def rewards(self, value: Any) -> None:
+        pass
+
+
+def test_aec_text_rewards_are_nan_noted_and_replay_identically(tmp_path: Path) -> None:
+    path = tmp_path / "text.mcap"
+
+    def make() -> Any:
+        return _TextRewards(tictactoe_v3.env())
+
+    with RecordAECEvidence(make(), path) as env:
+        env.reset(seed=0)
+        for move in [0, 3, 1, 4, 2]:  # player_1 wins with its third move
+            env.step(move)
+    returns = [r["return"] for r in open_evidence(path).episodes().to_pylist()]
+    assert len(returns) == 2 and all(math.isnan(r) for r in returns)
+    assert {f.code for f in check([path]).findings} >= {"recorder_note:reward_not_numeric"}
+    result = replay([path], env_factory=make)
+    assert [r.status for r in result.episodes] == ["identical"] * 2, result.episodes
+
+
+def test_an_aec_game_ended_before_its_dead_steps_replays_identically(tmp_path: Path) -> None:
+    """A loop that stops at the game's end (no ``env.agent_iter()``) and resets or closes: the
+    rows close then, not at the dead steps that replay would otherwise take."""
+    path = tmp_path / "stop.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), path) as env:
+        for seed in range(2):
+            env.reset(seed=seed)
+            for move in [0, 3, 1, 4, 2]:  # player_1 wins with its third move
+                env.step(move)
+    result = replay([path], env_factory=tictactoe_v3.env)
+    assert [r.status for r in result.episodes] == ["identical"] * 4, result.episodes
+    # a game that replays otherwise still differs (its rewards, as text, are no numbers)
+    changed = replay([path], env_factory=lambda: _TextRewards(tictactoe_v3.env()))
+    assert [r.status for r in changed.episodes] == ["diverged"] * 4
+    assert {r.divergence.field for r in changed.episodes if r.divergence} == {"reward"}
 
 
 def test_an_aec_step_that_raises_keeps_the_moves_that_completed(tmp_path: Path) -> None:
