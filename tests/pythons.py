@@ -100,12 +100,13 @@ def run(python: str, name: str, extra: list[str], sb3: bool = False) -> tuple[in
     bin_ = venv / "bin"
     env = {**os.environ, "EPISODE_AUDIT_REQUIRE_EXTENSION": "1"}
     env.pop("PYTHONDONTWRITEBYTECODE", None)
-    torch = [r for r in requirements(sb3=True) if r.startswith("torch")] if sb3 else []
+    wanted = requirements(sb3)
+    torch = [r for r in wanted if r.startswith("torch")]
     steps = [
         [python, "-m", "venv", str(venv)],
         [str(bin_ / "python"), "-m", "pip", "install", "--quiet", "uv", *torch],
         [str(bin_ / "python"), "-m", "uv", "pip", "install", "--quiet", "--python",
-         str(bin_ / "python"), *requirements(sb3), *extra, "-e", "."],
+         str(bin_ / "python"), *wanted, *extra, "-e", "."],
     ]  # fmt: skip
     for step in steps:
         done = subprocess.run(step, cwd=REPO, env=env, capture_output=True, text=True)
@@ -132,12 +133,14 @@ def main(argv: list[str]) -> int:
     extras = dict(zip(ordered, [OLDEST, BETWEEN]))
     legs = [(python, versions[python], extras.get(python, []), False) for python in chosen]
     if not argv:
-        legs.append((sys._base_executable, "sb3", SB3_FLOORS, True))
+        own = f"{sys.version_info.major}.{sys.version_info.minor}"
+        legs.append((sys._base_executable, own, SB3_FLOORS, True))
     failed = 0
-    for python, name, extra, sb3 in legs:
+    for python, version, extra, sb3 in legs:
         start = time.monotonic()
+        name = "sb3" if sb3 else version
         code, last = run(python, name, extra, sb3)
-        label = f"Python {version_of(python)}{' with SB3' if sb3 else ''}"
+        label = f"Python {version}{' with SB3' if sb3 else ''}"
         label += f" ({', '.join(extra)})" if extra else ""
         failed += code != 0
         took = time.monotonic() - start

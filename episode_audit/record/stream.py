@@ -14,18 +14,12 @@ from typing import Any
 
 import numpy as np
 
+from ..format.columns import PLAIN_NUMBERS
 from .episodes import EpisodeStream, StreamFile
 from .notes import add_notes, append_noted, note
 from .values import kept_info, reward_and_terms, step_result, truth_flags
 
 __all__ = ["Stream", "StreamFile"]
-
-_ARRAY = np.ndarray
-
-
-def _arrays(values: Any) -> bool:
-    """Whether any of ``values`` is an array (no number, though numpy < 2.4 gives a float())."""
-    return any(isinstance(value, _ARRAY) for value in values)
 
 
 class Stream(EpisodeStream):
@@ -64,24 +58,24 @@ class Stream(EpisodeStream):
                     # str such as "1.5" raises: slow path, which drops what this added)
                     if self._terms_one:
                         value = self._terms_get(info)
-                        if isinstance(value, _ARRAY):
+                        if type(value) not in PLAIN_NUMBERS:  # (an array: number() decides)
                             raise LookupError
                         block.term_vals.append(value)
                     else:
                         several = self._terms_get(info)
-                        if _arrays(several):
+                        if not PLAIN_NUMBERS.issuperset(map(type, several)):
                             raise LookupError
                         block.term_vals.extend(several)
                 elif names is None:
                     terms = self._extract_terms(info)
                     if terms is not None:
                         # __float__, not float(): a str is not a number (slow path)
-                        if _arrays(terms.values()):
+                        if not PLAIN_NUMBERS.issuperset(map(type, terms.values())):
                             raise LookupError
                         values = [v.__float__() for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
                 raise LookupError  # a value was cast: note it on the slow path
-            if isinstance(reward, _ARRAY):
+            if isinstance(reward, np.ndarray):
                 raise LookupError  # (number() decides)
             block.rewards.append(reward)  # may raise: slow path
         except Exception:

@@ -366,7 +366,7 @@ def _rewards(values: list[Any]) -> tuple[np.ndarray[Any, Any], dict[int, str]]:
     reward is not parsed; an int too large for a float, or a value whose ``float()`` raises
     whatever it raises, is NaN too.
     """
-    if not any(issubclass(kind, np.ndarray) for kind in set(map(type, values))):
+    if set(map(type, values)) <= PLAIN_NUMBERS:  # (else arrays, text...: value by value)
         try:
             return np.frombuffer(array("d", values), dtype=np.float64), {}
         except Exception:
