@@ -268,7 +268,7 @@ def _pool_map(
             futures[0] = first.future()
             with sigint_held():
                 for k in range(1, last + 1):
-                    futures[k] = pool.submit(_call, fn, [work[i] for i in runs[k]])
+                    futures[k] = _submit(pool, fn, [work[i] for i in runs[k]])
             yield from _gather(fn, work, runs, futures, progress, results)
         except BaseException as exc:
             first.wait()  # (its worker, once started, is stopped with the others)
@@ -287,6 +287,20 @@ _BROKEN = (
 )
 
 
+def _submit(pool: ProcessPoolExecutor, fn: Work[T, R], items: list[T]) -> Future[list[_Done[R]]]:
+    """``items`` submitted to ``pool`` as one run; a worker that cannot start breaks the pool.
+
+    Submitting starts a worker when one is missing. If the fork server has died (in a script
+    without a main guard, importing it raised), Python 3.14 says so while authenticating to it
+    (``ConnectionResetError``) where 3.13 marked the pool broken: either way a
+    ``BrokenProcessPool`` here.
+    """
+    try:
+        return pool.submit(_call, fn, items)
+    except (OSError, EOFError) as exc:
+        raise BrokenProcessPool(f"a worker process could not be started ({exc})") from exc
+
+
 class _FirstSubmit(Generic[R]):
     """The first run, submitted from a thread of its own, so this process works meanwhile.
 
@@ -303,7 +317,7 @@ class _FirstSubmit(Generic[R]):
             if hasattr(signal, "pthread_sigmask"):
                 signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
             try:
-                self._result.append(pool.submit(_call, fn, items))
+                self._result.append(_submit(pool, fn, items))
             except BaseException as exc:  # raised in the caller's thread by future()
                 self._error.append(exc)
 

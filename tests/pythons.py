@@ -3,24 +3,28 @@
 For each interpreter given (default: every CPython 3.10 or newer that pyenv has, other than
 ``.venv``'s), build ``.venv-X.Y`` with the ``dev`` extra's packages but Stable-Baselines3 and
 torch (only the machine's own Python has a CPU torch wheel on disk; elsewhere pip would fetch
-gigabytes of CUDA wheels), build the compiled step, and run ``pytest -m "not slow"``. The oldest
-Python gets numpy 1 and pyproject's floors (:data:`OLDEST`), the next Gymnasium 1.2
-(:data:`BETWEEN`). The SB3 tests skip there, and their doctests are not collected
-(``conftest.py``). With no interpreter given, ``.venv-sb3`` on ``.venv``'s own Python tests the
+gigabytes of CUDA wheels), build the compiled step, and run ``pytest -m "not slow"``; the SB3
+tests skip there, and their doctests are not collected (``conftest.py``). When the oldest one
+given is the oldest ``requires-python`` allows, it gets numpy 1 and pyproject's floors
+(:data:`OLDEST`), and the next one Gymnasium 1.2 (:data:`BETWEEN`); otherwise each gets the
+newest releases. With no interpreter given, ``.venv-sb3`` on ``.venv``'s own Python tests the
 oldest Stable-Baselines3 the ``sb3`` extra allows (:data:`SB3_FLOORS`). Prints one line per
-run; exits 1 when any suite fails or cannot be installed.
+run; exits 1 when any suite fails or cannot be installed. ``tests/sid.sh`` runs this on Debian
+sid's Python 3.14, for a machine whose pyenv has none.
 
     python tests/pythons.py [PYTHON ...]
 """
 
 from __future__ import annotations
 
+import functools
 import glob
 import os
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 LEFT_OUT = ("stable-baselines3", "torch")
@@ -57,16 +61,27 @@ SB3_FLOORS = ["stable-baselines3==2.6.*", "gymnasium[mujoco]==1.1.*"]
 extra allows, with the newest Gymnasium it takes (``.venv-sb3``)."""
 
 
-def requirements(sb3: bool = False) -> list[str]:
-    """The package's dependencies and its ``dev`` extra's, but :data:`LEFT_OUT` (unless ``sb3``)."""
+@functools.cache
+def project() -> dict[str, Any]:
+    """``pyproject.toml``'s ``[project]`` table."""
     try:
         import tomllib
     except ImportError:  # Python 3.10 (.venv made by a python3 3.10): pip's own copy of tomli
         from pip._vendor import tomli as tomllib
 
-    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
-    wanted = [*project["dependencies"], *project["optional-dependencies"]["dev"]]
+    table: dict[str, Any] = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    return table
+
+
+def requirements(sb3: bool = False) -> list[str]:
+    """The package's dependencies and its ``dev`` extra's, but :data:`LEFT_OUT` (unless ``sb3``)."""
+    wanted = [*project()["dependencies"], *project()["optional-dependencies"]["dev"]]
     return [r for r in wanted if sb3 or not r.startswith(LEFT_OUT)]
+
+
+def floor_python() -> str:
+    """The oldest Python ``pyproject.toml`` allows (``requires-python``): ``"3.10"``."""
+    return str(project()["requires-python"]).removeprefix(">=")
 
 
 def version_of(python: str) -> str:
@@ -130,7 +145,8 @@ def main(argv: list[str]) -> int:
         return 1
     versions = {python: version_of(python) for python in chosen}
     ordered = sorted(chosen, key=lambda python: tuple(map(int, versions[python].split("."))))
-    extras = dict(zip(ordered, [OLDEST, BETWEEN]))
+    floors = versions[ordered[0]] == floor_python()
+    extras = dict(zip(ordered, [OLDEST, BETWEEN])) if floors else {}
     legs = [(python, versions[python], extras.get(python, []), False) for python in chosen]
     if not argv:
         own = f"{sys.version_info.major}.{sys.version_info.minor}"
