@@ -19,6 +19,7 @@ from functools import partial
 from .._jobs import check_jobs, map_ordered, workers
 from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
+from ..format import names as fmt
 from ..read import Evidence, open_evidence
 from ..read.inputs import skipped
 from ..read.liveness import Holder, still_written
@@ -94,7 +95,8 @@ def replay(
 
     ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
     replay a file, or a batch of a large single-env file's episodes, each (see
-    :mod:`episode_audit._jobs`); a batch starts in a fresh env, as ``episodes`` does. Each
+    :mod:`episode_audit._jobs`); a batch starts in a fresh env, as ``episodes`` does, and an
+    episode that then differs is replayed again after its file's earlier episodes. Each
     worker imports ``imports`` itself; ``env_factory`` must then be ``"MODULE:CALLABLE"`` or a
     module-level callable. The result is the same as with ``jobs=1``.
     """
@@ -126,7 +128,9 @@ def replay(
                 skipped(path, errors[0], keep_going=keep_going, on_error=on_error)
             )
             continue
-        _add_file([p for p in parts if not isinstance(p, EpisodeAuditError)], result)
+        replayed = [p for p in parts if not isinstance(p, EpisodeAuditError)]
+        selections = [b[2] for b in batches if b[0] == k]
+        _add_file(_in_recorded_order(one, (k, path, selected), selections, replayed), result)
     if selected is not None:
         result.missing = sorted(set(selected) - {e.episode for e in result.episodes})
     return result
@@ -174,6 +178,83 @@ def _replay_batch(
     versions = _version_differences(ev)
     replayed = not_told_from_versions(replayed, _env_libraries(versions))
     return _Replayed(str(ev.path), replayed, notes, live, versions)
+
+
+def _in_recorded_order(
+    one: Callable[[_Batch, None], _Replayed | EpisodeAuditError],
+    batch: _Batch,
+    selections: Sequence[list[int] | None],
+    parts: list[_Replayed],
+) -> list[_Replayed]:
+    """A file's replayed batches; a difference met after other episodes than recorded, redone.
+
+    A batch, or an ``episodes`` selection, begins in a fresh env: an episode after one it
+    skipped meets an env that has begun fewer episodes than the recorded one had. An env that
+    keeps state across resets (a curriculum, a counter) then differs from its recording with
+    nothing wrong, so such a difference is no verdict. The file's episodes up to the last of
+    them are replayed again in one env per sub-env, in recorded order (as one batch of the
+    whole file would), and their verdicts replace the batches': the result is the same
+    whatever the batches. ``batch``: the file's (place, path, selection).
+    """
+    diverged = {e.episode for part in parts for e in part.episodes if e.status == "diverged"}
+    if not diverged or all(s is None for s in selections):
+        return parts
+    order = _episodes_in_order(batch[1])
+    if order is None:
+        return parts
+    after_a_gap: set[int] = set()
+    for chosen in selections:
+        if chosen is not None:
+            after_a_gap |= _after_a_gap(order, set(chosen))
+    suspect = diverged & after_a_gap
+    if not suspect:
+        return parts
+    last = max(suspect)
+    prefix = sorted(e for episodes in order.values() for e in episodes if e <= last)
+    again = one((batch[0], batch[1], prefix), None)
+    if isinstance(again, EpisodeAuditError):
+        return parts  # (the batches' own verdicts: the file could not be read again)
+    redone = {e.episode: e for e in again.episodes}
+    return [
+        replace(part, episodes=[redone.get(e.episode, e) for e in part.episodes]) for part in parts
+    ]
+
+
+def _episodes_in_order(path: str | os.PathLike[str]) -> dict[int, list[int]] | None:
+    """The episodes of a single-env or vector file, by sub-env, in order; else ``None``."""
+    try:
+        ev = open_evidence(path)
+        if str(ev.run.layout.get("kind", "")).startswith("pettingzoo_"):
+            return None
+        table = ev.episodes()
+    except EpisodeAuditError:
+        return None
+    envs = (
+        table.column(fmt.COL_ENV_INDEX).to_pylist()
+        if fmt.COL_ENV_INDEX in table.column_names
+        else [0] * table.num_rows
+    )
+    order: dict[int, list[int]] = {}
+    for episode, env_index in zip(table.column(fmt.COL_EPISODE).to_pylist(), envs, strict=True):
+        order.setdefault(int(env_index or 0), []).append(int(episode))
+    return {k: sorted(v) for k, v in order.items()}
+
+
+def _after_a_gap(order: dict[int, list[int]], chosen: set[int]) -> set[int]:
+    """The ``chosen`` episodes replayed without an earlier episode of their sub-env before them.
+
+    >>> sorted(_after_a_gap({0: [0, 1, 2, 3], 1: [4, 5]}, {0, 1, 3, 5}))
+    [3, 5]
+    """
+    out: set[int] = set()
+    for episodes in order.values():
+        gap = False
+        for episode in episodes:
+            if episode not in chosen:
+                gap = True
+            elif gap:
+                out.add(episode)
+    return out
 
 
 def _add_file(parts: Sequence[_Replayed], result: ReplayResult) -> None:

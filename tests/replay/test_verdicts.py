@@ -58,6 +58,41 @@ def test_each_sub_env_replays_in_its_own_env_in_recorded_order(
     assert all(s == "identical" for _, s, _ in statuses), statuses
 
 
+def test_an_env_keeping_state_across_resets_is_replayed_in_recorded_order_never_diverged(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Its observations count its resets: an episode replayed in a fresh env (a selection, or
+    # a batch of a large file) differs from the recording with nothing wrong.
+    path = tmp_path / "counted.mcap"
+    with RecordEvidence(counted_cartpole(), path) as env:
+        run_episodes(env, 12)
+    alone = replay([path], episodes=[9, 3], env_factory=counted_cartpole)
+    assert [(e.episode, e.status) for e in alone.episodes] == [(3, "identical"), (9, "identical")]
+    from episode_audit.replay import run as replay_run
+
+    monkeypatch.setattr(replay_run, "MIN_BATCH_BYTES", path.stat().st_size // 4)
+    assert len(replay_run._batches([path], None, None, 2)[0]) == 4
+    batched = replay([path], env_factory=counted_cartpole, jobs=2)
+    assert [e.status for e in batched.episodes] == ["identical"] * 12
+    # a real difference still diverges, in recorded order: a fresh counter each episode
+    fresh = replay([path], episodes=[4, 5], env_factory=cartpole_counted_afresh)
+    assert [(e.episode, e.status) for e in fresh.episodes] == [(4, "diverged"), (5, "diverged")]
+    assert fresh.episodes[0].restored == "seed 104; this env after 4 earlier episodes"
+
+
+def cartpole_counted_afresh() -> gym.Env[Any, Any]:
+    """CartPole in an :class:`EpisodeCount` that forgets its count at every reset."""
+    env = counted_cartpole()
+    reset = env.reset
+
+    def forgetting(**kwargs: Any) -> Any:
+        env.resets = 0  # type: ignore[attr-defined]
+        return reset(**kwargs)
+
+    env.reset = forgetting  # type: ignore[method-assign]
+    return env
+
+
 def run_episodes(env: Any, episodes: int, seed: int = 100) -> None:
     env.action_space.seed(seed)
     for e in range(episodes):
