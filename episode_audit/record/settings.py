@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import platform
@@ -30,6 +31,7 @@ from .rules import EndingRules, RewardTerms, TermsFn
 
 __all__ = [
     "DEFAULT_BLOCK_STEPS",
+    "KNOWN_TERMS",
     "RecorderOptions",
     "RecorderSettings",
     "STEP_LIBRARIES",
@@ -42,6 +44,21 @@ DEFAULT_BLOCK_STEPS = 32_768
 """Steps per columnar block unless told otherwise. Larger blocks cost the recorder a little
 memory (flushes every ``flush_every_s`` bound what a crash can lose either way) and make every
 read faster: ``check`` decodes a 1 M-step CartPole file ~25 % faster than with 8 192."""
+
+
+KNOWN_TERMS: Mapping[str, RewardTerms] = {
+    # reward = alive bonus - distance penalty - velocity penalty; only the first key has the
+    # reward_ prefix "auto" reads (the penalties are in info as negative numbers)
+    "InvertedDoublePendulum-v5": RewardTerms(
+        ("reward_survive", "distance_penalty", "velocity_penalty")
+    ),
+    # reward = uph_cost + 1 - quad_ctrl_cost - quad_impact_cost: the 1 is in no info key
+    "HumanoidStandup-v5": RewardTerms("auto", {"constant_bonus": 1.0}),
+}
+"""The reward terms of the Gymnasium envs whose ``info["reward_*"]`` keys alone do not sum to
+their reward, by env id: a recorder given no ``reward_terms`` nor ``constant_terms`` reads
+these (:meth:`RecorderSettings.use_known_terms`). Every other MuJoCo v5 env's keys sum to its
+reward (``tests/record/test_known_terms.py`` checks them all)."""
 
 
 class RecorderOptions(TypedDict, total=False):
@@ -122,6 +139,7 @@ class RecorderSettings:
         "overwrite",
         "rules",
         "tags",
+        "terms_given",
         "terms_rule",
         "track_info",
         "transparent",
@@ -146,6 +164,7 @@ class RecorderSettings:
             raise ConfigurationError(
                 f"info_keys: expected a list of keys or 'all', actually: {info_keys!r}"
             )
+        self.terms_given = "reward_terms" in options or "constant_terms" in options
         if isinstance(reward_terms, RewardTerms):
             if constant_terms:
                 reward_terms = RewardTerms(
@@ -166,6 +185,12 @@ class RecorderSettings:
         self.fsync = options.get("fsync", False)
         self.overwrite = options.get("overwrite", False)
         self.transparent = _entry_points(options.get("transparent_wrappers"))
+
+    def use_known_terms(self, env_id: str | None) -> None:
+        """Read the terms :data:`KNOWN_TERMS` gives ``env_id``, unless terms were given."""
+        known = KNOWN_TERMS.get(env_id or "")
+        if known is not None and not self.terms_given:
+            self.terms_rule = known
 
     def recorder_metadata(self, notes: Sequence[str] = ()) -> dict[str, Any]:
         """The ``recorder`` key of the run metadata."""
@@ -251,12 +276,15 @@ def run_info(
     ``info_of``: the entry point of the object whose ``info`` the recorder reads (the env or
     wrapper it wraps; a sub-env's for a vector recorder), kept in ``reward_terms`` as
     ``info_of`` when the terms are found automatically, so a reader knows whose keys they are.
+    A known env's terms (:data:`KNOWN_TERMS`) become ``settings``' first, unless terms were
+    given: call this before the streams are made.
     """
+    settings.use_known_terms(spec.id if spec is not None else None)
     spec_json: dict[str, Any] | None = None
     notes = list(notes)
     if spec is not None:
         try:
-            spec_json = json.loads(spec.to_json())
+            spec_json = _spec_json(spec)
         except Exception as exc:
             notes.append(f"env spec is not JSON-serializable ({type(exc).__name__}: {exc})")
     command_line = settings.command_line
@@ -277,6 +305,26 @@ def run_info(
         recorder=settings.recorder_metadata(notes),
         layout=layout,
     )
+
+
+def _spec_json(spec: Any) -> dict[str, Any]:
+    """``spec`` as JSON, an entry point given as a class or function named ``module:name``.
+
+    ``gym.register(id, entry_point=MyEnv)`` registers the class itself, which ``to_json``
+    refuses; its name, when it leads back to that object, is what the spec holds instead
+    (replay builds a registered id from this process's registry, never from that name
+    unless trusted: docs/replay.md). Raises what ``to_json`` raises for anything else.
+    """
+    entry = spec.entry_point
+    if callable(entry):
+        module, name = getattr(entry, "__module__", None), getattr(entry, "__qualname__", "")
+        found: Any = sys.modules.get(module or "")
+        for part in name.split("."):
+            found = getattr(found, part, None)
+        if found is entry:
+            spec = dataclasses.replace(spec, entry_point=f"{module}:{name}")
+    loaded: dict[str, Any] = json.loads(spec.to_json())
+    return loaded
 
 
 def _terms(settings: RecorderSettings, info_of: str | None) -> dict[str, Any]:

@@ -789,6 +789,44 @@ def test_terms_read_info_by_info_still_diverge_on_a_changed_value(tmp_path: Path
 # a file without its env spec: replayable only in an env the user builds
 # --------------------------------------------------------------------------------------------
 
+
+class _ClassEntry(gym.Env[Any, Any]):
+    """An env registered with its class as the entry point (``gym.register(id, entry_point=C)``)."""
+
+    observation_space = gym.spaces.Box(-10.0, 10.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, step: float = 0.1) -> None:
+        self.size = step
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.p = self.np_random.uniform(-1, 1, 2).astype(np.float32)
+        return self.p, {}
+
+    def step(self, action: Any) -> Any:
+        self.p = (self.p + (self.size if action else -self.size)).astype(np.float32)
+        return self.p, float(self.p.sum()), False, False, {}
+
+
+def test_an_env_registered_with_a_class_as_entry_point_replays(tmp_path: Path) -> None:
+    gym.register("ClassEntry-v0", entry_point=_ClassEntry, max_episode_steps=4)
+    try:
+        path = tmp_path / "class.mcap"
+        with RecordEvidence(gym.make("ClassEntry-v0", step=0.5), path) as env:
+            for e in range(2):
+                env.reset(seed=e)
+                for _ in range(4):
+                    env.step(e % 2)
+        spec = open_evidence(path).run.env_spec
+        assert spec is not None
+        assert spec["entry_point"] == f"{__name__}:_ClassEntry"
+        assert spec["kwargs"] == {"step": 0.5}
+        assert replay([path]).count("identical") == 2
+    finally:
+        del gym.registry["ClassEntry-v0"]
+
+
 _NO_SPEC = (
     r"the env spec of 'CartPole-v1' was not recorded \(env spec is not JSON-serializable "
     r"\(TypeError: .*\)\): its kwargs and wrappers are unknown, and the bare id may be another "
