@@ -223,7 +223,10 @@ def _no_spec_reason(run: RunInfo) -> str:
     said = (
         [str(n) for n in notes if str(n).startswith("env spec")] if isinstance(notes, list) else []
     )
-    why = f" ({said[0][:200]})" if said else ""
+    note = said[0] if said else ""
+    if len(note) > 200:  # (at a word's end)
+        note = note[:200].rsplit(" ", 1)[0] + " …"
+    why = f" ({note})" if note else ""
     return (
         f"the env spec of {run.env_id!r} was not recorded{why}: its kwargs and wrappers are "
         "unknown, and the bare id may be another env; pass --env-factory MODULE:CALLABLE "

@@ -201,6 +201,24 @@ def test_replay_of_a_changed_env_exit_1_names_step_and_field(tmp_path: Path) -> 
     assert "0 identical, 3 diverged" in out
 
 
+def test_replay_lists_not_replayable_episodes_sharing_a_reason_in_one_row(
+    tmp_path: Path,
+) -> None:
+    gym.register("NotRegistered-v0", entry_point="gymnasium.envs.classic_control:CartPoleEnv")
+    try:
+        with RecordEvidence(gym.make("NotRegistered-v0"), tmp_path / "u.mcap") as env:
+            for e in range(7):
+                env.reset(seed=e)
+                env.step(0)
+    finally:
+        del gym.registry["NotRegistered-v0"]
+    code, out, err = run("replay", str(tmp_path / "u.mcap"), "--format", "markdown")
+    assert code == 1 and "replay verified no episode" in err
+    rows = [line for line in out.splitlines() if "not_replayable" in line]
+    assert len(rows) == 1 and "| 0, 1, 2, 3, 4 and 2 more |" in rows[0], out
+    assert "'NotRegistered-v0' is not registered in this process" in rows[0]
+
+
 def test_replay_bad_factory_is_a_usage_error(tmp_path: Path) -> None:
     path = cartpole(tmp_path / "cp.mcap", episodes=1)
     code, _, err = run("replay", str(path), "--env-factory", "nocolon")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from rich.console import Group, RenderableType
 from rich.text import Text
 
+from ...format.records import listing
 from ...replay import EpisodeReplay, ReplayResult
 from .common import (
     Output,
@@ -40,16 +41,7 @@ def replay_output(
         cases = replay_cases(result, allow_unverified=allow_unverified)
         return junit_xml(cases, name="episode-audit replay")
     headers = ["file", "episode", "status", "steps", "where", "detail"]
-    rows = []
-    for e in result.episodes:
-        if e.status == "identical":
-            continue
-        d = e.divergence
-        where = "-" if d is None else ("reset" if d.step is None else f"step {d.step}")
-        detail = (e.reason or "") if d is None or e.status == "not_replayable" else d.describe()
-        if e.restored:
-            detail += f" (restored: {e.restored})"
-        rows.append([e.file, e.episode, e.status, e.steps, where, detail])
+    rows = _rows(result.episodes)
     summary = (
         f"{result.count('identical')} identical, {result.count('diverged')} diverged, "
         f"{result.count('not_replayable')} not replayable: {result.verified} episode(s) verified"
@@ -87,6 +79,38 @@ def replay_output(
     out.extend(Text(safe(line)) for line in live)
     out.append(Text(summary))
     return Group(*out)
+
+
+def _rows(episodes: list[EpisodeReplay]) -> list[list[object]]:
+    """A row per episode that did not replay identically; not replayable ones, a row per reason.
+
+    The not replayable episodes of a file that share a reason (an env that cannot be built:
+    all of them) are one row, at the first one's place, listing them
+    (:func:`~episode_audit.format.records.listing`) with their steps summed.
+    """
+    rows: list[list[object]] = []
+    same: dict[tuple[str, str], tuple[list[object], list[int]]] = {}
+    for e in episodes:
+        if e.status == "identical":
+            continue
+        d = e.divergence
+        where = "-" if d is None else ("reset" if d.step is None else f"step {d.step}")
+        detail = (e.reason or "") if d is None or e.status == "not_replayable" else d.describe()
+        if e.restored:
+            detail += f" (restored: {e.restored})"
+        if e.status == "not_replayable" and where == "-":
+            row, listed = same.get((e.file, detail)) or ([], [])
+            if row:
+                listed.append(e.episode)
+                row[1] = listing(listed)
+                row[3] = int(str(row[3])) + e.steps
+                continue
+            same[e.file, detail] = row, listed = [e.file, e.episode, e.status, e.steps], [e.episode]
+            row += [where, detail]
+            rows.append(row)
+            continue
+        rows.append([e.file, e.episode, e.status, e.steps, where, detail])
+    return rows
 
 
 def unverified(not_replayable: int) -> str:
