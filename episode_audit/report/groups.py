@@ -8,6 +8,7 @@ length statistics, mean reward-term totals per outcome and incentive warnings.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from itertools import pairwise
 from typing import Any
@@ -107,17 +108,30 @@ def _interval(ci: Interval | None) -> dict[str, float] | None:
 
 
 def group_reports(episodes: pa.Table, terms: pa.Table) -> list[GroupReport]:
-    """One report per group key of ``episodes`` (sorted by key), with its ``terms`` rows."""
+    """One report per group key of ``episodes`` (in :func:`natural` order of key), with its ``terms`` rows."""
     if not episodes.num_rows:
         return []
     return [_group(key, rows, key_terms) for key, rows, key_terms in keyed(episodes, terms)]
 
 
 def keyed(episodes: pa.Table, terms: pa.Table) -> list[tuple[str, pa.Table, pa.Table]]:
-    """Each key of ``episodes`` (sorted) with its rows and its ``terms`` rows (:func:`by_key`)."""
+    """Each key of ``episodes``, in :func:`natural` order, with its rows and ``terms`` rows."""
     rows, term_rows = by_key(episodes), by_key(terms)
     no_terms = terms.slice(0, 0)
-    return [(key, rows[key], term_rows.get(key, no_terms)) for key in sorted(rows)]
+    return [(key, rows[key], term_rows.get(key, no_terms)) for key in sorted(rows, key=natural)]
+
+
+def natural(key: str) -> tuple[tuple[int, int, str], ...]:
+    """A group key's place: numbers in it compare as numbers (``step-512`` before ``step-1024``).
+
+    >>> sorted(["1024", "512", "b", "a10", "a9"], key=natural)
+    ['512', '1024', 'a9', 'a10', 'b']
+    """
+    return tuple(
+        (0, int(part), "") if part.isdigit() else (1, 0, part)
+        for part in re.split(r"(\d+)", key)
+        if part
+    )
 
 
 def by_key(table: pa.Table) -> dict[str, pa.Table]:
