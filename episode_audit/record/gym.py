@@ -87,8 +87,8 @@ class RecordEvidence(
 
     Args:
         env: The environment to record.
-        path: The evidence file to create. An existing file is never overwritten unless
-            ``overwrite=True``.
+        path: The evidence file to create (a missing folder is created). An existing file
+            is never overwritten unless ``overwrite=True``.
         **options: The recorder options (``tags``, ``reward_terms``, ``constant_terms``,
             ``ending_rules``, ``info_keys``, ``digest_min_bytes``, ``block_steps``,
             ``flush_every_s``, ``fsync``, ``overwrite``, ``command_line``,

@@ -140,14 +140,18 @@ def claim_output(
     ``overwrite=True`` with it is refused. Without ``{index}``, an existing file is refused
     unless ``overwrite``; then it is truncated only once its lock is held.
 
+    A missing folder is created, with its parents.
+
     Raises:
         ConfigurationError: The path is a bad template, a directory, exists (without
             ``overwrite``), is being written by another live recorder, or cannot be created.
     """
     text = os.fspath(path)
     if not template:
+        _make_folder(Path(text))
         return _open_path(Path(text), overwrite)
     tmpl = PathTemplate(text)
+    _make_folder(Path(tmpl.render(0)))
     if "index" not in tmpl.fields:
         return _open_path(Path(tmpl.render(0)), overwrite)
     if overwrite:
@@ -171,6 +175,19 @@ def claim_output(
         output.indexed = True
         return output
     raise ConfigurationError(f"path {text!r}: every {{index}} below {MAX_INDEX} is taken")
+
+
+def _make_folder(path: Path) -> None:
+    """Create the folder ``path`` goes in, with its parents, when it is missing."""
+    folder = path.parent
+    if folder.is_dir():
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigurationError(
+            f"{path}: cannot create its folder {folder}: {exc.strerror or exc}"
+        ) from None
 
 
 def _names_in(directory: str) -> frozenset[str]:

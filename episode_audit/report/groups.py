@@ -108,7 +108,7 @@ def _interval(ci: Interval | None) -> dict[str, float] | None:
 
 
 def group_reports(episodes: pa.Table, terms: pa.Table) -> list[GroupReport]:
-    """One report per group key of ``episodes`` (in :func:`natural` order of key), with its ``terms`` rows."""
+    """One report per group key of ``episodes`` (:func:`natural` order), with its ``terms`` rows."""
     if not episodes.num_rows:
         return []
     return [_group(key, rows, key_terms) for key, rows, key_terms in keyed(episodes, terms)]

@@ -206,6 +206,16 @@ def test_index_takes_the_lowest_free_path(tmp_path: Path) -> None:
     assert open_evidence(tmp_path / "train-0.mcap").episodes().num_rows == 1
 
 
+@pytest.mark.parametrize("name", ["runs/a/x.mcap", "runs/a/train-{index}.mcap"])
+def test_a_missing_folder_is_created(tmp_path: Path, name: str) -> None:
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / name) as env:
+        env.reset(seed=0)
+    assert env.path.parent == tmp_path / "runs" / "a" and env.path.is_file()
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ConfigurationError, match=r"x\.mcap: cannot create its folder .*file"):
+        RecordEvidence(gym.make("CartPole-v1"), tmp_path / "file" / "x.mcap")
+
+
 def test_pid_time_format_specs_and_literal_braces(tmp_path: Path) -> None:
     with RecordEvidence(
         gym.make("CartPole-v1"), tmp_path / "{{x}}-{pid}-{time}-{index:03d}.mcap"
