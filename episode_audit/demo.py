@@ -34,13 +34,49 @@ def run(*args: str) -> int:
     return int(code or 0)
 
 
+MARK = ".episode-audit-demo"
+"""The file that marks a folder as the demo's own: the only folders a new run deletes."""
+
+
+def fresh(folder: Path) -> str | None:
+    """Empty ``folder`` for a run (created when missing); why not, when it is not the demo's.
+
+    A folder the demo made (it holds :data:`MARK`) is deleted and made again; an empty one is
+    used; any other is left as it is.
+    """
+    if folder.exists():
+        if not folder.is_dir():
+            return f"{folder} is not a folder"
+        if (folder / MARK).is_file() or _made_before(folder):
+            shutil.rmtree(folder)
+        elif any(folder.iterdir()):
+            return f"{folder} holds files the demo did not make: give a new or empty folder"
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / MARK).write_text("made by python -m episode_audit.demo; a new run deletes it\n")
+    return None
+
+
+_MADE = ("*-scripted.mcap", "*-hacker.mcap", "*.foxglove.mcap", "report.html")
+
+
+def _made_before(folder: Path) -> bool:
+    """Whether ``folder`` holds only what a demo run makes (one from before :data:`MARK`)."""
+    entries = list(folder.iterdir())
+    return bool(entries) and all(
+        entry.is_file() and any(entry.match(pattern) for pattern in _MADE) for entry in entries
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the demo; returns 0 when every step behaved as the demo expects."""
+    """Run the demo; returns 0 when every step behaved as the demo expects (2: a bad folder)."""
     args = sys.argv[1:] if argv is None else argv
     out = Path(args[0] if args else "demo-out")
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    viewers = out.parent / f"{out.name}-viewers"
+    for folder in (out, viewers):
+        why = fresh(folder)
+        if why is not None:
+            print(f"episode-audit demo: {why}", file=sys.stderr)
+            return 2
     started = time.perf_counter()
     problems: list[str] = []
     for task in TASK_IDS:
@@ -69,10 +105,6 @@ def main(argv: list[str] | None = None) -> int:
         problems.append(f"the gate should have failed with exit 1, got {gate}")
     # viewer files go beside the evidence directory, not in it: commands given the directory
     # would take an exported MCAP for evidence
-    viewers = out.parent / f"{out.name}-viewers"
-    if viewers.exists():
-        shutil.rmtree(viewers)
-    viewers.mkdir()
     hacker = sorted(out.glob("*-hacker.mcap"))[0]
     foxglove = viewers / hacker.name.replace(".mcap", ".foxglove.mcap")
     if run("export", str(hacker), "--to", "foxglove", "-o", str(foxglove)) != 0:

@@ -72,3 +72,24 @@ def test_demo_html_report_renders_in_chromium(demo_run: tuple[Path, str]) -> Non
     assert "shaping_dominates" in result.value["text"]
     assert shot.stat().st_size > 50_000
     print(f"\ndemo HTML report screenshot: {shot}")
+
+
+def test_the_demo_deletes_only_its_own_folders(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    precious = tmp_path / "precious"
+    precious.mkdir()
+    (precious / "run.mcap").write_bytes(b"evidence")
+    assert demo.main([str(precious)]) == 2
+    assert "holds files the demo did not make" in capsys.readouterr().err
+    assert (precious / "run.mcap").read_bytes() == b"evidence"
+    assert not (tmp_path / "precious-viewers").exists()
+    # a folder of what a demo run made (before the mark), or with the mark, is emptied
+    older = tmp_path / "older"
+    older.mkdir()
+    (older / "grasp-hacker.mcap").write_bytes(b"")
+    (older / "report.html").write_text("")
+    assert demo.fresh(older) is None
+    assert [p.name for p in older.iterdir()] == [demo.MARK]
+    (older / "grasp-hacker.mcap").write_bytes(b"")
+    assert demo.fresh(older) is None and [p.name for p in older.iterdir()] == [demo.MARK]
