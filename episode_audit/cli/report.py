@@ -113,6 +113,13 @@ def report(
     from .render import report_output
 
     fmt = _format(output, junit=True)
+    if html is not None:  # (before the work: a path it would refuse after)
+        from ..report.html import check_html_path
+
+        try:
+            check_html_path(html, paths)
+        except EpisodeAuditError as exc:
+            fail(str(exc))
     try:
         with interruptible():
             result = report_inputs(

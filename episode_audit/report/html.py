@@ -21,6 +21,7 @@ from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import unstarted
 from ..read import Evidence
+from ..record.lock import output_kind
 from . import charts
 from .collect import ENDED, collect
 from .core import Report
@@ -29,7 +30,14 @@ from .groups import GroupReport
 from .incentives import SHAPING_DOMINATES
 from .stats import Interval
 
-__all__ = ["EpisodeRow", "episode_commands", "episode_rows", "report_html", "write_report_html"]
+__all__ = [
+    "EpisodeRow",
+    "check_html_path",
+    "episode_commands",
+    "episode_rows",
+    "report_html",
+    "write_report_html",
+]
 
 _CSP = "default-src 'none'; style-src 'unsafe-inline'; img-src data:"
 _STYLE = """
@@ -293,14 +301,11 @@ def write_report_html(
 ) -> Path:
     """Write the HTML report of ``result`` (made of ``sources``) to ``path``; return the path.
 
-    A path ending in ``.mcap``, or naming one of the inputs, raises
-    :class:`~episode_audit.errors.ConfigurationError` (a report never overwrites evidence).
+    A path :func:`check_html_path` refuses raises
+    :class:`~episode_audit.errors.ConfigurationError`: a report replaces only an earlier one.
     """
     out = Path(path)
-    if out.suffix.lower() == ".mcap" or any(_same(out, name) for name, _ in sources):
-        raise ConfigurationError(
-            f"--html: {out} looks like an evidence file; name the report e.g. report.html"
-        )
+    check_html_path(out, [name for name, _ in sources])
     page = report_html(result, episode_rows(sources, result.by, games))
     partial = out.with_name(out.name + ".partial")
     try:
@@ -310,6 +315,36 @@ def write_report_html(
         partial.unlink(missing_ok=True)
         raise
     return out
+
+
+def check_html_path(out: Path, inputs: Sequence[str]) -> None:
+    """Refuse a report path that is evidence or anything but an HTML report written before.
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` for a path ending in ``.mcap`` or
+    naming one of the ``inputs``, one that exists and is not a regular file (a directory, a
+    device), or a file that is not an HTML page (a report replaces only an earlier one).
+    """
+    if out.suffix.lower() == ".mcap" or any(_same(out, name) for name in inputs):
+        raise ConfigurationError(
+            f"--html: {out} looks like an evidence file; name the report e.g. report.html"
+        )
+    kind = output_kind(out)
+    if kind is not None:
+        raise ConfigurationError(
+            f"--html: {out} is {kind}, not a regular file; name the report e.g. report.html"
+        )
+    try:
+        with open(out, "rb") as f:
+            head = f.read(64).lstrip().lower()
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise ConfigurationError(f"--html: cannot read {out}: {exc.strerror or exc}") from None
+    if head and not head.startswith((b"<!doctype html", b"<html")):
+        raise ConfigurationError(
+            f"--html: {out} exists and is not an HTML page; a report replaces only an earlier "
+            "report: remove the file or name another"
+        )
 
 
 def _same(out: Path, name: str) -> bool:

@@ -112,6 +112,25 @@ def test_html_report_never_overwrites_evidence(tmp_path: Path, name: str) -> Non
     assert path.read_bytes() == before
 
 
+def test_html_report_replaces_only_an_earlier_report(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    path = _evidence(tmp_path)
+    backup = tmp_path / "evidence.backup"
+    backup.write_bytes(path.read_bytes())
+    refused = CliRunner().invoke(app, ["report", str(path), "--html", str(backup)])
+    assert refused.exit_code == 2 and refused.stdout == ""  # refused before the report
+    assert "exists and is not an HTML page" in refused.stderr
+    assert backup.read_bytes() == path.read_bytes()
+    device = CliRunner().invoke(app, ["report", str(path), "--html", "/dev/null"])
+    assert device.exit_code == 2 and "is a character device" in device.stderr
+    out = tmp_path / "r.html"
+    for _ in range(2):  # the second run replaces the first's page
+        assert CliRunner().invoke(app, ["report", str(path), "--html", str(out)]).exit_code == 0
+
+
 def test_html_report_renders_in_headless_chromium(tmp_path: Path) -> None:
     page, _ = _page(tmp_path)
     shot = tmp_path / "report.png"
