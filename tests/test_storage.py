@@ -406,3 +406,18 @@ def test_record_uploads_the_finished_file(s3: Any, tmp_path: Path) -> None:
     assert code == 2
     assert "--upload: expected a URL" in err
     assert not (tmp_path / "b.mcap").exists()
+    # an upload never replaces a file there without --overwrite; refused before recording
+    again = tmp_path / "again" / "rec.mcap"
+    code, _, err = run(
+        "record", "CartPole-v1", "--out", str(again), "--upload", f"s3://{BUCKET}/rec/"
+    )
+    assert code == 2 and not again.exists()
+    assert err == (
+        f"episode-audit: error: --upload: s3://{BUCKET}/rec/rec.mcap: exists; pass --overwrite "
+        "to replace it\n"
+    )
+    assert s3.cat_file(f"{BUCKET}/rec/rec.mcap") == out.read_bytes()
+    args = ["--episodes", "1", "--upload", f"s3://{BUCKET}/rec/", "--overwrite"]
+    code, _, err = run("record", "CartPole-v1", "--out", str(again), *args)
+    assert code == 0, err
+    assert s3.cat_file(f"{BUCKET}/rec/rec.mcap") == again.read_bytes()

@@ -56,7 +56,10 @@ _TagOption = Annotated[
     typer.Option(help="Run tag KEY=VALUE (repeatable), e.g. policy=ppo.", metavar="<key=value>"),
 ]
 
-_OverwriteOption = Annotated[bool, typer.Option("--overwrite", help="Replace an existing file.")]
+_OverwriteOption = Annotated[
+    bool,
+    typer.Option("--overwrite", help="Replace an existing file (--out, and the --upload URL)."),
+]
 
 _UploadToOption = Annotated[
     str | None,
@@ -87,6 +90,8 @@ def record(
 
     kwargs, tags = _env_kwargs(env_kwargs), _tags(tag or [])
     target = None if upload_to is None else _upload_target(upload_to, out)
+    if target is not None and not overwrite:
+        _refuse_existing(target)
     try:
         with progress_bar(f"recording {env_id}", episodes) as advance:
             summary = record_episodes(
@@ -130,6 +135,18 @@ def _upload_target(url: str, out: Path) -> RemoteFile:
         return remote_file(url + out.name if url.endswith("/") else url)
     except EpisodeAuditError as exc:
         fail(str(exc))
+
+
+def _refuse_existing(target: RemoteFile) -> None:
+    """``--upload`` without ``--overwrite``: refuse a URL that holds a file, before recording."""
+    from ..read.storage import exists
+
+    try:
+        there = exists(target)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
+    if there:
+        fail(f"--upload: {target}: exists; pass --overwrite to replace it")
 
 
 def _env_kwargs(text: str | None) -> dict[str, Any]:
