@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
@@ -261,17 +264,41 @@ def jobs_for(jobs: int | None, files: Sequence[Source], small: int = SMALL_INPUT
 def interruptible() -> Iterator[None]:
     """Ctrl-C: one line on stderr and exit 130 (the workers are stopped by then).
 
-    pyarrow imports pandas (when installed) the first time it converts a column, and a Ctrl-C
-    during that import is lost, or leaves pandas half-imported (a traceback): it is imported
-    first here, with Ctrl-C held meanwhile (:func:`~episode_audit._jobs.sigint_held`).
+    So even when the work swallowed the ``KeyboardInterrupt`` (:func:`_pressed`). pyarrow
+    imports pandas (when installed) the first time it converts a column, and a Ctrl-C during
+    that import is lost, or leaves pandas half-imported (a traceback): it is imported first
+    here, with Ctrl-C held meanwhile (:func:`~episode_audit._jobs.sigint_held`).
     """
+    pressed: list[int] = []
+    watching = (
+        threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    )
+    if watching:  # a Ctrl-C a library turns into another error still stops the command
+        signal.signal(signal.SIGINT, partial(_pressed, pressed))
     try:
         with sigint_held():
             _pyarrow_pandas()
         yield
+        if pressed:
+            raise KeyboardInterrupt
     except KeyboardInterrupt:
         _say("error", "interrupted (Ctrl-C): stopped")
         raise typer.Exit(EXIT_INTERRUPTED) from None
+    finally:
+        if watching:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _pressed(pressed: list[int], signum: int, frame: Any) -> None:
+    """Python's own Ctrl-C (``KeyboardInterrupt``), noted in ``pressed`` first.
+
+    Raised inside a library it may become another error (an env that "is not installed" when
+    ``import mujoco`` was interrupted, a ctypes ``ArgumentError``): a verdict made of those
+    would be false, so :func:`interruptible` stops the command all the same.
+    """
+    pressed.append(signum)
+    raise KeyboardInterrupt
 
 
 def _pyarrow_pandas() -> None:

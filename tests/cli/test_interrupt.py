@@ -72,3 +72,28 @@ def test_the_console_script_runs_the_command() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("episode-audit"), done.stdout
+
+
+def test_a_ctrl_c_the_work_swallowed_still_stops_the_command() -> None:
+    import pytest
+    import typer
+
+    from episode_audit.cli._app import interruptible
+
+    # a library that turns the KeyboardInterrupt into another error (as an interrupted
+    # `import mujoco` did: "MuJoCo is not installed"), which replay made a verdict of
+    said: list[str] = []
+
+    def work() -> None:
+        with interruptible():
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(1)
+            except BaseException as exc:
+                said.append(f"not installed ({type(exc).__name__})")
+
+    with pytest.raises(typer.Exit) as stopped:
+        work()
+    assert said == ["not installed (KeyboardInterrupt)"]
+    assert stopped.value.exit_code == 130
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
