@@ -178,7 +178,8 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
                 _gate_name(name),
                 group.key,
                 passed,
-                f"{name}: the 95 % interval allows a {what} of up to {_num(worse)}, {verb} "
+                f"{name}: the 95 % interval allows {'a' if what == 'drop' else 'an'} {what} of up "
+                f"to {_num(worse)}, {verb} "
                 f"{_num(limit)} (group {group.key})",
             )
         )

@@ -95,7 +95,7 @@ class MetricComparison:
             "p_adjusted": _finite(self.p_adjusted),
             "margin": _finite(self.margin),
             "mde": _finite(self.mde),
-            "n_needed": self.n_needed,
+            "n_needed": None if self.n_needed >= stats.NEVER else self.n_needed,
             "verdict": self.verdict,
             "baseline_iqm": _finite(self.baseline_iqm),
             "candidate_iqm": _finite(self.candidate_iqm),

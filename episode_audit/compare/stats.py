@@ -124,20 +124,21 @@ def bootstrap_difference(base: Array, cand: Array, *, paired: bool) -> Interval:
     """The BCa bootstrap interval of ``mean(cand) - mean(base)`` (``scipy.stats.bootstrap``).
 
     ``paired`` resamples the pairs (``base[i]``, ``cand[i]``) together; otherwise each side is
-    resampled on its own. Constant data (no spread to resample) give the point difference; a
-    side of one value cannot be resampled and gives ``(-inf, inf)``.
+    resampled on its own. A side of one value (or one pair) cannot be resampled and gives
+    ``(-inf, inf)``; constant data of at least two values (no spread to resample) give the
+    point difference.
+
+    >>> bootstrap_difference(np.array([21.0]), np.array([0.0]), paired=False)
+    Interval(low=-inf, high=inf)
+    >>> bootstrap_difference(np.array([1.0, 1.0]), np.array([3.0, 3.0]), paired=False)
+    Interval(low=2.0, high=2.0)
     """
     diff = float(np.mean(cand) - np.mean(base))
-    if paired:
-        data: tuple[Array, ...] = (cand - base,)
-        if np.ptp(data[0]) == 0:
-            return Interval(diff, diff)
-    else:
-        data = (base, cand)
-        if np.ptp(base) == 0 and np.ptp(cand) == 0:
-            return Interval(diff, diff)
-    if min(len(d) for d in data) < 2:
+    data: tuple[Array, ...] = (cand - base,) if paired else (base, cand)
+    if min(len(d) for d in data) < 2:  # (one value has no spread to tell from none)
         return Interval(-math.inf, math.inf)
+    if all(np.ptp(d) == 0 for d in data):
+        return Interval(diff, diff)
     statistic = _mean if paired else _mean_difference
     low, high = _bootstrap(data, statistic, "BCa")
     if not (math.isfinite(low) and math.isfinite(high)):  # BCa undefined: percentiles

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from episode_audit import CompareGates, ConfigurationError, compare
-from episode_audit.compare.groups import compare_group
+from episode_audit.compare.groups import check_gates, compare_group
 from episode_audit.compare.metrics import decide
 from episode_audit.compare.sides import Side, pair
 from episode_audit.rollout import record_episodes
@@ -137,6 +137,23 @@ def test_identical_sides_are_held_and_a_drop_regresses() -> None:
     success = drop.metrics[0]
     success.verdict = decide(success)
     assert success.verdict == "regressed" and success.paired
+
+
+@pytest.mark.parametrize("seeds", [([1], [2]), ([1], [1])])
+def test_one_episode_a_side_passes_no_gate_and_plans_no_n(
+    seeds: tuple[list[int], list[int]],
+) -> None:
+    base = Side.of(["success"], [21.0], seed=list(seeds[0]))
+    cand = Side.of(["success"], [42.0], seed=list(seeds[1]))
+    group = compare_group("g", base, cand, CompareGates(max_return_drop=5.0), [])
+    returns = {m.name: m for m in group.metrics}["return"]
+    assert returns.interval.low == -float("inf") and returns.interval.high == float("inf")
+    (gate,) = check_gates(group, CompareGates(max_return_drop=5.0))
+    assert not gate.passed  # one episode cannot show a drop of at most 5
+    assert "allows a drop of up to inf, beyond 5" in gate.message
+    returns.verdict = decide(returns)
+    assert returns.verdict == "underpowered"
+    assert returns.to_dict()["n_needed"] is None  # (no n is enough: no spread known)
 
 
 def test_no_shared_group_is_refused_not_passed(runs: dict[str, Path]) -> None:

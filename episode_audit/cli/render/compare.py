@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from rich.console import Group, RenderableType
 
 from ...compare import Comparison, MetricComparison
+from ...compare.stats import NEVER
 from ...read.inputs import Unreadable
 from .common import (
     Output,
@@ -71,7 +72,7 @@ def _row(key: str, m: MetricComparison) -> list[str]:
         f"{fmt_number(m.p_value)} ({p})",
         m.verdict or "-",
         _value(m, m.mde),
-        str(m.n_needed) if m.verdict is not None else "-",
+        ("∞" if m.n_needed >= NEVER else str(m.n_needed)) if m.verdict is not None else "-",
     ]
 
 
