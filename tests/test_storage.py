@@ -341,6 +341,17 @@ def test_urls_print_without_secrets() -> None:
     assert shown_url(url) == "https://example.org/runs/a.mcap?…"
 
 
+def test_a_storage_error_quoting_the_credentials_prints_without_them(endpoint: str) -> None:
+    # botocore quotes the bucket it was given: "user:s3cret@bkt" (docs/security.md)
+    url = f"s3://user:s3cret@{BUCKET}/runs/a.mcap?X-Amz-Signature=deadbeef"
+    done = _cli({**_ENV, "AWS_ENDPOINT_URL": endpoint}, "check", url)
+    assert done.returncode == 2, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "Invalid bucket name" in done.stderr  # (the message is there, its secrets not)
+    for secret in ("s3cret", "user:", "deadbeef", "testing"):
+        assert secret not in done.stderr, done.stderr
+
+
 @pytest.fixture
 def web(runs: Path) -> Iterator[str]:
     """The local runs directory served over HTTP on a free loopback port (with Range)."""

@@ -17,7 +17,7 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
-from urllib.parse import urlsplit, urlunsplit
+from urllib.parse import parse_qsl, urlsplit, urlunsplit
 
 from ..errors import ConfigurationError, EvidenceError
 
@@ -246,9 +246,29 @@ def _storage_errors(path: RemoteFile, what: str, error: type[Exception]) -> Iter
     except (EvidenceError, ConfigurationError):
         raise
     except Exception as exc:
+        why = _without_secrets(_why(exc), path.url)
         if error is ConfigurationError:
-            raise ConfigurationError(f"{path}: {what}: {_why(exc)}") from None
-        raise EvidenceError(path, f"{what}: {_why(exc)}") from None
+            raise ConfigurationError(f"{path}: {what}: {why}") from None
+        raise EvidenceError(path, f"{what}: {why}") from None
+
+
+def _without_secrets(text: str, url: str) -> str:
+    """``text`` (a storage client's message) without the secrets ``url`` carries.
+
+    A client may quote what it was given: the credentials before ``@`` (botocore's "Invalid
+    bucket name "user:pass@bkt"") or the query (a signature); docs/security.md.
+
+    >>> _without_secrets('Invalid bucket name "u:pw12@b"', "s3://u:pw12@b/k?sig=abcd")
+    'Invalid bucket name "…b"'
+    """
+    parts = urlsplit(url)
+    userinfo = parts.netloc.rpartition("@")[0]
+    secrets = [f"{userinfo}@", userinfo, parts.password or "", parts.query]
+    secrets += [value for _, value in parse_qsl(parts.query)]
+    for secret in sorted(filter(None, secrets), key=len, reverse=True):
+        if len(secret) >= 4 or secret.endswith("@"):
+            text = text.replace(secret, "…")
+    return text
 
 
 def list_remote(path: RemoteFile) -> list[RemoteFile]:
