@@ -336,6 +336,22 @@ def test_bad_storage_is_one_line_and_exit_2(
     assert "testing" not in done.stderr
 
 
+def test_a_url_no_filesystem_here_reads_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    done = _cli({}, "check", "zip://x.mcap")  # (fsspec's zip needs the archive: none given)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines() == [
+        "episode-audit: error: zip://x.mcap: cannot read zip:// URLs (IsADirectoryError: [Errno "
+        f"21] Is a directory: '{REPO}'); evidence is read from s3://, gs://, az:// and "
+        "http(s):// (docs/storage.md), or copy the file here"
+    ]
+    if importlib.util.find_spec("paramiko") is None:
+        done = _cli({}, "check", "sftp://host/x.mcap")
+        assert done.returncode == 2 and done.stderr.strip().endswith(
+            "needs an fsspec filesystem that is not installed: install the fsspec filesystem "
+            "for sftp://"
+        ), done.stderr
+
+
 def test_urls_print_without_secrets() -> None:
     url = "https://user:pw@example.org/runs/a.mcap?X-Amz-Credential=AKIA&X-Amz-Signature=f00"
     assert shown_url(url) == "https://example.org/runs/a.mcap?…"

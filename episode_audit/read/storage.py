@@ -55,6 +55,8 @@ BLOCK_BYTES = 1 << 16
 _URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
 _FSSPEC_PROTOCOL = {"s3a": "s3", "gs": "gcs", "az": "abfs", "abfss": "abfs"}
 _EXTRA = {"gcs": "gcs", "abfs": "azure", "https": "http"}
+_EXTRAS = frozenset({"s3", "gcs", "azure", "http"})
+"""The package's extras that install a filesystem (pyproject.toml)."""
 
 
 def is_url(path: object) -> bool:
@@ -184,13 +186,21 @@ def remote_file(
             filesystem = fsspec.filesystem(protocol, **options)
         except ImportError:
             extra = _EXTRA.get(protocol, protocol)
+            install = (
+                f"pip install 'episode-audit[{extra}]'"
+                if extra in _EXTRAS
+                else f"install the fsspec filesystem for {scheme}://"
+            )
             raise ConfigurationError(
                 f"{shown_url(url)}: reading {scheme}:// URLs needs an fsspec filesystem that is "
-                f"not installed: pip install 'episode-audit[{extra}]'"
+                f"not installed: {install}"
             ) from None
-        except ValueError as exc:
+        except Exception as exc:  # (ftp:// without a host: a TypeError; hdfs:// without a JVM)
+            why = _without_secrets(" ".join(str(exc).split())[:200], url)
             raise ConfigurationError(
-                f"{shown_url(url)}: cannot read {scheme}:// URLs: {exc}"
+                f"{shown_url(url)}: cannot read {scheme}:// URLs ({type(exc).__name__}: {why}); "
+                "evidence is read from s3://, gs://, az:// and http(s):// (docs/storage.md), "
+                "or copy the file here"
             ) from None
         if protocol == "s3":
             filesystem.retries = 1  # s3fs's own loop (a class attribute, 5) around botocore's
