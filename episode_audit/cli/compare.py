@@ -7,7 +7,7 @@ from typing import Annotated
 import typer
 
 from ..errors import EpisodeAuditError
-from ..read.inputs import evidence_files
+from ..read.inputs import Unreadable, evidence_files
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
@@ -99,9 +99,15 @@ def compare(
 ) -> None:
     """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates."""
     from ..compare import compare_inputs
-    from .render.compare import compare_output
+    from .render.compare import compare_error_output, compare_output
 
     fmt = _format(output, junit=True)
+    unread: list[Unreadable] = []
+
+    def told(exc: EpisodeAuditError) -> None:
+        _error_line(exc)
+        unread.append(Unreadable.of(getattr(exc, "path", ""), exc))
+
     try:
         with interruptible():
             result = compare_inputs(
@@ -113,11 +119,13 @@ def compare(
                 max_return_drop=max_return_drop,
                 rate_margin=rate_margin,
                 different_tasks=different_tasks,
-                on_error=_error_line,
+                on_error=told,
                 jobs=_jobs(jobs, [*baseline, *candidate]),
                 ray_address=ray,
             )
     except EpisodeAuditError as exc:
+        if fmt in ("json", "junit"):  # (a document all the same: CI saves it)
+            emit(compare_error_output(str(exc), fmt, unread))
         fail(str(exc))
     comparison = result.comparison
     for mismatch in comparison.mismatches:

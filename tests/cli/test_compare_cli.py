@@ -15,6 +15,7 @@ from episode_audit.rollout import record_episodes
 from episode_audit.tasks import DRAWER_OPEN_ID
 
 pytestmark = pytest.mark.mujoco
+REPO = Path(__file__).resolve().parents[2]
 runner = CliRunner()
 
 
@@ -108,6 +109,30 @@ def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_pat
     assert code == 2 and "different tasks" in err and "--different-tasks" in err
     code, _, err = run("compare", runs["base"], "--candidate", str(cart), "--different-tasks")
     assert code in (0, 1) and "env_id differs" in err
+
+
+def test_a_comparison_that_cannot_be_made_still_prints_its_json_and_junit(
+    runs: dict[str, str], tmp_path: Path
+) -> None:
+    import jsonschema
+    import junitparser
+
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file")
+    code, out, err = run("compare", str(bad), "--candidate", runs["same"], "-f", "json")
+    assert code == 2 and "none of its 1 evidence file(s) could be read" in err
+    data = json.loads(out)
+    schema = json.loads((REPO / "docs" / "schemas" / "compare.json").read_text())
+    jsonschema.validate(data, schema, jsonschema.Draft202012Validator)
+    assert data["error"].startswith("the baseline: none of its 1 evidence file(s)")
+    assert [u["file"] for u in data["unreadable"]] == [str(bad)]
+    code, out, _ = run("compare", str(bad), "--candidate", runs["same"], "-f", "junit")
+    assert code == 2
+    xml = tmp_path / "compare.xml"
+    xml.write_text(out)
+    cases = [(case.classname, case.name) for suite in junitparser.JUnitXml.fromfile(str(xml))
+             for case in suite]  # fmt: skip
+    assert cases == [(str(bad), "read"), ("episode-audit compare", "compare")]
 
 
 def test_an_unfinished_file_is_compared_and_named() -> None:
