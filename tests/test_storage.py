@@ -398,6 +398,35 @@ def test_http_urls_are_read_by_ranges(web: str, runs: Path) -> None:
     assert err.startswith(f"episode-audit: error: {web}/zzz.mcap: cannot read: no such file")
 
 
+def test_http_access_denied_and_no_connection_are_told_apart_from_not_found() -> None:
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    class Forbidden(BaseHTTPRequestHandler):
+        def do_HEAD(self) -> None:
+            self.send_response(403)
+            self.end_headers()
+
+        do_GET = do_HEAD
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    srv = HTTPServer(("127.0.0.1", 0), Forbidden)
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    try:
+        url = f"http://127.0.0.1:{srv.server_port}/a.mcap"
+        code, _, err = run("check", url)
+        assert code == 2
+        assert err.startswith(f"episode-audit: error: {url}: cannot read: access denied (HTTP 403)")
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    url = f"http://127.0.0.1:{_free_port()}/a.mcap"
+    code, _, err = run("check", url)
+    assert code == 2 and err.startswith(f"episode-audit: error: {url}: cannot read: cannot connect")
+
+
 @pytest.mark.parametrize(("url", "extra"), [("gs://b/k.mcap", "gcs"), ("az://c/k.mcap", "azure")])
 def test_a_scheme_without_its_filesystem_names_the_extra(url: str, extra: str) -> None:
     pytest.importorskip("fsspec")

@@ -230,10 +230,16 @@ def as_source(
 
 def _why(exc: BaseException) -> str:
     """One line on a storage failure: what went wrong, and what to do when it is known."""
+    cause = exc.__cause__ or exc.__context__
+    if isinstance(exc, FileNotFoundError) and cause is not None and _not_a_404(cause):
+        return _why(cause)  # (fsspec's HTTP filesystem says "not found" for any failure)
     name = type(exc).__name__
     text = " ".join(str(exc).split())[:200]
     if isinstance(exc, FileNotFoundError):
         return "no such file, bucket or prefix"
+    status = getattr(exc, "status", None)
+    if status in (401, 403):
+        return f"access denied (HTTP {status}); check the URL's credentials or signature"
     if isinstance(exc, PermissionError) or "AccessDenied" in text or "Forbidden" in text:
         return f"access denied ({text}); check the credentials and their permissions"
     if name == "NoCredentialsError" or "Unable to locate credentials" in text:
@@ -246,6 +252,20 @@ def _why(exc: BaseException) -> str:
     if "connect" in name.lower() or "connect" in text.lower():
         return f"cannot connect ({text or name}); is the endpoint reachable?"
     return f"{name}: {text}" if text else name
+
+
+def _not_a_404(cause: BaseException) -> bool:
+    """Whether ``cause`` of a ``FileNotFoundError`` is access denied or no connection.
+
+    fsspec's HTTP filesystem raises ``FileNotFoundError`` from either.
+    """
+    name = type(cause).__name__.lower()
+    return (
+        getattr(cause, "status", None) in (401, 403)
+        or isinstance(cause, (ConnectionError, TimeoutError))
+        or "connect" in name
+        or "timeout" in name
+    )
 
 
 @contextmanager
