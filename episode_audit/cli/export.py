@@ -117,7 +117,7 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
             "export them one at a time"
         )
     try:
-        with progress_bar("exporting", steps_total(files)) as advance:
+        with interruptible(), progress_bar("exporting", steps_total(files)) as advance:
             viewer = cast(Literal["foxglove", "rerun"], to)
             result = run_export(files, Path(out), to=viewer, overwrite=overwrite, progress=advance)
     except EpisodeAuditError as exc:

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import ImportOption, app, emit, fail, progress_bar
+from ._app import ImportOption, app, emit, fail, interruptible, progress_bar
 from .render import safe
 
 if TYPE_CHECKING:
@@ -93,7 +93,7 @@ def record(
     if target is not None and not overwrite:
         _refuse_existing(target)
     try:
-        with progress_bar(f"recording {env_id}", episodes) as advance:
+        with interruptible(), progress_bar(f"recording {env_id}", episodes) as advance:
             summary = record_episodes(
                 env_id,
                 out,

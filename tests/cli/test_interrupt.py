@@ -61,6 +61,33 @@ def test_ctrl_c_while_the_command_imports_the_package_is_one_line(tmp_path: Path
     assert err.splitlines() == ["episode-audit: error: interrupted (Ctrl-C): stopped"]
 
 
+def test_ctrl_c_while_recording_is_one_line_and_the_file_is_whole(tmp_path: Path) -> None:
+    evidence = tmp_path / "run.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "episode_audit_cli", "record", "CartPole-v1", "--episodes",
+         "100000000", "-o", str(evidence)],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=_default_sigint,
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    while not evidence.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    time.sleep(1)  # (recording by now)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.splitlines() == ["episode-audit: error: interrupted (Ctrl-C): stopped"]
+    check = subprocess.run(
+        [sys.executable, "-m", "episode_audit_cli", "check", str(evidence)],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert check.returncode == 0, check.stdout + check.stderr
+
+
 def test_the_console_script_runs_the_command() -> None:
     done = subprocess.run(
         [sys.executable, "-m", "episode_audit_cli", "--version"],
