@@ -30,7 +30,7 @@ _CandidateOption = Annotated[
     list[str],
     typer.Option(
         "--candidate",
-        help="The candidate's evidence files or directories (repeatable; required).",
+        help="The candidate's evidence files or directories (repeatable).",
         metavar="<file|dir>",
     ),
 ]

@@ -140,8 +140,10 @@ class RecoveryResult:
                 f"(nothing to recover)"
             )
         kept = (
-            f"recovered {self.source} -> {self.output}: {self.episodes} episodes, "
-            f"{self.steps} steps in {self.chunks} chunks"
+            f"recovered {self.source} -> {self.output}: {self.episodes} "
+            f"episode{'s' if self.episodes != 1 else ''}, {self.steps} "
+            f"step{'s' if self.steps != 1 else ''} in {self.chunks} "
+            f"chunk{'s' if self.chunks != 1 else ''}"
         )
         if not self.lost:
             if self.run_end_damage:  # (its words say what the record held)
