@@ -197,4 +197,4 @@ def _gate_name(metric: str) -> str:
 
 
 def _num(value: float) -> str:
-    return f"{value:.4g}"
+    return f"{value + 0.0:.4g}"  # (+ 0.0: no "-0")

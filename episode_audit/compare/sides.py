@@ -2,9 +2,9 @@
 
 :func:`sides` splits the tables :func:`~episode_audit.report.collect.collect` returns into one
 :class:`Side` per group key: the side's ended episodes (success, failure, truncated; the
-denominator of every rate), their returns, reward-term totals and reset seeds. :func:`pair`
-matches two sides' episodes on their reset seeds (the k-th episode seeded ``s`` of one side
-with the k-th seeded ``s`` of the other).
+denominator of every rate), their returns, reward-term totals, reset seeds and RNG states.
+:func:`pair` matches two sides' episodes on how they began (the k-th episode seeded ``s`` of
+one side with the k-th seeded ``s`` of the other; unseeded ones by the RNG state recorded).
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ Array = np.ndarray[Any, Any]
 class Side:
     """The ended episodes of one group of one side, one value per episode in each array.
 
-    ``seed`` is ``-1`` where an episode's reset had no seed. ``terms[name]`` is the term's
-    episode total (0.0 in an episode that did not report the term).
+    ``seed`` is ``-1`` where an episode's reset had no seed; ``rng`` a digest of the RNG state
+    an unseeded reset began from (``-1``: none recorded). ``terms[name]`` is the term's episode
+    total (0.0 in an episode that did not report the term).
     """
 
     outcome: Array
@@ -40,6 +41,7 @@ class Side:
     returns: Array
     seed: Array
     terms: dict[str, Array] = field(default_factory=dict)
+    rng: Array | None = None
 
     @property
     def n(self) -> int:
@@ -79,6 +81,7 @@ class Side:
             self.returns[index],
             self.seed[index],
             {k: v[index] for k, v in self.terms.items()},
+            None if self.rng is None else self.rng[index],
         )
 
 
@@ -115,6 +118,7 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
         values = totals.setdefault(name, np.zeros(len(row_ids), dtype=np.float64))
         values[i] += np.nan if total is None else total
     seeds = pc.fill_null(rows.column("seed"), -1).to_numpy(zero_copy_only=False)
+    rngs = pc.fill_null(rows.column("rng"), -1).to_numpy(zero_copy_only=False)
     return Side(
         np.array(rows.column("outcome").to_pylist(), dtype=object),
         np.array(rows.column("failure_label").to_pylist(), dtype=object),
@@ -122,20 +126,34 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
         rows.column("return").to_numpy(zero_copy_only=False).astype(np.float64),
         np.asarray(seeds, dtype=np.int64),
         dict(sorted(totals.items())),
+        np.asarray(rngs, dtype=np.int64),
     )
 
 
 def pair(base: Side, cand: Side) -> Pairs:
-    """Match the episodes of two sides on their reset seeds (unseeded ones match nothing)."""
-    waiting: dict[int, list[int]] = defaultdict(list)
-    for i, s in enumerate(base.seed.tolist()):
-        if s >= 0:
-            waiting[s].append(i)
+    """Match the episodes of two sides on how they began.
+
+    The same reset seed, or (unseeded) the same recorded RNG state: the k-th of one side with
+    the k-th of the other. An episode with neither matches nothing.
+    """
+    waiting: dict[tuple[str, int], list[int]] = defaultdict(list)
+    for i, start in enumerate(_starts(base)):
+        if start is not None:
+            waiting[start].append(i)
     b: list[int] = []
     c: list[int] = []
-    for j, s in enumerate(cand.seed.tolist()):
-        queue = waiting.get(s)
-        if s >= 0 and queue:
+    for j, start in enumerate(_starts(cand)):
+        queue = waiting.get(start) if start is not None else None
+        if queue:
             b.append(queue.pop(0))
             c.append(j)
     return Pairs(np.array(b, dtype=np.int64), np.array(c, dtype=np.int64))
+
+
+def _starts(side: Side) -> list[tuple[str, int] | None]:
+    """Each episode's start: ``("seed", s)``, ``("rng", digest)`` or ``None``."""
+    rngs = side.rng.tolist() if side.rng is not None else [-1] * side.n
+    return [
+        ("seed", s) if s >= 0 else ("rng", r) if r >= 0 else None
+        for s, r in zip(side.seed.tolist(), rngs, strict=True)
+    ]

@@ -2,13 +2,15 @@
 
 :func:`collect` returns one row per episode (or per PettingZoo game) with its group key, and one
 row per (ended episode, reward term) with the term's episode total; ``row`` numbers the episodes
-(it joins the two tables) and ``seed`` is an episode's reset seed. The key comes from ``by``:
+(it joins the two tables), ``seed`` is an episode's reset seed and ``rng`` a digest of the RNG
+state an unseeded reset began from. The key comes from ``by``:
 :data:`BY_KEYS` or ``tag:NAME`` (:func:`is_by`, :func:`check_by`); an episode without a value
 for it is in the group :data:`NONE_KEY`.
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterable
 
 import numpy as np
@@ -58,6 +60,7 @@ _EPISODES_SCHEMA = pa.schema(
         ("key", pa.string()),
         ("success_signal", pa.bool_()),
         ("seed", pa.int64()),
+        ("rng", pa.int64()),
         ("row", pa.int64()),
     ]
 )
@@ -126,9 +129,27 @@ def file_rows(name: str, ev: Evidence, by: str, games: bool = False) -> FileRows
         .append_column("key", key)
         .append_column("success_signal", signal)
         .append_column("seed", pc.cast(seed, pa.int64()))
+        .append_column("rng", _rng_digests(table, n))
         .append_column("row", row)
     )
     return episodes, _term_rows(table, key, row, ev)
+
+
+def _rng_digests(table: pa.Table, n: int) -> pa.Array:
+    """Per episode, a 63-bit digest of the RNG state its unseeded reset began from (else null).
+
+    Two episodes that began from the same state began alike, as two with the same seed did:
+    ``compare`` pairs them (a vector env's autoreset episodes carry no seed).
+    """
+    if "rng_state" not in table.column_names:
+        return pa.nulls(n, pa.int64())
+    digests = [
+        None
+        if state is None
+        else int.from_bytes(hashlib.blake2b(state.encode(), digest_size=8).digest(), "little") >> 1
+        for state in table.column("rng_state").to_pylist()
+    ]
+    return pa.array(digests, pa.int64())
 
 
 def _shifted(table: pa.Table, first: int) -> pa.Table:

@@ -179,3 +179,32 @@ def test_holm_adjusts_the_primary_metrics_of_all_groups_as_one_family() -> None:
     assert truncation.name == "truncation_rate" and truncation.p_value < 0.05
     assert truncation.p_adjusted is not None and truncation.p_adjusted >= 0.05
     assert truncation.verdict != "regressed"  # significant alone, not after Holm
+
+
+def _vector_run(path: Path, seed: int) -> Path:
+    import gymnasium as gym
+
+    from episode_audit import RecordVectorEvidence
+
+    envs = gym.make_vec("CartPole-v1", num_envs=2, vectorization_mode="sync")
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=seed)
+        rec.action_space.seed(seed)
+        for _ in range(300):
+            rec.step(rec.action_space.sample())
+    return path
+
+
+def test_autoreset_episodes_pair_on_the_rng_state_they_began_from(tmp_path: Path) -> None:
+    # Two identical vector runs: only each sub-env's first episode has a seed; the others
+    # began from a recorded RNG state, the same on both sides.
+    base, cand = (_vector_run(tmp_path / f"{name}.mcap", 7) for name in ("b", "c"))
+    result = compare([base], [cand], by="env_index", gates=CompareGates(max_return_drop=5.0))
+    for group in result.groups:
+        returns = {m.name: m for m in group.metrics}["return"]
+        assert returns.paired and returns.pairs == returns.baseline_n > 5
+        assert returns.interval.low == returns.interval.high == 0.0
+    assert all(g.passed for group in result.groups for g in group.gates)
+    other = _vector_run(tmp_path / "other.mcap", 8)  # other seeds: other states, no pairs
+    unpaired = compare([base], [other], by="env_index")
+    assert all(not m.paired for g in unpaired.groups for m in g.metrics)

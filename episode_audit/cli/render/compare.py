@@ -53,7 +53,7 @@ def _difference(m: MetricComparison) -> str:
 
 
 def _test(m: MetricComparison) -> str:
-    how = f"{m.pairs} pairs" if m.paired else f"unpaired, {m.pairs} pairs"
+    how = f"{m.pairs} pairs" if m.paired else f"unpaired: {m.pairs} pairs, too few"
     return f"{m.test} ({how})"
 
 
