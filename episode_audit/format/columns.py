@@ -60,8 +60,9 @@ def number(value: Any) -> float:
     """``float(value)`` for numbers only: text such as ``"1.5"`` raises ``TypeError``.
 
     How the recorder reads a reward or term (and replay the re-run env's, identically). An
-    array of one or more dimensions is not a number either, with any numpy (``float()`` of one
-    of a single element gives its value before numpy 2.4, with a warning from 1.25 on).
+    array of one or more dimensions (numpy's, or any with an ``ndim``: a torch tensor) is not a
+    number either, with any numpy (``float()`` of one of a single element gives its value
+    before numpy 2.4, with a warning from 1.25 on).
 
     >>> number(np.float32(0.5)), number(True), number(np.array(2.0))
     (0.5, 1.0, 2.0)
@@ -71,8 +72,8 @@ def number(value: Any) -> float:
     """
     if isinstance(value, (str, bytes, bytearray)):
         raise TypeError(f"{type(value).__name__} is not a number")
-    if isinstance(value, np.ndarray) and value.ndim:
-        raise TypeError(f"an array of shape {value.shape} is not a number")
+    if type(value) not in PLAIN_NUMBERS and getattr(value, "ndim", 0):  # (a torch tensor too)
+        raise TypeError(f"an array of shape {tuple(value.shape)} is not a number")
     return float(value)
 
 

@@ -75,8 +75,8 @@ class Stream(EpisodeStream):
                         values = [v.__float__() for v in terms.values()]
             if block.obs.append(obs) is not None or block.act.append(action) is not None:
                 raise LookupError  # a value was cast: note it on the slow path
-            if isinstance(reward, np.ndarray):
-                raise LookupError  # (number() decides)
+            if type(reward) not in PLAIN_NUMBERS:
+                raise LookupError  # (an array, a tensor: number() decides)
             block.rewards.append(reward)  # may raise: slow path
         except Exception:
             self._record_step_slow(result, action)

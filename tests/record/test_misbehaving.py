@@ -217,6 +217,26 @@ def test_non_numeric_reward_is_recorded_as_nan_and_noted(tmp_path: Path, bad: An
     assert [(f.episode, f.step) for f in findings(path, "nonfinite_reward")] == [(0, 1)]
 
 
+def test_a_tensor_reads_as_an_array_does(tmp_path: Path) -> None:
+    """A one-element tensor is not a number (as a numpy array of shape (1,) is not); a 0-d
+    one is (as a 0-d array is)."""
+    torch = pytest.importorskip("torch")
+    rewards = {0: torch.tensor([1.5]), 1: torch.tensor(2.5)}
+
+    def step(env: ScriptedEnv, action: Any) -> tuple[Any, ...]:
+        terms = {"a": torch.tensor([1.0]) if env.t == 1 else 1.0}
+        return ZEROS, rewards.get(env.t - 1, 1.0), False, False, {"reward_terms": terms}
+
+    path = tmp_path / "tensor.mcap"
+    with scripted(path, step) as env:
+        loop(env, episodes=1)
+    steps = steps_of(path)
+    assert math.isnan(steps[0]["reward"]) and steps[1]["reward"] == 2.5
+    assert steps[0]["notes"].startswith('["reward_not_numeric: reward tensor([1.5')
+    assert math.isnan(dict(steps[0]["terms"])["a"])
+    assert "term_not_numeric" in steps[0]["notes"]
+
+
 # ---------------------------------------------------------------------------------- reward terms
 
 

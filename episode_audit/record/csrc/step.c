@@ -217,7 +217,7 @@ static int read_terms(StepRecorder *self, PyObject *info, double *values, Py_ssi
     Py_ssize_t k = PyTuple_GET_SIZE(names);
     for (Py_ssize_t j = 0; j < k; j++) {
         PyObject *term = PyDict_GetItemWithError(info, PyTuple_GET_ITEM(names, j));
-        if (term == NULL || PyArray_Check(term)) /* (an array: number() decides) */
+        if (term == NULL || !plain_number(term)) /* (an array, a tensor: number() decides) */
             goto done;
         double number = PyFloat_AsDouble(term);
         if (number == -1.0 && PyErr_Occurred())
@@ -443,7 +443,7 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     if (nterms && (!array_room(term_vals, nterms, 8) || !array_room(term_rows, 1, 8) ||
                    !array_room(term_counts, 1, 8) || !PyList_CheckExact(term_keys)))
         goto python;
-    if (PyArray_Check(reward)) /* (number() decides) */
+    if (!plain_number(reward)) /* (an array, a tensor: number() decides) */
         goto python;
     double r = PyFloat_AsDouble(reward);
     if (r == -1.0 && PyErr_Occurred())

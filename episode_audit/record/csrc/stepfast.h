@@ -75,6 +75,14 @@ static inline void array_push_d(PyObject *a, double value)
     Py_SET_SIZE(arr, Py_SIZE(arr) + 1);
 }
 
+/* A float, an int or a numpy number (or bool) scalar: what float() reads as it is. Anything
+   else (an array, a tensor, text) goes to the Python path, where number() decides. */
+static inline int plain_number(PyObject *x)
+{
+    return PyFloat_Check(x) || PyLong_Check(x) || PyArray_IsScalar(x, Number) ||
+           PyArray_IsScalar(x, Bool);
+}
+
 static inline void array_push_q(PyObject *a, long long value)
 {
     ArrayObject *arr = (ArrayObject *)a;
