@@ -72,7 +72,8 @@ def number(value: Any) -> float:
     """
     if isinstance(value, (str, bytes, bytearray)):
         raise TypeError(f"{type(value).__name__} is not a number")
-    if type(value) not in PLAIN_NUMBERS and getattr(value, "ndim", 0):  # (a torch tensor too)
+    dims: Any = getattr(value, "ndim", None)  # (numpy's arrays, a torch tensor too)
+    if dims and type(value) not in PLAIN_NUMBERS:
         raise TypeError(f"an array of shape {tuple(value.shape)} is not a number")
     return float(value)
 
