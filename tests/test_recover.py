@@ -180,6 +180,20 @@ def test_a_file_without_its_closing_magic_is_unfinished(recorded: Path, tmp_path
     assert_recovered_like(torn, tmp_path / "out.mcap", result.messages)
 
 
+def test_a_damaged_footer_before_an_intact_closing_magic_loses_nothing(
+    recorded: Path, tmp_path: Path
+) -> None:
+    data = bytearray(recorded.read_bytes())
+    data[-8 - 29] = 0x7F  # the footer's opcode, the closing magic after it intact
+    damaged = tmp_path / "footer.mcap"
+    damaged.write_bytes(bytes(data))
+    code, out, _ = run("recover", str(damaged), "-o", str(tmp_path / "out.mcap"))
+    assert code == 0, out
+    assert "nothing lost (the last 8 bytes (the closing magic at byte" in out
+    fixed = open_evidence(tmp_path / "out.mcap")
+    assert fixed.finished and fixed.steps().equals(open_evidence(recorded).steps())
+
+
 def test_cli_exit_1_says_what_was_dropped(recorded: Path, tmp_path: Path) -> None:
     chunks, _ = layout(recorded)
     torn = torn_copy(recorded, tmp_path, chunks[2][0] + 40)

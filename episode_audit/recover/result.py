@@ -33,7 +33,9 @@ _RECORD_NAMES = {
 # metadata written is the run-end record, which recovery writes anew), and schema and channel
 # records outside chunks (the summary's copies).
 _NOT_DATA = frozenset({0x02, 0x03, 0x04, 0x07, 0x08, 0x0A, 0x0B, 0x0C, 0x0D, 0x0E, 0x0F})
-_NOT_DATA_NAMES = frozenset(_RECORD_NAMES[op] for op in _NOT_DATA)
+CLOSING_MAGIC = "closing magic"
+"""What a dropped tail was when it is the file's closing magic bytes (after a damaged footer)."""
+_NOT_DATA_NAMES = frozenset({*(_RECORD_NAMES[op] for op in _NOT_DATA), CLOSING_MAGIC})
 
 
 def record_name(opcode: int) -> str:
@@ -179,7 +181,13 @@ def _tail_parts(result: RecoveryResult) -> list[str]:
     """The torn tail dropped, the episodes it cut off, and a recorder killed before close()."""
     parts: list[str] = []
     if result.dropped_bytes:
-        what = f"a partial {result.dropped_record} record" if result.dropped_record else "bytes"
+        what = (
+            "the closing magic"
+            if result.dropped_record == CLOSING_MAGIC
+            else f"a partial {result.dropped_record} record"
+            if result.dropped_record
+            else "bytes"
+        )
         parts.append(f"the last {result.dropped_bytes} bytes ({what} at byte {result.dropped_at})")
     if result.cut_off_episodes:
         cut = list(result.cut_off_episodes)
@@ -187,5 +195,7 @@ def _tail_parts(result: RecoveryResult) -> list[str]:
             f"episode(s) {listing(cut, len(cut))} had no end record: recorded as incomplete"
         )
     if not result.closing:
-        parts.append("the recorder was killed before close(): steps after its last flush")
+        parts.append(
+            "the recorder was killed before close(): the steps after its last flush are lost"
+        )
     return parts

@@ -16,6 +16,7 @@ from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
 from ..format.run_end import RunEnd
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
+from ..read.layout import _MAGIC
 from ..read.liveness import still_written, writer_of
 from ..read.storage import is_url
 from ..record.writer import EvidenceWriter
@@ -23,7 +24,7 @@ from .copying import RecordCopy
 from .files import Temporary, check_paths
 from .kept import Kept
 from .remote import recover_remote
-from .result import RecoveryResult, record_name
+from .result import CLOSING_MAGIC, RecoveryResult, record_name
 
 __all__ = ["recover"]
 
@@ -186,6 +187,8 @@ def _result(
     """What the rewrite kept, and what it dropped at the torn end and in damaged stretches."""
     dropped = end.size - end.offset if not end.footer else 0
     kind = record_name(end.cut_opcode) if dropped and end.cut_opcode is not None else None
+    if dropped == len(_MAGIC) and _last_bytes(src, dropped) == _MAGIC:
+        kind = CLOSING_MAGIC  # (after a damaged footer: no record, no evidence)
     return RecoveryResult(
         src,
         dst,
@@ -205,6 +208,16 @@ def _result(
         summary_damage,
         copy.run_end_damage,
     )
+
+
+def _last_bytes(path: Path, n: int) -> bytes:
+    """The last ``n`` bytes of the file at ``path`` (``b""`` when it cannot be read)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(-n, os.SEEK_END)
+            return f.read(n)
+    except OSError:
+        return b""
 
 
 def _run_end(src: Path, copy: RecordCopy, kept: Kept, result: RecoveryResult) -> dict[str, str]:
