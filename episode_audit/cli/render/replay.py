@@ -89,7 +89,7 @@ def _rows(episodes: list[EpisodeReplay]) -> list[list[object]]:
     (:func:`~episode_audit.format.records.listing`) with their steps summed.
     """
     rows: list[list[object]] = []
-    same: dict[tuple[str, str], tuple[list[object], list[int]]] = {}
+    shared: dict[tuple[str, str], list[EpisodeReplay]] = {}  # (file, reason): its episodes
     for e in episodes:
         if e.status == "identical":
             continue
@@ -98,18 +98,17 @@ def _rows(episodes: list[EpisodeReplay]) -> list[list[object]]:
         detail = (e.reason or "") if d is None or e.status == "not_replayable" else d.describe()
         if e.restored:
             detail += f" (restored: {e.restored})"
-        if e.status == "not_replayable" and where == "-":
-            row, listed = same.get((e.file, detail)) or ([], [])
-            if row:
-                listed.append(e.episode)
-                row[1] = listing(listed)
-                row[3] = int(str(row[3])) + e.steps
-                continue
-            same[e.file, detail] = row, listed = [e.file, e.episode, e.status, e.steps], [e.episode]
-            row += [where, detail]
-            rows.append(row)
-            continue
+        if e.status == "not_replayable" and d is None:
+            group = shared.setdefault((e.file, detail), [])
+            group.append(e)
+            if len(group) > 1:
+                continue  # (its row, the first's, is filled in below)
         rows.append([e.file, e.episode, e.status, e.steps, where, detail])
+    for row in rows:
+        group = shared.get((str(row[0]), str(row[5])), [])
+        if row[2] == "not_replayable" and len(group) > 1:
+            row[1] = listing([g.episode for g in group])
+            row[3] = sum(g.steps for g in group)
     return rows
 
 
