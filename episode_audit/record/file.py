@@ -84,6 +84,21 @@ class FileRecorder:
         self._closed = False
         self._gated = False
         self._busy = False
+        _RECORDERS.add(self)
+
+    def _inherited(self) -> None:
+        """Mark the recorder its parent's: called in a forked child, at the fork.
+
+        The file is the parent's: every call here goes by the gate, where :meth:`_enter` and
+        :meth:`flush` raise; ``close()`` closes the env and writes nothing. The lock is new (a
+        thread of the parent may have held it as it forked), no thread of the parent is inside
+        any more, and a dropped recorder does not warn.
+        """
+        self._flush_lock = threading.Lock()
+        self._busy = False
+        self._gated = True
+        self._warns_unclosed = False
+        self._file.inherited = True
 
     def _enter(self) -> None:
         """The way into ``step()`` / ``reset()`` when gated: raise if closed.
@@ -253,6 +268,8 @@ class EvidenceFile:
         self._warned = False
         self.troubles = 0  # the recorder's own failures, said in the run-end record
         self.first_trouble: str | None = None
+        self.pid = os.getpid()
+        self.inherited = False  # this process is a fork of the one recording (pid)
         if owner is not None:
             _OPEN_RECORDERS.add(owner)
         self._owner = owner
@@ -332,7 +349,13 @@ class EvidenceFile:
         return stream
 
     def check_open(self) -> None:
-        """Raise :class:`RecorderError` when the file is closed."""
+        """Raise :class:`RecorderError` when the file is closed, or its recorder's parent's."""
+        if self.inherited:
+            raise RecorderError(
+                f"{self.path}: this process (pid {os.getpid()}) is a fork of the one recording "
+                f"(pid {self.pid}), and the recorder records only there; create the recorder in "
+                "this process (e.g. in the function that makes its env)"
+            )
         if self.closed:
             raise RecorderError(
                 f"{self.path}: the recorder is closed; create a new recorder to record more"
@@ -432,6 +455,8 @@ class EvidenceFile:
         if self.closed:
             return
         self.closed = True
+        if self.inherited:  # (the parent's file: not a byte from here, its lock kept)
+            return
         if self._owner is not None:
             _OPEN_RECORDERS.discard(self._owner)
         try:
@@ -498,9 +523,20 @@ def _warn_line(message: str) -> None:
     )
 
 
-_OPEN_RECORDERS: weakref.WeakSet[Any] = weakref.WeakSet()
-if hasattr(os, "register_at_fork"):  # a forked child's exit must not finish its parent's files
-    os.register_at_fork(after_in_child=_OPEN_RECORDERS.clear)
+_OPEN_RECORDERS: weakref.WeakSet[Any] = weakref.WeakSet()  # closed as the interpreter exits
+_RECORDERS: weakref.WeakSet[FileRecorder] = weakref.WeakSet()  # every recorder opened here
+
+
+def _after_fork_in_child() -> None:
+    """A forked child neither steps, flushes, closes nor finishes its parent's files."""
+    _OPEN_RECORDERS.clear()
+    for recorder in list(_RECORDERS):
+        recorder._inherited()
+    _RECORDERS.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 @atexit.register

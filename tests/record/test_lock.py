@@ -347,3 +347,65 @@ def test_a_forked_child_ending_normally_leaves_the_parents_file_alone(tmp_path: 
     result = check([path])
     assert result.ok and not result.warnings, [f.message for f in result.findings]
     assert open_evidence(path).steps(columns=["episode"]).num_rows == 8
+
+
+_CHILD_USES_IT = """
+import os, sys
+import gymnasium as gym
+import numpy as np
+from episode_audit import RecordEvidence, RecordVectorEvidence
+from episode_audit.errors import RecorderError
+from episode_audit.read.liveness import writer_of
+path = sys.argv[1]
+if sys.argv[2] == "vector":
+    env = RecordVectorEvidence(gym.make_vec("CartPole-v1", 2, vectorization_mode="sync"), path)
+    action = np.zeros(2, dtype=np.int64)
+else:
+    env = RecordEvidence(gym.make("CartPole-v1"), path)
+    action = 0
+env.reset(seed=0)
+for _ in range(5):
+    env.step(action)
+pid = os.fork()
+if pid == 0:
+    refused = []
+    for call in (lambda: env.step(action), env.flush, lambda: env.reset(seed=1)):
+        try:
+            call()
+        except RecorderError as exc:
+            refused.append(str(exc))
+    env.close()  # closes the child's env; writes nothing, keeps the parent's lock
+    assert writer_of(path) is not None and writer_of(path).pid == os.getppid()
+    print("\\n".join(refused), flush=True)
+    sys.exit(0)
+os.waitpid(pid, 0)
+for _ in range(3):
+    env.step(action)
+env.close()
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+@pytest.mark.parametrize("kind", ["single", "vector"])
+def test_a_forked_child_cannot_record_into_its_parents_file(tmp_path: Path, kind: str) -> None:
+    path = tmp_path / "forked.mcap"
+    done = subprocess.run(
+        [sys.executable, "-c", _CHILD_USES_IT, str(path), kind],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    refused = done.stdout.splitlines()
+    assert len(refused) == 3, done.stdout + done.stderr
+    for message in refused:
+        assert re.match(
+            rf"^{re.escape(str(path))}: this process \(pid \d+\) is a fork of the one recording "
+            r"\(pid \d+\), and the recorder records only there; create the recorder in this",
+            message,
+        ), message
+    assert "ResourceWarning" not in done.stderr and "Traceback" not in done.stderr, done.stderr
+    result = check([path])
+    assert result.ok and not result.warnings, [f.message for f in result.findings]
+    envs = 2 if kind == "vector" else 1
+    assert open_evidence(path).steps(columns=["episode"]).num_rows == 8 * envs
