@@ -31,7 +31,7 @@ from ..format import names as fmt
 from ..format.columns import error_text, text
 from ..format.records import RunInfo
 from ..format.spaces import SpaceCodec
-from . import native
+from . import native, signals
 from .block import Episode
 from .episode_records import EpisodeRecords
 from .settings import RecorderSettings
@@ -403,18 +403,20 @@ class EvidenceFile:
 
         ``background``: the chunk is compressed and written while the caller goes on (see
         :meth:`EvidenceWriter.flush`); a failure there is the recorder's trouble, told by the
-        next flush.
+        next flush. A Ctrl-C meanwhile is raised once the flush is written
+        (:func:`.signals.held`).
         """
-        try:
-            for hook in self.before_flush:
-                hook()
-            for stream in self.streams:
-                stream.write_blocks()
-            self._write_episodes()
-            self.writer.flush(background=background)
-        finally:
-            for exc in self.writer.take_failures():  # (an earlier background flush's)
-                self.trouble(exc)
+        with signals.held():  # (a Ctrl-C halfway would drop rows already counted)
+            try:
+                for hook in self.before_flush:
+                    hook()
+                for stream in self.streams:
+                    stream.write_blocks()
+                self._write_episodes()
+                self.writer.flush(background=background)
+            finally:
+                for exc in self.writer.take_failures():  # (an earlier background flush's)
+                    self.trouble(exc)
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns
 
@@ -457,6 +459,11 @@ class EvidenceFile:
         self.closed = True
         if self.inherited:  # (the parent's file: not a byte from here, its lock kept)
             return
+        with signals.held():  # (a Ctrl-C meanwhile is raised once the file is finished)
+            self._finish()
+
+    def _finish(self) -> None:
+        """End the open episodes, flush, and write the footer (for :meth:`close`)."""
         if self._owner is not None:
             _OPEN_RECORDERS.discard(self._owner)
         try:

@@ -8,6 +8,7 @@ import enum
 import json
 import math
 import re
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ from pettingzoo import AECEnv, ParallelEnv
 
 from episode_audit import EndingRules, RecordEvidence, check, open_evidence
 from episode_audit.check import Finding
+from episode_audit.record.writer import EvidenceWriter
 from tests.support.envs import ScriptedEnv
 
 ZEROS = np.zeros(2, np.float32)
@@ -156,6 +158,48 @@ def test_keyboard_interrupt_in_step_is_not_swallowed_and_the_episode_stays_incom
     (episode,) = open_evidence(path).episodes().to_pylist()
     assert (episode["outcome"], episode["length"]) == ("incomplete", 1)
     assert [f.code for f in findings(path, "incomplete_episode")] == ["incomplete_episode"]
+
+
+@pytest.mark.usefixtures("ctrl_c")
+@pytest.mark.parametrize("where", ["step", "close"])
+def test_ctrl_c_during_a_flush_is_raised_once_the_flush_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str
+) -> None:
+    # a Ctrl-C inside a flush dropped rows already counted into their episodes
+    path = tmp_path / "interrupted.mcap"
+    write_batch = EvidenceWriter.write_batch
+    armed = [True]
+
+    def interrupted(self: EvidenceWriter, *args: Any) -> int:
+        if armed[0]:
+            armed[0] = False
+            signal.raise_signal(signal.SIGINT)  # (its handler runs at the next bytecode)
+        return write_batch(self, *args)
+
+    env = RecordEvidence(gym.make("CartPole-v1"), path, block_steps=16)
+    env.reset(seed=0)
+    taken = [0]
+
+    def run(steps: int, action: int) -> None:
+        for _ in range(steps):
+            taken[0] += 1
+            if env.step(action)[2]:
+                env.reset()
+
+    monkeypatch.setattr(EvidenceWriter, "write_batch", interrupted)
+    if where == "close":
+        run(1, 0)
+        with pytest.raises(KeyboardInterrupt):
+            env.close()
+    else:
+        with pytest.raises(KeyboardInterrupt):  # (from the step whose flush it came in)
+            run(40, 0)
+        run(40, 1)
+        env.close()
+    assert not armed[0]
+    assert_valid(path)
+    result = check([path])
+    assert result.ok and result.steps == taken[0], [f.message for f in result.findings]
 
 
 def test_env_raising_in_close_still_finishes_the_file(tmp_path: Path) -> None:
