@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import platform
 import re
 import sys
@@ -25,7 +26,7 @@ from typing_extensions import Unpack
 from .._version import __version__
 from ..errors import ConfigurationError
 from ..format import names as fmt
-from ..format.records import RunInfo
+from ..format.records import MAX_JSON_TEXT, RunInfo, to_json
 from ..format.wrappers import RUN_TRANSPARENT_WRAPPERS
 from .rules import EndingRules, RewardTerms, TermsFn
 
@@ -100,7 +101,8 @@ class RecorderSettings:
     ``RecordAECEvidence``) takes these keyword options:
 
     Args:
-        tags: Free-form run tags (policy name, checkpoint, git commit, ...).
+        tags: Free-form run tags (policy name, checkpoint, git commit, ...): a mapping, kept
+            as text, up to 1 MiB of JSON in all (what readers accept).
         reward_terms: Where a step's named reward terms come from: ``"auto"`` (default:
             ``info["reward_terms"]`` or ``info["reward_*"]``), a list of info keys, a callable
             ``info -> dict``, a :class:`~episode_audit.RewardTerms`, or ``None``.
@@ -117,7 +119,8 @@ class RecorderSettings:
             reset).
         fsync: ``fsync`` the file on every flush.
         overwrite: Allow replacing an existing file (never overwritten otherwise).
-        command_line: The command line to store (defaults to ``sys.argv``).
+        command_line: The command line to store (defaults to ``sys.argv``): strings or
+            paths, up to 1 MiB of JSON.
         transparent_wrappers: Your own wrappers that never change a step (a logger, a
             statistics wrapper): classes or ``"module:Class"`` entry points. Stored in the run
             metadata; replay rebuilds the env without them, saying so (a step one of them did
@@ -180,8 +183,8 @@ class RecorderSettings:
         self.digest_min_bytes = options.get("digest_min_bytes")
         self.block_steps = int(block_steps)
         self.flush_every_s = flush_every_s
-        self.tags = options.get("tags")
-        self.command_line = options.get("command_line")
+        self.tags = _tags(options.get("tags"))
+        self.command_line = _command_line(options.get("command_line"))
         self.fsync = options.get("fsync", False)
         self.overwrite = options.get("overwrite", False)
         self.transparent = _entry_points(options.get("transparent_wrappers"))
@@ -201,6 +204,51 @@ class RecorderSettings:
             "info_keys": "all" if self.keep_all_info else list(self.info_keys or ()),
             "notes": list(notes),
         } | ({RUN_TRANSPARENT_WRAPPERS: list(self.transparent)} if self.transparent else {})
+
+
+def _tags(tags: Mapping[str, str] | None) -> dict[str, str] | None:
+    """``tags=``, checked: a mapping, its names and values as text, as much as readers read."""
+    if tags is None:
+        return None
+    if not isinstance(tags, Mapping):
+        raise ConfigurationError(
+            "tags: expected a mapping of names to values, e.g. {'policy': 'ppo'}, actually: "
+            f"{type(tags).__name__}"
+        )
+    out = {str(name): str(value) for name, value in tags.items()}
+    _fits("tags", out, f"{len(out)} tags", "keep tags short (names, commits, paths)")
+    return out
+
+
+def _command_line(command_line: Sequence[str] | None) -> list[str] | None:
+    """``command_line=``, checked: a list of strings (or paths), as ``sys.argv``."""
+    if command_line is None:
+        return None
+    if isinstance(command_line, (str, bytes)) or not isinstance(command_line, Sequence):
+        raise ConfigurationError(
+            "command_line: expected a list of strings, as sys.argv, actually: "
+            f"{type(command_line).__name__}"
+        )
+    out = []
+    for i, arg in enumerate(command_line):
+        if not isinstance(arg, (str, os.PathLike)):
+            raise ConfigurationError(
+                f"command_line[{i}]: expected a string, as in sys.argv, actually: "
+                f"{type(arg).__name__}"
+            )
+        out.append(os.fsdecode(arg))
+    _fits("command_line", out, f"{len(out)} arguments", "record the command, not its data")
+    return out
+
+
+def _fits(name: str, value: Any, what: str, advice: str) -> None:
+    """Raise unless ``value``'s JSON is small enough for every reader (:data:`MAX_JSON_TEXT`)."""
+    size = len(to_json(value))
+    if size > MAX_JSON_TEXT:
+        raise ConfigurationError(
+            f"{name}: expected at most {MAX_JSON_TEXT} bytes of JSON (what readers accept), "
+            f"actually: {size} in {what}; {advice}, and store large data beside the file"
+        )
 
 
 def _entry_points(wrappers: Sequence[str | type] | None) -> tuple[str, ...]:
@@ -287,6 +335,14 @@ def run_info(
             spec_json = _spec_json(spec)
         except Exception as exc:
             notes.append(f"env spec is not JSON-serializable ({type(exc).__name__}: {exc})")
+        else:
+            size = len(to_json(spec_json))
+            if size > MAX_JSON_TEXT:  # (a reader refuses it: the whole file would be unreadable)
+                spec_json = None
+                notes.append(
+                    f"env spec not recorded: {size} bytes of JSON, over the {MAX_JSON_TEXT} "
+                    "readers accept (large make() arguments); not replayable"
+                )
     command_line = settings.command_line
     return RunInfo(
         format_version=fmt.FORMAT_VERSION,
@@ -299,9 +355,9 @@ def run_info(
         ending_rules=settings.rules.describe(),
         versions=library_versions(),
         platform=platform.platform(),
-        command_line=list(sys.argv if command_line is None else command_line),
+        command_line=list(sys.argv) if command_line is None else command_line,
         start_time=datetime.now(timezone.utc).isoformat(),
-        tags={str(k): str(v) for k, v in (settings.tags or {}).items()},
+        tags=dict(settings.tags or {}),
         recorder=settings.recorder_metadata(notes),
         layout=layout,
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import re
 import subprocess
 import sys
 import textwrap
@@ -22,6 +23,7 @@ from episode_audit import (
     RecordParallelEvidence,
     RecordVectorEvidence,
     RewardTerms,
+    open_evidence,
 )
 from episode_audit.record.settings import (
     DEFAULT_BLOCK_STEPS,
@@ -113,11 +115,46 @@ def test_the_settings_defaults() -> None:
         ({"info_keys": "some"}, "info_keys: expected a list of keys or 'all', actually: 'some'"),
         ({"reward_terms": "reward_a"}, "reward terms source: expected 'auto'"),
         ({"constant_terms": {"alive": float("nan")}}, "constant reward term 'alive'"),
+        ({"tags": ["a"]}, "^tags: expected a mapping of names to values, .* actually: list$"),
+        (
+            {"tags": {"notes": "x" * (1 << 20)}},
+            r"^tags: expected at most 1048576 bytes of JSON \(what readers accept\), actually: "
+            r"1048588 in 1 tags; keep tags short",
+        ),
+        (
+            {"command_line": "python train.py"},
+            "^command_line: expected a list of strings, as sys.argv, actually: str$",
+        ),
+        (
+            {"command_line": ["train.py", 3]},
+            r"^command_line\[1\]: expected a string, .* actually: int$",
+        ),
+        ({"command_line": ["x" * (1 << 20)]}, "^command_line: expected at most 1048576 bytes"),
     ],
 )
 def test_the_settings_check_each_option(options: dict[str, Any], message: str) -> None:
     with pytest.raises(ConfigurationError, match=message):
         RecorderSettings(**options)
+
+
+def test_tags_and_command_line_are_kept_as_text(tmp_path: Path) -> None:
+    settings = RecorderSettings(tags={"seed": 3}, command_line=["train.py", tmp_path])  # type: ignore[dict-item, list-item]
+    assert settings.tags == {"seed": "3"}
+    assert settings.command_line == ["train.py", str(tmp_path)]
+
+
+def test_an_env_spec_readers_would_refuse_is_left_out_with_a_note(tmp_path: Path) -> None:
+    # a make() argument of 2 MiB: the run metadata would make the whole file unreadable
+    path = tmp_path / "big.mcap"
+    env = gym.make("CartPole-v1", disable_env_checker=True, render_mode=None)
+    env.spec.kwargs["notes"] = "x" * (2 << 20)  # type: ignore[union-attr]
+    with RecordEvidence(env, path) as recorder:
+        recorder.reset(seed=0)
+        recorder.step(0)
+    evidence = open_evidence(path)
+    assert evidence.run.env_spec is None and evidence.episodes().num_rows == 1
+    (note,) = [n for n in evidence.run.recorder["notes"] if n.startswith("env spec")]
+    assert re.fullmatch(r"env spec not recorded: \d+ bytes of JSON, over the 1048576 .*", note)
 
 
 def test_constant_terms_join_a_reward_terms_rule() -> None:
