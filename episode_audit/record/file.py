@@ -26,10 +26,10 @@ import pyarrow as pa
 from gymnasium.wrappers import TimeLimit
 
 from .._version import __version__
-from ..errors import RecorderError
+from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
 from ..format.columns import error_text, text
-from ..format.records import RunInfo
+from ..format.records import MAX_JSON_TEXT, RunInfo
 from ..format.spaces import SpaceCodec
 from . import native, signals
 from .block import Episode
@@ -246,6 +246,7 @@ class EvidenceFile:
         self.streams: list[Stream] = []
         # called first by every flush (a batching recorder hands over its rows)
         self.before_flush: list[Callable[[], None]] = []
+        metadata = _readable(run.to_metadata())
         self.writer = EvidenceWriter(
             path,
             library=f"episode-audit {__version__}",
@@ -255,7 +256,7 @@ class EvidenceFile:
         )
         self.path = self.writer.path
         try:
-            self.writer.add_metadata(fmt.METADATA_RUN, run.to_metadata())
+            self.writer.add_metadata(fmt.METADATA_RUN, metadata)
         except BaseException:
             self.writer.abandon()
             raise
@@ -517,6 +518,27 @@ class EvidenceFile:
             run_end[fmt.RUN_END_LOST_RESETS] = str(resets)
             run_end[fmt.RUN_END_LOST_EPISODES] = str(episodes)
         return run_end
+
+
+def _readable(metadata: dict[str, str]) -> dict[str, str]:
+    """``metadata``, or :class:`ConfigurationError` if a value is larger than readers read.
+
+    Such a file could not be read by any tool (``recover`` included), so it is not created.
+    """
+    for key, value in metadata.items():
+        size = len(value.encode())
+        if size > MAX_JSON_TEXT:
+            advice = (
+                "record an env whose space is smaller to describe (e.g. bounds that are the "
+                "same in every dimension)"
+                if key.endswith("_space")
+                else "make it smaller"
+            )
+            raise ConfigurationError(
+                f"run metadata {key!r}: {size} bytes of JSON, over the {MAX_JSON_TEXT} readers "
+                f"accept, so no tool could read the file; {advice}"
+            )
+    return metadata
 
 
 def _warn_line(message: str) -> None:

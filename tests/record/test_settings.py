@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import pytest
 
 from episode_audit import (
@@ -155,6 +156,23 @@ def test_an_env_spec_readers_would_refuse_is_left_out_with_a_note(tmp_path: Path
     assert evidence.run.env_spec is None and evidence.episodes().num_rows == 1
     (note,) = [n for n in evidence.run.recorder["notes"] if n.startswith("env spec")]
     assert re.fullmatch(r"env spec not recorded: \d+ bytes of JSON, over the 1048576 .*", note)
+
+
+def test_a_space_readers_would_refuse_is_refused_before_the_file_is_made(tmp_path: Path) -> None:
+    class Wide(gym.Env[Any, Any]):
+        observation_space = gym.spaces.Box(
+            low=-np.linspace(1, 2, 200_000, dtype=np.float32), high=np.float32(3)
+        )
+        action_space = gym.spaces.Discrete(2)
+
+    path = tmp_path / "wide.mcap"
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^run metadata 'observation_space': \d+ bytes of JSON, over the 1048576 readers "
+        r"accept, so no tool could read the file; record an env whose space is smaller",
+    ):
+        RecordEvidence(Wide(), path)
+    assert not path.exists()
 
 
 def test_constant_terms_join_a_reward_terms_rule() -> None:
