@@ -86,6 +86,23 @@ class FileRecorder:
         self._busy = False
         _RECORDERS.add(self)
 
+    def __copy__(self) -> Any:
+        raise self._not_copied("copied")
+
+    def __deepcopy__(self, memo: Any) -> Any:
+        raise self._not_copied("copied")
+
+    def __reduce_ex__(self, protocol: Any) -> Any:
+        raise self._not_copied("pickled")
+
+    def _not_copied(self, how: str) -> RecorderError:
+        """The error for a copy or a pickle: the open file cannot have two owners."""
+        return RecorderError(
+            f"{self._file.path}: a recorder cannot be {how}: it owns an open evidence file, "
+            "which a copy's close() would finish under it; make a recorder per env, in the "
+            "process that steps it"
+        )
+
     def _inherited(self) -> None:
         """Mark the recorder its parent's: called in a forked child, at the fork.
 

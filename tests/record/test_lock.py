@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import copy
 import multiprocessing
 import os
+import pickle
 import re
 import subprocess
 import sys
@@ -16,7 +18,7 @@ import pytest
 
 import episode_audit.record.lock as lock_module
 from episode_audit import RecordEvidence, RecordVectorEvidence, check, open_evidence, recover
-from episode_audit.errors import ConfigurationError
+from episode_audit.errors import ConfigurationError, RecorderError
 from episode_audit.read.liveness import writer_of
 from episode_audit.record.lock import PathTemplate
 from episode_audit.rollout import record_episodes
@@ -409,3 +411,22 @@ def test_a_forked_child_cannot_record_into_its_parents_file(tmp_path: Path, kind
     assert result.ok and not result.warnings, [f.message for f in result.findings]
     envs = 2 if kind == "vector" else 1
     assert open_evidence(path).steps(columns=["episode"]).num_rows == 8 * envs
+
+
+@pytest.mark.parametrize("how", ["copy", "deepcopy", "pickle"])
+def test_a_recorder_is_neither_copied_nor_pickled(tmp_path: Path, how: str) -> None:
+    # a copy's close() finished the file under the original, which then recorded nothing
+    path = tmp_path / "run.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path)
+    _record(env, 3)
+    make = {"copy": copy.copy, "deepcopy": copy.deepcopy, "pickle": pickle.dumps}[how]
+    verb = "pickled" if how == "pickle" else "copied"
+    with pytest.raises(
+        RecorderError,
+        match=rf"^{re.escape(str(path))}: a recorder cannot be {verb}: it owns an open evidence "
+        "file, which a copy's close",
+    ):
+        make(env)
+    env.step(1)
+    env.close()
+    assert check([path]).ok and open_evidence(path).steps().num_rows == 4
