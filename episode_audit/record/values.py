@@ -13,7 +13,7 @@ from typing import Any
 
 from ..format.columns import error_text, number
 from ..format.records import to_jsonable
-from .notes import note, short
+from .notes import has_note, note, short
 from .rules import RewardTerms, named_terms
 
 __all__ = [
@@ -86,7 +86,8 @@ def kept_info(
 ) -> dict[str, Any] | None:
     """The part of ``info`` kept per row: all of it, or ``keys`` (``None`` for nothing)."""
     if not isinstance(info, Mapping):
-        notes.append(note("info_not_dict", f"info is a {type(info).__name__}"))
+        if not has_note(notes, "info_not_dict"):  # (the step's terms may have said so)
+            notes.append(note("info_not_dict", f"info is a {type(info).__name__}"))
         return None
     if keep_all:
         return dict(info)

@@ -474,12 +474,14 @@ def test_observation_of_the_wrong_shape_is_null_and_noted(tmp_path: Path) -> Non
 # ---------------------------------------------------------------------------------- info
 
 
+@pytest.mark.parametrize("keep", [(), ["a"], "all"])
 @pytest.mark.parametrize("info", [None, [], ["a"], "text", (1, 2)])
 def test_non_dict_info_is_noted_and_an_ending_with_it_does_not_raise(
-    tmp_path: Path, info: Any
+    tmp_path: Path, info: Any, keep: Any
 ) -> None:
     path = tmp_path / "info.mcap"
-    with scripted(path, lambda e, a: (ZEROS, 1.0, e.t == 3, False, info)) as env:
+    step = lambda e, a: (ZEROS, 1.0, e.t == 3, False, info)  # noqa: E731
+    with scripted(path, step, info_keys=keep) as env:  # (noted once, kept info or not)
         results = loop(env, episodes=2)
     assert all(r[4] is info for r in results)
     assert_valid(path)
