@@ -111,8 +111,8 @@ class RecoveryResult:
     def lost(self) -> bool:
         """Whether anything was or may have been lost.
 
-        A partial chunk, cut-off episodes, or the steps after the last flush of a recorder
-        killed before ``close()``.
+        A partial chunk, cut-off episodes, or the steps after the last flush of a file its
+        recorder never finished (killed before ``close()``, or a ``close()`` refused by the OS).
         """
         return (
             self.data_dropped
@@ -178,7 +178,7 @@ def _damage_parts(result: RecoveryResult) -> list[str]:
 
 
 def _tail_parts(result: RecoveryResult) -> list[str]:
-    """The torn tail dropped, the episodes it cut off, and a recorder killed before close()."""
+    """The torn tail dropped, the episodes it cut off, and a file its recorder never finished."""
     parts: list[str] = []
     if result.dropped_bytes:
         what = (
@@ -196,6 +196,7 @@ def _tail_parts(result: RecoveryResult) -> list[str]:
         )
     if not result.closing:
         parts.append(
-            "the recorder was killed before close(): the steps after its last flush are lost"
+            "the recorder never finished the file (killed, or its close() could not write): "
+            "the steps after its last flush are lost"
         )
     return parts

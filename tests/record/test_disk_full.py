@@ -166,8 +166,11 @@ def test_close_on_a_full_disk_does_not_raise_and_the_file_says_what_was_lost(
         assert not ev.finished and ev.steps(columns=["episode"]).num_rows == 3000
         assert len(stderr) == 2, stderr
         assert "could not be finished" in stderr[1] and "episode-audit recover" in stderr[1]
-        recover(tmp_path / "run.mcap", tmp_path / "fixed.mcap")
+        result = recover(tmp_path / "run.mcap", tmp_path / "fixed.mcap")
         assert open_evidence(tmp_path / "fixed.mcap").finished
+        assert "the recorder never finished the file (killed, or its close() could not write)" in (
+            result.dropped
+        )
     assert all(line.startswith("<episode-audit>:0: RuntimeWarning: ") for line in stderr)
 
 
