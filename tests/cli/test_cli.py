@@ -244,6 +244,21 @@ def test_report_gates_missed_and_held() -> None:
     assert code == 2 and "--by" in err
 
 
+def test_report_of_files_with_no_stepped_episode_says_so_in_one_line(tmp_path: Path) -> None:
+    # (a reset, then close: the terminal showed an empty table under a wrapped title)
+    path = tmp_path / "unstarted.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path)
+    env.reset(seed=0)
+    env.close()
+    line = "No episodes: none in these files took a step (only those are counted).\n"
+    code, out, _ = run("report", str(path))
+    assert (code, out) == (0, line)
+    code, out, _ = run("report", str(path), "--format", "markdown")
+    assert code == 0 and out.endswith("\n" + line + "\n")
+    code, out, _ = run("report", str(path), "--min-success-rate", "0.5")
+    assert code == 1 and out.startswith(line) and "no gate could be checked" in out
+
+
 def test_report_never_folds_flags_into_done() -> None:
     for fmt in ("table", "markdown", "json"):
         _, out, _ = run("report", "fixtures/clean.mcap", "--format", fmt)

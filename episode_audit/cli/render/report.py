@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from rich.console import Group, RenderableType
+from rich.text import Text
 
 from ...read.inputs import Unreadable
 from ...report import GroupReport, Interval, Report
@@ -102,7 +103,7 @@ def report_output(
     if output == "markdown":
         parts = [
             f"### episode-audit report (by {markdown_text(result.by)}{_unit(result)})\n",
-            markdown_table(REPORT_HEADERS, rows) + "\n",
+            (markdown_table(REPORT_HEADERS, rows) if rows else NO_EPISODES) + "\n",
         ]
         if term_rows:
             parts += [
@@ -119,6 +120,8 @@ def report_output(
                 markdown_table(unfinished_headers, unfinished) + "\n",
             ]
         return "\n".join(parts)
+    if not result.groups:  # (an empty table's title would wrap in its one column)
+        return Group(Text(NO_EPISODES), *([table("Gates", gate_headers, gates)] if gates else []))
     # The terminal keeps labels and reasons in a table of their own: the outcomes fit 100
     # columns side by side (80 in the vertical layout), each label on its own line
     narrow = [i for i, h in enumerate(REPORT_HEADERS) if h not in _LABEL_HEADERS]
@@ -150,6 +153,8 @@ def report_output(
 
 
 _LABEL_HEADERS = ("failure labels", "truncation reasons")
+
+NO_EPISODES = "No episodes: none in these files took a step (only those are counted)."
 
 
 def _ending_rows(result: Report) -> list[list[str]]:
