@@ -7,6 +7,8 @@ strings read from a file (see ``docs/security.md``).
 from __future__ import annotations
 
 import importlib
+import os
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -27,7 +29,7 @@ def load_callable(spec: str) -> Callable[..., Any]:
     if not sep or not module_name or not attr:
         raise ConfigurationError(f"expected MODULE:CALLABLE, actually: {spec!r}")
     try:
-        target: Any = importlib.import_module(module_name)
+        target: Any = _import(module_name)
         for part in attr.split("."):
             target = getattr(target, part)
     except (ImportError, AttributeError) as exc:
@@ -45,6 +47,23 @@ def import_modules(modules: Sequence[str]) -> None:
     """
     for module in modules:
         try:
-            importlib.import_module(module)
+            _import(module)
         except Exception as exc:
             raise ConfigurationError(f"--import {module!r}: {error_text(exc)}") from None
+
+
+def _import(name: str) -> Any:
+    """Import module ``name``; one not found is looked for in the current folder too.
+
+    As ``python -m`` and pytest do: ``episode-audit replay ... --env-factory test_reach:make``
+    run beside ``test_reach.py`` finds it. The folder goes last on ``sys.path``, so it
+    shadows no installed module.
+    """
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        here = os.getcwd()
+        if exc.name != name.partition(".")[0] or here in sys.path or "" in sys.path:
+            raise
+        sys.path.append(here)
+        return importlib.import_module(name)

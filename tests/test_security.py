@@ -43,7 +43,7 @@ _FORBIDDEN_MODULES = {"pickle", "cPickle", "_pickle", "marshal", "shelve", "dill
 _FORBIDDEN_CALLS = {"eval", "exec", "compile", "__import__"}
 # import_module calls whose argument is not a constant: the user's --import / --env-factory /
 # --policy (command-line arguments and library arguments), never a string read from a file.
-_DYNAMIC_IMPORTS_ALLOWED = {("_usercode.py", "load_callable"), ("_usercode.py", "import_modules")}
+_DYNAMIC_IMPORTS_ALLOWED = {("_usercode.py", "_import")}
 # The package's own lazy attributes (a fixed table of its own modules), and PettingZoo replay,
 # which imports a module named in a file only after is_pettingzoo_module() found it inside the
 # installed pettingzoo package (or with --trust-entry-points); tests/record/test_pettingzoo.py

@@ -260,6 +260,34 @@ def test_load_callable_errors() -> None:
         load_callable("no_such_module_xyz:f")
 
 
+def test_a_factory_module_in_the_current_folder_is_found_by_the_command(tmp_path: Path) -> None:
+    # the console script's sys.path has no current folder (python -m and pytest add it)
+    path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 2)
+    (tmp_path / "beside.py").write_text(
+        "import gymnasium as gym\n\ndef make():\n    return gym.make('CartPole-v1')\n"
+    )
+    command = Path(sys.executable).with_name("episode-audit")
+    done = subprocess.run(
+        [str(command), "replay", str(path), "--env-factory", "beside:make"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "2 identical" in done.stdout
+    done = subprocess.run(
+        [str(command), "replay", str(path), "--env-factory", "beside_not:make"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2 and done.stderr.startswith(
+        "episode-audit: error: cannot load 'beside_not:make': No module named 'beside_not'"
+    ), done.stderr
+
+
 def test_replay_in_a_fresh_process(tmp_path: Path) -> None:
     path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 4)
     script = textwrap.dedent(
