@@ -86,6 +86,7 @@ def _say(kind: str, message: object) -> None:
 
 def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
     """Print one line on stderr and exit."""
+    _said["failure"] = message
     _say("error", message)
     raise typer.Exit(code)
 
@@ -122,6 +123,25 @@ def collect(paths: Sequence[str | Path]) -> list[Source]:
 
 
 @contextmanager
+def failure_document(command: str, output: str) -> Iterator[None]:
+    """In JSON and JUnit formats, a failure (exit 2) before any output also prints a document.
+
+    A CI job that saves the command's stdout (``check.xml``) then holds the error, not nothing
+    (:func:`~episode_audit.cli.render.failure.error_output`).
+    """
+    emitted, _said["failure"] = _said["emitted"], None
+    try:
+        yield
+    except typer.Exit as exc:
+        message, silent = _said["failure"], _said["emitted"] == emitted
+        if output in ("json", "junit") and exc.exit_code == EXIT_USAGE and message and silent:
+            from .render.failure import error_output
+
+            emit(error_output(command, message, output))  # type: ignore[arg-type]
+        raise
+
+
+@contextmanager
 def progress_bar(
     description: str, total: int | Callable[[], int | None] | None
 ) -> Iterator[Callable[[int], None]]:
@@ -147,8 +167,12 @@ def progress_bar(
         yield lambda n: bar.advance(task, n)
 
 
+_said: dict[str, Any] = {"emitted": 0, "failure": None}  # (for failure_document)
+
+
 def emit(output: Any) -> None:
     """Print a renderable (table format) or text (markdown / JSON) on stdout."""
+    _said["emitted"] += 1
     console = _stdout()
     if isinstance(output, str):
         console.print(output, markup=False, highlight=False, soft_wrap=True)

@@ -22,6 +22,7 @@ from ._app import (
     collect,
     emit,
     fail,
+    failure_document,
     interruptible,
     jobs_for,
     progress_bar,
@@ -67,31 +68,32 @@ def check(
     from .render import check_output
 
     fmt = _format(output, junit=True)
-    try:
-        ignored = ignored_codes(ignore or (), option="--ignore")
-    except ConfigurationError as exc:
-        fail(str(exc))
-    files = collect(paths)
-    total = partial(steps_total, files)
-    with interruptible(), progress_bar("checking", total) as advance:
+    with failure_document("check", fmt):
         try:
-            result = run_check(
-                files,
-                atol=atol,
-                rtol=rtol,
-                require_terms=require_terms,
-                ignore=ignored,
-                progress=advance,
-                keep_going=True,
-                on_error=_error_line,
-                jobs=jobs_for(jobs, files),
-                ray_address=ray,
-            )
+            ignored = ignored_codes(ignore or (), option="--ignore")
         except ConfigurationError as exc:
             fail(str(exc))
-    emit(check_output(result, fmt, strict=strict, ignored=ignored))
-    append_step_summary(lambda: str(check_output(result, "markdown")), off=no_step_summary)
-    if result.unreadable:
-        raise typer.Exit(EXIT_USAGE)
-    if result.errors or (strict and result.warnings):
-        raise typer.Exit(EXIT_FINDINGS)
+        files = collect(paths)
+        total = partial(steps_total, files)
+        with interruptible(), progress_bar("checking", total) as advance:
+            try:
+                result = run_check(
+                    files,
+                    atol=atol,
+                    rtol=rtol,
+                    require_terms=require_terms,
+                    ignore=ignored,
+                    progress=advance,
+                    keep_going=True,
+                    on_error=_error_line,
+                    jobs=jobs_for(jobs, files),
+                    ray_address=ray,
+                )
+            except ConfigurationError as exc:
+                fail(str(exc))
+        emit(check_output(result, fmt, strict=strict, ignored=ignored))
+        append_step_summary(lambda: str(check_output(result, "markdown")), off=no_step_summary)
+        if result.unreadable:
+            raise typer.Exit(EXIT_USAGE)
+        if result.errors or (strict and result.warnings):
+            raise typer.Exit(EXIT_FINDINGS)

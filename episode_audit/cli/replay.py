@@ -24,6 +24,7 @@ from ._app import (
     collect,
     emit,
     fail,
+    failure_document,
     interruptible,
     jobs_for,
     progress_bar,
@@ -90,40 +91,43 @@ def replay(
     from .render.replay import unverified
 
     fmt = _format(output, junit=True)
-    try:
-        episodes = replay_options(atol, episode, atol_option="--atol", episode_option="--episode")
-    except ConfigurationError as exc:
-        fail(str(exc))
-    files = collect(paths)
-    total = partial(steps_total, files) if episode is None else None
-    with interruptible(), progress_bar("replaying", total) as advance:
+    with failure_document("replay", fmt):
         try:
-            result = run_replay(
-                files,
-                episodes=episodes,
-                atol=atol,
-                env_factory=env_factory,
-                imports=import_ or (),
-                trust_entry_points=trust_entry_points,
-                progress=advance,
-                keep_going=True,
-                on_error=_error_line,
-                jobs=jobs_for(jobs, files, SMALL_INPUTS // 8),
-                ray_address=ray,
+            episodes = replay_options(
+                atol, episode, atol_option="--atol", episode_option="--episode"
             )
         except ConfigurationError as exc:
             fail(str(exc))
-    emit(replay_output(result, fmt, allow_unverified=allow_unverified))
-    append_step_summary(lambda: str(replay_output(result, "markdown")), off=no_step_summary)
-    if result.missing and not result.unreadable:
-        listed = ", ".join(map(str, result.missing))
-        fail(
-            f"--episode: no episode {listed} in the file(s) given "
-            "(`episode-audit show FILE` says how many there are)"
-        )
-    if result.unreadable:
-        raise typer.Exit(EXIT_USAGE)
-    if not result.ok:
-        raise typer.Exit(EXIT_FINDINGS)
-    if not result.verified and not allow_unverified:
-        fail(unverified(result.count("not_replayable")), EXIT_FINDINGS)
+        files = collect(paths)
+        total = partial(steps_total, files) if episode is None else None
+        with interruptible(), progress_bar("replaying", total) as advance:
+            try:
+                result = run_replay(
+                    files,
+                    episodes=episodes,
+                    atol=atol,
+                    env_factory=env_factory,
+                    imports=import_ or (),
+                    trust_entry_points=trust_entry_points,
+                    progress=advance,
+                    keep_going=True,
+                    on_error=_error_line,
+                    jobs=jobs_for(jobs, files, SMALL_INPUTS // 8),
+                    ray_address=ray,
+                )
+            except ConfigurationError as exc:
+                fail(str(exc))
+        emit(replay_output(result, fmt, allow_unverified=allow_unverified))
+        append_step_summary(lambda: str(replay_output(result, "markdown")), off=no_step_summary)
+        if result.missing and not result.unreadable:
+            listed = ", ".join(map(str, result.missing))
+            fail(
+                f"--episode: no episode {listed} in the file(s) given "
+                "(`episode-audit show FILE` says how many there are)"
+            )
+        if result.unreadable:
+            raise typer.Exit(EXIT_USAGE)
+        if not result.ok:
+            raise typer.Exit(EXIT_FINDINGS)
+        if not result.verified and not allow_unverified:
+            fail(unverified(result.count("not_replayable")), EXIT_FINDINGS)

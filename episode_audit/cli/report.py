@@ -21,6 +21,7 @@ from ._app import (
     app,
     emit,
     fail,
+    failure_document,
     interruptible,
     jobs_for,
     note,
@@ -113,44 +114,45 @@ def report(
     from .render import report_output
 
     fmt = _format(output, junit=True)
-    if html is not None:  # (before the work: a path it would refuse after)
-        from ..report.html import check_html_path
+    with failure_document("report", fmt):
+        if html is not None:  # (before the work: a path it would refuse after)
+            from ..report.html import check_html_path
 
+            try:
+                check_html_path(html, paths)
+            except EpisodeAuditError as exc:
+                fail(str(exc))
         try:
-            check_html_path(html, paths)
+            with interruptible():
+                result = report_inputs(
+                    paths,
+                    by=by,
+                    games=games,
+                    min_success_rate=min_success_rate,
+                    max_failure_rate=max_failure_rate or (),
+                    max_truncation_rate=max_truncation_rate,
+                    max_error_rate=max_error_rate,
+                    fail_on_incentive_warning=fail_on_incentive_warning,
+                    on_error=_error_line,
+                    jobs=_jobs(jobs, paths),
+                    ray_address=ray,
+                )
         except EpisodeAuditError as exc:
             fail(str(exc))
-    try:
-        with interruptible():
-            result = report_inputs(
-                paths,
-                by=by,
-                games=games,
-                min_success_rate=min_success_rate,
-                max_failure_rate=max_failure_rate or (),
-                max_truncation_rate=max_truncation_rate,
-                max_error_rate=max_error_rate,
-                fail_on_incentive_warning=fail_on_incentive_warning,
-                on_error=_error_line,
-                jobs=_jobs(jobs, paths),
-                ray_address=ray,
-            )
-    except EpisodeAuditError as exc:
-        fail(str(exc))
-    if not result.readable and fmt not in ("json", "junit"):  # (still one document: the errors)
-        raise typer.Exit(EXIT_USAGE)
-    emit(report_output(result.report, fmt, unreadable=result.unreadable))
-    if html is not None:
-        _write_html(result, html, games)
-    if result.readable:
-        markdown = lambda: str(report_output(result.report, "markdown"))  # noqa: E731
-        append_step_summary(markdown, off=no_step_summary)
-    for line in result.report.notes:
-        warn(line)
-    if result.unreadable:
-        raise typer.Exit(EXIT_USAGE)
-    if not result.report.passed:
-        raise typer.Exit(EXIT_FINDINGS)
+        if not result.readable and fmt not in ("json", "junit"):  # (still one document: the errors)
+            raise typer.Exit(EXIT_USAGE)
+        emit(report_output(result.report, fmt, unreadable=result.unreadable))
+        if html is not None:
+            _write_html(result, html, games)
+        if result.readable:
+            markdown = lambda: str(report_output(result.report, "markdown"))  # noqa: E731
+            append_step_summary(markdown, off=no_step_summary)
+        for line in result.report.notes:
+            warn(line)
+        if result.unreadable:
+            raise typer.Exit(EXIT_USAGE)
+        if not result.report.passed:
+            raise typer.Exit(EXIT_FINDINGS)
 
 
 def _write_html(result: InputsReport, path: Path, games: bool) -> None:

@@ -116,6 +116,9 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("compare", "{random20}", "--candidate", "{left}"), 1),
     (("compare", "{random20}", "--candidate", "{random20}", "--max-return-drop", "1"), 0),
     (("compare", "{cartpole}", "--candidate", "{cartpole}", "--candidate", "{junk}"), 2),
+    (("check", "fixtures/clean.mcap", "no-such.mcap"), 2),  # (no input found: an error document)
+    (("replay", "no-such-folder"), 2),
+    (("report", "fixtures/clean.mcap", "no-such.mcap"), 2),
 ]
 
 
