@@ -353,6 +353,9 @@ def test_a_url_no_filesystem_here_reads_is_one_line_and_exit_2(tmp_path: Path) -
         ),
         line,
     ), line
+    done = _cli({}, "check", "ftp://host-less/x.mcap")  # (no "Exception ignored in __del__")
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
+    assert done.stderr.startswith("episode-audit: error: ftp://host-less/x.mcap: cannot read ftp")
     if importlib.util.find_spec("paramiko") is None:
         done = _cli({}, "check", "sftp://host/x.mcap")
         assert done.returncode == 2 and done.stderr.strip().endswith(

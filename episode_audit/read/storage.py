@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -183,7 +184,8 @@ def remote_file(
     if filesystem is None:
         options = {**_default_options(protocol), **(storage_options or {})}
         try:
-            filesystem = fsspec.filesystem(protocol, **options)
+            with _half_made_quiet():
+                filesystem = fsspec.filesystem(protocol, **options)
         except ImportError:
             extra = _EXTRA.get(protocol, protocol)
             install = (
@@ -206,6 +208,27 @@ def remote_file(
             filesystem.retries = 1  # s3fs's own loop (a class attribute, 5) around botocore's
     path = url if protocol in ("http", "https") else filesystem._strip_protocol(url)
     return RemoteFile(url, filesystem, path)
+
+
+@contextmanager
+def _half_made_quiet() -> Iterator[None]:
+    """Construct a filesystem here; if that fails, its half-made object's complaints go unsaid.
+
+    fsspec's FTP filesystem, freed half made, prints "Exception ignored ... __del__" with a
+    traceback; what is raised while one is made that works is still printed.
+    """
+    hook = sys.unraisablehook
+    held: list[Any] = []
+    sys.unraisablehook = held.append
+    try:
+        yield
+    except BaseException:
+        held.clear()
+        raise
+    finally:
+        sys.unraisablehook = hook
+    for unraisable in held:
+        hook(unraisable)
 
 
 def as_source(
