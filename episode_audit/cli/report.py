@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -25,6 +26,7 @@ from ._app import (
     interruptible,
     jobs_for,
     note,
+    progress_bar,
     warn,
 )
 from ._summary import NoStepSummaryOption, append_step_summary
@@ -123,7 +125,7 @@ def report(
             except EpisodeAuditError as exc:
                 fail(str(exc))
         try:
-            with interruptible():
+            with interruptible(), progress_bar("reading", partial(_count, paths)) as advance:
                 result = report_inputs(
                     paths,
                     by=by,
@@ -136,6 +138,7 @@ def report(
                     on_error=_error_line,
                     jobs=_jobs(jobs, paths),
                     ray_address=ray,
+                    progress=advance,
                 )
         except EpisodeAuditError as exc:
             fail(str(exc))
@@ -166,6 +169,14 @@ def _write_html(result: InputsReport, path: Path, games: bool) -> None:
     except OSError as exc:  # no such directory, permission denied
         fail(f"--html: cannot write {path}: {exc.strerror or exc}")
     note(f"HTML report written to {written}")
+
+
+def _count(paths: list[str]) -> int | None:
+    """How many files ``paths`` name (``None`` if they cannot be listed: the report says so)."""
+    try:
+        return len(evidence_files(paths))
+    except EpisodeAuditError:
+        return None
 
 
 def _jobs(jobs: int | None, paths: list[str]) -> int | None:

@@ -61,6 +61,7 @@ def report_inputs(
     storage_options: dict[str, Any] | None = None,
     jobs: int | None = 1,
     ray_address: str | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> InputsReport:
     """Report the evidence files ``paths`` name (directories are searched for ``*.mcap``).
 
@@ -71,7 +72,8 @@ def report_inputs(
     :class:`~episode_audit.errors.ConfigurationError` naming the option. A file that cannot be
     read (its episodes included) is handed to ``on_error`` and listed in
     :attr:`InputsReport.unreadable`, so one bad file costs the others nothing. ``jobs`` and
-    ``ray_address`` spread the reading of the files as :func:`~episode_audit.check.check` does.
+    ``ray_address`` spread the reading of the files as :func:`~episode_audit.check.check` does;
+    ``progress`` is called with 1 as each file is read (as a run of files is, from workers).
     """
     if not is_by(by):
         raise ConfigurationError(
@@ -92,7 +94,7 @@ def report_inputs(
     unreadable: list[Unreadable] = []
     one = partial(_file_part, by=by, games=games)
     kinds: list[str] = []
-    read = map_ordered(one, files, jobs=jobs, ray_address=ray_address)
+    read = map_ordered(one, files, jobs=jobs, ray_address=ray_address, progress=progress)
     for path, got in zip(files, read, strict=True):
         if isinstance(got, EpisodeAuditError):
             if on_error is not None:
@@ -124,6 +126,9 @@ def _file_part(
         part = file_part(str(path), ev, by, games)
     except EpisodeAuditError as exc:
         return exc
+    finally:
+        if progress is not None:
+            progress(1)
     return part, str((ev.run.layout or {}).get("kind", "single"))
 
 

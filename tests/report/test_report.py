@@ -634,3 +634,16 @@ def test_rows_by_key_are_each_keys_rows_in_their_order() -> None:
         want = table.filter(pc.equal(table.column("key"), key))
         assert rows.column("row").to_pylist() == want.column("row").to_pylist()
     assert by_key(table.slice(0, 0)) == {}
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_report_inputs_counts_each_file_read_in_its_progress(tmp_path: Path, jobs: int) -> None:
+    from episode_audit.report import report_inputs
+
+    repo = Path(__file__).resolve().parents[2]
+    (tmp_path / "junk.mcap").write_bytes(b"not evidence")
+    done: list[int] = []
+    result = report_inputs(
+        [repo / "fixtures", tmp_path], jobs=jobs, progress=done.append, on_error=lambda e: None
+    )
+    assert sum(done) == 5 and len(result.unreadable) == 1  # (the unreadable one counts too)
