@@ -400,6 +400,40 @@ def web(runs: Path) -> Iterator[str]:
         thread.join()
 
 
+def test_an_http_folder_is_refused_naming_what_to_do(web: str) -> None:
+    code, _, err = run("report", f"{web}/")
+    assert code == 2
+    assert err == (
+        f"episode-audit: error: {web}/: HTTP lists no folder: name each file's URL, or read "
+        "the folder from s3://, gs:// or az://\n"
+    )
+
+
+def test_a_server_without_ranges_is_named_with_what_to_do(runs: Path) -> None:
+    from functools import partial
+    from http.server import HTTPServer, SimpleHTTPRequestHandler
+
+    class Quiet(SimpleHTTPRequestHandler):
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    srv = HTTPServer(("127.0.0.1", 0), partial(Quiet, directory=str(runs)))
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    try:
+        url = f"http://127.0.0.1:{srv.server_port}/a.mcap"
+        code, _, err = run("check", url)
+    finally:
+        srv.shutdown()
+        thread.join()
+        srv.server_close()
+    assert code == 2
+    assert err.startswith(f"episode-audit: error: {url}: cannot ") and err.rstrip().endswith(
+        "the HTTP server does not answer Range requests, which reading needs: serve the file "
+        "from one that does (nginx, S3, any object store), or download it"
+    ), err
+
+
 def test_http_urls_are_read_by_ranges(web: str, runs: Path) -> None:
     code, out, err = run("report", f"{web}/a.mcap", "--format", "json")
     assert code == 0, err

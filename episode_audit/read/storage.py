@@ -272,6 +272,11 @@ def _why(exc: BaseException) -> str:
         )
     if isinstance(exc, TimeoutError) or "timeout" in name.lower() or "timed out" in text:
         return f"timed out ({name}); is the endpoint reachable?"
+    if "support range requests" in text:  # (fsspec's advice is to open it as a stream)
+        return (
+            "the HTTP server does not answer Range requests, which reading needs: serve the "
+            "file from one that does (nginx, S3, any object store), or download it"
+        )
     if "connect" in name.lower() or "connect" in text.lower():
         return f"cannot connect ({text or name}); is the endpoint reachable?"
     return f"{name}: {text}" if text else name
@@ -331,6 +336,11 @@ def list_remote(path: RemoteFile) -> list[RemoteFile]:
     a prefix without evidence files, or storage that cannot be reached or read.
     """
     fs = path.fs
+    if path.url.endswith("/") and urlsplit(path.url).scheme.lower() in ("http", "https"):
+        raise ConfigurationError(
+            f"{path}: HTTP lists no folder: name each file's URL, or read the folder from "
+            "s3://, gs:// or az://"
+        )
     with _storage_errors(path, "cannot read", ConfigurationError):
         info = fs.info(path.fs_path)
         if info.get("type") != "directory":
