@@ -333,9 +333,10 @@ def _exists(path: Path) -> ConfigurationError:
             os.close(fd)
     if who is not None:
         return _held(path, who)
+    template = f"{path.stem}-{{index}}{path.suffix}"
     return ConfigurationError(
         f"{path}: file exists; evidence is never overwritten — choose another path (the "
-        "template 'train-{index}.mcap' takes the first free one), or pass overwrite=True "
+        f"template '{template}' takes the first free one), or pass overwrite=True "
         "(--overwrite on the command line)"
     )
 

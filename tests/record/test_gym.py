@@ -391,7 +391,11 @@ def test_custom_success_rule_and_unlabeled_failure(tmp_path: Path) -> None:
 def test_existing_file_is_never_overwritten(tmp_path: Path) -> None:
     path = tmp_path / "keep.mcap"
     path.write_bytes(b"precious")
-    with pytest.raises(ConfigurationError, match="file exists; evidence is never overwritten"):
+    with pytest.raises(
+        ConfigurationError,
+        match=r"file exists; evidence is never overwritten — choose another path \(the template "
+        r"'keep-\{index\}\.mcap' takes the first free one\)",
+    ):
         RecordEvidence(gym.make("CartPole-v1"), path)
     assert path.read_bytes() == b"precious"
 
