@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from episode_audit import CompareGates, ConfigurationError, compare
@@ -208,3 +209,30 @@ def test_autoreset_episodes_pair_on_the_rng_state_they_began_from(tmp_path: Path
     other = _vector_run(tmp_path / "other.mcap", 8)  # other seeds: other states, no pairs
     unpaired = compare([base], [other], by="env_index")
     assert all(not m.paired for g in unpaired.groups for m in g.metrics)
+
+
+def test_two_constant_episodes_a_side_are_not_a_regression() -> None:
+    from episode_audit.compare.core import _decide
+
+    group = compare_group(
+        "g", Side.of(["success"] * 2, [1.0, 1.0]), Side.of(["success"] * 2, [0.0, 0.0]),
+        CompareGates(), [],
+    )  # fmt: skip
+    _decide([group])
+    returns = {m.name: m for m in group.metrics}["return"]
+    assert returns.p_value == pytest.approx(1 / 3)
+    assert returns.verdict == "inconclusive" and group.verdict != "regressed"
+
+
+def test_null_with_two_episodes_a_side_of_discrete_returns_is_never_decided() -> None:
+    """Returns of 0 or 1, both sides alike: sides without spread are common, and no evidence."""
+    from episode_audit.compare.core import _decide
+
+    rng = np.random.default_rng(1)
+    verdicts = []
+    for _ in range(300):
+        sides = [Side.of(["success"] * 2, list(rng.integers(0, 2, 2) * 1.0)) for _ in "bc"]
+        group = compare_group("g", *sides, CompareGates(), [])
+        _decide([group])
+        verdicts.append({m.name: m for m in group.metrics}["return"].verdict)
+    assert verdicts.count("regressed") == verdicts.count("improved") == 0
