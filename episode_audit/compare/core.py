@@ -244,10 +244,21 @@ def _check_sides(found: dict[str, Any], side: str) -> None:
 
 
 def _decide(groups: Sequence[GroupComparison]) -> None:
-    """Holm-adjust the primary metrics' p-values of all groups as one family; set verdicts."""
-    family = [m for g in groups for m in g.metrics if m.better != "none"]
+    """Holm-adjust the primary metrics' p-values of all groups as one family; set verdicts.
+
+    A metric whose test cannot reject (``can_reject`` false) is left out of the family (its
+    p-value stands), and one that repeats another's test (``same_test_as``) takes that one's
+    adjusted p-value: each hypothesis is counted once.
+    """
+    primary = [(g, m) for g in groups for m in g.metrics if m.better != "none"]
+    family = [m for _, m in primary if m.can_reject and m.same_test_as is None]
     for metric, adjusted in zip(family, holm([m.p_value for m in family]), strict=True):
         metric.p_adjusted = adjusted
+    for group, metric in primary:
+        if metric.same_test_as is not None:
+            metric.p_adjusted = group.metric(metric.same_test_as).p_adjusted
+        elif not metric.can_reject:
+            metric.p_adjusted = metric.p_value
         metric.verdict = decide(metric)
 
 

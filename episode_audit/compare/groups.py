@@ -73,6 +73,13 @@ class GroupComparison:
     new_warnings: list[IncentiveWarning]
     gates: list[GateResult] = field(default_factory=list)
 
+    def metric(self, name: str) -> MetricComparison:
+        """The group's metric ``name`` (:class:`KeyError` when it has none)."""
+        for m in self.metrics:
+            if m.name == name:
+                return m
+        raise KeyError(name)
+
     @property
     def verdict(self) -> Verdict:
         """The group's verdict: :func:`combine` of its metrics' (a new warning regresses)."""
@@ -133,16 +140,20 @@ def compare_group(
         margin = limits.get(name, rate_margin)
         return rate_metric(name, b, c, pairs, better=better, margin=margin)
 
-    metrics = [rate("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher")]
     failed_b, failed_c = _is(base, cand, fmt.OUTCOME_FAILURE)
-    metrics.append(rate("failure_rate", failed_b, failed_c, "lower"))
+    rates = [
+        ("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher"),
+        ("failure_rate", failed_b, failed_c, "lower"),
+    ]
     labels = set(base.failure_label[failed_b]) | set(cand.failure_label[failed_c])
     labels |= set(gates.max_failure_increase_by_label)
     for label in sorted(str(x) for x in labels):
         b = failed_b & (base.failure_label == label)
         c = failed_c & (cand.failure_label == label)
-        metrics.append(rate(f"failure_rate:{label}", b, c, "lower"))
-    metrics.append(rate("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
+        rates.append((f"failure_rate:{label}", b, c, "lower"))
+    rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
+    metrics = [rate(*spec) for spec in rates]
+    _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
     metrics.append(
         mean_metric(
             "return", base.returns, cand.returns, pairs, better="higher",
@@ -157,6 +168,22 @@ def compare_group(
             )
         )  # fmt: skip
     return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings)
+
+
+def _mark_repeats(metrics: list[MetricComparison], events: list[tuple[Any, Any]]) -> None:
+    """Set ``same_test_as`` of each rate whose events (or their complement) an earlier one has.
+
+    The same episodes counted (``failure_rate`` and its only label's), or the others
+    (``success_rate`` and ``failure_rate`` without truncations), make the same test.
+    """
+    first: dict[bytes, str] = {}
+    for metric, (b, c) in zip(metrics, events, strict=True):
+        if not metric.can_reject:
+            continue
+        both = np.concatenate([b, c])
+        key = (both if not both[0] else ~both).tobytes()
+        metric.same_test_as = first.get(key)
+        first.setdefault(key, metric.name)
 
 
 def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:

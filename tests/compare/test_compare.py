@@ -174,7 +174,8 @@ def test_holm_adjusts_the_primary_metrics_of_all_groups_as_one_family() -> None:
     cand = Side.of(["success"] * 44 + ["truncated"] * 16, seed=seeds)
     groups = [compare_group(k, base, cand, CompareGates(), []) for k in ("a", "b")]
     _decide(groups)
-    family = [m for g in groups for m in g.metrics if m.better != "none"]
+    family = [m for g in groups for m in g.metrics if m.can_reject and not m.same_test_as]
+    assert [m.name for m in family] == ["success_rate", "success_rate"]  # (truncation: same)
     assert [m.p_adjusted for m in family] == holm([m.p_value for m in family])
     truncation = next(m for m in groups[0].metrics if m.name == "truncation_rate")
     assert truncation.name == "truncation_rate" and truncation.p_value < 0.05
@@ -236,3 +237,31 @@ def test_null_with_two_episodes_a_side_of_discrete_returns_is_never_decided() ->
         _decide([group])
         verdicts.append({m.name: m for m in group.metrics}["return"].verdict)
     assert verdicts.count("regressed") == verdicts.count("improved") == 0
+
+
+def test_holm_counts_each_hypothesis_once() -> None:
+    """One failure label and no truncation: success, failure and the label's rate are one
+    test; a 0-against-0 truncation rate and constant returns cannot reject, so none counts."""
+    from episode_audit.compare.core import _decide
+
+    def side(successes: int) -> Side:
+        outcome = ["success"] * successes + ["failure"] * (40 - successes)
+        labels = [None] * successes + ["slipped"] * (40 - successes)
+        return Side.of(outcome, failure_label=labels)
+
+    group = compare_group("g", side(32), side(22), CompareGates(), [])
+    _decide([group])
+    m = {x.name: x for x in group.metrics}
+    success = m["success_rate"]
+    assert success.p_value == pytest.approx(0.0307, abs=1e-4)
+    assert success.p_adjusted == success.p_value  # a family of one, not of five
+    assert success.verdict == "regressed"
+    assert [x.name for x in group.metrics if x.can_reject and x.same_test_as is None] == [
+        "success_rate"
+    ]
+    assert m["failure_rate"].same_test_as == m["failure_rate:slipped"].same_test_as
+    assert m["failure_rate"].same_test_as == "success_rate"
+    assert not m["truncation_rate"].can_reject and not m["return"].can_reject
+    assert m["failure_rate:slipped"].p_adjusted == success.p_adjusted
+    assert m["truncation_rate"].p_adjusted == 1.0
+    assert group.metric("failure_rate").to_dict()["same_test_as"] == "success_rate"
