@@ -76,6 +76,14 @@ _RateMarginOption = Annotated[
     ),
 ]
 
+_FailOnNewWarningOption = Annotated[
+    bool,
+    typer.Option(
+        "--fail-on-new-incentive-warning",
+        help="Gate: fail on an incentive warning the baseline lacks (untested: may be chance).",
+    ),
+]
+
 _DifferentTasksOption = Annotated[
     bool,
     typer.Option("--different-tasks", help="Compare even though the sides' env ids differ."),
@@ -91,6 +99,7 @@ def compare(
     max_failure_increase: _MaxFailureIncreaseOption = None,
     max_return_drop: _MaxReturnDropOption = None,
     rate_margin: _RateMarginOption = 0.05,
+    fail_on_new_incentive_warning: _FailOnNewWarningOption = False,
     different_tasks: _DifferentTasksOption = False,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
@@ -118,6 +127,7 @@ def compare(
                 max_failure_increase=max_failure_increase or (),
                 max_return_drop=max_return_drop,
                 rate_margin=rate_margin,
+                fail_on_new_incentive_warning=fail_on_new_incentive_warning,
                 different_tasks=different_tasks,
                 on_error=told,
                 jobs=_jobs(jobs, [*baseline, *candidate]),

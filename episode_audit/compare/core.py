@@ -5,8 +5,9 @@ opened, :func:`compare_parts` the parts taken from each file (:func:`side_file`,
 maybe): what differs between the runs first (a different task is refused unless allowed), then
 per group (report's ``by``) every metric with its interval, test and verdict, the p-values of the
 primary metrics of all groups Holm-adjusted as one family, the gates, and the incentive warnings
-new in the candidate. :meth:`Comparison.cases` lists it all as named pass/fail cases (one test
-case each in a JUnit file). Statistics and verdicts: ``docs/compare.md``.
+new in the candidate (reported, untested: they fail a gate when asked, never the verdict).
+:meth:`Comparison.cases` lists it all as named pass/fail cases (one test case each in a JUnit
+file). Statistics and verdicts: ``docs/compare.md``.
 """
 
 from __future__ import annotations
@@ -87,8 +88,8 @@ class Comparison:
                     out.append(
                         Case(f"{group.key}/{m.name}", m.verdict, m.verdict != "regressed", message)
                     )
-            for w in group.new_warnings:
-                out.append(Case(f"{group.key}/incentive:{w.code}", "new", False, w.message))
+            for w in group.new_warnings:  # (reported; only a gate fails on them)
+                out.append(Case(f"{group.key}/incentive:{w.code}", "new", True, w.message))
             for g in group.gates:
                 out.append(
                     Case(

@@ -20,6 +20,7 @@ from .metrics import MetricComparison, Verdict, mean_metric, rate_metric
 from .sides import Side, pair
 
 __all__ = [
+    "NEW_WARNINGS_GATE",
     "RATE_MARGIN",
     "CompareGates",
     "GroupComparison",
@@ -30,6 +31,8 @@ __all__ = [
 
 RATE_MARGIN = 0.05
 """The margin a rate is ``held`` within when no gate declares one."""
+NEW_WARNINGS_GATE = "new_incentive_warnings"
+"""The gate of :attr:`CompareGates.fail_on_new_incentive_warning`."""
 
 
 @dataclass(frozen=True)
@@ -39,13 +42,16 @@ class CompareGates:
     ``max_success_drop``: the success rate may fall at most this much;
     ``max_failure_increase`` (all failures) and ``max_failure_increase_by_label`` may rise at
     most this much; ``max_return_drop``: the mean return may fall at most this much. A gate is
-    also the margin its metric is ``held`` within.
+    also the margin its metric is ``held`` within. ``fail_on_new_incentive_warning``: a group
+    with an incentive warning the baseline's lacks fails (no test backs it: by chance alone a
+    warning can appear on one side, see ``docs/compare.md``).
     """
 
     max_success_drop: float | None = None
     max_failure_increase: float | None = None
     max_failure_increase_by_label: Mapping[str, float] = field(default_factory=dict)
     max_return_drop: float | None = None
+    fail_on_new_incentive_warning: bool = False
 
     def limits(self) -> dict[str, float]:
         """Metric name to its gate's limit, for the gates that are on."""
@@ -82,9 +88,8 @@ class GroupComparison:
 
     @property
     def verdict(self) -> Verdict:
-        """The group's verdict: :func:`combine` of its metrics' (a new warning regresses)."""
-        verdicts = [m.verdict for m in self.metrics if m.verdict is not None]
-        return combine(verdicts + (["regressed"] if self.new_warnings else []))
+        """The group's verdict: :func:`combine` of its tested metrics' (not the new warnings)."""
+        return combine(m.verdict for m in self.metrics if m.verdict is not None)
 
     def to_dict(self) -> dict[str, Any]:
         """The group as JSON-able values (``docs/compare.md``)."""
@@ -191,7 +196,10 @@ def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
 
 
 def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
-    """Each gate that is on, checked against the group's metric: its interval's worse end."""
+    """Each gate that is on, checked against the group's metric: its interval's worse end.
+
+    With ``fail_on_new_incentive_warning``, last, the gate ``new_incentive_warnings``.
+    """
     by_name = {m.name: m for m in group.metrics}
     out: list[GateResult] = []
     for name, limit in gates.limits().items():
@@ -210,6 +218,11 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
                 f"{_num(limit)} (group {group.key})",
             )
         )
+    if gates.fail_on_new_incentive_warning:
+        codes = ", ".join(w.code for w in group.new_warnings)
+        message = f"{len(group.new_warnings)} incentive warning(s) new in the candidate"
+        message += (f": {codes}" if codes else "") + f" (group {group.key})"
+        out.append(GateResult(NEW_WARNINGS_GATE, group.key, not group.new_warnings, message))
     return out
 
 

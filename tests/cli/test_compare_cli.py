@@ -62,6 +62,16 @@ def test_regressed_exits_1_with_the_verdict_in_every_format(runs: dict[str, str]
     assert code == 1 and "regressed" in out
 
 
+def test_new_incentive_warnings_fail_only_their_gate(runs: dict[str, str]) -> None:
+    args = ["compare", runs["base"], "--candidate", runs["hack"], "-f", "json"]
+    data = json.loads(run(*args)[1])
+    assert data["groups"][0]["new_warnings"] and data["groups"][0]["gates"] == []
+    assert all(c["passed"] for c in data["cases"] if c["status"] == "new")
+    code, out, _ = run(*args, "--fail-on-new-incentive-warning")
+    (gate,) = json.loads(out)["groups"][0]["gates"]
+    assert code == 1 and gate["gate"] == "new_incentive_warnings" and not gate["passed"]
+
+
 def test_same_policy_other_seeds_exits_0(runs: dict[str, str]) -> None:
     base_dir = str(Path(runs["base"]).parent)  # a directory is searched for *.mcap
     code, out, err = run("compare", base_dir, "--candidate", runs["same"], "-f", "json")

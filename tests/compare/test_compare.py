@@ -54,7 +54,13 @@ def test_hacker_regresses_on_success_paired_with_a_new_incentive_signature(
     assert result.verdict == "regressed" and not result.passed
     cases = {c.name: c for c in result.cases()}
     assert not cases["all/success_rate"].passed
-    assert any(name.startswith("all/incentive:") and not c.passed for name, c in cases.items())
+    new = [c for name, c in cases.items() if name.startswith("all/incentive:")]
+    assert new and all(c.passed and c.status == "new" for c in new)  # reported, untested
+    gated = compare([runs["scripted"]], [runs["hacker"]], gates=CompareGates(
+        fail_on_new_incentive_warning=True))  # fmt: skip
+    (gate,) = gated.groups[0].gates
+    assert gate.gate == "new_incentive_warnings" and not gate.passed
+    assert gate.message.startswith(f"{len(group.new_warnings)} incentive warning(s) new")
 
 
 def test_scripted_against_itself_on_other_seeds_never_regresses(runs: dict[str, Path]) -> None:
