@@ -143,6 +143,8 @@ def compare(
     for name, why in comparison.unfinished:
         warn(f"{name}: unfinished ({why}): compared with the episodes it holds so far")
     emit(compare_output(comparison, fmt, unreadable=result.unreadable))
+    for line in comparison.notes:
+        warn(line)
     markdown = lambda: str(compare_output(comparison, "markdown"))  # noqa: E731
     append_step_summary(markdown, off=no_step_summary)
     if result.unreadable:

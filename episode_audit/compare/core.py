@@ -73,6 +73,11 @@ class Comparison:
         return combine(g.verdict for g in self.groups)
 
     @property
+    def notes(self) -> list[str]:
+        """What the comparison could not use, a line each, naming its group."""
+        return [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
+
+    @property
     def passed(self) -> bool:
         """Whether the candidate did not regress and every gate passed."""
         gates = all(g.passed for group in self.groups for g in group.gates)
@@ -115,6 +120,7 @@ class Comparison:
             "only_baseline": list(self.only_baseline),
             "only_candidate": list(self.only_candidate),
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
+            "notes": self.notes,
             "cases": [
                 {"name": c.name, "status": c.status, "passed": c.passed, "message": c.message}
                 for c in self.cases()

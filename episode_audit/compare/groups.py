@@ -78,6 +78,8 @@ class GroupComparison:
     metrics: list[MetricComparison]
     new_warnings: list[IncentiveWarning]
     gates: list[GateResult] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    """What the group's metrics could not use, a line each (returns that are not finite)."""
 
     def metric(self, name: str) -> MetricComparison:
         """The group's metric ``name`` (:class:`KeyError` when it has none)."""
@@ -105,6 +107,7 @@ class GroupComparison:
                 {"gate": g.gate, "group": g.group, "passed": g.passed, "message": g.message}
                 for g in self.gates
             ],
+            "notes": list(self.notes),
         }
 
 
@@ -172,7 +175,21 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings)
+    notes = _nonfinite_returns(base, cand)
+    return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
+
+
+def _nonfinite_returns(base: Side, cand: Side) -> list[str]:
+    """The note on returns that are not finite, when a side has any."""
+    bad_b, bad_c = (int((~np.isfinite(s.returns)).sum()) for s in (base, cand))
+    if not bad_b + bad_c:
+        return []
+    return [
+        f"{bad_b} of {base.n} baseline and {bad_c} of {cand.n} candidate episodes have a return "
+        "that is not finite (NaN or infinite): the mean return is undefined, so it is not tested "
+        "(inconclusive), and the incentive warnings leave those episodes out "
+        "(`episode-audit check` finds them)"
+    ]
 
 
 def _mark_repeats(metrics: list[MetricComparison], events: list[tuple[Any, Any]]) -> None:

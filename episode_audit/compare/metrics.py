@@ -213,8 +213,11 @@ def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:
 
     ``regressed`` / ``improved``: the adjusted p-value is below ``alpha``, the difference worse /
     better; ``held``: the interval's worse end is within the margin; ``underpowered``: neither,
-    and fewer units than ``n_needed``; ``inconclusive``: neither, with enough units.
+    and fewer units than ``n_needed``; ``inconclusive``: neither, with enough units, or the
+    difference is not finite (a return that is not: no number of episodes would tell).
     """
+    if not math.isfinite(metric.difference):
+        return "inconclusive"
     p = metric.p_value if metric.p_adjusted is None else metric.p_adjusted
     gain = metric.difference if metric.better == "higher" else -metric.difference
     if p < alpha and gain != 0:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -271,3 +272,22 @@ def test_holm_counts_each_hypothesis_once() -> None:
     assert m["failure_rate:slipped"].p_adjusted == success.p_adjusted
     assert m["truncation_rate"].p_adjusted == 1.0
     assert group.metric("failure_rate").to_dict()["same_test_as"] == "success_rate"
+
+
+def test_a_return_that_is_not_finite_is_said_and_not_tested() -> None:
+    from episode_audit.compare.core import Comparison, _decide
+
+    rng = np.random.default_rng(3)
+    returns = list(rng.normal(5.0, 1.0, 30))
+    group = compare_group(
+        "g", Side.of(["success"] * 30, [*returns[:29], math.nan]),
+        Side.of(["success"] * 30, returns), CompareGates(), [],
+    )  # fmt: skip
+    _decide([group])
+    assert group.metric("return").verdict == "inconclusive"  # (more episodes would not help)
+    (note,) = Comparison("all", [], [group]).notes
+    assert note.startswith(
+        "group g: 1 of 30 baseline and 0 of 30 candidate episodes have a return that is not "
+        "finite (NaN or infinite): the mean return is undefined, so it is not tested"
+    )
+    assert group.to_dict()["notes"] == group.notes
