@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperCommand
 
 from ..errors import EpisodeAuditError
 from ..read.inputs import Unreadable, evidence_files
@@ -90,7 +91,51 @@ _DifferentTasksOption = Annotated[
 ]
 
 
-@app.command()
+class _CompareCommand(TyperCommand):
+    """``compare``, refusing a BASELINE path after ``--candidate`` (exit 2).
+
+    ``--candidate`` takes one path each time, so after ``--candidate runs/c-*.mcap`` the shell
+    glob's other matches would be BASELINE paths, compared as the baseline, and nothing said.
+    """
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        late = _after_candidate(self, args)
+        if late:
+            fail(
+                f"{late[0]} comes after --candidate, where it would be a BASELINE path: "
+                "--candidate takes one path each time (a shell glob after it leaves all its "
+                "matches but the first in the baseline); put BASELINE paths first, then "
+                "--candidate before each candidate file, or --candidate with their directory"
+            )
+        return super().parse_args(ctx, args)
+
+
+def _after_candidate(command: TyperCommand, args: list[str]) -> list[str]:
+    """The positional arguments (BASELINE paths) that come after a ``--candidate``."""
+    takes_value = {
+        name
+        for p in command.params
+        if p.param_type_name == "option"
+        and not (getattr(p, "is_flag", False) or getattr(p, "count", False))
+        for name in p.opts
+    }
+    seen, late = False, []
+    tokens: Any = iter(args)
+    for token in tokens:
+        if token == "--":
+            late += list(tokens) if seen else []
+            break
+        if token.startswith("-") and token != "-":
+            name = token.split("=", 1)[0]
+            seen = seen or name == "--candidate"
+            if name in takes_value and "=" not in token:
+                next(tokens, None)
+        elif seen:
+            late.append(token)
+    return late
+
+
+@app.command(cls=_CompareCommand)
 def compare(
     baseline: PathsArgument,
     candidate: _CandidateOption,

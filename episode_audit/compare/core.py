@@ -15,10 +15,12 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
+from ..read.storage import is_url
 from ..report.collect import check_by, joined
 from ..report.core import FilePart, file_part
 from ..report.groups import group_reports
@@ -32,6 +34,7 @@ __all__ = [
     "Case",
     "Comparison",
     "SideFile",
+    "check_apart",
     "check_compare_by",
     "compare",
     "compare_parts",
@@ -57,7 +60,8 @@ class Comparison:
     ``verdict`` combines the groups' (:func:`~.groups.combine`); ``passed`` is false when it is
     ``regressed`` or a gate failed. ``only_baseline`` / ``only_candidate`` name the groups one
     side lacks (not compared); ``unfinished`` the files still being written or torn (compared
-    with what was flushed so far), with why.
+    with what was flushed so far), with why; ``baseline_files`` / ``candidate_files`` count
+    each side's files.
     """
 
     by: str
@@ -66,6 +70,8 @@ class Comparison:
     only_baseline: list[str] = field(default_factory=list)
     only_candidate: list[str] = field(default_factory=list)
     unfinished: list[tuple[str, str]] = field(default_factory=list)
+    baseline_files: int = 0
+    candidate_files: int = 0
 
     @property
     def verdict(self) -> Verdict:
@@ -112,6 +118,8 @@ class Comparison:
             "by": self.by,
             "verdict": self.verdict,
             "passed": self.passed,
+            "baseline_files": self.baseline_files,
+            "candidate_files": self.candidate_files,
             "mismatches": [
                 {"field": m.field, "baseline": m.baseline, "candidate": m.candidate}
                 for m in self.mismatches
@@ -234,7 +242,30 @@ def compare_parts(
         sorted(set(sides_b) - set(sides_c)),
         sorted(set(sides_c) - set(sides_b)),
         [(p.name, p.unfinished) for p in parts if p.unfinished is not None],
+        len(baseline),
+        len(candidate),
     )
+
+
+def check_apart(baseline: Sequence[Any], candidate: Sequence[Any]) -> None:
+    """Refuse a file on both sides (:class:`ConfigurationError`): it would be compared with itself.
+
+    ``baseline`` and ``candidate`` hold paths, URLs or :class:`~..read.storage.RemoteFile`;
+    local paths are compared resolved.
+    """
+
+    def where(path: Any) -> str:
+        text = str(getattr(path, "url", path))
+        return text if is_url(text) else str(Path(text).resolve())
+
+    base = {where(p) for p in baseline}
+    both = [p for p in candidate if where(p) in base]
+    if both:
+        raise ConfigurationError(
+            f"{both[0]} is on both sides: a file compared with itself shows nothing; give each "
+            "side its own files (--candidate takes one path each time: repeat it before each "
+            "candidate file, or give the candidates' directory)"
+        )
 
 
 def _keys(found: dict[str, Any]) -> str:
@@ -300,7 +331,9 @@ def compare(
         >>> result.verdict, result.groups[0].pairs, result.passed
         ('underpowered', 5, True)
     """
-    check_by(by)
+    check_compare_by(by)
+    baseline, candidate = list(baseline), list(candidate)
+    check_apart(baseline, candidate)
     opened_b = [(str(p), open_evidence(p)) for p in baseline]
     opened_c = [(str(p), open_evidence(p)) for p in candidate]
     return compare_tables(

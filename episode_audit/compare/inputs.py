@@ -21,7 +21,7 @@ from ..read import open_evidence
 from ..read.inputs import Unreadable, evidence_files
 from ..read.storage import Source
 from ..report.gates import is_rate
-from .core import Comparison, SideFile, check_compare_by, compare_parts, side_file
+from .core import Comparison, SideFile, check_apart, check_compare_by, compare_parts, side_file
 from .groups import RATE_MARGIN, CompareGates
 
 __all__ = ["InputsComparison", "compare_inputs", "gates_from_options"]
@@ -70,6 +70,7 @@ def compare_inputs(
         raise ConfigurationError("--candidate: expected at least one file or directory")
     check_compare_by(by)
     files = [evidence_files(list(paths)) for paths in (baseline, candidate)]
+    check_apart(*files)
     one = partial(_side_file, by=by)
     read = iter(list(map_ordered(one, [*files[0], *files[1]], jobs=jobs, ray_address=ray_address)))
     parts: list[list[SideFile]] = []

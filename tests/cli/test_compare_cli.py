@@ -106,6 +106,34 @@ def test_usage_errors_exit_2(runs: dict[str, str], extra: list[str], message: st
     assert code == 2 and message in err, err
 
 
+def test_a_baseline_path_after_candidate_or_a_file_on_both_sides_exit_2(
+    runs: dict[str, str],
+) -> None:
+    # `--candidate runs/c-*.mcap`: the shell's glob puts every match but the first after it
+    code, out, err = run("compare", runs["base"], "--candidate", runs["same"], runs["hack"])
+    assert code == 2 and out == ""
+    assert err.startswith(
+        f"episode-audit: error: {runs['hack']} comes after --candidate, where it would be a "
+        "BASELINE path: --candidate takes one path each time"
+    ), err
+    code, _, err = run("compare", "--candidate", runs["same"], "-f", "json", runs["base"])
+    assert code == 2 and f"{runs['base']} comes after --candidate" in err
+    base_dir = str(Path(runs["base"]).parent)
+    code, _, err = run("compare", base_dir, runs["same"], "--candidate", runs["same"])
+    assert code == 2
+    assert f"error: {runs['same']} is on both sides: a file compared with itself" in err
+
+
+def test_the_table_counts_each_sides_files(runs: dict[str, str]) -> None:
+    _, out, _ = run(
+        "compare", runs["base"], runs["hack"], "--candidate", runs["same"], "--by", "env"
+    )
+    assert "Candidate (1 file) against baseline (2 files), by env" in out
+    _, out, _ = run("compare", runs["base"], "--candidate", runs["same"], "-f", "json")
+    data = json.loads(out)
+    assert (data["baseline_files"], data["candidate_files"]) == (1, 1)
+
+
 def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_path: Path) -> None:
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"not an mcap file")
@@ -145,11 +173,14 @@ def test_a_comparison_that_cannot_be_made_still_prints_its_json_and_junit(
     assert cases == [(str(bad), "read"), ("episode-audit compare", "compare")]
 
 
-def test_an_unfinished_file_is_compared_and_named() -> None:
-    torn = str(Path(__file__).resolve().parents[2] / "fixtures" / "torn.mcap")
-    code, out, err = run("compare", torn, "--candidate", torn, "-f", "json")
+def test_an_unfinished_file_is_compared_and_named(tmp_path: Path) -> None:
+    import shutil
+
+    torn = Path(__file__).resolve().parents[2] / "fixtures" / "torn.mcap"
+    base, cand = (str(shutil.copy(torn, tmp_path / name)) for name in ("b.mcap", "c.mcap"))
+    code, out, err = run("compare", base, "--candidate", cand, "-f", "json")
     assert code == 0, err
     assert "unfinished" in err
     data = json.loads(out)
-    assert [u["file"] for u in data["unfinished"]] == [torn, torn]
+    assert [u["file"] for u in data["unfinished"]] == [base, cand]
     assert data["groups"][0]["pairs"] > 0

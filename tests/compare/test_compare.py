@@ -113,6 +113,11 @@ def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
     assert result.cases()[0].name == "spec/env_kwargs"
 
 
+def test_a_file_on_both_sides_is_refused(runs: dict[str, Path]) -> None:
+    with pytest.raises(ConfigurationError, match=r"five.mcap is on both sides: a file compared"):
+        compare([runs["five_other"], runs["five"]], [runs["five"].parent / "." / "five.mcap"])
+
+
 def test_by_file_is_refused(runs: dict[str, Path]) -> None:
     with pytest.raises(ConfigurationError, match="by='file'"):
         compare([runs["five"]], [runs["five"]], by="file")

@@ -57,6 +57,10 @@ def _test(m: MetricComparison) -> str:
     return f"{m.test} ({how})"
 
 
+def _files(n: int) -> str:
+    return f"{n} file" if n == 1 else f"{n} files"
+
+
 def _row(key: str, m: MetricComparison) -> list[str]:
     p = "-" if m.p_adjusted is None else fmt_number(m.p_adjusted)
     iqm = ""
@@ -107,7 +111,11 @@ def compare_output(
         rows = [[m.field, ", ".join(m.baseline), ", ".join(m.candidate)] for m in result.mismatches]
         sections.append(("Runs differ", ["field", "baseline", "candidate"], rows))
     rows = [_row(g.key, m) for g in result.groups for m in g.metrics]
-    sections.append((f"Candidate against baseline (by {result.by})", COMPARE_HEADERS, rows))
+    title = (
+        f"Candidate ({_files(result.candidate_files)}) against baseline "
+        f"({_files(result.baseline_files)}), by {result.by}"
+    )
+    sections.append((title, COMPARE_HEADERS, rows))
     warned = [[g.key, w.code, w.message] for g in result.groups for w in g.new_warnings]
     if warned:
         sections.append(
