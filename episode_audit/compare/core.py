@@ -19,14 +19,16 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigurationError
+from ..format import names as fmt
 from ..read import Evidence, open_evidence
 from ..read.storage import is_url
 from ..report.collect import check_by, joined
 from ..report.core import FilePart, file_part
+from ..report.gates import unmatched_why
 from ..report.groups import group_reports
 from .groups import RATE_MARGIN, CompareGates, GroupComparison, check_gates, combine, compare_group
 from .metrics import Verdict, decide
-from .sides import sides
+from .sides import Side, sides
 from .spec import Mismatch, field_mismatches, run_fields
 from .stats import holm
 
@@ -61,7 +63,8 @@ class Comparison:
     ``regressed`` or a gate failed. ``only_baseline`` / ``only_candidate`` name the groups one
     side lacks (not compared); ``unfinished`` the files still being written or torn (compared
     with what was flushed so far), with why; ``baseline_files`` / ``candidate_files`` count
-    each side's files.
+    each side's files; ``unmatched_labels`` are the labels of per-label gates no failure has
+    (a misspelt label would pass every time; :attr:`notes` says so).
     """
 
     by: str
@@ -72,6 +75,8 @@ class Comparison:
     unfinished: list[tuple[str, str]] = field(default_factory=list)
     baseline_files: int = 0
     candidate_files: int = 0
+    unmatched_labels: list[str] = field(default_factory=list)
+    seen_labels: list[str] = field(default_factory=list)
 
     @property
     def verdict(self) -> Verdict:
@@ -80,8 +85,17 @@ class Comparison:
 
     @property
     def notes(self) -> list[str]:
-        """What the comparison could not use, a line each, naming its group."""
-        return [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
+        """What the options matched nothing of, and what the comparison could not use, a line each.
+
+        A per-label failure gate on a label no failure of either side has; a group's notes
+        (returns that are not finite), naming the group.
+        """
+        seen = ", ".join(map(repr, self.seen_labels)) or "none"
+        notes = [
+            f"gate max_failure_increase:{label}: {unmatched_why(label)} (labels seen: {seen})"
+            for label in self.unmatched_labels
+        ]
+        return notes + [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
 
     @property
     def passed(self) -> bool:
@@ -128,6 +142,7 @@ class Comparison:
             "only_baseline": list(self.only_baseline),
             "only_candidate": list(self.only_candidate),
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
+            "unmatched_labels": list(self.unmatched_labels),
             "notes": self.notes,
             "cases": [
                 {"name": c.name, "status": c.status, "passed": c.passed, "message": c.message}
@@ -235,6 +250,7 @@ def compare_parts(
     for group in groups:
         group.gates = check_gates(group, gates)
     parts = [f.part for f in [*baseline, *candidate]]
+    seen = _failure_labels([*sides_b.values(), *sides_c.values()])
     return Comparison(
         by,
         found,
@@ -244,6 +260,19 @@ def compare_parts(
         [(p.name, p.unfinished) for p in parts if p.unfinished is not None],
         len(baseline),
         len(candidate),
+        sorted(set(gates.max_failure_increase_by_label) - set(seen)),
+        seen,
+    )
+
+
+def _failure_labels(found: Iterable[Side]) -> list[str]:
+    """The failure labels of the sides' failed episodes, sorted."""
+    return sorted(
+        {
+            str(label or fmt.UNLABELED)
+            for side in found
+            for label in side.failure_label[side.outcome == fmt.OUTCOME_FAILURE]
+        }
     )
 
 

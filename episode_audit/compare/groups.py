@@ -225,14 +225,14 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
         passed = worse <= limit
         what = "drop" if metric.better == "higher" else "increase"
         verb = "within" if passed else "beyond"
+        shown, bound = _nums(worse, limit)
         out.append(
             GateResult(
                 _gate_name(name),
                 group.key,
                 passed,
                 f"{name}: the 95 % interval allows {'a' if what == 'drop' else 'an'} {what} of up "
-                f"to {_num(worse)}, {verb} "
-                f"{_num(limit)} (group {group.key})",
+                f"to {shown}, {verb} {bound} (group {group.key})",
             )
         )
     if gates.fail_on_new_incentive_warning:
@@ -253,5 +253,14 @@ def _gate_name(metric: str) -> str:
     return "max_failure_increase" + (f":{label}" if label else "")
 
 
-def _num(value: float) -> str:
-    return f"{value + 0.0:.4g}"  # (+ 0.0: no "-0")
+def _nums(value: float, limit: float) -> tuple[str, str]:
+    """``value`` and ``limit`` to 4 significant figures, or more where they would read the same.
+
+    >>> _nums(0.27751, 0.2775), _nums(0.05, 0.05), _nums(-0.0, 5.0)
+    (('0.27751', '0.2775'), ('0.05', '0.05'), ('0', '5'))
+    """
+    for digits in range(4, 18):
+        a, b = f"{value + 0.0:.{digits}g}", f"{limit + 0.0:.{digits}g}"  # (+ 0.0: no "-0")
+        if a != b or value == limit:
+            return a, b
+    return a, b

@@ -72,6 +72,16 @@ def test_new_incentive_warnings_fail_only_their_gate(runs: dict[str, str]) -> No
     assert code == 1 and gate["gate"] == "new_incentive_warnings" and not gate["passed"]
 
 
+def test_a_gate_on_a_label_no_failure_has_is_warned_as_report_does(
+    runs: dict[str, str],
+) -> None:
+    args = ["compare", runs["base"], "--candidate", runs["same"]]
+    code, _, err = run(*args, "--max-failure-increase", "drawer_yankd=0.5")
+    assert code in (0, 1)
+    assert "warning: gate max_failure_increase:drawer_yankd: no failure in these files is " in err
+    assert "is the label spelt as recorded?" in err
+
+
 def test_same_policy_other_seeds_exits_0(runs: dict[str, str]) -> None:
     base_dir = str(Path(runs["base"]).parent)  # a directory is searched for *.mcap
     code, out, err = run("compare", base_dir, "--candidate", runs["same"], "-f", "json")

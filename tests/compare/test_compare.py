@@ -95,6 +95,12 @@ def test_gates_are_non_inferiority_on_the_interval(runs: dict[str, Path]) -> Non
     assert not gates["max_success_drop"].passed and not missed.passed
     assert "beyond 0.01" in gates["max_success_drop"].message
     assert "failure_rate:collision" in {m.name for m in missed.groups[0].metrics}
+    assert missed.unmatched_labels == ["collision"]  # (a misspelt label passes: said, as report)
+    assert missed.notes[0].startswith(
+        "gate max_failure_increase:collision: no failure in these files is labelled "
+        "'collision': is the label spelt as recorded? (labels seen: "
+    )
+    assert missed.to_dict()["unmatched_labels"] == ["collision"]
 
 
 def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
@@ -296,3 +302,10 @@ def test_a_return_that_is_not_finite_is_said_and_not_tested() -> None:
         "finite (NaN or infinite): the mean return is undefined, so it is not tested"
     )
     assert group.to_dict()["notes"] == group.notes
+
+
+def test_a_gate_message_shows_the_digits_where_value_and_limit_differ() -> None:
+    side = Side.of(["success"] * 10)  # 0 of 10 failures a side: the interval's end is 0.27753
+    gates = CompareGates(max_failure_increase=0.2775)
+    (gate,) = check_gates(compare_group("g", side, side, gates, []), gates)
+    assert "allows an increase of up to 0.27753, beyond 0.2775 (group g)" in gate.message
