@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperCommand
 
 from ..errors import EpisodeAuditError
 from ..read.inputs import Unreadable, evidence_files
@@ -76,13 +77,65 @@ _RateMarginOption = Annotated[
     ),
 ]
 
+_FailOnNewWarningOption = Annotated[
+    bool,
+    typer.Option(
+        "--fail-on-new-incentive-warning",
+        help="Gate: fail on an incentive warning the baseline lacks (untested: may be chance).",
+    ),
+]
+
 _DifferentTasksOption = Annotated[
     bool,
     typer.Option("--different-tasks", help="Compare even though the sides' env ids differ."),
 ]
 
 
-@app.command()
+class _CompareCommand(TyperCommand):
+    """``compare``, refusing a BASELINE path after ``--candidate`` (exit 2).
+
+    ``--candidate`` takes one path each time, so after ``--candidate runs/c-*.mcap`` the shell
+    glob's other matches would be BASELINE paths, compared as the baseline, and nothing said.
+    """
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        late = _after_candidate(self, args)
+        if late:
+            fail(
+                f"{late[0]} comes after --candidate, where it would be a BASELINE path: "
+                "--candidate takes one path each time (a shell glob after it leaves all its "
+                "matches but the first in the baseline); put BASELINE paths first, then "
+                "--candidate before each candidate file, or --candidate with their directory"
+            )
+        return super().parse_args(ctx, args)
+
+
+def _after_candidate(command: TyperCommand, args: list[str]) -> list[str]:
+    """The positional arguments (BASELINE paths) that come after a ``--candidate``."""
+    takes_value = {
+        name
+        for p in command.params
+        if p.param_type_name == "option"
+        and not (getattr(p, "is_flag", False) or getattr(p, "count", False))
+        for name in p.opts
+    }
+    seen, late = False, []
+    tokens: Any = iter(args)
+    for token in tokens:
+        if token == "--":
+            late += list(tokens) if seen else []
+            break
+        if token.startswith("-") and token != "-":
+            name = token.split("=", 1)[0]
+            seen = seen or name == "--candidate"
+            if name in takes_value and "=" not in token:
+                next(tokens, None)
+        elif seen:
+            late.append(token)
+    return late
+
+
+@app.command(cls=_CompareCommand)
 def compare(
     baseline: PathsArgument,
     candidate: _CandidateOption,
@@ -91,6 +144,7 @@ def compare(
     max_failure_increase: _MaxFailureIncreaseOption = None,
     max_return_drop: _MaxReturnDropOption = None,
     rate_margin: _RateMarginOption = 0.05,
+    fail_on_new_incentive_warning: _FailOnNewWarningOption = False,
     different_tasks: _DifferentTasksOption = False,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
@@ -118,6 +172,7 @@ def compare(
                 max_failure_increase=max_failure_increase or (),
                 max_return_drop=max_return_drop,
                 rate_margin=rate_margin,
+                fail_on_new_incentive_warning=fail_on_new_incentive_warning,
                 different_tasks=different_tasks,
                 on_error=told,
                 jobs=_jobs(jobs, [*baseline, *candidate]),
@@ -133,6 +188,8 @@ def compare(
     for name, why in comparison.unfinished:
         warn(f"{name}: unfinished ({why}): compared with the episodes it holds so far")
     emit(compare_output(comparison, fmt, unreadable=result.unreadable))
+    for line in comparison.notes:
+        warn(line)
     markdown = lambda: str(compare_output(comparison, "markdown"))  # noqa: E731
     append_step_summary(markdown, off=no_step_summary)
     if result.unreadable:

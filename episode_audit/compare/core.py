@@ -5,8 +5,9 @@ opened, :func:`compare_parts` the parts taken from each file (:func:`side_file`,
 maybe): what differs between the runs first (a different task is refused unless allowed), then
 per group (report's ``by``) every metric with its interval, test and verdict, the p-values of the
 primary metrics of all groups Holm-adjusted as one family, the gates, and the incentive warnings
-new in the candidate. :meth:`Comparison.cases` lists it all as named pass/fail cases (one test
-case each in a JUnit file). Statistics and verdicts: ``docs/compare.md``.
+new in the candidate (reported, untested: they fail a gate when asked, never the verdict).
+:meth:`Comparison.cases` lists it all as named pass/fail cases (one test case each in a JUnit
+file). Statistics and verdicts: ``docs/compare.md``.
 """
 
 from __future__ import annotations
@@ -14,16 +15,20 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigurationError
+from ..format import names as fmt
 from ..read import Evidence, open_evidence
+from ..read.storage import is_url
 from ..report.collect import check_by, joined
 from ..report.core import FilePart, file_part
+from ..report.gates import unmatched_why
 from ..report.groups import group_reports
 from .groups import RATE_MARGIN, CompareGates, GroupComparison, check_gates, combine, compare_group
 from .metrics import Verdict, decide
-from .sides import sides
+from .sides import Side, sides
 from .spec import Mismatch, field_mismatches, run_fields
 from .stats import holm
 
@@ -31,6 +36,7 @@ __all__ = [
     "Case",
     "Comparison",
     "SideFile",
+    "check_apart",
     "check_compare_by",
     "compare",
     "compare_parts",
@@ -56,7 +62,9 @@ class Comparison:
     ``verdict`` combines the groups' (:func:`~.groups.combine`); ``passed`` is false when it is
     ``regressed`` or a gate failed. ``only_baseline`` / ``only_candidate`` name the groups one
     side lacks (not compared); ``unfinished`` the files still being written or torn (compared
-    with what was flushed so far), with why.
+    with what was flushed so far), with why; ``baseline_files`` / ``candidate_files`` count
+    each side's files; ``unmatched_labels`` are the labels of per-label gates no failure has
+    (a misspelt label would pass every time; :attr:`notes` says so).
     """
 
     by: str
@@ -65,11 +73,29 @@ class Comparison:
     only_baseline: list[str] = field(default_factory=list)
     only_candidate: list[str] = field(default_factory=list)
     unfinished: list[tuple[str, str]] = field(default_factory=list)
+    baseline_files: int = 0
+    candidate_files: int = 0
+    unmatched_labels: list[str] = field(default_factory=list)
+    seen_labels: list[str] = field(default_factory=list)
 
     @property
     def verdict(self) -> Verdict:
         """The overall verdict."""
         return combine(g.verdict for g in self.groups)
+
+    @property
+    def notes(self) -> list[str]:
+        """What the options matched nothing of, and what the comparison could not use, a line each.
+
+        A per-label failure gate on a label no failure of either side has; a group's notes
+        (returns that are not finite), naming the group.
+        """
+        seen = ", ".join(map(repr, self.seen_labels)) or "none"
+        notes = [
+            f"gate max_failure_increase:{label}: {unmatched_why(label)} (labels seen: {seen})"
+            for label in self.unmatched_labels
+        ]
+        return notes + [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
 
     @property
     def passed(self) -> bool:
@@ -87,8 +113,8 @@ class Comparison:
                     out.append(
                         Case(f"{group.key}/{m.name}", m.verdict, m.verdict != "regressed", message)
                     )
-            for w in group.new_warnings:
-                out.append(Case(f"{group.key}/incentive:{w.code}", "new", False, w.message))
+            for w in group.new_warnings:  # (reported; only a gate fails on them)
+                out.append(Case(f"{group.key}/incentive:{w.code}", "new", True, w.message))
             for g in group.gates:
                 out.append(
                     Case(
@@ -106,6 +132,8 @@ class Comparison:
             "by": self.by,
             "verdict": self.verdict,
             "passed": self.passed,
+            "baseline_files": self.baseline_files,
+            "candidate_files": self.candidate_files,
             "mismatches": [
                 {"field": m.field, "baseline": m.baseline, "candidate": m.candidate}
                 for m in self.mismatches
@@ -114,6 +142,8 @@ class Comparison:
             "only_baseline": list(self.only_baseline),
             "only_candidate": list(self.only_candidate),
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
+            "unmatched_labels": list(self.unmatched_labels),
+            "notes": self.notes,
             "cases": [
                 {"name": c.name, "status": c.status, "passed": c.passed, "message": c.message}
                 for c in self.cases()
@@ -220,6 +250,7 @@ def compare_parts(
     for group in groups:
         group.gates = check_gates(group, gates)
     parts = [f.part for f in [*baseline, *candidate]]
+    seen = _failure_labels([*sides_b.values(), *sides_c.values()])
     return Comparison(
         by,
         found,
@@ -227,7 +258,43 @@ def compare_parts(
         sorted(set(sides_b) - set(sides_c)),
         sorted(set(sides_c) - set(sides_b)),
         [(p.name, p.unfinished) for p in parts if p.unfinished is not None],
+        len(baseline),
+        len(candidate),
+        sorted(set(gates.max_failure_increase_by_label) - set(seen)),
+        seen,
     )
+
+
+def _failure_labels(found: Iterable[Side]) -> list[str]:
+    """The failure labels of the sides' failed episodes, sorted."""
+    return sorted(
+        {
+            str(label or fmt.UNLABELED)
+            for side in found
+            for label in side.failure_label[side.outcome == fmt.OUTCOME_FAILURE]
+        }
+    )
+
+
+def check_apart(baseline: Sequence[Any], candidate: Sequence[Any]) -> None:
+    """Refuse a file on both sides (:class:`ConfigurationError`): it would be compared with itself.
+
+    ``baseline`` and ``candidate`` hold paths, URLs or :class:`~..read.storage.RemoteFile`;
+    local paths are compared resolved.
+    """
+
+    def where(path: Any) -> str:
+        text = str(getattr(path, "url", path))
+        return text if is_url(text) else str(Path(text).resolve())
+
+    base = {where(p) for p in baseline}
+    both = [p for p in candidate if where(p) in base]
+    if both:
+        raise ConfigurationError(
+            f"{both[0]} is on both sides: a file compared with itself shows nothing; give each "
+            "side its own files (--candidate takes one path each time: repeat it before each "
+            "candidate file, or give the candidates' directory)"
+        )
 
 
 def _keys(found: dict[str, Any]) -> str:
@@ -244,10 +311,21 @@ def _check_sides(found: dict[str, Any], side: str) -> None:
 
 
 def _decide(groups: Sequence[GroupComparison]) -> None:
-    """Holm-adjust the primary metrics' p-values of all groups as one family; set verdicts."""
-    family = [m for g in groups for m in g.metrics if m.better != "none"]
+    """Holm-adjust the primary metrics' p-values of all groups as one family; set verdicts.
+
+    A metric whose test cannot reject (``can_reject`` false) is left out of the family (its
+    p-value stands), and one that repeats another's test (``same_test_as``) takes that one's
+    adjusted p-value: each hypothesis is counted once.
+    """
+    primary = [(g, m) for g in groups for m in g.metrics if m.better != "none"]
+    family = [m for _, m in primary if m.can_reject and m.same_test_as is None]
     for metric, adjusted in zip(family, holm([m.p_value for m in family]), strict=True):
         metric.p_adjusted = adjusted
+    for group, metric in primary:
+        if metric.same_test_as is not None:
+            metric.p_adjusted = group.metric(metric.same_test_as).p_adjusted
+        elif not metric.can_reject:
+            metric.p_adjusted = metric.p_value
         metric.verdict = decide(metric)
 
 
@@ -282,7 +360,9 @@ def compare(
         >>> result.verdict, result.groups[0].pairs, result.passed
         ('underpowered', 5, True)
     """
-    check_by(by)
+    check_compare_by(by)
+    baseline, candidate = list(baseline), list(candidate)
+    check_apart(baseline, candidate)
     opened_b = [(str(p), open_evidence(p)) for p in baseline]
     opened_c = [(str(p), open_evidence(p)) for p in candidate]
     return compare_tables(

@@ -20,6 +20,7 @@ from .metrics import MetricComparison, Verdict, mean_metric, rate_metric
 from .sides import Side, pair
 
 __all__ = [
+    "NEW_WARNINGS_GATE",
     "RATE_MARGIN",
     "CompareGates",
     "GroupComparison",
@@ -30,6 +31,8 @@ __all__ = [
 
 RATE_MARGIN = 0.05
 """The margin a rate is ``held`` within when no gate declares one."""
+NEW_WARNINGS_GATE = "new_incentive_warnings"
+"""The gate of :attr:`CompareGates.fail_on_new_incentive_warning`."""
 
 
 @dataclass(frozen=True)
@@ -39,13 +42,16 @@ class CompareGates:
     ``max_success_drop``: the success rate may fall at most this much;
     ``max_failure_increase`` (all failures) and ``max_failure_increase_by_label`` may rise at
     most this much; ``max_return_drop``: the mean return may fall at most this much. A gate is
-    also the margin its metric is ``held`` within.
+    also the margin its metric is ``held`` within. ``fail_on_new_incentive_warning``: a group
+    with an incentive warning the baseline's lacks fails (no test backs it: by chance alone a
+    warning can appear on one side, see ``docs/compare.md``).
     """
 
     max_success_drop: float | None = None
     max_failure_increase: float | None = None
     max_failure_increase_by_label: Mapping[str, float] = field(default_factory=dict)
     max_return_drop: float | None = None
+    fail_on_new_incentive_warning: bool = False
 
     def limits(self) -> dict[str, float]:
         """Metric name to its gate's limit, for the gates that are on."""
@@ -72,12 +78,20 @@ class GroupComparison:
     metrics: list[MetricComparison]
     new_warnings: list[IncentiveWarning]
     gates: list[GateResult] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    """What the group's metrics could not use, a line each (returns that are not finite)."""
+
+    def metric(self, name: str) -> MetricComparison:
+        """The group's metric ``name`` (:class:`KeyError` when it has none)."""
+        for m in self.metrics:
+            if m.name == name:
+                return m
+        raise KeyError(name)
 
     @property
     def verdict(self) -> Verdict:
-        """The group's verdict: :func:`combine` of its metrics' (a new warning regresses)."""
-        verdicts = [m.verdict for m in self.metrics if m.verdict is not None]
-        return combine(verdicts + (["regressed"] if self.new_warnings else []))
+        """The group's verdict: :func:`combine` of its tested metrics' (not the new warnings)."""
+        return combine(m.verdict for m in self.metrics if m.verdict is not None)
 
     def to_dict(self) -> dict[str, Any]:
         """The group as JSON-able values (``docs/compare.md``)."""
@@ -93,6 +107,7 @@ class GroupComparison:
                 {"gate": g.gate, "group": g.group, "passed": g.passed, "message": g.message}
                 for g in self.gates
             ],
+            "notes": list(self.notes),
         }
 
 
@@ -133,16 +148,20 @@ def compare_group(
         margin = limits.get(name, rate_margin)
         return rate_metric(name, b, c, pairs, better=better, margin=margin)
 
-    metrics = [rate("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher")]
     failed_b, failed_c = _is(base, cand, fmt.OUTCOME_FAILURE)
-    metrics.append(rate("failure_rate", failed_b, failed_c, "lower"))
+    rates = [
+        ("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher"),
+        ("failure_rate", failed_b, failed_c, "lower"),
+    ]
     labels = set(base.failure_label[failed_b]) | set(cand.failure_label[failed_c])
     labels |= set(gates.max_failure_increase_by_label)
     for label in sorted(str(x) for x in labels):
         b = failed_b & (base.failure_label == label)
         c = failed_c & (cand.failure_label == label)
-        metrics.append(rate(f"failure_rate:{label}", b, c, "lower"))
-    metrics.append(rate("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
+        rates.append((f"failure_rate:{label}", b, c, "lower"))
+    rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
+    metrics = [rate(*spec) for spec in rates]
+    _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
     metrics.append(
         mean_metric(
             "return", base.returns, cand.returns, pairs, better="higher",
@@ -156,7 +175,37 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings)
+    notes = _nonfinite_returns(base, cand)
+    return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
+
+
+def _nonfinite_returns(base: Side, cand: Side) -> list[str]:
+    """The note on returns that are not finite, when a side has any."""
+    bad_b, bad_c = (int((~np.isfinite(s.returns)).sum()) for s in (base, cand))
+    if not bad_b + bad_c:
+        return []
+    return [
+        f"{bad_b} of {base.n} baseline and {bad_c} of {cand.n} candidate episodes have a return "
+        "that is not finite (NaN or infinite): the mean return is undefined, so it is not tested "
+        "(inconclusive), and the incentive warnings leave those episodes out "
+        "(`episode-audit check` finds them)"
+    ]
+
+
+def _mark_repeats(metrics: list[MetricComparison], events: list[tuple[Any, Any]]) -> None:
+    """Set ``same_test_as`` of each rate whose events (or their complement) an earlier one has.
+
+    The same episodes counted (``failure_rate`` and its only label's), or the others
+    (``success_rate`` and ``failure_rate`` without truncations), make the same test.
+    """
+    first: dict[bytes, str] = {}
+    for metric, (b, c) in zip(metrics, events, strict=True):
+        if not metric.can_reject:
+            continue
+        both = np.concatenate([b, c])
+        key = (both if not both[0] else ~both).tobytes()
+        metric.same_test_as = first.get(key)
+        first.setdefault(key, metric.name)
 
 
 def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
@@ -164,7 +213,10 @@ def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
 
 
 def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
-    """Each gate that is on, checked against the group's metric: its interval's worse end."""
+    """Each gate that is on, checked against the group's metric: its interval's worse end.
+
+    With ``fail_on_new_incentive_warning``, last, the gate ``new_incentive_warnings``.
+    """
     by_name = {m.name: m for m in group.metrics}
     out: list[GateResult] = []
     for name, limit in gates.limits().items():
@@ -173,16 +225,21 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
         passed = worse <= limit
         what = "drop" if metric.better == "higher" else "increase"
         verb = "within" if passed else "beyond"
+        shown, bound = _nums(worse, limit)
         out.append(
             GateResult(
                 _gate_name(name),
                 group.key,
                 passed,
                 f"{name}: the 95 % interval allows {'a' if what == 'drop' else 'an'} {what} of up "
-                f"to {_num(worse)}, {verb} "
-                f"{_num(limit)} (group {group.key})",
+                f"to {shown}, {verb} {bound} (group {group.key})",
             )
         )
+    if gates.fail_on_new_incentive_warning:
+        codes = ", ".join(w.code for w in group.new_warnings)
+        message = f"{len(group.new_warnings)} incentive warning(s) new in the candidate"
+        message += (f": {codes}" if codes else "") + f" (group {group.key})"
+        out.append(GateResult(NEW_WARNINGS_GATE, group.key, not group.new_warnings, message))
     return out
 
 
@@ -196,5 +253,14 @@ def _gate_name(metric: str) -> str:
     return "max_failure_increase" + (f":{label}" if label else "")
 
 
-def _num(value: float) -> str:
-    return f"{value + 0.0:.4g}"  # (+ 0.0: no "-0")
+def _nums(value: float, limit: float) -> tuple[str, str]:
+    """``value`` and ``limit`` to 4 significant figures, or more where they would read the same.
+
+    >>> _nums(0.27751, 0.2775), _nums(0.05, 0.05), _nums(-0.0, 5.0)
+    (('0.27751', '0.2775'), ('0.05', '0.05'), ('0', '5'))
+    """
+    for digits in range(4, 18):
+        a, b = f"{value + 0.0:.{digits}g}", f"{limit + 0.0:.{digits}g}"  # (+ 0.0: no "-0")
+        if a != b or value == limit:
+            return a, b
+    return a, b

@@ -21,7 +21,7 @@ from ..read import open_evidence
 from ..read.inputs import Unreadable, evidence_files
 from ..read.storage import Source
 from ..report.gates import is_rate
-from .core import Comparison, SideFile, check_compare_by, compare_parts, side_file
+from .core import Comparison, SideFile, check_apart, check_compare_by, compare_parts, side_file
 from .groups import RATE_MARGIN, CompareGates
 
 __all__ = ["InputsComparison", "compare_inputs", "gates_from_options"]
@@ -43,6 +43,7 @@ def compare_inputs(
     max_success_drop: float | None = None,
     max_failure_increase: Sequence[str] = (),
     max_return_drop: float | None = None,
+    fail_on_new_incentive_warning: bool = False,
     different_tasks: bool = False,
     rate_margin: float = RATE_MARGIN,
     on_error: Callable[[EpisodeAuditError], None] | None = None,
@@ -61,6 +62,7 @@ def compare_inputs(
         max_success_drop=max_success_drop,
         max_failure_increase=max_failure_increase,
         max_return_drop=max_return_drop,
+        fail_on_new_incentive_warning=fail_on_new_incentive_warning,
     )
     if not (is_rate(rate_margin) and rate_margin > 0):
         raise ConfigurationError(f"--rate-margin: expected a rate in (0, 1], got {rate_margin}")
@@ -68,6 +70,7 @@ def compare_inputs(
         raise ConfigurationError("--candidate: expected at least one file or directory")
     check_compare_by(by)
     files = [evidence_files(list(paths)) for paths in (baseline, candidate)]
+    check_apart(*files)
     one = partial(_side_file, by=by)
     read = iter(list(map_ordered(one, [*files[0], *files[1]], jobs=jobs, ray_address=ray_address)))
     parts: list[list[SideFile]] = []
@@ -110,13 +113,15 @@ def gates_from_options(
     max_success_drop: float | None = None,
     max_failure_increase: Sequence[str] = (),
     max_return_drop: float | None = None,
+    fail_on_new_incentive_warning: bool = False,
 ) -> CompareGates:
     """The :class:`~.groups.CompareGates` of the command line's options, checked in their words.
 
     >>> gates_from_options(max_failure_increase=["0.1", "collision=0.02"])
     ... # doctest: +NORMALIZE_WHITESPACE
     CompareGates(max_success_drop=None, max_failure_increase=0.1,
-                 max_failure_increase_by_label={'collision': 0.02}, max_return_drop=None)
+                 max_failure_increase_by_label={'collision': 0.02}, max_return_drop=None,
+                 fail_on_new_incentive_warning=False)
     >>> try:
     ...     gates_from_options(max_failure_increase=["collision=2"])
     ... except ConfigurationError as exc:
@@ -155,4 +160,6 @@ def gates_from_options(
             by_label[label] = number
         else:
             overall = number
-    return CompareGates(max_success_drop, overall, by_label, max_return_drop)
+    return CompareGates(
+        max_success_drop, overall, by_label, max_return_drop, fail_on_new_incentive_warning
+    )

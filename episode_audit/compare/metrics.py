@@ -44,6 +44,11 @@ class MetricComparison:
     ``better`` says which way is better (``"higher"``, ``"lower"``, or ``"none"`` for reward
     terms, which get no verdict). ``n_needed`` counts pairs when ``paired``, else episodes a
     side; ``mde`` is the difference detectable now with the power of :data:`~.stats.POWER`.
+    ``can_reject`` is false when its test gives p = 1 whatever the episodes hold in their
+    order: a rate with no event on either side or one in every episode of both (unpaired),
+    or fewer than two discordant pairs (paired); a mean with fewer than two values a side, a
+    value not finite, or all values (paired: all differences 0) the same. ``same_test_as``
+    names the group's metric whose test this one repeats. Neither is counted in Holm's family.
     """
 
     name: str
@@ -66,6 +71,8 @@ class MetricComparison:
     verdict: Verdict | None = None
     baseline_iqm: float | None = None
     candidate_iqm: float | None = None
+    can_reject: bool = True
+    same_test_as: str | None = None
 
     @property
     def analysed(self) -> int:
@@ -99,6 +106,8 @@ class MetricComparison:
             "verdict": self.verdict,
             "baseline_iqm": _finite(self.baseline_iqm),
             "candidate_iqm": _finite(self.candidate_iqm),
+            "can_reject": self.can_reject,
+            "same_test_as": self.same_test_as,
         }
 
 
@@ -134,7 +143,7 @@ def rate_metric(
         return MetricComparison(
             name, "rate", better, (a + b) / n, (a + c) / n, n, n, diff,
             stats.newcombe_paired(a, b, c, d), True, n, "McNemar exact",
-            stats.mcnemar_exact(b, c), margin, mde, needed,
+            stats.mcnemar_exact(b, c), margin, mde, needed, can_reject=b + c >= 2,
         )  # fmt: skip
     xb, xc = int(np.sum(base)), int(np.sum(cand))
     vb, vc = _plan_variance(xb, nb), _plan_variance(xc, nc)
@@ -143,6 +152,7 @@ def rate_metric(
         name, "rate", better, xb / nb, xc / nc, nb, nc, xc / nc - xb / nb,
         stats.newcombe_unpaired(xb, nb, xc, nc), False, len(pairs), "Fisher exact",
         stats.fisher_p_value(xb, nb, xc, nc), margin, mde, needed,
+        can_reject=0 < xb + xc < nb + nc,
     )  # fmt: skip
 
 
@@ -186,7 +196,16 @@ def mean_metric(
         paired, len(pairs), "paired t" if paired else "Welch t",
         stats.mean_p_value(x, y, paired=paired), margin, mde, needed,
         baseline_iqm=stats.iqm(x), candidate_iqm=stats.iqm(y),
+        can_reject=_can_reject(x, y, paired),
     )  # fmt: skip
+
+
+def _can_reject(x: Array, y: Array, paired: bool) -> bool:
+    """Whether a test of the means of ``x`` and ``y`` can give a p below 1 at all."""
+    if min(len(x), len(y)) < 2 or not (np.isfinite(x).all() and np.isfinite(y).all()):
+        return False
+    values = y - x if paired else np.concatenate([x, y])
+    return bool(np.ptp(values) > 0 or (paired and values[0] != 0))
 
 
 def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:
@@ -194,8 +213,11 @@ def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:
 
     ``regressed`` / ``improved``: the adjusted p-value is below ``alpha``, the difference worse /
     better; ``held``: the interval's worse end is within the margin; ``underpowered``: neither,
-    and fewer units than ``n_needed``; ``inconclusive``: neither, with enough units.
+    and fewer units than ``n_needed``; ``inconclusive``: neither, with enough units, or the
+    difference is not finite (a return that is not: no number of episodes would tell).
     """
+    if not math.isfinite(metric.difference):
+        return "inconclusive"
     p = metric.p_value if metric.p_adjusted is None else metric.p_adjusted
     gain = metric.difference if metric.better == "higher" else -metric.difference
     if p < alpha and gain != 0:

@@ -3,7 +3,8 @@
 - rates: :func:`newcombe_unpaired` (Newcombe 1998a, method 10) with Fisher's exact test;
   :func:`newcombe_paired` (Newcombe 1998b, method 10) with :func:`mcnemar_exact`;
 - means: :func:`bootstrap_difference` (scipy's BCa bootstrap, paired or not) with a t-test
-  (:func:`mean_p_value`); :func:`iqm`;
+  (:func:`mean_p_value`; without spread, the exact permutation test, :func:`no_spread_p_value`);
+  :func:`iqm`;
 - :func:`holm` (Holm 1979); :func:`planning` (minimum detectable effect, n needed).
 
 The tests and intervals are scipy's (``scipy.stats``); Newcombe's intervals are sums of squares of
@@ -32,6 +33,7 @@ __all__ = [
     "mean_p_value",
     "newcombe_paired",
     "newcombe_unpaired",
+    "no_spread_p_value",
     "planning",
 ]
 
@@ -172,19 +174,49 @@ def _bootstrap(data: tuple[Array, ...], statistic: Any, method: str) -> tuple[fl
 def mean_p_value(base: Array, cand: Array, *, paired: bool) -> float:
     """The two-sided p-value of a difference of means: paired t-test or Welch's t-test.
 
-    1.0 when it is undefined (fewer than two values a side, or no spread at all).
+    1.0 with fewer than two values a side. Without spread (every pair's difference the same,
+    or each side constant) the t statistic is undefined, and a tiny sample without spread is
+    no evidence: p is then the exact permutation test's (:func:`no_spread_p_value`).
+
+    >>> mean_p_value(np.array([1.0, 1.0]), np.array([0.0, 0.0]), paired=False)
+    0.3333333333333333
     """
     if min(len(base), len(cand)) < 2:
         return 1.0
-    if paired:
-        if np.ptp(cand - base) == 0:
-            return 1.0 if float(np.mean(cand - base)) == 0 else 0.0
-        p = _stats().ttest_rel(cand, base).pvalue
-    else:
-        if np.ptp(base) == 0 and np.ptp(cand) == 0:
-            return 1.0 if float(np.mean(cand)) == float(np.mean(base)) else 0.0
-        p = _stats().ttest_ind(cand, base, equal_var=False).pvalue
+    flat = np.ptp(cand - base) == 0 if paired else np.ptp(base) == np.ptp(cand) == 0
+    if flat:
+        return no_spread_p_value(base, cand, paired=paired)
+    with warnings.catch_warnings():  # (scipy's precision-loss warning: data nearly constant)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        if paired:
+            p = _stats().ttest_rel(cand, base).pvalue
+        else:
+            p = _stats().ttest_ind(cand, base, equal_var=False).pvalue
     return 1.0 if math.isnan(float(p)) else float(p)
+
+
+def no_spread_p_value(base: Array, cand: Array, *, paired: bool) -> float:
+    """The exact permutation p-value (Pitman 1937) of a difference of means without spread.
+
+    Paired, every difference ``d`` the same: of the ``2**n`` sign flips of the differences, the
+    two with all signs alike are as extreme, so ``p = min(1, 2 / 2**n)`` (the sign test); 1.0
+    when ``d`` is 0. Unpaired, each side constant: of the ``comb(n1 + n2, n1)`` ways to split
+    the values, the one seen (every baseline value apart from every candidate value) is as
+    extreme as any, and so is its mirror image when ``n1 == n2``; 1.0 when the sides are equal.
+
+    >>> no_spread_p_value(np.ones(2), np.zeros(2), paired=True)  # 2 pairs: 1 in 2
+    0.5
+    >>> no_spread_p_value(np.ones(6), np.zeros(6), paired=True)
+    0.03125
+    >>> round(no_spread_p_value(np.ones(4), np.zeros(4), paired=False), 4)  # 2 in 70
+    0.0286
+    """
+    if float(np.mean(cand)) == float(np.mean(base)):
+        return 1.0
+    if paired:
+        return min(1.0, 2.0 / 2.0 ** len(base))
+    n1, n2 = len(base), len(cand)
+    return min(1.0, (2 if n1 == n2 else 1) / math.comb(n1 + n2, n1))
 
 
 def iqm(values: Array) -> float | None:

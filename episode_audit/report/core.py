@@ -42,10 +42,10 @@ class Report:
 
     @property
     def notes(self) -> list[str]:
-        """What the report's options matched nothing of, a line each.
+        """What the report's options matched nothing of, and what it could not use, a line each.
 
         A per-label failure gate on a label no failure has; ``by="tag:NAME"`` with a tag no
-        file has.
+        file has; a group with returns that are not finite.
         """
         seen = sorted({label for group in self.groups for label in group.failures})
         labels = ", ".join(map(repr, seen)) if seen else "none"
@@ -58,6 +58,14 @@ class Report:
                 f"by tag:{self.missing_tag}: no file has the tag {self.missing_tag!r}, so every "
                 f"episode is in the group {NONE_KEY!r}: is the tag spelt as recorded?"
             )
+        for group in self.groups:
+            if group.nonfinite_returns:
+                notes.append(
+                    f"group {group.key}: {group.nonfinite_returns} of {group.ended} ended "
+                    "episodes have a return that is not finite (NaN or infinite): the return's "
+                    "mean and spread are not finite, and the incentive warnings leave those "
+                    "episodes out (`episode-audit check` finds them)"
+                )
         return notes
 
     @property

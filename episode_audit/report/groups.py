@@ -57,6 +57,9 @@ class GroupReport:
     warnings: list[IncentiveWarning]
     failure_ci: Interval | None = None
     truncation_ci: Interval | None = None
+    nonfinite_returns: int = 0
+    """The ended episodes whose return is not finite (NaN or infinite): the return statistics
+    are then not finite, and the incentive warnings leave them out."""
     success_signal: bool = True
     """Whether the task reports success: some file of the group says its task did (a success
     key in an episode's final info, or a ``success_fn``), or does not say (torn, or older)."""
@@ -98,6 +101,7 @@ class GroupReport:
             "term_means": {k: dict(v) for k, v in self.term_means.items()},
             "warnings": [{"code": w.code, "message": w.message} for w in self.warnings],
             "success_signal": self.success_signal,
+            "nonfinite_returns": self.nonfinite_returns,
         }
         result: dict[str, Any] = to_jsonable(data)
         return result
@@ -206,6 +210,7 @@ def _group(key: str, rows: pa.Table, terms: pa.Table) -> GroupReport:
         failure_ci=wilson_interval(failure, ended) if ended else None,
         truncation_ci=wilson_interval(truncated, ended) if ended else None,
         success_signal=bool(pc.any(rows.column("success_signal")).as_py()),
+        nonfinite_returns=int((~np.isfinite(returns[ended_mask])).sum()),
     )
     group.warnings = incentive_warnings(
         group, outcome_arr, np.array(failure_labels, dtype=object), returns, terms

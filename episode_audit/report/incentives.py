@@ -95,7 +95,11 @@ def incentive_warnings(
 
     ``outcome``, ``labels`` (failure labels) and ``returns`` hold one value per episode of the
     group; ``terms`` one row per (ended episode, reward term) with its ``outcome`` and ``total``.
+    An episode whose return is not finite (NaN, infinite) is left out of the returns' means:
+    one would make every mean NaN and every comparison false (the report's notes count them).
     """
+    finite = np.isfinite(returns)
+    outcome, labels, returns = outcome[finite], labels[finite], returns[finite]
     failed = outcome == fmt.OUTCOME_FAILURE
     success = returns[outcome == fmt.OUTCOME_SUCCESS]
     truncated = returns[outcome == fmt.OUTCOME_TRUNCATED]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -85,7 +86,11 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             while not any(env.step(0)[2:4]):
                 pass
     files = {"cartpole": cartpole(tmp / "cp.mcap"), "game": game, "junk": junk, "left": left}
-    return {**files, "random20": cartpole(tmp / "random20.mcap", episodes=20)}
+    files["random20"] = cartpole(tmp / "random20.mcap", episodes=20)
+    # the same runs again, as a candidate (compare refuses a file on both sides)
+    files["cartpole_again"] = Path(shutil.copy(files["cartpole"], tmp / "cp_again.mcap"))
+    files["random20_again"] = Path(shutil.copy(files["random20"], tmp / "random20_again.mcap"))
+    return files
 
 
 HEAVY = ("--env-factory", "tests.support.factories:heavy_cartpole")
@@ -112,10 +117,11 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("report", "{game}", "--games", "--by", "all", "--max-failure-rate", "0.5"), 1),
     (("report", "{game}", "--by", "agent"), 0),
     (("replay", "{game}"), 0),
-    (("compare", "{cartpole}", "--candidate", "{cartpole}"), 0),
+    (("compare", "{cartpole}", "--candidate", "{cartpole_again}"), 0),
     (("compare", "{random20}", "--candidate", "{left}"), 1),
-    (("compare", "{random20}", "--candidate", "{random20}", "--max-return-drop", "1"), 0),
-    (("compare", "{cartpole}", "--candidate", "{cartpole}", "--candidate", "{junk}"), 2),
+    (("compare", "{random20}", "--candidate", "{random20_again}", "--max-return-drop", "1"), 0),
+    (("compare", "{cartpole}", "--candidate", "{cartpole_again}", "--candidate", "{junk}"), 2),
+    (("compare", "{cartpole}", "--candidate", "{cartpole}"), 2),
     (("check", "fixtures/clean.mcap", "no-such.mcap"), 2),  # (no input found: an error document)
     (("replay", "no-such-folder"), 2),
     (("report", "fixtures/clean.mcap", "no-such.mcap"), 2),

@@ -62,6 +62,26 @@ def test_regressed_exits_1_with_the_verdict_in_every_format(runs: dict[str, str]
     assert code == 1 and "regressed" in out
 
 
+def test_new_incentive_warnings_fail_only_their_gate(runs: dict[str, str]) -> None:
+    args = ["compare", runs["base"], "--candidate", runs["hack"], "-f", "json"]
+    data = json.loads(run(*args)[1])
+    assert data["groups"][0]["new_warnings"] and data["groups"][0]["gates"] == []
+    assert all(c["passed"] for c in data["cases"] if c["status"] == "new")
+    code, out, _ = run(*args, "--fail-on-new-incentive-warning")
+    (gate,) = json.loads(out)["groups"][0]["gates"]
+    assert code == 1 and gate["gate"] == "new_incentive_warnings" and not gate["passed"]
+
+
+def test_a_gate_on_a_label_no_failure_has_is_warned_as_report_does(
+    runs: dict[str, str],
+) -> None:
+    args = ["compare", runs["base"], "--candidate", runs["same"]]
+    code, _, err = run(*args, "--max-failure-increase", "drawer_yankd=0.5")
+    assert code in (0, 1)
+    assert "warning: gate max_failure_increase:drawer_yankd: no failure in these files is " in err
+    assert "is the label spelt as recorded?" in err
+
+
 def test_same_policy_other_seeds_exits_0(runs: dict[str, str]) -> None:
     base_dir = str(Path(runs["base"]).parent)  # a directory is searched for *.mcap
     code, out, err = run("compare", base_dir, "--candidate", runs["same"], "-f", "json")
@@ -94,6 +114,34 @@ def test_a_missed_gate_exits_1(runs: dict[str, str]) -> None:
 def test_usage_errors_exit_2(runs: dict[str, str], extra: list[str], message: str) -> None:
     code, _, err = run("compare", runs["base"], "--candidate", runs["same"], *extra)
     assert code == 2 and message in err, err
+
+
+def test_a_baseline_path_after_candidate_or_a_file_on_both_sides_exit_2(
+    runs: dict[str, str],
+) -> None:
+    # `--candidate runs/c-*.mcap`: the shell's glob puts every match but the first after it
+    code, out, err = run("compare", runs["base"], "--candidate", runs["same"], runs["hack"])
+    assert code == 2 and out == ""
+    assert err.startswith(
+        f"episode-audit: error: {runs['hack']} comes after --candidate, where it would be a "
+        "BASELINE path: --candidate takes one path each time"
+    ), err
+    code, _, err = run("compare", "--candidate", runs["same"], "-f", "json", runs["base"])
+    assert code == 2 and f"{runs['base']} comes after --candidate" in err
+    base_dir = str(Path(runs["base"]).parent)
+    code, _, err = run("compare", base_dir, runs["same"], "--candidate", runs["same"])
+    assert code == 2
+    assert f"error: {runs['same']} is on both sides: a file compared with itself" in err
+
+
+def test_the_table_counts_each_sides_files(runs: dict[str, str]) -> None:
+    _, out, _ = run(
+        "compare", runs["base"], runs["hack"], "--candidate", runs["same"], "--by", "env"
+    )
+    assert "Candidate (1 file) against baseline (2 files), by env" in out
+    _, out, _ = run("compare", runs["base"], "--candidate", runs["same"], "-f", "json")
+    data = json.loads(out)
+    assert (data["baseline_files"], data["candidate_files"]) == (1, 1)
 
 
 def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_path: Path) -> None:
@@ -135,11 +183,14 @@ def test_a_comparison_that_cannot_be_made_still_prints_its_json_and_junit(
     assert cases == [(str(bad), "read"), ("episode-audit compare", "compare")]
 
 
-def test_an_unfinished_file_is_compared_and_named() -> None:
-    torn = str(Path(__file__).resolve().parents[2] / "fixtures" / "torn.mcap")
-    code, out, err = run("compare", torn, "--candidate", torn, "-f", "json")
+def test_an_unfinished_file_is_compared_and_named(tmp_path: Path) -> None:
+    import shutil
+
+    torn = Path(__file__).resolve().parents[2] / "fixtures" / "torn.mcap"
+    base, cand = (str(shutil.copy(torn, tmp_path / name)) for name in ("b.mcap", "c.mcap"))
+    code, out, err = run("compare", base, "--candidate", cand, "-f", "json")
     assert code == 0, err
     assert "unfinished" in err
     data = json.loads(out)
-    assert [u["file"] for u in data["unfinished"]] == [torn, torn]
+    assert [u["file"] for u in data["unfinished"]] == [base, cand]
     assert data["groups"][0]["pairs"] > 0

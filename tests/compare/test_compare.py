@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from episode_audit import CompareGates, ConfigurationError, compare
@@ -53,7 +55,13 @@ def test_hacker_regresses_on_success_paired_with_a_new_incentive_signature(
     assert result.verdict == "regressed" and not result.passed
     cases = {c.name: c for c in result.cases()}
     assert not cases["all/success_rate"].passed
-    assert any(name.startswith("all/incentive:") and not c.passed for name, c in cases.items())
+    new = [c for name, c in cases.items() if name.startswith("all/incentive:")]
+    assert new and all(c.passed and c.status == "new" for c in new)  # reported, untested
+    gated = compare([runs["scripted"]], [runs["hacker"]], gates=CompareGates(
+        fail_on_new_incentive_warning=True))  # fmt: skip
+    (gate,) = gated.groups[0].gates
+    assert gate.gate == "new_incentive_warnings" and not gate.passed
+    assert gate.message.startswith(f"{len(group.new_warnings)} incentive warning(s) new")
 
 
 def test_scripted_against_itself_on_other_seeds_never_regresses(runs: dict[str, Path]) -> None:
@@ -87,6 +95,12 @@ def test_gates_are_non_inferiority_on_the_interval(runs: dict[str, Path]) -> Non
     assert not gates["max_success_drop"].passed and not missed.passed
     assert "beyond 0.01" in gates["max_success_drop"].message
     assert "failure_rate:collision" in {m.name for m in missed.groups[0].metrics}
+    assert missed.unmatched_labels == ["collision"]  # (a misspelt label passes: said, as report)
+    assert missed.notes[0].startswith(
+        "gate max_failure_increase:collision: no failure in these files is labelled "
+        "'collision': is the label spelt as recorded? (labels seen: "
+    )
+    assert missed.to_dict()["unmatched_labels"] == ["collision"]
 
 
 def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
@@ -103,6 +117,11 @@ def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
     result = compare([runs["five"]], [plain])
     assert [m.field for m in result.mismatches] == ["env_kwargs"]
     assert result.cases()[0].name == "spec/env_kwargs"
+
+
+def test_a_file_on_both_sides_is_refused(runs: dict[str, Path]) -> None:
+    with pytest.raises(ConfigurationError, match=r"five.mcap is on both sides: a file compared"):
+        compare([runs["five_other"], runs["five"]], [runs["five"].parent / "." / "five.mcap"])
 
 
 def test_by_file_is_refused(runs: dict[str, Path]) -> None:
@@ -173,7 +192,8 @@ def test_holm_adjusts_the_primary_metrics_of_all_groups_as_one_family() -> None:
     cand = Side.of(["success"] * 44 + ["truncated"] * 16, seed=seeds)
     groups = [compare_group(k, base, cand, CompareGates(), []) for k in ("a", "b")]
     _decide(groups)
-    family = [m for g in groups for m in g.metrics if m.better != "none"]
+    family = [m for g in groups for m in g.metrics if m.can_reject and not m.same_test_as]
+    assert [m.name for m in family] == ["success_rate", "success_rate"]  # (truncation: same)
     assert [m.p_adjusted for m in family] == holm([m.p_value for m in family])
     truncation = next(m for m in groups[0].metrics if m.name == "truncation_rate")
     assert truncation.name == "truncation_rate" and truncation.p_value < 0.05
@@ -208,3 +228,84 @@ def test_autoreset_episodes_pair_on_the_rng_state_they_began_from(tmp_path: Path
     other = _vector_run(tmp_path / "other.mcap", 8)  # other seeds: other states, no pairs
     unpaired = compare([base], [other], by="env_index")
     assert all(not m.paired for g in unpaired.groups for m in g.metrics)
+
+
+def test_two_constant_episodes_a_side_are_not_a_regression() -> None:
+    from episode_audit.compare.core import _decide
+
+    group = compare_group(
+        "g", Side.of(["success"] * 2, [1.0, 1.0]), Side.of(["success"] * 2, [0.0, 0.0]),
+        CompareGates(), [],
+    )  # fmt: skip
+    _decide([group])
+    returns = {m.name: m for m in group.metrics}["return"]
+    assert returns.p_value == pytest.approx(1 / 3)
+    assert returns.verdict == "inconclusive" and group.verdict != "regressed"
+
+
+def test_null_with_two_episodes_a_side_of_discrete_returns_is_never_decided() -> None:
+    """Returns of 0 or 1, both sides alike: sides without spread are common, and no evidence."""
+    from episode_audit.compare.core import _decide
+
+    rng = np.random.default_rng(1)
+    verdicts = []
+    for _ in range(300):
+        sides = [Side.of(["success"] * 2, list(rng.integers(0, 2, 2) * 1.0)) for _ in "bc"]
+        group = compare_group("g", *sides, CompareGates(), [])
+        _decide([group])
+        verdicts.append({m.name: m for m in group.metrics}["return"].verdict)
+    assert verdicts.count("regressed") == verdicts.count("improved") == 0
+
+
+def test_holm_counts_each_hypothesis_once() -> None:
+    """One failure label and no truncation: success, failure and the label's rate are one
+    test; a 0-against-0 truncation rate and constant returns cannot reject, so none counts."""
+    from episode_audit.compare.core import _decide
+
+    def side(successes: int) -> Side:
+        outcome = ["success"] * successes + ["failure"] * (40 - successes)
+        labels = [None] * successes + ["slipped"] * (40 - successes)
+        return Side.of(outcome, failure_label=labels)
+
+    group = compare_group("g", side(32), side(22), CompareGates(), [])
+    _decide([group])
+    m = {x.name: x for x in group.metrics}
+    success = m["success_rate"]
+    assert success.p_value == pytest.approx(0.0307, abs=1e-4)
+    assert success.p_adjusted == success.p_value  # a family of one, not of five
+    assert success.verdict == "regressed"
+    assert [x.name for x in group.metrics if x.can_reject and x.same_test_as is None] == [
+        "success_rate"
+    ]
+    assert m["failure_rate"].same_test_as == m["failure_rate:slipped"].same_test_as
+    assert m["failure_rate"].same_test_as == "success_rate"
+    assert not m["truncation_rate"].can_reject and not m["return"].can_reject
+    assert m["failure_rate:slipped"].p_adjusted == success.p_adjusted
+    assert m["truncation_rate"].p_adjusted == 1.0
+    assert group.metric("failure_rate").to_dict()["same_test_as"] == "success_rate"
+
+
+def test_a_return_that_is_not_finite_is_said_and_not_tested() -> None:
+    from episode_audit.compare.core import Comparison, _decide
+
+    rng = np.random.default_rng(3)
+    returns = list(rng.normal(5.0, 1.0, 30))
+    group = compare_group(
+        "g", Side.of(["success"] * 30, [*returns[:29], math.nan]),
+        Side.of(["success"] * 30, returns), CompareGates(), [],
+    )  # fmt: skip
+    _decide([group])
+    assert group.metric("return").verdict == "inconclusive"  # (more episodes would not help)
+    (note,) = Comparison("all", [], [group]).notes
+    assert note.startswith(
+        "group g: 1 of 30 baseline and 0 of 30 candidate episodes have a return that is not "
+        "finite (NaN or infinite): the mean return is undefined, so it is not tested"
+    )
+    assert group.to_dict()["notes"] == group.notes
+
+
+def test_a_gate_message_shows_the_digits_where_value_and_limit_differ() -> None:
+    side = Side.of(["success"] * 10)  # 0 of 10 failures a side: the interval's end is 0.27753
+    gates = CompareGates(max_failure_increase=0.2775)
+    (gate,) = check_gates(compare_group("g", side, side, gates, []), gates)
+    assert "allows an increase of up to 0.27753, beyond 0.2775 (group g)" in gate.message

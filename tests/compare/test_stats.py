@@ -113,3 +113,32 @@ def test_mean_p_value_is_scipys_t_tests() -> None:
 def test_iqm() -> None:
     assert stats.iqm(np.arange(8.0)) == pytest.approx(3.5)
     assert stats.iqm(np.array([])) is None
+
+
+@pytest.mark.parametrize(
+    ("base", "cand", "paired", "p"),
+    [
+        ([1.0, 1.0], [0.0, 0.0], False, 1 / 3),  # 2 of the 6 splits of {1, 1, 0, 0}
+        ([1.0, 1.0], [0.0, 0.0], True, 0.5),  # 2 of the 4 sign flips
+        ([5.0] * 4, [4.0] * 4, False, 2 / 70),
+        ([5.0] * 3, [4.0] * 2, False, 1 / 10),  # sizes differ: no mirror image
+        ([5.0] * 6, [4.0] * 6, True, 2 / 64),
+        ([1.0, 2.0, 3.0], [2.0, 3.0, 4.0], True, 0.25),  # every difference +1
+        ([3.0, 3.0], [3.0, 3.0], False, 1.0),
+    ],
+)
+def test_a_difference_without_spread_gets_the_exact_permutation_p_not_0(
+    base: list[float], cand: list[float], paired: bool, p: float
+) -> None:
+    got = stats.mean_p_value(np.array(base), np.array(cand), paired=paired)
+    assert got == pytest.approx(p)
+
+
+def test_mean_p_value_keeps_scipys_precision_warnings_to_itself() -> None:
+    import warnings
+
+    base, cand = np.array([1.0, 1.0, 1.0]), np.array([1.0, 1.0, 1.0 + 1e-12])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        stats.mean_p_value(base, cand, paired=False)
+        stats.mean_p_value(base, cand, paired=True)

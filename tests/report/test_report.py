@@ -307,6 +307,22 @@ def test_failure_that_outearns_success_is_warned(tmp_path: Path) -> None:
     assert gated.gates[0].message == "1 incentive warning(s): failure_outearns_success (group all)"
 
 
+def test_a_return_that_is_not_finite_is_left_out_of_the_warnings_and_noted(
+    tmp_path: Path,
+) -> None:
+    plans = [Plan("success", reward=1.0)] * 2 + [Plan("failure:collision", reward=4.0)] * 3
+    path = _record_plans(tmp_path / "nan.mcap", [*plans, Plan("success", reward=math.nan)])
+    result = report([path], by="all")
+    group = _one(result)
+    assert [w.code for w in group.warnings] == ["failure_outearns_success"]
+    assert group.warnings[0].message.endswith("more than successes (3 over 2 episodes)")
+    assert group.nonfinite_returns == 1 and group.to_dict()["nonfinite_returns"] == 1
+    (note,) = result.notes
+    assert note.startswith(
+        "group all: 1 of 6 ended episodes have a return that is not finite (NaN or infinite)"
+    )
+
+
 def test_truncation_that_outearns_success_is_warned(tmp_path: Path) -> None:
     plans = [Plan("success", length=2), Plan("truncated:time_limit", length=10)]
     group = _one(report([_record_plans(tmp_path / "stall.mcap", plans)]))
