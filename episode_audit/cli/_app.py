@@ -122,6 +122,24 @@ def collect(paths: Sequence[str | Path]) -> list[Source]:
         fail(str(exc))
 
 
+def listed_count(paths: Sequence[str]) -> int | None:
+    """How many files ``paths`` name (``None`` if they cannot be listed: the command says so)."""
+    try:
+        return len(evidence_files(paths))
+    except EpisodeAuditError:
+        return None
+
+
+def listed_jobs(jobs: int | None, paths: Sequence[str]) -> int | None:
+    """``--jobs`` for ``paths`` (``None`` if they cannot be listed: the command says so)."""
+    if jobs is not None:
+        return jobs
+    try:
+        return jobs_for(jobs, evidence_files(paths))
+    except EpisodeAuditError:
+        return None
+
+
 @contextmanager
 def failure_document(command: str, output: str) -> Iterator[None]:
     """In JSON and JUnit formats, a failure (exit 2) before any output also prints a document.

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated, Any
 
 import typer
 from typer.core import TyperCommand
 
 from ..errors import EpisodeAuditError
-from ..read.inputs import Unreadable, evidence_files
+from ..read.inputs import Unreadable
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
@@ -22,7 +23,9 @@ from ._app import (
     emit,
     fail,
     interruptible,
-    jobs_for,
+    listed_count,
+    listed_jobs,
+    progress_bar,
     warn,
 )
 from ._summary import NoStepSummaryOption, append_step_summary
@@ -153,7 +156,8 @@ def compare(
 ) -> None:
     """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates."""
     from ..compare import compare_inputs
-    from .render.compare import compare_error_output, compare_output
+    from .render.compare import compare_output
+    from .render.failure import error_output
 
     fmt = _format(output, junit=True)
     unread: list[Unreadable] = []
@@ -162,8 +166,9 @@ def compare(
         _error_line(exc)
         unread.append(Unreadable.of(getattr(exc, "path", ""), exc))
 
+    paths = [*baseline, *candidate]
     try:
-        with interruptible():
+        with interruptible(), progress_bar("reading", partial(listed_count, paths)) as advance:
             result = compare_inputs(
                 baseline,
                 candidate,
@@ -175,12 +180,13 @@ def compare(
                 fail_on_new_incentive_warning=fail_on_new_incentive_warning,
                 different_tasks=different_tasks,
                 on_error=told,
-                jobs=_jobs(jobs, [*baseline, *candidate]),
+                jobs=listed_jobs(jobs, paths),
                 ray_address=ray,
+                progress=advance,
             )
     except EpisodeAuditError as exc:
         if fmt in ("json", "junit"):  # (a document all the same: CI saves it)
-            emit(compare_error_output(str(exc), fmt, unread))
+            emit(error_output("compare", str(exc), fmt, unread))
         fail(str(exc))
     comparison = result.comparison
     for mismatch in comparison.mismatches:
@@ -196,13 +202,3 @@ def compare(
         raise typer.Exit(EXIT_USAGE)
     if not comparison.passed:
         raise typer.Exit(EXIT_FINDINGS)
-
-
-def _jobs(jobs: int | None, paths: list[str]) -> int | None:
-    """``--jobs`` for ``paths`` (a path that cannot be listed: the comparison says so itself)."""
-    if jobs is not None:
-        return jobs
-    try:
-        return jobs_for(jobs, evidence_files(paths))
-    except EpisodeAuditError:
-        return None

@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from ..errors import EpisodeAuditError
-from ..read.inputs import evidence_files
 from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
@@ -24,7 +23,8 @@ from ._app import (
     fail,
     failure_document,
     interruptible,
-    jobs_for,
+    listed_count,
+    listed_jobs,
     note,
     progress_bar,
     warn,
@@ -125,7 +125,7 @@ def report(
             except EpisodeAuditError as exc:
                 fail(str(exc))
         try:
-            with interruptible(), progress_bar("reading", partial(_count, paths)) as advance:
+            with interruptible(), progress_bar("reading", partial(listed_count, paths)) as advance:
                 result = report_inputs(
                     paths,
                     by=by,
@@ -136,7 +136,7 @@ def report(
                     max_error_rate=max_error_rate,
                     fail_on_incentive_warning=fail_on_incentive_warning,
                     on_error=_error_line,
-                    jobs=_jobs(jobs, paths),
+                    jobs=listed_jobs(jobs, paths),
                     ray_address=ray,
                     progress=advance,
                 )
@@ -169,21 +169,3 @@ def _write_html(result: InputsReport, path: Path, games: bool) -> None:
     except OSError as exc:  # no such directory, permission denied
         fail(f"--html: cannot write {path}: {exc.strerror or exc}")
     note(f"HTML report written to {written}")
-
-
-def _count(paths: list[str]) -> int | None:
-    """How many files ``paths`` name (``None`` if they cannot be listed: the report says so)."""
-    try:
-        return len(evidence_files(paths))
-    except EpisodeAuditError:
-        return None
-
-
-def _jobs(jobs: int | None, paths: list[str]) -> int | None:
-    """``--jobs`` for ``paths`` (a path that cannot be listed: the report says so itself)."""
-    if jobs is not None:
-        return jobs
-    try:
-        return jobs_for(jobs, evidence_files(paths))
-    except EpisodeAuditError:
-        return None

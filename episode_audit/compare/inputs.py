@@ -49,6 +49,7 @@ def compare_inputs(
     on_error: Callable[[EpisodeAuditError], None] | None = None,
     jobs: int | None = 1,
     ray_address: str | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> InputsComparison:
     """Compare the evidence files ``candidate`` names with those ``baseline`` names.
 
@@ -56,7 +57,8 @@ def compare_inputs(
     naming the option; a file that cannot be read is handed to ``on_error`` and listed in
     :attr:`InputsComparison.unreadable`. ``jobs`` worker processes (``None``: one per usable
     core) or Ray tasks on ``ray_address`` read the files (see :mod:`episode_audit._jobs`);
-    the comparison is the same as with ``jobs=1``.
+    the comparison is the same as with ``jobs=1``. ``progress`` is called with 1 as each file
+    is read (as a run of files is, from workers).
     """
     gates = gates_from_options(
         max_success_drop=max_success_drop,
@@ -72,7 +74,13 @@ def compare_inputs(
     files = [evidence_files(list(paths)) for paths in (baseline, candidate)]
     check_apart(*files)
     one = partial(_side_file, by=by)
-    read = iter(list(map_ordered(one, [*files[0], *files[1]], jobs=jobs, ray_address=ray_address)))
+    read = iter(
+        list(
+            map_ordered(
+                one, [*files[0], *files[1]], jobs=jobs, ray_address=ray_address, progress=progress
+            )
+        )
+    )
     parts: list[list[SideFile]] = []
     unreadable: list[Unreadable] = []
     for side, side_files in zip(("baseline", "candidate"), files, strict=True):
@@ -100,12 +108,17 @@ def compare_inputs(
     return InputsComparison(comparison, unreadable)
 
 
-def _side_file(path: Source, progress: object, *, by: str) -> SideFile | EpisodeAuditError:
+def _side_file(
+    path: Source, progress: Callable[[int], None] | None, *, by: str
+) -> SideFile | EpisodeAuditError:
     """One input's part of the comparison, or why it cannot be read (in a worker, maybe)."""
     try:
         return side_file(str(path), open_evidence(path), by)
     except EpisodeAuditError as exc:
         return exc
+    finally:
+        if progress is not None:
+            progress(1)
 
 
 def gates_from_options(

@@ -309,3 +309,17 @@ def test_a_gate_message_shows_the_digits_where_value_and_limit_differ() -> None:
     gates = CompareGates(max_failure_increase=0.2775)
     (gate,) = check_gates(compare_group("g", side, side, gates, []), gates)
     assert "allows an increase of up to 0.27753, beyond 0.2775 (group g)" in gate.message
+
+
+def test_compare_inputs_counts_each_file_read_in_its_progress(tmp_path: Path) -> None:
+    from episode_audit.compare import compare_inputs
+
+    repo = Path(__file__).resolve().parents[2]
+    done: list[int] = []
+    compare_inputs(
+        [repo / "fixtures" / "clean.mcap"],
+        [repo / "fixtures" / "unlabeled_failure.mcap"],
+        different_tasks=True,
+        progress=done.append,
+    )
+    assert sum(done) == 2

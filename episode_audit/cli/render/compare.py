@@ -22,7 +22,7 @@ from .common import (
 )
 from .junit import JUnitCase, JUnitStatus, junit_xml
 
-__all__ = ["COMPARE_HEADERS", "compare_cases", "compare_error_output", "compare_output"]
+__all__ = ["COMPARE_HEADERS", "compare_cases", "compare_output"]
 
 COMPARE_HEADERS = [
     "group",
@@ -78,23 +78,6 @@ def _row(key: str, m: MetricComparison) -> list[str]:
         _value(m, m.mde),
         ("∞" if m.n_needed >= NEVER else str(m.n_needed)) if m.verdict is not None else "-",
     ]
-
-
-def compare_error_output(
-    message: str, output: OutputFormat, unreadable: Sequence[Unreadable] = ()
-) -> Output:
-    """The JSON or JUnit document of a comparison that could not be made (exit 2).
-
-    A CI job that saves the document gets one either way: JSON ``{"error", "unreadable"}``
-    (``docs/schemas/compare.json``), JUnit an error case ``compare`` beside one per input that
-    could not be read.
-    """
-    if output == "json":
-        data = {"error": message, "unreadable": unreadable_json(unreadable)}
-        return to_json(versioned("compare", data))
-    cases = [JUnitCase(u.file, "read", "error", u.why) for u in unreadable]
-    cases.append(JUnitCase("episode-audit compare", "compare", "error", message))
-    return junit_xml(cases, name="episode-audit compare")
 
 
 def compare_output(
