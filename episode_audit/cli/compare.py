@@ -15,7 +15,6 @@ from ._app import (
     EXIT_USAGE,
     CIFormatOption,
     JobsOption,
-    PathsArgument,
     RayOption,
     _error_line,
     _format,
@@ -29,6 +28,15 @@ from ._app import (
     warn,
 )
 from ._summary import NoStepSummaryOption, append_step_summary
+
+_BaselineArgument = Annotated[
+    list[str],
+    typer.Argument(
+        help="The baseline's evidence files, or directories searched for *.mcap; or URLs "
+        "(s3://, gs://, az://, https://). Given first; the candidate's follow --candidate.",
+        metavar="BASELINE",
+    ),
+]
 
 _CandidateOption = Annotated[
     list[str],
@@ -140,7 +148,7 @@ def _after_candidate(command: TyperCommand, args: list[str]) -> list[str]:
 
 @app.command(cls=_CompareCommand)
 def compare(
-    baseline: PathsArgument,
+    baseline: _BaselineArgument,
     candidate: _CandidateOption,
     by: _ByOption = "all",
     max_success_drop: _MaxSuccessDropOption = None,

@@ -27,3 +27,10 @@ def test_every_option_with_a_value_has_a_metavar() -> None:
         for param in command.params:
             if not getattr(param, "is_flag", False) and param.name != "help":
                 assert param.metavar, f"{name} {param.name}: no metavar"
+
+
+def test_compare_help_names_its_positional_paths_the_baseline() -> None:
+    result = CliRunner().invoke(app, ["compare", "--help"], env={"COLUMNS": "80"})
+    assert result.exit_code == 0
+    assert "compare [OPTIONS] {BASELINE}..." in result.output
+    assert "The baseline's evidence files" in result.output
