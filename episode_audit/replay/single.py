@@ -31,7 +31,7 @@ from .recorded import (
     to_end,
     unrepeated,
 )
-from .results import EpisodeReplay, none_replayable
+from .results import EpisodeReplay, none_replayable, not_told_from_history
 from .runner import EpisodeRunner
 
 __all__ = ["REPLAY_WINDOW_BYTES", "REPLAY_WINDOW_ROWS", "SubEnvs", "replay_single_evidence"]
@@ -165,18 +165,29 @@ class _Pass:
         return [results[r["episode"]] for r in listed]
 
     def in_history(self, listed: list[dict[str, Any]]) -> None:
-        """Each result, saying what its episode's env did that replay does not repeat.
+        """Each result, after what its (sub-)env did before it that replay does not repeat.
 
         An ``error`` episode's step or reset that raised is no row (a step's action is not
         recorded), and rows stepped after an episode's end are not the episode: replay does
-        neither. The episode says so (its ``reason``, unless it has one).
+        neither. An episode of the same env after them that differed is ``not_replayable``
+        (:func:`~.results.not_told_from_history`); the episode itself says what was not
+        repeated (its ``reason``, unless it has one).
         """
-        for record in listed:
-            index = int(record[fmt.COL_EPISODE])
+        vector = self.ev.run.layout.get("kind") == "vector"
+        latest: dict[int, str] = {}  # by sub-env: what replay last did not repeat
+        for record in sorted(listed, key=lambda r: int(r[fmt.COL_EPISODE])):
+            index, sub = int(record[fmt.COL_EPISODE]), int(record.get(fmt.COL_ENV_INDEX) or 0)
             result = self.results[index]
+            before = latest.get(sub)
+            if before is not None:
+                env = f"sub-env {sub}'s env" if vector else "this env"
+                result = not_told_from_history(result, before, env=env)
             own = unrepeated(record, self.after_end.get(index, 0))
-            if own is not None and result.reason is None and result.status != "not_replayable":
-                self.results[index] = replace(result, reason=f"not repeated by replay: {own}")
+            if own is not None:
+                latest[sub] = own
+                if result.reason is None and result.status != "not_replayable":
+                    result = replace(result, reason=f"not repeated by replay: {own}")
+            self.results[index] = result
 
     def window(self, table: pa.Table) -> None:
         """Replay the episodes whose rows ``table`` holds (not those replayed before)."""

@@ -6,17 +6,28 @@ keeps stepping the same env: three rows after the episode's end, then the next r
 
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
+import numpy as np
+from typer.testing import CliRunner
 
-from episode_audit import open_evidence
+from episode_audit import RecordEvidence, open_evidence
+from episode_audit.cli import app
 from episode_audit.replay import replay
-from tests.support.flaky import FLAKY, FLAKY_FRESH, record_flaky
+from tests.support.flaky import FLAKY, FLAKY_FRESH, Flaky, record_flaky
 
 RAISED = (
     "not repeated by replay: episode 1's 3rd step, which raised RuntimeError and whose "
     "action is not recorded, and 3 steps after its end"
+)
+AFTER_RAISED = (
+    r"differed at the reset \(reset_observation\) after calls to this env that replay does "
+    r"not repeat \(episode 1's 3rd step, which raised RuntimeError and whose action is not "
+    r"recorded, and 3 steps after its end\): the state it began from cannot be reproduced"
 )
 
 
@@ -67,3 +78,117 @@ def test_a_difference_before_the_raise_still_diverges(tmp_path: Path) -> None:
         "0.6369616873214543] (max abs diff 1)",
     )
     assert result.episodes[1].status == "diverged"
+
+
+def test_episodes_after_steps_replay_does_not_repeat_are_not_replayable_never_diverged(
+    tmp_path: Path,
+) -> None:
+    # The env counts every step it took, the one that raised and those after the end
+    # included: the episodes after episode 1 began from a count replay cannot reproduce.
+    path = record_flaky(tmp_path / "f.mcap", FLAKY)
+    result = replay([path])
+    assert [(e.episode, e.status) for e in result.episodes] == [
+        (0, "identical"),
+        (1, "identical"),
+        (2, "not_replayable"),
+        (3, "not_replayable"),
+    ]
+    assert result.episodes[1].reason == RAISED
+    for later in result.episodes[2:]:
+        assert later.reason is not None
+        assert later.divergence is not None and later.divergence.step is None
+        assert re.fullmatch(AFTER_RAISED, later.reason), later.reason
+    assert result.episodes[2].restored == "seed 2; this env after 2 earlier episodes"
+    assert result.ok and result.verified == 2
+
+
+def test_steps_after_an_ending_by_flags_are_not_repeated_either(tmp_path: Path) -> None:
+    # No error: the loop steps twice past episode 0's termination, then resets.
+    path = tmp_path / "past.mcap"
+    with RecordEvidence(gym.make(FLAKY), path) as env:
+        for seed in (0, 2):
+            env.reset(seed=seed)
+            done = False
+            while not done:
+                _, _, done, _, _ = env.step(0)
+            if seed == 0:
+                env.step(1)
+                env.step(1)
+    result = replay([path])
+    assert [(e.episode, e.status, e.steps) for e in result.episodes] == [
+        (0, "identical", 6),
+        (1, "not_replayable", 0),
+    ]
+    assert result.episodes[0].reason == "not repeated by replay: episode 0's 2 steps after its end"
+    assert re.search(
+        r"after calls to this env that replay does not repeat \(episode 0's 2 steps after its "
+        r"end\): the state it began from cannot be reproduced$",
+        str(result.episodes[1].reason),
+    )
+
+
+class ResetRefused(Flaky):
+    """Refuses its first reset with seed 1; counts its resets (that one too) in observations."""
+
+    def __init__(self) -> None:
+        super().__init__(persist=False)
+        self.resets = 0
+        self.refused = False
+
+    def _obs(self) -> Any:
+        return np.array([self.t, self.resets, self.draw], np.float64)
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        self.resets += 1
+        if seed == 1 and not self.refused:
+            self.refused = True
+            raise ValueError("reset refused")
+        return super().reset(seed=seed, options=options)
+
+
+gym.register("EpisodeAuditResetRefused-v0", entry_point=ResetRefused)
+
+
+def test_episodes_after_a_reset_that_raised_are_not_replayable_when_they_differ(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "refused.mcap"
+    with RecordEvidence(gym.make("EpisodeAuditResetRefused-v0"), path) as env:
+        for seed in (0, 1, 2):
+            try:
+                env.reset(seed=seed)
+            except ValueError:
+                continue  # the loop resets again, with the next seed
+            done = False
+            while not done:
+                _, _, done, _, _ = env.step(0)
+    result = replay([path])
+    assert [(e.episode, e.status) for e in result.episodes] == [
+        (0, "identical"),
+        (1, "not_replayable"),
+        (2, "not_replayable"),
+    ]
+    assert result.episodes[2].reason == (
+        "differed at the reset (reset_observation) after calls to this env that replay does "
+        "not repeat (episode 1's reset, which raised ValueError): the state it began from "
+        "cannot be reproduced"
+    )
+
+
+def test_the_command_says_not_replayable_and_why_and_exits_0(tmp_path: Path) -> None:
+    path = record_flaky(tmp_path / "f.mcap", FLAKY)
+    runner = CliRunner()
+    args = ["replay", str(path), "--import", "tests.support.flaky"]
+    out = runner.invoke(app, args, env={"COLUMNS": "80"})
+    assert out.exit_code == 0, out.output
+    assert "2 identical, 0 diverged, 2 not replayable: 2 episode(s) verified" in out.output
+    assert "cannot be reproduced" in " ".join(out.output.split())
+    assert max(len(line) for line in out.output.splitlines()) <= 80
+    data = json.loads(runner.invoke(app, [*args, "--format", "json"]).output)
+    assert [e["status"] for e in data["episodes"]] == [
+        "identical",
+        "identical",
+        "not_replayable",
+        "not_replayable",
+    ]
+    assert data["episodes"][1]["reason"] == RAISED
