@@ -13,11 +13,13 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from episode_audit import RecordEvidence, open_evidence
 from episode_audit.cli import app
 from episode_audit.replay import replay
+from episode_audit.replay import run as replay_run
 from tests.support.flaky import FLAKY, FLAKY_FRESH, Flaky, record_flaky
 
 RAISED = (
@@ -100,6 +102,24 @@ def test_episodes_after_steps_replay_does_not_repeat_are_not_replayable_never_di
         assert re.fullmatch(AFTER_RAISED, later.reason), later.reason
     assert result.episodes[2].restored == "seed 2; this env after 2 earlier episodes"
     assert result.ok and result.verified == 2
+
+
+def test_selections_and_batches_give_the_verdicts_of_the_whole_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Replayed alone or in batches (a fresh env each), an episode that differs is replayed
+    # again after the file's earlier episodes, whatever verdict it got: the same verdicts,
+    # differences and restored state as a replay of the whole file.
+    path = record_flaky(tmp_path / "f.mcap", FLAKY, episodes=6)
+    whole = {e.episode: e for e in replay([path]).episodes}
+    assert [whole[e].status for e in range(6)] == ["identical"] * 2 + ["not_replayable"] * 4
+    for chosen in ([2], [3], [3, 4], [1, 4, 5], [5]):
+        alone = replay([path], episodes=chosen).episodes
+        assert alone == [whole[e] for e in chosen], chosen
+    monkeypatch.setattr(replay_run, "MIN_BATCH_BYTES", path.stat().st_size // 3)
+    assert len(replay_run._batches([path], None, None, 2)[0]) == 3
+    batched = replay([path], jobs=2, imports=["tests.support.flaky"]).episodes
+    assert batched == [whole[e] for e in range(6)]
 
 
 def test_steps_after_an_ending_by_flags_are_not_repeated_either(tmp_path: Path) -> None:
