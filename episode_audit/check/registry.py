@@ -214,8 +214,10 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "noted as stepped after the episode had ended. One finding per episode, at the first "
         "such step, with the count.",
         "The loop kept stepping an ended episode without a reset: what the env does then is "
-        "undefined, and those steps belong to no episode (`replay` leaves them out).",
-        "Call `reset()` once `terminated` or `truncated` is true.",
+        "undefined, and those steps belong to no episode (`replay` leaves them out, so the "
+        "later episodes of an env that keeps state across steps cannot be verified: `replay` "
+        "calls those that differ not replayable).",
+        "Call `reset()` once `terminated` or `truncated` is true (also after the env raised).",
     ),
     FindingKind(
         TERMINATED_AND_TRUNCATED,
@@ -271,7 +273,10 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "The env raised an exception in `step` or `reset`; the recorder kept the episode with "
         "outcome `error` and re-raised it. One finding per episode, with the exception's type "
         "and message and the step.",
-        "The episode ended in a crash, not in a task outcome.",
+        "The episode ended in a crash, not in a task outcome. A step that raised is no row "
+        "(its action is not recorded): `replay` compares the steps before it and cannot repeat "
+        "it, so the later episodes of an env that keeps state cannot be verified (`replay` "
+        "calls those that differ not replayable).",
         "Fix the env (the message names the exception and the step).",
     ),
     FindingKind(

@@ -1,9 +1,9 @@
 """What a file recorded, as a replay reads it: episode records, row ranges, actions and rules.
 
 :func:`episode_records` (the records a replay reads), :func:`row_ranges` and :func:`to_end`
-(each episode's rows), :func:`replay_actions` (the actions to step with), :func:`rules_of` (the
-recorded ending rules and reward terms), :func:`layout_not_replayable` and
-:func:`state_not_restorable`.
+(each episode's rows), :func:`unrepeated` (what the recorded env did that a replay does not
+repeat), :func:`replay_actions` (the actions to step with), :func:`rules_of` (the recorded
+ending rules and reward terms), :func:`layout_not_replayable` and :func:`state_not_restorable`.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ __all__ = [
     "rules_of",
     "state_not_restorable",
     "to_end",
+    "unrepeated",
 ]
 
 _RECORD_COLUMNS = (
@@ -41,12 +42,16 @@ _RECORD_COLUMNS = (
     "failure_label",
     "truncation_reason",
     "error_during",
+    "error_type",
     "length",
 )
 """The columns of the episode table a replay reads."""
 _RECORD_KEYS = frozenset({fmt.COL_EPISODE, "outcome"})
 """Those it reads as ``record[key]``, listed even when every value is null."""
-_ENDINGS = frozenset({fmt.OUTCOME_SUCCESS, fmt.OUTCOME_FAILURE, fmt.OUTCOME_TRUNCATED})
+_ENDED = frozenset(
+    {fmt.OUTCOME_SUCCESS, fmt.OUTCOME_FAILURE, fmt.OUTCOME_TRUNCATED, fmt.OUTCOME_ERROR}
+)
+"""The outcomes of an episode that ended while the loop could still step its env."""
 
 
 def episode_records(ev: Evidence, wanted: set[int] | None) -> list[dict[str, Any]]:
@@ -88,23 +93,59 @@ def row_ranges(episode: np.ndarray[Any, Any]) -> dict[int, tuple[int, int]]:
 
 def to_end(
     rows: dict[int, tuple[int, int]], records: Mapping[int, Mapping[str, Any]]
-) -> dict[int, tuple[int, int]]:
-    """Each episode's rows up to its recorded end.
+) -> tuple[dict[int, tuple[int, int]], dict[int, int]]:
+    """Each episode's rows up to its recorded end, and how many it has after that end.
 
     Rows stepped after an episode ended (the recorder noted them ``step_after_end``; ``check``
-    reports them) are not the episode: replay compares the steps up to its ``length``.
+    reports them) are not the episode: replay compares the steps up to its ``length``. An
+    episode ends by its flags, or as ``error``: the env raised, and the loop may have caught
+    the error and stepped the same env on. The second dict has the episodes with such rows.
     """
     out = rows
+    after: dict[int, int] = {}
     for index, (first, count) in rows.items():
         record = records.get(index)
-        if record is None or record.get("outcome") not in _ENDINGS:
+        if record is None or record.get("outcome") not in _ENDED:
             continue
         length = record.get("length")
         if isinstance(length, int) and 0 <= length < count:
             if out is rows:
                 out = dict(rows)
             out[index] = (first, length)
-    return out
+            after[index] = count - length
+    return out, after
+
+
+def unrepeated(record: Mapping[str, Any], after_end: int) -> str | None:
+    """What the recorded env did in ``record``'s episode that replay does not repeat, or None.
+
+    The step or reset that raised, in an ``error`` episode (a call that raised is no row: a
+    step's action is not recorded), and the ``after_end`` rows stepped after its end.
+
+    >>> rec = {"episode": 1, "outcome": "error", "error_during": "step", "length": 2}
+    >>> print(unrepeated({**rec, "error_type": "KeyError"}, 3))
+    episode 1's 3rd step, which raised KeyError and whose action is not recorded, and 3 steps \
+after its end
+    >>> print(unrepeated({"episode": 4, "outcome": "success", "length": 9}, 1))
+    episode 4's 1 step after its end
+    """
+    parts = []
+    if record.get("outcome") == fmt.OUTCOME_ERROR:
+        error = record.get("error_type") or "an error"
+        if record.get("error_during") == "reset":
+            parts.append(f"reset, which raised {error}")
+        else:
+            nth = _ordinal(int(record.get("length") or 0) + 1)
+            parts.append(f"{nth} step, which raised {error} and whose action is not recorded")
+    if after_end:
+        parts.append(f"{after_end} step{'s' if after_end != 1 else ''} after its end")
+    return f"episode {record['episode']}'s " + ", and ".join(parts) if parts else None
+
+
+def _ordinal(n: int) -> str:
+    """``n`` as an ordinal: ``1st``, ``2nd``, ``3rd``, ``4th``, ``11th``, ``22nd``."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
 
 
 def replay_actions(column: pa.ChunkedArray, codec: Any) -> tuple[Any, np.ndarray[Any, Any] | None]:

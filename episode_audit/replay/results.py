@@ -26,6 +26,7 @@ __all__ = [
     "Status",
     "env_error",
     "none_replayable",
+    "not_told_from_history",
     "not_told_from_versions",
     "restored_state",
     "short",
@@ -224,20 +225,47 @@ be told from theirs; replay where they match to verify, or allow for them with -
     out = []
     for e in episodes:
         if e.status == "diverged":
-            d = e.divergence
-            where = (
-                "" if d is None else f" at {'the reset' if d.step is None else f'step {d.step}'}"
-            )
-            what = "" if d is None else f" ({d.field})"
             reason = (
-                f"differed{where}{what} with other versions of {changed} than recorded: a "
-                "difference cannot be told from theirs; replay where they match to verify, or "
+                f"differed{_where(e.divergence)} with other versions of {changed} than recorded: "
+                "a difference cannot be told from theirs; replay where they match to verify, or "
                 "allow for them with --atol"
             )
             note = "" if e.reason is None else f" ({e.reason})"  # (a diverged one's note)
             e = replace(e, status="not_replayable", reason=reason + note)
         out.append(e)
     return out
+
+
+def not_told_from_history(
+    result: EpisodeReplay, unrepeated: str, *, env: str = "this env"
+) -> EpisodeReplay:
+    """A diverged ``result`` ``not_replayable``: its env did before it what replay does not repeat.
+
+    ``unrepeated`` says what (:func:`~.recorded.unrepeated`: a step or reset that raised, whose
+    action is not recorded; steps after an episode's end). An env that keeps state across
+    steps or resets began the episode elsewhere than replay's did, so its difference is no
+    verdict. It keeps its first difference and what was restored.
+
+    >>> d = EpisodeReplay("f", 2, "diverged", 0, Divergence(None, "reset_observation", "1", "0"))
+    >>> print(not_told_from_history(d, "episode 1's 3 steps after its end").reason)
+    differed at the reset (reset_observation) after calls to this env that replay does not \
+repeat (episode 1's 3 steps after its end): the state it began from cannot be reproduced
+    """
+    if result.status != "diverged":
+        return result
+    reason = (
+        f"differed{_where(result.divergence)} after calls to {env} that replay does not repeat "
+        f"({unrepeated}): the state it began from cannot be reproduced"
+    )
+    note = "" if result.reason is None else f" ({result.reason})"
+    return replace(result, status="not_replayable", reason=reason + note)
+
+
+def _where(d: Divergence | None) -> str:
+    """Where a difference is, as a not-replayable reason says it: `` at step 3 (reward)``."""
+    if d is None:
+        return ""
+    return f" at {'the reset' if d.step is None else f'step {d.step}'} ({d.field})"
 
 
 def env_error(exc: BaseException) -> str:

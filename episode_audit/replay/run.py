@@ -194,10 +194,12 @@ def _in_recorded_order(
     nothing wrong, so such a difference is no verdict. The file's episodes up to the last of
     them are replayed again in one env per sub-env, in recorded order (as one batch of the
     whole file would), and their verdicts replace the batches': the result is the same
-    whatever the batches. ``batch``: the file's (place, path, selection).
+    whatever the batches. A difference is one whatever its verdict: ``diverged``, or
+    ``not_replayable`` keeping it (after calls replay does not repeat, other library
+    versions). ``batch``: the file's (place, path, selection).
     """
-    diverged = {e.episode for part in parts for e in part.episodes if e.status == "diverged"}
-    if not diverged or all(s is None for s in selections):
+    differed = {e.episode for part in parts for e in part.episodes if e.divergence is not None}
+    if not differed or all(s is None for s in selections):
         return parts
     order = _episodes_in_order(batch[1])
     if order is None:
@@ -206,7 +208,7 @@ def _in_recorded_order(
     for chosen in selections:
         if chosen is not None:
             after_a_gap |= _after_a_gap(order, set(chosen))
-    suspect = diverged & after_a_gap
+    suspect = differed & after_a_gap
     if not suspect:
         return parts
     last = max(suspect)

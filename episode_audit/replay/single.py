@@ -11,6 +11,7 @@ sub-env keeps across episodes evolves as it did. How episodes replay: docs/repla
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
@@ -28,8 +29,9 @@ from .recorded import (
     row_ranges,
     state_not_restorable,
     to_end,
+    unrepeated,
 )
-from .results import EpisodeReplay, none_replayable
+from .results import EpisodeReplay, none_replayable, not_told_from_history
 from .runner import EpisodeRunner
 
 __all__ = ["REPLAY_WINDOW_BYTES", "REPLAY_WINDOW_ROWS", "SubEnvs", "replay_single_evidence"]
@@ -143,6 +145,7 @@ class _Pass:
         self.runner = runner
         self.wanted = wanted
         self.results: dict[int, EpisodeReplay] = {}
+        self.after_end: dict[int, int] = {}  # by episode: its rows stepped after its end
         # records, by index, resets, reset rows: read when first needed
         self.known: list[Any] = []
 
@@ -158,7 +161,33 @@ class _Pass:
             empty = ev.steps_schema.empty_table()
             for result in runner.run_all(rest, empty, {}, reset_rows, resets):
                 results[result.episode] = result
+        self.in_history(listed)
         return [results[r["episode"]] for r in listed]
+
+    def in_history(self, listed: list[dict[str, Any]]) -> None:
+        """Each result, after what its (sub-)env did before it that replay does not repeat.
+
+        An ``error`` episode's step or reset that raised is no row (a step's action is not
+        recorded), and rows stepped after an episode's end are not the episode: replay does
+        neither. An episode of the same env after them that differed is ``not_replayable``
+        (:func:`~.results.not_told_from_history`); the episode itself says what was not
+        repeated (its ``reason``, unless it has one).
+        """
+        vector = self.ev.run.layout.get("kind") == "vector"
+        latest: dict[int, str] = {}  # by sub-env: what replay last did not repeat
+        for record in sorted(listed, key=lambda r: int(r[fmt.COL_EPISODE])):
+            index, sub = int(record[fmt.COL_EPISODE]), int(record.get(fmt.COL_ENV_INDEX) or 0)
+            result = self.results[index]
+            before = latest.get(sub)
+            if before is not None:
+                env = f"sub-env {sub}'s env" if vector else "this env"
+                result = not_told_from_history(result, before, env=env)
+            own = unrepeated(record, self.after_end.get(index, 0))
+            if own is not None:
+                latest[sub] = own
+                if result.reason is None and result.status != "not_replayable":
+                    result = replace(result, reason=f"not repeated by replay: {own}")
+            self.results[index] = result
 
     def window(self, table: pa.Table) -> None:
         """Replay the episodes whose rows ``table`` holds (not those replayed before)."""
@@ -173,7 +202,8 @@ class _Pass:
             reset_rows = dict(zip(indices, range(len(indices)), strict=True))
             known.extend([listed, {r["episode"]: r for r in listed}, resets, reset_rows])
         _, by_index, resets, reset_rows = known
-        rows = to_end(row_ranges(table.column(fmt.COL_EPISODE).to_numpy()), by_index)
+        rows, after_end = to_end(row_ranges(table.column(fmt.COL_EPISODE).to_numpy()), by_index)
+        self.after_end.update(after_end)
         batch = [by_index[e] for e in rows if e in by_index and e not in results]
         for result in self.runner.run_all(batch, table, rows, reset_rows, resets):
             results[result.episode] = result
