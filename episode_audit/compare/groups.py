@@ -149,10 +149,9 @@ def compare_group(
         return rate_metric(name, b, c, pairs, better=better, margin=margin)
 
     failed_b, failed_c = _is(base, cand, fmt.OUTCOME_FAILURE)
-    rates = [
-        ("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher"),
-        ("failure_rate", failed_b, failed_c, "lower"),
-    ]
+    rates = [("failure_rate", failed_b, failed_c, "lower")]
+    if base.success_signal or cand.success_signal:  # (else 0 against 0 by construction)
+        rates.insert(0, ("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher"))
     labels = set(base.failure_label[failed_b]) | set(cand.failure_label[failed_c])
     labels |= set(gates.max_failure_increase_by_label)
     for label in sorted(str(x) for x in labels):
@@ -220,7 +219,10 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
     by_name = {m.name: m for m in group.metrics}
     out: list[GateResult] = []
     for name, limit in gates.limits().items():
-        metric = by_name[name]
+        metric = by_name.get(name)
+        if metric is None:  # (success_rate: the env reports no success, as report's gate says)
+            out.append(GateResult(_gate_name(name), group.key, False, _no_success(group.key)))
+            continue
         worse = metric.worse_bound()
         passed = worse <= limit
         what = "drop" if metric.better == "higher" else "increase"
@@ -241,6 +243,15 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
         message += (f": {codes}" if codes else "") + f" (group {group.key})"
         out.append(GateResult(NEW_WARNINGS_GATE, group.key, not group.new_warnings, message))
     return out
+
+
+def _no_success(key: str) -> str:
+    """Why a success gate fails in a group whose env reports no success."""
+    return (
+        f"success_rate: the env reports no success (group {key}): no episode's final info "
+        "has a success key and no success_fn was given; to gate on success, record with "
+        "ending_rules=EndingRules(success_fn=...) or success_keys=(...)"
+    )
 
 
 def _gate_name(metric: str) -> str:

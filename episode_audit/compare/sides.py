@@ -32,7 +32,9 @@ class Side:
 
     ``seed`` is ``-1`` where an episode's reset had no seed; ``rng`` a digest of the RNG state
     an unseeded reset began from (``-1``: none recorded). ``terms[name]`` is the term's episode
-    total (0.0 in an episode that did not report the term).
+    total (0.0 in an episode that did not report the term). ``success_signal``: some file of
+    the side reports success (a success key or ``success_fn``); without, no episode can
+    succeed, whatever the policy.
     """
 
     outcome: Array
@@ -42,6 +44,7 @@ class Side:
     seed: Array
     terms: dict[str, Array] = field(default_factory=dict)
     rng: Array | None = None
+    success_signal: bool = True
 
     @property
     def n(self) -> int:
@@ -82,6 +85,7 @@ class Side:
             self.seed[index],
             {k: v[index] for k, v in self.terms.items()},
             None if self.rng is None else self.rng[index],
+            self.success_signal,
         )
 
 
@@ -127,6 +131,7 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
         np.asarray(seeds, dtype=np.int64),
         dict(sorted(totals.items())),
         np.asarray(rngs, dtype=np.int64),
+        bool(pc.any(rows.column("success_signal")).as_py()),
     )
 
 

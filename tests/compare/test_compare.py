@@ -323,3 +323,19 @@ def test_compare_inputs_counts_each_file_read_in_its_progress(tmp_path: Path) ->
         progress=done.append,
     )
     assert sum(done) == 2
+
+
+def test_an_env_that_reports_no_success_has_no_success_metric_and_fails_its_gate(
+    tmp_path: Path,
+) -> None:
+    # CartPole's success rate is 0 on both sides by construction: "held" was no verdict
+    base, cand = tmp_path / "base.mcap", tmp_path / "cand.mcap"
+    record_episodes("CartPole-v1", base, episodes=6, seed=0)
+    record_episodes("CartPole-v1", cand, episodes=6, seed=0)
+    result = compare([base], [cand], gates=CompareGates(max_success_drop=0.1))
+    (group,) = result.groups
+    assert "success_rate" not in [m.name for m in group.metrics]
+    (gate,) = group.gates
+    assert (gate.gate, gate.passed) == ("max_success_drop", False)
+    assert gate.message.startswith("success_rate: the env reports no success (group all)")
+    assert not result.passed
