@@ -205,8 +205,36 @@ class _Pass:
         rows, after_end = to_end(row_ranges(table.column(fmt.COL_EPISODE).to_numpy()), by_index)
         self.after_end.update(after_end)
         batch = [by_index[e] for e in rows if e in by_index and e not in results]
+        batch = self.with_unstarted(batch)
         for result in self.runner.run_all(batch, table, rows, reset_rows, resets):
             results[result.episode] = result
+
+    def with_unstarted(self, batch: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """``batch`` and the episodes reset and never stepped before it, in recorded order.
+
+        Such an episode has no rows in any window; its (sub-)env's episodes are numbered in
+        the order it ran them, so one numbered below an episode of the batch ran before it.
+        Replayed after every window instead, an env that keeps state across resets would
+        differ in it and in the episodes after it.
+        """
+        if not batch:
+            return batch
+        top: dict[int, int] = {}
+        for record in batch:
+            sub = int(record.get(fmt.COL_ENV_INDEX) or 0)
+            top[sub] = max(top.get(sub, -1), int(record[fmt.COL_EPISODE]))
+        chosen = {int(r[fmt.COL_EPISODE]) for r in batch}
+        unstarted = [
+            r
+            for r in self.known[0]
+            if (index := int(r[fmt.COL_EPISODE])) not in chosen
+            and index not in self.results
+            and index < top.get(int(r.get(fmt.COL_ENV_INDEX) or 0), -1)
+            and int(r.get("length") or 0) == 0
+        ]
+        if not unstarted:
+            return batch
+        return sorted(batch + unstarted, key=lambda r: int(r[fmt.COL_EPISODE]))
 
 
 def _windows(ev: Evidence, selected: pa.Array | None) -> Iterator[pa.Table]:

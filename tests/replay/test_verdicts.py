@@ -80,6 +80,27 @@ def test_an_env_keeping_state_across_resets_is_replayed_in_recorded_order_never_
     assert fresh.episodes[0].restored == "seed 104; this env after 4 earlier episodes"
 
 
+def test_an_episode_reset_and_never_stepped_replays_in_recorded_order(tmp_path: Path) -> None:
+    # (it was replayed after every episode with rows: in an env that counts its resets, the
+    # episodes after it then diverged at their reset)
+    path = tmp_path / "unstarted.mcap"
+    with RecordEvidence(counted_cartpole(), path) as env:
+        env.reset(seed=1)  # never stepped: an episode with no rows
+        env.reset(seed=2)
+        for _ in range(5):
+            env.step(0)
+        env.reset(seed=3)
+        env.step(1)
+    result = replay([path], env_factory=counted_cartpole)
+    assert [(e.episode, e.status) for e in result.episodes] == [
+        (0, "identical"),
+        (1, "identical"),
+        (2, "identical"),
+    ]
+    alone = replay([path], episodes=[2], env_factory=counted_cartpole)
+    assert [(e.episode, e.status) for e in alone.episodes] == [(2, "identical")]
+
+
 def cartpole_counted_afresh() -> gym.Env[Any, Any]:
     """CartPole in an :class:`EpisodeCount` that forgets its count at every reset."""
     env = counted_cartpole()
