@@ -535,15 +535,15 @@ def test_small_inputs_stay_in_this_process_unless_jobs_is_given(tmp_path: Path) 
 
 
 def test_report_and_compare_read_in_this_process_below_their_own_size(tmp_path: Path) -> None:
-    from episode_audit.cli._app import SMALL_INPUTS, SMALL_TABLES, listed_jobs
+    from episode_audit.cli._app import SMALL_INPUTS, SMALL_TABLES, listed_jobs, lister
 
     (tmp_path / "medium.mcap").touch()
     os.truncate(tmp_path / "medium.mcap", SMALL_INPUTS * 4)  # (sparse)
-    assert listed_jobs(None, [str(tmp_path)]) == 1
+    assert listed_jobs(None, lister([str(tmp_path)])) == 1
     (tmp_path / "large.mcap").touch()
     os.truncate(tmp_path / "large.mcap", SMALL_TABLES)
-    assert listed_jobs(None, [str(tmp_path)]) is None
-    assert listed_jobs(2, [str(tmp_path / "nothing-here")]) == 2
+    assert listed_jobs(None, lister([str(tmp_path)])) is None
+    assert listed_jobs(2, lister([str(tmp_path / "nothing-here")])) == 2
 
 
 def test_the_library_report_takes_jobs(campaign: Path) -> None:

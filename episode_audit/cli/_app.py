@@ -122,33 +122,50 @@ def collect(paths: Sequence[str | Path]) -> list[Source]:
         fail(str(exc))
 
 
-def listed_count(paths: Sequence[str]) -> int | None:
-    """How many files ``paths`` name (``None`` if they cannot be listed: the command says so)."""
-    try:
-        return len(evidence_files(paths))
-    except EpisodeAuditError:
-        return None
+def lister(paths: Sequence[str]) -> Callable[[], list[Source] | None]:
+    """``paths``' evidence files, listed when first asked and then kept (one listing a command).
+
+    ``None`` if they cannot be listed: the command's own listing says why.
+    """
+    kept: list[list[Source] | None] = []
+
+    def files() -> list[Source] | None:
+        if not kept:
+            try:
+                kept.append(evidence_files(paths))
+            except EpisodeAuditError:
+                kept.append(None)
+        return kept[0]
+
+    return files
 
 
-def listed_jobs(jobs: int | None, paths: Sequence[str]) -> int | None:
-    """``report`` / ``compare``'s ``--jobs`` for ``paths`` (:data:`SMALL_TABLES`).
+def listed_count(files: Callable[[], list[Source] | None]) -> int | None:
+    """How many files :func:`lister` found (``None`` if it could not list them)."""
+    found = files()
+    return None if found is None else len(found)
 
-    ``None`` (every usable core) if they cannot be listed: the command says so itself.
+
+def listed_jobs(jobs: int | None, files: Callable[[], list[Source] | None]) -> int | None:
+    """``report`` / ``compare``'s ``--jobs`` for the files :func:`lister` found.
+
+    Below :data:`SMALL_TABLES` one process; ``None`` (every usable core) if they cannot be
+    listed.
     """
     if jobs is not None:
         return jobs
-    try:
-        return jobs_for(jobs, evidence_files(paths), SMALL_TABLES)
-    except EpisodeAuditError:
-        return None
+    found = files()
+    return None if found is None else jobs_for(jobs, found, SMALL_TABLES)
 
 
 @contextmanager
-def failure_document(command: str, output: str) -> Iterator[None]:
+def failure_document(
+    command: str, output: OutputFormat, unreadable: Sequence[Unreadable] = ()
+) -> Iterator[None]:
     """In JSON and JUnit formats, a failure (exit 2) before any output also prints a document.
 
     A CI job that saves the command's stdout (``check.xml``) then holds the error, not nothing
-    (:func:`~episode_audit.cli.render.failure.error_output`).
+    (:func:`~episode_audit.cli.render.failure.error_output`), with ``unreadable`` as it is then.
     """
     emitted, _said["failure"] = _said["emitted"], None
     try:
@@ -158,7 +175,7 @@ def failure_document(command: str, output: str) -> Iterator[None]:
         if output in ("json", "junit") and exc.exit_code == EXIT_USAGE and message and silent:
             from .render.failure import error_output
 
-            emit(error_output(command, message, output))  # type: ignore[arg-type]
+            emit(error_output(command, message, output, unreadable))
         raise
 
 

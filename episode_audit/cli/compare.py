@@ -21,9 +21,11 @@ from ._app import (
     app,
     emit,
     fail,
+    failure_document,
     interruptible,
     listed_count,
     listed_jobs,
+    lister,
     progress_bar,
     warn,
 )
@@ -165,7 +167,6 @@ def compare(
     """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates."""
     from ..compare import compare_inputs
     from .render.compare import compare_output
-    from .render.failure import error_output
 
     fmt = _format(output, junit=True)
     unread: list[Unreadable] = []
@@ -174,9 +175,13 @@ def compare(
         _error_line(exc)
         unread.append(Unreadable.of(getattr(exc, "path", ""), exc))
 
-    paths = [*baseline, *candidate]
-    try:
-        with interruptible(), progress_bar("reading", partial(listed_count, paths)) as advance:
+    files = lister([*baseline, *candidate])
+    with (
+        failure_document("compare", fmt, unread),
+        interruptible(),
+        progress_bar("reading", partial(listed_count, files)) as advance,
+    ):
+        try:
             result = compare_inputs(
                 baseline,
                 candidate,
@@ -188,14 +193,12 @@ def compare(
                 fail_on_new_incentive_warning=fail_on_new_incentive_warning,
                 different_tasks=different_tasks,
                 on_error=told,
-                jobs=listed_jobs(jobs, paths),
+                jobs=listed_jobs(jobs, files),
                 ray_address=ray,
                 progress=advance,
             )
-    except EpisodeAuditError as exc:
-        if fmt in ("json", "junit"):  # (a document all the same: CI saves it)
-            emit(error_output("compare", str(exc), fmt, unread))
-        fail(str(exc))
+        except EpisodeAuditError as exc:
+            fail(str(exc))
     comparison = result.comparison
     for mismatch in comparison.mismatches:
         warn(str(mismatch))

@@ -25,6 +25,7 @@ from ._app import (
     interruptible,
     listed_count,
     listed_jobs,
+    lister,
     note,
     progress_bar,
     warn,
@@ -125,7 +126,8 @@ def report(
             except EpisodeAuditError as exc:
                 fail(str(exc))
         try:
-            with interruptible(), progress_bar("reading", partial(listed_count, paths)) as advance:
+            files = lister(paths)
+            with interruptible(), progress_bar("reading", partial(listed_count, files)) as advance:
                 result = report_inputs(
                     paths,
                     by=by,
@@ -136,7 +138,7 @@ def report(
                     max_error_rate=max_error_rate,
                     fail_on_incentive_warning=fail_on_incentive_warning,
                     on_error=_error_line,
-                    jobs=listed_jobs(jobs, paths),
+                    jobs=listed_jobs(jobs, files),
                     ray_address=ray,
                     progress=advance,
                 )

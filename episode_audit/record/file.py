@@ -106,8 +106,9 @@ class FileRecorder:
     def _inherited(self) -> None:
         """Mark the recorder its parent's: called in a forked child, at the fork.
 
-        The file is the parent's: every call here goes by the gate, where :meth:`_enter` and
-        :meth:`flush` raise; ``close()`` closes the env and writes nothing. The lock is new (a
+        The file is the parent's (:attr:`EvidenceFile.inherited`): every call here goes by the
+        gate, where :meth:`_enter` and :meth:`flush` raise; ``close()`` closes the env and
+        writes nothing. The lock is new (a
         thread of the parent may have held it as it forked), no thread of the parent is inside
         any more, and a dropped recorder does not warn.
         """
@@ -115,7 +116,6 @@ class FileRecorder:
         self._busy = False
         self._gated = True
         self._warns_unclosed = False
-        self._file.inherited = True
 
     def _enter(self) -> None:
         """The way into ``step()`` / ``reset()`` when gated: raise if closed.
@@ -286,8 +286,7 @@ class EvidenceFile:
         self._warned = False
         self.troubles = 0  # the recorder's own failures, said in the run-end record
         self.first_trouble: str | None = None
-        self.pid = os.getpid()
-        self.inherited = False  # this process is a fork of the one recording (pid)
+        self.pid = os.getpid()  # the process recording: a fork of it writes nothing here
         if owner is not None:
             _OPEN_RECORDERS.add(owner)
         self._owner = owner
@@ -365,6 +364,11 @@ class EvidenceFile:
         )
         self.streams.append(stream)
         return stream
+
+    @property
+    def inherited(self) -> bool:
+        """Whether this process is a fork of the one recording (:attr:`pid`)."""
+        return os.getpid() != self.pid
 
     def check_open(self) -> None:
         """Raise :class:`RecorderError` when the file is closed, or its recorder's parent's."""

@@ -146,6 +146,7 @@ class _Pass:
         self.wanted = wanted
         self.results: dict[int, EpisodeReplay] = {}
         self.after_end: dict[int, int] = {}  # by episode: its rows stepped after its end
+        self.unstarted: list[dict[str, Any]] = []  # records of episodes never stepped (no rows)
         # records, by index, resets, reset rows: read when first needed
         self.known: list[Any] = []
 
@@ -201,6 +202,7 @@ class _Pass:
             indices = resets.column(fmt.COL_EPISODE).to_pylist()
             reset_rows = dict(zip(indices, range(len(indices)), strict=True))
             known.extend([listed, {r["episode"]: r for r in listed}, resets, reset_rows])
+            self.unstarted = [r for r in listed if int(r.get("length") or 0) == 0]
         _, by_index, resets, reset_rows = known
         rows, after_end = to_end(row_ranges(table.column(fmt.COL_EPISODE).to_numpy()), by_index)
         self.after_end.update(after_end)
@@ -226,11 +228,10 @@ class _Pass:
         chosen = {int(r[fmt.COL_EPISODE]) for r in batch}
         unstarted = [
             r
-            for r in self.known[0]
+            for r in self.unstarted
             if (index := int(r[fmt.COL_EPISODE])) not in chosen
             and index not in self.results
             and index < top.get(int(r.get(fmt.COL_ENV_INDEX) or 0), -1)
-            and int(r.get("length") or 0) == 0
         ]
         if not unstarted:
             return batch
