@@ -67,7 +67,8 @@ class FileRecorder:
     reads the gate set clears ``_busy`` while it waits at the lock); if a thread is inside,
     ``flush()`` leaves the flush to the end of that call (``flush_at``) and ``close()`` waits
     for it to return. The stepping thread's own ``flush()`` or ``close()`` (from inside its
-    env) writes at once, as between calls.
+    env) writes at once, as between calls. A ``step()`` or ``reset()`` entered while another
+    thread is inside one is refused (:meth:`_one_thread`).
     """
 
     _file: EvidenceFile
@@ -166,6 +167,21 @@ class FileRecorder:
         """
         return False
 
+    def _one_thread(self) -> None:
+        """Refuse a ``step()`` or ``reset()`` entered while another thread is inside one.
+
+        Called at the entry of those calls when ``_busy`` is set. Two threads stepping one
+        env at once interleave their rows in its episodes: the recorder refuses the second
+        (``RecorderError``, misuse) before it touches the env or the file.
+        """
+        if _inside(self, entering=True):
+            raise RecorderError(
+                f"{self._file.path}: a second thread called this recorder while another is "
+                "inside its step() or reset(); an env and its recorder take one call at a "
+                "time: give each thread its own env and recorder, or hold a lock around "
+                "step() and reset()"
+            )
+
     def _before_close(self) -> None:
         """Called before the file is finished (by :meth:`_close_file`)."""
 
@@ -202,11 +218,13 @@ class FileRecorder:
             )
 
 
-def _inside(recorder: FileRecorder) -> bool:
+def _inside(recorder: FileRecorder, *, entering: bool = False) -> bool:
     """Whether a thread other than this one is inside ``recorder``'s ``step()`` or ``reset()``.
 
-    Called holding the gate's lock: ``_busy`` says a thread is inside (set before it reads the
-    gate, cleared while it waits at the gate's lock). If it is this thread (a ``flush()`` from
+    Called holding the gate's lock (``flush()``, ``close()``), or by
+    :meth:`FileRecorder._one_thread` at the entry of a call (``entering``: that call's own
+    frames are left out). ``_busy`` says a thread is inside (set before it reads the gate,
+    cleared while it waits at the gate's lock). If it is this thread (a ``flush()`` from
     inside its own env's step), none other is. Only this thread's own stack is read: reading
     another thread's frames while it runs is not safe on CPython 3.11 (their ``f_back`` can
     point at a freed frame).
@@ -215,9 +233,15 @@ def _inside(recorder: FileRecorder) -> bool:
         return False
     cls = type(recorder)
     entries = {getattr(cls, name).__code__ for name in recorder._entries}
-    f: FrameType | None = sys._getframe(1)
+
+    def ours(frame: FrameType) -> bool:
+        return frame.f_code in entries and frame.f_locals.get("self") is recorder
+
+    f: FrameType | None = sys._getframe(2 if entering else 1)
+    while entering and f is not None and ours(f):
+        f = f.f_back  # (the call being entered: SB3's step() and its step_async())
     while f is not None:
-        if f.f_code in entries and f.f_locals.get("self") is recorder:
+        if ours(f):
             return False  # (this thread is the one inside)
         f = f.f_back
     return True

@@ -179,6 +179,8 @@ class RecordEvidence(
         The state of the wrappers below that have a state adapter (e.g.
         ``NormalizeObservation``) is snapshot just before the reset (docs/recording.md).
         """
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             if self._gated:  # (closed, or a flush() / close() under way in another thread)
@@ -264,6 +266,8 @@ class RecordEvidence(
         twin, in its instance dict, which does the same and hands this method what it does not
         take (a closed recorder, a flush under way in another thread, keyword arguments).
         """
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             if self._gated:

@@ -251,3 +251,65 @@ def test_a_flush_from_inside_the_stepping_threads_own_env_writes_at_once(
     recorder.close()
     assert flushed == [0, 1]  # the first flush had only the reset row; the second, a step too
     assert inside == [False, False]
+
+
+def _slow_env(in_step: threading.Event, go_on: threading.Event) -> ScriptedEnv:
+    def slow_step(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        if threading.current_thread() is not threading.main_thread():
+            in_step.set()
+            go_on.wait(30)
+        return np.zeros(2, np.float32), 1.0, False, False, {}
+
+    return ScriptedEnv(step_fn=slow_step)
+
+
+def _held_in_a_step(step: Any, action: Any, in_step: threading.Event) -> threading.Thread:
+    stepper = threading.Thread(target=step, args=(action,))
+    stepper.start()
+    _wait_for(in_step.is_set)
+    return stepper
+
+
+SECOND_THREAD = "a second thread called this recorder while another is inside its step"
+
+
+def test_a_second_thread_stepping_at_once_is_refused_and_the_file_stays_whole(
+    tmp_path: Path,
+) -> None:
+    """Two threads inside one recorder would mix their rows: the second is refused, untouched."""
+    from episode_audit.errors import RecorderError
+
+    in_step, go_on = threading.Event(), threading.Event()
+    path = tmp_path / "two.mcap"
+    env = RecordEvidence(_slow_env(in_step, go_on), path, flush_every_s=3600)
+    env.reset(seed=0)
+    stepper = _held_in_a_step(env.step, np.int64(0), in_step)
+    with pytest.raises(RecorderError, match=SECOND_THREAD):
+        env.step(np.int64(1))
+    with pytest.raises(RecorderError, match=SECOND_THREAD):
+        env.reset(seed=1)
+    assert env._busy  # (the refused calls left the stepping thread's mark)
+    go_on.set()
+    stepper.join()
+    env.step(np.int64(1))  # one thread after another is fine
+    env.close()
+    assert_whole(path, 2)
+    assert open_evidence(path).steps(columns=["action"]).column("action").to_pylist() == [0, 1]
+
+
+def test_a_second_thread_stepping_a_vector_recorder_at_once_is_refused(tmp_path: Path) -> None:
+    from episode_audit.errors import RecorderError
+
+    in_step, go_on = threading.Event(), threading.Event()
+    path = tmp_path / "vec-two.mcap"
+    venv = gym.vector.SyncVectorEnv([lambda: _slow_env(in_step, go_on)])
+    env = RecordVectorEvidence(venv, path, flush_every_s=3600)
+    env.reset(seed=0)
+    stepper = _held_in_a_step(env.step, np.array([0]), in_step)
+    with pytest.raises(RecorderError, match=SECOND_THREAD):
+        env.step(np.array([1]))
+    go_on.set()
+    stepper.join()
+    env.close()
+    assert [f.code for f in check([path]).findings if f.severity == "error"] == []
+    assert open_evidence(path).steps(columns=["episode"]).num_rows == 1

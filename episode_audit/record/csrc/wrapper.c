@@ -1,8 +1,8 @@
 /* RecordEvidence's step, compiled: WrapperStep (installed by RecordEvidence as its `step`).
 
    WrapperStep(recorder, record, python_step) is called as recorder.step(action) is, and does
-   what RecordEvidence.step does, without a Python frame: `_busy` set, the gate read, the
-   wrapped env's step called, the step recorded by `record` (the recorder's StepRecorder),
+   what RecordEvidence.step does, without a Python frame: `_busy` read and set, the gate read,
+   the wrapped env's step called, the step recorded by `record` (the recorder's StepRecorder),
    `_busy` cleared as it returns or raises. The env's own exception (an Exception) ends the open
    episode as RecordEvidence.step does, by the recorder's `_on_error(exc, "step")`, and is
    raised as it came. Any other call (gated: closed, or a flush() / close() under way in
@@ -74,11 +74,18 @@ static PyObject *WrapperStep_vectorcall(PyObject *callable, PyObject *const *arg
     dict = PyObject_GenericGetDict(recorder, NULL);
     if (dict == NULL || !PyDict_CheckExact(dict))
         goto python;
-    /* as RecordEvidence.step: `_busy` first, then the gate */
+    /* as RecordEvidence.step: `_busy` first (a call under way: the Python path refuses
+       another thread's), then the gate */
+    if (PyDict_GetItemWithError(dict, s_busy) != Py_False)
+        goto python;
     if (PyDict_SetItem(dict, s_busy, Py_True) < 0)
         goto python;
-    if (PyDict_GetItemWithError(dict, s_gated) != Py_False)
-        goto python; /* (gated, or no gate yet: the Python path decides) */
+    if (PyDict_GetItemWithError(dict, s_gated) != Py_False) {
+        /* (gated, or no gate yet: the Python path decides, setting `_busy` itself) */
+        if (PyDict_SetItem(dict, s_busy, Py_False) < 0)
+            PyErr_Clear();
+        goto python;
+    }
     env = PyDict_GetItemWithError(dict, s_env);
     if (env == NULL)
         goto python;

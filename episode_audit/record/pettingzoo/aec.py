@@ -144,6 +144,8 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
         """Reset the env (a new game); each agent's reset row is written at its first turn."""
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             self._enter()
@@ -178,6 +180,8 @@ class RecordAECEvidence(AgentRecorder, BaseWrapper):  # type: ignore[misc]
         The rows the turn closes are held until the env's ``step()`` returned or raised: one
         that raised after every agent-episode had ended is noted on the last of them.
         """
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             if self._gated:

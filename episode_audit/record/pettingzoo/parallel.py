@@ -44,6 +44,8 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[Any, Any], dict[Any, dict[str, Any]]]:
         """Reset the env (a new game) and record every agent's reset row."""
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             self._enter()
@@ -81,6 +83,8 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
 
     def step(self, actions: dict[Any, Any]) -> tuple[Any, Any, Any, Any, Any]:
         """Step the env and record each acting agent's step; results are returned untouched."""
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             if self._gated:

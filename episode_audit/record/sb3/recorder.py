@@ -202,6 +202,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
 
     def reset(self) -> Any:
         """Reset every sub-env (with the seeds and options set before) and record it."""
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             self._enter()
@@ -234,6 +236,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
 
     def step_async(self, actions: np.ndarray[Any, Any]) -> None:
         """Start a step of every sub-env (the actions are kept for the record)."""
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._async_thread = threading.get_ident()  # (whose _busy it is: _busy_here)
         self._busy = True  # until step_wait() returns (read by a flush() in another thread)
         try:

@@ -153,6 +153,8 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         options: dict[str, Any] | None = None,
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the vector env (or the sub-envs of ``options["reset_mask"]``) and record it."""
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             self._enter()
@@ -189,6 +191,8 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
 
     def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
         """Step every sub-env and record each sub-env's step; the results are returned untouched."""
+        if self._busy:  # (a call under way: another thread's is refused)
+            self._one_thread()
         self._busy = True  # (read by a flush() or close() in another thread: FileRecorder)
         try:
             if self._gated:
