@@ -18,7 +18,6 @@ import threading
 import time
 import weakref
 from collections.abc import Callable, Iterable
-from datetime import datetime, timezone
 from types import FrameType
 from typing import Any, Protocol
 
@@ -28,12 +27,13 @@ from gymnasium.wrappers import TimeLimit
 from .._version import __version__
 from ..errors import ConfigurationError, RecorderError
 from ..format import names as fmt
-from ..format.columns import error_text, text
+from ..format.columns import error_text
 from ..format.records import MAX_JSON_TEXT, RunInfo
 from ..format.spaces import SpaceCodec
 from . import native, signals
 from .block import Episode
 from .episode_records import EpisodeRecords
+from .run_end import run_end_record
 from .settings import RecorderSettings
 from .stream import Stream
 from .writer import EvidenceWriter
@@ -527,7 +527,7 @@ class EvidenceFile:
             self.path.unlink(missing_ok=True)
         for _ in range(2):  # the second time with what the first could not write dropped
             try:
-                self.writer.finish(self._run_end())
+                self.writer.finish(run_end_record(self))
                 return
             except OSError as exc:
                 self.trouble(exc)
@@ -539,30 +539,6 @@ class EvidenceFile:
             f"episode-audit: {self.path} could not be finished ({self.first_trouble}); it ends "
             f"after its last good flush: `episode-audit recover {self.path}` finishes a copy"
         )
-
-    def _run_end(self) -> dict[str, str]:
-        """The run-end record: counts of what is in the file, and the recorder's trouble."""
-        lost, lost_messages = self.writer.lost, self.writer.lost_messages
-        steps = sum(lost[s.channels.steps] for s in self.streams)
-        resets = sum(lost[s.channels.resets] for s in self.streams)
-        blocks = sum(lost_messages[s.channels.steps] for s in self.streams)
-        run_end = {
-            "status": "finished",
-            "episodes": str(self.counts["episodes"]),
-            "steps": str(self.counts["steps"] - steps),
-            "blocks": str(self.counts["blocks"] - blocks),
-            "end_time": datetime.now(timezone.utc).isoformat(),
-            fmt.RUN_END_SUCCESS_REPORTED: str(self.counts["success_reported"]),
-        }
-        if self.troubles:
-            run_end[fmt.RUN_END_TROUBLE] = str(self.troubles)
-            run_end[fmt.RUN_END_FIRST_TROUBLE] = text(self.first_trouble or "")
-        episodes = lost[self.records.block_channel]
-        if steps or resets or episodes:
-            run_end[fmt.RUN_END_LOST_STEPS] = str(steps)
-            run_end[fmt.RUN_END_LOST_RESETS] = str(resets)
-            run_end[fmt.RUN_END_LOST_EPISODES] = str(episodes)
-        return run_end
 
 
 def _readable(metadata: dict[str, str]) -> dict[str, str]:

@@ -79,13 +79,13 @@ def test_no_record_says_nothing() -> None:
 @pytest.fixture
 def deeply_nested(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A file whose run-end record says it was recovered, with JSON nested 100 000 deep."""
-    written = record_file.EvidenceFile._run_end
+    written = record_file.run_end_record
 
-    def run_end(self: record_file.EvidenceFile) -> dict[str, str]:
+    def run_end(file: record_file.EvidenceFile) -> dict[str, str]:
         keys = ("damaged", "damaged_episodes", "cut_off_episodes")
-        return {**written(self), "status": "recovered", **dict.fromkeys(keys, DEEP)}
+        return {**written(file), "status": "recovered", **dict.fromkeys(keys, DEEP)}
 
-    monkeypatch.setattr(record_file.EvidenceFile, "_run_end", run_end)
+    monkeypatch.setattr(record_file, "run_end_record", run_end)
     path = tmp_path / "deep.mcap"
     with RecordEvidence(gym.make("CartPole-v1"), path) as env:
         env.reset(seed=0)
