@@ -56,7 +56,10 @@ def _policy(name: str, env: gym.Env[Any, Any], seed: int) -> Policy:
     if name in ("scripted", "hacker"):
         from .tasks import make_policy
 
-        return make_policy(name, env, seed=seed)
+        try:
+            return make_policy(name, env, seed=seed)
+        except ConfigurationError as exc:
+            raise ConfigurationError(f"--policy {name}: {exc}") from None
     if ":" in name:
         factory = load_callable(name)
         try:

@@ -70,9 +70,10 @@ def make_policy(name: str, env: gym.Env[Any, Any], seed: int | None = None) -> P
     task_id = getattr(env.unwrapped, "task_id", None)
     policies = _POLICIES.get(task_id) if isinstance(task_id, str) else None
     if policies is None:
+        found = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
         raise ConfigurationError(
-            f"Expect an environment of one of the tasks {tuple(_POLICIES)} for policy {name!r}, "
-            f"actually: {env.spec.id if env.spec is not None else type(env.unwrapped).__name__}"
+            f"policy {name!r} plays only the reference tasks {tuple(_POLICIES)}, and {found} is "
+            "not one: use the 'random' policy or one of your own"
         )
     scripted, hacker = policies
     return hacker if name == "hacker" else scripted

@@ -533,7 +533,7 @@ def one_error_line(err: str, *needles: str) -> None:
     ("args", "message"),
     [
         (["--policy", "nonsense"], "--policy: expected random, scripted, hacker"),
-        (["--policy", "scripted"], "for policy 'scripted', actually: CartPole-v1"),
+        (["--policy", "scripted"], "--policy scripted: policy 'scripted' plays only the"),
         (
             ["--policy", "tests.support.factories:no_such"],
             "cannot load 'tests.support.factories:no_such'",
