@@ -1478,3 +1478,50 @@ def test_pettingzoo_flags_without_a_truth_value_replay_as_the_recorder_took_them
     assert noted == [1, 1]
     result = replay([path], env_factory=lambda: ArrayFlagParallel(lambda final: {}))
     assert [e.status for e in result.episodes] == ["identical", "identical"], result.episodes
+
+
+_OVERFLOWING = """
+import sys
+import gymnasium as gym, numpy as np
+from episode_audit import RecordEvidence, replay
+
+
+class Big(gym.Env):
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.array([1.0, 2.0]), {}
+
+    def step(self, action):
+        return np.array([1e39, -1e39]), 1.0, True, False, {}
+
+
+with RecordEvidence(Big(), sys.argv[1]) as env:
+    env.reset(seed=0)
+    env.step(0)
+print("identical", replay([sys.argv[1]], env_factory=lambda: Big()).count("identical"))
+"""
+
+
+def test_a_value_too_large_for_its_float_column_is_stored_as_inf_without_a_numpy_warning(
+    tmp_path: Path,
+) -> None:
+    """The cast is noted in the file; numpy's overflow warning is no line of the loop's output."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "big.mcap"
+    done = subprocess.run(
+        [sys.executable, "-W", "default", "-c", _OVERFLOWING, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "overflow" not in done.stderr and "Warning" not in done.stderr, done.stderr
+    assert "identical 1" in done.stdout
+    assert steps_of(path)[0]["observation"] == [math.inf, -math.inf]
+    assert findings(path, "recorder_note:observation_cast")

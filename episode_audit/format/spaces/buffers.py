@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import operator
+import warnings
 from collections.abc import Hashable, Mapping
 from typing import Any, Final
 
@@ -25,6 +26,17 @@ __all__ = ["ColumnBuffer"]
 _DIGEST_SIZE: Final = 16
 _INT64_MIN: Final = -(2**63)
 _INT64_MAX: Final = 2**63 - 1
+# A real value too large for a float column is stored as inf, and the cast's note says the
+# dtype was cast (``check`` reports it); numpy's "overflow encountered in cast" would add a line
+# to the training loop's (or replay's) output. Only warnings of this module are silenced; with
+# warnings raised as errors, the cast is redone under ``np.errstate``.
+warnings.filterwarnings(
+    "ignore",
+    message="overflow encountered in cast",
+    category=RuntimeWarning,
+    module=r"episode_audit\.format\.spaces\.buffers\Z",
+)
+
 _BLOCK_BYTES: Final = 1 << 20
 """Bytes a fresh array buffer preallocates (at most 1024 rows, at least one)."""
 _LARGE_ROW_BYTES: Final = 4096
