@@ -109,14 +109,17 @@ class FileRecorder:
 
         The file is the parent's (:attr:`EvidenceFile.inherited`): every call here goes by the
         gate, where :meth:`_enter` and :meth:`flush` raise; ``close()`` closes the env and
-        writes nothing. The lock is new (a
-        thread of the parent may have held it as it forked), no thread of the parent is inside
-        any more, and a dropped recorder does not warn.
+        writes nothing. The child's copy of the file is closed now, its lock left to the parent.
+        The gate's lock is new (a thread of the parent may have held it as it forked), no thread
+        of the parent is inside any more, and a dropped recorder does not warn.
         """
         self._flush_lock = threading.Lock()
         self._busy = False
         self._gated = True
         self._warns_unclosed = False
+        file = getattr(self, "_file", None)
+        if file is not None:
+            file.writer.close_inherited()
 
     def _enter(self) -> None:
         """The way into ``step()`` / ``reset()`` when gated: raise if closed.
@@ -503,7 +506,7 @@ class EvidenceFile:
         if self.closed:
             return
         self.closed = True
-        if self.inherited:  # (the parent's file: not a byte from here, its lock kept)
+        if self.inherited:  # (the parent's file, closed here at the fork: its lock kept)
             return
         with signals.held():  # (a Ctrl-C meanwhile is raised once the file is finished)
             self._finish()

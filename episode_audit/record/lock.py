@@ -364,3 +364,11 @@ class LockedStream:
         """Release the writer's lock, then close the file."""
         self._output.release()
         self._file.close()
+
+    def close_copy(self) -> None:
+        """Close this process's copy of the file, keeping the lock: a forked child's.
+
+        The lock belongs to the open file the parent and the child share; closing the child's
+        descriptor leaves it with the parent (unlocking would release it for both).
+        """
+        self._file.close()

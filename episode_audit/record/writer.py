@@ -578,7 +578,8 @@ class EvidenceWriter:
         self.path = output.path
         self.indexed = output.indexed  # (an {index} path: its recorder may give it back)
         raw = open(output.fd, "wb", buffering=0)  # noqa: SIM115 - closed by finish() or abandon()
-        f = cast(IO[bytes], LockedStream(raw, output))
+        self._stream = LockedStream(raw, output)
+        f = cast(IO[bytes], self._stream)
         kind = modes[compression]
         self._sink = StagedFile(f)
         self._staging = _Staging(self._sink, str(self.path), fsync)
@@ -815,6 +816,13 @@ class EvidenceWriter:
             raise
         self._finished = True
         self._sink.close()
+
+    def close_inherited(self) -> None:
+        """In a forked child: close its copy of the file, writing nothing, the lock kept."""
+        if not self._finished:
+            self._finished = True
+            self._sink.drop()
+            self._stream.close_copy()
 
     def abandon(self) -> None:
         """Close the file without a summary (used only when finishing itself failed)."""

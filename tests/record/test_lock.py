@@ -376,7 +376,8 @@ if pid == 0:
             call()
         except RecorderError as exc:
             refused.append(str(exc))
-    env.close()  # closes the child's env; writes nothing, keeps the parent's lock
+    if sys.argv[3] == "close":
+        env.close()  # closes the child's env; writes nothing, keeps the parent's lock
     assert writer_of(path) is not None and writer_of(path).pid == os.getppid()
     print("\\n".join(refused), flush=True)
     sys.exit(0)
@@ -389,10 +390,14 @@ env.close()
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 @pytest.mark.parametrize("kind", ["single", "vector"])
-def test_a_forked_child_cannot_record_into_its_parents_file(tmp_path: Path, kind: str) -> None:
+@pytest.mark.parametrize("end", ["close", "exit"])
+def test_a_forked_child_cannot_record_into_its_parents_file(
+    tmp_path: Path, kind: str, end: str
+) -> None:
+    """Refused in the child, whether it closes the recorder or exits without; no warning."""
     path = tmp_path / "forked.mcap"
     done = subprocess.run(
-        [sys.executable, "-c", _CHILD_USES_IT, str(path), kind],
+        [sys.executable, "-W", "default", "-c", _CHILD_USES_IT, str(path), kind, end],
         capture_output=True,
         text=True,
         timeout=120,
