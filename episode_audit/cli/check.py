@@ -57,6 +57,15 @@ def check(
             metavar="<code>",
         ),
     ] = None,
+    group: Annotated[
+        bool | None,
+        typer.Option(
+            "--group/--no-group",
+            help="Show the findings of a code as one entry: its counts and the first places "
+            "(default: the codes found in more than 5 files; table and Markdown only).",
+            show_default=False,
+        ),
+    ] = None,
     output: CIFormatOption = "table",
     no_step_summary: NoStepSummaryOption = False,
     jobs: JobsOption = None,
@@ -91,8 +100,10 @@ def check(
                 )
             except ConfigurationError as exc:
                 fail(str(exc))
-        emit(check_output(result, fmt, strict=strict, ignored=ignored))
-        append_step_summary(lambda: str(check_output(result, "markdown")), off=no_step_summary)
+        emit(check_output(result, fmt, strict=strict, ignored=ignored, group=group))
+        append_step_summary(
+            lambda: str(check_output(result, "markdown", group=group)), off=no_step_summary
+        )
         if result.unreadable:
             raise typer.Exit(EXIT_USAGE)
         if result.errors or (strict and result.warnings):
