@@ -26,8 +26,16 @@ from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
 from .envs import agents_mismatch, build_pettingzoo_env
-from .recorded import row_ranges, rules_of
-from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, none_replayable, short
+from .recorded import cast_actions, row_ranges, rules_of
+from .results import (
+    RESET_RAISED,
+    Divergence,
+    EpisodeReplay,
+    env_error,
+    none_replayable,
+    not_told_from_cast,
+    short,
+)
 from .returned import encoded, recorded_terms
 
 __all__ = ["replay_agents_evidence"]
@@ -288,6 +296,7 @@ def _replay_games(
 ) -> dict[int, EpisodeReplay]:
     """Replay the game of each of ``records`` (once per game), by episode index."""
     done: dict[int, EpisodeReplay] = {}
+    cast: dict[int, tuple[int, str]] | None = None  # (read at the first difference)
     for record in records:
         index = int(record["episode"])
         if index in done:
@@ -302,11 +311,33 @@ def _replay_games(
             for result in none_replayable(file.path, members.values(), _DAMAGED_GAME):
                 done[result.episode] = result
             continue
-        for result in _replay_game(env, file, members):
+        results = _replay_game(env, file, members)
+        if any(r.status == "diverged" for r in results):
+            cast = cast_actions(file.steps) if cast is None else cast
+            results = _cast_explains(cast, members, results)
+        for result in results:
             done[result.episode] = result
             if progress is not None:
                 progress(result.steps)
     return done
+
+
+def _cast_explains(
+    cast: dict[int, tuple[int, str]],
+    members: dict[str, dict[str, Any]],
+    results: list[EpisodeReplay],
+) -> list[EpisodeReplay]:
+    """The game's results, its differences ``not_replayable`` if the recorder cast an action.
+
+    Any agent's cast action (``action_cast``) changed the game every agent plays on from that
+    turn, whose place among the other agents' steps the rows do not say: every difference in
+    the game is then no verdict. ``cast``: :func:`~.recorded.cast_actions` of the file.
+    """
+    found = [cast[e] for r in members.values() if (e := int(r["episode"])) in cast]
+    if not found:
+        return results
+    note = found[0][1]
+    return [not_told_from_cast(r, 0, note) for r in results]
 
 
 _TORN = "torn"

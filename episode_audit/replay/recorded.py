@@ -2,8 +2,9 @@
 
 :func:`episode_records` (the records a replay reads), :func:`row_ranges` and :func:`to_end`
 (each episode's rows), :func:`unrepeated` (what the recorded env did that a replay does not
-repeat), :func:`replay_actions` (the actions to step with), :func:`rules_of` (the recorded
-ending rules and reward terms), :func:`layout_not_replayable` and :func:`state_not_restorable`.
+repeat), :func:`cast_actions` (episodes whose actions the recorder cast), :func:`replay_actions`
+(the actions to step with), :func:`rules_of` (the recorded ending rules and reward terms),
+:func:`layout_not_replayable` and :func:`state_not_restorable`.
 """
 
 from __future__ import annotations
@@ -13,15 +14,17 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from ..format import names as fmt
 from ..format.columns import one_array
-from ..format.records import RunInfo
+from ..format.records import RunInfo, from_json
 from ..format.wrappers import state_causes
 from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
 
 __all__ = [
+    "cast_actions",
     "episode_records",
     "layout_not_replayable",
     "replay_actions",
@@ -114,6 +117,52 @@ def to_end(
             out[index] = (first, length)
             after[index] = count - length
     return out, after
+
+
+_ACTION_CAST = "action_cast"
+
+
+def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
+    """The episodes of ``steps`` whose actions the recorder cast: first step, and the note.
+
+    The recorder notes ``action_cast`` on a step whose action it stored in the space's dtype
+    from another (a float64 action of a float32 ``Box``): the env stepped a value the file
+    holds only rounded. Only the distinct notes values are parsed.
+
+    >>> import pyarrow as pa
+    >>> notes = [None, '["action_cast: dtype float64 cast to float32"]', None]
+    >>> cast_actions(pa.table({"episode": [0, 1, 1], "step": [0, 0, 1], "notes": notes}))
+    {1: (0, 'dtype float64 cast to float32')}
+    """
+    if fmt.COL_NOTES not in steps.column_names:
+        return {}
+    notes = steps.column(fmt.COL_NOTES)
+    if notes.null_count == len(notes):
+        return {}
+    encoded = pc.dictionary_encode(notes).combine_chunks()
+    cast: dict[int, str] = {}
+    for slot, text in enumerate(encoded.dictionary.to_pylist()):
+        try:
+            items = from_json(text, "notes") if text else []
+        except ValueError:  # a garbled notes value says nothing
+            continue
+        for item in items if isinstance(items, list) else ():
+            code, _, message = str(item).partition(": ")
+            if code == _ACTION_CAST:
+                cast[slot] = message
+                break
+    if not cast:
+        return {}
+    indices = encoded.indices.to_numpy(zero_copy_only=False)
+    valid = np.asarray(encoded.indices.is_valid())
+    rows = np.flatnonzero(valid & np.isin(np.where(valid, indices, -1), list(cast)))
+    episode = steps.column(fmt.COL_EPISODE).to_numpy()[rows]
+    step = steps.column(fmt.COL_STEP).to_numpy()[rows]
+    out: dict[int, tuple[int, str]] = {}
+    for row, e, t in zip(rows.tolist(), episode.tolist(), step.tolist(), strict=True):
+        if e not in out:
+            out[e] = (t, cast[int(indices[row])])
+    return out
 
 
 def unrepeated(record: Mapping[str, Any], after_end: int) -> str | None:

@@ -26,6 +26,7 @@ __all__ = [
     "Status",
     "env_error",
     "none_replayable",
+    "not_told_from_cast",
     "not_told_from_history",
     "not_told_from_versions",
     "restored_state",
@@ -234,6 +235,34 @@ be told from theirs; replay where they match to verify, or allow for them with -
             e = replace(e, status="not_replayable", reason=reason + note)
         out.append(e)
     return out
+
+
+def not_told_from_cast(result: EpisodeReplay, first: int, note: str) -> EpisodeReplay:
+    """A diverged ``result`` ``not_replayable``: the recorder cast its actions (a step ``first``).
+
+    The env stepped the policy's actions (float64, say); the file holds them cast to the
+    space's dtype (``note``, the recorder's ``action_cast``), which is what replay steps. From
+    the first cast step on, a difference is the rounding's, no verdict on the env.
+
+    >>> d = EpisodeReplay("f", 0, "diverged", 9, Divergence(3, "observation", "1", "1.01"))
+    >>> print(not_told_from_cast(d, 0, "dtype float64 cast to float32").reason)
+    differed at step 3 (observation) after the recorder cast its actions (from step 0: dtype \
+float64 cast to float32): the env stepped values the file holds rounded, so replay cannot step \
+the same ones; give env.step() actions of the action space's dtype to make it replayable
+    """
+    if result.status != "diverged" or result.divergence is None:
+        return result
+    step = result.divergence.step
+    if step is None or step < first:
+        return result  # (it differed before any cast action was stepped)
+    reason = (
+        f"differed{_where(result.divergence)} after the recorder cast its actions (from step "
+        f"{first}: {note}): the env stepped values the file holds rounded, so replay cannot "
+        "step the same ones; give env.step() actions of the action space's dtype to make it "
+        "replayable"
+    )
+    note_ = "" if result.reason is None else f" ({result.reason})"
+    return replace(result, status="not_replayable", reason=reason + note_)
 
 
 def not_told_from_history(

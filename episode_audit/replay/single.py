@@ -24,6 +24,7 @@ from ..format import names as fmt
 from ..read import Evidence
 from .envs import EnvFactory, build_env, env_mismatch
 from .recorded import (
+    cast_actions,
     episode_records,
     layout_not_replayable,
     row_ranges,
@@ -31,7 +32,7 @@ from .recorded import (
     to_end,
     unrepeated,
 )
-from .results import EpisodeReplay, none_replayable, not_told_from_history
+from .results import EpisodeReplay, none_replayable, not_told_from_cast, not_told_from_history
 from .runner import EpisodeRunner
 
 __all__ = ["REPLAY_WINDOW_BYTES", "REPLAY_WINDOW_ROWS", "SubEnvs", "replay_single_evidence"]
@@ -147,6 +148,7 @@ class _Pass:
         self.results: dict[int, EpisodeReplay] = {}
         self.after_end: dict[int, int] = {}  # by episode: its rows stepped after its end
         self.unstarted: list[dict[str, Any]] = []  # records of episodes never stepped (no rows)
+        self.cast: dict[int, str] = {}  # by episode: a difference the recorder's cast explains
         # records, by index, resets, reset rows: read when first needed
         self.known: list[Any] = []
 
@@ -184,6 +186,9 @@ class _Pass:
                 env = f"sub-env {sub}'s env" if vector else "this env"
                 result = not_told_from_history(result, before, env=env)
             own = unrepeated(record, self.after_end.get(index, 0))
+            if index in self.cast:  # (it differed: so may its env's state after it)
+                cast = f"episode {index}'s actions, stepped before the recorder cast them"
+                own = cast if own is None else f"{own}, and {cast[len(f'episode {index}') :]}"
             if own is not None:
                 latest[sub] = own
                 if result.reason is None and result.status != "not_replayable":
@@ -208,7 +213,14 @@ class _Pass:
         self.after_end.update(after_end)
         batch = [by_index[e] for e in rows if e in by_index and e not in results]
         batch = self.with_unstarted(batch)
+        cast: dict[int, tuple[int, str]] | None = None
         for result in self.runner.run_all(batch, table, rows, reset_rows, resets):
+            if result.status == "diverged":
+                cast = cast_actions(table) if cast is None else cast
+                if result.episode in cast:
+                    result = not_told_from_cast(result, *cast[result.episode])
+                    if result.status == "not_replayable":
+                        self.cast[result.episode] = cast[result.episode][1]
             results[result.episode] = result
 
     def with_unstarted(self, batch: list[dict[str, Any]]) -> list[dict[str, Any]]:
