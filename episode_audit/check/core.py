@@ -33,7 +33,7 @@ from .facts import check_file_facts, check_unfinished
 from .findings import CheckResult, Finding
 from .keys import KeyChecks
 from .notes import is_note, note_finding, notes_summary, recorder_notes
-from .registry import FILE_UNREADABLE, SEVERITY_RANK, ignored_codes, is_ignored
+from .registry import FILE_UNREADABLE, SEVERITY_RANK, ignored_by, ignored_codes, is_ignored
 from .rewards import RewardChecks
 from .spaces import SpaceChecks
 
@@ -245,7 +245,9 @@ def check(
     """
     _check_options(atol, rtol)
     ignored = ignored_codes(ignore)
-    result = CheckResult(findings=[], files=[], episodes=0, steps=0)
+    result = CheckResult(
+        findings=[], files=[], episodes=0, steps=0, ignored_by=dict.fromkeys(sorted(ignored), 0)
+    )
     one = partial(_check_path, atol=atol, rtol=rtol, require_terms=require_terms)
     paths = list(paths)
     checked_files = map_ordered(one, paths, jobs=jobs, ray_address=ray_address, progress=progress)
@@ -260,8 +262,10 @@ def check(
             result.steps += checked.steps
         result.files.append(checked.file)
         for finding in found:
-            if is_ignored(finding.code, ignored):
+            by = ignored_by(finding.code, ignored)
+            if by is not None:
                 result.ignored += 1
+                result.ignored_by[by] += 1
             else:
                 result.findings.append(finding)
     return result

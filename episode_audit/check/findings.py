@@ -72,6 +72,8 @@ class CheckResult:
     steps: int
     ignored: int = 0
     """Findings left out because their code was ignored (see :func:`~episode_audit.check.check`)."""
+    ignored_by: dict[str, int] = field(default_factory=dict)
+    """How many findings each code given to ``ignore`` left out (0: it matched none)."""
     unreadable: list[Unreadable] = field(default_factory=list)
     """The inputs that could not be read (only with ``keep_going``; each is also in ``files``)."""
 

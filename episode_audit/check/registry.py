@@ -492,6 +492,21 @@ known codes: terms_sum_mismatch, missing_terms, ...
     return frozenset(wanted)
 
 
+def ignored_by(code: str, ignored: frozenset[str]) -> str | None:
+    """The code among ``ignored`` that leaves out a finding's ``code``, or ``None``.
+
+    >>> ignored_by("recorder_note:observation_cast", frozenset({"recorder_note"}))
+    'recorder_note'
+    >>> print(ignored_by("missing_terms", frozenset({"recorder_note"})))
+    None
+    """
+    if code in ignored:
+        return code
+    if RECORDER_NOTE in ignored and code.startswith(RECORDER_NOTE + ":"):
+        return RECORDER_NOTE
+    return None
+
+
 def is_ignored(code: str, ignored: frozenset[str]) -> bool:
     """Whether a finding's ``code`` is among ``ignored`` (from :func:`ignored_codes`).
 

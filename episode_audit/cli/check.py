@@ -26,6 +26,7 @@ from ._app import (
     interruptible,
     jobs_for,
     progress_bar,
+    warn,
 )
 from ._summary import NoStepSummaryOption, append_step_summary
 
@@ -100,6 +101,9 @@ def check(
                 )
             except ConfigurationError as exc:
                 fail(str(exc))
+        for code, left_out in result.ignored_by.items():
+            if not left_out:
+                warn(f"--ignore {code}: no finding has this code (misspelt?); nothing left out")
         emit(check_output(result, fmt, strict=strict, ignored=ignored, group=group))
         append_step_summary(
             lambda: str(check_output(result, "markdown", group=group)), off=no_step_summary
