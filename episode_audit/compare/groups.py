@@ -18,6 +18,7 @@ from ..format import names as fmt
 from ..report import GateResult, IncentiveWarning
 from .metrics import MetricComparison, Verdict, mean_metric, rate_metric
 from .sides import Side, pair
+from .stats import too_few
 
 __all__ = [
     "NEW_WARNINGS_GATE",
@@ -27,6 +28,7 @@ __all__ = [
     "check_gates",
     "combine",
     "compare_group",
+    "unverifiable",
 ]
 
 RATE_MARGIN = 0.05
@@ -161,12 +163,11 @@ def compare_group(
     rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
     metrics = [rate(*spec) for spec in rates]
     _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
-    metrics.append(
-        mean_metric(
-            "return", base.returns, cand.returns, pairs, better="higher",
-            margin=gates.max_return_drop,
-        )
+    returns = mean_metric(
+        "return", base.returns, cand.returns, pairs, better="higher",
+        margin=gates.max_return_drop,
     )  # fmt: skip
+    metrics.append(returns)
     for term in sorted(set(base.terms) & set(cand.terms)):
         metrics.append(
             mean_metric(
@@ -174,7 +175,7 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    notes = _nonfinite_returns(base, cand)
+    notes = _nonfinite_returns(base, cand) + _unbounded(returns)
     return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
 
 
@@ -189,6 +190,24 @@ def _nonfinite_returns(base: Side, cand: Side) -> list[str]:
         "(inconclusive), and the incentive warnings leave those episodes out "
         "(`episode-audit check` finds them)"
     ]
+
+
+def _unbounded(returns: MetricComparison) -> list[str]:
+    """The note on a return whose interval too few episodes leave unbounded, if it is so."""
+    why = unverifiable(returns)
+    if why is None:
+        return []
+    return [
+        f"return: {why}, so the difference has no 95 % interval and a max_return_drop "
+        "gate cannot be verified: record more episodes"
+    ]
+
+
+def unverifiable(metric: MetricComparison) -> str | None:
+    """Why a mean's interval is unbounded for want of episodes (:func:`~.stats.too_few`)."""
+    if metric.kind != "mean":
+        return None
+    return too_few(metric.baseline_n, metric.candidate_n, paired=metric.paired)
 
 
 def _mark_repeats(metrics: list[MetricComparison], events: list[tuple[Any, Any]]) -> None:
@@ -214,6 +233,9 @@ def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
 def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
     """Each gate that is on, checked against the group's metric: its interval's worse end.
 
+    A return gate on too few episodes to bound the difference (:func:`unverifiable`) fails
+    saying it cannot be verified, not that the interval is beyond it.
+
     With ``fail_on_new_incentive_warning``, last, the gate ``new_incentive_warnings``.
     """
     by_name = {m.name: m for m in group.metrics}
@@ -222,6 +244,11 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
         metric = by_name.get(name)
         if metric is None:  # (success_rate: the env reports no success, as report's gate says)
             out.append(GateResult(_gate_name(name), group.key, False, _no_success(group.key)))
+            continue
+        why = unverifiable(metric)
+        if why is not None:
+            message = f"{name}: cannot be verified, {why}; record more (group {group.key})"
+            out.append(GateResult(_gate_name(name), group.key, False, message))
             continue
         worse = metric.worse_bound()
         passed = worse <= limit
