@@ -154,11 +154,12 @@ def compare_group(
     rates = [("failure_rate", failed_b, failed_c, "lower")]
     if base.success_signal or cand.success_signal:  # (else 0 against 0 by construction)
         rates.insert(0, ("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher"))
-    labels = set(base.failure_label[failed_b]) | set(cand.failure_label[failed_c])
+    named_b, named_c = base.failure_names(), cand.failure_names()  # (unlabelled: as report)
+    labels = set(named_b[failed_b]) | set(named_c[failed_c])
     labels |= set(gates.max_failure_increase_by_label)
-    for label in sorted(str(x) for x in labels):
-        b = failed_b & (base.failure_label == label)
-        c = failed_c & (cand.failure_label == label)
+    for label in sorted(labels):
+        b = failed_b & (named_b == label)
+        c = failed_c & (named_c == label)
         rates.append((f"failure_rate:{label}", b, c, "lower"))
     rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
     metrics = [rate(*spec) for spec in rates]

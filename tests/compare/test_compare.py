@@ -406,3 +406,28 @@ def test_constant_returns_on_enough_pairs_are_still_decided(tmp_path: Path) -> N
     assert worse.groups[0].gates[0].message == (
         "return: the 95 % interval allows a drop of up to 2, beyond 1 (group all)"
     )
+
+
+def test_an_unlabelled_failure_is_named_as_report_names_it(tmp_path: Path) -> None:
+    # A file whose failures carry no label (null: another writer's) showed `failure_rate:None`
+    # at 0 against 0, and `failure_rate:unlabeled` regressed from 0 to 1 on the same failures.
+    from episode_audit import report
+    from tests.support.hostile import replace_column, rewrite
+
+    source, cand = tmp_path / "source.mcap", tmp_path / "cand.mcap"
+    for path in (source, cand):
+        record_episodes("CartPole-v1", path, episodes=8, seed=0)  # (every episode falls)
+    base = rewrite(source, tmp_path / "base.mcap", episodes=lambda batch: replace_column(
+        batch, "failure_label", [None] * batch.num_rows))  # fmt: skip
+    (group,) = report([base]).groups
+    assert group.failures == {"unlabeled": 8}
+    result = compare([base], [cand])
+    rates = {m.name: m for m in result.groups[0].metrics if m.kind == "rate"}
+    assert list(rates) == ["failure_rate", "failure_rate:unlabeled", "truncation_rate"]
+    unlabeled = rates["failure_rate:unlabeled"]
+    assert (unlabeled.baseline, unlabeled.candidate, unlabeled.pairs) == (1.0, 1.0, 8)
+    assert unlabeled.same_test_as is None and not unlabeled.can_reject  # (was: p 0.0078)
+    assert result.verdict != "regressed" and result.seen_labels == ["unlabeled"]
+    empty = Side.of(["failure", "failure"], failure_label=[None, ""])
+    names = [m.name for m in compare_group("g", empty, empty, CompareGates(), []).metrics]
+    assert [n for n in names if n.startswith("failure_rate:")] == ["failure_rate:unlabeled"]
