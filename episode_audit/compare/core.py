@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigurationError
-from ..format import names as fmt
 from ..read import Evidence, open_evidence
 from ..read.storage import is_url
 from ..report.collect import check_by, joined
@@ -267,13 +266,7 @@ def compare_parts(
 
 def _failure_labels(found: Iterable[Side]) -> list[str]:
     """The failure labels of the sides' failed episodes, sorted."""
-    return sorted(
-        {
-            str(label or fmt.UNLABELED)
-            for side in found
-            for label in side.failure_label[side.outcome == fmt.OUTCOME_FAILURE]
-        }
-    )
+    return sorted({label for side in found for label in side.failure_names() if label})
 
 
 def check_apart(baseline: Sequence[Any], candidate: Sequence[Any]) -> None:

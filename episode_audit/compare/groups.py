@@ -18,6 +18,7 @@ from ..format import names as fmt
 from ..report import GateResult, IncentiveWarning
 from .metrics import MetricComparison, Verdict, mean_metric, rate_metric
 from .sides import Side, pair
+from .stats import too_few
 
 __all__ = [
     "NEW_WARNINGS_GATE",
@@ -27,6 +28,7 @@ __all__ = [
     "check_gates",
     "combine",
     "compare_group",
+    "unverifiable",
 ]
 
 RATE_MARGIN = 0.05
@@ -152,21 +154,21 @@ def compare_group(
     rates = [("failure_rate", failed_b, failed_c, "lower")]
     if base.success_signal or cand.success_signal:  # (else 0 against 0 by construction)
         rates.insert(0, ("success_rate", *_is(base, cand, fmt.OUTCOME_SUCCESS), "higher"))
-    labels = set(base.failure_label[failed_b]) | set(cand.failure_label[failed_c])
+    named_b, named_c = base.failure_names(), cand.failure_names()  # (unlabelled: as report)
+    labels = set(named_b[failed_b]) | set(named_c[failed_c])
     labels |= set(gates.max_failure_increase_by_label)
-    for label in sorted(str(x) for x in labels):
-        b = failed_b & (base.failure_label == label)
-        c = failed_c & (cand.failure_label == label)
+    for label in sorted(labels):
+        b = failed_b & (named_b == label)
+        c = failed_c & (named_c == label)
         rates.append((f"failure_rate:{label}", b, c, "lower"))
     rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
     metrics = [rate(*spec) for spec in rates]
     _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
-    metrics.append(
-        mean_metric(
-            "return", base.returns, cand.returns, pairs, better="higher",
-            margin=gates.max_return_drop,
-        )
+    returns = mean_metric(
+        "return", base.returns, cand.returns, pairs, better="higher",
+        margin=gates.max_return_drop,
     )  # fmt: skip
+    metrics.append(returns)
     for term in sorted(set(base.terms) & set(cand.terms)):
         metrics.append(
             mean_metric(
@@ -174,7 +176,7 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    notes = _nonfinite_returns(base, cand)
+    notes = _nonfinite_returns(base, cand) + _unbounded(returns)
     return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
 
 
@@ -189,6 +191,24 @@ def _nonfinite_returns(base: Side, cand: Side) -> list[str]:
         "(inconclusive), and the incentive warnings leave those episodes out "
         "(`episode-audit check` finds them)"
     ]
+
+
+def _unbounded(returns: MetricComparison) -> list[str]:
+    """The note on a return whose interval too few episodes leave unbounded, if it is so."""
+    why = unverifiable(returns)
+    if why is None:
+        return []
+    return [
+        f"return: {why}, so the difference has no 95 % interval and a max_return_drop "
+        "gate cannot be verified: record more episodes"
+    ]
+
+
+def unverifiable(metric: MetricComparison) -> str | None:
+    """Why a mean's interval is unbounded for want of episodes (:func:`~.stats.too_few`)."""
+    if metric.kind != "mean":
+        return None
+    return too_few(metric.baseline_n, metric.candidate_n, paired=metric.paired)
 
 
 def _mark_repeats(metrics: list[MetricComparison], events: list[tuple[Any, Any]]) -> None:
@@ -214,6 +234,9 @@ def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
 def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
     """Each gate that is on, checked against the group's metric: its interval's worse end.
 
+    A return gate on too few episodes to bound the difference (:func:`unverifiable`) fails
+    saying it cannot be verified, not that the interval is beyond it.
+
     With ``fail_on_new_incentive_warning``, last, the gate ``new_incentive_warnings``.
     """
     by_name = {m.name: m for m in group.metrics}
@@ -222,6 +245,11 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
         metric = by_name.get(name)
         if metric is None:  # (success_rate: the env reports no success, as report's gate says)
             out.append(GateResult(_gate_name(name), group.key, False, _no_success(group.key)))
+            continue
+        why = unverifiable(metric)
+        if why is not None:
+            message = f"{name}: cannot be verified, {why}; record more (group {group.key})"
+            out.append(GateResult(_gate_name(name), group.key, False, message))
             continue
         worse = metric.worse_bound()
         passed = worse <= limit

@@ -173,7 +173,9 @@ def mean_metric(
 ) -> MetricComparison:
     """Compare the means of two float arrays (one value per ended episode).
 
-    ``margin`` ``None`` takes half the baseline's standard deviation (Cohen's d = 0.5).
+    ``margin`` ``None`` takes half the baseline's standard deviation (Cohen's d = 0.5). The n
+    needed is at least :func:`~.stats.fewest`: below it there is no interval
+    (:func:`~.stats.too_few`).
     """
     nb, nc = len(base), len(cand)
     paired = use_pairs(pairs, nb, nc)
@@ -190,6 +192,8 @@ def mean_metric(
         spread = base if nb > 1 else cand
         margin = 0.5 * float(np.std(spread, ddof=1)) if len(spread) > 1 else 0.0
     mde, needed = stats.planning(variance, se, margin)
+    if needed < stats.NEVER:  # (fewer cannot reach p < ALPHA in the exact test: no interval)
+        needed = max(needed, stats.fewest(paired=paired))
     return MetricComparison(
         name, "mean", better, float(np.mean(x)), float(np.mean(y)), len(x), len(y),
         float(np.mean(y) - np.mean(x)), stats.bootstrap_difference(x, y, paired=paired),

@@ -51,6 +51,19 @@ class Side:
         """The number of ended episodes."""
         return len(self.outcome)
 
+    def failure_names(self) -> Array:
+        """Per episode, its failure label as report names it (``None`` unless a failure).
+
+        A failure without a label (null or empty: another writer's file, a game's) is
+        ``unlabeled`` (:data:`~episode_audit.format.names.UNLABELED`), as in report.
+        """
+        failed = self.outcome == fmt.OUTCOME_FAILURE
+        return np.array(
+            [str(label or fmt.UNLABELED) if f else None
+             for f, label in zip(failed.tolist(), self.failure_label.tolist(), strict=True)],
+            dtype=object,
+        )  # fmt: skip
+
     @classmethod
     def of(
         cls,

@@ -4,7 +4,7 @@
   :func:`newcombe_paired` (Newcombe 1998b, method 10) with :func:`mcnemar_exact`;
 - means: :func:`bootstrap_difference` (scipy's BCa bootstrap, paired or not) with a t-test
   (:func:`mean_p_value`; without spread, the exact permutation test, :func:`no_spread_p_value`);
-  :func:`iqm`;
+  no interval where that test could not reach p < :data:`ALPHA` (:func:`too_few`); :func:`iqm`;
 - :func:`holm` (Holm 1979); :func:`planning` (minimum detectable effect, n needed).
 
 The tests and intervals are scipy's (``scipy.stats``); Newcombe's intervals are sums of squares of
@@ -26,6 +26,7 @@ __all__ = [
     "ALPHA",
     "POWER",
     "bootstrap_difference",
+    "fewest",
     "fisher_p_value",
     "holm",
     "iqm",
@@ -35,6 +36,8 @@ __all__ = [
     "newcombe_unpaired",
     "no_spread_p_value",
     "planning",
+    "smallest_p",
+    "too_few",
 ]
 
 ALPHA = 0.05
@@ -126,18 +129,22 @@ def bootstrap_difference(base: Array, cand: Array, *, paired: bool) -> Interval:
     """The BCa bootstrap interval of ``mean(cand) - mean(base)`` (``scipy.stats.bootstrap``).
 
     ``paired`` resamples the pairs (``base[i]``, ``cand[i]``) together; otherwise each side is
-    resampled on its own. A side of one value (or one pair) cannot be resampled and gives
-    ``(-inf, inf)``; constant data of at least two values (no spread to resample) give the
-    point difference.
+    resampled on its own. Too few values to bound the difference (:func:`too_few`: a side of
+    one, or fewer than the exact permutation test needs to reach p < :data:`ALPHA`) give
+    ``(-inf, inf)``. Data without spread and enough values give the point difference: the
+    exact permutation test then rejects every other shift (the interval is that test's,
+    inverted).
 
     >>> bootstrap_difference(np.array([21.0]), np.array([0.0]), paired=False)
     Interval(low=-inf, high=inf)
     >>> bootstrap_difference(np.array([1.0, 1.0]), np.array([3.0, 3.0]), paired=False)
+    Interval(low=-inf, high=inf)
+    >>> bootstrap_difference(np.ones(4), np.full(4, 3.0), paired=False)
     Interval(low=2.0, high=2.0)
     """
     diff = float(np.mean(cand) - np.mean(base))
     data: tuple[Array, ...] = (cand - base,) if paired else (base, cand)
-    if min(len(d) for d in data) < 2:  # (one value has no spread to tell from none)
+    if too_few(len(base), len(cand), paired=paired) is not None:
         return Interval(-math.inf, math.inf)
     if all(np.ptp(d) == 0 for d in data):
         return Interval(diff, diff)
@@ -146,6 +153,60 @@ def bootstrap_difference(base: Array, cand: Array, *, paired: bool) -> Interval:
     if not (math.isfinite(low) and math.isfinite(high)):  # BCa undefined: percentiles
         low, high = _bootstrap(data, statistic, "percentile")
     return Interval(low, high)
+
+
+def smallest_p(n1: int, n2: int, *, paired: bool) -> float:
+    """The smallest two-sided p-value the exact permutation test of a difference of means gives.
+
+    Paired (``n1`` pairs): ``2 / 2**n1``, all signs alike; unpaired: ``2 / comb(n1 + n2, n1)``
+    (the split seen and its mirror image) when ``n1 == n2``, else ``1 / comb(n1 + n2, n1)``.
+
+    >>> smallest_p(5, 5, paired=True), smallest_p(3, 3, paired=False)
+    (0.0625, 0.1)
+    """
+    if paired:
+        return min(1.0, 2.0 / 2.0**n1)
+    return min(1.0, (2 if n1 == n2 else 1) / math.comb(n1 + n2, n1))
+
+
+def fewest(*, paired: bool) -> int:
+    """The fewest pairs, or episodes a side, whose exact permutation test can reach p < ALPHA.
+
+    >>> fewest(paired=True), fewest(paired=False)
+    (6, 4)
+    """
+    n = 2
+    while smallest_p(n, n, paired=paired) >= ALPHA:
+        n += 1
+    return n
+
+
+def too_few(n1: int, n2: int, *, paired: bool) -> str | None:
+    """Why ``n1`` and ``n2`` values (paired: ``n1`` pairs) cannot bound a difference of means.
+
+    ``None`` when they can. A side of one value has no spread to tell from none. Below
+    :func:`fewest`, no exact test can reach p < :data:`ALPHA` whatever the values, so no 95 %
+    interval excludes any difference without assuming how returns are distributed (the BCa
+    bootstrap's there covered 51-81 % of normal samples: ``docs/compare.md``).
+
+    >>> too_few(2, 2, paired=False).split(":")[0]
+    '2 episodes a side are too few'
+    >>> too_few(10, 10, paired=True) is None
+    True
+    """
+    unit = "pair" if paired else "episode"
+    if min(n1, n2) < 2:
+        side = "" if paired else " a side"
+        return f"one {unit}{side} has no spread to resample (at least 2 needed)"
+    p = smallest_p(n1, n2, paired=paired)
+    if p < ALPHA:
+        return None
+    least = fewest(paired=paired)
+    have = f"{n1} pairs are" if paired else (
+        f"{n1} episodes a side are" if n1 == n2 else f"{n1} and {n2} episodes are"
+    )  # fmt: skip
+    need = f"{least} pairs" if paired else f"{least} a side"
+    return f"{have} too few: an exact test's p is at least {p:.3g} ({need} can reach p < {ALPHA})"
 
 
 def _mean(x: Array, axis: int = -1) -> Array:
@@ -213,10 +274,7 @@ def no_spread_p_value(base: Array, cand: Array, *, paired: bool) -> float:
     """
     if float(np.mean(cand)) == float(np.mean(base)):
         return 1.0
-    if paired:
-        return min(1.0, 2.0 / 2.0 ** len(base))
-    n1, n2 = len(base), len(cand)
-    return min(1.0, (2 if n1 == n2 else 1) / math.comb(n1 + n2, n1))
+    return smallest_p(len(base), len(cand), paired=paired)
 
 
 def iqm(values: Array) -> float | None:

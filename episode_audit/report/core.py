@@ -16,10 +16,26 @@ from typing import Any
 from .._jobs import map_ordered
 from ..read import Evidence, open_evidence
 from .collect import NONE_KEY, FileRows, check_by, file_rows, joined
-from .gates import GateResult, Gates, check_gates, unmatched_labels, unmatched_why
+from .gates import GateResult, Gates, check_gateable, check_gates, unmatched_labels, unmatched_why
 from .groups import GroupReport, group_reports
 
-__all__ = ["FilePart", "Report", "file_part", "report", "report_parts", "report_tables"]
+__all__ = [
+    "BY_LABEL_NOTE",
+    "FilePart",
+    "Report",
+    "file_part",
+    "report",
+    "report_parts",
+    "report_tables",
+]
+
+
+BY_LABEL_NOTE = (
+    "by label: each group holds one outcome, so its success, failure and truncation rates "
+    "(0 or 1 by construction) and incentive warnings (which set a group's outcomes against "
+    "each other) are not computed; report by file, env, all or tag:NAME for them"
+)
+"""The note of a report grouped by label."""
 
 
 @dataclass
@@ -44,8 +60,9 @@ class Report:
     def notes(self) -> list[str]:
         """What the report's options matched nothing of, and what it could not use, a line each.
 
-        A per-label failure gate on a label no failure has; ``by="tag:NAME"`` with a tag no
-        file has; a group with returns that are not finite.
+        A per-label failure gate on a label no failure has; ``by="label"``, whose groups have
+        no rates nor warnings (:data:`BY_LABEL_NOTE`); ``by="tag:NAME"`` with a tag no file
+        has; a group with returns that are not finite.
         """
         seen = sorted({label for group in self.groups for label in group.failures})
         labels = ", ".join(map(repr, seen)) if seen else "none"
@@ -53,6 +70,8 @@ class Report:
             f"gate max_failure_rate:{label}: {unmatched_why(label)} (labels seen: {labels})"
             for label in self.unmatched_labels
         ]
+        if self.by == "label":
+            notes.append(BY_LABEL_NOTE)
         if self.missing_tag is not None:
             notes.append(
                 f"by tag:{self.missing_tag}: no file has the tag {self.missing_tag!r}, so every "
@@ -135,8 +154,9 @@ def report_parts(
 ) -> Report:
     """Report files from their parts (:func:`file_part`), as :func:`report_tables` does."""
     check_by(by)
+    check_gateable(by, gates)
     unfinished = [(p.name, p.unfinished) for p in parts if p.unfinished is not None]
-    groups = group_reports(*joined(p.rows for p in parts))
+    groups = group_reports(*joined(p.rows for p in parts), one_outcome=by == "label")
     return Report(
         by,
         groups,
@@ -172,7 +192,9 @@ def report(
     for single-agent files), ``"tag:NAME"`` (a run tag such as
     ``policy`` or ``checkpoint``; ``"(none)"`` when a file lacks it), ``"label"`` (the failure
     label; successes as ``"(success)"``, truncations as ``"(truncated:REASON)"``, and
-    ``"(incomplete)"`` / ``"(error)"``) or ``"all"``. Torn files count the episodes they hold
+    ``"(incomplete)"`` / ``"(error)"``: each group one outcome, so no rates nor incentive
+    warnings are computed and ``gates`` are refused, :func:`~.gates.check_gateable`) or
+    ``"all"``. Torn files count the episodes they hold
     (cut-off ones as incomplete). An unreadable file raises
     :class:`~episode_audit.errors.EvidenceError`. With ``games``, PettingZoo files are
     counted by game instead of by agent-episode, each game's outcome derived from its agents'
@@ -197,6 +219,7 @@ def report(
         (False, 'truncation rate 1.00 > 0.50 (group CartPole-v1)')
     """
     check_by(by)
+    check_gateable(by, gates)
     one = partial(_part_of, by=by, games=games)
     parts = list(map_ordered(one, list(paths), jobs=jobs, ray_address=ray_address))
     return report_parts(parts, by=by, gates=gates, games=games)

@@ -15,7 +15,15 @@ from ..errors import ConfigurationError
 from .groups import GroupReport
 from .stats import rate
 
-__all__ = ["GateResult", "Gates", "check_gates", "is_rate", "unmatched_labels", "unmatched_why"]
+__all__ = [
+    "GateResult",
+    "Gates",
+    "check_gateable",
+    "check_gates",
+    "is_rate",
+    "unmatched_labels",
+    "unmatched_why",
+]
 
 
 def is_rate(value: object) -> bool:
@@ -63,6 +71,20 @@ class Gates:
                 raise ConfigurationError(
                     f"{name}: expected a rate between 0 and 1, actually: {value!r}"
                 )
+
+
+def check_gateable(by: str, gates: Gates | None) -> None:
+    """Refuse gates on a report grouped by label (:class:`ConfigurationError`).
+
+    Each label group holds one outcome, so its rates are 0 or 1 and its incentive warnings
+    undefined by construction: every gate would pass or fail whatever the policy did.
+    """
+    if by == "label" and gates is not None and gates.any:
+        raise ConfigurationError(
+            "gates: expected a grouping whose groups can hold several outcomes, actually by "
+            "label (each group one outcome, its rates 0 or 1 by construction); gate a report "
+            "by file, env, all or tag:NAME, and list the labels in a report by label"
+        )
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,8 @@ __all__ = ["GroupReport", "group_reports"]
 class GroupReport:
     """Outcome counts, rates and statistics of one group of episodes.
 
-    Rates are over ``ended`` (success + failure + truncated) and ``None`` when no episode ended.
+    Rates are over ``ended`` (success + failure + truncated) and ``None`` when no episode ended,
+    or when the grouping gives every group one outcome (by label, :func:`group_reports`).
     Return and length statistics are over the ended episodes (population standard deviation).
     ``term_means[outcome][term]`` is the mean per-episode total of a reward term over the ended
     episodes of that outcome (declared constant terms included, as constant x length).
@@ -111,11 +112,21 @@ def _interval(ci: Interval | None) -> dict[str, float] | None:
     return None if ci is None else {"low": ci.low, "high": ci.high}
 
 
-def group_reports(episodes: pa.Table, terms: pa.Table) -> list[GroupReport]:
-    """One report per group key of ``episodes`` (:func:`natural` order), with its ``terms`` rows."""
+def group_reports(
+    episodes: pa.Table, terms: pa.Table, *, one_outcome: bool = False
+) -> list[GroupReport]:
+    """One report per group key of ``episodes`` (:func:`natural` order), with its ``terms`` rows.
+
+    ``one_outcome``: every group holds episodes of one outcome by construction (grouped by
+    label), so its rates would be 0 or 1 whatever the episodes, and its incentive warnings,
+    which set a group's outcomes against each other, would compare nothing: neither is
+    computed (rates and intervals ``None``, no warnings); the counts and statistics stay.
+    """
     if not episodes.num_rows:
         return []
-    return [_group(key, rows, key_terms) for key, rows, key_terms in keyed(episodes, terms)]
+    return [
+        _group(key, rows, key_terms, one_outcome) for key, rows, key_terms in keyed(episodes, terms)
+    ]
 
 
 def keyed(episodes: pa.Table, terms: pa.Table) -> list[tuple[str, pa.Table, pa.Table]]:
@@ -163,7 +174,7 @@ def by_key(table: pa.Table) -> dict[str, pa.Table]:
     }
 
 
-def _group(key: str, rows: pa.Table, terms: pa.Table) -> GroupReport:
+def _group(key: str, rows: pa.Table, terms: pa.Table, one_outcome: bool) -> GroupReport:
     outcome = rows.column("outcome").to_pylist()
     failure_labels = rows.column("failure_label").to_pylist()
     reasons = rows.column("truncation_reason").to_pylist()
@@ -212,6 +223,10 @@ def _group(key: str, rows: pa.Table, terms: pa.Table) -> GroupReport:
         success_signal=bool(pc.any(rows.column("success_signal")).as_py()),
         nonfinite_returns=int((~np.isfinite(returns[ended_mask])).sum()),
     )
+    if one_outcome:  # (each rate 0 or 1, each warning comparing nothing, by construction)
+        group.success_rate = group.failure_rate = group.truncation_rate = None
+        group.success_ci = group.failure_ci = group.truncation_ci = None
+        return group
     group.warnings = incentive_warnings(
         group, outcome_arr, np.array(failure_labels, dtype=object), returns, terms
     )

@@ -243,7 +243,8 @@ def _charts(result: Report, rows: Sequence[EpisodeRow]) -> tuple[str, str, str]:
             if r.ret is not None:
                 returns.setdefault((r.group, r.outcome), []).append(r.ret)
             lengths.setdefault((r.group, r.outcome), []).append(r.length)
-    rate_svg = charts.rate_chart(keys, rates) if keys else ""
+    has_rates = any(r is not None for values in rates.values() for r in values)  # (by label: none)
+    rate_svg = charts.rate_chart(keys, rates) if has_rates else ""
     end_svg = (
         charts.count_chart(endings, "failures and truncations") if any(endings.values()) else ""
     )

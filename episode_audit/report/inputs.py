@@ -21,7 +21,7 @@ from ..read.inputs import Unreadable, evidence_files
 from ..read.storage import Source
 from .collect import is_by
 from .core import FilePart, Report, file_part, report_parts
-from .gates import Gates, is_rate
+from .gates import Gates, check_gateable, is_rate
 
 __all__ = ["InputsReport", "gates_from_options", "report_inputs"]
 
@@ -88,6 +88,7 @@ def report_inputs(
         max_error_rate=max_error_rate,
         fail_on_incentive_warning=fail_on_incentive_warning,
     )
+    check_gateable(by, gates)
     files = evidence_files(paths, filesystem=filesystem, storage_options=storage_options)
     parts: list[FilePart] = []
     read_files: list[Source] = []

@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 
 from episode_audit import RecordEvidence, open_evidence
 from episode_audit.cli import app
+from episode_audit.report.core import BY_LABEL_NOTE as REPORT_BY_LABEL_NOTE
 
 REPO = Path(__file__).resolve().parents[2]
 FIXTURES = REPO / "fixtures"
@@ -242,6 +243,21 @@ def test_report_gates_missed_and_held() -> None:
     assert code == 2 and "between 0 and 1" in err
     code, _, err = run("report", "fixtures/clean.mcap", "--by", "colour")
     assert code == 2 and "--by" in err
+
+
+def test_report_by_label_takes_no_gates_and_says_why_it_has_no_rates() -> None:
+    # a failure label's group had a success rate of 0 by construction, so this exited 1
+    args = ("report", "fixtures/unlabeled_failure.mcap", "--by", "label")
+    for gate in (["--min-success-rate", "0.5"], ["--fail-on-incentive-warning"]):
+        code, out, err = run(*args, *gate)
+        assert (code, out) == (2, "")
+        one_error_line(err, "gates: expected a grouping whose groups can hold several")
+    code, out, err = run(*args, "--format", "json")
+    assert code == 0, err
+    data = json.loads(out)
+    assert all(g["success_rate"] is None and g["warnings"] == [] for g in data["groups"])
+    assert data["notes"] == [REPORT_BY_LABEL_NOTE]
+    assert f"episode-audit: warning: {REPORT_BY_LABEL_NOTE}" in err
 
 
 def test_report_of_files_with_no_stepped_episode_says_so_in_one_line(tmp_path: Path) -> None:

@@ -169,7 +169,11 @@ def test_one_episode_a_side_passes_no_gate_and_plans_no_n(
     assert returns.interval.low == -float("inf") and returns.interval.high == float("inf")
     (gate,) = check_gates(group, CompareGates(max_return_drop=5.0))
     assert not gate.passed  # one episode cannot show a drop of at most 5
-    assert "allows a drop of up to inf, beyond 5" in gate.message
+    unit = "one pair has" if returns.paired else "one episode a side has"
+    assert gate.message == (
+        f"return: cannot be verified, {unit} no spread to resample (at least 2 needed); "
+        "record more (group g)"
+    )
     returns.verdict = decide(returns)
     assert returns.verdict == "underpowered"
     assert returns.to_dict()["n_needed"] is None  # (no n is enough: no spread known)
@@ -240,7 +244,8 @@ def test_two_constant_episodes_a_side_are_not_a_regression() -> None:
     _decide([group])
     returns = {m.name: m for m in group.metrics}["return"]
     assert returns.p_value == pytest.approx(1 / 3)
-    assert returns.verdict == "inconclusive" and group.verdict != "regressed"
+    assert returns.verdict == "underpowered" and group.verdict != "regressed"
+    assert returns.n_needed == 4  # (the fewest a side whose exact test can reach p < 0.05)
 
 
 def test_null_with_two_episodes_a_side_of_discrete_returns_is_never_decided() -> None:
@@ -339,3 +344,90 @@ def test_an_env_that_reports_no_success_has_no_success_metric_and_fails_its_gate
     assert (gate.gate, gate.passed) == ("max_success_drop", False)
     assert gate.message.startswith("success_rate: the env reports no success (group all)")
     assert not result.passed
+
+
+def _constant_runs(path: Path, episodes: int, steps: int, seed: int = 0) -> Path:
+    """CartPole episodes cut at ``steps`` before the pole can fall: each returns ``steps``."""
+    import gymnasium as gym
+
+    from episode_audit import RecordEvidence
+
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=steps), path) as env:
+        for i in range(episodes):
+            env.reset(seed=seed + i)
+            truncated = False
+            while not truncated:
+                truncated = env.step(i % 2)[3]
+    return path
+
+
+@pytest.mark.parametrize(
+    ("base_seed", "why"),
+    [
+        (0, "2 pairs are too few: an exact test's p is at least 0.5 (6 pairs can reach"),
+        (100, "2 episodes a side are too few: an exact test's p is at least 0.333 (4 a side"),
+    ],
+)
+def test_two_constant_episodes_a_side_pass_no_return_gate(
+    tmp_path: Path, base_seed: int, why: str
+) -> None:
+    # returns [5, 5] against [5, 5] had the interval [0, 0]: any --max-return-drop passed
+    base = _constant_runs(tmp_path / "base.mcap", 2, 5, seed=base_seed)
+    cand = _constant_runs(tmp_path / "cand.mcap", 2, 5)
+    result = compare([base], [cand], gates=CompareGates(max_return_drop=0.5))
+    (group,) = result.groups
+    returns = group.metric("return")
+    assert (returns.baseline, returns.candidate, returns.paired) == (5.0, 5.0, base_seed == 0)
+    assert returns.interval.low == -math.inf and returns.interval.high == math.inf
+    assert returns.verdict == "underpowered"
+    (gate,) = group.gates
+    assert not gate.passed and not result.passed
+    assert gate.message.startswith(f"return: cannot be verified, {why}")
+    (note,) = result.notes
+    assert note.startswith(f"group all: return: {why}")
+    assert note.endswith(
+        "so the difference has no 95 % interval and a max_return_drop gate cannot be verified: "
+        "record more episodes"
+    )
+
+
+def test_constant_returns_on_enough_pairs_are_still_decided(tmp_path: Path) -> None:
+    # 6 pairs without spread: the sign test's p = 2/64 rejects every shift but the one seen
+    base = _constant_runs(tmp_path / "base.mcap", 6, 5)
+    same = compare([base], [_constant_runs(tmp_path / "same.mcap", 6, 5)],
+                   gates=CompareGates(max_return_drop=0.5))  # fmt: skip
+    assert same.groups[0].metric("return").verdict == "held" and same.passed
+    assert not same.notes
+    short = _constant_runs(tmp_path / "short.mcap", 6, 3)  # returns 3: a drop of 2
+    worse = compare([base], [short], gates=CompareGates(max_return_drop=1.0))
+    returns = worse.groups[0].metric("return")
+    assert (returns.interval.low, returns.interval.high) == (-2.0, -2.0)
+    assert returns.verdict == "regressed"
+    assert worse.groups[0].gates[0].message == (
+        "return: the 95 % interval allows a drop of up to 2, beyond 1 (group all)"
+    )
+
+
+def test_an_unlabelled_failure_is_named_as_report_names_it(tmp_path: Path) -> None:
+    # A file whose failures carry no label (null: another writer's) showed `failure_rate:None`
+    # at 0 against 0, and `failure_rate:unlabeled` regressed from 0 to 1 on the same failures.
+    from episode_audit import report
+    from tests.support.hostile import replace_column, rewrite
+
+    source, cand = tmp_path / "source.mcap", tmp_path / "cand.mcap"
+    for path in (source, cand):
+        record_episodes("CartPole-v1", path, episodes=8, seed=0)  # (every episode falls)
+    base = rewrite(source, tmp_path / "base.mcap", episodes=lambda batch: replace_column(
+        batch, "failure_label", [None] * batch.num_rows))  # fmt: skip
+    (group,) = report([base]).groups
+    assert group.failures == {"unlabeled": 8}
+    result = compare([base], [cand])
+    rates = {m.name: m for m in result.groups[0].metrics if m.kind == "rate"}
+    assert list(rates) == ["failure_rate", "failure_rate:unlabeled", "truncation_rate"]
+    unlabeled = rates["failure_rate:unlabeled"]
+    assert (unlabeled.baseline, unlabeled.candidate, unlabeled.pairs) == (1.0, 1.0, 8)
+    assert unlabeled.same_test_as is None and not unlabeled.can_reject  # (was: p 0.0078)
+    assert result.verdict != "regressed" and result.seen_labels == ["unlabeled"]
+    empty = Side.of(["failure", "failure"], failure_label=[None, ""])
+    names = [m.name for m in compare_group("g", empty, empty, CompareGates(), []).metrics]
+    assert [n for n in names if n.startswith("failure_rate:")] == ["failure_rate:unlabeled"]

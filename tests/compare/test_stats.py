@@ -94,11 +94,31 @@ def test_bootstrap_paired_resamples_pairs_and_covers_the_mean_difference() -> No
 
 
 def test_bootstrap_degenerate_data() -> None:
-    same = np.ones(5)
+    same = np.ones(6)  # 6 pairs: the sign test's p can be 2/64, below 0.05
     assert stats.bootstrap_difference(same, same + 2, paired=True) == stats.Interval(2.0, 2.0)
     assert stats.bootstrap_difference(same, same, paired=False) == stats.Interval(0.0, 0.0)
+    unbounded = stats.Interval(-math.inf, math.inf)  # 5 pairs: p is at least 2/32
+    assert stats.bootstrap_difference(same[:5], same[:5] + 2, paired=True) == unbounded
     one = stats.bootstrap_difference(np.array([1.0]), np.array([1.0, 2.0]), paired=False)
     assert one.low == -math.inf and one.high == math.inf
+
+
+@pytest.mark.parametrize(
+    ("n1", "n2", "paired", "bounded"),
+    [(2, 2, False, False), (3, 3, False, False), (2, 4, False, False), (2, 5, False, True),
+     (4, 4, False, True), (1, 30, False, False), (5, 5, True, False), (6, 6, True, True)],
+)  # fmt: skip
+def test_no_interval_below_the_exact_tests_reach(
+    n1: int, n2: int, paired: bool, bounded: bool
+) -> None:
+    """Below the size where the exact permutation test can reach p < 0.05 no interval is given,
+    with spread or without: there BCa's "95 %" covered 51-81 % of normal samples."""
+    rng = np.random.default_rng(0)
+    base, cand = rng.normal(0, 1, n1), rng.normal(0, 1, n2)
+    ci = stats.bootstrap_difference(base, cand, paired=paired)
+    assert math.isfinite(ci.low) == math.isfinite(ci.high) == bounded
+    assert (stats.too_few(n1, n2, paired=paired) is None) == bounded
+    assert (stats.smallest_p(n1, n2, paired=paired) < stats.ALPHA) == (bounded or n1 < 2)
 
 
 def test_mean_p_value_is_scipys_t_tests() -> None:

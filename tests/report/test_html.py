@@ -102,6 +102,16 @@ def test_html_report_puts_each_warning_next_to_its_numbers(tmp_path: Path) -> No
     assert re.search(r'<td class="n warn">[^<]*<div class="warn-note">⚠ failure_outearns', page)
 
 
+def test_html_report_by_label_draws_no_rate_chart_and_warns_of_nothing(tmp_path: Path) -> None:
+    # each label group holds one outcome: its rates were bars at 0 and 100 % by construction
+    (tmp_path / "label").mkdir(), (tmp_path / "all").mkdir()
+    _, page = _page(tmp_path / "label", by="label")
+    _, by_all = _page(tmp_path / "all", by="all")
+    assert "rate of ended episodes" not in page and "rate of ended episodes" in by_all
+    assert 'class="warn-note"' not in page and 'class="warn-note"' in by_all
+    assert "<td class=n>1 (-)</td>" in page  # (the counts stay; no rate)
+
+
 @pytest.mark.parametrize("name", ["report.mcap", "run one.mcap"])
 def test_html_report_never_overwrites_evidence(tmp_path: Path, name: str) -> None:
     path = _evidence(tmp_path)

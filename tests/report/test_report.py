@@ -209,7 +209,8 @@ def test_by_variants(tmp_path: Path) -> None:
         ("drop", 1),
     ]
     collision = by_label.groups[3]
-    assert collision.failure_rate == 1.0 and collision.success_rate == 0.0
+    assert collision.failure == 2  # (its rates, 1 and 0 by construction, are not computed)
+    assert collision.failure_rate is None and collision.success_rate is None
 
     everything = _one(report([a, b, c], by="all"))
     assert everything.key == "all"
@@ -380,6 +381,37 @@ def test_no_success_warnings_for_a_task_without_success(tmp_path: Path) -> None:
     # grouped together: one file of the group reports success, so the group does
     together = _one(report([silent, told], by="all"))
     assert together.success_signal is True and len(together.warnings) == 2
+
+
+def test_by_label_computes_no_rates_nor_warnings_and_takes_no_gates(tmp_path: Path) -> None:
+    # Each label group holds one outcome: a failure label's group had 0 successes by
+    # construction, was warned no_success_positive_return and failed --min-success-rate.
+    terms = {"progress": 2.0, "alive": 0.1}
+    plans = [Plan("success", reward=5.0)] * 2 + [Plan("failure:yanked", reward=2.1, terms=terms)]
+    path = _record_plans(tmp_path / "mixed.mcap", [*plans, *plans[2:]])
+    by_label = report([path], by="label")
+    assert [(g.key, g.episodes) for g in by_label.groups] == [("(success)", 2), ("yanked", 2)]
+    for group in by_label.groups:
+        assert group.warnings == []
+        assert (group.success_rate, group.failure_rate, group.truncation_rate) == (None,) * 3
+        assert (group.success_ci, group.failure_ci, group.truncation_ci) == (None,) * 3
+        assert group.to_dict()["success_rate"] is None
+    assert by_label.groups[1].failures == {"yanked": 2} and by_label.groups[1].success == 0
+    assert by_label.notes == [
+        "by label: each group holds one outcome, so its success, failure and truncation rates "
+        "(0 or 1 by construction) and incentive warnings (which set a group's outcomes against "
+        "each other) are not computed; report by file, env, all or tag:NAME for them"
+    ]
+    for gates in (Gates(min_success_rate=0.5), Gates(fail_on_incentive_warning=True)):
+        with pytest.raises(ConfigurationError, match=r"^gates: expected a grouping whose groups "
+                           r"can hold several outcomes, actually by label"):  # fmt: skip
+            report([path], by="label", gates=gates)
+    # the same episodes in one group: rates and the warning stay
+    failing = _record_plans(tmp_path / "failing.mcap", plans[2:] * 3)
+    (group,) = report([failing], by="all").groups
+    assert group.success_rate == 0.0 and group.failure_rate == 1.0
+    assert [w.code for w in group.warnings] == ["no_success_positive_return", "shaping_dominates"]
+    assert not report([path], by="all").notes
 
 
 def test_cartpole_is_a_task_without_success(tmp_path: Path) -> None:
