@@ -345,8 +345,14 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
         return None
     for what, recorded, now in checks:
         if recorded != now:
-            return f"{_MISMATCH}{what} {_shown(recorded)} recorded vs {_shown(now)} rebuilt"
+            return (
+                f"{_MISMATCH}{what} {_shown(recorded)} recorded vs {_shown(now)} rebuilt; "
+                f"{_BUILD_AS_RECORDED}"
+            )
     return None
+
+
+_BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as recorded"
 
 
 def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | None:
@@ -355,7 +361,16 @@ def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | 
         agents = [str(a) for a in env.possible_agents]
         recorded = layout.get("agents")
         if isinstance(recorded, list) and [str(a) for a in recorded] != agents:
-            return f"{_MISMATCH}agents {_shown(recorded)} recorded vs {_shown(agents)} rebuilt"
+            advice = (
+                _BUILD_AS_RECORDED
+                if layout.get("env_kwargs")
+                else "the file holds no env_kwargs (the env's constructor arguments, which "
+                "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
+            )
+            return (
+                f"{_MISMATCH}agents {_agents(recorded)} recorded vs {_agents(agents)} rebuilt; "
+                f"{advice}"
+            )
         if agents:
             env_spaces = (env.observation_space(agents[0]), env.action_space(agents[0]))
             for what, rec, space in zip(
@@ -366,7 +381,10 @@ def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | 
             ):
                 if rec != _described(space):
                     shown = _shown(_described(space))
-                    return f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt"
+                    return (
+                        f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; "
+                        f"{_BUILD_AS_RECORDED}"
+                    )
     except Exception:  # the env's own attributes: compare nothing more
         return None
     return None
@@ -399,6 +417,17 @@ def _kwargs(kwargs: Mapping[str, Any]) -> dict[str, Any]:
     except (TypeError, ValueError):
         return plain
     return loaded if isinstance(loaded, dict) else plain
+
+
+def _agents(agents: list[Any]) -> str:
+    """A list of agents in a mismatch reason: how many, and the first and last names.
+
+    >>> _agents(["a", "b"]), _agents([f"piston_{i}" for i in range(20)])
+    ('2 (a, b)', '20 (piston_0 ... piston_19)')
+    """
+    names = [str(a)[:40] for a in agents]
+    shown = ", ".join(names) if len(names) <= 3 else f"{names[0]} ... {names[-1]}"
+    return f"{len(names)} ({shown})"
 
 
 def _shown(value: Any) -> str:

@@ -185,9 +185,11 @@ def test_pistonball_rebuilt_with_other_agents_names_the_difference(tmp_path: Pat
     assert {e.status for e in result.episodes} == {"not_replayable"}
     assert len(result.episodes) == 5
     reason = result.episodes[0].reason or ""
-    assert reason.startswith(
-        'the rebuilt env does not match the recording: agents ["piston_0", "piston_1", '
-        '"piston_2", "piston_3", "piston_4"] recorded vs ["piston_0", '
+    assert reason == (
+        "the rebuilt env does not match the recording: agents 5 (piston_0 ... piston_4) "
+        "recorded vs 20 (piston_0 ... piston_19) rebuilt; the file holds no env_kwargs (the "
+        "env's constructor arguments, which the recorder takes as env_kwargs=): record with "
+        "them, or pass --env-factory MODULE:CALLABLE that builds the env as recorded"
     ), reason
 
 
@@ -197,7 +199,7 @@ def test_pistonball_rebuilt_with_other_agents_names_the_difference(tmp_path: Pat
         (
             "tests.support.stateful:cartpole8",
             "the rebuilt env does not match the recording: max episode steps 5 recorded vs 8 "
-            "rebuilt",
+            "rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded",
         ),
         (
             "tests.support.stateful:mountain_car5",
@@ -224,7 +226,7 @@ def test_an_env_kwarg_the_rebuilt_env_has_otherwise_is_named(tmp_path: Path) -> 
     result = replay([path], env_factory=lambda: gym.make("FrozenLake-v1", is_slippery=True))
     assert result.episodes[0].reason == (
         "the rebuilt env does not match the recording: env kwarg 'is_slippery' false recorded "
-        "vs true rebuilt"
+        "vs true rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded"
     )
 
 
