@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 from episode_audit import ConfigurationError, EvidenceError, open_evidence
 from episode_audit.cli import app
 from episode_audit.export import export
+from episode_audit.export._values import NONFINITE_NULL
 from tests.support.viewer_files import aec_file, camera_file, vector_file
 
 foxglove = pytest.importorskip("foxglove")
@@ -178,7 +179,7 @@ def test_dict_observations_plot_item_by_item(exported: dict[str, tuple[Path, Pat
         first = json.loads(next(m for *_, m in reader.iter_messages(topics=["/steps"])).data)
     properties = json.loads(schema.data)["properties"]
     assert properties["observation"]["properties"] == {
-        "state": {"type": "array", "items": {"type": "number"}},
+        "state": {"type": "array", "items": {"type": "number", "description": NONFINITE_NULL}},
         "mode": {"type": "integer"},
     }  # the camera is an image, not numbers
     assert set(properties["terms"]["properties"]) == {"progress", "effort"}

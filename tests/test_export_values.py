@@ -6,7 +6,13 @@ import numpy as np
 import pyarrow as pa
 from gymnasium import spaces
 
-from episode_audit.export._values import Split, json_rows, json_schema, split_column
+from episode_audit.export._values import (
+    NONFINITE_NULL,
+    Split,
+    json_rows,
+    json_schema,
+    split_column,
+)
 from episode_audit.format.spaces.codecs import codec_for
 
 
@@ -56,10 +62,10 @@ def test_json_values_and_schema() -> None:
     assert json_schema(split.leaves) == {
         "type": "object",
         "properties": {
-            "pos": {"type": "array", "items": {"type": "number"}},
+            "pos": {"type": "array", "items": {"type": "number", "description": NONFINITE_NULL}},
             "bits": {"type": "array", "items": {"type": "integer"}},
             "gear": {"type": "integer"},
-            "speed": {"type": "number"},
+            "speed": {"type": "number", "description": NONFINITE_NULL},
         },
     }
 

@@ -24,6 +24,7 @@ from ..format.records import from_json
 
 __all__ = [
     "IMAGE_MIN_SIDE",
+    "NONFINITE_NULL",
     "SMALL",
     "Frames",
     "Leaf",
@@ -250,8 +251,15 @@ def json_schema(leaves: Sequence[Leaf]) -> dict[str, Any] | None:
     return root
 
 
+NONFINITE_NULL = "null where the value is NaN or infinite (JSON has no such number)"
+"""The description of a float field in a JSON Schema: its type stays ``number`` (the one type
+Foxglove reads a field as), though NaN and infinite values are written ``null``."""
+
+
 def _leaf_schema(leaf: Leaf) -> dict[str, Any]:
-    number = {"type": "integer" if leaf.integer else "number"}
+    number = (
+        {"type": "integer"} if leaf.integer else {"type": "number", "description": NONFINITE_NULL}
+    )
     return number if leaf.scalar else {"type": "array", "items": number}
 
 

@@ -25,6 +25,7 @@ import pyarrow.compute as pc
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, staged
 from ._values import (
+    NONFINITE_NULL,
     Frames,
     Split,
     ending_text,
@@ -238,14 +239,16 @@ def _step_schema(terms: list[str], action: Split, observation: Split) -> dict[st
     properties: dict[str, Any] = {
         "episode": {"type": "integer"},
         "step": {"type": "integer"},
-        "reward": {"type": "number"},
+        "reward": {"type": "number", "description": NONFINITE_NULL},
         "terminated": {"type": "integer", "description": "1 if terminated"},
         "truncated": {"type": "integer", "description": "1 if truncated"},
     }
     if terms:
         properties["terms"] = {
             "type": "object",
-            "properties": {name: {"type": "number"} for name in terms},
+            "properties": {
+                name: {"type": "number", "description": NONFINITE_NULL} for name in terms
+            },
         }
     for name, split in (("action", action), ("observation", observation)):
         schema = json_schema(split.leaves)
