@@ -161,7 +161,9 @@ def test_killed_during_close_loses_nothing(recorded: Path, tmp_path: Path) -> No
     torn = torn_copy(recorded, tmp_path, summary_start)  # run-end record and data end written
     code, out, _ = run("recover", str(torn), "-o", str(tmp_path / "out.mcap"))
     assert code == 0, out
-    assert "nothing lost (the writer had not finished the file)" in out
+    assert (
+        "nothing lost (close() had written the run-end record; the summary after it was cut)" in out
+    )
     fixed = open_evidence(tmp_path / "out.mcap")
     assert fixed.run_end is not None
     assert fixed.run_end["dropped"] == "nothing" and fixed.run_end["cut_off_episodes"] == "[]"

@@ -153,7 +153,9 @@ class RecoveryResult:
             if self.summary_damage:
                 return f"{kept}; nothing lost ({self.dropped})"
             tail = f"; dropped {self.dropped}" if self.dropped_bytes else ""
-            return f"{kept}; nothing lost (the writer had not finished the file{tail})"
+            # (not lost: close() ran, its run-end record is there; what follows was cut)
+            why = "close() had written the run-end record; the summary after it was cut"
+            return f"{kept}; nothing lost ({why}{tail})"
         return f"{kept}; dropped: {self.dropped}"
 
 
