@@ -140,3 +140,19 @@ def test_exporting_many_files_in_one_process_keeps_no_threads(tmp_path: Path) ->
     for k in range(5):
         export([source], tmp_path / f"{k}.rrd", to="rerun")
     assert len(os.listdir("/proc/self/task")) <= threads
+
+
+def test_a_rerun_export_named_mcap_is_refused_before_anything_is_written(tmp_path: Path) -> None:
+    """An .rrd named .mcap would read as an evidence file to check, replay and report."""
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    out = tmp_path / "run.mcap"
+    source = str(ROOT / "fixtures" / "clean.mcap")
+    result = CliRunner().invoke(app, ["export", source, "--to", "rerun", "-o", str(out)])
+    assert result.exit_code == 2 and not out.exists()
+    assert result.output.strip() == (
+        f"episode-audit: error: --out {out}: --to rerun writes an .rrd recording, not MCAP; "
+        "name it run.rrd (an .mcap name reads as an evidence file to check, replay and report)"
+    )

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from typing import Any, Final, Literal, overload
 
 from ..errors import ConfigurationError, EvidenceError
@@ -99,4 +100,10 @@ def export(
         return export_foxglove(sources[0], out, overwrite=overwrite, progress=progress)
     from .rerun import export_rerun
 
+    if Path(out).suffix.lower() == ".mcap":
+        raise ConfigurationError(
+            f"--out {out}: --to rerun writes an .rrd recording, not MCAP; name it "
+            f"{Path(out).with_suffix('.rrd').name} (an .mcap name reads as an evidence file to "
+            "check, replay and report)"
+        )
     return export_rerun(sources[0], out, overwrite=overwrite, progress=progress)
