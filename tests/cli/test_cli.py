@@ -893,3 +893,32 @@ def test_check_ignore_of_a_code_no_finding_has_warns_once_and_keeps_the_exit_cod
         "code (misspelt?); nothing left out"
     )
     assert run(*args)[2] == ""  # the code that left findings out: no word
+
+
+def test_show_episode_titles_say_the_error_the_agent_and_the_sub_env(tmp_path: Path) -> None:
+    from episode_audit import RecordVectorEvidence
+    from tests.replay.test_pettingzoo_replay import _rps
+    from tests.support.flaky import record_flaky
+
+    flaky = record_flaky(tmp_path / "flaky.mcap")
+    code, out, _ = run("show", str(flaky), "--episode", "1", "--format", "markdown")
+    assert code == 0
+    assert out.startswith("### episode 1: error (RuntimeError in step), 2 steps"), out
+    code, out, _ = run("show", str(_rps(tmp_path / "rps.mcap")), "-e", "1", "-f", "markdown")
+    assert code == 0 and out.startswith("### episode 1 (agent player_1): "), out
+    path = tmp_path / "vec.mcap"
+    venv = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync")
+    with RecordVectorEvidence(venv, path) as env:
+        env.reset(seed=0)
+        for _ in range(3):
+            env.step(np.zeros(2, np.int64))
+    code, out, _ = run("show", str(path), "-e", "1", "-f", "markdown")
+    assert code == 0 and out.startswith("### episode 1 (sub-env 1): incomplete"), out
+
+
+def test_show_episode_prints_tuple_actions_item_by_item() -> None:
+    from episode_audit.cli.render.show import _cell
+
+    action = (2, np.array([0.078, -0.485], np.float32))
+    assert _cell(action) == "(2, [ 0.078 -0.485])"
+    assert _cell({"mode": np.int64(1), "x": np.zeros(2)}) == "{mode: 1, x: [0. 0.]}"

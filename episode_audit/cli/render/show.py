@@ -181,14 +181,34 @@ def _longest_backtick_run(text: str) -> int:
 def _cell(value: Any) -> str:
     if value is None:
         return "-"
-    if isinstance(value, np.ndarray):
-        return np.array2string(value, precision=4, threshold=8, max_line_width=60)
+    if isinstance(value, (tuple, dict, np.ndarray)):  # (Tuple and Dict actions: item by item)
+        text = _value_text(value)
+        return text if len(text) <= 60 else text[:57] + "..."
     if isinstance(value, float):
         return fmt_number(value, 6)
     if isinstance(value, bytes):
         return value.hex()[:16] + "…"
     text = str(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _value_text(value: Any) -> str:
+    """A space's value in a cell: arrays as numpy prints them, Tuple and Dict items by item.
+
+    >>> _value_text((2, np.array([0.078, -0.485], np.float32)))
+    '(2, [ 0.078 -0.485])'
+    >>> _value_text({"mode": np.int64(1), "pos": np.zeros(2)})
+    '{mode: 1, pos: [0. 0.]}'
+    """
+    if isinstance(value, np.ndarray):
+        return np.array2string(value, precision=4, threshold=8, max_line_width=60)
+    if isinstance(value, tuple):
+        return "(" + ", ".join(_value_text(v) for v in value) + ")"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_value_text(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, np.generic):
+        return str(value.item())
+    return str(value)
 
 
 def _actions(codec: SpaceCodec | None, column: pa.Array) -> list[Any]:
@@ -276,8 +296,18 @@ def episode_output(
     headers, rows, record = episode_rows(ev, index, start, stop, plain=output == "json")
     outcome = record["outcome"]
     label = record.get("failure_label") or record.get("truncation_reason")
+    if outcome == "error" and record.get("error_type"):
+        label = f"{record['error_type']} in {record.get('error_during') or 'step'}"
+    whose = (
+        f" (agent {record['agent']})"
+        if record.get("agent")
+        else f" (sub-env {record['env_index']})"
+        if ev.run.layout.get("kind") == "vector" and record.get("env_index") is not None
+        else ""
+    )
     title = (
-        f"episode {index}: {outcome}{f' ({label})' if label else ''}, {record['length']} steps, "
+        f"episode {index}{whose}: {outcome}{f' ({label})' if label else ''}, "
+        f"{record['length']} steps, "
         f"return {fmt_number(record['return'])}, "
         f"seed {record['seed'] if record['seed'] is not None else '-'}"
     )
