@@ -28,7 +28,7 @@ from .core import Report
 from .games import game_table
 from .groups import GroupReport
 from .incentives import SHAPING_DOMINATES
-from .stats import Interval
+from .stats import Interval, rate_text
 
 __all__ = [
     "EpisodeRow",
@@ -137,12 +137,6 @@ def _num(value: float | None) -> str:
     return "-" if value is None else f"{value:.4g}"
 
 
-def _rate(value: float | None, ci: Interval | None) -> str:
-    if value is None:
-        return "-"
-    return f"{value:.1%}" + ("" if ci is None else f" [{ci.low:.2f}, {ci.high:.2f}]")
-
-
 def _warning_notes(group: GroupReport, shaping: bool) -> str:
     notes = [w for w in group.warnings if (w.code == SHAPING_DOMINATES) == shaping]
     return "".join(
@@ -161,9 +155,9 @@ def _outcome_table(result: Report) -> str:
         warned = _warning_notes(g, shaping=False)
         rows.append(
             f"<tr><td>{_full(g.key)}</td><td class=n>{g.episodes}</td>"
-            f"<td class=n>{g.success} ({_rate(g.success_rate, g.success_ci)})</td>"
-            f"<td class=n>{g.failure} ({_rate(g.failure_rate, g.failure_ci)})</td>"
-            f"<td class=n>{g.truncated} ({_rate(g.truncation_rate, g.truncation_ci)})</td>"
+            f"<td class=n>{g.success} ({rate_text(g.success_rate, g.success_ci)})</td>"
+            f"<td class=n>{g.failure} ({rate_text(g.failure_rate, g.failure_ci)})</td>"
+            f"<td class=n>{g.truncated} ({rate_text(g.truncation_rate, g.truncation_ci)})</td>"
             f"<td class=n>{g.incomplete}</td><td class=n>{g.errors}</td>"
             f'<td class="n{" warn" if warned else ""}">{_num(g.return_mean)} ± '
             f"{_num(g.return_std)}{warned}</td>"

@@ -79,6 +79,12 @@ def test_html_report_has_no_network_reference(tmp_path: Path) -> None:
     assert "<!DOCTYPE svg" not in page
 
 
+def test_html_report_rates_and_intervals_share_their_unit(tmp_path: Path) -> None:
+    _, page = _page(tmp_path, by="all")
+    assert "1 (25.0% [4.6, 69.9])</td>" in page  # success: 1 of 4 ended episodes
+    assert not re.search(r"\[[01]\.\d\d, ", page)
+
+
 def test_html_report_lists_each_episode_with_its_commands(tmp_path: Path) -> None:
     _, page = _page(tmp_path)
     path = tmp_path / "run one.mcap"

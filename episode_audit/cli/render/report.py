@@ -8,14 +8,14 @@ from rich.console import Group, RenderableType
 from rich.text import Text
 
 from ...read.inputs import Unreadable
-from ...report import GroupReport, Interval, Report
+from ...report import GroupReport, Report
+from ...report.stats import rate_text
 from .common import (
     Output,
     OutputFormat,
     fmt_number,
     markdown_table,
     markdown_text,
-    rate,
     table,
     to_json,
     unreadable_json,
@@ -36,18 +36,14 @@ def _mean_std(mean: float | None, std: float | None) -> str:
     return f"{fmt_number(mean)} ± {fmt_number(std or 0.0)}"
 
 
-def _ci(ci: Interval | None) -> str:
-    return "" if ci is None else f" [{ci.low:.2f}, {ci.high:.2f}]"
-
-
 def _group_row(g: GroupReport) -> list[str]:
     return [
         g.key,
         str(g.episodes),
-        f"{g.success} ({rate(g.success_rate)}{_ci(g.success_ci)})",
-        f"{sum(g.failures.values())} ({rate(g.failure_rate)}{_ci(g.failure_ci)})",
+        f"{g.success} ({rate_text(g.success_rate, g.success_ci)})",
+        f"{sum(g.failures.values())} ({rate_text(g.failure_rate, g.failure_ci)})",
         _counts(g.failures),
-        f"{sum(g.truncations.values())} ({rate(g.truncation_rate)}{_ci(g.truncation_ci)})",
+        f"{sum(g.truncations.values())} ({rate_text(g.truncation_rate, g.truncation_ci)})",
         _counts(g.truncations),
         str(g.incomplete),
         str(g.errors),
@@ -171,9 +167,9 @@ def _group_line(g: GroupReport, unit: str) -> str:
     """One line of a group's outcomes, as the table shows them."""
     return (
         f"group {g.key}: {g.episodes} {unit}s; success {g.success} "
-        f"({rate(g.success_rate)}{_ci(g.success_ci)}), failure {g.failure} "
-        f"({rate(g.failure_rate)}{_ci(g.failure_ci)}; {_counts(g.failures)}), truncated "
-        f"{g.truncated} ({rate(g.truncation_rate)}{_ci(g.truncation_ci)}; "
+        f"({rate_text(g.success_rate, g.success_ci)}), failure {g.failure} "
+        f"({rate_text(g.failure_rate, g.failure_ci)}; {_counts(g.failures)}), truncated "
+        f"{g.truncated} ({rate_text(g.truncation_rate, g.truncation_ci)}; "
         f"{_counts(g.truncations)}), incomplete {g.incomplete}, error {g.errors}; "
         f"return {_mean_std(g.return_mean, g.return_std)}"
     )
