@@ -118,14 +118,15 @@ def report_output(
         return "\n".join(parts)
     if not result.groups:  # (an empty table's title would wrap in its one column)
         return Group(Text(NO_EPISODES), *([table("Gates", gate_headers, gates)] if gates else []))
-    # The terminal keeps labels and reasons in a table of their own: the outcomes fit 100
-    # columns side by side (80 in the vertical layout), each label on its own line
+    # The terminal keeps labels and reasons in a table of their own, each label on its own
+    # line; the outcomes are side by side when no cell wraps (about 150 columns), else vertical
     narrow = [i for i, h in enumerate(REPORT_HEADERS) if h not in _LABEL_HEADERS]
     out: list[RenderableType] = [
         table(
             f"Outcomes (by {result.by}{_unit(result)})",
             [REPORT_HEADERS[i] for i in narrow],
             [[row[i] for i in narrow] for row in rows],
+            whole_cells=True,
         )
     ]
     endings = _ending_rows(result)
