@@ -621,6 +621,20 @@ def test_check_json_names_an_unreadable_file_and_is_not_ok(tmp_path: Path) -> No
     assert finding["severity"] == "error" and finding["file"] == str(bad)
 
 
+def test_report_json_never_says_passed_when_an_input_was_not_read(tmp_path: Path) -> None:
+    """Before: ``"passed": true`` beside an unreadable input, and exit 2."""
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    gate = ("--min-success-rate", "0.1")  # that the clean file passes
+    for inputs, code, passed in [
+        (["fixtures/clean.mcap"], 0, True),
+        (["fixtures/clean.mcap", str(bad)], 2, False),
+        ([str(bad)], 2, False),
+    ]:
+        got, out, err = run("report", *inputs, *gate, "-f", "json")
+        assert (got, json.loads(out)["passed"]) == (code, passed), err
+
+
 @pytest.mark.parametrize("command", ["check", "replay", "report"])
 def test_json_names_the_unreadable_inputs_as_stderr_does(tmp_path: Path, command: str) -> None:
     """Before: one stderr line per unreadable input and exit 2, but the JSON did not name them."""

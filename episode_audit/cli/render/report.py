@@ -74,10 +74,13 @@ def report_output(
 ) -> Output:
     """The success / failure / truncation table, term breakdown, warnings and gates.
 
-    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON,
+    where ``passed`` is then false: the command fails (exit 2), whatever the gates said of the
+    files it read.
     """
     if output == "json":
         data = {**result.to_dict(), "unreadable": unreadable_json(unreadable)}
+        data["passed"] = result.passed and not unreadable
         return to_json(versioned("report", data))
     if output == "junit":
         return junit_xml(report_cases(result, unreadable), name="episode-audit report")
