@@ -19,8 +19,23 @@ from ..errors import ConfigurationError
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["chart_text", "count_chart", "distribution_chart", "rate_chart", "term_chart"]
+__all__ = [
+    "MAX_CHART_GROUPS",
+    "MAX_DOTS",
+    "chart_text",
+    "count_chart",
+    "distribution_chart",
+    "dots",
+    "rate_chart",
+    "term_chart",
+]
 
+MAX_CHART_GROUPS = 30
+"""The most groups a chart draws: a row is ~0.3 inch and a few ms of matplotlib per mark, so
+2 000 groups (a campaign by file) would be a chart 600 inches tall taking minutes to draw.
+The page's tables list every group."""
+MAX_DOTS = 200
+"""The most episodes a distribution row draws as dots (the box is of them all)."""
 OUTCOME_COLOURS = {"success": "#2e7d32", "failure": "#c62828", "truncated": "#f9a825"}
 _MAX_LABEL = 40
 _RC: dict[Any, Any] = {
@@ -170,8 +185,23 @@ def _horizontal(ax: Any) -> dict[str, Any]:
     return {"vert": False}  # (matplotlib 3.8 and 3.9; deprecated by 3.10)
 
 
+def dots(values: Sequence[float], most: int = MAX_DOTS) -> list[float]:
+    """The values a distribution row draws as dots: all, or ``most`` of them at even ranks.
+
+    The smallest and the largest are always among them:
+
+    >>> dots([5.0, 1.0, 3.0]), dots([float(v) for v in range(10)], most=4)
+    ([5.0, 1.0, 3.0], [0.0, 3.0, 6.0, 9.0])
+    """
+    if len(values) <= most:
+        return list(values)
+    ordered = sorted(values)
+    step = (len(ordered) - 1) / (most - 1)
+    return [ordered[round(i * step)] for i in range(most)]
+
+
 def distribution_chart(values: Mapping[tuple[str, str], Sequence[float]], what: str) -> str:
-    """Box plots with the episodes as dots, one row per (group, outcome)."""
+    """Box plots with the episodes as dots (:func:`dots`), one row per (group, outcome)."""
     keys = [k for k in values if len(values[k])]
 
     def draw() -> Figure:
@@ -181,7 +211,8 @@ def distribution_chart(values: Mapping[tuple[str, str], Sequence[float]], what: 
         ax.boxplot(data, **_horizontal(ax), widths=0.6, showfliers=False)
         for i, (k, points) in enumerate(zip(keys, data, strict=True)):
             colour = OUTCOME_COLOURS.get(k[1], "#607d8b")
-            ax.scatter(points, [i + 1] * len(points), s=10, color=colour, alpha=0.6, zorder=3)
+            shown = dots(points)
+            ax.scatter(shown, [i + 1] * len(shown), s=10, color=colour, alpha=0.6, zorder=3)
         ax.set_yticks(range(1, len(keys) + 1))
         ax.set_yticklabels([f"{chart_text(g)} · {chart_text(o)}" for g, o in keys])
         ax.invert_yaxis()

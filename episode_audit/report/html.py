@@ -11,7 +11,7 @@ from __future__ import annotations
 import html
 import os
 import shlex
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +28,7 @@ from .core import Report
 from .games import game_table
 from .groups import GroupReport
 from .incentives import SHAPING_DOMINATES
-from .stats import Interval
+from .stats import Interval, rate_text
 
 __all__ = [
     "EpisodeRow",
@@ -84,11 +84,19 @@ def episode_commands(row: EpisodeRow) -> list[str]:
 
 
 def episode_rows(
-    sources: Iterable[tuple[str, Evidence]], by: str, games: bool = False
+    sources: Iterable[tuple[str, Evidence]],
+    by: str,
+    games: bool = False,
+    progress: Callable[[int], None] | None = None,
 ) -> list[EpisodeRow]:
-    """The episodes a report of ``sources`` counts (unstarted ones left out), with group keys."""
+    """The episodes a report of ``sources`` counts (unstarted ones left out), with group keys.
+
+    ``progress`` is called with 1 as each source is read.
+    """
     out: list[EpisodeRow] = []
     for name, ev in sources:
+        if progress is not None:
+            progress(1)
         keyed, _ = collect([(name, ev)], by, games)
         table = ev.episodes()
         gone = unstarted(table)
@@ -129,12 +137,6 @@ def _num(value: float | None) -> str:
     return "-" if value is None else f"{value:.4g}"
 
 
-def _rate(value: float | None, ci: Interval | None) -> str:
-    if value is None:
-        return "-"
-    return f"{value:.1%}" + ("" if ci is None else f" [{ci.low:.2f}, {ci.high:.2f}]")
-
-
 def _warning_notes(group: GroupReport, shaping: bool) -> str:
     notes = [w for w in group.warnings if (w.code == SHAPING_DOMINATES) == shaping]
     return "".join(
@@ -153,9 +155,9 @@ def _outcome_table(result: Report) -> str:
         warned = _warning_notes(g, shaping=False)
         rows.append(
             f"<tr><td>{_full(g.key)}</td><td class=n>{g.episodes}</td>"
-            f"<td class=n>{g.success} ({_rate(g.success_rate, g.success_ci)})</td>"
-            f"<td class=n>{g.failure} ({_rate(g.failure_rate, g.failure_ci)})</td>"
-            f"<td class=n>{g.truncated} ({_rate(g.truncation_rate, g.truncation_ci)})</td>"
+            f"<td class=n>{g.success} ({rate_text(g.success_rate, g.success_ci)})</td>"
+            f"<td class=n>{g.failure} ({rate_text(g.failure_rate, g.failure_ci)})</td>"
+            f"<td class=n>{g.truncated} ({rate_text(g.truncation_rate, g.truncation_ci)})</td>"
             f"<td class=n>{g.incomplete}</td><td class=n>{g.errors}</td>"
             f'<td class="n{" warn" if warned else ""}">{_num(g.return_mean)} ± '
             f"{_num(g.return_std)}{warned}</td>"
@@ -178,10 +180,21 @@ def _endings_table(result: Report) -> str:
     return f"<table>{head}{''.join(rows)}</table>"
 
 
+def _drawn(groups: Sequence[GroupReport]) -> tuple[Sequence[GroupReport], str]:
+    """The groups a chart draws (:data:`~.charts.MAX_CHART_GROUPS`), and a caption if cut."""
+    if len(groups) <= charts.MAX_CHART_GROUPS:
+        return groups, ""
+    return groups[: charts.MAX_CHART_GROUPS], (
+        f"<figcaption>The charts draw the first {charts.MAX_CHART_GROUPS} of {len(groups):,} "
+        "groups; the tables list every group.</figcaption>"
+    )
+
+
 def _terms_section(result: Report) -> str:
     means = {g.key: g.term_means for g in result.groups if g.term_means}
     if not means:
         return "<p>No reward terms recorded.</p>"
+    drawn, caption = _drawn([g for g in result.groups if g.term_means])
     notes = "".join(
         f"<p><b>{_full(g.key)}</b>{_warning_notes(g, shaping=True)}</p>"
         for g in result.groups
@@ -196,7 +209,8 @@ def _terms_section(result: Report) -> str:
     )
     head = "<tr><th>group</th><th>outcome</th><th>term</th><th>mean total per episode</th></tr>"
     return (
-        f'<figure class="chart">{charts.term_chart(means)}</figure>{notes}'
+        f'<figure class="chart">{charts.term_chart({g.key: means[g.key] for g in drawn})}'
+        f"{caption}</figure>{notes}"
         f"<table>{head}{rows}</table>"
     )
 
@@ -220,36 +234,43 @@ def _episode_table(rows: Sequence[EpisodeRow]) -> str:
 
 
 def _charts(result: Report, rows: Sequence[EpisodeRow]) -> tuple[str, str, str]:
-    """The rate chart, the endings chart and the return / length distributions."""
-    keys = [g.key for g in result.groups]
+    """The rate chart, the endings chart and the return / length distributions.
+
+    Each draws at most :data:`~.charts.MAX_CHART_GROUPS` groups (its caption says so).
+    """
+    groups, caption = _drawn(result.groups)
+    keys = [g.key for g in groups]
 
     def triple(rate: float | None, ci: Interval | None) -> tuple[float, float, float] | None:
         return None if rate is None or ci is None else (rate, ci.low, ci.high)
 
     rates = {
-        fmt.OUTCOME_SUCCESS: [triple(g.success_rate, g.success_ci) for g in result.groups],
-        fmt.OUTCOME_FAILURE: [triple(g.failure_rate, g.failure_ci) for g in result.groups],
-        fmt.OUTCOME_TRUNCATED: [triple(g.truncation_rate, g.truncation_ci) for g in result.groups],
+        fmt.OUTCOME_SUCCESS: [triple(g.success_rate, g.success_ci) for g in groups],
+        fmt.OUTCOME_FAILURE: [triple(g.failure_rate, g.failure_ci) for g in groups],
+        fmt.OUTCOME_TRUNCATED: [triple(g.truncation_rate, g.truncation_ci) for g in groups],
     }
     endings = {
         f"{g.key}": {**{f"failure: {k}": v for k, v in g.failures.items()},
                      **{f"truncated: {k}": v for k, v in g.truncations.items()}}
-        for g in result.groups
+        for g in groups
     }  # fmt: skip
     returns: dict[tuple[str, str], list[float]] = {}
     lengths: dict[tuple[str, str], list[float]] = {}
+    drawn = set(keys)
     for r in rows:
-        if r.outcome in ENDED:
+        if r.outcome in ENDED and r.group in drawn:
             if r.ret is not None:
                 returns.setdefault((r.group, r.outcome), []).append(r.ret)
             lengths.setdefault((r.group, r.outcome), []).append(r.length)
     has_rates = any(r is not None for values in rates.values() for r in values)  # (by label: none)
-    rate_svg = charts.rate_chart(keys, rates) if has_rates else ""
+    rate_svg = charts.rate_chart(keys, rates) + caption if has_rates else ""
     end_svg = (
-        charts.count_chart(endings, "failures and truncations") if any(endings.values()) else ""
+        charts.count_chart(endings, "failures and truncations") + caption
+        if any(endings.values())
+        else ""
     )
     dist = "".join(
-        f'<figure class="chart">{charts.distribution_chart(v, what)}</figure>'
+        f'<figure class="chart">{charts.distribution_chart(v, what)}{caption}</figure>'
         for v, what in ((returns, "return"), (lengths, "length (steps)"))
         if v
     )
@@ -295,19 +316,24 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
 
 def write_report_html(
     result: Report,
-    sources: Sequence[tuple[str, Evidence]],
+    sources: Iterable[tuple[str, Evidence]],
     path: str | os.PathLike[str],
     *,
     games: bool = False,
+    progress: Callable[[int], None] | None = None,
 ) -> Path:
     """Write the HTML report of ``result`` (made of ``sources``) to ``path``; return the path.
 
-    A path :func:`check_html_path` refuses raises
-    :class:`~episode_audit.errors.ConfigurationError`: a report replaces only an earlier one.
+    ``sources`` are read once, in order (an iterator that opens each file as it goes keeps one
+    open at a time); ``progress`` is called with 1 as each is read. A path
+    :func:`check_html_path` refuses raises :class:`~episode_audit.errors.ConfigurationError`,
+    before anything is written: a report replaces only an earlier one.
     """
     out = Path(path)
-    check_html_path(out, [name for name, _ in sources])
-    page = report_html(result, episode_rows(sources, result.by, games))
+    names: list[str] = []
+    rows = episode_rows(_noting(sources, names), result.by, games, progress)
+    check_html_path(out, names)
+    page = report_html(result, rows)
     partial = out.with_name(out.name + ".partial")
     try:
         partial.write_text(page, encoding="utf-8")
@@ -316,6 +342,15 @@ def write_report_html(
         partial.unlink(missing_ok=True)
         raise
     return out
+
+
+def _noting(
+    sources: Iterable[tuple[str, Evidence]], names: list[str]
+) -> Iterator[tuple[str, Evidence]]:
+    """``sources`` as they are, each name appended to ``names`` as it goes by."""
+    for name, ev in sources:
+        names.append(name)
+        yield name, ev
 
 
 def check_html_path(out: Path, inputs: Sequence[str]) -> None:

@@ -9,9 +9,9 @@ name (going past the unreadable ones), checks that ``--games`` fits them, and re
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from functools import cached_property, partial
+from functools import partial
 from typing import Any
 
 from .._jobs import map_ordered
@@ -37,13 +37,14 @@ class InputsReport:
     files: list[Source] = field(default_factory=list)
     """The inputs that were read, in order."""
 
-    @cached_property
-    def sources(self) -> list[tuple[str, Evidence]]:
-        """The inputs read, as ``(name, evidence)``, opened again here.
+    @property
+    def sources(self) -> Iterator[tuple[str, Evidence]]:
+        """The inputs read, as ``(name, evidence)``, each opened again as it is iterated.
 
-        For the HTML report's episodes: the report itself may have been read in workers.
+        For the HTML report's episodes: the report itself may have been read in workers. One
+        file is open at a time (none is kept), so memory does not grow with the inputs.
         """
-        return [(str(path), open_evidence(path)) for path in self.files]
+        return ((str(path), open_evidence(path)) for path in self.files)
 
 
 def report_inputs(

@@ -3,7 +3,8 @@
 - :class:`Interval` and :func:`wilson_interval`: the Wilson score interval of a proportion
   (at :data:`Z_95` by default);
 - :func:`rate`, :func:`mean_std` and :func:`counts`: a rate over the ended episodes, the mean and
-  (population) standard deviation of some values, and how often each value occurs.
+  (population) standard deviation of some values, and how often each value occurs;
+- :func:`rate_text`: a rate and its interval as the report's tables and page show them.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Z_95", "Interval", "counts", "mean_std", "rate", "wilson_interval"]
+__all__ = ["Z_95", "Interval", "counts", "mean_std", "rate", "rate_text", "wilson_interval"]
 
 Z_95 = 1.959963984540054
 """The two-sided 95 % normal quantile."""
@@ -27,6 +28,20 @@ class Interval:
 
     low: float
     high: float
+
+
+def rate_text(value: float | None, ci: Interval | None = None) -> str:
+    """A rate as a percentage, its interval in percent too (``-`` when there is no rate).
+
+    >>> rate_text(0.574, Interval(0.5602, 0.5897)), rate_text(1.0, Interval(0.965, 1.0))
+    ('57.4% [56.0, 59.0]', '100.0% [96.5, 100.0]')
+    >>> rate_text(0.25), rate_text(None)
+    ('25.0%', '-')
+    """
+    if value is None:
+        return "-"
+    text = f"{value:.1%}"
+    return text if ci is None else f"{text} [{ci.low * 100:.1f}, {ci.high * 100:.1f}]"
 
 
 def wilson_interval(successes: int, n: int, z: float = Z_95) -> Interval:

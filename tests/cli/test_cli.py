@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -279,6 +280,20 @@ def test_report_never_folds_flags_into_done() -> None:
     for fmt in ("table", "markdown", "json"):
         _, out, _ = run("report", "fixtures/clean.mcap", "--format", fmt)
         assert "done" not in out.lower()
+
+
+@pytest.mark.parametrize("fmt", ["table", "markdown", "junit"])
+def test_report_intervals_are_in_the_rates_unit(fmt: str) -> None:
+    # a rate printed as "83.3% [0.44, 0.97]" mixed a percent and fractions
+    code, out, _ = run(
+        "report", "fixtures/clean.mcap", "--min-success-rate", "0.5", "--format", fmt
+    )
+    assert code == 0, out
+    assert "83.3% [43.6, 97.0]" in out and "16.7% [3.0, 56.4]" in out
+    assert not re.search(r"\[[01]\.\d\d, ", out)  # no fraction left
+    code, out, _ = run("report", "fixtures/clean.mcap", "--format", "json")
+    ci = json.loads(out)["groups"][0]["success_ci"]  # JSON keeps fractions
+    assert (round(ci["low"], 3), round(ci["high"], 3)) == (0.436, 0.970)
 
 
 @pytest.mark.parametrize("fmt", ["markdown", "json"])
@@ -620,6 +635,20 @@ def test_check_json_names_an_unreadable_file_and_is_not_ok(tmp_path: Path) -> No
     assert data["ok"] is False and data["files"] == ["fixtures/clean.mcap", str(bad)]
     (finding,) = [f for f in data["findings"] if f["code"] == "file_unreadable"]
     assert finding["severity"] == "error" and finding["file"] == str(bad)
+
+
+def test_report_json_never_says_passed_when_an_input_was_not_read(tmp_path: Path) -> None:
+    """Before: ``"passed": true`` beside an unreadable input, and exit 2."""
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x00" * 100)
+    gate = ("--min-success-rate", "0.1")  # that the clean file passes
+    for inputs, code, passed in [
+        (["fixtures/clean.mcap"], 0, True),
+        (["fixtures/clean.mcap", str(bad)], 2, False),
+        ([str(bad)], 2, False),
+    ]:
+        got, out, err = run("report", *inputs, *gate, "-f", "json")
+        assert (got, json.loads(out)["passed"]) == (code, passed), err
 
 
 @pytest.mark.parametrize("command", ["check", "replay", "report"])

@@ -10,9 +10,10 @@ import gymnasium as gym
 import pytest
 from rich.console import Console, Group
 
-from episode_audit import RecordEvidence
+from episode_audit import RecordEvidence, RecordVectorEvidence
 from episode_audit.check import check
 from episode_audit.cli.render import FittedTable, check_output, replay_output, report_output, table
+from episode_audit.cli.render.report import _group_row
 from episode_audit.replay import replay
 from episode_audit.report import report_inputs
 from tests.report.test_report import Plan, _record_plans
@@ -74,11 +75,35 @@ def test_report_fits_without_breaking_words(runs: Path, by: str, width: int) -> 
         assert re.search(rf"(?<!\S){re.escape(header)}", text), header
 
 
-@pytest.mark.parametrize("width", WIDTHS)
-def test_report_of_short_groups_is_side_by_side_at_100_columns(runs: Path, width: int) -> None:
+@pytest.mark.parametrize("width", [*WIDTHS, 160])
+def test_report_is_side_by_side_only_when_no_cell_wraps(runs: Path, width: int) -> None:
     text = _render(report_output(report_inputs([runs], by="tag:policy").report, "table"), width)
     header = next(line for line in text.splitlines() if "episodes" in line)
-    assert ("incomplete" in header) == (width >= 100)  # else the vertical layout
+    assert ("incomplete" in header) == (width >= 160)  # else the vertical layout
+
+
+@pytest.fixture(scope="module")
+def vector_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("vector") / "vector.mcap"
+    envs = gym.make_vec("CartPole-v1", 4, vectorization_mode="sync")
+    with RecordVectorEvidence(envs, path) as env:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        for _ in range(120):
+            env.step(env.action_space.sample())
+    return path
+
+
+@pytest.mark.parametrize("width", [*WIDTHS, 160])
+@pytest.mark.parametrize("by", ["env_index", "all", "file", "env", "label", "tag:policy"])
+def test_report_outcome_cells_are_never_cut(vector_run: Path, by: str, width: int) -> None:
+    # side by side at 100 columns, "13 (100.0% [77.2, 100.0])" was read over three lines
+    result = report_inputs([vector_run], by=by).report
+    lines = _render(report_output(result, "table"), width).splitlines()
+    for g in result.groups:
+        row = _group_row(g)
+        for cell in [row[2], row[3], row[5], row[10], row[11]]:  # rates, return, length
+            assert any(cell in line for line in lines), (cell, width)
 
 
 @pytest.mark.parametrize("width", WIDTHS)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from episode_audit import ConfigurationError
-from episode_audit.report import report_inputs
+from episode_audit.report import charts, report_inputs
 from episode_audit.report.html import EpisodeRow, episode_commands, write_report_html
 from tests.report.test_report import Plan, _record_plans
 from tests.support.chromium import open_page
@@ -77,6 +77,12 @@ def test_html_report_has_no_network_reference(tmp_path: Path) -> None:
             assert not (attrs.get(name) or "").startswith(("http", "//")), (tag, attrs)
     assert "default-src 'none'" in page  # the page's CSP: no load from outside, no script
     assert "<!DOCTYPE svg" not in page
+
+
+def test_html_report_rates_and_intervals_share_their_unit(tmp_path: Path) -> None:
+    _, page = _page(tmp_path, by="all")
+    assert "1 (25.0% [4.6, 69.9])</td>" in page  # success: 1 of 4 ended episodes
+    assert not re.search(r"\[[01]\.\d\d, ", page)
 
 
 def test_html_report_lists_each_episode_with_its_commands(tmp_path: Path) -> None:
@@ -207,3 +213,57 @@ def test_html_report_is_the_same_page_for_the_same_report(tmp_path: Path) -> Non
     again = write_report_html(result.report, result.sources, tmp_path / "again.html")
     assert again.read_text(encoding="utf-8") == page  # no date, stable ids
     assert "<metadata" not in page and "purl.org" not in page
+
+
+def _figures(page: str) -> list[str]:
+    return re.findall(r'<figure class="chart">(.*?)</figure>', page, re.S)
+
+
+def test_html_charts_draw_at_most_their_groups_and_say_so(tmp_path: Path) -> None:
+    # 2 000 groups (a campaign by file) took minutes and 600 MB: one chart row per group
+    labels = [f"label{i:02d}" for i in range(charts.MAX_CHART_GROUPS + 5)]
+    path = _record_plans(
+        tmp_path / "many.mcap", [Plan(f"failure:{label}", length=1) for label in labels]
+    )
+    result = report_inputs([path], by="label")
+    page = write_report_html(result.report, result.sources, tmp_path / "r.html").read_text()
+    figures = _figures(page)
+    assert len(figures) == 3  # endings, returns, lengths (by label no rates; no terms)
+    caption = (
+        f"The charts draw the first {charts.MAX_CHART_GROUPS} of {len(labels)} groups; "
+        "the tables list every group."
+    )
+    for figure in figures:
+        assert caption in figure
+        drawn = [label for label in labels if f">{label}" in figure]
+        assert drawn == labels[: charts.MAX_CHART_GROUPS]
+    outcomes = page[page.index("<h2>Outcomes</h2>") : page.index("<h2>Failure labels")]
+    assert outcomes.count("<tr>") == len(labels) + 1  # the table: every group
+
+
+def test_html_distribution_draws_a_bounded_number_of_dots(tmp_path: Path) -> None:
+    n = charts.MAX_DOTS + 50
+    path = _record_plans(tmp_path / "long.mcap", [Plan("failure:fell", length=1)] * n)
+    result = report_inputs([path], by="all")
+    page = write_report_html(result.report, result.sources, tmp_path / "r.html").read_text()
+    returns = _figures(page)[-2]
+    uses = returns.count("<use ")  # the dots and the axis' tick marks
+    assert charts.MAX_DOTS <= uses < charts.MAX_DOTS + 20 < n
+    assert "caption" not in returns  # one group: nothing cut
+    assert page[page.index("<h2>Episodes</h2>") :].count("<tr>") == n + 1
+
+
+def test_write_report_html_reads_each_source_once_and_counts_it(tmp_path: Path) -> None:
+    paths = [
+        _record_plans(tmp_path / name, [Plan("success"), Plan("failure:fell")])
+        for name in ("a.mcap", "b.evidence", "c.mcap")
+    ]
+    result = report_inputs(paths)
+    done: list[int] = []
+    out = write_report_html(
+        result.report, result.sources, tmp_path / "r.html", progress=done.append
+    )
+    assert done == [1, 1, 1]
+    assert out.read_text().count("episode-audit replay") == 6
+    with pytest.raises(ConfigurationError, match="looks like an evidence file"):
+        write_report_html(result.report, result.sources, paths[1])  # an input: never replaced

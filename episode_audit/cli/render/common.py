@@ -114,27 +114,43 @@ def rate(value: float | None) -> str:
     return "-" if value is None else f"{value:.1%}"
 
 
-def table(title: str | None, headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> FittedTable:
+def table(
+    title: str | None,
+    headers: Sequence[str],
+    rows: Iterable[Sequence[Any]],
+    *,
+    whole_cells: bool = False,
+) -> FittedTable:
     """A Rich table of plain text: title, headers and cells are never parsed as markup.
 
-    It fits the console (:class:`FittedTable`): no header or cell word is broken.
+    It fits the console (:class:`FittedTable`): no header or cell word is broken, and with
+    ``whole_cells`` no cell is wrapped side by side.
     """
-    return FittedTable(title, headers, [[safe(cell) for cell in row] for row in rows])
+    rows = [[safe(cell) for cell in row] for row in rows]
+    return FittedTable(title, headers, rows, whole_cells=whole_cells)
 
 
 class FittedTable:
     """A table that fits its console's width without breaking a word.
 
     Side by side when every column can keep its longest word (header included): columns wider
-    than that are narrowed first, wrapping at spaces. Else one line per (row, column): the row's
-    first cell, the column's header and the value (the vertical layout).
+    than that are narrowed first, wrapping at spaces. With ``whole_cells``, side by side only
+    when every cell keeps its line (a value such as ``13 (100.0% [77.2, 100.0])`` read in
+    pieces over three lines is no table); headers may still wrap. Else one line per (row,
+    column): the row's first cell, the column's header and the value (the vertical layout).
     """
 
     def __init__(
-        self, title: str | None, headers: Sequence[str], rows: Sequence[Sequence[str]]
+        self,
+        title: str | None,
+        headers: Sequence[str],
+        rows: Sequence[Sequence[str]],
+        *,
+        whole_cells: bool = False,
     ) -> None:
         self.title, self.rows = title, [list(r) for r in rows]
         self.headers = [safe(h) for h in headers]
+        self.whole_cells = whole_cells
 
     def _table(self, headers: Sequence[str], rows: Sequence[Sequence[str]]) -> Table:
         out = Table(
@@ -160,32 +176,50 @@ class FittedTable:
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         wide = self._table(self.headers, self.rows)
-        if _fit(wide, console, options) or len(self.headers) < 3:
+        if _fit(wide, console, options, self.whole_cells) or len(self.headers) < 3:
             yield wide
             return
         vertical = self._vertical()
-        _fit(vertical, console, options)
+        _fit(vertical, console, options, self.whole_cells, fold_first=self.whole_cells)
         yield vertical
 
     def __rich_measure__(self, console: Console, options: ConsoleOptions) -> Measurement:
         return Measurement.get(console, options, self._table(self.headers, self.rows))
 
 
-def _fit(table: Table, console: Console, options: ConsoleOptions) -> bool:
-    """Give ``table``'s columns widths that keep every word whole; whether it could."""
+_FOLDED = 12
+"""The narrowest a first column is folded to (``fold_first``)."""
+
+
+def _fit(
+    table: Table,
+    console: Console,
+    options: ConsoleOptions,
+    whole: bool = False,
+    *,
+    fold_first: bool = False,
+) -> bool:
+    """Give ``table``'s columns widths that keep every word whole; whether it could.
+
+    ``whole``: every cell but the headers whole. ``fold_first``: the first column (a vertical
+    layout's long group name) is folded, down to 12 characters, rather than a value wrapped.
+    """
     free = options.update_width(1 << 20)  # natural widths
     cells = [[col.header, *col.cells] for col in table.columns]
     sizes = [[Measurement.get(console, free, c) for c in col] for col in cells]
-    low = [max(m.minimum for m in col) for col in sizes]
+    low = [max(m.maximum if whole and i else m.minimum for i, m in enumerate(col)) for col in sizes]
     high = [max(m.maximum for m in col) for col in sizes]
     padding = Measurement.get(console, free, table).maximum - sum(high)
     room = options.max_width - padding
     if sum(high) <= room:
         return True
+    if fold_first and sum(low) > room:
+        low[0] = min(low[0], max(_FOLDED, room - sum(low[1:])))
+        high[0] = max(high[0], low[0])
     if sum(low) > room:
         return False
     spare, want = room - sum(low), [h - lo for h, lo in zip(high, low, strict=True)]
-    widths = [lo + spare * w // sum(want) for lo, w in zip(low, want, strict=True)]
+    widths = [lo + spare * w // max(sum(want), 1) for lo, w in zip(low, want, strict=True)]
     widths[want.index(max(want))] += room - sum(widths)
     for column, width in zip(table.columns, widths, strict=True):
         column.width = width

@@ -8,14 +8,14 @@ from rich.console import Group, RenderableType
 from rich.text import Text
 
 from ...read.inputs import Unreadable
-from ...report import GroupReport, Interval, Report
+from ...report import GroupReport, Report
+from ...report.stats import rate_text
 from .common import (
     Output,
     OutputFormat,
     fmt_number,
     markdown_table,
     markdown_text,
-    rate,
     table,
     to_json,
     unreadable_json,
@@ -36,18 +36,14 @@ def _mean_std(mean: float | None, std: float | None) -> str:
     return f"{fmt_number(mean)} ± {fmt_number(std or 0.0)}"
 
 
-def _ci(ci: Interval | None) -> str:
-    return "" if ci is None else f" [{ci.low:.2f}, {ci.high:.2f}]"
-
-
 def _group_row(g: GroupReport) -> list[str]:
     return [
         g.key,
         str(g.episodes),
-        f"{g.success} ({rate(g.success_rate)}{_ci(g.success_ci)})",
-        f"{sum(g.failures.values())} ({rate(g.failure_rate)}{_ci(g.failure_ci)})",
+        f"{g.success} ({rate_text(g.success_rate, g.success_ci)})",
+        f"{sum(g.failures.values())} ({rate_text(g.failure_rate, g.failure_ci)})",
         _counts(g.failures),
-        f"{sum(g.truncations.values())} ({rate(g.truncation_rate)}{_ci(g.truncation_ci)})",
+        f"{sum(g.truncations.values())} ({rate_text(g.truncation_rate, g.truncation_ci)})",
         _counts(g.truncations),
         str(g.incomplete),
         str(g.errors),
@@ -78,10 +74,13 @@ def report_output(
 ) -> Output:
     """The success / failure / truncation table, term breakdown, warnings and gates.
 
-    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON.
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON,
+    where ``passed`` is then false: the command fails (exit 2), whatever the gates said of the
+    files it read.
     """
     if output == "json":
         data = {**result.to_dict(), "unreadable": unreadable_json(unreadable)}
+        data["passed"] = result.passed and not unreadable
         return to_json(versioned("report", data))
     if output == "junit":
         return junit_xml(report_cases(result, unreadable), name="episode-audit report")
@@ -122,14 +121,15 @@ def report_output(
         return "\n".join(parts)
     if not result.groups:  # (an empty table's title would wrap in its one column)
         return Group(Text(NO_EPISODES), *([table("Gates", gate_headers, gates)] if gates else []))
-    # The terminal keeps labels and reasons in a table of their own: the outcomes fit 100
-    # columns side by side (80 in the vertical layout), each label on its own line
+    # The terminal keeps labels and reasons in a table of their own, each label on its own
+    # line; the outcomes are side by side when no cell wraps (about 150 columns), else vertical
     narrow = [i for i, h in enumerate(REPORT_HEADERS) if h not in _LABEL_HEADERS]
     out: list[RenderableType] = [
         table(
             f"Outcomes (by {result.by}{_unit(result)})",
             [REPORT_HEADERS[i] for i in narrow],
             [[row[i] for i in narrow] for row in rows],
+            whole_cells=True,
         )
     ]
     endings = _ending_rows(result)
@@ -171,9 +171,9 @@ def _group_line(g: GroupReport, unit: str) -> str:
     """One line of a group's outcomes, as the table shows them."""
     return (
         f"group {g.key}: {g.episodes} {unit}s; success {g.success} "
-        f"({rate(g.success_rate)}{_ci(g.success_ci)}), failure {g.failure} "
-        f"({rate(g.failure_rate)}{_ci(g.failure_ci)}; {_counts(g.failures)}), truncated "
-        f"{g.truncated} ({rate(g.truncation_rate)}{_ci(g.truncation_ci)}; "
+        f"({rate_text(g.success_rate, g.success_ci)}), failure {g.failure} "
+        f"({rate_text(g.failure_rate, g.failure_ci)}; {_counts(g.failures)}), truncated "
+        f"{g.truncated} ({rate_text(g.truncation_rate, g.truncation_ci)}; "
         f"{_counts(g.truncations)}), incomplete {g.incomplete}, error {g.errors}; "
         f"return {_mean_std(g.return_mean, g.return_std)}"
     )
