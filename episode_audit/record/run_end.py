@@ -2,19 +2,37 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import datetime, timezone
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from ..format import names as fmt
 from ..format.columns import text
-
-if TYPE_CHECKING:
-    from .file import EvidenceFile
+from .episode_records import EpisodeRecords
+from .stream import Stream
+from .writer import EvidenceWriter
 
 __all__ = ["run_end_record"]
 
 
-def run_end_record(file: EvidenceFile) -> dict[str, str]:
+class _File(Protocol):
+    """What the record is made of (an :class:`~.file.EvidenceFile`'s)."""
+
+    @property
+    def writer(self) -> EvidenceWriter: ...
+    @property
+    def streams(self) -> Sequence[Stream]: ...
+    @property
+    def records(self) -> EpisodeRecords: ...
+    @property
+    def counts(self) -> dict[str, int]: ...
+    @property
+    def troubles(self) -> int: ...
+    @property
+    def first_trouble(self) -> str | None: ...
+
+
+def run_end_record(file: _File) -> dict[str, str]:
     """The run-end record: counts of what is in the file, and the recorder's trouble."""
     lost, lost_messages = file.writer.lost, file.writer.lost_messages
     steps = sum(lost[s.channels.steps] for s in file.streams)
