@@ -132,3 +132,29 @@ def test_a_table_too_wide_for_the_console_turns_vertical(width: int) -> None:
     out = table("t", ["file", "outcome", "failure label", "episodes", "why"], rows)
     text = _assert_words_whole(out, width)
     assert ("failure label" in text) or ("failure" in text and "label" in text)
+
+
+@pytest.mark.parametrize("width", [*WIDTHS, 160])
+def test_compare_metric_cells_are_never_cut(tmp_path: Path, width: int) -> None:
+    # side by side at 120 columns, "0.0% (n 20)" was read over two lines
+    from episode_audit.cli.render.compare import _row, compare_output
+    from episode_audit.compare import compare_inputs
+
+    paths = []
+    for name, seed in (("base", 0), ("cand", 100)):
+        path = tmp_path / f"{name}.mcap"
+        with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+            env.action_space.seed(seed)
+            for episode in range(12):
+                env.reset(seed=seed + episode)
+                done = False
+                while not done:
+                    *_, terminated, truncated, _ = env.step(env.action_space.sample())
+                    done = terminated or truncated
+        paths.append(path)
+    result = compare_inputs([paths[0]], [paths[1]]).comparison
+    lines = _render(compare_output(result, "table"), width).splitlines()
+    for g in result.groups:
+        for metric in g.metrics:
+            for cell in _row(g.key, metric)[2:5]:  # baseline, candidate, difference
+                assert any(cell in line for line in lines), (cell, width)

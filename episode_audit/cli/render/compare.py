@@ -122,7 +122,12 @@ def compare_output(
         for title, headers, body in sections:
             parts += [f"#### {markdown_text(title)}\n", markdown_table(headers, body) + "\n"]
         return "\n".join(parts)
-    out: list[RenderableType] = [table(title, headers, body) for title, headers, body in sections]
+    # (the metrics side by side only when no cell wraps: "0.0% (n 20)" read over two lines is
+    # no table; else the vertical layout)
+    out: list[RenderableType] = [
+        table(title, headers, body, whole_cells=headers is COMPARE_HEADERS)
+        for title, headers, body in sections
+    ]
     return Group(*out)
 
 
