@@ -277,6 +277,13 @@ def _charts(result: Report, rows: Sequence[EpisodeRow]) -> tuple[str, str, str]:
     return rate_svg, end_svg, dist
 
 
+def _notes(notes: Sequence[str]) -> str:
+    """The report's notes (:attr:`Report.notes`: what it matched nothing of, or left out)."""
+    if not notes:
+        return ""
+    return '<ul class="notes">' + "".join(f"<li>{_full(n)}</li>" for n in notes) + "</ul>"
+
+
 def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") -> str:
     """The report as one HTML page: charts inline (SVG), no script, nothing loaded from outside.
 
@@ -296,6 +303,7 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
         f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">',
         f"<title>{_full(title or heading)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>{heading}</h1>",
+        _notes(result.notes),
         "<h2>Outcomes</h2>",
         f'<figure class="chart">{rate_svg}</figure>' if rate_svg else "",
         _outcome_table(result),

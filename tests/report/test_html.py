@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import html
 import html.parser
 import re
 from pathlib import Path
@@ -8,6 +9,7 @@ import pytest
 
 from episode_audit import ConfigurationError
 from episode_audit.report import charts, report_inputs
+from episode_audit.report.core import BY_LABEL_NOTE
 from episode_audit.report.html import EpisodeRow, episode_commands, write_report_html
 from tests.report.test_report import Plan, _record_plans
 from tests.support.chromium import open_page
@@ -116,6 +118,8 @@ def test_html_report_by_label_draws_no_rate_chart_and_warns_of_nothing(tmp_path:
     assert "rate of ended episodes" not in page and "rate of ended episodes" in by_all
     assert 'class="warn-note"' not in page and 'class="warn-note"' in by_all
     assert "<td class=n>1 (-)</td>" in page  # (the counts stay; no rate)
+    assert f'<ul class="notes"><li>{html.escape(BY_LABEL_NOTE)}</li></ul>' in page  # (why)
+    assert '<ul class="notes">' not in by_all
 
 
 @pytest.mark.parametrize("name", ["report.mcap", "run one.mcap"])
