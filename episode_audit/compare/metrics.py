@@ -218,10 +218,16 @@ def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:
     ``regressed`` / ``improved``: the adjusted p-value is below ``alpha``, the difference worse /
     better; ``held``: the interval's worse end is within the margin; ``underpowered``: neither,
     and fewer units than ``n_needed``; ``inconclusive``: neither, with enough units, or the
-    difference is not finite (a return that is not: no number of episodes would tell).
+    difference is not finite (a return that is not: no number of episodes would tell). A mean
+    of too few episodes to bound its difference (:func:`~.stats.too_few`) is ``underpowered``
+    whatever its t-test says: no exact test could reject there, and its interval is unbounded.
     """
     if not math.isfinite(metric.difference):
         return "inconclusive"
+    if metric.kind == "mean" and stats.too_few(
+        metric.baseline_n, metric.candidate_n, paired=metric.paired
+    ):
+        return "underpowered"
     p = metric.p_value if metric.p_adjusted is None else metric.p_adjusted
     gain = metric.difference if metric.better == "higher" else -metric.difference
     if p < alpha and gain != 0:

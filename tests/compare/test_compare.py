@@ -248,6 +248,26 @@ def test_two_constant_episodes_a_side_are_not_a_regression() -> None:
     assert returns.n_needed == 4  # (the fewest a side whose exact test can reach p < 0.05)
 
 
+def test_a_t_test_on_too_few_episodes_to_bound_the_difference_decides_nothing() -> None:
+    """3 a side: Welch's t gives p = 2e-5 for this drop, but no exact test can reject with 3
+    (its smallest p is 0.1) and the interval is unbounded: `regressed` next to (-inf, inf)."""
+    from episode_audit.compare.core import _decide
+
+    base = Side.of(["success"] * 3, [10.0, 10.1, 9.9])
+    cand = Side.of(["success"] * 3, [5.0, 5.1, 4.9])
+    group = compare_group("g", base, cand, CompareGates(), [])
+    _decide([group])
+    returns = group.metric("return")
+    assert returns.p_value < 0.001 and returns.interval.low == -math.inf
+    assert returns.verdict == "underpowered" and group.verdict != "regressed"
+    more = compare_group(  # 4 a side: an exact test can reject, the t-test's verdict stands
+        "g", Side.of(["success"] * 4, [10.0, 10.1, 9.9, 10.0]),
+        Side.of(["success"] * 4, [5.0, 5.1, 4.9, 5.0]), CompareGates(), [],
+    )  # fmt: skip
+    _decide([more])
+    assert more.metric("return").verdict == "regressed"
+
+
 def test_null_with_two_episodes_a_side_of_discrete_returns_is_never_decided() -> None:
     """Returns of 0 or 1, both sides alike: sides without spread are common, and no evidence."""
     from episode_audit.compare.core import _decide
