@@ -12,6 +12,7 @@ from __future__ import annotations
 from ..format import names as fmt
 from ..format.records import listing
 from ..format.run_end import RunEnd
+from ..format.wrappers import reward_wrapper_names
 from ..read.liveness import still_written
 from ._state import FileState
 from .registry import (
@@ -22,6 +23,7 @@ from .registry import (
     MISSING_ENV_SPEC,
     NOT_REPLAYABLE,
     RECORDER_TROUBLE,
+    REWARDS_CHANGED,
     RUN_END_DAMAGED,
     SUMMARY_DAMAGED,
 )
@@ -111,6 +113,17 @@ def _replayable(state: FileState) -> None:
         why = layout.get("replay_note") or "the vector env had no sub-envs"
         state.finding(NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
     check_state_causes(state)
+    _rewards_changed(state)
+
+
+def _rewards_changed(state: FileState) -> None:
+    names = reward_wrapper_names(state.ev.run.layout)
+    if names:
+        state.finding(
+            REWARDS_CHANGED,
+            f"the recorded rewards and returns are {', '.join(names)}'s, not the env's: the "
+            "recorder sat over it; record beneath it (innermost) for the env's own",
+        )
 
 
 def _format_version(state: FileState) -> None:

@@ -36,6 +36,7 @@ __all__ = [
     "NONFINITE_REWARD",
     "NONFINITE_TERM",
     "NOT_REPLAYABLE",
+    "REWARDS_CHANGED",
     "OBSERVATION_OUT_OF_SPACE",
     "OBSERVATION_SPACE_UNCHECKED",
     "RECORDER_NOTE",
@@ -82,6 +83,7 @@ SUMMARY_DAMAGED = "summary_damaged"
 RUN_END_DAMAGED = "run_end_damaged"
 EVIDENCE_DAMAGED = "evidence_damaged"
 NOT_REPLAYABLE = "not_replayable"
+REWARDS_CHANGED = "rewards_changed"
 MISSING_ENV_SPEC = "missing_env_spec"
 FORMAT_VERSION = "format_version"
 FILE_UNREADABLE = "file_unreadable"
@@ -383,6 +385,22 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "Reset before stepping, with a seed (`env.reset(seed=...)`) where you can; put the "
         "recorder innermost, directly around the env (or the vector env), under wrappers that "
         "keep state.",
+    ),
+    FindingKind(
+        REWARDS_CHANGED,
+        "warning",
+        "The recorded rewards are a wrapper's, not the env's.",
+        "The recorder sat over a wrapper that changes the reward (`NormalizeReward`, "
+        "`TransformReward`, `ClipReward`, SB3's `VecNormalize` with `norm_reward`), so every "
+        "recorded reward, and every return `report` and `compare` read, is that wrapper's. "
+        "One finding per file, naming the wrappers.",
+        "A normalised return is on another scale than the env's (a CartPole return no longer "
+        "equals its length) and drifts with the wrapper's running statistics: rates are "
+        "unaffected, but returns, return gates and `compare`'s return verdicts are not the "
+        "task's.",
+        "Put the recorder beneath the reward wrapper, directly around the env "
+        "(`NormalizeReward(RecordEvidence(env, path))`); the training loop still sees the "
+        "wrapper's rewards.",
     ),
     FindingKind(
         MISSING_ENV_SPEC,

@@ -37,6 +37,7 @@ __all__ = [
     "declared_transparent",
     "plan_wrappers",
     "reward_cause",
+    "reward_wrapper_names",
     "state_causes",
     "stateful_wrapper",
     "vector_wrapper_cause",
@@ -391,14 +392,26 @@ REWARD_CHANGING = frozenset({"NormalizeReward", "TransformReward", "ClipReward",
 (``VecNormalize`` only with ``norm_reward``; the recorder decides)."""
 
 
+def reward_wrapper_names(layout: Any) -> list[str]:
+    """The class names of the wrappers between the env and the recorder that change the reward.
+
+    From the layout's :data:`LAYOUT_REWARD_WRAPPERS` (innermost first; none in files that
+    predate it).
+
+    >>> reward_wrapper_names({"reward_wrappers": ["gymnasium.wrappers:NormalizeReward"]})
+    ['NormalizeReward']
+    """
+    listed = layout.get(LAYOUT_REWARD_WRAPPERS) if isinstance(layout, Mapping) else None
+    return [str(e).rpartition(":")[2][:80] for e in _listed(listed)]
+
+
 def reward_cause(layout: Any) -> str | None:
     """Why a file's rewards differ from what the env gave, naming the wrappers; or ``None``.
 
     From the layout's :data:`LAYOUT_REWARD_WRAPPERS`: the recorder sat over them, so it recorded
     the reward they changed, while the terms in the info are still the env's.
     """
-    listed = layout.get(LAYOUT_REWARD_WRAPPERS) if isinstance(layout, Mapping) else None
-    names = [str(e).rpartition(":")[2][:80] for e in _listed(listed)]
+    names = reward_wrapper_names(layout)
     if not names:
         return None
     return (
