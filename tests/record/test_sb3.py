@@ -218,7 +218,9 @@ def test_under_vec_normalize_and_vec_frame_stack_replays_identical(tmp_path: Pat
 
 def test_over_vec_normalize_is_recorded_and_says_it_cannot_replay(tmp_path: Path) -> None:
     path = tmp_path / "over.mcap"
-    venv = RecordVecEnvEvidence(VecNormalize(VecMonitor(DummyVecEnv([cartpole] * 2))), path)
+    stack = VecNormalize(VecMonitor(DummyVecEnv([cartpole] * 2)))
+    with pytest.warns(UserWarning, match="RecordVecEnvEvidence: VecNormalize under the recorder"):
+        venv = RecordVecEnvEvidence(stack, path)  # (as RecordVectorEvidence warns)
     step_random(venv, 100)
     venv.close()
     run = open_evidence(path).run
@@ -234,7 +236,8 @@ def test_over_vec_normalize_of_reacher_names_it_in_the_terms_mismatch(tmp_path: 
     pytest.importorskip("mujoco")
     path = tmp_path / "over.mcap"
     base = DummyVecEnv([lambda: gym.make("Reacher-v5", max_episode_steps=20)] * 2)
-    venv = RecordVecEnvEvidence(VecNormalize(base, norm_obs=False), path)
+    with pytest.warns(UserWarning, match="VecNormalize under the recorder"):
+        venv = RecordVecEnvEvidence(VecNormalize(base, norm_obs=False), path)
     venv.seed(0)
     venv.reset()
     for _ in range(60):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import threading
+import warnings
 from typing import Any
 
 import numpy as np
@@ -119,6 +120,12 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         spec = stack.sub_env_spec()
         obs_space, act_space = venv.observation_space, venv.action_space
         self.run_info = self._describe(stack, settings, spec)
+        if stack.changing:  # (as RecordVectorEvidence warns of what it cannot replay)
+            warnings.warn(
+                f"episode-audit: {type(self).__name__}: {stack.replay_note()}",
+                UserWarning,
+                stacklevel=2,
+            )
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         codecs = (
