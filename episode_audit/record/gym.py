@@ -323,6 +323,23 @@ def entry_point(obj: Any) -> str:
     return f"{type(obj).__module__}:{type(obj).__qualname__}"
 
 
+_OWN_INFO_WRAPPER = "episode_audit.record.vector.rng:ResetRngInfo"
+"""The wrapper a vector recorder installs over each sub-env (it only adds an info key)."""
+
+
+def info_entry_point(env: Any) -> str:
+    """The entry point of the env whose info keys the recorder reads (terms' ``info_of``).
+
+    ``env``'s, or, past the recorder's own ``ResetRngInfo`` (which only adds its RNG key), the
+    env's it wraps: a message naming whose keys they are names the user's env.
+    """
+    for _ in range(8):
+        if entry_point(env) != _OWN_INFO_WRAPPER or not hasattr(env, "env"):
+            break
+        env = env.env
+    return entry_point(env)
+
+
 def reward_wrappers(env: Any) -> list[str]:
     """The entry points of the wrappers around ``env`` that change its reward, innermost first.
 

@@ -65,6 +65,8 @@ def test_normalize_reward_under_the_recorder_is_named_in_the_finding(tmp_path: P
         for m in found
     ), found
     assert all("terms read automatically from the info of " in m for m in found)
+    # whose info: the user's outermost wrapper, not the recorder's own ResetRngInfo over it
+    assert run.reward_terms["info_of"] == TRANSFORM
 
 
 def test_vector_normalize_reward_over_the_recorder_checks_clean(tmp_path: Path) -> None:

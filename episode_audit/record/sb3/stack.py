@@ -22,7 +22,7 @@ from stable_baselines3.common.vec_env import (
     VecVideoRecorder,
 )
 
-from ..gym import entry_point, reward_wrappers
+from ..gym import entry_point, info_entry_point, reward_wrappers
 from ..rules import find_time_limit
 
 __all__ = ["TRANSPARENT", "VecStack"]
@@ -99,7 +99,7 @@ class VecStack:
     def info_of(self) -> str:
         """The entry point of the object whose infos the recorder reads the terms from."""
         if self.local is not None and self.local.envs:
-            return entry_point(self.local.envs[0])
+            return info_entry_point(self.local.envs[0])
         return entry_point(self.base)
 
     def sub_env_spec(self) -> Any:

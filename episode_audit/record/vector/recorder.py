@@ -27,7 +27,12 @@ from ...format.wrappers import (
     REWARD_CHANGING,
 )
 from ..file import EvidenceFile, FileRecorder
-from ..gym import entry_point, reward_wrappers, warn_unrestorable, wrapper_chain
+from ..gym import (
+    info_entry_point,
+    reward_wrappers,
+    warn_unrestorable,
+    wrapper_chain,
+)
 from ..rules import find_time_limit
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from .infos import env_infos
@@ -115,7 +120,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             action_space=describe_space(act_space),
             layout=layout,
             notes=notes,
-            info_of=entry_point(sync.envs[0] if sync is not None and sync.envs else env),
+            info_of=info_entry_point(sync.envs[0] if sync is not None and sync.envs else env),
         )
         warn_unrestorable(type(self).__name__, _sub_wrappers(sync, sub_spec), layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
