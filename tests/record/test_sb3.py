@@ -560,3 +560,31 @@ def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
         dict(t).keys() == {"reward_dist", "reward_ctrl"} for t in totals
     )
     assert set(episodes.column("outcome").to_pylist()) >= {"truncated"}
+
+
+def test_record_eval_callback_refuses_an_earlier_runs_files_before_training(
+    tmp_path: Path,
+) -> None:
+    """Met at the first evaluation, an earlier run's eval-64.mcap stopped learn() mid-run;
+    a learn() that continues this run (its files' steps are behind it) goes on."""
+    from episode_audit import RecordEvalCallback
+
+    template = str(tmp_path / "evals" / "eval-{step}.mcap")
+
+    def learn(steps: int, model: Any = None, **kwargs: Any) -> Any:
+        callback = RecordEvalCallback(
+            VecMonitor(DummyVecEnv([cartpole])), template, eval_freq=64, n_eval_episodes=1
+        )
+        if model is None:
+            model = PPO("MlpPolicy", VecMonitor(DummyVecEnv([cartpole])), n_steps=64, seed=0)
+        model.learn(steps, callback=callback, **kwargs)
+        return model
+
+    model = learn(64)
+    with pytest.raises(ConfigurationError, match=r"eval-64\.mcap: an evaluation file an earlier"):
+        learn(64)  # (a new run: its first evaluation would be eval-64.mcap)
+    learn(64, model, reset_num_timesteps=False)  # (this run goes on: eval-128.mcap)
+    assert sorted(p.name for p in (tmp_path / "evals").iterdir()) == [
+        "eval-128.mcap",
+        "eval-64.mcap",
+    ]

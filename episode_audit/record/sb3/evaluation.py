@@ -9,7 +9,9 @@
 
 from __future__ import annotations
 
+import glob
 import os
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,6 +23,7 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
+from ...errors import ConfigurationError
 from ..settings import RecorderOptions
 from .recorder import RecordVecEnvEvidence
 
@@ -146,6 +149,16 @@ class RecordEvalCallback(EvalCallback):
         self.recorded: list[Path] = []
         """The files written so far."""
 
+    def _init_callback(self) -> None:
+        """At ``learn()``'s start: refuse a later evaluation's file an earlier run left.
+
+        A file is never overwritten (unless ``options`` say ``overwrite``): met at its
+        evaluation, it would stop ``learn()`` after the training spent until then.
+        """
+        super()._init_callback()
+        if not (self.options or {}).get("overwrite"):
+            _refuse_earlier_evaluations(self.path_template, self.model.num_timesteps)
+
     def _on_step(self) -> bool:
         if not (self.eval_freq > 0 and self.n_calls % self.eval_freq == 0):
             return bool(super()._on_step())
@@ -162,3 +175,27 @@ class RecordEvalCallback(EvalCallback):
             finally:
                 self.eval_env = env
                 self.recorded.append(recorder.path)
+
+
+_STEP_FIELD = re.compile(r"\{step(?::[^{}]*)?\}")
+
+
+def _refuse_earlier_evaluations(template: str, step: int) -> None:
+    """Raise if a file of ``template`` for a step after ``step`` exists (an earlier run's).
+
+    Files of steps up to ``step`` (a ``learn()`` that continues this run) are not in the way.
+    A template whose other braces are not plain text is not looked for.
+    """
+    parts = _STEP_FIELD.split(template)
+    if len(parts) != 2 or any(c in "".join(parts) for c in "{}[]*?"):
+        return
+    head, tail = parts
+    found = re.compile(re.escape(head) + r"0*(\d+)" + re.escape(tail) + r"\Z")
+    for name in sorted(glob.glob(glob.escape(head) + "*" + glob.escape(tail))):
+        matched = found.match(name)
+        if matched and int(matched.group(1)) > step:
+            raise ConfigurationError(
+                f"{name}: an evaluation file an earlier run left, which RecordEvalCallback "
+                "would meet mid-training and not overwrite; give this run its own folder "
+                "(path=...), remove the old files, or pass options={'overwrite': True}"
+            )
