@@ -388,12 +388,14 @@ KINDS: Final[tuple[FindingKind, ...]] = (
     ),
     FindingKind(
         REWARDS_CHANGED,
-        "warning",
+        "note",
         "The recorded rewards are a wrapper's, not the env's.",
         "The recorder sat over a wrapper that changes the reward (`NormalizeReward`, "
         "`TransformReward`, `ClipReward`, SB3's `VecNormalize` with `norm_reward`), so every "
         "recorded reward, and every return `report` and `compare` read, is that wrapper's. "
-        "One finding per file, naming the wrappers.",
+        "One finding per file, naming the wrappers. A note, not a warning: recording what "
+        "the agent saw can be the point (with `constant_terms` declaring a reward shift, the "
+        "terms still check).",
         "A normalised return is on another scale than the env's (a CartPole return no longer "
         "equals its length) and drifts with the wrapper's running statistics: rates are "
         "unaffected, but returns, return gates and `compare`'s return verdicts are not the "

@@ -121,11 +121,11 @@ def test_no_reward_wrapper_records_no_key_and_names_the_env(tmp_path: Path) -> N
     assert not mismatches(path)
 
 
-def test_normalize_reward_under_the_recorder_of_an_env_without_terms_is_a_warning(
+def test_normalize_reward_under_the_recorder_of_an_env_without_terms_is_noted(
     tmp_path: Path,
 ) -> None:
     """CartPole reports no terms, so no terms_sum_mismatch: its returns (6.7 for episodes of
-    23 steps) read as the env's, and check said nothing but notes."""
+    23 steps) read as the env's, and check said nothing of the wrapper."""
     path = tmp_path / "cartpole.mcap"
     with RecordEvidence(gym.wrappers.NormalizeReward(gym.make("CartPole-v1")), path) as env:
         env.action_space.seed(0)
@@ -137,7 +137,7 @@ def test_normalize_reward_under_the_recorder_of_an_env_without_terms_is_a_warnin
                 done = terminated or truncated
     result = check([path])
     (found,) = [f for f in result.findings if f.code == "rewards_changed"]
-    assert (found.severity, found.episode, found.step) == ("warning", None, None)
+    assert (found.severity, found.episode, found.step) == ("note", None, None)
     assert found.message == (
         "the recorded rewards and returns are NormalizeReward's, not the env's: the recorder "
         "sat over it; record beneath it (innermost) for the env's own"
