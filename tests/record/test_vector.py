@@ -341,6 +341,27 @@ def test_env_infos_picks_one_sub_envs_values() -> None:
     assert _env_infos("oops", 2) == (["oops", "oops"], None)
 
 
+def test_a_nested_dict_without_masks_of_its_own_takes_its_keys_mask(tmp_path: Path) -> None:
+    """Gymnasium's vector RecordEpisodeStatistics masks ``_episode``, not ``episode._r``: the
+    inner keys were guesses (info_unmasked) and every sub-env got an ``episode`` entry."""
+    from episode_audit.record.vector.infos import env_infos as _env_infos
+
+    stats = {
+        "episode": {"r": np.array([9.0, 0.0]), "l": np.array([9, 0]), "t": np.array([0.1, 0])},
+        "_episode": np.array([True, False]),
+    }
+    assert _env_infos(stats, 2) == ([{"episode": {"r": 9.0, "l": 9, "t": 0.1}}, {}], None)
+    path = tmp_path / "stats.mcap"
+    venv = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync")
+    with RecordVectorEvidence(gym.wrappers.vector.RecordEpisodeStatistics(venv), path) as envs:
+        envs.reset(seed=0)
+        envs.action_space.seed(0)
+        for _ in range(100):
+            envs.step(envs.action_space.sample())
+    codes = {f.code for f in check([path]).findings}
+    assert not {c for c in codes if "info_unmasked" in c}, codes
+
+
 def test_misuse_raises_and_bad_input_does_not(tmp_path: Path) -> None:
     envs = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync")
     rec = RecordVectorEvidence(envs, tmp_path / "m.mcap")

@@ -30,7 +30,7 @@ def _entries(value: Any, n: int) -> Any:
 
 
 def split_info(
-    infos: Mapping[Any, Any], n: int, prefix: str = ""
+    infos: Mapping[Any, Any], n: int, prefix: str = "", inherited: Any = None
 ) -> tuple[list[dict[Any, Any]], list[str]]:
     """Each sub-env's info from a vector info dict, and the keys read without a mask.
 
@@ -39,7 +39,9 @@ def split_info(
     out) is taken as present for every sub-env: a value of ``n`` entries (an array, a list or a
     tuple) as each sub-env's own entry, any other value as the same for every sub-env. Such keys
     are returned (dotted within nested dicts, which are read the same way) so that the rows they
-    reached can say so: that reading is a guess.
+    reached can say so: that reading is a guess. Within a nested dict whose own key has a mask
+    (Gymnasium's vector ``RecordEpisodeStatistics``: ``_episode``, not ``episode._r``), a key
+    without one takes that mask (``inherited``): no guess.
     """
     outs: list[dict[Any, Any]] = [{} for _ in range(n)]
     guessed: list[str] = []
@@ -48,8 +50,10 @@ def split_info(
         present = None if mask is None else _entries(mask, n)
         if present is None and type(key) is str and key[:1] == "_" and key[1:] in infos:
             continue  # the mask of another key
+        if mask is None and inherited is not None:
+            present = inherited  # (the enclosing key's mask)
         if isinstance(value, Mapping):
-            values, inner = split_info(value, n, f"{prefix}{key}.")
+            values, inner = split_info(value, n, f"{prefix}{key}.", present)
             guessed += inner
         else:
             values = _entries(value, n)
