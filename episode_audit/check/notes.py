@@ -11,7 +11,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from ..format.records import from_json, listing
+from ..format.records import listing, note_items
 from ._state import BoolArray, FileState, Hit, IntArray, first_per_episode, short, steps_of
 from .registry import RECORDER_NOTE, SEVERITY, STEP_AFTER_END, Severity
 
@@ -88,12 +88,5 @@ def notes_summary(state: FileState, code: str, group: list[tuple[int, Hit]]) -> 
 
 
 def _parse_notes(text: str) -> list[str]:
-    try:
-        notes = from_json(text, "notes")
-    except (TypeError, ValueError):
-        return [f"notes_unreadable: {short(text)}"]
-    if isinstance(notes, str):
-        return [notes]
-    if not isinstance(notes, list):
-        return [f"notes_unreadable: {short(notes)}"]
-    return [str(n) for n in notes]
+    notes = note_items(text)
+    return [f"notes_unreadable: {short(text)}"] if notes is None else notes

@@ -30,6 +30,7 @@ __all__ = [
     "EpisodeRanges",
     "RunInfo",
     "from_json",
+    "note_items",
     "to_json",
     "to_jsonable",
     "unstarted",
@@ -88,6 +89,25 @@ def from_json(text: str | bytes, what: str, limit: int = MAX_JSON_TEXT) -> Any:
         raise ValueError(f"{what} is nested too deeply to be JSON episode-audit wrote") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{what} is not valid JSON: {exc}") from None
+
+
+def note_items(text: str) -> list[str] | None:
+    """A row's ``notes`` value (JSON text) as its notes, ``"code: detail"``; ``None`` if garbled.
+
+    >>> note_items('["action_cast: dtype float64 cast to float32"]')
+    ['action_cast: dtype float64 cast to float32']
+    >>> print(note_items("{not json"))
+    None
+    """
+    try:
+        notes = from_json(text, "notes")
+    except (TypeError, ValueError):
+        return None
+    if isinstance(notes, str):
+        return [notes]
+    if not isinstance(notes, list):
+        return None
+    return [str(n) for n in notes]
 
 
 def listing(indices: Sequence[int], count: int | None = None, limit: int = 5) -> str:

@@ -19,7 +19,7 @@ import pyarrow as pa
 from ..errors import ReplayError
 from ..format import names as fmt
 from ..format.columns import number_or_nan, one_array
-from ..format.records import EpisodeRanges, from_json
+from ..format.records import EpisodeRanges, from_json, note_items
 from ..format.spaces import SpaceCodec
 from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
@@ -443,12 +443,8 @@ def _recorded_error(
     for r in members.values():
         start, count = rows.get(int(r["episode"]), (0, 0))
         notes = steps.column(fmt.COL_NOTES)[start + count - 1].as_py() if count else None
-        try:
-            items = from_json(notes, "notes") if notes else []
-        except ValueError:  # a garbled notes value: no error to read from it
-            continue
-        for item in items if isinstance(items, list) else ():
-            code, _, detail = str(item).partition(": ")
+        for item in (note_items(notes) if notes else None) or ():  # (garbled: no error in it)
+            code, _, detail = item.partition(": ")
             if code == _ENV_RAISED:
                 return detail.rpartition(" (during step: ")[0] or detail
     return None

@@ -18,7 +18,7 @@ import pyarrow.compute as pc
 
 from ..format import names as fmt
 from ..format.columns import one_array
-from ..format.records import RunInfo, from_json
+from ..format.records import RunInfo, note_items
 from ..format.wrappers import state_causes
 from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
@@ -142,12 +142,8 @@ def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
     encoded = pc.dictionary_encode(notes).combine_chunks()
     cast: dict[int, str] = {}
     for slot, text in enumerate(encoded.dictionary.to_pylist()):
-        try:
-            items = from_json(text, "notes") if text else []
-        except ValueError:  # a garbled notes value says nothing
-            continue
-        for item in items if isinstance(items, list) else ():
-            code, _, message = str(item).partition(": ")
+        for item in (note_items(text) if text else None) or ():  # (garbled: says nothing)
+            code, _, message = item.partition(": ")
             if code == _ACTION_CAST:
                 cast[slot] = message
                 break
