@@ -275,10 +275,12 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "The env raised an exception in `step` or `reset`; the recorder kept the episode with "
         "outcome `error` and re-raised it. One finding per episode, with the exception's type "
         "and message and the step.",
-        "The episode ended in a crash, not in a task outcome. A step that raised is no row "
-        "(its action is not recorded): `replay` compares the steps before it and cannot repeat "
-        "it, so the later episodes of an env that keeps state cannot be verified (`replay` "
-        "calls those that differ not replayable).",
+        "The episode ended in a crash, not in a task outcome. A step that raised is no row; a "
+        "single env's file keeps its action, and `replay` steps it again after the steps "
+        "before it, expecting the same exception (another, or none, makes the episode not "
+        "replayable). Where it cannot (a vector or PettingZoo file, a reset that raised), the "
+        "later episodes of an env that keeps state cannot be verified (`replay` calls those "
+        "that differ not replayable).",
         "Fix the env (the message names the exception and the step).",
     ),
     FindingKind(

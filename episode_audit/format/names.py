@@ -18,6 +18,7 @@ __all__ = [
     "COL_ACTION",
     "COL_AGENT",
     "COL_ENV_INDEX",
+    "COL_ERROR_ACTION",
     "COL_EPISODE",
     "COL_GAME",
     "COL_INFO",
@@ -140,6 +141,8 @@ COL_STATE: Final = "state"
 COL_OPTIONS: Final = "options"
 COL_AGENT: Final = "agent"
 COL_GAME: Final = "game"
+COL_ERROR_ACTION: Final = "error_action"
+"""Episode blocks of single-env files: the action of an error episode's step that raised."""
 
 OUTCOME_SUCCESS: Final = "success"
 OUTCOME_FAILURE: Final = "failure"

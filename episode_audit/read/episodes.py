@@ -23,7 +23,7 @@ from ..errors import CorruptEvidenceError
 from ..format import names as fmt
 from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
 from ..format.schemas import EPISODE_TABLE_SCHEMA as EPISODE_SCHEMA
-from .blocks import _episode_part, _nulls_problem, _one_line
+from .blocks import _arrow_batch, _check_episode_block, _episode_part, _nulls_problem, _one_line
 from .passes import _decode_kept, _StepStats
 from .storage import Source
 
@@ -386,3 +386,37 @@ def _json_column(values: list[Any]) -> list[str | None]:
         return texts
     it = iter(texts)
     return [None if v is None else next(it) for v in values]
+
+
+def _error_actions(blocks: list[bytes], path: Source, action: pa.DataType) -> pa.Table:
+    """The ``error_action`` column's values of the episode blocks, by episode.
+
+    Only rows of episodes ended ``error`` during ``step`` count; ``action`` is the type of the
+    steps' action column, which the column must have. See :meth:`Evidence.error_actions`.
+    """
+    episodes: list[pa.Array] = []
+    actions: list[pa.Array] = []
+    for data in blocks:
+        batch = _arrow_batch(data, path, fmt.TOPIC_EPISODES)
+        _check_episode_block(batch.schema, path)
+        if fmt.COL_ERROR_ACTION not in batch.schema.names:
+            continue
+        column = batch.column(fmt.COL_ERROR_ACTION)
+        if not column.type.equals(action):
+            raise CorruptEvidenceError(
+                path,
+                f"an episode block's {fmt.COL_ERROR_ACTION!r} is {column.type}, expected "
+                f"{action} (the steps' action type)",
+            )
+        raised = pc.and_(
+            pc.equal(batch.column(fmt.COL_OUTCOME), fmt.OUTCOME_ERROR),
+            pc.equal(batch.column("error_during"), "step"),
+        )
+        episodes.append(pc.filter(batch.column(fmt.COL_EPISODE), raised))
+        actions.append(pc.filter(column, raised))
+    return pa.table(
+        {
+            fmt.COL_EPISODE: pa.concat_arrays(episodes) if episodes else pa.array([], pa.int64()),
+            fmt.COL_ACTION: pa.concat_arrays(actions) if actions else pa.nulls(0, action),
+        }
+    )

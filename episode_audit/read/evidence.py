@@ -25,7 +25,7 @@ from ..format.run_end import RunEnd
 from ..format.spaces import SpaceCodec, codec_for, space_from_description
 from .blocks import _blocks_table, _declared_schema, _empty_table, _reset_block, _topic_schema
 from .chunks import _ARROW_SLOTS, _SLOTS, _ChunkRef
-from .episodes import _build_episodes
+from .episodes import _build_episodes, _error_actions
 from .passes import (
     _Chunk,
     _contiguous,
@@ -327,6 +327,24 @@ class Evidence:
         )
         gathered.records = []
         return table
+
+    def error_actions(self) -> pa.Table:
+        """The actions of the steps that raised, by episode: ``episode`` and ``action``.
+
+        Single-env files keep the action of an ``error`` episode's step that raised
+        (``docs/format.md``, "Episode blocks"); ``action`` has the steps' action type, null
+        when the action did not fit it. An error episode missing here has none recorded (a
+        file of an older recorder; a vector or PettingZoo file). Reads the file's episode
+        blocks again: for replay, which asks only when a file has such an episode.
+        """
+        if self._slots is not _ARROW_SLOTS:
+            return _error_actions([], self.path, self.steps_schema.field(fmt.COL_ACTION).type)
+        blocks = [
+            bytes(data)
+            for chunk in self._read(steps=False, resets=False, records=True, indexed_only=True)
+            for data in chunk.records
+        ]
+        return _error_actions(blocks, self.path, self.steps_schema.field(fmt.COL_ACTION).type)
 
     def _step_stats(self) -> _StepStats:
         if self._stats is None:

@@ -15,16 +15,21 @@ from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import numpy as np
+import pyarrow as pa
 from gymnasium.wrappers import TimeLimit
 
 from ..format import names as fmt
 from ..format.columns import error_message, text
+from ..format.spaces import SpaceCodec
 from .block import Block, Episode
 from .native import untrack
 from .notes import add_notes, note, short
 from .rules import Ending, EndingRules, time_limit_hit
 
-__all__ = ["EndingFile", "EpisodeEndings"]
+__all__ = ["NO_ACTION", "EndingFile", "EpisodeEndings"]
+
+NO_ACTION: Any = object()
+"""``end_error``'s ``action`` when the recorder does not know the action that raised."""
 
 _BOOLS = frozenset({bool, np.bool_})
 
@@ -53,6 +58,7 @@ class EpisodeEndings:
     _ending_keys: frozenset[str]
     _time_limit: TimeLimit[Any, Any] | None
     _max_steps: int | None
+    _act_codec: SpaceCodec
 
     def end_open(self, outcome: str = fmt.OUTCOME_INCOMPLETE) -> None:
         """End the open episode, if any, with ``outcome`` (``incomplete`` by default)."""
@@ -60,12 +66,28 @@ class EpisodeEndings:
         if episode is not None and not episode.ended:
             self.end_episode(episode, outcome)
 
-    def end_error(self, exc: BaseException, during: str) -> None:
-        """End the open episode as ``error`` (the env raised ``exc`` during reset or step)."""
+    def end_error(self, exc: BaseException, during: str, action: Any = NO_ACTION) -> None:
+        """End the open episode as ``error`` (the env raised ``exc`` during reset or step).
+
+        ``action``: the action of the step that raised, when the recorder knows it (a single
+        env's); kept in the episode block's ``error_action`` column (null when it does not fit
+        the action column), for replay to step it again.
+        """
         episode = self.episode
         if episode is None or episode.ended:
             return
-        self.end_episode(episode, fmt.OUTCOME_ERROR, error=(exc, during))
+        raised = None if action is NO_ACTION else self._error_action(action)
+        self.end_episode(episode, fmt.OUTCOME_ERROR, error=(exc, during), error_action=raised)
+
+    def _error_action(self, action: Any) -> pa.Array:
+        """``action`` as a one-row column of the stream's action type (null if it does not fit)."""
+        buffer = self._act_codec.new_buffer()
+        try:
+            buffer.append(action)
+        except Exception:  # (an action the column cannot hold: what made the env raise, maybe)
+            buffer = self._act_codec.new_buffer()
+            buffer.append_null()
+        return buffer.finish()
 
     def end_episode(
         self,
@@ -77,6 +99,7 @@ class EpisodeEndings:
         terminated: bool = False,
         truncated: bool = False,
         error: tuple[BaseException, str] | None = None,
+        error_action: pa.Array | None = None,
     ) -> None:
         """Mark the episode ended; its record is written at the next flush."""
         episode.ended = True
@@ -91,6 +114,8 @@ class EpisodeEndings:
         if error is not None:
             ending["error"] = _error_record(*error)
             ending["error_ns"] = self.file.clock()
+            if error_action is not None:
+                ending["error_action"] = error_action
         file = self.file
         pair = (episode, ending)
         file.pending.append(pair)

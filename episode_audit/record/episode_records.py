@@ -62,6 +62,7 @@ class EpisodeRecords:
         ``offset`` turns the episodes' monotonic times into wall-clock ones.
         """
         games = self.games
+        raised = [ending.pop("error_action", None) for _, ending in ended]
         records = native.episode_json(ended, offset, games) if self.compiled else None
         if records is not None:
             datas, ends = records
@@ -75,12 +76,24 @@ class EpisodeRecords:
         columns = None if records is None else native.episode_columns(ended, offset, games)
         if columns is None:
             batch = _episode_batch(ended, ends, offset, games, self.schema)
+            if any(action is not None for action in raised):
+                batch = _with_error_actions(batch, raised)
         else:
             batch = _columns_batch(len(ended), columns, self.schema)
         writer.write_batch(self.block_channel, batch, ends[-1])
 
 
 _MASKED = {"seed": "seed_mask", "game": "game_mask"}
+
+
+def _with_error_actions(batch: pa.RecordBatch, raised: list[pa.Array | None]) -> pa.RecordBatch:
+    """``batch`` with an ``error_action`` column: per episode, its action that raised, or null.
+
+    ``raised`` holds one-row columns of the stream's action type (a single env's: one type).
+    """
+    kind = next(action for action in raised if action is not None).type
+    column = pa.concat_arrays([pa.nulls(1, kind) if a is None else a for a in raised])
+    return batch.append_column(pa.field(fmt.COL_ERROR_ACTION, kind), column)
 
 
 def _columns_batch(n: int, columns: dict[str, Any], schema: pa.Schema) -> pa.RecordBatch:

@@ -32,6 +32,7 @@ from ..format.records import MAX_JSON_TEXT, RunInfo
 from ..format.spaces import SpaceCodec
 from . import native, signals
 from .block import Episode
+from .endings import NO_ACTION
 from .episode_records import EpisodeRecords
 from .run_end import run_end_record
 from .settings import RecorderSettings
@@ -469,15 +470,19 @@ class EvidenceFile:
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns
 
-    def end_with_error(self, streams: Iterable[Stream], exc: BaseException, during: str) -> None:
+    def end_with_error(
+        self, streams: Iterable[Stream], exc: BaseException, during: str, action: Any = NO_ACTION
+    ) -> None:
         """The env raised ``exc``: end the streams' open episodes as ``error``, written now.
 
+        ``action``: the action of the step that raised, when the streams are one env's (its
+        episode block keeps it for replay; see :meth:`~.endings.EpisodeEndings.end_error`).
         A failure here is the recorder's trouble (warned once): the loop then sees the env's
         own error, never one of the recorder's.
         """
         try:
             for stream in streams:
-                stream.end_error(exc, during)
+                stream.end_error(exc, during, action)
             self.flush()
         except Exception as trouble:
             self.trouble(trouble)

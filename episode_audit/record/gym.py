@@ -29,6 +29,7 @@ from ..format.wrappers import (
     state_causes,
 )
 from .block import Episode
+from .endings import NO_ACTION
 from .fast import (
     CompiledReset,
     WrapperStep,
@@ -275,7 +276,7 @@ class RecordEvidence(
             try:
                 result = self.env.step(action)
             except Exception as exc:
-                self._on_error(exc, "step")
+                self._on_error(exc, "step", action)
                 raise
             self._record_step(action, result)
             return result
@@ -287,8 +288,12 @@ class RecordEvidence(
         step = self._compiled_step
         return step is not None and step.inside_here()
 
-    def _on_error(self, exc: Exception, during: str) -> None:
-        self._file.end_with_error((self._stream,), exc, during)
+    def _on_error(self, exc: Exception, during: str, action: Any = NO_ACTION) -> None:
+        """The env raised ``exc`` during ``during`` (a step's ``action`` is kept for replay).
+
+        The compiled step calls it by name, as ``_on_error(exc, "step", action)``.
+        """
+        self._file.end_with_error((self._stream,), exc, during, action)
 
     def close(self) -> None:
         """Finish the evidence file (an open episode is recorded as ``incomplete``) and close.

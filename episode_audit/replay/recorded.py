@@ -27,6 +27,7 @@ __all__ = [
     "cast_actions",
     "episode_records",
     "layout_not_replayable",
+    "ordinal",
     "replay_actions",
     "row_ranges",
     "rules_of",
@@ -161,33 +162,37 @@ def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
     return out
 
 
-def unrepeated(record: Mapping[str, Any], after_end: int) -> str | None:
+def unrepeated(
+    record: Mapping[str, Any], after_end: int, *, raised_again: bool = False
+) -> str | None:
     """What the recorded env did in ``record``'s episode that replay does not repeat, or None.
 
-    The step or reset that raised, in an ``error`` episode (a call that raised is no row: a
-    step's action is not recorded), and the ``after_end`` rows stepped after its end.
+    The step or reset that raised, in an ``error`` episode (a call that raised is no row),
+    unless replay stepped its recorded action and it raised the same (``raised_again``), and
+    the ``after_end`` rows stepped after its end.
 
     >>> rec = {"episode": 1, "outcome": "error", "error_during": "step", "length": 2}
     >>> print(unrepeated({**rec, "error_type": "KeyError"}, 3))
-    episode 1's 3rd step, which raised KeyError and whose action is not recorded, and 3 steps \
-after its end
+    episode 1's 3rd step, which raised KeyError, and 3 steps after its end
+    >>> print(unrepeated({**rec, "error_type": "KeyError"}, 3, raised_again=True))
+    episode 1's 3 steps after its end
     >>> print(unrepeated({"episode": 4, "outcome": "success", "length": 9}, 1))
     episode 4's 1 step after its end
     """
     parts = []
-    if record.get("outcome") == fmt.OUTCOME_ERROR:
+    if record.get("outcome") == fmt.OUTCOME_ERROR and not raised_again:
         error = record.get("error_type") or "an error"
         if record.get("error_during") == "reset":
             parts.append(f"reset, which raised {error}")
         else:
-            nth = _ordinal(int(record.get("length") or 0) + 1)
-            parts.append(f"{nth} step, which raised {error} and whose action is not recorded")
+            nth = ordinal(int(record.get("length") or 0) + 1)
+            parts.append(f"{nth} step, which raised {error}")
     if after_end:
         parts.append(f"{after_end} step{'s' if after_end != 1 else ''} after its end")
     return f"episode {record['episode']}'s " + ", and ".join(parts) if parts else None
 
 
-def _ordinal(n: int) -> str:
+def ordinal(n: int) -> str:
     """``n`` as an ordinal: ``1st``, ``2nd``, ``3rd``, ``4th``, ``11th``, ``22nd``."""
     suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
     return f"{n}{suffix}"

@@ -24,7 +24,7 @@ from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
 from ..record.state import StateTargets, restore_snapshot
 from .compare import Comparison
-from .recorded import replay_actions, rules_of
+from .recorded import ordinal, replay_actions, rules_of
 from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, restored_state
 from .returned import Ran, Rows, Steps
 
@@ -77,6 +77,10 @@ class EpisodeRunner:
         self.states: pa.ChunkedArray | None = None
         self.adapted = bool(StateTargets(env))
         self.restored: dict[int, list[str]] = {}  # what was restored before each reset
+        self.raised_again: set[int] = set()
+        """Error episodes whose recorded step that raised raised the same again in replay."""
+        self._raising: dict[int, Any] = {}  # by error episode: its recorded action that raised
+        self._not_raised: dict[int, str] = {}  # by error episode: how its raising step differed
 
     def _not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
@@ -106,12 +110,61 @@ class EpisodeRunner:
         actions, null_rows = replay_actions(steps.column(fmt.COL_ACTION), self.act_codec)
         names = resets.column_names
         self.states = resets.column(fmt.COL_STATE) if fmt.COL_STATE in names else None
+        self._raising = self._raising_actions(records)
         ran, returned, got_obs, got_reset = self._step_all(
             records, actions, null_rows, rows, reset_rows, done
         )
         if ran.records:
             self.comparison.episodes(ran, returned, got_obs, got_reset, steps, resets, done)
+        for index, why in self._not_raised.items():
+            result = done.get(index)
+            if result is not None and result.status == "identical":
+                done[index] = self._not_replayable(index, result.steps, why)
+        self._not_raised = {}
         return [self._with_restored(done[int(r["episode"])], r) for r in records]
+
+    def _raising_actions(self, records: list[dict[str, Any]]) -> dict[int, Any]:
+        """The recorded actions that raised, of ``records``' error episodes (when recorded).
+
+        Read from the file (:meth:`~episode_audit.read.Evidence.error_actions`) only when
+        ``records`` has an episode whose step raised.
+        """
+        raised = {int(r["episode"]) for r in records if _raised_in_step(r)}
+        if not raised:
+            return {}
+        assert self.act_codec is not None
+        table = self.ev.error_actions()
+        values, _ = replay_actions(table.column(fmt.COL_ACTION), self.act_codec)
+        episodes = table.column(fmt.COL_EPISODE).to_pylist()
+        return {
+            e: value
+            for e, value in zip(episodes, values, strict=True)
+            if e in raised and value is not None
+        }
+
+    def _raise_again(self, step: Callable[[Any], Any], record: dict[str, Any]) -> None:
+        """Step an error episode's recorded action that raised, expecting the same error.
+
+        The same exception type: the episode's raise is repeated (:attr:`raised_again`).
+        Another, or none: the episode is ``not_replayable`` (an error may come from outside
+        the env: memory, files, a network), with what happened.
+        """
+        index = int(record["episode"])
+        recorded = str(record.get("error_type") or "an error")
+        nth = ordinal(int(record.get("length") or 0) + 1)
+        try:
+            step(self._raising[index])
+        except Exception as exc:
+            if type(exc).__qualname__ == recorded:
+                self.raised_again.add(index)
+                return
+            got = f"raised {env_error(exc)}"
+        else:
+            got = "did not raise"
+        self._not_raised[index] = (
+            f"its {nth} step raised {recorded} when recorded, and {got} in replay with the "
+            "recorded action (an error may come from outside the env: memory, files, network)"
+        )
 
     def restored_snapshots(self, record: dict[str, Any]) -> list[str]:
         """The state snapshots set before ``record``'s reset, one name each.
@@ -198,6 +251,13 @@ class EpisodeRunner:
                 ends.append((len(rewards) - 1, term, trunc))
             if crash is not None:
                 ran.crashes[len(stepped)] = crash
+            elif (
+                index in self._raising
+                and ran_now == count
+                and not (term or trunc)
+                and (limit is None or ran_now < limit)
+            ):
+                self._raise_again(env.step, record)
             # the TimeLimit state belongs to this episode: read it now, not after the others
             hit = ran_now == limit if limit is not None else time_limit_hit(time_limit)
             keep_stepped((record, start, count, ran_now, info if ran_now else {}, hit, reset_at))
@@ -322,6 +382,11 @@ class _StepLoop:
         except Exception as exc:
             return term, trunc, info, env_error(exc)
         return term, trunc, info, None
+
+
+def _raised_in_step(record: dict[str, Any]) -> bool:
+    """Whether ``record``'s episode ended ``error`` because a step raised."""
+    return record.get("outcome") == fmt.OUTCOME_ERROR and record.get("error_during") == "step"
 
 
 def _first_null_action(

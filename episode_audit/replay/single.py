@@ -127,6 +127,11 @@ class SubEnvs:
             out += self.runner(env_index).run_all(group, steps, rows, reset_rows, resets)
         return out
 
+    @property
+    def raised_again(self) -> set[int]:
+        """Error episodes whose step that raised raised the same in replay (any sub-env)."""
+        return set().union(*(runner.raised_again for runner in self._runners.values()))
+
     def close(self) -> None:
         """Close every env built (each once, even if one raises)."""
         runners, self._runners = list(self._runners.values()), {}
@@ -185,7 +190,8 @@ class _Pass:
             if before is not None:
                 env = f"sub-env {sub}'s env" if vector else "this env"
                 result = not_told_from_history(result, before, env=env)
-            own = unrepeated(record, self.after_end.get(index, 0))
+            again = index in self.runner.raised_again
+            own = unrepeated(record, self.after_end.get(index, 0), raised_again=again)
             if index in self.cast:  # (it differed: so may its env's state after it)
                 cast = f"episode {index}'s actions, stepped before the recorder cast them"
                 own = cast if own is None else f"{own}, and {cast[len(f'episode {index}') :]}"

@@ -84,11 +84,13 @@ def test_env_raising_in_step_reraises_the_same_exception_and_the_loop_goes_on(
         env.step(0)
         env.step(0)
         with pytest.raises(RuntimeError) as raised:
-            env.step(0)
+            env.step(1)
         assert raised.value is boom
         assert len(loop(env, episodes=1)) == 4  # the user's loop carries on
     assert_valid(path)
-    first, second = open_evidence(path).episodes().to_pylist()
+    ev = open_evidence(path)
+    assert ev.error_actions().to_pylist() == [{"episode": 0, "action": 1}]  # (for replay)
+    first, second = ev.episodes().to_pylist()
     assert (first["outcome"], first["length"], first["error_type"], first["error_message"]) == (
         "error",
         2,

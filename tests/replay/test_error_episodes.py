@@ -1,7 +1,8 @@
 """Replay of ``error`` episodes whose loop caught the env's error and stepped on.
 
 The env (tests/support/flaky.py) raises in episode 1's third step; the loop catches it and
-keeps stepping the same env: three rows after the episode's end, then the next reset.
+keeps stepping the same env: three rows after the episode's end, then the next reset. The file
+keeps the action of the step that raised: replay steps it again and expects the same error.
 """
 
 from __future__ import annotations
@@ -22,14 +23,11 @@ from episode_audit.replay import replay
 from episode_audit.replay import run as replay_run
 from tests.support.flaky import FLAKY, FLAKY_FRESH, Flaky, record_flaky
 
-RAISED = (
-    "not repeated by replay: episode 1's 3rd step, which raised RuntimeError and whose "
-    "action is not recorded, and 3 steps after its end"
-)
+RAISED = "not repeated by replay: episode 1's 3 steps after its end"
 AFTER_RAISED = (
     r"differed at the reset \(reset_observation\) after calls to this env that replay does "
-    r"not repeat \(episode 1's 3rd step, which raised RuntimeError and whose action is not "
-    r"recorded, and 3 steps after its end\): the state it began from cannot be reproduced"
+    r"not repeat \(episode 1's 3 steps after its end\): the state it began from cannot be "
+    r"reproduced"
 )
 
 
@@ -51,9 +49,9 @@ def test_the_recording_is_what_the_tests_say(tmp_path: Path) -> None:
 def test_an_error_episode_compares_its_steps_up_to_the_raise_not_the_rows_after_it(
     tmp_path: Path,
 ) -> None:
-    # Each episode depends on its seed alone: every compared step is identical. The rows the
-    # loop stepped after the error are not the episode (nor is the step that raised, whose
-    # action is not recorded): the episode says so, and is identical.
+    # Each episode depends on its seed alone: every compared step is identical, and the step
+    # that raised raises again. The rows the loop stepped after the error are not the
+    # episode: the episode says so, and is identical.
     path = record_flaky(tmp_path / "f.mcap", FLAKY_FRESH)
     result = replay([path])
     got = [(e.episode, e.status, e.steps, e.divergence) for e in result.episodes]
@@ -212,3 +210,80 @@ def test_the_command_says_not_replayable_and_why_and_exits_0(tmp_path: Path) -> 
         "not_replayable",
     ]
     assert data["episodes"][1]["reason"] == RAISED
+
+
+def test_the_file_keeps_the_action_of_the_step_that_raised(tmp_path: Path) -> None:
+    path = record_flaky(tmp_path / "f.mcap", FLAKY_FRESH)
+    assert open_evidence(path).error_actions().to_pylist() == [
+        {"episode": 1, "action": 1},
+        {"episode": 3, "action": 1},
+    ]
+
+
+class RaisesOther(Flaky):
+    """Flaky, but its step that raises raises ``KeyError`` (``kind``: ``None`` raises none)."""
+
+    def __init__(self, kind: type[Exception] | None) -> None:
+        super().__init__(persist=False)
+        self.kind = kind
+
+    def step(self, action: Any) -> Any:
+        try:
+            return super().step(action)
+        except RuntimeError:
+            if self.kind is None:
+                return self._obs(), 0.0, False, False, {}
+            raise self.kind("another error") from None
+
+
+@pytest.mark.parametrize(
+    ("kind", "got"),
+    [(None, "did not raise"), (KeyError, "raised KeyError: 'another error'")],
+)
+def test_a_step_that_raised_and_does_not_raise_the_same_again_is_not_replayable(
+    tmp_path: Path, kind: type[Exception] | None, got: str
+) -> None:
+    # The same steps before it, the same action: an error the replayed env does not raise
+    # (or raises another) may have come from outside the env. Never diverged.
+    path = record_flaky(tmp_path / "f.mcap", FLAKY_FRESH)
+    result = replay([path], env_factory=lambda: RaisesOther(kind))
+    assert [(e.episode, e.status) for e in result.episodes] == [
+        (0, "identical"),
+        (1, "not_replayable"),
+        (2, "identical"),
+        (3, "not_replayable"),
+    ]
+    assert result.episodes[1].reason == (
+        f"its 3rd step raised RuntimeError when recorded, and {got} in replay with the "
+        "recorded action (an error may come from outside the env: memory, files, network)"
+    )
+    assert result.episodes[2].reason is None
+
+
+class Picky(Flaky):
+    """Raises on any action that is not 0 or 1 (before counting the step)."""
+
+    def step(self, action: Any) -> Any:
+        if action not in (0, 1):
+            raise ValueError(f"not an action: {action!r}")
+        return super().step(action)
+
+
+def test_an_action_the_file_cannot_hold_is_not_repeated_and_said_so(tmp_path: Path) -> None:
+    path = tmp_path / "picky.mcap"
+    with RecordEvidence(Picky(persist=False), path) as env:
+        for seed in (0, 2):
+            env.reset(seed=seed)
+            if seed == 0:
+                with pytest.raises(ValueError, match="not an action"):
+                    env.step("left")  # (no Discrete value: a null action_error)
+    ev = open_evidence(path)
+    assert ev.error_actions().to_pylist() == [{"episode": 0, "action": None}]
+    result = replay([path], env_factory=lambda: Picky(persist=False))
+    assert [(e.episode, e.status) for e in result.episodes] == [
+        (0, "identical"),
+        (1, "identical"),
+    ]
+    assert result.episodes[0].reason == (
+        "not repeated by replay: episode 0's 1st step, which raised ValueError"
+    )

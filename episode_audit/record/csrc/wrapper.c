@@ -4,7 +4,7 @@
    what RecordEvidence.step does, without a Python frame: `_busy` read and set, the gate read,
    the wrapped env's step called, the step recorded by `record` (the recorder's StepRecorder),
    `_busy` cleared as it returns or raises. The env's own exception (an Exception) ends the open
-   episode as RecordEvidence.step does, by the recorder's `_on_error(exc, "step")`, and is
+   episode as RecordEvidence.step does, by the recorder's `_on_error(exc, "step", action)`, and is
    raised as it came. Any other call (gated: closed, or a flush() / close() under way in
    another thread; keyword or extra arguments; an instance without its attributes) goes to
    `python_step` (RecordEvidence.step) untouched.
@@ -36,10 +36,10 @@ static PyObject *python_path(WrapperStep *self, PyObject *recorder, PyObject *co
     return result;
 }
 
-/* The env raised (an error is set): when it is an Exception, recorder._on_error(exc, "step")
-   as RecordEvidence.step's `except Exception` does; the env's exception stays set (or what
+/* The env raised (an error is set) on `action`: when it is an Exception,
+   recorder._on_error(exc, "step", action) as RecordEvidence.step's `except Exception` does; the env's exception stays set (or what
    _on_error raised, with the env's as its context). */
-static void env_raised(PyObject *recorder)
+static void env_raised(PyObject *recorder, PyObject *action)
 {
     if (!PyErr_ExceptionMatches(PyExc_Exception))
         return;
@@ -48,7 +48,7 @@ static void env_raised(PyObject *recorder)
     PyErr_NormalizeException(&type, &value, &traceback);
     if (traceback != NULL)
         PyException_SetTraceback(value, traceback);
-    PyObject *done = PyObject_CallMethodObjArgs(recorder, s_on_error, value, s_step, NULL);
+    PyObject *done = PyObject_CallMethodObjArgs(recorder, s_on_error, value, s_step, action, NULL);
     if (done != NULL) {
         Py_DECREF(done);
         PyErr_Restore(type, value, traceback);
@@ -95,7 +95,7 @@ static PyObject *WrapperStep_vectorcall(PyObject *callable, PyObject *const *arg
     PyObject *env_args[2] = {env, args[0]};
     ret = PyObject_VectorcallMethod(s_step, env_args, 2, NULL);
     if (ret == NULL) {
-        env_raised(recorder);
+        env_raised(recorder, args[0]);
     } else {
         PyObject *record_args[2] = {args[0], ret};
         PyObject *recorded = PyObject_Vectorcall(self->record, record_args, 2, NULL);
