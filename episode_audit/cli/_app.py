@@ -214,8 +214,8 @@ def emit(output: Any) -> None:
     console = _stdout()
     if isinstance(output, str):
         console.print(output, markup=False, highlight=False, soft_wrap=True)
-    else:
-        console.print(output)
+    else:  # (not cropped: a renderable's text that must stay whole, e.g. JSON, says no_wrap)
+        console.print(output, crop=False)
 
 
 def _version(value: bool) -> None:

@@ -455,6 +455,41 @@ def test_show_summary_of_a_long_file_lists_the_first_and_last_episodes(tmp_path:
     )
 
 
+class LongKwargs(gym.Env[np.ndarray, np.int64]):
+    """A registered env whose spec holds a long kwarg (a path, a config string)."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, config: str = "") -> None:
+        self.config = config
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        super().reset(seed=seed)
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        return np.zeros(1, np.float32), 0.0, True, False, {}
+
+
+gym.register("EpisodeAuditLongKwargs-v0", entry_point=LongKwargs)
+
+
+def test_show_prints_the_env_spec_json_unbroken_to_copy_at_any_width(tmp_path: Path) -> None:
+    config = "/data/" + "very-long-folder-name/" * 8 + "config.yaml"
+    path = tmp_path / "long.mcap"
+    with RecordEvidence(gym.make("EpisodeAuditLongKwargs-v0", config=config), path) as env:
+        env.reset(seed=0)
+        env.step(0)
+    result = runner.invoke(app, ["show", str(path)], env={"COLUMNS": "80"})
+    assert result.exit_code == 0
+    lines = result.stdout.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("env spec: "))
+    spec = json.loads("\n".join(lines[start:])[len("env spec: ") :])
+    assert spec["kwargs"] == {"config": config}
+    assert max(len(line) for line in lines[:start]) <= 80  # (the tables still fit)
+
+
 @pytest.mark.parametrize(
     ("description", "text"),
     [

@@ -161,7 +161,8 @@ def summary_output(
     parts: list[RenderableType] = [table("Evidence file", ["field", "value"], rows)]
     if episode_rows:
         parts.append(table(title, headers, episode_rows))
-    parts.append(Text("env spec: " + safe_block(spec)))
+    # one line, never broken: JSON to copy (the terminal wraps it on screen; emit() does not crop)
+    parts.append(Text("env spec: " + safe_block(spec), no_wrap=True, overflow="ignore"))
     return Group(*parts)
 
 
