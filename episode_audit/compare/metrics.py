@@ -196,7 +196,7 @@ def mean_metric(
         needed = max(needed, stats.fewest(paired=paired))
     return MetricComparison(
         name, "mean", better, float(np.mean(x)), float(np.mean(y)), len(x), len(y),
-        float(np.mean(y) - np.mean(x)), stats.bootstrap_difference(x, y, paired=paired),
+        float(np.mean(y) - np.mean(x)), stats.mean_difference_interval(x, y, paired=paired),
         paired, len(pairs), "paired t" if paired else "Welch t",
         stats.mean_p_value(x, y, paired=paired), margin, mde, needed,
         baseline_iqm=stats.iqm(x), candidate_iqm=stats.iqm(y),

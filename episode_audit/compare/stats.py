@@ -2,7 +2,7 @@
 
 - rates: :func:`newcombe_unpaired` (Newcombe 1998a, method 10) with Fisher's exact test;
   :func:`newcombe_paired` (Newcombe 1998b, method 10) with :func:`mcnemar_exact`;
-- means: :func:`bootstrap_difference` (scipy's BCa bootstrap, paired or not) with a t-test
+- means: :func:`mean_difference_interval` (the paired or Welch t interval) with its t-test
   (:func:`mean_p_value`; without spread, the exact permutation test, :func:`no_spread_p_value`);
   no interval where that test could not reach p < :data:`ALPHA` (:func:`too_few`); :func:`iqm`;
 - :func:`holm` (Holm 1979); :func:`planning` (minimum detectable effect, n needed).
@@ -25,11 +25,11 @@ from ..report.stats import Interval, wilson_interval
 __all__ = [
     "ALPHA",
     "POWER",
-    "bootstrap_difference",
     "fewest",
     "fisher_p_value",
     "holm",
     "iqm",
+    "mean_difference_interval",
     "mcnemar_exact",
     "mean_p_value",
     "newcombe_paired",
@@ -46,9 +46,6 @@ POWER = 0.8
 """The power the minimum detectable effect and the n needed are stated for."""
 NEVER = 2**31 - 1
 """The n needed when no n is enough (a margin of 0 with spread, or no spread known)."""
-BOOTSTRAP_RESAMPLES = 4999
-BOOTSTRAP_SEED = 20260
-"""The bootstrap's resamples are seeded: the same files give the same interval."""
 
 Array = np.ndarray[Any, Any]
 
@@ -125,33 +122,42 @@ def fisher_p_value(x1: int, n1: int, x2: int, n2: int) -> float:
     return float(_stats().fisher_exact(table).pvalue)
 
 
-def bootstrap_difference(base: Array, cand: Array, *, paired: bool) -> Interval:
-    """The BCa bootstrap interval of ``mean(cand) - mean(base)`` (``scipy.stats.bootstrap``).
+def mean_difference_interval(base: Array, cand: Array, *, paired: bool) -> Interval:
+    """The 95 % t interval of ``mean(cand) - mean(base)``: paired t, or Welch's (unpaired).
 
-    ``paired`` resamples the pairs (``base[i]``, ``cand[i]``) together; otherwise each side is
-    resampled on its own. Too few values to bound the difference (:func:`too_few`: a side of
-    one, or fewer than the exact permutation test needs to reach p < :data:`ALPHA`) give
-    ``(-inf, inf)``. Data without spread and enough values give the point difference: the
-    exact permutation test then rejects every other shift (the interval is that test's,
-    inverted).
+    The interval of the test :func:`mean_p_value` gives the p-value of (``scipy.stats``'s
+    ``ttest_rel`` / ``ttest_ind(equal_var=False)``, ``confidence_interval``): it excludes a
+    difference exactly when that test rejects it. Too few values to bound the difference
+    (:func:`too_few`: a side of one, or fewer than the exact permutation test needs to reach
+    p < :data:`ALPHA`) give ``(-inf, inf)``. Data without spread and enough values give the
+    point difference: the exact permutation test then rejects every other shift (the interval
+    is that test's, inverted).
 
-    >>> bootstrap_difference(np.array([21.0]), np.array([0.0]), paired=False)
+    >>> mean_difference_interval(np.array([21.0]), np.array([0.0]), paired=False)
     Interval(low=-inf, high=inf)
-    >>> bootstrap_difference(np.array([1.0, 1.0]), np.array([3.0, 3.0]), paired=False)
+    >>> mean_difference_interval(np.array([1.0, 1.0]), np.array([3.0, 3.0]), paired=False)
     Interval(low=-inf, high=inf)
-    >>> bootstrap_difference(np.ones(4), np.full(4, 3.0), paired=False)
+    >>> mean_difference_interval(np.ones(4), np.full(4, 3.0), paired=False)
     Interval(low=2.0, high=2.0)
+    >>> ci = mean_difference_interval(np.arange(4.0), np.arange(4.0) + 5, paired=False)
+    >>> round(ci.low, 3), round(ci.high, 3)
+    (2.766, 7.234)
     """
     diff = float(np.mean(cand) - np.mean(base))
-    data: tuple[Array, ...] = (cand - base,) if paired else (base, cand)
     if too_few(len(base), len(cand), paired=paired) is not None:
         return Interval(-math.inf, math.inf)
-    if all(np.ptp(d) == 0 for d in data):
+    if (np.ptp(cand - base) == 0) if paired else (np.ptp(base) == np.ptp(cand) == 0):
         return Interval(diff, diff)
-    statistic = _mean if paired else _mean_difference
-    low, high = _bootstrap(data, statistic, "BCa")
-    if not (math.isfinite(low) and math.isfinite(high)):  # BCa undefined: percentiles
-        low, high = _bootstrap(data, statistic, "percentile")
+    with warnings.catch_warnings():  # (scipy's precision-loss warning: data nearly constant)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        if paired:
+            result = _stats().ttest_rel(cand, base)
+        else:
+            result = _stats().ttest_ind(cand, base, equal_var=False)
+        ci = result.confidence_interval(confidence_level=1 - ALPHA)
+    low, high = float(ci.low), float(ci.high)
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return Interval(-math.inf, math.inf)
     return Interval(low, high)
 
 
@@ -186,8 +192,8 @@ def too_few(n1: int, n2: int, *, paired: bool) -> str | None:
 
     ``None`` when they can. A side of one value has no spread to tell from none. Below
     :func:`fewest`, no exact test can reach p < :data:`ALPHA` whatever the values, so no 95 %
-    interval excludes any difference without assuming how returns are distributed (the BCa
-    bootstrap's there covered 51-81 % of normal samples: ``docs/compare.md``).
+    interval excludes any difference without assuming how returns are distributed
+    (``docs/compare.md``).
 
     >>> too_few(2, 2, paired=False).split(":")[0]
     '2 episodes a side are too few'
@@ -207,29 +213,6 @@ def too_few(n1: int, n2: int, *, paired: bool) -> str | None:
     )  # fmt: skip
     need = f"{least} pairs" if paired else f"{least} a side"
     return f"{have} too few: an exact test's p is at least {p:.3g} ({need} can reach p < {ALPHA})"
-
-
-def _mean(x: Array, axis: int = -1) -> Array:
-    return np.asarray(np.mean(x, axis=axis))
-
-
-def _mean_difference(x: Array, y: Array, axis: int = -1) -> Array:
-    return np.asarray(np.mean(y, axis=axis) - np.mean(x, axis=axis))
-
-
-def _bootstrap(data: tuple[Array, ...], statistic: Any, method: str) -> tuple[float, float]:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # (DegenerateDataWarning included)
-        result = _stats().bootstrap(
-            data,
-            statistic,
-            n_resamples=BOOTSTRAP_RESAMPLES,
-            confidence_level=1 - ALPHA,
-            method=method,
-            rng=np.random.default_rng(BOOTSTRAP_SEED),
-        )
-    ci = result.confidence_interval
-    return float(ci.low), float(ci.high)
 
 
 def mean_p_value(base: Array, cand: Array, *, paired: bool) -> float:

@@ -81,25 +81,25 @@ def test_planning_formulas() -> None:
     assert stats.planning(math.inf, math.inf, 0.1) == (math.inf, stats.NEVER)
 
 
-def test_bootstrap_paired_resamples_pairs_and_covers_the_mean_difference() -> None:
+def test_the_paired_interval_keeps_pairs_together_and_covers_the_mean_difference() -> None:
     rng = np.random.default_rng(1)
     base = rng.normal(0, 10, 60)
     cand = base + rng.normal(1.0, 0.5, 60)  # strongly paired: the spread is in the base
-    paired = stats.bootstrap_difference(base, cand, paired=True)
-    unpaired = stats.bootstrap_difference(base, cand, paired=False)
+    paired = stats.mean_difference_interval(base, cand, paired=True)
+    unpaired = stats.mean_difference_interval(base, cand, paired=False)
     diff = float(np.mean(cand - base))
     assert paired.low < diff < paired.high
     assert paired.high - paired.low < 0.5  # about 2 * 1.96 * 0.5 / sqrt(60)
     assert unpaired.high - unpaired.low > 5 * (paired.high - paired.low)
 
 
-def test_bootstrap_degenerate_data() -> None:
+def test_mean_interval_of_degenerate_data() -> None:
     same = np.ones(6)  # 6 pairs: the sign test's p can be 2/64, below 0.05
-    assert stats.bootstrap_difference(same, same + 2, paired=True) == stats.Interval(2.0, 2.0)
-    assert stats.bootstrap_difference(same, same, paired=False) == stats.Interval(0.0, 0.0)
+    assert stats.mean_difference_interval(same, same + 2, paired=True) == stats.Interval(2.0, 2.0)
+    assert stats.mean_difference_interval(same, same, paired=False) == stats.Interval(0.0, 0.0)
     unbounded = stats.Interval(-math.inf, math.inf)  # 5 pairs: p is at least 2/32
-    assert stats.bootstrap_difference(same[:5], same[:5] + 2, paired=True) == unbounded
-    one = stats.bootstrap_difference(np.array([1.0]), np.array([1.0, 2.0]), paired=False)
+    assert stats.mean_difference_interval(same[:5], same[:5] + 2, paired=True) == unbounded
+    one = stats.mean_difference_interval(np.array([1.0]), np.array([1.0, 2.0]), paired=False)
     assert one.low == -math.inf and one.high == math.inf
 
 
@@ -112,13 +112,25 @@ def test_no_interval_below_the_exact_tests_reach(
     n1: int, n2: int, paired: bool, bounded: bool
 ) -> None:
     """Below the size where the exact permutation test can reach p < 0.05 no interval is given,
-    with spread or without: there BCa's "95 %" covered 51-81 % of normal samples."""
+    with spread or without."""
     rng = np.random.default_rng(0)
     base, cand = rng.normal(0, 1, n1), rng.normal(0, 1, n2)
-    ci = stats.bootstrap_difference(base, cand, paired=paired)
+    ci = stats.mean_difference_interval(base, cand, paired=paired)
     assert math.isfinite(ci.low) == math.isfinite(ci.high) == bounded
     assert (stats.too_few(n1, n2, paired=paired) is None) == bounded
     assert (stats.smallest_p(n1, n2, paired=paired) < stats.ALPHA) == (bounded or n1 < 2)
+
+
+@pytest.mark.parametrize("paired", [False, True])
+def test_the_mean_interval_excludes_zero_exactly_when_its_t_test_rejects(paired: bool) -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        n = int(rng.integers(6, 30))
+        base = rng.normal(0.0, 1.0, n)
+        cand = base + rng.normal(0.4, 1.0, n) if paired else rng.normal(0.4, 1.0, n)
+        ci = stats.mean_difference_interval(base, cand, paired=paired)
+        p = stats.mean_p_value(base, cand, paired=paired)
+        assert (ci.low > 0 or ci.high < 0) == (p < stats.ALPHA)
 
 
 def test_mean_p_value_is_scipys_t_tests() -> None:
