@@ -4,6 +4,7 @@ import io
 import json
 import shutil
 import subprocess
+from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,13 @@ from episode_audit import ConfigurationError, EvidenceError, open_evidence
 from episode_audit.cli import app
 from episode_audit.export import export
 from episode_audit.export._values import NONFINITE_NULL
-from tests.support.viewer_files import aec_file, camera_file, vector_file
+from tests.support.viewer_files import (
+    aec_file,
+    camera_file,
+    leaves,
+    recorded_resets,
+    vector_file,
+)
 
 foxglove = pytest.importorskip("foxglove")
 
@@ -79,7 +86,8 @@ def _read_with_mcap_core(script: Path, path: Path, limit: int) -> dict[str, Any]
 def test_mcap_core_reads_the_export(
     exported: dict[str, tuple[Path, Path]], mcap_core: Path, name: str
 ) -> None:
-    """The TypeScript reader lists Foxglove schemas only, and a step's reward is the file's."""
+    """The TypeScript reader lists Foxglove schemas only, and a step's reward is the file's;
+    an episode's reset (step -1) has none."""
     source, target = exported[name]
     ev = open_evidence(source)
     read = _read_with_mcap_core(mcap_core, target, limit=1000)
@@ -98,14 +106,16 @@ def test_mcap_core_reads_the_export(
     assert channels["/episodes"]["schemaName"] == "foxglove.Event"
     assert channels["/episodes"]["messages"] == episodes
     steps = ev.steps(columns=["episode", "step", "reward"]).to_pylist()
+    resets = ev.resets().num_rows
     step_topics = [t for t in channels if t.endswith("/steps")]
-    assert sum(channels[t]["messages"] for t in step_topics) == len(steps)
+    assert sum(channels[t]["messages"] for t in step_topics) == len(steps) + resets
     recorded = {(s["episode"], s["step"]): s["reward"] for s in steps}
+    recorded.update({(e, -1): None for e in ev.resets().column("episode").to_pylist()})
     seen = [m for t in step_topics for m in read["first"][t]]
-    assert seen and all(recorded[(m["episode"], m["step"])] == m["reward"] for m in seen)
+    assert seen and all(recorded[(m["episode"], m["step"])] == m.get("reward") for m in seen)
     if name == "camera":
         assert channels["/camera/observation.camera"]["schemaName"] == "foxglove.CompressedImage"
-        assert channels["/camera/observation.camera"]["messages"] == len(steps)
+        assert channels["/camera/observation.camera"]["messages"] == len(steps) + resets
 
 
 @pytest.mark.parametrize("name", ["clean", "camera"])
@@ -159,16 +169,69 @@ def test_endings_are_logs_by_outcome_and_episodes_are_events(
     assert events[0].end_time.ToNanoseconds() == ends[0]
 
 
-def test_camera_frames_are_lossless_png(exported: dict[str, tuple[Path, Path]]) -> None:
+@pytest.mark.parametrize("name", ["camera", "vector", "aec"])
+def test_each_episode_starts_with_its_reset_observation(
+    exported: dict[str, tuple[Path, Path]], name: str
+) -> None:
+    """An episode's first message on its stream's ``steps`` topic is its reset: step -1, the
+    observation ``Evidence.resets()`` holds and nothing else, at the reset's time; then its
+    steps, from step 0. An episode reset and never stepped (vector) has its reset alone."""
+    source, target = exported[name]
+    messages: dict[tuple[str, int], list[tuple[int, dict[str, Any]]]] = defaultdict(list)
+    with open(target, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            if channel.topic.endswith("/steps"):
+                data = json.loads(message.data)
+                messages[channel.topic, data["episode"]].append((message.log_time, data))
+    resets = recorded_resets(source)
+    assert len(resets) == open_evidence(source).episodes().num_rows
+    assert sum(len(m) for m in messages.values()) == len(resets) + len(
+        open_evidence(source).steps(columns=["step"])
+    )
+    never_stepped = 0
+    for reset in resets:
+        (time, first), *steps = messages[f"{reset['prefix']}/steps", reset["episode"]]
+        assert (time, first["step"]) == (reset["time_ns"], -1)
+        assert set(first) == {"episode", "step", "observation"}  # no action, reward, flags
+        plotted = leaves(first["observation"])
+        recorded = leaves(reset["observation"])
+        for path, values in plotted.items():
+            np.testing.assert_array_equal(np.ravel(values), np.ravel(recorded[path]))
+        if not steps:
+            never_stepped += 1
+            continue
+        assert steps[0][0] > time and steps[0][1]["step"] == 0
+        assert set(leaves(steps[0][1]["observation"])) == set(plotted)
+    assert never_stepped == (1 if name == "vector" else 0)
+
+
+def test_camera_frames_are_lossless_png_each_episode_s_reset_first(
+    exported: dict[str, tuple[Path, Path]],
+) -> None:
+    """The camera topic holds every step's and every reset's frame, each at its time."""
     source, target = exported["camera"]
-    frames = _decoded(target, "/camera/observation.camera")
-    recorded = open_evidence(source).observation_codec
-    assert recorded is not None
-    observations = recorded.decode(open_evidence(source).steps().column("observation"))
-    assert len(frames) == len(observations) == 10
-    for frame, obs in zip(frames, observations, strict=True):
-        assert frame.format == "png"
-        np.testing.assert_array_equal(np.asarray(Image.open(io.BytesIO(frame.data))), obs["camera"])
+    with open(target, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        decoded = [
+            (message.log_time, frame)
+            for _, _, message, frame in reader.iter_decoded_messages(
+                topics=["/camera/observation.camera"], log_time_order=True
+            )
+        ]
+    assert {frame.format for _, frame in decoded} == {"png"}
+    frames = [(t, np.asarray(Image.open(io.BytesIO(frame.data)))) for t, frame in decoded]
+    ev = open_evidence(source)
+    assert ev.observation_codec is not None
+    steps = ev.steps(columns=["time_ns", "observation"])
+    observations = ev.observation_codec.decode(steps.column("observation"))
+    expected = sorted(
+        [(r["time_ns"], r["observation"]["camera"]) for r in recorded_resets(source)]
+        + [(t, o["camera"]) for t, o in zip(steps.column("time_ns").to_pylist(), observations)],
+        key=lambda frame: frame[0],
+    )
+    assert [t for t, _ in frames] == [t for t, _ in expected] and len(frames) == 12
+    for (_, frame), (_, pixels) in zip(frames, expected, strict=True):
+        np.testing.assert_array_equal(frame, pixels)
 
 
 def test_dict_observations_plot_item_by_item(exported: dict[str, tuple[Path, Path]]) -> None:
@@ -176,7 +239,8 @@ def test_dict_observations_plot_item_by_item(exported: dict[str, tuple[Path, Pat
     with open(target, "rb") as f:
         reader = make_reader(f)
         (schema,) = [s for s in reader.get_summary().schemas.values() if s.encoding == "jsonschema"]
-        first = json.loads(next(m for *_, m in reader.iter_messages(topics=["/steps"])).data)
+        messages = [json.loads(m.data) for *_, m in reader.iter_messages(topics=["/steps"])]
+    first = next(m for m in messages if m["step"] == 0)  # (after its reset, step -1)
     properties = json.loads(schema.data)["properties"]
     assert properties["observation"]["properties"] == {
         "state": {"type": "array", "items": {"type": "number", "description": NONFINITE_NULL}},

@@ -1,17 +1,27 @@
 from __future__ import annotations
 
+import io
 import os
 import re
 import subprocess
 import sys
-from collections import Counter
+from collections import Counter, defaultdict
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
+from PIL import Image
 
 from episode_audit import open_evidence
 from episode_audit.export import export
-from tests.support.viewer_files import aec_file, camera_file, vector_file
+from tests.support.viewer_files import (
+    aec_file,
+    camera_file,
+    leaves,
+    recorded_resets,
+    vector_file,
+)
 
 pytest.importorskip("rerun")
 
@@ -44,6 +54,60 @@ def _rows(path: Path) -> tuple[Counter[str], dict[str, str]]:
     return rows, columns
 
 
+def _chunk_rows(path: Path) -> dict[str, list[dict[str, Any]]]:
+    """Every row of the recording by entity path, read back with ``rerun.chunk.RrdReader``."""
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        rows[chunk.entity_path].extend(chunk.to_record_batch().to_pylist())
+    return rows
+
+
+@pytest.mark.parametrize("name", ["camera", "vector", "aec"])
+def test_each_episode_starts_with_its_reset_observation(tmp_path: Path, name: str) -> None:
+    """On the ``step`` timeline an episode's reset is at -1, before its step 0, with the
+    observation ``Evidence.resets()`` holds, at the reset's time; no reward, flags or action.
+    An episode reset and never stepped (vector) has its reset alone."""
+    make = {"camera": camera_file, "vector": vector_file, "aec": aec_file}[name]
+    source = make(tmp_path / f"{name}.mcap")
+    out = tmp_path / f"{name}.rrd"
+    export([source], out, to="rerun")
+    rows = _chunk_rows(out)
+    resets = recorded_resets(source)
+    assert len(resets) == open_evidence(source).episodes().num_rows
+    for entity in rows:
+        if entity.endswith(("/reward", "/terminated", "/truncated", "/action")):
+            assert all(r["step"] >= 0 for r in rows[entity]), entity
+    plotted = 0
+    for reset in resets:
+        prefix, episode = reset["prefix"], reset["episode"]
+        for path, recorded in leaves(reset["observation"]).items():
+            entity = "/".join((f"{prefix}/steps/observation", *path))
+            if entity not in rows:  # (the camera: an image, not numbers)
+                continue
+            mine = sorted(
+                (r["time"].value, r["step"], r["Scalars:scalars"])
+                for r in rows[entity]
+                if r["episode"] == episode
+            )
+            (time, step, values), *steps = mine
+            assert (time, step) == (reset["time_ns"], -1)
+            np.testing.assert_array_equal(values, np.ravel(recorded))
+            assert not steps or (steps[0][0] > time and steps[0][1] == 0)
+            plotted += 1
+    assert plotted >= len(resets)
+    if name == "camera":
+        frames = sorted(
+            (r["time"].value, r["step"], r["EncodedImage:blob"])
+            for r in rows["/camera/observation.camera"]
+        )
+        for reset in resets:
+            (blob,) = [b for t, step, b in frames if (t, step) == (reset["time_ns"], -1)]
+            pixels = np.asarray(Image.open(io.BytesIO(bytes(blob[0]))))  # (one blob a row)
+            np.testing.assert_array_equal(pixels, reset["observation"]["camera"])
+
+
 @pytest.mark.parametrize("name", ["camera", "vector", "aec"])
 def test_rerun_reads_the_recording(tmp_path: Path, name: str) -> None:
     make = {"camera": camera_file, "vector": vector_file, "aec": aec_file}[name]
@@ -71,10 +135,11 @@ def test_rerun_reads_the_recording(tmp_path: Path, name: str) -> None:
             assert "Scalars:scalars" in columns[f"{stream}/steps/{what}"]
     assert sum(per_stream.values()) == result.steps == len(steps)
     assert set(rows) - {"/__properties"} == set(result.paths)
-    if name == "camera":
+    assert result.resets == len(ev.resets())
+    if name == "camera":  # (10 steps, and the observations of 2 resets)
         assert rows["/steps/terms/progress"] == rows["/steps/terms/effort"] == 10
-        assert rows["/steps/observation/state"] == rows["/steps/observation/mode"] == 10
-        assert rows["/camera/observation.camera"] == result.frames == 10
+        assert rows["/steps/observation/state"] == rows["/steps/observation/mode"] == 12
+        assert rows["/camera/observation.camera"] == result.frames == 12
         assert "EncodedImage:blob" in columns["/camera/observation.camera"]
 
 

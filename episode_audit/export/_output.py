@@ -33,8 +33,10 @@ class ViewerExport:
     """``"foxglove"`` or ``"rerun"``."""
     episodes: int = 0
     steps: int = 0
+    resets: int = 0
+    """Reset frames written: each episode's observation from ``reset()``, before its steps."""
     frames: int = 0
-    """Camera frames (image observations) written as images."""
+    """Camera frames (image observations of steps and resets) written as images."""
     paths: list[str] = field(default_factory=list)
     """Topics (Foxglove) or entity paths (Rerun) written, sorted."""
     left_out: list[str] = field(default_factory=list)
@@ -43,8 +45,9 @@ class ViewerExport:
     unfinished: str | None = None
     """Why the input is unfinished (still being written, or torn); ``None``: finished."""
     out_of_range: int = 0
-    """Steps and episodes left out: their times are missing or outside what the viewer's
-    timestamps hold (1970 to 2106 for Foxglove; only a file not from our recorder has such)."""
+    """Steps, resets and episodes left out: their times are missing or outside what the
+    viewer's timestamps hold (1970 to 2106 for Foxglove; only a file not from our recorder has
+    such)."""
 
     @property
     def notes(self) -> list[str]:
@@ -59,8 +62,9 @@ class ViewerExport:
             )
         if self.out_of_range:
             lines.append(
-                f"{self.source}: {self.out_of_range} step(s) or episode(s) left out: their times "
-                f"are missing or outside what {self.viewer.capitalize()} timestamps hold"
+                f"{self.source}: {self.out_of_range} step(s), reset(s) or episode(s) left out: "
+                f"their times are missing or outside what {self.viewer.capitalize()} timestamps "
+                "hold"
             )
         return lines
 

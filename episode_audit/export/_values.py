@@ -5,16 +5,17 @@
 each on their own) and :class:`Frames`: ``uint8`` arrays shaped ``(H, W)`` or ``(H, W, C)``,
 ``C`` in 1, 3, 4, both sides at least :data:`IMAGE_MIN_SIDE`. :func:`json_rows` and
 :func:`json_schema` give the leaves of a column as per-row JSON values and their JSON Schema;
-:func:`stream_prefix` names a stream's topics and entity paths; :func:`ending_text` says how an
-episode ended.
+:func:`stream_prefix` names a stream's topics and entity paths (:func:`stream_prefixes`: of
+every episode); :func:`blocks` reads a file's reset and step blocks chunk by chunk;
+:func:`ending_text` says how an episode ended.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -22,13 +23,18 @@ import pyarrow as pa
 
 from ..format.records import from_json
 
+if TYPE_CHECKING:
+    from ..read import Evidence
+
 __all__ = [
     "IMAGE_MIN_SIDE",
     "NONFINITE_NULL",
+    "RESET_STEP",
     "SMALL",
     "Frames",
     "Leaf",
     "Split",
+    "blocks",
     "ending_text",
     "finite",
     "json_rows",
@@ -36,12 +42,17 @@ __all__ = [
     "split_batch",
     "split_column",
     "stream_prefix",
+    "stream_prefixes",
 ]
 
 SMALL: Final = 64
 """Arrays of at most this many numbers are plotted; larger ones are left out (not images)."""
 IMAGE_MIN_SIDE: Final = 16
 """A ``uint8`` array is a camera frame when both its sides have at least this many pixels."""
+
+RESET_STEP: Final = -1
+"""The ``step`` of an episode's reset frame (its observation from ``reset()``): one before its
+first step, whose ``step`` is 0 (docs/format.md)."""
 
 _KIND: Final = b"episode_audit.kind"
 _SHAPE: Final = b"episode_audit.shape"
@@ -104,6 +115,35 @@ def stream_prefix(kind: str, env_index: int, agent: str | None) -> str:
     if agent:
         return "/" + "".join(c if c.isalnum() or c in "_-." else "_" for c in agent)
     return f"/env_{env_index}"
+
+
+def stream_prefixes(ev: Evidence) -> dict[int, str]:
+    """Each episode's stream prefix (:func:`stream_prefix`), by episode index."""
+    episodes = ev.episodes()
+    kind = (ev.run.layout or {}).get("kind", "single")
+    return {
+        e: stream_prefix(kind, i, a)
+        for e, i, a in zip(
+            episodes.column("episode").to_pylist(),
+            episodes.column("env_index").to_pylist(),
+            episodes.column("agent").to_pylist(),
+            strict=True,
+        )
+    }
+
+
+def blocks(ev: Evidence) -> Iterator[tuple[bool, pa.RecordBatch]]:
+    """Each chunk's reset blocks (``True``), then its step blocks (``False``), in file order.
+
+    One chunk is read at a time, so an export holds one chunk's observations however many
+    episodes the file has. A reset is written in the chunk of its episode's first steps or
+    an earlier one, so an episode's reset comes before its steps.
+    """
+    for chunk in ev.scan(steps=True, resets=True, episode_records=False):
+        for batch in chunk.resets:
+            yield True, batch
+        for batch in chunk.steps:
+            yield False, batch
 
 
 def split_batch(batch: pa.RecordBatch, name: str) -> Split:

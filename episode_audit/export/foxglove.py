@@ -2,7 +2,8 @@
 
 Per stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in single-env ones):
 ``steps`` (JSON with a JSON Schema: episode, step, reward, terms, terminated, truncated and the
-plottable action and observation fields, one message per step at its log time) and
+plottable action and observation fields, one message per step at its log time, each episode's
+reset before them: ``step`` -1 and its observation only, at the reset's time) and
 ``camera/FIELD`` (``foxglove.CompressedImage`` PNG frames of image observations). For the file:
 ``/episodes`` (``foxglove.Event`` per episode, its time range and outcome) and ``/log``
 (``foxglove.Log`` per ending: failures and errors as errors, truncations and cut-off episodes as
@@ -26,20 +27,28 @@ from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, staged
 from ._values import (
     NONFINITE_NULL,
+    RESET_STEP,
     Frames,
     Split,
+    blocks,
     ending_text,
     finite,
     json_rows,
     json_schema,
     split_batch,
     stream_prefix,
+    stream_prefixes,
 )
 
 __all__ = ["STEP_SCHEMA_NAME", "export_foxglove"]
 
 STEP_SCHEMA_NAME: Final = "episode_audit.Step"
 """The JSON Schema name of the ``steps`` topics."""
+_STEP: Final = (
+    f"the step's index in its episode, from 0; {RESET_STEP}: the episode's reset, the "
+    "observation it starts from (no action, reward, terms or flags)"
+)
+"""The description of ``step`` in the ``steps`` topics' JSON Schema."""
 _LEVELS: Final = {"success": "Info", "failure": "Error", "error": "Error"}
 """Log level by outcome; any other (``truncated``, ``incomplete``) is a warning."""
 
@@ -99,56 +108,74 @@ class _Steps:
 
     def __init__(self, foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> None:
         self.fg, self.context, self.ev, self.result = foxglove, context, ev, result
-        episodes = ev.episodes()
-        kind = (ev.run.layout or {}).get("kind", "single")
-        self.prefix_of = {
-            e: stream_prefix(kind, i, a)
-            for e, i, a in zip(
-                episodes.column("episode").to_pylist(),
-                episodes.column("env_index").to_pylist(),
-                episodes.column("agent").to_pylist(),
-                strict=True,
-            )
-        }
+        self.prefix_of = stream_prefixes(ev)
         self.terms = sorted(
             {
                 name
-                for totals in episodes.column("term_totals").to_pylist()
+                for totals in ev.episodes().column("term_totals").to_pylist()
                 for name, _ in totals or []
             }
         )
+        # The message schema comes from the file's step schema (every stream's blocks have
+        # it), not from the first block: a stream's reset may come before its first step.
+        none = pa.RecordBatch.from_pylist([], schema=ev.steps_schema)
+        action, observation = split_batch(none, "action"), split_batch(none, "observation")
+        self.schema = json.dumps(_step_schema(self.terms, action, observation)).encode()
         self.channels: dict[str, Any] = {}
         self.images: dict[str, Any] = {}
 
     def write(self, progress: Callable[[int], None] | None) -> None:
         left_out: set[str] = set()
-        for batch in self.ev.iter_step_batches():
-            action = split_batch(batch, "action")
+        for reset, batch in blocks(self.ev):
             observation = split_batch(batch, "observation")
-            left_out.update(action.left_out, observation.left_out)
-            written = self._write_batch(batch, action, observation)
-            for frames in action.images + observation.images:
+            left_out.update(observation.left_out)
+            if reset:
+                self.result.resets += self._write_resets(batch, observation)
+            else:
+                action = split_batch(batch, "action")
+                left_out.update(action.left_out)
+                self.result.steps += self._write_batch(batch, action, observation)
+                if progress is not None:
+                    progress(batch.num_rows)
+            for frames in observation.images if reset else action.images + observation.images:
                 self._write_frames(batch, frames)
-            self.result.steps += written
-            if progress is not None:
-                progress(batch.num_rows)
         self.result.left_out = sorted(left_out)
 
-    def _channel(self, prefix: str, action: Split, observation: Split) -> Any:
+    def _log(self, episode: int) -> Callable[[bytes, int], None]:
+        """The function logging a message on the ``steps`` topic of ``episode``'s stream."""
+        prefix = self.prefix_of.get(episode, "")
         channel = self.channels.get(prefix)
         if channel is None:
-            schema = _step_schema(self.terms, action, observation)
             channel = self.fg.Channel(
                 f"{prefix}/steps",
                 schema=self.fg.Schema(
-                    name=STEP_SCHEMA_NAME, encoding="jsonschema", data=json.dumps(schema).encode()
+                    name=STEP_SCHEMA_NAME, encoding="jsonschema", data=self.schema
                 ),
                 message_encoding="json",
                 context=self.context,
             )
             self.channels[prefix] = channel
             self.result.paths.append(f"{prefix}/steps")
-        return channel
+        log: Callable[[bytes, int], None] = channel.base.log
+        return log
+
+    def _write_resets(self, batch: pa.RecordBatch, observation: Split) -> int:
+        """Write the block's resets as messages of step :data:`RESET_STEP`; returns how many."""
+        episodes = batch.column("episode").to_pylist()
+        times = batch.column("time_ns").to_pylist()
+        observations = json_rows(observation.leaves, batch.num_rows)
+        dumps = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
+        written = 0
+        for episode, time, values in zip(episodes, times, observations, strict=True):
+            if not _in_range(time):  # (not from our recorder)
+                self.result.out_of_range += 1
+                continue
+            message: dict[str, Any] = {"episode": episode, "step": RESET_STEP}
+            if values is not None:
+                message["observation"] = values
+            self._log(episode)(dumps(message).encode(), time)
+            written += 1
+        return written
 
     def _write_batch(self, batch: pa.RecordBatch, action: Split, observation: Split) -> int:
         """Write the batch's steps; returns how many (a time out of range leaves one out)."""
@@ -174,8 +201,7 @@ class _Steps:
             episode = episodes[i]
             log = logs.get(episode)
             if log is None:
-                prefix = self.prefix_of.get(episode, "")
-                log = logs[episode] = self._channel(prefix, action, observation).base.log
+                log = logs[episode] = self._log(episode)
             message: dict[str, Any] = {
                 "episode": episode,
                 "step": steps[i],
@@ -238,7 +264,7 @@ def _step_schema(terms: list[str], action: Split, observation: Split) -> dict[st
     """The JSON Schema of a ``steps`` message (Foxglove reads field types from it)."""
     properties: dict[str, Any] = {
         "episode": {"type": "integer"},
-        "step": {"type": "integer"},
+        "step": {"type": "integer", "description": _STEP},
         "reward": {"type": "number", "description": NONFINITE_NULL},
         "terminated": {"type": "integer", "description": "1 if terminated"},
         "truncated": {"type": "integer", "description": "1 if truncated"},

@@ -1,6 +1,7 @@
 """Export an evidence file as a Rerun recording (``.rrd``), written with ``rerun-sdk``.
 
-Timelines ``step`` (within the episode), ``episode`` and ``time`` (the step's log time). Per
+Timelines ``step`` (within the episode; -1 for its reset), ``episode`` and ``time`` (the step's
+or reset's log time). Each episode's reset comes first: its observation from ``reset()``. Per
 stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in single-env ones):
 scalars ``steps/reward``, ``steps/terminated``, ``steps/truncated``, ``steps/terms/NAME``,
 ``steps/action[/ITEM]`` and ``steps/observation[/ITEM]`` (the plottable fields) and images
@@ -24,7 +25,16 @@ import pyarrow.compute as pc
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, staged
-from ._values import Leaf, Split, ending_text, split_batch, stream_prefix
+from ._values import (
+    RESET_STEP,
+    Leaf,
+    Split,
+    blocks,
+    ending_text,
+    split_batch,
+    stream_prefix,
+    stream_prefixes,
+)
 
 __all__ = ["export_rerun"]
 
@@ -79,9 +89,9 @@ def _write(
     rec.send_recording_name(result.source.name)
     writer = _Writer(rr, rec, ev, result)
     try:
-        for batch in ev.iter_step_batches():
-            writer.batch(batch)
-            if progress is not None:
+        for reset, batch in blocks(ev):
+            writer.batch(batch, reset=reset)
+            if progress is not None and not reset:
                 progress(batch.num_rows)
         result.episodes = writer.endings()
     finally:
@@ -111,29 +121,25 @@ class _Writer:
     def __init__(self, rr: Any, rec: Any, ev: Evidence, result: ViewerExport) -> None:
         self.rr, self.rec, self.ev, self.result = rr, rec, ev, result
         self.kind = (ev.run.layout or {}).get("kind", "single")
-        episodes = ev.episodes()
-        self.prefix_of = {
-            e: stream_prefix(self.kind, i, a)
-            for e, i, a in zip(
-                episodes.column("episode").to_pylist(),
-                episodes.column("env_index").to_pylist(),
-                episodes.column("agent").to_pylist(),
-                strict=True,
-            )
-        }
+        self.prefix_of = stream_prefixes(ev)
         self.paths: set[str] = set()
         self.left_out: set[str] = set()
 
-    def batch(self, batch: pa.RecordBatch) -> None:
+    def batch(self, batch: pa.RecordBatch, *, reset: bool) -> None:
+        """Send a step block, or (``reset``) a reset block's observations at step -1."""
         episodes = batch.column("episode").to_numpy(zero_copy_only=False)
         prefixes = np.array([self.prefix_of.get(int(e), "") for e in episodes], dtype=object)
-        splits = [split_batch(batch, "action"), split_batch(batch, "observation")]
+        names = ("observation",) if reset else ("action", "observation")
+        splits = [split_batch(batch, name) for name in names]
         for split in splits:
             self.left_out.update(split.left_out)
         for prefix in sorted(set(prefixes.tolist())):
             rows = np.flatnonzero(prefixes == prefix)
-            self._stream(prefix, batch, rows, splits)
-        self.result.steps += batch.num_rows
+            self._stream(prefix, batch, rows, splits, reset=reset)
+        if reset:
+            self.result.resets += batch.num_rows
+        else:
+            self.result.steps += batch.num_rows
 
     def _times(self, batch: pa.RecordBatch, rows: npt.NDArray[Any]) -> list[Any]:
         rr = self.rr
@@ -144,8 +150,12 @@ class _Writer:
             taken: npt.NDArray[Any] = values[rows]
             return taken
 
+        if batch.schema.get_field_index("step") < 0:  # a reset block: before step 0
+            step = np.full(len(rows), RESET_STEP, np.int64)
+        else:
+            step = take("step")
         return [
-            rr.TimeColumn("step", sequence=take("step")),
+            rr.TimeColumn("step", sequence=step),
             rr.TimeColumn("episode", sequence=take("episode")),
             rr.TimeColumn("time", timestamp=take("time_ns").astype("datetime64[ns]")),
         ]
@@ -159,7 +169,13 @@ class _Writer:
         self.paths.add(path)
 
     def _stream(
-        self, prefix: str, batch: pa.RecordBatch, rows: npt.NDArray[Any], splits: list[Split]
+        self,
+        prefix: str,
+        batch: pa.RecordBatch,
+        rows: npt.NDArray[Any],
+        splits: list[Split],
+        *,
+        reset: bool,
     ) -> None:
         def numbers(name: str) -> npt.NDArray[Any]:
             array = pc.cast(batch.column(name), pa.float64())
@@ -167,9 +183,10 @@ class _Writer:
             taken: npt.NDArray[Any] = values[rows]
             return taken
 
-        for name in ("reward", "terminated", "truncated"):
-            self._send(f"{prefix}/steps/{name}", batch, rows, numbers(name))
-        self._terms(prefix, batch, rows)
+        if not reset:
+            for name in ("reward", "terminated", "truncated"):
+                self._send(f"{prefix}/steps/{name}", batch, rows, numbers(name))
+            self._terms(prefix, batch, rows)
         for split in splits:
             for leaf in split.leaves:
                 self._leaf(prefix, batch, rows, leaf)

@@ -1,4 +1,5 @@
-"""Evidence files the viewer-export tests open: camera frames, a vector env, a PettingZoo game."""
+"""Evidence files the viewer-export tests open: camera frames, a vector env, a PettingZoo game;
+what their resets hold."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from episode_audit import RecordAECEvidence, RecordEvidence, RecordVectorEvidence
+from episode_audit import RecordAECEvidence, RecordEvidence, RecordVectorEvidence, open_evidence
 from tests.support.envs import ScriptedEnv
 
 CAMERA = spaces.Dict(
@@ -88,3 +89,35 @@ def aec_file(path: Path) -> Path:
                 legal = np.flatnonzero(obs["action_mask"])
                 env.step(None if term or trunc else int(rng.choice(legal)))
     return path
+
+
+def recorded_resets(source: Path) -> list[dict[str, Any]]:
+    """Each reset of ``source`` as ``Evidence.resets()`` holds it, for a viewer export to show:
+    its stream's prefix (``/env_N``, ``/AGENT``, none for one env), episode, time and decoded
+    observation, in the resets table's order."""
+    ev = open_evidence(source)
+    resets = ev.resets()
+    codec = ev.observation_codec
+    assert codec is not None
+    observations = codec.decode(resets.column("observation"))
+    single = ev.run.layout["kind"] == "single"
+    rows = []
+    for row, observation in zip(resets.to_pylist(), observations, strict=True):
+        agent, index = row.get("agent"), row["env_index"]
+        prefix = "" if single else f"/{agent}" if agent else f"/env_{index}"
+        rows.append(
+            {
+                "prefix": prefix,
+                "episode": row["episode"],
+                "time_ns": row["time_ns"],
+                "observation": observation,
+            }
+        )
+    return rows
+
+
+def leaves(value: Any, path: tuple[str, ...] = ()) -> dict[tuple[str, ...], Any]:
+    """A decoded observation's values by Dict key path: ``{("state",): array, ...}``."""
+    if isinstance(value, dict):
+        return {k: v for key, item in value.items() for k, v in leaves(item, (*path, key)).items()}
+    return {path: value}
