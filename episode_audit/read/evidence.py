@@ -27,6 +27,7 @@ from .blocks import _blocks_table, _declared_schema, _empty_table, _reset_block,
 from .chunks import _ARROW_SLOTS, _SLOTS, _ChunkRef
 from .episodes import _build_episodes, _error_actions
 from .passes import (
+    SLIM_ABOVE,
     _Chunk,
     _contiguous,
     _decode_kept,
@@ -172,11 +173,14 @@ class Evidence:
         records: bool = False,
         keep_all: bool = False,
         indexed_only: bool = False,
+        slim_above: int | None = None,
     ) -> Iterator[_Chunk]:
         """Read every chunk once; a complete pass also keeps resets and episode records.
 
         They are kept by the first complete pass only, and (unless ``keep_all``) only up to
-        :data:`KEEP_LIMIT` bytes. ``indexed_only``: see :meth:`_read`.
+        :data:`KEEP_LIMIT` bytes; past ``slim_above`` bytes of resets, the resets without
+        their observations (for :meth:`episodes`: :meth:`resets` then reads them again).
+        ``indexed_only``: see :meth:`_read`.
         """
         gather = None
         if self._gathered is None:
@@ -185,6 +189,7 @@ class Evidence:
                 count_steps=steps and not self.finished,
                 keep_all=keep_all,
                 arrow_records=self._slots is _ARROW_SLOTS,
+                slim_above=slim_above,
             )
         keep = gather is not None
         for chunk in self._read(
@@ -286,7 +291,13 @@ class Evidence:
             # A torn file's episodes need counts from its steps: count them in the same pass.
             # A finished file's index says which chunks hold resets and episode records: only
             # those are read (``report`` of a file in object storage fetches little of it).
-            for _ in self._pass(steps=not self.finished, keep_all=True, indexed_only=True):
+            # Past SLIM_ABOVE bytes, its resets are kept without their observations:
+            # episodes() needs none of them, and an image observation is ~100 kB a reset
+            # (resets() then reads them again, when asked).
+            passing = self._pass(
+                steps=not self.finished, keep_all=True, indexed_only=True, slim_above=SLIM_ABOVE
+            )
+            for _ in passing:
                 pass
         assert self._gathered is not None
         return self._gathered
@@ -298,10 +309,30 @@ class Evidence:
         """
         if self._resets_cache is None:
             gathered = self._gather()
-            parts = _decode_kept(gathered.resets, _reset_block, self.path)
+            if gathered.slim:  # (kept for episodes(): read them again, observations and all)
+                kept: list[pa.RecordBatch | bytes] = [
+                    data
+                    for chunk in self._read(
+                        steps=False, resets=True, records=False, indexed_only=True
+                    )
+                    for _, data in chunk.resets
+                ]
+            else:
+                kept, gathered.resets = gathered.resets, []
+            parts = _decode_kept(kept, _reset_block, self.path)
             self._resets_cache = self._table(parts, fmt.TOPIC_RESETS, None)
-            gathered.resets = []
         return self._resets_cache
+
+    def _reset_rows(self) -> pa.Table:
+        """The reset rows :meth:`episodes` reads: :meth:`resets`, or its slim pass's own.
+
+        (A slim pass's rows have no observations and state snapshots.)
+        """
+        gathered = self._gather()
+        if self._resets_cache is not None or not gathered.slim:
+            return self.resets()
+        parts = _decode_kept(gathered.resets, _reset_block, self.path)
+        return self._table(parts, fmt.TOPIC_RESETS, None)
 
     # --------------------------------------------------------------- episodes
 
@@ -322,7 +353,7 @@ class Evidence:
             gathered.records,
             arrow=self._slots is _ARROW_SLOTS,
             finished=self.finished,
-            resets=self.resets,
+            resets=self._reset_rows,
             step_stats=self._step_stats,
         )
         gathered.records = []

@@ -176,6 +176,13 @@ class _Gathered:
     limit: int | None = None
     path: Source | None = None
     arrow_records: bool = False
+    slim_above: int | None = None
+    """Past this many bytes of reset blocks, keep them :attr:`slim` (``None``: never)."""
+    slim: bool = False
+    """Whether the reset blocks are kept without their observations and state snapshots
+    (:data:`SLIM_OUT`), copied out of the chunk: what :meth:`Evidence.episodes` needs of them,
+    in little memory (image observations: ~100 kB a reset)."""
+    reset_bytes: int = 0
     resets: list[pa.RecordBatch | bytes] = field(default_factory=list)
     records: list[pa.RecordBatch | bytes] = field(default_factory=list)
     size: int = 0
@@ -183,17 +190,34 @@ class _Gathered:
 
     @classmethod
     def for_pass(
-        cls, path: Source, *, count_steps: bool, keep_all: bool, arrow_records: bool
+        cls,
+        path: Source,
+        *,
+        count_steps: bool,
+        keep_all: bool,
+        arrow_records: bool,
+        slim_above: int | None = None,
     ) -> _Gathered:
-        """What a new pass keeps: everything with ``keep_all``, else :data:`KEEP_LIMIT` bytes."""
+        """What a new pass keeps: everything with ``keep_all``, else :data:`KEEP_LIMIT` bytes.
+
+        Past ``slim_above`` bytes of reset blocks, the resets are kept :attr:`slim`.
+        """
         limit = None if keep_all else KEEP_LIMIT
-        return cls(_StepStats() if count_steps else None, limit, path, arrow_records=arrow_records)
+        stats = _StepStats() if count_steps else None
+        return cls(stats, limit, path, arrow_records=arrow_records, slim_above=slim_above)
 
     def add(self, chunk: _Chunk) -> None:
         if self.dropped:
             return
         for _, data in chunk.resets:
-            self.resets.append(self._early(data, self.resets, _reset_block))
+            self.reset_bytes += len(data)
+            if not self.slim and self.slim_above is not None and self.reset_bytes > self.slim_above:
+                self.slim = True
+                self.resets = [
+                    _own(r, SLIM_OUT) if isinstance(r, pa.RecordBatch) else r for r in self.resets
+                ]
+            drop = SLIM_OUT if self.slim else frozenset()
+            self.resets.append(self._early(data, self.resets, _reset_block, drop))
             self.size += len(data)
         for data in chunk.records:
             decode = _episode_part if self.arrow_records else None
@@ -215,13 +239,37 @@ class _Gathered:
         data: bytes,
         kept: list[pa.RecordBatch | bytes],
         decode: Callable[[bytes, Source], pa.RecordBatch] | None,
+        drop: frozenset[str] = frozenset(),
     ) -> pa.RecordBatch | bytes:
+        """``data`` decoded, or as it is; ``drop``: the decoded columns left out, copied.
+
+        (A message is a view of its decompressed chunk: a selection of its columns would
+        keep the whole chunk, every step's observation of it included, alive.)
+        """
         if decode is None or self.path is None or (kept and isinstance(kept[-1], bytes)):
             return data
         try:
-            return decode(data, self.path)
+            batch = decode(data, self.path)
         except EvidenceError:
             return data
+        return _own(batch, drop) if drop else batch
+
+
+SLIM_OUT = frozenset({fmt.COL_OBSERVATION, fmt.COL_STATE})
+"""The reset columns a slim pass leaves out (see :attr:`_Gathered.slim`)."""
+SLIM_ABOVE = 64 << 20
+"""Reset blocks :meth:`Evidence.episodes`'s own pass keeps whole, in bytes: past it, slim."""
+
+
+def _own(batch: pa.RecordBatch, drop: frozenset[str] = frozenset()) -> pa.RecordBatch:
+    """``batch`` without its ``drop`` columns, copied: in memory of its own.
+
+    (A block decoded from a chunk shares the chunk's buffer; so would a selection of its
+    columns.)
+    """
+    if drop:
+        batch = batch.select([name for name in batch.schema.names if name not in drop])
+    return batch.take(pa.array(np.arange(batch.num_rows)))
 
 
 def _decode_kept(

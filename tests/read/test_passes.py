@@ -17,7 +17,7 @@ from episode_audit import (
     read,
 )
 from episode_audit.format import names as fmt
-from episode_audit.read import blocks, chunks, passes
+from episode_audit.read import blocks, chunks, evidence, passes
 from tests.read.helpers import rewrite
 
 
@@ -74,6 +74,26 @@ def test_episodes_and_resets_are_cached(recorded: Path, monkeypatch: pytest.Monk
     assert n == len(ev._chunks)  # one pass for both
     assert ev.episodes() is episodes and ev.resets() is resets
     assert len(reads) == n
+
+
+def test_past_a_size_episodes_keeps_the_resets_without_their_observations(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An image observation is ~100 kB a reset: episodes() (report, compare, show) keeps the
+    # reset rows it needs without them; resets() reads them again, observations and all.
+    whole = open_evidence(recorded)
+    expected_episodes, expected_resets = whole.episodes(), whole.resets()
+    assert not whole._gathered.slim  # (under SLIM_ABOVE: one pass for both, as above)
+    monkeypatch.setattr(evidence, "SLIM_ABOVE", 100)
+    ev = open_evidence(recorded)
+    assert ev.episodes().equals(expected_episodes)
+    gathered = ev._gathered
+    assert gathered is not None and gathered.slim
+    kept = [b for b in gathered.resets if not isinstance(b, (bytes, memoryview))]
+    assert kept and all(fmt.COL_OBSERVATION not in b.schema.names for b in kept)
+    reads = _count_chunk_reads(monkeypatch)
+    assert ev.resets().equals(expected_resets)
+    assert 0 < len(reads) <= len(ev._chunks)
 
 
 def test_episodes_of_a_finished_file_decode_no_step_block(
