@@ -23,7 +23,6 @@ import pyarrow as pa
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
-from ..format.columns import one_array
 from ..read import Evidence, open_evidence
 from ..read.inputs import skipped
 from ._state import BoolArray, FileState, FloatArray, Hit, HitMessage, IntArray, counts_per_episode
@@ -135,15 +134,17 @@ class _FileCheck:
 
     def resets(self) -> None:
         """The reset observations against their space, and the resets' recorder notes."""
-        resets = self.state.ev.resets()
-        if resets.num_rows == 0:
-            return
-        episode: IntArray = resets.column(fmt.COL_EPISODE).to_numpy()
-        if fmt.COL_OBSERVATION in resets.column_names:
-            obs = one_array(resets.column(fmt.COL_OBSERVATION))
-            self.spaces.column(fmt.COL_OBSERVATION, obs, episode, None)
-        if fmt.COL_NOTES in resets.column_names:
-            recorder_notes(self.state, one_array(resets.column(fmt.COL_NOTES)), episode, None)
+        # block by block: one column of every reset observation, and what checking it against
+        # its space makes, would take several times their memory (image observations)
+        for resets in self.state.ev.resets().to_batches():
+            if resets.num_rows == 0:
+                continue
+            episode: IntArray = resets.column(fmt.COL_EPISODE).to_numpy()
+            if fmt.COL_OBSERVATION in resets.schema.names:
+                obs = resets.column(fmt.COL_OBSERVATION)
+                self.spaces.column(fmt.COL_OBSERVATION, obs, episode, None)
+            if fmt.COL_NOTES in resets.schema.names:
+                recorder_notes(self.state, resets.column(fmt.COL_NOTES), episode, None)
 
     def report_hits(self) -> None:
         """The per-episode findings, from the hits merged over the blocks.

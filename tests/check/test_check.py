@@ -239,6 +239,23 @@ def test_observation_and_action_outside_their_spaces(tmp_path: Path) -> None:
     assert action.message == "action outside its space at step 0: 7; 4 row(s) of the episode"
 
 
+def test_reset_observations_outside_their_space_in_many_reset_blocks(tmp_path: Path) -> None:
+    # Checked one reset block at a time (image observations: one column of them all would
+    # take their memory again): every episode's reset is checked, whichever block holds it.
+    def reset(env: ScriptedEnv) -> tuple[Any, Any]:
+        seed = env.np_random_seed
+        return np.array([0.0, 5.0 if seed % 2 else 0.0], np.float32), {}
+
+    def step(env: ScriptedEnv, action: Any) -> Step:
+        return OBS, 0.0, env.t == 2, False, {}
+
+    path = _record(tmp_path / "blocks.mcap", step, reset=reset, episodes=6, block_steps=4)
+    blocks = open_evidence(path).resets().to_batches()
+    assert len(blocks) >= 3
+    found = [f for f in check([path]).findings if f.code == "observation_out_of_space"]
+    assert [(f.episode, f.step) for f in found] == [(1, None), (3, None), (5, None)]
+
+
 def test_unrebuildable_space_is_noted_and_skipped(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
