@@ -267,7 +267,10 @@ def _charts(result: Report, rows: Sequence[EpisodeRow]) -> tuple[str, str, str]:
 
 
 def _notes(notes: Sequence[str]) -> str:
-    """The report's notes (:attr:`Report.notes`: what it matched nothing of, or left out)."""
+    """The report's notes, and :attr:`Report.reward_note` (whose returns they are).
+
+    :attr:`Report.notes` says what the report matched nothing of, or left out.
+    """
     if not notes:
         return ""
     return '<ul class="notes">' + "".join(f"<li>{_full(n)}</li>" for n in notes) + "</ul>"
@@ -292,7 +295,7 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
         f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">',
         f"<title>{_full(title or heading)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>{heading}</h1>",
-        _notes(result.notes),
+        _notes([*result.notes, *filter(None, [result.reward_note])]),
         "<h2>Outcomes</h2>",
         f'<figure class="chart">{rate_svg}</figure>' if rate_svg else "",
         _outcome_table(result),
