@@ -401,7 +401,8 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "A normalised return is on another scale than the env's (a CartPole return no longer "
         "equals its length) and drifts with the wrapper's running statistics: rates are "
         "unaffected, but returns, return gates and `compare`'s return verdicts are not the "
-        "task's.",
+        "task's. `report` and `compare` say how many files' returns are a wrapper's; `compare` "
+        "does not compare returns whose sides' wrappers differ.",
         "Put the recorder beneath the reward wrapper, directly around the env "
         "(`NormalizeReward(RecordEvidence(env, path))`); the training loop still sees the "
         "wrapper's rewards.",

@@ -165,10 +165,7 @@ def _write_html(result: InputsReport, path: Path, games: bool) -> None:
     from ..report.html import write_report_html
 
     try:
-        with interruptible(), progress_bar("html", len(result.files)) as advance:
-            written = write_report_html(
-                result.report, result.sources, path, games=games, progress=advance
-            )
+        written = write_report_html(result.report, result.parts, path, games=games)
     except EpisodeAuditError as exc:
         fail(str(exc))
     except OSError as exc:  # no such directory, permission denied

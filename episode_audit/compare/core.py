@@ -25,6 +25,7 @@ from ..report.collect import check_by, joined
 from ..report.core import FilePart, file_part
 from ..report.gates import unmatched_why
 from ..report.groups import group_reports
+from ..report.wrapped import Wrapped
 from .groups import RATE_MARGIN, CompareGates, GroupComparison, check_gates, combine, compare_group
 from .metrics import Verdict, decide
 from .sides import Side, sides
@@ -63,7 +64,9 @@ class Comparison:
     side lacks (not compared); ``unfinished`` the files still being written or torn (compared
     with what was flushed so far), with why; ``baseline_files`` / ``candidate_files`` count
     each side's files; ``unmatched_labels`` are the labels of per-label gates no failure has
-    (a misspelt label would pass every time; :attr:`notes` says so).
+    (a misspelt label would pass every time; :attr:`notes` says so); ``baseline_wrapped`` /
+    ``candidate_wrapped`` count each side's files recorded over reward wrappers
+    (:attr:`reward_notes`).
     """
 
     by: str
@@ -76,6 +79,20 @@ class Comparison:
     candidate_files: int = 0
     unmatched_labels: list[str] = field(default_factory=list)
     seen_labels: list[str] = field(default_factory=list)
+    baseline_wrapped: Wrapped = field(default_factory=Wrapped)
+    """The baseline's files recorded over reward wrappers (their returns are not the env's)."""
+    candidate_wrapped: Wrapped = field(default_factory=Wrapped)
+    """The candidate's, likewise."""
+
+    @property
+    def reward_notes(self) -> list[str]:
+        """A line (80 columns) for each side whose files' returns are a reward wrapper's.
+
+        Said once in each output: under the metrics table, in JSON as ``reward_wrappers``.
+        Where the sides' wrappers differ, a group's ``return`` is not compared (its note).
+        """
+        notes = [self.baseline_wrapped.note("baseline"), self.candidate_wrapped.note("candidate")]
+        return [n for n in notes if n is not None]
 
     @property
     def verdict(self) -> Verdict:
@@ -109,6 +126,8 @@ class Comparison:
             for m in group.metrics:
                 if m.verdict is not None:
                     message = _metric_line(m.name, m.difference, m.interval, m.verdict)
+                    if m.not_comparable is not None:
+                        message = f"{m.name}: {m.verdict}, not compared: {m.not_comparable}"
                     out.append(
                         Case(f"{group.key}/{m.name}", m.verdict, m.verdict != "regressed", message)
                     )
@@ -143,6 +162,10 @@ class Comparison:
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
             "unmatched_labels": list(self.unmatched_labels),
             "notes": self.notes,
+            "reward_wrappers": {
+                "baseline": self.baseline_wrapped.to_json(),
+                "candidate": self.candidate_wrapped.to_json(),
+            },
             "cases": [
                 {"name": c.name, "status": c.status, "passed": c.passed, "message": c.message}
                 for c in self.cases()
@@ -261,6 +284,8 @@ def compare_parts(
         len(candidate),
         sorted(set(gates.max_failure_increase_by_label) - set(seen)),
         seen,
+        Wrapped.of(f.part.reward_wrappers for f in baseline),
+        Wrapped.of(f.part.reward_wrappers for f in candidate),
     )
 
 

@@ -168,6 +168,9 @@ def compare_group(
         "return", base.returns, cand.returns, pairs, better="higher",
         margin=gates.max_return_drop,
     )  # fmt: skip
+    apart = _returns_apart(base, cand)
+    if apart is not None:  # (no test, no gate: a difference in other units says nothing)
+        returns.not_comparable, returns.can_reject = apart, False
     metrics.append(returns)
     for term in sorted(set(base.terms) & set(cand.terms)):
         metrics.append(
@@ -176,7 +179,11 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    notes = _nonfinite_returns(base, cand) + _unbounded(returns)
+    notes = _nonfinite_returns(base, cand)
+    if apart is not None:
+        notes.append(f"return: not compared (inconclusive), nor a max_return_drop gate: {apart}")
+    else:
+        notes += _unbounded(returns)
     return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
 
 
@@ -191,6 +198,31 @@ def _nonfinite_returns(base: Side, cand: Side) -> list[str]:
         "(inconclusive), and the incentive warnings leave those episodes out "
         "(`episode-audit check` finds them)"
     ]
+
+
+def _returns_apart(base: Side, cand: Side) -> str | None:
+    """Why the sides' returns are not in the same units, or ``None`` when they are.
+
+    They are when every episode of both sides was recorded over the same reward wrappers
+    (none: the env's own rewards). A side that mixes files of several is not.
+    """
+    b, c = base.reward_wrappers or frozenset({""}), cand.reward_wrappers or frozenset({""})
+    if b == c and len(b) == 1:
+        return None
+    return (
+        f"the baseline's returns are {_whose(b)} and the candidate's {_whose(c)}; record "
+        "both sides over the same reward wrappers, or beneath them (the env's own rewards)"
+    )
+
+
+def _whose(chains: frozenset[str]) -> str:
+    """Whose rewards returns of ``chains`` are, in words.
+
+    >>> _whose(frozenset({""})), _whose(frozenset({"ClipReward", ""}))
+    ("the env's", "a mix of the env's and ClipReward's")
+    """
+    named = ["the env's" if not c else f"{c}'s" for c in sorted(chains)]
+    return named[0] if len(named) == 1 else "a mix of " + " and ".join(named)
 
 
 def _unbounded(returns: MetricComparison) -> list[str]:
@@ -234,8 +266,9 @@ def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
 def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
     """Each gate that is on, checked against the group's metric: its interval's worse end.
 
-    A return gate on too few episodes to bound the difference (:func:`unverifiable`) fails
-    saying it cannot be verified, not that the interval is beyond it.
+    A return gate on too few episodes to bound the difference (:func:`unverifiable`), or on
+    returns of different reward wrappers (``not_comparable``), fails saying it cannot be
+    verified, not that the interval is beyond it.
 
     With ``fail_on_new_incentive_warning``, last, the gate ``new_incentive_warnings``.
     """
@@ -245,6 +278,10 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
         metric = by_name.get(name)
         if metric is None:  # (success_rate: the env reports no success, as report's gate says)
             out.append(GateResult(_gate_name(name), group.key, False, _no_success(group.key)))
+            continue
+        if metric.not_comparable is not None:
+            message = f"{name}: cannot be verified, {metric.not_comparable} (group {group.key})"
+            out.append(GateResult(_gate_name(name), group.key, False, message))
             continue
         why = unverifiable(metric)
         if why is not None:

@@ -73,6 +73,9 @@ class MetricComparison:
     candidate_iqm: float | None = None
     can_reject: bool = True
     same_test_as: str | None = None
+    not_comparable: str | None = None
+    """Why the sides' values are not in the same units (returns of different reward wrappers):
+    then the verdict is ``inconclusive``, the test cannot reject, and a gate cannot be verified."""
 
     @property
     def analysed(self) -> int:
@@ -108,6 +111,7 @@ class MetricComparison:
             "candidate_iqm": _finite(self.candidate_iqm),
             "can_reject": self.can_reject,
             "same_test_as": self.same_test_as,
+            "not_comparable": self.not_comparable,
         }
 
 
@@ -221,8 +225,9 @@ def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:
     difference is not finite (a return that is not: no number of episodes would tell). A mean
     of too few episodes to bound its difference (:func:`~.stats.too_few`) is ``underpowered``
     whatever its t-test says: no exact test could reject there, and its interval is unbounded.
+    A mean whose sides are in different units (``not_comparable``) is ``inconclusive``.
     """
-    if not math.isfinite(metric.difference):
+    if metric.not_comparable is not None or not math.isfinite(metric.difference):
         return "inconclusive"
     if metric.kind == "mean" and stats.too_few(
         metric.baseline_n, metric.candidate_n, paired=metric.paired

@@ -34,7 +34,7 @@ class Side:
     an unseeded reset began from (``-1``: none recorded). ``terms[name]`` is the term's episode
     total (0.0 in an episode that did not report the term). ``success_signal``: some file of
     the side reports success (a success key or ``success_fn``); without, no episode can
-    succeed, whatever the policy.
+    succeed, whatever the policy. ``reward_wrappers``: whose rewards its returns are.
     """
 
     outcome: Array
@@ -45,6 +45,9 @@ class Side:
     terms: dict[str, Array] = field(default_factory=dict)
     rng: Array | None = None
     success_signal: bool = True
+    reward_wrappers: frozenset[str] = frozenset()
+    """The reward wrappers the side's episodes were recorded over, a chain each
+    (:func:`~episode_audit.report.wrapped.chain_text`; ``""``: none, the env's own rewards)."""
 
     @property
     def n(self) -> int:
@@ -99,6 +102,7 @@ class Side:
             {k: v[index] for k, v in self.terms.items()},
             None if self.rng is None else self.rng[index],
             self.success_signal,
+            self.reward_wrappers,
         )
 
 
@@ -145,6 +149,7 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
         dict(sorted(totals.items())),
         np.asarray(rngs, dtype=np.int64),
         bool(pc.any(rows.column("success_signal")).as_py()),
+        frozenset(pc.fill_null(rows.column("reward_wrappers"), "").unique().to_pylist()),
     )
 
 

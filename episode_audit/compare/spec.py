@@ -1,5 +1,7 @@
 """What differs between the runs of the two sides: task, env kwargs, time limit, versions.
 
+Reward wrappers under the recorder too: where they differ, the returns are in other units.
+
 :func:`mismatches` lists each difference as a :class:`Mismatch`; a different env id means a
 different task, which :func:`~.core.compare` refuses unless told ``different_tasks=True``.
 """
@@ -12,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..read import Evidence
+from ..report.wrapped import chain_text, file_chain
 
 __all__ = ["Mismatch", "field_mismatches", "mismatches", "run_fields"]
 
@@ -44,6 +47,7 @@ def run_fields(ev: Evidence) -> dict[str, str]:
         "env_id": str(run.env_id),
         "env_kwargs": json.dumps(spec.get("kwargs") or {}, sort_keys=True, default=str),
         "max_episode_steps": str(spec.get("max_episode_steps")),
+        "reward_wrappers": chain_text(file_chain(ev)) or "(none)",
     }
     for name, version in sorted((run.versions or {}).items()):
         if name not in ("python", "episode_audit"):
@@ -79,5 +83,5 @@ def field_mismatches(
 
 
 def _order(name: str) -> Any:
-    fixed = ("env_id", "env_kwargs", "max_episode_steps")
+    fixed = ("env_id", "env_kwargs", "max_episode_steps", "reward_wrappers")
     return (fixed.index(name), "") if name in fixed else (len(fixed), name)

@@ -8,6 +8,7 @@
 - :mod:`.gates`: :class:`Gates` and :class:`GateResult`;
 - :mod:`.stats`: :func:`wilson_interval` and :class:`Interval`; :mod:`.games`: PettingZoo games;
 - :mod:`.html`: :func:`write_report_html`, the self-contained HTML page (charts: :mod:`.charts`).
+- :mod:`.wrapped`: whose rewards the returns are (the reward wrappers files were recorded over).
 
 Rates, denominators, warnings and the JSON shape: ``docs/reporting.md``.
 """

@@ -2,7 +2,9 @@
 
 :func:`collect` returns one row per episode (or per PettingZoo game) with its group key, and one
 row per (ended episode, reward term) with the term's episode total; ``row`` numbers the episodes
-(it joins the two tables), ``seed`` is an episode's reset seed and ``rng`` a digest of the RNG
+(it joins the two tables), ``episode`` is an episode's index in its file (a game's, with games),
+``seed`` is an episode's reset seed, ``reward_wrappers`` the reward wrappers its file was
+recorded over (:func:`~.wrapped.chain_text`; null: none) and ``rng`` a digest of the RNG
 state an unseeded reset began from. The key comes from ``by``:
 :data:`BY_KEYS` or ``tag:NAME`` (:func:`is_by`, :func:`check_by`); an episode without a value
 for it is in the group :data:`NONE_KEY`.
@@ -22,6 +24,7 @@ from ..format import names as fmt
 from ..format.records import unstarted
 from ..read import Evidence
 from .games import OUTCOME_FIELDS, game_table
+from .wrapped import chain_text, file_chain
 
 __all__ = [
     "BY_KEYS",
@@ -62,6 +65,8 @@ _EPISODES_SCHEMA = pa.schema(
         ("seed", pa.int64()),
         ("rng", pa.int64()),
         ("row", pa.int64()),
+        ("episode", pa.int64()),
+        ("reward_wrappers", pa.string()),
     ]
 )
 _TERM_SCHEMA = pa.schema(
@@ -131,6 +136,8 @@ def file_rows(name: str, ev: Evidence, by: str, games: bool = False) -> FileRows
         .append_column("seed", pc.cast(seed, pa.int64()))
         .append_column("rng", _rng_digests(table, n))
         .append_column("row", row)
+        .append_column("episode", pc.cast(table.column("episode"), pa.int64()))
+        .append_column("reward_wrappers", pa.array([chain_text(file_chain(ev))] * n, pa.string()))
     )
     return episodes, _term_rows(table, key, row, ev)
 

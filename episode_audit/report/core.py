@@ -18,6 +18,7 @@ from ..read import Evidence, open_evidence
 from .collect import NONE_KEY, FileRows, check_by, file_rows, joined
 from .gates import GateResult, Gates, check_gateable, check_gates, unmatched_labels, unmatched_why
 from .groups import GroupReport, group_reports
+from .wrapped import Chain, Wrapped, file_chain
 
 __all__ = [
     "BY_LABEL_NOTE",
@@ -45,7 +46,8 @@ class Report:
     :meth:`to_dict` returns the JSON shape of ``docs/reporting.md`` (stable; new keys may be
     added, none removed). An unfinished file (its writer is still running, or was killed) is
     reported with what was flushed so far; ``unfinished`` names it, so a rate over a live file
-    is never mistaken for a final one.
+    is never mistaken for a final one. ``wrapped`` counts the files recorded over reward
+    wrappers, whose returns are not the env's (:attr:`reward_note` says so).
     """
 
     by: str
@@ -55,6 +57,17 @@ class Report:
     unit: str = "episode"
     unmatched_labels: list[str] = field(default_factory=list)
     missing_tag: str | None = None
+    wrapped: Wrapped = field(default_factory=Wrapped)
+    """The files recorded over reward wrappers, whose returns are not the env's."""
+
+    @property
+    def reward_note(self) -> str | None:
+        """One line (80 columns) when some files' returns are a reward wrapper's, else ``None``.
+
+        Said once in each output: under the outcomes table, in JSON as ``reward_wrappers``
+        (:meth:`to_dict`), among the HTML page's notes.
+        """
+        return self.wrapped.note()
 
     @property
     def notes(self) -> list[str]:
@@ -106,6 +119,7 @@ class Report:
             "unit": self.unit,
             "unmatched_labels": list(self.unmatched_labels),
             "notes": self.notes,
+            "reward_wrappers": self.wrapped.to_json(),
         }
 
 
@@ -136,13 +150,16 @@ class FilePart:
     """Why the file is unfinished (``None``: finished)."""
     tags: frozenset[str]
     """The names of the file's run tags."""
+    reward_wrappers: Chain = ()
+    """The reward wrappers the file was recorded over (:func:`~.wrapped.file_chain`)."""
 
 
 def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart:
     """The part of a report that comes from the file ``ev`` (``name``: its key by file)."""
     unfinished = None if ev.finished else ev.torn or "no run-end record"
     tags = frozenset(map(str, ev.run.tags or {}))
-    return FilePart(name, file_rows(name, ev, by, games), unfinished, tags)
+    rows = file_rows(name, ev, by, games)
+    return FilePart(name, rows, unfinished, tags, file_chain(ev))
 
 
 def report_parts(
@@ -165,6 +182,7 @@ def report_parts(
         "game" if games else "episode",
         unmatched_labels(gates, groups),
         _missing_tag(by, parts),
+        Wrapped.of(p.reward_wrappers for p in parts),
     )
 
 

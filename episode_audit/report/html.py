@@ -11,21 +11,16 @@ from __future__ import annotations
 import html
 import os
 import shlex
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import pyarrow as pa
-
 from ..errors import ConfigurationError
 from ..format import names as fmt
-from ..format.records import unstarted
-from ..read import Evidence
 from ..record.lock import output_kind
 from . import charts
-from .collect import ENDED, collect
-from .core import Report
-from .games import game_table
+from .collect import ENDED
+from .core import FilePart, Report
 from .groups import GroupReport
 from .incentives import SHAPING_DOMINATES
 from .stats import Interval, rate_text
@@ -83,46 +78,40 @@ def episode_commands(row: EpisodeRow) -> list[str]:
     return [f"episode-audit replay {where}", f"episode-audit show {where}"]
 
 
-def episode_rows(
-    sources: Iterable[tuple[str, Evidence]],
-    by: str,
-    games: bool = False,
-    progress: Callable[[int], None] | None = None,
-) -> list[EpisodeRow]:
-    """The episodes a report of ``sources`` counts (unstarted ones left out), with group keys.
+def episode_rows(parts: Iterable[FilePart], games: bool = False) -> list[EpisodeRow]:
+    """The episodes a report of ``parts`` counts (unstarted ones left out), with group keys.
 
-    ``progress`` is called with 1 as each source is read.
+    From the rows each part took from its file when the report was made (:func:`~.core.file_part`):
+    no file is read again. ``games``: the parts count PettingZoo games.
     """
     out: list[EpisodeRow] = []
-    for name, ev in sources:
-        if progress is not None:
-            progress(1)
-        keyed, _ = collect([(name, ev)], by, games)
-        table = ev.episodes()
-        gone = unstarted(table)
-        if gone.any():
-            table = table.filter(pa.array(~gone))
-        if games:  # one row per game: no seed of its own
-            table = game_table(table)
-            table = table.append_column("seed", pa.nulls(table.num_rows, pa.int64()))
-        cols = table.select(["episode", "seed", "outcome", "failure_label", "truncation_reason"])
-        for i, (episode, seed, outcome, label, reason) in enumerate(
-            zip(*cols.to_pydict().values(), strict=True)
-        ):
+    for part in parts:
+        episodes = part.rows[0]
+        if episodes is None:
+            continue
+        cols = episodes.select(_ROW_COLUMNS).to_pydict().values()
+        for episode, seed, key, outcome, label, reason, ret, length in zip(*cols, strict=True):
+            failed = outcome == fmt.OUTCOME_FAILURE
             out.append(
                 EpisodeRow(
-                    name,
-                    int(episode),
-                    seed,
-                    keyed["key"][i].as_py(),
-                    outcome,
-                    label if outcome == fmt.OUTCOME_FAILURE else reason,
-                    keyed["return"][i].as_py(),
-                    int(keyed["length"][i].as_py()),
-                    games,
+                    part.name, episode, seed, key, outcome, label if failed else reason, ret,
+                    length, games,
                 )
-            )
+            )  # fmt: skip
     return out
+
+
+_ROW_COLUMNS = [
+    "episode",
+    "seed",
+    "key",
+    "outcome",
+    "failure_label",
+    "truncation_reason",
+    "return",
+    "length",
+]
+"""The columns of a part's episode rows an :class:`EpisodeRow` is made of, in its order."""
 
 
 def _full(value: object) -> str:
@@ -278,7 +267,10 @@ def _charts(result: Report, rows: Sequence[EpisodeRow]) -> tuple[str, str, str]:
 
 
 def _notes(notes: Sequence[str]) -> str:
-    """The report's notes (:attr:`Report.notes`: what it matched nothing of, or left out)."""
+    """The report's notes, and :attr:`Report.reward_note` (whose returns they are).
+
+    :attr:`Report.notes` says what the report matched nothing of, or left out.
+    """
     if not notes:
         return ""
     return '<ul class="notes">' + "".join(f"<li>{_full(n)}</li>" for n in notes) + "</ul>"
@@ -303,7 +295,7 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
         f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">',
         f"<title>{_full(title or heading)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>{heading}</h1>",
-        _notes(result.notes),
+        _notes([*result.notes, *filter(None, [result.reward_note])]),
         "<h2>Outcomes</h2>",
         f'<figure class="chart">{rate_svg}</figure>' if rate_svg else "",
         _outcome_table(result),
@@ -324,24 +316,22 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
 
 def write_report_html(
     result: Report,
-    sources: Iterable[tuple[str, Evidence]],
+    parts: Sequence[FilePart],
     path: str | os.PathLike[str],
     *,
     games: bool = False,
-    progress: Callable[[int], None] | None = None,
 ) -> Path:
-    """Write the HTML report of ``result`` (made of ``sources``) to ``path``; return the path.
+    """Write the HTML report of ``result`` (made of ``parts``) to ``path``; return the path.
 
-    ``sources`` are read once, in order (an iterator that opens each file as it goes keeps one
-    open at a time); ``progress`` is called with 1 as each is read. A path
-    :func:`check_html_path` refuses raises :class:`~episode_audit.errors.ConfigurationError`,
-    before anything is written: a report replaces only an earlier one.
+    ``parts`` are the files' parts the report was made of (:attr:`.inputs.InputsReport.parts`,
+    or :func:`~.core.file_part` of each file): the page lists their episodes without reading a
+    file again. A path :func:`check_html_path` refuses (one of the parts' files, for one) raises
+    :class:`~episode_audit.errors.ConfigurationError`, before anything is written: a report
+    replaces only an earlier one.
     """
     out = Path(path)
-    names: list[str] = []
-    rows = episode_rows(_noting(sources, names), result.by, games, progress)
-    check_html_path(out, names)
-    page = report_html(result, rows)
+    check_html_path(out, [part.name for part in parts])
+    page = report_html(result, episode_rows(parts, games))
     partial = out.with_name(out.name + ".partial")
     try:
         partial.write_text(page, encoding="utf-8")
@@ -350,15 +340,6 @@ def write_report_html(
         partial.unlink(missing_ok=True)
         raise
     return out
-
-
-def _noting(
-    sources: Iterable[tuple[str, Evidence]], names: list[str]
-) -> Iterator[tuple[str, Evidence]]:
-    """``sources`` as they are, each name appended to ``names`` as it goes by."""
-    for name, ev in sources:
-        names.append(name)
-        yield name, ev
 
 
 def check_html_path(out: Path, inputs: Sequence[str]) -> None:

@@ -9,14 +9,14 @@ name (going past the unreadable ones), checks that ``--games`` fits them, and re
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
-from ..read import Evidence, open_evidence
+from ..read import open_evidence
 from ..read.inputs import Unreadable, evidence_files
 from ..read.storage import Source
 from .collect import is_by
@@ -36,15 +36,9 @@ class InputsReport:
     """How many inputs were read (the report is of those)."""
     files: list[Source] = field(default_factory=list)
     """The inputs that were read, in order."""
-
-    @property
-    def sources(self) -> Iterator[tuple[str, Evidence]]:
-        """The inputs read, as ``(name, evidence)``, each opened again as it is iterated.
-
-        For the HTML report's episodes: the report itself may have been read in workers. One
-        file is open at a time (none is kept), so memory does not grow with the inputs.
-        """
-        return ((str(path), open_evidence(path)) for path in self.files)
+    parts: list[FilePart] = field(default_factory=list)
+    """What the report took from each input read, in order (the HTML report's episodes:
+    :func:`~.html.write_report_html` lists them without reading a file again)."""
 
 
 def report_inputs(
@@ -110,7 +104,7 @@ def report_inputs(
         for part, kind in zip(parts, kinds, strict=True):
             _check_games_fit(part.name, kind)
     result = report_parts(parts, by=by, gates=gates, games=games)
-    return InputsReport(result, unreadable, len(parts), read_files)
+    return InputsReport(result, unreadable, len(parts), read_files, parts)
 
 
 def _file_part(

@@ -27,6 +27,7 @@ from episode_audit import RecordEvidence
 from episode_audit.cli import app
 from episode_audit.cli._summary import STEP_SUMMARY_LIMIT, fit_summary
 from episode_audit.cli.render import JUnitCase, junit_xml, safe
+from tests.support.rewards import record_cartpole
 
 REPO = Path(__file__).resolve().parents[2]
 SCHEMAS = REPO / "docs" / "schemas"
@@ -90,6 +91,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     # the same runs again, as a candidate (compare refuses a file on both sides)
     files["cartpole_again"] = Path(shutil.copy(files["cartpole"], tmp / "cp_again.mcap"))
     files["random20_again"] = Path(shutil.copy(files["random20"], tmp / "random20_again.mcap"))
+    files["normalized"] = record_cartpole(tmp / "normalized.mcap", "normalized")  # (wrapped)
     return files
 
 
@@ -122,6 +124,8 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("compare", "{random20}", "--candidate", "{random20_again}", "--max-return-drop", "1"), 0),
     (("compare", "{cartpole}", "--candidate", "{cartpole_again}", "--candidate", "{junk}"), 2),
     (("compare", "{cartpole}", "--candidate", "{cartpole}"), 2),
+    (("report", "{cartpole}", "{normalized}"), 0),
+    (("compare", "{random20}", "--candidate", "{normalized}", "--max-return-drop", "100"), 1),
     (("check", "fixtures/clean.mcap", "no-such.mcap"), 2),  # (no input found: an error document)
     (("replay", "no-such-folder"), 2),
     (("report", "fixtures/clean.mcap", "no-such.mcap"), 2),

@@ -22,6 +22,7 @@ from typer.testing import CliRunner
 from episode_audit import RecordEvidence, open_evidence
 from episode_audit.cli import app
 from episode_audit.report.core import BY_LABEL_NOTE as REPORT_BY_LABEL_NOTE
+from tests.support.rewards import record_cartpole
 
 REPO = Path(__file__).resolve().parents[2]
 FIXTURES = REPO / "fixtures"
@@ -274,6 +275,25 @@ def test_report_of_files_with_no_stepped_episode_says_so_in_one_line(tmp_path: P
     assert code == 0 and out.endswith("\n" + line + "\n")
     code, out, _ = run("report", str(path), "--min-success-rate", "0.5")
     assert code == 1 and out.startswith(line) and "no gate could be checked" in out
+
+
+def test_report_says_once_in_each_format_when_returns_are_a_reward_wrappers(
+    tmp_path: Path,
+) -> None:
+    plain = str(record_cartpole(tmp_path / "plain.mcap"))
+    scaled = str(record_cartpole(tmp_path / "scaled.mcap", "scaled"))
+    note = "1/2 files' returns are not the env's: TransformReward"
+    code, out, err = run("report", plain, scaled, "--by", "all", "--no-step-summary")
+    assert code == 0 and note not in err
+    assert [line.rstrip() for line in out.splitlines()].count(note) == 1
+    assert out.index("Outcomes") < out.index(note) < out.index("Failure labels")
+    code, out, _ = run("report", plain, scaled, "-f", "markdown", "--no-step-summary")
+    assert out.count(note) == 1
+    code, out, _ = run("report", plain, scaled, "-f", "json")
+    assert json.loads(out)["reward_wrappers"] == [{"wrappers": ["TransformReward"], "files": 1}]
+    gate = ("--by", "all", "--max-truncation-rate", "1")
+    code, out, _ = run("report", plain, scaled, *gate, "-f", "junit", "--no-step-summary")
+    assert code == 0 and out.count(note) == 1  # (in the gate case's details)
 
 
 def test_report_never_folds_flags_into_done() -> None:

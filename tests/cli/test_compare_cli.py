@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 from episode_audit.cli import app
 from episode_audit.rollout import record_episodes
 from episode_audit.tasks import DRAWER_OPEN_ID
+from tests.support.rewards import record_cartpole
 
 pytestmark = pytest.mark.mujoco
 REPO = Path(__file__).resolve().parents[2]
@@ -194,3 +195,23 @@ def test_an_unfinished_file_is_compared_and_named(tmp_path: Path) -> None:
     data = json.loads(out)
     assert [u["file"] for u in data["unfinished"]] == [base, cand]
     assert data["groups"][0]["pairs"] > 0
+
+
+def test_returns_of_other_reward_wrappers_are_not_compared(tmp_path: Path) -> None:
+    scaled = str(record_cartpole(tmp_path / "scaled.mcap", "scaled"))
+    plain = str(record_cartpole(tmp_path / "plain.mcap"))
+    code, out, err = run("compare", scaled, "--candidate", plain, "--no-step-summary")
+    assert code == 0  # (it was 1: the return `regressed` from x10 to the env's own)
+    note = "Baseline 1/1 files' returns are not the env's: TransformReward"
+    assert [line.rstrip() for line in out.splitlines()].count(note) == 1
+    assert (
+        "episode-audit: warning: group all: return: not compared (inconclusive), nor a "
+        "max_return_drop gate: the baseline's returns are TransformReward's and the "
+        "candidate's the env's; record both sides over the same reward wrappers"
+    ) in err
+    gate = ("--max-return-drop", "1000", "--no-step-summary", "-f", "json")
+    code, out, _ = run("compare", scaled, "--candidate", plain, *gate)
+    assert code == 1  # a gate that cannot be verified fails
+    (failed,) = [c for c in json.loads(out)["cases"] if not c["passed"]]
+    assert failed["name"] == "all/gate:max_return_drop"
+    assert failed["message"].startswith("return: cannot be verified, the baseline's returns")

@@ -570,6 +570,7 @@ def test_report_to_dict_is_stable_json(tmp_path: Path) -> None:
         "unit",
         "unmatched_labels",
         "notes",
+        "reward_wrappers",
     ]
     assert data["by"] == "all" and data["passed"] is True
     (group,) = data["groups"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from rich.console import Group, RenderableType
+from rich.text import Text
 
 from ...compare import Comparison, MetricComparison
 from ...compare.stats import NEVER
@@ -121,13 +122,16 @@ def compare_output(
         parts = [f"### episode-audit compare: {markdown_text(result.verdict)}\n"]
         for title, headers, body in sections:
             parts += [f"#### {markdown_text(title)}\n", markdown_table(headers, body) + "\n"]
+            if headers is COMPARE_HEADERS:
+                parts += [markdown_text(note) + "\n" for note in result.reward_notes]
         return "\n".join(parts)
     # (the metrics side by side only when no cell wraps: "0.0% (n 20)" read over two lines is
     # no table; else the vertical layout)
-    out: list[RenderableType] = [
-        table(title, headers, body, whole_cells=headers is COMPARE_HEADERS)
-        for title, headers, body in sections
-    ]
+    out: list[RenderableType] = []
+    for title, headers, body in sections:
+        out.append(table(title, headers, body, whole_cells=headers is COMPARE_HEADERS))
+        if headers is COMPARE_HEADERS and result.reward_notes:  # (a blank line, as a table's)
+            out.append(Text("\n".join(result.reward_notes) + "\n"))
     return Group(*out)
 
 

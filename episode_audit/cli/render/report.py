@@ -104,6 +104,8 @@ def report_output(
             f"### episode-audit report (by {markdown_text(result.by)}{_unit(result)})\n",
             (markdown_table(REPORT_HEADERS, rows) if rows else NO_EPISODES) + "\n",
         ]
+        if result.reward_note:
+            parts.append(markdown_text(result.reward_note) + "\n")
         if term_rows:
             parts += [
                 "#### Reward terms by outcome\n",
@@ -132,6 +134,8 @@ def report_output(
             whole_cells=True,
         )
     ]
+    if result.reward_note:
+        out.append(Text(result.reward_note + "\n"))  # (a blank line, as under a table)
     endings = _ending_rows(result)
     if endings:
         out.append(
@@ -190,6 +194,7 @@ def report_cases(result: Report, unreadable: Sequence[Unreadable] = ()) -> list[
     for key, g in groups.items():
         lines = [_group_line(g, result.unit)]
         lines += [f"incentive warning {w.code}: {w.message}" for w in g.warnings]
+        lines += [result.reward_note] if result.reward_note else []
         details[key] = "\n".join(lines)
     cases = [
         JUnitCase(

@@ -1,0 +1,102 @@
+"""compare over files recorded over reward wrappers: returns in other units are not compared."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from episode_audit import CompareGates, compare
+from tests.support.rewards import record_cartpole
+
+NOT_COMPARED = (
+    "record both sides over the same reward wrappers, or beneath them (the env's own rewards)"
+)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    out = tmp_path_factory.mktemp("wrapped")
+    made = {w: record_cartpole(out / f"{w}.mcap", w) for w in ("plain", "normalized", "scaled")}
+    made["plain_again"] = record_cartpole(out / "plain_again.mcap")
+    made["normalized_again"] = record_cartpole(out / "normalized_again.mcap", "normalized")
+    return made
+
+
+def test_a_drop_that_is_only_a_wrapper_taken_away_is_not_a_regression(
+    files: dict[str, Path],
+) -> None:
+    # the same episodes (seeds, actions): returns x10 in the baseline, the env's in the
+    # candidate; it was `regressed` (p = 0.0037), and exit 1
+    result = compare([files["scaled"]], [files["plain"]])
+    (group,) = result.groups
+    ret = group.metric("return")
+    assert ret.difference < 0 and ret.paired and ret.pairs == 8
+    assert ret.verdict == "inconclusive" and not ret.can_reject and ret.p_adjusted == ret.p_value
+    assert ret.not_comparable == (
+        "the baseline's returns are TransformReward's and the candidate's the env's; "
+        + NOT_COMPARED
+    )
+    assert result.verdict != "regressed" and result.passed
+    assert group.notes == [
+        "return: not compared (inconclusive), nor a max_return_drop gate: " + ret.not_comparable
+    ]
+    assert result.reward_notes == ["Baseline 1/1 files' returns are not the env's: TransformReward"]
+    mismatches = {m.field: str(m) for m in result.mismatches}
+    assert mismatches["reward_wrappers"] == (
+        "reward_wrappers differs: baseline TransformReward; candidate (none)"
+    )
+    case = {c.name: c for c in result.cases()}["all/return"]
+    assert (case.status, case.passed) == ("inconclusive", True)
+    assert case.message.startswith("return: inconclusive, not compared: the baseline's returns")
+
+
+def test_a_return_gate_cannot_be_verified_and_outcome_gates_still_are(
+    files: dict[str, Path],
+) -> None:
+    gates = CompareGates(max_return_drop=1000.0, max_failure_increase=0.5)
+    result = compare([files["plain"]], [files["normalized"]], gates=gates)
+    (group,) = result.groups
+    by_gate = {g.gate: g for g in group.gates}
+    assert by_gate["max_failure_increase"].passed  # outcomes are no rewards
+    assert not by_gate["max_return_drop"].passed and not result.passed
+    assert by_gate["max_return_drop"].message == (
+        "return: cannot be verified, the baseline's returns are the env's and the candidate's "
+        f"NormalizeReward's; {NOT_COMPARED} (group all)"
+    )
+
+
+def test_the_same_wrapper_on_both_sides_is_compared_and_said(files: dict[str, Path]) -> None:
+    result = compare([files["normalized"]], [files["normalized_again"]])
+    ret = result.groups[0].metric("return")
+    assert ret.not_comparable is None and ret.can_reject is False  # (the same episodes)
+    assert not result.mismatches
+    assert result.reward_notes == [
+        "Baseline 1/1 files' returns are not the env's: NormalizeReward",
+        "Candidate 1/1 files' returns are not the env's: NormalizeReward",
+    ]
+    data = result.to_dict()
+    assert data["reward_wrappers"]["candidate"] == [{"wrappers": ["NormalizeReward"], "files": 1}]
+    assert data["groups"][0]["metrics"][-1]["not_comparable"] is None
+
+
+def test_sides_that_mix_wrapped_and_plain_files_are_not_compared(files: dict[str, Path]) -> None:
+    result = compare(
+        [files["plain"], files["normalized"]], [files["plain_again"], files["normalized_again"]]
+    )
+    ret = result.groups[0].metric("return")
+    assert ret.verdict == "inconclusive"
+    assert ret.not_comparable is not None and ret.not_comparable.startswith(
+        "the baseline's returns are a mix of the env's and NormalizeReward's and the "
+        "candidate's a mix of the env's and NormalizeReward's;"
+    )
+
+
+def test_groups_whose_sides_share_their_wrappers_are_compared(files: dict[str, Path]) -> None:
+    # by tag-less env id both are CartPole: one group; plain against plain is compared
+    result = compare([files["plain"]], [files["plain_again"]], by="env")
+    assert result.groups[0].metric("return").not_comparable is None
+    assert result.reward_notes == [] and result.to_dict()["reward_wrappers"] == {
+        "baseline": [],
+        "candidate": [],
+    }
