@@ -9,10 +9,13 @@ anything).
 
 from __future__ import annotations
 
+from typing import Any
+
 from ..format import names as fmt
 from ..format.records import listing
 from ..format.run_end import RunEnd
-from ..format.wrappers import reward_wrapper_names
+from ..format.unrecorded import spec_placeholders
+from ..format.wrappers import declared_transparent, plan_wrappers, reward_wrapper_names
 from ..read.liveness import still_written
 from ._state import FileState
 from .registry import (
@@ -109,11 +112,33 @@ def _replayable(state: FileState) -> None:
         state.finding(
             MISSING_ENV_SPEC, f"no environment spec recorded{why}: replay needs an env factory"
         )
+    unheld = spec_placeholders(run.env_spec)
+    if unheld and _placeholders_needed(run.env_spec, run.recorder):
+        state.finding(
+            MISSING_ENV_SPEC,
+            f"the environment spec holds placeholders for what JSON cannot hold "
+            f"({', '.join(unheld)}): replay needs an env factory",
+        )
     if layout.get("kind") == "vector" and layout.get("sub_envs") is False:
         why = layout.get("replay_note") or "the vector env had no sub-envs"
         state.finding(NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
     check_state_causes(state)
     _rewards_changed(state)
+
+
+def _placeholders_needed(spec: Any, recorder: Any) -> bool:
+    """Whether replay needs what a spec's placeholders stand for to build the env.
+
+    An env argument, yes; a wrapper's, when replay does not leave the wrapper out (a
+    ``RecordVideo`` given a function is left out: it never changes a step).
+    """
+    if any(p.startswith("the env's") for p in spec_placeholders({"kwargs": spec.get("kwargs")})):
+        return True
+    wrappers = spec.get("additional_wrappers")
+    plan = plan_wrappers(
+        wrappers if isinstance(wrappers, list) else [], declared_transparent(recorder)
+    )
+    return plan.refused is not None
 
 
 def _rewards_changed(state: FileState) -> None:

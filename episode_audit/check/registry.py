@@ -411,8 +411,9 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         MISSING_ENV_SPEC,
         "warning",
         "No environment spec to rebuild the env.",
-        "The file has no environment spec (the env was not made with `gym.make`); the message "
-        "gives the recorder's notes on why.",
+        "The file has no environment spec (the env was not made with `gym.make`; the message "
+        "gives the recorder's notes on why), or one with placeholders for arguments JSON "
+        "cannot hold (a function given to a wrapper: `TransformReward(env, lambda r: ...)`).",
         "`replay` cannot build the env from the file alone.",
         "Make the env with `gym.make` from a registered id, or give `replay` an env factory "
         "(`--env-factory MODULE:CALLABLE`).",

@@ -24,6 +24,8 @@ from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from .unrecorded import unrecorded
+
 __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
     "LAYOUT_STATE_SNAPSHOTS",
@@ -352,6 +354,13 @@ def _bad_argument(name: str, rule: WrapperRule, kwargs: Any) -> str | None:
     if not isinstance(kwargs, Mapping):
         return f"the recorded wrapper {name}'s kwargs are not a mapping"
     for arg, value in kwargs.items():
+        held = unrecorded(value)
+        if held is not None:
+            arg = str(arg)[:80]
+            return (
+                f"the recorded wrapper {name}'s argument {arg!r} is not in the file ({held}: "
+                "JSON cannot hold it)"
+            )
         check = rule.args.get(arg)
         if check is None:
             arg = str(arg)[:80]

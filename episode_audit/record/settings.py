@@ -27,6 +27,7 @@ from .._version import __version__
 from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import MAX_JSON_TEXT, RunInfo, to_json
+from ..format.unrecorded import placeholders, spec_placeholders
 from ..format.wrappers import RUN_TRANSPARENT_WRAPPERS
 from .rules import EndingRules, RewardTerms, TermsFn
 
@@ -332,10 +333,15 @@ def run_info(
     notes = list(notes)
     if spec is not None:
         try:
-            spec_json = _spec_json(spec)
+            spec_json, unheld = _spec_json(spec)
         except Exception as exc:
             notes.append(f"env spec is not JSON-serializable ({type(exc).__name__}: {exc})")
         else:
+            if unheld:
+                notes.append(
+                    "env spec recorded with placeholders for what JSON cannot hold: "
+                    f"{', '.join(unheld)} (replay needs an env factory to build what takes it)"
+                )
             size = len(to_json(spec_json))
             if size > MAX_JSON_TEXT:  # (a reader refuses it: the whole file would be unreadable)
                 spec_json = None
@@ -363,13 +369,16 @@ def run_info(
     )
 
 
-def _spec_json(spec: Any) -> dict[str, Any]:
-    """``spec`` as JSON, an entry point given as a class or function named ``module:name``.
+def _spec_json(spec: Any) -> tuple[dict[str, Any], list[str]]:
+    """``spec`` as JSON, and the arguments in it that JSON cannot hold (named for a note).
 
+    An entry point given as a class or function is named ``module:name``:
     ``gym.register(id, entry_point=MyEnv)`` registers the class itself, which ``to_json``
     refuses; its name, when it leads back to that object, is what the spec holds instead
     (replay builds a registered id from this process's registry, never from that name
-    unless trusted: docs/replay.md). Raises what ``to_json`` raises for anything else.
+    unless trusted: docs/replay.md). An argument of the env or of a wrapper that JSON cannot
+    hold (``TransformReward(env, lambda r: ...)``) becomes a placeholder
+    (:mod:`~episode_audit.format.unrecorded`). Raises what ``to_json`` raises for anything else.
     """
     entry = spec.entry_point
     if callable(entry):
@@ -379,8 +388,18 @@ def _spec_json(spec: Any) -> dict[str, Any]:
             found = getattr(found, part, None)
         if found is entry:
             spec = dataclasses.replace(spec, entry_point=f"{module}:{name}")
+    try:
+        return json.loads(spec.to_json()), []
+    except (TypeError, ValueError):
+        pass
+    wrappers = tuple(
+        dataclasses.replace(w, kwargs=placeholders(w.kwargs or {})[0])
+        for w in spec.additional_wrappers or ()
+    )
+    kwargs = placeholders(spec.kwargs or {})[0]
+    spec = dataclasses.replace(spec, kwargs=kwargs, additional_wrappers=wrappers)
     loaded: dict[str, Any] = json.loads(spec.to_json())
-    return loaded
+    return loaded, spec_placeholders(loaded)
 
 
 def _terms(settings: RecorderSettings, info_of: str | None) -> dict[str, Any]:

@@ -24,6 +24,7 @@ from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
 from ..format.records import RunInfo
 from ..format.spaces import describe_space
+from ..format.unrecorded import unrecorded
 from ..format.wrappers import declared_transparent, plan_wrappers
 from ..record.rules import find_time_limit
 
@@ -70,6 +71,10 @@ def build_env(
     recorded = spec.get("additional_wrappers") or []
     recorded = recorded if isinstance(recorded, list) else [recorded]
     registered = ":" not in env_id and env_id in gym.registry
+    if trust_entry_points:  # (built as recorded: no placeholder of what the file lacks)
+        for wrapper in recorded:
+            if isinstance(wrapper, Mapping) and isinstance(wrapper.get("kwargs"), Mapping):
+                _check_env_kwargs(wrapper["kwargs"], f"{str(wrapper.get('name'))[:80]} argument")
     if registered and trust_entry_points:
         trusted = [w for w in recorded if isinstance(w, Mapping)]
         return _from_registry(env_id, spec, trusted, _load_wrapper)
@@ -187,6 +192,12 @@ def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
             f"the recorded {what}s are not a mapping ({type(kwargs).__name__}); {_WAY_AROUND}"
         )
     for name, value in kwargs.items():
+        held = unrecorded(value)
+        if held is not None:
+            raise ReplayError(
+                f"the recorded {what} {str(name)[:80]!r} is not in the file ({held}: JSON "
+                f"cannot hold it); {_WAY_AROUND}"
+            )
         depth = _depth(value)
         if depth > MAX_ENV_KWARGS_DEPTH:
             raise ReplayError(

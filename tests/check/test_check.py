@@ -557,6 +557,22 @@ def test_not_replayable_and_missing_env_spec(tmp_path: Path) -> None:
     assert "recorder_note:stepped_before_reset" in _codes(result)
 
 
+def test_a_spec_with_a_placeholder_replay_needs_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "scaled.mcap"
+    with RecordEvidence(gym.wrappers.TransformReward(gym.make("CartPole-v1"), abs), path) as env:
+        env.reset(seed=0)
+        env.step(0)
+    spec = _only(check([path]), "missing_env_spec")
+    assert spec.message == (
+        "the environment spec holds placeholders for what JSON cannot hold (TransformReward's "
+        "argument 'func'): replay needs an env factory"
+    )
+    assert open_evidence(path).run.recorder["notes"] == [
+        "env spec recorded with placeholders for what JSON cannot hold: TransformReward's "
+        "argument 'func' (replay needs an env factory to build what takes it)"
+    ]
+
+
 def test_older_format_version_is_noted(tmp_path: Path) -> None:
     path = _record(tmp_path / "old.mcap", lambda e, a: (OBS, 0.0, e.t == 1, False, {}))
     ev = open_evidence(path)

@@ -46,6 +46,9 @@ def test_a_drop_that_is_only_a_wrapper_taken_away_is_not_a_regression(
     assert mismatches["reward_wrappers"] == (
         "reward_wrappers differs: baseline TransformReward; candidate (none)"
     )
+    # (the function TransformReward was given has a placeholder in the baseline's env spec:
+    # its time limit and kwargs are there, and the same as the candidate's)
+    assert set(mismatches) == {"reward_wrappers"}
     case = {c.name: c for c in result.cases()}["all/return"]
     assert (case.status, case.passed) == ("inconclusive", True)
     assert case.message.startswith("return: inconclusive, not compared: the baseline's returns")

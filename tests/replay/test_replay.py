@@ -855,15 +855,20 @@ def test_an_env_registered_with_a_class_as_entry_point_replays(tmp_path: Path) -
         del gym.registry["ClassEntry-v0"]
 
 
-_NO_SPEC = (
-    r"the env spec of 'CartPole-v1' was not recorded \(env spec is not JSON-serializable "
-    r"\(TypeError: .*\)\): its kwargs and wrappers are unknown, and the bare id may be another "
-    r"env; pass --env-factory MODULE:CALLABLE that builds the env as it was recorded"
+_WRAPPER_FUNCTION = (
+    "the recorded wrapper TransformReward: its argument func is a function, which a file cannot "
+    "hold; pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to "
+    "build the recorded wrappers as they are"
+)
+_PLACEHOLDER = (
+    "the recorded TransformReward argument 'func' is not in the file (function "
+    f"{__name__}:doubled_cartpole.<locals>.<lambda>: JSON cannot hold it); pass --env-factory "
+    "MODULE:CALLABLE that builds the env"
 )
 
 
 def doubled_cartpole() -> gym.Env[Any, Any]:
-    """CartPole whose rewards are doubled by a lambda: its spec is not JSON-serializable."""
+    """CartPole whose rewards are doubled by a lambda, which JSON cannot hold."""
     return gym.wrappers.TransformReward(gym.make("CartPole-v1"), lambda r: 2 * r)
 
 
@@ -876,19 +881,25 @@ def record_doubled(path: Path) -> Path:
     return path
 
 
-def test_a_file_without_its_env_spec_is_replayed_only_with_an_env_factory(tmp_path: Path) -> None:
-    """Its id alone would build CartPole without the wrapper: rewards 1.0 where 2.0 were
-    recorded, a false divergence."""
+def test_a_wrapper_given_a_function_is_replayed_only_with_an_env_factory(tmp_path: Path) -> None:
+    """The spec keeps a placeholder for the function: the id, the time limit and the wrapper
+    are in the file; built without the wrapper, CartPole would pay 1.0 where 2.0 was recorded
+    (a false divergence), so replay refuses, trusted or not."""
     path = record_doubled(tmp_path / "doubled.mcap")
     run = open_evidence(path).run
-    assert (run.env_id, run.env_spec) == ("CartPole-v1", None)
-    for trust in (False, True):  # no spec to trust either
+    assert run.env_id == "CartPole-v1" and run.env_spec is not None
+    assert run.env_spec["max_episode_steps"] == 500
+    (wrapper,) = run.env_spec["additional_wrappers"]
+    assert wrapper["kwargs"] == {
+        "func": {
+            "episode_audit.unrecorded": f"function {__name__}:doubled_cartpole.<locals>.<lambda>"
+        }
+    }
+    for trust, why in ((False, _WRAPPER_FUNCTION), (True, _PLACEHOLDER)):
         result = replay([path], trust_entry_points=trust)
         assert [(e.status, e.steps) for e in result.episodes] == [("not_replayable", 0)] * 2
-        assert result.ok
-        for episode in result.episodes:
-            assert episode.reason is not None and re.fullmatch(_NO_SPEC, episode.reason)
-    with pytest.raises(ReplayError, match=_NO_SPEC):
+        assert [e.reason for e in result.episodes] == [why] * 2
+    with pytest.raises(ReplayError, match=re.escape(_WRAPPER_FUNCTION)):
         build_env(run)
     assert replay([path], env_factory=doubled_cartpole).count("identical") == 2
 
@@ -912,7 +923,7 @@ def test_cli_replays_an_info_the_recorder_tolerated_and_exits_0(tmp_path: Path) 
     assert "3 identical, 0 diverged, 0 not replayable" in out
 
 
-def test_cli_says_why_a_file_without_its_env_spec_is_not_replayable_and_exits_1(
+def test_cli_says_why_a_file_whose_wrapper_took_a_function_is_not_replayable_and_exits_1(
     tmp_path: Path,
 ) -> None:
     path = record_doubled(tmp_path / "doubled.mcap")
@@ -920,7 +931,7 @@ def test_cli_says_why_a_file_without_its_env_spec_is_not_replayable_and_exits_1(
     assert result.exit_code == 1, result.output  # nothing was verified
     data = json.loads(result.stdout)
     assert data["summary"] == {"verified": 0, "identical": 0, "diverged": 0, "not_replayable": 2}
-    assert re.fullmatch(_NO_SPEC, data["episodes"][0]["reason"])
+    assert data["episodes"][0]["reason"] == _WRAPPER_FUNCTION
     assert result.stderr == (
         "episode-audit: error: replay verified no episode: all 2 episode(s) are not replayable "
         "(the output says why); pass --allow-unverified when that is expected\n"
