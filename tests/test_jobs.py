@@ -7,6 +7,7 @@ unreadable) is checked, reported, replayed and exported with ``--jobs 1``, ``--j
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import os
@@ -271,6 +272,45 @@ def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
     assert "Traceback" not in err and out == ""
     assert err.splitlines()[-1] == "episode-audit: error: interrupted (Ctrl-C): stopped"
     assert _gone(worker)
+
+
+def test_sigterm_stops_the_workers_exits_143_and_leaves_no_temporary_files(
+    campaign: Path, tmp_path: Path
+) -> None:
+    # a CI job's timeout, `timeout`, `docker stop`: SIGTERM to the command alone. Python's
+    # default ended it at once: its worker waited for work forever (holding the fork server
+    # up, and the command's stderr open) and multiprocessing's folder (pymp-*) stayed behind
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(temp)}
+    factory = "tests.support.factories:slow_cartpole"
+    cmd = [sys.executable, "-m", "episode_audit", "replay", str(campaign), "--jobs", "2"]
+    with (tmp_path / "out").open("w+") as out, (tmp_path / "err").open("w+") as err:
+        proc = subprocess.Popen(
+            [*cmd, "--env-factory", factory],
+            cwd=REPO,
+            env=env,
+            stdout=out,
+            stderr=err,
+            start_new_session=True,
+        )
+        try:
+            worker = _wait_for_a_worker(proc.pid)
+            time.sleep(3)
+            assert proc.poll() is None
+            proc.terminate()
+            proc.wait(timeout=60)
+            stopped = _gone(worker)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)  # whatever is left of it
+            proc.wait()
+    said = (tmp_path / "err").read_text()
+    assert proc.returncode == 143, said
+    assert "Traceback" not in said and (tmp_path / "out").read_text() == ""
+    assert said.splitlines()[-1] == "episode-audit: error: terminated (SIGTERM): stopped"
+    assert stopped
+    assert sorted(p.name for p in temp.iterdir()) == []
 
 
 _SLOW_PANDAS = """
