@@ -17,6 +17,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterator
@@ -280,8 +281,8 @@ def test_sigterm_stops_the_workers_exits_143_and_leaves_no_temporary_files(
     # a CI job's timeout, `timeout`, `docker stop`: SIGTERM to the command alone. Python's
     # default ended it at once: its worker waited for work forever (holding the fork server
     # up, and the command's stderr open) and multiprocessing's folder (pymp-*) stayed behind
-    temp = tmp_path / "temp"
-    temp.mkdir()
+    # (a short path: the fork server's socket, pymp-*/listener-*, must fit in 107 bytes)
+    temp = Path(tempfile.mkdtemp(prefix="t"))
     env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(temp)}
     factory = "tests.support.factories:slow_cartpole"
     cmd = [sys.executable, "-m", "episode_audit", "replay", str(campaign), "--jobs", "2"]
@@ -310,7 +311,9 @@ def test_sigterm_stops_the_workers_exits_143_and_leaves_no_temporary_files(
     assert "Traceback" not in said and (tmp_path / "out").read_text() == ""
     assert said.splitlines()[-1] == "episode-audit: error: terminated (SIGTERM): stopped"
     assert stopped
-    assert sorted(p.name for p in temp.iterdir()) == []
+    left = sorted(p.name for p in temp.iterdir())
+    shutil.rmtree(temp)
+    assert left == []
 
 
 _SLOW_PANDAS = """
