@@ -316,6 +316,40 @@ def test_sigterm_stops_the_workers_exits_143_and_leaves_no_temporary_files(
     assert left == []
 
 
+def _long_temp(tmp_path: Path) -> Path:
+    """A temporary directory whose path leaves no room for the fork server's socket."""
+    temp = tmp_path / ("t" * 80)
+    temp.mkdir()
+    return temp
+
+
+def test_a_temporary_directory_too_long_for_the_workers_socket_is_named(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the fork server's socket is <temp>/pymp-XXXXXXXX/listener-XXXXXXXX, an AF_UNIX path at
+    # most 107 bytes: it could not start, and the error blamed a worker killed or out of memory
+    temp = _long_temp(tmp_path)
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    said = (
+        r"jobs > 1: the temporary directory .*t{80} is too long a path for the workers' socket "
+        r"\(\d+ bytes; at most \d+\): set TMPDIR to a shorter folder, or run with jobs=1 "
+        r"\(--jobs 1\)$"
+    )
+    with pytest.raises(ConfigurationError, match=said):
+        list(map_ordered(_double_or_fail, [1, 2], jobs=2))
+
+
+def test_the_command_says_so_in_one_line_and_exits_2(campaign: Path, tmp_path: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(_long_temp(tmp_path))}
+    cmd = [sys.executable, "-m", "episode_audit", "check", str(campaign), "--jobs", "2"]
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr  # was a traceback, and exit 1 (findings)
+    assert done.stderr.splitlines()[-1].startswith(
+        "episode-audit: error: jobs > 1: the temporary directory /"
+    )
+    assert "Traceback" not in done.stderr
+
+
 _SLOW_PANDAS = """
 import importlib.abc, os, sys, time
 
