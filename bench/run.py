@@ -16,18 +16,23 @@ replay over 1 000 files (+ 50 Reacher-v5 episodes for replay) with --jobs 1 vs 2
 calls and as fresh command-line processes, 3 rounds, medians (replay >= 1.8x), the load
 average, and an Amdahl estimate to N cores.
 Results are printed and written to bench/results/latest.json. Nothing here is a timed test.
+The files the benches write (~400 MB) go to a folder of the temporary directory, removed at the
+end (an error and Ctrl-C included) unless EPISODE_AUDIT_BENCH_KEEP is set; then its path is
+printed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import os
+import shutil
 import statistics
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +47,32 @@ from episode_audit.record.fast import PURE_PYTHON_ENV
 from episode_audit.record.fast import compiled as fast_compiled
 
 RESULTS = Path(__file__).resolve().parent / "results"
-TMP = Path(tempfile.mkdtemp(prefix="episode-audit-bench-"))
+KEEP = "EPISODE_AUDIT_BENCH_KEEP"
+TMP: Path
+"""The run's scratch folder, made by main() (:func:`scratch`)."""
+
+
+@contextlib.contextmanager
+def scratch() -> Iterator[Path]:
+    """A folder for the benches' files, removed at the end unless $EPISODE_AUDIT_BENCH_KEEP is set.
+
+    SB3's logger makes a folder in the temporary directory at each learn() (none configured):
+    $SB3_LOGDIR puts them here meanwhile.
+    """
+    path = Path(tempfile.mkdtemp(prefix="episode-audit-bench-"))
+    before = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(path / "sb3-logs")
+    try:
+        yield path
+    finally:
+        if before is None:
+            del os.environ["SB3_LOGDIR"]
+        else:
+            os.environ["SB3_LOGDIR"] = before
+        if os.environ.get(KEEP):
+            print(f"bench files kept in {path} ({KEEP} is set)", file=sys.stderr)
+        else:
+            shutil.rmtree(path, ignore_errors=True)
 
 
 def rss_mb() -> float:
@@ -759,10 +789,12 @@ def main(argv: list[str]) -> int:
         "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0]}
     }
     warn_once()
-    for name in wanted:
-        print(f"== {name}", flush=True)
-        results[name] = BENCHES[name]()
-        print(json.dumps(results[name], indent=2), flush=True)
+    global TMP
+    with scratch() as TMP:
+        for name in wanted:
+            print(f"== {name}", flush=True)
+            results[name] = BENCHES[name]()
+            print(json.dumps(results[name], indent=2), flush=True)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "latest.json").write_text(json.dumps(results, indent=2))
     return 0

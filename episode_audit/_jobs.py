@@ -219,9 +219,38 @@ def _context() -> Any:
 
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
+    _refuse_a_long_temporary_directory()
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(list(PRELOAD))
     return context
+
+
+_SOCKET = "/pymp-XXXXXXXX/listener-XXXXXXXX"
+"""The fork server's socket under the temporary directory (multiprocessing's names)."""
+
+
+def _refuse_a_long_temporary_directory() -> None:
+    """Raise if the fork server's socket would not fit under the temporary directory.
+
+    An AF_UNIX path holds 107 bytes (103 on macOS); where multiprocessing does not fall back
+    to a shorter directory itself (``_get_base_temp_dir``, newer Pythons), the fork server
+    could not start, and that came back as a worker that ended before its results.
+    """
+    import multiprocessing.util
+    import sys
+    import tempfile
+
+    if hasattr(multiprocessing.util, "_get_base_temp_dir"):
+        return
+    temp = tempfile.gettempdir()
+    room = (103 if sys.platform == "darwin" else 107) - len(_SOCKET)
+    size = len(os.fsencode(temp))
+    if size > room:
+        raise ConfigurationError(
+            f"jobs > 1: the temporary directory {temp} is too long a path for the workers' "
+            f"socket ({size} bytes; at most {room}): set TMPDIR to a shorter folder, or run "
+            "with jobs=1 (--jobs 1)"
+        )
 
 
 def _start_worker(environ: dict[str, str]) -> None:

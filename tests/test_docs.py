@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -27,7 +28,11 @@ def test_readme_python_example_runs(tmp_path: Path, block: str) -> None:
     for extra in ("stable_baselines3", "pettingzoo"):  # (the sb3 / pettingzoo extras)
         if re.search(rf"^(from|import) {extra}\b", block, flags=re.M):
             pytest.importorskip(extra)
-    subprocess.run([sys.executable, "-c", block], cwd=tmp_path, check=True, capture_output=True)
+    # (an example's tempfile.mkdtemp() folder, as a user's, is left: in tmp_path, not /tmp)
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    subprocess.run(
+        [sys.executable, "-c", block], cwd=tmp_path, env=env, check=True, capture_output=True
+    )
 
 
 def test_readme_quick_start_is_two_commands() -> None:

@@ -17,8 +17,10 @@ import itertools
 import json
 import os
 import queue
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -364,11 +366,17 @@ class Summary:
 
 
 class _Worker:
-    """``tests/fuzzing.py`` in a subprocess; answers one JSON line per input."""
+    """``tests/fuzzing.py`` in a subprocess; answers one JSON line per input.
+
+    Its temporary directory is a folder of ours, removed by :meth:`stop`: a worker killed (a
+    hang) cannot remove its scratch files itself.
+    """
 
     def __init__(self, corpus: Path) -> None:
+        self.temp = Path(tempfile.mkdtemp(prefix="fuzz-worker-"))
         env = dict(os.environ, PYTHONPATH=str(REPO), EPISODE_AUDIT_FUZZ_CAP_MIB=str(CAP_MIB))
         env.setdefault("MUJOCO_GL", "egl")
+        env["TMPDIR"] = str(self.temp)
         self.proc = subprocess.Popen(
             [sys.executable, str(HERE / "fuzzing.py"), str(corpus), str(DEADLINE_S)],
             stdin=subprocess.PIPE,
@@ -399,15 +407,18 @@ class _Worker:
         return None if line is None else json.loads(line)
 
     def stop(self) -> None:
-        self.proc.kill()
-        self.proc.wait()
+        """End the worker (at the end of its input if it answers, else killed); remove its files."""
+        try:
+            assert self.proc.stdin is not None
+            self.proc.stdin.close()  # the worker's loop ends
+            self.proc.wait(timeout=10)
+        except (BrokenPipeError, subprocess.TimeoutExpired):
+            self.proc.kill()  # hung
+            self.proc.wait()
         self.pump.join()
-        for pipe in (self.proc.stdin, self.proc.stdout):
-            if pipe is not None:
-                try:
-                    pipe.close()
-                except BrokenPipeError:
-                    pass
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        shutil.rmtree(self.temp, ignore_errors=True)
 
 
 def jobs(bases: list[str], count: int, first_seed: int = 0) -> list[str]:

@@ -7,6 +7,7 @@ unreadable) is checked, reported, replayed and exported with ``--jobs 1``, ``--j
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import os
@@ -16,6 +17,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterator
@@ -271,6 +273,81 @@ def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
     assert "Traceback" not in err and out == ""
     assert err.splitlines()[-1] == "episode-audit: error: interrupted (Ctrl-C): stopped"
     assert _gone(worker)
+
+
+def test_sigterm_stops_the_workers_exits_143_and_leaves_no_temporary_files(
+    campaign: Path, tmp_path: Path
+) -> None:
+    # a CI job's timeout, `timeout`, `docker stop`: SIGTERM to the command alone. Python's
+    # default ended it at once: its worker waited for work forever (holding the fork server
+    # up, and the command's stderr open) and multiprocessing's folder (pymp-*) stayed behind
+    # (a short path: the fork server's socket, pymp-*/listener-*, must fit in 107 bytes)
+    temp = Path(tempfile.mkdtemp(prefix="t"))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(temp)}
+    factory = "tests.support.factories:slow_cartpole"
+    cmd = [sys.executable, "-m", "episode_audit", "replay", str(campaign), "--jobs", "2"]
+    with (tmp_path / "out").open("w+") as out, (tmp_path / "err").open("w+") as err:
+        proc = subprocess.Popen(
+            [*cmd, "--env-factory", factory],
+            cwd=REPO,
+            env=env,
+            stdout=out,
+            stderr=err,
+            start_new_session=True,
+        )
+        try:
+            worker = _wait_for_a_worker(proc.pid)
+            time.sleep(3)
+            assert proc.poll() is None
+            proc.terminate()
+            proc.wait(timeout=60)
+            stopped = _gone(worker)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)  # whatever is left of it
+            proc.wait()
+    said = (tmp_path / "err").read_text()
+    assert proc.returncode == 143, said
+    assert "Traceback" not in said and (tmp_path / "out").read_text() == ""
+    assert said.splitlines()[-1] == "episode-audit: error: terminated (SIGTERM): stopped"
+    assert stopped
+    left = sorted(p.name for p in temp.iterdir())
+    shutil.rmtree(temp)
+    assert left == []
+
+
+def _long_temp(tmp_path: Path) -> Path:
+    """A temporary directory whose path leaves no room for the fork server's socket."""
+    temp = tmp_path / ("t" * 80)
+    temp.mkdir()
+    return temp
+
+
+def test_a_temporary_directory_too_long_for_the_workers_socket_is_named(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the fork server's socket is <temp>/pymp-XXXXXXXX/listener-XXXXXXXX, an AF_UNIX path at
+    # most 107 bytes: it could not start, and the error blamed a worker killed or out of memory
+    temp = _long_temp(tmp_path)
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    said = (
+        r"jobs > 1: the temporary directory .*t{80} is too long a path for the workers' socket "
+        r"\(\d+ bytes; at most \d+\): set TMPDIR to a shorter folder, or run with jobs=1 "
+        r"\(--jobs 1\)$"
+    )
+    with pytest.raises(ConfigurationError, match=said):
+        list(map_ordered(_double_or_fail, [1, 2], jobs=2))
+
+
+def test_the_command_says_so_in_one_line_and_exits_2(campaign: Path, tmp_path: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(_long_temp(tmp_path))}
+    cmd = [sys.executable, "-m", "episode_audit", "check", str(campaign), "--jobs", "2"]
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr  # was a traceback, and exit 1 (findings)
+    assert done.stderr.splitlines()[-1].startswith(
+        "episode-audit: error: jobs > 1: the temporary directory /"
+    )
+    assert "Traceback" not in done.stderr
 
 
 _SLOW_PANDAS = """

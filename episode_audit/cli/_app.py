@@ -298,6 +298,7 @@ RayOption = Annotated[
     ),
 ]
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143  # 128 + SIGTERM, as a shell reports a command SIGTERM ended
 SMALL_INPUTS = 8 << 20
 """Inputs totalling fewer bytes are read in this process unless ``--jobs`` says otherwise:
 starting the workers' fork server (an interpreter importing episode-audit, about a second)
@@ -329,20 +330,23 @@ def jobs_for(jobs: int | None, files: Sequence[Source], small: int = SMALL_INPUT
 
 @contextmanager
 def interruptible() -> Iterator[None]:
-    """Ctrl-C: one line on stderr and exit 130 (the workers are stopped by then).
+    """Ctrl-C or ``SIGTERM``: one line on stderr and exit 130 or 143 (the workers stopped).
 
-    So even when the work swallowed the ``KeyboardInterrupt`` (:func:`_pressed`). pyarrow
-    imports pandas (when installed) the first time it converts a column, and a Ctrl-C during
-    that import is lost, or leaves pandas half-imported (a traceback): it is imported first
-    here, with Ctrl-C held meanwhile (:func:`~episode_audit._jobs.sigint_held`).
+    ``SIGTERM`` (a CI job's timeout, ``timeout``, ``docker stop``) stops the command as Ctrl-C
+    does: Python's default would end it at once, its worker processes left waiting for work
+    and multiprocessing's folder left in the temporary directory. So even when the work
+    swallowed the ``KeyboardInterrupt`` (:func:`_pressed`). pyarrow imports pandas (when
+    installed) the first time it converts a column, and a Ctrl-C during that import is lost,
+    or leaves pandas half-imported (a traceback): it is imported first here, with Ctrl-C held
+    meanwhile (:func:`~episode_audit._jobs.sigint_held`).
     """
     pressed: list[int] = []
-    watching = (
-        threading.current_thread() is threading.main_thread()
-        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    )
-    if watching:  # a Ctrl-C a library turns into another error still stops the command
-        signal.signal(signal.SIGINT, partial(_pressed, pressed))
+    main = threading.current_thread() is threading.main_thread()
+    # a signal a library turns into another error still stops the command; one whose handler
+    # is not Python's default (the caller's own, or ignored) is left as it is
+    watched = [n for n, default in _STOPPING if main and signal.getsignal(n) is default]
+    for signum in watched:
+        signal.signal(signum, partial(_pressed, pressed))
     try:
         with sigint_held():
             _pyarrow_pandas()
@@ -350,15 +354,26 @@ def interruptible() -> Iterator[None]:
         if pressed:
             raise KeyboardInterrupt
     except KeyboardInterrupt:
+        if signal.SIGTERM in pressed:
+            _say("error", "terminated (SIGTERM): stopped")
+            raise typer.Exit(EXIT_TERMINATED) from None
         _say("error", "interrupted (Ctrl-C): stopped")
         raise typer.Exit(EXIT_INTERRUPTED) from None
     finally:
-        if watching:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+        for signum, default in _STOPPING:
+            if signum in watched:
+                signal.signal(signum, default)
+
+
+_STOPPING: tuple[tuple[int, Any], ...] = (
+    (signal.SIGINT, signal.default_int_handler),
+    (signal.SIGTERM, signal.SIG_DFL),
+)
+"""The signals that stop a command, each with Python's default handler."""
 
 
 def _pressed(pressed: list[int], signum: int, frame: Any) -> None:
-    """Python's own Ctrl-C (``KeyboardInterrupt``), noted in ``pressed`` first.
+    """Ctrl-C or ``SIGTERM``, noted in ``pressed``, then Python's ``KeyboardInterrupt``.
 
     Raised inside a library it may become another error (an env that "is not installed" when
     ``import mujoco`` was interrupted, a ctypes ``ArgumentError``): a verdict made of those

@@ -7,7 +7,7 @@ from typing import Annotated
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import EXIT_FINDINGS, app, emit, existing, fail
+from ._app import EXIT_FINDINGS, app, emit, existing, fail, interruptible
 from .render import safe
 
 
@@ -38,10 +38,11 @@ def recover(
     from ..recover import recover as run_recover
 
     existing(path)
-    try:
-        result = run_recover(path, out, overwrite=overwrite)
-    except EpisodeAuditError as exc:
-        fail(str(exc))
+    with interruptible():  # (a URL's recovery downloads into a temporary folder)
+        try:
+            result = run_recover(path, out, overwrite=overwrite)
+        except EpisodeAuditError as exc:
+            fail(str(exc))
     emit(safe(result.summary()))
     if result.lost:
         raise typer.Exit(EXIT_FINDINGS)

@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 
 # Stalls the import of gymnasium (which importing episode_audit does) for 30 s, after leaving
@@ -61,7 +63,17 @@ def test_ctrl_c_while_the_command_imports_the_package_is_one_line(tmp_path: Path
     assert err.splitlines() == ["episode-audit: error: interrupted (Ctrl-C): stopped"]
 
 
-def test_ctrl_c_while_recording_is_one_line_and_the_file_is_whole(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("signum", "code", "said"),
+    [
+        (signal.SIGINT, 130, "interrupted (Ctrl-C): stopped"),
+        # a CI job's timeout: Python's default ended the command at once, the file torn
+        (signal.SIGTERM, 143, "terminated (SIGTERM): stopped"),
+    ],
+)
+def test_ctrl_c_or_sigterm_while_recording_is_one_line_and_the_file_is_whole(
+    tmp_path: Path, signum: int, code: int, said: str
+) -> None:
     evidence = tmp_path / "run.mcap"
     proc = subprocess.Popen(
         [sys.executable, "-m", "episode_audit_cli", "record", "CartPole-v1", "--episodes",
@@ -77,15 +89,69 @@ def test_ctrl_c_while_recording_is_one_line_and_the_file_is_whole(tmp_path: Path
     while not evidence.exists() and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.05)
     time.sleep(1)  # (recording by now)
-    os.killpg(proc.pid, signal.SIGINT)
+    os.killpg(proc.pid, signum)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
-    assert err.splitlines() == ["episode-audit: error: interrupted (Ctrl-C): stopped"]
+    assert proc.returncode == code, err
+    assert err.splitlines() == [f"episode-audit: error: {said}"]
     check = subprocess.run(
         [sys.executable, "-m", "episode_audit_cli", "check", str(evidence)],
         cwd=REPO, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert check.returncode == 0, check.stdout + check.stderr
+
+
+# Stalls recover's fsync of the finished file for 30 s, after leaving a mark.
+_SLOW_FSYNC = """
+import os, time
+
+_fsync = os.fsync
+
+def fsync(fd):
+    open(os.environ["EPISODE_AUDIT_TEST_MARK"], "w").close()
+    time.sleep(30)
+    _fsync(fd)
+
+os.fsync = fsync
+"""
+
+
+@pytest.mark.parametrize(
+    ("signum", "code", "said"),
+    [
+        (signal.SIGINT, 130, "interrupted (Ctrl-C): stopped"),  # was nothing said
+        (signal.SIGTERM, 143, "terminated (SIGTERM): stopped"),  # was ended at once
+    ],
+)
+def test_ctrl_c_or_sigterm_while_recovering_is_one_line_and_writes_nothing(
+    tmp_path: Path, signum: int, code: int, said: str
+) -> None:
+    # (a URL's recovery downloads into a temporary folder, removed so on the way out)
+    site, written = tmp_path / "site", tmp_path / "out"
+    site.mkdir()
+    written.mkdir()
+    (site / "sitecustomize.py").write_text(_SLOW_FSYNC)
+    mark = tmp_path / "syncing"
+    env = {
+        **os.environ,
+        "PYTHONPATH": f"{REPO}{os.pathsep}{site}",
+        "EPISODE_AUDIT_TEST_MARK": str(mark),
+    }
+    out = written / "fixed.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "episode_audit_cli", "recover", str(REPO / "fixtures" / "torn.mcap"),
+         "-o", str(out)],
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True, preexec_fn=_default_sigint,
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    while not mark.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert mark.exists(), proc.communicate()[1]
+    os.killpg(proc.pid, signum)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert err.splitlines() == [f"episode-audit: error: {said}"]
+    assert list(written.iterdir()) == []
 
 
 def test_the_console_script_runs_the_command() -> None:

@@ -116,11 +116,13 @@ def open_page(page: Path, expression: str, screenshot: Path | None = None) -> Pa
     from websockets.sync.client import connect
 
     exe = chromium_or_skip()
-    with tempfile.TemporaryDirectory(
-        prefix="chromium-profile-", ignore_cleanup_errors=True
-    ) as profile:
+    # the profile is Chromium's temporary directory too: it makes org.chromium.Chromium.*
+    # there (its singleton socket), which it leaves when killed (a short prefix: the socket's
+    # path must fit in 107 bytes)
+    with tempfile.TemporaryDirectory(prefix="chromium-", ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen(
             [exe, *FLAGS, f"--user-data-dir={profile}", "about:blank"],
+            env={**os.environ, "TMPDIR": profile},
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
             start_new_session=True,  # its own process group: its helpers end with it
