@@ -37,6 +37,10 @@ pytest run inside a test (pytester) makes its basetemp here; Ray keeps each sess
 sockets in ``ray/``; torch's compile cache (``torchinductor_<user>``). pytest removes old
 basetemps, these with them."""
 
+_ALIVE = re.compile(r"pymp-.*")
+"""What this process removes as it exits (its fork server's folder): left out of the check
+when the tests ran in this process."""
+
 
 def pytest_ignore_collect(collection_path: Path) -> bool | None:
     """Skip the folder of a recorder whose optional library is not installed."""
@@ -76,7 +80,14 @@ def pytest_sessionfinish(session: pytest.Session) -> Generator[None, None, None]
     temp = session.config.stash.get(_TEMP, None)
     if temp is None:
         return
-    left = sorted(p.name for p in temp.iterdir() if not _KEPT.fullmatch(p.name))
+    # In a run without pytest-xdist's workers, this process is still up: multiprocessing's
+    # folder of its fork server (jobs > 1) is removed when it exits, after this check.
+    alive = _ALIVE if not getattr(session.config.option, "numprocesses", None) else None
+    left = sorted(
+        p.name
+        for p in temp.iterdir()
+        if not _KEPT.fullmatch(p.name) and not (alive and alive.fullmatch(p.name))
+    )
     if not left:
         return
     reporter = session.config.pluginmanager.get_plugin("terminalreporter")

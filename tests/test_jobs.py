@@ -433,6 +433,42 @@ def test_a_worker_that_dies_is_a_worker_error(monkeypatch: pytest.MonkeyPatch) -
     assert list(map_ordered(_die_in_a_worker, range(20), jobs=1)) == list(range(20))
 
 
+class _Dying(gym.Wrapper[Any, Any, Any, Any]):
+    """Its step ends the process when it is a worker (as the OOM killer would)."""
+
+    def step(self, action: Any) -> Any:
+        if _MARK == "as imported":  # (a worker: this process set the mark)
+            os._exit(3)
+        time.sleep(0.3)  # (this process is slow: a worker takes a batch)
+        return self.env.step(action)
+
+
+def dying_cartpole() -> gym.Env[Any, Any]:
+    """CartPole that dies in a worker process (:class:`_Dying`)."""
+    return _Dying(gym.make("CartPole-v1"))
+
+
+def test_replay_whose_worker_dies_says_so_in_one_line_and_exits_2(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from episode_audit.replay import run as replay_run
+
+    monkeypatch.setattr(sys.modules[__name__], "_MARK", "set in this process")
+    monkeypatch.setattr(replay_run, "MIN_BATCH_BYTES", 1)  # (a batch per file: to the workers)
+    paths = [tmp_path / f"c{i}.mcap" for i in range(8)]
+    for path in paths:
+        with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+            env.reset(seed=0)
+            env.step(0)
+    factory = f"{__name__}:dying_cartpole"
+    args = ["replay", *map(str, paths), "--jobs", "2", "--env-factory", factory]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert result.stderr.startswith("episode-audit: error: a worker process ended before")
+    assert len(result.stderr.splitlines()) == 1
+
+
 def test_a_ray_task_whose_worker_dies_is_a_worker_error(
     monkeypatch: pytest.MonkeyPatch, ray_local: str, caplog: pytest.LogCaptureFixture
 ) -> None:

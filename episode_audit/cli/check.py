@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from ..errors import ConfigurationError
+from ..errors import ConfigurationError, EpisodeAuditError
 from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
@@ -99,7 +99,7 @@ def check(
                     jobs=jobs_for(jobs, files),
                     ray_address=ray,
                 )
-            except ConfigurationError as exc:
+            except EpisodeAuditError as exc:  # (a setting; a worker that ended: WorkerError)
                 fail(str(exc))
         for code, left_out in result.ignored_by.items():
             if not left_out:

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from ..errors import ConfigurationError
+from ..errors import ConfigurationError, EpisodeAuditError
 from ..read.inputs import steps_total
 from ._app import (
     EXIT_FINDINGS,
@@ -115,7 +115,7 @@ def replay(
                     jobs=jobs_for(jobs, files, SMALL_INPUTS // 8),
                     ray_address=ray,
                 )
-            except ConfigurationError as exc:
+            except EpisodeAuditError as exc:  # (a setting; a worker that ended: WorkerError)
                 fail(str(exc))
         emit(replay_output(result, fmt, allow_unverified=allow_unverified))
         append_step_summary(lambda: str(replay_output(result, "markdown")), off=no_step_summary)
