@@ -15,6 +15,7 @@ import os
 import signal
 import socket
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -253,17 +254,43 @@ def _refuse_a_long_temporary_directory() -> None:
         )
 
 
-def _start_worker(environ: dict[str, str]) -> None:
+def _start_worker(environ: dict[str, str], parent: int) -> None:
     """A worker takes this process's environment variables and leaves Ctrl-C to the parent.
 
     The fork server's environment is this process's as it was when the server started (a
     credential set since would be missing); the parent stops the workers on Ctrl-C, so no
-    traceback is printed per worker.
+    traceback is printed per worker. A worker ends once its ``parent`` is gone
+    (:func:`_watch_parent`).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if dict(os.environ) != environ:
         os.environ.clear()
         os.environ.update(environ)
+    if os.name == "posix":  # (signal 0 only asks there)
+        watch = threading.Thread(
+            target=_watch_parent, args=(parent,), name="episode-audit-parent", daemon=True
+        )
+        watch.start()
+
+
+PARENT_CHECK_S = 1.0
+"""How often a worker looks whether the process it works for is still there, in seconds."""
+
+
+def _watch_parent(parent: int) -> None:
+    """End this worker when ``parent`` is gone: killed (SIGKILL, the OOM killer), it stops none.
+
+    A worker is the fork server's child, not the parent's: nothing else tells it, and it would
+    wait for work forever (holding the parent's stderr open, so a caller reading it hangs).
+    """
+    while True:
+        time.sleep(PARENT_CHECK_S)
+        try:
+            os.kill(parent, 0)
+        except ProcessLookupError:
+            os._exit(1)
+        except OSError:  # (not ours to signal: there all the same)
+            pass
 
 
 def _pool_map(
@@ -283,7 +310,7 @@ def _pool_map(
         processes - 1,
         mp_context=_context(),
         initializer=_start_worker,
-        initargs=(dict(os.environ),),
+        initargs=(dict(os.environ), os.getpid()),
     )
     futures: dict[int, Future[list[_Done[R]]]] = {}
     results: dict[int, _Done[R]] = {}

@@ -316,6 +316,35 @@ def test_sigterm_stops_the_workers_exits_143_and_leaves_no_temporary_files(
     assert left == []
 
 
+def test_a_sigkilled_command_s_workers_end_too(campaign: Path, tmp_path: Path) -> None:
+    # SIGKILL (a CI runner's last resort, the OOM killer) lets the command do nothing: its
+    # worker, forked from the fork server, waited for work forever (the command's stderr held
+    # open: a caller reading it hung). A worker now ends once the command is gone. (What the
+    # command could not remove, killed, goes with its own TMPDIR: multiprocessing's folder.)
+    temp = Path(tempfile.mkdtemp(prefix="t"))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(temp)}
+    factory = "tests.support.factories:slow_cartpole"
+    cmd = [sys.executable, "-m", "episode_audit", "replay", str(campaign), "--jobs", "2"]
+    proc = subprocess.Popen(
+        [*cmd, "--env-factory", factory],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        worker = _wait_for_a_worker(proc.pid)
+        time.sleep(1)
+        proc.kill()
+        proc.wait()  # (reaped: its pid is gone)
+        assert _gone(worker, timeout=20)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # whatever is left of it
+        shutil.rmtree(temp, ignore_errors=True)
+
+
 def _long_temp(tmp_path: Path) -> Path:
     """A temporary directory whose path leaves no room for the fork server's socket."""
     temp = tmp_path / ("t" * 80)
