@@ -248,18 +248,22 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+def _slow_replay(campaign: Path, **popen: Any) -> subprocess.Popen[Any]:
+    """``episode-audit replay CAMPAIGN --jobs 2`` of slow CartPoles, in a session of its own."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), **popen.pop("env", {})}
     factory = "tests.support.factories:slow_cartpole"
     cmd = [sys.executable, "-m", "episode_audit", "replay", str(campaign), "--jobs", "2"]
-    proc = subprocess.Popen(
-        [*cmd, "--env-factory", factory],
-        cwd=REPO,
-        env=env,
+    return subprocess.Popen(
+        [*cmd, "--env-factory", factory], cwd=REPO, env=env, start_new_session=True, **popen
+    )
+
+
+def test_ctrl_c_stops_the_workers_and_exits_130(campaign: Path) -> None:
+    proc = _slow_replay(
+        campaign,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        start_new_session=True,
         # as from a shell: Ctrl-C not ignored (pytest-xdist's workers ignore it, and an ignored
         # signal stays ignored in the programs they start)
         preexec_fn=_default_sigint,
@@ -283,18 +287,8 @@ def test_sigterm_stops_the_workers_exits_143_and_leaves_no_temporary_files(
     # up, and the command's stderr open) and multiprocessing's folder (pymp-*) stayed behind
     # (a short path: the fork server's socket, pymp-*/listener-*, must fit in 107 bytes)
     temp = Path(tempfile.mkdtemp(prefix="t"))
-    env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(temp)}
-    factory = "tests.support.factories:slow_cartpole"
-    cmd = [sys.executable, "-m", "episode_audit", "replay", str(campaign), "--jobs", "2"]
     with (tmp_path / "out").open("w+") as out, (tmp_path / "err").open("w+") as err:
-        proc = subprocess.Popen(
-            [*cmd, "--env-factory", factory],
-            cwd=REPO,
-            env=env,
-            stdout=out,
-            stderr=err,
-            start_new_session=True,
-        )
+        proc = _slow_replay(campaign, env={"TMPDIR": str(temp)}, stdout=out, stderr=err)
         try:
             worker = _wait_for_a_worker(proc.pid)
             time.sleep(3)
@@ -322,17 +316,8 @@ def test_a_sigkilled_command_s_workers_end_too(campaign: Path, tmp_path: Path) -
     # open: a caller reading it hung). A worker now ends once the command is gone. (What the
     # command could not remove, killed, goes with its own TMPDIR: multiprocessing's folder.)
     temp = Path(tempfile.mkdtemp(prefix="t"))
-    env = {**os.environ, "PYTHONPATH": str(REPO), "TMPDIR": str(temp)}
-    factory = "tests.support.factories:slow_cartpole"
-    cmd = [sys.executable, "-m", "episode_audit", "replay", str(campaign), "--jobs", "2"]
-    proc = subprocess.Popen(
-        [*cmd, "--env-factory", factory],
-        cwd=REPO,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,
-    )
+    env = {"TMPDIR": str(temp)}
+    proc = _slow_replay(campaign, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         worker = _wait_for_a_worker(proc.pid)
         time.sleep(1)
