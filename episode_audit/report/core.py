@@ -75,7 +75,8 @@ class Report:
 
         A per-label failure gate on a label no failure has; ``by="label"``, whose groups have
         no rates nor warnings (:data:`BY_LABEL_NOTE`); ``by="tag:NAME"`` with a tag no file
-        has; a group with returns that are not finite.
+        has; a group whose returns are in different units (reward wrappers); a group with
+        returns that are not finite.
         """
         seen = sorted({label for group in self.groups for label in group.failures})
         labels = ", ".join(map(repr, seen)) if seen else "none"
@@ -91,6 +92,12 @@ class Report:
                 f"episode is in the group {NONE_KEY!r}: is the tag spelt as recorded?"
             )
         for group in self.groups:
+            if group.mixed_rewards:
+                notes.append(
+                    f"group {group.key}: its files were recorded over different reward wrappers "
+                    "(or some over none), so its returns are in different units: no return "
+                    "mean, and no incentive warning that compares returns"
+                )
             if group.nonfinite_returns:
                 notes.append(
                     f"group {group.key}: {group.nonfinite_returns} of {group.ended} ended "

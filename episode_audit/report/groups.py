@@ -64,6 +64,10 @@ class GroupReport:
     success_signal: bool = True
     """Whether the task reports success: some file of the group says its task did (a success
     key in an episode's final info, or a ``success_fn``), or does not say (torn, or older)."""
+    mixed_rewards: bool = False
+    """Whether the group's files were recorded over different reward wrappers (or some over
+    none): their returns are in different units, so the group has no return statistics and no
+    incentive warning that compares returns."""
 
     @property
     def failure(self) -> int:
@@ -196,7 +200,8 @@ def _group(key: str, rows: pa.Table, terms: pa.Table, one_outcome: bool) -> Grou
     ended_mask = np.isin(outcome_arr, ENDED)
     returns = rows.column("return").to_numpy(zero_copy_only=False).astype(np.float64)
     lengths = rows.column("length").to_numpy(zero_copy_only=False).astype(np.float64)
-    return_mean, return_std = mean_std(returns[ended_mask])
+    mixed = _mixed_rewards(rows)
+    return_mean, return_std = (None, None) if mixed else mean_std(returns[ended_mask])
     length_mean, length_std = mean_std(lengths[ended_mask])
     group = GroupReport(
         key=key,
@@ -222,15 +227,28 @@ def _group(key: str, rows: pa.Table, terms: pa.Table, one_outcome: bool) -> Grou
         truncation_ci=wilson_interval(truncated, ended) if ended else None,
         success_signal=bool(pc.any(rows.column("success_signal")).as_py()),
         nonfinite_returns=int((~np.isfinite(returns[ended_mask])).sum()),
+        mixed_rewards=mixed,
     )
     if one_outcome:  # (each rate 0 or 1, each warning comparing nothing, by construction)
         group.success_rate = group.failure_rate = group.truncation_rate = None
         group.success_ci = group.failure_ci = group.truncation_ci = None
         return group
     group.warnings = incentive_warnings(
-        group, outcome_arr, np.array(failure_labels, dtype=object), returns, terms
+        group,
+        outcome_arr,
+        np.array(failure_labels, dtype=object),
+        None if mixed else returns,
+        terms,
     )
     return group
+
+
+def _mixed_rewards(rows: pa.Table) -> bool:
+    """Whether ``rows`` (a group's episodes) come from files of different reward wrappers."""
+    if "reward_wrappers" not in rows.column_names or rows.num_rows < 2:
+        return False
+    chains = pc.count_distinct(rows.column("reward_wrappers"), mode="all").as_py()
+    return bool(chains > 1)
 
 
 def _both_flags(rows: pa.Table) -> int:

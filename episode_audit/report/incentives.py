@@ -88,7 +88,7 @@ def incentive_warnings(
     group: _Group,
     outcome: np.ndarray[Any, Any],
     labels: np.ndarray[Any, Any],
-    returns: np.ndarray[Any, Any],
+    returns: np.ndarray[Any, Any] | None,
     terms: pa.Table,
 ) -> list[IncentiveWarning]:
     """The incentive warnings of ``group``.
@@ -97,20 +97,12 @@ def incentive_warnings(
     group; ``terms`` one row per (ended episode, reward term) with its ``outcome`` and ``total``.
     An episode whose return is not finite (NaN, infinite) is left out of the returns' means:
     one would make every mean NaN and every comparison false (the report's notes count them).
+    ``returns`` is ``None`` when they cannot be compared (different reward wrappers): then only
+    the warnings on reward terms are given.
     """
-    finite = np.isfinite(returns)
-    outcome, labels, returns = outcome[finite], labels[finite], returns[finite]
-    failed = outcome == fmt.OUTCOME_FAILURE
-    success = returns[outcome == fmt.OUTCOME_SUCCESS]
-    truncated = returns[outcome == fmt.OUTCOME_TRUNCATED]
     warnings: list[IncentiveWarning] = []
-    if success.size:
-        success_mean = float(np.mean(success))
-        against = f"successes ({_num(success_mean)} over {success.size} episodes)"
-        warnings += _failures_outearning(group.key, failed, labels, returns, success_mean, against)
-        warnings += _truncations_outearning(group.key, truncated, success_mean, against)
-    elif failed.any() and group.success_signal:
-        warnings += _no_success_positive_return(group, returns[failed], truncated)
+    if returns is not None:
+        warnings += _on_returns(group, outcome, labels, returns)
     # success can only be rare where the task can end by itself: a group whose episodes were
     # all cut off (HalfCheetah, Reacher: time limit only) has no success signal to compare with
     rate = group.success_rate
@@ -123,6 +115,30 @@ def incentive_warnings(
     ):
         warnings += _shaping_dominates(group, rate, terms)
     return warnings
+
+
+def _on_returns(
+    group: _Group,
+    outcome: np.ndarray[Any, Any],
+    labels: np.ndarray[Any, Any],
+    returns: np.ndarray[Any, Any],
+) -> list[IncentiveWarning]:
+    """The warnings that compare returns: failures or truncations out-earning successes."""
+    finite = np.isfinite(returns)
+    outcome, labels, returns = outcome[finite], labels[finite], returns[finite]
+    failed = outcome == fmt.OUTCOME_FAILURE
+    success = returns[outcome == fmt.OUTCOME_SUCCESS]
+    truncated = returns[outcome == fmt.OUTCOME_TRUNCATED]
+    if success.size:
+        success_mean = float(np.mean(success))
+        against = f"successes ({_num(success_mean)} over {success.size} episodes)"
+        return [
+            *_failures_outearning(group.key, failed, labels, returns, success_mean, against),
+            *_truncations_outearning(group.key, truncated, success_mean, against),
+        ]
+    if failed.any() and group.success_signal:
+        return _no_success_positive_return(group, returns[failed], truncated)
+    return []
 
 
 def _num(value: float) -> str:

@@ -68,3 +68,24 @@ def test_the_note_names_the_chains_most_files_first_in_80_columns(
     wrapped: Wrapped, side: str, note: str
 ) -> None:
     assert wrapped.note(side) == note and len(note) <= 80
+
+
+def test_a_group_of_files_over_different_reward_wrappers_has_no_return_to_mix(
+    files: dict[str, Path],
+) -> None:
+    # by all: x10 returns beside the env's would average to a number of no unit, and the
+    # incentive warnings would compare failures of one file with successes of another
+    result = report_inputs([files["plain"], files["scaled"]], by="all").report
+    (group,) = result.groups
+    assert group.mixed_rewards
+    assert (group.return_mean, group.return_std) == (None, None)
+    assert group.to_dict()["return_mean"] is None
+    assert group.length_mean is not None and group.failure_rate is not None
+    assert result.notes == [
+        "group all: its files were recorded over different reward wrappers (or some over "
+        "none), so its returns are in different units: no return mean, and no incentive "
+        "warning that compares returns"
+    ]
+    same = report_inputs([files["scaled"], files["scaled"]], by="all").report
+    assert not same.groups[0].mixed_rewards and same.groups[0].return_mean is not None
+    assert same.notes == []
