@@ -9,12 +9,13 @@ anything).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from ..format import names as fmt
 from ..format.records import listing
 from ..format.run_end import RunEnd
-from ..format.unrecorded import spec_placeholders
+from ..format.unrecorded import spec_placeholders, unrecorded
 from ..format.wrappers import declared_transparent, plan_wrappers, reward_wrapper_names
 from ..read.liveness import still_written
 from ._state import FileState
@@ -132,7 +133,8 @@ def _placeholders_needed(spec: Any, recorder: Any) -> bool:
     An env argument, yes; a wrapper's, when replay does not leave the wrapper out (a
     ``RecordVideo`` given a function is left out: it never changes a step).
     """
-    if any(p.startswith("the env's") for p in spec_placeholders({"kwargs": spec.get("kwargs")})):
+    kwargs = spec.get("kwargs")
+    if isinstance(kwargs, Mapping) and any(unrecorded(v) is not None for v in kwargs.values()):
         return True
     wrappers = spec.get("additional_wrappers")
     plan = plan_wrappers(

@@ -366,16 +366,24 @@ class Evidence:
         (``docs/format.md``, "Episode blocks"); ``action`` has the steps' action type, null
         when the action did not fit it. An error episode missing here has none recorded (a
         file of an older recorder; a vector or PettingZoo file). Reads the file's episode
-        blocks again: for replay, which asks only when a file has such an episode.
+        blocks again, once (cached): for replay, which asks only when a file has such an episode.
         """
-        if self._slots is not _ARROW_SLOTS:
-            return _error_actions([], self.path, self.steps_schema.field(fmt.COL_ACTION).type)
-        blocks = [
-            bytes(data)
-            for chunk in self._read(steps=False, resets=False, records=True, indexed_only=True)
-            for data in chunk.records
-        ]
-        return _error_actions(blocks, self.path, self.steps_schema.field(fmt.COL_ACTION).type)
+        cache: dict[str, pa.Table] = self.__dict__.setdefault("_error_actions_cache", {})
+        if "table" not in cache:
+            blocks = (
+                [
+                    bytes(data)
+                    for chunk in self._read(
+                        steps=False, resets=False, records=True, indexed_only=True
+                    )
+                    for data in chunk.records
+                ]
+                if self._slots is _ARROW_SLOTS
+                else []
+            )
+            action = self.steps_schema.field(fmt.COL_ACTION).type
+            cache["table"] = _error_actions(blocks, self.path, action)
+        return cache["table"]
 
     def _step_stats(self) -> _StepStats:
         if self._stats is None:

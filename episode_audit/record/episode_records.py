@@ -62,11 +62,14 @@ class EpisodeRecords:
         ``offset`` turns the episodes' monotonic times into wall-clock ones.
         """
         games = self.games
-        raised = [ending.pop("error_action", None) for _, ending in ended]
+        # (an error's record is never the common one: the C path declines it, so only the
+        # Python path can meet an error action, and takes them out before the JSON)
         records = native.episode_json(ended, offset, games) if self.compiled else None
+        raised: list[pa.Array | None] = []
         if records is not None:
             datas, ends = records
         else:
+            raised = [ending.pop("error_action", None) for _, ending in ended]
             ends = [ending.pop("error_ns", ep.end_ns) + offset for ep, ending in ended]
             datas = [
                 _episode_json(ep, ending, end, offset, games)

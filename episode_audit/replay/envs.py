@@ -74,7 +74,7 @@ def build_env(
     if trust_entry_points:  # (built as recorded: no placeholder of what the file lacks)
         for wrapper in recorded:
             if isinstance(wrapper, Mapping) and isinstance(wrapper.get("kwargs"), Mapping):
-                _check_env_kwargs(wrapper["kwargs"], f"{str(wrapper.get('name'))[:80]} argument")
+                _refuse_placeholders(wrapper["kwargs"], f"{str(wrapper.get('name'))[:80]} argument")
     if registered and trust_entry_points:
         trusted = [w for w in recorded if isinstance(w, Mapping)]
         return _from_registry(env_id, spec, trusted, _load_wrapper)
@@ -191,13 +191,8 @@ def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
         raise ReplayError(
             f"the recorded {what}s are not a mapping ({type(kwargs).__name__}); {_WAY_AROUND}"
         )
+    _refuse_placeholders(kwargs, what)
     for name, value in kwargs.items():
-        held = unrecorded(value)
-        if held is not None:
-            raise ReplayError(
-                f"the recorded {what} {str(name)[:80]!r} is not in the file ({held}: JSON "
-                f"cannot hold it); {_WAY_AROUND}"
-            )
         depth = _depth(value)
         if depth > MAX_ENV_KWARGS_DEPTH:
             raise ReplayError(
@@ -215,6 +210,17 @@ def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
 
 
 _WAY_AROUND = "pass --env-factory MODULE:CALLABLE that builds the env"
+
+
+def _refuse_placeholders(kwargs: Mapping[str, Any], what: str) -> None:
+    """Refuse recorded arguments one of which is a placeholder (what the file could not hold)."""
+    for name, value in kwargs.items():
+        held = unrecorded(value)
+        if held is not None:
+            raise ReplayError(
+                f"the recorded {what} {str(name)[:80]!r} is not in the file ({held}: JSON "
+                f"cannot hold it); {_WAY_AROUND}"
+            )
 
 
 def _depth(value: Any) -> int:
