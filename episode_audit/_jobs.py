@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -635,6 +636,14 @@ def _connect(address: str) -> Any:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ConfigurationError(
             f"--ray {address}: cannot connect to a Ray cluster: {first}"
+        ) from None
+    except OSError as exc:
+        if "AF_UNIX path length" not in str(exc):
+            raise
+        raise ConfigurationError(
+            f"--ray {address}: Ray's socket paths under TMPDIR ({tempfile.gettempdir()}) "
+            "would be over the 107 bytes a socket path holds: set TMPDIR to a shorter folder "
+            "(e.g. TMPDIR=/tmp)"
         ) from None
     return ray
 

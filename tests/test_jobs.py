@@ -98,11 +98,31 @@ def campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def ray_local() -> Iterator[str]:
-    """A Ray started for the tests (two CPUs), shut down after them."""
+    """A Ray started for the tests (two CPUs), shut down after them.
+
+    Its session folder holds its sockets, whose paths hold at most 107 bytes: under a long
+    ``$TMPDIR`` (the session's, in a long basetemp) it is a short folder of ``/tmp`` instead,
+    removed after.
+    """
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    short = None
+    if len(tempfile.gettempdir()) > _RAY_TEMP_LONGEST:
+        short = tempfile.mkdtemp(prefix="ray-", dir="/tmp")
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        log_to_driver=False,
+        configure_logging=False,
+        _temp_dir=short,
+    )
     yield "local"
     ray.shutdown()
+    if short is not None:
+        shutil.rmtree(short, ignore_errors=True)
+
+
+_RAY_TEMP_LONGEST = 39
+"""The longest ``$TMPDIR`` Ray's session folder goes in: its sockets' paths add up to 68 bytes."""
 
 
 def run(*args: str) -> tuple[int, str, str]:
@@ -211,6 +231,32 @@ def test_an_unreachable_ray_cluster_is_one_line_and_exit_2(campaign: Path) -> No
     ]
     code, _, err = run("check", str(campaign), "--ray", "runs/")
     assert code == 2 and "expected local, auto, ray://HOST:PORT or HOST:PORT" in err
+
+
+def test_a_local_ray_under_a_long_tmpdir_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    long = tmp_path / ("t" * 80)  # Ray's socket paths there: over 107 bytes
+    long.mkdir()
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "episode_audit",
+            "check",
+            str(REPO / "fixtures" / "clean.mcap"),
+            "--ray",
+            "local",
+        ],
+        env={**os.environ, "TMPDIR": str(long)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.splitlines() == [
+        f"episode-audit: error: --ray local: Ray's socket paths under TMPDIR ({long}) would be "
+        "over the 107 bytes a socket path holds: set TMPDIR to a shorter folder (e.g. TMPDIR=/tmp)"
+    ]
 
 
 def _children(pid: int) -> list[int]:
