@@ -16,7 +16,7 @@ import numpy as np
 
 from ..format import names as fmt
 from ..report import GateResult, IncentiveWarning
-from .metrics import MetricComparison, Verdict, mean_metric, rate_metric
+from .metrics import MetricComparison, Verdict, mean_metric, not_compared, rate_metric
 from .sides import Side, pair
 from .stats import too_few
 
@@ -170,7 +170,7 @@ def compare_group(
     )  # fmt: skip
     apart = _returns_apart(base, cand)
     if apart is not None:  # (no test, no gate: a difference in other units says nothing)
-        returns.not_comparable, returns.can_reject = apart, False
+        returns = not_compared(returns, apart)
     metrics.append(returns)
     for term in sorted(set(base.terms) & set(cand.terms)):
         metrics.append(

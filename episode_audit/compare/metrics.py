@@ -10,7 +10,7 @@ verdict once the p-values are Holm-adjusted. The formulas: ``docs/compare.md``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -205,6 +205,21 @@ def mean_metric(
         stats.mean_p_value(x, y, paired=paired), margin, mde, needed,
         baseline_iqm=stats.iqm(x), candidate_iqm=stats.iqm(y),
         can_reject=_can_reject(x, y, paired),
+    )  # fmt: skip
+
+
+def not_compared(metric: MetricComparison, why: str) -> MetricComparison:
+    """``metric`` with its sides' values in different units (``why``): no difference, no test.
+
+    Each side's mean stays (in its own units); the difference, its interval, the p-value and
+    the planning figures go (``nan``: ``null`` in JSON), the test is ``none``, and the
+    verdict will be ``inconclusive`` (:func:`decide`).
+    """
+    nan = math.nan
+    return replace(
+        metric, difference=nan, interval=Interval(nan, nan), test="none", p_value=nan, mde=nan,
+        n_needed=stats.NEVER, can_reject=False,
+        not_comparable=why,
     )  # fmt: skip
 
 

@@ -204,6 +204,8 @@ def test_returns_of_other_reward_wrappers_are_not_compared(tmp_path: Path) -> No
     assert code == 0  # (it was 1: the return `regressed` from x10 to the env's own)
     note = "Baseline 1/1 files' returns are not the env's: TransformReward"
     assert [line.rstrip() for line in out.splitlines()].count(note) == 1
+    (row,) = [line for line in out.splitlines() if " return " in line]
+    assert "- (other units)" in row and "not compared" in row and "inconclusive" in row
     assert (
         "episode-audit: warning: group all: return: not compared (inconclusive), nor a "
         "max_return_drop gate: the baseline's returns are TransformReward's and the "

@@ -31,8 +31,12 @@ def test_a_drop_that_is_only_a_wrapper_taken_away_is_not_a_regression(
     result = compare([files["scaled"]], [files["plain"]])
     (group,) = result.groups
     ret = group.metric("return")
-    assert ret.difference < 0 and ret.paired and ret.pairs == 8
-    assert ret.verdict == "inconclusive" and not ret.can_reject and ret.p_adjusted == ret.p_value
+    assert ret.baseline == pytest.approx(10 * ret.candidate) and ret.pairs == 8
+    assert ret.verdict == "inconclusive" and not ret.can_reject and ret.test == "none"
+    # each side's mean in its own units; no difference, interval nor p-value (JSON nulls)
+    data = ret.to_dict()
+    assert data["difference"] is data["p_value"] is data["p_adjusted"] is data["mde"] is None
+    assert data["interval"] == {"low": None, "high": None} and data["n_needed"] is None
     assert ret.not_comparable == (
         "the baseline's returns are TransformReward's and the candidate's the env's; "
         + NOT_COMPARED

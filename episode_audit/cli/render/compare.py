@@ -46,6 +46,8 @@ def _value(m: MetricComparison, value: float | None) -> str:
 
 
 def _difference(m: MetricComparison) -> str:
+    if m.not_comparable is not None:
+        return "- (other units)"
     if m.kind == "rate":
         return f"{m.difference:+.1%} [{m.interval.low:+.1%}, {m.interval.high:+.1%}]"
     return (
@@ -54,6 +56,8 @@ def _difference(m: MetricComparison) -> str:
 
 
 def _test(m: MetricComparison) -> str:
+    if m.not_comparable is not None:
+        return "not compared"
     how = f"{m.pairs} pairs" if m.paired else f"unpaired: {m.pairs} pairs, too few"
     return f"{m.test} ({how})"
 
@@ -63,7 +67,8 @@ def _files(n: int) -> str:
 
 
 def _row(key: str, m: MetricComparison) -> list[str]:
-    p = "-" if m.p_adjusted is None else fmt_number(m.p_adjusted)
+    p = "-" if m.p_adjusted is None or m.not_comparable else fmt_number(m.p_adjusted)
+    p_value = "-" if m.not_comparable else fmt_number(m.p_value)
     iqm = ""
     if m.kind == "mean" and m.baseline_iqm is not None and m.candidate_iqm is not None:
         iqm = f" (IQM {fmt_number(m.baseline_iqm)} -> {fmt_number(m.candidate_iqm)})"
@@ -74,10 +79,12 @@ def _row(key: str, m: MetricComparison) -> list[str]:
         f"{_value(m, m.candidate)} (n {m.candidate_n})",
         _difference(m),
         _test(m),
-        f"{fmt_number(m.p_value)} ({p})",
+        f"{p_value} ({p})",
         m.verdict or "-",
-        _value(m, m.mde),
-        ("∞" if m.n_needed >= NEVER else str(m.n_needed)) if m.verdict is not None else "-",
+        "-" if m.not_comparable else _value(m, m.mde),
+        ("∞" if m.n_needed >= NEVER else str(m.n_needed))
+        if m.verdict is not None and not m.not_comparable
+        else "-",
     ]
 
 
