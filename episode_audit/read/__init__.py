@@ -7,15 +7,17 @@ and its items, :func:`summary_definitions` and :func:`step_block_rows`.
 
 Modules, lowest first: ``layout`` (the MCAP record layout), ``chunks`` (reading, decompressing
 and splitting chunks; read-ahead), ``blocks`` (one Arrow block, checked), ``passes`` (the chunk
-loop, what a pass keeps), ``episodes`` (the episodes table), ``evidence`` (the API),
-``opening`` (indexed and linear opening), ``records`` (recovery's record walk), ``inputs``;
+loop, what a pass keeps), ``episodes`` (the episodes table), ``episode_tables`` and
+``evidence`` (the API: resets, episodes and single episodes; passes and steps), ``opening``
+(indexed and linear opening), ``records`` (recovery's record walk), ``inputs``;
 ``storage`` (URLs through fsspec) sits under ``chunks``.
 """
 
 from .blocks import step_block_rows
 from .chunks import RECOVER_HINT
+from .episode_tables import EpisodeEvidence
 from .episodes import EPISODE_COLUMNS
-from .evidence import ChunkContents, EpisodeEvidence, Evidence
+from .evidence import ChunkContents, Evidence
 from .inputs import Unreadable, evidence_files, open_all, skipped, steps_total
 from .opening import open_evidence
 from .records import ChunkRecords, DamagedRegion, FileEnd, iter_records, summary_definitions

@@ -11,13 +11,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import pyarrow as pa
 import pyarrow.compute as pc
 from mcap.records import Channel
 
-from ..errors import EvidenceError
 from ..format import names as fmt
 from ..format.locking import Holder
 from ..format.records import EpisodeRanges, RunInfo
@@ -25,13 +23,11 @@ from ..format.run_end import RunEnd
 from ..format.spaces import SpaceCodec, codec_for, space_from_description
 from .blocks import _blocks_table, _declared_schema, _empty_table, _reset_block, _topic_schema
 from .chunks import _ARROW_SLOTS, _SLOTS, _ChunkRef
-from .episodes import _build_episodes, _error_actions
+from .episode_tables import EpisodeTables
 from .passes import (
     SLIM_ABOVE,
     _Chunk,
     _contiguous,
-    _decode_kept,
-    _episode_rows,
     _Gathered,
     _read_chunks,
     _StepStats,
@@ -59,21 +55,7 @@ class ChunkContents:
 
 
 @dataclass
-class EpisodeEvidence:
-    """One episode: its record (a row of :meth:`Evidence.episodes`), its steps and reset row."""
-
-    record: dict[str, Any]
-    steps: pa.Table
-    reset: dict[str, Any] | None
-
-    @property
-    def index(self) -> int:
-        """The episode index in its file."""
-        return int(self.record["episode"])
-
-
-@dataclass
-class Evidence:
+class Evidence(EpisodeTables):
     """An open evidence file. Use :func:`open_evidence` to make one.
 
     Attributes:
@@ -302,89 +284,6 @@ class Evidence:
         assert self._gathered is not None
         return self._gathered
 
-    def resets(self) -> pa.Table:
-        """One row per reset: episode, seed, rng_state (JSON), options (JSON), observation.
-
-        The table is read once and cached.
-        """
-        if self._resets_cache is None:
-            gathered = self._gather()
-            if gathered.slim:  # (kept for episodes(): read them again, observations and all)
-                kept: list[pa.RecordBatch | bytes] = [
-                    data
-                    for chunk in self._read(
-                        steps=False, resets=True, records=False, indexed_only=True
-                    )
-                    for _, data in chunk.resets
-                ]
-            else:
-                kept, gathered.resets = gathered.resets, []
-            parts = _decode_kept(kept, _reset_block, self.path)
-            self._resets_cache = self._table(parts, fmt.TOPIC_RESETS, None)
-        return self._resets_cache
-
-    def _reset_rows(self) -> pa.Table:
-        """The reset rows :meth:`episodes` reads: :meth:`resets`, or its slim pass's own.
-
-        (A slim pass's rows have no observations and state snapshots.)
-        """
-        gathered = self._gather()
-        if self._resets_cache is not None or not gathered.slim:
-            return self.resets()
-        parts = _decode_kept(gathered.resets, _reset_block, self.path)
-        return self._table(parts, fmt.TOPIC_RESETS, None)
-
-    # --------------------------------------------------------------- episodes
-
-    def episodes(self) -> pa.Table:
-        """One row per episode (see :data:`EPISODE_COLUMNS`), including cut-off ones.
-
-        The table is read once and cached. An episode with an end record takes every value
-        from it; one without (cut off by a torn file) is counted from its reset row and steps.
-        """
-        if self._episodes_cache is None:
-            self._episodes_cache = self._build_episodes()
-        return self._episodes_cache
-
-    def _build_episodes(self) -> pa.Table:
-        gathered = self._gather()
-        table = _build_episodes(
-            self.path,
-            gathered.records,
-            arrow=self._slots is _ARROW_SLOTS,
-            finished=self.finished,
-            resets=self._reset_rows,
-            step_stats=self._step_stats,
-        )
-        gathered.records = []
-        return table
-
-    def error_actions(self) -> pa.Table:
-        """The actions of the steps that raised, by episode: ``episode`` and ``action``.
-
-        Single-env files keep the action of an ``error`` episode's step that raised
-        (``docs/format.md``, "Episode blocks"); ``action`` has the steps' action type, null
-        when the action did not fit it. An error episode missing here has none recorded (a
-        file of an older recorder; a vector or PettingZoo file). Reads the file's episode
-        blocks again, once (cached): for replay, which asks only when a file has such an episode.
-        """
-        cache: dict[str, pa.Table] = self.__dict__.setdefault("_error_actions_cache", {})
-        if "table" not in cache:
-            blocks = (
-                [
-                    bytes(data)
-                    for chunk in self._read(
-                        steps=False, resets=False, records=True, indexed_only=True
-                    )
-                    for data in chunk.records
-                ]
-                if self._slots is _ARROW_SLOTS
-                else []
-            )
-            action = self.steps_schema.field(fmt.COL_ACTION).type
-            cache["table"] = _error_actions(blocks, self.path, action)
-        return cache["table"]
-
     def _step_stats(self) -> _StepStats:
         if self._stats is None:
             stats = _StepStats()
@@ -393,34 +292,6 @@ class Evidence:
                     stats.add(batch)
             self._stats = stats
         return self._stats
-
-    def episode(self, index: int) -> EpisodeEvidence:
-        """One episode, read from the chunks its time range covers only."""
-        table = self.episodes()
-        match = table.filter(pc.equal(table.column("episode"), index))
-        if match.num_rows == 0:
-            raise EvidenceError(
-                self.path, f"no episode {index} (the file has {table.num_rows} episodes)"
-            )
-        record = match.to_pylist()[0]
-        return self._load_episode(record)
-
-    def _load_episode(self, record: dict[str, Any]) -> EpisodeEvidence:
-        start = record.get("start_time_ns")
-        end = record.get("end_time_ns") if record.get("ended") else None
-        parts, reset = _episode_rows(
-            self._read(steps=True, resets=True, records=False, start_time=start, ahead=False),
-            int(record["episode"]),
-            start,
-            end,
-            self.path,
-        )
-        return EpisodeEvidence(record, self._table(parts, fmt.TOPIC_STEPS, None), reset)
-
-    def iter_episodes(self) -> Iterator[EpisodeEvidence]:
-        """Yield every episode with its steps, one at a time."""
-        for record in self.episodes().to_pylist():
-            yield self._load_episode(record)
 
     @property
     def observation_codec(self) -> SpaceCodec | None:
