@@ -85,20 +85,7 @@ def report_output(
     if output == "junit":
         return junit_xml(report_cases(result, unreadable), name="episode-audit report")
     rows = [_group_row(g) for g in result.groups]
-    term_rows = [
-        [g.key, outcome, term, fmt_number(value)]
-        for g in result.groups
-        for outcome, terms in sorted(g.term_means.items())
-        for term, value in sorted(terms.items())
-    ]
-    term_headers = ["group", "outcome", "term", "mean total per episode"]
-    warnings = [[w.group, w.code, w.message] for g in result.groups for w in g.warnings]
-    warning_headers = ["group", "warning", "why"]
-    gates = [[r.gate, r.group, "pass" if r.passed else "FAIL", r.message] for r in result.gates]
-    gate_headers = ["gate", "group", "result", "detail"]
-    unfinished = [[name, why] for name, why in result.unfinished]
-    unfinished_title = "Unfinished files (still being written, or torn): counts so far"
-    unfinished_headers = ["file", "why"]
+    sections = [s for s in _sections(result) if s[2]]
     if output == "markdown":
         parts = [
             f"### episode-audit report (by {markdown_text(result.by)}{_unit(result)})\n",
@@ -106,23 +93,12 @@ def report_output(
         ]
         if result.reward_note:
             parts.append(markdown_text(result.reward_note) + "\n")
-        if term_rows:
-            parts += [
-                "#### Reward terms by outcome\n",
-                markdown_table(term_headers, term_rows) + "\n",
-            ]
-        if warnings:
-            parts += ["#### Incentive warnings\n", markdown_table(warning_headers, warnings) + "\n"]
-        if gates:
-            parts += ["#### Gates\n", markdown_table(gate_headers, gates) + "\n"]
-        if unfinished:
-            parts += [
-                f"#### {unfinished_title}\n",
-                markdown_table(unfinished_headers, unfinished) + "\n",
-            ]
+        for title, headers, section_rows in sections:
+            parts += [f"#### {title}\n", markdown_table(headers, section_rows) + "\n"]
         return "\n".join(parts)
     if not result.groups:  # (an empty table's title would wrap in its one column)
-        return Group(Text(NO_EPISODES), *([table("Gates", gate_headers, gates)] if gates else []))
+        gates = [table(*s) for s in sections if s[0] == _GATES]
+        return Group(Text(NO_EPISODES), *gates)
     # The terminal keeps labels and reasons in a table of their own, each label on its own
     # line; the outcomes are side by side when no cell wraps (about 150 columns), else vertical
     narrow = [i for i, h in enumerate(REPORT_HEADERS) if h not in _LABEL_HEADERS]
@@ -145,15 +121,33 @@ def report_output(
                 endings,
             )
         )
-    if term_rows:
-        out.append(table("Reward terms by outcome", term_headers, term_rows))
-    if warnings:
-        out.append(table("Incentive warnings", warning_headers, warnings))
-    if gates:
-        out.append(table("Gates", gate_headers, gates))
-    if unfinished:
-        out.append(table(unfinished_title, unfinished_headers, unfinished))
+    out += [table(*s) for s in sections]
     return Group(*out)
+
+
+_GATES = "Gates"
+
+
+def _sections(result: Report) -> list[tuple[str, list[str], list[list[str]]]]:
+    """The tables under the outcomes, as (title, headers, rows): terms, warnings, gates, files."""
+    terms = [
+        [g.key, outcome, term, fmt_number(value)]
+        for g in result.groups
+        for outcome, means in sorted(g.term_means.items())
+        for term, value in sorted(means.items())
+    ]
+    warnings = [[w.group, w.code, w.message] for g in result.groups for w in g.warnings]
+    gates = [[r.gate, r.group, "pass" if r.passed else "FAIL", r.message] for r in result.gates]
+    return [
+        ("Reward terms by outcome", ["group", "outcome", "term", "mean total per episode"], terms),
+        ("Incentive warnings", ["group", "warning", "why"], warnings),
+        (_GATES, ["gate", "group", "result", "detail"], gates),
+        (
+            "Unfinished files (still being written, or torn): counts so far",
+            ["file", "why"],
+            [[name, why] for name, why in result.unfinished],
+        ),
+    ]
 
 
 _LABEL_HEADERS = ("failure labels", "truncation reasons")
