@@ -98,7 +98,9 @@ def _episode_rows(
 
     ``end`` is its end time when it ended (else its rows are looked for to the file's end). A
     flush writes every stream's blocks into one chunk: the episode's last row is in the first
-    chunk with a block that ends at or after the episode (in any stream).
+    chunk with a block that ends at or after the episode (in any stream), and its reset row in
+    the first chunk with a reset block that ends after its start (in any stream: the rest of
+    that chunk is read, where its own stream's block is).
     """
     parts: list[pa.RecordBatch] = []
     key = pa.scalar(index, pa.int64())
@@ -116,11 +118,10 @@ def _episode_rows(
             rows = batch.filter(pc.equal(batch.column(fmt.COL_EPISODE), key))
             if rows.num_rows:
                 reset = rows.to_pylist()[0]
-                resets_done = True
                 break
             if start is not None and log_time > start:
-                resets_done = True
-                break
+                resets_done = True  # (after this chunk: another stream's block may come first)
+        resets_done = resets_done or reset is not None
         if steps_done and resets_done:
             break
     return parts, reset

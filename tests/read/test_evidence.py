@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import gymnasium as gym
 import pyarrow as pa
 import pytest
 
 from episode_audit import (
     EvidenceError,
+    RecordVectorEvidence,
     open_evidence,
 )
 
@@ -38,6 +40,25 @@ def test_episode_reads_only_its_own_rows(recorded: Path) -> None:
         assert episode.reset is not None and episode.reset["episode"] == record["episode"]
     with pytest.raises(EvidenceError, match="no episode 99"):
         ev.episode(99)
+
+
+def test_each_episode_of_a_vector_file_has_its_reset_row(tmp_path: Path) -> None:
+    # the sub-envs' reset blocks share a chunk: a later sub-env's episode came without its
+    # reset row (None) when an earlier sub-env's block ended after its start
+    path = tmp_path / "vector.mcap"
+    with RecordVectorEvidence(
+        gym.make_vec("CartPole-v1", 4, vectorization_mode="sync"), path
+    ) as envs:
+        envs.reset(seed=0)
+        for _ in range(60):
+            envs.step(envs.action_space.sample())
+    ev = open_evidence(path)
+    records = ev.episodes().to_pylist()
+    assert len({r["env_index"] for r in records}) == 4 and len(records) > 4
+    for episode in ev.iter_episodes():
+        assert episode.reset is not None, episode.index
+        assert episode.reset["episode"] == episode.index
+        assert episode.reset["env_index"] == episode.record["env_index"]
 
 
 def test_iter_step_batches_streams_blocks(recorded: Path) -> None:
