@@ -127,7 +127,7 @@ def replay(
             )
         if result.unreadable:
             raise typer.Exit(EXIT_USAGE)
-        if not result.ok:
+        if result.count("diverged"):
             raise typer.Exit(EXIT_FINDINGS)
         if not result.verified and not allow_unverified:
             fail(unverified(result.count("not_replayable")), EXIT_FINDINGS)

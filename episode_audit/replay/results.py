@@ -130,17 +130,25 @@ class ReplayResult:
         """How many episodes were actually replayed and compared: identical or diverged.
 
         0 when every episode was ``not_replayable`` (or there was none): then nothing confirms
-        the evidence, though :attr:`ok` holds; the command fails so unless told it is expected.
+        the evidence, and :attr:`ok` is false.
         """
         return sum(1 for e in self.episodes if e.status != "not_replayable")
 
     @property
     def ok(self) -> bool:
-        """True when no episode diverged (not-replayable episodes do not fail a replay).
+        """True when the replay confirms the evidence, as the command's exit 0 does.
 
-        See :attr:`verified` for whether anything was compared at all.
+        No episode diverged, at least one was replayed and compared (:attr:`verified`; the
+        others may be ``not_replayable``), every selected episode was found (:attr:`missing`)
+        and every file read (:attr:`unreadable`). An ``assert replay(files).ok`` then fails on
+        an empty list of files, or on files no episode of which could be replayed.
         """
-        return self.count("diverged") == 0
+        return (
+            self.count("diverged") == 0
+            and self.verified > 0
+            and not self.missing
+            and not self.unreadable
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able form: ``{"summary", "episodes", "version_differences", "notes", "live"}``."""

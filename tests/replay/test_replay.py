@@ -949,7 +949,9 @@ def test_cli_says_why_a_file_whose_wrapper_took_a_function_is_not_replayable_and
 def test_the_result_counts_the_episodes_verified(tmp_path: Path) -> None:
     path = record_doubled(tmp_path / "doubled.mcap")
     unverified = replay([path])
-    assert unverified.ok and unverified.verified == 0
+    assert not unverified.ok and unverified.verified == 0  # (nothing confirmed: not ok)
+    assert unverified.count("diverged") == 0
+    assert not replay([]).ok
     verified = replay([path], env_factory=doubled_cartpole)
     assert verified.verified == verified.count("identical") == 2
     assert verified.to_dict()["summary"]["verified"] == 2

@@ -50,7 +50,8 @@ def test_replay_raises_for_an_unreadable_file_unless_told_to_keep_going(tmp_path
     result = replay([bad, CARTPOLE], keep_going=True, on_error=told.append)
     assert [str(e) for e in told] == [f"{bad}: not an MCAP file (wrong magic bytes)"]
     assert result.unreadable == [Unreadable(str(bad), "not an MCAP file (wrong magic bytes)")]
-    assert result.count("identical") == len(result.episodes) == 3 and result.ok
+    assert result.count("identical") == len(result.episodes) == 3
+    assert not result.ok  # (a file could not be read: the command exits 2)
     assert "unreadable" not in result.to_dict()  # the JSON of replay() itself is as it was
 
 
@@ -64,4 +65,5 @@ def test_keep_going_does_not_hide_a_usage_error(tmp_path: Path) -> None:
 def test_missing_lists_the_selected_episodes_no_file_had() -> None:
     result = replay([CLEAN], episodes=[99, 1, 42])
     assert [e.episode for e in result.episodes] == [1] and result.missing == [42, 99]
+    assert not result.ok  # (the command exits 2)
     assert replay([CLEAN]).missing == []
