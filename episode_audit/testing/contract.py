@@ -35,8 +35,10 @@ __all__ = [
     "check_contract",
     "check_file",
     "ending_problem",
+    "evidence_path",
     "file_stem",
     "replay_file",
+    "violation",
     "violation_message",
 ]
 
@@ -115,9 +117,7 @@ def check_contract(case: ContractCase, directory: str | os.PathLike[str]) -> Con
     episode_audit.errors.ContractViolation: CartPole-v1-seed0-success: 1 broken clause
       ending: expected success, got truncated (time_limit) at step 4: ...
     """
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{file_stem(case)}.mcap"
+    path = evidence_path(directory, case)
     steps = _record(case, path)
     episode = open_evidence(path).episodes().to_pylist()[0]
     outcome = str(episode["outcome"])
@@ -144,10 +144,48 @@ def check_contract(case: ContractCase, directory: str | os.PathLike[str]) -> Con
     if case.replay and outcome != fmt.OUTCOME_ERROR:
         result.replayed = replay_file(case, path, result)
     if case.random_episodes:
-        _incentives(case, out / f"{file_stem(case)}-random.mcap", result)
+        _incentives(case, path.with_name(f"{path.stem}-random.mcap"), result)
     if result.problems:
-        raise ContractViolation(violation_message(result), result)
+        raise violation(result)
     return result
+
+
+_KEPT: set[Path] = set()
+"""Evidence files a violation in this process said it kept: no later case writes over them."""
+
+
+def evidence_path(directory: str | os.PathLike[str], case: CaseLike) -> Path:
+    """The file ``case``'s evidence goes to in ``directory`` (made if missing).
+
+    ``<case>.mcap``, written over by a later run of the same case, unless a violation in this
+    process kept it (:func:`violation`): then ``<case>-2.mcap``, ``-3``... A ``directory``
+    that is a file is a :class:`~episode_audit.errors.ConfigurationError`.
+    """
+    out = Path(directory)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise ConfigurationError(
+            f"{out}: a file, where a folder for the contract's evidence was expected: pass a "
+            "folder (pytest's tmp_path)"
+        ) from None
+    stem, n = file_stem(case), 1
+    path = out / f"{stem}.mcap"
+    while path.resolve() in _KEPT or path.with_name(f"{path.stem}-random.mcap").resolve() in _KEPT:
+        n += 1
+        path = out / f"{stem}-{n}.mcap"
+    return path
+
+
+def violation(result: ContractResult) -> ContractViolation:
+    """The :class:`~episode_audit.errors.ContractViolation` of ``result``; its files kept.
+
+    The evidence it names is never written over by a later case of this process.
+    """
+    for kept in (result.path, result.incentive_path):
+        if kept is not None:
+            _KEPT.add(Path(kept).resolve())
+    return ContractViolation(violation_message(result), result)
 
 
 def file_stem(case: CaseLike) -> str:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigurationError, ContractViolation
+from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..read import open_evidence
 from .cases import Expected, expected_ending
@@ -22,9 +22,9 @@ from .contract import (
     ContractResult,
     check_file,
     ending_problem,
-    file_stem,
+    evidence_path,
     replay_file,
-    violation_message,
+    violation,
 )
 
 __all__ = ["GameCase", "check_game_contract"]
@@ -105,9 +105,7 @@ def check_game_contract(case: GameCase, directory: str | os.PathLike[str]) -> Co
     else ``"mixed"``. Raises :class:`~episode_audit.errors.ContractViolation` naming every
     broken clause (an agent's ending, a ``check`` finding, a replay divergence).
     """
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{file_stem(case)}.mcap"
+    path = evidence_path(directory, case)
     steps = _record(case, path)
     rows = open_evidence(path).episodes().to_pylist()
     outcomes = {r["agent"]: r for r in rows}
@@ -131,7 +129,7 @@ def check_game_contract(case: GameCase, directory: str | os.PathLike[str]) -> Co
     if case.replay:
         result.replayed = replay_file(case, path, result)
     if result.problems:
-        raise ContractViolation(violation_message(result), result)
+        raise violation(result)
     return result
 
 

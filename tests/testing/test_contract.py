@@ -132,6 +132,24 @@ def test_running_out_of_actions_or_steps_says_so(tmp_path: Path) -> None:
         check_contract(endless, tmp_path)
 
 
+def test_the_evidence_a_violation_kept_is_not_written_over(tmp_path: Path) -> None:
+    # two cases of one name (the actions are not in it): the second wrote over the file the
+    # first one's violation said it kept
+    endless = ContractCase("CartPole-v1", seed=0, actions=[0, 1] * 5, expect="failure")
+    with pytest.raises(ContractViolation) as raised:
+        check_contract(endless, tmp_path)
+    kept = raised.value.result.path
+    assert f"evidence kept: {kept}" in str(raised.value)
+    falling = ContractCase("CartPole-v1", seed=0, actions=[0] * 50, expect="failure")
+    passed = check_contract(falling, tmp_path)
+    assert passed.path == kept.with_name(f"{kept.stem}-2.mcap")
+    (episode,) = open_evidence(kept).episodes().to_pylist()
+    assert (episode["outcome"], episode["length"]) == ("incomplete", 10)
+    assert check_contract(falling, tmp_path).path == passed.path  # (a pass: written over)
+    with pytest.raises(ConfigurationError, match=r"a file, where a folder for the contract"):
+        check_contract(falling, kept)
+
+
 class Raising(Walk):
     def step(self, action: Any) -> Any:
         if self.t == 2:
