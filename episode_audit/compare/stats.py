@@ -169,10 +169,22 @@ def smallest_p(n1: int, n2: int, *, paired: bool) -> float:
 
     >>> smallest_p(5, 5, paired=True), smallest_p(3, 3, paired=False)
     (0.0625, 0.1)
+    >>> smallest_p(5000, 5000, paired=True), smallest_p(50000, 50000, paired=False)
+    (0.0, 0.0)
     """
     if paired:
-        return min(1.0, 2.0 / 2.0**n1)
-    return min(1.0, (2 if n1 == n2 else 1) / math.comb(n1 + n2, n1))
+        return min(1.0, math.ldexp(1.0, 1 - n1))  # (2 / 2**n1, as 0.0 past a float's range)
+    splits = 2 if n1 == n2 else 1
+    if n1 + n2 <= _EXACT_COMB:
+        return min(1.0, splits / math.comb(n1 + n2, n1))
+    log_comb = math.lgamma(n1 + n2 + 1) - math.lgamma(n1 + 1) - math.lgamma(n2 + 1)
+    return math.exp(math.log(splits) - log_comb)  # (0.0 long before this many episodes)
+
+
+_EXACT_COMB = 1000
+"""Above this many episodes in all, :func:`smallest_p`'s count of splits is taken by its
+logarithm: the exact count's digits take time (0.3 s at 100 000 a side) for a p-value that
+is 0.0 as a float anyway."""
 
 
 def fewest(*, paired: bool) -> int:

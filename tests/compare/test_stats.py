@@ -121,6 +121,23 @@ def test_no_interval_below_the_exact_tests_reach(
     assert (stats.smallest_p(n1, n2, paired=paired) < stats.ALPHA) == (bounded or n1 < 2)
 
 
+@pytest.mark.parametrize(
+    ("n", "paired"), [(1024, True), (5000, True), (600, False), (60000, False)]
+)
+def test_many_episodes_bound_the_difference(n: int, paired: bool) -> None:
+    # 2.0 ** 1024 overflows a float: compare raised OverflowError at 1 024 pairs
+    rng = np.random.default_rng(1)
+    base = rng.normal(0, 1, n)
+    assert stats.smallest_p(n, n, paired=paired) < 1e-100
+    assert stats.too_few(n, n, paired=paired) is None
+    ci = stats.mean_difference_interval(base, base + rng.normal(0, 0.1, n), paired=paired)
+    assert math.isfinite(ci.low) and math.isfinite(ci.high)
+    assert stats.no_spread_p_value(np.ones(n), np.zeros(n), paired=paired) < 1e-100
+    exact = 2 / math.comb(2 * 400, 400)  # the logarithm's value agrees where both are floats
+    assert stats.smallest_p(400, 400, paired=False) == exact
+    assert math.isclose(stats.smallest_p(501, 501, paired=False), 2 / math.comb(1002, 501))
+
+
 @pytest.mark.parametrize("paired", [False, True])
 def test_the_mean_interval_excludes_zero_exactly_when_its_t_test_rejects(paired: bool) -> None:
     rng = np.random.default_rng(5)
