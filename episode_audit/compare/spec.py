@@ -67,7 +67,11 @@ def mismatches(
 def field_mismatches(
     baseline: Sequence[dict[str, str]], candidate: Sequence[dict[str, str]]
 ) -> list[Mismatch]:
-    """:func:`mismatches` of the sides' files given by their :func:`run_fields`."""
+    """:func:`mismatches` of the sides' files given by their :func:`run_fields`.
+
+    A library's version is compared only when both sides recorded it: a recorder records the
+    libraries its process had imported, so one missing on a side says nothing of its version.
+    """
     base: dict[str, set[str]] = {}
     cand: dict[str, set[str]] = {}
     for into, files in ((base, baseline), (cand, candidate)):
@@ -79,6 +83,7 @@ def field_mismatches(
         Mismatch(name, sorted(base.get(name, ())), sorted(cand.get(name, ())))
         for name in names
         if base.get(name, set()) != cand.get(name, set())
+        and not (name.startswith("version:") and not (name in base and name in cand))
     ]
 
 

@@ -103,6 +103,18 @@ def test_gates_are_non_inferiority_on_the_interval(runs: dict[str, Path]) -> Non
     assert missed.to_dict()["unmatched_labels"] == ["collision"]
 
 
+def test_a_library_one_side_did_not_import_is_no_version_mismatch() -> None:
+    from episode_audit.compare.spec import field_mismatches
+
+    base = [{"env_id": "CartPole-v1", "version:numpy": "2.3.0"}]
+    cand = [{"env_id": "CartPole-v1", "version:numpy": "2.3.0", "version:mujoco": "3.3.0"}]
+    assert field_mismatches(base, cand) == []  # (mujoco: imported by one process only)
+    cand[0]["version:numpy"] = "2.4.0"
+    assert [str(m) for m in field_mismatches(base, cand)] == [
+        "version:numpy differs: baseline 2.3.0; candidate 2.4.0"
+    ]
+
+
 def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
     runs: dict[str, Path], tmp_path: Path
 ) -> None:
