@@ -226,9 +226,18 @@ def _incentive_gate(group: GroupReport) -> GateResult:
 
 
 def _show(value: float, bound: float) -> tuple[str, str]:
-    """Format a rate and its bound with enough digits that they differ when they differ."""
-    for digits in range(2, 8):
+    """A rate and its bound as text: the bound as given, the rate with at least its digits.
+
+    The rate has more when needed to differ from the bound (when it does).
+
+    >>> _show(0.25, 0.085), _show(0.9166, 0.915), _show(0.5, 0.5), _show(0.3333333, 0.3333)
+    (('0.250', '0.085'), ('0.917', '0.915'), ('0.50', '0.50'), ('0.33333', '0.3333'))
+    """
+    given = repr(float(bound))
+    decimals = len(given.partition(".")[2]) if "e" not in given else 0
+    limit = given if decimals >= 2 or "e" in given else f"{bound:.2f}"
+    for digits in range(max(2, min(decimals, 7)), 8):
         a, b = f"{value:.{digits}f}", f"{bound:.{digits}f}"
         if a != b or value == bound:
-            return a, b
+            return a, limit
     return repr(value), repr(bound)

@@ -276,7 +276,9 @@ def test_gate_messages_show_enough_digits(tmp_path: Path) -> None:
     plans = [Plan("success")] * 159 + [Plan("failure")] * 41  # 0.795
     path = _record_plans(tmp_path / "close.mcap", plans)
     result = report([path], by="all", gates=Gates(min_success_rate=0.8))
-    assert result.gates[0].message == "success rate 0.795 < 0.800 (group all)"
+    assert result.gates[0].message == "success rate 0.795 < 0.80 (group all)"
+    result = report([path], by="all", gates=Gates(max_failure_rate=0.085))
+    assert result.gates[0].message == "failure rate 0.205 > 0.085 (group all)"  # (was 0.09)
 
 
 def test_gate_without_ended_episodes_fails(tmp_path: Path) -> None:
