@@ -110,6 +110,19 @@ def collect(
     return joined([file_rows(name, ev, by, games) for name, ev in sources])
 
 
+def _reports_success(ev: Evidence, table: pa.Table) -> bool:
+    """Whether the file's env reports success: as its run-end record says, else by its episodes.
+
+    A file without the count (torn, or recovered from a torn one) reports success when one of
+    its episodes succeeded: a torn CartPole file is read as the finished one is (no success to
+    report), not as an env whose successes never came.
+    """
+    said = ev.reports_success
+    if said is not None:
+        return said
+    return bool(pc.any(pc.equal(table.column(fmt.COL_OUTCOME), fmt.OUTCOME_SUCCESS)).as_py())
+
+
 FileRows = tuple[pa.Table | None, list[pa.Table]]
 """One file's part of :func:`collect`: its episode rows (``None``: none) and term rows."""
 
@@ -126,7 +139,7 @@ def file_rows(name: str, ev: Evidence, by: str, games: bool = False) -> FileRows
     if n == 0:
         return None, []
     key = _keys(name, ev, table, by, games)
-    signal = pa.array([ev.reports_success is not False] * n, pa.bool_())
+    signal = pa.array([_reports_success(ev, table)] * n, pa.bool_())
     seed = table.column("seed") if "seed" in table.column_names else pa.nulls(n, pa.int64())
     row = pa.array(np.arange(n, dtype=np.int64))  # within the file: joined() numbers them all
     episodes = (

@@ -281,6 +281,16 @@ def test_gate_messages_show_enough_digits(tmp_path: Path) -> None:
     assert result.gates[0].message == "failure rate 0.205 > 0.085 (group all)"  # (was 0.09)
 
 
+def test_a_torn_file_of_an_env_without_success_reads_as_its_finished_files() -> None:
+    # a torn file has no run-end record to say whether its env reports success: it was read
+    # as if CartPole did, so every group of it got no_success_positive_return
+    torn = Path(__file__).resolve().parents[2] / "fixtures" / "torn.mcap"
+    result = report([torn], by="all", gates=Gates(min_success_rate=0.5))
+    (group,) = result.groups
+    assert not group.success_signal and group.warnings == []
+    assert result.gates[0].message.startswith("success rate: the env reports no success")
+
+
 def test_gate_without_ended_episodes_fails(tmp_path: Path) -> None:
     path = _record_plans(tmp_path / "none.mcap", [Plan("none")])
     result = report([path], by="all", gates=Gates(min_success_rate=0.5))
