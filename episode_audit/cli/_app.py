@@ -22,7 +22,7 @@ import pyarrow as pa
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-from typer.core import TyperArgument, TyperGroup
+from typer.core import TyperArgument, TyperCommand, TyperGroup
 
 from .._jobs import sigint_held
 from .._version import __version__
@@ -177,6 +177,69 @@ def failure_document(
 
             emit(error_output(command, message, output, unreadable))
         raise
+
+
+_UsageError: type[Exception] = typer.BadParameter.__mro__[1]
+"""Click's ``UsageError`` (``typer.BadParameter``'s base: Typer bundles Click, or uses it)."""
+
+
+class DocumentedCommand(TyperCommand):
+    """A command with ``--format``: a usage error found while parsing also prints a document.
+
+    Click refuses a bad option value (``--jobs 0``) before the command runs, so
+    :func:`failure_document` never sees it: in JSON and JUnit this prints the error document
+    first (a CI job's ``check.xml`` then holds the error, not nothing); Click then says it on
+    stderr and exits 2 as always.
+    """
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        given = ctx.meta[_ARGS] = list(args)  # (Click's parser empties ``args``)
+        with self._documented(given):
+            return list(super().parse_args(ctx, args))
+
+    def invoke(self, ctx: Any) -> Any:
+        with self._documented(ctx.meta.get(_ARGS, [])):  # (Typer checks some values here)
+            return super().invoke(ctx)
+
+    @contextmanager
+    def _documented(self, args: list[str]) -> Iterator[None]:
+        try:
+            yield
+        except _UsageError as exc:
+            format_message = getattr(exc, "format_message", None)
+            self._document(args, format_message() if format_message else str(exc))
+            raise
+
+    def refuse(self, args: list[str], message: str) -> NoReturn:
+        """Refuse the arguments while parsing them: the document, then :func:`fail`."""
+        self._document(args, message)
+        fail(message)
+
+    def _document(self, args: list[str], message: str) -> None:
+        output = _format_in(args)
+        if output in _DOCUMENTED:
+            from .render.failure import error_output
+
+            emit(error_output(str(self.name), message, _DOCUMENTED[output]))
+
+
+_ARGS = "episode_audit.args"  # (the command's arguments, in its context's meta)
+_DOCUMENTED: dict[str, OutputFormat] = {"json": "json", "junit": "junit"}
+
+
+def _format_in(args: Sequence[str]) -> str | None:
+    """The value of the last ``-f`` / ``--format`` in a command's arguments, if any."""
+    found = None
+    for i, arg in enumerate(args):
+        if arg == "--":
+            break
+        if arg in ("-f", "--format") and i + 1 < len(args):
+            found = args[i + 1]
+        elif arg.startswith("--format="):
+            found = arg.partition("=")[2]
+        elif arg.startswith("-f") and not arg.startswith("--") and len(arg) > 2:
+            found = arg[2:]
+    return found
 
 
 @contextmanager

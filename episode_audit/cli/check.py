@@ -13,6 +13,7 @@ from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     CIFormatOption,
+    DocumentedCommand,
     JobsOption,
     PathsArgument,
     RayOption,
@@ -31,7 +32,7 @@ from ._app import (
 from ._summary import NoStepSummaryOption, append_step_summary
 
 
-@app.command()
+@app.command(cls=DocumentedCommand)
 def check(
     paths: PathsArgument,
     atol: Annotated[

@@ -14,6 +14,7 @@ from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     CIFormatOption,
+    DocumentedCommand,
     JobsOption,
     RayOption,
     _error_line,
@@ -104,7 +105,7 @@ _DifferentTasksOption = Annotated[
 ]
 
 
-class _CompareCommand(TyperCommand):
+class _CompareCommand(DocumentedCommand):
     """``compare``, refusing a BASELINE path after ``--candidate`` (exit 2).
 
     ``--candidate`` takes one path each time, so after ``--candidate runs/c-*.mcap`` the shell
@@ -114,11 +115,12 @@ class _CompareCommand(TyperCommand):
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         late = _after_candidate(self, args)
         if late:
-            fail(
+            self.refuse(
+                args,
                 f"{late[0]} comes after --candidate, where it would be a BASELINE path: "
                 "--candidate takes one path each time (a shell glob after it leaves all its "
                 "matches but the first in the baseline); put BASELINE paths first, then "
-                "--candidate before each candidate file, or --candidate with their directory"
+                "--candidate before each candidate file, or --candidate with their directory",
             )
         return super().parse_args(ctx, args)
 

@@ -14,6 +14,7 @@ from ._app import (
     EXIT_USAGE,
     SMALL_INPUTS,
     CIFormatOption,
+    DocumentedCommand,
     ImportOption,
     JobsOption,
     PathsArgument,
@@ -70,7 +71,7 @@ _AllowUnverifiedOption = Annotated[
 ]
 
 
-@app.command()
+@app.command(cls=DocumentedCommand)
 def replay(
     paths: PathsArgument,
     episode: _EpisodeOption = None,

@@ -13,6 +13,7 @@ from ._app import (
     EXIT_FINDINGS,
     EXIT_USAGE,
     CIFormatOption,
+    DocumentedCommand,
     JobsOption,
     PathsArgument,
     RayOption,
@@ -96,7 +97,7 @@ _HtmlOption = Annotated[
 ]
 
 
-@app.command()
+@app.command(cls=DocumentedCommand)
 def report(
     paths: PathsArgument,
     by: _ByOption = "file",

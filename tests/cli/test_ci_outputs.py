@@ -129,6 +129,10 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("check", "fixtures/clean.mcap", "no-such.mcap"), 2),  # (no input found: an error document)
     (("replay", "no-such-folder"), 2),
     (("report", "fixtures/clean.mcap", "no-such.mcap"), 2),
+    # refused while the arguments are parsed (Click's own checks, a BASELINE after --candidate)
+    (("check", "fixtures/clean.mcap", "--jobs", "0"), 2),
+    (("replay", "fixtures/clean.mcap", "--jobs", "0"), 2),
+    (("compare", "{cartpole}", "--candidate", "{cartpole_again}", "{random20}"), 2),
 ]
 
 
@@ -252,10 +256,26 @@ def test_report_junit_has_a_case_per_gate_and_group(junit_schema: xmlschema.XMLS
     ]
     body = case.result[0].text
     assert "group fixtures/torn.mcap: 12 episodes; success 0" in body
-    assert "incentive warning no_success_positive_return" in body
+    assert "incentive warning" not in body  # (a torn CartPole file reports no success)
     # no gate: no test case (a valid, empty document)
     code, out, _ = run("report", "fixtures/clean.mcap", "--format", "junit")
     assert code == 0 and outcomes(parse(out, junit_schema)) == {}
+
+
+def test_a_gate_case_lists_its_groups_incentive_warnings(
+    tmp_path: Path, junit_schema: xmlschema.XMLSchema
+) -> None:
+    from tests.report.test_report import Plan, _record_plans
+
+    plans = [Plan("success", reward=1.0)] * 2 + [Plan("failure:collision", reward=4.0)] * 3
+    path = _record_plans(tmp_path / "hack.mcap", plans)
+    code, out, _ = run(
+        "report", str(path), "--by", "all", "--min-success-rate", "0.9", "-f", "junit"
+    )
+    assert code == 1
+    parse(out, junit_schema)
+    (case,) = [c for s in junitparser.JUnitXml.fromstring(out) for c in s]
+    assert "incentive warning failure_outearns_success: failures labelled" in case.result[0].text
 
 
 @pytest.mark.parametrize(
