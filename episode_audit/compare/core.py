@@ -20,6 +20,7 @@ from typing import Any
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
+from ..read.arguments import path_list
 from ..read.storage import is_url
 from ..report.collect import check_by, joined
 from ..report.core import FilePart, file_part
@@ -411,7 +412,7 @@ def compare(
         ('underpowered', 5, True)
     """
     check_compare_by(by)
-    baseline, candidate = list(baseline), list(candidate)
+    baseline, candidate = path_list(baseline), path_list(candidate)
     check_apart(baseline, candidate)
     opened_b = [(str(p), open_evidence(p)) for p in baseline]
     opened_c = [(str(p), open_evidence(p)) for p in candidate]
