@@ -17,7 +17,7 @@ from typing import Any
 from ..errors import ConfigurationError, ContractViolation
 from ..format import names as fmt
 from ..read import open_evidence
-from .cases import Expected, expected_ending
+from .cases import Expected, evidence_folder, expected_ending
 from .contract import (
     ContractResult,
     check_file,
@@ -105,9 +105,7 @@ def check_game_contract(case: GameCase, directory: str | os.PathLike[str]) -> Co
     else ``"mixed"``. Raises :class:`~episode_audit.errors.ContractViolation` naming every
     broken clause (an agent's ending, a ``check`` finding, a replay divergence).
     """
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{file_stem(case)}.mcap"
+    path = evidence_folder(directory) / f"{file_stem(case)}.mcap"
     steps = _record(case, path)
     rows = open_evidence(path).episodes().to_pylist()
     outcomes = {r["agent"]: r for r in rows}
