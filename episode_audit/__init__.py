@@ -123,3 +123,8 @@ def __getattr__(name: str) -> object:
             name=package,
         ) from None
     return getattr(loaded, name)
+
+
+def __dir__() -> list[str]:
+    """The module's names, the lazily loaded ones of ``__all__`` included (for completion)."""
+    return sorted(set(globals()) | set(__all__))

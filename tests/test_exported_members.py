@@ -24,6 +24,12 @@ def test_all_is_sorted_and_complete() -> None:
     assert public | {"__version__"} | set(episode_audit._LAZY) == set(names)
 
 
+def test_dir_lists_every_export_the_lazy_ones_included() -> None:
+    assert set(episode_audit.__all__) <= set(dir(episode_audit))
+    assert set(episode_audit._LAZY) <= set(dir(episode_audit))
+    assert "open_evidence" in dir(episode_audit) and "__version__" in dir(episode_audit)
+
+
 def test_every_export_is_documented() -> None:
     for name in episode_audit.__all__:
         lazy = episode_audit._LAZY.get(name)

@@ -24,6 +24,7 @@ from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..read import Evidence, open_evidence
+from ..read.arguments import path_list
 from ..read.inputs import skipped
 from ._state import BoolArray, FileState, FloatArray, Hit, HitMessage, IntArray, counts_per_episode
 from .endings import EndingChecks
@@ -250,7 +251,7 @@ def check(
         findings=[], files=[], episodes=0, steps=0, ignored_by=dict.fromkeys(sorted(ignored), 0)
     )
     one = partial(_check_path, atol=atol, rtol=rtol, require_terms=require_terms)
-    paths = list(paths)
+    paths = path_list(paths)
     checked_files = map_ordered(one, paths, jobs=jobs, ray_address=ray_address, progress=progress)
     for path, checked in zip(paths, checked_files, strict=True):
         found = checked.findings

@@ -20,13 +20,22 @@ from typing import Any
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
+from ..read.arguments import path_list
 from ..read.storage import is_url
 from ..report.collect import check_by, joined
 from ..report.core import FilePart, file_part
 from ..report.gates import unmatched_why
 from ..report.groups import group_reports
 from ..report.wrapped import Wrapped
-from .groups import RATE_MARGIN, CompareGates, GroupComparison, check_gates, combine, compare_group
+from .groups import (
+    RATE_MARGIN,
+    CompareGates,
+    GroupComparison,
+    check_gates,
+    check_limit,
+    combine,
+    compare_group,
+)
 from .metrics import Verdict, decide
 from .sides import Side, sides
 from .spec import Mismatch, field_mismatches, run_fields
@@ -237,6 +246,7 @@ def compare_parts(
 ) -> Comparison:
     """Compare the sides' files from their parts (:func:`side_file`), as :func:`compare_tables`."""
     check_compare_by(by)
+    _check_options(baseline, candidate, gates, rate_margin)
     found = field_mismatches([f.fields for f in baseline], [f.fields for f in candidate])
     tasks = [m for m in found if m.task]
     if tasks and not different_tasks:
@@ -287,6 +297,29 @@ def compare_parts(
         Wrapped.of(f.part.reward_wrappers for f in baseline),
         Wrapped.of(f.part.reward_wrappers for f in candidate),
     )
+
+
+def _check_options(
+    baseline: Sequence[SideFile], candidate: Sequence[SideFile], gates: Any, rate_margin: Any
+) -> None:
+    """Refuse a side without files, gates that are not :class:`CompareGates`, a bad margin."""
+    for side, files in (("baseline", baseline), ("candidate", candidate)):
+        if not files:
+            raise ConfigurationError(
+                f"no {side} files: expected at least one evidence file on each side, got none "
+                f"for the {side}; give its files"
+            )
+    if gates is not None and not isinstance(gates, CompareGates):
+        hint = (
+            "report's Gates bound one run's rates, compare's bound the change: "
+            if type(gates).__name__ == "Gates"
+            else ""
+        )
+        raise ConfigurationError(
+            f"gates: expected a CompareGates, got {type(gates).__name__}; {hint}pass e.g. "
+            "CompareGates(max_success_drop=0.05)"
+        )
+    check_limit("rate_margin", rate_margin, "margin")
 
 
 def _failure_labels(found: Iterable[Side]) -> list[str]:
@@ -379,7 +412,7 @@ def compare(
         ('underpowered', 5, True)
     """
     check_compare_by(by)
-    baseline, candidate = list(baseline), list(candidate)
+    baseline, candidate = path_list(baseline), path_list(candidate)
     check_apart(baseline, candidate)
     opened_b = [(str(p), open_evidence(p)) for p in baseline]
     opened_c = [(str(p), open_evidence(p)) for p in candidate]

@@ -8,14 +8,17 @@ gates; :func:`combine` is how verdicts add up to one.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
+from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..report import GateResult, IncentiveWarning
+from ..report.gates import is_rate
 from .metrics import MetricComparison, Verdict, mean_metric, not_compared, rate_metric
 from .sides import Side, pair
 from .stats import too_few
@@ -26,6 +29,7 @@ __all__ = [
     "CompareGates",
     "GroupComparison",
     "check_gates",
+    "check_limit",
     "combine",
     "compare_group",
     "unverifiable",
@@ -47,6 +51,15 @@ class CompareGates:
     also the margin its metric is ``held`` within. ``fail_on_new_incentive_warning``: a group
     with an incentive warning the baseline's lacks fails (no test backs it: by chance alone a
     warning can appear on one side, see ``docs/compare.md``).
+
+    Each limit is checked as ``episode-audit compare`` checks its option (:func:`check_limit`):
+    a rate between 0 and 1, a return drop a finite number >= 0; else
+    :class:`~episode_audit.errors.ConfigurationError`.
+
+    >>> CompareGates(max_return_drop=-1)
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: max_return_drop: expected a finite number >= 0, got -1
     """
 
     max_success_drop: float | None = None
@@ -54,6 +67,19 @@ class CompareGates:
     max_failure_increase_by_label: Mapping[str, float] = field(default_factory=dict)
     max_return_drop: float | None = None
     fail_on_new_incentive_warning: bool = False
+
+    def __post_init__(self) -> None:
+        check_limit("max_success_drop", self.max_success_drop, "rate")
+        check_limit("max_failure_increase", self.max_failure_increase, "rate")
+        check_limit("max_return_drop", self.max_return_drop, "amount")
+        by_label = self.max_failure_increase_by_label
+        if not isinstance(by_label, Mapping):
+            raise ConfigurationError(
+                "max_failure_increase_by_label: expected a mapping of failure labels to rates, "
+                f"e.g. {{'collision': 0.02}}, got {type(by_label).__name__}"
+            )
+        for label, limit in by_label.items():
+            check_limit(f"max_failure_increase_by_label[{label!r}]", limit, "rate")
 
     def limits(self) -> dict[str, float]:
         """Metric name to its gate's limit, for the gates that are on."""
@@ -67,6 +93,29 @@ class CompareGates:
         if self.max_return_drop is not None:
             out["return"] = self.max_return_drop
         return out
+
+
+def check_limit(name: str, value: object, kind: Literal["rate", "margin", "amount"]) -> None:
+    """Refuse a gate's limit or a margin out of its range (a limit ``None``: no gate, accepted).
+
+    ``kind``: ``"rate"`` between 0 and 1, ``"margin"`` a rate above 0, ``"amount"`` a finite
+    number >= 0 (a return). The :class:`~episode_audit.errors.ConfigurationError` names it
+    ``name``, as the caller calls it (``--rate-margin`` on the command line).
+
+    >>> check_limit("rate_margin", 2, "margin")
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: rate_margin: expected a rate in (0, 1], got 2
+    """
+    if value is None and kind != "margin":
+        return
+    if kind == "amount":
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not (number and math.isfinite(value) and value >= 0):  # type: ignore[arg-type,operator]
+            raise ConfigurationError(f"{name}: expected a finite number >= 0, got {value!r}")
+    elif not is_rate(value) or (kind == "margin" and value == 0):
+        what = "in (0, 1]" if kind == "margin" else "between 0 and 1"
+        raise ConfigurationError(f"{name}: expected a rate {what}, got {value!r}")
 
 
 @dataclass

@@ -9,7 +9,6 @@ files are listed, not compared; ``jobs`` workers read them) and compares them wi
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -22,7 +21,7 @@ from ..read.inputs import Unreadable, evidence_files
 from ..read.storage import Source
 from ..report.gates import is_rate
 from .core import Comparison, SideFile, check_apart, check_compare_by, compare_parts, side_file
-from .groups import RATE_MARGIN, CompareGates
+from .groups import RATE_MARGIN, CompareGates, check_limit
 
 __all__ = ["InputsComparison", "compare_inputs", "gates_from_options"]
 
@@ -66,8 +65,7 @@ def compare_inputs(
         max_return_drop=max_return_drop,
         fail_on_new_incentive_warning=fail_on_new_incentive_warning,
     )
-    if not (is_rate(rate_margin) and rate_margin > 0):
-        raise ConfigurationError(f"--rate-margin: expected a rate in (0, 1], got {rate_margin}")
+    check_limit("--rate-margin", rate_margin, "margin")
     if not candidate:
         raise ConfigurationError("--candidate: expected at least one file or directory")
     check_compare_by(by)
@@ -141,16 +139,8 @@ def gates_from_options(
     ...     print(exc)
     --max-failure-increase: expected a rate between 0 and 1, got '2'
     """
-    if max_success_drop is not None and not is_rate(max_success_drop):
-        raise ConfigurationError(
-            f"--max-success-drop: expected a rate between 0 and 1, got {max_success_drop}"
-        )
-    if max_return_drop is not None and not (
-        math.isfinite(max_return_drop) and max_return_drop >= 0
-    ):
-        raise ConfigurationError(
-            f"--max-return-drop: expected a finite number >= 0, got {max_return_drop}"
-        )
+    check_limit("--max-success-drop", max_success_drop, "rate")
+    check_limit("--max-return-drop", max_return_drop, "amount")
     overall: float | None = None
     by_label: dict[str, float] = {}
     for value in max_failure_increase:

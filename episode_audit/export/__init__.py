@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Final, Literal, overload
 
 from ..errors import ConfigurationError, EvidenceError
+from ..read.arguments import path_list
 from ._output import ViewerExport
 from .parquet import ExportResult
 from .parquet import export as _export_parquet
@@ -88,7 +89,7 @@ def export(
         )
     if to not in TARGETS:
         raise ConfigurationError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
-    sources = list(paths)
+    sources = path_list(paths)
     if len(sources) != 1:
         raise ConfigurationError(
             f"--to {to}: writes one file from one input, got {len(sources)} inputs; "

@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EvidenceError
 from ..read import open_evidence
+from ..read.arguments import path_list
 from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
 from ..record.lock import output_kind
 
@@ -115,7 +116,7 @@ def export(
     True
     """
     options = {"filesystem": filesystem, "storage_options": storage_options}
-    sources = [as_source(p, **options) for p in paths]
+    sources = [as_source(p, **options) for p in path_list(paths)]
     if is_url(out_dir):
         out_url = remote_file(os.fspath(out_dir), **options)
         return _export_to_url(sources, out_url, overwrite, progress, on_error, jobs, ray_address)

@@ -10,6 +10,7 @@ and splitting chunks; read-ahead), ``blocks`` (one Arrow block, checked), ``pass
 loop, what a pass keeps), ``episodes`` (the episodes table), ``episode_tables`` and
 ``evidence`` (the API: resets, episodes and single episodes; passes and steps), ``opening``
 (indexed and linear opening), ``records`` (recovery's record walk), ``inputs``;
+``arguments`` (the API's path, column-name and episode arguments, checked) sits under all;
 ``storage`` (URLs through fsspec) sits under ``chunks``.
 """
 

@@ -17,6 +17,7 @@ import pyarrow.compute as pc
 
 from ..errors import EvidenceError
 from ..format import names as fmt
+from .arguments import episode_index
 from .blocks import _reset_block
 from .chunks import _ARROW_SLOTS
 from .episodes import _build_episodes, _error_actions
@@ -152,7 +153,12 @@ class EpisodeTables:
         return cache["table"]
 
     def episode(self, index: int) -> EpisodeEvidence:
-        """One episode, read from the chunks its time range covers only."""
+        """One episode, read from the chunks its time range covers only.
+
+        ``index`` is an ``int`` (else :class:`~episode_audit.errors.ConfigurationError`); an
+        index the file has no episode of raises :class:`~episode_audit.errors.EvidenceError`.
+        """
+        index = episode_index("index", index)
         table = self.episodes()
         match = table.filter(pc.equal(table.column("episode"), index))
         if match.num_rows == 0:

@@ -16,11 +16,13 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from mcap.records import Channel
 
+from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.locking import Holder
 from ..format.records import EpisodeRanges, RunInfo
 from ..format.run_end import RunEnd
 from ..format.spaces import SpaceCodec, codec_for, space_from_description
+from .arguments import episode_indices, name_list
 from .blocks import _blocks_table, _declared_schema, _empty_table, _reset_block, _topic_schema
 from .chunks import _ARROW_SLOTS, _SLOTS, _ChunkRef
 from .episode_tables import EpisodeTables
@@ -218,7 +220,7 @@ class Evidence(EpisodeTables):
         episode (or the file ends), then yielded with the other episodes completed in the same
         chunk. Memory is then bounded by the longest open episode of each stream.
         """
-        selected = None if columns is None else list(columns)
+        selected = self._columns(columns)
         batches: Iterable[pa.RecordBatch]
         if self.multi_stream:
             batches = _contiguous(self._pass(steps=True))
@@ -238,16 +240,38 @@ class Evidence(EpisodeTables):
         columns: Sequence[str] | None = None,
         episodes: Iterable[int] | None = None,
     ) -> pa.Table:
-        """All steps (or those of ``episodes``) as one table, in recording order."""
-        wanted = None if episodes is None else pa.array(sorted(set(episodes)), pa.int64())
+        """All steps (or those of ``episodes``) as one table, in recording order.
+
+        ``columns`` is a list of names (a bare ``str`` is refused, as an unknown column is, by
+        :class:`~episode_audit.errors.ConfigurationError`), ``episodes`` of episode indices.
+        """
+        selected = self._columns(columns)
+        wanted = None
+        if episodes is not None:
+            indices = episode_indices("episodes", episodes)
+            wanted = pa.array(sorted(set(indices)), pa.int64())
         parts: list[pa.RecordBatch] = []
         for batch in self.iter_step_batches():
             if wanted is not None:
                 batch = batch.filter(pc.is_in(batch.column(fmt.COL_EPISODE), wanted))
                 if batch.num_rows == 0:
                     continue
-            parts.append(batch if columns is None else batch.select(list(columns)))
-        return self._table(parts, fmt.TOPIC_STEPS, columns)
+            parts.append(batch if selected is None else batch.select(selected))
+        return self._table(parts, fmt.TOPIC_STEPS, selected)
+
+    def _columns(self, columns: Sequence[str] | None) -> list[str] | None:
+        """``columns`` checked: a list of the steps table's column names (``None``: all)."""
+        if columns is None:
+            return None
+        selected = name_list("columns", columns)
+        known = self.steps_schema.names
+        unknown = [c for c in selected if known and c not in known]
+        if unknown:
+            raise ConfigurationError(
+                f"columns: no column {unknown[0]!r} in the steps of {self.path}; "
+                f"its columns are {', '.join(known)}"
+            )
+        return selected
 
     def _table(
         self, parts: list[pa.RecordBatch], topic: str, columns: Sequence[str] | None

@@ -15,6 +15,7 @@ from typing import Any
 
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
 from ..format.run_end import RunEnd
+from .arguments import path_list
 from .evidence import Evidence
 from .opening import open_evidence
 from .storage import RemoteFile, Source, as_source, list_remote
@@ -71,7 +72,7 @@ def evidence_files(
     """
     out: list[Source] = []
     seen: set[object] = set()
-    for given in paths:
+    for given in path_list(paths):
         path = as_source(given, filesystem=filesystem, storage_options=storage_options)
         if isinstance(path, RemoteFile):
             for remote in list_remote(path):

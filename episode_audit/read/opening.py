@@ -96,7 +96,15 @@ def _open_mcap(p: Source) -> IO[bytes]:
         f = open_source(p)
     else:
         try:
-            if not stat.S_ISREG(os.stat(p).st_mode):
+            mode = os.stat(p).st_mode
+            if stat.S_ISDIR(mode):
+                raise NotEvidenceError(
+                    p,
+                    "a directory, not an evidence file; its *.mcap files are "
+                    "episode_audit.read.evidence_files([directory]) (as the command line "
+                    "finds them)",
+                )
+            if not stat.S_ISREG(mode):
                 raise NotEvidenceError(p, "not a regular file")
         except OSError as exc:
             raise EvidenceError(p, f"cannot open: {exc.strerror}") from None

@@ -37,6 +37,7 @@ __all__ = [
     "Ending",
     "EndingRules",
     "RewardTerms",
+    "check_constants",
     "find_time_limit",
     "find_wrapper",
     "named_terms",
@@ -71,16 +72,13 @@ class RewardTerms:
 
     def __post_init__(self) -> None:
         src = self.source
-        if isinstance(src, str) and src != "auto":
+        keys = not isinstance(src, (str, bytes)) and isinstance(src, Sequence)
+        if not (src is None or src == "auto" or callable(src) or keys):
             raise ConfigurationError(
                 f"reward terms source: expected 'auto', a list of info keys, a callable or None, "
                 f"actually: {src!r}"
             )
-        for name, value in self.constants.items():
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigurationError(
-                    f"constant reward term {name!r}: expected a finite number, actually: {value!r}"
-                )
+        check_constants(self.constants)
 
     def extract(self, info: Mapping[str, Any]) -> dict[str, Any] | None:
         """Return the step's terms (values not yet validated), or ``None`` when it has none."""
@@ -207,6 +205,27 @@ class RewardTerms:
         if isinstance(source, list):
             return cls(tuple(str(k) for k in source), constants)
         return None  # a callable the file can only name
+
+
+def check_constants(constants: Any) -> None:
+    """Refuse constant terms that are not a mapping of names to finite numbers.
+
+    >>> try:
+    ...     check_constants({"alive": float("nan")})
+    ... except ConfigurationError as exc:
+    ...     print(exc)
+    constant reward term 'alive': expected a finite number, actually: nan
+    """
+    if not isinstance(constants, Mapping):
+        raise ConfigurationError(
+            "constant reward terms: expected a mapping of names to numbers, e.g. "
+            f"{{'alive_bonus': 1.0}}, actually: {type(constants).__name__}"
+        )
+    for name, value in constants.items():
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigurationError(
+                f"constant reward term {name!r}: expected a finite number, actually: {value!r}"
+            )
 
 
 def _prefixed(keys: Sequence[Any], prefix: str) -> tuple[str, ...]:

@@ -10,11 +10,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import os
 import platform
 import re
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime, timezone
 from typing import Any, TypedDict
 
@@ -29,7 +30,7 @@ from ..format import names as fmt
 from ..format.records import MAX_JSON_TEXT, RunInfo, to_json
 from ..format.unrecorded import placeholders, spec_placeholders
 from ..format.wrappers import RUN_TRANSPARENT_WRAPPERS
-from .rules import EndingRules, RewardTerms, TermsFn
+from .rules import EndingRules, RewardTerms, TermsFn, check_constants
 
 __all__ = [
     "DEFAULT_BLOCK_STEPS",
@@ -154,34 +155,23 @@ class RecorderSettings:
         block_steps = options.get("block_steps", DEFAULT_BLOCK_STEPS)
         flush_every_s = options.get("flush_every_s", 1.0)
         info_keys = options.get("info_keys", ())
-        reward_terms = options.get("reward_terms", "auto")
-        constant_terms = options.get("constant_terms")
-        if block_steps < 1:
-            raise ConfigurationError(
-                f"block_steps: expected an integer >= 1, actually: {block_steps!r}"
-            )
-        if not (flush_every_s > 0 and math.isfinite(flush_every_s)):
-            raise ConfigurationError(
-                f"flush_every_s: expected a positive number of seconds, actually: {flush_every_s!r}"
-            )
-        if isinstance(info_keys, str) and info_keys != "all":
+        if (isinstance(info_keys, str) and info_keys != "all") or not isinstance(
+            info_keys, (str, Iterable)
+        ):
             raise ConfigurationError(
                 f"info_keys: expected a list of keys or 'all', actually: {info_keys!r}"
             )
+        digest = options.get("digest_min_bytes")
+        _check_sizes(block_steps, flush_every_s, digest)
         self.terms_given = "reward_terms" in options or "constant_terms" in options
-        if isinstance(reward_terms, RewardTerms):
-            if constant_terms:
-                reward_terms = RewardTerms(
-                    reward_terms.source, {**reward_terms.constants, **constant_terms}
-                )
-            self.terms_rule = reward_terms
-        else:
-            self.terms_rule = RewardTerms(reward_terms, dict(constant_terms or {}))
-        self.rules = options.get("ending_rules") or EndingRules()
+        self.terms_rule = _terms_rule(
+            options.get("reward_terms", "auto"), options.get("constant_terms")
+        )
+        self.rules = _ending_rules(options.get("ending_rules"))
         self.info_keys: tuple[str, ...] | None = None if info_keys == "all" else tuple(info_keys)
         self.keep_all_info = info_keys == "all"
         self.track_info = bool(self.keep_all_info or self.info_keys)
-        self.digest_min_bytes = options.get("digest_min_bytes")
+        self.digest_min_bytes = digest
         self.block_steps = int(block_steps)
         self.flush_every_s = flush_every_s
         self.tags = _tags(options.get("tags"))
@@ -205,6 +195,53 @@ class RecorderSettings:
             "info_keys": "all" if self.keep_all_info else list(self.info_keys or ()),
             "notes": list(notes),
         } | ({RUN_TRANSPARENT_WRAPPERS: list(self.transparent)} if self.transparent else {})
+
+
+def _check_sizes(block_steps: Any, flush_every_s: Any, digest_min_bytes: Any) -> None:
+    """``block_steps=``, ``flush_every_s=`` and ``digest_min_bytes=``, checked."""
+    if not (_is_int(block_steps) and block_steps >= 1):
+        raise ConfigurationError(
+            f"block_steps: expected an integer >= 1, actually: {block_steps!r}"
+        )
+    if not (_is_number(flush_every_s) and flush_every_s > 0 and math.isfinite(flush_every_s)):
+        raise ConfigurationError(
+            f"flush_every_s: expected a positive number of seconds, actually: {flush_every_s!r}"
+        )
+    if digest_min_bytes is not None and not (_is_int(digest_min_bytes) and digest_min_bytes >= 1):
+        raise ConfigurationError(
+            f"digest_min_bytes: expected an integer >= 1 or None, actually: {digest_min_bytes!r}"
+        )
+
+
+def _terms_rule(reward_terms: Any, constant_terms: Any) -> RewardTerms:
+    """The rule of ``reward_terms=`` and ``constant_terms=``, checked."""
+    if constant_terms is not None:
+        check_constants(constant_terms)
+    if isinstance(reward_terms, RewardTerms):
+        if not constant_terms:
+            return reward_terms
+        return RewardTerms(reward_terms.source, {**reward_terms.constants, **constant_terms})
+    return RewardTerms(reward_terms, dict(constant_terms or {}))
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _ending_rules(rules: EndingRules | None) -> EndingRules:
+    """``ending_rules=``, checked: an :class:`EndingRules` (``None``: the defaults)."""
+    if rules is None:
+        return EndingRules()
+    if not isinstance(rules, EndingRules):
+        how = "EndingRules(**rules)" if isinstance(rules, Mapping) else "EndingRules(...)"
+        raise ConfigurationError(
+            f"ending_rules: expected an EndingRules, actually: {type(rules).__name__}; pass {how}"
+        )
+    return rules
 
 
 def _tags(tags: Mapping[str, str] | None) -> dict[str, str] | None:

@@ -11,6 +11,7 @@ are data (:mod:`episode_audit.format.state`): never pickled. Shipped adapters:
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator, Mapping
 from typing import Any, Literal, Protocol, runtime_checkable
 
@@ -81,7 +82,15 @@ def register_state_adapter(
     ...     def set_state(self, obj, state): obj.n = state["n"]
     >>> register_state_adapter("my_package.envs:CountingEnv", Counter(), replace=True)
     """
-    key = target if isinstance(target, str) else _key(target)
+    if isinstance(target, type):
+        key = _key(target)
+    elif isinstance(target, str) and _TARGET.fullmatch(target):
+        key = target
+    else:
+        raise ConfigurationError(
+            f"register_state_adapter: expected a class or a 'module:QualName' string as the "
+            f"target, got {target!r}; pass e.g. MyEnv or 'my_package.envs:MyEnv'"
+        )
     if not isinstance(adapter, StateAdapter) or getattr(adapter, "needed", None) not in (
         "always",
         "unseeded",
@@ -97,6 +106,10 @@ def register_state_adapter(
         )
     _ADAPTERS[key] = adapter
     _BY_TYPE.clear()
+
+
+_TARGET = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
+"""A string target: ``module:QualName``, as :func:`_key` names a class."""
 
 
 def _key(cls: type) -> str:

@@ -21,6 +21,7 @@ from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..read import Evidence, open_evidence
+from ..read.arguments import episode_indices, path_list
 from ..read.inputs import skipped
 from ..read.liveness import Holder, still_written
 from ..record.gym import STEP_LIBRARIES, library_versions
@@ -100,11 +101,9 @@ def replay(
     worker imports ``imports`` itself; ``env_factory`` must then be ``"MODULE:CALLABLE"`` or a
     module-level callable. The result is the same as with ``jobs=1``.
     """
-    if atol < 0:
-        raise ConfigurationError(f"atol: expected a number >= 0, actually: {atol!r}")
+    selected = replay_options(atol, episodes)
     import_modules(imports)
-    selected = None if episodes is None else list(episodes)
-    files = list(paths)
+    files = path_list(paths)
     one = partial(
         _replay_batch,
         atol=atol,
@@ -359,7 +358,7 @@ def replay_options(
     ``atol`` must be a finite number >= 0 and each episode index within ``0 .. 2**63 - 1``;
     else :class:`~episode_audit.errors.ConfigurationError` names the option as the caller calls
     it (``atol_option``, ``episode_option``: ``--atol`` and ``--episode`` on the command line).
-    (:func:`replay` itself refuses only a negative ``atol``.)
+    :func:`replay` checks its own with it.
 
     >>> replay_options(0.5, (3, 1))
     [3, 1]
@@ -368,17 +367,10 @@ def replay_options(
     ...
     episode_audit.errors.ConfigurationError: --atol: expected a finite number >= 0, got nan
     """
-    if not (math.isfinite(atol) and atol >= 0):
-        raise ConfigurationError(f"{atol_option}: expected a finite number >= 0, got {atol}")
-    if episodes is None:
-        return None
-    selected = list(episodes)
-    for index in selected:
-        if not 0 <= index < 2**63:
-            raise ConfigurationError(
-                f"{episode_option}: expected an episode index >= 0, got {index}"
-            )
-    return selected
+    number = isinstance(atol, (int, float)) and not isinstance(atol, bool)
+    if not (number and math.isfinite(atol) and atol >= 0):
+        raise ConfigurationError(f"{atol_option}: expected a finite number >= 0, got {atol!r}")
+    return None if episodes is None else episode_indices(episode_option, episodes)
 
 
 def _version_differences(ev: Evidence) -> dict[str, tuple[str, str]]:

@@ -15,6 +15,7 @@ from typing import Any
 
 from .._jobs import map_ordered
 from ..read import Evidence, open_evidence
+from ..read.arguments import path_list
 from .collect import NONE_KEY, FileRows, check_by, file_rows, joined
 from .gates import GateResult, Gates, check_gateable, check_gates, unmatched_labels, unmatched_why
 from .groups import GroupReport, group_reports
@@ -246,7 +247,7 @@ def report(
     check_by(by)
     check_gateable(by, gates)
     one = partial(_part_of, by=by, games=games)
-    parts = list(map_ordered(one, list(paths), jobs=jobs, ray_address=ray_address))
+    parts = list(map_ordered(one, path_list(paths), jobs=jobs, ray_address=ray_address))
     return report_parts(parts, by=by, gates=gates, games=games)
 
 

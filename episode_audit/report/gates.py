@@ -74,11 +74,16 @@ class Gates:
 
 
 def check_gateable(by: str, gates: Gates | None) -> None:
-    """Refuse gates on a report grouped by label (:class:`ConfigurationError`).
+    """Refuse gates that are not :class:`Gates`, or on a report grouped by label.
 
     Each label group holds one outcome, so its rates are 0 or 1 and its incentive warnings
     undefined by construction: every gate would pass or fail whatever the policy did.
+    Raises :class:`ConfigurationError`.
     """
+    if gates is not None and not isinstance(gates, Gates):
+        given = type(gates).__name__
+        how = "Gates(**gates)" if isinstance(gates, Mapping) else "Gates(min_success_rate=0.9)"
+        raise ConfigurationError(f"gates: expected a Gates, got {given}; pass e.g. {how}")
     if by == "label" and gates is not None and gates.any:
         raise ConfigurationError(
             "gates: expected a grouping whose groups can hold several outcomes, actually by "

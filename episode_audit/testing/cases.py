@@ -5,6 +5,7 @@
 - :class:`Expected` -- an expected ending, parsed from ``"success"``, ``"failure:LABEL"`` or
   ``"truncated:REASON"`` (:func:`expected_ending`).
 - :func:`evidence_actions` -- the actions of one recorded episode, to step a case with.
+- :func:`evidence_folder` -- the folder a case's evidence file is kept in, made if need be.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -19,6 +21,7 @@ import gymnasium as gym
 from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..read import open_evidence
+from ..read.arguments import name_list
 from ..replay.recorded import replay_actions
 
 __all__ = [
@@ -29,6 +32,7 @@ __all__ = [
     "Policy",
     "contract_cases",
     "evidence_actions",
+    "evidence_folder",
     "expected_ending",
 ]
 
@@ -146,6 +150,9 @@ class ContractCase:
             )
         if self.expect is not None:
             object.__setattr__(self, "expect", expected_ending(self.expect))
+        for terms in ("terms_present", "terms_absent"):
+            given = name_list(f"{self}: {terms}", getattr(self, terms))
+            object.__setattr__(self, terms, tuple(given))
         if self.random_episodes < 0 or self.max_steps < 1:
             raise ConfigurationError(
                 f"{self}: expected random_episodes >= 0 and max_steps >= 1, got "
@@ -216,3 +223,25 @@ def evidence_actions(path: str | os.PathLike[str], episode: int = 0) -> list[Any
             f"(first at step {int(missing[0])})"
         )
     return list(actions)
+
+
+def evidence_folder(directory: str | os.PathLike[str]) -> Path:
+    """``directory`` as a folder to keep a case's evidence file in, made (with its parents).
+
+    A path that is a file, or under one, or that cannot be made is a
+    :class:`~episode_audit.errors.ConfigurationError` saying so (not ``FileExistsError``).
+    """
+    out = Path(directory)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise ConfigurationError(
+            f"{out}: expected a folder to keep the evidence files in, got a file; give a "
+            "folder, e.g. pytest's tmp_path"
+        ) from None
+    except OSError as exc:
+        raise ConfigurationError(
+            f"{out}: cannot make the folder for the evidence files ({exc.strerror or exc}); "
+            "give a folder you can write to, e.g. pytest's tmp_path"
+        ) from None
+    return out

@@ -27,7 +27,7 @@ from ..read import open_evidence
 from ..record import RecordEvidence
 from ..replay import EpisodeReplay, replay
 from ..report import report
-from .cases import ContractCase, Expected, Policy, evidence_actions
+from .cases import ContractCase, Expected, Policy, evidence_actions, evidence_folder
 
 __all__ = [
     "CaseLike",
@@ -159,16 +159,10 @@ def evidence_path(directory: str | os.PathLike[str], case: CaseLike) -> Path:
 
     ``<case>.mcap``, written over by a later run of the same case, unless a violation in this
     process kept it (:func:`violation`): then ``<case>-2.mcap``, ``-3``... A ``directory``
-    that is a file is a :class:`~episode_audit.errors.ConfigurationError`.
+    that is a file is a :class:`~episode_audit.errors.ConfigurationError`
+    (:func:`~.cases.evidence_folder`).
     """
-    out = Path(directory)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError):
-        raise ConfigurationError(
-            f"{out}: a file, where a folder for the contract's evidence was expected: pass a "
-            "folder (pytest's tmp_path)"
-        ) from None
+    out = evidence_folder(directory)
     stem, n = file_stem(case), 1
     path = out / f"{stem}.mcap"
     while path.resolve() in _KEPT or path.with_name(f"{path.stem}-random.mcap").resolve() in _KEPT:

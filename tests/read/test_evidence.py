@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pyarrow as pa
 import pytest
 
 from episode_audit import (
+    ConfigurationError,
     EvidenceError,
     RecordVectorEvidence,
     open_evidence,
 )
+from episode_audit.read import Evidence
 
 
 def test_episodes_steps_and_selection(recorded: Path) -> None:
@@ -40,6 +44,57 @@ def test_episode_reads_only_its_own_rows(recorded: Path) -> None:
         assert episode.reset is not None and episode.reset["episode"] == record["episode"]
     with pytest.raises(EvidenceError, match="no episode 99"):
         ev.episode(99)
+
+
+@pytest.mark.parametrize(
+    ("select", "message"),
+    [
+        (
+            lambda ev: ev.steps(columns=["rewards"]),
+            r"^columns: no column 'rewards' in the steps of .*run\.mcap; its columns are "
+            r"episode, step, .*reward",
+        ),
+        (
+            lambda ev: next(ev.iter_step_batches(["nope"])),
+            r"^columns: no column 'nope' in the steps of .*; its columns are episode, step",
+        ),
+        (
+            lambda ev: ev.steps(columns="reward"),
+            r"^columns: expected a list of names, got the string 'reward'; pass \['reward'\]$",
+        ),
+        (
+            lambda ev: ev.steps(columns=[3]),
+            r"^columns\[0\]: expected a name \(a str\), got 3 \(int\)$",
+        ),
+        (
+            lambda ev: ev.episode("1"),
+            r"^index: expected an episode index >= 0 \(an int\), got '1' \(str\)$",
+        ),
+        (
+            lambda ev: ev.episode(True),
+            r"^index: expected an episode index >= 0 \(an int\), got True \(bool\)$",
+        ),
+        (
+            lambda ev: ev.steps(episodes=["1"]),
+            r"^episodes: expected an episode index >= 0 \(an int\), got '1' \(str\)$",
+        ),
+        (
+            lambda ev: ev.steps(episodes=2),
+            r"^episodes: expected a list of episode indices, got 2; pass e\.g\. \[0, 3\]$",
+        ),
+    ],
+)
+def test_a_wrong_column_or_episode_is_a_configuration_error_saying_what_to_pass(
+    recorded: Path, select: Callable[[Evidence], object], message: str
+) -> None:
+    with pytest.raises(ConfigurationError, match=message):
+        select(open_evidence(recorded))
+
+
+def test_episodes_given_as_numpy_integers_select_them(recorded: Path) -> None:
+    ev = open_evidence(recorded)
+    assert set(ev.steps(episodes=np.array([1, 2]))["episode"].to_pylist()) == {1, 2}
+    assert ev.episode(np.int64(1)).index == 1
 
 
 def test_each_episode_of_a_vector_file_has_its_reset_row(tmp_path: Path) -> None:

@@ -29,6 +29,17 @@ def test_empty_file(tmp_path: Path) -> None:
         open_evidence(path)
 
 
+def test_a_directory_points_to_evidence_files(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    with pytest.raises(
+        NotEvidenceError,
+        match=r"runs: a directory, not an evidence file; its \*\.mcap files are "
+        r"episode_audit\.read\.evidence_files\(\[directory\]\)",
+    ):
+        open_evidence(runs)
+
+
 def test_garbage_file(tmp_path: Path) -> None:
     path = tmp_path / "garbage.mcap"
     path.write_bytes(b"this is not an mcap file at all" * 10)

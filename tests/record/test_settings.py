@@ -131,6 +131,33 @@ def test_the_settings_defaults() -> None:
             r"^command_line\[1\]: expected a string, .* actually: int$",
         ),
         ({"command_line": ["x" * (1 << 20)]}, "^command_line: expected at most 1048576 bytes"),
+        (
+            {"flush_every_s": "1"},
+            "^flush_every_s: expected a positive number of seconds, actually: '1'$",
+        ),
+        ({"block_steps": "64"}, "^block_steps: expected an integer >= 1, actually: '64'$"),
+        ({"block_steps": 2.5}, "^block_steps: expected an integer >= 1, actually: 2.5$"),
+        ({"info_keys": 3}, "^info_keys: expected a list of keys or 'all', actually: 3$"),
+        (
+            {"digest_min_bytes": "4096"},
+            "^digest_min_bytes: expected an integer >= 1 or None, actually: '4096'$",
+        ),
+        (
+            {"ending_rules": {"success_fn": None}},
+            r"^ending_rules: expected an EndingRules, actually: dict; "
+            r"pass EndingRules\(\*\*rules\)$",
+        ),
+        ({"ending_rules": "success"}, "^ending_rules: expected an EndingRules, actually: str"),
+        (
+            {"reward_terms": 3},
+            "^reward terms source: expected 'auto', a list of info keys, a callable or None, "
+            "actually: 3$",
+        ),
+        (
+            {"constant_terms": 1.0},
+            "^constant reward terms: expected a mapping of names to numbers, e.g. "
+            r"\{'alive_bonus': 1.0\}, actually: float$",
+        ),
     ],
 )
 def test_the_settings_check_each_option(options: dict[str, Any], message: str) -> None:

@@ -89,6 +89,18 @@ def test_registering_refuses_a_second_adapter_and_what_lacks_the_protocol(
     register_state_adapter(CountResets, count_adapter)  # the same one again: fine
 
 
+@pytest.mark.parametrize("target", [3, "CountingEnv", "my_package.envs.CountingEnv", None])
+def test_registering_refuses_a_target_that_names_no_class(
+    count_adapter: CountAdapter, target: Any
+) -> None:
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^register_state_adapter: expected a class or a 'module:QualName' string as the "
+        r"target, got .*; pass e\.g\. MyEnv or 'my_package\.envs:MyEnv'$",
+    ):
+        register_state_adapter(target, count_adapter)
+
+
 def _warm(env: gym.Env[Any, Any], steps: int = 200, seed: int = 0) -> None:
     env.reset(seed=seed)
     env.action_space.seed(seed)

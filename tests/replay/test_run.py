@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -24,6 +25,9 @@ CARTPOLE = FIXTURES / "unlabeled_failure.mcap"
         (-1.0, None, "atol: expected a finite number >= 0, got -1.0"),
         (0.0, [1, -2], "episodes: expected an episode index >= 0, got -2"),
         (0.0, [2**63], f"episodes: expected an episode index >= 0, got {2**63}"),
+        (0.0, ["1"], "episodes: expected an episode index >= 0 (an int), got '1' (str)"),
+        (0.0, "1", "episodes: expected a list of episode indices, got '1'; pass e.g. [0, 3]"),
+        ("0", None, "atol: expected a finite number >= 0, got '0'"),
     ],
 )
 def test_replay_options_name_what_is_wrong(
@@ -32,6 +36,21 @@ def test_replay_options_name_what_is_wrong(
     with pytest.raises(ConfigurationError) as raised:
         replay_options(atol, episodes)
     assert str(raised.value) == message
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"episodes": "1"}, r"^episodes: expected a list of episode indices, got '1'"),
+        ({"episodes": [True]}, r"^episodes: expected an episode index >= 0 \(an int\), got True"),
+        ({"atol": float("nan")}, r"^atol: expected a finite number >= 0, got nan$"),
+    ],
+)
+def test_replay_checks_its_options_as_the_command_line_does(
+    options: dict[str, Any], message: str
+) -> None:
+    with pytest.raises(ConfigurationError, match=message):
+        replay([CARTPOLE], **options)
 
 
 def test_replay_options_name_the_options_as_the_caller_does() -> None:

@@ -305,6 +305,21 @@ def test_bad_gate_values_are_configuration_errors() -> None:
         Gates(max_failure_rate_by_label={"x": -0.1})
 
 
+@pytest.mark.parametrize(
+    ("gates", "message"),
+    [
+        (
+            {"min_success_rate": 0.5},
+            r"^gates: expected a Gates, got dict; pass e\.g\. Gates\(\*\*gates\)$",
+        ),
+        (0.5, r"^gates: expected a Gates, got float; pass e\.g\. Gates\(min_success_rate=0\.9\)$"),
+    ],
+)
+def test_gates_that_are_not_gates_are_refused(tmp_path: Path, gates: Any, message: str) -> None:
+    with pytest.raises(ConfigurationError, match=message):
+        report([tmp_path / "unused.mcap"], gates=gates)
+
+
 def test_failure_that_outearns_success_is_warned(tmp_path: Path) -> None:
     plans = [Plan("success", reward=1.0)] * 2 + [Plan("failure:collision", reward=4.0)] * 3
     path = _record_plans(tmp_path / "hack.mcap", [*plans, Plan("failure:drop", reward=0.0)])

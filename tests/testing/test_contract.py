@@ -146,7 +146,7 @@ def test_the_evidence_a_violation_kept_is_not_written_over(tmp_path: Path) -> No
     (episode,) = open_evidence(kept).episodes().to_pylist()
     assert (episode["outcome"], episode["length"]) == ("incomplete", 10)
     assert check_contract(falling, tmp_path).path == passed.path  # (a pass: written over)
-    with pytest.raises(ConfigurationError, match=r"a file, where a folder for the contract"):
+    with pytest.raises(ConfigurationError, match=r"expected a folder to keep the evidence files"):
         check_contract(falling, kept)
 
 
@@ -191,6 +191,15 @@ def test_an_array_of_actions_steps_row_by_row(tmp_path: Path) -> None:
         ({"actions": "run.mcap"}, "as a Path, got the string 'run.mcap'"),
         ({"actions": [0], "expect": "done"}, "expect: expected 'success', "),
         ({"actions": [0], "max_steps": 0}, "expected random_episodes >= 0 and max_steps >= 1"),
+        (
+            {"actions": [0], "terms_present": "reward_ctrl"},
+            r"^CartPole-v1-seed0: terms_present: expected a list of names, got the string "
+            r"'reward_ctrl'; pass \['reward_ctrl'\]$",
+        ),
+        (
+            {"actions": [0], "terms_absent": [None]},
+            r"^CartPole-v1-seed0: terms_absent\[0\]: expected a name \(a str\), got None",
+        ),
     ],
 )
 def test_a_case_that_cannot_run_is_a_configuration_error(
@@ -285,6 +294,17 @@ def test_a_game_checks_each_agents_ending(tmp_path: Path) -> None:
 
 def test_a_game_case_that_cannot_run_is_a_configuration_error(tmp_path: Path) -> None:
     from tests.support.walk_game import WalkGame
+
+    (tmp_path / "file").write_text("")
+    with pytest.raises(
+        ConfigurationError,
+        match=r"file: expected a folder to keep the evidence files in, got a file; give a folder",
+    ):
+        check_game_contract(GameCase(WalkGame, seed=3), tmp_path / "file")
+    with pytest.raises(
+        ConfigurationError, match=r"file/runs: cannot make the folder for the evidence files"
+    ):
+        check_game_contract(GameCase(WalkGame, seed=3), tmp_path / "file" / "runs")
 
     with pytest.raises(ConfigurationError, match="agent 'left': expect: expected 'success'"):
         GameCase(WalkGame, expect={"left": "won"})

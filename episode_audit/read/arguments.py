@@ -1,0 +1,103 @@
+"""The public API's arguments that name files, columns and episodes, checked once.
+
+:func:`path_list` takes one path or many (a bare ``str`` is one path, never its characters);
+:func:`name_list` refuses a bare ``str`` where a list of names is expected; :func:`episode_index`
+and :func:`episode_indices` refuse what is not an episode index. Each raises
+:class:`~episode_audit.errors.ConfigurationError` naming the argument as the caller calls it.
+"""
+
+from __future__ import annotations
+
+import numbers
+import os
+from collections.abc import Iterable
+from typing import Any, TypeVar
+
+from ..errors import ConfigurationError
+
+__all__ = ["episode_index", "episode_indices", "name_list", "path_list"]
+
+_P = TypeVar("_P", bound="str | os.PathLike[str]")
+
+
+def path_list(paths: _P | Iterable[_P]) -> list[_P]:
+    """``paths`` as a list: one ``str`` or path-like is one path, an iterable is its paths.
+
+    >>> path_list("runs/run.mcap"), path_list(["a.mcap", "b.mcap"])
+    (['runs/run.mcap'], ['a.mcap', 'b.mcap'])
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        return [paths]
+    if isinstance(paths, bytes) or not isinstance(paths, Iterable):
+        raise ConfigurationError(
+            f"paths: expected a path or a list of paths, got {type(paths).__name__}; "
+            "pass e.g. ['runs/run.mcap']"
+        )
+    return list(paths)
+
+
+def name_list(name: str, names: Iterable[str]) -> list[str]:
+    """``names`` as a list of ``str``; a bare ``str`` is refused, not split into characters.
+
+    >>> name_list("columns", ("reward", "action"))
+    ['reward', 'action']
+    >>> try:
+    ...     name_list("columns", "reward")
+    ... except ConfigurationError as exc:
+    ...     print(exc)
+    columns: expected a list of names, got the string 'reward'; pass ['reward']
+    """
+    if isinstance(names, (str, bytes)):
+        raise ConfigurationError(
+            f"{name}: expected a list of names, got the string {names!r}; pass [{names!r}]"
+        )
+    if not isinstance(names, Iterable):
+        raise ConfigurationError(
+            f"{name}: expected a list of names, got {type(names).__name__}; pass e.g. ['reward']"
+        )
+    out = list(names)
+    for i, item in enumerate(out):
+        if not isinstance(item, str):
+            raise ConfigurationError(
+                f"{name}[{i}]: expected a name (a str), got {item!r} ({type(item).__name__})"
+            )
+    return out
+
+
+def episode_index(name: str, index: Any) -> int:
+    """``index`` if it is an episode index: an ``int`` (not a ``bool``) in ``0 .. 2**63 - 1``.
+
+    >>> episode_index("episode", 3)
+    3
+    >>> try:
+    ...     episode_index("episode", "3")
+    ... except ConfigurationError as exc:
+    ...     print(exc)
+    episode: expected an episode index >= 0 (an int), got '3' (str)
+    """
+    if not isinstance(index, numbers.Integral) or isinstance(index, bool):
+        raise ConfigurationError(
+            f"{name}: expected an episode index >= 0 (an int), got {index!r} "
+            f"({type(index).__name__})"
+        )
+    if not 0 <= int(index) < 2**63:
+        raise ConfigurationError(f"{name}: expected an episode index >= 0, got {index}")
+    return int(index)
+
+
+def episode_indices(name: str, indices: Iterable[Any]) -> list[int]:
+    """``indices`` as a list of episode indices (:func:`episode_index`), in the order given.
+
+    >>> episode_indices("episodes", (3, 1))
+    [3, 1]
+    >>> try:
+    ...     episode_indices("episodes", "1")
+    ... except ConfigurationError as exc:
+    ...     print(exc)
+    episodes: expected a list of episode indices, got '1'; pass e.g. [0, 3]
+    """
+    if isinstance(indices, (str, bytes)) or not isinstance(indices, Iterable):
+        raise ConfigurationError(
+            f"{name}: expected a list of episode indices, got {indices!r}; pass e.g. [0, 3]"
+        )
+    return [episode_index(name, index) for index in indices]

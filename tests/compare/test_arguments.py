@@ -1,0 +1,81 @@
+"""compare()'s arguments: what the command line refuses, the library refuses in the same words."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from episode_audit import CompareGates, ConfigurationError, Gates, compare
+from episode_audit.rollout import record_episodes
+
+
+@pytest.fixture(scope="module")
+def sides(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("sides")
+    for name in ("base", "cand"):
+        record_episodes("CartPole-v1", out / f"{name}.mcap", episodes=5, max_episode_steps=20)
+    return out / "base.mcap", out / "cand.mcap"
+
+
+@pytest.mark.parametrize(
+    ("margin", "message"),
+    [
+        (2, r"^rate_margin: expected a rate in \(0, 1\], got 2$"),
+        (-1, r"^rate_margin: expected a rate in \(0, 1\], got -1$"),
+        (0, r"^rate_margin: expected a rate in \(0, 1\], got 0$"),
+        ("x", r"^rate_margin: expected a rate in \(0, 1\], got 'x'$"),
+        (None, r"^rate_margin: expected a rate in \(0, 1\], got None$"),
+    ],
+)
+def test_a_rate_margin_out_of_range_is_refused_not_judged(
+    sides: tuple[Path, Path], margin: Any, message: str
+) -> None:
+    with pytest.raises(ConfigurationError, match=message):
+        compare([sides[0]], [sides[1]], rate_margin=margin)
+
+
+@pytest.mark.parametrize(
+    ("gates", "message"),
+    [
+        ({"max_return_drop": -1}, r"^max_return_drop: expected a finite number >= 0, got -1$"),
+        ({"max_return_drop": "5"}, r"^max_return_drop: expected a finite number >= 0, got '5'$"),
+        ({"max_return_drop": float("nan")}, "max_return_drop: expected a finite number >= 0"),
+        ({"max_success_drop": 2}, r"^max_success_drop: expected a rate between 0 and 1, got 2$"),
+        (
+            {"max_failure_increase": -0.5},
+            r"^max_failure_increase: expected a rate between 0 and 1, got -0.5$",
+        ),
+        (
+            {"max_failure_increase_by_label": {"collision": True}},
+            r"^max_failure_increase_by_label\['collision'\]: expected a rate between 0 and 1",
+        ),
+        (
+            {"max_failure_increase_by_label": [("collision", 0.1)]},
+            r"^max_failure_increase_by_label: expected a mapping of failure labels to rates",
+        ),
+    ],
+)
+def test_compare_gates_refuse_what_the_command_line_refuses(
+    gates: dict[str, Any], message: str
+) -> None:
+    with pytest.raises(ConfigurationError, match=message):
+        CompareGates(**gates)
+
+
+def test_reports_gates_given_to_compare_say_which_gates_it_takes(
+    sides: tuple[Path, Path],
+) -> None:
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^gates: expected a CompareGates, got Gates; report's Gates bound one run's",
+    ):
+        compare([sides[0]], [sides[1]], gates=Gates(min_success_rate=0.5))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("empty", ["baseline", "candidate"])
+def test_a_side_without_files_is_said_so(sides: tuple[Path, Path], empty: str) -> None:
+    given = {"baseline": [sides[0]], "candidate": [sides[1]], empty: []}
+    with pytest.raises(ConfigurationError, match=rf"^no {empty} files: expected at least one"):
+        compare(given["baseline"], given["candidate"])

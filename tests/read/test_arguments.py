@@ -1,0 +1,67 @@
+"""The API's path, name and episode arguments (read/arguments.py), and the functions taking paths.
+
+A bare ``str`` or path is one path everywhere a list of paths is taken, never its characters.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from episode_audit import ConfigurationError, check, compare, export, replay, report
+from episode_audit.read import evidence_files
+from episode_audit.read.arguments import episode_index, name_list, path_list
+from tests.read.helpers import record_cartpole
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("runs")
+    record_cartpole(out / "a.mcap", episodes=2)
+    record_cartpole(out / "b.mcap", episodes=2)
+    return out
+
+
+@pytest.mark.parametrize("kind", [str, Path])
+def test_one_path_is_one_file_everywhere_paths_are_taken(
+    runs: Path, kind: type, tmp_path: Path
+) -> None:
+    a, b = kind(runs / "a.mcap"), kind(runs / "b.mcap")
+    assert path_list(a) == [a]
+    assert check(a).files == [str(runs / "a.mcap")]
+    assert [g.key for g in report(a).groups] == [str(runs / "a.mcap")]
+    assert {e.file for e in replay(a).episodes} == {str(runs / "a.mcap")}
+    assert compare(a, b).baseline_files == 1
+    assert len(export(a, tmp_path / "out").steps_files) == 1
+    assert evidence_files(kind(runs)) == [runs / "a.mcap", runs / "b.mcap"]
+
+
+def test_a_path_list_refuses_what_is_no_path() -> None:
+    with pytest.raises(
+        ConfigurationError, match=r"^paths: expected a path or a list of paths, got int"
+    ):
+        path_list(3)  # type: ignore[call-overload]
+
+
+@pytest.mark.parametrize(
+    ("names", "message"),
+    [
+        (
+            "reward",
+            r"^terms: expected a list of names, got the string 'reward'; pass \['reward'\]$",
+        ),
+        (3, r"^terms: expected a list of names, got int; pass e\.g\. \['reward'\]$"),
+        (["a", None], r"^terms\[1\]: expected a name \(a str\), got None \(NoneType\)$"),
+    ],
+)
+def test_a_name_list_refuses_a_bare_string(names: object, message: str) -> None:
+    with pytest.raises(ConfigurationError, match=message):
+        name_list("terms", names)  # type: ignore[arg-type]
+
+
+def test_an_episode_index_out_of_range_is_said_as_the_command_line_does() -> None:
+    with pytest.raises(
+        ConfigurationError, match=r"^--episode: expected an episode index >= 0, got -1$"
+    ):
+        episode_index("--episode", -1)
