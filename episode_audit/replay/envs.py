@@ -373,21 +373,29 @@ _BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as 
 
 
 def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | None:
-    """How a rebuilt PettingZoo env differs from the recording (agents, spaces), or ``None``."""
+    """How a rebuilt PettingZoo env differs from the recording, or ``None``.
+
+    Its agents, its ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped``
+    have one), and the first agent's observation and action spaces. Never raises: what cannot
+    be read of the rebuilt env is not compared.
+    """
+    advice = (
+        _BUILD_AS_RECORDED
+        if layout.get("env_kwargs")
+        else "the file holds no env_kwargs (the env's constructor arguments, which "
+        "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
+    )
     try:
         agents = [str(a) for a in env.possible_agents]
         recorded = layout.get("agents")
         if isinstance(recorded, list) and [str(a) for a in recorded] != agents:
-            advice = (
-                _BUILD_AS_RECORDED
-                if layout.get("env_kwargs")
-                else "the file holds no env_kwargs (the env's constructor arguments, which "
-                "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
-            )
             return (
                 f"{_MISMATCH}agents {_agents(recorded)} recorded vs {_agents(agents)} rebuilt; "
                 f"{advice}"
             )
+        cycles, now = layout.get("max_cycles"), getattr(env.unwrapped, "max_cycles", None)
+        if isinstance(cycles, int) and isinstance(now, int) and cycles != now:
+            return f"{_MISMATCH}max_cycles {cycles} recorded vs {now} rebuilt; {advice}"
         if agents:
             env_spaces = (env.observation_space(agents[0]), env.action_space(agents[0]))
             for what, rec, space in zip(

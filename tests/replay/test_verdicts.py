@@ -193,6 +193,33 @@ def test_pistonball_rebuilt_with_other_agents_names_the_difference(tmp_path: Pat
     ), reason
 
 
+def _rps_game(path: Path, env_kwargs: dict[str, Any] | None) -> Path:
+    with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.classic import rps_v2
+
+    env = rps_v2.parallel_env(max_cycles=4)
+    with RecordParallelEvidence(env, path, env_kwargs=env_kwargs) as rec:
+        rec.reset(seed=0)
+        while rec.agents:
+            rec.step(dict.fromkeys(rec.agents, 1))
+    return path
+
+
+def test_a_game_rebuilt_with_other_max_cycles_is_named_not_diverged(tmp_path: Path) -> None:
+    """rps_v2 with max_cycles=4 and no env_kwargs: replay rebuilds the default 15 cycles."""
+    result = replay([_rps_game(tmp_path / "rps.mcap", None)])
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2
+    assert result.episodes[0].reason == (
+        "the rebuilt env does not match the recording: max_cycles 4 recorded vs 15 rebuilt; "
+        "the file holds no env_kwargs (the env's constructor arguments, which the recorder "
+        "takes as env_kwargs=): record with them, or pass --env-factory MODULE:CALLABLE that "
+        "builds the env as recorded"
+    )
+    again = replay([_rps_game(tmp_path / "kw.mcap", {"max_cycles": 4})])
+    assert [e.status for e in again.episodes] == ["identical"] * 2
+
+
 @pytest.mark.parametrize(
     ("factory", "reason"),
     [
