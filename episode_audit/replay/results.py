@@ -175,26 +175,29 @@ def restored_state(
     *,
     env: str = "this env",
     snapshots: Iterable[str] = (),
+    unit: str = "episode",
 ) -> str:
     """What replay restored before an episode's reset, in one line.
 
     ``record`` is its episode record (its ``seed``, else its ``rng_state``: an unseeded reset);
-    ``earlier`` how many episodes ``env`` (a vector file: the sub-env's own) replayed before it;
-    ``snapshots`` names each state snapshot set before the reset (e.g.
-    ``"snapshot of NormalizeObservation"``).
+    ``earlier`` how many episodes (``unit``: a PettingZoo file's are games) ``env`` (a vector
+    file: the sub-env's own) replayed before it; ``snapshots`` names each state snapshot set
+    before the reset (e.g. ``"snapshot of NormalizeObservation"``).
 
     >>> restored_state({"seed": 7}, 0)
     'seed 7; first episode in this env'
     >>> restored_state({"seed": None, "rng_state": "{}"}, 2, env="sub-env 1's env")
     "the recorded RNG state (an unseeded reset); sub-env 1's env after 2 earlier episodes"
+    >>> restored_state({"seed": 3}, 1, unit="game")
+    'seed 3; this env after 1 earlier game'
     """
     seed = record.get("seed")
     parts = [f"seed {seed}" if seed is not None else "the recorded RNG state (an unseeded reset)"]
     parts.extend(snapshots)
     if earlier:
-        parts.append(f"{env} after {earlier} earlier episode{'s' if earlier != 1 else ''}")
+        parts.append(f"{env} after {earlier} earlier {unit}{'s' if earlier != 1 else ''}")
     else:
-        parts.append(f"first episode in {env}")
+        parts.append(f"first {unit} in {env}")
     return "; ".join(parts)
 
 

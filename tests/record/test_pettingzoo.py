@@ -804,14 +804,21 @@ def test_replay_reports_where_a_game_diverged(tmp_path: Path) -> None:
     with RecordParallelEvidence(
         rps_v2.parallel_env(max_cycles=5), path, env_kwargs={"max_cycles": 5}
     ) as env:
-        env.reset(seed=3)
-        while env.agents:
-            env.step({a: 2 for a in env.agents})
+        for seed in (3, 4):
+            env.reset(seed=seed)
+            while env.agents:
+                env.step({a: 2 for a in env.agents})
     result = replay([path], env_factory=_PaysAtStep2)
-    (first, _second) = result.episodes
+    first = result.episodes[0]
     assert first.status == "diverged" and first.divergence is not None
     assert (first.divergence.step, first.divergence.field) == (2, "reward")
-    assert replay([path]).count("identical") == 2  # built from the recorded kwargs
+    assert [e.restored for e in result.episodes] == [
+        "seed 3; first game in this env",
+        "seed 3; first game in this env",
+        "seed 4; this env after 1 earlier game",
+        "seed 4; this env after 1 earlier game",
+    ]
+    assert replay([path]).count("identical") == 4  # built from the recorded kwargs
 
 
 def _with_layout(src: Path, dst: Path, **changes: Any) -> Path:
