@@ -26,7 +26,7 @@ from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
 from .envs import agents_mismatch, build_pettingzoo_env
-from .recorded import cast_actions, row_ranges, rules_of
+from .recorded import cast_actions, row_ranges, rules_of, unrecorded_options
 from .results import (
     RESET_RAISED,
     Divergence,
@@ -34,6 +34,7 @@ from .results import (
     env_error,
     none_replayable,
     not_told_from_cast,
+    options_not_held,
     restored_state,
     short,
 )
@@ -219,6 +220,7 @@ class _File:
     terms_rule: RewardTerms | None
     max_cycles: int | None
     atol: float
+    unset_options: dict[int, str]  # by agent-episode: reset options the file does not hold
 
     @classmethod
     def read(cls, ev: Evidence, obs_codec: SpaceCodec, act_codec: SpaceCodec, atol: float) -> _File:
@@ -247,6 +249,7 @@ class _File:
             terms_rule,
             max_cycles if isinstance(max_cycles, int) else None,
             atol,
+            unrecorded_options(resets),
         )
 
 
@@ -367,6 +370,13 @@ def _replay_game(
         return none_replayable(file.path, members.values(), reason), False
     if any(r.get("error_during") == "reset" for r in members.values()):
         return none_replayable(file.path, members.values(), RESET_RAISED), False
+    unset = [
+        file.unset_options[e]
+        for r in members.values()
+        if (e := int(r["episode"])) in file.unset_options
+    ]
+    if unset:
+        return none_replayable(file.path, members.values(), options_not_held(unset[0])), False
     queues: dict[str, list[Any]] = {}
     for agent, r in members.items():
         start, count = file.rows.get(int(r["episode"]), (0, 0))

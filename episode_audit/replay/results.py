@@ -29,6 +29,7 @@ __all__ = [
     "not_told_from_cast",
     "not_told_from_history",
     "not_told_from_versions",
+    "options_not_held",
     "restored_state",
     "short",
 ]
@@ -199,6 +200,21 @@ def restored_state(
     else:
         parts.append(f"first {unit} in {env}")
     return "; ".join(parts)
+
+
+def options_not_held(note: str) -> str:
+    """Why an episode (a game) reset with options the file does not hold is not replayable.
+
+    ``note``: the recorder's ``options_unserializable`` note, what the options were.
+
+    >>> print(options_not_held("{'limit': inf} (JSON has no inf)"))
+    its reset options are not in the file ({'limit': inf} (JSON has no inf)): replay cannot \
+reset it as recorded; give reset() options JSON holds exactly (finite numbers, text keys)
+    """
+    return (
+        f"its reset options are not in the file ({note}): replay cannot reset it as recorded; "
+        "give reset() options JSON holds exactly (finite numbers, text keys)"
+    )
 
 
 def none_replayable(
