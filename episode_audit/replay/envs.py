@@ -149,7 +149,7 @@ def _from_registry(
                 raise ReplayError(
                     f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
                 )
-            env = cls(env, **(wrapper.get("kwargs") or {}))
+            env = _wrapped(cls, env, wrapper)
     except (ConfigurationError, ReplayError):
         raise
     except Exception as exc:  # the env's own code, given what the file recorded
@@ -157,6 +157,21 @@ def _from_registry(
             f"cannot make {env_id!r} with the recorded kwargs: {error_text(exc)}"
         ) from None
     return env
+
+
+def _wrapped(
+    cls: type[gym.Wrapper[Any, Any, Any, Any]], env: Any, wrapper: Mapping[str, Any]
+) -> Any:
+    """``env`` in the recorded ``wrapper`` (its class ``cls``); an error names the wrapper."""
+    kwargs = wrapper.get("kwargs") or {}
+    try:
+        return cls(env, **kwargs)
+    except Exception as exc:  # the wrapper's own checks, given what the file recorded
+        name = str(wrapper["entry_point"]).rpartition(":")[2][:80]
+        raise ReplayError(
+            f"cannot rebuild the recorded wrapper {name} with its recorded arguments "
+            f"{_shown(kwargs)}: {error_text(exc)}; {_WAY_AROUND}"
+        ) from None
 
 
 def _load_wrapper(entry_point: str) -> Any:

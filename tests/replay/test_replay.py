@@ -30,6 +30,7 @@ from episode_audit.replay.compare import terms_equal as _terms_equal
 from episode_audit.replay.recorded import row_ranges as _row_ranges
 from episode_audit.replay.returned import _rewards
 from tests.support.envs import ScriptedEnv
+from tests.support.hostile import rewrite
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -190,6 +191,51 @@ def test_a_wrapper_of_another_gymnasium_is_named_not_replayed(
     [episode] = replay([wrapped]).episodes
     assert episode.status == "not_replayable"
     assert f"is not in this Gymnasium ({gym.__version__}); replay with" in str(episode.reason)
+
+
+def _reshaped() -> gym.Env[Any, Any]:
+    return gym.wrappers.ReshapeObservation(gym.make("Pendulum-v1", max_episode_steps=4), (3, 1))
+
+
+def _sticky() -> gym.Env[Any, Any]:
+    return gym.wrappers.StickyAction(gym.make("CartPole-v1", max_episode_steps=4), 0.5, (1, 2))
+
+
+@pytest.mark.parametrize("make", [_reshaped, _sticky], ids=["reshape", "sticky"])
+def test_a_wrapper_argument_that_must_be_a_tuple_is_rebuilt_as_one(
+    tmp_path: Path, make: Callable[[], gym.Env[Any, Any]]
+) -> None:
+    """The file holds the tuple as a JSON list; the wrapper refuses a list."""
+    path = tmp_path / "t.mcap"
+    with RecordEvidence(make(), path) as rec:
+        for seed in (1, 2):
+            rec.reset(seed=seed)
+            rec.action_space.seed(seed)
+            for _ in range(4):
+                rec.step(rec.action_space.sample())
+    assert [e.status for e in replay([path]).episodes] == ["identical"] * 2
+
+
+def test_a_recorded_wrapper_that_cannot_be_rebuilt_is_named_not_the_env(tmp_path: Path) -> None:
+    """A file whose ReshapeObservation shape (hand-edited) does not fit Pendulum's 3 values."""
+    recorded = tmp_path / "r.mcap"
+    with RecordEvidence(_reshaped(), recorded) as rec:
+        rec.reset(seed=1)
+        rec.step(rec.action_space.sample())
+
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["additional_wrappers"][-1]["kwargs"]["shape"] = [2, 2]
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    path = rewrite(recorded, tmp_path / "edited.mcap", run=run)
+    [episode] = replay([path]).episodes
+    assert episode.status == "not_replayable"
+    assert episode.reason is not None and episode.reason.startswith(
+        "cannot rebuild the recorded wrapper ReshapeObservation with its recorded arguments "
+        '{"shape": [2, 2]}: ValueError: '
+    ), episode.reason
+    assert episode.reason.endswith("; pass --env-factory MODULE:CALLABLE that builds the env")
 
 
 def _limit_script(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
