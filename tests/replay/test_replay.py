@@ -216,6 +216,22 @@ def test_a_wrapper_argument_that_must_be_a_tuple_is_rebuilt_as_one(
     assert [e.status for e in replay([path]).episodes] == ["identical"] * 2
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.dtype("float32")], ids=["type", "dtype"])
+def test_a_dtype_observation_is_recorded_by_its_dtype_name_and_rebuilt(
+    tmp_path: Path, dtype: Any
+) -> None:
+    path = tmp_path / "d.mcap"
+    pendulum = gym.make("Pendulum-v1", max_episode_steps=3)
+    with RecordEvidence(gym.wrappers.DtypeObservation(pendulum, dtype), path) as rec:
+        rec.reset(seed=1)
+        for _ in range(3):
+            rec.step(np.array([0.5], np.float32))
+    run = open_evidence(path).run
+    assert run.env_spec is not None
+    assert run.env_spec["additional_wrappers"][-1]["kwargs"] == {"dtype": "float32"}
+    assert [e.status for e in replay([path]).episodes] == ["identical"]
+
+
 def test_a_recorded_wrapper_that_cannot_be_rebuilt_is_named_not_the_env(tmp_path: Path) -> None:
     """A file whose ReshapeObservation shape (hand-edited) does not fit Pendulum's 3 values."""
     recorded = tmp_path / "r.mcap"
