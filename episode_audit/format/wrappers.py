@@ -318,10 +318,14 @@ class WrapperPlan:
     refused: str | None = None
 
 
-_WAY_AROUND = (
-    "pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to "
-    "build the recorded wrappers as they are"
-)
+_FACTORY_ONLY = "pass --env-factory MODULE:CALLABLE that builds the env"
+_WAY_AROUND = f"{_FACTORY_ONLY}, or --trust-entry-points to build the recorded wrappers as they are"
+
+
+def _holds_placeholder(wrapper: Any) -> bool:
+    """Whether a recorded wrapper has an argument the file holds only a placeholder of."""
+    kwargs = wrapper.get("kwargs") if isinstance(wrapper, Mapping) else None
+    return isinstance(kwargs, Mapping) and any(unrecorded(v) is not None for v in kwargs.values())
 
 
 def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) -> WrapperPlan:
@@ -357,6 +361,9 @@ def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) ->
                 plan.rebuild.append((name, rule.built(wrapper.get("kwargs"))))
                 bound += [name] if rule.render_bound else []
         if plan.refused is not None:
+            if _holds_placeholder(wrapper):  # trusted, replay refuses it too
+                plan.refused += f"; {_FACTORY_ONLY}"
+                return plan
             break
     if plan.refused is None and renders and bound:
         plan.refused = (

@@ -919,9 +919,8 @@ def test_an_env_registered_with_a_class_as_entry_point_replays(tmp_path: Path) -
 
 _WRAPPER_FUNCTION = (
     "the recorded wrapper TransformReward: its argument func is a function, which a file cannot "
-    "hold; pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to "
-    "build the recorded wrappers as they are"
-)
+    "hold; pass --env-factory MODULE:CALLABLE that builds the env"
+)  # (not --trust-entry-points: the function is not in the file, so it refuses too)
 _PLACEHOLDER = (
     "the recorded TransformReward argument 'func' is not in the file (function "
     f"{__name__}:doubled_cartpole.<locals>.<lambda>: JSON cannot hold it); pass --env-factory "
