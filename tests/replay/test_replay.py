@@ -1081,3 +1081,36 @@ def test_a_reset_divergence_shows_both_observations(tmp_path: Path) -> None:
     first = float(divergence.got.lstrip("[").split(",")[0])
     assert first == pytest.approx(expected[0] + 0.25, abs=1e-6), divergence.got
     assert float(divergence.expected.lstrip("[").split(",")[0]) == pytest.approx(expected[0])
+
+
+class _Labelled(gym.Env[Any, Any]):
+    """A Dict observation: a number (``x``) and a text label (``label``)."""
+
+    observation_space = gym.spaces.Dict(
+        {"x": gym.spaces.Box(-5, 5, (2,), np.float64), "label": gym.spaces.Text(4)}
+    )
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, label: str = "a", x: float = 0.0) -> None:
+        self.label, self.x = label, x
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        return {"x": np.array([self.x, 0.0]), "label": self.label}, {}
+
+    def step(self, action: Any) -> Any:
+        return {"x": np.zeros(2), "label": "a"}, 0.0, True, False, {}
+
+
+@pytest.mark.parametrize(("x", "max_abs_diff"), [(0.0, None), (0.25, 0.25)])
+def test_max_abs_diff_of_a_dict_observation_is_its_numbers_not_its_text(
+    tmp_path: Path, x: float, max_abs_diff: float | None
+) -> None:
+    path = tmp_path / "d.mcap"
+    with RecordEvidence(_Labelled(), path) as rec:
+        rec.reset(seed=0)
+        rec.step(0)
+    [episode] = replay([path], env_factory=lambda: _Labelled("b", x)).episodes
+    assert episode.status == "diverged" and episode.divergence is not None
+    assert episode.divergence.field == "reset_observation"
+    assert episode.divergence.max_abs_diff == max_abs_diff
