@@ -29,6 +29,7 @@ __all__ = [
     "MAX_JSON_TEXT",
     "EpisodeRanges",
     "RunInfo",
+    "episode_index_problem",
     "from_json",
     "note_items",
     "to_json",
@@ -38,6 +39,17 @@ __all__ = [
 
 MAX_JSON_TEXT = 1 << 20
 """Largest JSON text from a file that :func:`from_json` parses: 1 MiB (as the reader's cap)."""
+
+
+def episode_index_problem(index: int) -> str | None:
+    """What is wrong with an episode index a person gave, or ``None`` (``0 .. 2**63 - 1``).
+
+    >>> print(episode_index_problem(2**63))
+    expected an episode index from 0 to 2**63 - 1, got 9223372036854775808
+    """
+    if 0 <= index < 2**63:
+        return None
+    return f"expected an episode index from 0 to 2**63 - 1, got {index}"
 
 
 def to_jsonable(value: Any, *, exact: bool = False) -> Any:

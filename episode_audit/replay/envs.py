@@ -352,11 +352,12 @@ def _from_pettingzoo_module(
 _MISMATCH = "the rebuilt env does not match the recording: "
 
 
-def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
+def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False) -> str | None:
     """How the env replay built differs from the recorded description, or ``None``.
 
     Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s) and, when
     it has a spec, the env kwargs both name (``render_mode`` aside) against the recorded ones.
+    ``factory``: the user's env factory built it (the reason then says to change that).
     Never raises: what cannot be read of the rebuilt env is not compared.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
@@ -379,7 +380,7 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
         if recorded != now:
             return (
                 f"{_MISMATCH}{what} {_shown(recorded)} recorded vs {_shown(now)} rebuilt; "
-                f"{_BUILD_AS_RECORDED}"
+                f"{_as_recorded(factory)}"
             )
     return None
 
@@ -387,16 +388,23 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
 _BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as recorded"
 
 
-def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | None:
+def _as_recorded(factory: bool) -> str:
+    """What to do about a rebuilt env that differs (``factory``: the user's factory built it)."""
+    return "make the --env-factory build the env as recorded" if factory else _BUILD_AS_RECORDED
+
+
+def agents_mismatch(
+    layout: Mapping[str, Any], run: RunInfo, env: Any, *, factory: bool = False
+) -> str | None:
     """How a rebuilt PettingZoo env differs from the recording, or ``None``.
 
     Its agents, its ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped``
-    have one), and the first agent's observation and action spaces. Never raises: what cannot
-    be read of the rebuilt env is not compared.
+    have one), and the first agent's observation and action spaces. ``factory``: the user's
+    env factory built it. Never raises: what cannot be read of the rebuilt env is not compared.
     """
     advice = (
-        _BUILD_AS_RECORDED
-        if layout.get("env_kwargs")
+        _as_recorded(factory)
+        if layout.get("env_kwargs") or factory
         else "the file holds no env_kwargs (the env's constructor arguments, which "
         "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
     )
@@ -423,7 +431,7 @@ def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | 
                     shown = _shown(_described(space))
                     return (
                         f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; "
-                        f"{_BUILD_AS_RECORDED}"
+                        f"{_as_recorded(factory)}"
                     )
     except Exception:  # the env's own attributes: compare nothing more
         return None

@@ -277,7 +277,7 @@ def replay_agents_evidence(
         )
     except ReplayError as exc:
         return none_replayable(path, records, str(exc))
-    why = agents_mismatch(ev.run.layout or {}, ev.run, env)
+    why = agents_mismatch(ev.run.layout or {}, ev.run, env, factory=env_factory is not None)
     if why is not None:
         env.close()
         return none_replayable(path, records, why)

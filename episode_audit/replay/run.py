@@ -20,6 +20,7 @@ from .._jobs import check_jobs, map_ordered, workers
 from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
+from ..format.records import episode_index_problem
 from ..read import Evidence, open_evidence
 from ..read.inputs import skipped
 from ..read.liveness import Holder, still_written
@@ -374,10 +375,9 @@ def replay_options(
         return None
     selected = list(episodes)
     for index in selected:
-        if not 0 <= index < 2**63:
-            raise ConfigurationError(
-                f"{episode_option}: expected an episode index >= 0, got {index}"
-            )
+        problem = episode_index_problem(index)
+        if problem is not None:
+            raise ConfigurationError(f"{episode_option}: {problem}")
     return selected
 
 

@@ -62,7 +62,7 @@ def replay_single_evidence(
 
     def build() -> gym.Env[Any, Any]:
         env = build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
-        why = env_mismatch(ev.run, env)
+        why = env_mismatch(ev.run, env, factory=env_factory is not None)
         if why is not None:
             env.close()
             raise ReplayError(why)

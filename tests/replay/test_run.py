@@ -22,8 +22,8 @@ CARTPOLE = FIXTURES / "unlabeled_failure.mcap"
         (float("nan"), None, "atol: expected a finite number >= 0, got nan"),
         (float("inf"), None, "atol: expected a finite number >= 0, got inf"),
         (-1.0, None, "atol: expected a finite number >= 0, got -1.0"),
-        (0.0, [1, -2], "episodes: expected an episode index >= 0, got -2"),
-        (0.0, [2**63], f"episodes: expected an episode index >= 0, got {2**63}"),
+        (0.0, [1, -2], "episodes: expected an episode index from 0 to 2**63 - 1, got -2"),
+        (0.0, [2**63], f"episodes: expected an episode index from 0 to 2**63 - 1, got {2**63}"),
     ],
 )
 def test_replay_options_name_what_is_wrong(

@@ -193,12 +193,16 @@ def test_pistonball_rebuilt_with_other_agents_names_the_difference(tmp_path: Pat
     ), reason
 
 
-def _rps_game(path: Path, env_kwargs: dict[str, Any] | None) -> Path:
+def _rps(max_cycles: int) -> Any:
     with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules
         warnings.simplefilter("ignore", DeprecationWarning)
         from pettingzoo.classic import rps_v2
 
-    env = rps_v2.parallel_env(max_cycles=4)
+    return rps_v2.parallel_env(max_cycles=max_cycles)
+
+
+def _rps_game(path: Path, env_kwargs: dict[str, Any] | None) -> Path:
+    env = _rps(4)
     with RecordParallelEvidence(env, path, env_kwargs=env_kwargs) as rec:
         rec.reset(seed=0)
         while rec.agents:
@@ -218,6 +222,11 @@ def test_a_game_rebuilt_with_other_max_cycles_is_named_not_diverged(tmp_path: Pa
     )
     again = replay([_rps_game(tmp_path / "kw.mcap", {"max_cycles": 4})])
     assert [e.status for e in again.episodes] == ["identical"] * 2
+    made = replay([tmp_path / "rps.mcap"], env_factory=lambda: _rps(5))
+    assert made.episodes[0].reason == (
+        "the rebuilt env does not match the recording: max_cycles 4 recorded vs 5 rebuilt; "
+        "make the --env-factory build the env as recorded"
+    )
 
 
 @pytest.mark.parametrize(
@@ -226,7 +235,7 @@ def test_a_game_rebuilt_with_other_max_cycles_is_named_not_diverged(tmp_path: Pa
         (
             "tests.support.stateful:cartpole8",
             "the rebuilt env does not match the recording: max episode steps 5 recorded vs 8 "
-            "rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded",
+            "rebuilt; make the --env-factory build the env as recorded",
         ),
         (
             "tests.support.stateful:mountain_car5",
@@ -253,7 +262,7 @@ def test_an_env_kwarg_the_rebuilt_env_has_otherwise_is_named(tmp_path: Path) -> 
     result = replay([path], env_factory=lambda: gym.make("FrozenLake-v1", is_slippery=True))
     assert result.episodes[0].reason == (
         "the rebuilt env does not match the recording: env kwarg 'is_slippery' false recorded "
-        "vs true rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded"
+        "vs true rebuilt; make the --env-factory build the env as recorded"
     )
 
 
