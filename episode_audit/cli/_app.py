@@ -27,6 +27,7 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup
 from .._jobs import sigint_held
 from .._version import __version__
 from ..errors import ConfigurationError, EpisodeAuditError
+from ..format.records import episode_index_problem
 from ..read.inputs import Unreadable, evidence_files, open_all
 from ..read.storage import Source, is_url
 from .render import OutputFormat, safe
@@ -488,8 +489,9 @@ def _readable(
 
 
 def _episode_index(index: int) -> int:
-    if not 0 <= index < 2**63:
-        fail(f"--episode: expected an episode index >= 0, got {index}")
+    problem = episode_index_problem(index)
+    if problem is not None:
+        fail(f"--episode: {problem}")
     return index
 
 

@@ -29,6 +29,7 @@ __all__ = [
     "MAX_JSON_TEXT",
     "EpisodeRanges",
     "RunInfo",
+    "episode_index_problem",
     "from_json",
     "note_items",
     "to_json",
@@ -40,27 +41,59 @@ MAX_JSON_TEXT = 1 << 20
 """Largest JSON text from a file that :func:`from_json` parses: 1 MiB (as the reader's cap)."""
 
 
-def to_jsonable(value: Any) -> Any:
+def episode_index_problem(index: int) -> str | None:
+    """What is wrong with an episode index a person gave, or ``None`` (``0 .. 2**63 - 1``).
+
+    >>> print(episode_index_problem(2**63))
+    expected an episode index from 0 to 2**63 - 1, got 9223372036854775808
+    """
+    if 0 <= index < 2**63:
+        return None
+    return f"expected an episode index from 0 to 2**63 - 1, got {index}"
+
+
+def to_jsonable(value: Any, *, exact: bool = False) -> Any:
     """Convert numpy scalars/arrays, tuples and non-finite floats into plain JSON values.
 
-    Non-finite floats become the strings ``"nan"``, ``"inf"``, ``"-inf"``; anything else that
-    JSON cannot hold raises ``TypeError``.
+    Non-finite floats become the strings ``"nan"``, ``"inf"``, ``"-inf"``, and mapping keys
+    their ``str()``; anything else that JSON cannot hold raises ``TypeError``. With ``exact``,
+    a value JSON would change so (a non-finite float, a key that is not a string) raises
+    ``ValueError`` naming it instead: sequences become lists, numpy values Python ones, and
+    nothing else changes.
 
     >>> to_jsonable({"x": np.float32(0.5), "y": (1, np.int64(2)), "z": np.arange(2)})
     {'x': 0.5, 'y': [1, 2], 'z': [0, 1]}
+    >>> to_jsonable({5: float("inf")})
+    {'5': 'inf'}
+    >>> to_jsonable({"limit": [float("-inf")]}, exact=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: JSON has no -inf
+    >>> to_jsonable({5: "x"}, exact=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: JSON keys are text, not int 5
     """
     if value is None or isinstance(value, (bool, str, int)):
         return value
     if isinstance(value, float):
-        return value if math.isfinite(value) else str(value)
+        if math.isfinite(value):
+            return value
+        if exact:
+            raise ValueError(f"JSON has no {value}")
+        return str(value)
     if isinstance(value, np.generic):
-        return to_jsonable(value.item())
+        return to_jsonable(value.item(), exact=exact)
     if isinstance(value, np.ndarray):
-        return to_jsonable(value.tolist())
+        return to_jsonable(value.tolist(), exact=exact)
     if isinstance(value, Mapping):
-        return {str(k): to_jsonable(v) for k, v in value.items()}
+        if exact:
+            for k in value:
+                if not isinstance(k, str):
+                    raise ValueError(f"JSON keys are text, not {type(k).__name__} {k!r:.40}")
+        return {str(k): to_jsonable(v, exact=exact) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [to_jsonable(v) for v in value]
+        return [to_jsonable(v, exact=exact) for v in value]
     raise TypeError(f"{type(value).__name__} is not JSON-serializable")
 
 

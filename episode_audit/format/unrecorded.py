@@ -19,6 +19,8 @@ import json
 from collections.abc import Mapping
 from typing import Any, Final
 
+import numpy as np
+
 __all__ = ["UNRECORDED", "placeholder", "placeholders", "spec_placeholders", "unrecorded"]
 
 UNRECORDED: Final = "episode_audit.unrecorded"
@@ -38,18 +40,30 @@ def placeholder(value: Any) -> dict[str, str]:
     return {UNRECORDED: described[:200]}
 
 
-def placeholders(kwargs: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]:
+def placeholders(
+    kwargs: Mapping[str, Any], *, dtype_names: bool = False
+) -> tuple[dict[str, Any], list[str]]:
     """``kwargs`` with each value JSON cannot hold replaced by its :func:`placeholder`.
 
-    Also returns the names of the arguments replaced.
+    Also returns the names of the arguments replaced. With ``dtype_names``, a numpy dtype
+    (``np.float32``, ``np.dtype("uint8")``) is its name instead, which a wrapper of
+    Gymnasium's takes as well (``DtypeObservation(env, "float32")``).
 
     >>> held, replaced = placeholders({"gamma": 0.99, "func": lambda r: r})
     >>> held["gamma"], unrecorded(held["func"]), replaced
     (0.99, 'function episode_audit.format.unrecorded:<lambda>', ['func'])
+    >>> placeholders({"dtype": np.float32}, dtype_names=True)
+    ({'dtype': 'float32'}, [])
     """
     out: dict[str, Any] = {}
     replaced: list[str] = []
     for name, value in kwargs.items():
+        if dtype_names and (
+            isinstance(value, np.dtype)
+            or (isinstance(value, type) and issubclass(value, np.generic))
+        ):
+            out[name] = np.dtype(value).name
+            continue
         try:
             json.dumps(value, allow_nan=False)
         except (TypeError, ValueError, RecursionError):

@@ -141,7 +141,8 @@ class WrapperRule:
     ``args``: for a ``rebuilt`` (or ``snapshot``) wrapper, each argument it may be given and
     its check (an argument not listed is refused); ``why``: for the others, the reason in words.
     ``renders``: it calls ``render()`` inside a step (left out, it no longer does);
-    ``render_bound``: a rebuilt wrapper whose step depends on those calls.
+    ``render_bound``: a rebuilt wrapper whose step depends on those calls; ``tuples``: the
+    arguments it needs as a tuple where given a sequence (a file holds a list).
     """
 
     kind: WrapperKind
@@ -149,10 +150,24 @@ class WrapperRule:
     why: str = ""
     renders: bool = False
     render_bound: bool = False
+    tuples: frozenset[str] = frozenset()
+
+    def built(self, kwargs: Mapping[str, Any] | None) -> dict[str, Any]:
+        """Recorded (checked) ``kwargs`` as the wrapper is built: lists of :attr:`tuples` tuples.
+
+        >>> RECORDED_WRAPPERS["gymnasium.wrappers:ReshapeObservation"].built({"shape": [3, 1]})
+        {'shape': (3, 1)}
+        """
+        return {
+            k: tuple(v) if k in self.tuples and isinstance(v, list) else v
+            for k, v in (kwargs or {}).items()
+        }
 
 
-def _rebuilt(render_bound: bool = False, **args: Check) -> WrapperRule:
-    return WrapperRule("rebuilt", args, render_bound=render_bound)
+def _rebuilt(
+    render_bound: bool = False, *, tuples: Collection[str] = (), **args: Check
+) -> WrapperRule:
+    return WrapperRule("rebuilt", args, render_bound=render_bound, tuples=frozenset(tuples))
 
 
 _NO_STEP = "it never changes a step"
@@ -172,8 +187,11 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
     "FlattenObservation": ("transform_observation", _rebuilt()),
     "FilterObservation": ("transform_observation", _rebuilt(filter_keys=_keys)),
     "GrayscaleObservation": ("transform_observation", _rebuilt(keep_dim=_bool)),
-    "ResizeObservation": ("transform_observation", _rebuilt(shape=_SIZE)),
-    "ReshapeObservation": ("transform_observation", _rebuilt(shape=_ints(1, _LARGE, 32))),
+    "ResizeObservation": ("transform_observation", _rebuilt(tuples={"shape"}, shape=_SIZE)),
+    "ReshapeObservation": (
+        "transform_observation",
+        _rebuilt(tuples={"shape"}, shape=_ints(1, _LARGE, 32)),
+    ),
     "RescaleObservation": (
         "transform_observation",
         _rebuilt(min_obs=_numbers(), max_obs=_numbers()),
@@ -223,7 +241,9 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
     "StickyAction": (
         "stateful_action",
         _rebuilt(
-            repeat_action_probability=_probability, repeat_action_duration=_ints(1, 10_000, 2)
+            tuples={"repeat_action_duration"},
+            repeat_action_probability=_probability,
+            repeat_action_duration=_ints(1, 10_000, 2),
         ),
     ),
     "RepeatAction": ("stateful_action", _rebuilt(num_repeats=_int(1, 1_000))),
@@ -234,6 +254,7 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
     "AtariPreprocessing": (
         "atari_preprocessing",
         _rebuilt(
+            tuples={"screen_size"},
             noop_max=_int(0, 10_000),
             frame_skip=_int(1, 1_000),
             screen_size=_SIZE,
@@ -297,10 +318,14 @@ class WrapperPlan:
     refused: str | None = None
 
 
-_WAY_AROUND = (
-    "pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to "
-    "build the recorded wrappers as they are"
-)
+_FACTORY_ONLY = "pass --env-factory MODULE:CALLABLE that builds the env"
+_WAY_AROUND = f"{_FACTORY_ONLY}, or --trust-entry-points to build the recorded wrappers as they are"
+
+
+def _holds_placeholder(wrapper: Any) -> bool:
+    """Whether a recorded wrapper has an argument the file holds only a placeholder of."""
+    kwargs = wrapper.get("kwargs") if isinstance(wrapper, Mapping) else None
+    return isinstance(kwargs, Mapping) and any(unrecorded(v) is not None for v in kwargs.values())
 
 
 def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) -> WrapperPlan:
@@ -332,9 +357,13 @@ def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) ->
         else:
             assert isinstance(wrapper, Mapping)
             plan.refused = _bad_argument(name, rule, wrapper.get("kwargs"))
-            plan.rebuild.append((name, dict(wrapper.get("kwargs") or {})))
-            bound += [name] if rule.render_bound else []
+            if plan.refused is None:
+                plan.rebuild.append((name, rule.built(wrapper.get("kwargs"))))
+                bound += [name] if rule.render_bound else []
         if plan.refused is not None:
+            if _holds_placeholder(wrapper):  # trusted, replay refuses it too
+                plan.refused += f"; {_FACTORY_ONLY}"
+                return plan
             break
     if plan.refused is None and renders and bound:
         plan.refused = (

@@ -14,6 +14,7 @@ from collections.abc import Iterable
 from typing import Any, TypeVar
 
 from ..errors import ConfigurationError
+from ..format.records import episode_index_problem
 
 __all__ = ["episode_index", "episode_indices", "name_list", "path_list"]
 
@@ -80,8 +81,9 @@ def episode_index(name: str, index: Any) -> int:
             f"{name}: expected an episode index >= 0 (an int), got {index!r} "
             f"({type(index).__name__})"
         )
-    if not 0 <= int(index) < 2**63:
-        raise ConfigurationError(f"{name}: expected an episode index >= 0, got {index}")
+    problem = episode_index_problem(int(index))
+    if problem is not None:
+        raise ConfigurationError(f"{name}: {problem}")
     return int(index)
 
 

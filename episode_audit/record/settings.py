@@ -29,7 +29,7 @@ from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import MAX_JSON_TEXT, RunInfo, to_json
 from ..format.unrecorded import placeholders, spec_placeholders
-from ..format.wrappers import RUN_TRANSPARENT_WRAPPERS
+from ..format.wrappers import RECORDED_WRAPPERS, RUN_TRANSPARENT_WRAPPERS
 from .rules import EndingRules, RewardTerms, TermsFn, check_constants
 
 __all__ = [
@@ -430,7 +430,10 @@ def _spec_json(spec: Any) -> tuple[dict[str, Any], list[str]]:
     except (TypeError, ValueError):
         pass
     wrappers = tuple(
-        dataclasses.replace(w, kwargs=placeholders(w.kwargs or {})[0])
+        dataclasses.replace(
+            w,
+            kwargs=placeholders(w.kwargs or {}, dtype_names=w.entry_point in RECORDED_WRAPPERS)[0],
+        )
         for w in spec.additional_wrappers or ()
     )
     kwargs = placeholders(spec.kwargs or {})[0]

@@ -113,11 +113,17 @@ def recordable_seed(seed: Any, notes: list[str]) -> int | None:
 
 
 def recordable_options(options: Any, notes: list[str]) -> Any:
-    """``reset()``'s options as JSON-able data; its ``repr`` (noted) when JSON cannot hold it."""
+    """``reset()``'s options as JSON-able data; its ``repr`` (noted) when JSON cannot hold it.
+
+    Held exactly or not at all: options JSON would change (a non-finite float, a key that is
+    not a string) are noted too, so replay never resets with other options than the env had.
+    """
     if options is None:
         return None
     try:
-        return to_jsonable(options)
+        return to_jsonable(options, exact=True)
+    except ValueError as exc:  # JSON would change a value: the note says which
+        notes.append(note("options_unserializable", f"{short(options)} ({exc})"))
     except Exception:  # not JSON; cyclic or too deep (RecursionError); a key's str() raises
         notes.append(note("options_unserializable", short(options)))
-        return {"repr": short(options)}
+    return {"repr": short(options)}

@@ -149,7 +149,7 @@ def _from_registry(
                 raise ReplayError(
                     f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
                 )
-            env = cls(env, **(wrapper.get("kwargs") or {}))
+            env = _wrapped(cls, env, wrapper)
     except (ConfigurationError, ReplayError):
         raise
     except Exception as exc:  # the env's own code, given what the file recorded
@@ -157,6 +157,21 @@ def _from_registry(
             f"cannot make {env_id!r} with the recorded kwargs: {error_text(exc)}"
         ) from None
     return env
+
+
+def _wrapped(
+    cls: type[gym.Wrapper[Any, Any, Any, Any]], env: Any, wrapper: Mapping[str, Any]
+) -> Any:
+    """``env`` in the recorded ``wrapper`` (its class ``cls``); an error names the wrapper."""
+    kwargs = wrapper.get("kwargs") or {}
+    try:
+        return cls(env, **kwargs)
+    except Exception as exc:  # the wrapper's own checks, given what the file recorded
+        name = str(wrapper["entry_point"]).rpartition(":")[2][:80]
+        raise ReplayError(
+            f"cannot rebuild the recorded wrapper {name} with its recorded arguments "
+            f"{_shown(kwargs)}: {error_text(exc)}; {_WAY_AROUND}"
+        ) from None
 
 
 def _load_wrapper(entry_point: str) -> Any:
@@ -337,11 +352,12 @@ def _from_pettingzoo_module(
 _MISMATCH = "the rebuilt env does not match the recording: "
 
 
-def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
+def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False) -> str | None:
     """How the env replay built differs from the recorded description, or ``None``.
 
     Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s) and, when
     it has a spec, the env kwargs both name (``render_mode`` aside) against the recorded ones.
+    ``factory``: the user's env factory built it (the reason then says to change that).
     Never raises: what cannot be read of the rebuilt env is not compared.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
@@ -364,7 +380,7 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
         if recorded != now:
             return (
                 f"{_MISMATCH}{what} {_shown(recorded)} recorded vs {_shown(now)} rebuilt; "
-                f"{_BUILD_AS_RECORDED}"
+                f"{_as_recorded(factory)}"
             )
     return None
 
@@ -372,22 +388,37 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
 _BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as recorded"
 
 
-def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | None:
-    """How a rebuilt PettingZoo env differs from the recording (agents, spaces), or ``None``."""
+def _as_recorded(factory: bool) -> str:
+    """What to do about a rebuilt env that differs (``factory``: the user's factory built it)."""
+    return "make the --env-factory build the env as recorded" if factory else _BUILD_AS_RECORDED
+
+
+def agents_mismatch(
+    layout: Mapping[str, Any], run: RunInfo, env: Any, *, factory: bool = False
+) -> str | None:
+    """How a rebuilt PettingZoo env differs from the recording, or ``None``.
+
+    Its agents, its ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped``
+    have one), and the first agent's observation and action spaces. ``factory``: the user's
+    env factory built it. Never raises: what cannot be read of the rebuilt env is not compared.
+    """
+    advice = (
+        _as_recorded(factory)
+        if layout.get("env_kwargs") or factory
+        else "the file holds no env_kwargs (the env's constructor arguments, which "
+        "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
+    )
     try:
         agents = [str(a) for a in env.possible_agents]
         recorded = layout.get("agents")
         if isinstance(recorded, list) and [str(a) for a in recorded] != agents:
-            advice = (
-                _BUILD_AS_RECORDED
-                if layout.get("env_kwargs")
-                else "the file holds no env_kwargs (the env's constructor arguments, which "
-                "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
-            )
             return (
                 f"{_MISMATCH}agents {_agents(recorded)} recorded vs {_agents(agents)} rebuilt; "
                 f"{advice}"
             )
+        cycles, now = layout.get("max_cycles"), getattr(env.unwrapped, "max_cycles", None)
+        if isinstance(cycles, int) and isinstance(now, int) and cycles != now:
+            return f"{_MISMATCH}max_cycles {cycles} recorded vs {now} rebuilt; {advice}"
         if agents:
             env_spaces = (env.observation_space(agents[0]), env.action_space(agents[0]))
             for what, rec, space in zip(
@@ -400,7 +431,7 @@ def agents_mismatch(layout: Mapping[str, Any], run: RunInfo, env: Any) -> str | 
                     shown = _shown(_described(space))
                     return (
                         f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; "
-                        f"{_BUILD_AS_RECORDED}"
+                        f"{_as_recorded(factory)}"
                     )
     except Exception:  # the env's own attributes: compare nothing more
         return None

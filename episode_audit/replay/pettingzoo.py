@@ -11,7 +11,7 @@ evidence (:class:`_AgentEpisode`). How games replay, and what a game cut by a to
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import pyarrow as pa
@@ -26,7 +26,7 @@ from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
 from .envs import agents_mismatch, build_pettingzoo_env
-from .recorded import cast_actions, row_ranges, rules_of
+from .recorded import cast_actions, row_ranges, rules_of, unrecorded_options
 from .results import (
     RESET_RAISED,
     Divergence,
@@ -34,6 +34,8 @@ from .results import (
     env_error,
     none_replayable,
     not_told_from_cast,
+    options_not_held,
+    restored_state,
     short,
 )
 from .returned import encoded, recorded_terms
@@ -218,6 +220,7 @@ class _File:
     terms_rule: RewardTerms | None
     max_cycles: int | None
     atol: float
+    unset_options: dict[int, str]  # by agent-episode: reset options the file does not hold
 
     @classmethod
     def read(cls, ev: Evidence, obs_codec: SpaceCodec, act_codec: SpaceCodec, atol: float) -> _File:
@@ -246,6 +249,7 @@ class _File:
             terms_rule,
             max_cycles if isinstance(max_cycles, int) else None,
             atol,
+            unrecorded_options(resets),
         )
 
 
@@ -273,7 +277,7 @@ def replay_agents_evidence(
         )
     except ReplayError as exc:
         return none_replayable(path, records, str(exc))
-    why = agents_mismatch(ev.run.layout or {}, ev.run, env)
+    why = agents_mismatch(ev.run.layout or {}, ev.run, env, factory=env_factory is not None)
     if why is not None:
         env.close()
         return none_replayable(path, records, why)
@@ -297,6 +301,7 @@ def _replay_games(
     """Replay the game of each of ``records`` (once per game), by episode index."""
     done: dict[int, EpisodeReplay] = {}
     cast: dict[int, tuple[int, str]] | None = None  # (read at the first difference)
+    played = 0  # the games the env was reset for so far
     for record in records:
         index = int(record["episode"])
         if index in done:
@@ -311,7 +316,14 @@ def _replay_games(
             for result in none_replayable(file.path, members.values(), _DAMAGED_GAME):
                 done[result.episode] = result
             continue
-        results = _replay_game(env, file, members)
+        results, reset = _replay_game(env, file, members)
+        if reset:
+            first = next(iter(members.values()))
+            restored = restored_state(first, played, unit="game")
+            results = [
+                r if r.status != "diverged" else replace(r, restored=restored) for r in results
+            ]
+            played += 1
         if any(r.status == "diverged" for r in results):
             cast = cast_actions(file.steps) if cast is None else cast
             results = _cast_explains(cast, members, results)
@@ -344,15 +356,27 @@ _TORN = "torn"
 _FAILED = "failed"
 
 
-def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> list[EpisodeReplay]:
-    """Replay one game (its records by agent) and compare each agent's episode."""
+def _replay_game(
+    env: Any, file: _File, members: dict[str, dict[str, Any]]
+) -> tuple[list[EpisodeReplay], bool]:
+    """Replay one game (its records by agent) and compare each agent's episode.
+
+    Also says whether the env was reset for it (not for a game the file cannot replay).
+    """
     first = next(iter(members.values()))
     seed, rng_state = first.get("seed"), first.get("rng_state")
     if seed is None and rng_state is None:
         reason = "no seed or RNG state recorded for its game's reset"
-        return none_replayable(file.path, members.values(), reason)
+        return none_replayable(file.path, members.values(), reason), False
     if any(r.get("error_during") == "reset" for r in members.values()):
-        return none_replayable(file.path, members.values(), RESET_RAISED)
+        return none_replayable(file.path, members.values(), RESET_RAISED), False
+    unset = [
+        file.unset_options[e]
+        for r in members.values()
+        if (e := int(r["episode"])) in file.unset_options
+    ]
+    if unset:
+        return none_replayable(file.path, members.values(), options_not_held(unset[0])), False
     queues: dict[str, list[Any]] = {}
     for agent, r in members.items():
         start, count = file.rows.get(int(r["episode"]), (0, 0))
@@ -365,7 +389,8 @@ def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> l
         options = from_json(first["options"], "options") if first.get("options") else None
         state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
     except ValueError as exc:
-        return none_replayable(file.path, members.values(), f"its game's reset record: {exc}")
+        reason = f"its game's reset record: {exc}"
+        return none_replayable(file.path, members.values(), reason), False
     # how the recorded game ended, if not by its rules, a reset or close (see docs/replay.md)
     cut_kind: str | None = None
     failure: str | None = None
@@ -380,8 +405,8 @@ def _replay_game(env: Any, file: _File, members: dict[str, dict[str, Any]]) -> l
         # the recording may have ended the game at its last action, without the dead steps
         again = play.run(dead_steps=False)
         if not any(r.status == "diverged" for r in again):
-            return again
-    return results
+            return again, True
+    return results, True
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ __all__ = [
     "rules_of",
     "state_not_restorable",
     "to_end",
+    "unrecorded_options",
     "unrepeated",
 ]
 
@@ -121,6 +122,7 @@ def to_end(
 
 
 _ACTION_CAST = "action_cast"
+_OPTIONS_UNRECORDED = "options_unserializable"
 
 
 def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
@@ -135,41 +137,68 @@ def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
     >>> cast_actions(pa.table({"episode": [0, 1, 1], "step": [0, 0, 1], "notes": notes}))
     {1: (0, 'dtype float64 cast to float32')}
     """
-    if fmt.COL_NOTES not in steps.column_names:
+    found = _first_noted(steps, _ACTION_CAST)
+    if not found:
         return {}
-    notes = steps.column(fmt.COL_NOTES)
+    step = steps.column(fmt.COL_STEP)
+    return {e: (step[row].as_py(), message) for e, (row, message) in found.items()}
+
+
+def unrecorded_options(resets: pa.Table) -> dict[int, str]:
+    """The episodes of ``resets`` whose reset options the file does not hold, and the note.
+
+    The recorder notes ``options_unserializable`` on a reset whose options JSON cannot hold
+    exactly (a function, a non-finite float, a key that is not a string): the env was reset
+    with options replay does not have.
+
+    >>> import pyarrow as pa
+    >>> notes = [None, '["options_unserializable: {1: nan} (JSON has no nan)"]']
+    >>> unrecorded_options(pa.table({"episode": [0, 1], "notes": notes}))
+    {1: '{1: nan} (JSON has no nan)'}
+    """
+    return {e: message for e, (_, message) in _first_noted(resets, _OPTIONS_UNRECORDED).items()}
+
+
+def _first_noted(table: pa.Table, code: str) -> dict[int, tuple[int, str]]:
+    """By episode: the position of its first row of ``table`` noted ``code``, and the note.
+
+    Only the distinct notes values are parsed.
+    """
+    if fmt.COL_NOTES not in table.column_names:
+        return {}
+    notes = table.column(fmt.COL_NOTES)
     if notes.null_count == len(notes):
         return {}
     encoded = pc.dictionary_encode(notes).combine_chunks()
-    cast: dict[int, str] = {}
+    noted: dict[int, str] = {}
     for slot, text in enumerate(encoded.dictionary.to_pylist()):
         for item in (note_items(text) if text else None) or ():  # (garbled: says nothing)
-            code, _, message = item.partition(": ")
-            if code == _ACTION_CAST:
-                cast[slot] = message
+            found, _, message = item.partition(": ")
+            if found == code:
+                noted[slot] = message
                 break
-    if not cast:
+    if not noted:
         return {}
     indices = encoded.indices.to_numpy(zero_copy_only=False)
     valid = np.asarray(encoded.indices.is_valid())
-    rows = np.flatnonzero(valid & np.isin(np.where(valid, indices, -1), list(cast)))
-    episode = steps.column(fmt.COL_EPISODE).to_numpy()[rows]
-    step = steps.column(fmt.COL_STEP).to_numpy()[rows]
+    rows = np.flatnonzero(valid & np.isin(np.where(valid, indices, -1), list(noted)))
+    episode = table.column(fmt.COL_EPISODE).to_numpy()[rows]
     out: dict[int, tuple[int, str]] = {}
-    for row, e, t in zip(rows.tolist(), episode.tolist(), step.tolist(), strict=True):
+    for row, e in zip(rows.tolist(), episode.tolist(), strict=True):
         if e not in out:
-            out[e] = (t, cast[int(indices[row])])
+            out[e] = (row, noted[int(indices[row])])
     return out
 
 
 def unrepeated(
-    record: Mapping[str, Any], after_end: int, *, raised_again: bool = False
+    record: Mapping[str, Any], after_end: int, *, raised_again: bool = False, unset: bool = False
 ) -> str | None:
     """What the recorded env did in ``record``'s episode that replay does not repeat, or None.
 
     The step or reset that raised, in an ``error`` episode (a call that raised is no row),
     unless replay stepped its recorded action and it raised the same (``raised_again``), and
-    the ``after_end`` rows stepped after its end.
+    the ``after_end`` rows stepped after its end; all of it when its reset options are not in
+    the file (``unset``: replay does not reset it).
 
     >>> rec = {"episode": 1, "outcome": "error", "error_during": "step", "length": 2}
     >>> print(unrepeated({**rec, "error_type": "KeyError"}, 3))
@@ -178,7 +207,13 @@ def unrepeated(
     episode 1's 3 steps after its end
     >>> print(unrepeated({"episode": 4, "outcome": "success", "length": 9}, 1))
     episode 4's 1 step after its end
+    >>> print(unrepeated({"episode": 2, "outcome": "success", "length": 9}, 1, unset=True))
+    episode 2's reset and steps (its reset options are not in the file)
     """
+    if unset:
+        return (
+            f"episode {record['episode']}'s reset and steps (its reset options are not in the file)"
+        )
     parts = []
     if record.get("outcome") == fmt.OUTCOME_ERROR and not raised_again:
         error = record.get("error_type") or "an error"

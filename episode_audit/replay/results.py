@@ -29,6 +29,7 @@ __all__ = [
     "not_told_from_cast",
     "not_told_from_history",
     "not_told_from_versions",
+    "options_not_held",
     "restored_state",
     "short",
 ]
@@ -76,9 +77,16 @@ class Divergence:
         """An observation that differs (``step`` ``None``: the reset observation).
 
         When either value is too long to show whole, the first differing element is named.
+        ``max_abs_diff`` is the codec's, infinite where a part that is not a number differs
+        (text, JSON): of a Dict, Tuple or text observation it is then the numeric parts'
+        largest difference, or ``None`` when none of them differs.
         """
         shown = short(expected), short(got)
         cut = any("..." in text for text in shown)
+        if max_abs_diff is not None and np.isinf(max_abs_diff):
+            kinds = (Mapping, tuple, str)
+            if any(isinstance(expected, k) and isinstance(got, k) for k in kinds):
+                max_abs_diff = _numeric_difference(expected, got, atol)
         return cls(
             step,
             "observation" if step is not None else "reset_observation",
@@ -175,27 +183,45 @@ def restored_state(
     *,
     env: str = "this env",
     snapshots: Iterable[str] = (),
+    unit: str = "episode",
 ) -> str:
     """What replay restored before an episode's reset, in one line.
 
     ``record`` is its episode record (its ``seed``, else its ``rng_state``: an unseeded reset);
-    ``earlier`` how many episodes ``env`` (a vector file: the sub-env's own) replayed before it;
-    ``snapshots`` names each state snapshot set before the reset (e.g.
-    ``"snapshot of NormalizeObservation"``).
+    ``earlier`` how many episodes (``unit``: a PettingZoo file's are games) ``env`` (a vector
+    file: the sub-env's own) replayed before it; ``snapshots`` names each state snapshot set
+    before the reset (e.g. ``"snapshot of NormalizeObservation"``).
 
     >>> restored_state({"seed": 7}, 0)
     'seed 7; first episode in this env'
     >>> restored_state({"seed": None, "rng_state": "{}"}, 2, env="sub-env 1's env")
     "the recorded RNG state (an unseeded reset); sub-env 1's env after 2 earlier episodes"
+    >>> restored_state({"seed": 3}, 1, unit="game")
+    'seed 3; this env after 1 earlier game'
     """
     seed = record.get("seed")
     parts = [f"seed {seed}" if seed is not None else "the recorded RNG state (an unseeded reset)"]
     parts.extend(snapshots)
     if earlier:
-        parts.append(f"{env} after {earlier} earlier episode{'s' if earlier != 1 else ''}")
+        parts.append(f"{env} after {earlier} earlier {unit}{'s' if earlier != 1 else ''}")
     else:
-        parts.append(f"first episode in {env}")
+        parts.append(f"first {unit} in {env}")
     return "; ".join(parts)
+
+
+def options_not_held(note: str) -> str:
+    """Why an episode (a game) reset with options the file does not hold is not replayable.
+
+    ``note``: the recorder's ``options_unserializable`` note, what the options were.
+
+    >>> print(options_not_held("{'limit': inf} (JSON has no inf)"))
+    its reset options are not in the file ({'limit': inf} (JSON has no inf)): replay cannot \
+reset it as recorded; give reset() options JSON holds exactly (finite numbers, text keys)
+    """
+    return (
+        f"its reset options are not in the file ({note}): replay cannot reset it as recorded; "
+        "give reset() options JSON holds exactly (finite numbers, text keys)"
+    )
 
 
 def none_replayable(
@@ -328,6 +354,36 @@ def short(value: Any) -> str:
     except Exception as exc:
         text = f"<a {type(value).__name__} whose repr() raised {env_error(exc)}>"
     return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _numeric_difference(expected: Any, got: Any, atol: float) -> float | None:
+    """The largest absolute difference of the numeric parts that differ, or ``None``.
+
+    Parts are numeric arrays or numbers of the same shape (in a Dict or Tuple too), compared
+    as replay compares them; any other part (text, a JSON value) is not a number.
+
+    >>> _numeric_difference({"x": np.zeros(2), "t": "a"}, {"x": np.zeros(2), "t": "b"}, 0.0)
+    >>> _numeric_difference({"x": np.zeros(2), "t": "a"}, {"x": np.ones(2) / 4, "t": "b"}, 0.0)
+    0.25
+    """
+    if isinstance(expected, Mapping) and isinstance(got, Mapping):
+        parts = [_numeric_difference(expected[k], got[k], atol) for k in expected if k in got]
+    elif isinstance(expected, tuple) and isinstance(got, tuple) and len(expected) == len(got):
+        parts = [_numeric_difference(e, g, atol) for e, g in zip(expected, got, strict=True)]
+    else:
+        if isinstance(expected, (str, bytes)) or isinstance(got, (str, bytes)):
+            return None
+        a, b = np.asarray(expected), np.asarray(got)
+        if a.shape != b.shape or a.dtype.kind not in "biuf" or b.dtype.kind not in "biuf":
+            return None
+        a, b = a.reshape(-1), b.reshape(-1)
+        differ = ~equal_elements(a, b, atol)
+        if not differ.any():
+            return None
+        with np.errstate(all="ignore"):
+            return float(np.max(np.abs(a[differ].astype(np.float64) - b[differ])))
+    found = [d for d in parts if d is not None]
+    return max(found) if found else None
 
 
 def _first_difference(expected: Any, got: Any, atol: float, path: str = "") -> str | None:

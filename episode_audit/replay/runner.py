@@ -24,8 +24,15 @@ from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
 from ..record.state import StateTargets, restore_snapshot
 from .compare import Comparison
-from .recorded import ordinal, replay_actions, rules_of
-from .results import RESET_RAISED, Divergence, EpisodeReplay, env_error, restored_state
+from .recorded import ordinal, replay_actions, rules_of, unrecorded_options
+from .results import (
+    RESET_RAISED,
+    Divergence,
+    EpisodeReplay,
+    env_error,
+    options_not_held,
+    restored_state,
+)
 from .returned import Ran, Rows, Steps
 
 __all__ = ["EpisodeRunner"]
@@ -81,6 +88,7 @@ class EpisodeRunner:
         """Error episodes whose recorded step that raised raised the same again in replay."""
         self._raising: dict[int, Any] = {}  # by error episode: its recorded action that raised
         self._not_raised: dict[int, str] = {}  # by error episode: how its raising step differed
+        self._unset_options: dict[int, str] = {}  # by episode: options the file does not hold
 
     def _not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
@@ -110,6 +118,7 @@ class EpisodeRunner:
         actions, null_rows = replay_actions(steps.column(fmt.COL_ACTION), self.act_codec)
         names = resets.column_names
         self.states = resets.column(fmt.COL_STATE) if fmt.COL_STATE in names else None
+        self._unset_options = unrecorded_options(resets)
         self._raising = self._raising_actions(records)
         ran, returned, got_obs, got_reset = self._step_all(
             records, actions, null_rows, rows, reset_rows, done
@@ -298,6 +307,10 @@ class EpisodeRunner:
                 if record.get("error_during") == "reset"
                 else "its reset row is missing (torn file)"
             )
+            done[index] = self._not_replayable(index, count, why)
+            return _SKIPPED
+        if index in self._unset_options:
+            why = options_not_held(self._unset_options[index])
             done[index] = self._not_replayable(index, count, why)
             return _SKIPPED
         try:

@@ -30,6 +30,7 @@ from .recorded import (
     row_ranges,
     state_not_restorable,
     to_end,
+    unrecorded_options,
     unrepeated,
 )
 from .results import EpisodeReplay, none_replayable, not_told_from_cast, not_told_from_history
@@ -61,7 +62,7 @@ def replay_single_evidence(
 
     def build() -> gym.Env[Any, Any]:
         env = build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
-        why = env_mismatch(ev.run, env)
+        why = env_mismatch(ev.run, env, factory=env_factory is not None)
         if why is not None:
             env.close()
             raise ReplayError(why)
@@ -183,6 +184,7 @@ class _Pass:
         """
         vector = self.ev.run.layout.get("kind") == "vector"
         latest: dict[int, str] = {}  # by sub-env: what replay last did not repeat
+        unset = unrecorded_options(self.known[2])
         for record in sorted(listed, key=lambda r: int(r[fmt.COL_EPISODE])):
             index, sub = int(record[fmt.COL_EPISODE]), int(record.get(fmt.COL_ENV_INDEX) or 0)
             result = self.results[index]
@@ -191,7 +193,9 @@ class _Pass:
                 env = f"sub-env {sub}'s env" if vector else "this env"
                 result = not_told_from_history(result, before, env=env)
             again = index in self.runner.raised_again
-            own = unrepeated(record, self.after_end.get(index, 0), raised_again=again)
+            own = unrepeated(
+                record, self.after_end.get(index, 0), raised_again=again, unset=index in unset
+            )
             if index in self.cast:  # (it differed: so may its env's state after it)
                 cast = f"episode {index}'s actions, stepped before the recorder cast them"
                 own = cast if own is None else f"{own}, and {cast[len(f'episode {index}') :]}"

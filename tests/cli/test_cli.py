@@ -651,8 +651,14 @@ def test_argument_values_outside_their_range_are_usage_errors(tmp_path: Path) ->
     for args, message in [
         (["replay", clean, "--atol", "nan"], "--atol: expected a finite number >= 0, got nan"),
         (["replay", clean, "--atol", "inf"], "--atol: expected a finite number >= 0, got inf"),
-        (["replay", clean, "-e", huge], f"--episode: expected an episode index >= 0, got {huge}"),
-        (["show", clean, "-e", huge], f"--episode: expected an episode index >= 0, got {huge}"),
+        (
+            ["replay", clean, "-e", huge],
+            f"--episode: expected an episode index from 0 to 2**63 - 1, got {huge}",
+        ),
+        (
+            ["show", clean, "-e", huge],
+            f"--episode: expected an episode index from 0 to 2**63 - 1, got {huge}",
+        ),
         (["check", clean, clean, "--atol", "-1"], "atol: expected a finite number >= 0"),
         (["report", clean, "--max-failure-rate", "=0.1"], "got '=0.1' (no label)"),
         (["report", clean, "--games"], "fixtures/clean.mcap is a single-env file (drop --games)"),

@@ -62,6 +62,7 @@ def test_a_name_list_refuses_a_bare_string(names: object, message: str) -> None:
 
 def test_an_episode_index_out_of_range_is_said_as_the_command_line_does() -> None:
     with pytest.raises(
-        ConfigurationError, match=r"^--episode: expected an episode index >= 0, got -1$"
+        ConfigurationError,
+        match=r"^--episode: expected an episode index from 0 to 2\*\*63 - 1, got -1$",
     ):
         episode_index("--episode", -1)

@@ -780,19 +780,45 @@ def test_parallel_api_test_passes_on_the_wrapped_envs(tmp_path: Path) -> None:
     assert check([tmp_path / "kaz.mcap", tmp_path / "rps.mcap"]).errors == 0
 
 
+class _PaysAtStep2(BaseParallelWrapper):  # type: ignore[misc]
+    """rps_v2 (max_cycles=5) whose third step pays every agent 1 more."""
+
+    def __init__(self) -> None:
+        super().__init__(rps_v2.parallel_env(max_cycles=5))
+        self.steps = 0
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        self.steps = 0
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, actions: dict[str, Any]) -> Any:
+        self.steps += 1
+        obs, rewards, term, trunc, infos = self.env.step(actions)
+        if self.steps == 3:
+            rewards = {agent: reward + 1 for agent, reward in rewards.items()}
+        return obs, rewards, term, trunc, infos
+
+
 def test_replay_reports_where_a_game_diverged(tmp_path: Path) -> None:
     path = tmp_path / "rps.mcap"
     with RecordParallelEvidence(
         rps_v2.parallel_env(max_cycles=5), path, env_kwargs={"max_cycles": 5}
     ) as env:
-        env.reset(seed=3)
-        while env.agents:
-            env.step({a: 2 for a in env.agents})
-    result = replay([path], env_factory=lambda: rps_v2.parallel_env(max_cycles=3))
-    (first, _second) = result.episodes
+        for seed in (3, 4):
+            env.reset(seed=seed)
+            while env.agents:
+                env.step({a: 2 for a in env.agents})
+    result = replay([path], env_factory=_PaysAtStep2)
+    first = result.episodes[0]
     assert first.status == "diverged" and first.divergence is not None
-    assert (first.divergence.step, first.divergence.field) == (2, "truncated")
-    assert replay([path]).count("identical") == 2  # built from the recorded kwargs
+    assert (first.divergence.step, first.divergence.field) == (2, "reward")
+    assert [e.restored for e in result.episodes] == [
+        "seed 3; first game in this env",
+        "seed 3; first game in this env",
+        "seed 4; this env after 1 earlier game",
+        "seed 4; this env after 1 earlier game",
+    ]
+    assert replay([path]).count("identical") == 4  # built from the recorded kwargs
 
 
 def _with_layout(src: Path, dst: Path, **changes: Any) -> Path:

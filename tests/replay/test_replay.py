@@ -30,6 +30,7 @@ from episode_audit.replay.compare import terms_equal as _terms_equal
 from episode_audit.replay.recorded import row_ranges as _row_ranges
 from episode_audit.replay.returned import _rewards
 from tests.support.envs import ScriptedEnv
+from tests.support.hostile import rewrite
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -190,6 +191,67 @@ def test_a_wrapper_of_another_gymnasium_is_named_not_replayed(
     [episode] = replay([wrapped]).episodes
     assert episode.status == "not_replayable"
     assert f"is not in this Gymnasium ({gym.__version__}); replay with" in str(episode.reason)
+
+
+def _reshaped() -> gym.Env[Any, Any]:
+    return gym.wrappers.ReshapeObservation(gym.make("Pendulum-v1", max_episode_steps=4), (3, 1))
+
+
+def _sticky() -> gym.Env[Any, Any]:
+    return gym.wrappers.StickyAction(gym.make("CartPole-v1", max_episode_steps=4), 0.5, (1, 2))
+
+
+@pytest.mark.parametrize("make", [_reshaped, _sticky], ids=["reshape", "sticky"])
+def test_a_wrapper_argument_that_must_be_a_tuple_is_rebuilt_as_one(
+    tmp_path: Path, make: Callable[[], gym.Env[Any, Any]]
+) -> None:
+    """The file holds the tuple as a JSON list; the wrapper refuses a list."""
+    path = tmp_path / "t.mcap"
+    with RecordEvidence(make(), path) as rec:
+        for seed in (1, 2):
+            rec.reset(seed=seed)
+            rec.action_space.seed(seed)
+            for _ in range(4):
+                rec.step(rec.action_space.sample())
+    assert [e.status for e in replay([path]).episodes] == ["identical"] * 2
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.dtype("float32")], ids=["type", "dtype"])
+def test_a_dtype_observation_is_recorded_by_its_dtype_name_and_rebuilt(
+    tmp_path: Path, dtype: Any
+) -> None:
+    path = tmp_path / "d.mcap"
+    pendulum = gym.make("Pendulum-v1", max_episode_steps=3)
+    with RecordEvidence(gym.wrappers.DtypeObservation(pendulum, dtype), path) as rec:
+        rec.reset(seed=1)
+        for _ in range(3):
+            rec.step(np.array([0.5], np.float32))
+    run = open_evidence(path).run
+    assert run.env_spec is not None
+    assert run.env_spec["additional_wrappers"][-1]["kwargs"] == {"dtype": "float32"}
+    assert [e.status for e in replay([path]).episodes] == ["identical"]
+
+
+def test_a_recorded_wrapper_that_cannot_be_rebuilt_is_named_not_the_env(tmp_path: Path) -> None:
+    """A file whose ReshapeObservation shape (hand-edited) does not fit Pendulum's 3 values."""
+    recorded = tmp_path / "r.mcap"
+    with RecordEvidence(_reshaped(), recorded) as rec:
+        rec.reset(seed=1)
+        rec.step(rec.action_space.sample())
+
+    def run(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["additional_wrappers"][-1]["kwargs"]["shape"] = [2, 2]
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    path = rewrite(recorded, tmp_path / "edited.mcap", run=run)
+    [episode] = replay([path]).episodes
+    assert episode.status == "not_replayable"
+    assert episode.reason is not None and episode.reason.startswith(
+        "cannot rebuild the recorded wrapper ReshapeObservation with its recorded arguments "
+        '{"shape": [2, 2]}: ValueError: '
+    ), episode.reason
+    assert episode.reason.endswith("; pass --env-factory MODULE:CALLABLE that builds the env")
 
 
 def _limit_script(env: ScriptedEnv, action: Any) -> tuple[Any, Any, Any, Any, Any]:
@@ -857,9 +919,8 @@ def test_an_env_registered_with_a_class_as_entry_point_replays(tmp_path: Path) -
 
 _WRAPPER_FUNCTION = (
     "the recorded wrapper TransformReward: its argument func is a function, which a file cannot "
-    "hold; pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to "
-    "build the recorded wrappers as they are"
-)
+    "hold; pass --env-factory MODULE:CALLABLE that builds the env"
+)  # (not --trust-entry-points: the function is not in the file, so it refuses too)
 _PLACEHOLDER = (
     "the recorded TransformReward argument 'func' is not in the file (function "
     f"{__name__}:doubled_cartpole.<locals>.<lambda>: JSON cannot hold it); pass --env-factory "
@@ -1020,3 +1081,36 @@ def test_a_reset_divergence_shows_both_observations(tmp_path: Path) -> None:
     first = float(divergence.got.lstrip("[").split(",")[0])
     assert first == pytest.approx(expected[0] + 0.25, abs=1e-6), divergence.got
     assert float(divergence.expected.lstrip("[").split(",")[0]) == pytest.approx(expected[0])
+
+
+class _Labelled(gym.Env[Any, Any]):
+    """A Dict observation: a number (``x``) and a text label (``label``)."""
+
+    observation_space = gym.spaces.Dict(
+        {"x": gym.spaces.Box(-5, 5, (2,), np.float64), "label": gym.spaces.Text(4)}
+    )
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, label: str = "a", x: float = 0.0) -> None:
+        self.label, self.x = label, x
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        return {"x": np.array([self.x, 0.0]), "label": self.label}, {}
+
+    def step(self, action: Any) -> Any:
+        return {"x": np.zeros(2), "label": "a"}, 0.0, True, False, {}
+
+
+@pytest.mark.parametrize(("x", "max_abs_diff"), [(0.0, None), (0.25, 0.25)])
+def test_max_abs_diff_of_a_dict_observation_is_its_numbers_not_its_text(
+    tmp_path: Path, x: float, max_abs_diff: float | None
+) -> None:
+    path = tmp_path / "d.mcap"
+    with RecordEvidence(_Labelled(), path) as rec:
+        rec.reset(seed=0)
+        rec.step(0)
+    [episode] = replay([path], env_factory=lambda: _Labelled("b", x)).episodes
+    assert episode.status == "diverged" and episode.divergence is not None
+    assert episode.divergence.field == "reset_observation"
+    assert episode.divergence.max_abs_diff == max_abs_diff

@@ -72,6 +72,10 @@ def test_an_undeclared_user_wrapper_is_not_replayable(tmp_path: Path) -> None:
     result = replay([path])
     assert {e.status for e in result.episodes} == {"not_replayable"}
     assert all("StepLogger" in (e.reason or "") for e in result.episodes)
+    assert (result.episodes[0].reason or "").endswith(  # (trusted, it is built as recorded)
+        "; pass --env-factory MODULE:CALLABLE that builds the env, or --trust-entry-points to "
+        "build the recorded wrappers as they are"
+    )
 
 
 def test_a_wrapper_declared_transparent_that_changes_steps_diverges(tmp_path: Path) -> None:

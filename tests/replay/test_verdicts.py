@@ -193,13 +193,49 @@ def test_pistonball_rebuilt_with_other_agents_names_the_difference(tmp_path: Pat
     ), reason
 
 
+def _rps(max_cycles: int) -> Any:
+    with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.classic import rps_v2
+
+    return rps_v2.parallel_env(max_cycles=max_cycles)
+
+
+def _rps_game(path: Path, env_kwargs: dict[str, Any] | None) -> Path:
+    env = _rps(4)
+    with RecordParallelEvidence(env, path, env_kwargs=env_kwargs) as rec:
+        rec.reset(seed=0)
+        while rec.agents:
+            rec.step(dict.fromkeys(rec.agents, 1))
+    return path
+
+
+def test_a_game_rebuilt_with_other_max_cycles_is_named_not_diverged(tmp_path: Path) -> None:
+    """rps_v2 with max_cycles=4 and no env_kwargs: replay rebuilds the default 15 cycles."""
+    result = replay([_rps_game(tmp_path / "rps.mcap", None)])
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2
+    assert result.episodes[0].reason == (
+        "the rebuilt env does not match the recording: max_cycles 4 recorded vs 15 rebuilt; "
+        "the file holds no env_kwargs (the env's constructor arguments, which the recorder "
+        "takes as env_kwargs=): record with them, or pass --env-factory MODULE:CALLABLE that "
+        "builds the env as recorded"
+    )
+    again = replay([_rps_game(tmp_path / "kw.mcap", {"max_cycles": 4})])
+    assert [e.status for e in again.episodes] == ["identical"] * 2
+    made = replay([tmp_path / "rps.mcap"], env_factory=lambda: _rps(5))
+    assert made.episodes[0].reason == (
+        "the rebuilt env does not match the recording: max_cycles 4 recorded vs 5 rebuilt; "
+        "make the --env-factory build the env as recorded"
+    )
+
+
 @pytest.mark.parametrize(
     ("factory", "reason"),
     [
         (
             "tests.support.stateful:cartpole8",
             "the rebuilt env does not match the recording: max episode steps 5 recorded vs 8 "
-            "rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded",
+            "rebuilt; make the --env-factory build the env as recorded",
         ),
         (
             "tests.support.stateful:mountain_car5",
@@ -226,7 +262,7 @@ def test_an_env_kwarg_the_rebuilt_env_has_otherwise_is_named(tmp_path: Path) -> 
     result = replay([path], env_factory=lambda: gym.make("FrozenLake-v1", is_slippery=True))
     assert result.episodes[0].reason == (
         "the rebuilt env does not match the recording: env kwarg 'is_slippery' false recorded "
-        "vs true rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded"
+        "vs true rebuilt; make the --env-factory build the env as recorded"
     )
 
 
@@ -370,3 +406,76 @@ def test_versions_of_libraries_no_replayed_step_used_leave_a_divergence_a_diverg
     assert [e.status for e in result.episodes] == ["diverged", "identical", "identical"]
     assert result.version_differences[str(path)][library][0] == "0.0.1"
     assert not result.ok
+
+
+class _Clipped(gym.Env[Any, Any]):
+    """Clips its observation to the reset option ``limit`` (a number)."""
+
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float64)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        super().reset(seed=seed)
+        self.t, self.limit = 0, (options or {}).get("limit", 1.0)
+        self.x = self.np_random.uniform()
+        return np.clip(np.array([self.x]), -self.limit, self.limit), {}
+
+    def step(self, action: Any) -> Any:
+        self.t, self.x = self.t + 1, self.x + action
+        return np.clip(np.array([self.x]), -self.limit, self.limit), 1.0, False, self.t >= 3, {}
+
+
+@pytest.mark.parametrize(
+    ("options", "held"),
+    [
+        ({"limit": float("inf")}, "{'limit': inf} (JSON has no inf)"),
+        ({"limit": float("nan")}, "{'limit': nan} (JSON has no nan)"),
+        ({"limit": 2.0, 5: "x"}, "{'limit': 2.0, 5: 'x'} (JSON keys are text, not int 5)"),
+    ],
+    ids=["inf", "nan", "int-key"],
+)
+def test_reset_options_the_file_cannot_hold_exactly_are_not_replayable(
+    tmp_path: Path, options: dict[Any, Any], held: str
+) -> None:
+    """JSON would turn them into other options ("inf", "5"): the env would raise, or differ."""
+    path = tmp_path / "o.mcap"
+    with RecordEvidence(_Clipped(), path) as env:
+        for e in range(2):
+            env.reset(seed=e, options=options if e == 0 else {"limit": 0.5})
+            for _ in range(3):
+                env.step(1)
+    reset_notes = open_evidence(path).resets().column("notes").to_pylist()
+    assert json.loads(reset_notes[0]) == [f"options_unserializable: {held}"]
+    result = replay([path], env_factory=_Clipped)
+    assert [e.status for e in result.episodes] == ["not_replayable", "identical"]
+    assert result.episodes[0].reason == (
+        f"its reset options are not in the file ({held}): replay cannot reset it as recorded; "
+        "give reset() options JSON holds exactly (finite numbers, text keys)"
+    )
+
+
+def test_an_episode_after_one_whose_options_are_not_held_is_no_verdict(tmp_path: Path) -> None:
+    """Replay skips episode 0, so its env counts one reset less in episode 1: no divergence."""
+    path = tmp_path / "c.mcap"
+    with RecordEvidence(counted_cartpole(), path) as env:
+        env.reset(seed=1, options={"low": -0.05, "high": 0.05, "cap": float("inf")})
+        env.step(0)
+        env.reset(seed=2)
+        env.step(0)
+    result = replay([path], env_factory=counted_cartpole)
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2
+    assert (result.episodes[1].reason or "").startswith(
+        "differed at the reset (reset_observation) after calls to this env that replay does not "
+        "repeat (episode 0's reset and steps (its reset options are not in the file))"
+    ), result.episodes[1].reason
+
+
+def test_tuples_and_arrays_in_reset_options_are_held_as_lists(tmp_path: Path) -> None:
+    path = tmp_path / "l.mcap"
+    with RecordEvidence(_Clipped(), path) as env:
+        env.reset(seed=0, options={"limit": np.float64(2.0), "box": (1, np.arange(2))})
+        env.step(1)
+    ev = open_evidence(path)
+    assert ev.resets().column("notes").to_pylist() == [None]
+    assert json.loads(ev.resets()["options"][0].as_py()) == {"limit": 2.0, "box": [1, [0, 1]]}
+    assert replay([path], env_factory=_Clipped).count("identical") == 1
