@@ -140,9 +140,11 @@ def _from_registry(
     """
     try:
         kwargs = dict(spec.get("kwargs") or {})
-        if "max_episode_steps" in spec:
-            kwargs["max_episode_steps"] = spec["max_episode_steps"]
-        env = gym.make(_without_checks(gym.spec(env_id)), **kwargs)
+        registered = _without_checks(gym.spec(env_id))
+        if "max_episode_steps" in spec:  # null: no TimeLimit (not the registered one)
+            kwargs.pop("max_episode_steps", None)
+            registered = replace(registered, max_episode_steps=spec["max_episode_steps"])
+        env = gym.make(registered, **kwargs)
         for wrapper in wrappers:
             cls = load(str(wrapper["entry_point"]))
             if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
@@ -340,8 +342,9 @@ _MISMATCH = "the rebuilt env does not match the recording: "
 def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
     """How the env replay built differs from the recorded description, or ``None``.
 
-    Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s) and, when
-    it has a spec, the env kwargs both name (``render_mode`` aside) against the recorded ones.
+    Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s; one where
+    the recording had none too) and, when it has a spec, the env kwargs both name
+    (``render_mode`` aside) against the recorded ones.
     Never raises: what cannot be read of the rebuilt env is not compared.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
@@ -351,7 +354,7 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
             ("action space", run.action_space, _described(env.action_space)),
         ]
         limit = getattr(find_time_limit(env), "_max_episode_steps", None)
-        if limit is not None and spec.get("max_episode_steps") is not None:
+        if limit is not None and "max_episode_steps" in spec:  # (null: none recorded)
             checks.append(("max episode steps", spec.get("max_episode_steps"), limit))
         rebuilt = getattr(env.spec, "kwargs", None)
         if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):

@@ -370,3 +370,33 @@ def test_versions_of_libraries_no_replayed_step_used_leave_a_divergence_a_diverg
     assert [e.status for e in result.episodes] == ["diverged", "identical", "identical"]
     assert result.version_differences[str(path)][library][0] == "0.0.1"
     assert not result.ok
+
+
+def test_an_env_recorded_without_a_time_limit_is_rebuilt_without_one(tmp_path: Path) -> None:
+    """``gym.make(id).unwrapped`` has no TimeLimit: its spec says ``max_episode_steps: null``,
+    and the registered 200-step limit must not come back in replay."""
+    path = tmp_path / "bare.mcap"
+    env = gym.make("Pendulum-v1").unwrapped
+    env.action_space.seed(0)
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(230):
+            rec.step(rec.action_space.sample())
+    assert open_evidence(path).run.env_spec["max_episode_steps"] is None
+    result = replay([path])
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 230)]
+
+
+def test_a_time_limit_the_recording_had_not_is_named_not_diverged(tmp_path: Path) -> None:
+    path = tmp_path / "bare.mcap"
+    env = gym.make("Pendulum-v1").unwrapped
+    env.action_space.seed(0)
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(210):
+            rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=lambda: gym.make("Pendulum-v1"))
+    assert result.episodes[0].reason == (
+        "the rebuilt env does not match the recording: max episode steps null recorded vs 200 "
+        "rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded"
+    )
