@@ -39,7 +39,6 @@ from .fast import (
 )
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
-from .rules import find_time_limit
 from .seeding import capture_rng_state
 from .settings import (
     STEP_LIBRARIES,
@@ -50,6 +49,7 @@ from .settings import (
     run_info,
 )
 from .state import StateTargets
+from .time_limits import limited_spec, time_limits
 
 __all__ = [
     "STEP_LIBRARIES",
@@ -122,7 +122,7 @@ class RecordEvidence(
             layout[LAYOUT_REWARD_WRAPPERS] = changing
         self.run_info = run_info(
             settings=settings,
-            spec=env.spec,
+            spec=limited_spec(env.spec, env),
             observation_space=describe_space(env.observation_space),
             action_space=describe_space(env.action_space),
             layout=layout,
@@ -135,7 +135,7 @@ class RecordEvidence(
             obs_codec,
             act_codec,
             env_index=0,
-            time_limit=find_time_limit(env),
+            time_limits=time_limits(env),
             state=bool(self._state),
         )
         self._file.start()

@@ -26,7 +26,7 @@ from ..format.records import RunInfo
 from ..format.spaces import describe_space
 from ..format.unrecorded import unrecorded
 from ..format.wrappers import declared_transparent, plan_wrappers
-from ..record.rules import find_time_limit
+from ..record.time_limits import step_limit
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",
@@ -342,8 +342,8 @@ _MISMATCH = "the rebuilt env does not match the recording: "
 def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
     """How the env replay built differs from the recorded description, or ``None``.
 
-    Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s; one where
-    the recording had none too) and, when it has a spec, the env kwargs both name
+    Its observation and action spaces, its step limit (the smallest of its ``TimeLimit``s', one
+    where the recording had none too) and, when it has a spec, the env kwargs both name
     (``render_mode`` aside) against the recorded ones.
     Never raises: what cannot be read of the rebuilt env is not compared.
     """
@@ -353,7 +353,7 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any]) -> str | None:
             ("observation space", run.observation_space, _described(env.observation_space)),
             ("action space", run.action_space, _described(env.action_space)),
         ]
-        limit = getattr(find_time_limit(env), "_max_episode_steps", None)
+        limit = step_limit(env)
         if limit is not None and "max_episode_steps" in spec:  # (null: none recorded)
             checks.append(("max episode steps", spec.get("max_episode_steps"), limit))
         rebuilt = getattr(env.spec, "kwargs", None)

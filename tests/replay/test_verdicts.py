@@ -400,3 +400,23 @@ def test_a_time_limit_the_recording_had_not_is_named_not_diverged(tmp_path: Path
         "the rebuilt env does not match the recording: max episode steps null recorded vs 200 "
         "rebuilt; pass --env-factory MODULE:CALLABLE that builds the env as recorded"
     )
+
+
+def _nested_limits() -> gym.Env[Any, Any]:
+    """Pendulum in its registered 200-step limit, in a larger one: the inner one ends it."""
+    return gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500)
+
+
+@pytest.mark.parametrize("factory", [None, _nested_limits], ids=["rebuilt", "env-factory"])
+def test_an_inner_time_limit_ending_episodes_replays_identical(
+    tmp_path: Path, factory: Any
+) -> None:
+    path = tmp_path / "nested.mcap"
+    with RecordEvidence(_nested_limits(), path) as rec:
+        rec.action_space.seed(0)
+        for seed in (0, 1):
+            rec.reset(seed=seed)
+            for _ in range(200):
+                rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=factory)
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 200)] * 2
