@@ -420,3 +420,20 @@ def test_an_inner_time_limit_ending_episodes_replays_identical(
                 rec.step(rec.action_space.sample())
     result = replay([path], env_factory=factory)
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", 200)] * 2
+
+
+def test_episodes_an_autoreset_under_the_recorder_began_replay_identical(tmp_path: Path) -> None:
+    path = tmp_path / "autoreset.mcap"
+    env = gym.wrappers.Autoreset(gym.make("Pendulum-v1", max_episode_steps=30))
+    with RecordEvidence(env, path) as rec:
+        rec.action_space.seed(0)
+        rec.reset(seed=0)
+        for _ in range(75):
+            rec.step(rec.action_space.sample())
+    result = replay([path])
+    assert [(e.status, e.steps, e.reason) for e in result.episodes] == [
+        ("identical", 30, None),
+        ("identical", 30, None),
+        ("identical", 13, None),
+    ]
+    assert [f.code for f in check([path]).findings if f.severity != "note"] == []
