@@ -10,6 +10,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..format.columns import null_mask
+from ..format.wrappers import autoreset_wrapped
 from ._state import (
     BoolArray,
     FileState,
@@ -35,7 +36,8 @@ class EndingChecks:
 
     def messages(self) -> dict[str, HitMessage]:
         """The messages of this group's per-episode findings."""
-        return {STEP_AFTER_END: _after_end_message}
+        autoreset = autoreset_wrapped(self.state.ev.run.env_spec)
+        return {STEP_AFTER_END: _after_autoreset_message if autoreset else _after_end_message}
 
     def rows_after_end(
         self, outcome: pa.Array, episode: IntArray, present: IntArray, ordered: bool
@@ -109,3 +111,12 @@ class EndingChecks:
 
 def _after_end_message(hit: Hit, where: str) -> str:
     return f"{hit.count} step(s) recorded after the episode ended, first {where}"
+
+
+def _after_autoreset_message(hit: Hit, where: str) -> str:
+    """The message when the file's env had an ``Autoreset`` (it reset the env in a step)."""
+    return (
+        f"{_after_end_message(hit, where)}: the env's Autoreset wrapper reset it inside "
+        "step(), not recorded as a reset; put Autoreset right under the recorder (which "
+        "records those resets as episodes) or over it"
+    )

@@ -219,7 +219,10 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "undefined, and those steps belong to no episode (`replay` leaves them out, so the "
         "later episodes of an env that keeps state across steps cannot be verified: `replay` "
         "calls those that differ not replayable).",
-        "Call `reset()` once `terminated` or `truncated` is true (also after the env raised).",
+        "Call `reset()` once `terminated` or `truncated` is true (also after the env raised). "
+        "An `Autoreset` wrapper deeper under the recorder resets the env inside a step the "
+        "recorder cannot see (the message names it): put it over the recorder, or right under "
+        "it, where its resets are recorded as episodes.",
     ),
     FindingKind(
         TERMINATED_AND_TRUNCATED,

@@ -36,6 +36,7 @@ __all__ = [
     "WrapperKind",
     "WrapperPlan",
     "WrapperRule",
+    "autoreset_wrapped",
     "declared_transparent",
     "plan_wrappers",
     "reward_cause",
@@ -177,6 +178,8 @@ _STATS = "it keeps running statistics across episodes, which the file does not h
 _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
     # module in gymnasium.wrappers, rule; by class name (Gymnasium 1.x)
     "TimeLimit": ("common", _rebuilt(max_episode_steps=_int(1, _LARGE))),
+    # (right under a recorder, its resets inside a step are recorded as episodes; deeper, they
+    # are steps after an episode's end, which check names: autoreset_wrapped)
     "Autoreset": ("common", _rebuilt()),
     "RecordEpisodeStatistics": (
         "common",
@@ -302,6 +305,25 @@ RECORDED_WRAPPERS: Mapping[str, WrapperRule] = {
     "stable_baselines3.common.monitor:Monitor": WrapperRule("transparent", why=_NO_STEP),
 }
 """Every wrapper replay knows, by the entry point a spec names it with."""
+
+
+_AUTORESET = frozenset({"gymnasium.wrappers.common:Autoreset", "gymnasium.wrappers:Autoreset"})
+
+
+def autoreset_wrapped(spec: Any) -> bool:
+    """Whether a recorded env spec's wrappers hold Gymnasium's ``Autoreset``.
+
+    It resets the env inside the step after an episode's end: a recorder it was not right
+    under recorded the episodes after as steps after the end.
+
+    >>> wrappers = [{"entry_point": "gymnasium.wrappers.common:Autoreset", "kwargs": {}}]
+    >>> autoreset_wrapped({"additional_wrappers": wrappers}), autoreset_wrapped({})
+    (True, False)
+    """
+    wrappers = spec.get("additional_wrappers") if isinstance(spec, Mapping) else None
+    return isinstance(wrappers, list) and any(
+        isinstance(w, Mapping) and w.get("entry_point") in _AUTORESET for w in wrappers
+    )
 
 
 @dataclass

@@ -3,7 +3,7 @@
 :class:`EpisodeEndings` is the part of :class:`~.episodes.EpisodeStream` (which builds on it)
 that ends episodes: by a step's flags, classified by the file's
 :class:`~.rules.EndingRules` (``success``, ``failure`` with a label, ``truncated`` with a
-reason, ``time_limit`` when the env's ``TimeLimit`` says so), as ``incomplete`` (the next
+reason, ``time_limit`` when one of the env's ``TimeLimit``s says so), as ``incomplete`` (the next
 reset, ``close()``) or as ``error`` (the env raised). An ended episode's record waits in the
 file's ``pending`` list for the next flush. The compiled step calls ``_end_by_flags`` and
 ``_limit_hit`` by name (``csrc/step.c``).
@@ -24,7 +24,8 @@ from ..format.spaces import SpaceCodec
 from .block import Block, Episode
 from .native import untrack
 from .notes import add_notes, note, short
-from .rules import Ending, EndingRules, time_limit_hit
+from .rules import Ending, EndingRules
+from .time_limits import time_limit_hit
 
 __all__ = ["NO_ACTION", "EndingFile", "EpisodeEndings"]
 
@@ -57,6 +58,7 @@ class EpisodeEndings:
     _flag_endings: dict[tuple[bool, bool, bool], Ending]
     _ending_keys: frozenset[str]
     _time_limit: TimeLimit[Any, Any] | None
+    _time_limits: tuple[TimeLimit[Any, Any], ...]
     _max_steps: int | None
     _act_codec: SpaceCodec
 
@@ -143,8 +145,8 @@ class EpisodeEndings:
         self.end_step(block.rows() - 1, terminated, truncated, info)
 
     def _limit_hit(self, block: Block) -> bool:
-        if self._time_limit is not None:
-            return time_limit_hit(self._time_limit)
+        if self._time_limits:
+            return time_limit_hit(self._time_limits)
         limit = self._max_steps
         # The step's row is committed: the next step index is the episode's length so far.
         return limit is not None and block.segments != [] and block.next_step_index() >= limit

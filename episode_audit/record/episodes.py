@@ -10,7 +10,7 @@ See ``docs/recording.md``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 from gymnasium.wrappers import TimeLimit
@@ -84,6 +84,7 @@ class EpisodeStream(EpisodeEndings):
         "_terms_plans",
         "_terms_rule",
         "_time_limit",
+        "_time_limits",
         "_track_info",
         "agent",
         "block",
@@ -105,7 +106,7 @@ class EpisodeStream(EpisodeEndings):
         *,
         env_index: int = 0,
         agent: str | None = None,
-        time_limit: TimeLimit[Any, Any] | None = None,
+        time_limits: Sequence[TimeLimit[Any, Any]] = (),
         max_episode_steps: int | None = None,
         state: bool = False,
     ) -> None:
@@ -135,7 +136,9 @@ class EpisodeStream(EpisodeEndings):
         self._block_steps = settings.block_steps
         self.row_bytes = row_bytes(obs_codec, act_codec)
         """Estimated bytes of one step row (for sizing blocks)."""
-        self._time_limit = time_limit
+        self._time_limits = tuple(time_limits)
+        # the one the compiled step reads itself (several: its _limit_hit asks them all)
+        self._time_limit = self._time_limits[0] if len(self._time_limits) == 1 else None
         self._max_steps = max_episode_steps
         self.channels = StreamChannels(
             file.writer,

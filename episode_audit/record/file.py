@@ -17,7 +17,7 @@ import sys
 import threading
 import time
 import weakref
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from types import FrameType
 from typing import Any, Protocol
 
@@ -368,15 +368,16 @@ class EvidenceFile:
         *,
         env_index: int = 0,
         agent: str | None = None,
-        time_limit: TimeLimit[Any, Any] | None = None,
+        time_limits: Sequence[TimeLimit[Any, Any]] = (),
         max_episode_steps: int | None = None,
         state: bool = False,
     ) -> Stream:
         """Register a stream's step and reset channels and return the stream.
 
-        Truncations count as ``time_limit`` when ``time_limit`` (a Gymnasium ``TimeLimit``
-        wrapper) says its limit was hit, or, without one, when the episode reached
-        ``max_episode_steps``. ``state``: its reset rows have a ``state`` column (snapshots).
+        Truncations count as ``time_limit`` when one of ``time_limits`` (Gymnasium
+        ``TimeLimit`` wrappers) says its limit was hit, or, without one, when the episode
+        reached ``max_episode_steps``. ``state``: its reset rows have a ``state`` column
+        (snapshots).
         """
         if self.started:
             raise RecorderError(f"{self.path}: streams are added before start()")
@@ -386,7 +387,7 @@ class EvidenceFile:
             act_codec,
             env_index=env_index,
             agent=agent,
-            time_limit=time_limit,
+            time_limits=time_limits,
             max_episode_steps=max_episode_steps,
             state=state,
         )

@@ -19,6 +19,7 @@ from typing import Any, SupportsFloat
 
 import gymnasium as gym
 from gymnasium.envs.registration import EnvSpec
+from gymnasium.wrappers import Autoreset
 from typing_extensions import Unpack
 
 from ..format.spaces import codec_for, describe_space
@@ -39,7 +40,7 @@ from .fast import (
 )
 from .file import EvidenceFile, FileRecorder
 from .notes import note, short
-from .rules import find_time_limit
+from .rules import find_wrapper
 from .seeding import capture_rng_state
 from .settings import (
     STEP_LIBRARIES,
@@ -50,10 +51,12 @@ from .settings import (
     run_info,
 )
 from .state import StateTargets
+from .time_limits import limited_spec, time_limits
 
 __all__ = [
     "STEP_LIBRARIES",
     "RecordEvidence",
+    "autoreset_under",
     "entry_point",
     "library_versions",
     "reward_wrappers",
@@ -122,20 +125,21 @@ class RecordEvidence(
             layout[LAYOUT_REWARD_WRAPPERS] = changing
         self.run_info = run_info(
             settings=settings,
-            spec=env.spec,
+            spec=limited_spec(env.spec, env),
             observation_space=describe_space(env.observation_space),
             action_space=describe_space(env.action_space),
             layout=layout,
             info_of=entry_point(env),
         )
         warn_unrestorable(type(self).__name__, wrapper_chain(env), self.run_info.layout)
+        self._autoreset = autoreset_under(type(self).__name__, env)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         self._stream = self._file.add_stream(
             obs_codec,
             act_codec,
             env_index=0,
-            time_limit=find_time_limit(env),
+            time_limits=time_limits(env),
             state=bool(self._state),
         )
         self._file.start()
@@ -152,8 +156,10 @@ class RecordEvidence(
         as a plain attribute ``env``. Attribute lookup finds the instance's ``step`` first (a
         method is not a data descriptor): ``recorder.step(action)`` then runs no Python frame.
         """
-        if type(self).step is not RecordEvidence.step or any(
-            "env" in vars(cls) for cls in type(self).__mro__
+        if (
+            type(self).step is not RecordEvidence.step
+            or any("env" in vars(cls) for cls in type(self).__mro__)
+            or self._autoreset is not None  # (its resets are seen by the Python step only)
         ):
             return None
         step = wrapper_step_function(self, self._record_step, RecordEvidence.step)
@@ -220,18 +226,7 @@ class RecordEvidence(
         self, seed: int | None, options: dict[str, Any] | None, *, begin: bool
     ) -> tuple[gym.core.ObsType, dict[str, Any]]:
         """:meth:`reset` on the Python path (``begin``: the episode too; else only the reset)."""
-        stream = self._stream
-        notes: list[str] = []
-        episode = None
-        state = None
-        if begin:
-            try:
-                stream.end_open()
-                rng_state = capture_rng_state(self._unwrapped) if seed is None else None
-                state = self._state.capture(notes) if self._state else None
-                episode = stream.begin(seed, options, rng_state, notes)
-            except Exception as exc:  # never break the training loop over recording trouble
-                self._file.trouble(exc)
+        episode, notes, state = self._begin(seed, options) if begin else (None, [], None)
         try:
             result = self.env.reset(seed=seed, options=options)
         except Exception as exc:
@@ -242,6 +237,24 @@ class RecordEvidence(
         except Exception as exc:
             self._file.trouble(exc)
         return result
+
+    def _begin(
+        self, seed: int | None, options: dict[str, Any] | None
+    ) -> tuple[Episode | None, list[str], str | None]:
+        """Begin an episode before its reset: the episode, its notes, its state snapshot.
+
+        Without a seed, the env's RNG state is read first (replay restores it). Recording
+        trouble is the file's: the episode is then ``None``.
+        """
+        notes: list[str] = []
+        try:
+            self._stream.end_open()
+            rng_state = capture_rng_state(self._unwrapped) if seed is None else None
+            state = self._state.capture(notes) if self._state else None
+            return self._stream.begin(seed, options, rng_state, notes), notes, state
+        except Exception as exc:  # never break the training loop over recording trouble
+            self._file.trouble(exc)
+            return None, notes, None
 
     def _record_reset(
         self, episode: Episode | None, result: Any, notes: list[str], state: str | None
@@ -273,6 +286,9 @@ class RecordEvidence(
         try:
             if self._gated:
                 self._enter()
+            autoreset = self._autoreset
+            if autoreset is not None and autoreset.autoreset is True:
+                return self._step_resetting(action)
             try:
                 result = self.env.step(action)
             except Exception as exc:
@@ -282,6 +298,29 @@ class RecordEvidence(
             return result
         finally:
             self._busy = False
+
+    def _step_resetting(
+        self, action: gym.core.ActType
+    ) -> tuple[gym.core.ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
+        """The step in which the ``Autoreset`` right under the recorder resets the env.
+
+        It returns the next episode's first observation and reset info, and does not take the
+        action: the episode begins as a reset without a seed does (from the RNG state read
+        just before), and the step is recorded as its reset row. Its action and reward (0) are
+        no step of any episode.
+        """
+        episode, notes, state = self._begin(None, None)
+        try:
+            result = self.env.step(action)
+        except Exception as exc:
+            self._on_error(exc, "reset")
+            raise
+        try:
+            valid = isinstance(result, tuple) and len(result) == 5
+            self._record_reset(episode, (result[0], result[4]) if valid else result, notes, state)
+        except Exception as exc:
+            self._file.trouble(exc)
+        return result
 
     def _busy_here(self) -> bool:
         """Whether ``_busy`` is this thread's: inside the compiled step (no frame to find)."""
@@ -306,6 +345,28 @@ class RecordEvidence(
     def closed(self) -> bool:
         """Whether the evidence file has been finished."""
         return self._closed
+
+
+def autoreset_under(recorder: str, env: Any) -> Autoreset[Any, Any] | None:
+    """The ``Autoreset`` right under a recorder (``env`` itself), whose resets it records.
+
+    An ``Autoreset`` deeper in the chain resets the env inside a step the recorder cannot tell
+    from another (the wrappers between may count or stack across it): warned of once, its
+    later episodes are recorded as steps after the first one's end.
+    """
+    if isinstance(env, Autoreset):
+        return env
+    if isinstance(env, gym.Wrapper) and find_wrapper(env.env, Autoreset) is not None:
+        warnings.warn(
+            f"episode-audit: {recorder}: Autoreset under the recorder, not right under it: "
+            "it resets the env inside step(), and the episodes after the first one's end are "
+            "recorded as its steps after the end; put Autoreset over the recorder, or right "
+            "under it (its resets are then recorded as episodes), or record a vector env "
+            "with RecordVectorEvidence",
+            UserWarning,
+            stacklevel=3,
+        )
+    return None
 
 
 def wrapper_chain(env: Any) -> list[str]:

@@ -26,7 +26,6 @@ from typing import Any, NamedTuple, TypeVar
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.wrappers import TimeLimit
 
 from ..errors import ConfigurationError
 from ..format import names as fmt
@@ -38,12 +37,9 @@ __all__ = [
     "EndingRules",
     "RewardTerms",
     "check_constants",
-    "find_time_limit",
     "find_wrapper",
     "named_terms",
     "plain_names",
-    "plain_time_limit",
-    "time_limit_hit",
 ]
 
 TermsFn = Callable[[Mapping[str, Any]], Mapping[str, float] | None]
@@ -352,9 +348,9 @@ class EndingRules:
 
     A terminated episode is a ``success`` when the success predicate holds, else a ``failure``
     (``unlabeled`` when no label is given). A truncated, not terminated, episode is
-    ``truncated`` with the env-given reason, else ``time_limit`` when Gymnasium's TimeLimit
-    fired, else ``external``. When both flags are set, the task ending counts and the
-    truncation reason is kept beside it.
+    ``truncated`` with the env-given reason, else ``time_limit`` when one of Gymnasium's
+    ``TimeLimit`` wrappers reached its limit, else ``external``. When both flags are set, the
+    task ending counts and the truncation reason is kept beside it.
 
     A success value is taken by its truth value, whatever it is; one that is not a bool or a
     real number (the text ``"no"``, which is true) is a ``success_not_bool`` note. A failure
@@ -663,40 +659,3 @@ def find_wrapper(env: Any, kind: type[_W]) -> _W | None:
             return current
         current = current.env
     return None
-
-
-def find_time_limit(env: Any) -> TimeLimit[Any, Any] | None:
-    """The outermost Gymnasium ``TimeLimit`` wrapper around ``env``, if any."""
-    return find_wrapper(env, TimeLimit)
-
-
-def plain_time_limit(env: Any) -> tuple[Any, int] | None:
-    """``(inner env, max_episode_steps)`` when ``env`` is exactly Gymnasium's ``TimeLimit``.
-
-    Its reset only zeroes a counter, and its step only counts and sets ``truncated`` on the
-    ``max_episode_steps``-th step: a loop that resets and steps the inner env and counts the
-    same way gets what the wrapper returns, without a wrapper call per step. A subclass may
-    do more, so only the class itself qualifies.
-
-    >>> import gymnasium as gym
-    >>> inner, limit = plain_time_limit(gym.make("CartPole-v1", disable_env_checker=True))
-    >>> type(inner).__name__, limit
-    ('OrderEnforcing', 500)
-    >>> plain_time_limit(gym.make("CartPole-v1").unwrapped) is None
-    True
-    """
-    if type(env) is not TimeLimit:
-        return None
-    limit = getattr(env, "_max_episode_steps", None)
-    if type(limit) is not int or limit <= 0:
-        return None
-    return env.env, limit
-
-
-def time_limit_hit(time_limit: TimeLimit[Any, Any] | None) -> bool:
-    """Whether ``time_limit`` has reached its maximum number of steps in this episode."""
-    if time_limit is None:
-        return False
-    elapsed = getattr(time_limit, "_elapsed_steps", None)
-    limit = getattr(time_limit, "_max_episode_steps", None)
-    return elapsed is not None and limit is not None and elapsed >= limit

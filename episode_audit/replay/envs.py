@@ -26,7 +26,7 @@ from ..format.records import RunInfo
 from ..format.spaces import describe_space
 from ..format.unrecorded import unrecorded
 from ..format.wrappers import declared_transparent, plan_wrappers
-from ..record.rules import find_time_limit
+from ..record.time_limits import step_limit
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",
@@ -140,9 +140,11 @@ def _from_registry(
     """
     try:
         kwargs = dict(spec.get("kwargs") or {})
-        if "max_episode_steps" in spec:
-            kwargs["max_episode_steps"] = spec["max_episode_steps"]
-        env = gym.make(_without_checks(gym.spec(env_id)), **kwargs)
+        registered = _without_checks(gym.spec(env_id))
+        if "max_episode_steps" in spec:  # null: no TimeLimit (not the registered one)
+            kwargs.pop("max_episode_steps", None)
+            registered = replace(registered, max_episode_steps=spec["max_episode_steps"])
+        env = gym.make(registered, **kwargs)
         for wrapper in wrappers:
             cls = load(str(wrapper["entry_point"]))
             if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
@@ -355,9 +357,10 @@ _MISMATCH = "the rebuilt env does not match the recording: "
 def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False) -> str | None:
     """How the env replay built differs from the recorded description, or ``None``.
 
-    Its observation and action spaces, its step limit (the outermost ``TimeLimit``'s) and, when
-    it has a spec, the env kwargs both name (``render_mode`` aside) against the recorded ones.
-    ``factory``: the user's env factory built it (the reason then says to change that).
+    Its observation and action spaces, its step limit (the smallest of its ``TimeLimit``s', one
+    where the recording had none too) and, when it has a spec, the env kwargs both name
+    (``render_mode`` aside) against the recorded ones. ``factory``: the user's env factory
+    built it (the reason then says to change that).
     Never raises: what cannot be read of the rebuilt env is not compared.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
@@ -366,8 +369,8 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False)
             ("observation space", run.observation_space, _described(env.observation_space)),
             ("action space", run.action_space, _described(env.action_space)),
         ]
-        limit = getattr(find_time_limit(env), "_max_episode_steps", None)
-        if limit is not None and spec.get("max_episode_steps") is not None:
+        limit = step_limit(env)
+        if limit is not None and "max_episode_steps" in spec:  # (null: none recorded)
             checks.append(("max episode steps", spec.get("max_episode_steps"), limit))
         rebuilt = getattr(env.spec, "kwargs", None)
         if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):

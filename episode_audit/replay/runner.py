@@ -20,9 +20,9 @@ from ..format import names as fmt
 from ..format.records import EpisodeRanges, from_json
 from ..format.spaces import codec_in
 from ..read import Evidence
-from ..record.rules import find_time_limit, plain_time_limit, time_limit_hit
 from ..record.seeding import restore_rng_state
 from ..record.state import StateTargets, restore_snapshot
+from ..record.time_limits import plain_time_limit, time_limit_hit, time_limits
 from .compare import Comparison
 from .recorded import ordinal, replay_actions, rules_of, unrecorded_options
 from .results import (
@@ -76,10 +76,11 @@ class EpisodeRunner:
         self.vector = ev.run.layout.get("kind") == "vector"
         self.earlier: dict[int, int] = {}
         """Per episode reset: how many episodes this env was reset for before it."""
-        self.time_limit = find_time_limit(env)
         # An outermost Gymnasium TimeLimit is counted by the stepping loop, not called: the
         # same flags, without a wrapper call per step (see plain_time_limit).
         self.counted = plain_time_limit(env)
+        self.time_limits = time_limits(env if self.counted is None else self.counted[0])
+        """The TimeLimits the stepped env holds (the counted one aside): each one counts."""
         # state snapshots (record/state.py): the reset rows' column, the env's adapted objects
         self.states: pa.ChunkedArray | None = None
         self.adapted = bool(StateTargets(env))
@@ -226,7 +227,7 @@ class EpisodeRunner:
         ran = Ran()
         stepped = ran.stepped
         keep_stepped = stepped.append
-        time_limit, progress, reset = self.time_limit, self.progress, self._reset
+        limits, progress, reset = self.time_limits, self.progress, self._reset
         has_nulls = null_rows is not None and null_rows.size > 0
         damaged = self.ev.damaged_episodes or None  # (an empty set is not asked)
         no_rows = (0, 0)
@@ -268,7 +269,7 @@ class EpisodeRunner:
             ):
                 self._raise_again(env.step, record)
             # the TimeLimit state belongs to this episode: read it now, not after the others
-            hit = ran_now == limit if limit is not None else time_limit_hit(time_limit)
+            hit = ran_now == limit or time_limit_hit(limits)
             keep_stepped((record, start, count, ran_now, info if ran_now else {}, hit, reset_at))
             if progress is not None:
                 progress(count)

@@ -456,6 +456,27 @@ def test_steps_after_the_end_across_blocks(tmp_path: Path) -> None:
     assert "length_mismatch" not in _codes(result)
 
 
+def test_steps_after_the_end_under_an_autoreset_name_it(tmp_path: Path) -> None:
+    """An Autoreset deeper under the recorder resets the env unseen: the recorder warns, and
+    check's finding names the wrapper rather than a missing reset() call."""
+    path = tmp_path / "deep.mcap"
+    env = gym.wrappers.ClipAction(
+        gym.wrappers.Autoreset(gym.make("Pendulum-v1", max_episode_steps=5))
+    )
+    with pytest.warns(UserWarning, match="Autoreset under the recorder, not right under it"):
+        recorder = RecordEvidence(env, path)
+    with recorder as rec:
+        rec.reset(seed=0)
+        for _ in range(12):
+            rec.step(np.zeros(1, np.float32))
+    finding = _only(check([path]), "step_after_end")
+    assert finding.message == (
+        "7 step(s) recorded after the episode ended, first at step 5: the env's Autoreset "
+        "wrapper reset it inside step(), not recorded as a reset; put Autoreset right under "
+        "the recorder (which records those resets as episodes) or over it"
+    )
+
+
 def test_rows_after_the_outcome_row_without_recorder_notes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

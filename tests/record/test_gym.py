@@ -371,6 +371,69 @@ def test_both_flags_set_counts_the_task_ending(tmp_path: Path) -> None:
     assert episode["terminated"] and episode["truncated"]
 
 
+@pytest.mark.parametrize(
+    ("make", "limit"),
+    [
+        (lambda: gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500), 200),
+        (
+            lambda: gym.wrappers.TimeLimit(gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 30), 80),
+            30,
+        ),
+        (lambda: gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 25), 25),
+    ],
+    ids=["registered-inside", "two-own", "outer-smaller"],
+)
+def test_every_time_limit_in_the_chain_counts_and_the_smallest_is_recorded(
+    tmp_path: Path, make: Any, limit: int
+) -> None:
+    """An inner TimeLimit ends the episode before a larger outer one: ``time_limit``, and the
+    spec the file records says the limit in effect (Gymnasium's names the outermost)."""
+    path = tmp_path / "nested.mcap"
+    with RecordEvidence(make(), path) as rec:
+        rec.action_space.seed(0)
+        for seed in (0, 1):
+            rec.reset(seed=seed)
+            for _ in range(limit):
+                rec.step(rec.action_space.sample())
+    ev = open_evidence(path)
+    episodes = ev.episodes().select(["length", "outcome", "truncation_reason"]).to_pylist()
+    assert (
+        episodes
+        == [{"length": limit, "outcome": "truncated", "truncation_reason": "time_limit"}] * 2
+    )
+    assert ev.run.env_spec is not None and ev.run.env_spec["max_episode_steps"] == limit
+
+
+def _autoreset_pendulum(limit: int = 30) -> gym.Env[Any, Any]:
+    return gym.wrappers.Autoreset(gym.make("Pendulum-v1", max_episode_steps=limit))
+
+
+def test_autoreset_right_under_the_recorder_begins_an_episode_at_each_hidden_reset(
+    tmp_path: Path,
+) -> None:
+    """Gymnasium's Autoreset resets the env inside the step after an episode's end: that step
+    returns the next episode's first observation, recorded as its reset row."""
+    path = tmp_path / "autoreset.mcap"
+    returned = []
+    with RecordEvidence(_autoreset_pendulum(), path) as rec:
+        rec.action_space.seed(0)
+        rec.reset(seed=0)
+        for _ in range(75):
+            returned.append(rec.step(rec.action_space.sample())[0])
+    ev = open_evidence(path)
+    episodes = ev.episodes().select(["length", "outcome", "seed"]).to_pylist()
+    assert [(e["length"], e["outcome"], e["seed"]) for e in episodes] == [
+        (30, "truncated", 0),
+        (30, "truncated", None),
+        (13, "incomplete", None),
+    ]
+    resets = ev.resets()
+    first = [np.asarray(o, np.float32) for o in resets["observation"].to_pylist()]
+    assert np.array_equal(first[1], returned[30]) and np.array_equal(first[2], returned[61])
+    assert resets["rng_state"].to_pylist()[1] is not None
+    assert ev.steps().num_rows == 73
+
+
 def test_custom_success_rule_and_unlabeled_failure(tmp_path: Path) -> None:
     env = ScriptedEnv(
         step_fn=lambda e, a: (np.zeros(2, np.float32), 1.0, True, False, {"goal": e.t > 1})

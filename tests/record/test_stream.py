@@ -18,8 +18,8 @@ from episode_audit import RecorderError, RecordEvidence, check, open_evidence
 from episode_audit.format import names as fmt
 from episode_audit.format.spaces import codec_for, describe_space
 from episode_audit.record.file import EvidenceFile
-from episode_audit.record.rules import find_time_limit
 from episode_audit.record.settings import DEFAULT_BLOCK_STEPS, RecorderSettings, run_info
+from episode_audit.record.time_limits import time_limits
 
 STREAMS = 3
 
@@ -55,7 +55,7 @@ def _record_streams(path: Path, *, games: bool = False, episodes: int = 6) -> di
     obs_codec = codec_for(envs[0].observation_space)
     act_codec = codec_for(envs[0].action_space)
     streams = [
-        file.add_stream(obs_codec, act_codec, env_index=i, time_limit=find_time_limit(e))
+        file.add_stream(obs_codec, act_codec, env_index=i, time_limits=time_limits(e))
         for i, e in enumerate(envs)
     ]
     file.start()

@@ -23,7 +23,7 @@ from episode_audit._usercode import load_callable
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError, ReplayError
 from episode_audit.format.columns import TERMS_TYPE
-from episode_audit.record.rules import plain_time_limit
+from episode_audit.record.time_limits import plain_time_limit
 from episode_audit.replay import build_env, replay
 from episode_audit.replay.compare import _terms_rows_equal
 from episode_audit.replay.compare import terms_equal as _terms_equal

@@ -479,3 +479,70 @@ def test_tuples_and_arrays_in_reset_options_are_held_as_lists(tmp_path: Path) ->
     assert ev.resets().column("notes").to_pylist() == [None]
     assert json.loads(ev.resets()["options"][0].as_py()) == {"limit": 2.0, "box": [1, [0, 1]]}
     assert replay([path], env_factory=_Clipped).count("identical") == 1
+
+
+def test_an_env_recorded_without_a_time_limit_is_rebuilt_without_one(tmp_path: Path) -> None:
+    """``gym.make(id).unwrapped`` has no TimeLimit: its spec says ``max_episode_steps: null``,
+    and the registered 200-step limit must not come back in replay."""
+    path = tmp_path / "bare.mcap"
+    env = gym.make("Pendulum-v1").unwrapped
+    env.action_space.seed(0)
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(230):
+            rec.step(rec.action_space.sample())
+    assert open_evidence(path).run.env_spec["max_episode_steps"] is None
+    result = replay([path])
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 230)]
+
+
+def test_a_time_limit_the_recording_had_not_is_named_not_diverged(tmp_path: Path) -> None:
+    path = tmp_path / "bare.mcap"
+    env = gym.make("Pendulum-v1").unwrapped
+    env.action_space.seed(0)
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(210):
+            rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=lambda: gym.make("Pendulum-v1"))
+    assert result.episodes[0].reason == (
+        "the rebuilt env does not match the recording: max episode steps null recorded vs 200 "
+        "rebuilt; make the --env-factory build the env as recorded"
+    )
+
+
+def _nested_limits() -> gym.Env[Any, Any]:
+    """Pendulum in its registered 200-step limit, in a larger one: the inner one ends it."""
+    return gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500)
+
+
+@pytest.mark.parametrize("factory", [None, _nested_limits], ids=["rebuilt", "env-factory"])
+def test_an_inner_time_limit_ending_episodes_replays_identical(
+    tmp_path: Path, factory: Any
+) -> None:
+    path = tmp_path / "nested.mcap"
+    with RecordEvidence(_nested_limits(), path) as rec:
+        rec.action_space.seed(0)
+        for seed in (0, 1):
+            rec.reset(seed=seed)
+            for _ in range(200):
+                rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=factory)
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 200)] * 2
+
+
+def test_episodes_an_autoreset_under_the_recorder_began_replay_identical(tmp_path: Path) -> None:
+    path = tmp_path / "autoreset.mcap"
+    env = gym.wrappers.Autoreset(gym.make("Pendulum-v1", max_episode_steps=30))
+    with RecordEvidence(env, path) as rec:
+        rec.action_space.seed(0)
+        rec.reset(seed=0)
+        for _ in range(75):
+            rec.step(rec.action_space.sample())
+    result = replay([path])
+    assert [(e.status, e.steps, e.reason) for e in result.episodes] == [
+        ("identical", 30, None),
+        ("identical", 30, None),
+        ("identical", 13, None),
+    ]
+    assert [f.code for f in check([path]).findings if f.severity != "note"] == []

@@ -23,7 +23,7 @@ from stable_baselines3.common.vec_env import (
 )
 
 from ..gym import entry_point, info_entry_point, reward_wrappers
-from ..rules import find_time_limit
+from ..time_limits import limited_spec, step_limit
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -106,7 +106,7 @@ class VecStack:
         """One sub-env's spec (what replay rebuilds), or ``None``."""
         try:
             if self.local is not None:
-                return self.local.envs[0].spec
+                return limited_spec(self.local.envs[0].spec, self.local.envs[0])
             if self.base.has_attr("spec"):
                 return self.base.get_attr("spec", indices=[0])[0]
         except Exception:
@@ -114,15 +114,12 @@ class VecStack:
         return None
 
     def step_limits(self, n: int, spec: Any) -> list[int | None]:
-        """Each sub-env's step limit: its ``TimeLimit``'s, else its spec's."""
+        """Each sub-env's step limit: its ``TimeLimit``s' smallest, else its spec's."""
         limits: list[int | None] = [getattr(spec, "max_episode_steps", None)] * n
         found: list[Any] = []
         try:
             if self.local is not None:
-                found = [
-                    getattr(find_time_limit(sub), "_max_episode_steps", None)
-                    for sub in self.local.envs
-                ]
+                found = [step_limit(sub) for sub in self.local.envs]
             elif self.base.has_attr("_max_episode_steps"):
                 found = list(self.base.get_attr("_max_episode_steps"))
         except Exception:  # the spec's limit, then

@@ -33,8 +33,8 @@ from ..gym import (
     warn_unrestorable,
     wrapper_chain,
 )
-from ..rules import find_time_limit
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
+from ..time_limits import limited_spec, step_limit
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import refused, reset_targets, seeds_of
@@ -293,7 +293,7 @@ def _sub_spec(
     """The spec of one sub-env (what replay rebuilds), or ``None``."""
     try:
         if sync is not None:
-            return sync.envs[0].spec
+            return limited_spec(sync.envs[0].spec, sync.envs[0])
         if async_env is not None:
             return async_env.get_attr("spec")[0]
     except Exception:
@@ -312,7 +312,7 @@ def _sub_spec(
 def _max_steps(
     sub_spec: Any, n: int, sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None
 ) -> list[int | None]:
-    """Each sub-env's step limit: its ``TimeLimit``'s, else its spec's.
+    """Each sub-env's step limit: its ``TimeLimit``s' smallest, else its spec's.
 
     The limit is counted by the stream (a ``SAME_STEP`` autoreset has zeroed the wrapper's
     own count by the time the ending is recorded). A ``SyncVectorEnv``'s sub-envs are
@@ -324,7 +324,7 @@ def _max_steps(
     limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * n
     found: Sequence[Any] = ()
     if sync is not None:
-        found = [getattr(find_time_limit(sub), "_max_episode_steps", None) for sub in sync.envs]
+        found = [step_limit(sub) for sub in sync.envs]
     elif async_env is not None:
         try:
             if all(async_env.call("has_wrapper_attr", "_max_episode_steps")):
