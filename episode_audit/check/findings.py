@@ -97,8 +97,12 @@ class CheckResult:
 
     @property
     def ok(self) -> bool:
-        """Whether no finding has error severity."""
-        return self.errors == 0
+        """Whether files were checked and no finding has error severity.
+
+        Nothing checked is no pass: ``check([]).ok`` is false (an ``assert check(files).ok``
+        over a glob that found nothing fails).
+        """
+        return self.errors == 0 and bool(self.files)
 
     def to_dict(self) -> dict[str, Any]:
         """Return the result in the JSON shape documented on the class."""

@@ -90,6 +90,7 @@ def test_clean_cartpole_file_is_ok(tmp_path: Path) -> None:
     assert result.episodes == 3
     assert result.steps == open_evidence(path).steps().num_rows
     assert "missing_terms" in _codes(result)
+    assert not check([]).ok  # (nothing checked: no pass)
     assert not {"file_unfinished", "not_replayable", "missing_env_spec"} & set(_codes(result))
     missing = _only(result, "missing_terms")
     # CartPole reports no terms at all: a note, not a warning (the default "auto" source)
