@@ -24,7 +24,9 @@ def test_overwrite_replaces_the_whole_export(tmp_path: Path) -> None:
         "a.steps.parquet",
         "b.steps.parquet",
     ]
-    with pytest.raises(ConfigurationError, match=r"episodes\.parquet: exists; pass --overwrite"):
+    with pytest.raises(
+        ConfigurationError, match=r"episodes\.parquet: exists; pass overwrite=True \(--overwrite\)"
+    ):
         export([a], out)
     again = export([a], out, overwrite=True)
     assert again.removed == [out / "b.steps.parquet"]

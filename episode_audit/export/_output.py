@@ -116,7 +116,9 @@ def staged(source: Path, out: Path, *, overwrite: bool) -> Iterator[Path]:
         if out.resolve() == source.resolve():
             raise ConfigurationError(f"{out}: is the input; --out names a new file to write")
         if not overwrite:
-            raise ConfigurationError(f"{out}: exists; pass --overwrite to replace it")
+            raise ConfigurationError(
+                f"{out}: exists; pass overwrite=True (--overwrite) to replace it"
+            )
     if not out.parent.is_dir():
         raise ConfigurationError(f"{out.parent}: no such directory; create it first")
     temporary = out.with_name(f".{out.name}.{os.getpid()}.partial")

@@ -160,7 +160,8 @@ def _check_outputs(files: list[Path], overwrite: bool) -> None:
         existing = [f for f in files if f.exists()]
         if existing:
             raise ConfigurationError(
-                f"{existing[0]}: exists; pass --overwrite to replace exported files"
+                f"{existing[0]}: exists; pass overwrite=True (--overwrite) to replace "
+                "exported files"
             )
 
 
@@ -184,7 +185,7 @@ def _export_to_url(
         for target in remote.values():
             if exists(target):
                 raise ConfigurationError(
-                    f"{target}: exists; pass --overwrite to replace exported files"
+                    f"{target}: exists; pass overwrite=True (--overwrite) to replace exported files"
                 )
     with tempfile.TemporaryDirectory(prefix="episode-audit-export-") as tmp:
         local = export(

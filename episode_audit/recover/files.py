@@ -18,7 +18,10 @@ from ..errors import ConfigurationError
 
 __all__ = ["Temporary", "check_paths", "fsync", "publish"]
 
-_EXISTS = "file exists; recovery never overwrites it — choose another path or pass --overwrite"
+_EXISTS = (
+    "file exists; recovery never overwrites it — choose another path or pass overwrite=True "
+    "(--overwrite)"
+)
 
 
 def check_paths(src: Path, dst: Path, overwrite: bool) -> None:

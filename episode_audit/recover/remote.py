@@ -30,7 +30,7 @@ def recover_remote(
     if isinstance(src, RemoteFile) and isinstance(dst, RemoteFile) and src.url == dst.url:
         raise ConfigurationError(f"{dst}: is the input; recovery never replaces its input")
     if isinstance(dst, RemoteFile) and not overwrite and exists(dst):
-        raise ConfigurationError(f"{dst}: exists; pass --overwrite to replace it")
+        raise ConfigurationError(f"{dst}: exists; pass overwrite=True (--overwrite) to replace it")
     with tempfile.TemporaryDirectory(prefix="episode-audit-recover-") as tmp:
         local_src: Source = src
         if isinstance(src, RemoteFile):
