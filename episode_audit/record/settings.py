@@ -241,6 +241,12 @@ def _ending_rules(rules: EndingRules | None) -> EndingRules:
         raise ConfigurationError(
             f"ending_rules: expected an EndingRules, actually: {type(rules).__name__}; pass {how}"
         )
+    keys = rules.success_keys
+    if isinstance(keys, (str, bytes)):  # (its characters would be the keys)
+        raise ConfigurationError(
+            f"ending_rules: success_keys: expected a sequence of info keys, got the string "
+            f"{keys!r}; pass success_keys=({keys!r},)"
+        )
     return rules
 
 

@@ -149,6 +149,11 @@ def test_the_settings_defaults() -> None:
         ),
         ({"ending_rules": "success"}, "^ending_rules: expected an EndingRules, actually: str"),
         (
+            {"ending_rules": EndingRules(success_keys="done")},
+            r"^ending_rules: success_keys: expected a sequence of info keys, got the string "
+            r"'done'; pass success_keys=\('done',\)$",
+        ),
+        (
             {"reward_terms": 3},
             "^reward terms source: expected 'auto', a list of info keys, a callable or None, "
             "actually: 3$",
