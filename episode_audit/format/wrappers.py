@@ -24,6 +24,8 @@ from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import numpy as np
+
 from .unrecorded import unrecorded
 
 __all__ = [
@@ -143,7 +145,9 @@ class WrapperRule:
     its check (an argument not listed is refused); ``why``: for the others, the reason in words.
     ``renders``: it calls ``render()`` inside a step (left out, it no longer does);
     ``render_bound``: a rebuilt wrapper whose step depends on those calls; ``tuples``: the
-    arguments it needs as a tuple where given a sequence (a file holds a list).
+    arguments it needs as a tuple where given a sequence (a file holds a list); ``dtypes``:
+    the arguments it needs as a numpy scalar type where the file holds its name (Gymnasium
+    1.1's ``DtypeObservation`` calls its ``dtype`` on each observation).
     """
 
     kind: WrapperKind
@@ -152,23 +156,41 @@ class WrapperRule:
     renders: bool = False
     render_bound: bool = False
     tuples: frozenset[str] = frozenset()
+    dtypes: frozenset[str] = frozenset()
 
     def built(self, kwargs: Mapping[str, Any] | None) -> dict[str, Any]:
-        """Recorded (checked) ``kwargs`` as the wrapper is built: lists of :attr:`tuples` tuples.
+        """Recorded (checked) ``kwargs`` as the wrapper is built.
+
+        :attr:`tuples` as tuples, :attr:`dtypes` as numpy scalar types.
 
         >>> RECORDED_WRAPPERS["gymnasium.wrappers:ReshapeObservation"].built({"shape": [3, 1]})
         {'shape': (3, 1)}
+        >>> RECORDED_WRAPPERS["gymnasium.wrappers:DtypeObservation"].built({"dtype": "float32"})
+        {'dtype': <class 'numpy.float32'>}
         """
-        return {
-            k: tuple(v) if k in self.tuples and isinstance(v, list) else v
-            for k, v in (kwargs or {}).items()
-        }
+        out = dict(kwargs or {})
+        for k, v in out.items():
+            if k in self.tuples and isinstance(v, list):
+                out[k] = tuple(v)
+            elif k in self.dtypes and isinstance(v, str):
+                out[k] = np.dtype(v).type
+        return out
 
 
 def _rebuilt(
-    render_bound: bool = False, *, tuples: Collection[str] = (), **args: Check
+    render_bound: bool = False,
+    *,
+    tuples: Collection[str] = (),
+    dtypes: Collection[str] = (),
+    **args: Check,
 ) -> WrapperRule:
-    return WrapperRule("rebuilt", args, render_bound=render_bound, tuples=frozenset(tuples))
+    return WrapperRule(
+        "rebuilt",
+        args,
+        render_bound=render_bound,
+        tuples=frozenset(tuples),
+        dtypes=frozenset(dtypes),
+    )
 
 
 _NO_STEP = "it never changes a step"
@@ -199,7 +221,10 @@ _GYMNASIUM_WRAPPERS: dict[str, tuple[str, WrapperRule]] = {
         "transform_observation",
         _rebuilt(min_obs=_numbers(), max_obs=_numbers()),
     ),
-    "DtypeObservation": ("transform_observation", _rebuilt(dtype=_text(*sorted(_DTYPES)))),
+    "DtypeObservation": (
+        "transform_observation",
+        _rebuilt(dtypes={"dtype"}, dtype=_text(*sorted(_DTYPES))),
+    ),
     "DiscretizeObservation": (
         "transform_observation",
         _rebuilt(bins=_ints(1, 1_000_000, _MAX_ITEMS), multidiscrete=_bool),

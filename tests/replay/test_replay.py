@@ -220,6 +220,10 @@ def test_a_wrapper_argument_that_must_be_a_tuple_is_rebuilt_as_one(
 def test_a_dtype_observation_is_recorded_by_its_dtype_name_and_rebuilt(
     tmp_path: Path, dtype: Any
 ) -> None:
+    try:
+        gym.wrappers.DtypeObservation(gym.make("Pendulum-v1"), dtype).reset(seed=0)
+    except TypeError:  # (Gymnasium 1.1 calls its dtype on each observation)
+        pytest.skip("this Gymnasium's DtypeObservation takes no numpy.dtype")
     path = tmp_path / "d.mcap"
     pendulum = gym.make("Pendulum-v1", max_episode_steps=3)
     with RecordEvidence(gym.wrappers.DtypeObservation(pendulum, dtype), path) as rec:
@@ -249,8 +253,8 @@ def test_a_recorded_wrapper_that_cannot_be_rebuilt_is_named_not_the_env(tmp_path
     assert episode.status == "not_replayable"
     assert episode.reason is not None and episode.reason.startswith(
         "cannot rebuild the recorded wrapper ReshapeObservation with its recorded arguments "
-        '{"shape": [2, 2]}: ValueError: '
-    ), episode.reason
+        '{"shape": [2, 2]}: '
+    ), episode.reason  # (ValueError; AssertionError in Gymnasium 1.1)
     assert episode.reason.endswith("; pass --env-factory MODULE:CALLABLE that builds the env")
 
 
