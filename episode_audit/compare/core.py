@@ -47,6 +47,7 @@ __all__ = [
     "SideFile",
     "check_apart",
     "check_compare_by",
+    "check_tasks",
     "compare",
     "compare_parts",
     "compare_tables",
@@ -247,13 +248,7 @@ def compare_parts(
     """Compare the sides' files from their parts (:func:`side_file`), as :func:`compare_tables`."""
     check_compare_by(by)
     _check_options(baseline, candidate, gates, rate_margin)
-    found = field_mismatches([f.fields for f in baseline], [f.fields for f in candidate])
-    tasks = [m for m in found if m.task]
-    if tasks and not different_tasks:
-        raise ConfigurationError(
-            f"the sides run different tasks ({tasks[0]}); to compare them anyway pass "
-            "different_tasks=True (--different-tasks)"
-        )
+    found = check_tasks(baseline, candidate, different_tasks)
     gates = gates or CompareGates()
     tables_b = joined(f.part.rows for f in baseline)
     tables_c = joined(f.part.rows for f in candidate)
@@ -297,6 +292,26 @@ def compare_parts(
         Wrapped.of(f.part.reward_wrappers for f in baseline),
         Wrapped.of(f.part.reward_wrappers for f in candidate),
     )
+
+
+def check_tasks(
+    baseline: Sequence[SideFile],
+    candidate: Sequence[SideFile],
+    allowed: bool,
+    how: str = "different_tasks=True",
+) -> list[Mismatch]:
+    """What differs between the sides' runs; a different task refused unless ``allowed``.
+
+    The :class:`ConfigurationError` says to pass ``how`` (``--different-tasks`` on the
+    command line).
+    """
+    found = field_mismatches([f.fields for f in baseline], [f.fields for f in candidate])
+    tasks = [m for m in found if m.task]
+    if tasks and not allowed:
+        raise ConfigurationError(
+            f"the sides run different tasks ({tasks[0]}); to compare them anyway pass {how}"
+        )
+    return found
 
 
 def _check_options(

@@ -20,7 +20,15 @@ from ..read import open_evidence
 from ..read.inputs import Unreadable, evidence_files
 from ..read.storage import Source
 from ..report.gates import is_rate
-from .core import Comparison, SideFile, check_apart, check_compare_by, compare_parts, side_file
+from .core import (
+    Comparison,
+    SideFile,
+    check_apart,
+    check_compare_by,
+    check_tasks,
+    compare_parts,
+    side_file,
+)
 from .groups import RATE_MARGIN, CompareGates, check_limit
 
 __all__ = ["InputsComparison", "compare_inputs", "gates_from_options"]
@@ -95,6 +103,7 @@ def compare_inputs(
                 f"the {side}: none of its {len(side_files)} evidence file(s) could be read "
                 "(the lines above say why); give readable files"
             )
+    check_tasks(parts[0], parts[1], different_tasks, "--different-tasks")
     comparison = compare_parts(
         parts[0],
         parts[1],

@@ -155,7 +155,8 @@ def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_pat
     cart = tmp_path / "cart.mcap"
     record_episodes("CartPole-v1", cart, episodes=3, max_episode_steps=10)
     code, _, err = run("compare", runs["base"], "--candidate", str(cart))
-    assert code == 2 and "different tasks" in err and "--different-tasks" in err
+    assert code == 2 and "different tasks" in err and "pass --different-tasks" in err
+    assert "different_tasks=True" not in err  # (the library's name for it, not the option's)
     code, _, err = run("compare", runs["base"], "--candidate", str(cart), "--different-tasks")
     assert code in (0, 1) and "env_id differs" in err
 
