@@ -114,7 +114,7 @@ class Comparison:
         """What the options matched nothing of, and what the comparison could not use, a line each.
 
         A per-label failure gate on a label no failure of either side has; a group's notes
-        (returns that are not finite), naming the group.
+        (error episodes, returns that are not finite), naming the group.
         """
         seen = ", ".join(map(repr, self.seen_labels)) or "none"
         notes = [

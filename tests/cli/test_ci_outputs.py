@@ -27,6 +27,7 @@ from episode_audit import RecordEvidence
 from episode_audit.cli import app
 from episode_audit.cli._summary import STEP_SUMMARY_LIMIT, fit_summary
 from episode_audit.cli.render import JUnitCase, junit_xml, safe
+from tests.support.crashing import crashing_cartpole
 from tests.support.rewards import record_cartpole
 
 REPO = Path(__file__).resolve().parents[2]
@@ -92,6 +93,8 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     files["cartpole_again"] = Path(shutil.copy(files["cartpole"], tmp / "cp_again.mcap"))
     files["random20_again"] = Path(shutil.copy(files["random20"], tmp / "random20_again.mcap"))
     files["normalized"] = record_cartpole(tmp / "normalized.mcap", "normalized")  # (wrapped)
+    files["clean"] = crashing_cartpole(tmp / "clean.mcap", 10)
+    files["crashing"] = crashing_cartpole(tmp / "crashing.mcap", 10, lambda seed: seed % 2 == 0)
     return files
 
 
@@ -126,6 +129,7 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("compare", "{cartpole}", "--candidate", "{cartpole}"), 2),
     (("report", "{cartpole}", "{normalized}"), 0),
     (("compare", "{random20}", "--candidate", "{normalized}", "--max-return-drop", "100"), 1),
+    (("compare", "{clean}", "--candidate", "{crashing}", "--max-error-increase", "0.5"), 1),
     (("check", "fixtures/clean.mcap", "no-such.mcap"), 2),  # (no input found: an error document)
     (("replay", "no-such-folder"), 2),
     (("report", "fixtures/clean.mcap", "no-such.mcap"), 2),
