@@ -3,8 +3,9 @@
 :func:`compare_group` builds every metric of a group from its two :class:`~.sides.Side`
 values: the success rate, the failure rate and each failure label's, the truncation rate, the
 error rate (when a side has errors, or a gate bounds it), the return, and each reward term's
-episode total. :class:`CompareGates` are the non-inferiority gates (:func:`check_gates`);
-:func:`combine` is how verdicts add up to one.
+episode total. :class:`CompareGates` are the non-inferiority gates (:func:`check_gates`; on a
+group the candidate lacks, :func:`missing_gates`); :func:`combine` is how verdicts add up to
+one.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ __all__ = [
     "check_limit",
     "combine",
     "compare_group",
+    "gate_json",
+    "missing_gates",
     "unverifiable",
 ]
 
@@ -162,12 +165,14 @@ class GroupComparison:
             "pairs": self.pairs,
             "metrics": [m.to_dict() for m in self.metrics],
             "new_warnings": [{"code": w.code, "message": w.message} for w in self.new_warnings],
-            "gates": [
-                {"gate": g.gate, "group": g.group, "passed": g.passed, "message": g.message}
-                for g in self.gates
-            ],
+            "gates": [gate_json(g) for g in self.gates],
             "notes": list(self.notes),
         }
+
+
+def gate_json(gate: GateResult) -> dict[str, Any]:
+    """A gate's result as JSON-able values (``docs/compare.md``)."""
+    return {"gate": gate.gate, "group": gate.group, "passed": gate.passed, "message": gate.message}
 
 
 def combine(verdicts: Iterable[Verdict]) -> Verdict:
@@ -392,6 +397,26 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
         message += (f": {codes}" if codes else "") + f" (group {group.key})"
         out.append(GateResult(NEW_WARNINGS_GATE, group.key, not group.new_warnings, message))
     return out
+
+
+def missing_gates(key: str, gates: CompareGates, base: Side, cand: Side | None) -> list[GateResult]:
+    """Each gate that is on, failed on group ``key``: the candidate has no ended episode there.
+
+    ``base`` is the baseline's side of the group; ``cand`` every episode the candidate started
+    in it (:func:`~.sides.started`), ``None`` when it has none. No evidence is not a pass.
+    """
+    why = f"the candidate has no ended episode in group {key} (the baseline has {base.n}"
+    if cand is not None:
+        counts = ", ".join(
+            f"{int((cand.outcome == o).sum())} {o}"
+            for o in (fmt.OUTCOME_ERROR, fmt.OUTCOME_INCOMPLETE)
+            if (cand.outcome == o).any()
+        )
+        why += f"; the candidate's {cand.n}: {counts}"
+    why += "); record the candidate's episodes of it"
+    names = [_gate_name(name) for name in gates.limits()]
+    names += [NEW_WARNINGS_GATE] if gates.fail_on_new_incentive_warning else []
+    return [GateResult(g, key, False, f"{g}: cannot be verified, {why}") for g in names]
 
 
 def _no_success(key: str) -> str:
