@@ -83,6 +83,15 @@ _MaxReturnDropOption = Annotated[
     ),
 ]
 
+_MaxErrorIncreaseOption = Annotated[
+    float | None,
+    typer.Option(
+        help="Gate: fail unless the error rate's rise (episodes the env raised in, of all "
+        "episodes) is within this.",
+        metavar="<rate>",
+    ),
+]
+
 _RateMarginOption = Annotated[
     float,
     typer.Option(
@@ -158,6 +167,7 @@ def compare(
     max_success_drop: _MaxSuccessDropOption = None,
     max_failure_increase: _MaxFailureIncreaseOption = None,
     max_return_drop: _MaxReturnDropOption = None,
+    max_error_increase: _MaxErrorIncreaseOption = None,
     rate_margin: _RateMarginOption = 0.05,
     fail_on_new_incentive_warning: _FailOnNewWarningOption = False,
     different_tasks: _DifferentTasksOption = False,
@@ -191,6 +201,7 @@ def compare(
                 max_success_drop=max_success_drop,
                 max_failure_increase=max_failure_increase or (),
                 max_return_drop=max_return_drop,
+                max_error_increase=max_error_increase,
                 rate_margin=rate_margin,
                 fail_on_new_incentive_warning=fail_on_new_incentive_warning,
                 different_tasks=different_tasks,

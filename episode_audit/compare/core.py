@@ -22,6 +22,7 @@ from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
 from ..read.storage import is_url
+from ..report import GateResult
 from ..report.collect import check_by, joined
 from ..report.core import FilePart, file_part
 from ..report.gates import unmatched_why
@@ -35,9 +36,11 @@ from .groups import (
     check_limit,
     combine,
     compare_group,
+    gate_json,
+    missing_gates,
 )
 from .metrics import Verdict, decide
-from .sides import Side, sides
+from .sides import Side, sides, started
 from .spec import Mismatch, field_mismatches, run_fields
 from .stats import holm
 
@@ -47,6 +50,7 @@ __all__ = [
     "SideFile",
     "check_apart",
     "check_compare_by",
+    "check_tasks",
     "compare",
     "compare_parts",
     "compare_tables",
@@ -70,7 +74,10 @@ class Comparison:
 
     ``verdict`` combines the groups' (:func:`~.groups.combine`); ``passed`` is false when it is
     ``regressed`` or a gate failed. ``only_baseline`` / ``only_candidate`` name the groups one
-    side lacks (not compared); ``unfinished`` the files still being written or torn (compared
+    side lacks (not compared): a group only the baseline has makes the verdict at best
+    ``inconclusive``, and fails every gate that is on (``only_baseline_gates``: no evidence is
+    not a pass); one only the candidate has is a note (no baseline, no change to bound);
+    ``unfinished`` the files still being written or torn (compared
     with what was flushed so far), with why; ``baseline_files`` / ``candidate_files`` count
     each side's files; ``unmatched_labels`` are the labels of per-label gates no failure has
     (a misspelt label would pass every time; :attr:`notes` says so); ``baseline_wrapped`` /
@@ -92,6 +99,8 @@ class Comparison:
     """The baseline's files recorded over reward wrappers (their returns are not the env's)."""
     candidate_wrapped: Wrapped = field(default_factory=Wrapped)
     """The candidate's, likewise."""
+    only_baseline_gates: list[GateResult] = field(default_factory=list)
+    """Each gate that is on, failed on each group only the baseline has: it cannot be verified."""
 
     @property
     def reward_notes(self) -> list[str]:
@@ -105,28 +114,40 @@ class Comparison:
 
     @property
     def verdict(self) -> Verdict:
-        """The overall verdict."""
-        return combine(g.verdict for g in self.groups)
+        """The overall verdict; ``inconclusive`` stands for each group only the baseline has."""
+        missing: list[Verdict] = ["inconclusive"] if self.only_baseline else []
+        return combine([*(g.verdict for g in self.groups), *missing])
 
     @property
     def notes(self) -> list[str]:
         """What the options matched nothing of, and what the comparison could not use, a line each.
 
         A per-label failure gate on a label no failure of either side has; a group's notes
-        (returns that are not finite), naming the group.
+        (error episodes, returns that are not finite), naming the group; a group on one side
+        only.
         """
         seen = ", ".join(map(repr, self.seen_labels)) or "none"
         notes = [
             f"gate max_failure_increase:{label}: {unmatched_why(label)} (labels seen: {seen})"
             for label in self.unmatched_labels
         ]
-        return notes + [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
+        notes += [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
+        notes += [
+            f"group {key}: only the baseline has ended episodes in it: not compared, so the "
+            "verdict is at best inconclusive, and a gate there cannot be verified (fails)"
+            for key in self.only_baseline
+        ]
+        return notes + [
+            f"group {key}: only the candidate has it: no baseline to compare with, so not "
+            "compared and no gate checked there (`episode-audit report` gates its rates)"
+            for key in self.only_candidate
+        ]
 
     @property
     def passed(self) -> bool:
         """Whether the candidate did not regress and every gate passed."""
         gates = all(g.passed for group in self.groups for g in group.gates)
-        return self.verdict != "regressed" and gates
+        return self.verdict != "regressed" and gates and not self.only_baseline_gates
 
     def cases(self) -> list[Case]:
         """Every outcome as a named case, mismatches first (a mismatch alone does not fail)."""
@@ -142,16 +163,8 @@ class Comparison:
                     )
             for w in group.new_warnings:  # (reported; only a gate fails on them)
                 out.append(Case(f"{group.key}/incentive:{w.code}", "new", True, w.message))
-            for g in group.gates:
-                out.append(
-                    Case(
-                        f"{group.key}/gate:{g.gate}",
-                        "passed" if g.passed else "failed",
-                        g.passed,
-                        g.message,
-                    )
-                )
-        return out  # fmt: skip
+            out += [_gate_case(g) for g in group.gates]
+        return out + [_gate_case(g) for g in self.only_baseline_gates]
 
     def to_dict(self) -> dict[str, Any]:
         """The comparison as JSON-able values (the shape: ``docs/compare.md``)."""
@@ -168,6 +181,7 @@ class Comparison:
             "groups": [g.to_dict() for g in self.groups],
             "only_baseline": list(self.only_baseline),
             "only_candidate": list(self.only_candidate),
+            "only_baseline_gates": [gate_json(g) for g in self.only_baseline_gates],
             "unfinished": [{"file": name, "why": why} for name, why in self.unfinished],
             "unmatched_labels": list(self.unmatched_labels),
             "notes": self.notes,
@@ -180,6 +194,11 @@ class Comparison:
                 for c in self.cases()
             ],
         }
+
+
+def _gate_case(gate: GateResult) -> Case:
+    status = "passed" if gate.passed else "failed"
+    return Case(f"{gate.group}/gate:{gate.gate}", status, gate.passed, gate.message)
 
 
 def _metric_line(name: str, diff: float, interval: Any, verdict: str) -> str:
@@ -247,13 +266,7 @@ def compare_parts(
     """Compare the sides' files from their parts (:func:`side_file`), as :func:`compare_tables`."""
     check_compare_by(by)
     _check_options(baseline, candidate, gates, rate_margin)
-    found = field_mismatches([f.fields for f in baseline], [f.fields for f in candidate])
-    tasks = [m for m in found if m.task]
-    if tasks and not different_tasks:
-        raise ConfigurationError(
-            f"the sides run different tasks ({tasks[0]}); to compare them anyway pass "
-            "different_tasks=True (--different-tasks)"
-        )
+    found = check_tasks(baseline, candidate, different_tasks)
     gates = gates or CompareGates()
     tables_b = joined(f.part.rows for f in baseline)
     tables_c = joined(f.part.rows for f in candidate)
@@ -281,6 +294,12 @@ def compare_parts(
     _decide(groups)
     for group in groups:
         group.gates = check_gates(group, gates)
+    started_c = started(*tables_c)
+    unverified = [
+        gate
+        for key in sorted(set(sides_b) - set(sides_c))
+        for gate in missing_gates(key, gates, sides_b[key], started_c.get(key))
+    ]
     parts = [f.part for f in [*baseline, *candidate]]
     seen = _failure_labels([*sides_b.values(), *sides_c.values()])
     return Comparison(
@@ -296,7 +315,28 @@ def compare_parts(
         seen,
         Wrapped.of(f.part.reward_wrappers for f in baseline),
         Wrapped.of(f.part.reward_wrappers for f in candidate),
+        unverified,
     )
+
+
+def check_tasks(
+    baseline: Sequence[SideFile],
+    candidate: Sequence[SideFile],
+    allowed: bool,
+    how: str = "different_tasks=True",
+) -> list[Mismatch]:
+    """What differs between the sides' runs; a different task refused unless ``allowed``.
+
+    The :class:`ConfigurationError` says to pass ``how`` (``--different-tasks`` on the
+    command line).
+    """
+    found = field_mismatches([f.fields for f in baseline], [f.fields for f in candidate])
+    tasks = [m for m in found if m.task]
+    if tasks and not allowed:
+        raise ConfigurationError(
+            f"the sides run different tasks ({tasks[0]}); to compare them anyway pass {how}"
+        )
+    return found
 
 
 def _check_options(

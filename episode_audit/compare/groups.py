@@ -2,8 +2,10 @@
 
 :func:`compare_group` builds every metric of a group from its two :class:`~.sides.Side`
 values: the success rate, the failure rate and each failure label's, the truncation rate, the
-return, and each reward term's episode total. :class:`CompareGates` are the non-inferiority
-gates; :func:`combine` is how verdicts add up to one.
+error rate (when a side has errors, or a gate bounds it), the return, and each reward term's
+episode total. :class:`CompareGates` are the non-inferiority gates (:func:`check_gates`; on a
+group the candidate lacks, :func:`missing_gates`); :func:`combine` is how verdicts add up to
+one.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ __all__ = [
     "check_limit",
     "combine",
     "compare_group",
+    "gate_json",
+    "missing_gates",
     "unverifiable",
 ]
 
@@ -47,7 +51,9 @@ class CompareGates:
 
     ``max_success_drop``: the success rate may fall at most this much;
     ``max_failure_increase`` (all failures) and ``max_failure_increase_by_label`` may rise at
-    most this much; ``max_return_drop``: the mean return may fall at most this much. A gate is
+    most this much; ``max_return_drop``: the mean return may fall at most this much;
+    ``max_error_increase``: the error rate (episodes the env raised in, of every episode
+    started) may rise at most this much. A gate is
     also the margin its metric is ``held`` within. ``fail_on_new_incentive_warning``: a group
     with an incentive warning the baseline's lacks fails (no test backs it: by chance alone a
     warning can appear on one side, see ``docs/compare.md``).
@@ -67,11 +73,13 @@ class CompareGates:
     max_failure_increase_by_label: Mapping[str, float] = field(default_factory=dict)
     max_return_drop: float | None = None
     fail_on_new_incentive_warning: bool = False
+    max_error_increase: float | None = None
 
     def __post_init__(self) -> None:
         check_limit("max_success_drop", self.max_success_drop, "rate")
         check_limit("max_failure_increase", self.max_failure_increase, "rate")
         check_limit("max_return_drop", self.max_return_drop, "amount")
+        check_limit("max_error_increase", self.max_error_increase, "rate")
         by_label = self.max_failure_increase_by_label
         if not isinstance(by_label, Mapping):
             raise ConfigurationError(
@@ -90,6 +98,8 @@ class CompareGates:
             out["failure_rate"] = self.max_failure_increase
         for label, limit in self.max_failure_increase_by_label.items():
             out[f"failure_rate:{label}"] = limit
+        if self.max_error_increase is not None:
+            out["error_rate"] = self.max_error_increase
         if self.max_return_drop is not None:
             out["return"] = self.max_return_drop
         return out
@@ -130,7 +140,8 @@ class GroupComparison:
     new_warnings: list[IncentiveWarning]
     gates: list[GateResult] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
-    """What the group's metrics could not use, a line each (returns that are not finite)."""
+    """What the group's metrics left out or could not use, a line each (error episodes,
+    returns that are not finite, returns in other units, too few episodes)."""
 
     def metric(self, name: str) -> MetricComparison:
         """The group's metric ``name`` (:class:`KeyError` when it has none)."""
@@ -154,12 +165,14 @@ class GroupComparison:
             "pairs": self.pairs,
             "metrics": [m.to_dict() for m in self.metrics],
             "new_warnings": [{"code": w.code, "message": w.message} for w in self.new_warnings],
-            "gates": [
-                {"gate": g.gate, "group": g.group, "passed": g.passed, "message": g.message}
-                for g in self.gates
-            ],
+            "gates": [gate_json(g) for g in self.gates],
             "notes": list(self.notes),
         }
+
+
+def gate_json(gate: GateResult) -> dict[str, Any]:
+    """A gate's result as JSON-able values (``docs/compare.md``)."""
+    return {"gate": gate.gate, "group": gate.group, "passed": gate.passed, "message": gate.message}
 
 
 def combine(verdicts: Iterable[Verdict]) -> Verdict:
@@ -190,7 +203,9 @@ def compare_group(
 ) -> GroupComparison:
     """Every metric of one group (verdicts are set later, after the Holm adjustment).
 
-    A rate is ``held`` within its gate, or ``rate_margin`` when it has none.
+    A rate is ``held`` within its gate, or ``rate_margin`` when it has none. The error rate is
+    over every episode started (:attr:`~.sides.Side.everything`), paired as those pair; it is
+    there when a side has an error episode or ``max_error_increase`` is on.
     """
     pairs = pair(base, cand)
     limits = gates.limits()
@@ -213,6 +228,16 @@ def compare_group(
     rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
     metrics = [rate(*spec) for spec in rates]
     _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
+    all_b, all_c = base.everything, cand.everything
+    errors_b, errors_c = _is(all_b, all_c, fmt.OUTCOME_ERROR)
+    if errors_b.any() or errors_c.any() or "error_rate" in limits:
+        margin = limits.get("error_rate", rate_margin)
+        metrics.append(
+            rate_metric(
+                "error_rate", errors_b, errors_c, pair(all_b, all_c), better="lower",
+                margin=margin,
+            )
+        )  # fmt: skip
     returns = mean_metric(
         "return", base.returns, cand.returns, pairs, better="higher",
         margin=gates.max_return_drop,
@@ -228,12 +253,27 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    notes = _nonfinite_returns(base, cand)
+    notes = _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
     if apart is not None:
         notes.append(f"return: not compared (inconclusive), nor a max_return_drop gate: {apart}")
     else:
         notes += _unbounded(returns)
     return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
+
+
+def _errors(base: Any, cand: Any) -> list[str]:
+    """The note on error episodes (the env raised), when a side has any: the rates leave them out.
+
+    >>> _errors(np.zeros(4, bool), np.array([True, False, True, False]))[0][:51]
+    '0 of 4 baseline and 2 of 4 candidate episodes ended'
+    """
+    if not (base.any() or cand.any()):
+        return []
+    return [
+        f"{int(base.sum())} of {len(base)} baseline and {int(cand.sum())} of {len(cand)} "
+        "candidate episodes ended in error (the env raised): the other rates and the return "
+        "leave them out, error_rate counts them"
+    ]
 
 
 def _nonfinite_returns(base: Side, cand: Side) -> list[str]:
@@ -359,6 +399,26 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
     return out
 
 
+def missing_gates(key: str, gates: CompareGates, base: Side, cand: Side | None) -> list[GateResult]:
+    """Each gate that is on, failed on group ``key``: the candidate has no ended episode there.
+
+    ``base`` is the baseline's side of the group; ``cand`` every episode the candidate started
+    in it (:func:`~.sides.started`), ``None`` when it has none. No evidence is not a pass.
+    """
+    why = f"the candidate has no ended episode in group {key} (the baseline has {base.n}"
+    if cand is not None:
+        counts = ", ".join(
+            f"{int((cand.outcome == o).sum())} {o}"
+            for o in (fmt.OUTCOME_ERROR, fmt.OUTCOME_INCOMPLETE)
+            if (cand.outcome == o).any()
+        )
+        why += f"; the candidate's {cand.n}: {counts}"
+    why += "); record the candidate's episodes of it"
+    names = [_gate_name(name) for name in gates.limits()]
+    names += [NEW_WARNINGS_GATE] if gates.fail_on_new_incentive_warning else []
+    return [GateResult(g, key, False, f"{g}: cannot be verified, {why}") for g in names]
+
+
 def _no_success(key: str) -> str:
     """Why a success gate fails in a group whose env reports no success."""
     return (
@@ -374,6 +434,8 @@ def _gate_name(metric: str) -> str:
         return "max_success_drop"
     if metric == "return":
         return "max_return_drop"
+    if metric == "error_rate":
+        return "max_error_increase"
     label = metric.partition(":")[2]
     return "max_failure_increase" + (f":{label}" if label else "")
 

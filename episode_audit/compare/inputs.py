@@ -20,7 +20,15 @@ from ..read import open_evidence
 from ..read.inputs import Unreadable, evidence_files
 from ..read.storage import Source
 from ..report.gates import is_rate
-from .core import Comparison, SideFile, check_apart, check_compare_by, compare_parts, side_file
+from .core import (
+    Comparison,
+    SideFile,
+    check_apart,
+    check_compare_by,
+    check_tasks,
+    compare_parts,
+    side_file,
+)
 from .groups import RATE_MARGIN, CompareGates, check_limit
 
 __all__ = ["InputsComparison", "compare_inputs", "gates_from_options"]
@@ -42,6 +50,7 @@ def compare_inputs(
     max_success_drop: float | None = None,
     max_failure_increase: Sequence[str] = (),
     max_return_drop: float | None = None,
+    max_error_increase: float | None = None,
     fail_on_new_incentive_warning: bool = False,
     different_tasks: bool = False,
     rate_margin: float = RATE_MARGIN,
@@ -63,6 +72,7 @@ def compare_inputs(
         max_success_drop=max_success_drop,
         max_failure_increase=max_failure_increase,
         max_return_drop=max_return_drop,
+        max_error_increase=max_error_increase,
         fail_on_new_incentive_warning=fail_on_new_incentive_warning,
     )
     check_limit("--rate-margin", rate_margin, "margin")
@@ -95,6 +105,7 @@ def compare_inputs(
                 f"the {side}: none of its {len(side_files)} evidence file(s) could be read "
                 "(the lines above say why); give readable files"
             )
+    check_tasks(parts[0], parts[1], different_tasks, "--different-tasks")
     comparison = compare_parts(
         parts[0],
         parts[1],
@@ -124,6 +135,7 @@ def gates_from_options(
     max_success_drop: float | None = None,
     max_failure_increase: Sequence[str] = (),
     max_return_drop: float | None = None,
+    max_error_increase: float | None = None,
     fail_on_new_incentive_warning: bool = False,
 ) -> CompareGates:
     """The :class:`~.groups.CompareGates` of the command line's options, checked in their words.
@@ -132,7 +144,7 @@ def gates_from_options(
     ... # doctest: +NORMALIZE_WHITESPACE
     CompareGates(max_success_drop=None, max_failure_increase=0.1,
                  max_failure_increase_by_label={'collision': 0.02}, max_return_drop=None,
-                 fail_on_new_incentive_warning=False)
+                 fail_on_new_incentive_warning=False, max_error_increase=None)
     >>> try:
     ...     gates_from_options(max_failure_increase=["collision=2"])
     ... except ConfigurationError as exc:
@@ -141,6 +153,7 @@ def gates_from_options(
     """
     check_limit("--max-success-drop", max_success_drop, "rate")
     check_limit("--max-return-drop", max_return_drop, "amount")
+    check_limit("--max-error-increase", max_error_increase, "rate")
     overall: float | None = None
     by_label: dict[str, float] = {}
     for value in max_failure_increase:
@@ -164,5 +177,10 @@ def gates_from_options(
         else:
             overall = number
     return CompareGates(
-        max_success_drop, overall, by_label, max_return_drop, fail_on_new_incentive_warning
+        max_success_drop,
+        overall,
+        by_label,
+        max_return_drop,
+        fail_on_new_incentive_warning,
+        max_error_increase,
     )

@@ -1,6 +1,7 @@
 """One metric compared between two sides: its difference, interval, test, plan and verdict.
 
-:func:`rate_metric` compares a rate (success, failure, one label's failure, truncation);
+:func:`rate_metric` compares a rate (success, failure, one label's failure, truncation,
+error);
 :func:`mean_metric` a mean (return, a reward term's episode total). Both are paired on matched
 reset seeds when at least half of the smaller side's episodes found a pair
 (:data:`PAIRED_SHARE`), else unpaired over every ended episode. :func:`decide` gives the

@@ -2,7 +2,9 @@
 
 :func:`sides` splits the tables :func:`~episode_audit.report.collect.collect` returns into one
 :class:`Side` per group key: the side's ended episodes (success, failure, truncated; the
-denominator of every rate), their returns, reward-term totals, reset seeds and RNG states.
+denominator of every rate but the error rate), their returns, reward-term totals, reset seeds
+and RNG states; and (``Side.started``) every episode it started, errors and incomplete ones
+too (the error rate's denominator, as report's).
 :func:`pair` matches two sides' episodes on how they began (the k-th episode seeded ``s`` of
 one side with the k-th seeded ``s`` of the other; unseeded ones by the RNG state recorded).
 """
@@ -21,7 +23,7 @@ from ..format import names as fmt
 from ..report.collect import ENDED
 from ..report.groups import keyed
 
-__all__ = ["Pairs", "Side", "pair", "sides"]
+__all__ = ["Pairs", "Side", "pair", "sides", "started"]
 
 Array = np.ndarray[Any, Any]
 
@@ -35,6 +37,8 @@ class Side:
     total (0.0 in an episode that did not report the term). ``success_signal``: some file of
     the side reports success (a success key or ``success_fn``); without, no episode can
     succeed, whatever the policy. ``reward_wrappers``: whose rewards its returns are.
+    ``started``: every episode of the group that began (ended, ``incomplete`` or ``error``),
+    as a side of its own; ``None``: the ended ones are all (no error, nothing incomplete).
     """
 
     outcome: Array
@@ -48,6 +52,12 @@ class Side:
     reward_wrappers: frozenset[str] = frozenset()
     """The reward wrappers the side's episodes were recorded over, a chain each
     (:func:`~episode_audit.report.wrapped.chain_text`; ``""``: none, the env's own rewards)."""
+    started: Side | None = None
+
+    @property
+    def everything(self) -> Side:
+        """Every episode the group started (:attr:`started`, or this side when that is unset)."""
+        return self if self.started is None else self.started
 
     @property
     def n(self) -> int:
@@ -92,7 +102,7 @@ class Side:
         )
 
     def take(self, index: Array) -> Side:
-        """The episodes at ``index``, in that order."""
+        """The episodes at ``index``, in that order (:attr:`started` unset: they are all)."""
         return Side(
             self.outcome[index],
             self.failure_label[index],
@@ -118,9 +128,22 @@ class Pairs:
 
 
 def sides(episodes: pa.Table, terms: pa.Table) -> dict[str, Side]:
-    """One :class:`Side` per group key of ``collect``'s tables, of its ended episodes."""
+    """One :class:`Side` per group key of ``collect``'s tables, of its ended episodes.
+
+    Each side's :attr:`Side.started` holds all its group's episodes when some did not end.
+    """
     ended = episodes.filter(pc.is_in(episodes.column("outcome"), pa.array(ENDED)))
-    return {key: _side(rows, key_terms) for key, rows, key_terms in keyed(ended, terms)}
+    found = {key: _side(rows, key_terms) for key, rows, key_terms in keyed(ended, terms)}
+    if ended.num_rows < episodes.num_rows:
+        for key, side in started(episodes, terms).items():
+            if key in found:
+                found[key].started = side
+    return found
+
+
+def started(episodes: pa.Table, terms: pa.Table) -> dict[str, Side]:
+    """One :class:`Side` per group key of ``collect``'s tables, of every episode it started."""
+    return {key: _side(rows, key_terms) for key, rows, key_terms in keyed(episodes, terms)}
 
 
 def _side(rows: pa.Table, terms: pa.Table) -> Side:

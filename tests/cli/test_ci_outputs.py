@@ -27,6 +27,8 @@ from episode_audit import RecordEvidence
 from episode_audit.cli import app
 from episode_audit.cli._summary import STEP_SUMMARY_LIMIT, fit_summary
 from episode_audit.cli.render import JUnitCase, junit_xml, safe
+from episode_audit.rollout import record_episodes
+from tests.support.crashing import crashing_cartpole
 from tests.support.rewards import record_cartpole
 
 REPO = Path(__file__).resolve().parents[2]
@@ -92,10 +94,17 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     files["cartpole_again"] = Path(shutil.copy(files["cartpole"], tmp / "cp_again.mcap"))
     files["random20_again"] = Path(shutil.copy(files["random20"], tmp / "random20_again.mcap"))
     files["normalized"] = record_cartpole(tmp / "normalized.mcap", "normalized")  # (wrapped)
+    files["clean"] = crashing_cartpole(tmp / "clean.mcap", 10)
+    files["crashing"] = crashing_cartpole(tmp / "crashing.mcap", 10, lambda seed: seed % 2 == 0)
+    for name in ("short", "short_again", "long"):  # (a group, long, the candidate lacks)
+        files[name] = tmp / f"{name}.mcap"
+        config = {"config": name.split("_")[0]}
+        record_episodes("CartPole-v1", files[name], episodes=4, max_episode_steps=10, tags=config)
     return files
 
 
 HEAVY = ("--env-factory", "tests.support.factories:heavy_cartpole")
+BY_CONFIG, GATE = ("--by", "tag:config"), ("--max-failure-increase", "1")
 
 # (command line, its exit code); {cartpole} and {junk} name the recorded files
 SCENARIOS: list[tuple[tuple[str, ...], int]] = [
@@ -126,6 +135,9 @@ SCENARIOS: list[tuple[tuple[str, ...], int]] = [
     (("compare", "{cartpole}", "--candidate", "{cartpole}"), 2),
     (("report", "{cartpole}", "{normalized}"), 0),
     (("compare", "{random20}", "--candidate", "{normalized}", "--max-return-drop", "100"), 1),
+    (("compare", "{clean}", "--candidate", "{crashing}", "--max-error-increase", "0.5"), 1),
+    (("compare", "{short}", "{long}", "--candidate", "{short_again}", *BY_CONFIG), 0),
+    (("compare", "{short}", "{long}", "--candidate", "{short_again}", *BY_CONFIG, *GATE), 1),
     (("check", "fixtures/clean.mcap", "no-such.mcap"), 2),  # (no input found: an error document)
     (("replay", "no-such-folder"), 2),
     (("report", "fixtures/clean.mcap", "no-such.mcap"), 2),

@@ -155,7 +155,8 @@ def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_pat
     cart = tmp_path / "cart.mcap"
     record_episodes("CartPole-v1", cart, episodes=3, max_episode_steps=10)
     code, _, err = run("compare", runs["base"], "--candidate", str(cart))
-    assert code == 2 and "different tasks" in err and "--different-tasks" in err
+    assert code == 2 and "different tasks" in err and "pass --different-tasks" in err
+    assert "different_tasks=True" not in err  # (the library's name for it, not the option's)
     code, _, err = run("compare", runs["base"], "--candidate", str(cart), "--different-tasks")
     assert code in (0, 1) and "env_id differs" in err
 
@@ -217,3 +218,34 @@ def test_returns_of_other_reward_wrappers_are_not_compared(tmp_path: Path) -> No
     (failed,) = [c for c in json.loads(out)["cases"] if not c["passed"]]
     assert failed["name"] == "all/gate:max_return_drop"
     assert failed["message"].startswith("return: cannot be verified, the baseline's returns")
+
+
+def test_a_group_the_candidate_lacks_fails_its_gates_in_every_output(tmp_path: Path) -> None:
+    import jsonschema
+    import junitparser
+
+    files = {}
+    for name, config in [("b_short", "short"), ("b_long", "long"), ("c_short", "short")]:
+        files[name] = str(tmp_path / f"{name}.mcap")
+        record_episodes("CartPole-v1", files[name], episodes=6, max_episode_steps=10,
+                        tags={"config": config})  # fmt: skip
+    args = ["compare", files["b_short"], files["b_long"], "--candidate", files["c_short"]]
+    args += ["--by", "tag:config", "--max-failure-increase", "1"]
+    code, out, err = run(*args, "-f", "json")
+    assert code == 1 and "group long: only the baseline" in err
+    data = json.loads(out)
+    schema = json.loads((REPO / "docs" / "schemas" / "compare.json").read_text())
+    jsonschema.validate(data, schema, jsonschema.Draft202012Validator)
+    assert data["passed"] is False and data["only_baseline"] == ["long"]
+    (gate,) = data["only_baseline_gates"]
+    assert (gate["gate"], gate["group"], gate["passed"]) == ("max_failure_increase", "long", False)
+    assert {"name": "long/gate:max_failure_increase", "status": "failed", "passed": False,
+            "message": gate["message"]} in data["cases"]  # fmt: skip
+    code, out, _ = run(*args, "-f", "junit")
+    xml = tmp_path / "compare.xml"
+    xml.write_text(out)
+    failed = [(suite.name, case.name) for suite in junitparser.JUnitXml.fromfile(str(xml))
+              for case in suite if case.result]  # fmt: skip
+    assert code == 1 and ("long", "gate:max_failure_increase") in failed
+    code, out, _ = run(*args)
+    assert code == 1 and "max_failure_increase  long   FAIL" in " ".join(out.split("\n"))

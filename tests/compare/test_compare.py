@@ -120,7 +120,9 @@ def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
 ) -> None:
     cart = tmp_path / "cart.mcap"
     record_episodes("CartPole-v1", cart, episodes=5, max_episode_steps=20)
-    with pytest.raises(ConfigurationError, match=r"different tasks \(env_id differs.*--different"):
+    with pytest.raises(
+        ConfigurationError, match=r"different tasks \(env_id differs.*pass different_tasks=True$"
+    ):
         compare([runs["scripted"]], [cart])
     allowed = compare([runs["scripted"]], [cart], different_tasks=True)
     assert allowed.mismatches[0].field == "env_id"

@@ -75,3 +75,31 @@ def test_the_new_warnings_gate_fails_on_them_only_when_asked() -> None:
         assert result.gate == "new_incentive_warnings"
         assert result.passed == (not group.new_warnings), result.message
         assert check_gates(group, CompareGates()) == []
+
+
+def _crashing_side(rng: np.random.Generator, n: int) -> Side:
+    """``n`` episodes begun, seeded ``0..n-1``, each an ``error`` with chance 0.1; the side of
+    those that ended, with all of them as its ``started``."""
+    outcome = rng.choice(["success", "failure", "truncated", "error"], n, p=[0.5, 0.2, 0.2, 0.1])
+    everything = Side.of(list(outcome), list(rng.normal(5.0, 3.0, n)), seed=list(range(n)))
+    ended = everything.take(np.flatnonzero(outcome != "error"))
+    ended.started = everything
+    return ended
+
+
+def test_error_rates_of_the_same_env_are_not_called_a_regression() -> None:
+    """Errors come and go by chance on both sides: the error rate joins Holm's family, and the
+    family still calls at most 5 % of comparisons ``regressed``."""
+    rng = np.random.default_rng(11)
+    groups = []
+    for _ in range(100):
+        group = compare_group(
+            "all", _crashing_side(rng, 30), _crashing_side(rng, 30), CompareGates(), []
+        )
+        _decide([group])
+        groups.append(group)
+    assert all(g.metric("error_rate").can_reject for g in groups[:5])
+    verdicts = [g.verdict for g in groups]
+    errors = [g.metric("error_rate").verdict for g in groups]
+    assert verdicts.count("regressed") / len(groups) <= 0.05, verdicts.count("regressed")
+    assert errors.count("regressed") <= 2, errors

@@ -114,8 +114,7 @@ def compare_output(
         )
     gates = [
         [r.gate, r.group, "pass" if r.passed else "FAIL", r.message]
-        for g in result.groups
-        for r in g.gates
+        for r in [*(r for g in result.groups for r in g.gates), *result.only_baseline_gates]
     ]
     if gates:
         sections.append(("Gates", ["gate", "group", "result", "detail"], gates))
