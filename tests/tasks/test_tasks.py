@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import gc
 import math
 import os
 import subprocess
@@ -121,6 +122,8 @@ def stats(task_id: str, policy_name: str, *, proxy_reward: bool) -> tuple[float,
 def gl_problem() -> str | None:
     """Why rgb_array rendering cannot work here, or None when it can."""
     model = mujoco.MjModel.from_xml_string("<mujoco><worldbody/></mujoco>")
+    hook = sys.unraisablehook  # (MuJoCo 3.3's Renderer.__del__ fails on a half-made one)
+    sys.unraisablehook = lambda unraisable: None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -130,6 +133,9 @@ def gl_problem() -> str | None:
             f"no OpenGL backend for MuJoCo (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}): "
             f"{type(exc).__name__}: {exc}"
         )
+    finally:
+        gc.collect()
+        sys.unraisablehook = hook
     renderer.close()
     return None
 
