@@ -13,10 +13,13 @@ file). Statistics and verdicts: ``docs/compare.md``.
 from __future__ import annotations
 
 import os
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import pyarrow as pa
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
@@ -271,8 +274,8 @@ def compare_parts(
     tables_b = joined(f.part.rows for f in baseline)
     tables_c = joined(f.part.rows for f in candidate)
     sides_b, sides_c = sides(*tables_b), sides(*tables_c)
-    _check_sides(sides_b, "baseline")
-    _check_sides(sides_c, "candidate")
+    _check_sides(sides_b, "baseline", tables_b[0])
+    _check_sides(sides_c, "candidate", tables_c[0])
     if not set(sides_b) & set(sides_c):
         raise ConfigurationError(
             f"by={by!r}: no group is on both sides (baseline: {_keys(sides_b)}; candidate: "
@@ -393,11 +396,15 @@ def _keys(found: dict[str, Any]) -> str:
     return ", ".join(map(repr, keys[:5])) + (f" and {len(keys) - 5} more" if len(keys) > 5 else "")
 
 
-def _check_sides(found: dict[str, Any], side: str) -> None:
+def _check_sides(found: dict[str, Any], side: str, episodes: pa.Table) -> None:
+    """Refuse a side without an ended episode, saying how its episodes ended instead."""
     if not found:
+        counts = Counter(episodes.column("outcome").to_pylist()) if episodes.num_rows else {}
+        how = ", ".join(f"{outcome} {n}" for outcome, n in sorted(counts.items()))
         raise ConfigurationError(
-            f"the {side} has no ended episode (success, failure or truncated) to compare: "
-            f"record some, or check its files with `episode-audit report`"
+            f"the {side} has no ended episode (success, failure or truncated) to compare"
+            + (f" (its {episodes.num_rows} episodes: {how})" if how else "")
+            + ": record some, or check its files with `episode-audit report`"
         )
 
 

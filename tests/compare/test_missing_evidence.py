@@ -11,6 +11,7 @@ from episode_audit import CompareGates, compare
 from episode_audit.compare.core import _decide
 from episode_audit.compare.groups import compare_group
 from episode_audit.compare.sides import Side
+from episode_audit.errors import ConfigurationError
 from episode_audit.rollout import record_episodes
 from tests.support.crashing import crashing_cartpole
 
@@ -128,3 +129,14 @@ def test_a_group_only_the_candidate_has_is_a_note_not_a_failure(
     assert result.only_candidate == ["new"] and result.only_baseline_gates == []
     assert result.passed and result.verdict == "held"
     assert any(n.startswith("group new: only the candidate") for n in result.notes), result.notes
+
+
+def test_a_candidate_whose_every_episode_raised_says_so(tmp_path: Path) -> None:
+    crashed = crashing_cartpole(tmp_path / "crashed.mcap", 6, lambda seed: True)
+    base = crashing_cartpole(tmp_path / "clean.mcap", 6)
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^the candidate has no ended episode \(success, failure or truncated\) to compare "
+        r"\(its 6 episodes: error 6\): record some",
+    ):
+        compare([base], [crashed])
