@@ -370,7 +370,7 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False)
             ("action space", run.action_space, _described(env.action_space)),
         ]
         limit = step_limit(env)
-        if limit is not None and "max_episode_steps" in spec:  # (null: none recorded)
+        if "max_episode_steps" in spec and (limit is not None or spec["max_episode_steps"]):
             checks.append(("max episode steps", spec.get("max_episode_steps"), limit))
         rebuilt = getattr(env.spec, "kwargs", None)
         if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):

@@ -516,6 +516,19 @@ def test_a_time_limit_the_recording_had_not_is_named_not_diverged(tmp_path: Path
     )
 
 
+def test_a_factory_without_the_recorded_time_limit_is_named_not_diverged(tmp_path: Path) -> None:
+    path = tmp_path / "limited.mcap"
+    with RecordEvidence(gym.wrappers.TimeLimit(gym.make("Pendulum-v1").unwrapped, 30), path) as rec:
+        rec.reset(seed=0)
+        for _ in range(30):
+            rec.step(rec.action_space.sample())
+    result = replay([path], env_factory=lambda: gym.make("Pendulum-v1").unwrapped)
+    assert result.episodes[0].reason == (
+        "the rebuilt env does not match the recording: max episode steps 30 recorded vs null "
+        "rebuilt; make the --env-factory build the env as recorded"
+    )
+
+
 def _nested_limits() -> gym.Env[Any, Any]:
     """Pendulum in its registered 200-step limit, in a larger one: the inner one ends it."""
     return gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500)
