@@ -52,12 +52,18 @@ def episode_index_problem(index: int) -> str | None:
     return f"expected an episode index from 0 to 2**63 - 1, got {index}"
 
 
+_EXACT_DTYPES = (np.dtype(np.float64), np.dtype(np.int64))
+"""The numpy number types whose values JSON gives back as numbers numpy reads as the same type."""
+_AS = {"f": "float64", "c": "complex", "i": "int64", "u": "int64"}
+
+
 def to_jsonable(value: Any, *, exact: bool = False) -> Any:
     """Convert numpy scalars/arrays, tuples and non-finite floats into plain JSON values.
 
     Non-finite floats become the strings ``"nan"``, ``"inf"``, ``"-inf"``, and mapping keys
     their ``str()``; anything else that JSON cannot hold raises ``TypeError``. With ``exact``,
-    a value JSON would change so (a non-finite float, a key that is not a string) raises
+    a value JSON would change so (a non-finite float, a key that is not a string, a numpy
+    number of another type than float64 or int64, which comes back as one of those) raises
     ``ValueError`` naming it instead: sequences become lists, numpy values Python ones, and
     nothing else changes.
 
@@ -73,6 +79,10 @@ def to_jsonable(value: Any, *, exact: bool = False) -> Any:
     Traceback (most recent call last):
     ...
     ValueError: JSON keys are text, not int 5
+    >>> to_jsonable({"low": np.array([0.5], np.float32)}, exact=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: JSON keeps no float32 numbers: they come back as float64
     """
     if value is None or isinstance(value, (bool, str, int)):
         return value
@@ -82,10 +92,14 @@ def to_jsonable(value: Any, *, exact: bool = False) -> Any:
         if exact:
             raise ValueError(f"JSON has no {value}")
         return str(value)
-    if isinstance(value, np.generic):
-        return to_jsonable(value.item(), exact=exact)
-    if isinstance(value, np.ndarray):
-        return to_jsonable(value.tolist(), exact=exact)
+    if isinstance(value, (np.generic, np.ndarray)):
+        if exact and value.dtype.kind in "fciu" and value.dtype not in _EXACT_DTYPES:
+            raise ValueError(
+                f"JSON keeps no {value.dtype} numbers: they come back as {_AS[value.dtype.kind]}"
+            )
+        return to_jsonable(
+            value.tolist() if isinstance(value, np.ndarray) else value.item(), exact=exact
+        )
     if isinstance(value, Mapping):
         if exact:
             for k in value:

@@ -216,11 +216,13 @@ def options_not_held(note: str) -> str:
 
     >>> print(options_not_held("{'limit': inf} (JSON has no inf)"))
     its reset options are not in the file ({'limit': inf} (JSON has no inf)): replay cannot \
-reset it as recorded; give reset() options JSON holds exactly (finite numbers, text keys)
+reset it as recorded; give reset() options JSON holds exactly (finite numbers, text keys; numpy \
+values only float64 or int64)
     """
     return (
         f"its reset options are not in the file ({note}): replay cannot reset it as recorded; "
-        "give reset() options JSON holds exactly (finite numbers, text keys)"
+        "give reset() options JSON holds exactly (finite numbers, text keys; numpy values only "
+        "float64 or int64)"
     )
 
 

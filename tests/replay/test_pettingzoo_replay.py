@@ -150,5 +150,5 @@ def test_a_game_reset_with_options_the_file_cannot_hold_is_not_replayable(tmp_pa
     assert result.episodes[0].reason == (
         "its reset options are not in the file ({'limit': -inf} (JSON has no -inf)): replay "
         "cannot reset it as recorded; give reset() options JSON holds exactly (finite "
-        "numbers, text keys)"
+        "numbers, text keys; numpy values only float64 or int64)"
     )

@@ -436,8 +436,13 @@ class _Clipped(gym.Env[Any, Any]):
         ({"limit": float("inf")}, "{'limit': inf} (JSON has no inf)"),
         ({"limit": float("nan")}, "{'limit': nan} (JSON has no nan)"),
         ({"limit": 2.0, 5: "x"}, "{'limit': 2.0, 5: 'x'} (JSON keys are text, not int 5)"),
+        (
+            {"limit": np.array(2.5, np.float32)},
+            "{'limit': array(2.5, dtype=float32)} (JSON keeps no float32 numbers: they come "
+            "back as float64)",
+        ),
     ],
-    ids=["inf", "nan", "int-key"],
+    ids=["inf", "nan", "int-key", "float32"],
 )
 def test_reset_options_the_file_cannot_hold_exactly_are_not_replayable(
     tmp_path: Path, options: dict[Any, Any], held: str
@@ -455,7 +460,8 @@ def test_reset_options_the_file_cannot_hold_exactly_are_not_replayable(
     assert [e.status for e in result.episodes] == ["not_replayable", "identical"]
     assert result.episodes[0].reason == (
         f"its reset options are not in the file ({held}): replay cannot reset it as recorded; "
-        "give reset() options JSON holds exactly (finite numbers, text keys)"
+        "give reset() options JSON holds exactly (finite numbers, text keys; numpy values only "
+        "float64 or int64)"
     )
 
 
