@@ -87,7 +87,17 @@ class CompareGates:
                 f"e.g. {{'collision': 0.02}}, got {type(by_label).__name__}"
             )
         for label, limit in by_label.items():
+            if not (isinstance(label, str) and label):
+                raise ConfigurationError(
+                    "max_failure_increase_by_label: expected failure labels as text, got "
+                    f"{label!r}; a label is the text a failure was recorded with"
+                )
             check_limit(f"max_failure_increase_by_label[{label!r}]", limit, "rate")
+        if not isinstance(self.fail_on_new_incentive_warning, bool):
+            raise ConfigurationError(
+                "fail_on_new_incentive_warning: expected True or False, got "
+                f"{self.fail_on_new_incentive_warning!r}"
+            )
 
     def limits(self) -> dict[str, float]:
         """Metric name to its gate's limit, for the gates that are on."""

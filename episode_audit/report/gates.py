@@ -71,6 +71,11 @@ class Gates:
                 raise ConfigurationError(
                     f"{name}: expected a rate between 0 and 1, actually: {value!r}"
                 )
+        if not isinstance(self.fail_on_incentive_warning, bool):
+            raise ConfigurationError(
+                "fail_on_incentive_warning: expected True or False, actually: "
+                f"{self.fail_on_incentive_warning!r}"
+            )
 
 
 def check_gateable(by: str, gates: Gates | None) -> None:

@@ -55,6 +55,14 @@ def test_a_rate_margin_out_of_range_is_refused_not_judged(
             {"max_failure_increase_by_label": [("collision", 0.1)]},
             r"^max_failure_increase_by_label: expected a mapping of failure labels to rates",
         ),
+        (  # (compare raised TypeError sorting the labels)
+            {"max_failure_increase_by_label": {3: 0.1}},
+            r"^max_failure_increase_by_label: expected failure labels as text, got 3",
+        ),
+        (
+            {"fail_on_new_incentive_warning": "no"},
+            r"^fail_on_new_incentive_warning: expected True or False, got 'no'$",
+        ),
     ],
 )
 def test_compare_gates_refuse_what_the_command_line_refuses(

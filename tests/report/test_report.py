@@ -303,6 +303,8 @@ def test_bad_gate_values_are_configuration_errors() -> None:
         Gates(min_success_rate=80)
     with pytest.raises(ConfigurationError, match=r"max_failure_rate_by_label\['x'\]: expected"):
         Gates(max_failure_rate_by_label={"x": -0.1})
+    with pytest.raises(ConfigurationError, match=r"fail_on_incentive_warning: expected True or"):
+        Gates(fail_on_incentive_warning="false")  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(
