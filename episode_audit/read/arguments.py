@@ -28,6 +28,8 @@ def path_list(paths: _P | Iterable[_P]) -> list[_P]:
     (['runs/run.mcap'], ['a.mcap', 'b.mcap'])
     """
     if isinstance(paths, (str, os.PathLike)):
+        if not os.fspath(paths):
+            raise ConfigurationError("paths: expected a path, got an empty string")
         return [paths]
     if isinstance(paths, bytes) or not isinstance(paths, Iterable):
         raise ConfigurationError(

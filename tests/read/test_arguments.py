@@ -42,6 +42,8 @@ def test_a_path_list_refuses_what_is_no_path() -> None:
         ConfigurationError, match=r"^paths: expected a path or a list of paths, got int"
     ):
         path_list(3)  # type: ignore[call-overload]
+    with pytest.raises(ConfigurationError, match=r"^paths: expected a path, got an empty string"):
+        path_list("")  # (it was the current folder: check("") said '.: a directory')
 
 
 @pytest.mark.parametrize(
