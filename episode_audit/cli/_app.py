@@ -27,7 +27,7 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup
 from .._jobs import sigint_held
 from .._version import __version__
 from ..errors import ConfigurationError, EpisodeAuditError
-from ..format.records import episode_index_problem
+from ..read.arguments import episode_index
 from ..read.inputs import Unreadable, evidence_files, open_all
 from ..read.storage import Source, is_url
 from .render import OutputFormat, safe
@@ -489,10 +489,10 @@ def _readable(
 
 
 def _episode_index(index: int) -> int:
-    problem = episode_index_problem(index)
-    if problem is not None:
-        fail(f"--episode: {problem}")
-    return index
+    try:
+        return episode_index("--episode", index)
+    except ConfigurationError as exc:
+        fail(str(exc))
 
 
 def main() -> None:
