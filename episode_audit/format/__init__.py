@@ -4,6 +4,7 @@
 - :mod:`.records` — the run metadata (:class:`RunInfo`), episode record schemas, JSON helpers.
 - :mod:`.run_end` — the run-end record read back, its values typed (:class:`.run_end.RunEnd`).
 - :mod:`.columns` — Arrow columns and value helpers shared by the recorder and replay.
+- :mod:`.options` — reset options as data: what plain JSON changes, and their exact tagged JSON.
 - :mod:`.spaces` — Gymnasium spaces <-> Arrow columns (codecs, buffers, descriptions).
 
 It imports nothing from the other wings.
