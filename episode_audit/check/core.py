@@ -32,7 +32,7 @@ from .episodes import check_episode_records
 from .facts import check_file_facts, check_unfinished
 from .findings import CheckResult, Finding
 from .keys import KeyChecks
-from .notes import is_note, note_finding, notes_summary, recorder_notes
+from .notes import is_note, note_finding, notes_summary, recorder_notes, reset_notes
 from .registry import FILE_UNREADABLE, SEVERITY_RANK, ignored_by, ignored_codes, is_ignored
 from .rewards import RewardChecks
 from .spaces import SpaceChecks
@@ -145,7 +145,7 @@ class _FileCheck:
                 obs = resets.column(fmt.COL_OBSERVATION)
                 self.spaces.column(fmt.COL_OBSERVATION, obs, episode, None)
             if fmt.COL_NOTES in resets.schema.names:
-                recorder_notes(self.state, resets.column(fmt.COL_NOTES), episode, None)
+                recorder_notes(self.state, reset_notes(resets), episode, None)
 
     def report_hits(self) -> None:
         """The per-episode findings, from the hits merged over the blocks.

@@ -2,24 +2,29 @@
 
 :func:`recorder_notes` turns a column of notes into per-episode hits (a ``step_after_end`` note
 is handed back to the ending rules); :func:`note_finding` and :func:`notes_summary` word them,
-the latter for one note repeated in many episodes.
+the latter for one note repeated in many episodes. :func:`reset_notes` leaves out the notes
+that are for readers without a column the file has.
 """
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from ..format import names as fmt
 from ..format.records import listing, note_items
 from ._state import BoolArray, FileState, Hit, IntArray, first_per_episode, short, steps_of
 from .registry import RECORDER_NOTE, SEVERITY, STEP_AFTER_END, Severity
 
-__all__ = ["is_note", "note_finding", "notes_summary", "recorder_notes"]
+__all__ = ["is_note", "note_finding", "notes_summary", "recorder_notes", "reset_notes"]
 
 _PREFIX = RECORDER_NOTE + ":"
 _ERROR_NOTES = frozenset({f"{RECORDER_NOTE}:env_raised"})
 """Recorder notes that say what an ``error`` outcome says elsewhere: the env raised."""
+_OPTIONS_NOTE = "options_unserializable"
 
 
 def is_note(code: str) -> bool:
@@ -65,6 +70,29 @@ def recorder_notes(
         details = [message_of[int(indices[row])] for row in first.tolist()]
         state.hits.add(f"{_PREFIX}{code}", eps, steps_of(step, first), counts, details=details)
     return after_end
+
+
+def reset_notes(resets: pa.RecordBatch) -> pa.Array:
+    """The ``notes`` of reset rows, without ``options_unserializable`` where the options are held.
+
+    The recorder notes options plain JSON does not hold exactly for readers without the
+    ``options_typed`` column; a row that has its options there holds them exactly (replay
+    resets with them), and that note says nothing wrong.
+    """
+    notes = resets.column(fmt.COL_NOTES)
+    if fmt.COL_OPTIONS_TYPED not in resets.schema.names:
+        return notes
+    typed = resets.column(fmt.COL_OPTIONS_TYPED)
+    if typed.null_count == len(typed):
+        return notes
+    values = notes.to_pylist()
+    for row in np.flatnonzero(np.asarray(typed.is_valid())).tolist():
+        items = note_items(values[row]) if values[row] else None
+        if items is None:
+            continue  # (none, or garbled: said as it is)
+        kept = [item for item in items if item.partition(":")[0].strip() != _OPTIONS_NOTE]
+        values[row] = json.dumps(kept) if kept else None
+    return pa.array(values, pa.string())
 
 
 def note_finding(state: FileState, code: str, episode: int, hit: Hit, where: str) -> None:

@@ -26,6 +26,7 @@ __all__ = [
     "COL_NOTES",
     "COL_OBSERVATION",
     "COL_OPTIONS",
+    "COL_OPTIONS_TYPED",
     "COL_OUTCOME",
     "COL_REWARD",
     "COL_RNG_STATE",
@@ -139,6 +140,9 @@ COL_RNG_STATE: Final = "rng_state"
 COL_STATE: Final = "state"
 """Reset column (optional): the state snapshot taken before the reset (``format/state.py``)."""
 COL_OPTIONS: Final = "options"
+COL_OPTIONS_TYPED: Final = "options_typed"
+"""Reset and episode column (optional): options plain JSON does not hold exactly, tagged
+(``format/options.py``)."""
 COL_AGENT: Final = "agent"
 COL_GAME: Final = "game"
 COL_ERROR_ACTION: Final = "error_action"

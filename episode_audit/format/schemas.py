@@ -34,6 +34,7 @@ from .names import (
     COL_NOTES,
     COL_OBSERVATION,
     COL_OPTIONS,
+    COL_OPTIONS_TYPED,
     COL_OUTCOME,
     COL_REWARD,
     COL_RNG_STATE,
@@ -50,9 +51,12 @@ from .names import (
 
 __all__ = [
     "EPISODE_BLOCK_BASE",
+    "EPISODE_BLOCK_COLUMNS",
     "EPISODE_BLOCK_SCHEMA",
+    "EPISODE_OPTIONS_TYPED",
     "EPISODE_TABLE_SCHEMA",
     "RESET_COLUMNS",
+    "RESET_OPTIONS_TYPED_COLUMN",
     "RESET_STATE_COLUMN",
     "RESET_STREAM_COLUMNS",
     "STEP_COLUMNS",
@@ -112,6 +116,13 @@ RESET_STREAM_COLUMNS: tuple[Column, ...] = (
 RESET_STATE_COLUMN = Column(COL_STATE, pa.string())
 """The reset column of files that snapshot state (optional: files without it read as before)."""
 
+RESET_OPTIONS_TYPED_COLUMN = Column(COL_OPTIONS_TYPED, pa.string())
+"""The reset column of options plain JSON does not hold exactly, tagged (``format/options.py``).
+
+Optional (files without it read as before); the recorder writes it in every reset block,
+right after ``options``, null but where a reset's options need it.
+"""
+
 _BLOCK_COLUMNS = {TOPIC_STEPS: STEP_COLUMNS, TOPIC_RESETS: RESET_COLUMNS}
 
 
@@ -138,9 +149,12 @@ def step_schema(action: pa.Field, observation: pa.Field) -> pa.Schema:
 def reset_schema(observation: pa.Field, *, multi_stream: bool, state: bool = False) -> pa.Schema:
     """The schema of a stream's reset blocks.
 
-    With ``agent`` and ``game`` if ``multi_stream``, and ``state`` last if ``state``.
+    ``options_typed`` after ``options``; with ``agent`` and ``game`` if ``multi_stream``, and
+    ``state`` last if ``state``.
     """
-    columns = RESET_COLUMNS + RESET_STREAM_COLUMNS if multi_stream else RESET_COLUMNS
+    at = [c.name for c in RESET_COLUMNS].index(COL_OPTIONS) + 1
+    columns = (*RESET_COLUMNS[:at], RESET_OPTIONS_TYPED_COLUMN, *RESET_COLUMNS[at:])
+    columns += RESET_STREAM_COLUMNS if multi_stream else ()
     columns += (RESET_STATE_COLUMN,) if state else ()
     return _schema(columns, {COL_OBSERVATION: observation})
 
@@ -185,16 +199,22 @@ EPISODE_TABLE_SCHEMA = pa.schema(
         pa.field("error_during", pa.string()),
         pa.field("notes", pa.int64()),
         pa.field(COL_GAME, pa.int64()),
+        pa.field(COL_OPTIONS_TYPED, pa.string()),
         pa.field("ended", pa.bool_(), nullable=False),
     ]
 )
 """The episodes table (:meth:`Evidence.episodes`): one row per episode.
 
-``rng_state`` and ``options`` are compact JSON text; ``term_totals`` maps term -> total;
-``ended`` is False for an episode a torn file cut off before its record.
+``rng_state`` and ``options`` are compact JSON text; ``options_typed`` the options' tagged JSON
+when plain JSON does not hold them exactly (``format/options.py``), else null; ``term_totals``
+maps term -> total; ``ended`` is False for an episode a torn file cut off before its record.
 """
 
-EPISODE_BLOCK_SCHEMA = pa.schema([f for f in EPISODE_TABLE_SCHEMA if f.name != "ended"])
+EPISODE_BLOCK_COLUMNS = pa.schema([f for f in EPISODE_TABLE_SCHEMA if f.name != "ended"])
+"""Every column of an episode block a reader takes, in order (a block has some of them)."""
+EPISODE_OPTIONS_TYPED = EPISODE_BLOCK_COLUMNS.field(COL_OPTIONS_TYPED)
+"""Appended to an episode block that holds an episode whose options need their typed form."""
+EPISODE_BLOCK_SCHEMA = pa.schema([f for f in EPISODE_BLOCK_COLUMNS if f.name != COL_OPTIONS_TYPED])
 """An episode block (topic ``episode_audit/episodes``) of a file that records games."""
 EPISODE_BLOCK_BASE = pa.schema([f for f in EPISODE_BLOCK_SCHEMA if f.name != COL_GAME])
 """An episode block of any other file: the columns every episode block has."""

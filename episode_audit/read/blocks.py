@@ -9,6 +9,7 @@ it fully, and checks its columns against the block schemas' one definition
 
 from __future__ import annotations
 
+import itertools
 import struct
 from collections.abc import Iterable, Sequence
 
@@ -19,7 +20,7 @@ from ..errors import CorruptEvidenceError
 from ..format import names as fmt
 from ..format.schemas import (
     EPISODE_BLOCK_BASE,
-    EPISODE_BLOCK_SCHEMA,
+    EPISODE_BLOCK_COLUMNS,
     not_null_columns,
     required_columns,
 )
@@ -127,15 +128,17 @@ def _reset_block(data: bytes, path: Source) -> pa.RecordBatch:
 
 
 def _episode_part(data: bytes, path: Source) -> pa.RecordBatch:
-    """One episode block, decoded and checked: the columns of ``EPISODE_BLOCK_SCHEMA`` it has.
+    """One episode block, decoded and checked: the columns of ``EPISODE_BLOCK_COLUMNS`` it has.
 
-    Blocks hold at least the columns of format 1.0's first files (``EPISODE_BLOCK_BASE``); the
-    optional ``game`` column is null when a block lacks it; other columns are ignored.
+    Blocks hold at least the columns of format 1.0's first files (``EPISODE_BLOCK_BASE``); of
+    the optional ``game`` and ``options_typed``, those it has (in that order); other columns
+    are ignored.
     """
     batch = _arrow_batch(data, path, fmt.TOPIC_EPISODES)
     schema = batch.schema
     _check_episode_block(schema, path)
-    target = EPISODE_BLOCK_SCHEMA if "game" in schema.names else EPISODE_BLOCK_BASE
+    names = schema.names
+    target = _PART_SCHEMAS[tuple(name in names for name in _OPTIONAL_EPISODE_COLUMNS)]
     # Types were compared, never cast: a cast (or a null column made to fill in) before the
     # checks would allocate for the row count a block declares, which a hostile block can
     # make huge. Columns a later 1.x may add are left out (select() copies nothing).
@@ -145,15 +148,32 @@ def _episode_part(data: bytes, path: Source) -> pa.RecordBatch:
     return part
 
 
+_OPTIONAL_EPISODE_COLUMNS = tuple(
+    name for name in EPISODE_BLOCK_COLUMNS.names if name not in EPISODE_BLOCK_BASE.names
+)
+_PART_SCHEMAS = {
+    has: pa.schema(
+        [
+            f
+            for f in EPISODE_BLOCK_COLUMNS
+            if f.name not in _OPTIONAL_EPISODE_COLUMNS
+            or has[_OPTIONAL_EPISODE_COLUMNS.index(f.name)]
+        ]
+    )
+    for has in itertools.product((False, True), repeat=len(_OPTIONAL_EPISODE_COLUMNS))
+}
+"""An episode block's part, by which of the optional columns (``game``, ...) the block has."""
+
+
 def _check_episode_block(schema: pa.Schema, path: Source) -> None:
     """An episode block starts with the base columns and has the episode columns' types."""
     names = schema.names
     if names[: len(EPISODE_BLOCK_BASE)] != EPISODE_BLOCK_BASE.names:
         raise CorruptEvidenceError(path, "an episode block does not have the episode columns")
-    for name in EPISODE_BLOCK_SCHEMA.names:
+    for name in EPISODE_BLOCK_COLUMNS.names:
         if name not in names:
             continue
-        actual, expected = schema.field(name).type, EPISODE_BLOCK_SCHEMA.field(name).type
+        actual, expected = schema.field(name).type, EPISODE_BLOCK_COLUMNS.field(name).type
         if not actual.equals(expected):
             raise CorruptEvidenceError(
                 path, f"an episode block has wrong types: {name!r} is {actual}, expected {expected}"

@@ -74,6 +74,9 @@ class EpisodeTables:
     def resets(self) -> pa.Table:
         """One row per reset: episode, seed, rng_state (JSON), options (JSON), observation.
 
+        ``options_typed``: the options exactly (``format.options.decode_typed``) where JSON
+        would change them, else null (files without the column: none).
+
         The table is read once and cached.
         """
         if self._resets_cache is None:

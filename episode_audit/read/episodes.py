@@ -21,7 +21,7 @@ import pyarrow.compute as pc
 
 from ..errors import CorruptEvidenceError
 from ..format import names as fmt
-from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
+from ..format.schemas import EPISODE_BLOCK_COLUMNS, EPISODE_BLOCK_SCHEMA
 from ..format.schemas import EPISODE_TABLE_SCHEMA as EPISODE_SCHEMA
 from .blocks import _arrow_batch, _check_episode_block, _episode_part, _nulls_problem, _one_line
 from .passes import _decode_kept, _StepStats
@@ -42,6 +42,7 @@ _RESET_START_COLUMNS = [
     fmt.COL_SEED,
     fmt.COL_RNG_STATE,
     fmt.COL_OPTIONS,
+    fmt.COL_OPTIONS_TYPED,
 ]
 
 # Configured as json.loads's own decoder; scan_once(text, index) -> (value, end index).
@@ -156,21 +157,17 @@ def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Source) -> pa.Ta
     ``blocks`` are raw blocks or those :func:`_episode_part` already decoded.
     """
     parts = _decode_kept(blocks, _episode_part, path)
-    if all(part.num_columns == len(EPISODE_BLOCK_BASE) for part in parts):  # no block has game
-        table = pa.Table.from_batches(parts, schema=EPISODE_BLOCK_BASE).combine_chunks()
-        table = table.append_column(
-            EPISODE_BLOCK_SCHEMA.field("game"), pa.nulls(table.num_rows, pa.int64())
-        )
+    # (each part has the base columns and the optional ones its block had, in table order)
+    kinds = {tuple(part.schema.names) for part in parts}
+    if len(kinds) == 1:  # the common case: every block alike
+        table = pa.Table.from_batches(parts).combine_chunks()
     else:
-        parts = [
-            part
-            if part.num_columns == len(EPISODE_BLOCK_SCHEMA)
-            else pa.RecordBatch.from_arrays(
-                [*part.columns, pa.nulls(part.num_rows, pa.int64())], schema=EPISODE_BLOCK_SCHEMA
-            )
-            for part in parts
-        ]
-        table = pa.Table.from_batches(parts, schema=EPISODE_BLOCK_SCHEMA).combine_chunks()
+        table = pa.Table.from_batches(
+            [_filled(part) for part in parts], schema=EPISODE_BLOCK_COLUMNS
+        ).combine_chunks()
+    for at, field in enumerate(EPISODE_BLOCK_COLUMNS):
+        if field.name not in table.column_names:  # a column no block had: null
+            table = table.add_column(at, field, pa.nulls(table.num_rows, field.type))
     for name in _NOT_NULL:
         nulls = table.column(name).null_count
         if nulls:
@@ -185,6 +182,16 @@ def _episode_blocks(blocks: list[pa.RecordBatch | bytes], path: Source) -> pa.Ta
         )
     ended = pa.array(np.ones(table.num_rows, dtype=np.bool_))
     return table.append_column(EPISODE_SCHEMA.field("ended"), ended)
+
+
+def _filled(part: pa.RecordBatch) -> pa.RecordBatch:
+    """An episode block's part with every block column, null where its block had none."""
+    names, n = part.schema.names, part.num_rows
+    arrays = [
+        part.column(f.name) if f.name in names else pa.nulls(n, f.type)
+        for f in EPISODE_BLOCK_COLUMNS
+    ]
+    return pa.RecordBatch.from_arrays(arrays, schema=EPISODE_BLOCK_COLUMNS)
 
 
 def _end_record_columns(records: list[bytes], path: Source) -> dict[str, list[Any]]:
@@ -291,6 +298,7 @@ def _columns_of(recs: list[dict[str, Any]]) -> dict[str, list[Any]]:
         "error_during": [e.get("during") for e in errors],
         "notes": [r.get("notes", 0) for r in recs],
         "game": [r.get("game") for r in recs],
+        "options_typed": [None] * len(recs),  # (blocks only: docs/format.md)
         "ended": [True] * len(recs),
     }
 
@@ -359,6 +367,7 @@ def _incomplete_row(index: int, start: dict[str, Any] | None, stats: _StepStats)
         "error_during": None,
         "notes": None,
         "game": start.get("game"),
+        "options_typed": start.get(fmt.COL_OPTIONS_TYPED),
         "ended": False,
     }
 

@@ -51,6 +51,7 @@ class Episode:
         "notes",
         "options",
         "options_json",
+        "options_typed",
         "ret",
         "rng_json",
         "seed",
@@ -69,12 +70,14 @@ class Episode:
         env_index: int = 0,
         agent: str | None = None,
         game: int | None = None,
+        options_typed: str | None = None,
     ) -> None:
         self.index = index
         self.seed = seed
         self.rng_json = rng_json  # (the RNG state before an unseeded reset, as JSON)
         self.options = options
         self.options_json: str | None = None if options is None else to_json(options).decode()
+        self.options_typed = options_typed  # (when plain JSON does not hold them exactly)
         self.start_ns = start_ns
         self.end_ns = start_ns
         self.steps = 0
@@ -148,10 +151,11 @@ class Block:
         self.ends: dict[int, tuple[str, str | None]] = {}
         self.info: dict[int, dict[str, Any]] = {}
         self.notes: dict[int, list[str]] = {}
-        # resets: (episode, monotonic ns, seed, rng_state JSON, options JSON, game, state JSON)
+        # resets: (episode, monotonic ns, seed, rng_state JSON, options JSON, game, state JSON,
+        # typed options JSON)
         self.reset_obs: ColumnBuffer = obs_codec.new_buffer()
         self.resets: list[
-            tuple[int, int, int | None, str | None, str | None, int | None, str | None]
+            tuple[int, int, int | None, str | None, str | None, int | None, str | None, str | None]
         ] = []
         self.reset_info: dict[int, dict[str, Any]] = {}
         self.reset_notes: dict[int, list[str]] = {}
@@ -313,7 +317,7 @@ def reset_batch(
     Reset rows of a multi-stream file also say whose they are (``agent``) and their game.
     """
     n = len(block.resets)
-    episode_r, mono_r, seeds, rng, options, games, states = zip(*block.resets, strict=True)
+    episode_r, mono_r, seeds, rng, options, games, states, typed = zip(*block.resets, strict=True)
     times = np.fromiter(mono_r, dtype=np.int64, count=n) + wall_offset
     columns = {
         fmt.COL_EPISODE: pa.array(np.fromiter(episode_r, dtype=np.int64, count=n)),
@@ -322,6 +326,7 @@ def reset_batch(
         fmt.COL_SEED: pa.array(seeds, pa.int64()),
         fmt.COL_RNG_STATE: pa.array(rng, pa.string()),
         fmt.COL_OPTIONS: pa.array(options, pa.string()),
+        fmt.COL_OPTIONS_TYPED: pa.array(typed, pa.string()),
         fmt.COL_OBSERVATION: block.reset_obs.finish(),
         fmt.COL_INFO: _info_column(
             n,

@@ -21,7 +21,7 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.columns import map_column, terms_column
 from ..format.records import EPISODE_SCHEMA, to_json
-from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA
+from ..format.schemas import EPISODE_BLOCK_BASE, EPISODE_BLOCK_SCHEMA, EPISODE_OPTIONS_TYPED
 from . import native
 from .block import Episode
 from .counting import every_row_terms, repeated_text
@@ -230,6 +230,7 @@ _FROM_EPISODE = {
     "seed": "seed",
     "rng_state": "rng_json",  # (JSON bytes, taken as UTF-8 text)
     "options": "options_json",
+    "options_typed": "options_typed",
     "length": "steps",
     "return": "ret",
     "start_time_ns": "start_ns",
@@ -262,6 +263,7 @@ def _episode_batch(
     columns["end_time_ns"] = ends
     if not games:
         columns["game"] = None
+    typed = columns.pop(fmt.COL_OPTIONS_TYPED)
     errors = columns.pop("error")
     errors = [e or {} for e in errors] if any(e is not None for e in errors) else None
     for key in ("type", "message", "during"):
@@ -274,4 +276,7 @@ def _episode_batch(
         else pa.array(columns[name], schema.field(name).type)
         for name in schema.names
     ]
-    return pa.RecordBatch.from_arrays(arrays, schema=schema)
+    batch = pa.RecordBatch.from_arrays(arrays, schema=schema)
+    if any(t is not None for t in typed):  # (only then: other blocks have no such column)
+        batch = batch.append_column(EPISODE_OPTIONS_TYPED, pa.array(typed, pa.string()))
+    return batch

@@ -183,7 +183,7 @@ class EpisodeStream(EpisodeEndings):
             notes.append(
                 note("rng_state_unavailable", "reset without a seed and the env has no np_random")
             )
-        recorded_options = recordable_options(options, notes)
+        recorded_options, typed_options = recordable_options(options, notes)
         episode = Episode(
             file.take_episode_index(),
             recorded_seed,
@@ -193,6 +193,7 @@ class EpisodeStream(EpisodeEndings):
             self.env_index,
             self.agent,
             game,
+            typed_options,
         )
         self.episode = episode
         untrack(episode)
@@ -223,6 +224,7 @@ class EpisodeStream(EpisodeEndings):
                 episode.options_json,
                 episode.game,
                 state,
+                episode.options_typed,
             )
             block.resets.append(values)
             untrack(values)

@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..format.columns import error_text, number
+from ..format.options import encode_typed, json_loss
 from ..format.records import to_jsonable
 from .notes import has_note, note, short
 from .rules import RewardTerms, named_terms
@@ -112,18 +113,36 @@ def recordable_seed(seed: Any, notes: list[str]) -> int | None:
     return None
 
 
-def recordable_options(options: Any, notes: list[str]) -> Any:
-    """``reset()``'s options as JSON-able data; its ``repr`` (noted) when JSON cannot hold it.
+def recordable_options(options: Any, notes: list[str]) -> tuple[Any, str | None]:
+    """``reset()``'s options for the file: as JSON-able data, and their typed form when needed.
 
-    Held exactly or not at all: options JSON would change (a non-finite float, a key that is
-    not a string) are noted too, so replay never resets with other options than the env had.
+    Options plain JSON gives back as they were are that JSON, with no typed form. Any others
+    (a tuple, a numpy value, a non-finite float, a key that is not a string, an object) are
+    noted ``options_unserializable``, which readers without the ``options_typed`` column take
+    as "not held" (so they never reset with other options than the env had), and held exactly
+    in their typed form (:func:`~episode_audit.format.options.encode_typed`) when it holds
+    them. Their JSON-able data is what ``to_jsonable(exact=True)`` makes of them (tuples and
+    float64 / int64 arrays as lists), else their ``repr``.
     """
     if options is None:
-        return None
+        return None, None
     try:
-        return to_jsonable(options, exact=True)
-    except ValueError as exc:  # JSON would change a value: the note says which
-        notes.append(note("options_unserializable", f"{short(options)} ({exc})"))
-    except Exception:  # not JSON; cyclic or too deep (RecursionError); a key's str() raises
-        notes.append(note("options_unserializable", short(options)))
-    return {"repr": short(options)}
+        plain = to_jsonable(options, exact=True)  # (a copy: the caller may change its options)
+    except Exception:  # a value JSON would change; not JSON; cyclic or too deep
+        plain = {"repr": short(options)}
+    loss: str | None = None
+    try:
+        loss = json_loss(options)
+        if loss is None:
+            return plain, None
+        typed: str | None = encode_typed(options)
+        held = "exact in the options_typed column"
+    except RecursionError:
+        typed, held = None, "nested too deeply, or holding themselves"
+    except (TypeError, ValueError) as exc:  # what the typed form does not hold; too large
+        typed, held = None, str(exc)
+    except Exception as exc:  # (a key's repr() raises)
+        typed, held = None, error_text(exc)
+    why = held if loss is None else f"{loss}; {held}"
+    notes.append(note("options_unserializable", f"{short(options)} ({why})"))
+    return plain, typed

@@ -26,7 +26,7 @@ from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
 from .envs import agents_mismatch, build_pettingzoo_env
-from .recorded import cast_actions, row_ranges, rules_of, unrecorded_options
+from .recorded import cast_actions, reset_options, row_ranges, rules_of, unrecorded_options
 from .results import (
     RESET_RAISED,
     Divergence,
@@ -222,6 +222,14 @@ class _File:
     atol: float
     unset_options: dict[int, str]  # by agent-episode: reset options the file does not hold
 
+    def typed_options(self, episode: int) -> str | None:
+        """The typed form of ``episode``'s reset options (its reset row's), if any."""
+        at = self.reset_at.get(episode)
+        if at is None or fmt.COL_OPTIONS_TYPED not in self.resets.column_names:
+            return None
+        typed: str | None = self.resets.column(fmt.COL_OPTIONS_TYPED)[at].as_py()
+        return typed
+
     @classmethod
     def read(cls, ev: Evidence, obs_codec: SpaceCodec, act_codec: SpaceCodec, atol: float) -> _File:
         """Read ``ev``'s games, steps and resets."""
@@ -386,7 +394,7 @@ def _replay_game(
             else []
         )
     try:
-        options = from_json(first["options"], "options") if first.get("options") else None
+        options = reset_options(first.get("options"), file.typed_options(int(first["episode"])))
         state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
     except ValueError as exc:
         reason = f"its game's reset record: {exc}"

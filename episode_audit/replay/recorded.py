@@ -4,6 +4,7 @@
 (each episode's rows), :func:`unrepeated` (what the recorded env did that a replay does not
 repeat), :func:`cast_actions` (episodes whose actions the recorder cast), :func:`replay_actions`
 (the actions to step with), :func:`rules_of` (the recorded ending rules and reward terms),
+:func:`unrecorded_options` and :func:`reset_options` (the options an episode's reset had),
 :func:`layout_not_replayable` and :func:`state_not_restorable`.
 """
 
@@ -18,7 +19,8 @@ import pyarrow.compute as pc
 
 from ..format import names as fmt
 from ..format.columns import one_array
-from ..format.records import RunInfo, note_items
+from ..format.options import decode_typed
+from ..format.records import RunInfo, from_json, note_items
 from ..format.wrappers import state_causes
 from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
@@ -29,6 +31,7 @@ __all__ = [
     "layout_not_replayable",
     "ordinal",
     "replay_actions",
+    "reset_options",
     "row_ranges",
     "rules_of",
     "state_not_restorable",
@@ -147,16 +150,39 @@ def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
 def unrecorded_options(resets: pa.Table) -> dict[int, str]:
     """The episodes of ``resets`` whose reset options the file does not hold, and the note.
 
-    The recorder notes ``options_unserializable`` on a reset whose options JSON cannot hold
-    exactly (a function, a non-finite float, a key that is not a string): the env was reset
-    with options replay does not have.
+    The recorder notes ``options_unserializable`` on a reset whose options plain JSON cannot
+    hold exactly (a tuple, a numpy value, a non-finite float, a key that is not a string, an
+    object), and holds them exactly in the reset's ``options_typed`` column when it can: those
+    it holds are not listed (the note is for readers without the column). The others (a
+    function, an object) the env was reset with, and replay does not have.
 
     >>> import pyarrow as pa
-    >>> notes = [None, '["options_unserializable: {1: nan} (JSON has no nan)"]']
+    >>> notes = [None, '["options_unserializable: {1: f} (JSON has no function values)"]']
     >>> unrecorded_options(pa.table({"episode": [0, 1], "notes": notes}))
-    {1: '{1: nan} (JSON has no nan)'}
+    {1: '{1: f} (JSON has no function values)'}
     """
-    return {e: message for e, (_, message) in _first_noted(resets, _OPTIONS_UNRECORDED).items()}
+    noted = _first_noted(resets, _OPTIONS_UNRECORDED)
+    if not noted or fmt.COL_OPTIONS_TYPED not in resets.column_names:
+        return {e: message for e, (_, message) in noted.items()}
+    typed = resets.column(fmt.COL_OPTIONS_TYPED)
+    return {e: message for e, (row, message) in noted.items() if not typed[row].is_valid}
+
+
+def reset_options(options: str | None, typed: str | None) -> Any:
+    """The options an episode was reset with: the typed form when the file holds one, else JSON.
+
+    ``options``: the episode record's; ``typed``: its reset row's ``options_typed``.
+
+    Raises ``ValueError`` when the text is not what episode-audit writes.
+
+    >>> reset_options('{"init":[1,2]}', '{"init":{"$tuple":[1,2]}}')
+    {'init': (1, 2)}
+    >>> reset_options('{"init":[1,2]}', None), reset_options(None, None)
+    ({'init': [1, 2]}, None)
+    """
+    if typed is not None:
+        return decode_typed(typed)
+    return from_json(options, "options") if options else None
 
 
 def _first_noted(table: pa.Table, code: str) -> dict[int, tuple[int, str]]:

@@ -214,15 +214,15 @@ def options_not_held(note: str) -> str:
 
     ``note``: the recorder's ``options_unserializable`` note, what the options were.
 
-    >>> print(options_not_held("{'limit': inf} (JSON has no inf)"))
-    its reset options are not in the file ({'limit': inf} (JSON has no inf)): replay cannot \
-reset it as recorded; give reset() options JSON holds exactly (finite numbers, text keys; numpy \
-values only float64 or int64)
+    >>> print(options_not_held("{'f': <function f>} (JSON has no function values; ...)"))
+    its reset options are not in the file ({'f': <function f>} (JSON has no function values; \
+...)): replay cannot reset it as recorded; give reset() options of the types a file holds \
+(None, bools, ints, floats, text, lists, tuples, dicts, numpy arrays and scalars)
     """
     return (
         f"its reset options are not in the file ({note}): replay cannot reset it as recorded; "
-        "give reset() options JSON holds exactly (finite numbers, text keys; numpy values only "
-        "float64 or int64)"
+        "give reset() options of the types a file holds (None, bools, ints, floats, text, "
+        "lists, tuples, dicts, numpy arrays and scalars)"
     )
 
 

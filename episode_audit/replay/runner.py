@@ -24,7 +24,7 @@ from ..record.seeding import restore_rng_state
 from ..record.state import StateTargets, restore_snapshot
 from ..record.time_limits import plain_time_limit, time_limit_hit, time_limits
 from .compare import Comparison
-from .recorded import ordinal, replay_actions, rules_of, unrecorded_options
+from .recorded import ordinal, replay_actions, reset_options, rules_of, unrecorded_options
 from .results import (
     RESET_RAISED,
     Divergence,
@@ -83,6 +83,7 @@ class EpisodeRunner:
         """The TimeLimits the stepped env holds (the counted one aside): each one counts."""
         # state snapshots (record/state.py): the reset rows' column, the env's adapted objects
         self.states: pa.ChunkedArray | None = None
+        self.typed_options: pa.ChunkedArray | None = None  # the reset rows' options_typed
         self.adapted = bool(StateTargets(env))
         self.restored: dict[int, list[str]] = {}  # what was restored before each reset
         self.raised_again: set[int] = set()
@@ -119,6 +120,9 @@ class EpisodeRunner:
         actions, null_rows = replay_actions(steps.column(fmt.COL_ACTION), self.act_codec)
         names = resets.column_names
         self.states = resets.column(fmt.COL_STATE) if fmt.COL_STATE in names else None
+        self.typed_options = (
+            resets.column(fmt.COL_OPTIONS_TYPED) if fmt.COL_OPTIONS_TYPED in names else None
+        )
         self._unset_options = unrecorded_options(resets)
         self._raising = self._raising_actions(records)
         ran, returned, got_obs, got_reset = self._step_all(
@@ -315,7 +319,8 @@ class EpisodeRunner:
             done[index] = self._not_replayable(index, count, why)
             return _SKIPPED
         try:
-            options = from_json(record["options"], "options") if record.get("options") else None
+            typed = None if self.typed_options is None else self.typed_options[reset_at].as_py()
+            options = reset_options(record.get("options"), typed)
             state: Any = None if seed is not None else from_json(str(rng_state), "rng_state")
         except ValueError as exc:
             done[index] = self._not_replayable(index, count, f"its reset record: {exc}")

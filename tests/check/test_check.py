@@ -556,6 +556,23 @@ def test_recorder_notes_become_findings(tmp_path: Path) -> None:
     assert notes["recorder_note:info_unserializable"].step == 0
 
 
+def test_reset_options_held_in_their_typed_form_are_no_recorder_note(tmp_path: Path) -> None:
+    """The ``options_unserializable`` note is for readers without ``options_typed``: a reset
+    whose options that column holds is fine; one whose options no form holds is noted."""
+    path = tmp_path / "options.mcap"
+    with RecordEvidence(ScriptedEnv(), path) as env:
+        for seed, options in enumerate([{"cap": math.inf, "at": (1, 2)}, {"log": print}]):
+            env.reset(seed=seed, options=options)
+            env.step(0)
+    notes = [f for f in check([path]).findings if f.code.startswith("recorder_note:")]
+    assert [(f.code, f.episode) for f in notes] == [("recorder_note:options_unserializable", 1)]
+    assert notes[0].message == (
+        "recorder noted options_unserializable at reset (1 time(s) in the episode): "
+        "{'log': <built-in function print>} (JSON has no builtin_function_or_method values; "
+        "options_typed holds no builtin_function_or_method values)"
+    )
+
+
 def test_not_replayable_and_missing_env_spec(tmp_path: Path) -> None:
     path = tmp_path / "implicit.mcap"
     with RecordEvidence(ScriptedEnv(), path) as env:

@@ -14,6 +14,7 @@ from episode_audit.format.schemas import (
     RESET_COLUMNS,
     RESET_STREAM_COLUMNS,
     STEP_COLUMNS,
+    Column,
     not_null_columns,
     required_columns,
     reset_schema,
@@ -34,18 +35,26 @@ def _record(path: Path, vector: bool = False) -> None:
         env.step(0)
 
 
+def _reset_names(columns: tuple[Column, ...]) -> list[str]:
+    """The names of ``columns``, the optional ``options_typed`` the recorder writes after
+    ``options``."""
+    names = [c.name for c in columns]
+    names.insert(names.index(fmt.COL_OPTIONS) + 1, fmt.COL_OPTIONS_TYPED)
+    return names
+
+
 def test_the_recorder_writes_the_step_and_reset_columns_in_their_order(tmp_path: Path) -> None:
     _record(tmp_path / "one.mcap")
     ev = open_evidence(tmp_path / "one.mcap")
     assert ev.steps_schema.names == [c.name for c in STEP_COLUMNS]
-    assert ev.resets().schema.names == [c.name for c in RESET_COLUMNS]
+    assert ev.resets().schema.names == _reset_names(RESET_COLUMNS)
     assert ev.episodes().schema.equals(EPISODE_TABLE_SCHEMA)
 
 
 def test_multi_stream_reset_blocks_add_agent_and_game(tmp_path: Path) -> None:
     _record(tmp_path / "vec.mcap", vector=True)
     names = open_evidence(tmp_path / "vec.mcap").resets().schema.names
-    assert names == [c.name for c in RESET_COLUMNS + RESET_STREAM_COLUMNS]
+    assert names == _reset_names(RESET_COLUMNS + RESET_STREAM_COLUMNS)
 
 
 def test_the_written_types_are_the_defined_ones(tmp_path: Path) -> None:

@@ -1,16 +1,22 @@
-"""The episodes table from JSON end records: the fast parse and the record-by-record one."""
+"""The episodes table: from JSON end records (the fast parse and the record-by-record one), and
+from episode blocks with and without their optional columns."""
 
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
+import numpy as np
 import pyarrow as pa
 import pytest
 
 from episode_audit import (
     CorruptEvidenceError,
+    RecordEvidence,
+    RecordParallelEvidence,
     open_evidence,
 )
 from episode_audit.format import names as fmt
@@ -169,3 +175,45 @@ def test_json_column_splits_one_encoding_and_falls_back() -> None:
     ]
     assert episodes._json_column([None, None]) == [None, None]
     assert episodes._json_column([{"x": 1}]) == ['{"x":1}']
+
+
+def test_episode_blocks_with_and_without_typed_options_read_as_one_table(tmp_path: Path) -> None:
+    """A flush's episode block has ``options_typed`` only when one of its episodes needs it
+    (a games file's block ``game`` too): the table has both columns, null where a block had
+    none."""
+    with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.classic import rps_v2
+
+    single, game = tmp_path / "single.mcap", tmp_path / "game.mcap"
+    passed = [None, {"at": (1, 2)}, {"at": [1, 2]}, {"at": np.arange(2, dtype=np.uint8)}]
+    with RecordEvidence(gym.make("CartPole-v1"), single) as env:
+        for seed, options in enumerate(passed):
+            env.reset(seed=seed, options=options)
+            env.step(0)
+            env.flush()  # (each episode's block on its own)
+    with RecordParallelEvidence(rps_v2.parallel_env(max_cycles=1), game) as penv:
+        for seed, options in enumerate(passed[:2]):
+            penv.reset(seed=seed, options=options)
+            penv.step(dict.fromkeys(penv.agents, 1))
+            penv.flush()
+    typed = [None, '{"at":{"$tuple":[1,2]}}', None]
+    typed.append('{"at":{"$array":{"dtype":"|u1","shape":[2],"data":"AAE="}}}')
+    ev = open_evidence(single)
+    assert ev.episodes().column(fmt.COL_OPTIONS_TYPED).to_pylist() == typed
+    assert ev.resets().column(fmt.COL_OPTIONS_TYPED).to_pylist() == typed
+    rows = open_evidence(game).episodes().select(["game", fmt.COL_OPTIONS_TYPED]).to_pylist()
+    assert sorted((r["game"], r[fmt.COL_OPTIONS_TYPED]) for r in rows) == (
+        [(0, None)] * 2 + [(1, typed[1])] * 2
+    )
+
+
+def test_an_episode_a_torn_file_cut_off_has_its_reset_rows_typed_options(tmp_path: Path) -> None:
+    path, torn = tmp_path / "whole.mcap", tmp_path / "torn.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=0, options={"at": (1, 2)})
+        env.step(0)
+        env.flush()
+        torn.write_bytes(path.read_bytes())  # (before its episode's record)
+    (row,) = open_evidence(torn).episodes().to_pylist()
+    assert (row["ended"], row[fmt.COL_OPTIONS_TYPED]) == (False, '{"at":{"$tuple":[1,2]}}')

@@ -134,21 +134,3 @@ def test_recorded_env_kwargs_are_bounded_before_a_game_env_is_built(
             "the env",
         )
     }
-
-
-def test_a_game_reset_with_options_the_file_cannot_hold_is_not_replayable(tmp_path: Path) -> None:
-    path = tmp_path / "o.mcap"
-    with RecordParallelEvidence(
-        rps_v2.parallel_env(max_cycles=2), path, env_kwargs={"max_cycles": 2}
-    ) as env:
-        for seed, options in [(0, {"limit": float("-inf")}), (1, None)]:
-            env.reset(seed=seed, options=options)
-            while env.agents:
-                env.step(dict.fromkeys(env.agents, 1))
-    result = replay([path])
-    assert [e.status for e in result.episodes] == ["not_replayable"] * 2 + ["identical"] * 2
-    assert result.episodes[0].reason == (
-        "its reset options are not in the file ({'limit': -inf} (JSON has no -inf)): replay "
-        "cannot reset it as recorded; give reset() options JSON holds exactly (finite "
-        "numbers, text keys; numpy values only float64 or int64)"
-    )

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 import warnings
 from pathlib import Path
@@ -407,89 +406,6 @@ def test_versions_of_libraries_no_replayed_step_used_leave_a_divergence_a_diverg
     assert [e.status for e in result.episodes] == ["diverged", "identical", "identical"]
     assert result.version_differences[str(path)][library][0] == "0.0.1"
     assert not result.ok
-
-
-class _Clipped(gym.Env[Any, Any]):
-    """Clips its observation to the reset option ``limit`` (a number)."""
-
-    observation_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float64)
-    action_space = gym.spaces.Discrete(2)
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
-        super().reset(seed=seed)
-        self.t, self.limit = 0, (options or {}).get("limit", 1.0)
-        self.x = self.np_random.uniform()
-        return self._observed(), {}
-
-    def step(self, action: Any) -> Any:
-        self.t, self.x = self.t + 1, self.x + action
-        return self._observed(), 1.0, False, self.t >= 3, {}
-
-    def _observed(self) -> Any:
-        limit = float(self.limit)  # (a NaN limit clips nothing; numpy 1 warns at np.clip's)
-        return np.array([self.x if math.isnan(limit) else min(max(self.x, -limit), limit)])
-
-
-@pytest.mark.parametrize(
-    ("options", "held"),
-    [
-        ({"limit": float("inf")}, "{'limit': inf} (JSON has no inf)"),
-        ({"limit": float("nan")}, "{'limit': nan} (JSON has no nan)"),
-        ({"limit": 2.0, 5: "x"}, "{'limit': 2.0, 5: 'x'} (JSON keys are text, not int 5)"),
-        (
-            {"limit": np.array(2.5, np.float32)},
-            "{'limit': array(2.5, dtype=float32)} (JSON keeps no float32 numbers: they come "
-            "back as float64)",
-        ),
-    ],
-    ids=["inf", "nan", "int-key", "float32"],
-)
-def test_reset_options_the_file_cannot_hold_exactly_are_not_replayable(
-    tmp_path: Path, options: dict[Any, Any], held: str
-) -> None:
-    """JSON would turn them into other options ("inf", "5"): the env would raise, or differ."""
-    path = tmp_path / "o.mcap"
-    with RecordEvidence(_Clipped(), path) as env:
-        for e in range(2):
-            env.reset(seed=e, options=options if e == 0 else {"limit": 0.5})
-            for _ in range(3):
-                env.step(1)
-    reset_notes = open_evidence(path).resets().column("notes").to_pylist()
-    assert json.loads(reset_notes[0]) == [f"options_unserializable: {held}"]
-    result = replay([path], env_factory=_Clipped)
-    assert [e.status for e in result.episodes] == ["not_replayable", "identical"]
-    assert result.episodes[0].reason == (
-        f"its reset options are not in the file ({held}): replay cannot reset it as recorded; "
-        "give reset() options JSON holds exactly (finite numbers, text keys; numpy values only "
-        "float64 or int64)"
-    )
-
-
-def test_an_episode_after_one_whose_options_are_not_held_is_no_verdict(tmp_path: Path) -> None:
-    """Replay skips episode 0, so its env counts one reset less in episode 1: no divergence."""
-    path = tmp_path / "c.mcap"
-    with RecordEvidence(counted_cartpole(), path) as env:
-        env.reset(seed=1, options={"low": -0.05, "high": 0.05, "cap": float("inf")})
-        env.step(0)
-        env.reset(seed=2)
-        env.step(0)
-    result = replay([path], env_factory=counted_cartpole)
-    assert [e.status for e in result.episodes] == ["not_replayable"] * 2
-    assert (result.episodes[1].reason or "").startswith(
-        "differed at the reset (reset_observation) after calls to this env that replay does not "
-        "repeat (episode 0's reset and steps (its reset options are not in the file))"
-    ), result.episodes[1].reason
-
-
-def test_tuples_and_arrays_in_reset_options_are_held_as_lists(tmp_path: Path) -> None:
-    path = tmp_path / "l.mcap"
-    with RecordEvidence(_Clipped(), path) as env:
-        env.reset(seed=0, options={"limit": np.float64(2.0), "box": (1, np.arange(2))})
-        env.step(1)
-    ev = open_evidence(path)
-    assert ev.resets().column("notes").to_pylist() == [None]
-    assert json.loads(ev.resets()["options"][0].as_py()) == {"limit": 2.0, "box": [1, [0, 1]]}
-    assert replay([path], env_factory=_Clipped).count("identical") == 1
 
 
 def test_an_env_recorded_without_a_time_limit_is_rebuilt_without_one(tmp_path: Path) -> None:

@@ -28,7 +28,7 @@ Py_ssize_t off_ends, off_flags, off_segments, off_episodes, off_pending,
    must name every slot the class has: configure() checks). */
 static const char *episode_slots[EPISODE_SLOTS] = {
     "after_end", "agent", "end_ns", "ended", "env_index", "game", "index", "notes", "options",
-    "options_json", "ret", "rng_json", "seed", "start_ns", "steps", "totals"};
+    "options_json", "options_typed", "ret", "rng_json", "seed", "start_ns", "steps", "totals"};
 Py_ssize_t off_ep[EPISODE_SLOTS];
 Py_ssize_t off_obs, off_act, off_rewards, off_times, off_term_vals, off_term_rows,
     off_term_counts, off_term_keys;

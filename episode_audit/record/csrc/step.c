@@ -542,6 +542,7 @@ PyObject *new_episode(PyObject *index, PyObject *seed, PyObject *rng_json,
     values[E_NOTES] = Py_NewRef(values[E_AFTER_END]);
     values[E_OPTIONS] = Py_NewRef(Py_None);
     values[E_OPTIONS_JSON] = Py_NewRef(Py_None);
+    values[E_OPTIONS_TYPED] = Py_NewRef(Py_None);
     values[E_RNG_JSON] = Py_NewRef(rng_json);
     values[E_SEED] = Py_NewRef(seed);
     values[E_START_NS] = start; /* (the reference made here) */
@@ -678,10 +679,10 @@ static PyObject *StepRecorder_reset_row(StepRecorder *self, PyObject *const *arg
     long long now;
     if (read_file_clock(self, &now) < 0)
         goto done;
-    row = PyTuple_Pack(7, SLOT(episode, off_ep[E_INDEX]), SLOT(episode, off_ep[E_START_NS]),
+    row = PyTuple_Pack(8, SLOT(episode, off_ep[E_INDEX]), SLOT(episode, off_ep[E_START_NS]),
                        SLOT(episode, off_ep[E_SEED]), Py_None,
                        SLOT(episode, off_ep[E_OPTIONS_JSON]), SLOT(episode, off_ep[E_GAME]),
-                       Py_None);
+                       Py_None, SLOT(episode, off_ep[E_OPTIONS_TYPED]));
     if (row == NULL || PyList_Append(resets, row) < 0)
         goto done;
     untrack(row);

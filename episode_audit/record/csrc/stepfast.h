@@ -44,9 +44,10 @@ extern PyObject *monotonic_ns;
 extern Py_ssize_t off_ends, off_flags, off_segments, off_episodes, off_pending, off_reset_obs,
     off_resets;
 /* Episode's slots, all of them (module.c's episode_slots names them in this order). */
-#define EPISODE_SLOTS 16
+#define EPISODE_SLOTS 17
 enum { E_AFTER_END, E_AGENT, E_END_NS, E_ENDED, E_ENV_INDEX, E_GAME, E_INDEX, E_NOTES, E_OPTIONS,
-       E_OPTIONS_JSON, E_RET, E_RNG_JSON, E_SEED, E_START_NS, E_STEPS, E_TOTALS };
+       E_OPTIONS_JSON, E_OPTIONS_TYPED, E_RET, E_RNG_JSON, E_SEED, E_START_NS, E_STEPS,
+       E_TOTALS };
 extern Py_ssize_t off_ep[EPISODE_SLOTS];
 extern Py_ssize_t off_obs, off_act, off_rewards, off_times, off_term_vals, off_term_rows,
     off_term_counts, off_term_keys;

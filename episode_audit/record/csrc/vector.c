@@ -223,8 +223,8 @@ PyObject *begin_autoreset(PyObject *module, PyObject *const *args, Py_ssize_t na
     /* Everything made before anything changes. */
     if (begin_make(&b, Py_None, rng_json, start_ns) < 0)
         goto done;
-    row = PyTuple_Pack(7, b.next, SLOT(b.fresh, off_ep[E_START_NS]), Py_None, text, Py_None,
-                       Py_None, Py_None);
+    row = PyTuple_Pack(8, b.next, SLOT(b.fresh, off_ep[E_START_NS]), Py_None, text, Py_None,
+                       Py_None, Py_None, Py_None);
     if (row == NULL)
         goto done;
     untrack(row);
