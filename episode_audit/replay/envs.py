@@ -22,6 +22,7 @@ import gymnasium as gym
 from .._usercode import load_callable
 from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
+from ..format.options import decode_typed
 from ..format.records import RunInfo
 from ..format.spaces import describe_space
 from ..format.unrecorded import unrecorded
@@ -209,13 +210,7 @@ def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
             f"the recorded {what}s are not a mapping ({type(kwargs).__name__}); {_WAY_AROUND}"
         )
     _refuse_placeholders(kwargs, what)
-    for name, value in kwargs.items():
-        depth = _depth(value)
-        if depth > MAX_ENV_KWARGS_DEPTH:
-            raise ReplayError(
-                f"the recorded {what} {str(name)[:80]!r} is nested {depth} deep, more than the "
-                f"{MAX_ENV_KWARGS_DEPTH} replay builds an env from; {_WAY_AROUND}"
-            )
+    _check_depths(kwargs, what)
     sizes = {str(name): len(json.dumps(value)) for name, value in kwargs.items()}
     total = sum(sizes.values())
     if total > MAX_ENV_KWARGS_BYTES:
@@ -224,6 +219,17 @@ def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
             f"the recorded {what} {name[:80]!r} is {sizes[name]} bytes of JSON (all: {total}), "
             f"more than the {MAX_ENV_KWARGS_BYTES} replay builds an env from; {_WAY_AROUND}"
         )
+
+
+def _check_depths(kwargs: Mapping[Any, Any], what: str) -> None:
+    """Refuse recorded kwargs one of which is nested deeper than replay builds an env from."""
+    for name, value in kwargs.items():
+        depth = _depth(value)
+        if depth > MAX_ENV_KWARGS_DEPTH:
+            raise ReplayError(
+                f"the recorded {what} {str(name)[:80]!r} is nested {depth} deep, more than the "
+                f"{MAX_ENV_KWARGS_DEPTH} replay builds an env from; {_WAY_AROUND}"
+            )
 
 
 _WAY_AROUND = "pass --env-factory MODULE:CALLABLE that builds the env"
@@ -241,10 +247,10 @@ def _refuse_placeholders(kwargs: Mapping[str, Any], what: str) -> None:
 
 
 def _depth(value: Any) -> int:
-    """How deeply lists and dicts nest in a JSON value (a scalar: 0), without recursion."""
+    """How deeply lists, tuples and dicts nest in a value (a scalar: 0), without recursion."""
     deepest, level = 0, [value]
     while True:
-        containers = [item for item in level if isinstance(item, (list, dict))]
+        containers = [item for item in level if isinstance(item, (list, tuple, dict))]
         if not containers:
             return deepest
         deepest += 1
@@ -293,9 +299,7 @@ def build_pettingzoo_env(
     want = ParallelEnv if parallel else AECEnv
     api = "ParallelEnv" if parallel else "AECEnv"
     env_id = layout.get("env_id")
-    kwargs = layout.get("env_kwargs") or {}
-    if env_factory is None:
-        _check_env_kwargs(kwargs)
+    kwargs = {} if env_factory is not None else _recorded_env_kwargs(layout)
     if env_factory is not None:
         factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
         env = factory()
@@ -308,20 +312,53 @@ def build_pettingzoo_env(
                 f"{type(exc).__name__}: {exc}"
             ) from None
     else:
-        env = _from_pettingzoo_module(layout, parallel, trust_entry_points)
+        env = _from_pettingzoo_module(layout, kwargs, parallel, trust_entry_points)
     if not isinstance(env, want):
         raise ReplayError(f"the env factory returned {type(env).__name__}, not a PettingZoo {api}")
     return env
 
 
+def _recorded_env_kwargs(layout: Mapping[str, Any]) -> dict[str, Any]:
+    """A PettingZoo file's env kwargs, checked: their typed form when the file holds one.
+
+    The layout's ``env_kwargs`` are JSON, each kwarg JSON would change a placeholder;
+    ``env_kwargs_typed`` (``format/options.py``) holds them all exactly (a tuple, a numpy value,
+    ``inf``, an int key). Raises :class:`~episode_audit.errors.ReplayError` for kwargs too large
+    or deep to build from, a placeholder with no typed form, or a typed form episode-audit did
+    not write.
+    """
+    kwargs = layout.get("env_kwargs") or {}
+    typed = layout.get("env_kwargs_typed")
+    if typed is None:
+        _check_env_kwargs(kwargs)
+        return dict(kwargs)
+    try:
+        if not isinstance(typed, str):
+            raise ValueError("env_kwargs_typed is not text")
+        if len(typed) > MAX_ENV_KWARGS_BYTES:
+            raise ValueError(
+                f"env_kwargs_typed is {len(typed)} bytes, more than the {MAX_ENV_KWARGS_BYTES} "
+                "replay builds an env from"
+            )
+        exact = decode_typed(typed)
+        if not isinstance(exact, dict):
+            raise ValueError("env_kwargs_typed is not a dict")
+    except ValueError as exc:
+        raise ReplayError(f"the recorded env kwargs: {exc}; {_WAY_AROUND}") from None
+    _check_depths(exact, "env kwarg")
+    return exact
+
+
 def _from_pettingzoo_module(
-    layout: Mapping[str, Any], parallel: bool, trust_entry_points: bool
+    layout: Mapping[str, Any], kwargs: dict[str, Any], parallel: bool, trust_entry_points: bool
 ) -> Any:
-    """The env of the recorded ``env_module``: PettingZoo's own, or any with the flag."""
+    """The env of the recorded ``env_module``, made with ``kwargs``: PettingZoo's own, or any.
+
+    Any other module only with ``trust_entry_points``.
+    """
     from ..record.pettingzoo import is_pettingzoo_module
 
     env_id = layout.get("env_id")
-    kwargs = layout.get("env_kwargs") or {}
     unknown_id = (
         f"env id {env_id!r} is not registered in this process's PettingZoo "
         f"{'parallel' if parallel else 'AEC'} registry and "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import json
 import math
 import warnings
@@ -181,3 +182,56 @@ def test_a_game_reset_with_options_no_form_holds_is_not_replayable(tmp_path: Pat
         "builtin_function_or_method values; options_typed holds no builtin_function_or_method "
         "values)): replay cannot reset it as recorded"
     )
+
+
+def test_game_env_kwargs_json_would_change_build_the_env_as_recorded(tmp_path: Path) -> None:
+    """``max_cycles=inf`` (a game with no cut-off) made with ``"inf"`` would raise at its first
+    step; an older reader refuses the placeholder JSON keeps in its place."""
+    path = _game(tmp_path / "k.mcap", None, max_cycles=math.inf)
+    layout = open_evidence(path).run.layout
+    assert layout["env_kwargs"] == {
+        "max_cycles": {"episode_audit.unrecorded": "float (exact in env_kwargs_typed)"}
+    }
+    assert layout["env_kwargs_typed"] == '{"max_cycles":{"$float":"inf"}}'
+    assert replay([path]).count("identical") == 4
+
+    def untyped(meta: dict[str, str]) -> dict[str, str]:
+        older = json.loads(meta["layout"])
+        del older["env_kwargs_typed"]
+        return {**meta, "layout": json.dumps(older)}
+
+    result = replay([rewrite(path, tmp_path / "older.mcap", run=untyped)])
+    assert {(e.status, e.reason) for e in result.episodes} == {
+        (
+            "not_replayable",
+            "the recorded env kwarg 'max_cycles' is not in the file (float (exact in "
+            "env_kwargs_typed): JSON cannot hold it); pass --env-factory MODULE:CALLABLE that "
+            "builds the env",
+        )
+    }
+
+
+class _Cycles(enum.IntEnum):
+    SHORT = 2
+
+
+def test_game_env_kwargs_no_form_holds_need_an_env_factory(tmp_path: Path) -> None:
+    """An ``IntEnum`` kwarg: JSON keeps a plain int, the typed form nothing; no reader builds
+    the env from another value than it had."""
+    path = _game(tmp_path / "k.mcap", None, max_cycles=_Cycles.SHORT)
+    layout = open_evidence(path).run.layout
+    assert "env_kwargs_typed" not in layout
+    assert layout["notes"] == [
+        "env_kwargs max_cycles: JSON has no _Cycles values; options_typed holds no _Cycles "
+        "values: replay needs an env factory"
+    ]
+    result = replay([path])
+    assert {(e.status, e.reason) for e in result.episodes} == {
+        (
+            "not_replayable",
+            "the recorded env kwarg 'max_cycles' is not in the file (_Cycles (options_typed "
+            "holds no _Cycles values: replay needs an env factory): JSON cannot hold it); pass "
+            "--env-factory MODULE:CALLABLE that builds the env",
+        )
+    }
+    assert replay([path], env_factory=lambda: rps_v2.parallel_env(max_cycles=2)).ok

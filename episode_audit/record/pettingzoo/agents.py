@@ -17,8 +17,10 @@ from typing import Any
 from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
+from ...format.options import encode_typed, json_loss
 from ...format.records import to_jsonable
 from ...format.spaces import codec_for, describe_space
+from ...format.unrecorded import UNRECORDED
 from ..block import Episode
 from ..file import EvidenceFile, FileRecorder
 from ..seeding import capture_rng_state
@@ -162,11 +164,9 @@ def _layout(
     name = (getattr(base, "metadata", None) or {}).get("name")
     layout_notes: list[str] = []
     kwargs_json: Any = None
+    kwargs_typed: str | None = None
     if env_kwargs is not None:
-        try:
-            kwargs_json = to_jsonable(dict(env_kwargs))
-        except (TypeError, ValueError) as exc:
-            raise ConfigurationError(f"env_kwargs: not JSON-serializable ({exc})") from None
+        kwargs_json, kwargs_typed = _recorded_kwargs(env_kwargs, layout_notes)
     else:
         layout_notes.append("env_kwargs not given: replay builds the env with its defaults")
     if module is None and registry_id is None:
@@ -181,9 +181,39 @@ def _layout(
         "env_module": module,
         "env_name": name if isinstance(name, str) else type(base).__name__,
         "env_kwargs": kwargs_json,
+        **({} if kwargs_typed is None else {"env_kwargs_typed": kwargs_typed}),
         "max_cycles": getattr(base, "max_cycles", None),
         "notes": layout_notes,
     }
+
+
+def _recorded_kwargs(kwargs: Mapping[str, Any], notes: list[str]) -> tuple[Any, str | None]:
+    """The env kwargs as JSON (``env_kwargs``), and their typed form when JSON changes them.
+
+    Each kwarg JSON would change (a tuple, a numpy value, ``inf``, an int key) is a placeholder
+    in the JSON, so a reader without ``env_kwargs_typed`` refuses to build the env from other
+    kwargs than it had; the typed form (``format/options.py``) holds them all exactly, and
+    kwargs it cannot hold are noted in ``notes`` (replay then needs an env factory). JSON that
+    cannot hold them at all is misuse (``ConfigurationError``).
+    """
+    given = dict(kwargs)
+    try:
+        plain = to_jsonable(given)
+        losses = {name: json_loss({name: value}) for name, value in given.items()}
+    except (TypeError, ValueError, RecursionError) as exc:
+        raise ConfigurationError(f"env_kwargs: not JSON-serializable ({exc})") from None
+    changed = [name for name, loss in losses.items() if loss is not None]
+    if not changed:
+        return plain, None
+    try:
+        typed: str | None = encode_typed(given)
+        held = "exact in env_kwargs_typed"
+    except (TypeError, ValueError, RecursionError) as exc:
+        typed, held = None, f"{exc}: replay needs an env factory"
+        notes.append(f"env_kwargs {', '.join(changed)}: {losses[changed[0]]}; {held}")
+    for name in changed:
+        plain[str(name)] = {UNRECORDED: f"{type(given[name]).__qualname__} ({held})"}
+    return plain, typed
 
 
 ARGS_DOC = """
@@ -198,8 +228,9 @@ ARGS_DOC = """
         env_module: The module replay builds the env from (default: found from the env, e.g.
             ``pettingzoo.classic.tictactoe_v3``; replay uses it when the file's ``env_id`` is not
             registered, importing it only if it is one of PettingZoo's own modules).
-        env_kwargs: The keyword arguments the env was made with (JSON-serializable); replay
-            passes them to ``pettingzoo.make`` or the module's ``env()`` / ``parallel_env()``.
+        env_kwargs: The keyword arguments the env was made with (JSON-serializable; tuples,
+            numpy values, non-finite floats and int keys are held exactly too); replay passes
+            them to ``pettingzoo.make`` or the module's ``env()`` / ``parallel_env()``.
             PettingZoo does not keep them, so without this replay uses the env's defaults.
         **options: The recorder options, as for :class:`~episode_audit.RecordEvidence` (see
             :class:`~episode_audit.record.settings.RecorderSettings`; reward terms and endings
