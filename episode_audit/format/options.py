@@ -112,10 +112,10 @@ def encode_typed(value: Any) -> str:
 
     >>> encode_typed({"$ref": -0.0, "b": [None, float("-inf")]})
     '{"$dict":[["$ref",-0.0],["b",[null,{"$float":"-inf"}]]]}'
-    >>> encode_typed({"f": print})
+    >>> encode_typed({"ids": {1, 2}})
     Traceback (most recent call last):
     ...
-    TypeError: options_typed holds no builtin_function_or_method values
+    TypeError: options_typed holds no set values
     """
     text = json.dumps(_tagged(value), separators=(",", ":"), allow_nan=False)
     if len(text) > MAX_TYPED_TEXT:

@@ -25,6 +25,7 @@ from episode_audit import (
 from episode_audit.check import CheckResult, Finding, check, check_evidence
 from episode_audit.read import Evidence
 from tests.support.envs import ScriptedEnv
+from tests.support.typed_options import Logger
 
 Step = tuple[Any, Any, Any, Any, Any]
 OBS = np.zeros(2, np.float32)
@@ -561,15 +562,14 @@ def test_reset_options_held_in_their_typed_form_are_no_recorder_note(tmp_path: P
     whose options that column holds is fine; one whose options no form holds is noted."""
     path = tmp_path / "options.mcap"
     with RecordEvidence(ScriptedEnv(), path) as env:
-        for seed, options in enumerate([{"cap": math.inf, "at": (1, 2)}, {"log": print}]):
+        for seed, options in enumerate([{"cap": math.inf, "at": (1, 2)}, {"log": Logger()}]):
             env.reset(seed=seed, options=options)
             env.step(0)
     notes = [f for f in check([path]).findings if f.code.startswith("recorder_note:")]
     assert [(f.code, f.episode) for f in notes] == [("recorder_note:options_unserializable", 1)]
     assert notes[0].message == (
         "recorder noted options_unserializable at reset (1 time(s) in the episode): "
-        "{'log': <built-in function print>} (JSON has no builtin_function_or_method values; "
-        "options_typed holds no builtin_function_or_method values)"
+        "{'log': <Logger>} (JSON has no Logger values; options_typed holds no Logger values)"
     )
 
 

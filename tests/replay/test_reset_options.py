@@ -24,7 +24,7 @@ from episode_audit.format import names as fmt
 from episode_audit.replay import replay
 from tests.support.hostile import rewrite
 from tests.support.stateful import counted_cartpole
-from tests.support.typed_options import TypedStart
+from tests.support.typed_options import Logger, TypedStart
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
     warnings.simplefilter("ignore", DeprecationWarning)
@@ -104,19 +104,19 @@ def test_a_reader_without_the_typed_column_says_not_replayable_never_diverged(
 
 
 def test_reset_options_no_form_holds_are_not_replayable(tmp_path: Path) -> None:
-    """A function: neither the options' JSON nor their typed form holds it."""
-    path = _record(tmp_path / "o.mcap", [{"cap": 1.0, "f": print}, _PLAIN])
+    """An object: neither the options' JSON nor their typed form holds it."""
+    path = _record(tmp_path / "o.mcap", [{"cap": 1.0, "log": Logger()}, _PLAIN])
     ev = open_evidence(path)
     assert ev.resets().column(fmt.COL_OPTIONS_TYPED).to_pylist() == [None, None]
     assert json.loads(ev.resets()[fmt.COL_OPTIONS][0].as_py()) == {
-        "repr": "{'cap': 1.0, 'f': <built-in function print>}"
+        "repr": "{'cap': 1.0, 'log': <Logger>}"
     }
     result = replay([path], env_factory=TypedStart)
     assert [e.status for e in result.episodes] == ["not_replayable", "identical"]
     assert result.episodes[0].reason == (
-        "its reset options are not in the file ({'cap': 1.0, 'f': <built-in function print>} "
-        "(JSON has no builtin_function_or_method values; options_typed holds no "
-        "builtin_function_or_method values)): replay cannot reset it as recorded; give reset() "
+        "its reset options are not in the file ({'cap': 1.0, 'log': <Logger>} (JSON has no "
+        "Logger values; options_typed holds no Logger values)): replay cannot reset it as "
+        "recorded; give reset() "
         "options of the types a file holds (None, bools, ints, floats, text, lists, tuples, "
         "dicts, numpy arrays and scalars)"
     )
@@ -126,7 +126,7 @@ def test_an_episode_after_one_whose_options_are_not_held_is_no_verdict(tmp_path:
     """Replay skips episode 0, so its env counts one reset less in episode 1: no divergence."""
     path = tmp_path / "c.mcap"
     with RecordEvidence(counted_cartpole(), path) as env:
-        env.reset(seed=1, options={"low": -0.05, "high": 0.05, "log": print})
+        env.reset(seed=1, options={"low": -0.05, "high": 0.05, "log": Logger()})
         env.step(0)
         env.reset(seed=2)
         env.step(0)
@@ -174,13 +174,12 @@ def test_a_game_reset_with_options_json_would_change_replays_them_as_passed(
 
 
 def test_a_game_reset_with_options_no_form_holds_is_not_replayable(tmp_path: Path) -> None:
-    path = _game(tmp_path / "o.mcap", {"log": print}, max_cycles=2)
+    path = _game(tmp_path / "o.mcap", {"log": Logger()}, max_cycles=2)
     result = replay([path])
     assert [e.status for e in result.episodes] == ["not_replayable"] * 2 + ["identical"] * 2
     assert (result.episodes[0].reason or "").startswith(
-        "its reset options are not in the file ({'log': <built-in function print>} (JSON has no "
-        "builtin_function_or_method values; options_typed holds no builtin_function_or_method "
-        "values)): replay cannot reset it as recorded"
+        "its reset options are not in the file ({'log': <Logger>} (JSON has no Logger values; "
+        "options_typed holds no Logger values)): replay cannot reset it as recorded"
     )
 
 

@@ -48,3 +48,10 @@ class TypedStart(gym.Env[Any, Any]):
         self.t += 1
         self.x = self.x + (0.1 if int(action) else -0.1)
         return self.x.copy(), 1.0, False, self.t >= 3, {}
+
+
+class Logger:
+    """What reset options may carry that is no data: an object (its ``repr`` without an address)."""
+
+    def __repr__(self) -> str:
+        return "<Logger>"
