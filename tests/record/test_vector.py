@@ -273,6 +273,38 @@ def test_vector_entry_point_env_is_recorded_but_not_replayable(tmp_path: Path) -
     assert "no sub-envs" in (result.episodes[0].reason or "")
 
 
+@pytest.mark.parametrize("made", ["make_vec", "class"])
+def test_a_vector_entry_point_envs_own_step_limit_is_recorded(tmp_path: Path, made: str) -> None:
+    """CartPoleVectorEnv truncates each row at its own max_episode_steps (no TimeLimit): the
+    file says that limit and its truncations are time_limit; still no sub-env to replay in."""
+    from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
+
+    path = tmp_path / "own.mcap"
+    envs = (
+        gym.make_vec(
+            "CartPole-v1", 4, vectorization_mode="vector_entry_point", max_episode_steps=12
+        )
+        if made == "make_vec"
+        else CartPoleVectorEnv(num_envs=4, max_episode_steps=12)
+    )
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for t in range(26):
+            rec.step(np.full(4, t % 2, np.int64))
+    ev = open_evidence(path)
+    if made == "make_vec":
+        assert ev.run.env_spec["max_episode_steps"] == 12
+    ended = [e for e in ev.episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["length"], e["outcome"], e["truncation_reason"]) for e in ended] == [
+        (12, "truncated", "time_limit")
+    ] * 8
+    result = replay([path])
+    assert {e.reason for e in result.episodes} == {
+        "CartPoleVectorEnv has no sub-envs (a vector_entry_point env): its episodes cannot be "
+        "replayed on their own"
+    }
+
+
 class _Scored(gym.Env[np.ndarray, np.int64]):
     """Pays named terms; succeeds after 3 steps when the action is 1, fails when it is 0."""
 

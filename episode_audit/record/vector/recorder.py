@@ -129,7 +129,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         codecs = obs_codec, codec_for(act_space)
         self._streams = [
             self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit, state=snapshots)
-            for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env))
+            for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env, base))
         ]
         self._file.start()
         self._autoreset = autoreset_strategy(
@@ -306,13 +306,48 @@ def _sub_spec(
         for k, v in spec.kwargs.items()
         if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")
     }
-    return dataclasses.replace(spec, kwargs=kwargs)
+    limit = _own_limit(env.unwrapped, spec)
+    spec = dataclasses.replace(spec, kwargs=kwargs)
+    return spec if limit is None else dataclasses.replace(spec, max_episode_steps=limit)
+
+
+def _own_limit(base: Any, spec: Any) -> int | None:
+    """The step limit a vector env without sub-envs (a ``vector_entry_point`` env) counts itself.
+
+    Gymnasium's (``CartPoleVectorEnv``) keep it as ``max_episode_steps`` and truncate a row when
+    its step count reaches it; ``gym.make_vec`` passes it the ``max_episode_steps`` asked for,
+    else the registered one, as a constructor kwarg (which its spec's ``kwargs`` keep; the
+    spec's own ``max_episode_steps`` stays the registered one, which no ``TimeLimit`` applies).
+    The attribute, else that kwarg; ``None`` when neither is a positive int.
+
+    >>> import gymnasium as gym
+    >>> envs = gym.make_vec("CartPole-v1", 2, vectorization_mode="vector_entry_point",
+    ...                     max_episode_steps=12)
+    >>> envs.spec.max_episode_steps, _own_limit(envs.unwrapped, envs.spec)
+    (500, 12)
+    """
+    kwargs = getattr(spec, "kwargs", None)
+    try:
+        own = getattr(base, "max_episode_steps", None)
+    except Exception:  # the env's own attribute: not a limit
+        own = None
+    for limit in (own, kwargs.get("max_episode_steps") if isinstance(kwargs, dict) else None):
+        if type(limit) is int and limit > 0:
+            return limit
+    return None
 
 
 def _max_steps(
-    sub_spec: Any, n: int, sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None
+    sub_spec: Any,
+    n: int,
+    sync: SyncVectorEnv | None,
+    async_env: AsyncVectorEnv | None,
+    base: Any,
 ) -> list[int | None]:
     """Each sub-env's step limit: its ``TimeLimit``s' smallest, else its spec's.
+
+    A vector env without sub-envs (``base``, a ``vector_entry_point`` env) counts its own
+    (:func:`_own_limit`).
 
     The limit is counted by the stream (a ``SAME_STEP`` autoreset has zeroed the wrapper's
     own count by the time the ending is recorded). A ``SyncVectorEnv``'s sub-envs are
@@ -323,7 +358,9 @@ def _max_steps(
     """
     limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * n
     found: Sequence[Any] = ()
-    if sync is not None:
+    if sync is None and async_env is None:
+        found = [_own_limit(base, sub_spec)] * n
+    elif sync is not None:
         found = [step_limit(sub) for sub in sync.envs]
     elif async_env is not None:
         try:
