@@ -32,6 +32,7 @@ __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
     "LAYOUT_STATE_SNAPSHOTS",
     "LAYOUT_VECTOR_WRAPPERS",
+    "MULTI_STEP_WRAPPERS",
     "RECORDED_WRAPPERS",
     "REWARD_CHANGING",
     "RUN_TRANSPARENT_WRAPPERS",
@@ -40,6 +41,7 @@ __all__ = [
     "WrapperRule",
     "autoreset_wrapped",
     "declared_transparent",
+    "multi_step",
     "plan_wrappers",
     "reward_cause",
     "reward_wrapper_names",
@@ -330,6 +332,40 @@ RECORDED_WRAPPERS: Mapping[str, WrapperRule] = {
     "stable_baselines3.common.monitor:Monitor": WrapperRule("transparent", why=_NO_STEP),
 }
 """Every wrapper replay knows, by the entry point a spec names it with."""
+
+
+_MULTI_STEP = (
+    "MaxAndSkipObservation",  # its step: `skip` steps of the env
+    "AtariPreprocessing",  # `frame_skip` steps; no-op steps in its reset
+    "RepeatAction",  # `num_repeats` steps
+    "Autoreset",  # a reset inside a step
+)
+MULTI_STEP_WRAPPERS: frozenset[str] = frozenset(
+    {f"gymnasium.wrappers.{_GYMNASIUM_WRAPPERS[name][0]}:{name}" for name in _MULTI_STEP}
+    | {f"gymnasium.wrappers:{name}" for name in _MULTI_STEP}
+    | {
+        f"stable_baselines3.common.atari_wrappers:{name}"
+        # frame skipping; no-op or FIRE steps in reset; a life's end without the env's reset
+        for name in ("MaxAndSkipEnv", "NoopResetEnv", "FireResetEnv", "EpisodicLifeEnv")
+    }
+)
+"""The wrappers (by entry point) whose step or reset is not one step or reset of the env below.
+
+A ``TimeLimit`` under one counts the env's own steps, one over it the wrapper's: the two are
+not one limit (``record/time_limits.py`` keeps each where it is). Any other wrapper is taken to
+step the env once per step.
+"""
+
+
+def multi_step(entry_point: str) -> bool:
+    """Whether the wrapper of ``entry_point`` steps or resets the env below otherwise than once.
+
+    >>> multi_step("gymnasium.wrappers.stateful_observation:MaxAndSkipObservation")
+    True
+    >>> multi_step("gymnasium.wrappers.transform_observation:FlattenObservation")
+    False
+    """
+    return entry_point in MULTI_STEP_WRAPPERS
 
 
 _AUTORESET = frozenset({"gymnasium.wrappers.common:Autoreset", "gymnasium.wrappers:Autoreset"})

@@ -866,6 +866,32 @@ def test_a_time_limit_without_a_spec_is_found_on_each_sub_env(tmp_path: Path, mo
     ] * 2
 
 
+def _skipping(limit: int | None) -> gym.Env[Any, Any]:
+    """Pendulum (its registered 200-step limit) in a 4-step frame skip, in ``limit`` steps."""
+    env = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
+    return env if limit is None else gym.wrappers.TimeLimit(env, limit)
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "Disabled"])
+@pytest.mark.parametrize(("limit", "length"), [(30, 30), (60, 50), (None, 50)])
+def test_sub_env_time_limits_over_and_under_a_frame_skip_are_each_read(
+    tmp_path: Path, mode: str, limit: int | None, length: int
+) -> None:
+    """The TimeLimit under MaxAndSkipObservation counts the env's steps (200: 50 steps), the
+    one over it the sub-env's: the streams read them as the single-env recorder does."""
+    path = tmp_path / "skip.mcap"
+    envs = SyncVectorEnv([lambda: _skipping(limit)] * 2, autoreset_mode=mode)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.action_space.seed(0)
+        rec.reset(seed=0)
+        for _ in range(length):
+            rec.step(rec.action_space.sample())
+    ended = [e for e in open_evidence(path).episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["length"], e["truncation_reason"]) for e in ended] == [(length, "time_limit")] * 2
+    result = replay([path])
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", length)] * 2
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_reset_arguments_the_vector_env_rejects_change_no_episode(
     tmp_path: Path, kind: str

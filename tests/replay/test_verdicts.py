@@ -555,6 +555,66 @@ def test_an_inner_time_limit_ending_episodes_replays_identical(
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", 200)] * 2
 
 
+def _skipping(limit: int) -> gym.Env[Any, Any]:
+    """Pendulum in a 4-step frame skip, in ``limit`` steps (the registered 200 still inside)."""
+    return gym.wrappers.TimeLimit(
+        gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4), limit
+    )
+
+
+def _record_skipping(path: Path, limit: int, length: int) -> Path:
+    with RecordEvidence(_skipping(limit), path) as rec:
+        rec.action_space.seed(0)
+        for seed in (0, 1):
+            rec.reset(seed=seed)
+            for _ in range(length):
+                rec.step(rec.action_space.sample())
+    return path
+
+
+@pytest.mark.parametrize("factory", [None, "factory"], ids=["rebuilt", "env-factory"])
+@pytest.mark.parametrize(("limit", "length"), [(30, 30), (60, 50)], ids=["outer", "inner"])
+def test_a_time_limit_over_a_frame_skip_replays_identical(
+    tmp_path: Path, factory: Any, limit: int, length: int
+) -> None:
+    """Rebuilt where it was, over the frame skip (not right over the env, where it would count
+    the env's steps: 4 per step); the registered one under it ends episodes at step 50."""
+    path = _record_skipping(tmp_path / "skip.mcap", limit, length)
+    made = None if factory is None else lambda: _skipping(limit)
+    result = replay([path], env_factory=made)
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", length)] * 2
+
+
+def test_an_env_without_the_time_limit_over_the_frame_skip_does_not_match(tmp_path: Path) -> None:
+    path = _record_skipping(tmp_path / "skip.mcap", 30, 30)
+    same_limits = lambda: gym.wrappers.MaxAndSkipObservation(  # noqa: E731
+        gym.make("Pendulum-v1", max_episode_steps=200), skip=4
+    )
+    result = replay([path], env_factory=same_limits)
+    assert {e.reason for e in result.episodes} == {
+        "the rebuilt env does not match the recording: time limits over multi-step wrappers "
+        "[30] recorded vs [] rebuilt; make the --env-factory build the env as recorded"
+    }
+
+
+def test_a_file_with_the_smallest_time_limit_as_its_spec_still_replays_in_its_env(
+    tmp_path: Path,
+) -> None:
+    """A file whose spec has the smallest limit and no TimeLimit among its wrappers (as the
+    recorder wrote them before placing them): the env factory that built it still replays it."""
+    path = _record_skipping(tmp_path / "skip.mcap", 30, 30)
+
+    def smallest(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["max_episode_steps"] = 30
+        spec["additional_wrappers"] = spec["additional_wrappers"][:1]
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    old = rewrite(path, tmp_path / "old.mcap", run=smallest)
+    result = replay([old], env_factory=lambda: _skipping(30))
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 30)] * 2
+
+
 def test_episodes_an_autoreset_under_the_recorder_began_replay_identical(tmp_path: Path) -> None:
     path = tmp_path / "autoreset.mcap"
     env = gym.wrappers.Autoreset(gym.make("Pendulum-v1", max_episode_steps=30))

@@ -23,7 +23,7 @@ from stable_baselines3.common.vec_env import (
 )
 
 from ..gym import entry_point, info_entry_point, reward_wrappers
-from ..time_limits import limited_spec, step_limit
+from ..time_limits import limit_places, limited_spec
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -114,13 +114,21 @@ class VecStack:
         return None
 
     def step_limits(self, n: int, spec: Any) -> list[int | None]:
-        """Each sub-env's step limit: its ``TimeLimit``s' smallest, else its spec's."""
+        """Each sub-env's step limit in its own steps, for its stream to count.
+
+        A ``DummyVecEnv``'s sub-envs are searched for their ``TimeLimit``s: the smallest of
+        those over no multi-step wrapper (``LimitPlaces.counted``), none when each
+        is under one (it counts the env's own steps), the spec's when there is none. A
+        ``SubprocVecEnv``'s workers are asked for the outermost's (a worker's chain cannot be
+        walked), else the spec's.
+        """
         limits: list[int | None] = [getattr(spec, "max_episode_steps", None)] * n
         found: list[Any] = []
         try:
             if self.local is not None:
-                found = [step_limit(sub) for sub in self.local.envs]
-            elif self.base.has_attr("_max_episode_steps"):
+                places = [limit_places(sub) for sub in self.local.envs]
+                return [p.counted if p.found else limits[0] for p in places][:n]
+            if self.base.has_attr("_max_episode_steps"):
                 found = list(self.base.get_attr("_max_episode_steps"))
         except Exception:  # the spec's limit, then
             found = []

@@ -16,6 +16,7 @@ from typing import Any
 import gymnasium as gym
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import iterate
+from gymnasium.wrappers import TimeLimit
 from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
@@ -34,7 +35,7 @@ from ..gym import (
     wrapper_chain,
 )
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
-from ..time_limits import limited_spec, step_limit
+from ..time_limits import limit_places, limited_spec, time_limits
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import refused, reset_targets, seeds_of
@@ -127,8 +128,15 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         self.path = self._file.path
         obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
         codecs = obs_codec, codec_for(act_space)
+        watched = _watched_limits(sync, mode, n)
         self._streams = [
-            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit, state=snapshots)
+            self._file.add_stream(
+                *codecs,
+                env_index=i,
+                max_episode_steps=limit,
+                time_limits=watched[i],
+                state=snapshots,
+            )
             for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env, base))
         ]
         self._file.start()
@@ -344,25 +352,27 @@ def _max_steps(
     async_env: AsyncVectorEnv | None,
     base: Any,
 ) -> list[int | None]:
-    """Each sub-env's step limit: its ``TimeLimit``s' smallest, else its spec's.
+    """Each sub-env's step limit in its own steps, for its stream to count.
 
-    A vector env without sub-envs (``base``, a ``vector_entry_point`` env) counts its own
-    (:func:`_own_limit`).
-
-    The limit is counted by the stream (a ``SAME_STEP`` autoreset has zeroed the wrapper's
-    own count by the time the ending is recorded). A ``SyncVectorEnv``'s sub-envs are
-    searched for a ``TimeLimit`` directly. An ``AsyncVectorEnv``'s are asked for
-    ``_max_episode_steps`` (``TimeLimit``'s), but only when every one says it has it
-    (``has_wrapper_attr``, which every ``gymnasium.Env`` has): a worker asked for an
-    attribute its env lacks raises, and that ends the worker.
+    The stream counts it where it does not read the ``TimeLimit``s themselves
+    (:func:`_watched_limits`). A ``SyncVectorEnv``'s sub-envs are searched for their
+    ``TimeLimit``s directly: the smallest of those over no multi-step wrapper
+    (``LimitPlaces.counted``), none when each is under one, the spec's when
+    there is none. A vector env without sub-envs (``base``, a ``vector_entry_point`` env)
+    counts its own (:func:`_own_limit`). An ``AsyncVectorEnv``'s workers are asked for
+    ``_max_episode_steps`` (the outermost ``TimeLimit``'s: a worker's chain cannot be walked),
+    but only when every one says it has it (``has_wrapper_attr``, which every
+    ``gymnasium.Env`` has): a worker asked for an attribute its env lacks raises, and that
+    ends the worker. Otherwise the spec's.
     """
     limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * n
     found: Sequence[Any] = ()
-    if sync is None and async_env is None:
+    if sync is not None:
+        places = [limit_places(sub) for sub in sync.envs]
+        return [p.counted if p.found else limits[0] for p in places]
+    if async_env is None:
         found = [_own_limit(base, sub_spec)] * n
-    elif sync is not None:
-        found = [step_limit(sub) for sub in sync.envs]
-    elif async_env is not None:
+    else:
         try:
             if all(async_env.call("has_wrapper_attr", "_max_episode_steps")):
                 found = async_env.get_attr("_max_episode_steps")
@@ -372,6 +382,21 @@ def _max_steps(
         if isinstance(limit, int) and not isinstance(limit, bool):
             limits[i] = limit
     return limits
+
+
+def _watched_limits(
+    sync: SyncVectorEnv | None, mode: AutoresetMode, n: int
+) -> list[tuple[TimeLimit[Any, Any], ...]]:
+    """Each sub-env's ``TimeLimit``s, for its stream to read at an episode's end; or none.
+
+    A ``SyncVectorEnv``'s, unless it resets a sub-env inside the step that ended its episode
+    (``SAME_STEP``: the counts are zeroed by the time the ending is recorded). Read like the
+    single-env recorder reads them, they say a limit was reached in whatever steps it counts
+    (one under a frame-skipping wrapper counts the env's own).
+    """
+    if sync is None or mode is AutoresetMode.SAME_STEP:
+        return [()] * n
+    return [time_limits(sub) for sub in sync.envs]
 
 
 def _vector_wrappers(env: Any) -> list[str]:
