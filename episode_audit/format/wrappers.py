@@ -31,6 +31,7 @@ from .unrecorded import unrecorded
 __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
     "LAYOUT_STATE_SNAPSHOTS",
+    "LAYOUT_UNREAD_LIMITS",
     "LAYOUT_VECTOR_WRAPPERS",
     "MULTI_STEP_WRAPPERS",
     "RECORDED_WRAPPERS",
@@ -47,7 +48,9 @@ __all__ = [
     "reward_wrapper_names",
     "state_causes",
     "stateful_wrapper",
+    "unread_limits",
     "vector_wrapper_cause",
+    "worker_limits",
 ]
 
 WrapperKind = Literal["rebuilt", "snapshot", "transparent", "stateful", "refused"]
@@ -491,6 +494,50 @@ LAYOUT_STATE_SNAPSHOTS = "state_snapshots"
 LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
 """The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
 first; absent in files that predate it, and when there were none)."""
+
+
+LAYOUT_UNREAD_LIMITS = "unread_time_limits"
+"""Layout key of a vector file: why its recorder could not read every sub-env's ``TimeLimit``
+at an episode's end (text; absent when it could). Its truncations by one it did not read are
+``external``; replay does not call what such a limit explains a divergence
+(:func:`unread_limits`)."""
+
+_WORKERS = {"AsyncVectorEnv": "SyncVectorEnv", "SubprocVecEnv": "DummyVecEnv"}
+
+
+def worker_limits(vector_class: str) -> str:
+    """Why a vector recorder could not read the ``TimeLimit``s of sub-envs in worker processes.
+
+    >>> worker_limits("SubprocVecEnv")[:60]
+    'the sub-envs ran in SubprocVecEnv workers, whose wrapper cha'
+    """
+    local = _WORKERS.get(vector_class, "sub-envs in this process")
+    return (
+        f"the sub-envs ran in {vector_class[:80]} workers, whose wrapper chains the recorder "
+        "cannot walk: it read the outermost TimeLimit's limit only (one inside it, or under a "
+        f"frame-skipping wrapper, it did not); record with {local} to replay such endings"
+    )
+
+
+def unread_limits(layout: Any) -> str | None:
+    """Why a file's recorder could not read every ``TimeLimit`` of its sub-envs, or ``None``.
+
+    The layout's :data:`LAYOUT_UNREAD_LIMITS`; in a vector file without it (one recorded before
+    it was written), :func:`worker_limits` when its sub-envs ran in ``AsyncVectorEnv`` or
+    ``SubprocVecEnv`` workers.
+
+    >>> unread_limits({"kind": "vector", "vector_class": "SyncVectorEnv"}) is None
+    True
+    """
+    if not isinstance(layout, Mapping):
+        return None
+    said = layout.get(LAYOUT_UNREAD_LIMITS)
+    if isinstance(said, str) and said:
+        return said[: _MAX_TEXT * 2]
+    vector_class = layout.get("vector_class")
+    if layout.get("kind") == "vector" and vector_class in _WORKERS:
+        return worker_limits(str(vector_class))
+    return None
 
 
 RUN_TRANSPARENT_WRAPPERS = "transparent_wrappers"

@@ -36,6 +36,7 @@ __all__ = [
     "step_limit",
     "time_limit_hit",
     "time_limits",
+    "zeroed_limits",
 ]
 
 _DEEPEST = 64
@@ -92,12 +93,14 @@ class LimitPlaces:
     wrappers its env's spec records under it (its place among the spec's
     ``additional_wrappers``), ``n`` ``None`` when that spec cannot be read; ``counted``: the
     smallest limit of those with no multi-step wrapper over them (they count the steps of the
-    env they were found around); ``found``: whether there is any.
+    env they were found around); ``under``: the class name of the multi-step wrapper over one
+    that ``counted`` leaves out (``None``: it leaves out none); ``found``: whether there is any.
     """
 
     inner: int | None = None
     placed: tuple[tuple[int | None, int], ...] = ()
     counted: int | None = None
+    under: str | None = None
     found: bool = False
 
 
@@ -106,23 +109,28 @@ def limit_places(env: Any) -> LimitPlaces:
 
     >>> import gymnasium as gym
     >>> skip = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
-    >>> limit_places(gym.wrappers.TimeLimit(skip, 30))
-    LimitPlaces(inner=200, placed=((1, 30),), counted=30, found=True)
+    >>> places = limit_places(gym.wrappers.TimeLimit(skip, 30))
+    >>> places.inner, places.placed, places.counted, places.under
+    (200, ((1, 30),), 30, 'MaxAndSkipObservation')
     >>> limit_places(gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500))
-    LimitPlaces(inner=200, placed=(), counted=200, found=True)
+    LimitPlaces(inner=200, placed=(), counted=200, under=None, found=True)
     """
     chain = _chain(env)
     multi = [multi_step(f"{type(w).__module__}:{type(w).__name__}") for w in chain]
     inner: list[int] = []
     placed: list[tuple[int | None, int]] = []
     counted: list[int] = []
+    under: str | None = None
     for depth, wrapper in enumerate(chain):
         if not isinstance(wrapper, TimeLimit):
             continue
         limit = _limit(wrapper)
         if limit is None:
             continue
-        if not any(multi[:depth]):
+        over = [w for w, m in zip(chain[:depth], multi, strict=False) if m]
+        if over:
+            under = under or type(over[-1]).__name__
+        else:
             counted.append(limit)
         if any(multi[depth + 1 :]):
             placed.append((_spec_wrappers(wrapper.env), limit))
@@ -132,8 +140,27 @@ def limit_places(env: Any) -> LimitPlaces:
         min(inner, default=None),
         tuple(placed[::-1]),
         min(counted, default=None),
+        under,
         any(isinstance(w, TimeLimit) for w in chain),
     )
+
+
+def zeroed_limits(envs: Iterable[Any], reset_by: str, instead: str) -> str | None:
+    """Why streams counting ``envs``' steps miss one of their ``TimeLimit``s, or ``None``.
+
+    One under a multi-step wrapper counts the env's own steps, which the stream does not, and
+    the reset inside a step (``reset_by``) zeroes its count before the recorder could read it
+    (:class:`LimitPlaces` ``under``). ``instead``: how to record so that it can.
+    """
+    for env in envs:
+        under = limit_places(env).under
+        if under is not None:
+            return (
+                f"a sub-env's TimeLimit under {under} counts the env's own steps, and "
+                f"{reset_by} zeroed its count before the recorder read it: its truncations are "
+                f"recorded external; {instead} to replay such endings"
+            )
+    return None
 
 
 def _spec_wrappers(env: Any) -> int | None:

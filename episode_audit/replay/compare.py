@@ -42,16 +42,34 @@ class Comparison:
         atol: float,
         rules: EndingRules | None,
         terms_rule: RewardTerms | None,
+        unread_limits: str | None = None,
     ) -> None:
         self.file = file
         self.obs_codec = obs_codec
         self.atol = atol
         self.rules = rules
         self.terms_rule = terms_rule
+        self.unread_limits = unread_limits
+        """Why the recorder could not read every ``TimeLimit`` (``wrappers.unread_limits``)."""
         self._plain_endings: dict[tuple[bool, bool, bool], Ending] = {}
 
     def _diverged(self, index: int, steps: int, divergence: Divergence) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "diverged", steps, divergence)
+
+    def _differs(self, episode: Stepped, steps: int, divergence: Divergence) -> EpisodeReplay:
+        """``episode`` diverged, unless a ``TimeLimit`` the recorder could not read explains it.
+
+        In a file whose recorder could not read every ``TimeLimit``, it recorded a truncation
+        by one it did not read as ``external``, and the rebuilt env may hold one where the
+        recording's was not: such a difference at the recorded ending (:func:`_unread_ending`)
+        is ``not_replayable``, keeping its first difference.
+        """
+        index = int(episode.record["episode"])
+        why = None if self.unread_limits is None else _unread_ending(episode, divergence)
+        if why is None:
+            return self._diverged(index, steps, divergence)
+        reason = f"{why}: {self.unread_limits}"
+        return EpisodeReplay(self.file, index, "not_replayable", steps, divergence, reason)
 
     def episodes(
         self,
@@ -106,7 +124,7 @@ class Comparison:
                 done[index] = (
                     EpisodeReplay(file, index, "identical", n)
                     if outcome is None
-                    else self._diverged(index, n, outcome)
+                    else self._differs(ran.episode(k, int(firsts[k])), n, outcome)
                 )
             elif not reset_equal[k]:
                 expected_reset = reset_obs.slice(ran.reset_at[k], 1)
@@ -164,12 +182,12 @@ class Comparison:
         if first_bad < first + ran:
             step = first_bad - first
             divergence = self._row_divergence(first_bad, step, fields, expected, got)
-            return self._diverged(index, step, divergence)
+            return self._differs(episode, step, divergence)
         if episode.crash is not None:
             return self._diverged(index, ran, episode.crash)
         if ran < count:
-            return self._diverged(
-                index,
+            return self._differs(
+                episode,
                 ran,
                 Divergence(ran, "length", f"{count} steps", f"the episode ended after {ran}"),
             )
@@ -184,7 +202,7 @@ class Comparison:
                 episode.hit_time_limit,
             )
             if outcome is not None:
-                return self._diverged(index, ran, outcome)
+                return self._differs(episode, ran, outcome)
         return EpisodeReplay(self.file, index, "identical", ran)
 
     def _row_divergence(
@@ -233,6 +251,39 @@ class Comparison:
             time_limit_hit=hit_time_limit,
             endings=self._plain_endings,
         )
+
+
+def _unread_ending(episode: Stepped, divergence: Divergence) -> str | None:
+    """How a ``TimeLimit`` the recorder could not read explains ``divergence``, or ``None``.
+
+    Either the episode was recorded truncated as ``external`` at its last step, where the
+    rebuilt env did not truncate or its time limit did; or the rebuilt env's time limit ended
+    it before its recorded end, and it differed no earlier than that step.
+    """
+    last, ran, step = episode.count - 1, episode.ran, divergence.step
+    record = episode.record
+    external = record["outcome"] == fmt.OUTCOME_TRUNCATED and (
+        record.get("truncation_reason") == fmt.REASON_EXTERNAL
+    )
+    if external and step == last:
+        if divergence.field == fmt.COL_TRUNCATED:
+            return (
+                f"recorded truncated (external) at step {last}, where the rebuilt env did not "
+                "truncate"
+            )
+        if divergence.field == "outcome" and divergence.got == _fmt_outcome(
+            fmt.OUTCOME_TRUNCATED, None, fmt.REASON_TIME_LIMIT
+        ):
+            return (
+                f"recorded truncated (external) at step {last}, where the rebuilt env's time "
+                "limit truncated it"
+            )
+    if episode.hit_time_limit and ran <= last and step is not None and step >= ran - 1:
+        return (
+            f"the rebuilt env's time limit truncated it at step {ran - 1}, where the recorded "
+            "episode went on"
+        )
+    return None
 
 
 def _last_flags(

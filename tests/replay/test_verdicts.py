@@ -615,6 +615,113 @@ def test_a_file_with_the_smallest_time_limit_as_its_spec_still_replays_in_its_en
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", 30)] * 2
 
 
+def _skip_under(limit: int | None = None) -> gym.Env[Any, Any]:
+    """Pendulum's registered limit (200 of its steps: 50 here) under a 4-step frame skip."""
+    env = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
+    return env if limit is None else gym.wrappers.TimeLimit(env, limit)
+
+
+def _record_vector(path: Path, envs: Any, steps: int) -> Any:
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.action_space.seed(0)
+        rec.reset(seed=0)
+        for _ in range(steps):
+            rec.step(rec.action_space.sample())
+    return open_evidence(path)
+
+
+_ASYNC = (
+    "the sub-envs ran in AsyncVectorEnv workers, whose wrapper chains the recorder cannot walk: "
+    "it read the outermost TimeLimit's limit only (one inside it, or under a frame-skipping "
+    "wrapper, it did not); record with SyncVectorEnv to replay such endings"
+)
+
+
+@pytest.mark.parametrize(
+    ("make", "steps", "why"),
+    [
+        (
+            _nested_limits,
+            201,
+            "recorded truncated (external) at step 199, where the rebuilt env did not truncate",
+        ),
+        (
+            _skip_under,
+            51,
+            "recorded truncated (external) at step 49, where the rebuilt env's time limit "
+            "truncated it",
+        ),
+        (
+            lambda: _skip_under(30),
+            31,
+            "the rebuilt env's time limit truncated it at step 7, where the recorded episode "
+            "went on",
+        ),
+    ],
+    ids=["nested", "under-skip", "over-skip"],
+)
+def test_time_limits_async_workers_hide_are_not_called_divergences(
+    tmp_path: Path, make: Any, steps: int, why: str
+) -> None:
+    """A worker answers for its outermost TimeLimit only: the file cannot say where the others
+    were, or that one ended an episode (recorded external)."""
+    ev = _record_vector(tmp_path / "async.mcap", gym.vector.AsyncVectorEnv([make] * 2), steps)
+    assert ev.run.layout["unread_time_limits"] == _ASYNC
+    result = replay([ev.path])
+    assert [(e.status, e.reason) for e in result.episodes[:2]] == [
+        ("not_replayable", f"{why}: {_ASYNC}")
+    ] * 2
+
+
+def test_a_file_from_async_workers_without_the_layout_key_says_the_same(tmp_path: Path) -> None:
+    """Files recorded before the recorder wrote ``unread_time_limits``: the workers say it."""
+    ev = _record_vector(tmp_path / "a.mcap", gym.vector.AsyncVectorEnv([_nested_limits] * 2), 201)
+
+    def unsaid(meta: dict[str, str]) -> dict[str, str]:
+        layout = json.loads(meta["layout"])
+        layout.pop("unread_time_limits", None)
+        return {**meta, "layout": json.dumps(layout)}
+
+    old = rewrite(ev.path, tmp_path / "old.mcap", run=unsaid)
+    assert "unread_time_limits" not in open_evidence(old).run.layout
+    result = replay([old])
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2 + ["identical"] * 2
+    assert (result.episodes[0].reason or "").endswith(_ASYNC)
+
+
+def test_a_same_step_autoreset_hiding_a_time_limit_under_a_frame_skip_is_said(
+    tmp_path: Path,
+) -> None:
+    envs = gym.vector.SyncVectorEnv([_skip_under] * 2, autoreset_mode="SameStep")
+    ev = _record_vector(tmp_path / "same.mcap", envs, 51)
+    cause = (
+        "a sub-env's TimeLimit under MaxAndSkipObservation counts the env's own steps, and the "
+        "SameStep autoreset zeroed its count before the recorder read it: its truncations are "
+        "recorded external; record in NextStep mode to replay such endings"
+    )
+    assert ev.run.layout["unread_time_limits"] == cause
+    result = replay([ev.path])
+    assert [e.status for e in result.episodes[:2]] == ["not_replayable"] * 2
+    assert (result.episodes[0].reason or "").endswith(cause)
+
+
+def test_an_external_truncation_a_sync_env_does_not_repeat_still_diverges(tmp_path: Path) -> None:
+    """Where the recorder read every TimeLimit, an external truncation is the env's own."""
+    ev = _record_vector(tmp_path / "sync.mcap", gym.vector.SyncVectorEnv([_nested_limits] * 2), 3)
+
+    def truncated(batch: pa.RecordBatch) -> pa.RecordBatch:
+        flags = [i % 3 == 2 for i in range(batch.num_rows)]
+        return replace_column(batch, "truncated", pa.array(flags))
+
+    def external(batch: pa.RecordBatch) -> pa.RecordBatch:
+        batch = replace_column(batch, "outcome", pa.array(["truncated"] * batch.num_rows))
+        return replace_column(batch, "truncation_reason", pa.array(["external"] * batch.num_rows))
+
+    tampered = rewrite(ev.path, tmp_path / "t.mcap", steps=truncated, episodes=external)
+    result = replay([tampered])
+    assert [e.status for e in result.episodes] == ["diverged"] * 2
+
+
 def test_episodes_an_autoreset_under_the_recorder_began_replay_identical(tmp_path: Path) -> None:
     path = tmp_path / "autoreset.mcap"
     env = gym.wrappers.Autoreset(gym.make("Pendulum-v1", max_episode_steps=30))

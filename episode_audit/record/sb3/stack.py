@@ -22,8 +22,9 @@ from stable_baselines3.common.vec_env import (
     VecVideoRecorder,
 )
 
+from ...format.wrappers import worker_limits
 from ..gym import entry_point, info_entry_point, reward_wrappers
-from ..time_limits import limit_places, limited_spec
+from ..time_limits import limit_places, limited_spec, zeroed_limits
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -112,6 +113,21 @@ class VecStack:
         except Exception:
             return None
         return None
+
+    def unread_limits(self) -> str | None:
+        """Why the streams cannot read every sub-env's ``TimeLimit`` at an episode's end, or None.
+
+        A ``SubprocVecEnv``'s workers answer for the outermost only, and a ``DummyVecEnv``
+        resets a sub-env inside the step that ended its episode, zeroing the counts (a stream
+        counting the steps misses one under a frame skip).
+        """
+        if self.local is None:
+            return worker_limits(type(self.base).__name__)
+        return zeroed_limits(
+            self.local.envs,
+            "DummyVecEnv's reset inside its step",
+            "record a gymnasium SyncVectorEnv in NextStep mode",
+        )
 
     def step_limits(self, n: int, spec: Any) -> list[int | None]:
         """Each sub-env's step limit in its own steps, for its stream to count.
