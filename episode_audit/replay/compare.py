@@ -57,18 +57,17 @@ class Comparison:
         return EpisodeReplay(self.file, index, "diverged", steps, divergence)
 
     def _differs(self, episode: Stepped, steps: int, divergence: Divergence) -> EpisodeReplay:
-        """``episode`` diverged, unless a ``TimeLimit`` the recorder could not read explains it.
+        """``episode`` diverged, unless the time limits explain it (:func:`_limit_ending`).
 
-        In a file whose recorder could not read every ``TimeLimit``, it recorded a truncation
-        by one it did not read as ``external``, and the rebuilt env may hold one where the
-        recording's was not: such a difference at the recorded ending (:func:`_unread_ending`)
-        is ``not_replayable``, keeping its first difference.
+        Such a difference is ``not_replayable``, keeping its first difference: a ``TimeLimit``
+        counts steps whatever the env does, so the rebuilt env's reaching its limit where the
+        recording's did not (or the other way) says the limits differ, not the env.
         """
         index = int(episode.record["episode"])
-        why = None if self.unread_limits is None else _unread_ending(episode, divergence)
+        why = _limit_ending(episode, divergence, unread=self.unread_limits is not None)
         if why is None:
             return self._diverged(index, steps, divergence)
-        reason = f"{why}: {self.unread_limits}"
+        reason = f"{why}: {self.unread_limits or _LIMITS_DIFFER}"
         return EpisodeReplay(self.file, index, "not_replayable", steps, divergence, reason)
 
     def episodes(
@@ -253,35 +252,51 @@ class Comparison:
         )
 
 
-def _unread_ending(episode: Stepped, divergence: Divergence) -> str | None:
-    """How a ``TimeLimit`` the recorder could not read explains ``divergence``, or ``None``.
+_LIMITS_DIFFER = (
+    "the rebuilt env's TimeLimits are not those it was recorded in (a limit set after the "
+    "recorder was made, say); build it with the limits it ran under"
+)
 
-    Either the episode was recorded truncated as ``external`` at its last step, where the
-    rebuilt env did not truncate or its time limit did; or the rebuilt env's time limit ended
-    it before its recorded end, and it differed no earlier than that step.
+
+def _limit_ending(episode: Stepped, divergence: Divergence, *, unread: bool) -> str | None:
+    """How the time limits explain ``divergence``, or ``None``.
+
+    The difference is where the recording's or the rebuilt env's ``TimeLimit`` ended the
+    episode, and the other's did not. The recording's: the episode was recorded truncated
+    ``time_limit`` at its last step, and the rebuilt env's limits were not reached there. The
+    rebuilt env's: its time limit truncated the episode before its recorded end (differing no
+    earlier), or at its recorded last step, where the recording did not say ``time_limit``.
+    And, when the recorder could not read every ``TimeLimit`` (``unread``), a truncation it
+    recorded as ``external`` at the last step, where the rebuilt env did not truncate.
     """
     last, ran, step = episode.count - 1, episode.ran, divergence.step
-    record = episode.record
-    external = record["outcome"] == fmt.OUTCOME_TRUNCATED and (
-        record.get("truncation_reason") == fmt.REASON_EXTERNAL
-    )
-    if external and step == last:
-        if divergence.field == fmt.COL_TRUNCATED:
-            return (
-                f"recorded truncated (external) at step {last}, where the rebuilt env did not "
-                "truncate"
-            )
-        if divergence.field == "outcome" and divergence.got == _fmt_outcome(
-            fmt.OUTCOME_TRUNCATED, None, fmt.REASON_TIME_LIMIT
-        ):
-            return (
-                f"recorded truncated (external) at step {last}, where the rebuilt env's time "
-                "limit truncated it"
-            )
-    if episode.hit_time_limit and ran <= last and step is not None and step >= ran - 1:
+    reason = episode.record.get("truncation_reason")
+    hit = episode.hit_time_limit
+    at_end = step == last and ran == episode.count
+    flags = divergence.field in (fmt.COL_TRUNCATED, "outcome")
+    if at_end and flags and reason == fmt.REASON_TIME_LIMIT and not hit:
+        return (
+            f"recorded truncated by its time limit at step {last}, where the rebuilt env's "
+            "limits were not reached"
+        )
+    if at_end and flags and hit and reason != fmt.REASON_TIME_LIMIT:
+        return (
+            f"the rebuilt env's time limit truncated it at step {last}, where the recording's "
+            "did not"
+        )
+    if hit and ran <= last and step is not None and step >= ran - 1:
         return (
             f"the rebuilt env's time limit truncated it at step {ran - 1}, where the recorded "
             "episode went on"
+        )
+    if (
+        unread
+        and at_end
+        and divergence.field == fmt.COL_TRUNCATED
+        and reason == fmt.REASON_EXTERNAL
+    ):
+        return (
+            f"recorded truncated (external) at step {last}, where the rebuilt env did not truncate"
         )
     return None
 

@@ -615,6 +615,39 @@ def test_a_file_with_the_smallest_time_limit_as_its_spec_still_replays_in_its_en
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", 30)] * 2
 
 
+@pytest.mark.parametrize(
+    ("later", "why"),
+    [
+        (20, "recorded truncated by its time limit at step 19, where the rebuilt env's limits "),
+        (80, "the rebuilt env's time limit truncated it at step 49, where the recorded episode "),
+    ],
+    ids=["lowered", "raised"],
+)
+def test_a_time_limit_changed_after_the_recorder_was_made_is_no_divergence(
+    tmp_path: Path, later: int, why: str
+) -> None:
+    """The file's spec has the limit the recorder was made over; the episodes after the change
+    end elsewhere than the rebuilt env's (each labelled as it ended)."""
+    path = tmp_path / "changed.mcap"
+    env = gym.make("Pendulum-v1", max_episode_steps=50)
+    with RecordEvidence(env, path) as rec:
+        rec.action_space.seed(0)
+        for seed, steps in ((0, 50), (1, min(later, 60))):
+            rec.reset(seed=seed)
+            for _ in range(steps):
+                rec.step(rec.action_space.sample())
+            env.set_wrapper_attr("_max_episode_steps", later)
+    ev = open_evidence(path)
+    assert ev.run.env_spec is not None and ev.run.env_spec["max_episode_steps"] == 50
+    result = replay([path])
+    assert [e.status for e in result.episodes] == ["identical", "not_replayable"]
+    assert (result.episodes[1].reason or "").startswith(why)
+    assert (result.episodes[1].reason or "").endswith(
+        "the rebuilt env's TimeLimits are not those it was recorded in (a limit set after the "
+        "recorder was made, say); build it with the limits it ran under"
+    )
+
+
 def _skip_under(limit: int | None = None) -> gym.Env[Any, Any]:
     """Pendulum's registered limit (200 of its steps: 50 here) under a 4-step frame skip."""
     env = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
@@ -648,8 +681,7 @@ _ASYNC = (
         (
             _skip_under,
             51,
-            "recorded truncated (external) at step 49, where the rebuilt env's time limit "
-            "truncated it",
+            "the rebuilt env's time limit truncated it at step 49, where the recording's did not",
         ),
         (
             lambda: _skip_under(30),
