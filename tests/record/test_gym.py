@@ -25,6 +25,7 @@ from episode_audit import (
     open_evidence,
 )
 from tests.support.envs import ScriptedEnv
+from tests.support.limits import record_two_episodes, skipping_pendulum
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -405,12 +406,6 @@ def test_every_time_limit_in_the_chain_counts_and_the_smallest_is_recorded(
     assert ev.run.env_spec is not None and ev.run.env_spec["max_episode_steps"] == limit
 
 
-def _skipping(limit: int | None) -> gym.Env[Any, Any]:
-    """Pendulum (its registered 200-step limit) in a 4-step frame skip, in ``limit`` steps."""
-    env = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
-    return env if limit is None else gym.wrappers.TimeLimit(env, limit)
-
-
 _SKIP = {"name": "MaxAndSkipObservation", "kwargs": {"skip": 4}}
 
 
@@ -429,13 +424,7 @@ def test_a_time_limit_over_a_frame_skip_is_recorded_where_it_counts(
     """The one over MaxAndSkipObservation counts its steps, the registered one under it the
     env's (200 of them: 50 steps): each ends episodes as ``time_limit``, and the spec has each
     where it was (``gym.make`` of it builds the same chain)."""
-    path = tmp_path / "skip.mcap"
-    with RecordEvidence(_skipping(limit), path) as rec:
-        rec.action_space.seed(0)
-        for seed in (0, 1):
-            rec.reset(seed=seed)
-            for _ in range(length):
-                rec.step(rec.action_space.sample())
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(limit), length)
     ev = open_evidence(path)
     episodes = ev.episodes().select(["length", "outcome", "truncation_reason"]).to_pylist()
     assert (
@@ -446,7 +435,7 @@ def test_a_time_limit_over_a_frame_skip_is_recorded_where_it_counts(
     assert spec is not None and spec["max_episode_steps"] == 200
     assert [{k: w[k] for k in ("name", "kwargs")} for w in spec["additional_wrappers"]] == wrappers
     rebuilt = gym.make(gym.envs.registration.EnvSpec.from_json(json.dumps(spec)))
-    assert str(rebuilt) == str(_skipping(limit))
+    assert str(rebuilt) == str(skipping_pendulum(limit))
 
 
 def _autoreset_pendulum(limit: int = 30) -> gym.Env[Any, Any]:

@@ -40,6 +40,7 @@ from episode_audit import (  # noqa: E402
 )
 from episode_audit.record.sb3 import RecordVecEnvEvidence  # noqa: E402
 from tests.support.batching import InfoReading, messages  # noqa: E402
+from tests.support.limits import skipping_pendulum  # noqa: E402
 
 torch.set_num_threads(1)
 N = 4
@@ -187,13 +188,13 @@ def nested_pendulum() -> gym.Env[Any, Any]:
     return ResetRngInfo(gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500))
 
 
-def skipping_pendulum() -> gym.Env[Any, Any]:
+def skipped_pendulum() -> gym.Env[Any, Any]:
     """Pendulum's registered limit (200 of its steps) under a 4-step frame skip: 50 steps."""
-    return ResetRngInfo(gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4))
+    return ResetRngInfo(skipping_pendulum())
 
 
 @pytest.mark.parametrize("vec", ["dummy", "subproc"])
-@pytest.mark.parametrize(("make", "length"), [(nested_pendulum, 200), (skipping_pendulum, 50)])
+@pytest.mark.parametrize(("make", "length"), [(nested_pendulum, 200), (skipped_pendulum, 50)])
 def test_time_limits_the_recorder_cannot_read_are_not_called_divergences(
     tmp_path: Path, vec: str, make: Any, length: int
 ) -> None:

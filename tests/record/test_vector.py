@@ -39,6 +39,7 @@ from episode_audit.format.records import unstarted
 from episode_audit.record.vector.rng import SubEnvRng
 from tests.support.batching import InfoReading, messages
 from tests.support.envs import ScriptedEnv
+from tests.support.limits import skipping_pendulum
 
 N = 4
 STEPS = 2000
@@ -866,12 +867,6 @@ def test_a_time_limit_without_a_spec_is_found_on_each_sub_env(tmp_path: Path, mo
     ] * 2
 
 
-def _skipping(limit: int | None) -> gym.Env[Any, Any]:
-    """Pendulum (its registered 200-step limit) in a 4-step frame skip, in ``limit`` steps."""
-    env = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
-    return env if limit is None else gym.wrappers.TimeLimit(env, limit)
-
-
 @pytest.mark.parametrize("mode", ["NextStep", "Disabled"])
 @pytest.mark.parametrize(("limit", "length"), [(30, 30), (60, 50), (None, 50)])
 def test_sub_env_time_limits_over_and_under_a_frame_skip_are_each_read(
@@ -880,7 +875,7 @@ def test_sub_env_time_limits_over_and_under_a_frame_skip_are_each_read(
     """The TimeLimit under MaxAndSkipObservation counts the env's steps (200: 50 steps), the
     one over it the sub-env's: the streams read them as the single-env recorder does."""
     path = tmp_path / "skip.mcap"
-    envs = SyncVectorEnv([lambda: _skipping(limit)] * 2, autoreset_mode=mode)
+    envs = SyncVectorEnv([lambda: skipping_pendulum(limit)] * 2, autoreset_mode=mode)
     with RecordVectorEvidence(envs, path) as rec:
         rec.action_space.seed(0)
         rec.reset(seed=0)

@@ -26,6 +26,7 @@ from episode_audit.cli import app
 from episode_audit.format import names as fmt
 from episode_audit.replay import replay
 from tests.support.hostile import replace_column, rewrite
+from tests.support.limits import record_two_episodes, skipping_pendulum
 from tests.support.mission import mission_env
 from tests.support.stateful import (
     cartpole8,
@@ -555,23 +556,6 @@ def test_an_inner_time_limit_ending_episodes_replays_identical(
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", 200)] * 2
 
 
-def _skipping(limit: int) -> gym.Env[Any, Any]:
-    """Pendulum in a 4-step frame skip, in ``limit`` steps (the registered 200 still inside)."""
-    return gym.wrappers.TimeLimit(
-        gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4), limit
-    )
-
-
-def _record_skipping(path: Path, limit: int, length: int) -> Path:
-    with RecordEvidence(_skipping(limit), path) as rec:
-        rec.action_space.seed(0)
-        for seed in (0, 1):
-            rec.reset(seed=seed)
-            for _ in range(length):
-                rec.step(rec.action_space.sample())
-    return path
-
-
 @pytest.mark.parametrize("factory", [None, "factory"], ids=["rebuilt", "env-factory"])
 @pytest.mark.parametrize(("limit", "length"), [(30, 30), (60, 50)], ids=["outer", "inner"])
 def test_a_time_limit_over_a_frame_skip_replays_identical(
@@ -579,14 +563,14 @@ def test_a_time_limit_over_a_frame_skip_replays_identical(
 ) -> None:
     """Rebuilt where it was, over the frame skip (not right over the env, where it would count
     the env's steps: 4 per step); the registered one under it ends episodes at step 50."""
-    path = _record_skipping(tmp_path / "skip.mcap", limit, length)
-    made = None if factory is None else lambda: _skipping(limit)
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(limit), length)
+    made = None if factory is None else lambda: skipping_pendulum(limit)
     result = replay([path], env_factory=made)
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", length)] * 2
 
 
 def test_an_env_without_the_time_limit_over_the_frame_skip_does_not_match(tmp_path: Path) -> None:
-    path = _record_skipping(tmp_path / "skip.mcap", 30, 30)
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(30), 30)
     same_limits = lambda: gym.wrappers.MaxAndSkipObservation(  # noqa: E731
         gym.make("Pendulum-v1", max_episode_steps=200), skip=4
     )
@@ -602,7 +586,7 @@ def test_a_file_with_the_smallest_time_limit_as_its_spec_still_replays_in_its_en
 ) -> None:
     """A file whose spec has the smallest limit and no TimeLimit among its wrappers (as the
     recorder wrote them before placing them): the env factory that built it still replays it."""
-    path = _record_skipping(tmp_path / "skip.mcap", 30, 30)
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(30), 30)
 
     def smallest(meta: dict[str, str]) -> dict[str, str]:
         spec = json.loads(meta["env_spec"])
@@ -611,7 +595,7 @@ def test_a_file_with_the_smallest_time_limit_as_its_spec_still_replays_in_its_en
         return {**meta, "env_spec": json.dumps(spec)}
 
     old = rewrite(path, tmp_path / "old.mcap", run=smallest)
-    result = replay([old], env_factory=lambda: _skipping(30))
+    result = replay([old], env_factory=lambda: skipping_pendulum(30))
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", 30)] * 2
 
 
@@ -648,12 +632,6 @@ def test_a_time_limit_changed_after_the_recorder_was_made_is_no_divergence(
     )
 
 
-def _skip_under(limit: int | None = None) -> gym.Env[Any, Any]:
-    """Pendulum's registered limit (200 of its steps: 50 here) under a 4-step frame skip."""
-    env = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
-    return env if limit is None else gym.wrappers.TimeLimit(env, limit)
-
-
 def _record_vector(path: Path, envs: Any, steps: int) -> Any:
     with RecordVectorEvidence(envs, path) as rec:
         rec.action_space.seed(0)
@@ -679,12 +657,12 @@ _ASYNC = (
             "recorded truncated (external) at step 199, where the rebuilt env did not truncate",
         ),
         (
-            _skip_under,
+            skipping_pendulum,
             51,
             "the rebuilt env's time limit truncated it at step 49, where the recording's did not",
         ),
         (
-            lambda: _skip_under(30),
+            lambda: skipping_pendulum(30),
             31,
             "the rebuilt env's time limit truncated it at step 7, where the recorded episode "
             "went on",
@@ -724,7 +702,7 @@ def test_a_file_from_async_workers_without_the_layout_key_says_the_same(tmp_path
 def test_a_same_step_autoreset_hiding_a_time_limit_under_a_frame_skip_is_said(
     tmp_path: Path,
 ) -> None:
-    envs = gym.vector.SyncVectorEnv([_skip_under] * 2, autoreset_mode="SameStep")
+    envs = gym.vector.SyncVectorEnv([skipping_pendulum] * 2, autoreset_mode="SameStep")
     ev = _record_vector(tmp_path / "same.mcap", envs, 51)
     cause = (
         "a sub-env's TimeLimit under MaxAndSkipObservation counts the env's own steps, and the "
