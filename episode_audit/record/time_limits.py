@@ -30,6 +30,7 @@ from ..format.wrappers import multi_step
 
 __all__ = [
     "LimitPlaces",
+    "counted_limits",
     "limit_places",
     "limited_spec",
     "plain_time_limit",
@@ -145,6 +146,24 @@ def limit_places(env: Any) -> LimitPlaces:
     )
 
 
+def counted_limits(envs: Iterable[Any], fallback: int | None) -> list[int | None]:
+    """Each of ``envs``' step limit in its own steps, for a stream to count.
+
+    :class:`LimitPlaces` ``counted``; ``None`` where every ``TimeLimit`` is under a multi-step
+    wrapper (it counts the env's own steps); ``fallback`` (the spec's) where none is found.
+
+    >>> import gymnasium as gym
+    >>> skip = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1"), skip=4)
+    >>> counted_limits([gym.wrappers.TimeLimit(skip, 30), skip, skip.unwrapped], 7)
+    [30, None, 7]
+    """
+    out: list[int | None] = []
+    for env in envs:
+        places = limit_places(env)
+        out.append(fallback if places.counted is None and places.under is None else places.counted)
+    return out
+
+
 def zeroed_limits(envs: Iterable[Any], reset_by: str, instead: str) -> str | None:
     """Why streams counting ``envs``' steps miss one of their ``TimeLimit``s, or ``None``.
 
@@ -199,13 +218,15 @@ def limited_spec(spec: EnvSpec | None, env: Any) -> EnvSpec | None:
         if limit is None or spec.max_episode_steps == limit:
             return spec
         return dataclasses.replace(spec, max_episode_steps=limit)
+    if not places.placed:
+        if places.inner is None or spec.max_episode_steps == places.inner:
+            return spec
+        return dataclasses.replace(spec, max_episode_steps=places.inner)
     wrappers = list(spec.additional_wrappers)
     for n, limit in places.placed[::-1]:  # (outermost first: an index counts those under it)
         assert n is not None
         entry = WrapperSpec("TimeLimit", _TIME_LIMIT, {"max_episode_steps": limit})
         wrappers.insert(min(n, len(wrappers)), entry)
-    if spec.max_episode_steps == places.inner and not places.placed:
-        return spec
     return dataclasses.replace(
         spec, max_episode_steps=places.inner, additional_wrappers=tuple(wrappers)
     )

@@ -24,7 +24,7 @@ from stable_baselines3.common.vec_env import (
 
 from ...format.wrappers import worker_limits
 from ..gym import entry_point, info_entry_point, reward_wrappers
-from ..time_limits import limit_places, limited_spec, zeroed_limits
+from ..time_limits import counted_limits, limited_spec, zeroed_limits
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -132,9 +132,9 @@ class VecStack:
     def step_limits(self, n: int, spec: Any) -> list[int | None]:
         """Each sub-env's step limit in its own steps, for its stream to count.
 
-        A ``DummyVecEnv``'s sub-envs are searched for their ``TimeLimit``s: the smallest of
-        those over no multi-step wrapper (``LimitPlaces.counted``), none when each
-        is under one (it counts the env's own steps), the spec's when there is none. A
+        A ``DummyVecEnv``'s sub-envs are searched for their ``TimeLimit``s
+        (:func:`~..time_limits.counted_limits`: the smallest of those over no multi-step
+        wrapper, none when each is under one, the spec's when there is none). A
         ``SubprocVecEnv``'s workers are asked for the outermost's (a worker's chain cannot be
         walked), else the spec's.
         """
@@ -142,8 +142,7 @@ class VecStack:
         found: list[Any] = []
         try:
             if self.local is not None:
-                places = [limit_places(sub) for sub in self.local.envs]
-                return [p.counted if p.found else limits[0] for p in places][:n]
+                return counted_limits(self.local.envs, limits[0])[:n]
             if self.base.has_attr("_max_episode_steps"):
                 found = list(self.base.get_attr("_max_episode_steps"))
         except Exception:  # the spec's limit, then

@@ -37,7 +37,7 @@ from ..gym import (
     wrapper_chain,
 )
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
-from ..time_limits import limit_places, limited_spec, time_limits, zeroed_limits
+from ..time_limits import counted_limits, limited_spec, time_limits, zeroed_limits
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import refused, reset_targets, seeds_of
@@ -375,10 +375,10 @@ def _max_steps(
 
     The stream counts it where it does not read the ``TimeLimit``s themselves
     (:func:`_watched_limits`). A ``SyncVectorEnv``'s sub-envs are searched for their
-    ``TimeLimit``s directly: the smallest of those over no multi-step wrapper
-    (``LimitPlaces.counted``), none when each is under one, the spec's when
-    there is none. A vector env without sub-envs (``base``, a ``vector_entry_point`` env)
-    counts its own (:func:`_own_limit`). An ``AsyncVectorEnv``'s workers are asked for
+    ``TimeLimit``s directly (:func:`~..time_limits.counted_limits`: the smallest of those
+    over no multi-step wrapper, none when each is under one, the spec's when there is none).
+    A vector env without sub-envs (``base``, a ``vector_entry_point`` env) counts its own
+    (:func:`_own_limit`). An ``AsyncVectorEnv``'s workers are asked for
     ``_max_episode_steps`` (the outermost ``TimeLimit``'s: a worker's chain cannot be walked),
     but only when every one says it has it (``has_wrapper_attr``, which every
     ``gymnasium.Env`` has): a worker asked for an attribute its env lacks raises, and that
@@ -387,8 +387,7 @@ def _max_steps(
     limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * n
     found: Sequence[Any] = ()
     if sync is not None:
-        places = [limit_places(sub) for sub in sync.envs]
-        return [p.counted if p.found else limits[0] for p in places]
+        return counted_limits(sync.envs, limits[0])
     if async_env is None:
         found = [_own_limit(base, sub_spec)] * n
     else:
