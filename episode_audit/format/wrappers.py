@@ -42,7 +42,9 @@ __all__ = [
     "WrapperRule",
     "autoreset_wrapped",
     "declared_transparent",
+    "limits_text",
     "multi_step",
+    "placed_limits",
     "plan_wrappers",
     "reward_cause",
     "reward_wrapper_names",
@@ -369,6 +371,45 @@ def multi_step(entry_point: str) -> bool:
     False
     """
     return entry_point in MULTI_STEP_WRAPPERS
+
+
+_TIME_LIMITS = frozenset({"gymnasium.wrappers.common:TimeLimit", "gymnasium.wrappers:TimeLimit"})
+
+
+def placed_limits(env_spec: Any) -> list[Any]:
+    """The limits of the ``TimeLimit``s a recorded spec holds among its wrappers, innermost first.
+
+    The recorder puts one there when it sat over a multi-step wrapper (the spec's
+    ``max_episode_steps`` is the limit of those under none: ``record/time_limits.py``).
+
+    >>> skip = {"entry_point": "gymnasium.wrappers.stateful_observation:MaxAndSkipObservation"}
+    >>> limit = {"entry_point": "gymnasium.wrappers.common:TimeLimit",
+    ...          "kwargs": {"max_episode_steps": 30}}
+    >>> placed_limits({"max_episode_steps": 200, "additional_wrappers": [skip, limit]})
+    [30]
+    """
+    wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    return [
+        w["kwargs"].get("max_episode_steps") if isinstance(w.get("kwargs"), Mapping) else None
+        for w in _listed(wrappers)
+        if isinstance(w, Mapping) and w.get("entry_point") in _TIME_LIMITS
+    ]
+
+
+def limits_text(env_spec: Any) -> str:
+    """A recorded spec's time limits in words: its ``max_episode_steps``, and those placed.
+
+    >>> limits_text({"max_episode_steps": 500})
+    '500'
+    >>> skip = {"entry_point": "gymnasium.wrappers:MaxAndSkipObservation"}
+    >>> limit = {"entry_point": "gymnasium.wrappers:TimeLimit", "kwargs": {"max_episode_steps": 9}}
+    >>> limits_text({"max_episode_steps": None, "additional_wrappers": [skip, limit]})
+    'None (over a multi-step wrapper: 9)'
+    """
+    limit = env_spec.get("max_episode_steps") if isinstance(env_spec, Mapping) else None
+    placed = placed_limits(env_spec)
+    over = f" (over a multi-step wrapper: {', '.join(map(str, placed))})" if placed else ""
+    return f"{limit}{over}"
 
 
 _AUTORESET = frozenset({"gymnasium.wrappers.common:Autoreset", "gymnasium.wrappers:Autoreset"})

@@ -25,7 +25,7 @@ from ..format.columns import error_text
 from ..format.records import RunInfo
 from ..format.spaces import describe_space
 from ..format.unrecorded import unrecorded
-from ..format.wrappers import declared_transparent, plan_wrappers
+from ..format.wrappers import declared_transparent, placed_limits, plan_wrappers
 from ..record.time_limits import limit_places, step_limit
 
 __all__ = [
@@ -396,12 +396,7 @@ def _limit_checks(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple
     against the smallest of the rebuilt env's ``TimeLimit``s', one where the recording had none
     too.
     """
-    wrappers = spec.get("additional_wrappers")
-    placed = [
-        (w.get("kwargs") or {}).get("max_episode_steps")
-        for w in (wrappers if isinstance(wrappers, list) else [])
-        if isinstance(w, Mapping) and w.get("entry_point") in _TIME_LIMITS
-    ]
+    placed = placed_limits(spec)
     if placed:
         places = limit_places(env)
         return [
@@ -412,9 +407,6 @@ def _limit_checks(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple
     if "max_episode_steps" in spec and (limit is not None or spec["max_episode_steps"]):
         return [("max episode steps", spec.get("max_episode_steps"), limit)]
     return []
-
-
-_TIME_LIMITS = frozenset({"gymnasium.wrappers.common:TimeLimit", "gymnasium.wrappers:TimeLimit"})
 
 
 _BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as recorded"
