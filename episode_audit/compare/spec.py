@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ..format.wrappers import limits_text
 from ..read import Evidence
 from ..report.wrapped import chain_text, file_chain
 
@@ -46,7 +47,7 @@ def run_fields(ev: Evidence) -> dict[str, str]:
     out = {
         "env_id": str(run.env_id),
         "env_kwargs": json.dumps(spec.get("kwargs") or {}, sort_keys=True, default=str),
-        "max_episode_steps": str(spec.get("max_episode_steps")),
+        "max_episode_steps": limits_text(spec),
         "reward_wrappers": chain_text(file_chain(ev)) or "(none)",
     }
     for name, version in sorted((run.versions or {}).items()):

@@ -31,7 +31,9 @@ from .unrecorded import unrecorded
 __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
     "LAYOUT_STATE_SNAPSHOTS",
+    "LAYOUT_UNREAD_LIMITS",
     "LAYOUT_VECTOR_WRAPPERS",
+    "MULTI_STEP_WRAPPERS",
     "RECORDED_WRAPPERS",
     "REWARD_CHANGING",
     "RUN_TRANSPARENT_WRAPPERS",
@@ -40,12 +42,17 @@ __all__ = [
     "WrapperRule",
     "autoreset_wrapped",
     "declared_transparent",
+    "limits_text",
+    "multi_step",
+    "placed_limits",
     "plan_wrappers",
     "reward_cause",
     "reward_wrapper_names",
     "state_causes",
     "stateful_wrapper",
+    "unread_limits",
     "vector_wrapper_cause",
+    "worker_limits",
 ]
 
 WrapperKind = Literal["rebuilt", "snapshot", "transparent", "stateful", "refused"]
@@ -332,6 +339,79 @@ RECORDED_WRAPPERS: Mapping[str, WrapperRule] = {
 """Every wrapper replay knows, by the entry point a spec names it with."""
 
 
+_MULTI_STEP = (
+    "MaxAndSkipObservation",  # its step: `skip` steps of the env
+    "AtariPreprocessing",  # `frame_skip` steps; no-op steps in its reset
+    "RepeatAction",  # `num_repeats` steps
+    "Autoreset",  # a reset inside a step
+)
+MULTI_STEP_WRAPPERS: frozenset[str] = frozenset(
+    {f"gymnasium.wrappers.{_GYMNASIUM_WRAPPERS[name][0]}:{name}" for name in _MULTI_STEP}
+    | {f"gymnasium.wrappers:{name}" for name in _MULTI_STEP}
+    | {
+        f"stable_baselines3.common.atari_wrappers:{name}"
+        # frame skipping; no-op or FIRE steps in reset; a life's end without the env's reset
+        for name in ("MaxAndSkipEnv", "NoopResetEnv", "FireResetEnv", "EpisodicLifeEnv")
+    }
+)
+"""The wrappers (by entry point) whose step or reset is not one step or reset of the env below.
+
+A ``TimeLimit`` under one counts the env's own steps, one over it the wrapper's: the two are
+not one limit (``record/time_limits.py`` keeps each where it is). Any other wrapper is taken to
+step the env once per step.
+"""
+
+
+def multi_step(entry_point: str) -> bool:
+    """Whether the wrapper of ``entry_point`` steps or resets the env below otherwise than once.
+
+    >>> multi_step("gymnasium.wrappers.stateful_observation:MaxAndSkipObservation")
+    True
+    >>> multi_step("gymnasium.wrappers.transform_observation:FlattenObservation")
+    False
+    """
+    return entry_point in MULTI_STEP_WRAPPERS
+
+
+_TIME_LIMITS = frozenset({"gymnasium.wrappers.common:TimeLimit", "gymnasium.wrappers:TimeLimit"})
+
+
+def placed_limits(env_spec: Any) -> list[Any]:
+    """The limits of the ``TimeLimit``s a recorded spec holds among its wrappers, innermost first.
+
+    The recorder puts one there when it sat over a multi-step wrapper (the spec's
+    ``max_episode_steps`` is the limit of those under none: ``record/time_limits.py``).
+
+    >>> skip = {"entry_point": "gymnasium.wrappers.stateful_observation:MaxAndSkipObservation"}
+    >>> limit = {"entry_point": "gymnasium.wrappers.common:TimeLimit",
+    ...          "kwargs": {"max_episode_steps": 30}}
+    >>> placed_limits({"max_episode_steps": 200, "additional_wrappers": [skip, limit]})
+    [30]
+    """
+    wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    return [
+        w["kwargs"].get("max_episode_steps") if isinstance(w.get("kwargs"), Mapping) else None
+        for w in _listed(wrappers)
+        if isinstance(w, Mapping) and w.get("entry_point") in _TIME_LIMITS
+    ]
+
+
+def limits_text(env_spec: Any) -> str:
+    """A recorded spec's time limits in words: its ``max_episode_steps``, and those placed.
+
+    >>> limits_text({"max_episode_steps": 500})
+    '500'
+    >>> skip = {"entry_point": "gymnasium.wrappers:MaxAndSkipObservation"}
+    >>> limit = {"entry_point": "gymnasium.wrappers:TimeLimit", "kwargs": {"max_episode_steps": 9}}
+    >>> limits_text({"max_episode_steps": None, "additional_wrappers": [skip, limit]})
+    'None (over a multi-step wrapper: 9)'
+    """
+    limit = env_spec.get("max_episode_steps") if isinstance(env_spec, Mapping) else None
+    placed = placed_limits(env_spec)
+    over = f" (over a multi-step wrapper: {', '.join(map(str, placed))})" if placed else ""
+    return f"{limit}{over}"
+
+
 _AUTORESET = frozenset({"gymnasium.wrappers.common:Autoreset", "gymnasium.wrappers:Autoreset"})
 
 
@@ -455,6 +535,50 @@ LAYOUT_STATE_SNAPSHOTS = "state_snapshots"
 LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
 """The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
 first; absent in files that predate it, and when there were none)."""
+
+
+LAYOUT_UNREAD_LIMITS = "unread_time_limits"
+"""Layout key of a vector file: why its recorder could not read every sub-env's ``TimeLimit``
+at an episode's end (text; absent when it could). Its truncations by one it did not read are
+``external``; replay does not call what such a limit explains a divergence
+(:func:`unread_limits`)."""
+
+_WORKERS = {"AsyncVectorEnv": "SyncVectorEnv", "SubprocVecEnv": "DummyVecEnv"}
+
+
+def worker_limits(vector_class: str) -> str:
+    """Why a vector recorder could not read the ``TimeLimit``s of sub-envs in worker processes.
+
+    >>> worker_limits("SubprocVecEnv")[:60]
+    'the sub-envs ran in SubprocVecEnv workers, whose wrapper cha'
+    """
+    local = _WORKERS.get(vector_class, "sub-envs in this process")
+    return (
+        f"the sub-envs ran in {vector_class[:80]} workers, whose wrapper chains the recorder "
+        "cannot walk: it read the outermost TimeLimit's limit only (one inside it, or under a "
+        f"frame-skipping wrapper, it did not); record with {local} to replay such endings"
+    )
+
+
+def unread_limits(layout: Any) -> str | None:
+    """Why a file's recorder could not read every ``TimeLimit`` of its sub-envs, or ``None``.
+
+    The layout's :data:`LAYOUT_UNREAD_LIMITS`; in a vector file without it (one recorded before
+    it was written), :func:`worker_limits` when its sub-envs ran in ``AsyncVectorEnv`` or
+    ``SubprocVecEnv`` workers.
+
+    >>> unread_limits({"kind": "vector", "vector_class": "SyncVectorEnv"}) is None
+    True
+    """
+    if not isinstance(layout, Mapping):
+        return None
+    said = layout.get(LAYOUT_UNREAD_LIMITS)
+    if isinstance(said, str) and said:
+        return said[: _MAX_TEXT * 2]
+    vector_class = layout.get("vector_class")
+    if layout.get("kind") == "vector" and vector_class in _WORKERS:
+        return worker_limits(str(vector_class))
+    return None
 
 
 RUN_TRANSPARENT_WRAPPERS = "transparent_wrappers"

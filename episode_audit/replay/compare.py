@@ -42,16 +42,33 @@ class Comparison:
         atol: float,
         rules: EndingRules | None,
         terms_rule: RewardTerms | None,
+        unread_limits: str | None = None,
     ) -> None:
         self.file = file
         self.obs_codec = obs_codec
         self.atol = atol
         self.rules = rules
         self.terms_rule = terms_rule
+        self.unread_limits = unread_limits
+        """Why the recorder could not read every ``TimeLimit`` (``wrappers.unread_limits``)."""
         self._plain_endings: dict[tuple[bool, bool, bool], Ending] = {}
 
     def _diverged(self, index: int, steps: int, divergence: Divergence) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "diverged", steps, divergence)
+
+    def _differs(self, episode: Stepped, steps: int, divergence: Divergence) -> EpisodeReplay:
+        """``episode`` diverged, unless the time limits explain it (:func:`_limit_ending`).
+
+        Such a difference is ``not_replayable``, keeping its first difference: a ``TimeLimit``
+        counts steps whatever the env does, so the rebuilt env's reaching its limit where the
+        recording's did not (or the other way) says the limits differ, not the env.
+        """
+        index = int(episode.record["episode"])
+        why = _limit_ending(episode, divergence, unread=self.unread_limits is not None)
+        if why is None:
+            return self._diverged(index, steps, divergence)
+        reason = f"{why}: {self.unread_limits or _LIMITS_DIFFER}"
+        return EpisodeReplay(self.file, index, "not_replayable", steps, divergence, reason)
 
     def episodes(
         self,
@@ -106,7 +123,7 @@ class Comparison:
                 done[index] = (
                     EpisodeReplay(file, index, "identical", n)
                     if outcome is None
-                    else self._diverged(index, n, outcome)
+                    else self._differs(ran.episode(k, int(firsts[k])), n, outcome)
                 )
             elif not reset_equal[k]:
                 expected_reset = reset_obs.slice(ran.reset_at[k], 1)
@@ -164,12 +181,12 @@ class Comparison:
         if first_bad < first + ran:
             step = first_bad - first
             divergence = self._row_divergence(first_bad, step, fields, expected, got)
-            return self._diverged(index, step, divergence)
+            return self._differs(episode, step, divergence)
         if episode.crash is not None:
             return self._diverged(index, ran, episode.crash)
         if ran < count:
-            return self._diverged(
-                index,
+            return self._differs(
+                episode,
                 ran,
                 Divergence(ran, "length", f"{count} steps", f"the episode ended after {ran}"),
             )
@@ -184,7 +201,7 @@ class Comparison:
                 episode.hit_time_limit,
             )
             if outcome is not None:
-                return self._diverged(index, ran, outcome)
+                return self._differs(episode, ran, outcome)
         return EpisodeReplay(self.file, index, "identical", ran)
 
     def _row_divergence(
@@ -233,6 +250,55 @@ class Comparison:
             time_limit_hit=hit_time_limit,
             endings=self._plain_endings,
         )
+
+
+_LIMITS_DIFFER = (
+    "the rebuilt env's TimeLimits are not those it was recorded in (a limit set after the "
+    "recorder was made, say); build it with the limits it ran under"
+)
+
+
+def _limit_ending(episode: Stepped, divergence: Divergence, *, unread: bool) -> str | None:
+    """How the time limits explain ``divergence``, or ``None``.
+
+    The difference is where the recording's or the rebuilt env's ``TimeLimit`` ended the
+    episode, and the other's did not. The recording's: the episode was recorded truncated
+    ``time_limit`` at its last step, and the rebuilt env's limits were not reached there. The
+    rebuilt env's: its time limit truncated the episode before its recorded end (differing no
+    earlier), or at its recorded last step, where the recording did not say ``time_limit``.
+    And, when the recorder could not read every ``TimeLimit`` (``unread``), a truncation it
+    recorded as ``external`` at the last step, where the rebuilt env did not truncate.
+    """
+    last, ran, step = episode.count - 1, episode.ran, divergence.step
+    reason = episode.record.get("truncation_reason")
+    hit = episode.hit_time_limit
+    at_end = step == last and ran == episode.count
+    flags = divergence.field in (fmt.COL_TRUNCATED, "outcome")
+    if at_end and flags and reason == fmt.REASON_TIME_LIMIT and not hit:
+        return (
+            f"recorded truncated by its time limit at step {last}, where the rebuilt env's "
+            "limits were not reached"
+        )
+    if at_end and flags and hit and reason != fmt.REASON_TIME_LIMIT:
+        return (
+            f"the rebuilt env's time limit truncated it at step {last}, where the recording's "
+            "did not"
+        )
+    if hit and ran <= last and step is not None and step >= ran - 1:
+        return (
+            f"the rebuilt env's time limit truncated it at step {ran - 1}, where the recorded "
+            "episode went on"
+        )
+    if (
+        unread
+        and at_end
+        and divergence.field == fmt.COL_TRUNCATED
+        and reason == fmt.REASON_EXTERNAL
+    ):
+        return (
+            f"recorded truncated (external) at step {last}, where the rebuilt env did not truncate"
+        )
+    return None
 
 
 def _last_flags(

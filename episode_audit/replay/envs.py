@@ -26,8 +26,8 @@ from ..format.options import decode_typed
 from ..format.records import RunInfo
 from ..format.spaces import describe_space
 from ..format.unrecorded import unrecorded
-from ..format.wrappers import declared_transparent, plan_wrappers
-from ..record.time_limits import step_limit
+from ..format.wrappers import declared_transparent, placed_limits, plan_wrappers
+from ..record.time_limits import limit_places, step_limit
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",
@@ -394,8 +394,8 @@ _MISMATCH = "the rebuilt env does not match the recording: "
 def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False) -> str | None:
     """How the env replay built differs from the recorded description, or ``None``.
 
-    Its observation and action spaces, its step limit (the smallest of its ``TimeLimit``s', one
-    where the recording had none too) and, when it has a spec, the env kwargs both name
+    Its observation and action spaces, its step limits (:func:`_limit_checks`) and, when it
+    has a spec, the env kwargs both name
     (``render_mode`` aside) against the recorded ones. ``factory``: the user's env factory
     built it (the reason then says to change that).
     Never raises: what cannot be read of the rebuilt env is not compared.
@@ -406,9 +406,7 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False)
             ("observation space", run.observation_space, _described(env.observation_space)),
             ("action space", run.action_space, _described(env.action_space)),
         ]
-        limit = step_limit(env)
-        if "max_episode_steps" in spec and (limit is not None or spec["max_episode_steps"]):
-            checks.append(("max episode steps", spec.get("max_episode_steps"), limit))
+        checks += _limit_checks(spec, env)
         rebuilt = getattr(env.spec, "kwargs", None)
         if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):
             recorded, now = _kwargs(spec["kwargs"]), _kwargs(rebuilt)
@@ -423,6 +421,29 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False)
                 f"{_as_recorded(factory)}"
             )
     return None
+
+
+def _limit_checks(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple[str, Any, Any]]:
+    """The rebuilt env's step limits against the recorded ones (what, recorded, rebuilt).
+
+    A spec with ``TimeLimit``s among its wrappers (over a multi-step wrapper:
+    ``record/time_limits.py``): its ``max_episode_steps`` against the rebuilt env's limit
+    under no multi-step wrapper, and those wrappers' limits against the rebuilt env's over one.
+    Any other (every file recorded before they were placed, too): its ``max_episode_steps``
+    against the smallest of the rebuilt env's ``TimeLimit``s', one where the recording had none
+    too.
+    """
+    placed = placed_limits(spec)
+    if placed:
+        places = limit_places(env)
+        return [
+            ("max episode steps", spec.get("max_episode_steps"), places.inner),
+            ("time limits over multi-step wrappers", placed, [n for _, n in places.placed]),
+        ]
+    limit = step_limit(env)
+    if "max_episode_steps" in spec and (limit is not None or spec["max_episode_steps"]):
+        return [("max episode steps", spec.get("max_episode_steps"), limit)]
+    return []
 
 
 _BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as recorded"

@@ -19,6 +19,7 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.records import EpisodeRanges, from_json
 from ..format.spaces import codec_in
+from ..format.wrappers import unread_limits
 from ..read import Evidence
 from ..record.seeding import restore_rng_state
 from ..record.state import StateTargets, restore_snapshot
@@ -70,7 +71,12 @@ class EpisodeRunner:
             None
             if self.obs_codec is None
             else Comparison(
-                self.file, self.obs_codec, atol=atol, rules=rules, terms_rule=terms_rule
+                self.file,
+                self.obs_codec,
+                atol=atol,
+                rules=rules,
+                terms_rule=terms_rule,
+                unread_limits=unread_limits(ev.run.layout),
             )
         )
         self.vector = ev.run.layout.get("kind") == "vector"

@@ -133,6 +133,22 @@ def test_different_tasks_need_the_flag_and_other_mismatches_come_first(
     assert result.cases()[0].name == "spec/env_kwargs"
 
 
+def test_time_limits_over_a_frame_skip_are_compared_too(tmp_path: Path) -> None:
+    """The spec keeps a TimeLimit over a frame skip among its wrappers, and max_episode_steps
+    says the registered one under it, the same on both sides: the limits still differ."""
+    from episode_audit.compare.spec import mismatches
+    from episode_audit.read import open_evidence
+    from tests.support.limits import record_two_episodes, skipping_pendulum
+
+    base = record_two_episodes(tmp_path / "base.mcap", skipping_pendulum(30), 5)
+    cand = record_two_episodes(tmp_path / "cand.mcap", skipping_pendulum(60), 5)
+    sides = [[(str(p), open_evidence(p))] for p in (base, cand)]
+    assert [str(m) for m in mismatches(*sides)] == [
+        "max_episode_steps differs: baseline 200 (over a multi-step wrapper: 30); candidate 200 "
+        "(over a multi-step wrapper: 60)"
+    ]
+
+
 def test_a_file_on_both_sides_is_refused(runs: dict[str, Path]) -> None:
     with pytest.raises(ConfigurationError, match=r"five.mcap is on both sides: a file compared"):
         compare([runs["five_other"], runs["five"]], [runs["five"].parent / "." / "five.mcap"])

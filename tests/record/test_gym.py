@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import json
 import math
 import os
 import signal
@@ -24,6 +25,7 @@ from episode_audit import (
     open_evidence,
 )
 from tests.support.envs import ScriptedEnv
+from tests.support.limits import record_two_episodes, skipping_pendulum
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -402,6 +404,38 @@ def test_every_time_limit_in_the_chain_counts_and_the_smallest_is_recorded(
         == [{"length": limit, "outcome": "truncated", "truncation_reason": "time_limit"}] * 2
     )
     assert ev.run.env_spec is not None and ev.run.env_spec["max_episode_steps"] == limit
+
+
+_SKIP = {"name": "MaxAndSkipObservation", "kwargs": {"skip": 4}}
+
+
+@pytest.mark.parametrize(
+    ("limit", "length", "wrappers"),
+    [
+        (30, 30, [_SKIP, {"name": "TimeLimit", "kwargs": {"max_episode_steps": 30}}]),
+        (60, 50, [_SKIP, {"name": "TimeLimit", "kwargs": {"max_episode_steps": 60}}]),
+        (None, 50, [_SKIP]),
+    ],
+    ids=["outer-ends", "inner-ends", "inner-only"],
+)
+def test_a_time_limit_over_a_frame_skip_is_recorded_where_it_counts(
+    tmp_path: Path, limit: int | None, length: int, wrappers: list[dict[str, Any]]
+) -> None:
+    """The one over MaxAndSkipObservation counts its steps, the registered one under it the
+    env's (200 of them: 50 steps): each ends episodes as ``time_limit``, and the spec has each
+    where it was (``gym.make`` of it builds the same chain)."""
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(limit), length)
+    ev = open_evidence(path)
+    episodes = ev.episodes().select(["length", "outcome", "truncation_reason"]).to_pylist()
+    assert (
+        episodes
+        == [{"length": length, "outcome": "truncated", "truncation_reason": "time_limit"}] * 2
+    )
+    spec = ev.run.env_spec
+    assert spec is not None and spec["max_episode_steps"] == 200
+    assert [{k: w[k] for k in ("name", "kwargs")} for w in spec["additional_wrappers"]] == wrappers
+    rebuilt = gym.make(gym.envs.registration.EnvSpec.from_json(json.dumps(spec)))
+    assert str(rebuilt) == str(skipping_pendulum(limit))
 
 
 def _autoreset_pendulum(limit: int = 30) -> gym.Env[Any, Any]:

@@ -40,6 +40,7 @@ from episode_audit import (  # noqa: E402
 )
 from episode_audit.record.sb3 import RecordVecEnvEvidence  # noqa: E402
 from tests.support.batching import InfoReading, messages  # noqa: E402
+from tests.support.limits import skipping_pendulum  # noqa: E402
 
 torch.set_num_threads(1)
 N = 4
@@ -180,6 +181,54 @@ def test_subproc_vec_env_without_reset_rng_info_says_what_to_do(tmp_path: Path) 
     ev = open_evidence(path)
     reset_notes = " ".join(str(n) for n in ev.resets().column("notes").to_pylist() if n)
     assert "wrapper_class=ResetRngInfo" in reset_notes
+
+
+def nested_pendulum() -> gym.Env[Any, Any]:
+    """Pendulum's registered 200-step limit inside one of 500: the inner one ends episodes."""
+    return ResetRngInfo(gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500))
+
+
+def skipped_pendulum() -> gym.Env[Any, Any]:
+    """Pendulum's registered limit (200 of its steps) under a 4-step frame skip: 50 steps."""
+    return ResetRngInfo(skipping_pendulum())
+
+
+@pytest.mark.parametrize("vec", ["dummy", "subproc"])
+@pytest.mark.parametrize(("make", "length"), [(nested_pendulum, 200), (skipped_pendulum, 50)])
+def test_time_limits_the_recorder_cannot_read_are_not_called_divergences(
+    tmp_path: Path, vec: str, make: Any, length: int
+) -> None:
+    """A SubprocVecEnv's workers answer for the outermost TimeLimit only, and a DummyVecEnv's
+    reset inside its step zeroes the count of one under a frame skip before the recorder reads
+    it: such truncations are recorded external, and replay does not call them divergences."""
+    path = tmp_path / "limits.mcap"
+    venv = (
+        DummyVecEnv([make] * 2) if vec == "dummy" else SubprocVecEnv([make] * 2, start_method=START)
+    )
+    with RecordVecEnvEvidence(venv, path) as rec:
+        rec.seed(0)
+        rec.reset()
+        for _ in range(length + 2):
+            rec.step(np.zeros((2, 1), np.float32))
+    ev = open_evidence(path)
+    ended = [e for e in ev.episodes().to_pylist() if e["outcome"] != "incomplete"]
+    readable = vec == "dummy" and make is nested_pendulum
+    reason = "time_limit" if readable else "external"
+    assert [(e["length"], e["truncation_reason"]) for e in ended] == [(length, reason)] * 2
+    result = replay([path])
+    first = result.episodes[:2]
+    if readable:
+        assert [(e.status, e.steps) for e in first] == [("identical", length)] * 2
+        assert "unread_time_limits" not in ev.run.layout
+        return
+    assert [e.status for e in first] == ["not_replayable"] * 2
+    cause = ev.run.layout["unread_time_limits"]
+    assert first[0].reason is not None and first[0].reason.endswith(cause)
+    assert cause.startswith(
+        "the sub-envs ran in SubprocVecEnv workers"
+        if vec == "subproc"
+        else "a sub-env's TimeLimit under MaxAndSkipObservation counts the env's own steps"
+    )
 
 
 # ---------------------------------------------------------------- SAC on MuJoCo

@@ -39,6 +39,7 @@ from episode_audit.format.records import unstarted
 from episode_audit.record.vector.rng import SubEnvRng
 from tests.support.batching import InfoReading, messages
 from tests.support.envs import ScriptedEnv
+from tests.support.limits import skipping_pendulum
 
 N = 4
 STEPS = 2000
@@ -271,6 +272,38 @@ def test_vector_entry_point_env_is_recorded_but_not_replayable(tmp_path: Path) -
     result = replay([path])
     assert {e.status for e in result.episodes} == {"not_replayable"}
     assert "no sub-envs" in (result.episodes[0].reason or "")
+
+
+@pytest.mark.parametrize("made", ["make_vec", "class"])
+def test_a_vector_entry_point_envs_own_step_limit_is_recorded(tmp_path: Path, made: str) -> None:
+    """CartPoleVectorEnv truncates each row at its own max_episode_steps (no TimeLimit): the
+    file says that limit and its truncations are time_limit; still no sub-env to replay in."""
+    from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
+
+    path = tmp_path / "own.mcap"
+    envs = (
+        gym.make_vec(
+            "CartPole-v1", 4, vectorization_mode="vector_entry_point", max_episode_steps=12
+        )
+        if made == "make_vec"
+        else CartPoleVectorEnv(num_envs=4, max_episode_steps=12)
+    )
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for t in range(26):
+            rec.step(np.full(4, t % 2, np.int64))
+    ev = open_evidence(path)
+    if made == "make_vec":
+        assert ev.run.env_spec["max_episode_steps"] == 12
+    ended = [e for e in ev.episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["length"], e["outcome"], e["truncation_reason"]) for e in ended] == [
+        (12, "truncated", "time_limit")
+    ] * 8
+    result = replay([path])
+    assert {e.reason for e in result.episodes} == {
+        "CartPoleVectorEnv has no sub-envs (a vector_entry_point env): its episodes cannot be "
+        "replayed on their own"
+    }
 
 
 class _Scored(gym.Env[np.ndarray, np.int64]):
@@ -832,6 +865,26 @@ def test_a_time_limit_without_a_spec_is_found_on_each_sub_env(tmp_path: Path, mo
     assert [(e["outcome"], e["truncation_reason"]) for e in ended] == [
         ("truncated", "time_limit")
     ] * 2
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "Disabled"])
+@pytest.mark.parametrize(("limit", "length"), [(30, 30), (60, 50), (None, 50)])
+def test_sub_env_time_limits_over_and_under_a_frame_skip_are_each_read(
+    tmp_path: Path, mode: str, limit: int | None, length: int
+) -> None:
+    """The TimeLimit under MaxAndSkipObservation counts the env's steps (200: 50 steps), the
+    one over it the sub-env's: the streams read them as the single-env recorder does."""
+    path = tmp_path / "skip.mcap"
+    envs = SyncVectorEnv([lambda: skipping_pendulum(limit)] * 2, autoreset_mode=mode)
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.action_space.seed(0)
+        rec.reset(seed=0)
+        for _ in range(length):
+            rec.step(rec.action_space.sample())
+    ended = [e for e in open_evidence(path).episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["length"], e["truncation_reason"]) for e in ended] == [(length, "time_limit")] * 2
+    result = replay([path])
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", length)] * 2
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -283,8 +283,8 @@ _LIMIT_EPISODES = [[0, 0, 0, 0], [0, 0, 0, 1], [0, 2], [0, 1], [1]]
     ("limit", "fail_at", "statuses"),
     [
         (4, None, ["identical"] * 5),
-        (3, None, ["diverged", "diverged", "identical", "identical", "identical"]),
-        (5, None, ["diverged", "diverged", "identical", "identical", "identical"]),
+        (3, None, ["not_replayable", "not_replayable", "identical", "identical", "identical"]),
+        (5, None, ["not_replayable", "not_replayable", "identical", "identical", "identical"]),
         (4, 3, ["diverged", "diverged", "identical", "identical", "identical"]),
     ],
 )
@@ -292,7 +292,9 @@ def test_an_outermost_time_limit_is_counted_by_replay_exactly_as_the_wrapper_wou
     tmp_path: Path, limit: int, fail_at: int | None, statuses: list[str]
 ) -> None:
     """Replay steps the env inside a plain TimeLimit and counts the limit itself; every
-    result, divergence included, is the one the wrapper's own step gives."""
+    result, divergence included, is the one the wrapper's own step gives. A limit other than
+    the recorded one (the file has no spec to say it) ends episodes elsewhere: not the env's
+    divergence, but limits that differ."""
     path = tmp_path / "limit.mcap"
     with RecordEvidence(_limited(4), path) as rec:
         for e, actions in enumerate(_LIMIT_EPISODES):
@@ -317,6 +319,16 @@ def test_an_outermost_time_limit_is_counted_by_replay_exactly_as_the_wrapper_wou
     if limit == 3:
         divergence = by_count[0].divergence
         assert divergence is not None and (divergence.step, divergence.field) == (2, "truncated")
+        assert by_count[0].reason == (
+            "the rebuilt env's time limit truncated it at step 2, where the recorded episode "
+            "went on: the rebuilt env's TimeLimits are not those it was recorded in (a limit set "
+            "after the recorder was made, say); build it with the limits it ran under"
+        )
+    if limit == 5:
+        assert (by_count[0].reason or "").startswith(
+            "recorded truncated by its time limit at step 3, where the rebuilt env's limits were "
+            "not reached: "
+        )
 
 
 def test_load_callable_errors() -> None:

@@ -25,6 +25,7 @@ from episode_audit.cli import app
 from episode_audit.format import names as fmt
 from episode_audit.replay import replay
 from tests.support.hostile import replace_column, rewrite
+from tests.support.limits import record_two_episodes, skipping_pendulum
 from tests.support.mission import mission_env
 from tests.support.stateful import (
     cartpole8,
@@ -469,6 +470,182 @@ def test_an_inner_time_limit_ending_episodes_replays_identical(
                 rec.step(rec.action_space.sample())
     result = replay([path], env_factory=factory)
     assert [(e.status, e.steps) for e in result.episodes] == [("identical", 200)] * 2
+
+
+@pytest.mark.parametrize("factory", [None, "factory"], ids=["rebuilt", "env-factory"])
+@pytest.mark.parametrize(("limit", "length"), [(30, 30), (60, 50)], ids=["outer", "inner"])
+def test_a_time_limit_over_a_frame_skip_replays_identical(
+    tmp_path: Path, factory: Any, limit: int, length: int
+) -> None:
+    """Rebuilt where it was, over the frame skip (not right over the env, where it would count
+    the env's steps: 4 per step); the registered one under it ends episodes at step 50."""
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(limit), length)
+    made = None if factory is None else lambda: skipping_pendulum(limit)
+    result = replay([path], env_factory=made)
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", length)] * 2
+
+
+def test_an_env_without_the_time_limit_over_the_frame_skip_does_not_match(tmp_path: Path) -> None:
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(30), 30)
+    same_limits = lambda: gym.wrappers.MaxAndSkipObservation(  # noqa: E731
+        gym.make("Pendulum-v1", max_episode_steps=200), skip=4
+    )
+    result = replay([path], env_factory=same_limits)
+    assert {e.reason for e in result.episodes} == {
+        "the rebuilt env does not match the recording: time limits over multi-step wrappers "
+        "[30] recorded vs [] rebuilt; make the --env-factory build the env as recorded"
+    }
+
+
+def test_a_file_with_the_smallest_time_limit_as_its_spec_still_replays_in_its_env(
+    tmp_path: Path,
+) -> None:
+    """A file whose spec has the smallest limit and no TimeLimit among its wrappers (as the
+    recorder wrote them before placing them): the env factory that built it still replays it."""
+    path = record_two_episodes(tmp_path / "skip.mcap", skipping_pendulum(30), 30)
+
+    def smallest(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["max_episode_steps"] = 30
+        spec["additional_wrappers"] = spec["additional_wrappers"][:1]
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    old = rewrite(path, tmp_path / "old.mcap", run=smallest)
+    result = replay([old], env_factory=lambda: skipping_pendulum(30))
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 30)] * 2
+
+
+@pytest.mark.parametrize(
+    ("later", "why"),
+    [
+        (20, "recorded truncated by its time limit at step 19, where the rebuilt env's limits "),
+        (80, "the rebuilt env's time limit truncated it at step 49, where the recorded episode "),
+    ],
+    ids=["lowered", "raised"],
+)
+def test_a_time_limit_changed_after_the_recorder_was_made_is_no_divergence(
+    tmp_path: Path, later: int, why: str
+) -> None:
+    """The file's spec has the limit the recorder was made over; the episodes after the change
+    end elsewhere than the rebuilt env's (each labelled as it ended)."""
+    path = tmp_path / "changed.mcap"
+    env = gym.make("Pendulum-v1", max_episode_steps=50)
+    with RecordEvidence(env, path) as rec:
+        rec.action_space.seed(0)
+        for seed, steps in ((0, 50), (1, min(later, 60))):
+            rec.reset(seed=seed)
+            for _ in range(steps):
+                rec.step(rec.action_space.sample())
+            env.set_wrapper_attr("_max_episode_steps", later)
+    ev = open_evidence(path)
+    assert ev.run.env_spec is not None and ev.run.env_spec["max_episode_steps"] == 50
+    result = replay([path])
+    assert [e.status for e in result.episodes] == ["identical", "not_replayable"]
+    assert (result.episodes[1].reason or "").startswith(why)
+    assert (result.episodes[1].reason or "").endswith(
+        "the rebuilt env's TimeLimits are not those it was recorded in (a limit set after the "
+        "recorder was made, say); build it with the limits it ran under"
+    )
+
+
+def _record_vector(path: Path, envs: Any, steps: int) -> Any:
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.action_space.seed(0)
+        rec.reset(seed=0)
+        for _ in range(steps):
+            rec.step(rec.action_space.sample())
+    return open_evidence(path)
+
+
+_ASYNC = (
+    "the sub-envs ran in AsyncVectorEnv workers, whose wrapper chains the recorder cannot walk: "
+    "it read the outermost TimeLimit's limit only (one inside it, or under a frame-skipping "
+    "wrapper, it did not); record with SyncVectorEnv to replay such endings"
+)
+
+
+@pytest.mark.parametrize(
+    ("make", "steps", "why"),
+    [
+        (
+            _nested_limits,
+            201,
+            "recorded truncated (external) at step 199, where the rebuilt env did not truncate",
+        ),
+        (
+            skipping_pendulum,
+            51,
+            "the rebuilt env's time limit truncated it at step 49, where the recording's did not",
+        ),
+        (
+            lambda: skipping_pendulum(30),
+            31,
+            "the rebuilt env's time limit truncated it at step 7, where the recorded episode "
+            "went on",
+        ),
+    ],
+    ids=["nested", "under-skip", "over-skip"],
+)
+def test_time_limits_async_workers_hide_are_not_called_divergences(
+    tmp_path: Path, make: Any, steps: int, why: str
+) -> None:
+    """A worker answers for its outermost TimeLimit only: the file cannot say where the others
+    were, or that one ended an episode (recorded external)."""
+    ev = _record_vector(tmp_path / "async.mcap", gym.vector.AsyncVectorEnv([make] * 2), steps)
+    assert ev.run.layout["unread_time_limits"] == _ASYNC
+    result = replay([ev.path])
+    assert [(e.status, e.reason) for e in result.episodes[:2]] == [
+        ("not_replayable", f"{why}: {_ASYNC}")
+    ] * 2
+
+
+def test_a_file_from_async_workers_without_the_layout_key_says_the_same(tmp_path: Path) -> None:
+    """Files recorded before the recorder wrote ``unread_time_limits``: the workers say it."""
+    ev = _record_vector(tmp_path / "a.mcap", gym.vector.AsyncVectorEnv([_nested_limits] * 2), 201)
+
+    def unsaid(meta: dict[str, str]) -> dict[str, str]:
+        layout = json.loads(meta["layout"])
+        layout.pop("unread_time_limits", None)
+        return {**meta, "layout": json.dumps(layout)}
+
+    old = rewrite(ev.path, tmp_path / "old.mcap", run=unsaid)
+    assert "unread_time_limits" not in open_evidence(old).run.layout
+    result = replay([old])
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2 + ["identical"] * 2
+    assert (result.episodes[0].reason or "").endswith(_ASYNC)
+
+
+def test_a_same_step_autoreset_hiding_a_time_limit_under_a_frame_skip_is_said(
+    tmp_path: Path,
+) -> None:
+    envs = gym.vector.SyncVectorEnv([skipping_pendulum] * 2, autoreset_mode="SameStep")
+    ev = _record_vector(tmp_path / "same.mcap", envs, 51)
+    cause = (
+        "a sub-env's TimeLimit under MaxAndSkipObservation counts the env's own steps, and the "
+        "SameStep autoreset zeroed its count before the recorder read it: its truncations are "
+        "recorded external; record in NextStep mode to replay such endings"
+    )
+    assert ev.run.layout["unread_time_limits"] == cause
+    result = replay([ev.path])
+    assert [e.status for e in result.episodes[:2]] == ["not_replayable"] * 2
+    assert (result.episodes[0].reason or "").endswith(cause)
+
+
+def test_an_external_truncation_a_sync_env_does_not_repeat_still_diverges(tmp_path: Path) -> None:
+    """Where the recorder read every TimeLimit, an external truncation is the env's own."""
+    ev = _record_vector(tmp_path / "sync.mcap", gym.vector.SyncVectorEnv([_nested_limits] * 2), 3)
+
+    def truncated(batch: pa.RecordBatch) -> pa.RecordBatch:
+        flags = [i % 3 == 2 for i in range(batch.num_rows)]
+        return replace_column(batch, "truncated", pa.array(flags))
+
+    def external(batch: pa.RecordBatch) -> pa.RecordBatch:
+        batch = replace_column(batch, "outcome", pa.array(["truncated"] * batch.num_rows))
+        return replace_column(batch, "truncation_reason", pa.array(["external"] * batch.num_rows))
+
+    tampered = rewrite(ev.path, tmp_path / "t.mcap", steps=truncated, episodes=external)
+    result = replay([tampered])
+    assert [e.status for e in result.episodes] == ["diverged"] * 2
 
 
 def test_episodes_an_autoreset_under_the_recorder_began_replay_identical(tmp_path: Path) -> None:

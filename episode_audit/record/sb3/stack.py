@@ -22,8 +22,9 @@ from stable_baselines3.common.vec_env import (
     VecVideoRecorder,
 )
 
+from ...format.wrappers import worker_limits
 from ..gym import entry_point, info_entry_point, reward_wrappers
-from ..time_limits import limited_spec, step_limit
+from ..time_limits import counted_limits, limited_spec, zeroed_limits
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -113,14 +114,36 @@ class VecStack:
             return None
         return None
 
+    def unread_limits(self) -> str | None:
+        """Why the streams cannot read every sub-env's ``TimeLimit`` at an episode's end, or None.
+
+        A ``SubprocVecEnv``'s workers answer for the outermost only, and a ``DummyVecEnv``
+        resets a sub-env inside the step that ended its episode, zeroing the counts (a stream
+        counting the steps misses one under a frame skip).
+        """
+        if self.local is None:
+            return worker_limits(type(self.base).__name__)
+        return zeroed_limits(
+            self.local.envs,
+            "DummyVecEnv's reset inside its step",
+            "record a gymnasium SyncVectorEnv in NextStep mode",
+        )
+
     def step_limits(self, n: int, spec: Any) -> list[int | None]:
-        """Each sub-env's step limit: its ``TimeLimit``s' smallest, else its spec's."""
+        """Each sub-env's step limit in its own steps, for its stream to count.
+
+        A ``DummyVecEnv``'s sub-envs are searched for their ``TimeLimit``s
+        (:func:`~..time_limits.counted_limits`: the smallest of those over no multi-step
+        wrapper, none when each is under one, the spec's when there is none). A
+        ``SubprocVecEnv``'s workers are asked for the outermost's (a worker's chain cannot be
+        walked), else the spec's.
+        """
         limits: list[int | None] = [getattr(spec, "max_episode_steps", None)] * n
         found: list[Any] = []
         try:
             if self.local is not None:
-                found = [step_limit(sub) for sub in self.local.envs]
-            elif self.base.has_attr("_max_episode_steps"):
+                return counted_limits(self.local.envs, limits[0])[:n]
+            if self.base.has_attr("_max_episode_steps"):
                 found = list(self.base.get_attr("_max_episode_steps"))
         except Exception:  # the spec's limit, then
             found = []

@@ -16,6 +16,7 @@ from typing import Any
 import gymnasium as gym
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import iterate
+from gymnasium.wrappers import TimeLimit
 from typing_extensions import Unpack
 
 from ...errors import ConfigurationError
@@ -23,8 +24,10 @@ from ...format.spaces import codec_for, describe_space
 from ...format.wrappers import (
     LAYOUT_REWARD_WRAPPERS,
     LAYOUT_STATE_SNAPSHOTS,
+    LAYOUT_UNREAD_LIMITS,
     LAYOUT_VECTOR_WRAPPERS,
     REWARD_CHANGING,
+    worker_limits,
 )
 from ..file import EvidenceFile, FileRecorder
 from ..gym import (
@@ -34,7 +37,7 @@ from ..gym import (
     wrapper_chain,
 )
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
-from ..time_limits import limited_spec, step_limit
+from ..time_limits import counted_limits, limited_spec, time_limits, zeroed_limits
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import refused, reset_targets, seeds_of
@@ -127,9 +130,16 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         self.path = self._file.path
         obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
         codecs = obs_codec, codec_for(act_space)
+        watched = _watched_limits(sync, mode, n)
         self._streams = [
-            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit, state=snapshots)
-            for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env))
+            self._file.add_stream(
+                *codecs,
+                env_index=i,
+                max_episode_steps=limit,
+                time_limits=watched[i],
+                state=snapshots,
+            )
+            for i, limit in enumerate(_max_steps(sub_spec, n, sync, async_env, base))
         ]
         self._file.start()
         self._autoreset = autoreset_strategy(
@@ -247,10 +257,27 @@ def _layout(
     vector_wrappers = _vector_wrappers(env)
     if vector_wrappers:
         layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
+    unread = _unread_limits(base, mode, sync)
+    if unread:
+        layout[LAYOUT_UNREAD_LIMITS] = unread
     changing = _sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
     if changing:
         layout[LAYOUT_REWARD_WRAPPERS] = changing
     return layout
+
+
+def _unread_limits(base: Any, mode: AutoresetMode, sync: SyncVectorEnv | None) -> str | None:
+    """Why the streams cannot read every sub-env's ``TimeLimit`` at an episode's end, or ``None``.
+
+    An ``AsyncVectorEnv``'s workers answer for the outermost only; a ``SyncVectorEnv`` in
+    ``SAME_STEP`` mode has zeroed the counts when the streams count the steps themselves, which
+    misses one under a frame skip (:func:`~..time_limits.zeroed_limits`).
+    """
+    if isinstance(base, AsyncVectorEnv):
+        return worker_limits(type(base).__name__)
+    if sync is None or mode is not AutoresetMode.SAME_STEP:
+        return None
+    return zeroed_limits(sync.envs, "the SameStep autoreset", "record in NextStep mode")
 
 
 def _check_vector_env(env: Any) -> None:
@@ -306,26 +333,64 @@ def _sub_spec(
         for k, v in spec.kwargs.items()
         if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")
     }
-    return dataclasses.replace(spec, kwargs=kwargs)
+    limit = _own_limit(env.unwrapped, spec)
+    spec = dataclasses.replace(spec, kwargs=kwargs)
+    return spec if limit is None else dataclasses.replace(spec, max_episode_steps=limit)
+
+
+def _own_limit(base: Any, spec: Any) -> int | None:
+    """The step limit a vector env without sub-envs (a ``vector_entry_point`` env) counts itself.
+
+    Gymnasium's (``CartPoleVectorEnv``) keep it as ``max_episode_steps`` and truncate a row when
+    its step count reaches it; ``gym.make_vec`` passes it the ``max_episode_steps`` asked for,
+    else the registered one, as a constructor kwarg (which its spec's ``kwargs`` keep; the
+    spec's own ``max_episode_steps`` stays the registered one, which no ``TimeLimit`` applies).
+    The attribute, else that kwarg; ``None`` when neither is a positive int.
+
+    >>> import gymnasium as gym
+    >>> envs = gym.make_vec("CartPole-v1", 2, vectorization_mode="vector_entry_point",
+    ...                     max_episode_steps=12)
+    >>> envs.spec.max_episode_steps, _own_limit(envs.unwrapped, envs.spec)
+    (500, 12)
+    """
+    kwargs = getattr(spec, "kwargs", None)
+    try:
+        own = getattr(base, "max_episode_steps", None)
+    except Exception:  # the env's own attribute: not a limit
+        own = None
+    for limit in (own, kwargs.get("max_episode_steps") if isinstance(kwargs, dict) else None):
+        if type(limit) is int and limit > 0:
+            return limit
+    return None
 
 
 def _max_steps(
-    sub_spec: Any, n: int, sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None
+    sub_spec: Any,
+    n: int,
+    sync: SyncVectorEnv | None,
+    async_env: AsyncVectorEnv | None,
+    base: Any,
 ) -> list[int | None]:
-    """Each sub-env's step limit: its ``TimeLimit``s' smallest, else its spec's.
+    """Each sub-env's step limit in its own steps, for its stream to count.
 
-    The limit is counted by the stream (a ``SAME_STEP`` autoreset has zeroed the wrapper's
-    own count by the time the ending is recorded). A ``SyncVectorEnv``'s sub-envs are
-    searched for a ``TimeLimit`` directly. An ``AsyncVectorEnv``'s are asked for
-    ``_max_episode_steps`` (``TimeLimit``'s), but only when every one says it has it
-    (``has_wrapper_attr``, which every ``gymnasium.Env`` has): a worker asked for an
-    attribute its env lacks raises, and that ends the worker.
+    The stream counts it where it does not read the ``TimeLimit``s themselves
+    (:func:`_watched_limits`). A ``SyncVectorEnv``'s sub-envs are searched for their
+    ``TimeLimit``s directly (:func:`~..time_limits.counted_limits`: the smallest of those
+    over no multi-step wrapper, none when each is under one, the spec's when there is none).
+    A vector env without sub-envs (``base``, a ``vector_entry_point`` env) counts its own
+    (:func:`_own_limit`). An ``AsyncVectorEnv``'s workers are asked for
+    ``_max_episode_steps`` (the outermost ``TimeLimit``'s: a worker's chain cannot be walked),
+    but only when every one says it has it (``has_wrapper_attr``, which every
+    ``gymnasium.Env`` has): a worker asked for an attribute its env lacks raises, and that
+    ends the worker. Otherwise the spec's.
     """
     limits: list[int | None] = [getattr(sub_spec, "max_episode_steps", None)] * n
     found: Sequence[Any] = ()
     if sync is not None:
-        found = [step_limit(sub) for sub in sync.envs]
-    elif async_env is not None:
+        return counted_limits(sync.envs, limits[0])
+    if async_env is None:
+        found = [_own_limit(base, sub_spec)] * n
+    else:
         try:
             if all(async_env.call("has_wrapper_attr", "_max_episode_steps")):
                 found = async_env.get_attr("_max_episode_steps")
@@ -335,6 +400,21 @@ def _max_steps(
         if isinstance(limit, int) and not isinstance(limit, bool):
             limits[i] = limit
     return limits
+
+
+def _watched_limits(
+    sync: SyncVectorEnv | None, mode: AutoresetMode, n: int
+) -> list[tuple[TimeLimit[Any, Any], ...]]:
+    """Each sub-env's ``TimeLimit``s, for its stream to read at an episode's end; or none.
+
+    A ``SyncVectorEnv``'s, unless it resets a sub-env inside the step that ended its episode
+    (``SAME_STEP``: the counts are zeroed by the time the ending is recorded). Read like the
+    single-env recorder reads them, they say a limit was reached in whatever steps it counts
+    (one under a frame-skipping wrapper counts the env's own).
+    """
+    if sync is None or mode is AutoresetMode.SAME_STEP:
+        return [()] * n
+    return [time_limits(sub) for sub in sync.envs]
 
 
 def _vector_wrappers(env: Any) -> list[str]:
