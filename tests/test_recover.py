@@ -38,7 +38,7 @@ from episode_audit import (
 )
 from episode_audit.cli import app
 from episode_audit.read import iter_records
-from episode_audit.recover.files import Temporary
+from episode_audit.recover.files import temporary
 from episode_audit.replay import replay as replay_files
 from tests import kill_harness
 from tests.support.hostile import replace_column, rewrite
@@ -836,7 +836,7 @@ def test_the_output_has_no_name_until_it_is_published(tmp_path: Path, overwrite:
     dst = tmp_path / "out.mcap"
     if overwrite:
         dst.write_bytes(b"old")
-    tmp = Temporary(dst)
+    tmp = temporary(dst)
     try:
         assert tmp.unnamed == hasattr(os, "O_TMPFILE")
         tmp.path.write_bytes(b"recovered")
@@ -849,7 +849,7 @@ def test_the_output_has_no_name_until_it_is_published(tmp_path: Path, overwrite:
     assert dst.read_bytes() == b"recovered"
     assert dst.stat().st_mode & 0o777 == 0o666 & ~_umask()
     if not overwrite:  # never over an existing file unless asked
-        again = Temporary(dst)
+        again = temporary(dst)
         try:
             again.path.write_bytes(b"again")
             with pytest.raises(ConfigurationError, match="file exists"):

@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, staged
 from ._values import (
@@ -76,7 +77,7 @@ def export_foxglove(
     with staged(source, out, overwrite=overwrite) as temporary:
         context = foxglove.Context()
         options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
-        writer = foxglove.open_mcap(temporary, context=context, writer_options=options)
+        writer = _open(foxglove, temporary, out, context, options)
         try:
             writer.write_metadata("episode_audit.export", _metadata(ev, source))
             _Steps(foxglove, context, ev, result).write(progress)
@@ -86,6 +87,17 @@ def export_foxglove(
             writer.close()
     result.paths.sort()
     return result
+
+
+def _open(foxglove: Any, temporary: Path, out: Path, context: Any, options: Any) -> Any:
+    """The SDK's MCAP writer on ``temporary`` (made by :func:`staged`: it exists, empty)."""
+    try:
+        return foxglove.open_mcap(
+            temporary, allow_overwrite=True, context=context, writer_options=options
+        )
+    except (OSError, RuntimeError) as exc:  # (the folder was checked: rare)
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise ConfigurationError(f"{out}: foxglove-sdk cannot create it: {why}") from None
 
 
 def _unfinished(ev: Evidence) -> str | None:

@@ -65,7 +65,7 @@ def export_rerun(
     try:
         with staged(source, out, overwrite=overwrite) as temporary:
             writer = _write(rr, temporary, ev, result, progress)
-            if not temporary.exists():  # a disabled SDK (RERUN=off in the environment): none
+            if temporary.stat().st_size == 0:  # a disabled SDK (RERUN=off in the environment)
                 raise ConfigurationError(
                     f"{out}: rerun-sdk wrote nothing; is logging turned off (RERUN=off)?"
                 )
@@ -85,7 +85,11 @@ def _write(
 ) -> _Writer:
     """Write ``ev`` to a new recording saved at ``path``; the writer, which keeps no stream."""
     rec = rr.RecordingStream("episode-audit", send_properties=False)
-    rec.save(str(path))
+    try:
+        rec.save(str(path))
+    except (OSError, RuntimeError) as exc:  # (the folder was checked: rare)
+        why = str(exc).split(", path:")[0]  # (the path is the temporary file's)
+        raise ConfigurationError(f"{result.path}: rerun-sdk cannot create it: {why}") from None
     rec.send_recording_name(result.source.name)
     writer = _Writer(rr, rec, ev, result)
     try:

@@ -21,7 +21,7 @@ from ..read.liveness import still_written, writer_of
 from ..read.storage import is_url
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
-from .files import Temporary, check_paths
+from .files import Temporary, check_paths, temporary
 from .kept import Kept
 from .remote import recover_remote
 from .result import CLOSING_MAGIC, RecoveryResult, record_name
@@ -73,7 +73,7 @@ def recover(
     check_paths(src, dst, overwrite)
     ev = _open_input(src)
     _refuse_live(ev, dst)
-    tmp = Temporary(dst)
+    tmp = temporary(dst)
     try:
         if ev.finished and not (ev.summary_damage or ev.run_end_damage) and _intact(src, ev):
             result = _copy_unchanged(src, ev, tmp.path, dst)
@@ -161,7 +161,7 @@ def _rewrite(src: Path, tmp: Temporary, dst: Path, summary_damage: str | None) -
     header = next(records)
     if not isinstance(header, Header):  # open_evidence found one: the walk does too
         raise CorruptEvidenceError(src, "the first record is not an MCAP header")
-    writer = EvidenceWriter(tmp.path, library=header.library, overwrite=tmp.unnamed)
+    writer = EvidenceWriter(tmp.path, library=header.library, overwrite=True)  # (ours)
     try:
         copy = RecordCopy(src, writer)
         end = copy.copy(records)
