@@ -257,7 +257,7 @@ def test_refuses_to_overwrite_and_leaves_nothing_on_failure(tmp_path: Path) -> N
     out = tmp_path / "view.mcap"
     out.write_bytes(b"keep")
     with pytest.raises(
-        ConfigurationError, match=r"view\.mcap: exists; pass overwrite=True \(--overwrite\)"
+        ConfigurationError, match=r"view\.mcap: exists; pass overwrite=True to replace it$"
     ):
         export([source], out, to="foxglove")
     assert out.read_bytes() == b"keep"
@@ -280,7 +280,7 @@ def test_cli_export_to_foxglove(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert "wrote 6 episodes, 447 steps" in result.output and out.is_file()
     again = runner.invoke(app, args)
-    assert again.exit_code == 2 and "exists; pass overwrite=True (--overwrite)" in again.output
+    assert again.exit_code == 2 and "exists; pass --overwrite to replace it" in again.output
     wrong = runner.invoke(app, [*args[:3], "vlc", *args[4:], "--overwrite"])
     assert wrong.exit_code == 2 and "--to: expected one of parquet, foxglove, rerun" in wrong.output
 

@@ -68,6 +68,8 @@ def export(
 
     if to not in TARGETS:
         fail(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
+    if not out:  # (an empty path is the current folder)
+        fail("--out: expected a path, got an empty string")
     if to != "parquet":
         _export_for_viewer(paths, out, to, overwrite)
         return
@@ -85,6 +87,7 @@ def export(
                 files,
                 out,
                 overwrite=overwrite,
+                overwrite_option="--overwrite",
                 progress=advance,
                 on_error=_error_line,
                 jobs=jobs_for(jobs, files),
@@ -119,7 +122,14 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
     try:
         with interruptible(), progress_bar("exporting", steps_total(files)) as advance:
             viewer = cast(Literal["foxglove", "rerun"], to)
-            result = run_export(files, Path(out), to=viewer, overwrite=overwrite, progress=advance)
+            result = run_export(
+                files,
+                Path(out),
+                to=viewer,
+                overwrite=overwrite,
+                overwrite_option="--overwrite",
+                progress=advance,
+            )
     except EpisodeAuditError as exc:
         fail(str(exc))
     for line in result.notes:

@@ -68,7 +68,7 @@ def show(
 
     fmt = _format(output)
     start, stop = _steps(episode, steps, all_episodes)
-    existing(path)
+    existing(path, "show")
     try:
         ev = open_evidence(path)
         if episode is None:

@@ -112,7 +112,7 @@ def staged(
     out: Path,
     *,
     overwrite: bool,
-    overwrite_option: str = "overwrite=True (--overwrite)",
+    overwrite_option: str = "overwrite=True",
 ) -> Iterator[Path]:
     """A file to write ``out`` to, published as ``out`` if the block succeeds.
 

@@ -59,6 +59,7 @@ def export_foxglove(
     out: str | os.PathLike[str],
     *,
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to ``out`` for Foxglove.
@@ -74,7 +75,7 @@ def export_foxglove(
     source, out = Path(source), Path(out)
     ev = open_evidence(source)
     result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))
-    with staged(source, out, overwrite=overwrite) as temporary:
+    with staged(source, out, overwrite=overwrite, overwrite_option=overwrite_option) as temporary:
         context = foxglove.Context()
         options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
         writer = _open(foxglove, temporary, out, context, options)

@@ -46,6 +46,7 @@ def export_rerun(
     out: str | os.PathLike[str],
     *,
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to the Rerun recording ``out``.
@@ -63,7 +64,9 @@ def export_rerun(
     unfinished = None if ev.finished else ev.torn or "no run-end record"
     result = ViewerExport(out, source, "rerun", unfinished=unfinished)
     try:
-        with staged(source, out, overwrite=overwrite) as temporary:
+        with staged(
+            source, out, overwrite=overwrite, overwrite_option=overwrite_option
+        ) as temporary:
             writer = _write(rr, temporary, ev, result, progress)
             if temporary.stat().st_size == 0:  # a disabled SDK (RERUN=off in the environment)
                 raise ConfigurationError(

@@ -15,16 +15,22 @@ from pathlib import Path
 from ..errors import ConfigurationError
 from ..record.published import Temporary
 
-__all__ = ["Temporary", "check_paths", "temporary"]
-
-_EXISTS = (
-    "file exists; recovery never overwrites it — choose another path or pass overwrite=True "
-    "(--overwrite)"
-)
+__all__ = ["Temporary", "check_paths", "exists", "temporary"]
 
 
-def check_paths(src: Path, dst: Path, overwrite: bool) -> None:
-    """Refuse an output that is the input, a directory or device, or exists (``overwrite``)."""
+def exists(option: str) -> str:
+    """What the error for an existing output says after its path.
+
+    ``option`` names ``overwrite`` as the caller calls it (``--overwrite`` on the command line).
+    """
+    return f"file exists; recovery never overwrites it — choose another path or pass {option}"
+
+
+def check_paths(src: Path, dst: Path, overwrite: bool, option: str = "overwrite=True") -> None:
+    """Refuse an output that is the input, a directory or device, or exists.
+
+    ``overwrite`` allows an existing output; the error names it ``option``.
+    """
     same = src.resolve() == dst.resolve()
     if not same and dst.exists() and src.exists():
         same = os.path.samefile(src, dst)
@@ -40,9 +46,9 @@ def check_paths(src: Path, dst: Path, overwrite: bool) -> None:
             f"{dst}: not a regular file (a device or a pipe); give the output file's path"
         )
     if dst.exists() and not overwrite:
-        raise ConfigurationError(f"{dst}: {_EXISTS}")
+        raise ConfigurationError(f"{dst}: {exists(option)}")
 
 
-def temporary(dst: Path) -> Temporary:
+def temporary(dst: Path, option: str = "overwrite=True") -> Temporary:
     """The file a recovery into ``dst`` writes before it is published (``dst``'s folder made)."""
-    return Temporary(dst, exists=_EXISTS, suffix=".recovering")
+    return Temporary(dst, exists=exists(option), suffix=".recovering")
