@@ -31,14 +31,14 @@ from ._values import (
     RESET_STEP,
     Frames,
     Split,
+    Streams,
     blocks,
     ending_text,
     finite,
     json_rows,
     json_schema,
     split_batch,
-    stream_prefix,
-    stream_prefixes,
+    streams,
 )
 
 __all__ = ["STEP_SCHEMA_NAME", "export_foxglove"]
@@ -81,8 +81,9 @@ def export_foxglove(
         writer = _open(foxglove, temporary, out, context, options)
         try:
             writer.write_metadata("episode_audit.export", _metadata(ev, source))
-            _Steps(foxglove, context, ev, result).write(progress)
-            _write_episodes(foxglove, context, ev, result)
+            named = streams(ev)
+            _Steps(foxglove, context, ev, named, result).write(progress)
+            _write_episodes(foxglove, context, ev, named, result)
             result.paths += ["/episodes", "/log"]
         finally:
             writer.close()
@@ -119,9 +120,11 @@ def _metadata(ev: Evidence, source: Path) -> dict[str, str]:
 class _Steps:
     """The ``steps`` and ``camera/*`` topics of every stream, written block by block."""
 
-    def __init__(self, foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> None:
+    def __init__(
+        self, foxglove: Any, context: Any, ev: Evidence, named: Streams, result: ViewerExport
+    ) -> None:
         self.fg, self.context, self.ev, self.result = foxglove, context, ev, result
-        self.prefix_of = stream_prefixes(ev)
+        self.named, self.prefix_of = named, named.prefix_of
         self.terms = sorted(
             {
                 name
@@ -166,11 +169,17 @@ class _Steps:
                 ),
                 message_encoding="json",
                 context=self.context,
+                metadata=self._agent(prefix),
             )
             self.channels[prefix] = channel
             self.result.paths.append(f"{prefix}/steps")
         log: Callable[[bytes, int], None] = channel.base.log
         return log
+
+    def _agent(self, prefix: str) -> dict[str, str] | None:
+        """A PettingZoo agent's channel metadata: its name (its prefix may be changed)."""
+        agent = self.named.agent_at.get(prefix)
+        return None if agent is None else {"agent": agent}
 
     def _write_resets(self, batch: pa.RecordBatch, observation: Split) -> int:
         """Write the block's resets as messages of step :data:`RESET_STEP`; returns how many."""
@@ -256,7 +265,7 @@ class _Steps:
             channel = self.images.get(topic)
             if channel is None:
                 channel = self.images[topic] = self.fg.channels.CompressedImageChannel(
-                    topic, context=self.context
+                    topic, context=self.context, metadata=self._agent(prefix)
                 )
                 self.result.paths.append(topic)
             png = io.BytesIO()
@@ -315,7 +324,9 @@ def _timestamp(messages: Any, ns: int) -> Any:
     return messages.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> None:
+def _write_episodes(
+    foxglove: Any, context: Any, ev: Evidence, named: Streams, result: ViewerExport
+) -> None:
     """One ``foxglove.Event`` (``/episodes``) and one ``foxglove.Log`` (``/log``) per episode.
 
     Counted in ``result.episodes``; an episode without a time, or whose times no Foxglove
@@ -326,7 +337,6 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExp
     events = channels.EventChannel("/episodes", context=context)
     logs = channels.LogChannel("/log", context=context)
     records = ev.episodes().to_pylist()
-    kind = (ev.run.layout or {}).get("kind", "single")
     for record in records:
         start, end = record.get("start_time_ns"), record.get("end_time_ns")
         end = end if end is not None else start
@@ -334,7 +344,8 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExp
         if not (_in_range(start) and _in_range(end)):  # (no time at all is not one either)
             result.out_of_range += 1
             continue
-        stream = stream_prefix(kind, record.get("env_index") or 0, record.get("agent"))
+        prefix = named.prefix_of[record["episode"]]
+        who = named.name(prefix)
         pairs = {
             "episode": record["episode"],
             "outcome": record["outcome"],
@@ -342,8 +353,10 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExp
             "seed": "" if record.get("seed") is None else record["seed"],
             "length": record["length"],
             "return": record.get("return"),
-            "stream": stream.lstrip("/"),
+            "stream": prefix.lstrip("/"),
         }
+        if record.get("agent"):
+            pairs["agent"] = record["agent"]
         events.log(
             messages.Event(
                 start_time=_timestamp(messages, start),
@@ -357,8 +370,8 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExp
             messages.Log(
                 timestamp=_timestamp(messages, end),
                 level=level,
-                message=(f"{stream.lstrip('/')} " if stream else "") + ending_text(record),
-                name=stream.lstrip("/") or "episode_audit",
+                message=(f"{who} " if who else "") + ending_text(record),
+                name=who or "episode_audit",
             ),
             log_time=end,
         )

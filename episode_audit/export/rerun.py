@@ -32,8 +32,7 @@ from ._values import (
     blocks,
     ending_text,
     split_batch,
-    stream_prefix,
-    stream_prefixes,
+    streams,
 )
 
 __all__ = ["export_rerun"]
@@ -127,8 +126,8 @@ class _Writer:
 
     def __init__(self, rr: Any, rec: Any, ev: Evidence, result: ViewerExport) -> None:
         self.rr, self.rec, self.ev, self.result = rr, rec, ev, result
-        self.kind = (ev.run.layout or {}).get("kind", "single")
-        self.prefix_of = stream_prefixes(ev)
+        self.named = streams(ev)
+        self.prefix_of = self.named.prefix_of
         self.paths: set[str] = set()
         self.left_out: set[str] = set()
 
@@ -254,12 +253,12 @@ class _Writer:
             end = record.get("end_time_ns") or record.get("start_time_ns")
             if end is None:
                 continue
-            stream = stream_prefix(self.kind, record.get("env_index") or 0, record.get("agent"))
+            who = self.named.name(self.prefix_of[record["episode"]])
             rec.set_time("time", timestamp=np.datetime64(end, "ns"))
             rec.set_time("episode", sequence=record["episode"])
             rec.set_time("step", sequence=max(record["length"] - 1, 0))
             level = getattr(rr.TextLogLevel, _LEVELS.get(record["outcome"], "WARN"))
-            text = (f"{stream.lstrip('/')} " if stream else "") + ending_text(record)
+            text = (f"{who} " if who else "") + ending_text(record)
             rec.log("/log", rr.TextLog(text, level=level))
             self.paths.add("/log")
         return len(records)
