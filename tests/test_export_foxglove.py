@@ -285,35 +285,6 @@ def test_cli_export_to_foxglove(tmp_path: Path) -> None:
     assert wrong.exit_code == 2 and "--to: expected one of parquet, foxglove, rerun" in wrong.output
 
 
-def test_docs_layout_is_the_generated_one() -> None:
-    """docs/foxglove-layout.json is what foxglove.layouts builds (regenerate it if this fails)."""
-    from episode_audit.export.layout import foxglove_layout
-
-    text = (ROOT / "docs" / "foxglove-layout.json").read_text()
-    assert text == foxglove_layout(), (
-        "python -m episode_audit.export.layout > docs/foxglove-layout.json"
-    )
-    panels: list[dict[str, Any]] = []
-
-    def walk(node: dict[str, Any]) -> None:
-        if node["type"] == "panel":
-            panels.append(node)
-        for item in node.get("items", []):
-            walk(item["content"])
-
-    walk(json.loads(text)["content"])
-    kinds = {p["title"]: p["panelType"] for p in panels}
-    assert kinds == {
-        "reward": "Plot",
-        "reward terms": "Plot",
-        "episodes and endings": "StateTransitions",
-        "camera": "Image",
-        "endings": "Log",
-    }
-    series = [s["value"] for p in panels if p["panelType"] == "Plot" for s in p["config"]["paths"]]
-    assert "/steps.reward" in series and "/steps.terms.ctrl_cost" in series
-
-
 def test_times_no_foxglove_timestamp_holds_are_left_out_and_said(tmp_path: Path) -> None:
     """A file whose times are before 1970 (not from our recorder): those messages are left
     out, and the notes say how many (the SDK would refuse them: OverflowError)."""

@@ -39,7 +39,7 @@ class _Alike(ParallelEnv):  # type: ignore[misc]
         self.t += 1
         obs = {a: np.full(2, self.t / 10, np.float32) for a in self.agents}
         # each agent its own reward, so that a stream mixing agents shows
-        rewards = {a: float(AGENTS.index(a) + self.t / 10) for a in self.agents}
+        rewards = {a: float(self.possible_agents.index(a) + self.t / 10) for a in self.agents}
         done = self.t >= 3
         flags = {a: False for a in self.agents}
         ends = {a: done for a in self.agents}

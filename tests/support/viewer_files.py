@@ -47,13 +47,18 @@ class _Camera(ScriptedEnv):
         return _camera_obs(self), {}
 
 
-def camera_file(path: Path) -> Path:
-    """Two episodes of image + state observations: a ``collision`` failure (4 steps), then
-    a time-limit truncation (6 steps)."""
-    env = gym.wrappers.TimeLimit(
+def camera_env() -> gym.Env[Any, Any]:
+    """Image + state observations (``camera``, ``state``, ``mode``), 6 steps at most."""
+    return gym.wrappers.TimeLimit(
         _Camera(step_fn=_camera_step, observation_space=CAMERA, action_space=spaces.Discrete(2)),
         6,
     )
+
+
+def camera_file(path: Path) -> Path:
+    """Two episodes of image + state observations: a ``collision`` failure (4 steps), then
+    a time-limit truncation (6 steps)."""
+    env = camera_env()
     with RecordEvidence(env, path, tags={"policy": "scripted"}) as rec:
         for seed in (0, 1):
             rec.reset(seed=seed)
@@ -71,6 +76,16 @@ def vector_file(path: Path) -> Path:
         rec.reset(seed=0)
         for t in range(40):
             rec.step(np.array([t % 2, 1, 0]))
+    return path
+
+
+def camera_vector_file(path: Path) -> Path:
+    """Two :func:`camera_env` sub-envs (sync), 8 vector steps."""
+    envs = gym.vector.SyncVectorEnv([camera_env, camera_env])
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(8):
+            rec.step(np.array([1, 0]))
     return path
 
 
