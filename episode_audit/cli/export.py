@@ -47,7 +47,7 @@ def export(
         typer.Option(
             "--to",
             help="parquet (tables), foxglove (an MCAP file for Foxglove) or rerun (an .rrd "
-            "recording); docs/viewers.md.",
+            "recording for Rerun).",
             metavar="<target>",
         ),
     ] = "parquet",
@@ -62,7 +62,15 @@ def export(
     jobs: JobsOption = None,
     ray: RayOption = None,
 ) -> None:
-    """Write steps and episodes as Parquet (pandas / polars / DuckDB), or for a viewer."""
+    """Write steps and episodes as Parquet (pandas / polars / DuckDB), or for a viewer.
+
+    \b
+    e.g. episode-audit export runs/ -o tables/
+         episode-audit export run.mcap --to rerun -o run.rrd
+         episode-audit export run.mcap --to foxglove -o run.foxglove.mcap
+    and a layout for it (Foxglove: Layouts > Import from file…):
+         python -m episode_audit.export.layout run.foxglove.mcap > layout.json
+    """  # noqa: D301 (\b: Click keeps the lines of the paragraph that follows as they are)
     from ..export import TARGETS
     from ..export import export as run_export
 

@@ -10,6 +10,7 @@ viewer library needs.
 
 from __future__ import annotations
 
+import shlex
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -71,11 +72,19 @@ class ViewerExport:
         return lines
 
     def summary(self) -> str:
-        """One line for people: what was written where."""
+        """One line for people: what was written where, and how to look at it."""
         frames = f", {self.frames} camera frames" if self.frames else ""
+        out = shlex.quote(str(self.path))
+        if self.viewer == "foxglove":
+            look = (
+                f"open it in Foxglove; a layout for it: python -m episode_audit.export.layout "
+                f"{out} > layout.json"
+            )
+        else:
+            look = f"open it with: rerun {out}"
         return (
             f"wrote {self.episodes} episodes, {self.steps} steps{frames} of {self.source} "
-            f"to {self.path} (open it in {self.viewer.capitalize()}; see docs/viewers.md)"
+            f"to {self.path} ({look})"
         )
 
 

@@ -207,3 +207,28 @@ def test_a_killed_export_leaves_nothing_behind(tmp_path: Path) -> None:
 
         with open(out / name, "rb") as f:
             assert make_reader(f).get_summary() is not None
+
+
+@pytest.mark.parametrize(("to", "name"), VIEWERS)
+def test_the_success_line_says_how_to_look_at_the_file(tmp_path: Path, to: str, name: str) -> None:
+    """It said "see docs/viewers.md", a file no installed package holds."""
+    _viewer(to)
+    out = tmp_path / "a b" / name
+    result = CliRunner().invoke(app, ["export", str(CLEAN), "--to", to, "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    line = result.output.strip().splitlines()[-1]
+    assert "docs/" not in line
+    quoted = shlex.quote(str(out))
+    if to == "foxglove":
+        assert line.endswith(
+            f"(open it in Foxglove; a layout for it: python -m episode_audit.export.layout "
+            f"{quoted} > layout.json)"
+        )
+        command = line.split("a layout for it: ", 1)[1].rstrip(")").split(" > ")[0]
+        args = shlex.split(command)
+        done = subprocess.run(
+            [sys.executable, *args[1:]], capture_output=True, text=True, cwd=ROOT, check=True
+        )
+        assert '"configById"' in done.stdout
+    else:
+        assert line.endswith(f"(open it with: rerun {quoted})")
