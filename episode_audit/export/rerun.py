@@ -1,12 +1,13 @@
 """Export an evidence file as a Rerun recording (``.rrd``), written with ``rerun-sdk``.
 
 Timelines ``step`` (within the episode; -1 for its reset), ``episode`` and ``time`` (the step's
-or reset's log time). Each episode's reset comes first: its observation from ``reset()``. Per
-stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in single-env ones):
-scalars ``steps/reward``, ``steps/terminated``, ``steps/truncated``, ``steps/terms/NAME``,
-``steps/action[/ITEM]`` and ``steps/observation[/ITEM]`` (the plottable fields) and images
-``camera/FIELD`` (PNG). For the file: ``/log``, a text log line per ending (failures and
-errors at level ERROR, truncations and cut-off episodes WARN, successes INFO).
+or reset's log time), and no other: rerun-sdk's own ``log_time`` (the export's wall clock) and
+``log_tick`` are turned off. Each episode's reset comes first: its observation from
+``reset()``. Per stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in
+single-env ones): scalars ``steps/reward``, ``steps/terminated``, ``steps/truncated``,
+``steps/terms/NAME``, ``steps/action[/ITEM]`` and ``steps/observation[/ITEM]`` (the plottable
+fields) and images ``camera/FIELD`` (PNG). For the file: ``/log``, a text log line per ending
+(failures and errors at level ERROR, truncations and cut-off episodes WARN, successes INFO).
 """
 
 from __future__ import annotations
@@ -87,6 +88,8 @@ def _write(
 ) -> _Writer:
     """Write ``ev`` to a new recording saved at ``path``; the writer, which keeps no stream."""
     rec = rr.RecordingStream("episode-audit", send_properties=False)
+    rec.set_log_time_enabled(False)  # (the export's wall clock: no timeline of the episodes)
+    rec.set_log_tick_enabled(False)
     try:
         rec.save(str(path))
     except (OSError, RuntimeError) as exc:  # (the folder was checked: rare)

@@ -232,3 +232,21 @@ def test_the_success_line_says_how_to_look_at_the_file(tmp_path: Path, to: str, 
         assert '"configById"' in done.stdout
     else:
         assert line.endswith(f"(open it with: rerun {quoted})")
+
+
+def test_rerun_rows_have_the_episodes_timelines_only(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``/log`` rows had a fourth timeline, ``log_time``: the export's own wall clock."""
+    pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    monkeypatch.setenv("RERUN_LOG_TICK", "1")  # (rerun-sdk's other timeline, asked for)
+    out = tmp_path / "x.rrd"
+    export([CLEAN], out, to="rerun")
+    timelines: dict[str, set[str]] = {}
+    for chunk in RrdReader(out).stream():
+        if not chunk.is_static:
+            timelines.setdefault(chunk.entity_path, set()).update(chunk.timeline_names)
+    assert "/log" in timelines and "/steps/reward" in timelines
+    assert all(names == {"step", "episode", "time"} for names in timelines.values()), timelines
