@@ -6,8 +6,8 @@ each on their own) and :class:`Frames`: ``uint8`` arrays shaped ``(H, W)`` or ``
 ``C`` in 1, 3, 4, both sides at least :data:`IMAGE_MIN_SIDE`. :func:`json_rows` and
 :func:`json_schema` give the leaves of a column as per-row JSON values and their JSON Schema;
 :func:`streams` names each stream's topics and entity paths (:func:`agent_prefixes`: one per
-PettingZoo agent, distinct); :func:`blocks` reads a file's reset and step blocks chunk by chunk;
-:func:`ending_text` says how an episode ended.
+PettingZoo agent, distinct); :func:`blocks` reads a file's reset and step blocks chunk by chunk
+(:func:`chunk_blocks`: as one list a chunk); :func:`ending_text` says how an episode ended.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ __all__ = [
     "Streams",
     "agent_prefixes",
     "blocks",
+    "chunk_blocks",
     "ending_text",
     "finite",
     "json_rows",
@@ -167,18 +168,21 @@ def streams(ev: Evidence) -> Streams:
     return Streams(prefix_of, {prefix: agent for agent, prefix in prefixes.items()})
 
 
-def blocks(ev: Evidence) -> Iterator[tuple[bool, pa.RecordBatch]]:
-    """Each chunk's reset blocks (``True``), then its step blocks (``False``), in file order.
+def chunk_blocks(ev: Evidence) -> Iterator[list[tuple[bool, pa.RecordBatch]]]:
+    """Each chunk's reset blocks (``True``), then its step blocks (``False``), chunk by chunk.
 
     One chunk is read at a time, so an export holds one chunk's observations however many
     episodes the file has. A reset is written in the chunk of its episode's first steps or
     an earlier one, so an episode's reset comes before its steps.
     """
     for chunk in ev.scan(steps=True, resets=True, episode_records=False):
-        for batch in chunk.resets:
-            yield True, batch
-        for batch in chunk.steps:
-            yield False, batch
+        yield [(True, batch) for batch in chunk.resets] + [(False, b) for b in chunk.steps]
+
+
+def blocks(ev: Evidence) -> Iterator[tuple[bool, pa.RecordBatch]]:
+    """The blocks of :func:`chunk_blocks`, one after the other, in file order."""
+    for chunk in chunk_blocks(ev):
+        yield from chunk
 
 
 def split_batch(batch: pa.RecordBatch, name: str) -> Split:
