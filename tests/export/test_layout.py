@@ -24,7 +24,7 @@ from episode_audit import ConfigurationError, RecordEvidence
 from episode_audit.export import export
 from episode_audit.export.layout import foxglove_layout, foxglove_layout_of, main
 from tests.export.test_agents import _Alike
-from tests.support.viewer_files import aec_file, camera_file, camera_vector_file, vector_file
+from tests.support.viewer_files import VIEWER_FILES
 
 ROOT = Path(__file__).resolve().parents[2]
 PANEL_TYPES = {"Plot", "StateTransitions", "Image", "RawMessages", "RosOut"}
@@ -162,13 +162,7 @@ def _render_file(path: Path) -> Path:
     return path
 
 
-MAKERS = {
-    "camera": camera_file,
-    "vector": vector_file,
-    "camera_vector": camera_vector_file,
-    "aec": aec_file,
-    "render": _render_file,
-}
+MAKERS = {**VIEWER_FILES, "render": _render_file}
 
 
 @pytest.mark.parametrize("name", list(MAKERS))

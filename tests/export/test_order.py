@@ -3,35 +3,19 @@
 from __future__ import annotations
 
 import itertools
+from functools import partial
 from pathlib import Path
 
-import gymnasium as gym
 import pytest
 from mcap.reader import make_reader
 
-from episode_audit import RecordEvidence, open_evidence
+from episode_audit import open_evidence
 from episode_audit.export import export
-from tests.support.viewer_files import aec_file, camera_file, camera_vector_file, vector_file
-
-
-def _flushed_often(path: Path) -> Path:
-    """CartPole, 3 000 steps in blocks of 64: many evidence chunks, each with resets."""
-    with RecordEvidence(gym.make("CartPole-v1"), path, block_steps=64) as env:
-        env.action_space.seed(0)
-        env.reset(seed=0)
-        for _ in range(3_000):
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            if terminated or truncated:
-                env.reset()
-    return path
-
+from tests.support.viewer_files import VIEWER_FILES, random_cartpole_file
 
 MAKERS = {
-    "flushed_often": _flushed_often,
-    "camera": camera_file,
-    "vector": vector_file,
-    "camera_vector": camera_vector_file,
-    "aec": aec_file,
+    "flushed_often": partial(random_cartpole_file, steps=3_000, block_steps=64),  # many chunks
+    **VIEWER_FILES,
 }
 
 

@@ -4,23 +4,21 @@ never seen half-written (an unnamed temporary file where the OS has them)."""
 from __future__ import annotations
 
 import os
-import random
 import re
 import shlex
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-import gymnasium as gym
 import pytest
 from typer.testing import CliRunner
 
-from episode_audit import ConfigurationError, RecordEvidence, open_evidence
+from episode_audit import ConfigurationError, open_evidence
 from episode_audit.cli import app
 from episode_audit.export import export
 from episode_audit.export._output import staged
+from tests.support.killing import how_long, killed_midway
+from tests.support.viewer_files import random_cartpole_file
 
 ROOT = Path(__file__).resolve().parents[2]
 CLEAN = ROOT / "fixtures" / "clean.mcap"
@@ -155,56 +153,29 @@ def test_nothing_shows_in_the_folder_until_the_export_is_complete(
 
 
 _EXPORT_CHILD = """
-import sys
+import sys, time
 from episode_audit.export import export
 print("go", flush=True)
+start = time.perf_counter()
 export([sys.argv[1]], sys.argv[2], to="foxglove")
+print(time.perf_counter() - start, flush=True)
 """
 
 
 @pytest.mark.skipif(not hasattr(os, "O_TMPFILE"), reason="no unnamed files (O_TMPFILE) here")
 def test_a_killed_export_leaves_nothing_behind(tmp_path: Path) -> None:
     pytest.importorskip("foxglove")
-    source = tmp_path / "run.mcap"
-    with RecordEvidence(gym.make("CartPole-v1"), source) as env:
-        env.action_space.seed(0)
-        env.reset(seed=0)
-        for _ in range(20_000):
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            if terminated or truncated:
-                env.reset()
+    from mcap.reader import make_reader
+
+    source = random_cartpole_file(tmp_path / "run.mcap", 20_000)
     out = tmp_path / "out"
     out.mkdir()
-
-    def child(name: str) -> tuple[subprocess.Popen[str], float]:
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        process = subprocess.Popen(
-            [sys.executable, "-c", _EXPORT_CHILD, str(source), str(out / name)],
-            stdout=subprocess.PIPE,
-            text=True,
-            env=env,
-        )
-        assert process.stdout is not None and process.stdout.readline() == "go\n"
-        return process, time.perf_counter()
-
-    process, start = child("whole.foxglove.mcap")
-    assert process.wait() == 0
-    took = time.perf_counter() - start
-    process.stdout.close()  # type: ignore[union-attr]
-    rng = random.Random(0)
-    killed = 0
-    for n in range(4):
-        process, _ = child(f"killed-{n}.foxglove.mcap")
-        time.sleep(rng.uniform(0, took))
-        process.send_signal(signal.SIGKILL)
-        killed += process.wait() == -signal.SIGKILL
-        process.stdout.close()  # type: ignore[union-attr]
-    assert killed >= 2  # most kills landed mid-export
+    took = how_long(_EXPORT_CHILD, str(source), str(out / "whole.foxglove.mcap"))
+    runs = [(str(source), str(out / f"killed-{n}.foxglove.mcap")) for n in range(4)]
+    assert killed_midway(_EXPORT_CHILD, runs, took) >= 2  # most kills landed mid-export
     left = sorted(p.name for p in out.iterdir())
     assert all(name.endswith(".foxglove.mcap") for name in left), left
     for name in left:  # an output there is whole
-        from mcap.reader import make_reader
-
         with open(out / name, "rb") as f:
             assert make_reader(f).get_summary() is not None
 

@@ -16,15 +16,17 @@ from mcap.reader import make_reader
 from episode_audit import open_evidence
 from episode_audit.export import export
 from episode_audit.export._values import streams
-from tests.export.test_order import _flushed_often
-from tests.support.viewer_files import aec_file, camera_file, leaves, vector_file
+from tests.export.test_order import MAKERS
+from tests.support.viewer_files import leaves
 
-MAKERS = {
-    "flushed_often": _flushed_often,
-    "camera": camera_file,
-    "vector": vector_file,
-    "aec": aec_file,
-}
+
+def _exported(tmp_path: Path, name: str, to: str, suffix: str) -> tuple[Path, Path]:
+    """The evidence file ``name`` of :data:`MAKERS` and its export ``to`` a viewer."""
+    pytest.importorskip(to)
+    source = MAKERS[name](tmp_path / f"{name}.mcap")
+    out = tmp_path / f"{name}{suffix}"
+    export([source], out, to=to)  # type: ignore[call-overload]
+    return source, out
 
 
 def _recorded(source: Path) -> list[dict[str, Any]]:
@@ -59,10 +61,7 @@ def _same(written: Any, recorded: Any) -> None:
 
 @pytest.mark.parametrize("name", list(MAKERS))
 def test_foxglove_messages_hold_the_evidence_values(tmp_path: Path, name: str) -> None:
-    pytest.importorskip("foxglove")
-    source = MAKERS[name](tmp_path / f"{name}.mcap")
-    out = tmp_path / f"{name}.foxglove.mcap"
-    export([source], out, to="foxglove")
+    source, out = _exported(tmp_path, name, "foxglove", ".foxglove.mcap")
     written: dict[tuple[str, int, int], tuple[int, dict[str, Any]]] = {}
     with open(out, "rb") as f:
         for _, channel, message in make_reader(f).iter_messages():
@@ -93,12 +92,9 @@ def test_foxglove_messages_hold_the_evidence_values(tmp_path: Path, name: str) -
 
 @pytest.mark.parametrize("name", list(MAKERS))
 def test_rerun_rows_hold_the_evidence_values(tmp_path: Path, name: str) -> None:
-    pytest.importorskip("rerun")
+    source, out = _exported(tmp_path, name, "rerun", ".rrd")
     from rerun.chunk import RrdReader
 
-    source = MAKERS[name](tmp_path / f"{name}.mcap")
-    out = tmp_path / f"{name}.rrd"
-    export([source], out, to="rerun")
     rows: dict[str, dict[tuple[int, int], dict[str, Any]]] = defaultdict(dict)
     for chunk in RrdReader(out).stream():
         for row in chunk.to_record_batch().to_pylist():

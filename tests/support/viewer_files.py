@@ -1,5 +1,5 @@
-"""Evidence files the viewer-export tests open: camera frames, a vector env, a PettingZoo game;
-what their resets hold."""
+"""Evidence files the viewer-export tests open: camera frames, a vector env, a PettingZoo game,
+random CartPole; what their resets hold."""
 
 from __future__ import annotations
 
@@ -104,6 +104,28 @@ def aec_file(path: Path) -> Path:
                 legal = np.flatnonzero(obs["action_mask"])
                 env.step(None if term or trunc else int(rng.choice(legal)))
     return path
+
+
+def random_cartpole_file(path: Path, steps: int, **options: Any) -> Path:
+    """CartPole-v1 with random actions (seed 0) for ``steps`` steps, reset whenever it ends;
+    ``options`` are the recorder's (``block_steps=64``: many chunks)."""
+    with RecordEvidence(gym.make("CartPole-v1"), path, **options) as env:
+        env.action_space.seed(0)
+        env.reset(seed=0)
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+    return path
+
+
+VIEWER_FILES = {
+    "camera": camera_file,
+    "vector": vector_file,
+    "camera_vector": camera_vector_file,
+    "aec": aec_file,
+}
+"""Each kind of evidence file above, by name: ``make(path)`` records it."""
 
 
 def recorded_resets(source: Path) -> list[dict[str, Any]]:
