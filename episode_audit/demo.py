@@ -107,15 +107,25 @@ def main(argv: list[str] | None = None) -> int:
     # would take an exported MCAP for evidence
     hacker = sorted(out.glob("*-hacker.mcap"))[0]
     foxglove = viewers / hacker.name.replace(".mcap", ".foxglove.mcap")
+    layout = foxglove.with_name(hacker.name.replace(".mcap", ".layout.json"))
     if run("export", str(hacker), "--to", "foxglove", "-o", str(foxglove)) != 0:
         problems.append("the Foxglove export failed")
+    else:  # its layout: its topics, the task's reward terms
+        from .export.layout import foxglove_layout_of
+
+        command = shlex.join(["python", "-m", "episode_audit.export.layout", str(foxglove)])
+        print(f"\n$ {command} > {shlex.quote(str(layout))}", flush=True)
+        layout.write_text(foxglove_layout_of(foxglove))
     elapsed = time.perf_counter() - started
     if problems:
         print(f"\ndemo: {len(problems)} problem(s): " + "; ".join(problems), file=sys.stderr)
         return 1
     print(f"\ndemo finished in {elapsed:.1f} s; evidence files are in {out}/")
     print(f"HTML report: {html} (open it in a browser; it needs no network)")
-    print(f"Foxglove file: {foxglove} (open it in Foxglove; layout: docs/foxglove-layout.json)")
+    print(
+        f"Foxglove file: {foxglove} (open it in Foxglove; its layout: {layout}, with "
+        "Layouts > Import from file…)"
+    )
     print(
         "Run the commands above yourself with .venv/bin/episode-audit "
         "(or `source .venv/bin/activate` first)."

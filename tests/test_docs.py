@@ -35,6 +35,80 @@ def test_readme_python_example_runs(tmp_path: Path, block: str) -> None:
     )
 
 
+_ONLY_THESE = """
+import importlib.machinery, sys
+class _Installed(importlib.machinery.PathFinder):
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        if name.partition(".")[0] in BLOCKED:
+            return None
+        return super().find_spec(name, path, target)
+sys.meta_path[:] = [
+    _Installed if f is importlib.machinery.PathFinder else f for f in sys.meta_path
+]
+"""
+"""Code run before an example: the modules of ``BLOCKED`` behave as if not installed."""
+
+
+def _installed_with(extra: str) -> set[str]:
+    """The distributions ``pip install 'episode-audit[EXTRA]'`` installs (canonical names):
+    the package's dependencies and the extra's, and theirs (those installed here)."""
+    from importlib import metadata
+
+    tomllib = pytest.importorskip("tomllib")  # (Python >= 3.11)
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    todo = [(r, "") for r in project["dependencies"] + project["optional-dependencies"][extra]]
+    seen = {"episode-audit"}
+    while todo:
+        text, parent_extra = todo.pop()
+        req = Requirement(text)
+        if req.marker is not None and not req.marker.evaluate({"extra": parent_extra}):
+            continue
+        name = canonicalize_name(req.name)
+        try:
+            dist = metadata.distribution(req.name)
+        except metadata.PackageNotFoundError:
+            continue
+        if name in seen and not req.extras:
+            continue
+        seen.add(name)
+        todo += [(r, e) for r in dist.requires or [] for e in ("", *req.extras)]
+    return seen
+
+
+@pytest.mark.parametrize(
+    ("extra", "package"), [("pettingzoo", "pettingzoo"), ("sb3", "stable_baselines3")]
+)
+def test_readme_example_of_an_extra_runs_with_only_what_the_extra_installs(
+    tmp_path: Path, extra: str, package: str
+) -> None:
+    """README's PettingZoo example (tictactoe_v3) needs pygame, which the ``pettingzoo`` extra
+    did not install: it failed after ``pip install 'episode-audit[pettingzoo]'``."""
+    from importlib import metadata
+
+    from packaging.utils import canonicalize_name
+
+    pytest.importorskip(package)
+    (block,) = [b for b in README_PYTHON if re.search(rf"^from {package}\b", b, flags=re.M)]
+    text = (REPO / "README.md").read_text()
+    assert f"pip install 'episode-audit[{extra}]'" in text  # (the README names the extra)
+    allowed = _installed_with(extra)
+    blocked = {
+        module
+        for module, dists in metadata.packages_distributions().items()
+        if not any(canonicalize_name(d) in allowed for d in dists)
+    }
+    prelude = f"BLOCKED = {sorted(blocked)!r}\n{_ONLY_THESE}"
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    done = subprocess.run(
+        [sys.executable, "-c", prelude + block], cwd=tmp_path, env=env, capture_output=True
+    )
+    assert done.returncode == 0, done.stderr.decode()[-2000:]
+
+
 def test_readme_quick_start_is_two_commands() -> None:
     text = (REPO / "README.md").read_text()
     quick = text.split("## Quick start", 1)[1].split("```sh\n", 1)[1].split("```", 1)[0]

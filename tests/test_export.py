@@ -25,7 +25,7 @@ def test_overwrite_replaces_the_whole_export(tmp_path: Path) -> None:
         "b.steps.parquet",
     ]
     with pytest.raises(
-        ConfigurationError, match=r"episodes\.parquet: exists; pass overwrite=True \(--overwrite\)"
+        ConfigurationError, match=r"episodes\.parquet: exists; pass overwrite=True to replace"
     ):
         export([a], out)
     again = export([a], out, overwrite=True)

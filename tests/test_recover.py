@@ -3,13 +3,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import random
 import shutil
-import signal
 import struct
-import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -38,10 +33,12 @@ from episode_audit import (
 )
 from episode_audit.cli import app
 from episode_audit.read import iter_records
-from episode_audit.recover.files import Temporary
+from episode_audit.recover.files import temporary
 from episode_audit.replay import replay as replay_files
 from tests import kill_harness
 from tests.support.hostile import replace_column, rewrite
+from tests.support.killing import how_long, killed_midway
+from tests.support.viewer_files import random_cartpole_file
 
 runner = CliRunner()
 
@@ -778,19 +775,6 @@ print(time.perf_counter() - start, flush=True)
 """
 
 
-def _recover_child(torn: Path, out: Path) -> subprocess.Popen[str]:
-    """A ``recover`` in a child process; returns once it is about to start recovering."""
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    child = subprocess.Popen(
-        [sys.executable, "-c", _RECOVER_CHILD, str(torn), str(out)],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    assert child.stdout is not None and child.stdout.readline() == "go\n"
-    return child
-
-
 def test_a_killed_recover_leaves_nothing_behind(tmp_path: Path) -> None:
     """Found by the issue's kills: 11 of 20 SIGKILLs left a hidden ``.NAME.XXXX.recovering``.
     The output is written to an unnamed file (O_TMPFILE) linked into place when finished."""
@@ -798,31 +782,14 @@ def test_a_killed_recover_leaves_nothing_behind(tmp_path: Path) -> None:
         pytest.skip("no unnamed files (O_TMPFILE) on this OS: the named temporary remains")
     source = tmp_path / "src"
     source.mkdir()
-    path = source / "run.mcap"
-    with RecordEvidence(gym.make("CartPole-v1"), path, block_steps=4, flush_every_s=3600) as env:
-        env.action_space.seed(0)
-        env.reset(seed=0)
-        for _ in range(2_000):
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            if terminated or truncated:
-                env.reset()
+    path = random_cartpole_file(source / "run.mcap", 2_000, block_steps=4, flush_every_s=3600)
     torn = torn_copy(path, source, path.stat().st_size * 9 // 10)
     out = tmp_path / "out"
     out.mkdir()
-    child = _recover_child(torn, out / "calibrate.mcap")  # how long a recovery takes
-    assert child.stdout is not None
-    took = float(child.stdout.readline())
-    child.stdout.close()
-    assert child.wait() == 0 and (out / "calibrate.mcap").exists()
-    rng = random.Random(0)
-    killed = 0
-    for n in range(5):
-        child = _recover_child(torn, out / f"killed-{n}.mcap")
-        time.sleep(rng.uniform(0, took))
-        child.send_signal(signal.SIGKILL)
-        killed += child.wait() == -signal.SIGKILL
-        child.stdout.close()  # type: ignore[union-attr]
-    assert killed >= 3  # most kills landed mid-recovery
+    took = how_long(_RECOVER_CHILD, str(torn), str(out / "calibrate.mcap"))
+    assert (out / "calibrate.mcap").exists()
+    runs = [(str(torn), str(out / f"killed-{n}.mcap")) for n in range(5)]
+    assert killed_midway(_RECOVER_CHILD, runs, took) >= 3  # most kills landed mid-recovery
     left = sorted(p.name for p in out.iterdir())
     assert all(name == "calibrate.mcap" or name.startswith("killed-") for name in left), left
     for name in left:  # an output there is whole (published only once finished)
@@ -836,7 +803,7 @@ def test_the_output_has_no_name_until_it_is_published(tmp_path: Path, overwrite:
     dst = tmp_path / "out.mcap"
     if overwrite:
         dst.write_bytes(b"old")
-    tmp = Temporary(dst)
+    tmp = temporary(dst)
     try:
         assert tmp.unnamed == hasattr(os, "O_TMPFILE")
         tmp.path.write_bytes(b"recovered")
@@ -849,7 +816,7 @@ def test_the_output_has_no_name_until_it_is_published(tmp_path: Path, overwrite:
     assert dst.read_bytes() == b"recovered"
     assert dst.stat().st_mode & 0o777 == 0o666 & ~_umask()
     if not overwrite:  # never over an existing file unless asked
-        again = Temporary(dst)
+        again = temporary(dst)
         try:
             again.path.write_bytes(b"again")
             with pytest.raises(ConfigurationError, match="file exists"):

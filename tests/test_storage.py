@@ -195,7 +195,7 @@ def test_export_reads_s3_and_writes_locally_or_to_s3(runs: Path, s3: Any, tmp_pa
 
     code, _, err = run("export", url, "--out", out)  # the export is there already
     assert code == 2
-    assert f"{out}/episodes.parquet: exists; pass overwrite=True (--overwrite)" in err
+    assert f"{out}/episodes.parquet: exists; pass --overwrite to replace" in err
     code, _, err = run("export", f"{url}/a.mcap", "--out", out, "--overwrite")
     assert code == 0, err
     assert f"{BUCKET}/export/b.steps.parquet" not in s3.ls(f"{BUCKET}/export", refresh=True)
@@ -220,7 +220,7 @@ def test_recover_reads_and_writes_s3(s3: Any, tmp_path: Path) -> None:
     assert open_evidence(out).run_end["status"] == "recovered"  # type: ignore[index]
     code, _, err = run("recover", src, "--out", out)
     assert code == 2
-    assert f"{out}: exists; pass overwrite=True (--overwrite)" in err
+    assert f"{out}: exists; pass --overwrite to replace it" in err
 
 
 def test_library_takes_a_filesystem_or_storage_options(runs: Path, endpoint: str) -> None:

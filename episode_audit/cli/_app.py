@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import shlex
 import signal
 import sys
 import threading
@@ -102,13 +103,22 @@ def note(message: str) -> None:
     _say("note", message)
 
 
-def existing(path: str | Path) -> str | Path:
-    """``path``, or exit 2 saying there is no such file (a command that takes one file).
+def existing(path: str | Path, command: str) -> str | Path:
+    """``path``, or exit 2: there is no such file, or it is a directory (``command`` takes one).
 
     A URL is checked by the library, which reads it (``docs/storage.md``).
     """
-    if not is_url(path) and not Path(path).exists():
+    if is_url(path):
+        return path
+    if not Path(path).exists():
         fail(f"{path}: no such file or directory")
+    if Path(path).is_dir():
+        some = sorted(Path(path).glob("*.mcap"))
+        example = f" (e.g. {shlex.quote(str(some[0]))})" if some else ""
+        fail(
+            f"{path}: a directory; {command} reads one evidence file: name one of its .mcap "
+            f"files{example}"
+        )
     return path
 
 

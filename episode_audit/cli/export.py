@@ -47,7 +47,7 @@ def export(
         typer.Option(
             "--to",
             help="parquet (tables), foxglove (an MCAP file for Foxglove) or rerun (an .rrd "
-            "recording); docs/viewers.md.",
+            "recording for Rerun).",
             metavar="<target>",
         ),
     ] = "parquet",
@@ -62,12 +62,22 @@ def export(
     jobs: JobsOption = None,
     ray: RayOption = None,
 ) -> None:
-    """Write steps and episodes as Parquet (pandas / polars / DuckDB), or for a viewer."""
+    """Write steps and episodes as Parquet (pandas / polars / DuckDB), or for a viewer.
+
+    \b
+    e.g. episode-audit export runs/ -o tables/
+         episode-audit export run.mcap --to rerun -o run.rrd
+         episode-audit export run.mcap --to foxglove -o run.foxglove.mcap
+    and a layout for it (Foxglove: Layouts > Import from file…):
+         python -m episode_audit.export.layout run.foxglove.mcap > layout.json
+    """  # noqa: D301 (\b: Click keeps the lines of the paragraph that follows as they are)
     from ..export import TARGETS
     from ..export import export as run_export
 
     if to not in TARGETS:
         fail(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
+    if not out:  # (an empty path is the current folder)
+        fail("--out: expected a path, got an empty string")
     if to != "parquet":
         _export_for_viewer(paths, out, to, overwrite)
         return
@@ -85,6 +95,7 @@ def export(
                 files,
                 out,
                 overwrite=overwrite,
+                overwrite_option="--overwrite",
                 progress=advance,
                 on_error=_error_line,
                 jobs=jobs_for(jobs, files),
@@ -119,7 +130,14 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
     try:
         with interruptible(), progress_bar("exporting", steps_total(files)) as advance:
             viewer = cast(Literal["foxglove", "rerun"], to)
-            result = run_export(files, Path(out), to=viewer, overwrite=overwrite, progress=advance)
+            result = run_export(
+                files,
+                Path(out),
+                to=viewer,
+                overwrite=overwrite,
+                overwrite_option="--overwrite",
+                progress=advance,
+            )
     except EpisodeAuditError as exc:
         fail(str(exc))
     for line in result.notes:

@@ -37,10 +37,12 @@ def recover(
     """
     from ..recover import recover as run_recover
 
-    existing(path)
+    existing(path, "recover")
+    if not out:  # (an empty path is the current folder)
+        fail("--out: expected a path, got an empty string")
     with interruptible():  # (a URL's recovery downloads into a temporary folder)
         try:
-            result = run_recover(path, out, overwrite=overwrite)
+            result = run_recover(path, out, overwrite=overwrite, overwrite_option="--overwrite")
         except EpisodeAuditError as exc:
             fail(str(exc))
     emit(safe(result.summary()))

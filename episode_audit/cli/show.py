@@ -62,13 +62,18 @@ def show(
     ] = False,
     output: FormatOption = "table",
 ) -> None:
-    """Summarize a file (run metadata, spaces, versions, env spec, episodes), or one episode."""
+    """Summarize a file (run metadata, spaces, versions, env spec, episodes), or one episode.
+
+    \b
+    e.g. episode-audit show runs/run.mcap
+         episode-audit show runs/run.mcap --episode 3 --steps 0:20
+    """  # noqa: D301 (\b: Click keeps the lines of the paragraph that follows as they are)
     from ..read import open_evidence
     from .render.show import episode_output, summary_output
 
     fmt = _format(output)
     start, stop = _steps(episode, steps, all_episodes)
-    existing(path)
+    existing(path, "show")
     try:
         ev = open_evidence(path)
         if episode is None:

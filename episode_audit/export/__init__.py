@@ -31,6 +31,7 @@ def export(
     *,
     to: Literal["parquet"] = "parquet",
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
     jobs: int | None = 1,
@@ -45,6 +46,7 @@ def export(
     *,
     to: Literal["foxglove", "rerun"],
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
     jobs: int | None = 1,
@@ -58,6 +60,7 @@ def export(
     *,
     to: str = "parquet",
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
     jobs: int | None = 1,
@@ -72,14 +75,18 @@ def export(
     Foxglove, an ``.rrd`` recording for Rerun) from exactly one input; ``on_error`` is not used
     (an unreadable input raises :class:`~episode_audit.errors.EvidenceError`). An existing
     ``out`` is replaced only with ``overwrite=True``; a failed export leaves no ``out``.
-    ``jobs`` / ``ray_address`` (workers) and ``filesystem`` / ``storage_options`` (URLs) are
-    the Parquet export's (:func:`.parquet.export`).
+    ``overwrite_option``: how the error for an existing output names that option (``--overwrite``
+    on the command line). ``jobs`` / ``ray_address`` (workers) and ``filesystem`` /
+    ``storage_options`` (URLs) are the Parquet export's (:func:`.parquet.export`).
     """
+    if not os.fspath(out):  # (Path("") is the current folder)
+        raise ConfigurationError("out: expected a path, got an empty string")
     if to == "parquet":
         return _export_parquet(
             paths,
             out,
             overwrite=overwrite,
+            overwrite_option=overwrite_option,
             progress=progress,
             on_error=on_error,
             jobs=jobs,
@@ -98,7 +105,13 @@ def export(
     if to == "foxglove":
         from .foxglove import export_foxglove
 
-        return export_foxglove(sources[0], out, overwrite=overwrite, progress=progress)
+        return export_foxglove(
+            sources[0],
+            out,
+            overwrite=overwrite,
+            overwrite_option=overwrite_option,
+            progress=progress,
+        )
     from .rerun import export_rerun
 
     if Path(out).suffix.lower() == ".mcap":
@@ -107,4 +120,6 @@ def export(
             f"{Path(out).with_suffix('.rrd').name} (an .mcap name reads as an evidence file to "
             "check, replay and report)"
         )
-    return export_rerun(sources[0], out, overwrite=overwrite, progress=progress)
+    return export_rerun(
+        sources[0], out, overwrite=overwrite, overwrite_option=overwrite_option, progress=progress
+    )

@@ -1,14 +1,16 @@
 """One viewer file out: checks before writing, a temporary name while writing, the result.
 
 :func:`staged` checks the output path (not the input, not a special file, not an existing file
-unless ``overwrite``), yields a temporary path beside it and renames it into place only when the
-export finished, so a failed export leaves nothing that looks complete. :class:`ViewerExport`
-says what was written; :func:`missing` is the error naming the extra a viewer library needs.
+unless ``overwrite``), creates its folder if missing, yields a temporary file there (unnamed
+where the OS has them, so that even a killed export leaves nothing) and gives it the output's
+name only when the export finished, so a failed export leaves nothing that looks complete.
+:class:`ViewerExport` says what was written; :func:`missing` is the error naming the extra a
+viewer library needs.
 """
 
 from __future__ import annotations
 
-import os
+import shlex
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -17,6 +19,7 @@ from pathlib import Path
 
 from ..errors import ConfigurationError
 from ..record.lock import output_kind
+from ..record.published import Temporary
 from ._values import SMALL
 
 __all__ = ["ViewerExport", "missing", "staged"]
@@ -69,11 +72,19 @@ class ViewerExport:
         return lines
 
     def summary(self) -> str:
-        """One line for people: what was written where."""
+        """One line for people: what was written where, and how to look at it."""
         frames = f", {self.frames} camera frames" if self.frames else ""
+        out = shlex.quote(str(self.path))
+        if self.viewer == "foxglove":
+            look = (
+                f"open it in Foxglove; a layout for it: python -m episode_audit.export.layout "
+                f"{out} > layout.json"
+            )
+        else:
+            look = f"open it with: rerun {out}"
         return (
             f"wrote {self.episodes} episodes, {self.steps} steps{frames} of {self.source} "
-            f"to {self.path} (open it in {self.viewer.capitalize()}; see docs/viewers.md)"
+            f"to {self.path} ({look})"
         )
 
 
@@ -105,25 +116,35 @@ def missing(
 
 
 @contextmanager
-def staged(source: Path, out: Path, *, overwrite: bool) -> Iterator[Path]:
-    """A temporary path beside ``out`` to write to; renamed to ``out`` if the block succeeds."""
+def staged(
+    source: Path,
+    out: Path,
+    *,
+    overwrite: bool,
+    overwrite_option: str = "overwrite=True",
+) -> Iterator[Path]:
+    """A file to write ``out`` to, published as ``out`` if the block succeeds.
+
+    Before the block: ``out`` is checked (not the input, not a special file, not an existing
+    file unless ``overwrite``: the error says to pass ``overwrite_option``), its folder created
+    if missing, and a file made there (:class:`~episode_audit.record.published.Temporary`: an
+    unnamed one where the OS has them), so an output that cannot be written is said before the
+    export. The path yielded exists, empty.
+    """
     kind = output_kind(out)
     if kind is not None:
         raise ConfigurationError(
             f"{out}: is {kind}, not a regular file; --out names the file to write"
         )
+    exists = f"exists; pass {overwrite_option} to replace it"
     if out.exists():
         if out.resolve() == source.resolve():
             raise ConfigurationError(f"{out}: is the input; --out names a new file to write")
         if not overwrite:
-            raise ConfigurationError(
-                f"{out}: exists; pass overwrite=True (--overwrite) to replace it"
-            )
-    if not out.parent.is_dir():
-        raise ConfigurationError(f"{out.parent}: no such directory; create it first")
-    temporary = out.with_name(f".{out.name}.{os.getpid()}.partial")
+            raise ConfigurationError(f"{out}: {exists}")
+    temporary = Temporary(out, exists=exists, suffix=".partial")
     try:
-        yield temporary
-        os.replace(temporary, out)
+        yield temporary.path
+        temporary.publish(overwrite)
     finally:
-        temporary.unlink(missing_ok=True)
+        temporary.discard()

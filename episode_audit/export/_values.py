@@ -5,15 +5,15 @@
 each on their own) and :class:`Frames`: ``uint8`` arrays shaped ``(H, W)`` or ``(H, W, C)``,
 ``C`` in 1, 3, 4, both sides at least :data:`IMAGE_MIN_SIDE`. :func:`json_rows` and
 :func:`json_schema` give the leaves of a column as per-row JSON values and their JSON Schema;
-:func:`stream_prefix` names a stream's topics and entity paths (:func:`stream_prefixes`: of
-every episode); :func:`blocks` reads a file's reset and step blocks chunk by chunk;
-:func:`ending_text` says how an episode ended.
+:func:`streams` names each stream's topics and entity paths (:func:`agent_prefixes`: one per
+PettingZoo agent, distinct); :func:`blocks` reads a file's reset and step blocks chunk by chunk
+(:func:`chunk_blocks`: as one list a chunk); :func:`ending_text` says how an episode ended.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
@@ -34,15 +34,17 @@ __all__ = [
     "Frames",
     "Leaf",
     "Split",
+    "Streams",
+    "agent_prefixes",
     "blocks",
+    "chunk_blocks",
     "ending_text",
     "finite",
     "json_rows",
     "json_schema",
     "split_batch",
     "split_column",
-    "stream_prefix",
-    "stream_prefixes",
+    "streams",
 ]
 
 SMALL: Final = 64
@@ -102,48 +104,85 @@ def finite(values: Sequence[float | None]) -> list[float | None]:
     return [v if v is not None and math.isfinite(v) else None for v in values]
 
 
-def stream_prefix(kind: str, env_index: int, agent: str | None) -> str:
-    """The topic / entity path prefix of a stream: empty for single-env files.
+def agent_prefixes(agents: Iterable[str]) -> dict[str, str]:
+    """Each PettingZoo agent's topic / entity path prefix: distinct for distinct agents.
 
-    >>> stream_prefix("single", 0, None), stream_prefix("vector", 2, None)
-    ('', '/env_2')
-    >>> stream_prefix("pettingzoo_aec", 0, "player 1")
-    '/player_1'
+    The prefix is ``/`` and the agent's name, each character other than a letter, a digit,
+    ``_``, ``-`` or ``.`` written ``_``. Where that makes one prefix of several names (``a/b``,
+    ``a b`` and ``a_b`` are all ``a_b``), the agent already spelt so keeps it and the others, in
+    sorted order, take the first free ``-2``, ``-3`` … after it; ``.`` and ``..`` are ``_`` and
+    ``__``. The same agents always get the same prefixes.
+
+    >>> agent_prefixes(["a_b", "a/b", "a b", "player 1", ".."])
+    {'..': '/__', 'a b': '/a_b-2', 'a/b': '/a_b-3', 'a_b': '/a_b', 'player 1': '/player_1'}
     """
-    if kind == "single":
-        return ""
-    if agent:
-        return "/" + "".join(c if c.isalnum() or c in "_-." else "_" for c in agent)
-    return f"/env_{env_index}"
+    names = sorted(set(agents))
+    clean = {a: "".join(c if c.isalnum() or c in "_-." else "_" for c in a) for a in names}
+    clean = {a: "_" * len(c) if c in (".", "..") else c for a, c in clean.items()}
+    out = {a: a for a in names if clean[a] == a}
+    taken = set(out.values())
+    for agent in names:
+        if agent in out:
+            continue
+        name, n = clean[agent], 1
+        while name in taken:
+            n += 1
+            name = f"{clean[agent]}-{n}"
+        out[agent] = name
+        taken.add(name)
+    return {a: "/" + out[a] for a in names}
 
 
-def stream_prefixes(ev: Evidence) -> dict[int, str]:
-    """Each episode's stream prefix (:func:`stream_prefix`), by episode index."""
+@dataclass
+class Streams:
+    """A file's streams as a viewer names them (``/env_N``, ``/AGENT``; ``""`` single-env)."""
+
+    prefix_of: dict[int, str]
+    """Each episode's stream prefix, by episode index."""
+    agent_at: dict[str, str]
+    """Each PettingZoo agent's name, by its stream prefix (:func:`agent_prefixes`)."""
+
+    def name(self, prefix: str) -> str:
+        """Who a stream is, in words: the agent's name, ``env_N``, or ``""`` (single-env).
+
+        >>> Streams({}, {"/a_b-2": "a b"}).name("/a_b-2"), Streams({}, {}).name("/env_1")
+        ('a b', 'env_1')
+        """
+        return self.agent_at.get(prefix, prefix.lstrip("/"))
+
+
+def streams(ev: Evidence) -> Streams:
+    """The streams of ``ev``'s episodes (a vector env's sub-envs, PettingZoo agents)."""
     episodes = ev.episodes()
     kind = (ev.run.layout or {}).get("kind", "single")
-    return {
-        e: stream_prefix(kind, i, a)
-        for e, i, a in zip(
-            episodes.column("episode").to_pylist(),
-            episodes.column("env_index").to_pylist(),
-            episodes.column("agent").to_pylist(),
-            strict=True,
-        )
+    indices = episodes.column("episode").to_pylist()
+    if kind == "single":
+        return Streams(dict.fromkeys(indices, ""), {})
+    env_indices = episodes.column("env_index").to_pylist()
+    agents = episodes.column("agent").to_pylist()
+    prefixes = agent_prefixes(a for a in agents if a)
+    prefix_of = {
+        e: prefixes[a] if a else f"/env_{i or 0}"
+        for e, i, a in zip(indices, env_indices, agents, strict=True)
     }
+    return Streams(prefix_of, {prefix: agent for agent, prefix in prefixes.items()})
 
 
-def blocks(ev: Evidence) -> Iterator[tuple[bool, pa.RecordBatch]]:
-    """Each chunk's reset blocks (``True``), then its step blocks (``False``), in file order.
+def chunk_blocks(ev: Evidence) -> Iterator[list[tuple[bool, pa.RecordBatch]]]:
+    """Each chunk's reset blocks (``True``), then its step blocks (``False``), chunk by chunk.
 
     One chunk is read at a time, so an export holds one chunk's observations however many
     episodes the file has. A reset is written in the chunk of its episode's first steps or
     an earlier one, so an episode's reset comes before its steps.
     """
     for chunk in ev.scan(steps=True, resets=True, episode_records=False):
-        for batch in chunk.resets:
-            yield True, batch
-        for batch in chunk.steps:
-            yield False, batch
+        yield [(True, batch) for batch in chunk.resets] + [(False, b) for b in chunk.steps]
+
+
+def blocks(ev: Evidence) -> Iterator[tuple[bool, pa.RecordBatch]]:
+    """The blocks of :func:`chunk_blocks`, one after the other, in file order."""
+    for chunk in chunk_blocks(ev):
+        yield from chunk
 
 
 def split_batch(batch: pa.RecordBatch, name: str) -> Split:

@@ -12,10 +12,13 @@ warnings, successes as info). Topics, the layout file and why this library: docs
 
 from __future__ import annotations
 
+import bisect
+import heapq
 import io
 import json
 import os
 from collections.abc import Callable
+from operator import itemgetter
 from pathlib import Path
 from typing import Any, Final
 
@@ -23,6 +26,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, staged
 from ._values import (
@@ -30,14 +34,14 @@ from ._values import (
     RESET_STEP,
     Frames,
     Split,
-    blocks,
+    Streams,
+    chunk_blocks,
     ending_text,
     finite,
     json_rows,
     json_schema,
     split_batch,
-    stream_prefix,
-    stream_prefixes,
+    streams,
 )
 
 __all__ = ["STEP_SCHEMA_NAME", "export_foxglove"]
@@ -58,6 +62,7 @@ def export_foxglove(
     out: str | os.PathLike[str],
     *,
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to ``out`` for Foxglove.
@@ -73,19 +78,31 @@ def export_foxglove(
     source, out = Path(source), Path(out)
     ev = open_evidence(source)
     result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))
-    with staged(source, out, overwrite=overwrite) as temporary:
+    with staged(source, out, overwrite=overwrite, overwrite_option=overwrite_option) as temporary:
         context = foxglove.Context()
         options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
-        writer = foxglove.open_mcap(temporary, context=context, writer_options=options)
+        writer = _open(foxglove, temporary, out, context, options)
         try:
             writer.write_metadata("episode_audit.export", _metadata(ev, source))
-            _Steps(foxglove, context, ev, result).write(progress)
-            _write_episodes(foxglove, context, ev, result)
+            named = streams(ev)
+            order = _InOrder(_endings(foxglove, context, ev, named, result))
+            _Steps(foxglove, context, ev, named, result, order).write(progress)
             result.paths += ["/episodes", "/log"]
         finally:
             writer.close()
     result.paths.sort()
     return result
+
+
+def _open(foxglove: Any, temporary: Path, out: Path, context: Any, options: Any) -> Any:
+    """The SDK's MCAP writer on ``temporary`` (made by :func:`staged`: it exists, empty)."""
+    try:
+        return foxglove.open_mcap(
+            temporary, allow_overwrite=True, context=context, writer_options=options
+        )
+    except (OSError, RuntimeError) as exc:  # (the folder was checked: rare)
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise ConfigurationError(f"{out}: foxglove-sdk cannot create it: {why}") from None
 
 
 def _unfinished(ev: Evidence) -> str | None:
@@ -106,9 +123,19 @@ def _metadata(ev: Evidence, source: Path) -> dict[str, str]:
 class _Steps:
     """The ``steps`` and ``camera/*`` topics of every stream, written block by block."""
 
-    def __init__(self, foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> None:
+    def __init__(
+        self,
+        foxglove: Any,
+        context: Any,
+        ev: Evidence,
+        named: Streams,
+        result: ViewerExport,
+        order: _InOrder,
+    ) -> None:
         self.fg, self.context, self.ev, self.result = foxglove, context, ev, result
-        self.prefix_of = stream_prefixes(ev)
+        self.hold = order.hold
+        self.order = order
+        self.named, self.prefix_of = named, named.prefix_of
         self.terms = sorted(
             {
                 name
@@ -125,20 +152,26 @@ class _Steps:
         self.images: dict[str, Any] = {}
 
     def write(self, progress: Callable[[int], None] | None) -> None:
+        """Write every chunk's resets, steps and frames, each chunk's in log-time order."""
         left_out: set[str] = set()
-        for reset, batch in blocks(self.ev):
-            observation = split_batch(batch, "observation")
-            left_out.update(observation.left_out)
-            if reset:
-                self.result.resets += self._write_resets(batch, observation)
-            else:
-                action = split_batch(batch, "action")
-                left_out.update(action.left_out)
-                self.result.steps += self._write_batch(batch, action, observation)
-                if progress is not None:
-                    progress(batch.num_rows)
-            for frames in observation.images if reset else action.images + observation.images:
-                self._write_frames(batch, frames)
+        for chunk in chunk_blocks(self.ev):
+            for reset, batch in chunk:
+                observation = split_batch(batch, "observation")
+                left_out.update(observation.left_out)
+                if reset:
+                    self.result.resets += self._write_resets(batch, observation)
+                    images = observation.images
+                else:
+                    action = split_batch(batch, "action")
+                    left_out.update(action.left_out)
+                    self.result.steps += self._write_batch(batch, action, observation)
+                    if progress is not None:
+                        progress(batch.num_rows)
+                    images = action.images + observation.images
+                for frames in images:
+                    self._write_frames(batch, frames)
+            self.order.write()
+        self.order.write(last=True)
         self.result.left_out = sorted(left_out)
 
     def _log(self, episode: int) -> Callable[[bytes, int], None]:
@@ -153,11 +186,17 @@ class _Steps:
                 ),
                 message_encoding="json",
                 context=self.context,
+                metadata=self._agent(prefix),
             )
             self.channels[prefix] = channel
             self.result.paths.append(f"{prefix}/steps")
         log: Callable[[bytes, int], None] = channel.base.log
         return log
+
+    def _agent(self, prefix: str) -> dict[str, str] | None:
+        """A PettingZoo agent's channel metadata: its name (its prefix may be changed)."""
+        agent = self.named.agent_at.get(prefix)
+        return None if agent is None else {"agent": agent}
 
     def _write_resets(self, batch: pa.RecordBatch, observation: Split) -> int:
         """Write the block's resets as messages of step :data:`RESET_STEP`; returns how many."""
@@ -173,7 +212,7 @@ class _Steps:
             message: dict[str, Any] = {"episode": episode, "step": RESET_STEP}
             if values is not None:
                 message["observation"] = values
-            self._log(episode)(dumps(message).encode(), time)
+            self.hold(time, self._log(episode), dumps(message).encode())
             written += 1
         return written
 
@@ -190,6 +229,7 @@ class _Steps:
         actions = json_rows(action.leaves, n)
         observations = json_rows(observation.leaves, n)
         logs: dict[int, Callable[[bytes, int], None]] = {}
+        hold = self.hold
         dumps = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
         left_out = 0
         every_time_fits = _all_in_range(batch.column("time_ns"))  # (else look at each row)
@@ -224,7 +264,7 @@ class _Steps:
                         zip(message["terms"], finite(list(message["terms"].values())), strict=True)
                     )
                 data = dumps(message)
-            log(data.encode(), times[i])
+            hold(times[i], log, data.encode())
         return int(n) - left_out
 
     def _write_frames(self, batch: pa.RecordBatch, frames: Frames) -> None:
@@ -240,23 +280,22 @@ class _Steps:
                 continue
             prefix = self.prefix_of.get(episodes[i], "")
             topic = f"{prefix}/camera/{name}"
-            channel = self.images.get(topic)
-            if channel is None:
-                channel = self.images[topic] = self.fg.channels.CompressedImageChannel(
-                    topic, context=self.context
+            log = self.images.get(topic)
+            if log is None:
+                channel = self.fg.channels.CompressedImageChannel(
+                    topic, context=self.context, metadata=self._agent(prefix)
                 )
+                log = self.images[topic] = _log_of(channel)
                 self.result.paths.append(topic)
             png = io.BytesIO()
             Image.fromarray(frames.pixels[i].squeeze()).save(png, format="png")
-            channel.log(
-                messages.CompressedImage(
-                    timestamp=_timestamp(messages, times[i]),
-                    frame_id=name,
-                    data=png.getvalue(),
-                    format="png",
-                ),
-                log_time=times[i],
+            message = messages.CompressedImage(
+                timestamp=_timestamp(messages, times[i]),
+                frame_id=name,
+                data=png.getvalue(),
+                format="png",
             )
+            self.hold(times[i], log, message)
             self.result.frames += 1
 
 
@@ -302,26 +341,30 @@ def _timestamp(messages: Any, ns: int) -> Any:
     return messages.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExport) -> None:
-    """One ``foxglove.Event`` (``/episodes``) and one ``foxglove.Log`` (``/log``) per episode.
+def _endings(
+    foxglove: Any, context: Any, ev: Evidence, named: Streams, result: ViewerExport
+) -> list[tuple[int, Callable[[Any, int], None], Any]]:
+    """Per episode, its ``foxglove.Event`` (``/episodes``) and ``foxglove.Log`` (``/log``).
+
+    As ``(time, log, message)`` to write: the event at the episode's start, the log at its end.
 
     Counted in ``result.episodes``; an episode without a time, or whose times no Foxglove
     timestamp holds (a file not from our recorder), is left out and counted in
     ``result.out_of_range``.
     """
     messages, channels = foxglove.messages, foxglove.channels
-    events = channels.EventChannel("/episodes", context=context)
-    logs = channels.LogChannel("/log", context=context)
-    records = ev.episodes().to_pylist()
-    kind = (ev.run.layout or {}).get("kind", "single")
-    for record in records:
+    events = _log_of(channels.EventChannel("/episodes", context=context))
+    logs = _log_of(channels.LogChannel("/log", context=context))
+    out: list[tuple[int, Callable[[Any, int], None], Any]] = []
+    for record in ev.episodes().to_pylist():
         start, end = record.get("start_time_ns"), record.get("end_time_ns")
         end = end if end is not None else start
         start = start if start is not None else end
         if not (_in_range(start) and _in_range(end)):  # (no time at all is not one either)
             result.out_of_range += 1
             continue
-        stream = stream_prefix(kind, record.get("env_index") or 0, record.get("agent"))
+        prefix = named.prefix_of[record["episode"]]
+        who = named.name(prefix)
         pairs = {
             "episode": record["episode"],
             "outcome": record["outcome"],
@@ -329,24 +372,74 @@ def _write_episodes(foxglove: Any, context: Any, ev: Evidence, result: ViewerExp
             "seed": "" if record.get("seed") is None else record["seed"],
             "length": record["length"],
             "return": record.get("return"),
-            "stream": stream.lstrip("/"),
+            "stream": prefix.lstrip("/"),
         }
-        events.log(
-            messages.Event(
-                start_time=_timestamp(messages, start),
-                end_time=_timestamp(messages, end),
-                metadata=[messages.KeyValuePair(key=k, value=str(v)) for k, v in pairs.items()],
-            ),
-            log_time=start,
+        if record.get("agent"):
+            pairs["agent"] = record["agent"]
+        event = messages.Event(
+            start_time=_timestamp(messages, start),
+            end_time=_timestamp(messages, end),
+            metadata=[messages.KeyValuePair(key=k, value=str(v)) for k, v in pairs.items()],
         )
         level = getattr(messages.LogLevel, _LEVELS.get(record["outcome"], "Warning"))
-        logs.log(
-            messages.Log(
-                timestamp=_timestamp(messages, end),
-                level=level,
-                message=(f"{stream.lstrip('/')} " if stream else "") + ending_text(record),
-                name=stream.lstrip("/") or "episode_audit",
-            ),
-            log_time=end,
+        ending = messages.Log(
+            timestamp=_timestamp(messages, end),
+            level=level,
+            message=(f"{who} " if who else "") + ending_text(record),
+            name=who or "episode_audit",
         )
+        out += [(start, events, event), (end, logs, ending)]
         result.episodes += 1
+    return out
+
+
+def _log_of(channel: Any) -> Callable[[Any, int], None]:
+    """The function logging a message on ``channel`` (a typed one) at a log time."""
+
+    def log(message: Any, time: int) -> None:
+        channel.log(message, log_time=time)
+
+    return log
+
+
+_BY_TIME = itemgetter(0, 1)
+
+
+class _InOrder:
+    """The messages of one evidence chunk, held, then written in log-time order.
+
+    A chunk's reset blocks come before its step blocks in the evidence file, and the episodes'
+    events and ending logs are known from the start; the recorder's chunks do not overlap in
+    time (a flush writes the rows since the last one). So each chunk's messages are sorted by
+    log time (ties in the order held) and merged with the ``endings`` due by the chunk's last
+    one: the file's messages are in log-time order, and Foxglove reads its chunks one after the
+    other. One chunk's messages are held at a time.
+    """
+
+    def __init__(self, endings: list[tuple[int, Callable[[Any, int], None], Any]]) -> None:
+        self.endings = sorted(
+            ((time, k, log, message) for k, (time, log, message) in enumerate(endings)),
+            key=_BY_TIME,
+        )
+        self.times = [ending[0] for ending in self.endings]
+        self.next = 0
+        self.held: list[tuple[int, int, Callable[[Any, int], None], Any]] = []
+
+    def hold(self, time: int, log: Callable[[Any, int], None], message: Any) -> None:
+        """Hold ``message``, to be written by ``log`` at ``time``."""
+        self.held.append((time, len(self.held), log, message))
+
+    def write(self, *, last: bool = False) -> None:
+        """Write the held messages and the endings due by then (``last``: every ending left)."""
+        self.held.sort(key=_BY_TIME)
+        if last:
+            until = len(self.endings)
+        elif self.held:
+            until = bisect.bisect_right(self.times, self.held[-1][0], lo=self.next)
+        else:
+            return
+        due = self.endings[self.next : until]
+        self.next = until
+        for time, _, log, message in heapq.merge(due, self.held, key=itemgetter(0)):
+            log(message, time)
+        self.held.clear()

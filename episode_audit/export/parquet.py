@@ -80,6 +80,7 @@ def export(
     out_dir: str | os.PathLike[str],
     *,
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
     on_error: Callable[[EvidenceError], None] | None = None,
     filesystem: Any = None,
@@ -95,10 +96,12 @@ def export(
 
     Existing output files are not replaced unless ``overwrite=True``, which replaces the export
     in ``out_dir``: ``*.steps.parquet`` files there that this export does not write (an earlier
-    export's) are removed (:attr:`ExportResult.removed`). An input that cannot
-    be read to the end (e.g. a damaged chunk) raises :class:`~episode_audit.errors.EvidenceError`;
-    with ``on_error``, it is handed the error instead, the input is listed in
-    :attr:`ExportResult.failed` with nothing of it in the output, and the others are exported.
+    export's) are removed (:attr:`ExportResult.removed`); ``overwrite_option`` is how the error
+    for an existing file names that option (``--overwrite`` on the command line). An input that
+    cannot be read to the end (e.g. a damaged chunk) raises
+    :class:`~episode_audit.errors.EvidenceError`; with ``on_error``, it is handed the error
+    instead, the input is listed in :attr:`ExportResult.failed` with nothing of it in the output,
+    and the others are exported.
 
     ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
     export a file each (see :mod:`episode_audit._jobs`); Ray workers must see ``out_dir``.
@@ -119,12 +122,14 @@ def export(
     sources = [as_source(p, **options) for p in path_list(paths)]
     if is_url(out_dir):
         out_url = remote_file(os.fspath(out_dir), **options)
-        return _export_to_url(sources, out_url, overwrite, progress, on_error, jobs, ray_address)
+        return _export_to_url(
+            sources, out_url, overwrite, overwrite_option, progress, on_error, jobs, ray_address
+        )
     out = _output_directory(Path(out_dir))
     episodes_file = out / "episodes.parquet"
     result = ExportResult(episodes_file)
     targets = [out / f"{name}.steps.parquet" for name in _step_file_names(sources)]
-    _check_outputs([episodes_file, *targets], overwrite)
+    _check_outputs([episodes_file, *targets], overwrite, overwrite_option)
     episode_tables: list[pa.Table] = []
     pairs = list(zip(sources, targets, strict=True))
     done = map_ordered(_export_pair, pairs, jobs=jobs, ray_address=ray_address, progress=progress)
@@ -153,15 +158,18 @@ def export(
     return result
 
 
-def _check_outputs(files: list[Path], overwrite: bool) -> None:
-    """Refuse outputs that are special files, or that exist when not to be overwritten."""
+def _check_outputs(files: list[Path], overwrite: bool, option: str) -> None:
+    """Refuse outputs that are special files, or that exist when not to be overwritten.
+
+    ``option``: how the error names the ``overwrite`` option (``--overwrite`` on the command
+    line).
+    """
     _refuse_special_files(files)
     if not overwrite:
         existing = [f for f in files if f.exists()]
         if existing:
             raise ConfigurationError(
-                f"{existing[0]}: exists; pass overwrite=True (--overwrite) to replace "
-                "exported files"
+                f"{existing[0]}: exists; pass {option} to replace exported files"
             )
 
 
@@ -169,12 +177,16 @@ def _export_to_url(
     sources: list[Source],
     out: RemoteFile,
     overwrite: bool,
+    option: str,
     progress: Callable[[int], None] | None,
     on_error: Callable[[EvidenceError], None] | None,
     jobs: int | None = 1,
     ray_address: str | None = None,
 ) -> ExportResult:
-    """Export into a local temporary directory, then upload each file to ``out``."""
+    """Export into a local temporary directory, then upload each file to ``out``.
+
+    ``option``: how the error for an existing file names ``overwrite`` (``--overwrite``).
+    """
     fs = out.fs
     names = ["episodes.parquet", *(f"{n}.steps.parquet" for n in _step_file_names(sources))]
     remote = {
@@ -185,7 +197,7 @@ def _export_to_url(
         for target in remote.values():
             if exists(target):
                 raise ConfigurationError(
-                    f"{target}: exists; pass overwrite=True (--overwrite) to replace exported files"
+                    f"{target}: exists; pass {option} to replace exported files"
                 )
     with tempfile.TemporaryDirectory(prefix="episode-audit-export-") as tmp:
         local = export(

@@ -1,12 +1,13 @@
 """Export an evidence file as a Rerun recording (``.rrd``), written with ``rerun-sdk``.
 
 Timelines ``step`` (within the episode; -1 for its reset), ``episode`` and ``time`` (the step's
-or reset's log time). Each episode's reset comes first: its observation from ``reset()``. Per
-stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in single-env ones):
-scalars ``steps/reward``, ``steps/terminated``, ``steps/truncated``, ``steps/terms/NAME``,
-``steps/action[/ITEM]`` and ``steps/observation[/ITEM]`` (the plottable fields) and images
-``camera/FIELD`` (PNG). For the file: ``/log``, a text log line per ending (failures and
-errors at level ERROR, truncations and cut-off episodes WARN, successes INFO).
+or reset's log time), and no other: rerun-sdk's own ``log_time`` (the export's wall clock) and
+``log_tick`` are turned off. Each episode's reset comes first: its observation from
+``reset()``. Per stream (``/env_N`` or ``/AGENT`` prefix in multi-stream files, none in
+single-env ones): scalars ``steps/reward``, ``steps/terminated``, ``steps/truncated``,
+``steps/terms/NAME``, ``steps/action[/ITEM]`` and ``steps/observation[/ITEM]`` (the plottable
+fields) and images ``camera/FIELD`` (PNG). For the file: ``/log``, a text log line per ending
+(failures and errors at level ERROR, truncations and cut-off episodes WARN, successes INFO).
 """
 
 from __future__ import annotations
@@ -32,8 +33,7 @@ from ._values import (
     blocks,
     ending_text,
     split_batch,
-    stream_prefix,
-    stream_prefixes,
+    streams,
 )
 
 __all__ = ["export_rerun"]
@@ -46,6 +46,7 @@ def export_rerun(
     out: str | os.PathLike[str],
     *,
     overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to the Rerun recording ``out``.
@@ -63,9 +64,11 @@ def export_rerun(
     unfinished = None if ev.finished else ev.torn or "no run-end record"
     result = ViewerExport(out, source, "rerun", unfinished=unfinished)
     try:
-        with staged(source, out, overwrite=overwrite) as temporary:
+        with staged(
+            source, out, overwrite=overwrite, overwrite_option=overwrite_option
+        ) as temporary:
             writer = _write(rr, temporary, ev, result, progress)
-            if not temporary.exists():  # a disabled SDK (RERUN=off in the environment): none
+            if temporary.stat().st_size == 0:  # a disabled SDK (RERUN=off in the environment)
                 raise ConfigurationError(
                     f"{out}: rerun-sdk wrote nothing; is logging turned off (RERUN=off)?"
                 )
@@ -85,7 +88,13 @@ def _write(
 ) -> _Writer:
     """Write ``ev`` to a new recording saved at ``path``; the writer, which keeps no stream."""
     rec = rr.RecordingStream("episode-audit", send_properties=False)
-    rec.save(str(path))
+    rec.set_log_time_enabled(False)  # (the export's wall clock: no timeline of the episodes)
+    rec.set_log_tick_enabled(False)
+    try:
+        rec.save(str(path))
+    except (OSError, RuntimeError) as exc:  # (the folder was checked: rare)
+        why = str(exc).split(", path:")[0]  # (the path is the temporary file's)
+        raise ConfigurationError(f"{result.path}: rerun-sdk cannot create it: {why}") from None
     rec.send_recording_name(result.source.name)
     writer = _Writer(rr, rec, ev, result)
     try:
@@ -120,8 +129,8 @@ class _Writer:
 
     def __init__(self, rr: Any, rec: Any, ev: Evidence, result: ViewerExport) -> None:
         self.rr, self.rec, self.ev, self.result = rr, rec, ev, result
-        self.kind = (ev.run.layout or {}).get("kind", "single")
-        self.prefix_of = stream_prefixes(ev)
+        self.named = streams(ev)
+        self.prefix_of = self.named.prefix_of
         self.paths: set[str] = set()
         self.left_out: set[str] = set()
 
@@ -247,12 +256,12 @@ class _Writer:
             end = record.get("end_time_ns") or record.get("start_time_ns")
             if end is None:
                 continue
-            stream = stream_prefix(self.kind, record.get("env_index") or 0, record.get("agent"))
+            who = self.named.name(self.prefix_of[record["episode"]])
             rec.set_time("time", timestamp=np.datetime64(end, "ns"))
             rec.set_time("episode", sequence=record["episode"])
             rec.set_time("step", sequence=max(record["length"] - 1, 0))
             level = getattr(rr.TextLogLevel, _LEVELS.get(record["outcome"], "WARN"))
-            text = (f"{stream.lstrip('/')} " if stream else "") + ending_text(record)
+            text = (f"{who} " if who else "") + ending_text(record)
             rec.log("/log", rr.TextLog(text, level=level))
             self.paths.add("/log")
         return len(records)

@@ -30,6 +30,7 @@ __all__ = [
     "PathTemplate",
     "check_output_path",
     "claim_output",
+    "make_folder",
     "output_kind",
 ]
 
@@ -148,10 +149,10 @@ def claim_output(
     """
     text = os.fspath(path)
     if not template:
-        _make_folder(Path(text))
+        make_folder(Path(text))
         return _open_path(Path(text), overwrite)
     tmpl = PathTemplate(text)
-    _make_folder(Path(tmpl.render(0)))
+    make_folder(Path(tmpl.render(0)))
     if "index" not in tmpl.fields:
         return _open_path(Path(tmpl.render(0)), overwrite)
     if overwrite:
@@ -177,11 +178,23 @@ def claim_output(
     raise ConfigurationError(f"path {text!r}: every {{index}} below {MAX_INDEX} is taken")
 
 
-def _make_folder(path: Path) -> None:
-    """Create the folder ``path`` goes in, with its parents, when it is missing."""
+def make_folder(path: Path) -> None:
+    """Create the folder ``path`` goes in, with its parents, when it is missing.
+
+    A :class:`~episode_audit.errors.ConfigurationError` names ``path`` when it cannot be: one
+    of the folders it is in is a file, or the OS refuses.
+    """
     folder = path.parent
     if folder.is_dir():
         return
+    for above in (folder, *folder.parents):
+        if above.is_dir():
+            break
+        if os.path.lexists(above):
+            kind = output_kind(above) or ("a file" if above.is_file() else "a broken link")
+            raise ConfigurationError(
+                f"{path}: {above} is {kind}, not a folder; give a path in a folder"
+            )
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

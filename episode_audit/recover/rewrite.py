@@ -21,7 +21,7 @@ from ..read.liveness import still_written, writer_of
 from ..read.storage import is_url
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
-from .files import Temporary, check_paths
+from .files import Temporary, check_paths, temporary
 from .kept import Kept
 from .remote import recover_remote
 from .result import CLOSING_MAGIC, RecoveryResult, record_name
@@ -30,7 +30,11 @@ __all__ = ["recover"]
 
 
 def recover(
-    path: str | os.PathLike[str], out: str | os.PathLike[str], *, overwrite: bool = False
+    path: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
 ) -> RecoveryResult:
     """Rewrite the evidence file ``path`` as a finished, indexed file ``out``.
 
@@ -45,7 +49,8 @@ def recover(
     downloaded to a temporary file first, and a remote output uploaded once finished.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
-    (without ``overwrite``) or cannot be created, when either file is still being written by a
+    (without ``overwrite``; the error names it ``overwrite_option``, ``--overwrite`` on the
+    command line) or cannot be created, when either file is still being written by a
     live recorder (``path`` is then not torn: its ``close()`` will finish it), and
     :class:`~episode_audit.errors.EvidenceError` (and its subclasses) when the input is not
     readable evidence.
@@ -67,13 +72,15 @@ def recover(
     >>> open_evidence(d / "fixed.mcap").run_end["status"]
     'recovered'
     """
+    if not os.fspath(out):  # (Path("") is the current folder)
+        raise ConfigurationError("out: expected a path, got an empty string")
     if is_url(path) or is_url(out):  # object storage: through a local temporary copy
-        return recover_remote(path, out, overwrite, recover)
+        return recover_remote(path, out, overwrite, recover, overwrite_option)
     src, dst = Path(path), Path(out)
-    check_paths(src, dst, overwrite)
+    check_paths(src, dst, overwrite, overwrite_option)
     ev = _open_input(src)
     _refuse_live(ev, dst)
-    tmp = Temporary(dst)
+    tmp = temporary(dst, overwrite_option)
     try:
         if ev.finished and not (ev.summary_damage or ev.run_end_damage) and _intact(src, ev):
             result = _copy_unchanged(src, ev, tmp.path, dst)
@@ -161,7 +168,7 @@ def _rewrite(src: Path, tmp: Temporary, dst: Path, summary_damage: str | None) -
     header = next(records)
     if not isinstance(header, Header):  # open_evidence found one: the walk does too
         raise CorruptEvidenceError(src, "the first record is not an MCAP header")
-    writer = EvidenceWriter(tmp.path, library=header.library, overwrite=tmp.unnamed)
+    writer = EvidenceWriter(tmp.path, library=header.library, overwrite=True)  # (ours)
     try:
         copy = RecordCopy(src, writer)
         end = copy.copy(records)

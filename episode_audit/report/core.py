@@ -23,6 +23,7 @@ from .wrapped import Chain, Wrapped, file_chain
 
 __all__ = [
     "BY_LABEL_NOTE",
+    "UNFINISHED_TITLE",
     "FilePart",
     "Report",
     "file_part",
@@ -38,6 +39,9 @@ BY_LABEL_NOTE = (
     "each other) are not computed; report by file, env, all or tag:NAME for them"
 )
 """The note of a report grouped by label."""
+
+UNFINISHED_TITLE = "Unfinished files (still being written, or torn): counts so far"
+"""The title of the table of :attr:`Report.unfinished` (terminal, Markdown and HTML)."""
 
 
 @dataclass

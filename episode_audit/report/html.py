@@ -20,7 +20,7 @@ from ..format import names as fmt
 from ..record.lock import output_kind
 from . import charts
 from .collect import ENDED
-from .core import FilePart, Report
+from .core import UNFINISHED_TITLE, FilePart, Report
 from .groups import GroupReport
 from .incentives import SHAPING_DOMINATES
 from .stats import Interval, rate_text
@@ -43,6 +43,7 @@ td.n{text-align:right;white-space:nowrap}.warn{background:#fff3cd}
 .warn-note{color:#8a4b00;font-size:.9em;white-space:normal;max-width:28em}code{font-size:.85em;
 white-space:nowrap}figure{margin:.5em 0 1.5em}figure svg{max-width:100%;height:auto}
 .failure{color:#c62828}.success{color:#2e7d32}.truncated{color:#9a6b00}
+h2.unfinished{color:#8a4b00}table.unfinished td{background:#fff3cd}
 """
 
 
@@ -276,6 +277,19 @@ def _notes(notes: Sequence[str]) -> str:
     return '<ul class="notes">' + "".join(f"<li>{_full(n)}</li>" for n in notes) + "</ul>"
 
 
+def _unfinished(result: Report) -> str:
+    """The files still being written or torn, and why: their counts are not final."""
+    if not result.unfinished:
+        return ""
+    rows = "".join(
+        f"<tr><td>{_full(name)}</td><td>{_full(why)}</td></tr>" for name, why in result.unfinished
+    )
+    return (
+        f'<h2 class="unfinished">{_full(UNFINISHED_TITLE)}</h2>'
+        f'<table class="unfinished"><tr><th>file</th><th>why</th></tr>{rows}</table>'
+    )
+
+
 def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") -> str:
     """The report as one HTML page: charts inline (SVG), no script, nothing loaded from outside.
 
@@ -296,6 +310,7 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
         f"<title>{_full(title or heading)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>{heading}</h1>",
         _notes([*result.notes, *filter(None, [result.reward_note])]),
+        _unfinished(result),
         "<h2>Outcomes</h2>",
         f'<figure class="chart">{rate_svg}</figure>' if rate_svg else "",
         _outcome_table(result),

@@ -35,3 +35,25 @@ def test_compare_help_names_its_positional_paths_the_baseline() -> None:
     # ({BASELINE}... in Typer's newer usage line, BASELINE in older ones)
     assert re.search(r"compare \[OPTIONS\] \{?BASELINE\b", result.output), result.output
     assert "The baseline's evidence files" in result.output
+
+
+@pytest.mark.parametrize(
+    ("command", "example"),
+    [
+        ("export", "e.g. episode-audit export runs/ -o tables/"),
+        ("export", "python -m episode_audit.export.layout run.foxglove.mcap > layout.json"),
+        ("show", "e.g. episode-audit show runs/run.mcap"),
+    ],
+)
+def test_export_and_show_help_give_an_example_within_80_columns(command: str, example: str) -> None:
+    result = CliRunner().invoke(app, [command, "--help"], terminal_width=80)
+    assert result.exit_code == 0, result.output
+    assert example in result.output  # (a line of its own: Click does not rewrap it)
+    assert all(len(line) <= 80 for line in result.output.splitlines()), result.output
+
+
+def test_no_help_points_to_a_docs_file_the_installed_package_lacks() -> None:
+    """``export --help`` pointed to docs/viewers.md, which no installed package holds."""
+    for command in COMMANDS:
+        result = CliRunner().invoke(app, [command, "--help"], terminal_width=100)
+        assert not re.search(r"docs/\S+\.(md|json)", result.output), (command, result.output)

@@ -214,7 +214,7 @@ def test_a_missing_folder_is_created(tmp_path: Path, name: str) -> None:
         env.reset(seed=0)
     assert env.path.parent == tmp_path / "runs" / "a" and env.path.is_file()
     (tmp_path / "file").write_text("")
-    with pytest.raises(ConfigurationError, match=r"x\.mcap: cannot create its folder .*file"):
+    with pytest.raises(ConfigurationError, match=r"x\.mcap: .*file is a file, not a folder"):
         RecordEvidence(gym.make("CartPole-v1"), tmp_path / "file" / "x.mcap")
 
 

@@ -272,3 +272,38 @@ def test_write_report_html_reads_no_file_again(tmp_path: Path) -> None:
     assert f"episode-audit replay {paths[1]} --episode 1" in page
     with pytest.raises(ConfigurationError, match="looks like an evidence file"):
         write_report_html(result.report, result.parts, paths[1])  # an input: never replaced
+
+
+def test_html_report_says_which_files_are_unfinished(tmp_path: Path) -> None:
+    """The terminal report had an "Unfinished files" table; the HTML page said nothing, so its
+    rates over a torn or live file read as final ones."""
+    import gymnasium as gym
+
+    from episode_audit import RecordEvidence
+    from episode_audit.cli.render.report import report_output
+
+    title = "Unfinished files (still being written, or torn): counts so far"  # (the terminal's)
+    fixtures = Path(__file__).resolve().parents[2] / "fixtures"
+    live = tmp_path / "live <b>.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), live) as env:
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(0)
+        env.flush()  # (still open: a live file)
+        inputs = [fixtures / "torn.mcap", fixtures / "clean.mcap", live]
+        result = report_inputs(inputs, by="file")
+        out = write_report_html(result.report, result.parts, tmp_path / "report.html")
+    page = out.read_text(encoding="utf-8")
+    unfinished = result.report.unfinished
+    assert [name for name, _ in unfinished] == [str(fixtures / "torn.mcap"), str(live)]
+    section = page.split(f'<h2 class="unfinished">{html.escape(title)}</h2>')[1]
+    section = section.split("</table>")[0]
+    rows = re.findall(r"<tr><td>(.*?)</td><td>(.*?)</td></tr>", section)
+    assert rows == [(html.escape(n), html.escape(w)) for n, w in unfinished]
+    assert page.index(title) < page.index("<h2>Outcomes</h2>")  # (before the rates)
+    terminal = str(report_output(result.report, "markdown"))
+    assert title in terminal and all(w in terminal for _, w in unfinished)
+
+    finished = report_inputs([fixtures / "clean.mcap"], by="file")
+    clean = write_report_html(finished.report, finished.parts, tmp_path / "clean.html")
+    assert "Unfinished files" not in clean.read_text(encoding="utf-8")

@@ -1,5 +1,5 @@
-"""Evidence files the viewer-export tests open: camera frames, a vector env, a PettingZoo game;
-what their resets hold."""
+"""Evidence files the viewer-export tests open: camera frames, a vector env, a PettingZoo game,
+random CartPole; what their resets hold."""
 
 from __future__ import annotations
 
@@ -47,13 +47,18 @@ class _Camera(ScriptedEnv):
         return _camera_obs(self), {}
 
 
-def camera_file(path: Path) -> Path:
-    """Two episodes of image + state observations: a ``collision`` failure (4 steps), then
-    a time-limit truncation (6 steps)."""
-    env = gym.wrappers.TimeLimit(
+def camera_env() -> gym.Env[Any, Any]:
+    """Image + state observations (``camera``, ``state``, ``mode``), 6 steps at most."""
+    return gym.wrappers.TimeLimit(
         _Camera(step_fn=_camera_step, observation_space=CAMERA, action_space=spaces.Discrete(2)),
         6,
     )
+
+
+def camera_file(path: Path) -> Path:
+    """Two episodes of image + state observations: a ``collision`` failure (4 steps), then
+    a time-limit truncation (6 steps)."""
+    env = camera_env()
     with RecordEvidence(env, path, tags={"policy": "scripted"}) as rec:
         for seed in (0, 1):
             rec.reset(seed=seed)
@@ -74,6 +79,16 @@ def vector_file(path: Path) -> Path:
     return path
 
 
+def camera_vector_file(path: Path) -> Path:
+    """Two :func:`camera_env` sub-envs (sync), 8 vector steps."""
+    envs = gym.vector.SyncVectorEnv([camera_env, camera_env])
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(8):
+            rec.step(np.array([1, 0]))
+    return path
+
+
 def aec_file(path: Path) -> Path:
     """Two tic-tac-toe games with random legal moves."""
     with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
@@ -89,6 +104,28 @@ def aec_file(path: Path) -> Path:
                 legal = np.flatnonzero(obs["action_mask"])
                 env.step(None if term or trunc else int(rng.choice(legal)))
     return path
+
+
+def random_cartpole_file(path: Path, steps: int, **options: Any) -> Path:
+    """CartPole-v1 with random actions (seed 0) for ``steps`` steps, reset whenever it ends;
+    ``options`` are the recorder's (``block_steps=64``: many chunks)."""
+    with RecordEvidence(gym.make("CartPole-v1"), path, **options) as env:
+        env.action_space.seed(0)
+        env.reset(seed=0)
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+    return path
+
+
+VIEWER_FILES = {
+    "camera": camera_file,
+    "vector": vector_file,
+    "camera_vector": camera_vector_file,
+    "aec": aec_file,
+}
+"""Each kind of evidence file above, by name: ``make(path)`` records it."""
 
 
 def recorded_resets(source: Path) -> list[dict[str, Any]]:

@@ -9,6 +9,7 @@ from rich.text import Text
 
 from ...read.inputs import Unreadable
 from ...report import GroupReport, Report
+from ...report.core import UNFINISHED_TITLE
 from ...report.stats import rate_text
 from .common import (
     Output,
@@ -142,11 +143,7 @@ def _sections(result: Report) -> list[tuple[str, list[str], list[list[str]]]]:
         ("Reward terms by outcome", ["group", "outcome", "term", "mean total per episode"], terms),
         ("Incentive warnings", ["group", "warning", "why"], warnings),
         (_GATES, ["gate", "group", "result", "detail"], gates),
-        (
-            "Unfinished files (still being written, or torn): counts so far",
-            ["file", "why"],
-            [[name, why] for name, why in result.unfinished],
-        ),
+        (UNFINISHED_TITLE, ["file", "why"], [[name, why] for name, why in result.unfinished]),
     ]
 
 
