@@ -50,9 +50,11 @@ __all__ = [
     "reward_wrapper_names",
     "state_causes",
     "stateful_wrapper",
+    "unplaced_limits",
     "unread_limits",
     "vector_wrapper_cause",
     "worker_limits",
+    "worker_sub_envs",
 ]
 
 WrapperKind = Literal["rebuilt", "snapshot", "transparent", "stateful", "refused"]
@@ -544,6 +546,8 @@ at an episode's end (text; absent when it could). Its truncations by one it did 
 (:func:`unread_limits`)."""
 
 _WORKERS = {"AsyncVectorEnv": "SyncVectorEnv", "SubprocVecEnv": "DummyVecEnv"}
+_IN_WORKERS = "the sub-envs ran in "
+_TO_REPLAY = " to replay such endings"
 
 
 def worker_limits(vector_class: str) -> str:
@@ -554,9 +558,9 @@ def worker_limits(vector_class: str) -> str:
     """
     local = _WORKERS.get(vector_class, "sub-envs in this process")
     return (
-        f"the sub-envs ran in {vector_class[:80]} workers, whose wrapper chains the recorder "
+        f"{_IN_WORKERS}{vector_class[:80]} workers, whose wrapper chains the recorder "
         "cannot walk: it read the outermost TimeLimit's limit only (one inside it, or under a "
-        f"frame-skipping wrapper, it did not); record with {local} to replay such endings"
+        f"frame-skipping wrapper, it did not); record with {local}{_TO_REPLAY}"
     )
 
 
@@ -579,6 +583,62 @@ def unread_limits(layout: Any) -> str | None:
     if layout.get("kind") == "vector" and vector_class in _WORKERS:
         return worker_limits(str(vector_class))
     return None
+
+
+def worker_sub_envs(layout: Any) -> str | None:
+    """Why a file's spec may not hold its sub-envs' ``TimeLimit``s as they were, or ``None``.
+
+    Its sub-envs ran in ``AsyncVectorEnv`` / ``SubprocVecEnv`` workers (:func:`worker_limits`;
+    a file without :data:`LAYOUT_UNREAD_LIMITS`: by its ``vector_class``): the spec is
+    Gymnasium's, whose ``max_episode_steps`` is the outermost ``TimeLimit``'s limit, wherever it
+    sat, and which names no other. (A ``SAME_STEP`` sub-env's unread limits are placed in its
+    spec: not this.)
+
+    >>> worker_sub_envs({"kind": "vector", "vector_class": "SubprocVecEnv"})[:33]
+    'the sub-envs ran in SubprocVecEnv'
+    >>> worker_sub_envs({"kind": "vector", "vector_class": "SyncVectorEnv"}) is None
+    True
+    """
+    why = unread_limits(layout)
+    return why if why is not None and why.startswith(_IN_WORKERS) else None
+
+
+def unplaced_limits(env_spec: Any, layout: Any) -> str | None:
+    """Why where a worker file's ``TimeLimit``s sat is unknown, or ``None``.
+
+    Its sub-envs ran in workers (:func:`worker_sub_envs`) and its spec holds a multi-step
+    wrapper: the spec's ``max_episode_steps`` may be the limit of a ``TimeLimit`` over it or
+    under it (counting its steps or the env's), and another may be under it unseen, so an env
+    rebuilt from the spec may end an episode inside a frame skip where the recorded one did
+    not, or the other way, at any step.
+
+    >>> skip = {"entry_point": "gymnasium.wrappers.stateful_observation:MaxAndSkipObservation"}
+    >>> unplaced_limits({"additional_wrappers": [skip]}, {"kind": "vector",
+    ...     "vector_class": "AsyncVectorEnv"})[:48]
+    'the sub-envs ran in AsyncVectorEnv workers, whos'
+    """
+    workers = worker_sub_envs(layout)
+    wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    if workers is None:
+        return None
+    multi = [
+        str(w.get("entry_point")).rpartition(":")[2][:80]
+        for w in _listed(wrappers)
+        if isinstance(w, Mapping) and multi_step(str(w.get("entry_point")))
+    ]
+    if not multi:
+        return None
+    return (
+        f"{workers.partition(':')[0]}, and its spec holds {multi[0]}, which steps the env more "
+        "than once a step: whether its TimeLimits sat over it or under it is unknown, so an env "
+        "rebuilt from the spec may end an episode at another step; pass --env-factory "
+        f"MODULE:CALLABLE that builds the sub-env as recorded, or {_record_instead(workers)}"
+    )
+
+
+def _record_instead(workers: str) -> str:
+    """How to record a worker file's sub-envs so that their limits are read (its last clause)."""
+    return workers.rpartition("; ")[2].removesuffix(_TO_REPLAY)
 
 
 RUN_TRANSPARENT_WRAPPERS = "transparent_wrappers"

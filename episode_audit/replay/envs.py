@@ -26,7 +26,12 @@ from ..format.options import decode_typed
 from ..format.records import RunInfo
 from ..format.spaces import describe_space
 from ..format.unrecorded import unrecorded
-from ..format.wrappers import declared_transparent, placed_limits, plan_wrappers
+from ..format.wrappers import (
+    declared_transparent,
+    placed_limits,
+    plan_wrappers,
+    worker_sub_envs,
+)
 from ..record.time_limits import limit_places, step_limit
 
 __all__ = [
@@ -397,7 +402,9 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False)
     Its observation and action spaces, its step limits (:func:`_limit_checks`) and, when it
     has a spec, the env kwargs both name
     (``render_mode`` aside) against the recorded ones. ``factory``: the user's env factory
-    built it (the reason then says to change that).
+    built it (the reason then says to change that); its limits are not held to those of a file
+    whose sub-envs ran in workers (``wrappers.worker_sub_envs``: the recorder could not read
+    them all, nor where they sat).
     Never raises: what cannot be read of the rebuilt env is not compared.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
@@ -406,7 +413,8 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False)
             ("observation space", run.observation_space, _described(env.observation_space)),
             ("action space", run.action_space, _described(env.action_space)),
         ]
-        checks += _limit_checks(spec, env)
+        if not (factory and worker_sub_envs(run.layout)):  # (its limits: the user's word)
+            checks += _limit_checks(spec, env)
         rebuilt = getattr(env.spec, "kwargs", None)
         if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):
             recorded, now = _kwargs(spec["kwargs"]), _kwargs(rebuilt)

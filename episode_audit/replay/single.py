@@ -21,6 +21,7 @@ import pyarrow.compute as pc
 
 from ..errors import ReplayError
 from ..format import names as fmt
+from ..format.wrappers import unplaced_limits
 from ..read import Evidence
 from .envs import EnvFactory, build_env, env_mismatch
 from .recorded import (
@@ -57,6 +58,8 @@ def replay_single_evidence(
     """Replay the episodes of one open single-env or vector evidence file."""
     wanted = None if episodes is None else set(episodes)
     why_not = layout_not_replayable(ev.run.layout) or state_not_restorable(ev.run)
+    if why_not is None and env_factory is None:
+        why_not = unplaced_limits(ev.run.env_spec, ev.run.layout)
     if why_not is not None:
         return none_replayable(str(ev.path), episode_records(ev, wanted), why_not)
 

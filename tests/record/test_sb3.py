@@ -215,7 +215,9 @@ def test_time_limits_the_recorder_cannot_read_are_not_called_divergences(
     readable = vec == "dummy" and make is nested_pendulum
     reason = "time_limit" if readable else "external"
     assert [(e["length"], e["truncation_reason"]) for e in ended] == [(length, reason)] * 2
-    result = replay([path])
+    # (where a worker's limits sat around a frame skip, only an env factory says: below)
+    unplaced = vec == "subproc" and make is skipped_pendulum
+    result = replay([path], env_factory=make if unplaced else None)
     first = result.episodes[:2]
     if readable:
         assert [(e.status, e.steps) for e in first] == [("identical", length)] * 2
@@ -229,6 +231,38 @@ def test_time_limits_the_recorder_cannot_read_are_not_called_divergences(
         if vec == "subproc"
         else "a sub-env's TimeLimit under MaxAndSkipObservation counts the env's own steps"
     )
+
+
+def limit_inside_skip() -> gym.Env[Any, Any]:
+    """A limit of 5 Pendulum steps under a 2-step frame skip (ending each episode inside its
+    3rd step), in one of 30 over it: the one a SubprocVecEnv worker answers for."""
+    skip = gym.wrappers.MaxAndSkipObservation(gym.make("Pendulum-v1", max_episode_steps=5), 2)
+    return ResetRngInfo(gym.wrappers.TimeLimit(skip, 30))
+
+
+def test_subproc_workers_over_a_frame_skip_are_not_replayable_without_a_factory(
+    tmp_path: Path,
+) -> None:
+    """The spec says 30 with the frame skip among its wrappers: rebuilt, the limit would sit
+    under it and the one of 5 be gone (the last observations differ). Not a divergence."""
+    path = tmp_path / "skip.mcap"
+    venv = SubprocVecEnv([limit_inside_skip], start_method=START)
+    with RecordVecEnvEvidence(venv, path) as rec:
+        rec.seed(0)
+        rec.reset()
+        for _ in range(4):
+            rec.step(np.zeros((1, 1), np.float32))
+    ended = open_evidence(path).episodes().to_pylist()
+    assert [(e["length"], e["truncation_reason"]) for e in ended[:1]] == [(3, "external")]
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert {e.reason for e in result.episodes} == {
+        "the sub-envs ran in SubprocVecEnv workers, whose wrapper chains the recorder cannot "
+        "walk, and its spec holds MaxAndSkipObservation, which steps the env more than once a "
+        "step: whether its TimeLimits sat over it or under it is unknown, so an env rebuilt from "
+        "the spec may end an episode at another step; pass --env-factory MODULE:CALLABLE that "
+        "builds the sub-env as recorded, or record with DummyVecEnv"
+    }
 
 
 # ---------------------------------------------------------------- SAC on MuJoCo
