@@ -44,7 +44,7 @@ from .groups import (
 )
 from .metrics import Verdict, decide
 from .sides import Side, sides, started
-from .spec import Mismatch, field_mismatches, run_fields
+from .spec import Mismatch, field_mismatches, limits_note, run_fields
 from .stats import holm
 
 __all__ = [
@@ -104,6 +104,8 @@ class Comparison:
     """The candidate's, likewise."""
     only_baseline_gates: list[GateResult] = field(default_factory=list)
     """Each gate that is on, failed on each group only the baseline has: it cannot be verified."""
+    limits_note: str | None = None
+    """Why the sides' time limits were not compared (:func:`~.spec.limits_note`), if so."""
 
     @property
     def reward_notes(self) -> list[str]:
@@ -125,12 +127,13 @@ class Comparison:
     def notes(self) -> list[str]:
         """What the options matched nothing of, and what the comparison could not use, a line each.
 
-        A per-label failure gate on a label no failure of either side has; a group's notes
-        (error episodes, returns that are not finite), naming the group; a group on one side
-        only.
+        Time limits not compared; a per-label failure gate on a label no failure of either side
+        has; a group's notes (error episodes, returns that are not finite), naming the group; a
+        group on one side only.
         """
         seen = ", ".join(map(repr, self.seen_labels)) or "none"
-        notes = [
+        notes = [] if self.limits_note is None else [self.limits_note]
+        notes += [
             f"gate max_failure_increase:{label}: {unmatched_why(label)} (labels seen: {seen})"
             for label in self.unmatched_labels
         ]
@@ -319,6 +322,7 @@ def compare_parts(
         Wrapped.of(f.part.reward_wrappers for f in baseline),
         Wrapped.of(f.part.reward_wrappers for f in candidate),
         unverified,
+        limits_note([f.fields for f in baseline], [f.fields for f in candidate]),
     )
 
 

@@ -13,11 +13,24 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from ..format.wrappers import limits_text
+from ..format.wrappers import limits_text, worker_sub_envs
 from ..read import Evidence
 from ..report.wrapped import chain_text, file_chain
 
-__all__ = ["Mismatch", "field_mismatches", "mismatches", "run_fields"]
+__all__ = [
+    "UNREAD_LIMITS",
+    "Mismatch",
+    "field_mismatches",
+    "limits_note",
+    "mismatches",
+    "run_fields",
+]
+
+UNREAD_LIMITS = "unread_limits"
+"""The field of a file whose sub-envs ran in workers (their vector class): its recorded time
+limit is the outermost ``TimeLimit``'s, wherever it sat (``wrappers.worker_sub_envs``), so the
+sides' limits are not compared (:func:`limits_note`)."""
+_LIMITS = "max_episode_steps"
 
 
 @dataclass(frozen=True)
@@ -47,9 +60,11 @@ def run_fields(ev: Evidence) -> dict[str, str]:
     out = {
         "env_id": str(run.env_id),
         "env_kwargs": json.dumps(spec.get("kwargs") or {}, sort_keys=True, default=str),
-        "max_episode_steps": limits_text(spec),
+        _LIMITS: limits_text(spec),
         "reward_wrappers": chain_text(file_chain(ev)) or "(none)",
     }
+    if worker_sub_envs(run.layout) is not None:
+        out[UNREAD_LIMITS] = str(run.layout.get("vector_class"))[:80]
     for name, version in sorted((run.versions or {}).items()):
         if name not in ("python", "episode_audit"):
             out[f"version:{name}"] = str(version)
@@ -72,7 +87,9 @@ def field_mismatches(
 
     A library's version is compared only when both sides recorded it: a recorder records the
     libraries its process had imported, so one missing on a side says nothing of its version.
+    The time limits are not compared when a file's sub-envs ran in workers (:func:`limits_note`).
     """
+    unread = any(UNREAD_LIMITS in fields for fields in [*baseline, *candidate])
     base: dict[str, set[str]] = {}
     cand: dict[str, set[str]] = {}
     for into, files in ((base, baseline), (cand, candidate)):
@@ -85,7 +102,36 @@ def field_mismatches(
         for name in names
         if base.get(name, set()) != cand.get(name, set())
         and not (name.startswith("version:") and not (name in base and name in cand))
+        and name != UNREAD_LIMITS
+        and not (name == _LIMITS and unread)
     ]
+
+
+def limits_note(
+    baseline: Sequence[dict[str, str]], candidate: Sequence[dict[str, str]]
+) -> str | None:
+    """Why the sides' time limits were not compared (a line), or ``None`` when they were.
+
+    A file whose sub-envs ran in ``AsyncVectorEnv`` / ``SubprocVecEnv`` workers records the
+    outermost ``TimeLimit``'s limit only, not one inside it nor whether it sat over a frame
+    skip: its limit is not evidence of the limits its episodes ran under.
+    """
+    workers = {
+        side: sorted({f[UNREAD_LIMITS] for f in files if UNREAD_LIMITS in f})
+        for side, files in (("baseline", baseline), ("candidate", candidate))
+    }
+    said = [f"the {side}'s in {', '.join(names)}" for side, names in workers.items() if names]
+    if not said:
+        return None
+    recorded = "; ".join(
+        f"{side} {', '.join(sorted({f.get(_LIMITS, '') for f in files}))}"
+        for side, files in (("baseline", baseline), ("candidate", candidate))
+    )
+    return (
+        f"time limits not compared: sub-envs ran in worker processes ({' and '.join(said)}), "
+        "whose TimeLimits the recorder cannot all read, nor where they sat (recorded "
+        f"max_episode_steps: {recorded})"
+    )
 
 
 def _order(name: str) -> Any:

@@ -149,6 +149,32 @@ def test_time_limits_over_a_frame_skip_are_compared_too(tmp_path: Path) -> None:
     ]
 
 
+def test_time_limits_of_sub_envs_in_workers_are_not_compared(tmp_path: Path) -> None:
+    """An AsyncVectorEnv's file records the outermost TimeLimit's limit, wherever it sat: the
+    same sub-envs in a SyncVectorEnv are not said to differ, and the note says why."""
+    import gymnasium as gym
+
+    from episode_audit import RecordVectorEvidence
+    from tests.support.limits import skipping_pendulum
+
+    paths = []
+    for make in (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv):
+        path = tmp_path / f"{make.__name__}.mcap"
+        with RecordVectorEvidence(make([lambda: skipping_pendulum(30)]), path) as rec:
+            rec.action_space.seed(0)
+            rec.reset(seed=0)
+            for _ in range(31):
+                rec.step(rec.action_space.sample())
+        paths.append(path)
+    result = compare([paths[0]], [paths[1]])
+    assert result.mismatches == []
+    assert result.notes[0] == (
+        "time limits not compared: sub-envs ran in worker processes (the candidate's in "
+        "AsyncVectorEnv), whose TimeLimits the recorder cannot all read, nor where they sat "
+        "(recorded max_episode_steps: baseline 200 (over a multi-step wrapper: 30); candidate 30)"
+    )
+
+
 def test_a_file_on_both_sides_is_refused(runs: dict[str, Path]) -> None:
     with pytest.raises(ConfigurationError, match=r"five.mcap is on both sides: a file compared"):
         compare([runs["five_other"], runs["five"]], [runs["five"].parent / "." / "five.mcap"])
