@@ -6,18 +6,22 @@ comes back as a list, a numpy array as a list, ``inf`` as text, an int key as te
 :func:`encode_typed` writes options as tagged JSON that gives them back exactly, and
 :func:`decode_typed` reads it:
 
-- ``None``, a bool, an int, text, a finite float: themselves; ``inf``, ``-inf``, ``nan``:
-  ``{"$float": "inf"}``;
+- ``None``, a bool, an int, text, a finite float: themselves; ``inf``, ``-inf``, ``nan``,
+  ``-nan`` (a NaN's sign is kept, not its payload): ``{"$float": "inf"}``;
 - a list: a JSON array; a tuple: ``{"$tuple": [...]}``;
 - a dict whose keys are all text, none beginning with ``$``: a JSON object of its values;
   any other dict: ``{"$dict": [[key, value], ...]}`` (keys tagged as values are);
 - a numpy array: ``{"$array": {"dtype": "<f4", "shape": [2], "data": BASE64}}``, its C-order
-  bytes; a numpy scalar: ``{"$scalar": {"dtype": "<f4", "data": BASE64}}``. Dtypes
+  bytes (a Fortran-ordered array: its Fortran-order bytes and ``"order": "F"``); a numpy
+  scalar: ``{"$scalar": {"dtype": "<f4", "data": BASE64}}``. Dtypes
   (:data:`TYPED_KINDS`): bool, ints, floats, complex numbers, datetimes and timedeltas in any
   byte order, and for arrays fixed-width text and bytes; ``dtype`` is numpy's ``dtype.str``.
 
-Only these exact types are held: a subclass (an ``IntEnum``, an ``OrderedDict``), a set, bytes
-or any other object is not (``TypeError``). :func:`decode_typed` checks every tag, dtype, shape
+Only these exact types are held: a subclass (an ``IntEnum``, an ``OrderedDict``, a
+``numpy.matrix``), a set, bytes or any other object is not (``TypeError``); nor is a list, dict
+or array found twice in the options (``ValueError``: they would come back as two copies, and an
+env changing one would see the other unchanged). An array's dtype, shape, values and order (C or
+Fortran) are held, not its strides or flags. :func:`decode_typed` checks every tag, dtype, shape
 and size and raises ``ValueError`` naming what is wrong; it makes no object but these (nothing
 is imported or unpickled), and its arrays are writable copies.
 
@@ -56,14 +60,21 @@ TYPED_KINDS = frozenset("biufcmM")
 _ARRAY_KINDS = TYPED_KINDS | frozenset("SU")
 _MAX_DIMS = 32
 _MAX_DTYPE_TEXT = 32
-_NONFINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
+_NONFINITE = {
+    "inf": math.inf,
+    "-inf": -math.inf,
+    "nan": math.nan,
+    "-nan": math.copysign(math.nan, -1.0),
+}
+_SHARED = (list, dict, np.ndarray)
+"""The types of mutable values the options may hold the same one of twice."""
 
 
 def json_loss(value: Any) -> str | None:
     """Why plain JSON would give back other options than ``value``, or ``None`` if it would not.
 
-    The first thing found, depth first. ``RecursionError`` for options nested too deeply (or
-    holding themselves).
+    The first thing found, depth first; a list or dict found twice (JSON gives back two
+    copies) is one. ``RecursionError`` for options nested too deeply.
 
     >>> print(json_loss({"a": [1, 2.5, None, True, "x"], "b": {}}))
     None
@@ -73,23 +84,34 @@ def json_loss(value: Any) -> str | None:
     JSON keys are text, not int 5
     >>> print(json_loss({"low": np.float32(0.5)}))
     JSON keeps no numpy numbers: a float32 comes back as a float
+    >>> shared = [1]
+    >>> print(json_loss({"a": shared, "b": shared}))
+    JSON keeps no list twice: the same list is at two places in them, it comes back as two
     """
+    return _loss(value, set())
+
+
+def _loss(value: Any, seen: set[int]) -> str | None:
     kind = type(value)
     if value is None or kind is bool or kind is int or kind is str:
         return None
     if kind is float:
         return None if math.isfinite(value) else f"JSON has no {value}"
+    if kind is list or kind is dict:
+        if id(value) in seen:
+            return twice("JSON keeps no", value)
+        seen.add(id(value))
     if kind is list:
         for item in value:
-            why = json_loss(item)
+            why = _loss(item, seen)
             if why is not None:
                 return why
         return None
     if kind is dict:
         for key, item in value.items():
             if type(key) is not str:
-                return f"JSON keys are text, not {type(key).__name__} {key!r:.40}"
-            why = json_loss(item)
+                return f"JSON keys are text, not {type(key).__name__} {_shown(key)}"
+            why = _loss(item, seen)
             if why is not None:
                 return why
         return None
@@ -103,12 +125,27 @@ def json_loss(value: Any) -> str | None:
     return f"JSON has no {kind.__name__} values"
 
 
+def twice(prefix: str, value: Any) -> str:
+    """What is wrong with options holding ``value`` (a list, dict or array) twice."""
+    kind = "array" if isinstance(value, np.ndarray) else type(value).__name__
+    return f"{prefix} {kind} twice: the same {kind} is at two places in them, it comes back as two"
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)`` cut to 40 characters; the type's name if it has none (never raises)."""
+    try:
+        return f"{value!r:.40}"
+    except Exception:  # (an int too long for text; a repr() that raises)
+        return f"<{type(value).__name__}>"
+
+
 def encode_typed(value: Any) -> str:
     """The tagged JSON text of ``value`` that :func:`decode_typed` gives back exactly.
 
     ``TypeError`` names a value of a type it does not hold; ``ValueError`` says the text would
     be larger than :data:`MAX_TYPED_TEXT` (or an int too long for JSON text);
-    ``RecursionError`` for options nested too deeply (or holding themselves).
+    ``RecursionError`` for options nested too deeply. A list, dict or array found twice in
+    ``value`` (the same object: it would come back as two) is a ``ValueError``.
 
     >>> encode_typed({"$ref": -0.0, "b": [None, float("-inf")]})
     '{"$dict":[["$ref",-0.0],["b",[null,{"$float":"-inf"}]]]}'
@@ -117,7 +154,7 @@ def encode_typed(value: Any) -> str:
     ...
     TypeError: options_typed holds no set values
     """
-    text = json.dumps(_tagged(value), separators=(",", ":"), allow_nan=False)
+    text = json.dumps(_tagged(value, set()), separators=(",", ":"), allow_nan=False)
     if len(text) > MAX_TYPED_TEXT:
         raise ValueError(
             f"their typed form is {len(text)} bytes, more than the {MAX_TYPED_TEXT} it holds"
@@ -125,28 +162,53 @@ def encode_typed(value: Any) -> str:
     return text
 
 
-def _tagged(value: Any) -> Any:
+def _tagged(value: Any, seen: set[int]) -> Any:
     kind = type(value)
     if value is None or kind is bool or kind is int or kind is str:
         return value
     if kind is float:
-        return value if math.isfinite(value) else {"$float": repr(value)}
+        if math.isfinite(value):
+            return value
+        return {"$float": repr(value) if value == value or math.copysign(1, value) > 0 else "-nan"}
+    if kind in _SHARED:
+        if id(value) in seen:
+            raise ValueError(twice("options_typed holds no", value))
+        seen.add(id(value))
     if kind is list:
-        return [_tagged(item) for item in value]
+        return [_tagged(item, seen) for item in value]
     if kind is tuple:
-        return {"$tuple": [_tagged(item) for item in value]}
+        return {"$tuple": [_tagged(item, seen) for item in value]}
     if kind is dict:
         if all(type(key) is str and not key.startswith("$") for key in value):
-            return {key: _tagged(item) for key, item in value.items()}
-        return {"$dict": [[_tagged(key), _tagged(item)] for key, item in value.items()]}
+            return {key: _tagged(item, seen) for key, item in value.items()}
+        return {"$dict": [[_tagged(k, seen), _tagged(item, seen)] for k, item in value.items()]}
     if kind is np.ndarray and _holds(value.dtype, _ARRAY_KINDS):
-        data = base64.b64encode(value.tobytes()).decode("ascii")  # (C order)
-        return {"$array": {"dtype": value.dtype.str, "shape": list(value.shape), "data": data}}
+        return {"$array": _array_body(value)}
     if isinstance(value, np.generic) and kind is value.dtype.type and _holds(value.dtype):
         data = base64.b64encode(value.tobytes()).decode("ascii")
         return {"$scalar": {"dtype": value.dtype.str, "data": data}}
-    what = f"numpy {value.dtype}" if isinstance(value, (np.ndarray, np.generic)) else kind.__name__
-    raise TypeError(f"options_typed holds no {what} values")
+    raise TypeError(f"options_typed holds no {_kind_of(value)}")
+
+
+def _array_body(value: np.ndarray[Any, Any]) -> dict[str, Any]:
+    """An array's ``$array`` body: its C-order bytes, or its Fortran-order bytes if it has them."""
+    fortran = value.ndim > 1 and value.flags.f_contiguous and not value.flags.c_contiguous
+    data = base64.b64encode(value.tobytes(order="F" if fortran else "C")).decode("ascii")
+    body = {"dtype": value.dtype.str, "shape": list(value.shape), "data": data}
+    if fortran:
+        body["order"] = "F"
+    return body
+
+
+def _kind_of(value: Any) -> str:
+    """What ``value`` is, said in a ``TypeError`` of :func:`encode_typed` (``"set values"``)."""
+    kind = type(value)
+    if isinstance(value, np.ndarray) and kind is not np.ndarray:
+        name = f"{kind.__module__}.{kind.__qualname__}"
+        return f"{name} values: a subclass of numpy.ndarray"
+    if isinstance(value, (np.ndarray, np.generic)):
+        return f"numpy {value.dtype} values"
+    return f"{kind.__name__} values"
 
 
 def _holds(dtype: np.dtype[Any], kinds: frozenset[str] = TYPED_KINDS) -> bool:
@@ -201,7 +263,7 @@ def _untagged(item: Any) -> Any:
 
 def _float(body: Any) -> float:
     if not isinstance(body, str) or body not in _NONFINITE:
-        raise ValueError("options_typed: $float is not 'inf', '-inf' or 'nan'")
+        raise ValueError("options_typed: $float is not 'inf', '-inf', 'nan' or '-nan'")
     return _NONFINITE[body]
 
 
@@ -231,7 +293,12 @@ def _dict(body: Any) -> dict[Any, Any]:
 
 
 def _array(body: Any) -> np.ndarray[Any, Any]:
-    dtype, data = _dtype_and_data(body, "$array", ("dtype", "shape", "data"), _ARRAY_KINDS)
+    ordered = isinstance(body, dict) and "order" in body
+    keys = ("dtype", "shape", "data", "order") if ordered else ("dtype", "shape", "data")
+    dtype, data = _dtype_and_data(body, "$array", keys, _ARRAY_KINDS)
+    order = body.get("order", "C")
+    if order not in ("C", "F"):
+        raise ValueError(f"options_typed: an $array's order is not 'C' or 'F': {order!r:.40}")
     shape = body["shape"]
     if not (
         isinstance(shape, list)
@@ -245,7 +312,8 @@ def _array(body: Any) -> np.ndarray[Any, Any]:
             f"{math.prod(shape) * dtype.itemsize} bytes, its data is {len(data)}"
         )
     try:
-        array: np.ndarray[Any, Any] = np.frombuffer(data, dtype=dtype).reshape(shape).copy()
+        flat = np.frombuffer(data, dtype=dtype)
+        array: np.ndarray[Any, Any] = flat.reshape(shape, order=order).copy(order="K")
     except ValueError as exc:  # (a shape numpy refuses: too many elements in all)
         raise ValueError(f"options_typed: an $array of shape {shape}: {exc}") from None
     return array

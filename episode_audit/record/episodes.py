@@ -24,7 +24,7 @@ from .endings import EpisodeEndings
 from .native import counting, untrack
 from .notes import add_notes, append_noted, has_note, note
 from .settings import RecorderSettings
-from .values import kept_info, recordable_options, recordable_seed
+from .values import RecordedOptions, kept_info, recordable_seed
 from .writer import EvidenceWriter
 
 __all__ = ["EpisodeStream", "StreamFile"]
@@ -161,7 +161,7 @@ class EpisodeStream(EpisodeEndings):
     def begin(
         self,
         seed: Any,
-        options: Any,
+        options: RecordedOptions | None,
         rng_state: dict[str, Any] | None,
         notes: list[str],
         *,
@@ -170,7 +170,8 @@ class EpisodeStream(EpisodeEndings):
     ) -> Episode:
         """Start the stream's next episode (ending an open one as ``incomplete``).
 
-        ``seed`` is what was passed to ``reset()``; ``rng_state`` the env's bit-generator state
+        ``seed`` is what was passed to ``reset()``; ``options`` the options as recorded before
+        it (:func:`~.values.recordable_options`); ``rng_state`` the env's bit-generator state
         before an unseeded reset (``None`` if unknown: the episode is then noted as not
         replayable). Notes about the seed or options are appended to ``notes``.
         """
@@ -183,17 +184,18 @@ class EpisodeStream(EpisodeEndings):
             notes.append(
                 note("rng_state_unavailable", "reset without a seed and the env has no np_random")
             )
-        recorded_options, typed_options = recordable_options(options, notes)
+        if options is not None and options.noted is not None:
+            notes.append(options.noted)
         episode = Episode(
             file.take_episode_index(),
             recorded_seed,
             None if rng_state is None else file.rng_json(rng_state),
-            recorded_options,
+            None if options is None else options.plain,
             file.clock() if start_ns is None else start_ns,
             self.env_index,
             self.agent,
             game,
-            typed_options,
+            None if options is None else options.typed,
         )
         self.episode = episode
         untrack(episode)

@@ -52,6 +52,7 @@ from .settings import (
 )
 from .state import StateTargets
 from .time_limits import limited_spec, time_limits
+from .values import recordable_options
 
 __all__ = [
     "STEP_LIBRARIES",
@@ -251,7 +252,8 @@ class RecordEvidence(
             self._stream.end_open()
             rng_state = capture_rng_state(self._unwrapped) if seed is None else None
             state = self._state.capture(notes) if self._state else None
-            return self._stream.begin(seed, options, rng_state, notes), notes, state
+            recorded = recordable_options(options)  # (before the reset, which may change them)
+            return self._stream.begin(seed, recorded, rng_state, notes), notes, state
         except Exception as exc:  # never break the training loop over recording trouble
             self._file.trouble(exc)
             return None, notes, None

@@ -2,22 +2,26 @@
 
 Each reader returns what is recorded and appends a note (:func:`~.notes.note`) for anything
 odd, never raising over an env's value: :func:`step_result`, :func:`truth_flags`,
-:func:`reward_and_terms`, :func:`kept_info`, :func:`recordable_seed`, :func:`recordable_options`.
+:func:`reward_and_terms`, :func:`kept_info`, :func:`recordable_seed`; reset options as the file
+records them, before the reset (:func:`recordable_options`), and whether a reset changed them
+(:func:`changed_in_reset`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 from ..format.columns import error_text, number
 from ..format.options import encode_typed, json_loss
-from ..format.records import to_jsonable
+from ..format.records import MAX_JSON_TEXT, to_json, to_jsonable
 from .notes import has_note, note, short
 from .rules import RewardTerms, named_terms
 
 __all__ = [
+    "RecordedOptions",
+    "changed_in_reset",
     "kept_info",
     "recordable_options",
     "recordable_seed",
@@ -113,36 +117,78 @@ def recordable_seed(seed: Any, notes: list[str]) -> int | None:
     return None
 
 
-def recordable_options(options: Any, notes: list[str]) -> tuple[Any, str | None]:
-    """``reset()``'s options for the file: as JSON-able data, and their typed form when needed.
+class RecordedOptions(NamedTuple):
+    """``reset()``'s options as the file records them, taken before the reset.
 
+    ``plain``: JSON-able data; ``typed``: their typed form when plain JSON does not hold them
+    exactly; ``noted``: the ``options_unserializable`` note when the file does not hold them
+    exactly in either form (or holds them in the typed form only), else ``None``.
+    """
+
+    plain: Any
+    typed: str | None
+    noted: str | None
+
+
+def recordable_options(options: Any) -> RecordedOptions | None:
+    """``reset()``'s options for the file (``None`` for none); never raises.
+
+    Taken before the reset: an env may change its options in place (``options.pop(key)``).
     Options plain JSON gives back as they were are that JSON, with no typed form. Any others
-    (a tuple, a numpy value, a non-finite float, a key that is not a string, an object) are
-    noted ``options_unserializable``, which readers without the ``options_typed`` column take
-    as "not held" (so they never reset with other options than the env had), and held exactly
-    in their typed form (:func:`~episode_audit.format.options.encode_typed`) when it holds
-    them. Their JSON-able data is what ``to_jsonable(exact=True)`` makes of them (tuples and
-    float64 / int64 arrays as lists), else their ``repr``.
+    (a tuple, a numpy value, a non-finite float, a key that is not a string, a list found twice,
+    an object) are noted ``options_unserializable``, which readers without the ``options_typed``
+    column take as "not held" (so they never reset with other options than the env had), and
+    held exactly in their typed form (:func:`~episode_audit.format.options.encode_typed`) when
+    it holds them. Their JSON-able data is what ``to_jsonable(exact=True)`` makes of them
+    (tuples and float64 / int64 arrays as lists), else their ``repr``; options whose JSON is
+    larger than a reader parses (:data:`~episode_audit.format.records.MAX_JSON_TEXT`) are noted,
+    their ``repr`` recorded.
     """
     if options is None:
-        return None, None
+        return None
+    unfit: str | None = None  # why plain JSON cannot be written at all
     try:
         plain = to_jsonable(options, exact=True)  # (a copy: the caller may change its options)
-    except Exception:  # a value JSON would change; not JSON; cyclic or too deep
-        plain = {"repr": short(options)}
+        size = len(to_json(plain))
+        if size > MAX_JSON_TEXT:
+            unfit = f"{size} bytes of JSON, more than the {MAX_JSON_TEXT} a reader parses"
+    except Exception as exc:  # a value JSON would change; not JSON; cyclic, too deep or too long
+        plain, unfit = {"repr": short(options)}, error_text(exc)
     loss: str | None = None
     try:
         loss = json_loss(options)
-        if loss is None:
-            return plain, None
+        if loss is None and unfit is None:
+            return RecordedOptions(plain, None, None)
+        if loss is None and unfit is not None:
+            return RecordedOptions({"repr": short(options)}, None, _options_note(options, unfit))
         typed: str | None = encode_typed(options)
         held = "exact in the options_typed column"
     except RecursionError:
-        typed, held = None, "nested too deeply, or holding themselves"
+        typed, held = None, "nested too deeply"
     except (TypeError, ValueError) as exc:  # what the typed form does not hold; too large
         typed, held = None, str(exc)
     except Exception as exc:  # (a key's repr() raises)
         typed, held = None, error_text(exc)
     why = held if loss is None else f"{loss}; {held}"
-    notes.append(note("options_unserializable", f"{short(options)} ({why})"))
-    return plain, typed
+    return RecordedOptions(plain, typed, _options_note(options, why))
+
+
+def changed_in_reset(before: RecordedOptions | None, options: Any) -> RecordedOptions | None:
+    """The options of sub-envs that were all reset with ``options`` if the reset changed them.
+
+    ``before``: :func:`recordable_options` of ``options`` before the reset. ``None`` when the
+    reset left them as they were (or the file does not hold them anyway): each sub-env was
+    reset with them as recorded. Otherwise an earlier sub-env's reset may have changed what a
+    later one was given, and what each was given is unknown: noted, no typed form.
+    """
+    if before is None or (before.noted is not None and before.typed is None):
+        return None
+    after = recordable_options(options)
+    if after is not None and (after.plain, after.typed) == (before.plain, before.typed):
+        return None
+    why = "the env changed its options during reset(): what each sub-env received is unknown"
+    return RecordedOptions(before.plain, None, note("options_unserializable", why))
+
+
+def _options_note(options: Any, why: str) -> str:
+    return note("options_unserializable", f"{short(options)} ({why})")

@@ -219,11 +219,22 @@ def options_not_held(note: str) -> str:
 ...)): replay cannot reset it as recorded; give reset() options of the types a file holds \
 (None, bools, ints, floats, text, lists, tuples, dicts, numpy arrays and scalars)
     """
+    fix = next((fix for said, fix in _OPTIONS_FIXES if said in note), _TYPES_FIX)
     return (
-        f"its reset options are not in the file ({note}): replay cannot reset it as recorded; "
-        "give reset() options of the types a file holds (None, bools, ints, floats, text, "
-        "lists, tuples, dicts, numpy arrays and scalars)"
+        f"its reset options are not in the file ({note}): replay cannot reset it as recorded; {fix}"
     )
+
+
+_TYPES_FIX = (
+    "give reset() options of the types a file holds (None, bools, ints, floats, text, lists, "
+    "tuples, dicts, numpy arrays and scalars)"
+)
+_OPTIONS_FIXES = (
+    ("changed its options during reset()", "give each sub-env options of its own, or copy them"),
+    ("a reader parses", "give reset() smaller options"),
+    ("at two places in them", "give reset() each list, dict or array once (a copy)"),
+)
+"""What to do about options a file does not hold, by what the recorder's note says."""
 
 
 def none_replayable(

@@ -134,6 +134,50 @@ def test_decoded_arrays_are_writable_copies_in_their_byte_order() -> None:
     assert back["f"].tolist() == big.tolist() and back["f"].dtype == np.float32
 
 
+def test_a_negative_nan_comes_back_negative() -> None:
+    """A NaN's sign survives (an env may read it with ``math.copysign``); its payload does not."""
+    negative = math.copysign(math.nan, -1.0)
+    text = encode_typed({"cap": negative, "low": math.nan})
+    assert text == '{"cap":{"$float":"-nan"},"low":{"$float":"nan"}}'
+    back = decode_typed(text)
+    assert math.isnan(back["cap"]) and math.copysign(1.0, back["cap"]) == -1.0
+    assert math.copysign(1.0, back["low"]) == 1.0
+
+
+def test_an_arrays_fortran_order_is_kept_not_its_strides_or_flags() -> None:
+    fortran = np.asfortranarray(np.arange(6, dtype="<i2").reshape(2, 3))
+    strided = np.arange(12.0)[::2]
+    frozen = np.arange(3.0)
+    frozen.flags.writeable = False
+    text = encode_typed({"f": fortran, "s": strided, "r": frozen})
+    assert '"order":"F"' in text and text.count('"order"') == 1
+    back = decode_typed(text)
+    assert back["f"].flags.f_contiguous and not back["f"].flags.c_contiguous
+    assert back["f"].tolist() == fortran.tolist() and back["f"].dtype == fortran.dtype
+    assert back["s"].flags.c_contiguous and back["s"].tolist() == strided.tolist()
+    assert back["r"].flags.writeable
+
+
+@pytest.mark.parametrize("kind", ["list", "dict", "array"])
+def test_a_mutable_value_found_twice_is_not_held(kind: str) -> None:
+    """Given back as two copies, an env changing one would not see the other change."""
+    shared = {"list": [1.0], "dict": {"x": 1}, "array": np.zeros(2)}[kind]
+    options = {"a": shared, "b": (1, shared)}
+    with pytest.raises(ValueError, match=f"^options_typed holds no {kind} twice: the same"):
+        encode_typed(options)
+    if kind != "array":
+        assert json_loss({"a": shared, "b": [shared]}) == (
+            f"JSON keeps no {kind} twice: the same {kind} is at two places in them, it comes "
+            "back as two"
+        )
+    assert decode_typed(encode_typed({"a": (1, 2), "b": (1, 2), "c": [1], "d": [1]})) == {
+        "a": (1, 2),
+        "b": (1, 2),
+        "c": [1],
+        "d": [1],
+    }
+
+
 class _Level(enum.IntEnum):
     EASY = 1
 
@@ -148,8 +192,26 @@ class _Level(enum.IntEnum):
         ({"o": np.array([None])}, "options_typed holds no numpy object values"),
         ({"r": np.zeros(1, "f4,i4")}, r"options_typed holds no numpy \[\('f0', '<f4'\)"),
         ({"log": Logger()}, "options_typed holds no Logger values"),
+        (
+            {"m": np.zeros((1, 2), np.int64).view(np.matrix)},
+            "^options_typed holds no numpy.matrix values: a subclass of numpy.ndarray$",
+        ),
+        (
+            {"m": np.ma.masked_array([1, 2])},
+            "^options_typed holds no numpy.ma.MaskedArray values: a subclass of numpy.ndarray$",
+        ),
     ],
-    ids=["int-enum", "ordered-dict", "set", "bytes", "object-array", "structured", "object"],
+    ids=[
+        "int-enum",
+        "ordered-dict",
+        "set",
+        "bytes",
+        "object-array",
+        "structured",
+        "object",
+        "matrix",
+        "masked",
+    ],
 )
 def test_what_the_typed_form_cannot_give_back_is_refused(options: Any, message: str) -> None:
     with pytest.raises(TypeError, match=message):
@@ -159,9 +221,14 @@ def test_what_the_typed_form_cannot_give_back_is_refused(options: Any, message: 
 def test_typed_options_are_bounded_in_size_and_depth() -> None:
     with pytest.raises(ValueError, match=f"more than the {MAX_TYPED_TEXT} it holds"):
         encode_typed({"big": np.zeros(MAX_TYPED_TEXT, np.int8)})
+    deep: list[Any] = []
+    for _ in range(5000):
+        deep = [deep]
+    with pytest.raises(RecursionError):
+        encode_typed(deep)
     cyclic: list[Any] = []
     cyclic.append(cyclic)
-    with pytest.raises(RecursionError):
+    with pytest.raises(ValueError, match="options_typed holds no list twice"):
         encode_typed(cyclic)
     with pytest.raises(ValueError, match="options_typed is nested too deeply"):
         decode_typed('{"$tuple":' * 5000 + "[]" + "}" * 5000)
@@ -176,7 +243,7 @@ def test_typed_options_are_bounded_in_size_and_depth() -> None:
     [
         ('{"$set":[1]}', "unknown tag '\\$set'"),
         ('{"$tuple":[1],"b":2}', "an object with a '\\$' key that is not a tag"),
-        ('{"$float":"1e999"}', "\\$float is not 'inf', '-inf' or 'nan'"),
+        ('{"$float":"1e999"}', "\\$float is not 'inf', '-inf', 'nan' or '-nan'"),
         ('{"$tuple":{"a":1}}', "\\$tuple is not a list"),
         ('{"$dict":[[1]]}', "\\$dict is not a list of \\[key, value\\] pairs"),
         ('{"$dict":[[[1],2]]}', "a \\$dict key is a list, which no dict key can be"),
@@ -190,6 +257,10 @@ def test_typed_options_are_bounded_in_size_and_depth() -> None:
         ('{"$array":{"dtype":"<f4","shape":[-1],"data":""}}', "shape is not a list of sizes"),
         ('{"$array":{"dtype":"<f4","shape":[1],"data":"*"}}', "\\$array's data is not base64"),
         ('{"$array":{"dtype":"<f4","data":""}}', "\\$array is not an object of dtype, shape, data"),
+        (
+            '{"$array":{"dtype":"<f4","shape":[0],"data":"","order":"A"}}',
+            "an \\$array's order is not 'C' or 'F': 'A'",
+        ),
         ('{"$scalar":{"dtype":"<U1","data":"YQAAAA=="}}', "dtype '<U1'"),
         ('{"$scalar":{"dtype":"<f8","data":"AAAAAA=="}}', "takes 8 bytes, its data is 4"),
     ],

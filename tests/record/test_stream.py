@@ -20,6 +20,7 @@ from episode_audit.format.spaces import codec_for, describe_space
 from episode_audit.record.file import EvidenceFile
 from episode_audit.record.settings import DEFAULT_BLOCK_STEPS, RecorderSettings, run_info
 from episode_audit.record.time_limits import time_limits
+from episode_audit.record.values import recordable_options
 
 STREAMS = 3
 
@@ -286,7 +287,7 @@ def test_begin_notes_options_it_cannot_hold_and_keeps_a_callers_rng_reason(
         deep = [deep]
     for options in (cyclic, {"deep": deep}):
         notes: list[str] = []
-        episode = stream.begin(1, options, None, notes)
+        episode = stream.begin(1, recordable_options(options), None, notes)
         stream.record_reset(episode, *env.reset(seed=1), notes)
         stream.step(0, env.step(0))
     notes = ["rng_state_unavailable: the caller knows why"]

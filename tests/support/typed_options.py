@@ -55,3 +55,22 @@ class Logger:
 
     def __repr__(self) -> str:
         return "<Logger>"
+
+
+class PoppingStart(TypedStart):
+    """:class:`TypedStart` that takes ``goal`` out of the options it was given, as envs do."""
+
+    def reset(self, *, seed: int | None = None, options: dict[Any, Any] | None = None) -> Any:
+        obs = super().reset(seed=seed, options=options)
+        if options is not None:
+            options.pop("goal", None)
+        return obs
+
+
+class NoneOrEmpty(TypedStart):
+    """:class:`TypedStart` whose start tells ``options=None`` from ``options={}``."""
+
+    def reset(self, *, seed: int | None = None, options: dict[Any, Any] | None = None) -> Any:
+        obs, info = super().reset(seed=seed, options=options)
+        self.x = obs + (0.0 if options is None else 10.0)
+        return self.x.copy(), info

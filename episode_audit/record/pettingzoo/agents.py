@@ -26,6 +26,7 @@ from ..file import EvidenceFile, FileRecorder
 from ..seeding import capture_rng_state
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..stream import Stream
+from ..values import RecordedOptions, recordable_options
 from .registry import checked_env_id, env_id_of, env_module_of
 
 __all__ = ["ARGS_DOC", "AgentRecorder", "AgentStreams", "agent_result"]
@@ -94,7 +95,7 @@ class AgentStreams:
         self.unwrapped = env.unwrapped
         self.game = -1
         self.seed: Any = None
-        self.options: Any = None
+        self.options: RecordedOptions | None = None
         self.rng: dict[str, Any] | None = None
         self.in_game: set[Any] = set()
 
@@ -104,7 +105,7 @@ class AgentStreams:
             stream.end_open()
         self.game += 1
         self.seed = seed
-        self.options = options
+        self.options = recordable_options(options)  # (before the reset, which may change them)
         self.rng = capture_rng_state(self.unwrapped) if seed is None else None
         self.in_game = set()
 

@@ -27,6 +27,7 @@ from ..file import EvidenceFile, FileRecorder
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..vector.infos import env_infos
 from ..vector.recorder import vector_layout
+from ..vector.resets import recorded_per_env, shared_changed
 from ..vector.rng import SubEnvRng
 from ..vector.steps import VectorSteps
 from .results import Sb3SameStep, StepReader
@@ -225,7 +226,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         file = self._file
         n, base = self._n, self._base
         seeds = _per_env(getattr(base, "_seeds", None), n)
-        options = [o or None for o in _per_env(getattr(base, "_options", None), n)]
+        passed = [o or None for o in _per_env(getattr(base, "_options", None), n)]
+        options = recorded_per_env(passed)  # (before the reset, which may change them)
         indices = list(range(n))
         unseeded = [i for i in indices if seeds[i] is None]
         states = {} if self._rng.in_info else self._rng.capture(unseeded)
@@ -236,6 +238,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             self._steps.reset_failed(indices, seeds, options, states, exc)
             raise
         try:
+            options = shared_changed(options, passed, indices)
             rows = list(iterate(self._obs_batch, obs))
             infos = list(_per_env(base.reset_infos, n))
             result = (rows, *env_infos(infos, n))

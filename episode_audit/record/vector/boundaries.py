@@ -13,6 +13,7 @@ from typing import Any
 
 from ..file import EvidenceFile
 from ..stream import Stream
+from ..values import RecordedOptions
 from .batch import Batch
 from .modes import Autoreset
 from .rng import RngState, SubEnvRng
@@ -37,7 +38,7 @@ class Boundaries:
         self,
         indices: Sequence[int],
         seeds: Sequence[Any],
-        options: Sequence[Any],
+        options: Sequence[RecordedOptions | None],
         states: dict[int, RngState | None],
         rng: SubEnvRng,
         result: tuple[list[Any], list[Any], str | None],
@@ -69,7 +70,7 @@ class Boundaries:
         self,
         indices: Sequence[int],
         seeds: Sequence[Any],
-        options: Sequence[Any],
+        options: Sequence[RecordedOptions | None],
         states: dict[int, RngState | None],
         exc: Exception,
     ) -> None:

@@ -21,6 +21,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from ..fast import BeginAutoreset, EndBatched
 from ..notes import note
 from ..stream import Stream
+from ..values import RecordedOptions
 from .infos import EMPTY, env_infos
 from .rng import LocalSubEnvs, RngState, SubEnvRng
 
@@ -78,7 +79,7 @@ class Autoreset:
         self,
         i: int,
         seed: int | None,
-        options: Any,
+        options: RecordedOptions | None,
         rng_state: RngState | None,
         obs: Any,
         info: Any,
@@ -114,7 +115,12 @@ class Autoreset:
         return bool(begin(stream, stream.file.rng_json(rng), obs, now))
 
     def begin_failed(
-        self, i: int, seed: Any, options: Any, rng_state: RngState | None, exc: Exception
+        self,
+        i: int,
+        seed: Any,
+        options: RecordedOptions | None,
+        rng_state: RngState | None,
+        exc: Exception,
     ) -> None:
         """Record sub-env ``i``'s reset that raised ``exc``: an episode ended ``error``.
 

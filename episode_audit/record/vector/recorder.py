@@ -40,7 +40,7 @@ from ..settings import RecorderOptions, RecorderSettings, check_options, run_inf
 from ..time_limits import counted_limits, limited_spec, time_limits, zeroed_limits
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
-from .resets import refused, reset_targets, seeds_of
+from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
 from .rng import SubEnvRng
 from .steps import VectorSteps
 
@@ -182,13 +182,13 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
     ) -> tuple[Any, dict[str, Any]]:
         file = self._file
         n = self._n
-        indices, recorded_options = reset_targets(options, n)
+        indices, passed = reset_targets(options, n)
+        per_env = recorded_per_env([passed] * n)  # (before the reset, which may change them)
         seeds = seeds_of(seed, n, self._sub_envs)
         rejected = refused(seed, options, n)
         unseeded = [i for i in indices if seeds[i] is None]
         states = {} if self._rng.in_info else self._rng.capture(unseeded)
         start = file.clock()
-        per_env = [recorded_options] * n
         try:
             obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
         except Exception as exc:
@@ -196,6 +196,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
                 self._steps.reset_failed(indices, seeds, per_env, states, exc)
             raise
         try:
+            per_env = shared_changed(per_env, [reset_targets(options, n)[1]] * n, indices)
             rows = list(iterate(self._obs_space, obs))
             self._steps.record_reset(
                 indices, seeds, per_env, states, self._rng, (rows, *env_infos(infos, n)), start
