@@ -38,7 +38,9 @@ def how_long(code: str, *args: str) -> float:
 
 def killed_midway(code: str, runs: Sequence[Sequence[str]], within_s: float) -> int:
     """Start ``code`` with each of ``runs``' arguments and SIGKILL it after a random time below
-    ``within_s`` seconds (seeded: the same times each run); how many the kill ended."""
+    ``within_s`` seconds (seeded: the same times each run; give about half the time the work
+    takes whole, so that a host slower for the timed run than for these still kills them
+    midway); how many the kill ended."""
     rng = random.Random(0)
     killed = 0
     for args in runs:
