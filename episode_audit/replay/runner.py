@@ -18,7 +18,7 @@ import pyarrow as pa
 
 from ..format import names as fmt
 from ..format.records import EpisodeRanges, from_json
-from ..format.spaces import codec_in
+from ..format.spaces import SpaceCodec, codec_in
 from ..format.wrappers import unread_limits
 from ..read import Evidence
 from ..record.seeding import restore_rng_state
@@ -42,6 +42,36 @@ _SKIPPED = object()
 """What :meth:`EpisodeRunner._reset` returns for an episode it did not reset."""
 
 
+def _codecs_and_comparison(
+    ev: Evidence, env: Any, atol: float
+) -> tuple[SpaceCodec | None, SpaceCodec | None, Comparison | None]:
+    """The file's observation and action codecs for ``env``'s spaces, and its comparison.
+
+    A space of a class episode-audit does not know: the env's own converts its JSON. ``None``
+    for a codec whose space the file does not describe (then no comparison either).
+    """
+    obs_codec, act_codec = ev.observation_codec, ev.action_codec
+    digest = ev.run.recorder.get("digest_min_bytes")
+    obs = (
+        None
+        if obs_codec is None
+        else codec_in(obs_codec, env.observation_space, digest_min_bytes=digest)
+    )
+    act = None if act_codec is None else codec_in(act_codec, env.action_space)
+    if obs is None:
+        return obs, act, None
+    rules, terms_rule = rules_of(ev.run)
+    comparison = Comparison(
+        str(ev.path),
+        obs,
+        atol=atol,
+        rules=rules,
+        terms_rule=terms_rule,
+        unread_limits=unread_limits(ev.run.layout),
+    )
+    return obs, act, comparison
+
+
 class EpisodeRunner:
     """Replays the episodes of one file in one environment."""
 
@@ -57,28 +87,7 @@ class EpisodeRunner:
         self.file = str(ev.path)
         self.env = env
         self.progress = progress
-        # a space of a class episode-audit does not know: the env's own converts its JSON
-        obs_codec, act_codec = ev.observation_codec, ev.action_codec
-        digest = ev.run.recorder.get("digest_min_bytes")
-        self.obs_codec = (
-            None
-            if obs_codec is None
-            else codec_in(obs_codec, env.observation_space, digest_min_bytes=digest)
-        )
-        self.act_codec = None if act_codec is None else codec_in(act_codec, env.action_space)
-        rules, terms_rule = rules_of(ev.run)
-        self.comparison = (
-            None
-            if self.obs_codec is None
-            else Comparison(
-                self.file,
-                self.obs_codec,
-                atol=atol,
-                rules=rules,
-                terms_rule=terms_rule,
-                unread_limits=unread_limits(ev.run.layout),
-            )
-        )
+        self.obs_codec, self.act_codec, self.comparison = _codecs_and_comparison(ev, env, atol)
         self.vector = ev.run.layout.get("kind") == "vector"
         self.earlier: dict[int, int] = {}
         """Per episode reset: how many episodes this env was reset for before it."""
@@ -126,9 +135,8 @@ class EpisodeRunner:
         actions, null_rows = replay_actions(steps.column(fmt.COL_ACTION), self.act_codec)
         names = resets.column_names
         self.states = resets.column(fmt.COL_STATE) if fmt.COL_STATE in names else None
-        self.typed_options = (
-            resets.column(fmt.COL_OPTIONS_TYPED) if fmt.COL_OPTIONS_TYPED in names else None
-        )
+        typed = fmt.COL_OPTIONS_TYPED
+        self.typed_options = resets.column(typed) if typed in names else None
         self._unset_options = unrecorded_options(resets)
         self._raising = self._raising_actions(records)
         ran, returned, got_obs, got_reset = self._step_all(
