@@ -198,7 +198,8 @@ class _Level(enum.IntEnum):
         ),
         (
             {"m": np.ma.masked_array([1, 2])},
-            "^options_typed holds no numpy.ma.MaskedArray values: a subclass of numpy.ndarray$",
+            r"^options_typed holds no numpy\.ma(\.core)?\.MaskedArray values: "
+            r"a subclass of numpy\.ndarray$",
         ),
     ],
     ids=[

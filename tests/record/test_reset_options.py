@@ -8,9 +8,9 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv
+import pytest
 
-from episode_audit import RecordEvidence, RecordVecEnvEvidence, RecordVectorEvidence, open_evidence
+from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
 from episode_audit.format import names as fmt
 from episode_audit.replay import replay
 from tests.support.typed_options import NoneOrEmpty, PoppingStart, TypedStart
@@ -62,7 +62,10 @@ def test_options_set_on_a_dummy_vec_env_its_sub_envs_change_are_not_replayable(
 ) -> None:
     """``set_options`` gives every sub-env one deep-copied dict."""
     path = tmp_path / "d.mcap"
-    env = RecordVecEnvEvidence(DummyVecEnv([PoppingStart] * 2), path)
+    vec_env = pytest.importorskip("stable_baselines3.common.vec_env")
+    from episode_audit import RecordVecEnvEvidence
+
+    env = RecordVecEnvEvidence(vec_env.DummyVecEnv([PoppingStart] * 2), path)
     env.seed(1)
     env.set_options({"goal": (0.5, -0.5)})
     env.reset()
