@@ -249,3 +249,18 @@ def test_a_group_the_candidate_lacks_fails_its_gates_in_every_output(tmp_path: P
     assert code == 1 and ("long", "gate:max_failure_increase") in failed
     code, out, _ = run(*args)
     assert code == 1 and "max_failure_increase  long   FAIL" in " ".join(out.split("\n"))
+
+
+def test_n_needed_is_shown_only_for_metrics_not_yet_decided(runs: dict[str, str]) -> None:
+    code, out, _ = run("compare", runs["base"], "--candidate", runs["hack"], "-f", "markdown")
+    assert code == 1
+    lines = out.splitlines()
+    start = next(i for i, line in enumerate(lines) if "| n needed |" in line)
+    table = lines[start : next(i for i in range(start, len(lines)) if not lines[i].strip())]
+    rows = [line.split("|")[1:-1] for line in table]
+    header = [cell.strip() for cell in rows[0]]
+    verdict, needed = header.index("verdict"), header.index("n needed")
+    decided = [r for r in rows[2:] if r[verdict].strip() in ("regressed", "improved", "held")]
+    assert decided and all(r[needed].strip() == "-" for r in decided)
+    data = json.loads(run("compare", runs["base"], "--candidate", runs["hack"], "-f", "json")[1])
+    assert data["groups"][0]["metrics"][0]["n_needed"] is not None  # (the JSON keeps it)

@@ -82,10 +82,19 @@ def _row(key: str, m: MetricComparison) -> list[str]:
         f"{p_value} ({p})",
         m.verdict or "-",
         "-" if m.not_comparable else _value(m, m.mde),
-        ("∞" if m.n_needed >= NEVER else str(m.n_needed))
-        if m.verdict is not None and not m.not_comparable
-        else "-",
+        _needed(m),
     ]
+
+
+def _needed(m: MetricComparison) -> str:
+    """The units needed to decide the metric: for a metric not yet decided only.
+
+    A ``regressed``, ``improved`` or ``held`` metric is decided with the units it has; a count
+    there would read as the units still missing.
+    """
+    if m.verdict not in ("underpowered", "inconclusive") or m.not_comparable:
+        return "-"
+    return "∞" if m.n_needed >= NEVER else str(m.n_needed)
 
 
 def compare_output(
