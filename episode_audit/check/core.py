@@ -12,7 +12,6 @@ finding code means is in ``docs/findings.md``.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -24,7 +23,7 @@ from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..read import Evidence, open_evidence
-from ..read.arguments import path_list
+from ..read.arguments import non_negative, path_list
 from ..read.inputs import skipped
 from ._state import BoolArray, FileState, FloatArray, Hit, HitMessage, IntArray, counts_per_episode
 from .endings import EndingChecks
@@ -172,9 +171,8 @@ class _FileCheck:
 
 
 def _check_options(atol: float, rtol: float) -> None:
-    for name, value in (("atol", atol), ("rtol", rtol)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-            raise ConfigurationError(f"{name}: expected a finite number >= 0, actually: {value!r}")
+    non_negative("atol", atol)
+    non_negative("rtol", rtol)
 
 
 def check_evidence(

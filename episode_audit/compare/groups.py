@@ -10,7 +10,6 @@ one.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -19,6 +18,7 @@ import numpy as np
 
 from ..errors import ConfigurationError
 from ..format import names as fmt
+from ..read.arguments import non_negative
 from ..report import GateResult, IncentiveWarning
 from ..report.gates import is_rate
 from .metrics import MetricComparison, Verdict, mean_metric, not_compared, rate_metric
@@ -130,9 +130,7 @@ def check_limit(name: str, value: object, kind: Literal["rate", "margin", "amoun
     if value is None and kind != "margin":
         return
     if kind == "amount":
-        number = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if not (number and math.isfinite(value) and value >= 0):  # type: ignore[arg-type,operator]
-            raise ConfigurationError(f"{name}: expected a finite number >= 0, got {value!r}")
+        non_negative(name, value)
     elif not is_rate(value) or (kind == "margin" and value == 0):
         what = "in (0, 1]" if kind == "margin" else "between 0 and 1"
         raise ConfigurationError(f"{name}: expected a rate {what}, got {value!r}")

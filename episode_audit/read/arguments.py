@@ -2,12 +2,14 @@
 
 :func:`path_list` takes one path or many (a bare ``str`` is one path, never its characters);
 :func:`name_list` refuses a bare ``str`` where a list of names is expected; :func:`episode_index`
-and :func:`episode_indices` refuse what is not an episode index. Each raises
+and :func:`episode_indices` refuse what is not an episode index; :func:`non_negative` what is not
+a finite number >= 0 (a tolerance, a limit). Each raises
 :class:`~episode_audit.errors.ConfigurationError` naming the argument as the caller calls it.
 """
 
 from __future__ import annotations
 
+import math
 import numbers
 import os
 from collections.abc import Iterable
@@ -16,7 +18,7 @@ from typing import Any, TypeVar
 from ..errors import ConfigurationError
 from ..format.records import episode_index_problem
 
-__all__ = ["episode_index", "episode_indices", "name_list", "path_list"]
+__all__ = ["episode_index", "episode_indices", "name_list", "non_negative", "path_list"]
 
 _P = TypeVar("_P", bound="str | os.PathLike[str]")
 
@@ -105,3 +107,19 @@ def episode_indices(name: str, indices: Iterable[Any]) -> list[int]:
             f"{name}: expected a list of episode indices, got {indices!r}; pass e.g. [0, 3]"
         )
     return [episode_index(name, index) for index in indices]
+
+
+def non_negative(name: str, value: Any) -> float:
+    """``value`` when it is a finite number >= 0 (a bool is not one), else raise.
+
+    >>> non_negative("atol", 0.5)
+    0.5
+    >>> non_negative("--atol", float("nan"))
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: --atol: expected a finite number >= 0, got nan
+    """
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not (number and math.isfinite(value) and value >= 0):
+        raise ConfigurationError(f"{name}: expected a finite number >= 0, got {value!r}")
+    return value  # type: ignore[no-any-return]

@@ -9,7 +9,6 @@ options as the command line names them.
 
 from __future__ import annotations
 
-import math
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -21,7 +20,7 @@ from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..read import Evidence, open_evidence
-from ..read.arguments import episode_indices, path_list
+from ..read.arguments import episode_indices, non_negative, path_list
 from ..read.inputs import skipped
 from ..read.liveness import Holder, still_written
 from ..record.gym import STEP_LIBRARIES, library_versions
@@ -367,9 +366,7 @@ def replay_options(
     ...
     episode_audit.errors.ConfigurationError: --atol: expected a finite number >= 0, got nan
     """
-    number = isinstance(atol, (int, float)) and not isinstance(atol, bool)
-    if not (number and math.isfinite(atol) and atol >= 0):
-        raise ConfigurationError(f"{atol_option}: expected a finite number >= 0, got {atol!r}")
+    non_negative(atol_option, atol)
     return None if episodes is None else episode_indices(episode_option, episodes)
 
 

@@ -652,11 +652,13 @@ def test_unreadable_file_raises_evidence_error(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("option", ["atol", "rtol"])
-@pytest.mark.parametrize("value", [-1.0, math.nan, math.inf])
+@pytest.mark.parametrize("value", [-1.0, math.nan, math.inf, True])
 def test_wrong_tolerances_are_configuration_errors(
     tmp_path: Path, option: str, value: float
 ) -> None:
-    with pytest.raises(ConfigurationError, match=f"{option}: expected a finite number >= 0"):
+    with pytest.raises(
+        ConfigurationError, match=f"^{option}: expected a finite number >= 0, got {value!r}$"
+    ):
         check([tmp_path / "unused.mcap"], **{option: value})
 
 
