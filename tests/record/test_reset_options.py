@@ -120,3 +120,33 @@ def test_plain_options_larger_than_a_reader_parses_are_noted(tmp_path: Path) -> 
     (noted,) = _reset_notes(path)[0]
     assert noted.endswith("(1300010 bytes of JSON, more than the 1048576 a reader parses)")
     assert [status for status, _ in _statuses(path, TypedStart)] == ["not_replayable"]
+
+
+def test_a_pettingzoo_game_that_pops_its_options_replays_with_what_it_was_given(
+    tmp_path: Path,
+) -> None:
+    """The options are taken before the game's reset, which takes ``start`` out of them."""
+    pytest.importorskip("pettingzoo")
+    from episode_audit import RecordParallelEvidence
+    from tests.support.walk_game import WalkGame
+
+    class PoppingWalk(WalkGame):  # type: ignore[misc]
+        def reset(
+            self, seed: int | None = None, options: dict[str, Any] | None = None
+        ) -> tuple[dict[str, Any], dict[str, Any]]:
+            start = (options or {}).pop("start", None)
+            obs, infos = super().reset(seed=seed)
+            if start is not None:
+                self.x = {a: float(x) for a, x in zip(self.agents, start, strict=True)}
+                obs = {a: np.array([self.x[a]], np.float32) for a in self.agents}
+            return obs, infos
+
+    path = tmp_path / "pz.mcap"
+    with RecordParallelEvidence(PoppingWalk(), path) as env:
+        env.reset(seed=1, options={"start": (2.0, -2.0)})
+        for _ in range(2):
+            env.step({a: 1 for a in env.agents})
+    options = open_evidence(path).resets().column(fmt.COL_OPTIONS).to_pylist()
+    assert {json.loads(o)["start"][0] for o in options} == {2.0}
+    result = replay([path], env_factory=PoppingWalk)
+    assert [e.status for e in result.episodes] == ["identical"] * 2, result.episodes
