@@ -947,6 +947,30 @@ def test_a_time_limit_without_a_spec_is_found_on_async_sub_envs_too(
         assert [(e["env_index"], e["truncation_reason"]) for e in ended] == want
 
 
+def _clipped_cartpole() -> Any:
+    """CleanRL's continuous-control stack in small: a lambda in a wrapper's kwargs, which the
+    sub-env's spec keeps and which does not pickle."""
+    env = gym.make("CartPole-v1")
+    return gym.wrappers.TransformObservation(
+        env, lambda obs: np.clip(obs, -10, 10), env.observation_space
+    )
+
+
+def test_a_spec_that_does_not_pickle_leaves_async_workers_alive(tmp_path: Path) -> None:
+    """A worker asked for such a spec fails to send it and ends: the recorder reads it off a
+    sub-env built in this process instead, as AsyncVectorEnv's constructor builds one."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "async.mcap"
+    with RecordVectorEvidence(AsyncVectorEnv([_clipped_cartpole] * 2), path) as rec:
+        rec.reset(seed=1)
+        for _ in range(20):
+            rec.step(np.ones(2, np.int64))
+    spec = open_evidence(path).run.env_spec
+    assert isinstance(spec, dict) and spec["id"] == "CartPole-v1"
+    assert {e["env_index"] for e in open_evidence(path).episodes().to_pylist()} == {0, 1}
+
+
 # ---------------------------------------------------------------- info without masks
 
 

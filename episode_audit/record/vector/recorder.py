@@ -8,6 +8,7 @@ strategy of the env's mode (:mod:`.modes`). See ``docs/recording.md``, "Vector e
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 from collections.abc import Sequence
@@ -323,7 +324,7 @@ def _sub_spec(
         if sync is not None:
             return limited_spec(sync.envs[0].spec, sync.envs[0])
         if async_env is not None:
-            return async_env.get_attr("spec")[0]
+            return _worker_spec(async_env)
     except Exception:
         return None
     spec = env.spec
@@ -337,6 +338,25 @@ def _sub_spec(
     limit = _own_limit(env.unwrapped, spec)
     spec = dataclasses.replace(spec, kwargs=kwargs)
     return spec if limit is None else dataclasses.replace(spec, max_episode_steps=limit)
+
+
+def _worker_spec(async_env: AsyncVectorEnv) -> Any:
+    """Sub-env 0's spec, read off a sub-env built here by the first env function, then closed.
+
+    ``AsyncVectorEnv``'s constructor builds one here too (for its spaces). A worker is not
+    asked: it sends its answer pickled, and a spec that does not pickle (a lambda in a
+    wrapper's kwargs, ``TransformObservation(env, lambda o: ...)``, or in the env's) ends the
+    worker, which breaks the vector env.
+    """
+    env_fns = getattr(async_env, "env_fns", None)
+    if not env_fns:
+        return None
+    env = env_fns[0]()
+    try:
+        return env.spec
+    finally:
+        with contextlib.suppress(Exception):
+            env.close()
 
 
 def _own_limit(base: Any, spec: Any) -> int | None:
