@@ -31,12 +31,15 @@ from .unrecorded import unrecorded
 __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
     "LAYOUT_STATE_SNAPSHOTS",
+    "LAYOUT_UNREAD_CAUSE",
     "LAYOUT_UNREAD_LIMITS",
     "LAYOUT_VECTOR_WRAPPERS",
     "MULTI_STEP_WRAPPERS",
     "RECORDED_WRAPPERS",
     "REWARD_CHANGING",
     "RUN_TRANSPARENT_WRAPPERS",
+    "UNREAD_IN_WORKERS",
+    "UNREAD_ZEROED",
     "WrapperKind",
     "WrapperPlan",
     "WrapperRule",
@@ -544,6 +547,13 @@ LAYOUT_UNREAD_LIMITS = "unread_time_limits"
 at an episode's end (text; absent when it could). Its truncations by one it did not read are
 ``external``; replay does not call what such a limit explains a divergence
 (:func:`unread_limits`)."""
+LAYOUT_UNREAD_CAUSE = "unread_time_limits_cause"
+"""Layout key beside :data:`LAYOUT_UNREAD_LIMITS`: its cause, :data:`UNREAD_IN_WORKERS` or
+:data:`UNREAD_ZEROED` (absent in files recorded before it was written: the text says)."""
+UNREAD_IN_WORKERS = "workers"
+"""The sub-envs ran in worker processes (:func:`worker_limits`)."""
+UNREAD_ZEROED = "zeroed"
+"""A reset inside the step zeroed the count of a ``TimeLimit`` under a frame skip."""
 
 _WORKERS = {"AsyncVectorEnv": "SyncVectorEnv", "SubprocVecEnv": "DummyVecEnv"}
 _IN_WORKERS = "the sub-envs ran in "
@@ -556,12 +566,23 @@ def worker_limits(vector_class: str) -> str:
     >>> worker_limits("SubprocVecEnv")[:60]
     'the sub-envs ran in SubprocVecEnv workers, whose wrapper cha'
     """
-    local = _WORKERS.get(vector_class, "sub-envs in this process")
     return (
-        f"{_IN_WORKERS}{vector_class[:80]} workers, whose wrapper chains the recorder "
-        "cannot walk: it read the outermost TimeLimit's limit only (one inside it, or under a "
-        f"frame-skipping wrapper, it did not); record with {local}{_TO_REPLAY}"
+        f"{_in_workers(vector_class)}: it read the outermost TimeLimit's limit only (one inside "
+        "it, or under a frame-skipping wrapper, it did not); "
+        f"{_record_locally(vector_class)}{_TO_REPLAY}"
     )
+
+
+def _in_workers(vector_class: str) -> str:
+    """Where the sub-envs of ``vector_class`` ran (:func:`worker_limits`'s first clause)."""
+    return (
+        f"{_IN_WORKERS}{vector_class[:80]} workers, whose wrapper chains the recorder cannot walk"
+    )
+
+
+def _record_locally(vector_class: str) -> str:
+    """How to record the sub-envs of ``vector_class`` so that their limits are read."""
+    return f"record with {_WORKERS.get(vector_class, 'sub-envs in this process')}"
 
 
 def unread_limits(layout: Any) -> str | None:
@@ -588,19 +609,26 @@ def unread_limits(layout: Any) -> str | None:
 def worker_sub_envs(layout: Any) -> str | None:
     """Why a file's spec may not hold its sub-envs' ``TimeLimit``s as they were, or ``None``.
 
-    Its sub-envs ran in ``AsyncVectorEnv`` / ``SubprocVecEnv`` workers (:func:`worker_limits`;
-    a file without :data:`LAYOUT_UNREAD_LIMITS`: by its ``vector_class``): the spec is
-    Gymnasium's, whose ``max_episode_steps`` is the outermost ``TimeLimit``'s limit, wherever it
-    sat, and which names no other. (A ``SAME_STEP`` sub-env's unread limits are placed in its
-    spec: not this.)
+    Its sub-envs ran in ``AsyncVectorEnv`` / ``SubprocVecEnv`` workers (:func:`worker_limits`):
+    the spec is Gymnasium's, whose ``max_episode_steps`` is the outermost ``TimeLimit``'s
+    limit, wherever it sat, and which names no other. (A ``SAME_STEP`` sub-env's unread limits
+    are placed in its spec: not this.) The layout's :data:`LAYOUT_UNREAD_CAUSE` says; a file
+    without it: the text of :data:`LAYOUT_UNREAD_LIMITS`, else its ``vector_class``.
 
     >>> worker_sub_envs({"kind": "vector", "vector_class": "SubprocVecEnv"})[:33]
     'the sub-envs ran in SubprocVecEnv'
     >>> worker_sub_envs({"kind": "vector", "vector_class": "SyncVectorEnv"}) is None
     True
+    >>> worker_sub_envs({"unread_time_limits": "why", "unread_time_limits_cause": "workers"})
+    'why'
     """
     why = unread_limits(layout)
-    return why if why is not None and why.startswith(_IN_WORKERS) else None
+    if why is None:
+        return None
+    cause = layout.get(LAYOUT_UNREAD_CAUSE)
+    if not isinstance(cause, str):  # (a file recorded before the cause was written)
+        return why if why.startswith(_IN_WORKERS) else None
+    return why if cause == UNREAD_IN_WORKERS else None
 
 
 def unplaced_limits(env_spec: Any, layout: Any) -> str | None:
@@ -628,17 +656,25 @@ def unplaced_limits(env_spec: Any, layout: Any) -> str | None:
     ]
     if not multi:
         return None
+    where, instead = _worker_clauses(layout, workers)
     return (
-        f"{workers.partition(':')[0]}, and its spec holds {multi[0]}, which steps the env more "
-        "than once a step: whether its TimeLimits sat over it or under it is unknown, so an env "
-        "rebuilt from the spec may end an episode at another step; pass --env-factory "
-        f"MODULE:CALLABLE that builds the sub-env as recorded, or {_record_instead(workers)}"
+        f"{where}, and its spec holds {multi[0]}, which steps the env more than once a step: "
+        "whether its TimeLimits sat over it or under it is unknown, so an env rebuilt from the "
+        "spec may end an episode at another step; pass --env-factory MODULE:CALLABLE that builds "
+        f"the sub-env as recorded, or {instead}"
     )
 
 
-def _record_instead(workers: str) -> str:
-    """How to record a worker file's sub-envs so that their limits are read (its last clause)."""
-    return workers.rpartition("; ")[2].removesuffix(_TO_REPLAY)
+def _worker_clauses(layout: Mapping[str, Any], workers: str) -> tuple[str, str]:
+    """Where a worker file's sub-envs ran, and how to record them so that their limits are read.
+
+    From its ``vector_class`` when the layout has :data:`LAYOUT_UNREAD_CAUSE`; in a file
+    without it, cut from ``workers``, the text of :func:`worker_limits`.
+    """
+    if isinstance(layout.get(LAYOUT_UNREAD_CAUSE), str):
+        vector_class = str(layout.get("vector_class"))
+        return _in_workers(vector_class), _record_locally(vector_class)
+    return workers.partition(":")[0], workers.rpartition("; ")[2].removesuffix(_TO_REPLAY)
 
 
 RUN_TRANSPARENT_WRAPPERS = "transparent_wrappers"

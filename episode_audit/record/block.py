@@ -71,12 +71,15 @@ class Episode:
         agent: str | None = None,
         game: int | None = None,
         options_typed: str | None = None,
+        options_json: str | None = None,
     ) -> None:
         self.index = index
         self.seed = seed
         self.rng_json = rng_json  # (the RNG state before an unseeded reset, as JSON)
         self.options = options
-        self.options_json: str | None = None if options is None else to_json(options).decode()
+        if options_json is None and options is not None:  # (not made by the caller)
+            options_json = to_json(options).decode()
+        self.options_json = options_json
         self.options_typed = options_typed  # (when plain JSON does not hold them exactly)
         self.start_ns = start_ns
         self.end_ns = start_ns

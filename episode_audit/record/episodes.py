@@ -196,6 +196,7 @@ class EpisodeStream(EpisodeEndings):
             self.agent,
             game,
             None if options is None else options.typed,
+            None if options is None else options.text,
         )
         self.episode = episode
         untrack(episode)

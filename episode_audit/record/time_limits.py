@@ -13,7 +13,8 @@ a step): ``TimeLimit(MaxAndSkipObservation(env, 4), 30)`` truncates at its 30th 
 (those under no multi-step wrapper as its ``max_episode_steps``, the smallest of them; each other
 as a ``TimeLimit`` among its ``additional_wrappers``, where it was, so ``gym.make`` of the spec
 rebuilds the chain), :func:`time_limit_hit` whether an episode has reached one,
-:func:`plain_time_limit` whether replay may count the outermost itself.
+:func:`plain_time_limit` whether replay may count the outermost itself, :func:`unread_limits`
+why a vector recorder's streams cannot read them all (said in the file's layout).
 """
 
 from __future__ import annotations
@@ -26,7 +27,14 @@ import gymnasium as gym
 from gymnasium.envs.registration import EnvSpec, WrapperSpec
 from gymnasium.wrappers import TimeLimit
 
-from ..format.wrappers import multi_step
+from ..format.wrappers import (
+    LAYOUT_UNREAD_CAUSE,
+    LAYOUT_UNREAD_LIMITS,
+    UNREAD_IN_WORKERS,
+    UNREAD_ZEROED,
+    multi_step,
+    worker_limits,
+)
 
 __all__ = [
     "LimitPlaces",
@@ -37,7 +45,7 @@ __all__ = [
     "step_limit",
     "time_limit_hit",
     "time_limits",
-    "zeroed_limits",
+    "unread_limits",
 ]
 
 _DEEPEST = 64
@@ -164,22 +172,35 @@ def counted_limits(envs: Iterable[Any], fallback: int | None) -> list[int | None
     return out
 
 
-def zeroed_limits(envs: Iterable[Any], reset_by: str, instead: str) -> str | None:
-    """Why streams counting ``envs``' steps miss one of their ``TimeLimit``s, or ``None``.
+def unread_limits(
+    vector_class: str, envs: Iterable[Any] | None, reset_by: str, instead: str
+) -> dict[str, str]:
+    """The layout entries saying why streams cannot read every sub-env's ``TimeLimit`` (or none).
 
-    One under a multi-step wrapper counts the env's own steps, which the stream does not, and
-    the reset inside a step (``reset_by``) zeroes its count before the recorder could read it
-    (:class:`LimitPlaces` ``under``). ``instead``: how to record so that it can.
+    ``envs``: the sub-envs whose steps the streams count, ``None`` when they ran in the workers
+    of ``vector_class``, which answer for the outermost ``TimeLimit`` only
+    (:func:`~episode_audit.format.wrappers.worker_limits`). Else one under a multi-step wrapper
+    counts the env's own steps, which the stream does not, and the reset inside a step
+    (``reset_by``) zeroes its count before the recorder could read it (:class:`LimitPlaces`
+    ``under``). ``instead``: how to record so that it can. Each cause is said as text
+    (:data:`~episode_audit.format.wrappers.LAYOUT_UNREAD_LIMITS`) and as its code
+    (:data:`~episode_audit.format.wrappers.LAYOUT_UNREAD_CAUSE`).
     """
+    if envs is None:
+        return {
+            LAYOUT_UNREAD_LIMITS: worker_limits(vector_class),
+            LAYOUT_UNREAD_CAUSE: UNREAD_IN_WORKERS,
+        }
     for env in envs:
         under = limit_places(env).under
         if under is not None:
-            return (
+            why = (
                 f"a sub-env's TimeLimit under {under} counts the env's own steps, and "
                 f"{reset_by} zeroed its count before the recorder read it: its truncations are "
                 f"recorded external; {instead} to replay such endings"
             )
-    return None
+            return {LAYOUT_UNREAD_LIMITS: why, LAYOUT_UNREAD_CAUSE: UNREAD_ZEROED}
+    return {}
 
 
 def _spec_wrappers(env: Any) -> int | None:

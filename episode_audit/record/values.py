@@ -122,12 +122,14 @@ class RecordedOptions(NamedTuple):
 
     ``plain``: JSON-able data; ``typed``: their typed form when plain JSON does not hold them
     exactly; ``noted``: the ``options_unserializable`` note when the file does not hold them
-    exactly in either form (or holds them in the typed form only), else ``None``.
+    exactly in either form (or holds them in the typed form only), else ``None``; ``text``:
+    ``plain`` as JSON text (the ``options`` column's), made once.
     """
 
     plain: Any
     typed: str | None
     noted: str | None
+    text: str
 
 
 def recordable_options(options: Any) -> RecordedOptions | None:
@@ -149,18 +151,23 @@ def recordable_options(options: Any) -> RecordedOptions | None:
     unfit: str | None = None  # why plain JSON cannot be written at all
     try:
         plain = to_jsonable(options, exact=True)  # (a copy: the caller may change its options)
-        size = len(to_json(plain))
-        if size > MAX_JSON_TEXT:
-            unfit = f"{size} bytes of JSON, more than the {MAX_JSON_TEXT} a reader parses"
+        data = to_json(plain)
+        text = data.decode()
+        if len(data) > MAX_JSON_TEXT:
+            unfit = f"{len(data)} bytes of JSON, more than the {MAX_JSON_TEXT} a reader parses"
     except Exception as exc:  # a value JSON would change; not JSON; cyclic, too deep or too long
-        plain, unfit = {"repr": short(options)}, error_text(exc)
+        plain, unfit = _shown(options), error_text(exc)
+        text = to_json(plain).decode()
     loss: str | None = None
     try:
         loss = json_loss(options)
         if loss is None and unfit is None:
-            return RecordedOptions(plain, None, None)
+            return RecordedOptions(plain, None, None, text)
         if loss is None and unfit is not None:
-            return RecordedOptions({"repr": short(options)}, None, _options_note(options, unfit))
+            shown = _shown(options)
+            return RecordedOptions(
+                shown, None, _options_note(options, unfit), to_json(shown).decode()
+            )
         typed: str | None = encode_typed(options)
         held = "exact in the options_typed column"
     except RecursionError:
@@ -170,7 +177,7 @@ def recordable_options(options: Any) -> RecordedOptions | None:
     except Exception as exc:  # (a key's repr() raises)
         typed, held = None, error_text(exc)
     why = held if loss is None else f"{loss}; {held}"
-    return RecordedOptions(plain, typed, _options_note(options, why))
+    return RecordedOptions(plain, typed, _options_note(options, why), text)
 
 
 def changed_in_reset(before: RecordedOptions | None, options: Any) -> RecordedOptions | None:
@@ -187,7 +194,12 @@ def changed_in_reset(before: RecordedOptions | None, options: Any) -> RecordedOp
     if after is not None and (after.plain, after.typed) == (before.plain, before.typed):
         return None
     why = "the env changed its options during reset(): what each sub-env received is unknown"
-    return RecordedOptions(before.plain, None, note("options_unserializable", why))
+    return RecordedOptions(before.plain, None, note("options_unserializable", why), before.text)
+
+
+def _shown(options: Any) -> dict[str, str]:
+    """What the file holds of options plain JSON cannot be written of: their ``repr``."""
+    return {"repr": short(options)}
 
 
 def _options_note(options: Any, why: str) -> str:

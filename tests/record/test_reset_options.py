@@ -12,6 +12,7 @@ import pytest
 
 from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
 from episode_audit.format import names as fmt
+from episode_audit.record.values import recordable_options
 from episode_audit.replay import replay
 from tests.support.typed_options import NoneOrEmpty, PoppingStart, TypedStart
 
@@ -150,3 +151,27 @@ def test_a_pettingzoo_game_that_pops_its_options_replays_with_what_it_was_given(
     assert {json.loads(o)["start"][0] for o in options} == {2.0}
     result = replay([path], env_factory=PoppingWalk)
     assert [e.status for e in result.episodes] == ["identical"] * 2, result.episodes
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"goal": [0.5, 1.0]},
+        {"init": (1, 2), "low": np.float32(0.5)},
+        {"n": 10**5000},
+        {"goal": [[0.125, -0.5] for _ in range(100_000)]},
+    ],
+    ids=["plain", "typed", "unwritable", "too-large"],
+)
+def test_the_options_column_is_the_json_text_made_when_the_options_were_read(
+    tmp_path: Path, options: dict[str, Any]
+) -> None:
+    """The recorder makes the options' JSON text once, as it reads them before the reset."""
+    recorded = recordable_options(options)
+    assert recorded is not None
+    assert json.loads(recorded.text) == recorded.plain
+    path = tmp_path / "o.mcap"
+    with RecordEvidence(TypedStart(), path) as env:
+        env.reset(seed=1, options=options)
+        env.step(1)
+    assert open_evidence(path).resets().column(fmt.COL_OPTIONS).to_pylist() == [recorded.text]

@@ -7,6 +7,7 @@ longer ones are in tests/test_long.py (``-m slow``).
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import threading
@@ -40,6 +41,7 @@ from episode_audit import (  # noqa: E402
 )
 from episode_audit.record.sb3 import RecordVecEnvEvidence  # noqa: E402
 from tests.support.batching import InfoReading, messages  # noqa: E402
+from tests.support.hostile import rewrite  # noqa: E402
 from tests.support.limits import skipping_pendulum  # noqa: E402
 
 torch.set_num_threads(1)
@@ -262,6 +264,45 @@ def test_subproc_workers_over_a_frame_skip_are_not_replayable_without_a_factory(
         "step: whether its TimeLimits sat over it or under it is unknown, so an env rebuilt from "
         "the spec may end an episode at another step; pass --env-factory MODULE:CALLABLE that "
         "builds the sub-env as recorded, or record with DummyVecEnv"
+    }
+
+
+class RemoteVecEnv(SubprocVecEnv):
+    """A VecEnv of the user's own whose sub-envs are not in this process."""
+
+
+@pytest.mark.parametrize("coded", [True, False], ids=["coded", "without-cause"])
+def test_a_custom_vec_env_without_local_sub_envs_is_said_to_run_them_in_workers(
+    tmp_path: Path, coded: bool
+) -> None:
+    """Its class is neither SubprocVecEnv nor DummyVecEnv: the cause code (or, in a file without
+    it, the text) says its sub-envs ran in workers, not its class's name."""
+    path = tmp_path / "remote.mcap"
+    with RecordVecEnvEvidence(RemoteVecEnv([limit_inside_skip], start_method=START), path) as rec:
+        rec.seed(0)
+        rec.reset()
+        for _ in range(4):
+            rec.step(np.zeros((1, 1), np.float32))
+    assert open_evidence(path).run.layout["unread_time_limits_cause"] == "workers"
+    if not coded:
+
+        def uncoded(meta: dict[str, str]) -> dict[str, str]:
+            layout = json.loads(meta["layout"])
+            del layout["unread_time_limits_cause"]
+            return {**meta, "layout": json.dumps(layout)}
+
+        path = rewrite(path, tmp_path / "old.mcap", run=uncoded)
+    result = replay([path])
+    assert {(e.status, e.reason) for e in result.episodes} == {
+        (
+            "not_replayable",
+            "the sub-envs ran in RemoteVecEnv workers, whose wrapper chains the recorder cannot "
+            "walk, and its spec holds MaxAndSkipObservation, which steps the env more than once "
+            "a step: whether its TimeLimits sat over it or under it is unknown, so an env rebuilt "
+            "from the spec may end an episode at another step; pass --env-factory "
+            "MODULE:CALLABLE that builds the sub-env as recorded, or record with sub-envs in "
+            "this process",
+        )
     }
 
 

@@ -628,6 +628,28 @@ def test_a_same_step_autoreset_hiding_a_time_limit_under_a_frame_skip_is_said(
     assert (result.episodes[0].reason or "").endswith(cause)
 
 
+@pytest.mark.parametrize("coded", [True, False], ids=["coded", "without-cause"])
+def test_a_same_step_file_s_unread_limits_are_coded_zeroed_not_workers(
+    tmp_path: Path, coded: bool
+) -> None:
+    """Its cause code says the count was zeroed (no worker chain): replay rebuilds from the spec
+    and says the recorded cause; a file without the code says the same by its text."""
+    envs = gym.vector.SyncVectorEnv([skipping_pendulum] * 2, autoreset_mode="SameStep")
+    ev = _record_vector(tmp_path / "same.mcap", envs, 51)
+    assert ev.run.layout["unread_time_limits_cause"] == "zeroed"
+    cause = ev.run.layout["unread_time_limits"]
+
+    def uncoded(meta: dict[str, str]) -> dict[str, str]:
+        layout = json.loads(meta["layout"])
+        del layout["unread_time_limits_cause"]
+        return {**meta, "layout": json.dumps(layout)}
+
+    path = ev.path if coded else rewrite(ev.path, tmp_path / "old.mcap", run=uncoded)
+    result = replay([path])
+    assert [e.status for e in result.episodes[:2]] == ["not_replayable"] * 2
+    assert all((e.reason or "").endswith(cause) for e in result.episodes[:2])
+
+
 def test_an_external_truncation_a_sync_env_does_not_repeat_still_diverges(tmp_path: Path) -> None:
     """Where the recorder read every TimeLimit, an external truncation is the env's own."""
     ev = _record_vector(tmp_path / "sync.mcap", gym.vector.SyncVectorEnv([_nested_limits] * 2), 3)

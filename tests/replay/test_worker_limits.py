@@ -3,6 +3,7 @@ could not all read, nor where they sat (format/wrappers.py ``worker_sub_envs``).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +12,7 @@ import pytest
 
 from episode_audit import RecordVectorEvidence, open_evidence
 from episode_audit.replay import replay
+from tests.support.hostile import rewrite
 
 _UNPLACED = (
     "the sub-envs ran in AsyncVectorEnv workers, whose wrapper chains the recorder cannot walk, "
@@ -100,3 +102,38 @@ def test_an_env_factory_with_the_inner_limit_a_worker_hid_is_not_refused(tmp_pat
         ("identical", 1, None),
         ("identical", 1, None),
     ]
+
+
+def _relaid(path: Path, out: Path, **changes: str | None) -> Path:
+    """``path`` with its layout's keys changed (``None``: removed), as another version wrote it."""
+
+    def edit(meta: dict[str, str]) -> dict[str, str]:
+        layout = json.loads(meta["layout"])
+        for key, value in changes.items():
+            if value is None:
+                del layout[key]
+            else:
+                layout[key] = value
+        return {**meta, "layout": json.dumps(layout)}
+
+    return rewrite(path, out, run=edit)
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {},
+        {"unread_time_limits_cause": None},  # a file recorded before the cause code
+        {"unread_time_limits": "the AsyncVectorEnv workers hid the limits; reworded"},
+    ],
+    ids=["as-recorded", "without-cause", "reworded"],
+)
+def test_a_frame_skip_file_from_workers_is_said_by_its_cause_code_or_else_its_text(
+    tmp_path: Path, changes: dict[str, str | None]
+) -> None:
+    path = _record_async(tmp_path / "async.mcap", _inner_ends, 3)
+    layout = open_evidence(path).run.layout
+    assert (layout["unread_time_limits"], layout["unread_time_limits_cause"]) == (_ASYNC, "workers")
+    edited = _relaid(path, tmp_path / "edited.mcap", **changes)
+    result = replay([edited])
+    assert {(e.status, e.reason) for e in result.episodes} == {("not_replayable", _UNPLACED)}

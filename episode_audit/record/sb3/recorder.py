@@ -22,7 +22,7 @@ from typing_extensions import Unpack
 from ...errors import ConfigurationError
 from ...format.records import RunInfo
 from ...format.spaces import codec_for, describe_space
-from ...format.wrappers import LAYOUT_REWARD_WRAPPERS, LAYOUT_UNREAD_LIMITS
+from ...format.wrappers import LAYOUT_REWARD_WRAPPERS
 from ..file import EvidenceFile, FileRecorder
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..vector.infos import env_infos
@@ -177,9 +177,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         changing = stack.reward_wrappers()
         if changing:
             layout[LAYOUT_REWARD_WRAPPERS] = changing
-        unread = stack.unread_limits()
-        if unread:
-            layout[LAYOUT_UNREAD_LIMITS] = unread
+        layout.update(stack.unread_limits())
         return run_info(
             settings=settings,
             spec=spec,

@@ -22,9 +22,8 @@ from stable_baselines3.common.vec_env import (
     VecVideoRecorder,
 )
 
-from ...format.wrappers import worker_limits
 from ..gym import entry_point, info_entry_point, reward_wrappers
-from ..time_limits import counted_limits, limited_spec, zeroed_limits
+from ..time_limits import counted_limits, limited_spec, unread_limits
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -114,17 +113,16 @@ class VecStack:
             return None
         return None
 
-    def unread_limits(self) -> str | None:
-        """Why the streams cannot read every sub-env's ``TimeLimit`` at an episode's end, or None.
+    def unread_limits(self) -> dict[str, str]:
+        """The layout entries saying why the streams cannot read every sub-env's ``TimeLimit``.
 
-        A ``SubprocVecEnv``'s workers answer for the outermost only, and a ``DummyVecEnv``
-        resets a sub-env inside the step that ended its episode, zeroing the counts (a stream
-        counting the steps misses one under a frame skip).
+        A ``SubprocVecEnv``'s workers (any base without sub-envs in this process) answer for the
+        outermost only, and a ``DummyVecEnv`` resets a sub-env inside the step that ended its
+        episode, zeroing the counts (a stream counting the steps misses one under a frame skip).
         """
-        if self.local is None:
-            return worker_limits(type(self.base).__name__)
-        return zeroed_limits(
-            self.local.envs,
+        return unread_limits(
+            type(self.base).__name__,
+            None if self.local is None else self.local.envs,
             "DummyVecEnv's reset inside its step",
             "record a gymnasium SyncVectorEnv in NextStep mode",
         )

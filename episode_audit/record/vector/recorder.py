@@ -25,10 +25,8 @@ from ...format.spaces import codec_for, describe_space
 from ...format.wrappers import (
     LAYOUT_REWARD_WRAPPERS,
     LAYOUT_STATE_SNAPSHOTS,
-    LAYOUT_UNREAD_LIMITS,
     LAYOUT_VECTOR_WRAPPERS,
     REWARD_CHANGING,
-    worker_limits,
 )
 from ..file import EvidenceFile, FileRecorder
 from ..gym import (
@@ -38,7 +36,7 @@ from ..gym import (
     wrapper_chain,
 )
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
-from ..time_limits import counted_limits, limited_spec, time_limits, zeroed_limits
+from ..time_limits import counted_limits, limited_spec, time_limits, unread_limits
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
@@ -259,27 +257,28 @@ def _layout(
     vector_wrappers = _vector_wrappers(env)
     if vector_wrappers:
         layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
-    unread = _unread_limits(base, mode, sync)
-    if unread:
-        layout[LAYOUT_UNREAD_LIMITS] = unread
+    layout.update(_unread_limits(base, mode, sync))
     changing = _sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
     if changing:
         layout[LAYOUT_REWARD_WRAPPERS] = changing
     return layout
 
 
-def _unread_limits(base: Any, mode: AutoresetMode, sync: SyncVectorEnv | None) -> str | None:
-    """Why the streams cannot read every sub-env's ``TimeLimit`` at an episode's end, or ``None``.
+def _unread_limits(base: Any, mode: AutoresetMode, sync: SyncVectorEnv | None) -> dict[str, str]:
+    """The layout entries saying why the streams cannot read every sub-env's ``TimeLimit``.
 
     An ``AsyncVectorEnv``'s workers answer for the outermost only; a ``SyncVectorEnv`` in
     ``SAME_STEP`` mode has zeroed the counts when the streams count the steps themselves, which
-    misses one under a frame skip (:func:`~..time_limits.zeroed_limits`).
+    misses one under a frame skip (:func:`~..time_limits.unread_limits`).
     """
     if isinstance(base, AsyncVectorEnv):
-        return worker_limits(type(base).__name__)
-    if sync is None or mode is not AutoresetMode.SAME_STEP:
-        return None
-    return zeroed_limits(sync.envs, "the SameStep autoreset", "record in NextStep mode")
+        envs = None
+    elif sync is not None and mode is AutoresetMode.SAME_STEP:
+        envs = sync.envs
+    else:
+        return {}
+    name = type(base).__name__
+    return unread_limits(name, envs, "the SameStep autoreset", "record in NextStep mode")
 
 
 def _check_vector_env(env: Any) -> None:
