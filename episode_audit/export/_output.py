@@ -5,7 +5,7 @@ unless ``overwrite``), creates its folder if missing, yields a temporary file th
 where the OS has them, so that even a killed export leaves nothing) and gives it the output's
 name only when the export finished, so a failed export leaves nothing that looks complete.
 :class:`ViewerExport` says what was written; :func:`missing` is the error naming the extra a
-viewer library needs.
+viewer library needs, :func:`need_pillow` the same for the camera frames' PNG encoder.
 """
 
 from __future__ import annotations
@@ -16,13 +16,17 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import ConfigurationError
 from ..record.lock import output_kind
 from ..record.published import Temporary
-from ._values import SMALL
+from ._values import SMALL, has_frames
 
-__all__ = ["ViewerExport", "missing", "staged"]
+if TYPE_CHECKING:
+    from ..read import Evidence
+
+__all__ = ["ViewerExport", "missing", "need_pillow", "staged"]
 
 
 @dataclass
@@ -94,11 +98,13 @@ def missing(
     *,
     needs: tuple[int, int] | None = None,
     running: Sequence[int] = sys.version_info[:3],
+    why: str | None = None,
 ) -> ConfigurationError:
     """The error for a viewer library that is not installed: it names the extra to install.
 
     ``needs``: the oldest Python the library has a release for; on an older one (``running``)
-    the error says so rather than name an extra that installs nothing there.
+    the error says so rather than name an extra that installs nothing there. ``why``: what
+    the package is for, when the extra's name does not say it.
 
     >>> print(missing("rerun-sdk", "rerun", needs=(3, 11), running=(3, 10, 13)))
     --to rerun: needs the 'rerun-sdk' package, which needs Python >= 3.11 (this is Python 3.10.13)
@@ -109,10 +115,24 @@ def missing(
             f"--to {extra}: needs the {module!r} package, which needs Python >= "
             f"{needs[0]}.{needs[1]} (this is Python {this})"
         )
+    what = f"{module!r} package" + (f" ({why})" if why else "")
     return ConfigurationError(
-        f"--to {extra}: needs the {module!r} package; install it with "
-        f"pip install 'episode-audit[{extra}]'"
+        f"--to {extra}: needs the {what}; install it with pip install 'episode-audit[{extra}]'"
     )
+
+
+def need_pillow(ev: Evidence, extra: str) -> None:
+    """Refuse a file with camera frames when Pillow, their PNG encoder, is not installed.
+
+    Called before anything is written; a file without frames needs no Pillow (both viewer
+    extras install it, a viewer library installed on its own does not).
+    """
+    if not has_frames(ev.steps_schema):
+        return
+    try:
+        import PIL.Image  # noqa: F401 (imported where the frames are written)
+    except ImportError:
+        raise missing("pillow", extra, why="to write camera frames") from None
 
 
 @contextmanager

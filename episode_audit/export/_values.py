@@ -40,6 +40,7 @@ __all__ = [
     "chunk_blocks",
     "ending_text",
     "finite",
+    "has_frames",
     "json_rows",
     "json_schema",
     "split_batch",
@@ -191,6 +192,16 @@ def split_batch(batch: pa.RecordBatch, name: str) -> Split:
     if index < 0:
         return Split()
     return split_column((name,), batch.column(index), batch.schema.field(index))
+
+
+def has_frames(schema: pa.Schema) -> bool:
+    """Whether step blocks of ``schema`` hold camera frames, before any block is read.
+
+    They do when an action or observation field (a Dict or Tuple item too) is one that
+    :func:`split_column` takes as images, as the field's metadata says.
+    """
+    none = pa.RecordBatch.from_pylist([], schema=schema)
+    return any(split_batch(none, name).images for name in ("action", "observation"))
 
 
 def split_column(path: tuple[str, ...], array: pa.Array, field_: pa.Field) -> Split:

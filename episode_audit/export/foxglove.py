@@ -28,7 +28,7 @@ import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
-from ._output import ViewerExport, missing, staged
+from ._output import ViewerExport, missing, need_pillow, staged
 from ._values import (
     NONFINITE_NULL,
     RESET_STEP,
@@ -68,8 +68,9 @@ def export_foxglove(
     """Write ``source``'s steps, endings and camera frames to ``out`` for Foxglove.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``foxglove-sdk`` is not
-    installed or ``out`` cannot be written, :class:`~episode_audit.errors.EvidenceError` when
-    ``source`` cannot be read; either way no ``out`` is left behind.
+    installed (or Pillow, for a file with camera frames) or ``out`` cannot be written,
+    :class:`~episode_audit.errors.EvidenceError` when ``source`` cannot be read; either way no
+    ``out`` is left behind.
     """
     try:
         import foxglove
@@ -77,6 +78,7 @@ def export_foxglove(
         raise missing("foxglove", "foxglove") from None
     source, out = Path(source), Path(out)
     ev = open_evidence(source)
+    need_pillow(ev, "foxglove")
     result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))
     with staged(source, out, overwrite=overwrite, overwrite_option=overwrite_option) as temporary:
         context = foxglove.Context()

@@ -25,7 +25,7 @@ import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
 from ..read import Evidence, open_evidence
-from ._output import ViewerExport, missing, staged
+from ._output import ViewerExport, missing, need_pillow, staged
 from ._values import (
     RESET_STEP,
     Leaf,
@@ -52,8 +52,9 @@ def export_rerun(
     """Write ``source``'s steps, endings and camera frames to the Rerun recording ``out``.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``rerun-sdk`` is not
-    installed or ``out`` cannot be written, :class:`~episode_audit.errors.EvidenceError` when
-    ``source`` cannot be read; either way no ``out`` is left behind.
+    installed (or Pillow, for a file with camera frames) or ``out`` cannot be written,
+    :class:`~episode_audit.errors.EvidenceError` when ``source`` cannot be read; either way no
+    ``out`` is left behind.
     """
     try:
         import rerun as rr
@@ -61,6 +62,7 @@ def export_rerun(
         raise missing("rerun-sdk", "rerun", needs=(3, 11)) from None
     source, out = Path(source), Path(out)
     ev = open_evidence(source)
+    need_pillow(ev, "rerun")
     unfinished = None if ev.finished else ev.torn or "no run-end record"
     result = ViewerExport(out, source, "rerun", unfinished=unfinished)
     try:

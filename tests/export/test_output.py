@@ -18,7 +18,7 @@ from episode_audit.cli import app
 from episode_audit.export import export
 from episode_audit.export._output import staged
 from tests.support.killing import how_long, killed_midway
-from tests.support.viewer_files import random_cartpole_file
+from tests.support.viewer_files import camera_file, random_cartpole_file
 
 ROOT = Path(__file__).resolve().parents[2]
 CLEAN = ROOT / "fixtures" / "clean.mcap"
@@ -221,3 +221,27 @@ def test_rerun_rows_have_the_episodes_timelines_only(
             timelines.setdefault(chunk.entity_path, set()).update(chunk.timeline_names)
     assert "/log" in timelines and "/steps/reward" in timelines
     assert all(names == {"step", "episode", "time"} for names in timelines.values()), timelines
+
+
+@pytest.mark.parametrize(("to", "name"), VIEWERS)
+def test_camera_frames_without_pillow_are_one_error_line_naming_the_extra(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, to: str, name: str
+) -> None:
+    """The frames' PNG encoder was imported midway: ``ModuleNotFoundError: No module named
+    'PIL'`` as a traceback (exit 1)."""
+    _viewer(to)
+    source = camera_file(tmp_path / "camera.mcap")
+    monkeypatch.setitem(sys.modules, "PIL", None)  # as if Pillow were not installed
+    out = tmp_path / name
+    expected = (
+        rf"--to {to}: needs the 'pillow' package \(to write camera frames\); install it with "
+        rf"pip install 'episode-audit\[{to}\]'"
+    )
+    with pytest.raises(ConfigurationError, match=rf"^{expected}$"):
+        export([source], out, to=to)  # type: ignore[call-overload]
+    result = CliRunner().invoke(app, ["export", str(source), "--to", to, "-o", str(out)])
+    assert result.exit_code == 2, result.output
+    (line,) = result.output.strip().splitlines()
+    assert re.fullmatch(rf"episode-audit: error: {expected}", line), line
+    assert list(tmp_path.iterdir()) == [source]
+    assert export([CLEAN], out, to=to).frames == 0  # type: ignore[call-overload]
