@@ -1006,6 +1006,42 @@ def test_show_episode_titles_say_the_error_the_agent_and_the_sub_env(tmp_path: P
     assert code == 0 and out.startswith("### episode 1 (sub-env 1): incomplete"), out
 
 
+def test_show_prints_a_game_s_env_kwargs_as_recorded_within_80_columns(tmp_path: Path) -> None:
+    """A PettingZoo file has no env spec: its env kwargs (what replay builds the game with) were
+    in no line of the table or Markdown; ``inf`` is held exactly in ``env_kwargs_typed``."""
+    import math
+
+    from episode_audit import RecordParallelEvidence
+    from tests.replay.test_pettingzoo_replay import rps_v2
+
+    kwargs = {"num_actions": 3, "max_cycles": math.inf}
+    path = tmp_path / "rps.mcap"
+    with RecordParallelEvidence(rps_v2.parallel_env(**kwargs), path, env_kwargs=kwargs) as env:
+        env.reset(seed=0)
+        env.step(dict.fromkeys(env.agents, 1))
+    result = runner.invoke(app, ["show", str(path)], env={"COLUMNS": "80"})
+    assert result.exit_code == 0
+    assert max(len(line) for line in result.stdout.splitlines()) <= 80
+    (row,) = [line for line in result.stdout.splitlines() if "env kwargs" in line]
+    assert re.fullmatch(r" env kwargs +num_actions=3, max_cycles=inf *", row), row
+    code, out, _ = run("show", str(path), "--format", "markdown")
+    assert code == 0 and "| env kwargs | num_actions=3, max_cycles=inf |" in out
+    code, out, _ = run("show", str(_plain_game(tmp_path / "plain.mcap")))
+    assert code == 0 and re.search(
+        r" env kwargs +not recorded: replay builds the env with its defaults", out
+    ), out
+
+
+def _plain_game(path: Path) -> Path:
+    from episode_audit import RecordParallelEvidence
+    from tests.replay.test_pettingzoo_replay import rps_v2
+
+    with RecordParallelEvidence(rps_v2.parallel_env(), path) as env:
+        env.reset(seed=0)
+        env.step(dict.fromkeys(env.agents, 1))
+    return path
+
+
 def test_show_episode_prints_tuple_actions_item_by_item() -> None:
     from episode_audit.cli.render.show import _cell
 

@@ -23,8 +23,10 @@ from rich.text import Text
 
 from ...errors import EvidenceError
 from ...format import names as fmt
+from ...format.options import decode_typed
 from ...format.records import from_json, to_jsonable
 from ...format.spaces import SpaceCodec
+from ...format.unrecorded import unrecorded
 from ...read import Evidence
 from ...read.summary import EPISODE_LIST_HEAD, EPISODE_LIST_TAIL, rebuilt_space, summarize
 from .common import OutputFormat, fmt_number, markdown_table, markdown_text, safe, table, to_json
@@ -91,6 +93,35 @@ def _layout_text(layout: dict[str, Any]) -> str:
     return f"{kind}: {', '.join(parts)}" + (f" ({', '.join(extra)})" if extra else "")
 
 
+def _env_kwargs_text(layout: dict[str, Any]) -> str:
+    """A PettingZoo file's env kwargs as ``name=value, ...``, or why there are none.
+
+    Values are exact where the file holds them typed (``inf``, a tuple); the text is cut to
+    :data:`_SPACE_TEXT_LIMIT`.
+    """
+    kwargs = layout.get("env_kwargs")
+    if kwargs is None:
+        return "not recorded: replay builds the env with its defaults"
+    if not isinstance(kwargs, dict):
+        return "?"
+    typed = layout.get("env_kwargs_typed")
+    if isinstance(typed, str):
+        try:
+            exact = decode_typed(typed)
+        except ValueError:  # (damaged: the JSON form, placeholders said)
+            pass
+        else:
+            kwargs = exact if isinstance(exact, dict) else kwargs
+    parts = []
+    with np.printoptions(threshold=8, precision=4):
+        for name, value in kwargs.items():
+            lost = unrecorded(value)
+            text = f"<not recorded: {lost}>" if lost is not None else " ".join(repr(value).split())
+            parts.append(f"{name}={text}")
+    text = ", ".join(parts) or "-"
+    return text if len(text) <= _SPACE_TEXT_LIMIT else text[: _SPACE_TEXT_LIMIT - 3] + "..."
+
+
 def _episode_table(data: dict[str, Any]) -> tuple[str, list[str], list[list[Any]]]:
     """Title, headers and rows of the summary's episode list (the ``… N more`` row included)."""
     listed: list[dict[str, Any]] = data["episode_list"]
@@ -134,6 +165,11 @@ def summary_output(
         ["writer", data["writer"]],
         ["env id", data["env_id"] or "-"],
         ["layout", _layout_text(data["layout"])],
+        *(
+            [["env kwargs", _env_kwargs_text(data["layout"] or {})]]
+            if str((data["layout"] or {}).get("kind", "")).startswith("pettingzoo")
+            else []
+        ),
         ["started", data["start_time"]],
         ["tags", ", ".join(f"{k}={v}" for k, v in data["tags"].items()) or "-"],
         ["episodes", data["episodes"]],
