@@ -3,10 +3,13 @@
 :class:`Temporary` is the file to write: where the OS has them (Linux, ``O_TMPFILE``), an
 unnamed file in the output's folder, linked into place once finished, so that a writer killed
 midway (even by SIGKILL) leaves nothing behind; elsewhere a hidden named file next to the
-output, removed on any error. Making one creates the output's folder if it is missing and
-checks, before anything is written, that a file can be created there: an output that cannot be
-written is one :class:`~episode_audit.errors.ConfigurationError` naming it, not a failure after
-the work. ``recover`` and the viewer exports write their output through it.
+output, removed on any error. A kill leaves that one behind and nothing removes it later: no
+lock can mark it live (``recover``'s evidence writer takes the file's one ``flock`` itself), so
+a sweep could not tell a killed writer's file from a live one's (docs/cli.md). Making one
+creates the output's folder if it is missing and checks, before anything is written, that a
+file can be created there: an output that cannot be written is one
+:class:`~episode_audit.errors.ConfigurationError` naming it, not a failure after the work.
+``recover`` and the viewer exports write their output through it.
 """
 
 from __future__ import annotations
