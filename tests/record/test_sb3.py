@@ -170,6 +170,30 @@ def test_subproc_vec_env_with_reset_rng_info_replays_identical(tmp_path: Path) -
     ]
 
 
+def clipped_cartpole() -> gym.Env[Any, Any]:
+    """A lambda in a wrapper's kwargs: the sub-env's spec holds it, and it does not pickle."""
+    env = gym.make("CartPole-v1")
+    return gym.wrappers.TransformObservation(
+        env, lambda obs: np.clip(obs, -10, 10), env.observation_space
+    )
+
+
+def rng_clipped_cartpole() -> gym.Env[Any, Any]:
+    return ResetRngInfo(clipped_cartpole())
+
+
+@pytest.mark.parametrize("make", [clipped_cartpole, rng_clipped_cartpole])
+def test_a_spec_that_does_not_pickle_leaves_subproc_workers_alive(
+    tmp_path: Path, make: Any
+) -> None:
+    """A worker asked for such a spec fails to send it and ends: the recorder does not ask."""
+    path = tmp_path / "subproc.mcap"
+    with RecordVecEnvEvidence(SubprocVecEnv([make] * 2, start_method=START), path) as venv:
+        step_random(venv, 30)
+    assert open_evidence(path).run.env_spec is None
+    assert {e["env_index"] for e in episodes(path)} == {0, 1}
+
+
 def test_subproc_vec_env_without_reset_rng_info_says_what_to_do(tmp_path: Path) -> None:
     path = tmp_path / "subproc.mcap"
     with RecordVecEnvEvidence(SubprocVecEnv([cartpole] * 2, start_method=START), path) as venv:

@@ -24,6 +24,7 @@ from stable_baselines3.common.vec_env import (
 
 from ..gym import entry_point, info_entry_point, reward_wrappers
 from ..time_limits import counted_limits, limited_spec, unread_limits
+from ..vector.rng import SPEC_IF_SENDABLE, ResetRngInfo
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -107,11 +108,9 @@ class VecStack:
         try:
             if self.local is not None:
                 return limited_spec(self.local.envs[0].spec, self.local.envs[0])
-            if self.base.has_attr("spec"):
-                return self.base.get_attr("spec", indices=[0])[0]
+            return worker_spec(self.base)
         except Exception:
             return None
-        return None
 
     def unread_limits(self) -> dict[str, str]:
         """The layout entries saying why the streams cannot read every sub-env's ``TimeLimit``.
@@ -149,3 +148,26 @@ class VecStack:
             if isinstance(limit, (int, np.integer)) and not isinstance(limit, bool):
                 limits[i] = int(limit)
         return limits
+
+
+CALLABLE_WRAPPERS = ("TransformObservation", "TransformAction", "TransformReward", "RecordVideo")
+"""Gymnasium wrappers whose kwargs (in the sub-env's spec) hold functions, often lambdas."""
+
+
+def worker_spec(base: VecEnv) -> Any:
+    """Sub-env 0's spec, asked of a worker only when it can send it; else ``None``.
+
+    A ``SubprocVecEnv``'s worker sends its answer pickled, and one that fails to (a lambda in a
+    wrapper's kwargs, ``TransformObservation(env, lambda o: ...)``) ends, breaking the VecEnv.
+    Outermost in the sub-env, :class:`~..vector.rng.ResetRngInfo` says whether the spec
+    pickles (``episode_audit_spec``). Else the sub-env's wrappers, named by its text
+    (``str(env)``, always sent), are looked at: with one of :data:`CALLABLE_WRAPPERS` (or a
+    name with ``Lambda``) the spec is not asked for. A function among the env's own kwargs,
+    or in the kwargs of a wrapper of one's own, is not seen (docs/recording.md).
+    """
+    text = str(base.env_method("__str__", indices=[0])[0])
+    if text.startswith(f"<{ResetRngInfo.__name__}<"):
+        return base.env_method(SPEC_IF_SENDABLE, indices=[0])[0]
+    if "Lambda" in text or any(f"<{name}<" in text for name in CALLABLE_WRAPPERS):
+        return None
+    return base.get_attr("spec", indices=[0])[0] if base.has_attr("spec") else None

@@ -13,6 +13,7 @@ Which mode reads them when, and why: ``docs/format.md``, "Vector files".
 from __future__ import annotations
 
 import json
+import pickle
 from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
@@ -24,9 +25,12 @@ from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets
 
-__all__ = ["LocalSubEnvs", "RemoteSubEnvs", "ResetRngInfo", "SubEnvRng"]
+__all__ = ["SPEC_IF_SENDABLE", "LocalSubEnvs", "RemoteSubEnvs", "ResetRngInfo", "SubEnvRng"]
 
 RngState = dict[str, Any]
+
+SPEC_IF_SENDABLE = "episode_audit_spec"
+"""The method of :class:`ResetRngInfo` giving the sub-env's spec when a worker can send it."""
 
 
 class LocalSubEnvs(Protocol):
@@ -117,6 +121,19 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     def spec(self) -> Any:  # type: ignore[override]
         """The wrapped env's spec: this wrapper only observes."""
         return self.env.spec
+
+    def episode_audit_spec(self) -> Any:
+        """:attr:`spec` when it pickles, else ``None``: what a worker process can send.
+
+        A ``SubprocVecEnv`` worker that fails to pickle its answer ends (a lambda in a wrapper's
+        kwargs), so a recorder asks this (:data:`SPEC_IF_SENDABLE`) rather than for ``spec``.
+        """
+        spec = self.env.spec
+        try:
+            pickle.dumps(spec)
+        except Exception:
+            return None
+        return spec
 
     def _issued_state(self, text: str) -> RngState | None:
         """The state this wrapper wrote as ``text`` into its last reset's info (taken once).
