@@ -13,8 +13,8 @@ Which mode reads them when, and why: ``docs/format.md``, "Vector files".
 from __future__ import annotations
 
 import json
-import pickle
 from collections.abc import Mapping, Sequence
+from multiprocessing.reduction import ForkingPickler
 from typing import Any, Protocol
 
 import gymnasium as gym
@@ -123,14 +123,14 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         return self.env.spec
 
     def episode_audit_spec(self) -> Any:
-        """:attr:`spec` when it pickles, else ``None``: what a worker process can send.
+        """:attr:`spec` when a worker's pipe can send it (it pickles), else ``None``.
 
         A ``SubprocVecEnv`` worker that fails to pickle its answer ends (a lambda in a wrapper's
         kwargs), so a recorder asks this (:data:`SPEC_IF_SENDABLE`) rather than for ``spec``.
         """
         spec = self.env.spec
         try:
-            pickle.dumps(spec)
+            ForkingPickler.dumps(spec)  # (as a worker's pipe sends it; nothing is ever loaded)
         except Exception:
             return None
         return spec
