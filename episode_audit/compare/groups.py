@@ -233,7 +233,8 @@ def compare_group(
         b = failed_b & (named_b == label)
         c = failed_c & (named_c == label)
         rates.append((f"failure_rate:{label}", b, c, "lower"))
-    rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
+    # (descriptive: at the time limit a survival task succeeds and a goal task times out)
+    rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "none"))
     metrics = [rate(*spec) for spec in rates]
     _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
     all_b, all_c = base.everything, cand.everything
@@ -344,11 +345,12 @@ def _mark_repeats(metrics: list[MetricComparison], events: list[tuple[Any, Any]]
     """Set ``same_test_as`` of each rate whose events (or their complement) an earlier one has.
 
     The same episodes counted (``failure_rate`` and its only label's), or the others
-    (``success_rate`` and ``failure_rate`` without truncations), make the same test.
+    (``success_rate`` and ``failure_rate`` without truncations), make the same test. A rate
+    without a better direction (``truncation_rate``) has no test to share.
     """
     first: dict[bytes, str] = {}
     for metric, (b, c) in zip(metrics, events, strict=True):
-        if not metric.can_reject:
+        if not metric.can_reject or metric.better == "none":
             continue
         both = np.concatenate([b, c])
         key = (both if not both[0] else ~both).tobytes()

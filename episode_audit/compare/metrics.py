@@ -43,8 +43,9 @@ class MetricComparison:
     """One metric of both sides: ``difference`` is the candidate's value minus the baseline's.
 
     ``better`` says which way is better (``"higher"``, ``"lower"``, or ``"none"`` for reward
-    terms, which get no verdict). ``n_needed`` counts pairs when ``paired``, else episodes a
-    side; ``mde`` is the difference detectable now with the power of :data:`~.stats.POWER`.
+    terms and the truncation rate, which get no verdict). ``n_needed`` counts pairs when
+    ``paired``, else episodes a side; ``mde`` is the difference detectable now with the power
+    of :data:`~.stats.POWER`.
     ``can_reject`` is false when its test gives p = 1 whatever the episodes hold in their
     order: a rate with no event on either side or one in every episode of both (unpaired),
     or fewer than two discordant pairs (paired); a mean with fewer than two values a side, a
@@ -131,10 +132,15 @@ def rate_metric(
     cand: Array,
     pairs: Pairs,
     *,
-    better: Literal["higher", "lower"],
+    better: Literal["higher", "lower", "none"],
     margin: float,
 ) -> MetricComparison:
-    """Compare the rate of ``True`` in two boolean arrays (one value per ended episode)."""
+    """Compare the rate of ``True`` in two boolean arrays (one value per ended episode).
+
+    ``better`` ``"none"``: a rate shown with its difference and interval, and no verdict
+    (``truncation_rate``: reaching the time limit is a survival task's success, a goal task's
+    timeout).
+    """
     nb, nc = len(base), len(cand)
     if use_pairs(pairs, nb, nc):
         x, y = base[pairs.base], cand[pairs.cand]
