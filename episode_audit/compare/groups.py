@@ -251,7 +251,7 @@ def compare_group(
         "return", base.returns, cand.returns, pairs, better="higher",
         margin=gates.max_return_drop,
     )  # fmt: skip
-    apart = _returns_apart(base, cand)
+    apart = _returns_apart(base, cand) or _terms_apart(base, cand)
     if apart is not None:  # (no test, no gate: a difference in other units says nothing)
         returns = not_compared(returns, apart)
     metrics.append(returns)
@@ -310,6 +310,31 @@ def _returns_apart(base: Side, cand: Side) -> str | None:
     return (
         f"the baseline's returns are {_whose(b)} and the candidate's {_whose(c)}; record "
         "both sides over the same reward wrappers, or beneath them (the env's own rewards)"
+    )
+
+
+def _terms_apart(base: Side, cand: Side) -> str | None:
+    """Why the sides' returns sum different rewards (their reward terms differ), or ``None``.
+
+    A reward term one side has and the other lacks means the reward is defined otherwise
+    (an env kwarg, a new reward function): its returns are in other units, and that term
+    has nothing to be compared with either.
+    """
+    only_b, only_c = (
+        sorted(set(base.terms) - set(cand.terms)),
+        sorted(set(cand.terms) - set(base.terms)),
+    )
+    if not (only_b or only_c):
+        return None
+    said = [
+        f"{side} only: {', '.join(names)}"
+        for side, names in (("baseline", only_b), ("candidate", only_c))
+        if names
+    ]
+    return (
+        f"the sides' rewards have different terms ({'; '.join(said)}), so their returns sum "
+        "different rewards and those terms are not compared; record both sides with the same "
+        "reward (env kwargs, reward function) to compare returns"
     )
 
 

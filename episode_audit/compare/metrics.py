@@ -76,7 +76,7 @@ class MetricComparison:
     can_reject: bool = True
     same_test_as: str | None = None
     not_comparable: str | None = None
-    """Why the sides' values are not in the same units (returns of different reward wrappers):
+    """Why the sides' values are not in the same units (returns of other reward wrappers or terms):
     then the verdict is ``inconclusive``, the test cannot reject, and a gate cannot be verified."""
 
     @property
