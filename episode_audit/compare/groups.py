@@ -262,12 +262,28 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    notes = _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
+    notes = _mixed_tasks(base, cand) + _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
     if apart is not None:
         notes.append(f"return: not compared (inconclusive), nor a max_return_drop gate: {apart}")
     else:
         notes += _unbounded(returns)
     return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
+
+
+def _mixed_tasks(base: Side, cand: Side) -> list[str]:
+    """The note on a group whose side holds episodes of several env ids, when one does."""
+    mixed = [
+        f"the {name}'s ({', '.join(side.tasks())})"
+        for name, side in (("baseline", base.everything), ("candidate", cand.everything))
+        if len(side.tasks()) > 1
+    ]
+    if not mixed:
+        return []
+    return [
+        f"episodes of several env ids in one group ({' and '.join(mixed)}): its rates and "
+        "returns pool the tasks, and episodes pair only within an env id; compare each task "
+        "on its own with --by env (by='env')"
+    ]
 
 
 def _errors(base: Any, cand: Any) -> list[str]:
