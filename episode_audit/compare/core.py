@@ -42,7 +42,7 @@ from .groups import (
     gate_json,
     missing_gates,
 )
-from .metrics import Verdict, decide
+from .metrics import Verdict, settle
 from .sides import Side, sides, started
 from .spec import Mismatch, field_mismatches, limits_note, run_fields
 from .stats import holm
@@ -442,7 +442,7 @@ def _decide(groups: Sequence[GroupComparison]) -> None:
             metric.p_adjusted = group.metric(metric.same_test_as).p_adjusted
         elif not metric.can_reject:
             metric.p_adjusted = metric.p_value
-        metric.verdict = decide(metric)
+        settle(metric)
 
 
 def compare(

@@ -5,7 +5,8 @@ error);
 :func:`mean_metric` a mean (return, a reward term's episode total). Both are paired on matched
 reset seeds when at least half of the smaller side's episodes found a pair
 (:data:`PAIRED_SHARE`), else unpaired over every ended episode. :func:`decide` gives the
-verdict once the p-values are Holm-adjusted. The formulas: ``docs/compare.md``.
+verdict once the p-values are Holm-adjusted (:func:`settle` with an n needed that agrees with
+the interval). The formulas: ``docs/compare.md``.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ __all__ = [
     "MetricComparison",
     "Verdict",
     "decide",
+    "interval_n_needed",
     "mean_metric",
     "rate_metric",
+    "settle",
 ]
 
 Verdict = Literal["regressed", "improved", "held", "inconclusive", "underpowered"]
@@ -236,6 +239,47 @@ def _can_reject(x: Array, y: Array, paired: bool) -> bool:
         return False
     values = y - x if paired else np.concatenate([x, y])
     return bool(np.ptp(values) > 0 or (paired and values[0] != 0))
+
+
+def settle(metric: MetricComparison) -> None:
+    """Set the verdict of a metric whose ``p_adjusted`` is set, and an n needed that agrees.
+
+    The planning n (:func:`~.stats.planning`) is the normal approximation's; a metric it
+    calls enough for that is still ``inconclusive`` when its interval, as computed, reaches
+    past the margin. Its n needed is then the interval's (:func:`interval_n_needed`): more units
+    than it has (it is ``underpowered``), or none enough (``inconclusive``, n needed never).
+    """
+    metric.verdict = decide(metric)
+    if metric.verdict != "inconclusive" or metric.not_comparable is not None:
+        return
+    if not math.isfinite(metric.difference):
+        return
+    metric.n_needed = interval_n_needed(metric)
+    if metric.n_needed < stats.NEVER:
+        metric.verdict = decide(metric)
+
+
+def interval_n_needed(metric: MetricComparison) -> int:
+    """The units an interval like this one needs for its worse end to come within the margin.
+
+    The worse side's half-width ``h`` shrinks as ``1 / sqrt(n)``: with ``loss`` the point
+    difference's distance in the worse direction, ``n' = ceil(n * (h / (margin - loss))**2)``,
+    at least ``n + 1`` and the planning n; :data:`~.stats.NEVER` when the point difference
+    itself is at or beyond the margin (no n makes that interval's worse end fall within it).
+
+    >>> m = MetricComparison("failure_rate", "rate", "lower", 0.0, 0.0, 72, 72, 0.0,
+    ...     Interval(-0.0507, 0.0507), True, 72, "McNemar exact", 1.0, 0.05, 0.038, 43)
+    >>> interval_n_needed(m)
+    75
+    """
+    loss = -metric.difference if metric.better == "higher" else metric.difference
+    half, room = metric.worse_bound() - loss, metric.margin - loss
+    if room <= 0:
+        return stats.NEVER
+    n = metric.analysed
+    if not math.isfinite(half):
+        return metric.n_needed
+    return max(metric.n_needed, n + 1, math.ceil(n * (half / room) ** 2))
 
 
 def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:
