@@ -176,7 +176,18 @@ def compare(
     jobs: JobsOption = None,
     ray: RayOption = None,
 ) -> None:
-    """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates."""
+    """Did the candidate regress? Paired on matched seeds, per-metric verdicts, CI gates.
+
+    \b
+    Each metric, each group and the whole comparison get a verdict:
+      regressed     significantly worse (Holm-adjusted p < 0.05): exit 1
+      improved      significantly better
+      held          the interval's worse end is within the margin or gate
+      underpowered  neither, and too few episodes: see "n needed"
+      inconclusive  neither: not compared, or more episodes would not tell
+    Exit 1 also when a gate fails; exit 0 otherwise (2: usage or input).
+    Statistics and verdicts: compare.md in the project's docs.
+    """  # noqa: D301 (\b: Click keeps the lines of the paragraph that follows as they are)
     from ..compare import compare_inputs
     from .render.compare import compare_output
 

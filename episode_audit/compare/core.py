@@ -42,7 +42,7 @@ from .groups import (
     gate_json,
     missing_gates,
 )
-from .metrics import Verdict, decide
+from .metrics import Verdict, settle
 from .sides import Side, sides, started
 from .spec import Mismatch, field_mismatches, limits_note, run_fields
 from .stats import holm
@@ -274,8 +274,8 @@ def compare_parts(
     _check_options(baseline, candidate, gates, rate_margin)
     found = check_tasks(baseline, candidate, different_tasks)
     gates = gates or CompareGates()
-    tables_b = joined(f.part.rows for f in baseline)
-    tables_c = joined(f.part.rows for f in candidate)
+    tables_b = _tasked(baseline, joined(f.part.rows for f in baseline))
+    tables_c = _tasked(candidate, joined(f.part.rows for f in candidate))
     sides_b, sides_c = sides(*tables_b), sides(*tables_c)
     _check_sides(sides_b, "baseline", tables_b[0])
     _check_sides(sides_c, "candidate", tables_c[0])
@@ -324,6 +324,20 @@ def compare_parts(
         unverified,
         limits_note([f.fields for f in baseline], [f.fields for f in candidate]),
     )
+
+
+def _tasked(
+    files: Sequence[SideFile], tables: tuple[pa.Table, pa.Table]
+) -> tuple[pa.Table, pa.Table]:
+    """``joined``'s tables of ``files`` with each episode's env id (``task``): pairs stay in one."""
+    episodes, terms = tables
+    ids = [
+        f.fields["env_id"]
+        for f in files
+        if f.part.rows[0] is not None
+        for _ in range(f.part.rows[0].num_rows)
+    ]
+    return episodes.append_column("task", pa.array(ids, pa.string())), terms
 
 
 def check_tasks(
@@ -428,7 +442,7 @@ def _decide(groups: Sequence[GroupComparison]) -> None:
             metric.p_adjusted = group.metric(metric.same_test_as).p_adjusted
         elif not metric.can_reject:
             metric.p_adjusted = metric.p_value
-        metric.verdict = decide(metric)
+        settle(metric)
 
 
 def compare(

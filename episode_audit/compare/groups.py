@@ -233,7 +233,8 @@ def compare_group(
         b = failed_b & (named_b == label)
         c = failed_c & (named_c == label)
         rates.append((f"failure_rate:{label}", b, c, "lower"))
-    rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "lower"))
+    # (descriptive: at the time limit a survival task succeeds and a goal task times out)
+    rates.append(("truncation_rate", *_is(base, cand, fmt.OUTCOME_TRUNCATED), "none"))
     metrics = [rate(*spec) for spec in rates]
     _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
     all_b, all_c = base.everything, cand.everything
@@ -250,7 +251,7 @@ def compare_group(
         "return", base.returns, cand.returns, pairs, better="higher",
         margin=gates.max_return_drop,
     )  # fmt: skip
-    apart = _returns_apart(base, cand)
+    apart = _returns_apart(base, cand) or _terms_apart(base, cand)
     if apart is not None:  # (no test, no gate: a difference in other units says nothing)
         returns = not_compared(returns, apart)
     metrics.append(returns)
@@ -261,12 +262,28 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    notes = _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
+    notes = _mixed_tasks(base, cand) + _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
     if apart is not None:
         notes.append(f"return: not compared (inconclusive), nor a max_return_drop gate: {apart}")
     else:
         notes += _unbounded(returns)
     return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
+
+
+def _mixed_tasks(base: Side, cand: Side) -> list[str]:
+    """The note on a group whose side holds episodes of several env ids, when one does."""
+    mixed = [
+        f"the {name}'s ({', '.join(side.tasks())})"
+        for name, side in (("baseline", base.everything), ("candidate", cand.everything))
+        if len(side.tasks()) > 1
+    ]
+    if not mixed:
+        return []
+    return [
+        f"episodes of several env ids in one group ({' and '.join(mixed)}): its rates and "
+        "returns pool the tasks, and episodes pair only within an env id; compare each task "
+        "on its own with --by env (by='env')"
+    ]
 
 
 def _errors(base: Any, cand: Any) -> list[str]:
@@ -312,6 +329,31 @@ def _returns_apart(base: Side, cand: Side) -> str | None:
     )
 
 
+def _terms_apart(base: Side, cand: Side) -> str | None:
+    """Why the sides' returns sum different rewards (their reward terms differ), or ``None``.
+
+    A reward term one side has and the other lacks means the reward is defined otherwise
+    (an env kwarg, a new reward function): its returns are in other units, and that term
+    has nothing to be compared with either.
+    """
+    only_b, only_c = (
+        sorted(set(base.terms) - set(cand.terms)),
+        sorted(set(cand.terms) - set(base.terms)),
+    )
+    if not (only_b or only_c):
+        return None
+    said = [
+        f"{side} only: {', '.join(names)}"
+        for side, names in (("baseline", only_b), ("candidate", only_c))
+        if names
+    ]
+    return (
+        f"the sides' rewards have different terms ({'; '.join(said)}), so their returns sum "
+        "different rewards and those terms are not compared; record both sides with the same "
+        "reward (env kwargs, reward function) to compare returns"
+    )
+
+
 def _whose(chains: frozenset[str]) -> str:
     """Whose rewards returns of ``chains`` are, in words.
 
@@ -344,11 +386,12 @@ def _mark_repeats(metrics: list[MetricComparison], events: list[tuple[Any, Any]]
     """Set ``same_test_as`` of each rate whose events (or their complement) an earlier one has.
 
     The same episodes counted (``failure_rate`` and its only label's), or the others
-    (``success_rate`` and ``failure_rate`` without truncations), make the same test.
+    (``success_rate`` and ``failure_rate`` without truncations), make the same test. A rate
+    without a better direction (``truncation_rate``) has no test to share.
     """
     first: dict[bytes, str] = {}
     for metric, (b, c) in zip(metrics, events, strict=True):
-        if not metric.can_reject:
+        if not metric.can_reject or metric.better == "none":
             continue
         both = np.concatenate([b, c])
         key = (both if not both[0] else ~both).tobytes()

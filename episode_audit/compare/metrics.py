@@ -5,7 +5,8 @@ error);
 :func:`mean_metric` a mean (return, a reward term's episode total). Both are paired on matched
 reset seeds when at least half of the smaller side's episodes found a pair
 (:data:`PAIRED_SHARE`), else unpaired over every ended episode. :func:`decide` gives the
-verdict once the p-values are Holm-adjusted. The formulas: ``docs/compare.md``.
+verdict once the p-values are Holm-adjusted (:func:`settle` with an n needed that agrees with
+the interval). The formulas: ``docs/compare.md``.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ __all__ = [
     "MetricComparison",
     "Verdict",
     "decide",
+    "interval_n_needed",
     "mean_metric",
     "rate_metric",
+    "settle",
 ]
 
 Verdict = Literal["regressed", "improved", "held", "inconclusive", "underpowered"]
@@ -43,8 +46,9 @@ class MetricComparison:
     """One metric of both sides: ``difference`` is the candidate's value minus the baseline's.
 
     ``better`` says which way is better (``"higher"``, ``"lower"``, or ``"none"`` for reward
-    terms, which get no verdict). ``n_needed`` counts pairs when ``paired``, else episodes a
-    side; ``mde`` is the difference detectable now with the power of :data:`~.stats.POWER`.
+    terms and the truncation rate, which get no verdict). ``n_needed`` counts pairs when
+    ``paired``, else episodes a side; ``mde`` is the difference detectable now with the power
+    of :data:`~.stats.POWER`.
     ``can_reject`` is false when its test gives p = 1 whatever the episodes hold in their
     order: a rate with no event on either side or one in every episode of both (unpaired),
     or fewer than two discordant pairs (paired); a mean with fewer than two values a side, a
@@ -75,7 +79,7 @@ class MetricComparison:
     can_reject: bool = True
     same_test_as: str | None = None
     not_comparable: str | None = None
-    """Why the sides' values are not in the same units (returns of different reward wrappers):
+    """Why the sides' values are not in the same units (returns of other reward wrappers or terms):
     then the verdict is ``inconclusive``, the test cannot reject, and a gate cannot be verified."""
 
     @property
@@ -131,10 +135,15 @@ def rate_metric(
     cand: Array,
     pairs: Pairs,
     *,
-    better: Literal["higher", "lower"],
+    better: Literal["higher", "lower", "none"],
     margin: float,
 ) -> MetricComparison:
-    """Compare the rate of ``True`` in two boolean arrays (one value per ended episode)."""
+    """Compare the rate of ``True`` in two boolean arrays (one value per ended episode).
+
+    ``better`` ``"none"``: a rate shown with its difference and interval, and no verdict
+    (``truncation_rate``: reaching the time limit is a survival task's success, a goal task's
+    timeout).
+    """
     nb, nc = len(base), len(cand)
     if use_pairs(pairs, nb, nc):
         x, y = base[pairs.base], cand[pairs.cand]
@@ -230,6 +239,47 @@ def _can_reject(x: Array, y: Array, paired: bool) -> bool:
         return False
     values = y - x if paired else np.concatenate([x, y])
     return bool(np.ptp(values) > 0 or (paired and values[0] != 0))
+
+
+def settle(metric: MetricComparison) -> None:
+    """Set the verdict of a metric whose ``p_adjusted`` is set, and an n needed that agrees.
+
+    The planning n (:func:`~.stats.planning`) is the normal approximation's; a metric it
+    calls enough for that is still ``inconclusive`` when its interval, as computed, reaches
+    past the margin. Its n needed is then the interval's (:func:`interval_n_needed`): more units
+    than it has (it is ``underpowered``), or none enough (``inconclusive``, n needed never).
+    """
+    metric.verdict = decide(metric)
+    if metric.verdict != "inconclusive" or metric.not_comparable is not None:
+        return
+    if not math.isfinite(metric.difference):
+        return
+    metric.n_needed = interval_n_needed(metric)
+    if metric.n_needed < stats.NEVER:
+        metric.verdict = decide(metric)
+
+
+def interval_n_needed(metric: MetricComparison) -> int:
+    """The units an interval like this one needs for its worse end to come within the margin.
+
+    The worse side's half-width ``h`` shrinks as ``1 / sqrt(n)``: with ``loss`` the point
+    difference's distance in the worse direction, ``n' = ceil(n * (h / (margin - loss))**2)``,
+    at least ``n + 1`` and the planning n; :data:`~.stats.NEVER` when the point difference
+    itself is at or beyond the margin (no n makes that interval's worse end fall within it).
+
+    >>> m = MetricComparison("failure_rate", "rate", "lower", 0.0, 0.0, 72, 72, 0.0,
+    ...     Interval(-0.0507, 0.0507), True, 72, "McNemar exact", 1.0, 0.05, 0.038, 43)
+    >>> interval_n_needed(m)
+    75
+    """
+    loss = -metric.difference if metric.better == "higher" else metric.difference
+    half, room = metric.worse_bound() - loss, metric.margin - loss
+    if room <= 0:
+        return stats.NEVER
+    n = metric.analysed
+    if not math.isfinite(half):
+        return metric.n_needed
+    return max(metric.n_needed, n + 1, math.ceil(n * (half / room) ** 2))
 
 
 def decide(metric: MetricComparison, alpha: float = stats.ALPHA) -> Verdict:

@@ -3,10 +3,11 @@
 :func:`sides` splits the tables :func:`~episode_audit.report.collect.collect` returns into one
 :class:`Side` per group key: the side's ended episodes (success, failure, truncated; the
 denominator of every rate but the error rate), their returns, reward-term totals, reset seeds
-and RNG states; and (``Side.started``) every episode it started, errors and incomplete ones
-too (the error rate's denominator, as report's).
-:func:`pair` matches two sides' episodes on how they began (the k-th episode seeded ``s`` of
-one side with the k-th seeded ``s`` of the other; unseeded ones by the RNG state recorded).
+and RNG states, the task (env id) of each; and (``Side.started``) every episode it started,
+errors and incomplete ones too (the error rate's denominator, as report's).
+:func:`pair` matches two sides' episodes on how they began (the k-th episode of a task seeded
+``s`` of one side with the k-th of that task seeded ``s`` of the other; unseeded ones by the
+RNG state recorded).
 """
 
 from __future__ import annotations
@@ -53,6 +54,9 @@ class Side:
     """The reward wrappers the side's episodes were recorded over, a chain each
     (:func:`~episode_audit.report.wrapped.chain_text`; ``""``: none, the env's own rewards)."""
     started: Side | None = None
+    task: Array | None = None
+    """Per episode, the env id of its file (``None``: one task, unnamed): episodes pair only
+    within a task."""
 
     @property
     def everything(self) -> Side:
@@ -113,7 +117,12 @@ class Side:
             None if self.rng is None else self.rng[index],
             self.success_signal,
             self.reward_wrappers,
+            task=None if self.task is None else self.task[index],
         )
+
+    def tasks(self) -> list[str]:
+        """The env ids of the side's episodes, sorted (empty when unnamed)."""
+        return [] if self.task is None else sorted(set(self.task.tolist()))
 
 
 @dataclass(frozen=True)
@@ -173,16 +182,21 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
         np.asarray(rngs, dtype=np.int64),
         bool(pc.any(rows.column("success_signal")).as_py()),
         frozenset(pc.fill_null(rows.column("reward_wrappers"), "").unique().to_pylist()),
+        task=(
+            np.array(rows.column("task").to_pylist(), dtype=object)
+            if "task" in rows.column_names
+            else None
+        ),
     )
 
 
 def pair(base: Side, cand: Side) -> Pairs:
     """Match the episodes of two sides on how they began.
 
-    The same reset seed, or (unseeded) the same recorded RNG state: the k-th of one side with
-    the k-th of the other. An episode with neither matches nothing.
+    The same reset seed, or (unseeded) the same recorded RNG state, of the same task (env id):
+    the k-th of one side with the k-th of the other. An episode with neither matches nothing.
     """
-    waiting: dict[tuple[str, int], list[int]] = defaultdict(list)
+    waiting: dict[tuple[str, int, str | None], list[int]] = defaultdict(list)
     for i, start in enumerate(_starts(base)):
         if start is not None:
             waiting[start].append(i)
@@ -196,10 +210,11 @@ def pair(base: Side, cand: Side) -> Pairs:
     return Pairs(np.array(b, dtype=np.int64), np.array(c, dtype=np.int64))
 
 
-def _starts(side: Side) -> list[tuple[str, int] | None]:
-    """Each episode's start: ``("seed", s)``, ``("rng", digest)`` or ``None``."""
+def _starts(side: Side) -> list[tuple[str, int, str | None] | None]:
+    """Each episode's start: ``("seed", s, task)``, ``("rng", digest, task)`` or ``None``."""
     rngs = side.rng.tolist() if side.rng is not None else [-1] * side.n
+    tasks = side.task.tolist() if side.task is not None else [None] * side.n
     return [
-        ("seed", s) if s >= 0 else ("rng", r) if r >= 0 else None
-        for s, r in zip(side.seed.tolist(), rngs, strict=True)
+        ("seed", s, t) if s >= 0 else ("rng", r, t) if r >= 0 else None
+        for s, r, t in zip(side.seed.tolist(), rngs, tasks, strict=True)
     ]

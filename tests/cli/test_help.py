@@ -57,3 +57,15 @@ def test_no_help_points_to_a_docs_file_the_installed_package_lacks() -> None:
     for command in COMMANDS:
         result = CliRunner().invoke(app, [command, "--help"], terminal_width=100)
         assert not re.search(r"docs/\S+\.(md|json)", result.output), (command, result.output)
+
+
+def test_compare_help_names_the_verdicts_and_which_exit_1() -> None:
+    """``compare --help`` named neither its verdicts nor the exit codes nor where they are told."""
+    result = CliRunner().invoke(app, ["compare", "--help"], terminal_width=80)
+    assert result.exit_code == 0, result.output
+    for verdict in ("regressed", "improved", "held", "underpowered", "inconclusive"):
+        assert re.search(rf"^ +{verdict} +\S", result.output, re.M), verdict
+    assert "significantly worse (Holm-adjusted p < 0.05): exit 1" in result.output
+    assert "Exit 1 also when a gate fails" in result.output
+    assert "compare.md in the project's docs" in result.output
+    assert all(len(line) <= 80 for line in result.output.splitlines()), result.output

@@ -253,12 +253,15 @@ def test_holm_adjusts_the_primary_metrics_of_all_groups_as_one_family() -> None:
     groups = [compare_group(k, base, cand, CompareGates(), []) for k in ("a", "b")]
     _decide(groups)
     family = [m for g in groups for m in g.metrics if m.can_reject and not m.same_test_as]
-    assert [m.name for m in family] == ["success_rate", "success_rate"]  # (truncation: same)
-    assert [m.p_adjusted for m in family] == holm([m.p_value for m in family])
-    truncation = next(m for m in groups[0].metrics if m.name == "truncation_rate")
-    assert truncation.name == "truncation_rate" and truncation.p_value < 0.05
-    assert truncation.p_adjusted is not None and truncation.p_adjusted >= 0.05
-    assert truncation.verdict != "regressed"  # significant alone, not after Holm
+    assert [m.name for m in family if m.better != "none"] == ["success_rate", "success_rate"]
+    assert [m.p_adjusted for m in family if m.better != "none"] == holm(
+        [m.p_value for m in family if m.better != "none"]
+    )
+    failure = next(m for m in groups[0].metrics if m.name == "failure_rate")
+    assert not failure.can_reject  # (0 against 0; truncation_rate has no verdict)
+    success = groups[0].metric("success_rate")
+    assert success.p_value < 0.05 <= success.p_adjusted  # significant alone, not after Holm
+    assert success.verdict != "regressed"
 
 
 def _vector_run(path: Path, seed: int) -> Path:
@@ -362,7 +365,7 @@ def test_holm_counts_each_hypothesis_once() -> None:
     assert m["failure_rate"].same_test_as == "success_rate"
     assert not m["truncation_rate"].can_reject and not m["return"].can_reject
     assert m["failure_rate:slipped"].p_adjusted == success.p_adjusted
-    assert m["truncation_rate"].p_adjusted == 1.0
+    assert m["truncation_rate"].p_adjusted is None  # (no direction, no verdict)
     assert group.metric("failure_rate").to_dict()["same_test_as"] == "success_rate"
 
 

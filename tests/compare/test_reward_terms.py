@@ -1,0 +1,61 @@
+"""compare where the sides' reward terms differ: the reward changed, returns are not compared."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from episode_audit import CompareGates, compare
+from episode_audit.rollout import record_episodes
+from episode_audit.tasks import DOOR_OPEN_ID
+
+pytestmark = pytest.mark.mujoco
+
+
+@pytest.fixture(scope="module")
+def door(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    out = tmp_path_factory.mktemp("door")
+    made = {}
+    for name, kwargs in (("base", {}), ("proxy", {"proxy_reward": True})):
+        made[name] = out / f"{name}.mcap"
+        record_episodes(DOOR_OPEN_ID, made[name], policy="scripted", episodes=8, env_kwargs=kwargs)
+    return made
+
+
+def test_returns_of_other_reward_terms_are_not_compared(door: dict[str, Path]) -> None:
+    # the same scripted policy and seeds; proxy_reward swaps shaping and failure_penalty for
+    # progress_velocity: the return was `regressed` (p = 7e-5), exit 1
+    result = compare([door["proxy"]], [door["base"]], gates=CompareGates(max_return_drop=1.0))
+    (group,) = result.groups
+    ret = group.metric("return")
+    assert ret.verdict == "inconclusive" and ret.test == "none" and not ret.can_reject
+    assert ret.not_comparable == (
+        "the sides' rewards have different terms (baseline only: progress_velocity; candidate "
+        "only: failure_penalty, shaping), so their returns sum different rewards and those "
+        "terms are not compared; record both sides with the same reward (env kwargs, reward "
+        "function) to compare returns"
+    )
+    assert result.verdict != "regressed"
+    assert group.metric("success_rate").verdict == "underpowered"  # (outcomes still are)
+    shared = [m.name for m in group.metrics if m.name.startswith("term:")]
+    assert shared == ["term:ctrl_cost", "term:success_bonus"]
+    assert (
+        "group all: return: not compared (inconclusive), nor a max_return_drop gate: "
+        + (ret.not_comparable)
+        in result.notes
+    )
+    (gate,) = group.gates
+    assert not gate.passed and gate.message.startswith("return: cannot be verified, the sides'")
+
+
+def test_the_same_terms_on_both_sides_are_compared(door: dict[str, Path]) -> None:
+    result = compare([door["base"]], [_again(door["base"])])
+    assert result.groups[0].metric("return").not_comparable is None
+
+
+def _again(path: Path) -> Path:
+    copy = path.with_name("base_again.mcap")
+    if not copy.exists():
+        copy.write_bytes(path.read_bytes())
+    return copy
