@@ -332,13 +332,15 @@ def _returns_apart(base: Side, cand: Side) -> str | None:
 def _terms_apart(base: Side, cand: Side) -> str | None:
     """Why the sides' returns sum different rewards (their reward terms differ), or ``None``.
 
-    A reward term one side has and the other lacks means the reward is defined otherwise
-    (an env kwarg, a new reward function): its returns are in other units, and that term
-    has nothing to be compared with either.
+    A reward term that every episode of one side reported and no episode of the other means
+    the reward is defined otherwise (an env kwarg, a new reward function): its returns are in
+    other units, and that term has nothing to be compared with either. A term only some
+    episodes reported (a bonus paid at success, reported only then) says nothing of that: a
+    side may just never have earned it.
     """
     only_b, only_c = (
-        sorted(set(base.terms) - set(cand.terms)),
-        sorted(set(cand.terms) - set(base.terms)),
+        sorted(n for n in set(base.terms) - set(cand.terms) if _every_episode(base, n)),
+        sorted(n for n in set(cand.terms) - set(base.terms) if _every_episode(cand, n)),
     )
     if not (only_b or only_c):
         return None
@@ -352,6 +354,12 @@ def _terms_apart(base: Side, cand: Side) -> str | None:
         "different rewards and those terms are not compared; record both sides with the same "
         "reward (env kwargs, reward function) to compare returns"
     )
+
+
+def _every_episode(side: Side, term: str) -> bool:
+    """Whether every episode of ``side`` reported ``term``."""
+    reported = side.reported.get(term)
+    return reported is None or bool(reported.all())
 
 
 def _whose(chains: frozenset[str]) -> str:

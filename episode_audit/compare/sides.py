@@ -54,6 +54,8 @@ class Side:
     """The reward wrappers the side's episodes were recorded over, a chain each
     (:func:`~episode_audit.report.wrapped.chain_text`; ``""``: none, the env's own rewards)."""
     started: Side | None = None
+    reported: dict[str, Array] = field(default_factory=dict)
+    """Per term, whether each episode reported it at all (absent: every episode did)."""
     task: Array | None = None
     """Per episode, the env id of its file (``None``: one task, unnamed): episodes pair only
     within a task."""
@@ -118,6 +120,7 @@ class Side:
             self.success_signal,
             self.reward_wrappers,
             task=None if self.task is None else self.task[index],
+            reported={k: v[index] for k, v in self.reported.items()},
         )
 
     def tasks(self) -> list[str]:
@@ -159,6 +162,7 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
     row_ids = rows.column("row").to_numpy(zero_copy_only=False)
     index = {int(r): i for i, r in enumerate(row_ids)}
     totals: dict[str, Array] = {}
+    reported: dict[str, Array] = {}
     for name, row, total in zip(
         terms.column("term").to_pylist(),
         terms.column("row").to_pylist(),
@@ -170,6 +174,7 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
             continue
         values = totals.setdefault(name, np.zeros(len(row_ids), dtype=np.float64))
         values[i] += np.nan if total is None else total
+        reported.setdefault(name, np.zeros(len(row_ids), dtype=np.bool_))[i] = True
     seeds = pc.fill_null(rows.column("seed"), -1).to_numpy(zero_copy_only=False)
     rngs = pc.fill_null(rows.column("rng"), -1).to_numpy(zero_copy_only=False)
     return Side(
@@ -187,6 +192,7 @@ def _side(rows: pa.Table, terms: pa.Table) -> Side:
             if "task" in rows.column_names
             else None
         ),
+        reported=reported,
     )
 
 

@@ -59,3 +59,33 @@ def _again(path: Path) -> Path:
     if not copy.exists():
         copy.write_bytes(path.read_bytes())
     return copy
+
+
+def test_a_term_reported_in_some_episodes_only_does_not_stop_returns_being_compared(
+    tmp_path: Path,
+) -> None:
+    """Walk reports ``success_bonus`` at a success only: the side that never succeeds lacks
+    it, and its reward is still the same one."""
+    import gymnasium as gym
+    import numpy as np
+
+    from episode_audit import RecordEvidence, open_evidence
+    from tests.support.walk import Walk
+
+    def record(path: Path, right: float) -> Path:
+        rng = np.random.default_rng(0)
+        with RecordEvidence(gym.wrappers.TimeLimit(Walk(), 12), path) as env:
+            for seed in range(12):
+                env.reset(seed=seed)
+                while not any(env.step(int(rng.random() < right))[2:4]):
+                    pass
+        return path
+
+    base, cand = record(tmp_path / "b.mcap", 0.7), record(tmp_path / "c.mcap", 0.2)
+    outcomes = [
+        {e["outcome"] for e in open_evidence(p).episodes().to_pylist()} for p in (base, cand)
+    ]
+    assert "success" in outcomes[0] and len(outcomes[0]) > 1 and "success" not in outcomes[1]
+    group = compare([base], [cand]).groups[0]
+    assert group.metric("return").not_comparable is None
+    assert "term:success_bonus" not in [m.name for m in group.metrics]
