@@ -96,6 +96,7 @@ class _FileCheck:
         check_unfinished(state)
         self.report_hits()
         self.rewards.missing_terms_finding()
+        self.rewards.rewards_changed_finding()
         self.keys.findings()
         state.findings.sort(
             key=lambda f: (

@@ -16,7 +16,7 @@ from ..format import names as fmt
 from ..format.records import listing
 from ..format.run_end import RunEnd
 from ..format.unrecorded import spec_placeholders, unrecorded
-from ..format.wrappers import declared_transparent, plan_wrappers, reward_wrapper_names
+from ..format.wrappers import declared_transparent, plan_wrappers
 from ..read.liveness import still_written
 from ._state import FileState
 from .registry import (
@@ -27,7 +27,6 @@ from .registry import (
     MISSING_ENV_SPEC,
     NOT_REPLAYABLE,
     RECORDER_TROUBLE,
-    REWARDS_CHANGED,
     RUN_END_DAMAGED,
     SUMMARY_DAMAGED,
 )
@@ -124,7 +123,6 @@ def _replayable(state: FileState) -> None:
         why = layout.get("replay_note") or "the vector env had no sub-envs"
         state.finding(NOT_REPLAYABLE, f"no episode can be replayed on its own: {why}")
     check_state_causes(state)
-    _rewards_changed(state)
 
 
 def _placeholders_needed(spec: Any, recorder: Any) -> bool:
@@ -141,16 +139,6 @@ def _placeholders_needed(spec: Any, recorder: Any) -> bool:
         wrappers if isinstance(wrappers, list) else [], declared_transparent(recorder)
     )
     return plan.refused is not None
-
-
-def _rewards_changed(state: FileState) -> None:
-    names = reward_wrapper_names(state.ev.run.layout)
-    if names:
-        state.finding(
-            REWARDS_CHANGED,
-            f"the recorded rewards and returns are {', '.join(names)}'s, not the env's: the "
-            "recorder sat over it; record beneath it (innermost) for the env's own",
-        )
 
 
 def _format_version(state: FileState) -> None:

@@ -123,7 +123,10 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "The terms explain the reward: a report's breakdown of a return by term is only true "
         "when they add up to what was paid. A term left out of `info`, a constant bonus not "
         "declared, or a wrapper between the env and the recorder that changes the reward but "
-        "not its terms all show here.",
+        "not its terms and that the recorder does not know (your own) all show here. A file "
+        "whose layout names reward-changing wrappers under the recorder (`NormalizeReward`, "
+        "any `RewardWrapper`: `rewards_changed`) holds their rewards and the env's terms: its "
+        "terms are not checked against its rewards, and `rewards_changed` says so instead.",
         "Report every term the reward is summed from and declare the constant ones with "
         "`constant_terms=`; record below a wrapper that rescales the reward (wrap "
         "`RecordEvidence(env)` in it), or have the wrapper rescale the terms too; for float "
@@ -400,19 +403,22 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "note",
         "The recorded rewards are a wrapper's, not the env's.",
         "The recorder sat over a wrapper that changes the reward (`NormalizeReward`, "
-        "`TransformReward`, `ClipReward`, SB3's `VecNormalize` with `norm_reward`), so every "
-        "recorded reward, and every return `report` and `compare` read, is that wrapper's. "
-        "One finding per file, naming the wrappers. A note, not a warning: recording what "
-        "the agent saw can be the point (with `constant_terms` declaring a reward shift, the "
-        "terms still check).",
+        "`TransformReward`, `ClipReward`, any `RewardWrapper`, SB3's `VecNormalize` with "
+        "`norm_reward`), so every recorded reward, and every return `report` and `compare` "
+        "read, is that wrapper's, while the reward terms in the info are still the env's: the "
+        "terms are not checked against these rewards (no `terms_sum_mismatch`), and where "
+        "steps have terms the message says how many were not checked. One finding per file, "
+        "naming the wrappers. A note, not a warning: recording what the agent saw can be the "
+        "point.",
         "A normalised return is on another scale than the env's (a CartPole return no longer "
         "equals its length) and drifts with the wrapper's running statistics: rates are "
         "unaffected, but returns, return gates and `compare`'s return verdicts are not the "
         "task's. `report` and `compare` say how many files' returns are a wrapper's; `compare` "
-        "does not compare returns whose sides' wrappers differ.",
+        "does not compare returns whose sides' wrappers differ. Nothing confirms that the "
+        "terms add up to what the env paid.",
         "Put the recorder beneath the reward wrapper, directly around the env "
         "(`NormalizeReward(RecordEvidence(env, path))`); the training loop still sees the "
-        "wrapper's rewards.",
+        "wrapper's rewards, and the file holds the env's, checked against their terms.",
     ),
     FindingKind(
         MISSING_ENV_SPEC,

@@ -1,9 +1,11 @@
 """The rules over rewards and their terms, a block of steps at a time.
 
-:class:`RewardChecks` reports ``nonfinite_reward``, ``nonfinite_term``, ``terms_sum_mismatch``
-and ``missing_terms``. A step's terms match its reward when ``|reward - (sum(terms) +
-sum(constants))| <= atol + rtol * |reward|``, the constants being those the file declares; a
-mismatch names the reward-changing wrappers the recorder sat over, and whose info held the terms.
+:class:`RewardChecks` reports ``nonfinite_reward``, ``nonfinite_term``, ``terms_sum_mismatch``,
+``missing_terms`` and ``rewards_changed``. A step's terms match its reward when ``|reward -
+(sum(terms) + sum(constants))| <= atol + rtol * |reward|``, the constants being those the file
+declares; a mismatch names whose info held the terms. A file recorded over reward-changing
+wrappers (its layout names them) holds their rewards and the env's terms: its terms are not
+checked against its rewards, and ``rewards_changed`` says so.
 """
 
 from __future__ import annotations
@@ -14,9 +16,16 @@ import numpy as np
 import pyarrow as pa
 
 from ..format.columns import null_mask
-from ..format.wrappers import reward_cause
+from ..format.wrappers import reward_wrapper_names
 from ._state import BoolArray, FileState, FloatArray, Hit, HitMessage, IntArray, first_per_episode
-from .registry import MISSING_TERMS, NONFINITE_REWARD, NONFINITE_TERM, TERMS_SUM_MISMATCH, Severity
+from .registry import (
+    MISSING_TERMS,
+    NONFINITE_REWARD,
+    NONFINITE_TERM,
+    REWARDS_CHANGED,
+    TERMS_SUM_MISMATCH,
+    Severity,
+)
 
 __all__ = ["RewardChecks", "number"]
 
@@ -70,8 +79,11 @@ class RewardChecks:
             str(k): float(v) for k, v in constants.items() if isinstance(v, (int, float))
         }
         self.constant_sum = math.fsum(self.constants.values())
-        self.cause = reward_cause(state.ev.run.layout)
-        """Why rewards and terms may differ: the reward-changing wrappers under the recorder."""
+        self.changed_by = reward_wrapper_names(state.ev.run.layout)
+        """The reward-changing wrappers under the recorder: the rewards are theirs, the terms the
+        env's, so the terms are not checked against the rewards."""
+        self.unchecked = 0
+        """The steps with terms not checked against their reward (:attr:`changed_by`)."""
         info_of = (state.ev.run.reward_terms or {}).get("info_of")
         self.source = (
             f"; terms read automatically from the info of {str(info_of)[:200]}"
@@ -98,7 +110,10 @@ class RewardChecks:
         sums = _TermSums(terms, has_terms)
         if sums.bad is not None and sums.bad.any():
             self._nonfinite_terms(sums, sums.bad, episode, step)
-        self._mismatches(sums, has_terms & finite_reward, episode, step, reward)
+        if self.changed_by:
+            self.unchecked += int(has_terms.sum())
+        else:
+            self._mismatches(sums, has_terms & finite_reward, episode, step, reward)
 
     def _nonfinite_rewards(
         self, episode: IntArray, step: IntArray, reward: FloatArray
@@ -173,9 +188,30 @@ class RewardChecks:
     def _mismatch_message(self, hit: Hit, where: str) -> str:
         return (
             f"{hit.detail} {where}; {hit.count} step(s) of the episode mismatch, worst residual "
-            f"{hit.worst:.3g} (tolerance {self.atol:g} + {self.rtol:g}*|reward|)"
-            + (f"; {self.cause}" if self.cause else "")
-            + self.source
+            f"{hit.worst:.3g} (tolerance {self.atol:g} + {self.rtol:g}*|reward|)" + self.source
+        )
+
+    def rewards_changed_finding(self) -> None:
+        """After the steps: the rewards are the wrappers', and the terms were not checked."""
+        names = self.changed_by
+        if not names:
+            return
+        it = "it" if len(names) == 1 else "them"
+        said = (
+            f"the recorded rewards and returns are {', '.join(names)}'s, not the env's: the "
+            f"recorder sat over {it}"
+        )
+        if not self.unchecked:
+            self.state.finding(
+                REWARDS_CHANGED, f"{said}; record beneath {it} (innermost) for the env's own"
+            )
+            return
+        self.state.finding(
+            REWARDS_CHANGED,
+            f"{said}; the reward terms of {self.unchecked} step(s) were not checked against "
+            "these rewards, the terms being the env's (the wrappers change the reward, not its "
+            f"terms): record beneath {it} (innermost) for the env's own rewards, checked against "
+            "their terms",
         )
 
     def missing_terms_finding(self) -> None:

@@ -12,7 +12,7 @@ the registry. :func:`plan_wrappers` reads a spec's ``additional_wrappers`` into 
 :class:`WrapperPlan`; ``--trust-entry-points`` bypasses all of this (the spec as recorded).
 :func:`state_causes` says, from a file's run metadata alone, what makes the state its episodes
 began in unrestorable (the recorder warns of the same at construction; ``check`` and replay
-report it). :func:`reward_cause` names the reward-changing wrappers a recorder sat over
+report it). :func:`reward_wrapper_names` names the reward-changing wrappers a recorder sat over
 (:data:`LAYOUT_REWARD_WRAPPERS`); :data:`RUN_TRANSPARENT_WRAPPERS` holds the wrappers a user
 declared transparent, which replay leaves out as it does the registry's.
 """
@@ -49,7 +49,6 @@ __all__ = [
     "multi_step",
     "placed_limits",
     "plan_wrappers",
-    "reward_cause",
     "reward_wrapper_names",
     "state_causes",
     "stateful_wrapper",
@@ -708,22 +707,6 @@ def reward_wrapper_names(layout: Any) -> list[str]:
     """
     listed = layout.get(LAYOUT_REWARD_WRAPPERS) if isinstance(layout, Mapping) else None
     return [str(e).rpartition(":")[2][:80] for e in _listed(listed)]
-
-
-def reward_cause(layout: Any) -> str | None:
-    """Why a file's rewards differ from what the env gave, naming the wrappers; or ``None``.
-
-    From the layout's :data:`LAYOUT_REWARD_WRAPPERS`: the recorder sat over them, so it recorded
-    the reward they changed, while the terms in the info are still the env's.
-    """
-    names = reward_wrapper_names(layout)
-    if not names:
-        return None
-    return (
-        f"the reward was changed by {', '.join(names)} between the env and the recorder (the "
-        "terms in the info are the env's): record beneath it (innermost), or pass "
-        "reward_terms=None"
-    )
 
 
 def stateful_wrapper(entry_point: str, *, snapshots: bool = False) -> str | None:
