@@ -158,7 +158,10 @@ def _version_tuple(version: str) -> tuple[int, ...]:
 
 
 def check_unfinished(state: FileState) -> None:
-    """After the pass over the file: an unfinished file, and whether it held anything."""
+    """After the pass over the file: an unfinished file, and whether it held anything.
+
+    A torn file (no live recorder) that holds nothing is an error: its evidence is gone.
+    """
     ev = state.ev
     if ev.finished:
         return
@@ -175,10 +178,16 @@ def check_unfinished(state: FileState) -> None:
     # the reader's reason may end by saying it too ("ends at byte N without a summary: the
     # writer did not finish"): the message says it once
     why = (ev.torn or "no run-end record").removesuffix(f": {_NOT_FINISHED}")
-    read = "complete chunks were read"
-    if not state.steps and not state.episodes and not ev.resets().num_rows:
-        read = (
-            "it holds no complete chunk: no episode, reset or step to check (a recorder "
-            "killed before its first flush, or one still starting)"
+    if state.steps or state.episodes or ev.resets().num_rows:
+        state.finding(
+            FILE_UNFINISHED, f"{_NOT_FINISHED} the file ({why}); complete chunks were read"
         )
-    state.finding(FILE_UNFINISHED, f"{_NOT_FINISHED} the file ({why}); {read}")
+        return
+    # no writer holds it: nothing more will come, and what it recorded is lost
+    state.finding(
+        FILE_UNFINISHED,
+        f"{_NOT_FINISHED} the file ({why}) and no recorder is writing it: it holds no complete "
+        "chunk, so no episode, reset or step survives to check (a recorder killed before its "
+        "first flush) and `episode-audit recover` cannot bring any back",
+        severity="error",
+    )

@@ -328,6 +328,9 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "recording are incomplete.",
         "Close the recorder (`with RecordEvidence(...)`, or `close()`); a live one, wait for "
         "it. `episode-audit recover` writes a finished copy of a torn file.",
+        "an error when no recorder is writing the file and it holds no complete chunk: its "
+        "evidence is gone (no episode, reset or step to check), and a gate on `check` must "
+        "not pass it",
     ),
     FindingKind(
         RECORDER_TROUBLE,

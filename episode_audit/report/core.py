@@ -171,7 +171,18 @@ def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart
     unfinished = None if ev.finished else ev.torn or "no run-end record"
     tags = frozenset(map(str, ev.run.tags or {}))
     rows = file_rows(name, ev, by, games)
+    if unfinished is not None and ev.writer is None and _holds_nothing(ev, rows):
+        unfinished += f"; {LOST}"
     return FilePart(name, rows, unfinished, tags, file_chain(ev))
+
+
+LOST = "no recorder is writing it and it holds no complete chunk: no episode survives"
+"""What a torn file that holds nothing adds to why it is unfinished (its evidence is gone)."""
+
+
+def _holds_nothing(ev: Evidence, rows: FileRows) -> bool:
+    """Whether the file holds no episode, reset or step (``rows``: its rows, maybe none)."""
+    return rows[0] is None and not ev.episodes().num_rows and not ev.resets().num_rows
 
 
 def report_parts(

@@ -710,20 +710,34 @@ def test_a_note_repeated_in_many_episodes_is_one_finding(tmp_path: Path) -> None
     )
 
 
-def test_a_torn_file_that_holds_nothing_says_so(tmp_path: Path) -> None:
-    """Torn after its run metadata, before its first chunk: nothing to check, and it says so."""
+def test_a_torn_file_that_holds_nothing_is_an_error(tmp_path: Path) -> None:
+    """Torn after its run metadata, before its first chunk: its evidence is gone, and a gate on
+    check must not pass it (a warning and exit 0 before); a live one's is a warning."""
     clean = (Path(__file__).parents[2] / "fixtures" / "clean.mcap").read_bytes()
     path = tmp_path / "early.mcap"
     path.write_bytes(clean[:1500])
     result = check([path])
     (finding,) = result.findings
-    assert (finding.severity, finding.code) == ("warning", "file_unfinished")
+    assert (finding.severity, finding.code) == ("error", "file_unfinished")
+    assert not result.ok and result.episodes == 0
     assert re.search(
-        r"the writer did not finish the file \(torn at byte \d+ of 1500: .*\); it holds no "
-        r"complete chunk: no episode, reset or step to check \(a recorder killed before its "
-        r"first flush, or one still starting\)$",
+        r"the writer did not finish the file \(torn at byte \d+ of 1500: .*\) and no recorder "
+        r"is writing it: it holds no complete chunk, so no episode, reset or step survives to "
+        r"check \(a recorder killed before its first flush\) and `episode-audit recover` cannot "
+        r"bring any back$",
         finding.message,
     ), finding.message
+    # the same file while its recorder still runs: nothing flushed yet, nothing lost
+    live = tmp_path / "live.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), live, flush_every_s=3600)
+    try:
+        env.reset(seed=0)
+        env.step(0)
+        (waiting,) = check([live]).findings
+        assert (waiting.severity, waiting.code) == ("warning", "file_unfinished")
+        assert "it holds no complete chunk yet" in waiting.message
+    finally:
+        env.close()
     # a torn file with chunks in it is read as before
     torn = check([Path(__file__).parents[2] / "fixtures" / "torn.mcap"])
     assert any(

@@ -174,6 +174,25 @@ def test_torn_file_check_reports_unfinished_and_report_counts_episodes() -> None
     assert group["ended"] == group["episodes"] - 1
 
 
+def test_a_torn_file_that_holds_nothing_fails_check_and_report_says_so(tmp_path: Path) -> None:
+    """The first 1500 bytes of a finished file: run metadata, no chunk. check exited 0 with a
+    warning and report printed only "No episodes"."""
+    path = tmp_path / "early.mcap"
+    path.write_bytes((FIXTURES / "clean.mcap").read_bytes()[:1500])
+    code, out, _ = run("check", str(path), "--format", "json")
+    (finding,) = json.loads(out)["findings"]
+    assert code == 1 and (finding["severity"], finding["code"]) == ("error", "file_unfinished")
+    code, out, _ = run("report", str(path))
+    assert code == 0 and out.startswith("No episodes")
+    assert "Unfinished files (still being written, or torn)" in out
+    assert "no episode survives" in " ".join(out.split())
+    code, out, _ = run("report", str(path), "--format", "json")
+    (unfinished,) = json.loads(out)["unfinished"]
+    assert unfinished["why"].endswith(
+        "; no recorder is writing it and it holds no complete chunk: no episode survives"
+    )
+
+
 def test_directories_are_searched(tmp_path: Path) -> None:
     (tmp_path / "sub").mkdir()
     shutil.copy(FIXTURES / "clean.mcap", tmp_path / "sub" / "a.mcap")

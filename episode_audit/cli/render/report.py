@@ -98,8 +98,8 @@ def report_output(
             parts += [f"#### {title}\n", markdown_table(headers, section_rows) + "\n"]
         return "\n".join(parts)
     if not result.groups:  # (an empty table's title would wrap in its one column)
-        gates = [table(*s) for s in sections if s[0] == _GATES]
-        return Group(Text(NO_EPISODES), *gates)
+        kept = [table(*s) for s in sections if s[0] in (_GATES, UNFINISHED_TITLE)]
+        return Group(Text(NO_EPISODES + ("\n" if kept else "")), *kept)
     # The terminal keeps labels and reasons in a table of their own, each label on its own
     # line; the outcomes are side by side when no cell wraps (about 150 columns), else vertical
     narrow = [i for i, h in enumerate(REPORT_HEADERS) if h not in _LABEL_HEADERS]
