@@ -126,6 +126,31 @@ def test_ppo_on_dummy_vec_env_replays_identical(tmp_path: Path) -> None:
     assert_checks_clean(path)
 
 
+def test_a_file_recorded_in_an_sb3_run_says_sb3_s_version(tmp_path: Path) -> None:
+    """compare's version check flags an SB3 upgrade only if files say its version; recording
+    never imports it (a process without SB3 records no version of it)."""
+    import stable_baselines3
+
+    path = tmp_path / "sb3.mcap"
+    venv = RecordVecEnvEvidence(DummyVecEnv([cartpole] * 2), path)
+    step_random(venv, 5)
+    venv.close()
+    assert open_evidence(path).run.versions["stable_baselines3"] == stable_baselines3.__version__
+    fresh = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from episode_audit.record.settings import library_versions; "
+            "v = library_versions(); "
+            "print(sorted({'stable_baselines3', 'ale_py'} & (set(v) | set(sys.modules))))",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert fresh.stdout.strip() == "[]", fresh
+
+
 def test_returns_equal_monitor_for_every_episode_of_every_sub_env(tmp_path: Path) -> None:
     path = tmp_path / "train.mcap"
     venv = RecordVecEnvEvidence(DummyVecEnv([monitored_cartpole] * N), path)

@@ -15,7 +15,14 @@ from typing import Any
 import gymnasium as gym
 import pytest
 
-from episode_audit import RecordEvidence, RecordVectorEvidence, ResetRngInfo, check, replay
+from episode_audit import (
+    RecordEvidence,
+    RecordVectorEvidence,
+    ResetRngInfo,
+    check,
+    open_evidence,
+    replay,
+)
 from episode_audit.record import state as state_module
 
 EPISODES = 6
@@ -120,6 +127,8 @@ def test_an_unseeded_ale_episode_replays_identical_alone(tmp_path: Path) -> None
             rec.reset(seed=3 if ep == 0 else None)
             while not any(rec.step(rec.action_space.sample())[2:4]):
                 pass
+    # the emulator's version is recorded (ale_py was imported): a replay under another says so
+    assert open_evidence(path).run.versions["ale_py"] == ale_py.__version__
     # sticky actions draw from the emulator's RNG, which only the snapshot restores
     assert _statuses(path, episodes=[2]) == [("identical", None)]
     assert _statuses(path) == [("identical", None)] * 3
