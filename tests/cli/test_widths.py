@@ -38,10 +38,18 @@ def _tables(renderable: object) -> list[FittedTable]:
     return []
 
 
+_SOFT_END = tuple("=(,/:;")
+
+
 def _assert_words_whole(renderable: object, width: int) -> str:
-    """Every word of every header and cell appears whole on one line of the output."""
+    """Every word of every header and cell appears whole on one line of the output, or broken
+    only after a ``=``, ``(``, ``,``, ``/``, ``:`` or ``;`` (a word too long for its column)."""
     text = _render(renderable, width)
-    tokens = set(text.split())
+    split = text.split()
+    tokens = set(split)
+    for _ in range(3):  # a piece ending at a soft break, joined to the next token
+        split = [a + b if a.endswith(_SOFT_END) else a for a, b in zip(split, [*split[1:], ""])]
+        tokens |= set(split)
     tables = _tables(renderable)
     assert tables
     for t in tables:
@@ -158,3 +166,28 @@ def test_compare_metric_cells_are_never_cut(tmp_path: Path, width: int) -> None:
         for metric in g.metrics:
             for cell in _row(g.key, metric)[2:5]:  # baseline, candidate, difference
                 assert any(cell in line for line in lines), (cell, width)
+
+
+@pytest.mark.parametrize("width", [60, 64, *WIDTHS])
+def test_a_gate_detail_with_a_long_call_breaks_it_where_it_reads_on(
+    tmp_path: Path, width: int
+) -> None:
+    """``ending_rules=EndingRules(success_fn=...)``, longer than the detail column, was cut
+    mid-word (``EndingRules(success`` / ``_fn=...)``); it breaks after ``(`` now."""
+    from episode_audit.cli.render.compare import compare_output
+    from episode_audit.compare import compare_inputs
+
+    paths = []
+    for name, seed in (("base", 0), ("cand", 100)):
+        path = tmp_path / f"{name}.mcap"
+        with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=20), path) as env:
+            for episode in range(4):
+                env.reset(seed=seed + episode)
+                for _ in range(20):
+                    if any(env.step(episode % 2)[2:4]):
+                        break
+        paths.append(path)
+    result = compare_inputs([paths[0]], [paths[1]], max_success_drop=0.05).comparison
+    text = _assert_words_whole(compare_output(result, "table"), width)
+    assert "ending_rules=EndingRules(" in text
+    assert "EndingRules(success " not in " ".join(text.split())  # (not folded at the edge)

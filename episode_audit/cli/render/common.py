@@ -27,6 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 from rich import box
+from rich.cells import cell_len
 from rich.console import Console, ConsoleOptions, RenderableType, RenderResult
 from rich.measure import Measurement
 from rich.table import Table
@@ -45,6 +46,7 @@ __all__ = [
     "markdown_text",
     "rate",
     "safe",
+    "soft_broken",
     "table",
     "to_json",
     "unreadable_json",
@@ -123,7 +125,8 @@ def table(
 ) -> FittedTable:
     """A Rich table of plain text: title, headers and cells are never parsed as markup.
 
-    It fits the console (:class:`FittedTable`): no header or cell word is broken, and with
+    It fits the console (:class:`FittedTable`): no header or cell word is broken (one wider
+    than the console is broken after ``=``, ``(``, ``,``, ``/``, ``:`` or ``;``), and with
     ``whole_cells`` no cell is wrapped side by side.
     """
     rows = [[safe(cell) for cell in row] for row in rows]
@@ -138,6 +141,8 @@ class FittedTable:
     when every cell keeps its line (a value such as ``13 (100.0% [77.2, 100.0])`` read in
     pieces over three lines is no table); headers may still wrap. Else one line per (row,
     column): the row's first cell, the column's header and the value (the vertical layout).
+    A word of the last column still wider than it is broken where it reads on
+    (:func:`soft_broken`); one with nowhere to break is folded.
     """
 
     def __init__(
@@ -166,22 +171,30 @@ class FittedTable:
             out.add_row(*(Text(cell) for cell in row))  # cells and headers: already safe
         return out
 
-    def _vertical(self) -> Table:
-        rows = [
+    def _vertical_rows(self) -> list[list[str]]:
+        """The vertical layout's rows: the row's first cell, a column's header, its value."""
+        return [
             [row[0] if i == 0 else "", header, cell]
             for row in self.rows
             for i, (header, cell) in enumerate(zip(self.headers[1:], row[1:], strict=True))
         ]
-        return self._table([self.headers[0], "", "value"], rows)
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         wide = self._table(self.headers, self.rows)
-        if _fit(wide, console, options, self.whole_cells) or len(self.headers) < 3:
+        if _fit(wide, console, options, self.whole_cells):
             yield wide
             return
-        vertical = self._vertical()
-        _fit(vertical, console, options, self.whole_cells, fold_first=self.whole_cells)
-        yield vertical
+        headers, rows, fold = self.headers, self.rows, False
+        if len(self.headers) >= 3:
+            headers, rows, fold = [self.headers[0], "", "value"], self._vertical_rows(), True
+        fold &= self.whole_cells
+        out = self._table(headers, rows)
+        if not _fit(out, console, options, self.whole_cells, fold_first=fold):
+            # a word longer than its column (a long call in a message): broken where it reads on
+            width = _last_room(out, console, options, fold_first=fold)
+            out = self._table(headers, [[*row[:-1], soft_broken(row[-1], width)] for row in rows])
+            _fit(out, console, options, self.whole_cells, fold_first=fold)
+        yield out
 
     def __rich_measure__(self, console: Console, options: ConsoleOptions) -> Measurement:
         return Measurement.get(console, options, self._table(self.headers, self.rows))
@@ -204,13 +217,7 @@ def _fit(
     ``whole``: every cell but the headers whole. ``fold_first``: the first column (a vertical
     layout's long group name) is folded, down to 12 characters, rather than a value wrapped.
     """
-    free = options.update_width(1 << 20)  # natural widths
-    cells = [[col.header, *col.cells] for col in table.columns]
-    sizes = [[Measurement.get(console, free, c) for c in col] for col in cells]
-    low = [max(m.maximum if whole and i else m.minimum for i, m in enumerate(col)) for col in sizes]
-    high = [max(m.maximum for m in col) for col in sizes]
-    padding = Measurement.get(console, free, table).maximum - sum(high)
-    room = options.max_width - padding
+    low, high, room = _measure(table, console, options, whole)
     if sum(high) <= room:
         return True
     if fold_first and sum(low) > room:
@@ -224,6 +231,61 @@ def _fit(
     for column, width in zip(table.columns, widths, strict=True):
         column.width = width
     return True
+
+
+def _measure(
+    table: Table, console: Console, options: ConsoleOptions, whole: bool
+) -> tuple[list[int], list[int], int]:
+    """Each column's narrowest and natural widths, and the room the columns have.
+
+    The narrowest keeps every word whole (``whole``: every cell but the header); the room is
+    ``options``' width less the table's padding.
+    """
+    free = options.update_width(1 << 20)  # natural widths
+    cells = [[col.header, *col.cells] for col in table.columns]
+    sizes = [[Measurement.get(console, free, c) for c in col] for col in cells]
+    low = [max(m.maximum if whole and i else m.minimum for i, m in enumerate(col)) for col in sizes]
+    high = [max(m.maximum for m in col) for col in sizes]
+    padding = Measurement.get(console, free, table).maximum - sum(high)
+    return low, high, options.max_width - padding
+
+
+def _last_room(table: Table, console: Console, options: ConsoleOptions, *, fold_first: bool) -> int:
+    """The width the last column has when the others keep their words (the first folded)."""
+    low, _, room = _measure(table, console, options, False)
+    if fold_first:
+        low[0] = min(low[0], _FOLDED)
+    return room - sum(low[:-1])
+
+
+_SOFT_BREAK = re.compile(r"[=(,/:;](?=[^\s=(,/:;])")
+"""Where a word too long for its column is broken: after ``=``, ``(``, ``,``, ``/``, ``:`` or
+``;`` followed by more of it (``ending_rules=EndingRules(`` / ``success_fn=...)``)."""
+
+
+def soft_broken(text: str, width: int) -> str:
+    """``text`` with each word wider than ``width`` broken onto lines at :data:`_SOFT_BREAK`.
+
+    A line ends at the last such point that fits (a word with none is left to the table, which
+    folds it); the rest of the text still wraps at spaces.
+
+    >>> print(soft_broken("record with ending_rules=EndingRules(success_fn=...) or x", 30))
+    record with ending_rules=EndingRules(
+    success_fn=...) or x
+    """
+    if width < 1:
+        return text
+    pieces = re.split(r"(\s+)", text)
+    for i, word in enumerate(pieces):
+        lines = []
+        while cell_len(word) > width:
+            cut = max((m.end() for m in _SOFT_BREAK.finditer(word, 0, width)), default=0)
+            if not cut:
+                break
+            lines.append(word[:cut])
+            word = word[cut:]
+        pieces[i] = "\n".join([*lines, word])
+    return "".join(pieces)
 
 
 _MARKDOWN_ESCAPES = str.maketrans({c: "\\" + c for c in "\\|`<>&*~"})
