@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import (
     DummyVecEnv,
@@ -150,24 +151,36 @@ class VecStack:
         return limits
 
 
-CALLABLE_WRAPPERS = ("TransformObservation", "TransformAction", "TransformReward", "RecordVideo")
+CALLABLE_WRAPPERS: tuple[type[gym.Wrapper[Any, Any, Any, Any]], ...] = (
+    gym.wrappers.TransformObservation,
+    gym.wrappers.TransformAction,
+    gym.wrappers.TransformReward,
+    gym.wrappers.RecordVideo,
+)
 """Gymnasium wrappers whose kwargs (in the sub-env's spec) hold functions, often lambdas."""
 
 
 def worker_spec(base: VecEnv) -> Any:
     """Sub-env 0's spec, asked of a worker only when it can send it; else ``None``.
 
-    A ``SubprocVecEnv``'s worker sends its answer pickled, and one that fails to (a lambda in a
-    wrapper's kwargs, ``TransformObservation(env, lambda o: ...)``) ends, breaking the VecEnv.
-    Outermost in the sub-env, :class:`~..vector.rng.ResetRngInfo` says whether the spec
-    pickles (``episode_audit_spec``). Else the sub-env's wrappers, named by its text
-    (``str(env)``, always sent), are looked at: with one of :data:`CALLABLE_WRAPPERS` (or a
-    name with ``Lambda``) the spec is not asked for. A function among the env's own kwargs,
-    or in the kwargs of a wrapper of one's own, is not seen (docs/recording.md).
+    A ``SubprocVecEnv``'s worker that fails in answering (it cannot pickle a lambda in a
+    wrapper's kwargs, ``TransformObservation(env, lambda o: ...)``, or an attribute raises)
+    ends, breaking the VecEnv. So it is asked what it answers safely first (SB3's
+    ``env_is_wrapped``, a walk of the chain giving a bool). Outermost in the sub-env,
+    :class:`~..vector.rng.ResetRngInfo` says whether the spec pickles (``episode_audit_spec``);
+    else the spec is not asked for when the sub-env has one of :data:`CALLABLE_WRAPPERS`. What
+    does not pickle among the env's own kwargs, or in the kwargs of a wrapper of one's own, is
+    not seen (docs/recording.md).
     """
-    text = str(base.env_method("__str__", indices=[0])[0])
-    if text.startswith(f"<{ResetRngInfo.__name__}<"):
+
+    def wrapped(kind: type[gym.Wrapper[Any, Any, Any, Any]]) -> bool:
+        return bool(base.env_is_wrapped(kind, indices=[0])[0])
+
+    outermost = (  # (with ResetRngInfo in it, the outermost is a wrapper: it has class_name)
+        base.env_method("class_name", indices=[0])[0] if wrapped(ResetRngInfo) else None
+    )
+    if outermost == ResetRngInfo.__name__:
         return base.env_method(SPEC_IF_SENDABLE, indices=[0])[0]
-    if "Lambda" in text or any(f"<{name}<" in text for name in CALLABLE_WRAPPERS):
+    if any(wrapped(kind) for kind in CALLABLE_WRAPPERS):
         return None
     return base.get_attr("spec", indices=[0])[0] if base.has_attr("spec") else None

@@ -128,8 +128,8 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         A ``SubprocVecEnv`` worker that fails to pickle its answer ends (a lambda in a wrapper's
         kwargs), so a recorder asks this (:data:`SPEC_IF_SENDABLE`) rather than for ``spec``.
         """
-        spec = self.env.spec
         try:
+            spec = self.env.spec
             ForkingPickler.dumps(spec)  # (as a worker's pipe sends it; nothing is ever loaded)
         except Exception:
             return None
