@@ -956,19 +956,57 @@ def _clipped_cartpole() -> Any:
     )
 
 
-def test_a_spec_that_does_not_pickle_leaves_async_workers_alive(tmp_path: Path) -> None:
+def _rng_clipped_cartpole() -> Any:
+    return ResetRngInfo(_clipped_cartpole())
+
+
+@pytest.mark.parametrize("make", [_clipped_cartpole, _rng_clipped_cartpole])
+def test_a_spec_that_does_not_pickle_leaves_async_workers_alive(tmp_path: Path, make: Any) -> None:
     """A worker asked for such a spec fails to send it and ends: the recorder reads it off a
     sub-env built in this process instead, as AsyncVectorEnv's constructor builds one."""
     from gymnasium.vector import AsyncVectorEnv
 
     path = tmp_path / "async.mcap"
-    with RecordVectorEvidence(AsyncVectorEnv([_clipped_cartpole] * 2), path) as rec:
+    with RecordVectorEvidence(AsyncVectorEnv([make] * 2), path) as rec:
         rec.reset(seed=1)
         for _ in range(20):
             rec.step(np.ones(2, np.int64))
     spec = open_evidence(path).run.env_spec
     assert isinstance(spec, dict) and spec["id"] == "CartPole-v1"
     assert {e["env_index"] for e in open_evidence(path).episodes().to_pylist()} == {0, 1}
+
+
+class _Exclusive(gym.Wrapper[Any, Any, Any, Any]):
+    """Holds an exclusive lock while alive, as an env holding a device or a licence does: a
+    second copy built while the first lives fails (or, with a blocking lock, waits forever)."""
+
+    def __init__(self, env: gym.Env[Any, Any], lock: str) -> None:
+        import fcntl
+
+        super().__init__(env)
+        self._held = open(lock, "w")  # noqa: SIM115 (held until close)
+        fcntl.flock(self._held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+    def close(self) -> None:
+        self._held.close()
+        super().close()
+
+
+def test_an_async_sub_env_that_sends_its_spec_is_not_built_here(tmp_path: Path) -> None:
+    """Its worker is asked for the spec; a copy built here would fail on the lock (it did)."""
+    from functools import partial
+
+    from gymnasium.vector import AsyncVectorEnv
+
+    def make(index: int) -> Any:
+        return _Exclusive(gym.make("CartPole-v1"), str(tmp_path / f"{index}.lock"))
+
+    path = tmp_path / "async.mcap"
+    with RecordVectorEvidence(AsyncVectorEnv([partial(make, i) for i in range(2)]), path) as rec:
+        rec.reset(seed=1)
+        rec.step(np.ones(2, np.int64))
+    spec = open_evidence(path).run.env_spec
+    assert isinstance(spec, dict) and spec["id"] == "CartPole-v1"
 
 
 # ---------------------------------------------------------------- info without masks

@@ -40,7 +40,7 @@ from ..time_limits import counted_limits, limited_spec, time_limits, unread_limi
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
-from .rng import SubEnvRng
+from .rng import SPEC_IF_SENDABLE, ResetRngInfo, SubEnvRng
 from .steps import VectorSteps
 
 __all__ = ["RecordVectorEvidence", "vector_layout"]
@@ -339,14 +339,36 @@ def _sub_spec(
     return spec if limit is None else dataclasses.replace(spec, max_episode_steps=limit)
 
 
-def _worker_spec(async_env: AsyncVectorEnv) -> Any:
-    """Sub-env 0's spec, read off a sub-env built here by the first env function, then closed.
+_FUNCTION_ATTRIBUTES = ("func", "episode_trigger", "step_trigger")
+"""Attributes of Gymnasium's wrappers that take functions (``TransformObservation`` and the
+other ``Transform*``, ``RecordVideo``), which their spec's kwargs hold."""
 
-    ``AsyncVectorEnv``'s constructor builds one here too (for its spaces). A worker is not
-    asked: it sends its answer pickled, and a spec that does not pickle (a lambda in a
-    wrapper's kwargs, ``TransformObservation(env, lambda o: ...)``, or in the env's) ends the
-    worker, which breaks the vector env.
+
+def _worker_spec(async_env: AsyncVectorEnv) -> Any:
+    """Sub-env 0's spec, asked of a worker only when it can send it.
+
+    A worker that fails to pickle its answer (a lambda in a wrapper's kwargs,
+    ``TransformObservation(env, lambda o: ...)``) ends, which breaks the vector env. So the
+    workers are asked first what they answer safely (``has_wrapper_attr``, a bool):
+    :class:`~.rng.ResetRngInfo` outermost gives the spec when it pickles; a sub-env without a
+    wrapper that takes functions sends its spec. Otherwise the spec is read off a sub-env built
+    here by the first env function, then closed (``AsyncVectorEnv``'s constructor builds one
+    here too, for its spaces).
     """
+    call = async_env.call
+    if all(call("has_wrapper_attr", SPEC_IF_SENDABLE)) and call("class_name")[0] == (
+        ResetRngInfo.__name__
+    ):
+        spec = call(SPEC_IF_SENDABLE)[0]
+        if spec is not None:
+            return spec
+    elif not any(any(call("has_wrapper_attr", name)) for name in _FUNCTION_ATTRIBUTES):
+        return async_env.get_attr("spec")[0]
+    return _built_spec(async_env)
+
+
+def _built_spec(async_env: AsyncVectorEnv) -> Any:
+    """The spec of a sub-env built here by the vector env's first env function, then closed."""
     env_fns = getattr(async_env, "env_fns", None)
     if not env_fns:
         return None
