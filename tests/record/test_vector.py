@@ -35,6 +35,7 @@ from episode_audit import (
     report,
 )
 from episode_audit.cli import app
+from episode_audit.errors import ConfigurationError
 from episode_audit.format.records import unstarted
 from episode_audit.record.vector.rng import SubEnvRng
 from tests.support.batching import InfoReading, messages
@@ -974,6 +975,35 @@ def test_a_spec_that_does_not_pickle_leaves_async_workers_alive(tmp_path: Path, 
     spec = open_evidence(path).run.env_spec
     assert isinstance(spec, dict) and spec["id"] == "CartPole-v1"
     assert {e["env_index"] for e in open_evidence(path).episodes().to_pylist()} == {0, 1}
+
+
+class _Duck:
+    """A sub-env with an env's methods and spaces, not a ``gymnasium.Env`` (as one written for
+    the old ``gym``): SyncVectorEnv steps it."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+    metadata: dict[str, Any] = {}
+    render_mode = None
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        return np.zeros(1, np.float32), 0.0, False, False, {}
+
+    def close(self) -> None:
+        pass
+
+
+def test_sub_envs_that_are_not_gymnasium_envs_are_refused_in_one_line(tmp_path: Path) -> None:
+    envs = SyncVectorEnv([_Duck, _Duck])
+    envs.reset(seed=0)
+    with pytest.raises(
+        ConfigurationError, match=r"^RecordVectorEvidence: sub-env 0 is not a gymnasium.Env, "
+    ):
+        RecordVectorEvidence(envs, tmp_path / "duck.mcap")
+    assert not (tmp_path / "duck.mcap").exists()
 
 
 class _Exclusive(gym.Wrapper[Any, Any, Any, Any]):

@@ -95,6 +95,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         mode = autoreset_mode(env)
         sync = base if isinstance(base, SyncVectorEnv) else None
         async_env = base if isinstance(base, AsyncVectorEnv) else None
+        _check_sub_envs(sync)
         self._sub_envs = sync is not None or async_env is not None
         n = int(env.num_envs)
         self._n = n
@@ -296,6 +297,21 @@ def _check_vector_env(env: Any) -> None:
         f"RecordVectorEvidence records a gymnasium.vector.VectorEnv, actually: "
         f"{kind.__module__}.{kind.__qualname__}, {hint}"
     )
+
+
+def _check_sub_envs(sync: SyncVectorEnv | None) -> None:
+    """Refuse a ``SyncVectorEnv`` whose sub-envs are not ``gymnasium.Env``s.
+
+    They lack what the recorder reads of each (``unwrapped``, a wrapper chain).
+    """
+    for i, sub in enumerate(() if sync is None else sync.envs):
+        if not isinstance(sub, gym.Env):
+            kind = type(sub)
+            raise ConfigurationError(
+                f"RecordVectorEvidence: sub-env {i} is not a gymnasium.Env, actually: "
+                f"{kind.__module__}.{kind.__qualname__}; make it subclass gymnasium.Env (or "
+                "record each sub-env with RecordEvidence inside its env function)"
+            )
 
 
 def vector_layout(
