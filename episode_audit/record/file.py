@@ -312,6 +312,7 @@ class EvidenceFile:
         self.closed = False
         self.counts = {"episodes": 0, "steps": 0, "blocks": 0, "success_reported": 0}
         self._warned = False
+        self._deleted = False  # (warned once)
         self.troubles = 0  # the recorder's own failures, said in the run-end record
         self.first_trouble: str | None = None
         self.pid = os.getpid()  # the process recording: a fork of it writes nothing here
@@ -470,6 +471,12 @@ class EvidenceFile:
                     self.trouble(exc)
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns
+        if not self._deleted and self.writer.deleted():
+            self._deleted = True
+            _warn_line(
+                f"episode-audit: {self.path} was deleted while being recorded: what it held and "
+                "what is recorded from now on are lost with it (the training loop continues)"
+            )
 
     def end_with_error(
         self, streams: Iterable[Stream], exc: BaseException, during: str, action: Any = NO_ACTION

@@ -608,6 +608,13 @@ class EvidenceWriter:
         """Whether :meth:`finish` has run."""
         return self._finished
 
+    def deleted(self) -> bool:
+        """Whether the file has no name any more (deleted while written: what follows is lost)."""
+        try:
+            return os.fstat(self._stream.fileno()).st_nlink == 0
+        except (OSError, ValueError):  # (closed: not this question's to answer)
+            return False
+
     def _check_open(self) -> None:
         self._thread.wait()
         if self._finished:

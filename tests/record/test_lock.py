@@ -186,6 +186,22 @@ def test_a_filesystem_without_locks_records_anyway_and_warns_once(
     assert check([tmp_path / "a.mcap", tmp_path / "b.mcap"]).ok
 
 
+def test_a_file_deleted_while_recorded_is_warned_once_and_the_loop_goes_on(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    env = RecordEvidence(gym.make("CartPole-v1"), path)
+    env.reset(seed=0)
+    path.unlink()
+    with pytest.warns(RuntimeWarning, match=r"run.mcap was deleted while being recorded: "):
+        env.flush()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (once)
+        for _ in range(5):
+            env.step(0)
+        env.flush()
+        env.close()
+    assert not path.exists()
+
+
 # ------------------------------------------------------------------ path templates
 
 
