@@ -15,6 +15,7 @@ import pyarrow.compute as pc
 
 from ..format import names as fmt
 from ..format.records import listing, unstarted
+from ..format.run_end import RunEnd
 from ..record.rules import EndingRules
 from ._state import BoolArray, FileState, IntArray
 from .endings import EndingChecks
@@ -160,10 +161,10 @@ def _incomplete(records: _Records, ended: BoolArray) -> None:
             episodes = records.rows.column(fmt.COL_EPISODE).to_pylist()
             cut_off &= ~np.array([e in lost for e in episodes])
         cut = int(cut_off.sum())
-        torn = f", {cut} of them cut off by the torn end of the file" if cut else ""
-        if cut and records.state.ev.writer is not None:
-            torn = f", {cut} of them still being recorded (the file is still being written)"
-        return f"{len(eps)} episode(s) stopped before they ended{torn} (episodes {listing(eps)})"
+        return (
+            f"{len(eps)} episode(s) stopped before they ended{_cut_off_why(records, cut)} "
+            f"(episodes {listing(eps)})"
+        )
 
     def closed(eps: list[int]) -> str:
         return (
@@ -174,6 +175,25 @@ def _incomplete(records: _Records, ended: BoolArray) -> None:
 
     records.finding_over(INCOMPLETE_EPISODE, incomplete & ~at_close, says)
     records.finding_over(INCOMPLETE_EPISODE, at_close, closed, severity="note")
+
+
+def _cut_off_why(records: _Records, cut: int) -> str:
+    """What ended the recording of ``cut`` episodes without an end record, as a clause.
+
+    A finished file whose run-end record counts dropped episode records lost their ends
+    with them (a full disk); an unfinished file, at its torn end or by a live recorder.
+    """
+    if not cut:
+        return ""
+    ev = records.state.ev
+    if ev.writer is not None:
+        return f", {cut} of them still being recorded (the file is still being written)"
+    if ev.finished and RunEnd.of(ev.run_end).lost is not None:
+        return (
+            f", {cut} of them without an end record: their end was among what the recorder "
+            "dropped (recorder_trouble), so how they ended is unknown"
+        )
+    return f", {cut} of them cut off by the torn end of the file"
 
 
 def _cut_at_close(records: _Records, ended: BoolArray) -> BoolArray:

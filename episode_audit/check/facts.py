@@ -48,15 +48,29 @@ def check_file_facts(state: FileState) -> None:
 
 
 def _recorder_trouble(state: FileState) -> None:
+    """``recorder_trouble``: the recorder's failures, and what it dropped of the run for them."""
     said = RunEnd.of(state.ev.run_end)
-    troubles = said.troubles
-    if troubles:
-        first = said.first_trouble or "not recorded"
+    troubles, lost = said.troubles, said.lost
+    if not (troubles or lost):
+        return
+    first = said.first_trouble or "not recorded"
+    failed = (
+        f"the recorder failed inside itself {troubles} time(s) while recording (first: "
+        f"{first[:300]})"
+        if troubles
+        else "the recorder could not write part of the run"
+    )
+    if lost is None:
         state.finding(
-            RECORDER_TROUBLE,
-            f"the recorder failed inside itself {troubles} time(s) while recording (first: "
-            f"{first[:300]}); the evidence may miss what it was recording then",
+            RECORDER_TROUBLE, f"{failed}; the evidence may miss what it was recording then"
         )
+        return
+    state.finding(
+        RECORDER_TROUBLE,
+        f"{failed}; it dropped {lost} it could not write (the run-end record counts them): "
+        "the file's episodes, steps and outcomes are not the whole run; free disk space and "
+        "record the run again",
+    )
 
 
 def _recovered(state: FileState) -> None:

@@ -260,8 +260,10 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "warning",
         "Episodes that did not end.",
         "Episodes whose recording stopped before they ended: a `reset()` before the end, the "
-        "torn end of a file, or the recorder's `close()` (the run stopped mid-episode). One "
-        "finding per file for the first two, listing the episodes, and one for the last. An "
+        "torn end of a file, an end record the recorder dropped (a full disk: "
+        "`recorder_trouble` says what it dropped), or the recorder's `close()` (the run "
+        "stopped mid-episode). One finding per file for the first three, listing the "
+        "episodes, and one for the last. An "
         "episode that was reset and never stepped (a vector env's autoreset after the last "
         "episode a loop ran, a `reset()` followed by `close()`) is *unstarted*: not reported, "
         "and `report` leaves it out.",
@@ -269,7 +271,7 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "rates are over. A training run that stops mid-episode always leaves one per env; an "
         "episode cut by a reset or a crash may hide an ending that never got recorded.",
         "Nothing for the episodes `close()` cut; let an episode end before resetting. A torn "
-        "file's lost steps cannot be brought back.",
+        "file's lost steps, and what the recorder dropped, cannot be brought back.",
         "a note for the episodes `close()` cut: the last episode of each stream (env, "
         "sub-env or agent, in the last game of a PettingZoo file) of a file whose end record "
         "the recorder wrote",
@@ -337,10 +339,16 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "error",
         "The recorder failed inside itself while recording.",
         "The recorder failed inside itself (it warned once and never raised into the loop); "
-        "the run-end record counts the failures and keeps the first.",
-        "The evidence may miss what the recorder was recording when it failed.",
+        "the run-end record counts the failures and keeps the first. When it had to drop "
+        "flushes the OS refused (a disk full for longer than it could hold them), the run-end "
+        "record also counts the step rows, reset rows and episode records dropped, and the "
+        "message says how many.",
+        "The evidence may miss what the recorder was recording when it failed. Dropped rows "
+        "and records are gone: the file's episodes, steps and outcomes are not the whole run, "
+        "and the episodes whose end was dropped read as incomplete.",
         "Read the first failure in the message (e.g. a full disk, or a bug to report with the "
-        "file) and re-record once it is fixed.",
+        "file) and re-record once it is fixed: for a full disk, free space (or record "
+        "elsewhere) and record the run again.",
     ),
     FindingKind(
         FILE_RECOVERED,

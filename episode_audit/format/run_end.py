@@ -52,6 +52,29 @@ class RunEnd:
     """How many damaged stretches of the original file a recovery skipped."""
     damaged_episodes: EpisodeRanges = field(default_factory=EpisodeRanges)
     """The episodes that lost part or all of their evidence in those stretches."""
+    lost_steps: int = 0
+    """The step rows the recorder dropped: flushes the OS refused (a full disk), not retried."""
+    lost_resets: int = 0
+    """The reset rows the recorder dropped so."""
+    lost_episode_records: int = 0
+    """The episode records (starts and ends) the recorder dropped so."""
+
+    @property
+    def lost(self) -> str | None:
+        """What the recorder dropped, in words (``None``: nothing).
+
+        >>> RunEnd.of({"recorder_lost_steps": "600", "recorder_lost_episode_records": "1"}).lost
+        '600 step rows and 1 episode record'
+        """
+        counts = (
+            (self.lost_steps, "step row"),
+            (self.lost_resets, "reset row"),
+            (self.lost_episode_records, "episode record"),
+        )
+        parts = [f"{n} {what}{'' if n == 1 else 's'}" for n, what in counts if n]
+        if not parts:
+            return None
+        return parts[0] if len(parts) == 1 else f"{', '.join(parts[:-1])} and {parts[-1]}"
 
     @property
     def recovered(self) -> bool:
@@ -84,6 +107,9 @@ class RunEnd:
             ),
             damaged_stretches=len(damaged) if isinstance(damaged, list) else 0,
             damaged_episodes=EpisodeRanges.from_json(_text(get("damaged_episodes"))),
+            lost_steps=_count(get(fmt.RUN_END_LOST_STEPS)) or 0,
+            lost_resets=_count(get(fmt.RUN_END_LOST_RESETS)) or 0,
+            lost_episode_records=_count(get(fmt.RUN_END_LOST_EPISODES)) or 0,
         )
 
 

@@ -59,6 +59,9 @@ _LABEL_OF = {
 def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
     """The file summary: run metadata, versions, env spec, episodes by outcome, finished or not.
 
+    ``dropped``: what the recorder could not write and dropped (a full disk), counted from the
+    run-end record, ``None`` when nothing.
+
     ``episode_list`` holds the first and last episodes of a long file (``episode_list_omitted``
     says how many are between them), or every one with ``all_episodes``: see
     :func:`episode_list`.
@@ -98,6 +101,15 @@ def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
         "episode_list": listed,
         "episode_list_omitted": omitted,
         "observation_digest_min_bytes": _digest_min_bytes(run.recorder),
+        "dropped": (
+            {
+                "steps": said.lost_steps,
+                "resets": said.lost_resets,
+                "episode_records": said.lost_episode_records,
+            }
+            if said.lost
+            else None
+        ),
     }
 
 

@@ -14,6 +14,7 @@ from functools import partial
 from typing import Any
 
 from .._jobs import map_ordered
+from ..format.run_end import RunEnd
 from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
 from .collect import NONE_KEY, FileRows, check_by, file_rows, joined
@@ -23,6 +24,7 @@ from .wrapped import Chain, Wrapped, file_chain
 
 __all__ = [
     "BY_LABEL_NOTE",
+    "DROPPED_TITLE",
     "UNFINISHED_TITLE",
     "FilePart",
     "Report",
@@ -43,6 +45,9 @@ BY_LABEL_NOTE = (
 UNFINISHED_TITLE = "Unfinished files (still being written, or torn): counts so far"
 """The title of the table of :attr:`Report.unfinished` (terminal, Markdown and HTML)."""
 
+DROPPED_TITLE = "Files missing what their recorder dropped: counts over what they hold"
+"""The title of the table of :attr:`Report.dropped` (terminal, Markdown and HTML)."""
+
 
 @dataclass
 class Report:
@@ -51,8 +56,10 @@ class Report:
     :meth:`to_dict` returns the JSON shape of ``docs/reporting.md`` (stable; new keys may be
     added, none removed). An unfinished file (its writer is still running, or was killed) is
     reported with what was flushed so far; ``unfinished`` names it, so a rate over a live file
-    is never mistaken for a final one. ``wrapped`` counts the files recorded over reward
-    wrappers, whose returns are not the env's (:attr:`reward_note` says so).
+    is never mistaken for a final one. A finished file whose recorder dropped what it could
+    not write (a full disk) is reported with what it holds; ``dropped`` names it and says what
+    was dropped. ``wrapped`` counts the files recorded over reward wrappers, whose returns are
+    not the env's (:attr:`reward_note` says so).
     """
 
     by: str
@@ -64,6 +71,8 @@ class Report:
     missing_tag: str | None = None
     wrapped: Wrapped = field(default_factory=Wrapped)
     """The files recorded over reward wrappers, whose returns are not the env's."""
+    dropped: list[tuple[str, str]] = field(default_factory=list)
+    """``(file, what)`` of the files whose recorder dropped rows or records it could not write."""
 
     @property
     def reward_note(self) -> str | None:
@@ -132,6 +141,7 @@ class Report:
             "unmatched_labels": list(self.unmatched_labels),
             "notes": self.notes,
             "reward_wrappers": self.wrapped.to_json(),
+            "dropped": [{"file": name, "what": what} for name, what in self.dropped],
         }
 
 
@@ -164,6 +174,8 @@ class FilePart:
     """The names of the file's run tags."""
     reward_wrappers: Chain = ()
     """The reward wrappers the file was recorded over (:func:`~.wrapped.file_chain`)."""
+    dropped: str | None = None
+    """What the file's recorder dropped, in words (``None``: nothing)."""
 
 
 def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart:
@@ -173,7 +185,13 @@ def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart
     rows = file_rows(name, ev, by, games)
     if unfinished is not None and ev.writer is None and _holds_nothing(ev, rows):
         unfinished += f"; {LOST}"
-    return FilePart(name, rows, unfinished, tags, file_chain(ev))
+    lost = RunEnd.of(ev.run_end).lost
+    dropped = (
+        f"the recorder dropped {lost} it could not write (episode-audit check says why)"
+        if lost
+        else None
+    )
+    return FilePart(name, rows, unfinished, tags, file_chain(ev), dropped)
 
 
 LOST = "no recorder is writing it and it holds no complete chunk: no episode survives"
@@ -206,6 +224,7 @@ def report_parts(
         unmatched_labels(gates, groups),
         _missing_tag(by, parts),
         Wrapped.of(p.reward_wrappers for p in parts),
+        [(p.name, p.dropped) for p in parts if p.dropped is not None],
     )
 
 

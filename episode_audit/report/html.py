@@ -20,7 +20,7 @@ from ..format import names as fmt
 from ..record.lock import output_kind
 from . import charts
 from .collect import ENDED
-from .core import UNFINISHED_TITLE, FilePart, Report
+from .core import DROPPED_TITLE, UNFINISHED_TITLE, FilePart, Report
 from .groups import GroupReport
 from .incentives import SHAPING_DOMINATES
 from .stats import Interval, rate_text
@@ -278,15 +278,23 @@ def _notes(notes: Sequence[str]) -> str:
 
 
 def _unfinished(result: Report) -> str:
-    """The files still being written or torn, and why: their counts are not final."""
-    if not result.unfinished:
-        return ""
-    rows = "".join(
-        f"<tr><td>{_full(name)}</td><td>{_full(why)}</td></tr>" for name, why in result.unfinished
+    """The files still being written or torn, and why: their counts are not final.
+
+    Then the files whose recorder dropped what it could not write, and what.
+    """
+    return _files(UNFINISHED_TITLE, "why", result.unfinished) + _files(
+        DROPPED_TITLE, "what", result.dropped
     )
+
+
+def _files(title: str, header: str, files: Sequence[tuple[str, str]]) -> str:
+    """A highlighted table of files and what is said of each (nothing when there is none)."""
+    if not files:
+        return ""
+    rows = "".join(f"<tr><td>{_full(name)}</td><td>{_full(why)}</td></tr>" for name, why in files)
     return (
-        f'<h2 class="unfinished">{_full(UNFINISHED_TITLE)}</h2>'
-        f'<table class="unfinished"><tr><th>file</th><th>why</th></tr>{rows}</table>'
+        f'<h2 class="unfinished">{_full(title)}</h2>'
+        f'<table class="unfinished"><tr><th>file</th><th>{header}</th></tr>{rows}</table>'
     )
 
 

@@ -110,3 +110,21 @@ def test_the_command_line_says_it_without_a_traceback(deeply_nested: Path) -> No
     )
     assert "Traceback" not in run.stderr + run.stdout
     assert run.returncode in (0, 1) and "file_recovered" in run.stdout
+
+
+def test_what_the_recorder_dropped_reads_as_counts_and_words() -> None:
+    said = RunEnd.of(
+        {
+            "recorder_lost_steps": "600",
+            "recorder_lost_resets": "12",
+            "recorder_lost_episode_records": "13",
+        }
+    )
+    assert (said.lost_steps, said.lost_resets, said.lost_episode_records) == (600, 12, 13)
+    assert said.lost == "600 step rows, 12 reset rows and 13 episode records"
+    assert RunEnd.of({"recorder_lost_steps": "0", "recorder_lost_resets": "1"}).lost == (
+        "1 reset row"
+    )
+    # nothing dropped, or counts that do not parse: nothing said
+    assert RunEnd.of({"recorder_lost_steps": "0"}).lost is None
+    assert RunEnd.of({"recorder_lost_steps": "-3", "recorder_lost_resets": DEEP}).lost is None

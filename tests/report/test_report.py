@@ -600,6 +600,7 @@ def test_report_to_dict_is_stable_json(tmp_path: Path) -> None:
         "unmatched_labels",
         "notes",
         "reward_wrappers",
+        "dropped",
     ]
     assert data["by"] == "all" and data["passed"] is True
     (group,) = data["groups"]

@@ -9,7 +9,7 @@ from rich.text import Text
 
 from ...read.inputs import Unreadable
 from ...report import GroupReport, Report
-from ...report.core import UNFINISHED_TITLE
+from ...report.core import DROPPED_TITLE, UNFINISHED_TITLE
 from ...report.stats import rate_text
 from .common import (
     Output,
@@ -98,7 +98,7 @@ def report_output(
             parts += [f"#### {title}\n", markdown_table(headers, section_rows) + "\n"]
         return "\n".join(parts)
     if not result.groups:  # (an empty table's title would wrap in its one column)
-        kept = [table(*s) for s in sections if s[0] in (_GATES, UNFINISHED_TITLE)]
+        kept = [table(*s) for s in sections if s[0] in (_GATES, UNFINISHED_TITLE, DROPPED_TITLE)]
         return Group(Text(NO_EPISODES + ("\n" if kept else "")), *kept)
     # The terminal keeps labels and reasons in a table of their own, each label on its own
     # line; the outcomes are side by side when no cell wraps (about 150 columns), else vertical
@@ -130,7 +130,10 @@ _GATES = "Gates"
 
 
 def _sections(result: Report) -> list[tuple[str, list[str], list[list[str]]]]:
-    """The tables under the outcomes, as (title, headers, rows): terms, warnings, gates, files."""
+    """The tables under the outcomes, as (title, headers, rows): terms, warnings, gates, files.
+
+    The files: unfinished ones, and those whose recorder dropped what it could not write.
+    """
     terms = [
         [g.key, outcome, term, fmt_number(value)]
         for g in result.groups
@@ -144,6 +147,7 @@ def _sections(result: Report) -> list[tuple[str, list[str], list[list[str]]]]:
         ("Incentive warnings", ["group", "warning", "why"], warnings),
         (_GATES, ["gate", "group", "result", "detail"], gates),
         (UNFINISHED_TITLE, ["file", "why"], [[name, why] for name, why in result.unfinished]),
+        (DROPPED_TITLE, ["file", "what"], [[name, what] for name, what in result.dropped]),
     ]
 
 

@@ -25,6 +25,7 @@ from ...errors import EvidenceError
 from ...format import names as fmt
 from ...format.options import decode_typed
 from ...format.records import from_json, to_jsonable
+from ...format.run_end import RunEnd
 from ...format.spaces import SpaceCodec
 from ...format.unrecorded import unrecorded
 from ...read import Evidence
@@ -158,9 +159,11 @@ def summary_output(
     status = "finished" if data["finished"] else f"UNFINISHED ({data['torn']})"
     if data["recovered"] is not None:
         status = f"recovered from a torn or damaged file (dropped: {data['recovered']})"
+    dropped = RunEnd.of(ev.run_end).lost
     rows = [
         ["file", data["file"]],
         ["status", status],
+        *([["dropped", _dropped_text(dropped)]] if dropped else []),
         ["format", data["format_version"]],
         ["writer", data["writer"]],
         ["env id", data["env_id"] or "-"],
@@ -200,6 +203,14 @@ def summary_output(
     # one line, never broken: JSON to copy (the terminal wraps it on screen; emit() does not crop)
     parts.append(Text("env spec: " + safe_block(spec), no_wrap=True, overflow="ignore"))
     return Group(*parts)
+
+
+def _dropped_text(dropped: str) -> str:
+    """The ``dropped`` row: what the recorder could not write (``RunEnd.lost``)."""
+    return (
+        f"{dropped} the recorder could not write (episode-audit check says why): the file "
+        "is not the whole run"
+    )
 
 
 def safe_block(text: str) -> str:
