@@ -79,6 +79,14 @@ def _recovered(state: FileState) -> None:
     if not (ev.finished and said.recovered):
         return
     dropped = said.dropped or "not recorded"
+    if not (ev.episodes().num_rows or ev.resets().num_rows):  # (the original held no chunk)
+        state.finding(
+            FILE_RECOVERED,
+            "rewritten by episode-audit recover from a torn or damaged file that held no "
+            f"complete chunk: no episode, reset or step survives to check; dropped: {dropped}",
+            severity="error",
+        )
+        return
     state.finding(
         FILE_RECOVERED,
         f"rewritten by episode-audit recover from a torn or damaged file; dropped: {dropped}",

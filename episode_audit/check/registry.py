@@ -358,6 +358,8 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "message says what was dropped.",
         "The original lost what the message says.",
         "Nothing to fix in this file; `--ignore file_recovered` once it is known.",
+        "an error when the recovered file holds no episode and no reset: the original held no "
+        "complete chunk, its evidence is gone, and a gate on `check` must not pass it",
     ),
     FindingKind(
         SUMMARY_DAMAGED,

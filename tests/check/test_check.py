@@ -710,6 +710,25 @@ def test_a_note_repeated_in_many_episodes_is_one_finding(tmp_path: Path) -> None
     )
 
 
+def test_a_recovered_copy_of_a_file_that_held_nothing_is_an_error(tmp_path: Path) -> None:
+    """recover writes a finished copy with no episode: a gate on check must not pass it (a
+    file_recovered warning and exit 0 before)."""
+    from episode_audit import recover
+
+    clean = (Path(__file__).parents[2] / "fixtures" / "clean.mcap").read_bytes()
+    torn = tmp_path / "early.mcap"
+    torn.write_bytes(clean[:1500])
+    copy = tmp_path / "copy.mcap"
+    recover(torn, copy)
+    result = check([copy])
+    (finding,) = [f for f in result.findings if f.code == "file_recovered"]
+    assert finding.severity == "error" and not result.ok
+    assert finding.message.startswith(
+        "rewritten by episode-audit recover from a torn or damaged file that held no complete "
+        "chunk: no episode, reset or step survives to check; dropped: "
+    )
+
+
 def test_a_torn_file_that_holds_nothing_is_an_error(tmp_path: Path) -> None:
     """Torn after its run metadata, before its first chunk: its evidence is gone, and a gate on
     check must not pass it (a warning and exit 0 before); a live one's is a warning."""
