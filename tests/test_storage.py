@@ -202,8 +202,8 @@ def test_export_reads_s3_and_writes_locally_or_to_s3(runs: Path, s3: Any, tmp_pa
 
 
 def test_recover_reads_and_writes_s3(s3: Any, tmp_path: Path) -> None:
-    whole = cartpole(tmp_path / "whole.mcap", episodes=4).read_bytes()
-    (tmp_path / "torn.mcap").write_bytes(whole[: len(whole) // 2])  # (its chunk whole)
+    torn = REPO / "fixtures" / "torn.mcap"  # (a recorder killed after 6 chunks)
+    (tmp_path / "torn.mcap").write_bytes(torn.read_bytes())
     s3.put_file(str(tmp_path / "torn.mcap"), f"{BUCKET}/torn/run.mcap")
     src, out = f"s3://{BUCKET}/torn/run.mcap", f"s3://{BUCKET}/fixed/run.mcap"
     # a torn file is scanned from its start, remotely as locally
