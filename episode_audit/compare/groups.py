@@ -22,7 +22,7 @@ from ..read.arguments import non_negative
 from ..report import GateResult, IncentiveWarning
 from ..report.gates import is_rate
 from .metrics import MetricComparison, Verdict, mean_metric, not_compared, rate_metric
-from .sides import Side, pair
+from .sides import Array, Side, pair
 from .stats import too_few
 
 __all__ = [
@@ -332,16 +332,14 @@ def _returns_apart(base: Side, cand: Side) -> str | None:
 def _terms_apart(base: Side, cand: Side) -> str | None:
     """Why the sides' returns sum different rewards (their reward terms differ), or ``None``.
 
-    A reward term that every episode of one side reported and no episode of the other means
-    the reward is defined otherwise (an env kwarg, a new reward function): its returns are in
-    other units, and that term has nothing to be compared with either. A term only some
-    episodes reported (a bonus paid at success, reported only then) says nothing of that: a
-    side may just never have earned it.
+    A reward term that one side's episodes of some outcome all reported, and no episode of the
+    other side did although it has episodes of that outcome too, means the reward is defined
+    otherwise (an env kwarg, a new reward function): its returns are in other units, and that
+    term has nothing to be compared with either. A term that goes with an outcome (a bonus
+    reported at a success, a penalty at a failure) says nothing of that: a side whose episodes
+    all fail never reports the bonus.
     """
-    only_b, only_c = (
-        sorted(n for n in set(base.terms) - set(cand.terms) if _every_episode(base, n)),
-        sorted(n for n in set(cand.terms) - set(base.terms) if _every_episode(cand, n)),
-    )
+    only_b, only_c = _other_terms(base, cand), _other_terms(cand, base)
     if not (only_b or only_c):
         return None
     said = [
@@ -356,10 +354,20 @@ def _terms_apart(base: Side, cand: Side) -> str | None:
     )
 
 
-def _every_episode(side: Side, term: str) -> bool:
-    """Whether every episode of ``side`` reported ``term``."""
+def _other_terms(one: Side, other: Side) -> list[str]:
+    """The terms of ``one`` that ``other`` never reported, where it should have (above)."""
+    shared = set(one.outcome.tolist()) & set(other.outcome.tolist())
+    return sorted(
+        name
+        for name in set(one.terms) - set(other.terms)
+        if any(_every_episode(one, name, one.outcome == outcome) for outcome in shared)
+    )
+
+
+def _every_episode(side: Side, term: str, where: Array) -> bool:
+    """Whether every episode of ``side`` at ``where`` (a mask) reported ``term``."""
     reported = side.reported.get(term)
-    return reported is None or bool(reported.all())
+    return reported is None or bool(reported[where].all())
 
 
 def _whose(chains: frozenset[str]) -> str:

@@ -201,14 +201,17 @@ def pair(base: Side, cand: Side) -> Pairs:
 
     The same reset seed, or (unseeded) the same recorded RNG state, of the same task (env id):
     the k-th of one side with the k-th of the other. An episode with neither matches nothing.
+    Two sides of one task each (the same, or two versions compared with ``different_tasks``)
+    pair across them.
     """
+    by_task = len(base.tasks()) > 1 or len(cand.tasks()) > 1
     waiting: dict[tuple[str, int, str | None], list[int]] = defaultdict(list)
-    for i, start in enumerate(_starts(base)):
+    for i, start in enumerate(_starts(base, by_task)):
         if start is not None:
             waiting[start].append(i)
     b: list[int] = []
     c: list[int] = []
-    for j, start in enumerate(_starts(cand)):
+    for j, start in enumerate(_starts(cand, by_task)):
         queue = waiting.get(start) if start is not None else None
         if queue:
             b.append(queue.pop(0))
@@ -216,10 +219,13 @@ def pair(base: Side, cand: Side) -> Pairs:
     return Pairs(np.array(b, dtype=np.int64), np.array(c, dtype=np.int64))
 
 
-def _starts(side: Side) -> list[tuple[str, int, str | None] | None]:
-    """Each episode's start: ``("seed", s, task)``, ``("rng", digest, task)`` or ``None``."""
+def _starts(side: Side, by_task: bool) -> list[tuple[str, int, str | None] | None]:
+    """Each episode's start: ``("seed", s, task)``, ``("rng", digest, task)`` or ``None``.
+
+    ``task`` is ``None`` unless ``by_task``.
+    """
     rngs = side.rng.tolist() if side.rng is not None else [-1] * side.n
-    tasks = side.task.tolist() if side.task is not None else [None] * side.n
+    tasks = side.task.tolist() if by_task and side.task is not None else [None] * side.n
     return [
         ("seed", s, t) if s >= 0 else ("rng", r, t) if r >= 0 else None
         for s, r, t in zip(side.seed.tolist(), rngs, tasks, strict=True)

@@ -89,3 +89,9 @@ def test_a_term_reported_in_some_episodes_only_does_not_stop_returns_being_compa
     group = compare([base], [cand]).groups[0]
     assert group.metric("return").not_comparable is None
     assert "term:success_bonus" not in [m.name for m in group.metrics]
+    # every episode of one side falls (fall_penalty in each), every one of the other succeeds
+    # (success_bonus in each): outcomes, not rewards, differ; the return gate holds
+    falls, succeeds = record(tmp_path / "f.mcap", 0.0), record(tmp_path / "s.mcap", 1.0)
+    result = compare([falls], [succeeds], gates=CompareGates(max_return_drop=1.0))
+    assert result.groups[0].metric("return").not_comparable is None
+    assert result.groups[0].metric("return").verdict == "improved" and result.passed

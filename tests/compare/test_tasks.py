@@ -55,3 +55,13 @@ def test_by_env_says_nothing_of_mixed_tasks(files: dict[str, Path]) -> None:
         [files["cart"], files["door"]], [files["door_again"], files["cart_again"]], by="env"
     )
     assert [g.pairs for g in result.groups] == [8, 8] and not result.notes
+
+
+@pytest.mark.filterwarnings("ignore:.*CartPole-v0 is out of date:DeprecationWarning")
+def test_two_versions_compared_with_different_tasks_still_pair_on_seeds(tmp_path: Path) -> None:
+    """One task a side (v0 against v1, ``different_tasks``): the same seeds pair across them."""
+    v1, v0 = tmp_path / "v1.mcap", tmp_path / "v0.mcap"
+    record_episodes("CartPole-v1", v1, episodes=8)
+    record_episodes("CartPole-v0", v0, episodes=8)
+    (group,) = compare([v1], [v0], different_tasks=True).groups
+    assert group.pairs == 8 and group.metric("return").paired
