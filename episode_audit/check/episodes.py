@@ -181,19 +181,22 @@ def _cut_off_why(records: _Records, cut: int) -> str:
     """What ended the recording of ``cut`` episodes without an end record, as a clause.
 
     A finished file whose run-end record counts dropped episode records lost their ends
-    with them (a full disk); an unfinished file, at its torn end or by a live recorder.
+    with them (a full disk); an unfinished file, at its torn end or by a live recorder. A
+    finished file is never said to be torn.
     """
     if not cut:
         return ""
     ev = records.state.ev
     if ev.writer is not None:
         return f", {cut} of them still being recorded (the file is still being written)"
-    if ev.finished and RunEnd.of(ev.run_end).lost is not None:
+    if not ev.finished:
+        return f", {cut} of them cut off by the torn end of the file"
+    if RunEnd.of(ev.run_end).lost_episode_records:
         return (
             f", {cut} of them without an end record: their end was among what the recorder "
             "dropped (recorder_trouble), so how they ended is unknown"
         )
-    return f", {cut} of them cut off by the torn end of the file"
+    return f", {cut} of them without an end record"
 
 
 def _cut_at_close(records: _Records, ended: BoolArray) -> BoolArray:

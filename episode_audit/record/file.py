@@ -312,7 +312,6 @@ class EvidenceFile:
         self.closed = False
         self.counts = {"episodes": 0, "steps": 0, "blocks": 0, "success_reported": 0}
         self._warned = False
-        self._deleted = False  # (warned once)
         self.troubles = 0  # the recorder's own failures, said in the run-end record
         self.first_trouble: str | None = None
         self.pid = os.getpid()  # the process recording: a fork of it writes nothing here
@@ -471,12 +470,8 @@ class EvidenceFile:
                     self.trouble(exc)
         self.last_flush = self.clock()
         self.flush_at = self.last_flush + self.flush_ns
-        if not self._deleted and self.writer.deleted():
-            self._deleted = True
-            _warn_line(
-                f"episode-audit: {self.path} was deleted while being recorded: what it held and "
-                "what is recorded from now on are lost with it (the training loop continues)"
-            )
+        if self.writer.newly_deleted():
+            _warn_line(_DELETED.format(path=self.path))
 
     def end_with_error(
         self, streams: Iterable[Stream], exc: BaseException, during: str, action: Any = NO_ACTION
@@ -576,6 +571,12 @@ def _readable(metadata: dict[str, str]) -> dict[str, str]:
                 f"accept, so no tool could read the file; {advice}"
             )
     return metadata
+
+
+_DELETED = (
+    "episode-audit: {path} was deleted while being recorded: what it held and what is recorded "
+    "from now on are lost with it (the training loop continues)"
+)
 
 
 def _warn_line(message: str) -> None:

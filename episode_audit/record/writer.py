@@ -591,6 +591,7 @@ class EvidenceWriter:
         _KeptRecords.install(self._writer)
         self._writer.start(profile=fmt.MCAP_PROFILE, library=library)
         self._finished = False
+        self._deleted = False
         self._messages = 0
         self._staging.state = _McapState.of(self._writer)
         self._chunk = _OpenChunk.of(self._writer)
@@ -608,12 +609,18 @@ class EvidenceWriter:
         """Whether :meth:`finish` has run."""
         return self._finished
 
-    def deleted(self) -> bool:
-        """Whether the file has no name any more (deleted while written: what follows is lost)."""
+    def newly_deleted(self) -> bool:
+        """Whether the file lost its last name (deleted while written) since the last call.
+
+        True once: what it holds and what follows are lost with it.
+        """
+        if self._deleted:
+            return False
         try:
-            return os.fstat(self._stream.fileno()).st_nlink == 0
+            self._deleted = os.fstat(self._stream.fileno()).st_nlink == 0
         except (OSError, ValueError):  # (closed: not this question's to answer)
             return False
+        return self._deleted
 
     def _check_open(self) -> None:
         self._thread.wait()

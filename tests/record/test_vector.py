@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import os
 import time
 import warnings
 from collections import Counter
@@ -1008,12 +1009,15 @@ def test_sub_envs_that_are_not_gymnasium_envs_are_refused_in_one_line(tmp_path: 
 
 class _Exclusive(gym.Wrapper[Any, Any, Any, Any]):
     """Holds an exclusive lock while alive, as an env holding a device or a licence does: a
-    second copy built while the first lives fails (or, with a blocking lock, waits forever)."""
+    second copy built while the first lives fails (or, with a blocking lock, waits forever).
+    Each copy writes the id of the process that built it to ``lock + ".pids"``."""
 
     def __init__(self, env: gym.Env[Any, Any], lock: str) -> None:
         import fcntl
 
         super().__init__(env)
+        with open(lock + ".pids", "a") as pids:
+            pids.write(f"{os.getpid()}\n")
         self._held = open(lock, "w")  # noqa: SIM115 (held until close)
         fcntl.flock(self._held, fcntl.LOCK_EX | fcntl.LOCK_NB)
 
@@ -1022,21 +1026,41 @@ class _Exclusive(gym.Wrapper[Any, Any, Any, Any]):
         super().close()
 
 
-def test_an_async_sub_env_that_sends_its_spec_is_not_built_here(tmp_path: Path) -> None:
+def _exclusive(index: int, folder: str, outer: bool) -> Any:
+    env = _Exclusive(gym.make("CartPole-v1"), f"{folder}/{index}.lock")
+    return ResetRngInfo(env) if outer else env
+
+
+def _exclusive_no_spec(index: int, folder: str) -> Any:
+    """Without a spec (not made by gym.make), ResetRngInfo outermost."""
+    from gymnasium.envs.classic_control import CartPoleEnv
+
+    lock = f"{folder}/{index}.lock"
+    return ResetRngInfo(_Exclusive(gym.wrappers.TimeLimit(CartPoleEnv(), 50), lock))
+
+
+@pytest.mark.parametrize("kind", ["plain", "reset_rng_info", "no_spec"])
+def test_an_async_sub_env_that_sends_its_spec_is_not_built_here(tmp_path: Path, kind: str) -> None:
     """Its worker is asked for the spec; a copy built here would fail on the lock (it did)."""
     from functools import partial
 
     from gymnasium.vector import AsyncVectorEnv
 
-    def make(index: int) -> Any:
-        return _Exclusive(gym.make("CartPole-v1"), str(tmp_path / f"{index}.lock"))
-
+    folder = str(tmp_path)
+    fns = [
+        partial(_exclusive_no_spec, i, folder)
+        if kind == "no_spec"
+        else partial(_exclusive, i, folder, kind == "reset_rng_info")
+        for i in range(2)
+    ]
     path = tmp_path / "async.mcap"
-    with RecordVectorEvidence(AsyncVectorEnv([partial(make, i) for i in range(2)]), path) as rec:
+    with RecordVectorEvidence(AsyncVectorEnv(fns), path) as rec:
         rec.reset(seed=1)
         rec.step(np.ones(2, np.int64))
+    built_here = (tmp_path / "0.lock.pids").read_text().split().count(str(os.getpid()))
+    assert built_here == 1  # (AsyncVectorEnv's own, for its spaces, closed before its workers)
     spec = open_evidence(path).run.env_spec
-    assert isinstance(spec, dict) and spec["id"] == "CartPole-v1"
+    assert (spec or {}).get("id") == (None if kind == "no_spec" else "CartPole-v1")
 
 
 # ---------------------------------------------------------------- info without masks

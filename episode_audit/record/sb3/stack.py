@@ -25,7 +25,7 @@ from stable_baselines3.common.vec_env import (
 
 from ..gym import entry_point, info_entry_point, reward_wrappers
 from ..time_limits import counted_limits, limited_spec, unread_limits
-from ..vector.rng import SPEC_IF_SENDABLE, ResetRngInfo
+from ..vector.rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, ResetRngInfo
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -151,15 +151,6 @@ class VecStack:
         return limits
 
 
-CALLABLE_WRAPPERS: tuple[type[gym.Wrapper[Any, Any, Any, Any]], ...] = (
-    gym.wrappers.TransformObservation,
-    gym.wrappers.TransformAction,
-    gym.wrappers.TransformReward,
-    gym.wrappers.RecordVideo,
-)
-"""Gymnasium wrappers whose kwargs (in the sub-env's spec) hold functions, often lambdas."""
-
-
 def worker_spec(base: VecEnv) -> Any:
     """Sub-env 0's spec, asked of a worker only when it can send it; else ``None``.
 
@@ -168,7 +159,8 @@ def worker_spec(base: VecEnv) -> Any:
     ends, breaking the VecEnv. So it is asked what it answers safely first (SB3's
     ``env_is_wrapped``, a walk of the chain giving a bool). Outermost in the sub-env,
     :class:`~..vector.rng.ResetRngInfo` says whether the spec pickles (``episode_audit_spec``);
-    else the spec is not asked for when the sub-env has one of :data:`CALLABLE_WRAPPERS`. What
+    else the spec is not asked for when the sub-env has one of
+    :data:`~..vector.rng.FUNCTION_WRAPPERS`. What
     does not pickle among the env's own kwargs, or in the kwargs of a wrapper of one's own, is
     not seen (docs/recording.md).
     """
@@ -180,7 +172,7 @@ def worker_spec(base: VecEnv) -> Any:
         base.env_method("class_name", indices=[0])[0] if wrapped(ResetRngInfo) else None
     )
     if outermost == ResetRngInfo.__name__:
-        return base.env_method(SPEC_IF_SENDABLE, indices=[0])[0]
-    if any(wrapped(kind) for kind in CALLABLE_WRAPPERS):
+        return base.env_method(SPEC_IF_SENDABLE, indices=[0])[0][1]
+    if any(wrapped(kind) for kind in FUNCTION_WRAPPERS):
         return None
     return base.get_attr("spec", indices=[0])[0] if base.has_attr("spec") else None

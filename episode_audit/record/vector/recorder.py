@@ -40,7 +40,7 @@ from ..time_limits import counted_limits, limited_spec, time_limits, unread_limi
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
-from .rng import SPEC_IF_SENDABLE, ResetRngInfo, SubEnvRng
+from .rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, ResetRngInfo, SubEnvRng
 from .steps import VectorSteps
 
 __all__ = ["RecordVectorEvidence", "vector_layout"]
@@ -355,11 +355,6 @@ def _sub_spec(
     return spec if limit is None else dataclasses.replace(spec, max_episode_steps=limit)
 
 
-_FUNCTION_ATTRIBUTES = ("func", "episode_trigger", "step_trigger")
-"""Attributes of Gymnasium's wrappers that take functions (``TransformObservation`` and the
-other ``Transform*``, ``RecordVideo``), which their spec's kwargs hold."""
-
-
 def _worker_spec(async_env: AsyncVectorEnv) -> Any:
     """Sub-env 0's spec, asked of a worker only when it can send it.
 
@@ -367,18 +362,22 @@ def _worker_spec(async_env: AsyncVectorEnv) -> Any:
     ``TransformObservation(env, lambda o: ...)``) ends, which breaks the vector env. So the
     workers are asked first what they answer safely (``has_wrapper_attr``, a bool):
     :class:`~.rng.ResetRngInfo` outermost gives the spec when it pickles; a sub-env without a
-    wrapper that takes functions sends its spec. Otherwise the spec is read off a sub-env built
-    here by the first env function, then closed (``AsyncVectorEnv``'s constructor builds one
-    here too, for its spaces).
+    wrapper that takes functions (:data:`~.rng.FUNCTION_WRAPPERS`) sends its spec. Otherwise
+    the spec is read off a sub-env built here by the first env function, then closed
+    (``AsyncVectorEnv``'s constructor builds one here too, for its spaces).
     """
     call = async_env.call
     if all(call("has_wrapper_attr", SPEC_IF_SENDABLE)) and call("class_name")[0] == (
         ResetRngInfo.__name__
     ):
-        spec = call(SPEC_IF_SENDABLE)[0]
-        if spec is not None:
+        sendable, spec = call(SPEC_IF_SENDABLE)[0]
+        if sendable:
             return spec
-    elif not any(any(call("has_wrapper_attr", name)) for name in _FUNCTION_ATTRIBUTES):
+    elif not any(
+        any(call("has_wrapper_attr", name))
+        for names in FUNCTION_WRAPPERS.values()
+        for name in names
+    ):
         return async_env.get_attr("spec")[0]
     return _built_spec(async_env)
 

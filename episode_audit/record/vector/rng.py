@@ -25,12 +25,28 @@ from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets
 
-__all__ = ["SPEC_IF_SENDABLE", "LocalSubEnvs", "RemoteSubEnvs", "ResetRngInfo", "SubEnvRng"]
+__all__ = [
+    "FUNCTION_WRAPPERS",
+    "SPEC_IF_SENDABLE",
+    "LocalSubEnvs",
+    "RemoteSubEnvs",
+    "ResetRngInfo",
+    "SubEnvRng",
+]
 
 RngState = dict[str, Any]
 
 SPEC_IF_SENDABLE = "episode_audit_spec"
 """The method of :class:`ResetRngInfo` giving the sub-env's spec when a worker can send it."""
+
+FUNCTION_WRAPPERS: dict[type[gym.Wrapper[Any, Any, Any, Any]], tuple[str, ...]] = {
+    gym.wrappers.TransformObservation: ("func",),
+    gym.wrappers.TransformAction: ("func",),
+    gym.wrappers.TransformReward: ("func",),
+    gym.wrappers.RecordVideo: ("episode_trigger", "step_trigger"),
+}
+"""Gymnasium's wrappers that take functions (often lambdas, which do not pickle), which their
+spec's kwargs hold, and the attributes that hold them: a worker sending such a spec ends."""
 
 
 class LocalSubEnvs(Protocol):
@@ -122,18 +138,19 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         """The wrapped env's spec: this wrapper only observes."""
         return self.env.spec
 
-    def episode_audit_spec(self) -> Any:
-        """:attr:`spec` when a worker's pipe can send it (it pickles), else ``None``.
+    def episode_audit_spec(self) -> tuple[bool, Any]:
+        """``(True, spec)`` when a worker's pipe can send :attr:`spec`, else ``(False, None)``.
 
-        A ``SubprocVecEnv`` worker that fails to pickle its answer ends (a lambda in a wrapper's
-        kwargs), so a recorder asks this (:data:`SPEC_IF_SENDABLE`) rather than for ``spec``.
+        ``spec`` is ``None`` when the env has none. A ``SubprocVecEnv`` or ``AsyncVectorEnv``
+        worker that fails to pickle its answer ends (a lambda in a wrapper's kwargs), so a
+        recorder asks this (:data:`SPEC_IF_SENDABLE`) rather than for ``spec``; it never raises.
         """
         try:
             spec = self.env.spec
             ForkingPickler.dumps(spec)  # (as a worker's pipe sends it; nothing is ever loaded)
         except Exception:
-            return None
-        return spec
+            return False, None
+        return True, spec
 
     def _issued_state(self, text: str) -> RngState | None:
         """The state this wrapper wrote as ``text`` into its last reset's info (taken once).
