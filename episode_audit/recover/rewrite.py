@@ -246,9 +246,23 @@ def _run_end(src: Path, copy: RecordCopy, kept: Kept, result: RecoveryResult) ->
             [{"offset": d.offset, "length": d.length, "why": d.why} for d in copy.damaged]
         ),
         "damaged_episodes": kept.damaged.to_json(),
-        # (counted over the original's episodes: whether its task reports success)
-        **{key: value for key, value in old.items() if key == fmt.RUN_END_SUCCESS_REPORTED},
+        # (said of the original's run: whether its task reports success, and what its recorder
+        # failed at and dropped, which the copy is missing too)
+        **{key: value for key, value in old.items() if key in _CARRIED},
     }
+
+
+_CARRIED = frozenset(
+    {
+        fmt.RUN_END_SUCCESS_REPORTED,
+        fmt.RUN_END_TROUBLE,
+        fmt.RUN_END_FIRST_TROUBLE,
+        fmt.RUN_END_LOST_STEPS,
+        fmt.RUN_END_LOST_RESETS,
+        fmt.RUN_END_LOST_EPISODES,
+    }
+)
+"""The keys of the original's run-end record its recovered copy keeps."""
 
 
 def _iso(time_ns: int) -> str:

@@ -120,3 +120,19 @@ def test_report_names_the_file_and_what_it_lost(dropped_file: Path, tmp_path: Pa
     page = (tmp_path / "report.html").read_text()
     assert code == 0 and "Files missing what their recorder dropped" in page
     assert "the recorder dropped 6000 step rows" in page
+
+
+def test_a_recovered_copy_still_says_what_its_recorder_dropped(
+    dropped_file: Path, tmp_path: Path
+) -> None:
+    """Torn after its run-end record (the footer lost), then recovered: the copy's run-end
+    record is recover's, and keeps the original's counts of what the recorder dropped."""
+    from episode_audit import recover
+
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(dropped_file.read_bytes()[:-8])
+    copy = tmp_path / "copy.mcap"
+    recover(torn, copy)
+    assert open_evidence(copy).run_end["status"] == "recovered"  # type: ignore[index]
+    (trouble,) = [f for f in check([copy]).findings if f.code == "recorder_trouble"]
+    assert DROPPED.search(trouble.message), trouble.message
