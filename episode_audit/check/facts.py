@@ -79,7 +79,7 @@ def _recovered(state: FileState) -> None:
     if not (ev.finished and said.recovered):
         return
     dropped = said.dropped or "not recorded"
-    if not (ev.episodes().num_rows or ev.resets().num_rows):  # (the original held no chunk)
+    if ev.holds_nothing:  # (the original held no complete chunk)
         state.finding(
             FILE_RECOVERED,
             "rewritten by episode-audit recover from a torn or damaged file that held no "

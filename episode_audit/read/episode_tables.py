@@ -71,6 +71,11 @@ class EpisodeTables:
 
         def _step_stats(self) -> _StepStats: ...
 
+    @property
+    def holds_nothing(self) -> bool:
+        """Whether the file holds no episode and no reset (no complete chunk of a run)."""
+        return not self.episodes().num_rows and not self.resets().num_rows
+
     def resets(self) -> pa.Table:
         """One row per reset: episode, seed, rng_state (JSON), options (JSON), observation.
 

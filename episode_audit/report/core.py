@@ -200,7 +200,7 @@ LOST = "no recorder is writing it and it holds no complete chunk: no episode sur
 
 def _holds_nothing(ev: Evidence, rows: FileRows) -> bool:
     """Whether the file holds no episode, reset or step (``rows``: its rows, maybe none)."""
-    return rows[0] is None and not ev.episodes().num_rows and not ev.resets().num_rows
+    return rows[0] is None and ev.holds_nothing
 
 
 def report_parts(

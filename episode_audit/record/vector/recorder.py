@@ -373,13 +373,14 @@ def _worker_spec(async_env: AsyncVectorEnv) -> Any:
         sendable, spec = call(SPEC_IF_SENDABLE)[0]
         if sendable:
             return spec
-    elif not any(
-        any(call("has_wrapper_attr", name))
-        for names in FUNCTION_WRAPPERS.values()
-        for name in names
-    ):
+    elif not any(any(call("has_wrapper_attr", name)) for name in _function_attributes()):
         return async_env.get_attr("spec")[0]
     return _built_spec(async_env)
+
+
+def _function_attributes() -> list[str]:
+    """The attributes holding functions of :data:`~.rng.FUNCTION_WRAPPERS`, each once."""
+    return sorted({name for names in FUNCTION_WRAPPERS.values() for name in names})
 
 
 def _built_spec(async_env: AsyncVectorEnv) -> Any:
