@@ -30,9 +30,10 @@ def test_readme_python_example_runs(tmp_path: Path, block: str) -> None:
             pytest.importorskip(extra)
     # (an example's tempfile.mkdtemp() folder, as a user's, is left: in tmp_path, not /tmp)
     env = {**os.environ, "TMPDIR": str(tmp_path)}
-    subprocess.run(
-        [sys.executable, "-c", block], cwd=tmp_path, env=env, check=True, capture_output=True
+    done = subprocess.run(
+        [sys.executable, "-c", block], cwd=tmp_path, env=env, capture_output=True, text=True
     )
+    assert done.returncode == 0, f"exit {done.returncode}:\n{done.stderr[-4000:]}"
 
 
 _ONLY_THESE = """
