@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -7,7 +8,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 
-from episode_audit import ConfigurationError
+from episode_audit import ConfigurationError, NotEvidenceError, open_evidence
 from episode_audit.export import export
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
@@ -105,3 +106,15 @@ def test_report_by_tag_is_reproduced_from_the_parquet_export(tmp_path: Path) -> 
         dict(zip(*returns.to_pydict().values(), strict=True))
     )
     assert steps.schema.field("env_id").type == pa.string()
+
+
+def test_a_parquet_export_given_as_evidence_says_what_it_is(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    export([FIXTURES / "clean.mcap"], out)
+    for written in (out / "episodes.parquet", out / "clean.steps.parquet"):
+        with pytest.raises(
+            NotEvidenceError,
+            match=rf"^{re.escape(str(written))}: a Parquet file \(what export --to parquet "
+            r"writes\), not evidence: pass the evidence files \(\*\.mcap\) instead$",
+        ):
+            open_evidence(written)

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import shutil
 import subprocess
 from collections import defaultdict
@@ -15,7 +16,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from PIL import Image
 from typer.testing import CliRunner
 
-from episode_audit import ConfigurationError, EvidenceError, open_evidence
+from episode_audit import ConfigurationError, EvidenceError, NotEvidenceError, open_evidence
 from episode_audit.cli import app
 from episode_audit.export import export
 from episode_audit.export._values import NONFINITE_NULL
@@ -329,3 +330,24 @@ def test_times_no_foxglove_timestamp_holds_are_left_out_and_said(tmp_path: Path)
     early.write_bytes(fuzzing.write_model(model))
     result = export([early], tmp_path / "out", to="foxglove", overwrite=True)
     assert result.episodes == 0 and result.out_of_range == 30 + episodes
+
+
+def test_an_export_given_as_evidence_is_named_and_what_to_do_said(tmp_path: Path) -> None:
+    """A Foxglove export in a folder given to `check` is an MCAP file but not evidence: the
+    error says it is our viewer export, of which file, and to keep exports apart."""
+    folder = tmp_path / "vdir"
+    folder.mkdir()
+    source = folder / "run.mcap"
+    shutil.copy(ROOT / "fixtures" / "clean.mcap", source)
+    out = folder / "run.foxglove.mcap"
+    export([source], out, to="foxglove")
+    problem = (
+        f"episode-audit's Foxglove export of {str(source)!r} (a viewer file), not evidence: "
+        "keep viewer exports out of the folders given to check, report and replay, or pass "
+        "the evidence files"
+    )
+    with pytest.raises(NotEvidenceError, match=f"^{re.escape(f'{out}: {problem}')}$"):
+        open_evidence(out)
+    result = CliRunner().invoke(app, ["check", str(folder), "--format", "json"])
+    assert result.exit_code == 2
+    assert f"episode-audit: error: {out}: {problem}\n" in result.stderr

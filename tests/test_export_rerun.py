@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from episode_audit import open_evidence
+from episode_audit import NotEvidenceError, open_evidence
 from episode_audit.export import export
 from tests.support.viewer_files import (
     aec_file,
@@ -221,3 +221,14 @@ def test_a_rerun_export_named_mcap_is_refused_before_anything_is_written(tmp_pat
         f"episode-audit: error: --out {out}: --to rerun writes an .rrd recording, not MCAP; "
         "name it run.rrd (an .mcap name reads as an evidence file to check, replay and report)"
     )
+
+
+def test_a_rerun_export_given_as_evidence_says_what_it_is(tmp_path: Path) -> None:
+    out = tmp_path / "run.rrd"
+    export([ROOT / "fixtures" / "clean.mcap"], out, to="rerun")
+    with pytest.raises(
+        NotEvidenceError,
+        match=rf"^{re.escape(str(out))}: a Rerun recording \(what export --to rerun writes\), "
+        r"not evidence: pass the evidence files \(\*\.mcap\) instead$",
+    ):
+        open_evidence(out)

@@ -27,6 +27,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
+from ..format import names as fmt
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, need_pillow, staged
 from ._values import (
@@ -85,7 +86,7 @@ def export_foxglove(
         options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
         writer = _open(foxglove, temporary, out, context, options)
         try:
-            writer.write_metadata("episode_audit.export", _metadata(ev, source))
+            writer.write_metadata(fmt.METADATA_EXPORT, _metadata(ev, source))
             named = streams(ev)
             order = _InOrder(_endings(foxglove, context, ev, named, result))
             _Steps(foxglove, context, ev, named, result, order).write(progress)

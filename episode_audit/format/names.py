@@ -44,6 +44,7 @@ __all__ = [
     "JSON_ENCODING",
     "JSONSCHEMA_ENCODING",
     "MCAP_PROFILE",
+    "METADATA_EXPORT",
     "METADATA_RUN",
     "METADATA_RUN_END",
     "OUTCOMES",
@@ -104,6 +105,9 @@ INFO_STATE: Final = "episode_audit.state"
 
 METADATA_RUN: Final = "episode_audit.run"
 METADATA_RUN_END: Final = "episode_audit.run_end"
+METADATA_EXPORT: Final = "episode_audit.export"
+"""The metadata record a Foxglove export writes (its source, env id, tags): it marks the file as
+our viewer export, which the reader names when it is given one as evidence."""
 # The run-end record's ``status``: written by the recorder's close(), or by recovery.
 RUN_STATUS_FINISHED: Final = "finished"
 RUN_STATUS_RECOVERED: Final = "recovered"

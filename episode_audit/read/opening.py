@@ -15,7 +15,7 @@ import struct
 import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import IO, Any, NamedTuple
+from typing import IO, Any, Final, NamedTuple
 
 import pyarrow as pa
 from mcap.exceptions import McapError
@@ -117,11 +117,42 @@ def _open_mcap(p: Source) -> IO[bytes]:
                 raise EvidenceError(p, f"{still_written(writer)}: it holds nothing yet; {_WAIT}")
             raise NotEvidenceError(p, "the file is empty")
         if head != _MAGIC:
-            raise NotEvidenceError(p, "not an MCAP file (wrong magic bytes)")
+            raise NotEvidenceError(p, _not_mcap(head))
     except BaseException:
         f.close()
         raise
     return f
+
+
+_OTHER_FILES: Final = {
+    b"RRF": "a Rerun recording (what export --to rerun writes)",
+    b"PAR1": "a Parquet file (what export --to parquet writes)",
+}
+"""What a file starting with these bytes is, instead of MCAP: our exports' formats."""
+
+
+def _not_mcap(head: bytes) -> str:
+    """Why a file starting with ``head`` (not the MCAP magic) is not evidence."""
+    for magic, what in _OTHER_FILES.items():
+        if head.startswith(magic):
+            return f"{what}, not evidence: pass the evidence files (*.mcap) instead"
+    return "not an MCAP file (wrong magic bytes)"
+
+
+def _other_mcap(header: Header, metadata: dict[str, dict[str, str]]) -> str:
+    """Why an MCAP file without our profile is not evidence: our Foxglove export is named."""
+    export = metadata.get(fmt.METADATA_EXPORT)
+    if export is None:
+        return (
+            f"an MCAP file, but not evidence (profile {header.profile!r}, "
+            f"expected {fmt.MCAP_PROFILE!r})"
+        )
+    source = export.get("source")
+    of = f" of {source!r}" if source else ""
+    return (
+        f"episode-audit's Foxglove export{of} (a viewer file), not evidence: keep viewer "
+        "exports out of the folders given to check, report and replay, or pass the evidence files"
+    )
 
 
 def _parse_run(
@@ -131,11 +162,7 @@ def _parse_run(
     torn: str | None = None,
 ) -> tuple[RunInfo, dict[str, str] | None]:
     if header is not None and header.profile != fmt.MCAP_PROFILE:
-        raise NotEvidenceError(
-            path,
-            f"an MCAP file, but not evidence (profile {header.profile!r}, "
-            f"expected {fmt.MCAP_PROFILE!r})",
-        )
+        raise NotEvidenceError(path, _other_mcap(header, metadata))
     raw = metadata.get(fmt.METADATA_RUN)
     if raw is None and torn is not None and header is not None:
         raise CorruptEvidenceError(
