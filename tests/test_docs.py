@@ -130,3 +130,17 @@ def test_cli_reference_lists_every_option() -> None:
             for opt in getattr(param, "opts", []):
                 if opt.startswith("--"):
                     assert opt in doc, f"{name} {opt} is not in docs/cli.md"
+
+
+def test_recording_lists_every_recorder_option() -> None:
+    """docs/recording.md's list of the recorders' keyword options is `RecorderOptions`' fields,
+    in their order, as is the `RecorderSettings` docstring it points to."""
+    from episode_audit.record.settings import RecorderOptions, RecorderSettings
+
+    declared = list(RecorderOptions.__annotations__)
+    doc = (REPO / "docs" / "recording.md").read_text()
+    listed = re.search(r"All four take the same keyword options \((.*?)\), declared", doc, re.S)
+    assert listed is not None, "docs/recording.md lost its sentence listing the options"
+    assert re.findall(r"`(\w+)`", listed[1]) == declared
+    args = (RecorderSettings.__doc__ or "").split("Args:", 1)[1].split("Raises:", 1)[0]
+    assert re.findall(r"^        (\w+):", args, flags=re.M) == declared
