@@ -37,11 +37,12 @@ __all__ = [
 _CSP = "default-src 'none'; style-src 'unsafe-inline'; img-src data:"
 _STYLE = """
 body{font:14px/1.4 system-ui,sans-serif;margin:1.5em auto;max-width:75em;padding:0 1em;color:#222}
-table{border-collapse:collapse;margin:.5em 0 1.5em}td,th{padding:.2em .6em;text-align:left;
+table{border-collapse:collapse;margin:.5em 0 1.5em}td,th{padding:.2em .4em;text-align:left;
 border-bottom:1px solid #ddd;vertical-align:top}th{background:#f4f4f4}
 td.n{text-align:right;white-space:nowrap}.warn{background:#fff3cd}
 .warn-note{color:#8a4b00;font-size:.9em;white-space:normal;max-width:28em}code{font-size:.85em;
 white-space:nowrap}figure{margin:.5em 0 1.5em}figure svg{max-width:100%;height:auto}
+.wide{overflow-x:auto}td.rate{white-space:normal}td.rate span{white-space:nowrap}
 .failure{color:#c62828}.success{color:#2e7d32}.truncated{color:#9a6b00}
 h2.unfinished{color:#8a4b00}table.unfinished td{background:#fff3cd}
 """
@@ -145,15 +146,35 @@ def _outcome_table(result: Report) -> str:
         warned = _warning_notes(g, shaping=False)
         rows.append(
             f"<tr><td>{_full(g.key)}</td><td class=n>{g.episodes}</td>"
-            f"<td class=n>{g.success} ({rate_text(g.success_rate, g.success_ci)})</td>"
-            f"<td class=n>{g.failure} ({rate_text(g.failure_rate, g.failure_ci)})</td>"
-            f"<td class=n>{g.truncated} ({rate_text(g.truncation_rate, g.truncation_ci)})</td>"
+            f"{_rate_cell(g.success, rate_text(g.success_rate, g.success_ci))}"
+            f"{_rate_cell(g.failure, rate_text(g.failure_rate, g.failure_ci))}"
+            f"{_rate_cell(g.truncated, rate_text(g.truncation_rate, g.truncation_ci))}"
             f"<td class=n>{g.incomplete}</td><td class=n>{g.errors}</td>"
             f'<td class="n{" warn" if warned else ""}">{_num(g.return_mean)} ± '
             f"{_num(g.return_std)}{warned}</td>"
             f"<td class=n>{_num(g.length_mean)} ± {_num(g.length_std)}</td></tr>"
         )
-    return f"<table>{head}{''.join(rows)}</table>"
+    return _table(f"{head}{''.join(rows)}")
+
+
+def _rate_cell(count: int, rate: str) -> str:
+    """A count and its rate: it may wrap before the rate's interval, never inside either.
+
+    >>> _rate_cell(6, "100.0% [61.0, 100.0]")
+    '<td class="n rate"><span>6 (100.0%</span> <span>[61.0, 100.0])</span></td>'
+    >>> _rate_cell(1, "-")
+    '<td class="n rate"><span>1 (-)</span></td>'
+    """
+    value, _, interval = rate.partition(" ")
+    if not interval:
+        return f'<td class="n rate"><span>{count} ({value})</span></td>'
+    return f'<td class="n rate"><span>{count} ({value}</span> <span>{interval})</span></td>'
+
+
+def _table(rows: str, cls: str = "") -> str:
+    """A table in a box of the page's width: a table wider than the window scrolls in it."""
+    attr = f' class="{cls}"' if cls else ""
+    return f'<div class="wide"><table{attr}>{rows}</table></div>'
 
 
 def _endings_table(result: Report) -> str:
@@ -167,7 +188,7 @@ def _endings_table(result: Report) -> str:
     if not rows:
         return "<p>No failure or truncation.</p>"
     head = "<tr><th>group</th><th>outcome</th><th>label / reason</th><th>episodes</th></tr>"
-    return f"<table>{head}{''.join(rows)}</table>"
+    return _table(f"{head}{''.join(rows)}")
 
 
 def _drawn(groups: Sequence[GroupReport]) -> tuple[Sequence[GroupReport], str]:
@@ -201,7 +222,7 @@ def _terms_section(result: Report) -> str:
     return (
         f'<figure class="chart">{charts.term_chart({g.key: means[g.key] for g in drawn})}'
         f"{caption}</figure>{notes}"
-        f"<table>{head}{rows}</table>"
+        f"{_table(head + rows)}"
     )
 
 
@@ -220,7 +241,7 @@ def _episode_table(rows: Sequence[EpisodeRow]) -> str:
         + "</td></tr>"
         for r in rows
     )
-    return f"<table>{head}{body}</table>"
+    return _table(f"{head}{body}")
 
 
 def _charts(result: Report, rows: Sequence[EpisodeRow]) -> tuple[str, str, str]:
@@ -292,9 +313,8 @@ def _files(title: str, header: str, files: Sequence[tuple[str, str]]) -> str:
     if not files:
         return ""
     rows = "".join(f"<tr><td>{_full(name)}</td><td>{_full(why)}</td></tr>" for name, why in files)
-    return (
-        f'<h2 class="unfinished">{_full(title)}</h2>'
-        f'<table class="unfinished"><tr><th>file</th><th>{header}</th></tr>{rows}</table>'
+    return f'<h2 class="unfinished">{_full(title)}</h2>' + _table(
+        f"<tr><th>file</th><th>{header}</th></tr>{rows}", "unfinished"
     )
 
 
@@ -314,6 +334,7 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
     parts = [
         "<!doctype html>",
         '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
         f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">',
         f"<title>{_full(title or heading)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>{heading}</h1>",
@@ -331,8 +352,8 @@ def report_html(result: Report, rows: Sequence[EpisodeRow], *, title: str = "") 
         dist or "<p>No episode ended.</p>",
     ]
     if gates:
-        parts += ["<h2>Gates</h2><table><tr><th>gate</th><th>group</th><th>result</th>"
-                  f"<th>detail</th></tr>{gates}</table>"]  # fmt: skip
+        head = "<tr><th>gate</th><th>group</th><th>result</th><th>detail</th></tr>"
+        parts += ["<h2>Gates</h2>", _table(head + gates)]
     parts += ["<h2>Episodes</h2>", _episode_table(rows), "</body></html>"]
     return "\n".join(p for p in parts if p)
 

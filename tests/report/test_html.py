@@ -83,7 +83,7 @@ def test_html_report_has_no_network_reference(tmp_path: Path) -> None:
 
 def test_html_report_rates_and_intervals_share_their_unit(tmp_path: Path) -> None:
     _, page = _page(tmp_path, by="all")
-    assert "1 (25.0% [4.6, 69.9])</td>" in page  # success: 1 of 4 ended episodes
+    assert "<span>1 (25.0%</span> <span>[4.6, 69.9])</span></td>" in page  # 1 of 4 ended
     assert not re.search(r"\[[01]\.\d\d, ", page)
 
 
@@ -117,7 +117,7 @@ def test_html_report_by_label_draws_no_rate_chart_and_warns_of_nothing(tmp_path:
     _, by_all = _page(tmp_path / "all", by="all")
     assert "rate of ended episodes" not in page and "rate of ended episodes" in by_all
     assert 'class="warn-note"' not in page and 'class="warn-note"' in by_all
-    assert "<td class=n>1 (-)</td>" in page  # (the counts stay; no rate)
+    assert '<td class="n rate"><span>1 (-)</span></td>' in page  # (the counts stay; no rate)
     assert f'<ul class="notes"><li>{html.escape(BY_LABEL_NOTE)}</li></ul>' in page  # (why)
     assert '<ul class="notes">' not in by_all
 
@@ -164,6 +164,35 @@ def test_html_report_renders_in_headless_chromium(tmp_path: Path) -> None:
     assert "</svg><script>alert(1)</script>" in value["text"]  # shown as text
     assert shot.stat().st_size > 10_000
     print(f"screenshot: {shot}")
+
+
+WIDTHS = """(() => {
+  const h = [...document.querySelectorAll("h2")].find(h => h.textContent === "Outcomes");
+  let e = h.nextElementSibling;
+  while (!e.matches("table") && !e.querySelector("table")) e = e.nextElementSibling;
+  const table = e.matches("table") ? e : e.querySelector("table");
+  return {page: document.documentElement.scrollWidth, view: window.innerWidth,
+          outcomes: table.offsetWidth, room: table.parentElement.clientWidth};
+})()"""
+
+
+def test_html_report_fits_the_window_its_outcomes_table_whole(tmp_path: Path) -> None:
+    """At 1200 px the page does not scroll sideways and the Outcomes table fits (its last
+    column shown); in a narrow window a table too wide scrolls in its own box, not the page."""
+    plans = [Plan("failure:door_slammed", reward=7.0, terms={"progress_velocity": 7.0})] * 6
+    hacker = _record_plans(tmp_path / "hacker.mcap", plans, tags={"policy": "hacker"})
+    plans = [Plan("success", length=5, terms={"progress_velocity": 1.0})] * 5
+    plans.append(Plan("truncated:time_limit", length=9, reward=0.0))
+    scripted = _record_plans(tmp_path / "scripted.mcap", plans, tags={"policy": "scripted"})
+    result = report_inputs([hacker, scripted], by="tag:policy")
+    page = write_report_html(result.report, result.parts, tmp_path / "report.html")
+    assert "no_success_positive_return" in page.read_text(encoding="utf-8")
+    wide = open_page(page, WIDTHS, width=1200)
+    assert wide.errors == []
+    assert wide.value["page"] <= wide.value["view"] == 1200, wide.value
+    assert wide.value["outcomes"] <= wide.value["room"], wide.value
+    narrow = open_page(page, WIDTHS, width=480)
+    assert narrow.value["page"] <= narrow.value["view"] == 480, narrow.value
 
 
 def test_report_command_writes_html_beside_its_table(tmp_path: Path) -> None:

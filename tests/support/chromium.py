@@ -111,8 +111,13 @@ def _port(profile: Path, proc: subprocess.Popen[bytes]) -> str:
     raise TimeoutError("chromium did not open its DevTools port")
 
 
-def open_page(page: Path, expression: str, screenshot: Path | None = None) -> PageResult:
-    """Load ``page``, evaluate ``expression`` (JSON-able value), save a full-page screenshot."""
+def open_page(
+    page: Path, expression: str, screenshot: Path | None = None, *, width: int | None = None
+) -> PageResult:
+    """Load ``page``, evaluate ``expression`` (JSON-able value), save a full-page screenshot.
+
+    ``width``: the viewport's width in CSS pixels (default: the window's, 1280).
+    """
     from websockets.sync.client import connect
 
     exe = chromium_or_skip()
@@ -136,6 +141,14 @@ def open_page(page: Path, expression: str, screenshot: Path | None = None) -> Pa
                 ]
                 for domain in ("Runtime", "Log", "Page"):
                     s.call(f"{domain}.enable")
+                if width is not None:
+                    s.call(
+                        "Emulation.setDeviceMetricsOverride",
+                        width=width,
+                        height=900,
+                        deviceScaleFactor=1,
+                        mobile=False,
+                    )
                 s.call("Page.navigate", url=page.resolve().as_uri())
                 s.wait_for("Page.loadEventFired")
                 value = s.call("Runtime.evaluate", expression=expression, returnByValue=True)[
