@@ -182,13 +182,13 @@ def test_a_killed_export_leaves_nothing_behind(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("to", "name"), VIEWERS)
 def test_the_success_line_says_how_to_look_at_the_file(tmp_path: Path, to: str, name: str) -> None:
-    """It said "see docs/viewers.md", a file no installed package holds."""
+    """It names no docs/ file (no installed package holds one) and says how to open it."""
     _viewer(to)
     out = tmp_path / "a b" / name
     result = CliRunner().invoke(app, ["export", str(CLEAN), "--to", to, "-o", str(out)])
     assert result.exit_code == 0, result.output
     line = result.output.strip().splitlines()[-1]
-    assert "docs/" not in line
+    assert "docs/" not in line.replace(str(CLEAN), "").replace(str(out), "")  # (the paths may)
     quoted = shlex.quote(str(out))
     if to == "foxglove":
         assert line.endswith(
