@@ -175,6 +175,18 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         return failed[1], failed[2]
 
 
+def _all_have(remote: Any, name: str) -> bool:
+    """Whether every worker's sub-env has the attribute ``name`` (asked safely).
+
+    SB3's ``VecEnv.has_attr``; Gymnasium's ``AsyncVectorEnv.call("has_wrapper_attr", name)``.
+    """
+    has_attr = getattr(remote, "has_attr", None)
+    if has_attr is not None:
+        return bool(has_attr(name))
+    call = getattr(remote, "call", None)
+    return call is not None and all(call("has_wrapper_attr", name))
+
+
 class SubEnvRng:
     """Where a vector recorder reads its sub-envs' RNG states (``None`` where unknown).
 
@@ -191,23 +203,22 @@ class SubEnvRng:
         # each sub-env's ResetRngInfo (Sync only, once installed): its states need no parsing
         self._issuers: list[ResetRngInfo | None] = []
 
-    def snapshots(self) -> bool:
-        """Whether a sub-env has state to snapshot at its resets (:mod:`..state`).
+    def snapshots(self, *, installing: bool) -> bool:
+        """Whether a sub-env's resets are snapshot (:mod:`..state`), by a :class:`ResetRngInfo`.
 
-        Sub-envs in this process are looked at directly; an ``AsyncVectorEnv``'s are asked
-        whether they are wrapped in a :class:`ResetRngInfo` that snapshots (``has_wrapper_attr``
-        first: a worker asked for an attribute its env lacks raises, and ends).
+        A sub-env's are when it has state to snapshot and a :class:`ResetRngInfo` puts it into
+        each reset's info. Sub-envs in this process are looked at directly (they are snapshot
+        when the recorder is ``installing`` a :class:`ResetRngInfo` on each); those in workers
+        (an ``AsyncVectorEnv``'s, an SB3 ``SubprocVecEnv``'s) are asked whether they are wrapped
+        in a :class:`ResetRngInfo` that snapshots, after they all say they have the attribute
+        (a worker asked for an attribute its env lacks raises, and ends).
         """
         if self.sync is not None:
-            return any(StateTargets(sub) for sub in self.sync.envs)
-        call = getattr(self._async, "call", None)
-        if self._async is None or call is None:
-            return False
+            return installing and any(StateTargets(sub) for sub in self.sync.envs)
+        remote = self._async
         name = "episode_audit_snapshots"
         try:
-            if not all(call("has_wrapper_attr", name)):
-                return False
-            return any(self._async.get_attr(name))
+            return remote is not None and _all_have(remote, name) and any(remote.get_attr(name))
         except Exception:
             return False
 
