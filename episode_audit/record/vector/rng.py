@@ -21,6 +21,7 @@ import gymnasium as gym
 
 from ...format import names as fmt
 from .. import native
+from ..notes import note
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets
@@ -69,7 +70,8 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     ``info["episode_audit.rng_state"]`` as JSON text. :class:`RecordVectorEvidence` reads it to make
     episodes that a vector env resets by itself replayable on their own. Before every reset it
     also snapshots the wrappers below it that have a state adapter (e.g. ``NormalizeObservation``)
-    into ``info["episode_audit.state"]``: wrap it outermost. The wrapper changes nothing else,
+    into ``info["episode_audit.state"]`` (a snapshot that fails: the note saying why into
+    ``info["episode_audit.state_note"]``): wrap it outermost. The wrapper changes nothing else,
     and it is invisible in the env's spec (replay does not need it).
 
     It also remembers its last step since a reset, and a reset that raised (with that step and
@@ -112,9 +114,11 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the env; an unseeded reset's info gains the RNG state it started from.
 
-        Every reset's info gains the state snapshot taken before it, if there is state to take.
+        Every reset's info gains the state snapshot taken before it, if there is state to take
+        (or the note saying why it could not be taken).
         """
-        snapshot = self._state.capture([]) if self._state else None
+        noted: list[str] = []
+        snapshot = self._state.capture(noted) if self._state else None
         state = capture_rng_state(self.env) if seed is None else None
         last, self._last_step = self._last_step, None
         self._issued = None
@@ -131,6 +135,8 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
             info = {**info, fmt.INFO_RNG_STATE: text}
         if snapshot is not None:
             info = {**info, fmt.INFO_STATE: snapshot}
+        elif noted:
+            info = {**info, fmt.INFO_STATE_NOTE: noted[0]}
         return obs, info
 
     @property
@@ -222,12 +228,20 @@ class SubEnvRng:
         except Exception:
             return False
 
-    def state_from_info(self, info: Any) -> str | None:
-        """The snapshot :class:`ResetRngInfo` put in a reset info (JSON text), if any."""
+    def state_from_info(self, info: Any) -> tuple[str | None, str | None]:
+        """``(snapshot, note)`` :class:`ResetRngInfo` put in a reset info, each if any.
+
+        The snapshot is JSON text; the note (``state_unavailable``) says why it took none.
+        """
         if not isinstance(info, Mapping):
-            return None
+            return None, None
         text = info.get(fmt.INFO_STATE)
-        return text if isinstance(text, str) else None
+        if isinstance(text, str):
+            return text, None
+        why = info.get(fmt.INFO_STATE_NOTE)
+        if not isinstance(why, str):
+            return None, None
+        return None, note("state_unavailable", why.removeprefix("state_unavailable: "))
 
     def install_wrappers(self) -> None:
         """Wrap every sub-env of the ``SyncVectorEnv`` in :class:`ResetRngInfo` (in place)."""
