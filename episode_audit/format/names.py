@@ -41,6 +41,7 @@ __all__ = [
     "FORMAT_VERSION",
     "INFO_RNG_STATE",
     "INFO_STATE",
+    "INFO_STATE_NOTE",
     "JSON_ENCODING",
     "JSONSCHEMA_ENCODING",
     "MCAP_PROFILE",
@@ -102,6 +103,8 @@ INFO_RNG_STATE: Final = "episode_audit.rng_state"
 """Reset-info key where ``ResetRngInfo`` puts the RNG state before an unseeded reset (JSON)."""
 INFO_STATE: Final = "episode_audit.state"
 """Reset-info key where ``ResetRngInfo`` puts the state snapshot taken before a reset (JSON)."""
+INFO_STATE_NOTE: Final = "episode_audit.state_note"
+"""Reset-info key where ``ResetRngInfo`` says why it took no snapshot before a reset (a note)."""
 
 METADATA_RUN: Final = "episode_audit.run"
 METADATA_RUN_END: Final = "episode_audit.run_end"

@@ -247,6 +247,91 @@ def test_subproc_vec_env_without_reset_rng_info_says_what_to_do(tmp_path: Path) 
     assert "wrapper_class=ResetRngInfo" in reset_notes
 
 
+# ---------------------------------------------------------------- state snapshots
+
+
+def normalized_cartpole() -> gym.Env[Any, Any]:
+    return gym.wrappers.NormalizeObservation(gym.make("CartPole-v1", max_episode_steps=25))
+
+
+def rng_normalized_cartpole() -> gym.Env[Any, Any]:
+    return ResetRngInfo(normalized_cartpole())
+
+
+def pong() -> gym.Env[Any, Any]:
+    """ALE Pong: sticky actions and the reset draw from the emulator's RNG, not np_random."""
+    ale_py = pytest.importorskip("ale_py")
+    gym.register_envs(ale_py)
+    return gym.make("ALE/Pong-v5", obs_type="ram", max_episode_steps=25)
+
+
+def step_actions(venv: Any, steps: int, actions: int) -> None:
+    rng = np.random.default_rng(0)
+    venv.seed(3)
+    venv.reset()
+    for _ in range(steps):
+        venv.step(rng.integers(0, actions, size=venv.num_envs))
+
+
+def assert_snapshots_replay(path: Path) -> None:
+    """Every episode has its snapshot, and replays identical, in order and alone."""
+    eps = episodes(path)
+    assert len(eps) >= 6 and all(e["rng_state"] for e in eps[2:])  # autoresets after the first
+    assert_replays_identical(path)
+    alone = replay([path], episodes=[eps[-3]["episode"]]).episodes
+    assert [(e.status, e.reason) for e in alone] == [("identical", None)]
+    ev = open_evidence(path)
+    assert ev.run.layout["state_snapshots"] is True
+    assert all(ev.resets().column("state").to_pylist())
+
+
+@pytest.mark.parametrize(("make", "actions"), [(normalized_cartpole, 2), (pong, 6)])
+def test_dummy_vec_env_sub_envs_are_snapshot_at_each_reset_and_autoreset(
+    tmp_path: Path, make: Any, actions: int
+) -> None:
+    """NormalizeObservation's statistics carry across episodes; ALE's emulator RNG is not
+    np_random: an autoreset episode replays only from the snapshot taken before its reset."""
+    path = tmp_path / "dummy.mcap"
+    with RecordVecEnvEvidence(DummyVecEnv([make] * 2), path) as venv:
+        step_actions(venv, 80, actions)
+    assert_snapshots_replay(path)
+
+
+def test_subproc_workers_in_reset_rng_info_are_snapshot_in_the_worker(tmp_path: Path) -> None:
+    path = tmp_path / "subproc.mcap"
+    venv = SubprocVecEnv([rng_normalized_cartpole] * 2, start_method=START)
+    with RecordVecEnvEvidence(venv, path) as venv:
+        step_actions(venv, 80, 2)
+    assert_snapshots_replay(path)
+
+
+@pytest.mark.parametrize("vec", ["dummy, not installed", "subproc"])
+def test_sub_envs_whose_state_is_not_snapshot_are_warned_of_and_checked(
+    tmp_path: Path, vec: str
+) -> None:
+    """Without ResetRngInfo in each sub-env nothing snapshots it: the recorder warns as
+    RecordVectorEvidence does, and check says the file's episodes cannot be replayed."""
+    path = tmp_path / "unsnapshot.mcap"
+    if vec == "subproc":
+        base: Any = SubprocVecEnv([normalized_cartpole] * 2, start_method=START)
+        kwargs = {}
+    else:
+        base, kwargs = DummyVecEnv([normalized_cartpole] * 2), {"install_rng_info": False}
+    with pytest.warns(
+        UserWarning,
+        match=r"^episode-audit: RecordVecEnvEvidence: the recorded wrapper NormalizeObservation "
+        r"keeps running statistics across episodes, which the file does not hold \(no state "
+        r"snapshot\)",
+    ):
+        venv = RecordVecEnvEvidence(base, path, **kwargs)
+    with venv:
+        step_actions(venv, 30, 2)
+    assert "state_snapshots" not in open_evidence(path).run.layout
+    findings = [f.message for f in check([path]).findings if f.code == "not_replayable"]
+    assert any("NormalizeObservation" in m for m in findings), findings
+    assert replay([path]).count("not_replayable") == len(episodes(path))
+
+
 def nested_pendulum() -> gym.Env[Any, Any]:
     """Pendulum's registered 200-step limit inside one of 500: the inner one ends episodes."""
     return ResetRngInfo(gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500))

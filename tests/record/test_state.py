@@ -290,6 +290,45 @@ def test_an_adapter_that_raises_is_noted_and_recording_goes_on(
     assert ev.episodes().column("outcome").to_pylist()[0] in ("failure", "truncated")
 
 
+@pytest.mark.parametrize("vec", ["SyncVectorEnv", "DummyVecEnv"])
+def test_a_sub_env_snapshot_that_raises_is_noted_on_its_reset_row(
+    tmp_path: Path, count_adapter: CountAdapter, monkeypatch: pytest.MonkeyPatch, vec: str
+) -> None:
+    """ResetRngInfo snapshots a sub-env inside its reset (an autoreset: inside the step): an
+    adapter that raises there is noted on the reset row, as the single-env recorder notes it."""
+
+    def broken(obj: Any) -> Any:
+        raise RuntimeError("no state today")
+
+    monkeypatch.setattr(count_adapter, "get_state", broken)
+    make = [lambda: CountResets(gym.make("CartPole-v1", max_episode_steps=10))] * 2
+    path = tmp_path / "broken.mcap"
+    if vec == "SyncVectorEnv":
+        envs: Any = gym.vector.SyncVectorEnv(
+            make, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+        )
+        with RecordVectorEvidence(envs, path) as rec:
+            rec.reset(seed=1)
+            for _ in range(25):
+                rec.step(np.zeros(2, dtype=np.int64))
+    else:
+        pytest.importorskip("stable_baselines3")
+        from stable_baselines3.common.vec_env import DummyVecEnv
+
+        from episode_audit import RecordVecEnvEvidence
+
+        with RecordVecEnvEvidence(DummyVecEnv(make), path) as venv:
+            venv.seed(1)
+            venv.reset()
+            for _ in range(25):
+                venv.step(np.zeros(2, dtype=np.int64))
+    resets = open_evidence(path).resets()
+    assert len(resets) == 6  # the reset, then two autoresets of each sub-env
+    assert resets.column("state").to_pylist() == [None] * 6
+    notes = resets.column("notes").to_pylist()
+    assert all(n and "state_unavailable: RuntimeError: no state today" in n for n in notes), notes
+
+
 def test_vector_sub_envs_are_snapshot_at_every_reset(tmp_path: Path) -> None:
     envs = gym.make_vec(
         "CartPole-v1", 3, vectorization_mode="sync", wrappers=[gym.wrappers.NormalizeObservation]

@@ -24,9 +24,10 @@ from ...format.records import RunInfo
 from ...format.spaces import codec_for, describe_space
 from ...format.wrappers import LAYOUT_REWARD_WRAPPERS
 from ..file import EvidenceFile, FileRecorder
+from ..gym import warn_unrestorable
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..vector.infos import env_infos
-from ..vector.recorder import vector_layout
+from ..vector.recorder import sub_wrappers, vector_layout
 from ..vector.resets import recorded_per_env, shared_changed
 from ..vector.rng import SubEnvRng
 from ..vector.steps import VectorSteps
@@ -53,8 +54,10 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
     ``reset()`` records the seeds ``seed()`` set (sub-env ``i`` gets ``seed + i``) and the
     options ``set_options()`` set. A ``DummyVecEnv``'s sub-envs are wrapped in
     :class:`~episode_audit.ResetRngInfo` in place, so autoreset episodes replay on their own
-    too, and its reward buffer is widened to float64 (the recorder hands rewards on as float32,
-    as before) so that the file holds each reward exactly. Wrap the ``DummyVecEnv`` /
+    too (their RNG state, and the snapshot of state a seed does not set, read at every reset: a
+    ``SubprocVecEnv``'s sub-envs need a ``ResetRngInfo`` of their own), and its reward buffer
+    is widened to float64 (the recorder hands rewards on as float32, as before) so that the
+    file holds each reward exactly. Wrap the ``DummyVecEnv`` /
     ``SubprocVecEnv`` itself, under ``VecNormalize`` and ``VecFrameStack``: over a wrapper that
     changes steps the file holds what that wrapper made (noted; not replayable).
 
@@ -78,7 +81,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
     Args:
         venv: The SB3 VecEnv to record (``DummyVecEnv``, ``SubprocVecEnv``, or a wrapper).
         path: The evidence file to create (never overwritten unless ``overwrite=True``).
-        install_rng_info: Wrap a ``DummyVecEnv``'s sub-envs in ``ResetRngInfo`` (default).
+        install_rng_info: Wrap a ``DummyVecEnv``'s sub-envs in ``ResetRngInfo`` (default): without
+            it, autoreset episodes have neither RNG state nor state snapshots.
         **options: The recorder options, as for :class:`~episode_audit.RecordEvidence`.
 
     Raises:
@@ -115,18 +119,22 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         self._local = stack.local
         remote = None if stack.local is not None else base
         self._rng = SubEnvRng(stack.local, remote)
+        snapshots = self._rng.snapshots(installing=install_rng_info)
         if stack.local is not None and install_rng_info:
             self._rng.install_wrappers()
         self._float_rewards = self._widen_rewards(stack)
         spec = stack.sub_env_spec()
         obs_space, act_space = venv.observation_space, venv.action_space
-        self.run_info = self._describe(stack, settings, spec)
+        self.run_info = self._describe(stack, settings, spec, snapshots)
         if stack.changing:  # (as RecordVectorEvidence warns of what it cannot replay)
             warnings.warn(
                 f"episode-audit: {type(self).__name__}: {stack.replay_note()}",
                 UserWarning,
                 stacklevel=2,
             )
+        warn_unrestorable(
+            type(self).__name__, sub_wrappers(stack.local, spec), self.run_info.layout
+        )
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         codecs = (
@@ -135,7 +143,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         )
         limits = stack.step_limits(n, spec)
         streams = [
-            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit)
+            self._file.add_stream(*codecs, env_index=i, max_episode_steps=limit, state=snapshots)
             for i, limit in enumerate(limits)
         ]
         self._streams = streams
@@ -159,8 +167,13 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         self._actions: Any = None
         self._opened()
 
-    def _describe(self, stack: VecStack, settings: RecorderSettings, spec: Any) -> RunInfo:
-        """The run's metadata: the sub-envs' spec, the spaces, the stack's layout and notes."""
+    def _describe(
+        self, stack: VecStack, settings: RecorderSettings, spec: Any, snapshots: bool
+    ) -> RunInfo:
+        """The run's metadata: the sub-envs' spec, the spaces, the stack's layout and notes.
+
+        ``snapshots``: the sub-envs' resets are snapshot (:class:`~..vector.rng.ResetRngInfo`).
+        """
         notes = stack.notes()
         if self._float_rewards is None and stack.local is not None:
             notes.append(
@@ -173,6 +186,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             type(stack.base).__name__,
             not stack.changing,
             stack.replay_note() if stack.changing else None,
+            snapshots=snapshots,
         )
         changing = stack.reward_wrappers()
         if changing:

@@ -94,8 +94,11 @@ class Autoreset:
             notes.append(
                 note("rng_state_unavailable", why_no_rng or self._no_rng_note or "no np_random")
             )
+        state, state_note = self.rng.state_from_info(info)
+        if state_note is not None:
+            notes.append(state_note)
         episode = stream.begin(seed, options, rng_state, notes, start_ns=start_ns)
-        stream.record_reset(episode, obs, info, notes, self.rng.state_from_info(info))
+        stream.record_reset(episode, obs, info, notes, state)
 
     def begin_compiled(
         self, i: int, rng: RngState | None, obs: Any, info: Any, now: int, noted: str | None
@@ -103,13 +106,14 @@ class Autoreset:
         """Begin sub-env ``i``'s autoreset episode in C (``compiled_begin``), if it can be.
 
         It can be when the RNG state is known, nothing is to be noted, and the reset info is a
-        dict with no state snapshot (the streams keep no info: ``compiled_begin`` is set only
-        then), so that :meth:`begin` would record the same. ``False``: nothing has changed.
+        dict with no state snapshot nor a note on one (the streams keep no info:
+        ``compiled_begin`` is set only then), so that :meth:`begin` would record the same.
+        ``False``: nothing has changed.
         """
         begin = self.compiled_begin
         if begin is None or rng is None or noted is not None or type(info) is not dict:
             return False
-        if info and self.rng.state_from_info(info) is not None:
+        if info and self.rng.state_from_info(info) != (None, None):
             return False
         stream = self.streams[i]
         return bool(begin(stream, stream.file.rng_json(rng), obs, now))

@@ -40,10 +40,10 @@ from ..time_limits import counted_limits, limited_spec, time_limits, unread_limi
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
-from .rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, ResetRngInfo, SubEnvRng
+from .rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, LocalSubEnvs, ResetRngInfo, SubEnvRng
 from .steps import VectorSteps
 
-__all__ = ["RecordVectorEvidence", "vector_layout"]
+__all__ = ["RecordVectorEvidence", "sub_wrappers", "vector_layout"]
 
 
 class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
@@ -109,8 +109,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             )
             notes.append(no_rng_note)
         self._rng = SubEnvRng(sync, async_env)
-        # sub-envs in this process snapshot through the ResetRngInfo installed on them
-        snapshots = self._rng.snapshots() and (sync is None or install_rng_info)
+        snapshots = self._rng.snapshots(installing=install_rng_info)
         same_step = mode is AutoresetMode.SAME_STEP
         if (same_step or snapshots) and sync is not None and install_rng_info:
             self._rng.install_wrappers()
@@ -125,7 +124,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             notes=notes,
             info_of=info_entry_point(sync.envs[0] if sync is not None and sync.envs else env),
         )
-        warn_unrestorable(type(self).__name__, _sub_wrappers(sync, sub_spec), layout)
+        warn_unrestorable(type(self).__name__, sub_wrappers(sync, sub_spec), layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         obs_codec = codec_for(obs_space, digest_min_bytes=settings.digest_min_bytes)
@@ -252,9 +251,9 @@ def _layout(
     """The run's vector layout: autoreset mode, sub-envs, snapshots, the wrappers around them."""
     base = env.unwrapped
     has_sub_envs = no_rng_note is None  # (the note says the env has none)
-    layout = vector_layout(int(env.num_envs), mode, type(base).__name__, has_sub_envs, no_rng_note)
-    if snapshots:
-        layout[LAYOUT_STATE_SNAPSHOTS] = True
+    layout = vector_layout(
+        int(env.num_envs), mode, type(base).__name__, has_sub_envs, no_rng_note, snapshots=snapshots
+    )
     vector_wrappers = _vector_wrappers(env)
     if vector_wrappers:
         layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
@@ -315,9 +314,18 @@ def _check_sub_envs(sync: SyncVectorEnv | None) -> None:
 
 
 def vector_layout(
-    n: int, mode: AutoresetMode, vector_class: str, sub_envs: bool, replay_note: str | None
+    n: int,
+    mode: AutoresetMode,
+    vector_class: str,
+    sub_envs: bool,
+    replay_note: str | None,
+    *,
+    snapshots: bool = False,
 ) -> dict[str, Any]:
-    """The layout metadata of a vector file (``docs/format.md``, "Multi-stream files")."""
+    """The layout metadata of a vector file (``docs/format.md``, "Multi-stream files").
+
+    ``snapshots``: the sub-envs' reset rows hold state snapshots.
+    """
     layout: dict[str, Any] = {
         "kind": "vector",
         "num_envs": n,
@@ -328,6 +336,8 @@ def vector_layout(
     }
     if replay_note:
         layout["replay_note"] = replay_note
+    if snapshots:
+        layout[LAYOUT_STATE_SNAPSHOTS] = True
     return layout
 
 
@@ -487,10 +497,14 @@ def _vector_wrappers(env: Any) -> list[str]:
     return chain[::-1]
 
 
-def _sub_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]:
-    """The entry points of the first sub-env's wrappers: walked, else as its spec names them."""
-    if sync is not None and sync.envs:
-        return wrapper_chain(sync.envs[0])
+def sub_wrappers(local: LocalSubEnvs | None, sub_spec: Any) -> list[str]:
+    """The entry points of the first sub-env's wrappers: walked, else as its spec names them.
+
+    ``local``: a vector env whose sub-envs are in this process (``SyncVectorEnv``, SB3's
+    ``DummyVecEnv``); otherwise the spec (``additional_wrappers``) is all there is.
+    """
+    if local is not None and local.envs:
+        return wrapper_chain(local.envs[0])
     wrappers = getattr(sub_spec, "additional_wrappers", None) or ()
     return [str(getattr(w, "entry_point", "")) for w in wrappers]
 
@@ -499,5 +513,5 @@ def _sub_reward_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]
     """The first sub-env's wrappers that change its reward: walked, else as its spec names them."""
     if sync is not None and sync.envs:
         return reward_wrappers(sync.envs[0])
-    wrappers = _sub_wrappers(None, sub_spec)
+    wrappers = sub_wrappers(None, sub_spec)
     return [w for w in wrappers if w.rpartition(":")[2] in REWARD_CHANGING]

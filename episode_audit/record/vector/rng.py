@@ -21,6 +21,7 @@ import gymnasium as gym
 
 from ...format import names as fmt
 from .. import native
+from ..notes import note
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets
@@ -69,7 +70,8 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     ``info["episode_audit.rng_state"]`` as JSON text. :class:`RecordVectorEvidence` reads it to make
     episodes that a vector env resets by itself replayable on their own. Before every reset it
     also snapshots the wrappers below it that have a state adapter (e.g. ``NormalizeObservation``)
-    into ``info["episode_audit.state"]``: wrap it outermost. The wrapper changes nothing else,
+    into ``info["episode_audit.state"]`` (a snapshot that fails: the note saying why into
+    ``info["episode_audit.state_note"]``): wrap it outermost. The wrapper changes nothing else,
     and it is invisible in the env's spec (replay does not need it).
 
     It also remembers its last step since a reset, and a reset that raised (with that step and
@@ -112,9 +114,11 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
     ) -> tuple[Any, dict[str, Any]]:
         """Reset the env; an unseeded reset's info gains the RNG state it started from.
 
-        Every reset's info gains the state snapshot taken before it, if there is state to take.
+        Every reset's info gains the state snapshot taken before it, if there is state to take
+        (or the note saying why it could not be taken).
         """
-        snapshot = self._state.capture([]) if self._state else None
+        noted: list[str] = []
+        snapshot = self._state.capture(noted) if self._state else None
         state = capture_rng_state(self.env) if seed is None else None
         last, self._last_step = self._last_step, None
         self._issued = None
@@ -131,6 +135,8 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
             info = {**info, fmt.INFO_RNG_STATE: text}
         if snapshot is not None:
             info = {**info, fmt.INFO_STATE: snapshot}
+        elif noted:
+            info = {**info, fmt.INFO_STATE_NOTE: noted[0]}
         return obs, info
 
     @property
@@ -175,6 +181,18 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         return failed[1], failed[2]
 
 
+def _all_have(remote: Any, name: str) -> bool:
+    """Whether every worker's sub-env has the attribute ``name`` (asked safely).
+
+    SB3's ``VecEnv.has_attr``; Gymnasium's ``AsyncVectorEnv.call("has_wrapper_attr", name)``.
+    """
+    has_attr = getattr(remote, "has_attr", None)
+    if has_attr is not None:
+        return bool(has_attr(name))
+    call = getattr(remote, "call", None)
+    return call is not None and all(call("has_wrapper_attr", name))
+
+
 class SubEnvRng:
     """Where a vector recorder reads its sub-envs' RNG states (``None`` where unknown).
 
@@ -191,32 +209,39 @@ class SubEnvRng:
         # each sub-env's ResetRngInfo (Sync only, once installed): its states need no parsing
         self._issuers: list[ResetRngInfo | None] = []
 
-    def snapshots(self) -> bool:
-        """Whether a sub-env has state to snapshot at its resets (:mod:`..state`).
+    def snapshots(self, *, installing: bool) -> bool:
+        """Whether a sub-env's resets are snapshot (:mod:`..state`), by a :class:`ResetRngInfo`.
 
-        Sub-envs in this process are looked at directly; an ``AsyncVectorEnv``'s are asked
-        whether they are wrapped in a :class:`ResetRngInfo` that snapshots (``has_wrapper_attr``
-        first: a worker asked for an attribute its env lacks raises, and ends).
+        A sub-env's are when it has state to snapshot and a :class:`ResetRngInfo` puts it into
+        each reset's info. Sub-envs in this process are looked at directly (they are snapshot
+        when the recorder is ``installing`` a :class:`ResetRngInfo` on each); those in workers
+        (an ``AsyncVectorEnv``'s, an SB3 ``SubprocVecEnv``'s) are asked whether they are wrapped
+        in a :class:`ResetRngInfo` that snapshots, after they all say they have the attribute
+        (a worker asked for an attribute its env lacks raises, and ends).
         """
         if self.sync is not None:
-            return any(StateTargets(sub) for sub in self.sync.envs)
-        call = getattr(self._async, "call", None)
-        if self._async is None or call is None:
-            return False
+            return installing and any(StateTargets(sub) for sub in self.sync.envs)
+        remote = self._async
         name = "episode_audit_snapshots"
         try:
-            if not all(call("has_wrapper_attr", name)):
-                return False
-            return any(self._async.get_attr(name))
+            return remote is not None and _all_have(remote, name) and any(remote.get_attr(name))
         except Exception:
             return False
 
-    def state_from_info(self, info: Any) -> str | None:
-        """The snapshot :class:`ResetRngInfo` put in a reset info (JSON text), if any."""
+    def state_from_info(self, info: Any) -> tuple[str | None, str | None]:
+        """``(snapshot, note)`` :class:`ResetRngInfo` put in a reset info, each if any.
+
+        The snapshot is JSON text; the note (``state_unavailable``) says why it took none.
+        """
         if not isinstance(info, Mapping):
-            return None
+            return None, None
         text = info.get(fmt.INFO_STATE)
-        return text if isinstance(text, str) else None
+        if isinstance(text, str):
+            return text, None
+        why = info.get(fmt.INFO_STATE_NOTE)
+        if not isinstance(why, str):
+            return None, None
+        return None, note("state_unavailable", why.removeprefix("state_unavailable: "))
 
     def install_wrappers(self) -> None:
         """Wrap every sub-env of the ``SyncVectorEnv`` in :class:`ResetRngInfo` (in place)."""
