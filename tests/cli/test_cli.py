@@ -379,6 +379,36 @@ SHOW_JSON_KEYS = [  # the summary's keys before the episode list and the spaces'
 ]  # fmt: skip
 
 
+def test_show_and_check_count_the_episodes_report_counts(tmp_path: Path) -> None:
+    """One CartPole episode, then a reset never stepped: show said ``episodes 2`` (``incomplete
+    1``) and check ``2 episodes`` where report counts 1 (docs/reporting.md: unstarted)."""
+    path = tmp_path / "unstarted.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=0)
+        while not any(env.step(0)[2:4]):
+            pass
+        env.reset(seed=1)
+    code, out, _ = run("report", str(path), "-f", "json")
+    (group,) = json.loads(out)["groups"]
+    assert code == 0 and (group["episodes"], group["incomplete"]) == (1, 0)
+    code, out, _ = run("show", str(path), "-f", "json")
+    data = json.loads(out)
+    assert (data["episodes"], data["outcomes"]["incomplete"], data["unstarted"]) == (1, 0, 1)
+    assert [e["episode"] for e in data["episode_list"]] == [0]
+    code, out, _ = run("show", str(path))
+    lines = [" ".join(line.split()) for line in out.splitlines()]
+    assert "episodes 1" in lines
+    assert "unstarted 1 (reset and never stepped: not counted, as in report)" in lines
+    assert "outcomes success 0, failure 1, truncated 0, incomplete 0, error 0" in lines
+    code, out, _ = run("check", str(path), "-f", "json", "--no-step-summary")
+    data = json.loads(out)
+    assert data["episodes"] == 1 and "incomplete_episode" not in out
+    code, out, _ = run("check", str(path), "--no-step-summary")
+    assert out.splitlines()[-1].startswith("1 file(s), 1 episode, ")
+    show_clean = json.loads(run("show", "fixtures/clean.mcap", "-f", "json")[1])
+    assert show_clean["unstarted"] == 0  # (the key is always there)
+
+
 def test_show_summary_lists_episodes_and_spaces_with_shape_and_dtype() -> None:
     code, out, _ = run("show", "fixtures/clean.mcap")
     assert code == 0

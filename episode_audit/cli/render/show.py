@@ -176,6 +176,7 @@ def summary_output(
         ["started", data["start_time"]],
         ["tags", ", ".join(f"{k}={v}" for k, v in data["tags"].items()) or "-"],
         ["episodes", data["episodes"]],
+        *([["unstarted", _unstarted_text(data["unstarted"])]] if data["unstarted"] else []),
         ["steps", data["steps"]],
         ["outcomes", ", ".join(f"{k} {v}" for k, v in data["outcomes"].items())],
         ["observation space", _observation_text(ev.run.observation_space, data)],
@@ -203,6 +204,11 @@ def summary_output(
     # one line, never broken: JSON to copy (the terminal wraps it on screen; emit() does not crop)
     parts.append(Text("env spec: " + safe_block(spec), no_wrap=True, overflow="ignore"))
     return Group(*parts)
+
+
+def _unstarted_text(count: int) -> str:
+    """The ``unstarted`` row: the episodes reset and never stepped, which no count holds."""
+    return f"{count} (reset and never stepped: not counted, as in report)"
 
 
 def _dropped_text(dropped: str) -> str:
