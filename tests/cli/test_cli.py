@@ -544,19 +544,34 @@ class LongKwargs(gym.Env[np.ndarray, np.int64]):
 gym.register("EpisodeAuditLongKwargs-v0", entry_point=LongKwargs)
 
 
-def test_show_prints_the_env_spec_json_unbroken_to_copy_at_any_width(tmp_path: Path) -> None:
+def test_show_prints_the_env_spec_within_the_width_and_whole_in_json(tmp_path: Path) -> None:
+    """The spec was one JSON text printed unbroken: CartPole's ``vector_entry_point`` line was
+    83 columns wide at 80. Now a table, each value as JSON, a long one broken after a ``/``,
+    ``:`` or ``.``; ``--format json`` gives the spec whole."""
     config = "/data/" + "very-long-folder-name/" * 8 + "config.yaml"
     path = tmp_path / "long.mcap"
     with RecordEvidence(gym.make("EpisodeAuditLongKwargs-v0", config=config), path) as env:
         env.reset(seed=0)
         env.step(0)
-    result = runner.invoke(app, ["show", str(path)], env={"COLUMNS": "80"})
-    assert result.exit_code == 0
-    lines = result.stdout.splitlines()
-    start = next(i for i, line in enumerate(lines) if line.startswith("env spec: "))
-    spec = json.loads("\n".join(lines[start:])[len("env spec: ") :])
-    assert spec["kwargs"] == {"config": config}
-    assert max(len(line) for line in lines[:start]) <= 80  # (the tables still fit)
+    cartpole_file = cartpole(tmp_path / "cartpole.mcap", episodes=1)
+    for file, value in ((path, json.dumps({"config": config})), (cartpole_file, None)):
+        result = runner.invoke(app, ["show", str(file)], env={"COLUMNS": "80"})
+        assert result.exit_code == 0
+        lines = result.stdout.splitlines()
+        assert max(len(line) for line in lines) <= 80, result.stdout
+        if value is not None:  # the kwargs row and the lines it continues on, read in order
+            start = next(i for i, line in enumerate(lines) if line.split()[:1] == ["kwargs"])
+            pieces = [lines[start].split(maxsplit=1)[1].strip()]
+            for line in lines[start + 1 :]:
+                if not line.strip() or line[1:2] != " ":
+                    break
+                pieces.append(line.strip())
+            assert "".join(pieces) == value.replace(" ", ""), pieces  # (wrapped at its space)
+            assert all(p.endswith(("/", ":")) for p in pieces[:-1]), pieces
+    (row,) = [line for line in lines if "vector_entry_point" in line]
+    assert row.split()[1:] == ['"gymnasium.envs.classic_control.cartpole:']
+    code, out, _ = run("show", str(path), "-f", "json")
+    assert code == 0 and json.loads(out)["env_spec"]["kwargs"] == {"config": config}
 
 
 @pytest.mark.parametrize(
