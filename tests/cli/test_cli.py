@@ -672,6 +672,15 @@ def test_hostile_strings_print_literally(tmp_path: Path) -> None:
 # ------------------------------------------------------------------- bad arguments (a CLI audit)
 
 
+def test_record_counts_one_episode_in_the_singular(tmp_path: Path) -> None:
+    """It said ``recorded 1 episodes (1 steps)``."""
+    out = tmp_path / "one.mcap"
+    code, stdout, _ = run(
+        "record", "CartPole-v1", "--out", str(out), "--episodes", "1", "--max-episode-steps", "1"
+    )
+    assert code == 0 and stdout.startswith(f"recorded 1 episode (1 step) to {out}: "), stdout
+
+
 def one_error_line(err: str, *needles: str) -> None:
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("episode-audit: error: "), err
