@@ -20,7 +20,7 @@ from ._usercode import import_modules, load_callable
 from .errors import ConfigurationError, EpisodeAuditError, RecorderError
 from .format.columns import error_text
 from .record.gym import RecordEvidence
-from .record.lock import check_output_path
+from .record.lock import check_output_path, refuse_indexed_overwrite
 
 __all__ = ["RecordSummary", "RecordingError", "record_episodes"]
 
@@ -44,8 +44,11 @@ class RecordSummary:
     outcomes: dict[str, int] = field(default_factory=dict)
 
     def __str__(self) -> str:
+        """``recorded 2 episodes (10 steps) to PATH: truncated 2`` (``1 episode``, ``1 step``)."""
         counts = ", ".join(f"{k} {v}" for k, v in sorted(self.outcomes.items()))
-        return f"recorded {self.episodes} episodes ({self.steps} steps) to {self.path}: {counts}"
+        episodes = f"{self.episodes} episode{'' if self.episodes == 1 else 's'}"
+        steps = f"{self.steps} step{'' if self.steps == 1 else 's'}"
+        return f"recorded {episodes} ({steps}) to {self.path}: {counts}"
 
 
 def _policy(name: str, env: gym.Env[Any, Any], seed: int) -> Policy:
@@ -89,8 +92,12 @@ def record_episodes(
     imports: Sequence[str] = (),
     overwrite: bool = False,
     on_episode: Callable[[], None] | None = None,
+    overwrite_option: str = "overwrite=True",
 ) -> RecordSummary:
     """Record ``episodes`` episodes of ``env_id`` to ``out``.
+
+    ``out`` may be a path template (``run-{index}.mcap``: the first free one), never with
+    ``overwrite``: the error names it ``overwrite_option`` (``--overwrite`` on the command line).
 
     >>> import tempfile, pathlib
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "cp.mcap"
@@ -101,6 +108,8 @@ def record_episodes(
     import_modules(imports)
     _check_counts(episodes, seed, max_episode_steps)
     check_output_path(out)  # (a FIFO would block the recorder, /dev/null lose the evidence)
+    if overwrite:
+        refuse_indexed_overwrite(out, overwrite_option=overwrite_option)
     env = _make_env(env_id, env_kwargs, max_episode_steps)
     # Everything that can be wrong with the arguments is found before the file is touched:
     # a usage error never leaves a file behind, nor replaces one (--overwrite).

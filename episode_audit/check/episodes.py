@@ -60,6 +60,7 @@ class _Records:
         self.rows = rows
         self.episode: IntArray = rows.column("episode").to_numpy()
         self.outcome = rows.column("outcome")
+        self.unstarted = unstarted(rows)
 
     def listed(self, mask: Any) -> list[int]:
         """The episodes of the records ``mask`` selects, in order."""
@@ -83,10 +84,10 @@ class _Records:
 def check_episode_records(state: FileState, endings: EndingChecks) -> None:
     """Check the file's episode records (``endings`` counted their step rows)."""
     table = state.ev.episodes()
-    state.episodes = table.num_rows
     if table.num_rows == 0:
         return
     records = _Records(state, table.select(_COLUMNS))
+    state.episodes = table.num_rows - int(records.unstarted.sum())  # (as report counts them)
     _both_flags(records)
     _unlabeled_failures(records)
     ended = records.rows.column("ended").to_numpy(zero_copy_only=False)
@@ -151,7 +152,7 @@ def _incomplete(records: _Records, ended: BoolArray) -> None:
     incomplete = pc.equal(records.outcome, fmt.OUTCOME_INCOMPLETE).to_numpy(zero_copy_only=False)
     if not incomplete.any():
         return
-    incomplete &= ~unstarted(records.rows)
+    incomplete &= ~records.unstarted
     at_close = incomplete & _cut_at_close(records, ended)
 
     def says(eps: list[int]) -> str:

@@ -54,7 +54,8 @@ class CheckResult:
         {
           "ok": bool,                    # no error-severity findings
           "files": [str, ...],           # the files checked, in the order given
-          "episodes": int,               # episodes checked, over all files
+          "episodes": int,               # episodes checked, over all files (unstarted
+                                         # ones, reset and never stepped, not counted)
           "steps": int,                  # step rows checked, over all files
           "counts": {"error": int, "warning": int, "note": int},
           "findings": [                  # ordered by file, then location

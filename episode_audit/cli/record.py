@@ -106,6 +106,7 @@ def record(
                 imports=import_ or (),
                 overwrite=overwrite,
                 on_episode=lambda: advance(1),
+                overwrite_option="--overwrite",
             )
     except EpisodeAuditError as exc:
         fail(str(exc))

@@ -15,6 +15,7 @@ import pyarrow as pa
 from gymnasium.spaces import Space
 
 from ..format import names as fmt
+from ..format.records import unstarted
 from ..format.run_end import RunEnd
 from ..format.spaces import space_from_description
 
@@ -59,6 +60,11 @@ _LABEL_OF = {
 def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
     """The file summary: run metadata, versions, env spec, episodes by outcome, finished or not.
 
+    ``episodes``, ``steps``, ``outcomes`` and the episode list count the episodes ``report``
+    counts: an *unstarted* one (reset and never stepped,
+    :func:`~episode_audit.format.records.unstarted`) is left out of them, and ``unstarted``
+    says how many there were.
+
     ``dropped``: what the recorder could not write and dropped (a full disk), counted from the
     run-end record, ``None`` when nothing.
 
@@ -67,6 +73,9 @@ def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
     :func:`episode_list`.
     """
     episodes = ev.episodes()
+    left_out = unstarted(episodes)
+    if left_out.any():  # reset and never stepped: no episode to count (as report does)
+        episodes = episodes.filter(pa.array(~left_out))
     outcomes = Counter(episodes.column("outcome").to_pylist())
     run = ev.run
     said = RunEnd.of(ev.run_end)
@@ -110,6 +119,7 @@ def summarize(ev: Evidence, *, all_episodes: bool = False) -> dict[str, Any]:
             if said.lost
             else None
         ),
+        "unstarted": int(left_out.sum()),
     }
 
 
@@ -118,7 +128,8 @@ def episode_list(
 ) -> tuple[list[dict[str, Any]], int]:
     """The episodes a summary lists, and how many it leaves out (between the first and last).
 
-    ``episodes`` is :meth:`Evidence.episodes`. Each entry: ``episode``, ``env_index`` and
+    ``episodes`` is :meth:`Evidence.episodes` (a summary's leaves its unstarted episodes out).
+    Each entry: ``episode``, ``env_index`` and
     ``agent`` (``None`` outside vector and PettingZoo files), ``outcome``, ``label`` (the failure
     label, truncation reason or error type; ``None`` for a success or an incomplete episode),
     ``length`` and ``return``.

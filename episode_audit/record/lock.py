@@ -4,9 +4,10 @@
 ``{time}``), creates the file and takes its writer's lock (:mod:`episode_audit.format.locking`)
 before a byte is written. A path another live recorder holds, in this process or another, is
 refused with a :class:`~episode_audit.errors.ConfigurationError` naming the holder;
-``overwrite`` truncates only once the lock is held. Where the filesystem has no locks the
-recorder records anyway and warns once. :class:`LockedStream` is the file the writer writes;
-closing it releases the lock.
+``overwrite`` truncates only once the lock is held, and is refused with ``{index}``
+(:func:`refuse_indexed_overwrite`, for a caller that checks before recording). Where the
+filesystem has no locks the recorder records anyway and warns once. :class:`LockedStream` is
+the file the writer writes; closing it releases the lock.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ __all__ = [
     "claim_output",
     "make_folder",
     "output_kind",
+    "refuse_indexed_overwrite",
 ]
 
 FIELDS = ("index", "pid", "time")
@@ -156,10 +158,7 @@ def claim_output(
     if "index" not in tmpl.fields:
         return _open_path(Path(tmpl.render(0)), overwrite)
     if overwrite:
-        raise ConfigurationError(
-            f"path {text!r}: overwrite=True with {{index}}: the index always takes a free "
-            "path and never overwrites one; drop overwrite, or use a path without {index}"
-        )
+        raise _indexed_overwrite(text, "overwrite=True")
     taken = _names_in(os.path.dirname(tmpl.render(0)) or ".")
     for index in range(MAX_INDEX):
         text = tmpl.render(index)
@@ -176,6 +175,31 @@ def claim_output(
         output.indexed = True
         return output
     raise ConfigurationError(f"path {text!r}: every {{index}} below {MAX_INDEX} is taken")
+
+
+def refuse_indexed_overwrite(
+    path: str | os.PathLike[str], *, overwrite_option: str = "overwrite=True"
+) -> None:
+    """Refuse to overwrite with a path template holding ``{index}``, as :func:`claim_output` does.
+
+    For a caller that takes ``overwrite`` under another name and checks before recording:
+    the error names it ``overwrite_option`` (``--overwrite`` on the command line).
+
+    Raises:
+        ConfigurationError: The path holds ``{index}``, or is a bad template.
+    """
+    text = os.fspath(path)
+    if "index" in PathTemplate(text).fields:
+        raise _indexed_overwrite(text, overwrite_option)
+
+
+def _indexed_overwrite(text: str, overwrite_option: str) -> ConfigurationError:
+    """The error for ``overwrite`` with ``{index}``, naming the option ``overwrite_option``."""
+    option = overwrite_option.split("=")[0]
+    return ConfigurationError(
+        f"path {text!r}: {overwrite_option} with {{index}}: the index always takes a free "
+        f"path and never overwrites one; drop {option}, or use a path without {{index}}"
+    )
 
 
 def make_folder(path: Path) -> None:

@@ -379,6 +379,36 @@ SHOW_JSON_KEYS = [  # the summary's keys before the episode list and the spaces'
 ]  # fmt: skip
 
 
+def test_show_and_check_count_the_episodes_report_counts(tmp_path: Path) -> None:
+    """One CartPole episode, then a reset never stepped: show said ``episodes 2`` (``incomplete
+    1``) and check ``2 episodes`` where report counts 1 (docs/reporting.md: unstarted)."""
+    path = tmp_path / "unstarted.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=0)
+        while not any(env.step(0)[2:4]):
+            pass
+        env.reset(seed=1)
+    code, out, _ = run("report", str(path), "-f", "json")
+    (group,) = json.loads(out)["groups"]
+    assert code == 0 and (group["episodes"], group["incomplete"]) == (1, 0)
+    code, out, _ = run("show", str(path), "-f", "json")
+    data = json.loads(out)
+    assert (data["episodes"], data["outcomes"]["incomplete"], data["unstarted"]) == (1, 0, 1)
+    assert [e["episode"] for e in data["episode_list"]] == [0]
+    code, out, _ = run("show", str(path))
+    lines = [" ".join(line.split()) for line in out.splitlines()]
+    assert "episodes 1" in lines
+    assert "unstarted 1 (reset and never stepped: not counted, as in report)" in lines
+    assert "outcomes success 0, failure 1, truncated 0, incomplete 0, error 0" in lines
+    code, out, _ = run("check", str(path), "-f", "json", "--no-step-summary")
+    data = json.loads(out)
+    assert data["episodes"] == 1 and "incomplete_episode" not in out
+    code, out, _ = run("check", str(path), "--no-step-summary")
+    assert out.splitlines()[-1].startswith("1 file(s), 1 episode, ")
+    show_clean = json.loads(run("show", "fixtures/clean.mcap", "-f", "json")[1])
+    assert show_clean["unstarted"] == 0  # (the key is always there)
+
+
 def test_show_summary_lists_episodes_and_spaces_with_shape_and_dtype() -> None:
     code, out, _ = run("show", "fixtures/clean.mcap")
     assert code == 0
@@ -514,19 +544,34 @@ class LongKwargs(gym.Env[np.ndarray, np.int64]):
 gym.register("EpisodeAuditLongKwargs-v0", entry_point=LongKwargs)
 
 
-def test_show_prints_the_env_spec_json_unbroken_to_copy_at_any_width(tmp_path: Path) -> None:
+def test_show_prints_the_env_spec_within_the_width_and_whole_in_json(tmp_path: Path) -> None:
+    """The spec was one JSON text printed unbroken: CartPole's ``vector_entry_point`` line was
+    83 columns wide at 80. Now a table, each value as JSON, a long one broken after a ``/``,
+    ``:`` or ``.``; ``--format json`` gives the spec whole."""
     config = "/data/" + "very-long-folder-name/" * 8 + "config.yaml"
     path = tmp_path / "long.mcap"
     with RecordEvidence(gym.make("EpisodeAuditLongKwargs-v0", config=config), path) as env:
         env.reset(seed=0)
         env.step(0)
-    result = runner.invoke(app, ["show", str(path)], env={"COLUMNS": "80"})
-    assert result.exit_code == 0
-    lines = result.stdout.splitlines()
-    start = next(i for i, line in enumerate(lines) if line.startswith("env spec: "))
-    spec = json.loads("\n".join(lines[start:])[len("env spec: ") :])
-    assert spec["kwargs"] == {"config": config}
-    assert max(len(line) for line in lines[:start]) <= 80  # (the tables still fit)
+    cartpole_file = cartpole(tmp_path / "cartpole.mcap", episodes=1)
+    for file, value in ((path, json.dumps({"config": config})), (cartpole_file, None)):
+        result = runner.invoke(app, ["show", str(file)], env={"COLUMNS": "80"})
+        assert result.exit_code == 0
+        lines = result.stdout.splitlines()
+        assert max(len(line) for line in lines) <= 80, result.stdout
+        if value is not None:  # the kwargs row and the lines it continues on, read in order
+            start = next(i for i, line in enumerate(lines) if line.split()[:1] == ["kwargs"])
+            pieces = [lines[start].split(maxsplit=1)[1].strip()]
+            for line in lines[start + 1 :]:
+                if not line.strip() or line[1:2] != " ":
+                    break
+                pieces.append(line.strip())
+            assert "".join(pieces) == value.replace(" ", ""), pieces  # (wrapped at its space)
+            assert all(p.endswith(("/", ":")) for p in pieces[:-1]), pieces
+    (row,) = [line for line in lines if "vector_entry_point" in line]
+    assert row.split()[1:] == ['"gymnasium.envs.classic_control.cartpole:']
+    code, out, _ = run("show", str(path), "-f", "json")
+    assert code == 0 and json.loads(out)["env_spec"]["kwargs"] == {"config": config}
 
 
 @pytest.mark.parametrize(
@@ -625,6 +670,15 @@ def test_hostile_strings_print_literally(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------- bad arguments (a CLI audit)
+
+
+def test_record_counts_one_episode_in_the_singular(tmp_path: Path) -> None:
+    """It said ``recorded 1 episodes (1 steps)``."""
+    out = tmp_path / "one.mcap"
+    code, stdout, _ = run(
+        "record", "CartPole-v1", "--out", str(out), "--episodes", "1", "--max-episode-steps", "1"
+    )
+    assert code == 0 and stdout.startswith(f"recorded 1 episode (1 step) to {out}: "), stdout
 
 
 def one_error_line(err: str, *needles: str) -> None:

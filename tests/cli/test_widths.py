@@ -38,12 +38,13 @@ def _tables(renderable: object) -> list[FittedTable]:
     return []
 
 
-_SOFT_END = tuple("=(,/:;")
+_SOFT_END = tuple("=(,/:;.")
 
 
 def _assert_words_whole(renderable: object, width: int) -> str:
     """Every word of every header and cell appears whole on one line of the output, or broken
-    only after a ``=``, ``(``, ``,``, ``/``, ``:`` or ``;`` (a word too long for its column)."""
+    only after a ``=``, ``(``, ``,``, ``/``, ``:``, ``;`` or ``.`` (a word too long for its
+    column)."""
     text = _render(renderable, width)
     split = text.split()
     tokens = set(split)
@@ -191,3 +192,59 @@ def test_a_gate_detail_with_a_long_call_breaks_it_where_it_reads_on(
     text = _assert_words_whole(compare_output(result, "table"), width)
     assert "ending_rules=EndingRules(" in text
     assert "EndingRules(success " not in " ".join(text.split())  # (not folded at the edge)
+
+
+LONG_PATH = (
+    "longdir/a_fairly_long_folder_name_for_runs/another_long_subfolder_name/"
+    "counting-environment-run.mcap"
+)
+_BREAK_AFTER = ("/", ".", "=", "(", ",", ":", ";")
+
+
+def _first_column_pieces(text: str, first: str) -> list[str]:
+    """The lines the first column shows ``first`` on, in order (under the header's rule)."""
+    lines = text.splitlines()
+    body = lines[next(i for i, line in enumerate(lines) if "─" in line) + 1 :]
+    pieces: list[str] = []
+    for line in body:
+        if len("".join(pieces)) >= len(first):
+            break
+        if line[1:2].strip():
+            pieces.append(line.split()[0])
+    return pieces
+
+
+@pytest.mark.parametrize("width", [40, 60, *WIDTHS])
+@pytest.mark.parametrize("whole", [False, True])
+def test_a_long_file_path_in_the_first_column_breaks_after_a_slash(width: int, whole: bool) -> None:
+    """A path in the first column (replay's file, report's group) was folded character by
+    character (``…/counting-environment-run.mca`` / ``p``): it breaks after ``/`` or ``.``
+    now, and is cut only where no break point fits."""
+    detail = "env id 'Counting-v0' is not registered in this process; pass --import MODULE"
+    value = "3 (100.0% [43.9, 100.0])" if whole else detail
+    out = table("t", ["file", "episodes", "status", "value"], [[LONG_PATH, "3", "ok", value]],
+                whole_cells=whole)  # fmt: skip
+    text = _render(out, width)
+    pieces = _first_column_pieces(text, LONG_PATH)
+    assert "".join(pieces) == LONG_PATH, text
+    room = max(map(len, pieces))
+    for i, piece in enumerate(pieces[:-1]):
+        if piece.endswith(_BREAK_AFTER):
+            continue
+        rest = "".join(pieces[i:])  # cut: no break point of what follows fitted the column
+        first_break = min((rest.find(c) + 1 for c in _BREAK_AFTER if c in rest), default=0)
+        assert first_break > room, f"cut mid-word at width {width}: {pieces}\n{text}"
+    if width >= 80:  # room for every piece between two slashes: no word is cut
+        assert all(p.endswith(_BREAK_AFTER) for p in pieces[:-1]), text
+
+
+@pytest.mark.parametrize("width", [60, *WIDTHS])
+def test_a_first_cell_with_no_break_point_does_not_cut_the_values(width: int) -> None:
+    """A folder name longer than the first column may have is cut; the values keep their
+    words (``[0.0020830899011343718,`` was cut when the first column kept its piece)."""
+    first = "runs/" + "x" * 70 + "/cartpole.mcap"
+    detail = "observation expected [0.0020830899011343718, 0.24066002666950226, -0.034686]"
+    out = table("t", ["file", "episode", "status", "detail"], [[first, "0", "diverged", detail]])
+    _assert_words_whole(out, width)
+    pieces = _first_column_pieces(_render(out, width), first)
+    assert "".join(pieces) == first and pieces[0] == "runs/"

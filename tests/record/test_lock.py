@@ -337,8 +337,11 @@ def test_the_record_command_takes_a_template_and_names_the_file(tmp_path: Path) 
         result = CliRunner().invoke(app, ["record", "CartPole-v1", "--out", out, "--episodes", "1"])
         assert result.exit_code == 0, result.output
         assert f"to {tmp_path / f'run-{index}.mcap'}:" in result.stdout
+    # the command names its own option (it said overwrite=True … drop overwrite, Python's)
     result = CliRunner().invoke(app, ["record", "CartPole-v1", "--out", out, "--overwrite"])
-    assert result.exit_code == 2 and "overwrite=True with {index}" in result.stderr
+    assert result.exit_code == 2 and "overwrite=True" not in result.stderr
+    assert "--overwrite with {index}" in result.stderr and "drop --overwrite," in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run-0.mcap", "run-1.mcap"]
 
 
 _FORKED = """

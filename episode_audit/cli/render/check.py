@@ -150,8 +150,10 @@ def check_output(
         ]
         for f in listed
     ]
+    episodes, steps = result.episodes, result.steps
     summary = (
-        f"{len(result.files)} file(s), {result.episodes} episodes, {result.steps} steps: "
+        f"{len(result.files)} file(s), {episodes} episode{'' if episodes == 1 else 's'}, "
+        f"{steps} step{'' if steps == 1 else 's'}: "
         f"{result.errors} error(s), {result.warnings} warning(s), {result.notes} note(s)"
         + (f", {result.ignored} ignored" if result.ignored else "")
     )

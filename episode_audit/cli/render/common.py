@@ -189,6 +189,13 @@ class FittedTable:
             headers, rows, fold = [self.headers[0], "", "value"], self._vertical_rows(), True
         fold &= self.whole_cells
         out = self._table(headers, rows)
+        # a first cell too long for its column (a file path, a group name): broken where it
+        # reads on, as a value's word is below
+        firsts = [row[0] for row in rows]
+        first = _first_room(out, console, options, self.whole_cells, firsts, fold_first=fold)
+        if first is not None:
+            rows = [[soft_broken(row[0], first), *row[1:]] for row in rows]
+            out = self._table(headers, rows)
         if not _fit(out, console, options, self.whole_cells, fold_first=fold):
             # a word longer than its column (a long call in a message): broken where it reads on
             width = _last_room(out, console, options, fold_first=fold)
@@ -250,6 +257,33 @@ def _measure(
     return low, high, options.max_width - padding
 
 
+def _first_room(
+    table: Table,
+    console: Console,
+    options: ConsoleOptions,
+    whole: bool,
+    firsts: Sequence[str],
+    *,
+    fold_first: bool,
+) -> int | None:
+    """The width the first column's words (``firsts``) are broken to; ``None``: kept whole.
+
+    Only when the columns cannot all keep their words (``whole``: their cells). The first
+    column then gets what the others leave when they keep theirs, but no more than its widest
+    piece between two break points (the others get the rest) and no less than 12 characters.
+    Without ``fold_first`` it may take more to keep those pieces whole, as long as the last
+    column keeps its longest word or half the room.
+    """
+    low, _, room = _measure(table, console, options, whole)
+    if sum(low) <= room:
+        return None
+    widest = max(_FOLDED, *(_widest_piece(text) for text in firsts))
+    width = room - sum(low[1:])
+    if not fold_first:
+        width = max(width, min(widest, room - sum(low[1:-1]) - min(low[-1], room // 2)))
+    return min(max(width, _FOLDED), widest)
+
+
 def _last_room(table: Table, console: Console, options: ConsoleOptions, *, fold_first: bool) -> int:
     """The width the last column has when the others keep their words (the first folded)."""
     low, _, room = _measure(table, console, options, False)
@@ -258,20 +292,26 @@ def _last_room(table: Table, console: Console, options: ConsoleOptions, *, fold_
     return room - sum(low[:-1])
 
 
-_SOFT_BREAK = re.compile(r"[=(,/:;](?=[^\s=(,/:;])")
+_SOFT_BREAK = re.compile(r"[=(,/:;](?=[^\s=(,/:;])|\.(?=[A-Za-z_])")
 """Where a word too long for its column is broken: after ``=``, ``(``, ``,``, ``/``, ``:`` or
-``;`` followed by more of it (``ending_rules=EndingRules(`` / ``success_fn=...)``)."""
+``;`` followed by more of it (``ending_rules=EndingRules(`` / ``success_fn=...)``), and after a
+``.`` followed by a letter (``gymnasium.envs.`` / ``classic_control``, ``run.`` / ``mcap``;
+not a number's)."""
 
 
 def soft_broken(text: str, width: int) -> str:
     """``text`` with each word wider than ``width`` broken onto lines at :data:`_SOFT_BREAK`.
 
-    A line ends at the last such point that fits (a word with none is left to the table, which
-    folds it); the rest of the text still wraps at spaces.
+    A line ends at the last such point that fits; where none fits, the word is cut at
+    ``width``, and the rest of it is broken the same way. The text still wraps at spaces.
 
     >>> print(soft_broken("record with ending_rules=EndingRules(success_fn=...) or x", 30))
     record with ending_rules=EndingRules(
     success_fn=...) or x
+    >>> print(soft_broken("runs/2026-11-29/counting-environment-run.mcap", 20))
+    runs/2026-11-29/
+    counting-environment
+    -run.mcap
     """
     if width < 1:
         return text
@@ -279,13 +319,38 @@ def soft_broken(text: str, width: int) -> str:
     for i, word in enumerate(pieces):
         lines = []
         while cell_len(word) > width:
-            cut = max((m.end() for m in _SOFT_BREAK.finditer(word, 0, width)), default=0)
-            if not cut:
-                break
+            fits = _fitting(word, width)
+            ends = (m.end() for m in _SOFT_BREAK.finditer(word, 0, fits + 1))
+            cut = max((end for end in ends if end <= fits), default=0) or fits
             lines.append(word[:cut])
             word = word[cut:]
         pieces[i] = "\n".join([*lines, word])
     return "".join(pieces)
+
+
+def _widest_piece(text: str) -> int:
+    """The widest piece of ``text`` that no space or :data:`_SOFT_BREAK` point divides.
+
+    >>> _widest_piece("runs/2026-11-29/counting-environment-run.mcap")
+    25
+    """
+    widest = 0
+    for word in text.split():
+        start = 0
+        for end in [*(m.end() for m in _SOFT_BREAK.finditer(word)), len(word)]:
+            widest = max(widest, cell_len(word[start:end]))
+            start = end
+    return widest
+
+
+def _fitting(word: str, width: int) -> int:
+    """How many characters of ``word`` fit in ``width`` cells (at least one)."""
+    cells = 0
+    for n, char in enumerate(word):
+        cells += cell_len(char)
+        if cells > width:
+            return max(n, 1)
+    return len(word)
 
 
 _MARKDOWN_ESCAPES = str.maketrans({c: "\\" + c for c in "\\|`<>&*~"})

@@ -12,6 +12,7 @@ Markdown or JSON. Spaces are shown with their shape and dtype:
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
@@ -176,6 +177,7 @@ def summary_output(
         ["started", data["start_time"]],
         ["tags", ", ".join(f"{k}={v}" for k, v in data["tags"].items()) or "-"],
         ["episodes", data["episodes"]],
+        *([["unstarted", _unstarted_text(data["unstarted"])]] if data["unstarted"] else []),
         ["steps", data["steps"]],
         ["outcomes", ", ".join(f"{k} {v}" for k, v in data["outcomes"].items())],
         ["observation space", _observation_text(ev.run.observation_space, data)],
@@ -184,9 +186,9 @@ def summary_output(
         ["platform", data["platform"]],
         ["command", " ".join(data["command_line"])],
     ]
-    spec = to_json(data["env_spec"]) if data["env_spec"] is not None else "-"
     title, headers, episode_rows = _episode_table(data)
     if output == "markdown":
+        spec = to_json(data["env_spec"]) if data["env_spec"] is not None else "-"
         block = safe_block(spec)
         fence = "`" * max(3, _longest_backtick_run(block) + 1)
         episodes = (
@@ -200,9 +202,25 @@ def summary_output(
     parts: list[RenderableType] = [table("Evidence file", ["field", "value"], rows)]
     if episode_rows:
         parts.append(table(title, headers, episode_rows))
-    # one line, never broken: JSON to copy (the terminal wraps it on screen; emit() does not crop)
-    parts.append(Text("env spec: " + safe_block(spec), no_wrap=True, overflow="ignore"))
+    if data["env_spec"] is None:
+        parts.append(Text("env spec: -"))
+    else:  # (the spec whole, to copy: --format json)
+        parts.append(table("Env spec", ["key", "value (JSON)"], _spec_rows(data["env_spec"])))
     return Group(*parts)
+
+
+def _spec_rows(spec: dict[str, Any]) -> list[list[str]]:
+    """The env spec's keys, each with its value as one line of JSON.
+
+    >>> _spec_rows({"id": "CartPole-v1", "kwargs": {}, "max_episode_steps": None})
+    [['id', '"CartPole-v1"'], ['kwargs', '{}'], ['max_episode_steps', 'null']]
+    """
+    return [[key, json.dumps(to_jsonable(value), allow_nan=False)] for key, value in spec.items()]
+
+
+def _unstarted_text(count: int) -> str:
+    """The ``unstarted`` row: the episodes reset and never stepped, which no count holds."""
+    return f"{count} (reset and never stepped: not counted, as in report)"
 
 
 def _dropped_text(dropped: str) -> str:
