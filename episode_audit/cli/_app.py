@@ -13,6 +13,7 @@ import shlex
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from functools import partial
@@ -27,7 +28,7 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup
 
 from .._jobs import sigint_held
 from .._version import __version__
-from ..errors import ConfigurationError, EpisodeAuditError
+from ..errors import ConfigurationError, EpisodeAuditError, WorkerWarning
 from ..read.arguments import episode_index
 from ..read.inputs import Unreadable, evidence_files, open_all
 from ..read.storage import Source, is_url
@@ -300,6 +301,7 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def main_options(
+    ctx: typer.Context,
     version: Annotated[
         bool,
         typer.Option(
@@ -308,6 +310,27 @@ def main_options(
     ] = False,
 ) -> None:
     """Record, replay and audit reinforcement-learning episodes."""
+    ctx.with_resource(_warning_lines())
+
+
+@contextmanager
+def _warning_lines() -> Iterator[None]:
+    """Meanwhile a :class:`~episode_audit.errors.WorkerWarning` is one ``warning:`` line.
+
+    (:func:`warn`'s; Python's own form is two lines naming the library's source.) Other
+    warnings are left as they are.
+    """
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
+            if issubclass(category, WorkerWarning):
+                warn(str(message))
+            else:
+                shown(message, category, *args, **kwargs)
+
+        warnings.showwarning = show
+        yield
 
 
 FormatOption = Annotated[
