@@ -31,6 +31,7 @@ from .._version import __version__
 from ..errors import ConfigurationError, EpisodeAuditError, WorkerWarning
 from ..read.arguments import episode_index
 from ..read.inputs import Unreadable, evidence_files, open_all
+from ..read.opening import broken_link
 from ..read.storage import Source, is_url
 from .render import OutputFormat, safe
 
@@ -111,8 +112,13 @@ def existing(path: str | Path, command: str) -> str | Path:
     """
     if is_url(path):
         return path
-    if not Path(path).exists():
-        fail(f"{path}: no such file or directory")
+    try:
+        os.stat(path)
+    except OSError as exc:
+        why = broken_link(path, exc)
+        if why is None and not isinstance(exc, FileNotFoundError | NotADirectoryError):
+            raise
+        fail(f"{path}: {why or 'no such file or directory'}")
     if Path(path).is_dir():
         some = sorted(Path(path).glob("*.mcap"))
         example = f" (e.g. {shlex.quote(str(some[0]))})" if some else ""

@@ -9,6 +9,7 @@ metadata (:func:`_parse_run`) and return an :class:`~episode_audit.read.evidence
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 import struct
@@ -85,6 +86,22 @@ def _writer(f: IO[bytes], p: Source) -> Holder | None:
     return None if isinstance(p, RemoteFile) else probe(f.fileno())
 
 
+def broken_link(p: str | os.PathLike[str], exc: OSError) -> str | None:
+    """Why the symbolic link ``p`` cannot be opened (``exc``: what trying raised), else ``None``.
+
+    ``broken symbolic link (to TARGET, which does not exist)`` or ``symbolic link loop``:
+    the system's words (``No such file or directory``, ``Too many levels of symbolic links``)
+    do not say that the name is a link.
+    """
+    if not os.path.islink(p):
+        return None
+    if exc.errno == errno.ELOOP:
+        return "symbolic link loop"
+    if exc.errno == errno.ENOENT:
+        return f"broken symbolic link (to {os.readlink(p)}, which does not exist)"
+    return None
+
+
 def _open_mcap(p: Source) -> IO[bytes]:
     """Open ``p`` for reading, just after the MCAP magic bytes.
 
@@ -107,7 +124,8 @@ def _open_mcap(p: Source) -> IO[bytes]:
             if not stat.S_ISREG(mode):
                 raise NotEvidenceError(p, "not a regular file")
         except OSError as exc:
-            raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
+            why = broken_link(p, exc) or exc.strerror
+            raise EvidenceError(p, f"cannot open: {why}") from None
         f = open_source(p)
     try:
         head = f.read(len(_MAGIC))
