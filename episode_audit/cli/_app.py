@@ -84,8 +84,17 @@ def _stderr() -> Console:
 
 
 def _say(kind: str, message: object) -> None:
-    """One line on stderr: ``episode-audit: KIND: message`` (control characters escaped)."""
-    _stderr().print(f"episode-audit: {kind}: {safe(message)}", markup=False, soft_wrap=True)
+    """One line on stderr: ``episode-audit: KIND: message`` (control characters escaped).
+
+    While a progress bar is shown, through its console: the line goes above the bar, on a line
+    of its own (another console would write it after the bar's text).
+    """
+    console = _live[-1] if _live else _stderr()
+    console.print(f"episode-audit: {kind}: {safe(message)}", markup=False, soft_wrap=True)
+
+
+_live: list[Console] = []
+"""The console of the progress bar shown (:func:`progress_bar`), if one is."""
 
 
 def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
@@ -266,7 +275,8 @@ def progress_bar(
 ) -> Iterator[Callable[[int], None]]:
     """A Rich progress bar on stderr when it is a terminal; a no-op otherwise.
 
-    ``total`` may be a function, called only when there is a bar to show.
+    ``total`` may be a function, called only when there is a bar to show. Meanwhile the lines
+    :func:`fail`, :func:`warn` and :func:`note` print go above the bar.
     """
     console = _stderr()
     if not console.is_terminal:
@@ -283,7 +293,11 @@ def progress_bar(
         transient=True,
     ) as bar:
         task = bar.add_task(description, total=total)
-        yield lambda n: bar.advance(task, n)
+        _live.append(console)
+        try:
+            yield lambda n: bar.advance(task, n)
+        finally:
+            _live.remove(console)
 
 
 _said: dict[str, Any] = {"emitted": 0, "failure": None}  # (for failure_document)
