@@ -3,7 +3,7 @@
 :func:`evidence_files` expands paths (directories searched for ``*.mcap``); :func:`open_all`
 opens them, keeping going past the ones that cannot be read (each an :class:`Unreadable`), so
 one bad file costs the others nothing; :func:`steps_total` sums the steps finished files
-declare, for progress bars.
+declare (a torn file's estimated from its size), for progress bars.
 """
 
 from __future__ import annotations
@@ -15,10 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
-from ..format.run_end import RunEnd
 from .arguments import path_list
 from .evidence import Evidence
-from .opening import broken_link, open_evidence
+from .opening import broken_link, declared_steps, open_evidence
 from .storage import RemoteFile, Source, as_source, list_remote
 
 __all__ = ["Unreadable", "evidence_files", "open_all", "skipped", "steps_total"]
@@ -162,14 +161,26 @@ def open_all(
 
 
 def steps_total(paths: Sequence[Source]) -> int | None:
-    """The steps the files' run-end records declare, or ``None`` if one does not say."""
-    total = 0
+    """The steps the files hold, for a progress bar: as their run-end records declare them.
+
+    A file without a declared count (torn, or still being written) is counted at the steps
+    per byte of the files that declare theirs, times its size: an estimate, read from its end
+    only (:func:`~.opening.declared_steps`; a torn file is not scanned). A file that cannot be
+    read counts nothing (no step of it is done). ``None`` when no file declares its steps.
+    """
+    known_steps = known_bytes = unknown_bytes = 0
     for path in paths:
         try:
-            steps = RunEnd.of(open_evidence(path).run_end).steps
+            steps, size = declared_steps(path)
         except EvidenceError:
-            return None
+            continue
         if steps is None:
-            return None
-        total += steps
-    return total
+            unknown_bytes += size
+        else:
+            known_steps += steps
+            known_bytes += size
+    if not unknown_bytes:
+        return known_steps
+    if not known_bytes:
+        return None
+    return known_steps + round(unknown_bytes * known_steps / known_bytes)

@@ -27,6 +27,7 @@ from mcap.stream_reader import StreamReader
 from ..errors import CorruptEvidenceError, EvidenceError, NotEvidenceError, UnsupportedVersionError
 from ..format import names as fmt
 from ..format.records import RunInfo
+from ..format.run_end import RunEnd
 from . import chunks
 from .blocks import _one_line
 from .chunks import _NOTHING, _ChunkRef, _crc32_of, _decompress, _raw_chunk, _split
@@ -79,6 +80,21 @@ def open_evidence(
             ev.summary_damage = damage
             return ev
         return indexed
+
+
+def declared_steps(path: Source) -> tuple[int | None, int]:
+    """The steps a file's run-end record declares (``None``: it has none) and the file's size.
+
+    Read through the summary as :func:`open_evidence` reads a finished file (locally, or two
+    ranged GETs), never by a scan: a torn file, which has no summary, costs the look at its
+    end only. Raises as :func:`open_evidence` does for a file that is not evidence.
+    """
+    with _open_mcap(path) as f:
+        size = file_size(f)
+        damage = _summary_damage(f)
+        f.seek(0)
+        ev = None if damage else _open_indexed(f, path)
+    return (None if ev is None else RunEnd.of(ev.run_end).steps), size
 
 
 def _writer(f: IO[bytes], p: Source) -> Holder | None:

@@ -75,3 +75,14 @@ def test_an_unreadable_file_s_line_is_not_written_onto_the_bar(
     said = [line for line in lines if "episode-audit: error:" in line]
     assert said == [f"episode-audit: error: {campaign}/zz-bad.mcap: the file is empty"], lines
     assert any("━" in line for line in lines), "a bar was shown"
+
+
+def test_a_torn_file_leaves_the_bar_its_total_and_time_left(tmp_path: Path) -> None:
+    # one torn file among many: "checking ━━━━ 134466/?" all run, no time left
+    for i in range(20):
+        shutil.copy(FIXTURES / "clean.mcap", tmp_path / f"{i:02d}.mcap")
+    shutil.copy(FIXTURES / "torn.mcap", tmp_path / "10-torn.mcap")
+    (tmp_path / "zz-bad.mcap").write_bytes(b"")  # (an unreadable one: no steps to count)
+    bars = [line for line in on_a_terminal("check", str(tmp_path), "--jobs", "1") if "━" in line]
+    assert bars
+    assert all(re.search(r" \d+/\d+ ", bar) for bar in bars), bars

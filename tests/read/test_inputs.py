@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from episode_audit import ConfigurationError, EvidenceError, open_evidence
-from episode_audit.read import evidence_files
+from episode_audit.read import evidence_files, steps_total
 from tests.read.helpers import record_cartpole
 
 
@@ -69,3 +69,36 @@ def test_a_link_named_that_leads_nowhere_says_so(linked: Path, name: str, why: s
     # a link loop said "no such file or directory"
     with pytest.raises(ConfigurationError, match=rf"top/{name}: {why}"):
         evidence_files([linked / "top" / name])
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return record_cartpole(tmp_path_factory.mktemp("steps") / "finished.mcap", episodes=20)
+
+
+def _torn(finished: Path, to: Path, part: float = 0.5) -> Path:
+    """A copy of ``finished`` cut at ``part`` of its bytes, as a crash leaves a file."""
+    data = finished.read_bytes()
+    to.write_bytes(data[: int(len(data) * part)])
+    return to
+
+
+def test_a_torn_file_s_steps_are_estimated_from_its_size(finished: Path, tmp_path: Path) -> None:
+    # one torn file among many removed the progress bar's total (and its time left)
+    declared = open_evidence(finished).run_end
+    assert declared is not None
+    steps = int(declared["steps"])
+    torn = _torn(finished, tmp_path / "torn.mcap")
+    total = steps_total([finished, torn])
+    assert total is not None
+    assert steps * 1.4 <= total <= steps * 1.6  # (half its bytes: about half its steps)
+    assert steps_total([torn]) is None  # (no file says how many steps a byte holds)
+
+
+def test_an_unreadable_file_counts_no_steps(finished: Path, tmp_path: Path) -> None:
+    # it removed the total too
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    declared = open_evidence(finished).run_end
+    assert declared is not None
+    assert steps_total([finished, empty]) == int(declared["steps"])
