@@ -395,13 +395,15 @@ def _runnable() -> None:
 
     A fork server or spawned worker is that interpreter (``multiprocessing``'s executable);
     a worker forked from a running fork server needs no new one. It is run once, with nothing
-    to do (``-I -S -c ''``: about 10 ms), the first time a process starts workers.
+    to do (``-I -S -c ''``: about 10 ms), the first time a process starts workers; not in a
+    frozen application, whose executable is the application itself.
     """
     import multiprocessing.spawn
     import subprocess
+    import sys
 
     executable = os.fsdecode(multiprocessing.spawn.get_executable())
-    if executable in _RUNNABLE:
+    if executable in _RUNNABLE or getattr(sys, "frozen", False):
         return
     try:
         subprocess.run(
