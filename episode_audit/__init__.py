@@ -23,6 +23,7 @@ from .errors import (
     ReplayError,
     UnsupportedVersionError,
     WorkerError,
+    WorkerWarning,
 )
 from .export import export
 from .format import FORMAT_VERSION, EpisodeRanges, RunInfo
@@ -77,6 +78,7 @@ __all__ = [
     "StateAdapter",
     "UnsupportedVersionError",
     "WorkerError",
+    "WorkerWarning",
     "__version__",
     "check",
     "compare",

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 from urllib.parse import urlsplit
 
-from .errors import ConfigurationError, EpisodeAuditError, WorkerError
+from .errors import ConfigurationError, EpisodeAuditError, WorkerError, WorkerWarning
 
 __all__ = [
     "RAY_CONNECT_TIMEOUT",
@@ -101,8 +101,12 @@ def map_ordered(
     from workers counts when a run of items is done.
 
     An :class:`~episode_audit.errors.EpisodeAuditError` ``fn`` raises is raised here, at its
-    item's place in the order. On any exit before the end (an error, ``KeyboardInterrupt``, the
-    iterator closed) the work not done is cancelled and the workers are stopped.
+    item's place in the order. Workers that cannot be started at all (a read-only
+    ``/dev/shm``, an interpreter that cannot be executed) leave the work to this process, with
+    a :class:`~episode_audit.errors.WorkerWarning`; a worker that ends before its results is a
+    :class:`~episode_audit.errors.WorkerError`. On any exit before the end (an error,
+    ``KeyboardInterrupt``, the iterator closed) the work not done is cancelled and the workers
+    are stopped.
 
     >>> list(map_ordered(lambda item, progress: item * 2, [1, 2, 3]))
     [2, 4, 6]
@@ -305,16 +309,18 @@ def _pool_map(
 
     While the first worker starts (a fork server that is not up yet imports episode-audit
     first: about a second), this process does the last runs (the cheapest) instead of
-    waiting; then it takes runs as :func:`_gather` says.
+    waiting; then it takes runs as :func:`_gather` says. Workers that cannot be started at all
+    (:class:`_NotStarted`: nothing was handed to them) leave the work to this process, with a
+    :class:`~episode_audit.errors.WorkerWarning`.
     """
-    pool = ProcessPoolExecutor(
-        processes - 1,
-        mp_context=_context(),
-        initializer=_start_worker,
-        initargs=(dict(os.environ), os.getpid()),
-    )
-    futures: dict[int, Future[list[_Done[R]]]] = {}
     results: dict[int, _Done[R]] = {}
+    try:
+        pool = _pool(processes)
+    except _NotStarted as exc:
+        yield from _here(fn, work, results, progress, exc)
+        return
+    futures: dict[int, Future[list[_Done[R]]]] = {}
+    not_started: _NotStarted | None = None
     with _MANAGER_NOISE.hidden(stopping=False):
         first = _FirstSubmit(pool, fn, [work[i] for i in runs[0]])
         try:
@@ -322,11 +328,15 @@ def _pool_map(
             while last > 0 and first.starting():
                 _take(runs[last], _call(fn, [work[i] for i in runs[last]]), results, progress)
                 last -= 1
-            futures[0] = first.future()
-            with sigint_held():
-                for k in range(1, last + 1):
-                    futures[k] = _submit(pool, fn, [work[i] for i in runs[k]])
-            yield from _gather(fn, work, runs, futures, progress, results)
+            try:
+                futures[0] = first.future()
+            except _NotStarted as exc:
+                not_started = exc
+            else:
+                with sigint_held():
+                    for k in range(1, last + 1):
+                        futures[k] = _submit(pool, fn, [work[i] for i in runs[k]])
+                yield from _gather(fn, work, runs, futures, progress, results)
         except BaseException as exc:
             first.wait()  # (its worker, once started, is stopped with the others)
             _stop(pool, [*futures.values(), *first.submitted()])
@@ -334,6 +344,8 @@ def _pool_map(
                 raise WorkerError(_BROKEN) from None
             raise
         pool.shutdown(wait=True)
+    if not_started is not None:
+        yield from _here(fn, work, results, progress, not_started)
 
 
 _BROKEN = (
@@ -344,18 +356,116 @@ _BROKEN = (
 )
 
 
+class _NotStarted(BrokenProcessPool):
+    """The workers could not be started by this process: no work was handed to them.
+
+    An error of this process's own (creating the pool's semaphores where ``/dev/shm`` is
+    read-only, forking the fork server, executing the workers' interpreter), not one of a
+    fork server or worker that started and then ended (that is a plain ``BrokenProcessPool``:
+    its own error is above). Its message is the cause, in a few words.
+    """
+
+
+def _pool(processes: int) -> ProcessPoolExecutor:
+    """A pool for ``processes - 1`` workers (started by the first submit), or :class:`_NotStarted`.
+
+    The interpreter the workers run is tried first (:func:`_runnable`): multiprocessing starts
+    it without looking whether it ran, and a fork server or resource tracker that never ran
+    shows only later, as a broken pipe or a refused connection, at any point of the run.
+    """
+    context = _context()
+    _runnable()
+    try:
+        return ProcessPoolExecutor(
+            processes - 1,
+            mp_context=context,
+            initializer=_start_worker,
+            initargs=(dict(os.environ), os.getpid()),
+        )
+    except OSError as exc:  # (a read-only /dev/shm: their semaphores)
+        raise _NotStarted(f"creating their queues: {_cause(exc)}") from exc
+
+
+_RUNNABLE: set[str] = set()
+"""The worker interpreters found to start (each tried once a process)."""
+
+
+def _runnable() -> None:
+    """Raise :class:`_NotStarted` if the workers' interpreter cannot be executed here.
+
+    A fork server or spawned worker is that interpreter (``multiprocessing``'s executable);
+    a worker forked from a running fork server needs no new one. It is run once, with nothing
+    to do (``-I -S -c ''``: about 10 ms), the first time a process starts workers; not in a
+    frozen application, whose executable is the application itself.
+    """
+    import multiprocessing.spawn
+    import subprocess
+    import sys
+
+    executable = os.fsdecode(multiprocessing.spawn.get_executable())
+    if executable in _RUNNABLE or getattr(sys, "frozen", False):
+        return
+    try:
+        subprocess.run(
+            [executable, "-I", "-S", "-c", ""],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            timeout=_RUNNABLE_TIMEOUT,
+            check=False,
+        )
+    except subprocess.TimeoutExpired:
+        pass  # (it started: slow, not missing)
+    except OSError as exc:
+        raise _NotStarted(f"cannot execute {executable}: {exc.strerror or exc}") from exc
+    _RUNNABLE.add(executable)
+
+
+_RUNNABLE_TIMEOUT = 30.0
+"""Seconds :func:`_runnable` waits for the interpreter's empty run (one that started)."""
+
+
+def _cause(exc: OSError) -> str:
+    """An operating-system error in a few words: ``Read-only file system``, with its path."""
+    said = exc.strerror or str(exc) or type(exc).__name__
+    return f"{exc.filename}: {said}" if exc.filename else said
+
+
+def _here(
+    fn: Work[T, R],
+    work: Sequence[T],
+    results: dict[int, _Done[R]],
+    progress: Progress | None,
+    why: _NotStarted,
+) -> Iterator[R]:
+    """The work not in ``results`` done in this process, as ``jobs=1`` does, after a warning."""
+    import warnings
+
+    warnings.warn(
+        f"worker processes could not be started ({why}): the work runs in this process alone "
+        "(jobs=1 (--jobs 1) does so without this warning)",
+        WorkerWarning,
+        stacklevel=2,
+    )
+    for i, item in enumerate(work):
+        yield results.pop(i).unwrap() if i in results else fn(item, progress)
+
+
 def _submit(pool: ProcessPoolExecutor, fn: Work[T, R], items: list[T]) -> Future[list[_Done[R]]]:
     """``items`` submitted to ``pool`` as one run; a worker that cannot start breaks the pool.
 
     Submitting starts a worker when one is missing. If the fork server has died (in a script
     without a main guard, importing it raised), Python 3.14 says so while authenticating to it
     (``ConnectionResetError``) where 3.13 marked the pool broken: either way a
-    ``BrokenProcessPool`` here.
+    ``BrokenProcessPool`` here. Any other error of the operating system's (forking the fork
+    server, its socket) is this process's own: :class:`_NotStarted`.
     """
     try:
         return pool.submit(_call, fn, items)
-    except (OSError, EOFError) as exc:
+    except (ConnectionError, EOFError) as exc:
         raise BrokenProcessPool(f"a worker process could not be started ({exc})") from exc
+    except OSError as exc:
+        raise _NotStarted(_cause(exc)) from exc
 
 
 class _FirstSubmit(Generic[R]):

@@ -13,7 +13,8 @@ Every error the library raises on purpose derives from :class:`EpisodeAuditError
     ├── WorkerError                a jobs > 1 worker or a Ray task ended before its results
     └── ContractViolation          an environment broke its contract (also an AssertionError)
 
-Messages say what was expected, what was found, and what to do.
+and one warning, :class:`WorkerWarning` (a ``jobs > 1`` run done in this process: its workers
+could not be started). Messages say what was expected, what was found, and what to do.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ __all__ = [
     "ReplayError",
     "UnsupportedVersionError",
     "WorkerError",
+    "WorkerWarning",
 ]
 
 
@@ -102,6 +104,14 @@ class WorkerError(EpisodeAuditError):
     It was killed, ran out of memory or crashed in native code (or its Ray node was lost), or it
     could not start: a script that asks for ``jobs > 1`` outside ``if __name__ == "__main__":``
     (each worker imports it).
+    """
+
+
+class WorkerWarning(UserWarning):
+    """The worker processes of a ``jobs > 1`` run could not be started: it ran in this process.
+
+    The message says why (e.g. ``Read-only file system``: no writable ``/dev/shm`` for their
+    shared semaphores, as in some containers). ``jobs=1`` does the same work without it.
     """
 
 

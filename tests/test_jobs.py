@@ -12,6 +12,7 @@ import gc
 import json
 import os
 import pickle
+import re
 import shutil
 import signal
 import socket
@@ -606,6 +607,124 @@ def test_a_script_asking_for_jobs_without_a_main_guard_is_told_what_to_do(
     assert run.stdout.startswith("WorkerError: a worker process ended"), run.stderr
     assert 'make the call under `if __name__ == "__main__":`' in run.stderr  # the worker's
     assert "BrokenProcessPool" not in run.stderr and "leaked" not in run.stderr
+
+
+_NO_INTERPRETER = """
+import multiprocessing, sys
+multiprocessing.set_executable(sys.argv[1])  # (a host whose interpreter cannot be executed)
+if __name__ == "__main__":
+    from episode_audit.cli import main
+    sys.argv[1:2] = []
+    main()
+"""
+
+
+def _not_executable(tmp_path: Path) -> Path:
+    """A script that runs the command where a worker's interpreter cannot be executed, and
+    that interpreter (a file without the execute bit: as under seccomp or a ``noexec``
+    mount)."""
+    (tmp_path / "no_interpreter.py").write_text(_NO_INTERPRETER)
+    interpreter = tmp_path / "not-executable"
+    interpreter.write_text("not a program\n")
+    return interpreter
+
+
+_NOT_STARTED = (
+    r"episode-audit: warning: worker processes could not be started \({}\): the work runs in "
+    r"this process alone \(jobs=1 \(--jobs 1\) does so without this warning\)$"
+)
+
+
+def test_workers_that_cannot_be_started_leave_the_work_to_this_process(
+    campaign: Path, tmp_path: Path
+) -> None:
+    # the fork server and the resource tracker never ran: a broken pipe or a refused
+    # connection, as it fell, was exit 1 and nothing said, or exit 2, no results and tracebacks
+    interpreter = _not_executable(tmp_path)
+    code, one, err = run("check", str(campaign), "-f", "json", "--jobs", "1")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    script = [sys.executable, str(tmp_path / "no_interpreter.py"), str(interpreter)]
+    done = subprocess.run(
+        [*script, "check", str(campaign), "-f", "json", "--jobs", "2"],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert (done.returncode, done.stdout) == (code, one), done.stderr
+    first, *rest = done.stderr.splitlines()
+    assert re.match(_NOT_STARTED.format(f"cannot execute {interpreter}: Permission denied"), first)
+    assert rest == err.splitlines()  # (the unreadable file's line)
+
+
+_LIBRARY_NOT_STARTED = """
+import multiprocessing, sys, warnings
+multiprocessing.set_executable(sys.argv[1])
+from episode_audit._jobs import map_ordered
+
+def double(item, progress):
+    progress(1)
+    return 2 * item
+
+if __name__ == "__main__":
+    told = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        done = list(map_ordered(double, range(50), jobs=2, progress=told.append))
+    print(done == [2 * i for i in range(50)], sum(told))
+    print(*(f"{w.category.__name__}: {w.message}" for w in caught), sep="\\n")
+"""
+
+
+def test_the_library_warns_and_does_the_work_itself_when_workers_cannot_be_started(
+    tmp_path: Path,
+) -> None:
+    interpreter = _not_executable(tmp_path)
+    (tmp_path / "library.py").write_text(_LIBRARY_NOT_STARTED)
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run(
+        [sys.executable, str(tmp_path / "library.py"), str(interpreter)],
+        env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    out = done.stdout.splitlines()
+    assert out[0] == "True 50"  # every item, in order; every step told once
+    assert out[1:] == [
+        f"WorkerWarning: worker processes could not be started (cannot execute {interpreter}: "
+        "Permission denied): the work runs in this process alone (jobs=1 (--jobs 1) does so "
+        "without this warning)"
+    ]
+    assert "Traceback" not in done.stderr and "resource_tracker" not in done.stderr
+
+
+def _read_only_shm(command: list[str]) -> list[str]:
+    """``command`` where ``/dev/shm`` is read-only (a mount namespace of its own, as in some
+    containers and AWS Lambda); skips the test where one cannot be made here."""
+    unshare = shutil.which("unshare")
+    if unshare is None or sys.platform != "linux":
+        pytest.skip("needs Linux's unshare(1) to mount a read-only /dev/shm")
+    user = [] if os.geteuid() == 0 else ["--map-root-user"]
+    mount = "mount -t tmpfs -o ro tmpfs /dev/shm"
+    tried = subprocess.run(
+        [unshare, *user, "--mount", "sh", "-c", f"{mount} && touch /dev/shm/x"],
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+    if "Read-only file system" not in tried.stderr:
+        pytest.skip(f"cannot mount a read-only /dev/shm here: {tried.stderr.strip()[:200]}")
+    return [unshare, *user, "--mount", "sh", "-c", f'{mount} && exec "$@"', "sh", *command]
+
+
+def test_a_read_only_dev_shm_leaves_the_work_to_this_process(campaign: Path) -> None:
+    # multiprocessing's queues need semaphores in /dev/shm: the pool could not be made, and
+    # the command said only "Read-only file system", with no results
+    code, one, err = run("report", str(campaign), "-f", "json", "--jobs", "1")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    command = [sys.executable, "-m", "episode_audit", "report", str(campaign), "-f", "json"]
+    done = subprocess.run(
+        _read_only_shm([*command, "--jobs", "2"]),
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert (done.returncode, done.stdout) == (code, one), done.stderr
+    first, *rest = done.stderr.splitlines()
+    assert re.match(_NOT_STARTED.format("creating their queues: Read-only file system"), first)
+    assert rest == err.splitlines()
 
 
 def test_runs_go_costliest_first_and_a_large_item_alone() -> None:

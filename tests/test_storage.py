@@ -30,7 +30,7 @@ from typer.testing import CliRunner
 from episode_audit import RecordEvidence, check, open_evidence, replay
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError, EvidenceError
-from episode_audit.read import evidence_files
+from episode_audit.read import evidence_files, steps_total
 from episode_audit.read.storage import RemoteFile, shown_url
 from episode_audit.report import report_inputs
 
@@ -285,6 +285,24 @@ def test_report_reads_a_small_part_of_a_large_file(
     assert code == 0, err
     assert json.loads(out)["groups"][0]["episodes"] == 4
     assert served < size // 10, (served, size)
+
+
+def test_a_progress_bar_s_total_reads_a_torn_file_s_end_only(
+    s3: Any, server: CountingMotoServer, runs: Path, tmp_path: Path
+) -> None:
+    # a torn file made the total unknown, after scanning the whole of it
+    data = _large(tmp_path / "large.mcap").read_bytes()
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(data[: len(data) // 2])
+    s3.put_file(str(torn), f"{BUCKET}/torn/torn.mcap")
+    files = evidence_files([f"s3://{BUCKET}/runs/a.mcap", f"s3://{BUCKET}/torn/torn.mcap"])
+    before = (server.counter.served, server.counter.requests)
+    total = steps_total(files)
+    served, requests = (n - b for n, b in zip(
+        (server.counter.served, server.counter.requests), before, strict=True))  # fmt: skip
+    assert total is not None and total > 0
+    assert served < (2 << 20) < torn.stat().st_size // 4, served
+    assert requests <= 4, requests  # (each file's two edges, as an open of a finished one)
 
 
 def _free_port() -> int:

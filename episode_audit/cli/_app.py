@@ -13,6 +13,7 @@ import shlex
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from functools import partial
@@ -27,9 +28,10 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup
 
 from .._jobs import sigint_held
 from .._version import __version__
-from ..errors import ConfigurationError, EpisodeAuditError
+from ..errors import ConfigurationError, EpisodeAuditError, WorkerWarning
 from ..read.arguments import episode_index
 from ..read.inputs import Unreadable, evidence_files, open_all
+from ..read.opening import broken_link
 from ..read.storage import Source, is_url
 from .render import OutputFormat, safe
 
@@ -82,8 +84,17 @@ def _stderr() -> Console:
 
 
 def _say(kind: str, message: object) -> None:
-    """One line on stderr: ``episode-audit: KIND: message`` (control characters escaped)."""
-    _stderr().print(f"episode-audit: {kind}: {safe(message)}", markup=False, soft_wrap=True)
+    """One line on stderr: ``episode-audit: KIND: message`` (control characters escaped).
+
+    While a progress bar is shown, through its console: the line goes above the bar, on a line
+    of its own (another console would write it after the bar's text).
+    """
+    console = _live[-1] if _live else _stderr()
+    console.print(f"episode-audit: {kind}: {safe(message)}", markup=False, soft_wrap=True)
+
+
+_live: list[Console] = []
+"""The console of the progress bar shown (:func:`progress_bar`), if one is."""
 
 
 def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
@@ -110,8 +121,13 @@ def existing(path: str | Path, command: str) -> str | Path:
     """
     if is_url(path):
         return path
-    if not Path(path).exists():
-        fail(f"{path}: no such file or directory")
+    try:
+        os.stat(path)
+    except OSError as exc:
+        why = broken_link(path, exc)
+        if why is None and not isinstance(exc, FileNotFoundError | NotADirectoryError):
+            raise
+        fail(f"{path}: {why or 'no such file or directory'}")
     if Path(path).is_dir():
         some = sorted(Path(path).glob("*.mcap"))
         example = f" (e.g. {shlex.quote(str(some[0]))})" if some else ""
@@ -259,7 +275,8 @@ def progress_bar(
 ) -> Iterator[Callable[[int], None]]:
     """A Rich progress bar on stderr when it is a terminal; a no-op otherwise.
 
-    ``total`` may be a function, called only when there is a bar to show.
+    ``total`` may be a function, called only when there is a bar to show. Meanwhile the lines
+    :func:`fail`, :func:`warn` and :func:`note` print go above the bar.
     """
     console = _stderr()
     if not console.is_terminal:
@@ -276,7 +293,11 @@ def progress_bar(
         transient=True,
     ) as bar:
         task = bar.add_task(description, total=total)
-        yield lambda n: bar.advance(task, n)
+        _live.append(console)
+        try:
+            yield lambda n: bar.advance(task, n)
+        finally:
+            _live.remove(console)
 
 
 _said: dict[str, Any] = {"emitted": 0, "failure": None}  # (for failure_document)
@@ -300,6 +321,7 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def main_options(
+    ctx: typer.Context,
     version: Annotated[
         bool,
         typer.Option(
@@ -308,6 +330,27 @@ def main_options(
     ] = False,
 ) -> None:
     """Record, replay and audit reinforcement-learning episodes."""
+    ctx.with_resource(_warning_lines())
+
+
+@contextmanager
+def _warning_lines() -> Iterator[None]:
+    """Meanwhile a :class:`~episode_audit.errors.WorkerWarning` is one ``warning:`` line.
+
+    (:func:`warn`'s; Python's own form is two lines naming the library's source.) Other
+    warnings are left as they are.
+    """
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
+            if issubclass(category, WorkerWarning):
+                warn(str(message))
+            else:
+                shown(message, category, *args, **kwargs)
+
+        warnings.showwarning = show
+        yield
 
 
 FormatOption = Annotated[

@@ -3,7 +3,7 @@
 :func:`evidence_files` expands paths (directories searched for ``*.mcap``); :func:`open_all`
 opens them, keeping going past the ones that cannot be read (each an :class:`Unreadable`), so
 one bad file costs the others nothing; :func:`steps_total` sums the steps finished files
-declare, for progress bars.
+declare (a torn file's estimated from its size), for progress bars.
 """
 
 from __future__ import annotations
@@ -11,13 +11,13 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
-from ..format.run_end import RunEnd
 from .arguments import path_list
 from .evidence import Evidence
-from .opening import open_evidence
+from .opening import broken_link, declared_steps, open_evidence
 from .storage import RemoteFile, Source, as_source, list_remote
 
 __all__ = ["Unreadable", "evidence_files", "open_all", "skipped", "steps_total"]
@@ -82,21 +82,58 @@ def evidence_files(
             continue
         try:
             if path.is_dir():
-                found = sorted(p for p in path.rglob("*.mcap") if p.is_file())
+                found = sorted(_searched(path))
                 if not found:
                     raise ConfigurationError(f"{path}: no *.mcap files in this directory")
-            elif path.exists():
-                found = [path]
             else:
-                raise ConfigurationError(f"{path}: no such file or directory")
-            for file in found:
-                real = file.resolve()
-                if real not in seen:
-                    seen.add(real)
-                    out.append(file)
+                os.stat(path)  # (a link that leads nowhere: said below)
+                found = [path]
+        except (FileNotFoundError, NotADirectoryError) as exc:
+            why = broken_link(path, exc) or "no such file or directory"
+            raise ConfigurationError(f"{path}: {why}") from None
         except OSError as exc:  # e.g. a directory on the way without search permission
-            raise ConfigurationError(f"{path}: cannot read: {exc.strerror or exc}") from None
+            why = broken_link(path, exc) or f"cannot read: {exc.strerror or exc}"
+            raise ConfigurationError(f"{exc.filename or path}: {why}") from None
+        for file in found:
+            real = os.path.realpath(file)  # (a link's loop: as it is)
+            if real not in seen:
+                seen.add(real)
+                out.append(file)
     return out
+
+
+def _searched(directory: Path) -> list[Path]:
+    """Every entry named ``*.mcap`` under ``directory`` that is not a directory.
+
+    Symbolic links to directories are followed, each real directory searched once (in sorted
+    order, so which path reaches it does not depend on the file system's order; a link back
+    up is no loop). An entry that cannot be opened (a broken link, a link loop) or is not a
+    regular file is listed all the same: opening it says why it is unreadable.
+    """
+    found: list[Path] = []
+    searched = {os.path.realpath(directory)}
+    folders = [directory]
+    while folders:
+        folder = folders.pop()
+        with os.scandir(folder) as scanned:
+            entries = sorted(scanned, key=lambda entry: entry.name)
+        for entry in entries:
+            if _is_dir(entry):
+                real = os.path.realpath(entry.path)
+                if real not in searched:
+                    searched.add(real)
+                    folders.append(Path(entry.path))
+            elif entry.name.endswith(".mcap"):
+                found.append(Path(entry.path))
+    return found
+
+
+def _is_dir(entry: os.DirEntry[str]) -> bool:
+    """Whether ``entry`` is a directory, or a link to one (a link loop is not)."""
+    try:
+        return entry.is_dir()
+    except OSError:
+        return False
 
 
 def open_all(
@@ -124,14 +161,26 @@ def open_all(
 
 
 def steps_total(paths: Sequence[Source]) -> int | None:
-    """The steps the files' run-end records declare, or ``None`` if one does not say."""
-    total = 0
+    """The steps the files hold, for a progress bar: as their run-end records declare them.
+
+    A file without a declared count (torn, or still being written) is counted at the steps
+    per byte of the files that declare theirs, times its size: an estimate, read from its end
+    only (:func:`~.opening.declared_steps`; a torn file is not scanned). A file that cannot be
+    read counts nothing (no step of it is done). ``None`` when no file declares its steps.
+    """
+    known_steps = known_bytes = unknown_bytes = 0
     for path in paths:
         try:
-            steps = RunEnd.of(open_evidence(path).run_end).steps
+            steps, size = declared_steps(path)
         except EvidenceError:
-            return None
+            continue
         if steps is None:
-            return None
-        total += steps
-    return total
+            unknown_bytes += size
+        else:
+            known_steps += steps
+            known_bytes += size
+    if not unknown_bytes:
+        return known_steps
+    if not known_bytes:
+        return None
+    return known_steps + round(unknown_bytes * known_steps / known_bytes)

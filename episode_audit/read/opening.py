@@ -9,6 +9,7 @@ metadata (:func:`_parse_run`) and return an :class:`~episode_audit.read.evidence
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 import struct
@@ -26,6 +27,7 @@ from mcap.stream_reader import StreamReader
 from ..errors import CorruptEvidenceError, EvidenceError, NotEvidenceError, UnsupportedVersionError
 from ..format import names as fmt
 from ..format.records import RunInfo
+from ..format.run_end import RunEnd
 from . import chunks
 from .blocks import _one_line
 from .chunks import _NOTHING, _ChunkRef, _crc32_of, _decompress, _raw_chunk, _split
@@ -80,9 +82,40 @@ def open_evidence(
         return indexed
 
 
+def declared_steps(path: Source) -> tuple[int | None, int]:
+    """The steps a file's run-end record declares (``None``: it has none) and the file's size.
+
+    Read through the summary as :func:`open_evidence` reads a finished file (locally, or two
+    ranged GETs), never by a scan: a torn file, which has no summary, costs the look at its
+    end only. Raises as :func:`open_evidence` does for a file that is not evidence.
+    """
+    with _open_mcap(path) as f:
+        size = file_size(f)
+        damage = _summary_damage(f)
+        f.seek(0)
+        ev = None if damage else _open_indexed(f, path)
+    return (None if ev is None else RunEnd.of(ev.run_end).steps), size
+
+
 def _writer(f: IO[bytes], p: Source) -> Holder | None:
     """The live recorder writing a local file (a remote file has none: recording is local)."""
     return None if isinstance(p, RemoteFile) else probe(f.fileno())
+
+
+def broken_link(p: str | os.PathLike[str], exc: OSError) -> str | None:
+    """Why the symbolic link ``p`` cannot be opened (``exc``: what trying raised), else ``None``.
+
+    ``broken symbolic link (to TARGET, which does not exist)`` or ``symbolic link loop``:
+    the system's words (``No such file or directory``, ``Too many levels of symbolic links``)
+    do not say that the name is a link.
+    """
+    if not os.path.islink(p):
+        return None
+    if exc.errno == errno.ELOOP:
+        return "symbolic link loop"
+    if exc.errno == errno.ENOENT:
+        return f"broken symbolic link (to {os.readlink(p)}, which does not exist)"
+    return None
 
 
 def _open_mcap(p: Source) -> IO[bytes]:
@@ -107,7 +140,8 @@ def _open_mcap(p: Source) -> IO[bytes]:
             if not stat.S_ISREG(mode):
                 raise NotEvidenceError(p, "not a regular file")
         except OSError as exc:
-            raise EvidenceError(p, f"cannot open: {exc.strerror}") from None
+            why = broken_link(p, exc) or exc.strerror
+            raise EvidenceError(p, f"cannot open: {why}") from None
         f = open_source(p)
     try:
         head = f.read(len(_MAGIC))

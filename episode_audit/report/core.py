@@ -215,10 +215,12 @@ def report_parts(
     check_gateable(by, gates)
     unfinished = [(p.name, p.unfinished) for p in parts if p.unfinished is not None]
     groups = group_reports(*joined(p.rows for p in parts), one_outcome=by == "label")
+    keys = {group.key for group in groups}
+    empty = [p.name for p in parts if p.name not in keys] if by == "file" else []
     return Report(
         by,
         groups,
-        check_gates(gates, groups) if gates is not None else [],
+        check_gates(gates, groups, empty) if gates is not None else [],
         unfinished,
         "game" if games else "episode",
         unmatched_labels(gates, groups),

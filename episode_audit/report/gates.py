@@ -107,19 +107,30 @@ class GateResult:
     message: str
 
 
-def check_gates(gates: Gates, groups: Sequence[GroupReport]) -> list[GateResult]:
+def check_gates(
+    gates: Gates, groups: Sequence[GroupReport], empty: Sequence[str] = ()
+) -> list[GateResult]:
     """Check every gate that is on against every group, group by group.
 
-    Gates over no group at all fail (gate ``episodes``): nothing evaluated is not a pass.
+    Gates over no group at all fail (gate ``episodes``): nothing evaluated is not a pass. So
+    do they over each of ``empty``, the files of a report by file that hold no episode (a
+    torn file that lost them all): each is a group of its own, gated as one without ended
+    episodes is.
     """
-    if not groups and gates.any:
+    if not gates.any:
+        return []
+    if not groups:
         return [
             GateResult(
                 "episodes", "-", False, "no episodes in these files: no gate could be checked"
             )
         ]
     unmatched = set(unmatched_labels(gates, groups))
-    return [result for group in groups for result in _group_gates(gates, group, unmatched)]
+    results = [result for group in groups for result in _group_gates(gates, group, unmatched)]
+    return results + [
+        GateResult("episodes", name, False, "no episodes in this file: no gate could be checked")
+        for name in empty
+    ]
 
 
 def unmatched_labels(gates: Gates | None, groups: Sequence[GroupReport]) -> list[str]:

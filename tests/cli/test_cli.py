@@ -681,6 +681,33 @@ def test_record_counts_one_episode_in_the_singular(tmp_path: Path) -> None:
     assert code == 0 and stdout.startswith(f"recorded 1 episode (1 step) to {out}: "), stdout
 
 
+def test_links_in_a_folder_that_lead_nowhere_are_unreadable_inputs(tmp_path: Path) -> None:
+    # they were skipped without a word (exit 0), and the linked folder was not searched
+    (tmp_path / "real").mkdir()
+    (tmp_path / "top").mkdir()
+    shutil.copy(FIXTURES / "clean.mcap", tmp_path / "real" / "a.mcap")
+    shutil.copy(FIXTURES / "clean.mcap", tmp_path / "top" / "b.mcap")
+    os.symlink("../real", tmp_path / "top" / "linked")
+    os.symlink("../real/gone.mcap", tmp_path / "top" / "dangling.mcap")
+    os.symlink("loop.mcap", tmp_path / "top" / "loop.mcap")
+    top = tmp_path / "top"
+    code, out, err = run("check", str(top), "-f", "json")
+    assert code == 2
+    assert err.splitlines() == [
+        f"episode-audit: error: {top}/dangling.mcap: cannot open: broken symbolic link (to "
+        "../real/gone.mcap, which does not exist)",
+        f"episode-audit: error: {top}/loop.mcap: cannot open: symbolic link loop",
+    ]
+    data = json.loads(out)
+    assert data["files"] == [str(top / n) for n in ("b.mcap", "dangling.mcap", "linked/a.mcap",
+                                                    "loop.mcap")]  # fmt: skip
+    assert [u["file"] for u in data["unreadable"]] == [str(top / "dangling.mcap"),
+                                                       str(top / "loop.mcap")]  # fmt: skip
+    code, _, err = run("show", str(top / "loop.mcap"))  # (it said "no such file or directory")
+    assert code == 2
+    one_error_line(err, f"{top}/loop.mcap: symbolic link loop")
+
+
 def one_error_line(err: str, *needles: str) -> None:
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("episode-audit: error: "), err

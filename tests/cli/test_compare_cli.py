@@ -161,6 +161,29 @@ def test_unreadable_input_or_different_task_exit_2(runs: dict[str, str], tmp_pat
     assert code in (0, 1) and "env_id differs" in err
 
 
+def test_an_unreadable_input_is_not_passed_in_json_junit_or_the_exit_code(
+    runs: dict[str, str], tmp_path: Path
+) -> None:
+    # the comparison of the files read passed: JSON said "passed": true while the command
+    # exited 2 (the schema: "passed" is exit 0; report already said false)
+    import junitparser
+
+    bad = tmp_path / "zero.mcap"
+    bad.write_bytes(b"")
+    args = ["compare", runs["base"], "--candidate", runs["same"], "--candidate", str(bad)]
+    code, out, err = run(*args, "-f", "json")
+    assert code == 2 and "zero.mcap: the file is empty" in err
+    data = json.loads(out)
+    assert data["passed"] is False
+    assert [u["file"] for u in data["unreadable"]] == [str(bad)]
+    assert run("compare", runs["base"], "--candidate", runs["same"], "-f", "json")[0] == 0
+    code, out, _ = run(*args, "-f", "junit")
+    xml = tmp_path / "compare.xml"
+    xml.write_text(out)
+    parsed = junitparser.JUnitXml.fromfile(str(xml))
+    assert code == 2 and parsed.errors == 1  # (a CI reporter fails it too)
+
+
 def test_a_comparison_that_cannot_be_made_still_prints_its_json_and_junit(
     runs: dict[str, str], tmp_path: Path
 ) -> None:

@@ -680,6 +680,24 @@ def test_gates_over_no_episodes_fail(tmp_path: Path) -> None:
     ]
 
 
+def test_by_file_a_file_that_lost_all_its_episodes_fails_its_gates(tmp_path: Path) -> None:
+    """Beside a file with episodes, one torn before its first chunk was no group, so its gates
+    passed; one that kept an incomplete episode failed them (no ended episodes)."""
+    good = _record_plans(tmp_path / "good.mcap", [Plan("success"), Plan("failure:fell")])
+    lost = tmp_path / "lost.mcap"
+    lost.write_bytes(good.read_bytes()[:1500])  # (run metadata, no complete chunk)
+    gates = Gates(max_failure_rate=1.0)
+    result = report([good, lost], gates=gates)
+    assert [(g.gate, g.group, g.passed, g.message) for g in result.gates] == [
+        ("max_failure_rate", str(good), True, f"failure rate 0.50 <= 1.00 (group {good})"),
+        ("episodes", str(lost), False, "no episodes in this file: no gate could be checked"),
+    ]
+    assert not result.passed
+    assert report([good, lost]).passed  # (no gates: nothing to fail)
+    # grouped otherwise, the file adds nothing to its group, whose gates are its other files'
+    assert report([good, lost], by="env", gates=gates).passed
+
+
 def test_a_tag_no_file_has_is_said(tmp_path: Path) -> None:
     """``by="tag:polcy"`` (misspelt) puts every episode in "(none)": the report says why."""
     path = _record_plans(tmp_path / "run.mcap", [Plan("success")], tags={"policy": "ppo"})

@@ -100,9 +100,14 @@ def _needed(m: MetricComparison) -> str:
 def compare_output(
     result: Comparison, output: OutputFormat, *, unreadable: Sequence[Unreadable] = ()
 ) -> Output:
-    """The mismatches, the metrics with their verdicts, new warnings, gates and the verdict."""
+    """The mismatches, the metrics with their verdicts, new warnings, gates and the verdict.
+
+    ``unreadable``: the inputs that could not be read, listed in JSON, where ``passed`` is then
+    false: the command fails (exit 2), whatever the comparison of the files read says.
+    """
     if output == "json":
         data = {**result.to_dict(), "unreadable": unreadable_json(unreadable)}
+        data["passed"] = result.passed and not unreadable
         return to_json(versioned("compare", data))
     if output == "junit":
         return junit_xml(compare_cases(result, unreadable), name="episode-audit compare")
