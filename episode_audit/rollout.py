@@ -18,7 +18,7 @@ import gymnasium as gym
 
 from ._usercode import import_modules, load_callable
 from .errors import ConfigurationError, EpisodeAuditError, RecorderError
-from .format.columns import error_text
+from .format.columns import counted, error_text
 from .record.gym import RecordEvidence
 from .record.lock import check_output_path, refuse_indexed_overwrite
 
@@ -46,8 +46,7 @@ class RecordSummary:
     def __str__(self) -> str:
         """``recorded 2 episodes (10 steps) to PATH: truncated 2`` (``1 episode``, ``1 step``)."""
         counts = ", ".join(f"{k} {v}" for k, v in sorted(self.outcomes.items()))
-        episodes = f"{self.episodes} episode{'' if self.episodes == 1 else 's'}"
-        steps = f"{self.steps} step{'' if self.steps == 1 else 's'}"
+        episodes, steps = counted(self.episodes, "episode"), counted(self.steps, "step")
         return f"recorded {episodes} ({steps}) to {self.path}: {counts}"
 
 

@@ -191,7 +191,7 @@ def test_cli_export_to_rerun_notes_what_is_not_plotted(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["export", str(source), "--to", "rerun", "-o", str(out)])
     assert result.exit_code == 0, result.output
     assert "not plotted (more than 64 numbers, digests or text): observation" in result.output
-    assert "wrote 1 episodes, 3 steps" in result.output
+    assert "wrote 1 episode, 3 steps" in result.output  # (it said "1 episodes")
     rows, _ = _rows(out)
     assert rows["/steps/reward"] == 3 and "/steps/observation" not in rows
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigurationError
+from ..format.columns import counted
 from ..record.lock import output_kind
 from ..record.published import Temporary
 from ._values import SMALL, has_frames
@@ -87,7 +88,8 @@ class ViewerExport:
         else:
             look = f"open it with: rerun {out}"
         return (
-            f"wrote {self.episodes} episodes, {self.steps} steps{frames} of {self.source} "
+            f"wrote {counted(self.episodes, 'episode')}, {counted(self.steps, 'step')}{frames} "
+            f"of {self.source} "
             f"to {self.path} ({look})"
         )
 

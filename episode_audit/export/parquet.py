@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EvidenceError
+from ..format.columns import counted
 from ..read import open_evidence
 from ..read.arguments import path_list
 from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
@@ -60,7 +61,8 @@ class ExportResult:
         """One line for people: what was written where."""
         removed = f"; removed {len(self.removed)} from an earlier export" if self.removed else ""
         return (
-            f"wrote {self.episodes} episodes to {self.episodes_file} and {self.steps} steps "
+            f"wrote {counted(self.episodes, 'episode')} to {self.episodes_file} and "
+            f"{counted(self.steps, 'step')} "
             f"to {len(self.steps_files)} *.steps.parquet file(s) in {self.episodes_file.parent}"
             f"{removed}"
         )

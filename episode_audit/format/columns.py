@@ -16,6 +16,7 @@ import pyarrow as pa
 __all__ = [
     "PLAIN_NUMBERS",
     "TERMS_TYPE",
+    "counted",
     "map_column",
     "null_mask",
     "one_array",
@@ -109,6 +110,15 @@ def error_text(exc: BaseException) -> str:
     "KeyError: 'x'"
     """
     return f"{text(type(exc).__qualname__)}: {error_message(exc)}"
+
+
+def counted(n: int, noun: str) -> str:
+    """``n`` and ``noun``, plural unless ``n`` is 1 (a regular noun: ``episode``, ``step``).
+
+    >>> counted(1, "episode"), counted(0, "step"), counted(3, "game")
+    ('1 episode', '0 steps', '3 games')
+    """
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def text_array(values: Sequence[Any]) -> pa.Array:

@@ -16,6 +16,7 @@ from rich.text import Text
 
 from ...check import FINDING_CODES, CheckResult, Finding, Severity, kind_of
 from ...check.registry import FILE_UNREADABLE, SEVERITY_RANK
+from ...format.columns import counted
 from .common import (
     Output,
     OutputFormat,
@@ -152,8 +153,8 @@ def check_output(
     ]
     episodes, steps = result.episodes, result.steps
     summary = (
-        f"{len(result.files)} file(s), {episodes} episode{'' if episodes == 1 else 's'}, "
-        f"{steps} step{'' if steps == 1 else 's'}: "
+        f"{len(result.files)} file(s), {counted(episodes, 'episode')}, "
+        f"{counted(steps, 'step')}: "
         f"{result.errors} error(s), {result.warnings} warning(s), {result.notes} note(s)"
         + (f", {result.ignored} ignored" if result.ignored else "")
     )

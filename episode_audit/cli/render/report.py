@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from rich.console import Group, RenderableType
 from rich.text import Text
 
+from ...format.columns import counted
 from ...read.inputs import Unreadable
 from ...report import GroupReport, Report
 from ...report.core import DROPPED_TITLE, UNFINISHED_TITLE
@@ -169,7 +170,7 @@ def _ending_rows(result: Report) -> list[list[str]]:
 def _group_line(g: GroupReport, unit: str) -> str:
     """One line of a group's outcomes, as the table shows them."""
     return (
-        f"group {g.key}: {g.episodes} {unit}s; success {g.success} "
+        f"group {g.key}: {counted(g.episodes, unit)}; success {g.success} "
         f"({rate_text(g.success_rate, g.success_ci)}), failure {g.failure} "
         f"({rate_text(g.failure_rate, g.failure_ci)}; {_counts(g.failures)}), truncated "
         f"{g.truncated} ({rate_text(g.truncation_rate, g.truncation_ci)}; "
