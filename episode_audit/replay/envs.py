@@ -118,6 +118,16 @@ def replay_notes(run: RunInfo, *, env_factory: Any, trust_entry_points: bool) ->
 
 def _from_factory(env_factory: str | EnvFactory) -> gym.Env[Any, Any]:
     """The env the user's factory returns, checked to be one."""
+    env: gym.Env[Any, Any] = _called(env_factory, (gym.Env,), "a gymnasium.Env")
+    return env
+
+
+def _called(env_factory: str | Callable[[], Any], kinds: tuple[type, ...], kind: str) -> Any:
+    """What the user's ``env_factory`` returns, checked to be one of ``kinds`` (said ``kind``).
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` in one line when it cannot be
+    loaded, raises, or returns something else: the user's own code is at fault, not the file.
+    """
     factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
     name = env_factory if isinstance(env_factory, str) else getattr(factory, "__name__", "")
     try:
@@ -127,9 +137,9 @@ def _from_factory(env_factory: str | EnvFactory) -> gym.Env[Any, Any]:
             f"--env-factory {name}: it raised {error_text(exc)}; it must take no "
             "arguments and return the env"
         ) from None
-    if not isinstance(env, gym.Env):
+    if not isinstance(env, kinds):
         raise ConfigurationError(
-            f"--env-factory {name}: it returned {type(env).__name__}, not a gymnasium.Env"
+            f"--env-factory {name}: it returned {type(env).__name__}, not {kind}"
         )
     return env
 
@@ -293,7 +303,9 @@ def build_pettingzoo_env(
     """Build the PettingZoo env a file was recorded from (see docs/replay.md).
 
     Raises :class:`~episode_audit.errors.ReplayError` when it cannot be built in this process,
-    or is not the PettingZoo API (AEC or Parallel) the file was recorded with.
+    or is not the PettingZoo API (AEC or Parallel) the file was recorded with;
+    :class:`~episode_audit.errors.ConfigurationError` when ``env_factory`` cannot be loaded,
+    raises or returns something other than a PettingZoo env.
     """
     from pettingzoo import AECEnv, ParallelEnv
 
@@ -306,8 +318,7 @@ def build_pettingzoo_env(
     env_id = layout.get("env_id")
     kwargs = {} if env_factory is not None else _recorded_env_kwargs(layout)
     if env_factory is not None:
-        factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
-        env = factory()
+        env = _called(env_factory, (AECEnv, ParallelEnv), "a PettingZoo AECEnv or ParallelEnv")
     elif isinstance(env_id, str) and is_registered(kind, env_id):
         try:
             env = make_registered(kind, env_id, kwargs)
