@@ -249,6 +249,7 @@ class Comparison:
             info,
             time_limit_hit=hit_time_limit,
             endings=self._plain_endings,
+            unread_limits=self.unread_limits is not None,
         )
 
 
@@ -323,6 +324,7 @@ def outcome_difference(
     *,
     time_limit_hit: bool,
     endings: dict[tuple[bool, bool, bool], Ending] | None = None,
+    unread_limits: bool = False,
 ) -> Divergence | None:
     """How the outcome of an episode whose last step was ``last_step`` differs, if it does.
 
@@ -330,6 +332,9 @@ def outcome_difference(
     last step set neither flag. The ending is classified as the recorder's
     ``Stream._end_by_flags`` classifies it (:func:`_final_ending`); ``endings`` (optional)
     keeps the ending of an empty-dict info per flags, so it is classified once.
+    ``unread_limits``: the recorder could not read every ``TimeLimit`` (the file's layout says
+    so), so a truncation by one it recorded ``external``: the rebuilt env's time limit
+    truncating the episode there is that ending (:func:`_as_recorder_saw`).
     """
     if rules is None or record["outcome"] in _NOT_ENDED:
         return None
@@ -346,9 +351,23 @@ def outcome_difference(
         ending = _final_ending(rules, terminated, truncated, info, time_limit_hit=time_limit_hit)
     want = _recorded_outcome(record)
     now = (ending.outcome, ending.failure_label, ending.truncation_reason)
+    if unread_limits and time_limit_hit:
+        now = _as_recorder_saw(now, want)
     if want != now:
         return Divergence(last_step, "outcome", _fmt_outcome(*want), _fmt_outcome(*now))
     return None
+
+
+def _as_recorder_saw(now: tuple[Any, Any, Any], want: tuple[Any, Any, Any]) -> tuple[Any, Any, Any]:
+    """A replayed ending ``now`` by a time limit, as a recorder that could not read it said it.
+
+    Where the recorded ending (``want``) is an ``external`` truncation, that recorder saw the
+    same flags with no limit reached: ``time_limit`` is then ``external``. Any other ending is
+    as it is.
+    """
+    if now[2] == fmt.REASON_TIME_LIMIT and want[2] == fmt.REASON_EXTERNAL:
+        return (now[0], now[1], fmt.REASON_EXTERNAL)
+    return now
 
 
 def _final_ending(

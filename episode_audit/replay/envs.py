@@ -4,8 +4,8 @@
 :func:`build_pettingzoo_env` (PettingZoo's AEC or Parallel env; imports ``pettingzoo`` only
 when called): the user's ``env_factory``, else the recorded env id when it is registered in
 this process, else only with ``trust_entry_points`` what the file names. The order and what each
-step may import: docs/replay.md (how the env is built) and docs/security.md (rule 2).
-:func:`env_mismatch` and :func:`agents_mismatch` say how a built env differs from the recording.
+step may import: docs/replay.md (how the env is built) and docs/security.md (rule 2). How a
+built env differs from the recording: ``mismatch.py``.
 """
 
 from __future__ import annotations
@@ -24,24 +24,15 @@ from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
 from ..format.options import decode_typed
 from ..format.records import RunInfo
-from ..format.spaces import describe_space
 from ..format.unrecorded import unrecorded
-from ..format.wrappers import (
-    declared_transparent,
-    placed_limits,
-    plan_wrappers,
-    worker_sub_envs,
-)
-from ..record.time_limits import limit_places, step_limit
+from ..format.wrappers import declared_transparent, plan_wrappers
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",
     "MAX_ENV_KWARGS_DEPTH",
     "EnvFactory",
-    "agents_mismatch",
     "build_env",
     "build_pettingzoo_env",
-    "env_mismatch",
     "replay_notes",
 ]
 
@@ -118,6 +109,16 @@ def replay_notes(run: RunInfo, *, env_factory: Any, trust_entry_points: bool) ->
 
 def _from_factory(env_factory: str | EnvFactory) -> gym.Env[Any, Any]:
     """The env the user's factory returns, checked to be one."""
+    env: gym.Env[Any, Any] = _called(env_factory, (gym.Env,), "a gymnasium.Env")
+    return env
+
+
+def _called(env_factory: str | Callable[[], Any], kinds: tuple[type, ...], kind: str) -> Any:
+    """What the user's ``env_factory`` returns, checked to be one of ``kinds`` (said ``kind``).
+
+    Raises :class:`~episode_audit.errors.ConfigurationError` in one line when it cannot be
+    loaded, raises, or returns something else: the user's own code is at fault, not the file.
+    """
     factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
     name = env_factory if isinstance(env_factory, str) else getattr(factory, "__name__", "")
     try:
@@ -127,9 +128,9 @@ def _from_factory(env_factory: str | EnvFactory) -> gym.Env[Any, Any]:
             f"--env-factory {name}: it raised {error_text(exc)}; it must take no "
             "arguments and return the env"
         ) from None
-    if not isinstance(env, gym.Env):
+    if not isinstance(env, kinds):
         raise ConfigurationError(
-            f"--env-factory {name}: it returned {type(env).__name__}, not a gymnasium.Env"
+            f"--env-factory {name}: it returned {type(env).__name__}, not {kind}"
         )
     return env
 
@@ -293,7 +294,9 @@ def build_pettingzoo_env(
     """Build the PettingZoo env a file was recorded from (see docs/replay.md).
 
     Raises :class:`~episode_audit.errors.ReplayError` when it cannot be built in this process,
-    or is not the PettingZoo API (AEC or Parallel) the file was recorded with.
+    or is not the PettingZoo API (AEC or Parallel) the file was recorded with;
+    :class:`~episode_audit.errors.ConfigurationError` when ``env_factory`` cannot be loaded,
+    raises or returns something other than a PettingZoo env.
     """
     from pettingzoo import AECEnv, ParallelEnv
 
@@ -306,8 +309,7 @@ def build_pettingzoo_env(
     env_id = layout.get("env_id")
     kwargs = {} if env_factory is not None else _recorded_env_kwargs(layout)
     if env_factory is not None:
-        factory = load_callable(env_factory) if isinstance(env_factory, str) else env_factory
-        env = factory()
+        env = _called(env_factory, (AECEnv, ParallelEnv), "a PettingZoo AECEnv or ParallelEnv")
     elif isinstance(env_id, str) and is_registered(kind, env_id):
         try:
             env = make_registered(kind, env_id, kwargs)
@@ -391,160 +393,6 @@ def _from_pettingzoo_module(
             f"cannot make {module_name} with the recorded kwargs {kwargs!r}: "
             f"{type(exc).__name__}: {exc}"
         ) from None
-
-
-_MISMATCH = "the rebuilt env does not match the recording: "
-
-
-def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False) -> str | None:
-    """How the env replay built differs from the recorded description, or ``None``.
-
-    Its observation and action spaces, its step limits (:func:`_limit_checks`) and, when it
-    has a spec, the env kwargs both name
-    (``render_mode`` aside) against the recorded ones. ``factory``: the user's env factory
-    built it (the reason then says to change that); its limits are not held to those of a file
-    whose sub-envs ran in workers (``wrappers.worker_sub_envs``: the recorder could not read
-    them all, nor where they sat).
-    Never raises: what cannot be read of the rebuilt env is not compared.
-    """
-    spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
-    try:
-        checks: list[tuple[str, Any, Any]] = [
-            ("observation space", run.observation_space, _described(env.observation_space)),
-            ("action space", run.action_space, _described(env.action_space)),
-        ]
-        if not (factory and worker_sub_envs(run.layout)):  # (its limits: the user's word)
-            checks += _limit_checks(spec, env)
-        rebuilt = getattr(env.spec, "kwargs", None)
-        if isinstance(rebuilt, Mapping) and isinstance(spec.get("kwargs"), Mapping):
-            recorded, now = _kwargs(spec["kwargs"]), _kwargs(rebuilt)
-            for name in [k for k in recorded if k in now and recorded[k] != now[k]][:1]:
-                checks.append((f"env kwarg {name[:80]!r}", recorded[name], now[name]))
-    except Exception:  # the env's own attributes: compare nothing more
-        return None
-    for what, recorded, now in checks:
-        if recorded != now:
-            return (
-                f"{_MISMATCH}{what} {_shown(recorded)} recorded vs {_shown(now)} rebuilt; "
-                f"{_as_recorded(factory)}"
-            )
-    return None
-
-
-def _limit_checks(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple[str, Any, Any]]:
-    """The rebuilt env's step limits against the recorded ones (what, recorded, rebuilt).
-
-    A spec with ``TimeLimit``s among its wrappers (over a multi-step wrapper:
-    ``record/time_limits.py``): its ``max_episode_steps`` against the rebuilt env's limit
-    under no multi-step wrapper, and those wrappers' limits against the rebuilt env's over one.
-    Any other (every file recorded before they were placed, too): its ``max_episode_steps``
-    against the smallest of the rebuilt env's ``TimeLimit``s', one where the recording had none
-    too.
-    """
-    placed = placed_limits(spec)
-    if placed:
-        places = limit_places(env)
-        return [
-            ("max episode steps", spec.get("max_episode_steps"), places.inner),
-            ("time limits over multi-step wrappers", placed, [n for _, n in places.placed]),
-        ]
-    limit = step_limit(env)
-    if "max_episode_steps" in spec and (limit is not None or spec["max_episode_steps"]):
-        return [("max episode steps", spec.get("max_episode_steps"), limit)]
-    return []
-
-
-_BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as recorded"
-
-
-def _as_recorded(factory: bool) -> str:
-    """What to do about a rebuilt env that differs (``factory``: the user's factory built it)."""
-    return "make the --env-factory build the env as recorded" if factory else _BUILD_AS_RECORDED
-
-
-def agents_mismatch(
-    layout: Mapping[str, Any], run: RunInfo, env: Any, *, factory: bool = False
-) -> str | None:
-    """How a rebuilt PettingZoo env differs from the recording, or ``None``.
-
-    Its agents, its ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped``
-    have one), and the first agent's observation and action spaces. ``factory``: the user's
-    env factory built it. Never raises: what cannot be read of the rebuilt env is not compared.
-    """
-    advice = (
-        _as_recorded(factory)
-        if layout.get("env_kwargs") or factory
-        else "the file holds no env_kwargs (the env's constructor arguments, which "
-        "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
-    )
-    try:
-        agents = [str(a) for a in env.possible_agents]
-        recorded = layout.get("agents")
-        if isinstance(recorded, list) and [str(a) for a in recorded] != agents:
-            return (
-                f"{_MISMATCH}agents {_agents(recorded)} recorded vs {_agents(agents)} rebuilt; "
-                f"{advice}"
-            )
-        cycles, now = layout.get("max_cycles"), getattr(env.unwrapped, "max_cycles", None)
-        if isinstance(cycles, int) and isinstance(now, int) and cycles != now:
-            return f"{_MISMATCH}max_cycles {cycles} recorded vs {now} rebuilt; {advice}"
-        if agents:
-            env_spaces = (env.observation_space(agents[0]), env.action_space(agents[0]))
-            for what, rec, space in zip(
-                ("observation space", "action space"),
-                (run.observation_space, run.action_space),
-                env_spaces,
-                strict=True,
-            ):
-                if rec != _described(space):
-                    shown = _shown(_described(space))
-                    return (
-                        f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; "
-                        f"{_as_recorded(factory)}"
-                    )
-    except Exception:  # the env's own attributes: compare nothing more
-        return None
-    return None
-
-
-def _described(space: Any) -> Any:
-    """A space's description as a file holds it (after a JSON round trip)."""
-    return json.loads(json.dumps(describe_space(space)))
-
-
-_COMPARED_KWARG_BYTES = 4096
-
-
-def _kwargs(kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    """Env kwargs as a file holds them, those :func:`env_mismatch` compares.
-
-    Not ``render_mode`` (it changes no step), nor a value nested deeper than
-    :data:`MAX_ENV_KWARGS_DEPTH` or larger than 4 KiB of JSON (a map, a table: too large to
-    show, and a file's may be made up to be slow to compare).
-    """
-    plain = {
-        str(k): v
-        for k, v in kwargs.items()
-        if k != "render_mode"
-        and _depth(v) <= MAX_ENV_KWARGS_DEPTH
-        and len(json.dumps(v, default=repr)) <= _COMPARED_KWARG_BYTES
-    }
-    try:
-        loaded = json.loads(json.dumps(plain, default=repr))
-    except (TypeError, ValueError):
-        return plain
-    return loaded if isinstance(loaded, dict) else plain
-
-
-def _agents(agents: list[Any]) -> str:
-    """A list of agents in a mismatch reason: how many, and the first and last names.
-
-    >>> _agents(["a", "b"]), _agents([f"piston_{i}" for i in range(20)])
-    ('2 (a, b)', '20 (piston_0 ... piston_19)')
-    """
-    names = [str(a)[:40] for a in agents]
-    shown = ", ".join(names) if len(names) <= 3 else f"{names[0]} ... {names[-1]}"
-    return f"{len(names)} ({shown})"
 
 
 def _shown(value: Any) -> str:

@@ -25,7 +25,8 @@ from ..read import Evidence
 from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
-from .envs import agents_mismatch, build_pettingzoo_env
+from .envs import build_pettingzoo_env
+from .mismatch import agents_mismatch
 from .recorded import cast_actions, reset_options, row_ranges, rules_of, unrecorded_options
 from .results import (
     RESET_RAISED,

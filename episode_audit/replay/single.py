@@ -23,7 +23,8 @@ from ..errors import ReplayError
 from ..format import names as fmt
 from ..format.wrappers import unplaced_limits
 from ..read import Evidence
-from .envs import EnvFactory, build_env, env_mismatch
+from .envs import EnvFactory, build_env
+from .mismatch import env_mismatch
 from .recorded import (
     cast_actions,
     episode_records,

@@ -67,10 +67,11 @@ def test_an_error_episode_compares_its_steps_up_to_the_raise_not_the_rows_after_
 
 
 def test_a_difference_before_the_raise_still_diverges(tmp_path: Path) -> None:
-    # Replayed in an env that does not raise and counts no steps: step 0 of episode 0
-    # already differs (nothing unrepeated before it): diverged.
+    # Replayed in an env that counts no steps (its spec as recorded, ``persist`` changed
+    # after it was made): step 0 of episode 0 already differs (nothing unrepeated before
+    # it): diverged.
     path = record_flaky(tmp_path / "f.mcap", FLAKY)
-    result = replay([path], env_factory=lambda: gym.make(FLAKY_FRESH))
+    result = replay([path], env_factory=_uncounting)
     first = result.episodes[0]
     assert (first.status, first.divergence and first.divergence.describe()) == (
         "diverged",
@@ -78,6 +79,13 @@ def test_a_difference_before_the_raise_still_diverges(tmp_path: Path) -> None:
         "0.6369616873214543] (max abs diff 1)",
     )
     assert result.episodes[1].status == "diverged"
+
+
+def _uncounting() -> gym.Env[Any, Any]:
+    """``EpisodeAuditFlaky-v0`` made to count no steps after it was built (its spec unchanged)."""
+    env = gym.make(FLAKY)
+    env.unwrapped.persist = False  # type: ignore[attr-defined]
+    return env
 
 
 def test_episodes_after_steps_replay_does_not_repeat_are_not_replayable_never_diverged(

@@ -7,6 +7,7 @@ reset records and notes, and an env whose returned values raise when read.
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from pathlib import Path
 from typing import Any
@@ -14,8 +15,11 @@ from typing import Any
 import pyarrow as pa
 import pytest
 from pettingzoo.utils.wrappers import BaseParallelWrapper
+from typer.testing import CliRunner
 
 from episode_audit import RecordParallelEvidence, replay
+from episode_audit.cli import app
+from episode_audit.errors import ConfigurationError
 from episode_audit.format import names as fmt
 from tests.replay.test_misbehaving_env import UnprintableError, Unreadable
 from tests.support.hostile import replace_column, rewrite
@@ -132,5 +136,43 @@ def test_recorded_env_kwargs_are_bounded_before_a_game_env_is_built(
             "the recorded env kwarg 'extra' is 70002 bytes of JSON (all: 70003), more than the "
             "65536 replay builds an env from; pass --env-factory MODULE:CALLABLE that builds "
             "the env",
+        )
+    }
+
+
+@pytest.mark.parametrize(
+    ("factory", "message"),
+    [
+        (
+            "tests.support.factories:raises",
+            "--env-factory tests.support.factories:raises: it raised RuntimeError: boom from "
+            "factory; it must take no arguments and return the env",
+        ),
+        (
+            "tests.support.factories:not_an_env",
+            "--env-factory tests.support.factories:not_an_env: it returned str, not a "
+            "PettingZoo AECEnv or ParallelEnv",
+        ),
+    ],
+    ids=["raises", "not-an-env"],
+)
+def test_an_env_factory_that_raises_or_returns_no_game_is_a_usage_error(
+    rps: Path, factory: str, message: str
+) -> None:
+    """As for a Gymnasium file: the user's factory is at fault, not the file (one line, exit 2)."""
+    with pytest.raises(ConfigurationError, match=f"^{re.escape(message)}$"):
+        replay([rps], env_factory=factory)
+    result = CliRunner().invoke(app, ["replay", str(rps), "--env-factory", factory])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip() == f"episode-audit: error: {message}"
+
+
+def test_an_env_factory_of_the_other_api_is_not_replayable(rps: Path) -> None:
+    """A PettingZoo env of the API the file was not recorded with: the env does not match."""
+    result = replay([rps], env_factory=rps_v2.env)
+    assert {(e.status, e.reason) for e in result.episodes} == {
+        (
+            "not_replayable",
+            "the env factory returned OrderEnforcingWrapper, not a PettingZoo ParallelEnv",
         )
     }

@@ -1077,18 +1077,25 @@ def test_odd_flags_replay_as_recorded_and_a_reset_error_says_so(tmp_path: Path) 
     ]
 
 
-class _ShiftedReset(gym.Wrapper[Any, Any, Any, Any]):
-    """CartPole whose reset observation is moved by 0.25 in its first element."""
+def _shifted_reset() -> gym.Env[Any, Any]:
+    """CartPole whose reset observation is moved by 0.25 in its first element (its spec, with
+    no wrapper saying so, as recorded)."""
+    env = gym.make("CartPole-v1")
+    cartpole: Any = env.unwrapped
+    reset = cartpole.reset
 
-    def reset(self, **kwargs: Any) -> Any:
-        obs, info = self.env.reset(**kwargs)
+    def shifted(**kwargs: Any) -> Any:
+        obs, info = reset(**kwargs)
         return obs + np.array([0.25, 0, 0, 0], dtype=obs.dtype), info
+
+    cartpole.reset = shifted
+    return env
 
 
 def test_a_reset_divergence_shows_both_observations(tmp_path: Path) -> None:
     """It said "got a different one": the replayed observation is what a user needs to see."""
     path = record_random(tmp_path / "cp.mcap", "CartPole-v1", 1)
-    result = replay([path], env_factory=lambda: _ShiftedReset(gym.make("CartPole-v1")))
+    result = replay([path], env_factory=_shifted_reset)
     (episode,) = result.episodes
     divergence = episode.divergence
     assert divergence is not None and divergence.field == "reset_observation"

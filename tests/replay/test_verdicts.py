@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -564,35 +565,36 @@ _ASYNC = (
 )
 
 
-@pytest.mark.parametrize(
-    ("make", "steps", "factory", "why"),
-    [
-        (
-            _nested_limits,
-            201,
-            None,
-            "recorded truncated (external) at step 199, where the rebuilt env did not truncate",
-        ),
-        (
-            skipping_pendulum,
-            51,
-            skipping_pendulum,
-            "the rebuilt env's time limit truncated it at step 49, where the recording's did not",
-        ),
-    ],
-    ids=["nested", "under-skip"],
-)
-def test_time_limits_async_workers_hide_are_not_called_divergences(
-    tmp_path: Path, make: Any, steps: int, factory: Any, why: str
-) -> None:
+def test_time_limits_async_workers_hide_are_not_called_divergences(tmp_path: Path) -> None:
     """A worker answers for its outermost TimeLimit only: the file cannot say where the others
-    were, or that one ended an episode (recorded external). (Under a frame skip, only an env
+    were, or that one ended an episode (recorded external). Rebuilt from the spec, with the
+    outermost limit only, the env does not truncate there. (Under a frame skip, only an env
     factory says where they were: tests/replay/test_worker_limits.py.)"""
-    ev = _record_vector(tmp_path / "async.mcap", gym.vector.AsyncVectorEnv([make] * 2), steps)
+    ev = _record_vector(
+        tmp_path / "async.mcap", gym.vector.AsyncVectorEnv([_nested_limits] * 2), 201
+    )
     assert ev.run.layout["unread_time_limits"] == _ASYNC
-    result = replay([ev.path], env_factory=factory)
+    result = replay([ev.path])
+    why = "recorded truncated (external) at step 199, where the rebuilt env did not truncate"
     assert [(e.status, e.reason) for e in result.episodes[:2]] == [
         ("not_replayable", f"{why}: {_ASYNC}")
+    ] * 2
+
+
+def test_an_unread_limit_the_env_factory_ends_the_episode_at_replays_identical(
+    tmp_path: Path,
+) -> None:
+    """The recorder could not read the limit under the frame skip (the workers hid it) and said
+    external; the env factory's limit truncates each episode at that same step, every value
+    equal: the same ending, labelled as the recorder could."""
+    envs = gym.vector.AsyncVectorEnv([skipping_pendulum] * 2)
+    ev = _record_vector(tmp_path / "async.mcap", envs, 51)
+    assert ev.run.layout["unread_time_limits"] == _ASYNC
+    ended = [e for e in ev.episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["length"], e["truncation_reason"]) for e in ended] == [(50, "external")] * 2
+    result = replay([ev.path], env_factory=skipping_pendulum)
+    assert [(e.status, e.steps, e.reason) for e in result.episodes[:2]] == [
+        ("identical", 50, None)
     ] * 2
 
 
@@ -623,9 +625,29 @@ def test_a_same_step_autoreset_hiding_a_time_limit_under_a_frame_skip_is_said(
         "recorded external; record in NextStep mode to replay such endings"
     )
     assert ev.run.layout["unread_time_limits"] == cause
+    ended = [e for e in ev.episodes().to_pylist() if e["outcome"] != "incomplete"]
+    assert [(e["length"], e["truncation_reason"]) for e in ended] == [(50, "external")] * 2
+    # rebuilt, its limit truncates them at that step: the same ending, every value equal
     result = replay([ev.path])
-    assert [e.status for e in result.episodes[:2]] == ["not_replayable"] * 2
-    assert (result.episodes[0].reason or "").endswith(cause)
+    assert [(e.status, e.steps) for e in result.episodes[:2]] == [("identical", 50)] * 2
+    # where the rebuilt env does not truncate, the unread limit is said
+    later = rewrite(ev.path, tmp_path / "later.mcap", run=_spec_limit(400))
+    result = replay([later])
+    why = "recorded truncated (external) at step 49, where the rebuilt env did not truncate"
+    assert [(e.status, e.reason) for e in result.episodes[:2]] == [
+        ("not_replayable", f"{why}: {cause}")
+    ] * 2
+
+
+def _spec_limit(limit: int) -> Callable[[dict[str, str]], dict[str, str]]:
+    """A run metadata edit: the env spec's ``max_episode_steps`` made ``limit``."""
+
+    def edit(meta: dict[str, str]) -> dict[str, str]:
+        spec = json.loads(meta["env_spec"])
+        spec["max_episode_steps"] = limit
+        return {**meta, "env_spec": json.dumps(spec)}
+
+    return edit
 
 
 @pytest.mark.parametrize("coded", [True, False], ids=["coded", "without-cause"])
@@ -633,7 +655,8 @@ def test_a_same_step_file_s_unread_limits_are_coded_zeroed_not_workers(
     tmp_path: Path, coded: bool
 ) -> None:
     """Its cause code says the count was zeroed (no worker chain): replay rebuilds from the spec
-    and says the recorded cause; a file without the code says the same by its text."""
+    (a worker file's would not be: its spec holds a frame skip) and says the recorded cause; a
+    file without the code says the same by its text."""
     envs = gym.vector.SyncVectorEnv([skipping_pendulum] * 2, autoreset_mode="SameStep")
     ev = _record_vector(tmp_path / "same.mcap", envs, 51)
     assert ev.run.layout["unread_time_limits_cause"] == "zeroed"
@@ -645,7 +668,9 @@ def test_a_same_step_file_s_unread_limits_are_coded_zeroed_not_workers(
         return {**meta, "layout": json.dumps(layout)}
 
     path = ev.path if coded else rewrite(ev.path, tmp_path / "old.mcap", run=uncoded)
-    result = replay([path])
+    assert [e.status for e in replay([path]).episodes[:2]] == ["identical"] * 2
+    later = rewrite(path, tmp_path / "later.mcap", run=_spec_limit(400))
+    result = replay([later])
     assert [e.status for e in result.episodes[:2]] == ["not_replayable"] * 2
     assert all((e.reason or "").endswith(cause) for e in result.episodes[:2])
 
@@ -665,6 +690,26 @@ def test_an_external_truncation_a_sync_env_does_not_repeat_still_diverges(tmp_pa
     tampered = rewrite(ev.path, tmp_path / "t.mcap", steps=truncated, episodes=external)
     result = replay([tampered])
     assert [e.status for e in result.episodes] == ["diverged"] * 2
+
+
+def test_an_external_truncation_where_a_read_limit_ends_it_is_not_called_identical(
+    tmp_path: Path,
+) -> None:
+    """Where the recorder read every TimeLimit, one that ended the episode was said
+    ``time_limit``: an ending recorded external there is not the rebuilt env's."""
+    path = record_two_episodes(
+        tmp_path / "p.mcap", gym.make("Pendulum-v1", max_episode_steps=30), 30
+    )
+
+    def external(batch: pa.RecordBatch) -> pa.RecordBatch:
+        return replace_column(batch, "truncation_reason", pa.array(["external"] * batch.num_rows))
+
+    tampered = rewrite(path, tmp_path / "t.mcap", episodes=external)
+    result = replay([tampered])
+    why = "the rebuilt env's time limit truncated it at step 29, where the recording's did not"
+    assert [(e.status, (e.reason or "")[: len(why)]) for e in result.episodes] == [
+        ("not_replayable", why)
+    ] * 2
 
 
 def test_episodes_an_autoreset_under_the_recorder_began_replay_identical(tmp_path: Path) -> None:

@@ -79,26 +79,38 @@ def test_a_frame_skip_in_async_workers_makes_every_episode_not_replayable(
 
 def test_an_env_factory_building_the_chain_replays_a_frame_skip_file(tmp_path: Path) -> None:
     """The factory is the user's word on where the limits sat: the recorded 30 is not held
-    against its 5; the endings by the limit the recorder did not read stay not_replayable."""
+    against its 5, whose endings (recorded external: the recorder did not read it) it repeats
+    at the same steps."""
     path = _record_async(tmp_path / "async.mcap", _inner_ends, 4)
+    ended = [e for e in open_evidence(path).episodes().to_pylist() if e["length"] == 3]
+    assert [e["truncation_reason"] for e in ended] == ["external"] * 2
     result = replay([path], env_factory=_inner_ends)
-    why = "the rebuilt env's time limit truncated it at step 2, where the recording's did not"
-    assert [(e.status, e.reason) for e in result.episodes] == [
-        ("not_replayable", f"{why}: {_ASYNC}"),
-        ("not_replayable", f"{why}: {_ASYNC}"),
-        ("identical", None),
-        ("identical", None),
-    ]
+    assert [(e.status, e.steps) for e in result.episodes] == [("identical", 3)] * 2 + [
+        ("identical", 0)
+    ] * 2
+
+
+def test_an_env_factory_ending_episodes_before_the_unread_limit_did_is_said(
+    tmp_path: Path,
+) -> None:
+    """Its limit under the frame skip ends them sooner than the recorded one did: the recorder
+    did not read that limit, so the file does not say which one it was."""
+    path = _record_async(tmp_path / "async.mcap", _inner_ends, 4)
+    result = replay([path], env_factory=lambda: _skipped(3, 30))
+    why = "the rebuilt env's time limit truncated it at step 1, where the recorded episode"
+    assert [(e.status, (e.reason or "")[: len(why)]) for e in result.episodes[:2]] == [
+        ("not_replayable", why)
+    ] * 2
+    assert all((e.reason or "").endswith(_ASYNC) for e in result.episodes[:2])
 
 
 def test_an_env_factory_with_the_inner_limit_a_worker_hid_is_not_refused(tmp_path: Path) -> None:
     path = _record_async(tmp_path / "nested.mcap", _nested, 202)
     assert open_evidence(path).run.env_spec["max_episode_steps"] == 500  # type: ignore[index]
     result = replay([path], env_factory=_nested)
-    why = "the rebuilt env's time limit truncated it at step 199, where the recording's did not"
     assert [(e.status, e.steps, e.reason) for e in result.episodes] == [
-        ("not_replayable", 200, f"{why}: {_ASYNC}"),
-        ("not_replayable", 200, f"{why}: {_ASYNC}"),
+        ("identical", 200, None),
+        ("identical", 200, None),
         ("identical", 1, None),
         ("identical", 1, None),
     ]

@@ -1,0 +1,438 @@
+"""How the env replay built differs from the recording's description, if it does.
+
+:func:`env_mismatch` (single-env and vector files): its spaces, its step limits, its env kwargs
+and, for an env the user's factory built, its wrappers; :func:`agents_mismatch` (PettingZoo).
+An argument one spec names and the other does not has the other's default (the signature of
+the callable its entry point names, read from a module this process has already imported:
+nothing a file names is imported here); one whose default cannot be read does not match.
+Values are compared as a file holds them (:func:`_held`): a function is its placeholder, its
+type and qualified name (``format/unrecorded.py``). What is compared: docs/replay.md.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import sys
+from collections.abc import Iterable, Mapping
+from itertools import zip_longest
+from typing import Any, Final
+
+import gymnasium as gym
+import numpy as np
+
+from ..format.records import RunInfo
+from ..format.spaces import describe_space
+from ..format.unrecorded import UNRECORDED, placeholder, unrecorded
+from ..format.wrappers import (
+    RECORDED_WRAPPERS,
+    declared_transparent,
+    placed_limits,
+    worker_sub_envs,
+)
+from ..record.time_limits import limit_places, step_limit
+from .envs import MAX_ENV_KWARGS_DEPTH, _depth, _shown
+
+__all__ = ["agents_mismatch", "env_mismatch"]
+
+_MISMATCH = "the rebuilt env does not match the recording: "
+
+
+def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False) -> str | None:
+    """How the env replay built differs from the recorded description, or ``None``.
+
+    Its observation and action spaces, its step limits (:func:`_limit_checks`) and, when it
+    has a spec, its env kwargs (:func:`_arguments`; ``render_mode`` aside) and, when
+    ``factory`` (the user's env factory built it: the reason then says to change that), its
+    wrappers (:func:`_wrappers`). A difference between two functions' placeholders is said only
+    when nothing else differs. The limits of a factory's env are not held to those of a file
+    whose sub-envs ran in workers (``wrappers.worker_sub_envs``: the recorder could not read
+    them all, nor where they sat). Never raises: what cannot be read of the rebuilt env is not
+    compared.
+    """
+    spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
+    try:
+        checks: list[tuple[str, Any, Any]] = [
+            ("observation space", run.observation_space, _described(env.observation_space)),
+            ("action space", run.action_space, _described(env.action_space)),
+        ]
+        if not (factory and worker_sub_envs(run.layout)):  # (its limits: the user's word)
+            checks += _limit_checks(spec, env)
+    except Exception:  # the env's own attributes: compare nothing more
+        return None
+    said = next(
+        (f"{w} {_shown(r)} recorded vs {_shown(n)} rebuilt" for w, r, n in checks if r != n), None
+    )
+    if said is None:
+        found = _spec_differences(run, env, factory)
+        said = next((text for text, held in found if not held), None)
+        said = said or next((text for text, _ in found), None)
+    return None if said is None else f"{_MISMATCH}{said}; {_as_recorded(factory)}"
+
+
+def _spec_differences(
+    run: RunInfo, env: gym.Env[Any, Any], factory: bool
+) -> list[tuple[str, bool]]:
+    """How the rebuilt env's spec differs from the recorded one, each difference said.
+
+    Its kwargs, then (``factory``) its wrappers; each with whether it is between two
+    placeholders only.
+    """
+    spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
+    try:
+        rebuilt = env.spec
+    except Exception:  # the env's own attribute
+        return []
+    if rebuilt is None:
+        return []
+    found: list[tuple[str, bool]] = []
+    try:
+        recorded, now = spec.get("kwargs"), rebuilt.kwargs
+        if isinstance(recorded, Mapping) and isinstance(now, Mapping):
+            entries = (spec.get("entry_point"), rebuilt.entry_point)
+            found += _arguments("env kwarg", recorded, now, entries)
+    except Exception:  # the env's own values: compare nothing more of them
+        pass
+    if factory:
+        try:
+            found += _wrappers(spec, rebuilt, declared_transparent(run.recorder))
+        except Exception:
+            pass
+    return found
+
+
+def _limit_checks(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple[str, Any, Any]]:
+    """The rebuilt env's step limits against the recorded ones (what, recorded, rebuilt).
+
+    A spec with ``TimeLimit``s among its wrappers (over a multi-step wrapper:
+    ``record/time_limits.py``): its ``max_episode_steps`` against the rebuilt env's limit
+    under no multi-step wrapper, and those wrappers' limits against the rebuilt env's over one.
+    Any other (every file recorded before they were placed, too): its ``max_episode_steps``
+    against the smallest of the rebuilt env's ``TimeLimit``s', one where the recording had none
+    too.
+    """
+    placed = placed_limits(spec)
+    if placed:
+        places = limit_places(env)
+        return [
+            ("max episode steps", spec.get("max_episode_steps"), places.inner),
+            ("time limits over multi-step wrappers", placed, [n for _, n in places.placed]),
+        ]
+    limit = step_limit(env)
+    if "max_episode_steps" in spec and (limit is not None or spec["max_episode_steps"]):
+        return [("max episode steps", spec.get("max_episode_steps"), limit)]
+    return []
+
+
+_UNKNOWN: Final = object()
+"""An argument's default that cannot be read."""
+
+_UNCOMPARED = frozenset({"render_mode"})  # (it changes no step)
+_COMPARED_BYTES = 4096
+
+
+def _arguments(
+    what: str,
+    recorded: Mapping[Any, Any],
+    now: Mapping[Any, Any],
+    entries: tuple[Any, Any],
+    dtype_names: bool = False,
+) -> list[tuple[str, bool]]:
+    """How the recorded arguments of a callable differ from those it was rebuilt with.
+
+    ``entries``: each side's entry point (whose signature gives an argument that side does not
+    name its default); ``dtype_names``: a rebuilt numpy dtype is held as its name, as the
+    recorder holds one given to a wrapper it knows. Not compared: ``render_mode``, and a value
+    nested deeper than :data:`~.envs.MAX_ENV_KWARGS_DEPTH` or larger than 4 KiB of JSON (a map,
+    a table: too large to show, and a file's may be made up to be slow to compare).
+    """
+    sides = (
+        {str(k): v for k, v in recorded.items()},
+        {str(k): _held(v, dtype_names) for k, v in now.items()},
+    )
+    found: list[tuple[str, bool]] = []
+    for name in dict.fromkeys([*sides[0], *sides[1]]):
+        if name in _UNCOMPARED or not all(_compared(side.get(name)) for side in sides):
+            continue
+        values = [
+            side[name] if name in side else _held(_default(entry, name), dtype_names)
+            for side, entry in zip(sides, entries, strict=True)
+        ]
+        named = f"{what} {name[:80]!r}"
+        unnamed = next((i for i, side in enumerate(sides) if name not in side), None)
+        if unnamed is not None and values[unnamed] is _UNKNOWN:
+            found.append((_unknown_default(named, values[1 - unnamed], unnamed == 1), False))
+            continue
+        same = _same(values[0], values[1])
+        if same is not True:
+            note = "" if unnamed is None else f" ({_SPECS[unnamed]} does not name it: its default)"
+            said = f"{named} {_shown(values[0])} recorded vs {_shown(values[1])} rebuilt{note}"
+            found.append((said, same is None))
+    return found
+
+
+_SPECS = ("the recorded spec", "the rebuilt env's spec")
+
+
+def _unknown_default(named: str, value: Any, rebuilt_unnamed: bool) -> str:
+    """An argument one spec names as ``value`` and the other leaves at a default not known."""
+    if rebuilt_unnamed:
+        return (
+            f"{named} {_shown(value)} recorded, not named by the rebuilt env's spec and its "
+            "default is unknown"
+        )
+    return (
+        f"{named} not named by the recorded spec and its default is unknown, {_shown(value)} "
+        "rebuilt"
+    )
+
+
+def _compared(value: Any) -> bool:
+    """Whether an argument's value is compared (absent: yes; see :func:`_arguments`)."""
+    if value is None:
+        return True
+    return (
+        _depth(value) <= MAX_ENV_KWARGS_DEPTH
+        and len(json.dumps(value, default=repr)) <= _COMPARED_BYTES
+    )
+
+
+def _held(value: Any, dtype_names: bool = False) -> Any:
+    """``value`` as a file holds it: JSON, else its placeholder (``format/unrecorded.py``).
+
+    With ``dtype_names``, a numpy dtype is its name, as the recorder holds one given to a
+    wrapper it knows. :data:`_UNKNOWN` stays itself.
+    """
+    if value is _UNKNOWN:
+        return value
+    if dtype_names and (
+        isinstance(value, np.dtype) or (isinstance(value, type) and issubclass(value, np.generic))
+    ):
+        return np.dtype(value).name
+    try:
+        return json.loads(json.dumps(value))
+    except (TypeError, ValueError, RecursionError):
+        return placeholder(value)
+
+
+def _same(recorded: Any, rebuilt: Any) -> bool | None:
+    """Whether two held values are the same: ``None`` when both are placeholders that differ.
+
+    Numbers by value (``1`` is ``1.0``, NaN is NaN). A placeholder is the same as another of
+    the same type and qualified name, the module too unless one is ``__main__`` (a script's own
+    function, which the factory imports by its module's name), or as a value JSON holds only
+    with NaN or infinity that has that placeholder (the recorder keeps one for such a value
+    when the spec needed placeholders).
+    """
+    a, b = unrecorded(recorded), unrecorded(rebuilt)
+    if a is None and b is None:
+        return bool(recorded == rebuilt) or _text(recorded) == _text(rebuilt)
+    if a is not None and b is not None:
+        return True if _same_placeholder(a, b) else None
+    plain = rebuilt if a is not None else recorded
+    try:
+        json.dumps(plain, allow_nan=False)
+    except ValueError:  # NaN or infinity: the recorder may have kept a placeholder
+        return placeholder(plain)[UNRECORDED] == (a or b)
+    return False
+
+
+def _text(value: Any) -> str:
+    """A JSON value's text, keys sorted (NaN is ``NaN``, so it equals itself)."""
+    return json.dumps(value, sort_keys=True)
+
+
+def _same_placeholder(a: str, b: str) -> bool:
+    """Whether two placeholders describe the same thing (``type module:qualname``).
+
+    >>> _same_placeholder("function __main__:make.<locals>.<lambda>",
+    ...                   "function train:make.<locals>.<lambda>")
+    True
+    >>> _same_placeholder("function train:clip", "function train:scale")
+    False
+    """
+    if a == b:
+        return True
+    kind_a, _, where_a = a.partition(" ")
+    kind_b, _, where_b = b.partition(" ")
+    module_a, _, name_a = where_a.partition(":")
+    module_b, _, name_b = where_b.partition(":")
+    return (
+        kind_a == kind_b
+        and bool(name_a)
+        and name_a == name_b
+        and "__main__" in (module_a, module_b)
+    )
+
+
+def _default(entry_point: Any, name: str) -> Any:
+    """The default of argument ``name`` of what ``entry_point`` names, or :data:`_UNKNOWN`.
+
+    ``entry_point``: a callable, or ``module:qualname`` of a module already imported (none is
+    imported here). Unknown: a module not imported, a name it lacks, no such keyword argument
+    (or only ``**kwargs``), one without a default, or a signature that cannot be read.
+    """
+    target = entry_point if callable(entry_point) else _loaded(entry_point)
+    if target is None:
+        return _UNKNOWN
+    try:
+        parameter = inspect.signature(target).parameters.get(name)
+    except (TypeError, ValueError):  # no signature Python can read (a builtin, say)
+        return _UNKNOWN
+    if parameter is None or parameter.default is inspect.Parameter.empty:
+        return _UNKNOWN
+    if parameter.kind not in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY):
+        return _UNKNOWN
+    return parameter.default
+
+
+def _loaded(entry_point: Any) -> Any:
+    """The callable ``module:qualname`` names in a module this process has imported, or ``None``."""
+    if not isinstance(entry_point, str) or ":" not in entry_point:
+        return None
+    module, _, qualname = entry_point.partition(":")
+    found: Any = sys.modules.get(module)
+    for part in qualname.split("."):
+        if found is None:
+            return None
+        found = inspect.getattr_static(found, part, None)
+    return found if callable(found) else None
+
+
+def _wrappers(
+    spec: Mapping[str, Any], rebuilt: gym.envs.registration.EnvSpec, transparent: frozenset[str]
+) -> list[tuple[str, bool]]:
+    """How the rebuilt env's wrappers differ from the recorded spec's ``additional_wrappers``.
+
+    Their classes, in order (innermost first), then each one's arguments (:func:`_arguments`).
+    Not compared: ``TimeLimit``s (its limits are: :func:`_limit_checks`), and the wrappers
+    that never change a step (the registry's ``transparent`` ones and those the recording
+    declared so), which replay leaves out itself.
+    """
+    listed = spec.get("additional_wrappers")
+    recorded = [
+        (w.get("entry_point"), w.get("kwargs")) if isinstance(w, Mapping) else (repr(w), None)
+        for w in (listed if isinstance(listed, list) else [])
+    ]
+    now = [(w.entry_point, w.kwargs) for w in rebuilt.additional_wrappers]
+    compared = [_kept(recorded, transparent), _kept(now, transparent)]
+    below = "the innermost wrapper"
+    for r, n in zip_longest(*compared):
+        if r is None or n is None or _entry(r[0]) != _entry(n[0]):
+            names = [_shown(_name(w[0])) if w is not None else "none" for w in (r, n)]
+            return [(f"{below}: {names[0]} recorded vs {names[1]} rebuilt", False)]
+        below = f"the wrapper over {_shown(_name(r[0]))}"
+    found: list[tuple[str, bool]] = []
+    for (entry, recorded_kwargs), (now_entry, now_kwargs) in zip(*compared, strict=True):
+        name = _name(entry)
+        if isinstance(recorded_kwargs, Mapping) and isinstance(now_kwargs, Mapping):
+            entries, dtypes = (entry, now_entry), now_entry in RECORDED_WRAPPERS
+            found += _arguments(f"{name}'s argument", recorded_kwargs, now_kwargs, entries, dtypes)
+        elif recorded_kwargs is not None or now_kwargs is not None:  # (None: not recorded)
+            shown = f"{_shown(recorded_kwargs)} recorded vs {_shown(_held(now_kwargs))} rebuilt"
+            found.append((f"{name}'s arguments {shown}", False))
+    return found
+
+
+_TIME_LIMIT = "gymnasium.wrappers:TimeLimit"
+
+
+def _kept(
+    wrappers: Iterable[tuple[Any, Any]], transparent: frozenset[str]
+) -> list[tuple[str, Any]]:
+    """The wrappers :func:`_wrappers` compares: not ``TimeLimit``, nor transparent ones."""
+    kept = []
+    for entry, kwargs in wrappers:
+        entry = entry if isinstance(entry, str) else repr(entry)
+        rule = RECORDED_WRAPPERS.get(entry)
+        if _entry(entry) == _TIME_LIMIT or (
+            rule.kind == "transparent" if rule else entry in transparent
+        ):
+            continue
+        kept.append((entry, kwargs))
+    return kept
+
+
+def _entry(entry_point: str) -> str:
+    """A wrapper's entry point, Gymnasium's by their package (whose modules move between versions).
+
+    >>> _entry("gymnasium.wrappers.stateful_observation:MaxAndSkipObservation")
+    'gymnasium.wrappers:MaxAndSkipObservation'
+    """
+    if entry_point.startswith(("gymnasium.wrappers.", "gymnasium.wrappers:")):
+        return f"gymnasium.wrappers:{entry_point.rpartition(':')[2]}"
+    return entry_point
+
+
+def _name(entry_point: str) -> str:
+    """A wrapper's class name, from its entry point."""
+    return entry_point.rpartition(":")[2][:80]
+
+
+_BUILD_AS_RECORDED = "pass --env-factory MODULE:CALLABLE that builds the env as recorded"
+
+
+def _as_recorded(factory: bool) -> str:
+    """What to do about a rebuilt env that differs (``factory``: the user's factory built it)."""
+    return "make the --env-factory build the env as recorded" if factory else _BUILD_AS_RECORDED
+
+
+def agents_mismatch(
+    layout: Mapping[str, Any], run: RunInfo, env: Any, *, factory: bool = False
+) -> str | None:
+    """How a rebuilt PettingZoo env differs from the recording, or ``None``.
+
+    Its agents, its ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped``
+    have one), and the first agent's observation and action spaces. ``factory``: the user's
+    env factory built it. Never raises: what cannot be read of the rebuilt env is not compared.
+    """
+    advice = (
+        _as_recorded(factory)
+        if layout.get("env_kwargs") or factory
+        else "the file holds no env_kwargs (the env's constructor arguments, which "
+        "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
+    )
+    try:
+        agents = [str(a) for a in env.possible_agents]
+        recorded = layout.get("agents")
+        if isinstance(recorded, list) and [str(a) for a in recorded] != agents:
+            return (
+                f"{_MISMATCH}agents {_agents(recorded)} recorded vs {_agents(agents)} rebuilt; "
+                f"{advice}"
+            )
+        cycles, now = layout.get("max_cycles"), getattr(env.unwrapped, "max_cycles", None)
+        if isinstance(cycles, int) and isinstance(now, int) and cycles != now:
+            return f"{_MISMATCH}max_cycles {cycles} recorded vs {now} rebuilt; {advice}"
+        if agents:
+            env_spaces = (env.observation_space(agents[0]), env.action_space(agents[0]))
+            for what, rec, space in zip(
+                ("observation space", "action space"),
+                (run.observation_space, run.action_space),
+                env_spaces,
+                strict=True,
+            ):
+                if rec != _described(space):
+                    shown = _shown(_described(space))
+                    return (
+                        f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; "
+                        f"{_as_recorded(factory)}"
+                    )
+    except Exception:  # the env's own attributes: compare nothing more
+        return None
+    return None
+
+
+def _described(space: Any) -> Any:
+    """A space's description as a file holds it (after a JSON round trip)."""
+    return json.loads(json.dumps(describe_space(space)))
+
+
+def _agents(agents: list[Any]) -> str:
+    """A list of agents in a mismatch reason: how many, and the first and last names.
+
+    >>> _agents(["a", "b"]), _agents([f"piston_{i}" for i in range(20)])
+    ('2 (a, b)', '20 (piston_0 ... piston_19)')
+    """
+    names = [str(a)[:40] for a in agents]
+    shown = ", ".join(names) if len(names) <= 3 else f"{names[0]} ... {names[-1]}"
+    return f"{len(names)} ({shown})"
