@@ -25,7 +25,7 @@ from ..format.columns import error_text
 from ..format.options import decode_typed
 from ..format.records import RunInfo
 from ..format.unrecorded import unrecorded
-from ..format.wrappers import declared_transparent, plan_wrappers
+from ..format.wrappers import RECORDED_WRAPPERS, declared_transparent, plan_wrappers
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",
@@ -74,6 +74,7 @@ def build_env(
                 _refuse_placeholders(wrapper["kwargs"], f"{str(wrapper.get('name'))[:80]} argument")
     if registered and trust_entry_points:
         trusted = [w for w in recorded if isinstance(w, Mapping)]
+        _refuse_unrecorded_arguments(trusted, declared_transparent(run.recorder))
         return _from_registry(env_id, spec, trusted, _load_wrapper)
     if registered:
         plan = plan_wrappers(recorded, declared_transparent(run.recorder))
@@ -93,6 +94,30 @@ def build_env(
         "registers it, --env-factory MODULE:CALLABLE"
         + (f", or --trust-entry-points to import {entry!r} named in the file" if entry else "")
     )
+
+
+def _refuse_unrecorded_arguments(
+    wrappers: Sequence[Mapping[str, Any]], transparent: frozenset[str]
+) -> None:
+    """Refuse to rebuild a recorded wrapper whose arguments the file does not hold.
+
+    A wrapper that does not record its constructor's arguments (one not deriving from
+    ``gymnasium.utils.RecordConstructorArgs``, e.g. SB3's ``AtariWrapper``) is in the spec with
+    ``kwargs`` null: rebuilt with its defaults it may be another env (Gymnasium's ``make``
+    refuses such a spec too). Wrappers that never change a step are left aside.
+    """
+    for wrapper in wrappers:
+        entry = str(wrapper.get("entry_point"))
+        rule = RECORDED_WRAPPERS.get(entry)
+        if wrapper.get("kwargs") is not None or (
+            rule.kind == "transparent" if rule else entry in transparent
+        ):
+            continue
+        raise ReplayError(
+            f"the recorded wrapper {entry.rpartition(':')[2][:80]} did not record its arguments "
+            "(it does not derive from gymnasium.utils.RecordConstructorArgs), so it cannot be "
+            "rebuilt as recorded; pass --env-factory MODULE:CALLABLE that builds the env"
+        )
 
 
 def replay_notes(run: RunInfo, *, env_factory: Any, trust_entry_points: bool) -> list[str]:

@@ -38,14 +38,18 @@ __all__ = ["agents_mismatch", "env_mismatch"]
 _MISMATCH = "the rebuilt env does not match the recording: "
 
 
-def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False) -> str | None:
+def env_mismatch(
+    run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False, wrappers: bool = False
+) -> str | None:
     """How the env replay built differs from the recorded description, or ``None``.
 
     Its observation and action spaces, its step limits (:func:`_limit_checks`) and, when it
     has a spec, its env kwargs (:func:`_arguments`; ``render_mode`` aside) and, when
-    ``factory`` (the user's env factory built it: the reason then says to change that), its
-    wrappers (:func:`_wrappers`). A difference between two functions' placeholders is said only
-    when nothing else differs. The limits of a factory's env are not held to those of a file
+    ``factory`` (the user's env factory built it: the reason then says to change that) or
+    ``wrappers`` (built from the recorded wrappers' entry points), its wrappers
+    (:func:`_wrappers`; one whose constructor adds wrappers of its own comes out twice, rebuilt
+    entry by entry). A difference between two functions' placeholders is said only when
+    nothing else differs. The limits of a factory's env are not held to those of a file
     whose sub-envs ran in workers (``wrappers.worker_sub_envs``: the recorder could not read
     them all, nor where they sat). Never raises: what cannot be read of the rebuilt env is not
     compared.
@@ -64,18 +68,18 @@ def env_mismatch(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool = False)
         (f"{w} {_shown(r)} recorded vs {_shown(n)} rebuilt" for w, r, n in checks if r != n), None
     )
     if said is None:
-        found = _spec_differences(run, env, factory)
+        found = _spec_differences(run, env, factory or wrappers)
         said = next((text for text, held in found if not held), None)
         said = said or next((text for text, _ in found), None)
     return None if said is None else f"{_MISMATCH}{said}; {_as_recorded(factory)}"
 
 
 def _spec_differences(
-    run: RunInfo, env: gym.Env[Any, Any], factory: bool
+    run: RunInfo, env: gym.Env[Any, Any], wrappers: bool
 ) -> list[tuple[str, bool]]:
     """How the rebuilt env's spec differs from the recorded one, each difference said.
 
-    Its kwargs, then (``factory``) its wrappers; each with whether it is between two
+    Its kwargs, then (``wrappers``) its wrappers; each with whether it is between two
     placeholders only.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
@@ -93,7 +97,7 @@ def _spec_differences(
             found += _arguments("env kwarg", recorded, now, entries)
     except Exception:  # the env's own values: compare nothing more of them
         pass
-    if factory:
+    if wrappers:
         try:
             found += _wrappers(spec, rebuilt, declared_transparent(run.recorder))
         except Exception:

@@ -66,7 +66,9 @@ def replay_single_evidence(
 
     def build() -> gym.Env[Any, Any]:
         env = build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
-        why = env_mismatch(ev.run, env, factory=env_factory is not None)
+        why = env_mismatch(
+            ev.run, env, factory=env_factory is not None, wrappers=trust_entry_points
+        )
         if why is not None:
             env.close()
             raise ReplayError(why)

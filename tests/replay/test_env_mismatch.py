@@ -255,3 +255,71 @@ def test_a_wrapper_that_never_changes_a_step_may_be_left_out(tmp_path: Path) -> 
         rec.step(rec.action_space.sample())
     assert _verdicts(path, lambda: _skipped(4)) == {("identical", None)}
     assert _verdicts(path, lambda: _Logger(_skipped(4))) == {("identical", None)}
+
+
+# ----------------------------------------------- --trust-entry-points: the recorded wrappers
+
+
+class _Shift(gym.ObservationWrapper[Any, Any, Any]):
+    """Shifts observations by ``by``; it does not record its arguments (its spec's kwargs: null)."""
+
+    def __init__(self, env: gym.Env[Any, Any], by: float = 0.0) -> None:
+        super().__init__(env)
+        self.by = by
+
+    def observation(self, observation: Any) -> Any:
+        return observation + np.float32(self.by)
+
+
+class _Nudge(gym.ObservationWrapper[Any, Any, Any], gym.utils.RecordConstructorArgs):
+    """Adds 0.25 to observations."""
+
+    def __init__(self, env: gym.Env[Any, Any]) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        super().__init__(env)
+
+    def observation(self, observation: Any) -> Any:
+        return observation + np.float32(0.25)
+
+
+class _Composite(gym.Wrapper[Any, Any, Any, Any], gym.utils.RecordConstructorArgs):
+    """A wrapper that wraps the env in another of its own (as SB3's ``AtariWrapper`` does):
+    the spec lists both, and rebuilding each entry applies the inner one twice."""
+
+    def __init__(self, env: gym.Env[Any, Any]) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        super().__init__(_Nudge(env))
+
+
+def _trusted(path: Path) -> set[tuple[str, Any]]:
+    return {(e.status, e.reason) for e in replay([path], trust_entry_points=True).episodes}
+
+
+def test_a_trusted_wrapper_that_did_not_record_its_arguments_is_not_rebuilt_with_defaults(
+    tmp_path: Path,
+) -> None:
+    # it was rebuilt with its defaults (by=0.0 where 0.5 was recorded), and replay said diverged
+    path = _record(tmp_path / "shift.mcap", _Shift(gym.make("CartPole-v1"), by=0.5))
+    assert _trusted(path) == {
+        (
+            "not_replayable",
+            "the recorded wrapper _Shift did not record its arguments (it does not derive from "
+            "gymnasium.utils.RecordConstructorArgs), so it cannot be rebuilt as recorded; pass "
+            "--env-factory MODULE:CALLABLE that builds the env",
+        )
+    }
+
+
+def test_a_trusted_wrapper_that_adds_its_own_wrappers_is_not_applied_twice_unnoticed(
+    tmp_path: Path,
+) -> None:
+    # the spec lists _Nudge and _Composite; rebuilt entry by entry, _Nudge came twice: diverged
+    path = _record(tmp_path / "composite.mcap", _Composite(gym.make("CartPole-v1")))
+    ((status, reason),) = _trusted(path)
+    assert status == "not_replayable"
+    assert reason.startswith(
+        f'{_MISMATCH}the wrapper over "_Nudge": "_Composite" recorded vs "_Nudge" rebuilt'
+    ), reason
+    assert reason.endswith("; pass --env-factory MODULE:CALLABLE that builds the env as recorded")
+    factory = lambda: _Composite(gym.make("CartPole-v1"))  # noqa: E731 - the env as recorded
+    assert {s for s, _ in _verdicts(path, factory)} == {"identical"}
