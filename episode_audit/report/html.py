@@ -207,7 +207,7 @@ def _terms_section(result: Report) -> str:
         return "<p>No reward terms recorded.</p>"
     drawn, caption = _drawn([g for g in result.groups if g.term_means])
     notes = "".join(
-        f"<p><b>{_full(g.key)}</b>{_warning_notes(g, shaping=True)}</p>"
+        f"<div><b>{_full(g.key)}</b>{_warning_notes(g, shaping=True)}</div>"
         for g in result.groups
         if any(w.code == SHAPING_DOMINATES for w in g.warnings)
     )

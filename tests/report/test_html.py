@@ -110,6 +110,18 @@ def test_html_report_puts_each_warning_next_to_its_numbers(tmp_path: Path) -> No
     assert re.search(r'<td class="n warn">[^<]*<div class="warn-note">⚠ failure_outearns', page)
 
 
+def test_a_shaping_warning_sits_in_no_paragraph(tmp_path: Path) -> None:
+    # its <div> was inside a <p>: invalid HTML (a parser closes the <p> before the <div>)
+    terms = {"alive": 1.0, "progress": 0.1}
+    plans = [Plan("success", reward=1.1, terms=terms)] + [
+        Plan("failure:fell", reward=1.1, terms=terms, length=2)
+    ] * 3
+    result = report_inputs([_record_plans(tmp_path / "shaped.mcap", plans)])
+    page = write_report_html(result.report, result.parts, tmp_path / "r.html").read_text("utf-8")
+    assert '<div class="warn-note">⚠ shaping_dominates' in page
+    assert not re.search(r"<p>(?:(?!</p>).)*<div", page, re.DOTALL)
+
+
 def test_html_report_by_label_draws_no_rate_chart_and_warns_of_nothing(tmp_path: Path) -> None:
     # each label group holds one outcome: its rates were bars at 0 and 100 % by construction
     (tmp_path / "label").mkdir(), (tmp_path / "all").mkdir()
