@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import threading
+import warnings
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -534,6 +535,39 @@ def test_over_vec_normalize_of_reacher_names_it_and_leaves_the_terms_unchecked(
         "(the wrappers change the reward, not its terms): record beneath it (innermost) for the "
         "env's own rewards, checked against their terms"
     ), found
+
+
+def normalized_reacher() -> gym.Env[Any, Any]:
+    return gym.wrappers.NormalizeReward(gym.make("Reacher-v5", max_episode_steps=5))
+
+
+def hidden_normalized_reacher() -> gym.Env[Any, Any]:
+    """Its spec is not asked of the workers (a function-taking wrapper): none is recorded."""
+    return gym.wrappers.TransformObservation(normalized_reacher(), lambda o: o, None)
+
+
+@pytest.mark.parametrize("make", [normalized_reacher, hidden_normalized_reacher])
+def test_reward_wrappers_inside_subproc_sub_envs_leave_the_terms_unchecked(
+    tmp_path: Path, make: Any
+) -> None:
+    """NormalizeReward in each worker's sub-env: the rewards are its, not the terms' sum."""
+    pytest.importorskip("mujoco")
+    path = tmp_path / "inside.mcap"
+    with warnings.catch_warnings():  # (NormalizeReward's statistics are not snapshot: said)
+        warnings.simplefilter("ignore", UserWarning)
+        venv = RecordVecEnvEvidence(SubprocVecEnv([make] * 2, start_method=START), path)
+    with venv:
+        venv.seed(0)
+        venv.reset()
+        for _ in range(12):
+            venv.step(np.full((2, 2), 0.5, dtype=np.float32))
+    run = open_evidence(path).run
+    assert (run.env_spec is None) == (make is hidden_normalized_reacher)
+    assert run.layout["reward_wrappers"] == ["gymnasium.wrappers.stateful_reward:NormalizeReward"]
+    findings = check([path]).findings
+    assert "terms_sum_mismatch" not in {f.code for f in findings}, findings
+    (found,) = [f.message for f in findings if f.code == "rewards_changed"]
+    assert found.startswith("the recorded rewards and returns are NormalizeReward's"), found
 
 
 def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:

@@ -188,7 +188,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             stack.replay_note() if stack.changing else None,
             snapshots=snapshots,
         )
-        changing = stack.reward_wrappers()
+        changing = stack.reward_wrappers(spec)
         if changing:
             layout[LAYOUT_REWARD_WRAPPERS] = changing
         layout.update(stack.unread_limits())
