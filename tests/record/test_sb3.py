@@ -44,6 +44,11 @@ from episode_audit.record.sb3 import RecordVecEnvEvidence  # noqa: E402
 from tests.support.batching import InfoReading, messages  # noqa: E402
 from tests.support.hostile import rewrite  # noqa: E402
 from tests.support.limits import skipping_pendulum  # noqa: E402
+from tests.support.unsaved import (  # noqa: E402
+    UNSAVED_WARNING,
+    assert_unseeded_episodes_are_not_replayable,
+    short_pong,
+)
 
 torch.set_num_threads(1)
 N = 4
@@ -331,6 +336,23 @@ def test_sub_envs_whose_state_is_not_snapshot_are_warned_of_and_checked(
     findings = [f.message for f in check([path]).findings if f.code == "not_replayable"]
     assert any("NormalizeObservation" in m for m in findings), findings
     assert replay([path]).count("not_replayable") == len(episodes(path))
+
+
+def test_an_env_s_own_state_in_subproc_workers_without_reset_rng_info_is_warned_of(
+    tmp_path: Path,
+) -> None:
+    """ALE's emulator state in workers that no ResetRngInfo snapshots: the episodes an
+    unseeded reset began cannot be replayed, and the recorder and check say so."""
+    path = tmp_path / "pong.mcap"
+    with pytest.warns(UserWarning, match=UNSAVED_WARNING):
+        venv = RecordVecEnvEvidence(SubprocVecEnv([short_pong] * 2, start_method=START), path)
+    with venv:
+        venv.seed(3)
+        venv.reset()
+        venv.step(np.array([0, 1]))
+        venv.reset()  # (unseeded: SB3 forgets the seeds after a reset)
+        venv.step(np.array([0, 1]))
+    assert_unseeded_episodes_are_not_replayable(path)
 
 
 def nested_pendulum() -> gym.Env[Any, Any]:

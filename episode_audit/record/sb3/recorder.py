@@ -192,6 +192,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         if changing:
             layout[LAYOUT_REWARD_WRAPPERS] = changing
         layout.update(stack.unread_limits())
+        layout.update(self._rng.unsaved_state(spec, snapshots))
         return run_info(
             settings=settings,
             spec=spec,

@@ -115,6 +115,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
         layout = _layout(env, mode, sync, sub_spec, snapshots, no_rng_note)
+        layout.update(self._rng.unsaved_state(sub_spec, snapshots))
         self.run_info = run_info(
             settings=settings,
             spec=sub_spec,
