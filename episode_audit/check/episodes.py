@@ -1,7 +1,8 @@
 """The rules over the file's episode records, one column-wise check per finding code.
 
 :func:`check_episode_records` reports ``terminated_and_truncated``, ``unlabeled_failure``,
-``incomplete_episode``, ``error_episode``, ``length_mismatch`` and ``not_replayable``.
+``incomplete_episode``, ``error_episode``, ``length_mismatch`` and ``not_replayable`` (no seed
+and no RNG state; an unseeded reset of sub-envs whose own state the file lacks).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pyarrow.compute as pc
 from ..format import names as fmt
 from ..format.records import listing, unstarted
 from ..format.run_end import RunEnd
+from ..format.wrappers import unsaved_state
 from ..record.rules import EndingRules
 from ._state import BoolArray, FileState, IntArray
 from .endings import EndingChecks
@@ -95,6 +97,7 @@ def check_episode_records(state: FileState, endings: EndingChecks) -> None:
     _errors(records)
     _lengths(records, endings, ended)
     _seedless(records)
+    _unsaved(records)
 
 
 def _both_flags(records: _Records) -> None:
@@ -265,5 +268,26 @@ def _seedless(records: _Records) -> None:
         lambda eps: (
             f"{len(eps)} episode(s) have neither a reset seed nor an RNG state "
             f"and cannot be replayed (episodes {listing(eps)})"
+        ),
+    )
+
+
+def _unsaved(records: _Records) -> None:
+    """The episodes an unseeded reset began, of sub-envs whose own state the file lacks.
+
+    (Those with neither a seed nor an RNG state are :func:`_seedless`'s.) A seeded reset sets
+    that state anew; when every episode needs it, it is a cause of ``check_state_causes``.
+    """
+    unsaved = unsaved_state(records.state.ev.run.layout)
+    if unsaved is None or unsaved[1]:
+        return
+    rows = records.rows
+    unseeded = pc.and_(pc.is_null(rows.column("seed")), pc.is_valid(rows.column("rng_state")))
+    records.finding_over(
+        NOT_REPLAYABLE,
+        unseeded.to_numpy(zero_copy_only=False),
+        lambda eps: (
+            f"{len(eps)} episode(s) began with an unseeded reset and cannot be replayed "
+            f"(episodes {listing(eps)}): {unsaved[0]}"
         ),
     )

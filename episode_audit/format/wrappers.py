@@ -32,6 +32,7 @@ __all__ = [
     "LAYOUT_REWARD_WRAPPERS",
     "LAYOUT_STATE_SNAPSHOTS",
     "LAYOUT_UNREAD_CAUSE",
+    "LAYOUT_UNSAVED_STATE",
     "LAYOUT_UNREAD_LIMITS",
     "LAYOUT_VECTOR_WRAPPERS",
     "MULTI_STEP_WRAPPERS",
@@ -54,6 +55,7 @@ __all__ = [
     "stateful_wrapper",
     "unplaced_limits",
     "unread_limits",
+    "unsaved_state",
     "vector_wrapper_cause",
     "worker_limits",
     "worker_sub_envs",
@@ -536,6 +538,36 @@ def _bad_argument(name: str, rule: WrapperRule, kwargs: Any) -> str | None:
 LAYOUT_STATE_SNAPSHOTS = "state_snapshots"
 """Layout key: ``true`` when every reset row holds a state snapshot (``format/state.py``), so a
 ``snapshot`` wrapper's state is restored (absent otherwise)."""
+LAYOUT_UNSAVED_STATE = "unsaved_state"
+"""Layout key of a vector file whose sub-env's own env keeps state a seed does not set (a state
+adapter is registered for it: ALE's ``AtariEnv``) that no ``ResetRngInfo`` snapshot: ``{"env":
+its class name, "adapter": the adapter's name, "needed": "unseeded" or "always"}`` (absent
+otherwise). Read by :func:`unsaved_state`."""
+
+
+def unsaved_state(layout: Any) -> tuple[str, bool] | None:
+    """Why a vector file's sub-envs' own state is not in it, and whether every episode needs it.
+
+    From the layout's :data:`LAYOUT_UNSAVED_STATE`: ``(why, always)``; ``always`` false when
+    only the episodes an unseeded reset began need it (a seeded reset sets it anew). ``None``
+    when the layout names none.
+
+    >>> unsaved_state({"unsaved_state": {"env": "AtariEnv", "adapter": "ale_py.AtariEnv",
+    ...     "needed": "unseeded"}})[0][:60]
+    "the sub-envs' AtariEnv keeps state a seed does not set (ale_"
+    """
+    entry = layout.get(LAYOUT_UNSAVED_STATE) if isinstance(layout, Mapping) else None
+    if not isinstance(entry, Mapping) or entry.get("needed") not in ("unseeded", "always"):
+        return None
+    env, adapter = (str(entry.get(k))[:80] for k in ("env", "adapter"))
+    return (
+        f"the sub-envs' {env} keeps state a seed does not set ({adapter}), and no ResetRngInfo "
+        "in them snapshot it: wrap each sub-env in episode_audit.ResetRngInfo (outermost; in "
+        "the env function, or make_vec_env(..., wrapper_class=ResetRngInfo))",
+        entry.get("needed") == "always",
+    )
+
+
 LAYOUT_VECTOR_WRAPPERS = "vector_wrappers"
 """The layout key of a vector file's vector wrappers under the recorder (entry points, innermost
 first; absent in files that predate it, and when there were none)."""
@@ -751,7 +783,8 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
 
     From the run metadata alone (``env_spec``: the recorded env spec, a sub-env's for a vector
     file; ``layout``: the file's layout): each recorded wrapper that keeps state across episodes
-    (:func:`stateful_wrapper`), and each vector wrapper the vector recorder wrapped.
+    (:func:`stateful_wrapper`), each vector wrapper the vector recorder wrapped, and the
+    sub-envs' own state that every episode needs, not snapshot (:func:`unsaved_state`).
     """
     causes: list[str] = []
     wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
@@ -768,6 +801,9 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
             )
     vector = layout.get(LAYOUT_VECTOR_WRAPPERS) if isinstance(layout, Mapping) else None
     causes += [c for entry in _listed(vector) if (c := vector_wrapper_cause(str(entry)))]
+    unsaved = unsaved_state(layout)
+    if unsaved is not None and unsaved[1]:  # (else only unseeded episodes: check says which)
+        causes.append(unsaved[0])
     return causes
 
 

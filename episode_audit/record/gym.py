@@ -28,6 +28,7 @@ from ..format.wrappers import (
     LAYOUT_STATE_SNAPSHOTS,
     REWARD_CHANGING,
     state_causes,
+    unsaved_state,
 )
 from .block import Episode
 from .endings import NO_ACTION
@@ -433,9 +434,15 @@ def warn_unrestorable(recorder: str, wrappers: Iterable[str], layout: Mapping[st
     """Warn once per cause that will make the recorded episodes' state unrestorable on replay.
 
     ``wrappers``: entry points of the wrappers under the recorder (a sub-env's, for a vector
-    env); ``layout``: the file's layout (its vector wrappers). The causes are those ``check``
-    and replay read from the file (:func:`~episode_audit.format.wrappers.state_causes`).
+    env); ``layout``: the file's layout (its vector wrappers, the sub-envs' own state no
+    snapshot holds). The causes are those ``check`` and replay read from the file
+    (:func:`~episode_audit.format.wrappers.state_causes`,
+    :func:`~episode_audit.format.wrappers.unsaved_state`).
     """
     spec = {"additional_wrappers": [{"entry_point": str(w)} for w in wrappers]}
-    for cause in state_causes(spec, layout):
+    causes = state_causes(spec, layout)
+    unsaved = unsaved_state(layout)  # (a vector recorder's sub-envs' own state)
+    if unsaved is not None and not unsaved[1]:
+        causes.append(f"episodes an unseeded reset begins cannot be replayed: {unsaved[0]}")
+    for cause in causes:
         warnings.warn(f"episode-audit: {recorder}: {cause}", UserWarning, stacklevel=3)

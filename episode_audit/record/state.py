@@ -12,6 +12,7 @@ are data (:mod:`episode_audit.format.state`): never pickled. Shipped adapters:
 from __future__ import annotations
 
 import re
+import sys
 from collections.abc import Iterator, Mapping
 from typing import Any, Literal, Protocol, runtime_checkable
 
@@ -23,6 +24,7 @@ __all__ = [
     "StateAdapter",
     "StateTargets",
     "adapter_for",
+    "adapter_for_entry_point",
     "chain",
     "register_state_adapter",
     "restore_snapshot",
@@ -126,6 +128,31 @@ def adapter_for(obj: Any) -> StateAdapter | None:
     found = next((_ADAPTERS[k] for k in map(_key, cls.__mro__) if k in _ADAPTERS), None)
     _BY_TYPE[cls] = found
     return found
+
+
+def adapter_for_entry_point(entry_point: Any) -> StateAdapter | None:
+    """The adapter of the env a spec's ``entry_point`` builds, if known, without importing it.
+
+    A ``"module:Class"`` string: the adapter registered for it, else (its module imported
+    already) for its class or nearest base class; a class: that class's. ``None`` otherwise.
+
+    >>> adapter_for_entry_point("ale_py.env:AtariEnv").name
+    'ale_py.AtariEnv'
+    """
+    cls: Any = entry_point
+    if isinstance(entry_point, str):
+        if entry_point in _ADAPTERS:
+            return _ADAPTERS[entry_point]
+        module, _, name = entry_point.partition(":")
+        cls = sys.modules.get(module)
+        try:
+            for part in name.split(".") if cls is not None and name else ():
+                cls = getattr(cls, part, None)
+        except Exception:  # a module's own __getattr__: unknown
+            return None
+    if not isinstance(cls, type):
+        return None
+    return next((_ADAPTERS[k] for k in map(_key, cls.__mro__) if k in _ADAPTERS), None)
 
 
 def chain(env: Any) -> Iterator[Any]:

@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import threading
+import warnings
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -43,6 +44,11 @@ from episode_audit.record.sb3 import RecordVecEnvEvidence  # noqa: E402
 from tests.support.batching import InfoReading, messages  # noqa: E402
 from tests.support.hostile import rewrite  # noqa: E402
 from tests.support.limits import skipping_pendulum  # noqa: E402
+from tests.support.unsaved import (  # noqa: E402
+    UNSAVED_WARNING,
+    assert_unseeded_episodes_are_not_replayable,
+    short_pong,
+)
 
 torch.set_num_threads(1)
 N = 4
@@ -332,6 +338,23 @@ def test_sub_envs_whose_state_is_not_snapshot_are_warned_of_and_checked(
     assert replay([path]).count("not_replayable") == len(episodes(path))
 
 
+def test_an_env_s_own_state_in_subproc_workers_without_reset_rng_info_is_warned_of(
+    tmp_path: Path,
+) -> None:
+    """ALE's emulator state in workers that no ResetRngInfo snapshots: the episodes an
+    unseeded reset began cannot be replayed, and the recorder and check say so."""
+    path = tmp_path / "pong.mcap"
+    with pytest.warns(UserWarning, match=UNSAVED_WARNING):
+        venv = RecordVecEnvEvidence(SubprocVecEnv([short_pong] * 2, start_method=START), path)
+    with venv:
+        venv.seed(3)
+        venv.reset()
+        venv.step(np.array([0, 1]))
+        venv.reset()  # (unseeded: SB3 forgets the seeds after a reset)
+        venv.step(np.array([0, 1]))
+    assert_unseeded_episodes_are_not_replayable(path)
+
+
 def nested_pendulum() -> gym.Env[Any, Any]:
     """Pendulum's registered 200-step limit inside one of 500: the inner one ends episodes."""
     return ResetRngInfo(gym.wrappers.TimeLimit(gym.make("Pendulum-v1"), 500))
@@ -534,6 +557,39 @@ def test_over_vec_normalize_of_reacher_names_it_and_leaves_the_terms_unchecked(
         "(the wrappers change the reward, not its terms): record beneath it (innermost) for the "
         "env's own rewards, checked against their terms"
     ), found
+
+
+def normalized_reacher() -> gym.Env[Any, Any]:
+    return gym.wrappers.NormalizeReward(gym.make("Reacher-v5", max_episode_steps=5))
+
+
+def hidden_normalized_reacher() -> gym.Env[Any, Any]:
+    """Its spec is not asked of the workers (a function-taking wrapper): none is recorded."""
+    return gym.wrappers.TransformObservation(normalized_reacher(), lambda o: o, None)
+
+
+@pytest.mark.parametrize("make", [normalized_reacher, hidden_normalized_reacher])
+def test_reward_wrappers_inside_subproc_sub_envs_leave_the_terms_unchecked(
+    tmp_path: Path, make: Any
+) -> None:
+    """NormalizeReward in each worker's sub-env: the rewards are its, not the terms' sum."""
+    pytest.importorskip("mujoco")
+    path = tmp_path / "inside.mcap"
+    with warnings.catch_warnings():  # (NormalizeReward's statistics are not snapshot: said)
+        warnings.simplefilter("ignore", UserWarning)
+        venv = RecordVecEnvEvidence(SubprocVecEnv([make] * 2, start_method=START), path)
+    with venv:
+        venv.seed(0)
+        venv.reset()
+        for _ in range(12):
+            venv.step(np.full((2, 2), 0.5, dtype=np.float32))
+    run = open_evidence(path).run
+    assert (run.env_spec is None) == (make is hidden_normalized_reacher)
+    assert run.layout["reward_wrappers"] == ["gymnasium.wrappers.stateful_reward:NormalizeReward"]
+    findings = check([path]).findings
+    assert "terms_sum_mismatch" not in {f.code for f in findings}, findings
+    (found,) = [f.message for f in findings if f.code == "rewards_changed"]
+    assert found.startswith("the recorded rewards and returns are NormalizeReward's"), found
 
 
 def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:

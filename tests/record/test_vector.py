@@ -42,6 +42,11 @@ from episode_audit.record.vector.rng import SubEnvRng
 from tests.support.batching import InfoReading, messages
 from tests.support.envs import ScriptedEnv
 from tests.support.limits import skipping_pendulum
+from tests.support.unsaved import (
+    UNSAVED_WARNING,
+    assert_unseeded_episodes_are_not_replayable,
+    short_pong,
+)
 
 N = 4
 STEPS = 2000
@@ -976,6 +981,24 @@ def test_a_spec_that_does_not_pickle_leaves_async_workers_alive(tmp_path: Path, 
     spec = open_evidence(path).run.env_spec
     assert isinstance(spec, dict) and spec["id"] == "CartPole-v1"
     assert {e["env_index"] for e in open_evidence(path).episodes().to_pylist()} == {0, 1}
+
+
+def test_an_env_s_own_state_in_async_workers_without_reset_rng_info_is_warned_of(
+    tmp_path: Path,
+) -> None:
+    """ALE's emulator state in workers that no ResetRngInfo snapshots: the episodes an
+    unseeded reset began cannot be replayed, and the recorder and check say so."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "pong.mcap"
+    with pytest.warns(UserWarning, match=UNSAVED_WARNING):
+        rec = RecordVectorEvidence(AsyncVectorEnv([short_pong] * 2), path)
+    with rec:
+        rec.reset(seed=3)
+        rec.step(np.array([0, 1]))
+        rec.reset()
+        rec.step(np.array([0, 1]))
+    assert_unseeded_episodes_are_not_replayable(path)
 
 
 class _Duck:

@@ -188,10 +188,11 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             stack.replay_note() if stack.changing else None,
             snapshots=snapshots,
         )
-        changing = stack.reward_wrappers()
+        changing = stack.reward_wrappers(spec)
         if changing:
             layout[LAYOUT_REWARD_WRAPPERS] = changing
         layout.update(stack.unread_limits())
+        layout.update(self._rng.unsaved_state(spec, snapshots))
         return run_info(
             settings=settings,
             spec=spec,

@@ -23,8 +23,10 @@ from stable_baselines3.common.vec_env import (
     VecVideoRecorder,
 )
 
-from ..gym import entry_point, info_entry_point, reward_wrappers
+from ...format.wrappers import REWARD_CHANGING
+from ..gym import entry_point, info_entry_point
 from ..time_limits import counted_limits, limited_spec, unread_limits
+from ..vector.recorder import sub_reward_wrappers
 from ..vector.rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, ResetRngInfo
 
 __all__ = ["TRANSPARENT", "VecStack"]
@@ -88,14 +90,17 @@ class VecStack:
             "those wrappers"
         )
 
-    def reward_wrappers(self) -> list[str]:
+    def reward_wrappers(self, spec: Any) -> list[str]:
         """The wrappers that change the reward under the recorder, innermost first.
 
-        A sub-env's (in this process only), then the VecEnv wrappers' (``VecNormalize``).
+        A sub-env's, then the VecEnv wrappers' (``VecNormalize``). A sub-env's are walked in
+        this process, else named by its ``spec`` (:func:`~..vector.recorder.sub_reward_wrappers`);
+        when the spec names none (or is unknown), the workers are asked which reward-changing
+        wrapper classes their sub-envs have (:func:`worker_reward_wrappers`).
         """
-        inner: list[str] = []
-        if self.local is not None and self.local.envs:
-            inner = reward_wrappers(self.local.envs[0])
+        inner = sub_reward_wrappers(self.local, spec)
+        if not inner and self.local is None:
+            inner = worker_reward_wrappers(self.base)
         return inner + self.rewards
 
     def info_of(self) -> str:
@@ -149,6 +154,34 @@ class VecStack:
             if isinstance(limit, (int, np.integer)) and not isinstance(limit, bool):
                 limits[i] = int(limit)
         return limits
+
+
+_REWARD_KINDS: tuple[type[gym.Wrapper[Any, Any, Any, Any]], ...] = (
+    gym.RewardWrapper,
+    *(
+        getattr(gym.wrappers, name)
+        for name in sorted(REWARD_CHANGING)
+        if hasattr(gym.wrappers, name)
+    ),
+)
+"""The Gymnasium wrapper classes that change the reward (``RewardWrapper``, and those
+:data:`~episode_audit.format.wrappers.REWARD_CHANGING` names): what workers are asked about."""
+
+
+def worker_reward_wrappers(base: VecEnv) -> list[str]:
+    """The entry points of the :data:`_REWARD_KINDS` any sub-env of ``base`` is wrapped in.
+
+    Asked with SB3's ``env_is_wrapped`` (a walk of each worker's chain giving a bool: never an
+    object, which a worker that cannot pickle it dies of). A class found stands for its bases
+    (``ClipReward`` is a ``TransformReward``, each a ``RewardWrapper``); their order in the
+    chain is unknown. None when the workers cannot be asked.
+    """
+    try:
+        found = [kind for kind in _REWARD_KINDS if any(base.env_is_wrapped(kind))]
+    except Exception:  # a VecEnv that cannot say: none known
+        return []
+    found = [k for k in found if not any(o is not k and issubclass(o, k) for o in found)]
+    return [f"{k.__module__}:{k.__qualname__}" for k in found]
 
 
 def worker_spec(base: VecEnv) -> Any:

@@ -43,7 +43,7 @@ from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_c
 from .rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, LocalSubEnvs, ResetRngInfo, SubEnvRng
 from .steps import VectorSteps
 
-__all__ = ["RecordVectorEvidence", "sub_wrappers", "vector_layout"]
+__all__ = ["RecordVectorEvidence", "sub_reward_wrappers", "sub_wrappers", "vector_layout"]
 
 
 class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
@@ -115,6 +115,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             self._rng.install_wrappers()
         obs_space, act_space = env.single_observation_space, env.single_action_space
         layout = _layout(env, mode, sync, sub_spec, snapshots, no_rng_note)
+        layout.update(self._rng.unsaved_state(sub_spec, snapshots))
         self.run_info = run_info(
             settings=settings,
             spec=sub_spec,
@@ -258,7 +259,7 @@ def _layout(
     if vector_wrappers:
         layout[LAYOUT_VECTOR_WRAPPERS] = vector_wrappers
     layout.update(_unread_limits(base, mode, sync))
-    changing = _sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
+    changing = sub_reward_wrappers(sync, sub_spec) + reward_wrappers(env)
     if changing:
         layout[LAYOUT_REWARD_WRAPPERS] = changing
     return layout
@@ -509,9 +510,13 @@ def sub_wrappers(local: LocalSubEnvs | None, sub_spec: Any) -> list[str]:
     return [str(getattr(w, "entry_point", "")) for w in wrappers]
 
 
-def _sub_reward_wrappers(sync: SyncVectorEnv | None, sub_spec: Any) -> list[str]:
-    """The first sub-env's wrappers that change its reward: walked, else as its spec names them."""
-    if sync is not None and sync.envs:
-        return reward_wrappers(sync.envs[0])
+def sub_reward_wrappers(local: LocalSubEnvs | None, sub_spec: Any) -> list[str]:
+    """The first sub-env's wrappers that change its reward: walked, else as its spec names them.
+
+    ``local``: as for :func:`sub_wrappers`; otherwise those of the spec's
+    ``additional_wrappers`` that :data:`~episode_audit.format.wrappers.REWARD_CHANGING` names.
+    """
+    if local is not None and local.envs:
+        return reward_wrappers(local.envs[0])
     wrappers = sub_wrappers(None, sub_spec)
     return [w for w in wrappers if w.rpartition(":")[2] in REWARD_CHANGING]

@@ -20,11 +20,12 @@ from typing import Any, Protocol
 import gymnasium as gym
 
 from ...format import names as fmt
+from ...format.wrappers import LAYOUT_UNSAVED_STATE
 from .. import native
 from ..notes import note
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
-from ..state import StateTargets
+from ..state import StateTargets, adapter_for_entry_point
 
 __all__ = [
     "FUNCTION_WRAPPERS",
@@ -227,6 +228,31 @@ class SubEnvRng:
             return remote is not None and _all_have(remote, name) and any(remote.get_attr(name))
         except Exception:
             return False
+
+    def unsaved_state(self, spec: Any, snapshots: bool) -> dict[str, Any]:
+        """The layout entry naming the sub-envs' own state nothing snapshots; ``{}`` if none.
+
+        ``snapshots``: as :meth:`snapshots` said. A sub-env in this process is looked at, one
+        in a worker known by its ``spec``'s entry point: the state adapter of its unwrapped env
+        (ALE's ``AtariEnv``; :func:`~..state.adapter_for_entry_point`). Read by
+        :func:`~episode_audit.format.wrappers.unsaved_state`.
+        """
+        if snapshots:
+            return {}
+        env: Any = None
+        try:
+            if self.sync is not None and self.sync.envs:
+                env = type(self.sync.envs[0].unwrapped)
+            elif self._async is not None:
+                env = getattr(spec, "entry_point", None)
+        except Exception:  # an env's own attribute access: unknown
+            return {}
+        adapter = adapter_for_entry_point(env)
+        if adapter is None:
+            return {}
+        name = env.rpartition(":")[2] if isinstance(env, str) else env.__name__
+        entry = {"env": name[:80], "adapter": str(adapter.name)[:80], "needed": adapter.needed}
+        return {LAYOUT_UNSAVED_STATE: entry}
 
     def state_from_info(self, info: Any) -> tuple[str | None, str | None]:
         """``(snapshot, note)`` :class:`ResetRngInfo` put in a reset info, each if any.
