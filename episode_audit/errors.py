@@ -13,8 +13,23 @@ Every error the library raises on purpose derives from :class:`EpisodeAuditError
     ├── WorkerError                a jobs > 1 worker or a Ray task ended before its results
     └── ContractViolation          an environment broke its contract (also an AssertionError)
 
-and one warning, :class:`WorkerWarning` (a ``jobs > 1`` run done in this process: its workers
-could not be started). Messages say what was expected, what was found, and what to do.
+and every warning it gives derives from :class:`EpisodeAuditWarning` (a ``UserWarning``)::
+
+    EpisodeAuditWarning
+    ├── RecorderWarning            a recorder, when it is made, over an env whose episodes it
+    │                              cannot record or replay as they ran (state no file holds, an
+    │                              Autoreset deeper in the chain)
+    ├── RecorderTroubleWarning     recording failed (a full disk, a deleted file, no file locks);
+    │                              the loop goes on (also a RuntimeWarning)
+    ├── UnclosedRecorderWarning    a recorder collected without close() (also a ResourceWarning,
+    │                              hidden by default as those are)
+    └── WorkerWarning              a ``jobs > 1`` run done in this process: its workers could
+                                   not be started
+
+``warnings.filterwarnings("ignore", category=RecorderWarning)`` (or ``"error"``) picks them by
+kind: a ``RecorderWarning`` points at the user's line that made the recorder, not at the
+library, so a filter on the module ``episode_audit`` does not see it. Messages say what was
+expected, what was found, and what to do.
 """
 
 from __future__ import annotations
@@ -27,10 +42,14 @@ __all__ = [
     "ContractViolation",
     "CorruptEvidenceError",
     "EpisodeAuditError",
+    "EpisodeAuditWarning",
     "EvidenceError",
     "NotEvidenceError",
     "RecorderError",
+    "RecorderTroubleWarning",
+    "RecorderWarning",
     "ReplayError",
+    "UnclosedRecorderWarning",
     "UnsupportedVersionError",
     "WorkerError",
     "WorkerWarning",
@@ -107,7 +126,35 @@ class WorkerError(EpisodeAuditError):
     """
 
 
-class WorkerWarning(UserWarning):
+class EpisodeAuditWarning(UserWarning):
+    """Base class of every warning episode-audit gives (filter them all by this category)."""
+
+
+class RecorderWarning(EpisodeAuditWarning):
+    """A recorder, when it is made, over an env whose episodes it cannot record as they ran.
+
+    State the file cannot hold (a wrapper's running statistics, a sub-env's own state), so
+    those episodes cannot be replayed; an ``Autoreset`` deeper in the chain, whose resets the
+    recorder cannot see. ``check`` reports the same from the file.
+    """
+
+
+class RecorderTroubleWarning(EpisodeAuditWarning, RuntimeWarning):
+    """Recording failed (a full disk, a file deleted or not finished, no file locks).
+
+    Warned once, the training loop goes on, and the file's run-end record says so. Also a
+    ``RuntimeWarning``: a filter on that category catches it too.
+    """
+
+
+class UnclosedRecorderWarning(EpisodeAuditWarning, ResourceWarning):
+    """A recorder was collected without ``close()``: close it, or use it as a context manager.
+
+    Also a ``ResourceWarning``: hidden unless those are shown (``python -X dev``, pytest).
+    """
+
+
+class WorkerWarning(EpisodeAuditWarning):
     """The worker processes of a ``jobs > 1`` run could not be started: it ran in this process.
 
     The message says why (e.g. ``Read-only file system``: no writable ``/dev/shm`` for their

@@ -25,7 +25,12 @@ import pyarrow as pa
 from gymnasium.wrappers import TimeLimit
 
 from .._version import __version__
-from ..errors import ConfigurationError, RecorderError
+from ..errors import (
+    ConfigurationError,
+    RecorderError,
+    RecorderTroubleWarning,
+    UnclosedRecorderWarning,
+)
 from ..format import names as fmt
 from ..format.columns import error_text
 from ..format.records import MAX_JSON_TEXT, RunInfo
@@ -217,7 +222,7 @@ class FileRecorder:
             warnings.warn(
                 f"episode-audit: {type(self).__name__} for {getattr(self, 'path', '?')} was not "
                 "closed; call close() or use it as a context manager",
-                ResourceWarning,
+                UnclosedRecorderWarning,
                 stacklevel=2,
             )
 
@@ -580,13 +585,14 @@ _DELETED = (
 
 
 def _warn_line(message: str) -> None:
-    """Warn ``message`` (a ``RuntimeWarning``) as one line, without a source line under it."""
+    """Warn ``message`` (a :class:`RecorderTroubleWarning`) as one line, without a source line."""
     import warnings
 
-    # A location with no source: the warning prints as "<episode-audit>:0: RuntimeWarning: ...",
-    # never with a line of the recorder's code (or the user's) under it.
+    # A location with no source: the warning prints as
+    # "<episode-audit>:0: RecorderTroubleWarning: ...", never with a line of the recorder's code
+    # (or the user's) under it.
     warnings.warn_explicit(
-        message, RuntimeWarning, "<episode-audit>", 0, module="episode_audit", registry={}
+        message, RecorderTroubleWarning, "<episode-audit>", 0, module="episode_audit", registry={}
     )
 
 

@@ -22,6 +22,7 @@ from gymnasium.envs.registration import EnvSpec
 from gymnasium.wrappers import Autoreset
 from typing_extensions import Unpack
 
+from ..errors import RecorderWarning
 from ..format.spaces import codec_for, describe_space
 from ..format.wrappers import (
     LAYOUT_REWARD_WRAPPERS,
@@ -366,7 +367,7 @@ def autoreset_under(recorder: str, env: Any) -> Autoreset[Any, Any] | None:
             "recorded as its steps after the end; put Autoreset over the recorder, or right "
             "under it (its resets are then recorded as episodes), or record a vector env "
             "with RecordVectorEvidence",
-            UserWarning,
+            RecorderWarning,
             stacklevel=3,
         )
     return None
@@ -445,4 +446,4 @@ def warn_unrestorable(recorder: str, wrappers: Iterable[str], layout: Mapping[st
     if unsaved is not None and not unsaved[1]:
         causes.append(f"episodes an unseeded reset begins cannot be replayed: {unsaved[0]}")
     for cause in causes:
-        warnings.warn(f"episode-audit: {recorder}: {cause}", UserWarning, stacklevel=3)
+        warnings.warn(f"episode-audit: {recorder}: {cause}", RecorderWarning, stacklevel=3)

@@ -22,7 +22,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO
 
-from ..errors import ConfigurationError
+from ..errors import ConfigurationError, RecorderTroubleWarning
 from ..format.locking import Holder, holder, probe, try_lock, unlock
 
 __all__ = [
@@ -343,7 +343,7 @@ def _warn_no_locks(path: Path, exc: OSError) -> None:
             f"episode-audit: {path}: the filesystem cannot lock files ({exc.strerror}); "
             "recording anyway, but nothing stops a recorder in another process from writing "
             "the same file",
-            RuntimeWarning,
+            RecorderTroubleWarning,
             stacklevel=2,
         )
 

@@ -171,7 +171,7 @@ def test_close_on_a_full_disk_does_not_raise_and_the_file_says_what_was_lost(
         assert "the recorder never finished the file (killed, or its close() could not write)" in (
             result.dropped
         )
-    assert all(line.startswith("<episode-audit>:0: RuntimeWarning: ") for line in stderr)
+    assert all(line.startswith("<episode-audit>:0: RecorderTroubleWarning: ") for line in stderr)
 
 
 def test_record_on_a_full_disk_says_one_line_naming_the_file(tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ import pytest
 
 import episode_audit.record.lock as lock_module
 from episode_audit import RecordEvidence, RecordVectorEvidence, check, open_evidence, recover
-from episode_audit.errors import ConfigurationError, RecorderError
+from episode_audit.errors import ConfigurationError, RecorderError, RecorderTroubleWarning
 from episode_audit.read.liveness import writer_of
 from episode_audit.record.lock import PathTemplate
 from episode_audit.rollout import record_episodes
@@ -175,7 +175,7 @@ def test_a_filesystem_without_locks_records_anyway_and_warns_once(
 
     monkeypatch.setattr(lock_module, "try_lock", no_locks)
     monkeypatch.setattr(lock_module, "_warned_no_locks", False)
-    with pytest.warns(RuntimeWarning, match="cannot lock files \\(No locks available\\)"):
+    with pytest.warns(RecorderTroubleWarning, match="cannot lock files \\(No locks available\\)"):
         first = RecordEvidence(gym.make("CartPole-v1"), tmp_path / "a.mcap")
     with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "b.mcap") as second:  # no warning
         _record(second)
@@ -191,7 +191,7 @@ def test_a_file_deleted_while_recorded_is_warned_once_and_the_loop_goes_on(tmp_p
     env = RecordEvidence(gym.make("CartPole-v1"), path)
     env.reset(seed=0)
     path.unlink()
-    with pytest.warns(RuntimeWarning, match=r"run.mcap was deleted while being recorded: "):
+    with pytest.warns(RecorderTroubleWarning, match=r"run.mcap was deleted while being recorded: "):
         env.flush()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # (once)
@@ -430,7 +430,7 @@ def test_a_forked_child_cannot_record_into_its_parents_file(
             r"\(pid \d+\), and the recorder records only there; create the recorder in this",
             message,
         ), message
-    assert "ResourceWarning" not in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert "was not closed" not in done.stderr and "Traceback" not in done.stderr, done.stderr
     result = check([path])
     assert result.ok and not result.warnings, [f.message for f in result.findings]
     envs = 2 if kind == "vector" else 1

@@ -19,7 +19,7 @@ from gymnasium.vector.utils import batch_space, iterate
 from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv, VecEnvWrapper
 from typing_extensions import Unpack
 
-from ...errors import ConfigurationError
+from ...errors import ConfigurationError, RecorderWarning
 from ...format.records import RunInfo
 from ...format.spaces import codec_for, describe_space
 from ...format.wrappers import LAYOUT_REWARD_WRAPPERS
@@ -129,7 +129,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         if stack.changing:  # (as RecordVectorEvidence warns of what it cannot replay)
             warnings.warn(
                 f"episode-audit: {type(self).__name__}: {stack.replay_note()}",
-                UserWarning,
+                RecorderWarning,
                 stacklevel=2,
             )
         warn_unrestorable(
