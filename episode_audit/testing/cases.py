@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import math
+import numbers
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -138,6 +140,7 @@ class ContractCase:
     id: str | None = None
 
     def __post_init__(self) -> None:
+        _check_fields(self)
         if (self.actions is None) == (self.make_policy is None):
             raise ConfigurationError(
                 f"{self}: expected exactly one of actions= and make_policy=, got "
@@ -153,11 +156,6 @@ class ContractCase:
         for terms in ("terms_present", "terms_absent"):
             given = name_list(f"{self}: {terms}", getattr(self, terms))
             object.__setattr__(self, terms, tuple(given))
-        if self.random_episodes < 0 or self.max_steps < 1:
-            raise ConfigurationError(
-                f"{self}: expected random_episodes >= 0 and max_steps >= 1, got "
-                f"{self.random_episodes} and {self.max_steps}"
-            )
 
     @property
     def expected(self) -> Expected | None:
@@ -187,6 +185,93 @@ class ContractCase:
                 f"{self}: the env factory returned {type(env).__name__}, not a gymnasium.Env"
             )
         return env
+
+
+_MAX_SEED = 2**63 - 1
+"""The largest seed a file records (its ``seed`` column is an int64)."""
+
+
+def _check_fields(case: ContractCase) -> None:
+    """Each field of ``case`` of its type and in its range, else :class:`ConfigurationError`.
+
+    The integers are kept as ``int`` (a numpy integer is one; a ``bool`` is not).
+    """
+    if not (isinstance(case.env, str) or callable(case.env)):
+        raise ConfigurationError(
+            f"ContractCase: env: expected a registered env id (a str) or a factory returning a "
+            f"gymnasium.Env, got {_found(case.env)}"
+        )
+    if case.id is not None and not isinstance(case.id, str):
+        raise ConfigurationError(f"ContractCase: id: expected a str or None, got {_found(case.id)}")
+    for name in ("env_kwargs", "recorder_options"):
+        value = getattr(case, name)
+        if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
+            raise ConfigurationError(
+                f"{case}: {name}: expected a dict of keyword arguments (str keys), got "
+                f"{_found(value)}"
+            )
+    for name, low, high in (
+        ("seed", 0, _MAX_SEED),
+        ("random_episodes", 0, None),
+        ("max_steps", 1, None),
+    ):
+        object.__setattr__(case, name, _integer(case, name, low, high))
+    for name in ("atol", "rtol"):
+        value = getattr(case, name)
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not (number and math.isfinite(value) and value >= 0):
+            raise ConfigurationError(
+                f"{case}: {name}: expected a finite number >= 0, got {_found(value)}"
+            )
+    for name in ("require_terms", "replay"):
+        if not isinstance(getattr(case, name), bool):
+            raise ConfigurationError(
+                f"{case}: {name}: expected True or False, got {_found(getattr(case, name))}"
+            )
+    _check_steppers(case)
+
+
+def _check_steppers(case: ContractCase) -> None:
+    """``actions``, ``make_policy`` and ``expect`` of the types they may be, else raise."""
+    actions = case.actions
+    if not (
+        actions is None
+        or isinstance(actions, (str, os.PathLike))
+        or callable(actions)
+        or (isinstance(actions, Iterable) and not isinstance(actions, (bytes, Mapping)))
+    ):
+        raise ConfigurationError(
+            f"{case}: actions: expected a list, a policy, 'random' or an evidence file as a "
+            f"Path, got {_found(actions)}"
+        )
+    if case.make_policy is not None and not callable(case.make_policy):
+        raise ConfigurationError(
+            f"{case}: make_policy: expected a callable (env -> policy) or None, got "
+            f"{_found(case.make_policy)}"
+        )
+    if case.expect is not None and not isinstance(case.expect, (str, Expected)):
+        raise ConfigurationError(
+            f"{case}: expect: expected 'success', 'failure[:LABEL]', 'truncated[:REASON]' or "
+            f"None, got {_found(case.expect)}"
+        )
+
+
+def _integer(case: ContractCase, name: str, low: int, high: int | None) -> int:
+    """``case``'s field ``name`` as an ``int`` in ``low .. high``, else raise."""
+    value = getattr(case, name)
+    span = f">= {low}" if high is None else f"in {low} .. {high}"
+    integer = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if integer and low <= int(value) and (high is None or int(value) <= high):
+        return int(value)
+    raise ConfigurationError(f"{case}: {name}: expected an int {span}, got {_found(value)}")
+
+
+def _found(value: Any) -> str:
+    """What a field held, for a message: its value (cut) and type, e.g. ``'0' (str)``."""
+    shown = repr(value)
+    if len(shown) > 80:
+        shown = shown[:77] + "..."
+    return f"{shown} ({type(value).__name__})"
 
 
 def contract_cases(env_ids: Iterable[str | EnvMaker], **case: Any) -> list[ContractCase]:

@@ -190,7 +190,51 @@ def test_an_array_of_actions_steps_row_by_row(tmp_path: Path) -> None:
         ),
         ({"actions": "run.mcap"}, "as a Path, got the string 'run.mcap'"),
         ({"actions": [0], "expect": "done"}, "expect: expected 'success', "),
-        ({"actions": [0], "max_steps": 0}, "expected random_episodes >= 0 and max_steps >= 1"),
+        ({"actions": [0], "max_steps": 0}, r": max_steps: expected an int >= 1, got 0 \(int\)$"),
+        ({"actions": [0], "seed": "0"}, r"^CartPole-v1-seed0: seed: expected an int in 0 \.\. "),
+        ({"actions": [0], "seed": -1}, r": seed: expected an int in 0 \.\. 9223372036854775807, "),
+        ({"actions": [0], "seed": 2**63}, r": seed: expected an int in 0 \.\. 922"),
+        (
+            {"actions": [0], "seed": True},
+            r": seed: expected an int in 0 \.\. .*, got True \(bool\)$",
+        ),
+        ({"actions": [0], "seed": 1.0}, r": seed: expected an int in .*, got 1\.0 \(float\)$"),
+        (
+            {"actions": [0], "random_episodes": "3"},
+            r": random_episodes: expected an int >= 0, got '3'",
+        ),
+        (
+            {"actions": [0], "random_episodes": -1},
+            r": random_episodes: expected an int >= 0, got -1",
+        ),
+        (
+            {"actions": [0], "max_steps": None},
+            r": max_steps: expected an int >= 1, got None \(None",
+        ),
+        (
+            {"actions": [0], "atol": "0.1"},
+            r": atol: expected a finite number >= 0, got '0\.1' \(str\)$",
+        ),
+        ({"actions": [0], "rtol": float("nan")}, r": rtol: expected a finite number >= 0, got nan"),
+        (
+            {"actions": [0], "rtol": False},
+            r": rtol: expected a finite number >= 0, got False \(bool",
+        ),
+        ({"actions": [0], "replay": "no"}, r": replay: expected True or False, got 'no' \(str\)$"),
+        (
+            {"actions": [0], "require_terms": 1},
+            r": require_terms: expected True or False, got 1 \(int",
+        ),
+        ({"actions": 5}, r": actions: expected a list, a policy, 'random' or .*, got 5 \(int\)$"),
+        ({"actions": [0], "make_policy": 3}, r": make_policy: expected a callable .*, got 3 \(int"),
+        (
+            {"actions": [0], "expect": 1},
+            r": expect: expected 'success', .* or None, got 1 \(int\)$",
+        ),
+        ({"actions": [0], "env_kwargs": [1]}, r": env_kwargs: expected a dict of keyword argu"),
+        ({"actions": [0], "env_kwargs": {1: 2}}, r": env_kwargs: expected a dict .*, got \{1: 2\}"),
+        ({"actions": [0], "recorder_options": None}, r": recorder_options: expected a dict .*None"),
+        ({"actions": [0], "id": 7}, r"^ContractCase: id: expected a str or None, got 7 \(int\)$"),
         (
             {"actions": [0], "terms_present": "reward_ctrl"},
             r"^CartPole-v1-seed0: terms_present: expected a list of names, got the string "
@@ -207,6 +251,18 @@ def test_a_case_that_cannot_run_is_a_configuration_error(
 ) -> None:
     with pytest.raises(ConfigurationError, match=match):
         ContractCase("CartPole-v1", **fields)
+
+
+def test_a_case_whose_env_is_neither_an_id_nor_a_factory_is_a_configuration_error() -> None:
+    with pytest.raises(ConfigurationError, match=r"^ContractCase: env: expected a registered env"):
+        ContractCase(3, actions=[0])  # type: ignore[arg-type]
+
+
+def test_a_case_s_numpy_integers_are_kept_as_ints(tmp_path: Path) -> None:
+    case = ContractCase("CartPole-v1", seed=np.int64(3), actions=[0] * 50, max_steps=np.int32(60))
+    assert type(case.seed) is int and case.seed == 3
+    assert type(case.max_steps) is int and case.max_steps == 60
+    check_contract(case, tmp_path)  # (a bad seed would be the env's error, not the case's)
 
 
 def test_an_env_that_cannot_be_made_is_a_configuration_error(tmp_path: Path) -> None:
