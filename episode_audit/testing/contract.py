@@ -28,6 +28,7 @@ from ..record import RecordEvidence
 from ..replay import EpisodeReplay, replay
 from ..report import report
 from .cases import ContractCase, Expected, Policy, evidence_actions, evidence_folder
+from .command import replay_command
 
 __all__ = [
     "CaseLike",
@@ -364,18 +365,8 @@ def violation_message(result: ContractResult) -> str:
     lines = [f"{result.case}: {n} broken clause{'s' if n != 1 else ''}"]
     lines += [f"  {p}" for p in result.problems]
     lines.append(f"  evidence kept: {result.path}")
-    lines.append(f"  replay it: {_replay_command(result.case, result.path)}")
+    command = replay_command(result.case.env, result.case.env_kwargs, result.path)
+    lines.append(f"  replay it: {command}")
     if result.incentive_path is not None and result.incentive_warnings:
         lines.append(f"  random episodes: episode-audit report {result.incentive_path}")
     return "\n".join(lines)
-
-
-def _replay_command(case: CaseLike, path: Path) -> str:
-    command = f"episode-audit replay {path}"
-    if isinstance(case.env, str):
-        return command
-    module = getattr(case.env, "__module__", None)
-    name = getattr(case.env, "__qualname__", "")
-    if case.env_kwargs or not module or "<" in name:
-        return f"{command} --env-factory MODULE:CALLABLE (a callable building the env)"
-    return f"{command} --env-factory {module}:{name}"
