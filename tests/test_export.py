@@ -10,6 +10,7 @@ import pytest
 
 from episode_audit import ConfigurationError, NotEvidenceError, open_evidence
 from episode_audit.export import export
+from tests.support.mypy_run import mypy_output
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
@@ -118,3 +119,24 @@ def test_a_parquet_export_given_as_evidence_says_what_it_is(tmp_path: Path) -> N
             r"writes\), not evidence: pass the evidence files \(\*\.mcap\) instead$",
         ):
             open_evidence(written)
+
+
+def test_mypy_takes_a_target_held_in_a_str(tmp_path: Path) -> None:
+    found = mypy_output(
+        tmp_path,
+        """
+        from episode_audit import export
+
+        def run(target: str) -> None:
+            reveal_type(export(["a.mcap"], "out", to=target))
+            reveal_type(export(["a.mcap"], "out"))
+            reveal_type(export(["a.mcap"], "out.rrd", to="rerun"))
+        """,
+    )
+    revealed = re.findall(r'Revealed type is "(.*)"', found)
+    assert revealed == [
+        "episode_audit.export.parquet.ExportResult | episode_audit.export._output.ViewerExport",
+        "episode_audit.export.parquet.ExportResult",
+        "episode_audit.export._output.ViewerExport",
+    ], found
+    assert "Success: no issues found" in found, found

@@ -54,6 +54,21 @@ def export(
     filesystem: Any = None,
     storage_options: dict[str, Any] | None = None,
 ) -> ViewerExport: ...
+@overload
+def export(
+    paths: Iterable[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    *,
+    to: str,
+    overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
+    progress: Callable[[int], None] | None = None,
+    on_error: Callable[[EvidenceError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
+) -> ExportResult | ViewerExport: ...
 def export(
     paths: Iterable[str | os.PathLike[str]],
     out: str | os.PathLike[str],
