@@ -477,7 +477,7 @@ def compare(
         ('underpowered', 5, True)
     """
     check_compare_by(by)
-    baseline, candidate = path_list(baseline), path_list(candidate)
+    baseline, candidate = path_list(baseline, "baseline"), path_list(candidate, "candidate")
     check_apart(baseline, candidate)
     opened_b = [(str(p), open_evidence(p)) for p in baseline]
     opened_c = [(str(p), open_evidence(p)) for p in candidate]

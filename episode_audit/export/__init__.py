@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Final, Literal, overload
 
 from ..errors import ConfigurationError, EvidenceError
+from ..format.paths import path_argument
 from ..read.arguments import path_list
 from ._output import ViewerExport
 from .parquet import ExportResult
@@ -94,8 +95,7 @@ def export(
     on the command line). ``jobs`` / ``ray_address`` (workers) and ``filesystem`` /
     ``storage_options`` (URLs) are the Parquet export's (:func:`.parquet.export`).
     """
-    if not os.fspath(out):  # (Path("") is the current folder)
-        raise ConfigurationError("out: expected a path, got an empty string")
+    out = path_argument("out", out)
     if to == "parquet":
         return _export_parquet(
             paths,
