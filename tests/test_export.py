@@ -121,6 +121,25 @@ def test_a_parquet_export_given_as_evidence_says_what_it_is(tmp_path: Path) -> N
             open_evidence(written)
 
 
+def test_a_failed_export_leaves_no_folder_it_made(tmp_path: Path) -> None:
+    """As the command line, which opens its inputs first, leaves none."""
+    bad = tmp_path / "notes.txt"
+    bad.write_text("not an mcap\n")
+    out = tmp_path / "new" / "out"
+    with pytest.raises(NotEvidenceError, match=rf"^{re.escape(str(bad))}: "):
+        export([bad], out)
+    assert not (tmp_path / "new").exists()
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    with pytest.raises(NotEvidenceError, match=rf"^{re.escape(str(bad))}: "):
+        export([bad], existing / "out")
+    assert list(existing.iterdir()) == []  # (a folder it did not make stays)
+    # an input exported before the failure stays, with its folder (the docstring says so)
+    with pytest.raises(NotEvidenceError, match=rf"^{re.escape(str(bad))}: "):
+        export([FIXTURES / "clean.mcap", bad], tmp_path / "partial")
+    assert [p.name for p in (tmp_path / "partial").iterdir()] == ["clean.steps.parquet"]
+
+
 def test_mypy_takes_a_target_held_in_a_str(tmp_path: Path) -> None:
     found = mypy_output(
         tmp_path,
