@@ -9,6 +9,8 @@ read it back as Arrow tables.
 '1.0'
 """
 
+import typing as _typing
+
 from . import tasks as _tasks  # noqa: F401 - registers the reference tasks' Gymnasium ids
 from ._version import __version__
 from .check import CheckResult, Finding, check
@@ -45,6 +47,12 @@ from .record import (
 from .recover import RecoveryResult, recover
 from .replay import ReplayResult, replay
 from .report import Gates, Report, report
+
+if (
+    _typing.TYPE_CHECKING
+):  # (for type checkers: at run time these are loaded on first access, below)
+    from .record.pettingzoo import RecordAECEvidence, RecordParallelEvidence
+    from .record.sb3 import RecordEvalCallback, RecordVecEnvEvidence, record_evaluation
 
 __all__ = [
     "CheckResult",

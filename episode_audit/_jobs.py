@@ -32,7 +32,9 @@ __all__ = [
     "Progress",
     "check_jobs",
     "map_ordered",
+    "pooled",
     "sigint_held",
+    "unpicklable",
     "usable_cores",
     "workers",
 ]
@@ -112,11 +114,11 @@ def map_ordered(
     [2, 4, 6]
     """
     work = list(items)
-    processes = min(check_jobs(jobs), len(work))
-    if ray_address is None and processes <= 1:
+    if ray_address is None and not pooled(len(work), jobs, ray_address):
         for item in work:
             yield fn(item, progress)
         return
+    processes = min(check_jobs(jobs), len(work))
     weights = [float(c) for c in costs] if costs is not None else [_size(i) for i in work]
     if ray_address is not None:
         runs = _chunks(weights, workers(None, ray_address))
@@ -124,6 +126,31 @@ def map_ordered(
     else:
         _refuse_while_importing_main()
         yield from _pool_map(fn, work, _chunks(weights, processes), processes, progress)
+
+
+def pooled(items: int, jobs: int | None, ray_address: str | None) -> bool:
+    """Whether :func:`map_ordered` over ``items`` items sends work to its pool's workers.
+
+    They take ``fn`` and the items pickled, as :mod:`multiprocessing` pickles (by reference:
+    a lambda or a local function cannot go); Ray tasks (``ray_address``) pickle with
+    ``cloudpickle``, which takes those too.
+    """
+    return ray_address is None and min(check_jobs(jobs), items) > 1
+
+
+def unpicklable(value: object) -> str | None:
+    """Why ``value`` cannot be sent to a pooled worker (:func:`pooled`), or ``None`` if it can.
+
+    >>> unpicklable(usable_cores) is None, unpicklable(lambda: 1) is None
+    (True, False)
+    """
+    from multiprocessing.reduction import ForkingPickler
+
+    try:
+        ForkingPickler.dumps(value)
+    except Exception as exc:  # (pickle raises what the object's reduction raises)
+        return str(exc)
+    return None
 
 
 def _refuse_while_importing_main() -> None:

@@ -10,6 +10,7 @@ import pytest
 
 from episode_audit import ConfigurationError, NotEvidenceError, open_evidence
 from episode_audit.export import export
+from tests.support.mypy_run import mypy_output
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
@@ -118,3 +119,43 @@ def test_a_parquet_export_given_as_evidence_says_what_it_is(tmp_path: Path) -> N
             r"writes\), not evidence: pass the evidence files \(\*\.mcap\) instead$",
         ):
             open_evidence(written)
+
+
+def test_a_failed_export_leaves_no_folder_it_made(tmp_path: Path) -> None:
+    """As the command line, which opens its inputs first, leaves none."""
+    bad = tmp_path / "notes.txt"
+    bad.write_text("not an mcap\n")
+    out = tmp_path / "new" / "out"
+    with pytest.raises(NotEvidenceError, match=rf"^{re.escape(str(bad))}: "):
+        export([bad], out)
+    assert not (tmp_path / "new").exists()
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    with pytest.raises(NotEvidenceError, match=rf"^{re.escape(str(bad))}: "):
+        export([bad], existing / "out")
+    assert list(existing.iterdir()) == []  # (a folder it did not make stays)
+    # an input exported before the failure stays, with its folder (the docstring says so)
+    with pytest.raises(NotEvidenceError, match=rf"^{re.escape(str(bad))}: "):
+        export([FIXTURES / "clean.mcap", bad], tmp_path / "partial")
+    assert [p.name for p in (tmp_path / "partial").iterdir()] == ["clean.steps.parquet"]
+
+
+def test_mypy_takes_a_target_held_in_a_str(tmp_path: Path) -> None:
+    found = mypy_output(
+        tmp_path,
+        """
+        from episode_audit import export
+
+        def run(target: str) -> None:
+            reveal_type(export(["a.mcap"], "out", to=target))
+            reveal_type(export(["a.mcap"], "out"))
+            reveal_type(export(["a.mcap"], "out.rrd", to="rerun"))
+        """,
+    )
+    revealed = re.findall(r'Revealed type is "(.*)"', found)
+    assert revealed == [
+        "episode_audit.export.parquet.ExportResult | episode_audit.export._output.ViewerExport",
+        "episode_audit.export.parquet.ExportResult",
+        "episode_audit.export._output.ViewerExport",
+    ], found
+    assert "Success: no issues found" in found, found

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import inspect
+import re
 import subprocess
 import sys
 from importlib.util import find_spec
+from pathlib import Path
 
 import pytest
 
 import episode_audit
+from tests.support.mypy_run import mypy_output
 
 
 def test_all_is_sorted_and_complete() -> None:
@@ -59,3 +62,32 @@ def test_an_optional_recorder_without_its_package_names_the_extra(
         f"ModuleNotFoundError: episode_audit.{name} needs the {package!r} package; "
         f"install it with pip install 'episode-audit[{extra}]'"
     )
+
+
+def test_the_lazily_loaded_names_have_their_types_for_mypy(tmp_path: Path) -> None:
+    found = mypy_output(
+        tmp_path,
+        """
+        from episode_audit import (
+            RecordAECEvidence,
+            RecordEvalCallback,
+            RecordParallelEvidence,
+            RecordVecEnvEvidence,
+            record_evaluation,
+        )
+
+        reveal_type(RecordVecEnvEvidence)
+        reveal_type(RecordEvalCallback)
+        reveal_type(RecordAECEvidence)
+        reveal_type(RecordParallelEvidence)
+        reveal_type(record_evaluation)
+        """,
+    )
+    revealed = re.findall(r'Revealed type is "(.*)"', found)
+    assert len(revealed) == 5, found
+    for name, shown in zip(
+        ["RecordVecEnvEvidence", "RecordEvalCallback", "RecordAECEvidence"], revealed
+    ):
+        assert shown.startswith("def ") and shown.endswith(f".{name}"), (name, shown)
+    assert revealed[3].endswith(".RecordParallelEvidence"), revealed[3]
+    assert re.match(r"def \(model: .*\) -> tuple\[", revealed[4]), revealed[4]

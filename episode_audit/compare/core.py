@@ -22,6 +22,7 @@ from typing import Any
 import pyarrow as pa
 
 from ..errors import ConfigurationError
+from ..format.columns import counted
 from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
 from ..read.storage import is_url
@@ -421,7 +422,7 @@ def _check_sides(found: dict[str, Any], side: str, episodes: pa.Table) -> None:
         how = ", ".join(f"{outcome} {n}" for outcome, n in sorted(counts.items()))
         raise ConfigurationError(
             f"the {side} has no ended episode (success, failure or truncated) to compare"
-            + (f" (its {episodes.num_rows} episodes: {how})" if how else "")
+            + (f" (its {counted(episodes.num_rows, 'episode')}: {how})" if how else "")
             + ": record some, or check its files with `episode-audit report`"
         )
 
@@ -477,7 +478,7 @@ def compare(
         ('underpowered', 5, True)
     """
     check_compare_by(by)
-    baseline, candidate = path_list(baseline), path_list(candidate)
+    baseline, candidate = path_list(baseline, "baseline"), path_list(candidate, "candidate")
     check_apart(baseline, candidate)
     opened_b = [(str(p), open_evidence(p)) for p in baseline]
     opened_c = [(str(p), open_evidence(p)) for p in candidate]

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Final, Literal, overload
 
 from ..errors import ConfigurationError, EvidenceError
+from ..format.paths import path_argument
 from ..read.arguments import path_list
 from ._output import ViewerExport
 from .parquet import ExportResult
@@ -54,6 +55,21 @@ def export(
     filesystem: Any = None,
     storage_options: dict[str, Any] | None = None,
 ) -> ViewerExport: ...
+@overload
+def export(
+    paths: Iterable[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    *,
+    to: str,
+    overwrite: bool = False,
+    overwrite_option: str = "overwrite=True",
+    progress: Callable[[int], None] | None = None,
+    on_error: Callable[[EvidenceError], None] | None = None,
+    jobs: int | None = 1,
+    ray_address: str | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
+) -> ExportResult | ViewerExport: ...
 def export(
     paths: Iterable[str | os.PathLike[str]],
     out: str | os.PathLike[str],
@@ -79,8 +95,7 @@ def export(
     on the command line). ``jobs`` / ``ray_address`` (workers) and ``filesystem`` /
     ``storage_options`` (URLs) are the Parquet export's (:func:`.parquet.export`).
     """
-    if not os.fspath(out):  # (Path("") is the current folder)
-        raise ConfigurationError("out: expected a path, got an empty string")
+    out = path_argument("out", out)
     if to == "parquet":
         return _export_parquet(
             paths,

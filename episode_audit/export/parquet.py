@@ -108,7 +108,8 @@ def export(
     ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
     export a file each (see :mod:`episode_audit._jobs`); Ray workers must see ``out_dir``.
     The output is the same as with ``jobs=1`` (without ``on_error``, files after an unreadable
-    one may have been written by then).
+    one may have been written by then). ``out_dir`` and its missing parents are created; an
+    export that fails removes those of them it left empty.
 
     >>> import tempfile, pathlib, gymnasium as gym
     >>> from episode_audit import RecordEvidence
@@ -127,7 +128,27 @@ def export(
         return _export_to_url(
             sources, out_url, overwrite, overwrite_option, progress, on_error, jobs, ray_address
         )
-    out = _output_directory(Path(out_dir))
+    out, made = _output_directory(Path(out_dir))
+    try:
+        return _export_local(
+            sources, out, overwrite, overwrite_option, progress, on_error, jobs, ray_address
+        )
+    except BaseException:
+        _remove_empty(made)  # (a failed export leaves no folder of its own making behind)
+        raise
+
+
+def _export_local(
+    sources: list[Source],
+    out: Path,
+    overwrite: bool,
+    overwrite_option: str,
+    progress: Callable[[int], None] | None,
+    on_error: Callable[[EvidenceError], None] | None,
+    jobs: int | None,
+    ray_address: str | None,
+) -> ExportResult:
+    """:func:`export` into the local directory ``out`` (it exists)."""
     episodes_file = out / "episodes.parquet"
     result = ExportResult(episodes_file)
     targets = [out / f"{name}.steps.parquet" for name in _step_file_names(sources)]
@@ -239,15 +260,28 @@ def _remove_stale_remote(out: RemoteFile, written: set[str]) -> list[Source]:
     return removed
 
 
-def _output_directory(out: Path) -> Path:
-    """``out``, created if needed; a path that is not a directory is a usage error."""
+def _output_directory(out: Path) -> tuple[Path, list[Path]]:
+    """``out``, created if needed, and the folders this made (outermost first).
+
+    A path that is not a directory is a usage error.
+    """
     if out.exists() and not out.is_dir():
         raise ConfigurationError(f"{out}: not a directory; --out names the directory to write to")
+    made = [folder for folder in (out, *out.parents) if not folder.exists()][::-1]
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigurationError(f"{out}: cannot create the directory: {exc.strerror}") from None
-    return out
+    return out, made
+
+
+def _remove_empty(made: list[Path]) -> None:
+    """Remove the folders ``made`` (outermost first) that are empty, innermost first."""
+    for folder in reversed(made):
+        try:
+            folder.rmdir()
+        except OSError:  # not empty (an input exported before the failure), or gone
+            return
 
 
 def _refuse_special_files(targets: Sequence[Path]) -> None:

@@ -6,6 +6,7 @@
 - :mod:`.columns` — Arrow columns and value helpers shared by the recorder and replay.
 - :mod:`.options` — reset options as data: what plain JSON changes, and their exact tagged JSON.
 - :mod:`.spaces` — Gymnasium spaces <-> Arrow columns (codecs, buffers, descriptions).
+- :mod:`.paths` — a path argument, checked once (the recorders' and the readers').
 
 It imports nothing from the other wings.
 """

@@ -1,6 +1,7 @@
 """The public API's arguments that name files, columns and episodes, checked once.
 
-:func:`path_list` takes one path or many (a bare ``str`` is one path, never its characters);
+:func:`path_list` takes one path or many (a bare ``str`` is one path, never its characters;
+each is a path argument, :func:`~episode_audit.format.paths.path_argument`);
 :func:`name_list` refuses a bare ``str`` where a list of names is expected; :func:`episode_index`
 and :func:`episode_indices` refuse what is not an episode index; :func:`non_negative` what is not
 a finite number >= 0 (a tolerance, a limit). Each raises
@@ -16,6 +17,7 @@ from collections.abc import Iterable
 from typing import Any, TypeVar
 
 from ..errors import ConfigurationError
+from ..format.paths import path_argument
 from ..format.records import episode_index_problem
 
 __all__ = ["episode_index", "episode_indices", "name_list", "non_negative", "path_list"]
@@ -23,22 +25,28 @@ __all__ = ["episode_index", "episode_indices", "name_list", "non_negative", "pat
 _P = TypeVar("_P", bound="str | os.PathLike[str]")
 
 
-def path_list(paths: _P | Iterable[_P]) -> list[_P]:
+def path_list(paths: _P | Iterable[_P], name: str = "paths") -> list[_P]:
     """``paths`` as a list: one ``str`` or path-like is one path, an iterable is its paths.
+
+    Each path is checked (:func:`~episode_audit.format.paths.path_argument`); errors name the
+    argument ``name`` (an item as ``name[i]``).
 
     >>> path_list("runs/run.mcap"), path_list(["a.mcap", "b.mcap"])
     (['runs/run.mcap'], ['a.mcap', 'b.mcap'])
+    >>> path_list(["a.mcap", None], "baseline")
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: baseline[1]: expected a path (a str or \
+pathlib.Path), got None (NoneType)
     """
     if isinstance(paths, (str, os.PathLike)):
-        if not os.fspath(paths):
-            raise ConfigurationError("paths: expected a path, got an empty string")
-        return [paths]
+        return [path_argument(name, paths)]
     if isinstance(paths, bytes) or not isinstance(paths, Iterable):
         raise ConfigurationError(
-            f"paths: expected a path or a list of paths, got {type(paths).__name__}; "
+            f"{name}: expected a path or a list of paths, got {type(paths).__name__}; "
             "pass e.g. ['runs/run.mcap']"
         )
-    return list(paths)
+    return [path_argument(f"{name}[{i}]", path) for i, path in enumerate(paths)]
 
 
 def name_list(name: str, names: Iterable[str]) -> list[str]:

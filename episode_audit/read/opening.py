@@ -26,6 +26,7 @@ from mcap.stream_reader import StreamReader
 
 from ..errors import CorruptEvidenceError, EvidenceError, NotEvidenceError, UnsupportedVersionError
 from ..format import names as fmt
+from ..format.paths import path_argument
 from ..format.records import RunInfo
 from ..format.run_end import RunEnd
 from . import chunks
@@ -59,7 +60,9 @@ def open_evidence(
     ranges through ``fsspec``: ``filesystem`` (an ``fsspec`` filesystem) reads it, or one made
     with ``storage_options`` (``docs/storage.md``).
 
-    Raises :class:`~episode_audit.errors.NotEvidenceError` for a file that is not evidence,
+    Raises :class:`~episode_audit.errors.ConfigurationError` for a ``path`` that is not one
+    (:func:`~episode_audit.format.paths.path_argument`: ``bytes``, ``None``, ``""`` …),
+    :class:`~episode_audit.errors.NotEvidenceError` for a file that is not evidence,
     :class:`~episode_audit.errors.UnsupportedVersionError` for a newer major format version, and
     :class:`~episode_audit.errors.CorruptEvidenceError` for damage a crash cannot explain.
 
@@ -68,6 +71,7 @@ def open_evidence(
     ...
     episode_audit.errors.EvidenceError: no/such/file.mcap: cannot open: No such file or directory
     """
+    path = path_argument("path", path)
     p = as_source(path, filesystem=filesystem, storage_options=storage_options)
     with _open_mcap(p) as f:
         damage = _summary_damage(f)

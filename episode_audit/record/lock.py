@@ -24,6 +24,7 @@ from typing import IO
 
 from ..errors import ConfigurationError, RecorderTroubleWarning
 from ..format.locking import Holder, holder, probe, try_lock, unlock
+from ..format.paths import path_argument
 
 __all__ = [
     "LockedStream",
@@ -146,10 +147,12 @@ def claim_output(
     A missing folder is created, with its parents.
 
     Raises:
-        ConfigurationError: The path is a bad template, a directory, exists (without
-            ``overwrite``), is being written by another live recorder, or cannot be created.
+        ConfigurationError: The path is not one (``bytes``, ``None``, ``""``:
+            :func:`~episode_audit.format.paths.path_argument`), a bad template, a directory,
+            exists (without ``overwrite``), is being written by another live recorder, or
+            cannot be created.
     """
-    text = os.fspath(path)
+    text = os.fspath(path_argument("path", path))
     if not template:
         make_folder(Path(text))
         return _open_path(Path(text), overwrite)
@@ -188,7 +191,7 @@ def refuse_indexed_overwrite(
     Raises:
         ConfigurationError: The path holds ``{index}``, or is a bad template.
     """
-    text = os.fspath(path)
+    text = os.fspath(path_argument("path", path))
     if "index" in PathTemplate(text).fields:
         raise _indexed_overwrite(text, overwrite_option)
 

@@ -14,6 +14,7 @@ from mcap.records import Header
 from .._version import __version__
 from ..errors import ConfigurationError, CorruptEvidenceError, EvidenceError
 from ..format import names as fmt
+from ..format.paths import path_argument
 from ..format.run_end import RunEnd
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
 from ..read.layout import _MAGIC
@@ -48,7 +49,8 @@ def recover(
     finished. Either may be a URL (``s3://`` …, ``docs/storage.md``): a remote input is
     downloaded to a temporary file first, and a remote output uploaded once finished.
 
-    Raises :class:`~episode_audit.errors.ConfigurationError` when ``out`` is the input, exists
+    Raises :class:`~episode_audit.errors.ConfigurationError` when ``path`` or ``out`` is not a
+    path (:func:`~episode_audit.format.paths.path_argument`), when ``out`` is the input, exists
     (without ``overwrite``; the error names it ``overwrite_option``, ``--overwrite`` on the
     command line) or cannot be created, when either file is still being written by a
     live recorder (``path`` is then not torn: its ``close()`` will finish it), and
@@ -72,8 +74,7 @@ def recover(
     >>> open_evidence(d / "fixed.mcap").run_end["status"]
     'recovered'
     """
-    if not os.fspath(out):  # (Path("") is the current folder)
-        raise ConfigurationError("out: expected a path, got an empty string")
+    path, out = path_argument("path", path), path_argument("out", out)
     if is_url(path) or is_url(out):  # object storage: through a local temporary copy
         return recover_remote(path, out, overwrite, recover, overwrite_option)
     src, dst = Path(path), Path(out)

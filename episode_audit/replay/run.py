@@ -15,12 +15,12 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
-from .._jobs import check_jobs, map_ordered, workers
+from .._jobs import check_jobs, map_ordered, pooled, unpicklable, workers
 from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..read import Evidence, open_evidence
-from ..read.arguments import episode_indices, non_negative, path_list
+from ..read.arguments import episode_indices, name_list, non_negative, path_list
 from ..read.inputs import skipped
 from ..read.liveness import Holder, still_written
 from ..record.gym import STEP_LIBRARIES, library_versions
@@ -87,20 +87,23 @@ def replay(
     """Replay every (or the selected) episode of each file and compare it with the evidence.
 
     Raises :class:`~episode_audit.errors.EvidenceError` for an unreadable file and
-    :class:`~episode_audit.errors.ConfigurationError` for a module in ``imports`` that cannot
-    be imported. With ``keep_going`` a file that cannot be read (or replayed: any error but a
-    ``ConfigurationError``) does not stop the others: none of its episodes is in the result,
-    it is listed in :attr:`ReplayResult.unreadable`, and ``on_error`` is told of it as it is
-    found. :attr:`ReplayResult.missing` lists the selected ``episodes`` no file had.
+    :class:`~episode_audit.errors.ConfigurationError` for a module in ``imports`` (a list of
+    module names) that cannot be imported. With ``keep_going`` a file that cannot be read (or
+    replayed: any error but a ``ConfigurationError``) does not stop the others: none of its
+    episodes is in the result, it is listed in :attr:`ReplayResult.unreadable`, and
+    ``on_error`` is told of it as it is found. :attr:`ReplayResult.missing` lists the selected
+    ``episodes`` no file had.
 
     ``jobs`` worker processes (``None``: one per usable core) or Ray tasks on ``ray_address``
     replay a file, or a batch of a large single-env file's episodes, each (see
     :mod:`episode_audit._jobs`); a batch starts in a fresh env, as ``episodes`` does, and an
     episode that then differs is replayed again after its file's earlier episodes. Each
     worker imports ``imports`` itself; ``env_factory`` must then be ``"MODULE:CALLABLE"`` or a
-    module-level callable. The result is the same as with ``jobs=1``.
+    module-level callable (a lambda or a local function is refused with a
+    ``ConfigurationError`` before any work starts). The result is the same as with ``jobs=1``.
     """
     selected = replay_options(atol, episodes)
+    imports = name_list("imports", imports)
     import_modules(imports)
     files = path_list(paths)
     one = partial(
@@ -114,6 +117,8 @@ def replay(
     batches, costs = _batches(files, selected, ray_address, jobs) if parallel else ([], [])
     if not batches:
         batches = [(k, path, selected) for k, path in enumerate(files)]
+    if callable(env_factory) and pooled(len(batches), jobs, ray_address):
+        _refuse_unsendable(env_factory, jobs)
     done = map_ordered(
         one, batches, jobs=jobs, ray_address=ray_address, progress=progress, costs=costs or None
     )
@@ -132,6 +137,18 @@ def replay(
     if selected is not None:
         result.missing = sorted(set(selected) - {e.episode for e in result.episodes})
     return result
+
+
+def _refuse_unsendable(env_factory: EnvFactory, jobs: int | None) -> None:
+    """Refuse an ``env_factory`` the worker processes cannot be sent (a lambda, a local one)."""
+    problem = unpicklable(env_factory)
+    if problem is not None:
+        name = getattr(env_factory, "__qualname__", type(env_factory).__name__)
+        raise ConfigurationError(
+            f"env_factory {name}: cannot be sent to the worker processes of jobs={jobs} "
+            f"({problem}); pass a function defined at the top level of a module, or "
+            '"MODULE:CALLABLE", or jobs=1'
+        )
 
 
 @dataclass(frozen=True)

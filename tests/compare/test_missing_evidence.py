@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import gymnasium as gym
 import pytest
 
-from episode_audit import CompareGates, compare
+from episode_audit import CompareGates, RecordEvidence, compare
 from episode_audit.compare.core import _decide
 from episode_audit.compare.groups import compare_group
 from episode_audit.compare.sides import Side
@@ -140,3 +141,16 @@ def test_a_candidate_whose_every_episode_raised_says_so(tmp_path: Path) -> None:
         r"\(its 6 episodes: error 6\): record some",
     ):
         compare([base], [crashed])
+
+
+def test_a_side_of_one_unended_episode_says_it_in_the_singular(tmp_path: Path) -> None:
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "one.mcap") as env:
+        env.reset(seed=0)
+        env.step(0)
+    base = record_episodes("CartPole-v1", tmp_path / "base.mcap", episodes=2).path
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^the baseline has no ended episode \(success, failure or truncated\) to compare "
+        r"\(its 1 episode: incomplete 1\): record some",
+    ):
+        compare([tmp_path / "one.mcap"], [base])

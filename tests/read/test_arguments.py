@@ -6,10 +6,20 @@ A bare ``str`` or path is one path everywhere a list of paths is taken, never it
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from episode_audit import ConfigurationError, check, compare, export, replay, report
+from episode_audit import (
+    ConfigurationError,
+    check,
+    compare,
+    export,
+    open_evidence,
+    recover,
+    replay,
+    report,
+)
 from episode_audit.read import evidence_files
 from episode_audit.read.arguments import episode_index, name_list, path_list
 from tests.read.helpers import record_cartpole
@@ -44,6 +54,38 @@ def test_a_path_list_refuses_what_is_no_path() -> None:
         path_list(3)  # type: ignore[call-overload]
     with pytest.raises(ConfigurationError, match=r"^paths: expected a path, got an empty string"):
         path_list("")  # (it was the current folder: check("") said '.: a directory')
+
+
+_NO_PATH = r": expected a path \(a str or pathlib\.Path\), got "
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda a: check([b"a.mcap"]), r"^paths\[0\]" + _NO_PATH + r"b'a\.mcap' \(bytes\)$"),
+        (lambda a: check([a, None]), r"^paths\[1\]" + _NO_PATH + r"None \(NoneType\)$"),
+        (lambda a: replay([3]), r"^paths\[0\]" + _NO_PATH + r"3 \(int\)$"),
+        (lambda a: report([None]), r"^paths\[0\]" + _NO_PATH + r"None \(NoneType\)$"),
+        (lambda a: compare([a], [3]), r"^candidate\[0\]" + _NO_PATH + r"3 \(int\)$"),
+        (lambda a: compare([""], [a]), r"^baseline\[0\]: expected a path, got an empty string$"),
+        (lambda a: export([a], b"out"), r"^out" + _NO_PATH + r"b'out' \(bytes\)$"),
+        (lambda a: open_evidence(b"a.mcap"), r"^path" + _NO_PATH + r"b'a\.mcap' \(bytes\)$"),
+        (lambda a: open_evidence(None), r"^path" + _NO_PATH + r"None \(NoneType\)$"),
+        (lambda a: open_evidence(""), r"^path: expected a path, got an empty string$"),
+        (lambda a: recover(None, "x.mcap"), r"^path" + _NO_PATH + r"None \(NoneType\)$"),
+        (lambda a: recover([a], "x.mcap"), r"^path" + _NO_PATH + r"\['.*a\.mcap'\] \(list\)$"),
+        (lambda a: recover("", "x.mcap"), r"^path: expected a path, got an empty string$"),
+        (lambda a: recover(a, b"x.mcap"), r"^out" + _NO_PATH + r"b'x\.mcap' \(bytes\)$"),
+    ],
+)
+def test_a_path_of_the_wrong_type_is_a_configuration_error(
+    runs: Path, call: Any, message: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """(Not Python's TypeError from deep inside, nor "" taken as the current folder.)"""
+    monkeypatch.chdir(tmp_path)  # (nothing is written: an output would land here)
+    with pytest.raises(ConfigurationError, match=message):
+        call(str(runs / "a.mcap"))
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize(

@@ -22,6 +22,7 @@ from episode_audit import (
     EndingRules,
     RecorderError,
     RecordEvidence,
+    RecordVectorEvidence,
     open_evidence,
 )
 from tests.support.envs import ScriptedEnv
@@ -502,6 +503,28 @@ def test_wrong_arguments_are_configuration_errors(tmp_path: Path) -> None:
         RecordEvidence(gym.make("CartPole-v1"), tmp_path / "a.mcap", block_steps=0)
     with pytest.raises(ConfigurationError, match="reward terms source"):
         RecordEvidence(gym.make("CartPole-v1"), tmp_path / "b.mcap", reward_terms="everything")
+
+
+@pytest.mark.parametrize(
+    ("path", "message"),
+    [
+        (
+            b"a.mcap",
+            r"^path: expected a path \(a str or pathlib\.Path\), got b'a\.mcap' \(bytes\)$",
+        ),
+        (None, r"^path: expected a path \(a str or pathlib\.Path\), got None \(NoneType\)$"),
+        ("", r"^path: expected a path, got an empty string$"),  # (not the current folder)
+    ],
+)
+def test_a_path_that_is_not_one_is_a_configuration_error(
+    path: Any, message: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigurationError, match=message):
+        RecordEvidence(gym.make("CartPole-v1"), path)
+    with pytest.raises(ConfigurationError, match=message):
+        RecordVectorEvidence(gym.make_vec("CartPole-v1", 2), path)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_wrapped_env_still_passes_check_env(tmp_path: Path) -> None:

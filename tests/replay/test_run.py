@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import pytest
 
 from episode_audit.errors import ConfigurationError, EpisodeAuditError, EvidenceError
@@ -86,3 +88,30 @@ def test_missing_lists_the_selected_episodes_no_file_had() -> None:
     assert [e.episode for e in result.episodes] == [1] and result.missing == [42, 99]
     assert not result.ok  # (the command exits 2)
     assert replay([CLEAN]).missing == []
+
+
+def test_imports_as_a_bare_string_is_refused_not_split_into_characters() -> None:
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^imports: expected a list of names, got the string 'os'; pass \['os'\]$",
+    ):
+        replay([CARTPOLE], imports="os")  # type: ignore[arg-type]
+
+
+def test_an_env_factory_workers_cannot_be_sent_is_refused_before_any_work() -> None:
+    """A lambda (or a local function) cannot be pickled for the worker processes."""
+    factory = lambda: gym.make("CartPole-v1")  # noqa: E731
+    hint = (
+        r'; pass a function defined at the top level of a module, or "MODULE:CALLABLE", or jobs=1$'
+    )
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^env_factory test_an_env_factory_workers_cannot_be_sent_is_refused_before_any_work"
+        r"\.<locals>\.<lambda>: cannot be sent to the worker processes of jobs=2 \(Can't pickle "
+        r"local object '.*<lambda>'\)" + hint,
+    ):
+        replay([CARTPOLE, CARTPOLE], env_factory=factory, jobs=2)
+    # (one file is replayed in this process: the factory need not be sent)
+    assert replay([CARTPOLE], env_factory=factory, jobs=2).ok
+    # a module-level one is sent as it is
+    assert replay([CARTPOLE, CARTPOLE], env_factory=partial(gym.make, "CartPole-v1"), jobs=2).ok
