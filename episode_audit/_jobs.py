@@ -139,7 +139,10 @@ def pooled(items: int, jobs: int | None, ray_address: str | None) -> bool:
 
 
 def unpicklable(value: object) -> str | None:
-    """Why ``value`` cannot be sent to a pooled worker (:func:`pooled`), or ``None`` if it can.
+    """Why ``value`` cannot be sent to another process, or ``None`` if it can; never raises.
+
+    As :mod:`multiprocessing` sends it: to a pooled worker (:func:`pooled`), or through a
+    vector env's worker pipe.
 
     >>> unpicklable(usable_cores) is None, unpicklable(lambda: 1) is None
     (True, False)
@@ -149,7 +152,10 @@ def unpicklable(value: object) -> str | None:
     try:
         ForkingPickler.dumps(value)
     except Exception as exc:  # (pickle raises what the object's reduction raises)
-        return str(exc)
+        try:
+            return str(exc) or type(exc).__name__
+        except Exception:  # (an exception whose __str__ raises)
+            return type(exc).__name__
     return None
 
 

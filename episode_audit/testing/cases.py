@@ -24,6 +24,7 @@ from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..read import open_evidence
 from ..read.arguments import name_list
+from ..record.notes import short
 from ..replay.recorded import replay_actions
 
 __all__ = [
@@ -268,10 +269,7 @@ def _integer(case: ContractCase, name: str, low: int, high: int | None) -> int:
 
 def _found(value: Any) -> str:
     """What a field held, for a message: its value (cut) and type, e.g. ``'0' (str)``."""
-    shown = repr(value)
-    if len(shown) > 80:
-        shown = shown[:77] + "..."
-    return f"{shown} ({type(value).__name__})"
+    return f"{short(value)} ({type(value).__name__})"
 
 
 def contract_cases(env_ids: Iterable[str | EnvMaker], **case: Any) -> list[ContractCase]:

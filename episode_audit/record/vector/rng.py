@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from multiprocessing.reduction import ForkingPickler
 from typing import Any, Protocol
 
 import gymnasium as gym
 
+from ..._jobs import unpicklable
 from ...format import names as fmt
 from ...format.wrappers import LAYOUT_UNSAVED_STATE
 from .. import native
@@ -154,8 +154,9 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         """
         try:
             spec = self.env.spec
-            ForkingPickler.dumps(spec)  # (as a worker's pipe sends it; nothing is ever loaded)
         except Exception:
+            return False, None
+        if unpicklable(spec) is not None:  # (as a worker's pipe sends it)
             return False, None
         return True, spec
 
