@@ -1,7 +1,9 @@
 """How the env replay built differs from the recording's description, if it does.
 
 :func:`env_mismatch` (single-env and vector files): its spaces, its step limits, its env kwargs
-and, for an env the user's factory built, its wrappers; :func:`agents_mismatch` (PettingZoo).
+and, for an env the user's factory built, its wrappers (without a spec, its class);
+:func:`unverified_match`: why a factory's env that matched cannot be verified to be the recorded
+one (no spec, wrappers that record no arguments); :func:`agents_mismatch` (PettingZoo).
 An argument one spec names and the other does not has the other's default (the signature of
 the callable its entry point names, read from a module this process has already imported:
 nothing a file names is imported here); one whose default cannot be read does not match.
@@ -33,7 +35,7 @@ from ..format.wrappers import (
 from ..record.time_limits import limit_places, step_limit
 from .envs import MAX_ENV_KWARGS_DEPTH, _depth, _shown
 
-__all__ = ["agents_mismatch", "env_mismatch"]
+__all__ = ["agents_mismatch", "env_mismatch", "unverified_match"]
 
 _MISMATCH = "the rebuilt env does not match the recording: "
 
@@ -88,7 +90,7 @@ def _spec_differences(
     except Exception:  # the env's own attribute
         return []
     if rebuilt is None:
-        return []
+        return _class_difference(spec, env)
     found: list[tuple[str, bool]] = []
     try:
         recorded, now = spec.get("kwargs"), rebuilt.kwargs
@@ -103,6 +105,85 @@ def _spec_differences(
         except Exception:
             pass
     return found
+
+
+def _class_difference(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple[str, bool]]:
+    """A rebuilt env without a spec: its class against the class the recorded entry point names.
+
+    Said only when that entry point names a class of a module this process has imported
+    (:func:`_loaded`) and the env's ``unwrapped`` is not an instance of it; anything else
+    (a function, a module not imported) is not compared. A subclass may step as the class
+    does: its match is unverified (:func:`unverified_match`), not a difference.
+    """
+    entry = spec.get("entry_point")
+    try:
+        cls = type(env.unwrapped)
+        named = _loaded(entry)
+        if not isinstance(named, type) or issubclass(cls, named):
+            return []
+        now = f"{cls.__module__}:{cls.__qualname__}"
+    except Exception:  # the env's own attribute
+        return []
+    return [(f"env entry point {_shown(entry)} recorded vs class {_shown(now)} rebuilt", False)]
+
+
+def unverified_match(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool) -> str | None:
+    """Why a matching env the user's factory built cannot be verified to be the recorded one.
+
+    Asked of an env :func:`env_mismatch` found no difference in, with a recorded spec (``None``
+    otherwise, and when ``factory`` is false: replay built the env from the file's own
+    description). Unverified: an env without a spec (built by its class, not ``gym.make``),
+    whose constructor's arguments and wrappers cannot be compared with the recording's; or
+    wrappers that record no arguments (their spec's ``kwargs`` null: not deriving from
+    ``gymnasium.utils.RecordConstructorArgs``, as SB3's Atari wrappers) on either side, whose
+    constructor takes any besides the env. Replay then gives an episode that differs
+    ``not_replayable`` with this cause, not ``diverged`` (``results.not_told_unverified``).
+    Never raises.
+    """
+    spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
+    if not factory or not spec:
+        return None
+    try:
+        rebuilt = env.spec
+    except Exception:  # the env's own attribute
+        rebuilt = None
+    if rebuilt is None:
+        return (
+            f"the env factory's env has no spec, so its arguments cannot be compared with the "
+            f"recording's ({_shown(run.env_id)}, kwargs {_shown(spec.get('kwargs'))}); make the "
+            "factory build it with gymnasium.make so they can be"
+        )
+    try:
+        recorded, now = _compared_wrappers(spec, rebuilt, declared_transparent(run.recorder))
+        unknown = [
+            _name(entry)
+            for (entry, kwargs), (_, now_kwargs) in zip(recorded, now, strict=False)
+            if (kwargs is None or now_kwargs is None) and _takes_arguments(entry)
+        ]
+    except Exception:  # the env's own values
+        return None
+    if not unknown:
+        return None
+    listed = ", ".join(unknown[:6]) + (f" and {len(unknown) - 6} more" if len(unknown) > 6 else "")
+    return (
+        f"the arguments of wrapper(s) {listed} are not recorded (they do not derive from "
+        "gymnasium.utils.RecordConstructorArgs), so the rebuilt ones' cannot be compared with "
+        "the recording's"
+    )
+
+
+def _takes_arguments(entry_point: str) -> bool:
+    """Whether the wrapper class ``entry_point`` names takes arguments besides the env.
+
+    Unknown (its module not imported, no signature Python can read): it may.
+    """
+    target = _loaded(entry_point)
+    if target is None:
+        return True
+    try:
+        return len(inspect.signature(target).parameters) > 1
+    except (TypeError, ValueError):
+        return True
 
 
 def _limit_checks(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple[str, Any, Any]]:
@@ -313,13 +394,7 @@ def _wrappers(
     that never change a step (the registry's ``transparent`` ones and those the recording
     declared so), which replay leaves out itself.
     """
-    listed = spec.get("additional_wrappers")
-    recorded = [
-        (w.get("entry_point"), w.get("kwargs")) if isinstance(w, Mapping) else (repr(w), None)
-        for w in (listed if isinstance(listed, list) else [])
-    ]
-    now = [(w.entry_point, w.kwargs) for w in rebuilt.additional_wrappers]
-    compared = [_kept(recorded, transparent), _kept(now, transparent)]
+    compared = _compared_wrappers(spec, rebuilt, transparent)
     below = "the innermost wrapper"
     for r, n in zip_longest(*compared):
         if r is None or n is None or _entry(r[0]) != _entry(n[0]):
@@ -336,6 +411,19 @@ def _wrappers(
             shown = f"{_shown(recorded_kwargs)} recorded vs {_shown(_held(now_kwargs))} rebuilt"
             found.append((f"{name}'s arguments {shown}", False))
     return found
+
+
+def _compared_wrappers(
+    spec: Mapping[str, Any], rebuilt: gym.envs.registration.EnvSpec, transparent: frozenset[str]
+) -> tuple[list[tuple[str, Any]], list[tuple[str, Any]]]:
+    """The recorded and the rebuilt wrappers compared (:func:`_kept`): ``(entry point, kwargs)``."""
+    listed = spec.get("additional_wrappers")
+    recorded = [
+        (w.get("entry_point"), w.get("kwargs")) if isinstance(w, Mapping) else (repr(w), None)
+        for w in (listed if isinstance(listed, list) else [])
+    ]
+    now = [(w.entry_point, w.kwargs) for w in rebuilt.additional_wrappers]
+    return _kept(recorded, transparent), _kept(now, transparent)
 
 
 _TIME_LIMIT = "gymnasium.wrappers:TimeLimit"

@@ -29,6 +29,7 @@ __all__ = [
     "not_told_from_cast",
     "not_told_from_history",
     "not_told_from_versions",
+    "not_told_unverified",
     "options_not_held",
     "restored_state",
     "short",
@@ -335,6 +336,32 @@ repeat (episode 1's 3 steps after its end): the state it began from cannot be re
     )
     note = "" if result.reason is None else f" ({result.reason})"
     return replace(result, status="not_replayable", reason=reason + note)
+
+
+def not_told_unverified(episodes: Iterable[EpisodeReplay], cause: str) -> list[EpisodeReplay]:
+    """``episodes`` with each diverged one ``not_replayable``: the env's match is unverified.
+
+    ``cause`` says why the rebuilt env could not be held to the recording
+    (:func:`~.mismatch.unverified_match`: an env factory's env without a spec, a wrapper that
+    records no arguments): built otherwise, it differs with nothing wrong, so a difference is
+    no verdict on the env. The episode keeps its first difference and what was restored.
+
+    >>> d = EpisodeReplay("f", 0, "diverged", 3, Divergence(2, "reward", "1.0", "1.5"))
+    >>> print(not_told_unverified([d], "the env factory's env has no spec")[0].reason)
+    differed at step 2 (reward) in an env whose match with the recording could not be \
+verified: the env factory's env has no spec
+    """
+    out = []
+    for e in episodes:
+        if e.status == "diverged":
+            reason = (
+                f"differed{_where(e.divergence)} in an env whose match with the recording could "
+                f"not be verified: {cause}"
+            )
+            note = "" if e.reason is None else f" ({e.reason})"
+            e = replace(e, status="not_replayable", reason=reason + note)
+        out.append(e)
+    return out
 
 
 def _where(d: Divergence | None) -> str:

@@ -24,7 +24,7 @@ from ..format import names as fmt
 from ..format.wrappers import unplaced_limits
 from ..read import Evidence
 from .envs import EnvFactory, build_env
-from .mismatch import env_mismatch
+from .mismatch import env_mismatch, unverified_match
 from .recorded import (
     cast_actions,
     episode_records,
@@ -35,7 +35,13 @@ from .recorded import (
     unrecorded_options,
     unrepeated,
 )
-from .results import EpisodeReplay, none_replayable, not_told_from_cast, not_told_from_history
+from .results import (
+    EpisodeReplay,
+    none_replayable,
+    not_told_from_cast,
+    not_told_from_history,
+    not_told_unverified,
+)
 from .runner import EpisodeRunner
 
 __all__ = ["REPLAY_WINDOW_BYTES", "REPLAY_WINDOW_ROWS", "SubEnvs", "replay_single_evidence"]
@@ -64,14 +70,18 @@ def replay_single_evidence(
     if why_not is not None:
         return none_replayable(str(ev.path), episode_records(ev, wanted), why_not)
 
+    unverified: list[str] = []  # why the built envs' match cannot be verified
+
     def build() -> gym.Env[Any, Any]:
         env = build_env(ev.run, env_factory=env_factory, trust_entry_points=trust_entry_points)
-        why = env_mismatch(
-            ev.run, env, factory=env_factory is not None, wrappers=trust_entry_points
-        )
+        factory = env_factory is not None
+        why = env_mismatch(ev.run, env, factory=factory, wrappers=trust_entry_points)
         if why is not None:
             env.close()
             raise ReplayError(why)
+        cause = unverified_match(ev.run, env, factory=factory)
+        if cause is not None and not unverified:
+            unverified.append(cause)
         return env
 
     def runner(env: gym.Env[Any, Any]) -> EpisodeRunner:
@@ -83,9 +93,10 @@ def replay_single_evidence(
     except ReplayError as exc:
         return none_replayable(str(ev.path), episode_records(ev, wanted), str(exc))
     try:
-        return _Pass(ev, subs, wanted).run()
+        results = _Pass(ev, subs, wanted).run()
     finally:
         subs.close()
+    return not_told_unverified(results, unverified[0]) if unverified else results
 
 
 class SubEnvs:
