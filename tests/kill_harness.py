@@ -397,6 +397,9 @@ def judge(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
         )
     if episodes.num_rows - has_record.num_rows > 1:
         verdict.problems.append(f"{episodes.num_rows - has_record.num_rows} episodes cut off")
+    if not (ev.finished or verdict.in_file or episodes.num_rows or ev.resets().num_rows):
+        _judge_nothing_to_recover(verdict, path, out)  # (killed before its first flush)
+        return verdict
     try:
         result = recover(path, out)
         fixed = open_evidence(out)
@@ -423,6 +426,22 @@ def judge(plan: Plan, path: Path, log: Path, out: Path) -> Verdict:
     except EpisodeAuditError as exc:
         verdict.problems.append(f"recover failed: {exc}")
     return verdict
+
+
+def _judge_nothing_to_recover(verdict: Verdict, path: Path, out: Path) -> None:
+    """A torn file that holds no episode, reset or step: recover refuses it, writing nothing."""
+    from episode_audit import recover
+    from episode_audit.errors import EvidenceError
+
+    try:
+        result = recover(path, out)
+    except EvidenceError as exc:
+        if "nothing to recover" not in str(exc):
+            verdict.problems.append(f"recover failed: {exc}")
+    else:
+        verdict.problems.append(f"recover copied a file that holds nothing: {result.summary()}")
+    if out.exists():
+        verdict.problems.append("recover wrote an output for a file that holds nothing")
 
 
 def run(kills: int, directory: Path, seed: int = 2026, scale: float = 1.0) -> list[Verdict]:

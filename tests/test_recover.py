@@ -3,6 +3,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 import struct
 from pathlib import Path
@@ -137,17 +138,20 @@ def test_cuts_at_other_offsets(recorded: Path, tmp_path: Path, where: str) -> No
         "summary": summary_start + 7,
     }[where]
     torn = torn_copy(recorded, tmp_path, cut)
+    if where in ("header", "first chunk"):  # no complete chunk: nothing to recover, no output
+        if where == "header":  # torn before the first block: no step schema in the file
+            assert open_evidence(torn).steps(columns=["episode", "reward"]).num_rows == 0
+        with pytest.raises(EvidenceError, match="nothing to recover: the file holds its run"):
+            recover(torn, tmp_path / "out.mcap")
+        assert not (tmp_path / "out.mcap").exists()
+        return
     result = recover(torn, tmp_path / "out.mcap")
     assert_recovered_like(torn, tmp_path / "out.mcap", result.messages)
     expected = {
-        "header": (None, False, 0),
-        "first chunk": ("chunk", True, 0),
         "message index": ("message index", False, len(chunks)),
         "summary": ("schema", False, len(chunks)),
     }[where]
     assert (result.dropped_record, result.data_dropped, result.chunks) == expected
-    if where == "header":  # torn before the first block: no step schema in the file
-        assert open_evidence(torn).steps(columns=["episode", "reward"]).num_rows == 0
     # only a cut after close() wrote the run-end record (before the summary) loses nothing
     assert result.lost == (where != "summary")
     assert result.closing == (where == "summary")
@@ -830,3 +834,45 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+_KILLED_BEFORE_ITS_FIRST_FLUSH = """
+import os, signal, sys
+import gymnasium as gym
+from episode_audit import RecordEvidence
+
+env = RecordEvidence(gym.make("CartPole-v1"), sys.argv[1], flush_every_s=3600)
+env.reset(seed=0)
+for _ in range(3):
+    env.step(0)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_torn_file_with_nothing_to_recover_writes_no_output(tmp_path: Path) -> None:
+    """Killed before its first flush: the file holds its run metadata only. No empty copy is
+    written (with --overwrite, an existing output is left as it was); one line, exit 2."""
+    import signal
+    import subprocess
+    import sys
+
+    torn = tmp_path / "torn.mcap"
+    done = subprocess.run(
+        [sys.executable, "-c", _KILLED_BEFORE_ITS_FIRST_FLUSH, str(torn)], timeout=120
+    )
+    assert done.returncode == -signal.SIGKILL and torn.stat().st_size > 0
+    nothing = (
+        r"torn\.mcap: nothing to recover: the file holds its run metadata but no episode, "
+        r"reset or step \(its recorder was killed before its first flush\); no output was written"
+    )
+    with pytest.raises(EvidenceError, match=nothing):
+        recover(torn, tmp_path / "out.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [torn.name]  # nothing, no temp file
+    code, out, err = run("recover", str(torn), "-o", str(tmp_path / "out.mcap"))
+    assert (code, out) == (2, "") and len(err.strip().splitlines()) == 1, err
+    assert re.search(nothing, err), err
+    kept = tmp_path / "kept.mcap"
+    kept.write_bytes(b"an earlier output")
+    code, _, err = run("recover", str(torn), "-o", str(kept), "--overwrite")
+    assert code == 2 and kept.read_bytes() == b"an earlier output", err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [kept.name, torn.name]

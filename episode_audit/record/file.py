@@ -4,7 +4,8 @@
   flush timing, counts and ``close()``; streams are added with ``add_stream``.
 - The episode records of ended episodes are written at each flush (one JSON message each and
   one Arrow block, ``docs/format.md``, "Episode records").
-- Files whose recorder was never closed are finished when the interpreter exits normally.
+- Files whose recorder was never closed are finished when the recorder is collected, or when
+  the interpreter exits normally.
 - Disk trouble (a refused flush, a close that cannot finish) is the recorder's trouble: warned
   once in one line, said in the run-end record, never raised into the training loop.
 """
@@ -63,8 +64,9 @@ class _Owner(Protocol):
 class FileRecorder:
     """What every recorder does with its evidence file (``_file``, which the recorder opens).
 
-    ``flush()``, from any thread; finishing the file once, on the recorder's ``close()``; and a
-    warning when a recorder that warns (``_warns_unclosed``) is dropped with its file still open.
+    ``flush()``, from any thread; finishing the file once, on the recorder's ``close()``, or as
+    a recorder dropped with its file still open is collected (warned of when it warns,
+    ``_warns_unclosed``).
 
     Threads: the recorder's ``step()`` and ``reset()`` take no lock. They set ``_busy`` (one
     attribute store), then read the gate, ``if self._gated: self._enter()``, and clear ``_busy``
@@ -216,15 +218,30 @@ class FileRecorder:
                 close_env()
 
     def __del__(self) -> None:
-        if self._warns_unclosed and not getattr(self, "_closed", True):
+        """A recorder collected open: its file is finished now, and warned of (one warning).
+
+        As a Python file object closes itself when collected, the evidence file is finished
+        (open episodes ``incomplete``, run-end record, summary), so it is complete and its file
+        object closed (no ``ResourceWarning`` of its own). The env is left as it is.
+        """
+        if getattr(self, "_closed", True):
+            return
+        self._closed = self._gated = True
+        if self._warns_unclosed:
             import warnings
 
             warnings.warn(
                 f"episode-audit: {type(self).__name__} for {getattr(self, 'path', '?')} was not "
-                "closed; call close() or use it as a context manager",
+                "closed; call close() or use it as a context manager (its file was finished as "
+                "the recorder was collected)",
                 UnclosedRecorderWarning,
                 stacklevel=2,
             )
+        try:
+            self._before_close()
+            self._file.close()
+        except Exception:
+            pass  # (finishing failed: said by the file's own trouble warning, if anything)
 
 
 def _inside(recorder: FileRecorder, *, entering: bool = False) -> bool:

@@ -55,7 +55,8 @@ def recover(
     command line) or cannot be created, when either file is still being written by a
     live recorder (``path`` is then not torn: its ``close()`` will finish it), and
     :class:`~episode_audit.errors.EvidenceError` (and its subclasses) when the input is not
-    readable evidence.
+    readable evidence, or is a torn file that holds nothing to recover (its run metadata, no
+    episode, reset or step: no output is written then).
 
     >>> import tempfile, pathlib, gymnasium as gym, numpy as np
     >>> from episode_audit import RecordEvidence, open_evidence
@@ -173,6 +174,7 @@ def _rewrite(src: Path, tmp: Temporary, dst: Path, summary_damage: str | None) -
     try:
         copy = RecordCopy(src, writer)
         end = copy.copy(records)
+        _refuse_empty(src, copy)
         # What the output holds so far (an unfinished file, read as a torn one) says which
         # episodes were cut off, and with damage, which lost evidence.
         try:
@@ -187,6 +189,26 @@ def _rewrite(src: Path, tmp: Temporary, dst: Path, summary_damage: str | None) -
         writer.abandon()
         raise
     return result
+
+
+def _refuse_empty(src: Path, copy: RecordCopy) -> None:
+    """An unfinished input with no message copied holds nothing to recover: no output is made.
+
+    Its recorder was killed before its first flush (or every chunk it flushed is damaged): no
+    episode, reset or step survives, and a copy would be an empty file said to be recovered.
+    """
+    if copy.messages or copy.closed:
+        return
+    why = (
+        "every chunk it holds is damaged"
+        if copy.damaged
+        else "its recorder was killed before its first flush"
+    )
+    raise EvidenceError(
+        src,
+        f"nothing to recover: the file holds its run metadata but no episode, reset or step "
+        f"({why}); no output was written",
+    )
 
 
 def _result(

@@ -193,43 +193,50 @@ _MAX_SEED = 2**63 - 1
 
 
 def _check_fields(case: ContractCase) -> None:
-    """Each field of ``case`` of its type and in its range, else :class:`ConfigurationError`.
-
-    The integers are kept as ``int`` (a numpy integer is one; a ``bool`` is not).
-    """
+    """Each field of ``case`` of its type and in its range, else :class:`ConfigurationError`."""
     if not (isinstance(case.env, str) or callable(case.env)):
         raise ConfigurationError(
             f"ContractCase: env: expected a registered env id (a str) or a factory returning a "
-            f"gymnasium.Env, got {_found(case.env)}"
+            f"gymnasium.Env, got {found(case.env)}"
         )
+    check_case_fields(case, (("random_episodes", 0, None),))
+    _check_steppers(case)
+
+
+def check_case_fields(case: Any, integers: Iterable[tuple[str, int, int | None]] = ()) -> None:
+    """The fields every kind of case has (:class:`ContractCase`, ``GameCase``), checked.
+
+    ``id``, ``env_kwargs``, ``recorder_options``, ``seed``, ``max_steps``, ``atol``, ``rtol``,
+    ``require_terms``, ``replay``, and the ``integers`` (field, low, high) of the case's own.
+    Each of its type and in its range, else a one-line :class:`ConfigurationError`; the
+    integers are kept as ``int`` (a numpy integer is one; a ``bool`` is not). Call it after
+    checking ``env`` (the case's name in a message is made from it).
+    """
     if case.id is not None and not isinstance(case.id, str):
-        raise ConfigurationError(f"ContractCase: id: expected a str or None, got {_found(case.id)}")
+        raise ConfigurationError(
+            f"{type(case).__name__}: id: expected a str or None, got {found(case.id)}"
+        )
     for name in ("env_kwargs", "recorder_options"):
         value = getattr(case, name)
         if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
             raise ConfigurationError(
                 f"{case}: {name}: expected a dict of keyword arguments (str keys), got "
-                f"{_found(value)}"
+                f"{found(value)}"
             )
-    for name, low, high in (
-        ("seed", 0, _MAX_SEED),
-        ("random_episodes", 0, None),
-        ("max_steps", 1, None),
-    ):
+    for name, low, high in (("seed", 0, _MAX_SEED), *integers, ("max_steps", 1, None)):
         object.__setattr__(case, name, _integer(case, name, low, high))
     for name in ("atol", "rtol"):
         value = getattr(case, name)
         number = isinstance(value, (int, float)) and not isinstance(value, bool)
         if not (number and math.isfinite(value) and value >= 0):
             raise ConfigurationError(
-                f"{case}: {name}: expected a finite number >= 0, got {_found(value)}"
+                f"{case}: {name}: expected a finite number >= 0, got {found(value)}"
             )
     for name in ("require_terms", "replay"):
         if not isinstance(getattr(case, name), bool):
             raise ConfigurationError(
-                f"{case}: {name}: expected True or False, got {_found(getattr(case, name))}"
+                f"{case}: {name}: expected True or False, got {found(getattr(case, name))}"
             )
-    _check_steppers(case)
 
 
 def _check_steppers(case: ContractCase) -> None:
@@ -243,31 +250,31 @@ def _check_steppers(case: ContractCase) -> None:
     ):
         raise ConfigurationError(
             f"{case}: actions: expected a list, a policy, 'random' or an evidence file as a "
-            f"Path, got {_found(actions)}"
+            f"Path, got {found(actions)}"
         )
     if case.make_policy is not None and not callable(case.make_policy):
         raise ConfigurationError(
             f"{case}: make_policy: expected a callable (env -> policy) or None, got "
-            f"{_found(case.make_policy)}"
+            f"{found(case.make_policy)}"
         )
     if case.expect is not None and not isinstance(case.expect, (str, Expected)):
         raise ConfigurationError(
             f"{case}: expect: expected 'success', 'failure[:LABEL]', 'truncated[:REASON]' or "
-            f"None, got {_found(case.expect)}"
+            f"None, got {found(case.expect)}"
         )
 
 
-def _integer(case: ContractCase, name: str, low: int, high: int | None) -> int:
+def _integer(case: Any, name: str, low: int, high: int | None) -> int:
     """``case``'s field ``name`` as an ``int`` in ``low .. high``, else raise."""
     value = getattr(case, name)
     span = f">= {low}" if high is None else f"in {low} .. {high}"
     integer = isinstance(value, numbers.Integral) and not isinstance(value, bool)
     if integer and low <= int(value) and (high is None or int(value) <= high):
         return int(value)
-    raise ConfigurationError(f"{case}: {name}: expected an int {span}, got {_found(value)}")
+    raise ConfigurationError(f"{case}: {name}: expected an int {span}, got {found(value)}")
 
 
-def _found(value: Any) -> str:
+def found(value: Any) -> str:
     """What a field held, for a message: its value (cut) and type, e.g. ``'0' (str)``."""
     return f"{short(value)} ({type(value).__name__})"
 

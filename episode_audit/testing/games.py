@@ -17,7 +17,7 @@ from typing import Any
 from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..read import open_evidence
-from .cases import Expected, expected_ending
+from .cases import Expected, check_case_fields, expected_ending, found
 from .contract import (
     ContractResult,
     check_file,
@@ -69,12 +69,25 @@ class GameCase:
     id: str | None = None
 
     def __post_init__(self) -> None:
-        if isinstance(self.actions, str) and self.actions != "random":
+        if not callable(self.env):
             raise ConfigurationError(
-                f"{self}: actions: expected joint actions, a policy or 'random', "
-                f"got {self.actions!r}"
+                f"GameCase: env: expected a factory returning a pettingzoo ParallelEnv, got "
+                f"{found(self.env)}"
+            )
+        check_case_fields(self)
+        _check_actions(self)
+        if not isinstance(self.expect, Mapping):
+            raise ConfigurationError(
+                f"{self}: expect: expected a dict of each agent's ending ({{agent: 'success'}}), "
+                f"got {found(self.expect)}"
             )
         for agent, ending in self.expect.items():
+            if not isinstance(agent, str) or not isinstance(ending, (str, Expected)):
+                raise ConfigurationError(
+                    f"{self}: expect: expected agent names (str) and endings ('success', "
+                    f"'failure[:LABEL]', 'truncated[:REASON]'), got {found(agent)}: "
+                    f"{found(ending)}"
+                )
             try:
                 expected_ending(ending)
             except ConfigurationError as exc:
@@ -96,6 +109,24 @@ class GameCase:
                 f"{self}: the env factory returned {type(env).__name__}, not a ParallelEnv"
             )
         return env
+
+
+def _check_actions(case: GameCase) -> None:
+    """``actions``: joint actions (a list of dicts), a policy or ``"random"``, else raise."""
+    actions = case.actions
+    if (isinstance(actions, str) and actions == "random") or callable(actions):
+        return
+    if isinstance(actions, Sequence) and not isinstance(actions, (str, bytes)):
+        for step, joint in enumerate(actions):
+            if not isinstance(joint, Mapping):
+                raise ConfigurationError(
+                    f"{case}: actions: expected a dict of each agent's action at every step, "
+                    f"got {found(joint)} at step {step}"
+                )
+        return
+    raise ConfigurationError(
+        f"{case}: actions: expected joint actions, a policy or 'random', got {found(actions)}"
+    )
 
 
 def check_game_contract(case: GameCase, directory: str | os.PathLike[str]) -> ContractResult:

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import re
@@ -710,15 +711,20 @@ def test_a_note_repeated_in_many_episodes_is_one_finding(tmp_path: Path) -> None
     )
 
 
-def test_a_recovered_copy_of_a_file_that_held_nothing_is_an_error(tmp_path: Path) -> None:
-    """recover writes a finished copy with no episode: a gate on check must not pass it (a
-    file_recovered warning and exit 0 before)."""
+def test_a_recovered_copy_of_a_file_that_held_nothing_is_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A finished recovered copy with no episode (recover refuses to write one; an older
+    episode-audit wrote them): a gate on check must not pass it."""
     from episode_audit import recover
 
     clean = (Path(__file__).parents[2] / "fixtures" / "clean.mcap").read_bytes()
     torn = tmp_path / "early.mcap"
     torn.write_bytes(clean[:1500])
     copy = tmp_path / "copy.mcap"
+    # (the copy as an older recover wrote it: without its refusal of a file holding nothing)
+    rewrite = importlib.import_module("episode_audit.recover.rewrite")
+    monkeypatch.setattr(rewrite, "_refuse_empty", lambda src, copy: None)
     recover(torn, copy)
     result = check([copy])
     (finding,) = [f for f in result.findings if f.code == "file_recovered"]

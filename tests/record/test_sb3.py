@@ -8,6 +8,7 @@ longer ones are in tests/test_long.py (``-m slow``).
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -35,6 +36,7 @@ from stable_baselines3.common.vec_env import (  # noqa: E402
 
 from episode_audit import (  # noqa: E402
     ConfigurationError,
+    RecorderWarning,
     ResetRngInfo,
     check,
     open_evidence,
@@ -590,6 +592,50 @@ def test_reward_wrappers_inside_subproc_sub_envs_leave_the_terms_unchecked(
     assert "terms_sum_mismatch" not in {f.code for f in findings}, findings
     (found,) = [f.message for f in findings if f.code == "rewards_changed"]
     assert found.startswith("the recorded rewards and returns are NormalizeReward's"), found
+
+
+def normalized_rewards() -> gym.Env[Any, Any]:
+    return gym.wrappers.NormalizeReward(gym.make("CartPole-v1"))
+
+
+def hidden_normalized_rewards() -> gym.Env[Any, Any]:
+    """No spec of it is recorded (a function-taking wrapper): found by env_is_wrapped only."""
+    return gym.wrappers.TransformObservation(normalized_rewards(), lambda o: o, None)
+
+
+def specless_normalized_rewards() -> gym.Env[Any, Any]:
+    """No spec at all (not made by gym.make)."""
+    from gymnasium.envs.classic_control import CartPoleEnv
+
+    return gym.wrappers.NormalizeReward(gym.wrappers.TimeLimit(CartPoleEnv(), 50))
+
+
+@pytest.mark.parametrize(
+    "make", [normalized_rewards, hidden_normalized_rewards, specless_normalized_rewards]
+)
+def test_normalize_reward_in_subproc_workers_is_warned_of_with_or_without_a_spec(
+    tmp_path: Path, make: Any
+) -> None:
+    """Its statistics, which no state adapter snapshots in a worker, are warned of at
+    construction whether the sub-envs' spec names it or only the workers' chains hold it."""
+    path = tmp_path / "normalized.mcap"
+    base = SubprocVecEnv([make] * 2, start_method=START)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        venv = RecordVecEnvEvidence(base, path)
+    venv.close()
+    said = [str(w.message) for w in caught if issubclass(w.category, RecorderWarning)]
+    assert any(
+        re.match(
+            r"^episode-audit: RecordVecEnvEvidence: the recorded wrapper NormalizeReward keeps "
+            r"running statistics across episodes, which the file does not hold \(no state "
+            r"snapshot\)",
+            message,
+        )
+        for message in said
+    ), said
+    run = open_evidence(path).run
+    assert (run.env_spec is None) == (make is not normalized_rewards)
 
 
 def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import gc
 import re
+import subprocess
+import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -153,3 +155,52 @@ def test_an_unclosed_recorder_is_warned_of_in_its_category(
     unclosed = [w for w in caught if "RecordEvidence for" in str(w.message)]
     assert [w.category for w in unclosed] == [UnclosedRecorderWarning]
     assert f"RecordEvidence for {path} was not closed; call close()" in str(unclosed[0].message)
+
+
+_NEVER_CLOSED = """
+import gc
+import sys
+import gymnasium as gym
+from episode_audit import RecordEvidence
+
+def dropped(path):
+    env = RecordEvidence(gym.make("CartPole-v1"), path)
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(0)
+
+dropped(sys.argv[1])
+gc.collect()  # (the dropped recorder collected here, unclosed)
+kept = RecordEvidence(gym.make("CartPole-v1"), sys.argv[2])
+kept.reset(seed=1)
+for _ in range(5):
+    kept.step(1)
+print("exiting", flush=True)  # (exits with the recorder open)
+"""
+
+
+def test_a_recorder_never_closed_gives_one_warning_and_a_finished_file(tmp_path: Path) -> None:
+    """Collected unclosed: our warning only (no ResourceWarning for its file object), the file
+    finished then; still open at exit: finished by the exit hook, silently."""
+    from episode_audit import check
+
+    dropped, kept = tmp_path / "dropped.mcap", tmp_path / "kept.mcap"
+    done = subprocess.run(
+        [sys.executable, "-W", "default", "-c", _NEVER_CLOSED, str(dropped), str(kept)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0 and done.stdout == "exiting\n", done.stderr
+    warned = [line for line in done.stderr.splitlines() if "Warning" in line]
+    assert len(warned) == 1, done.stderr
+    assert re.search(
+        rf"UnclosedRecorderWarning: episode-audit: RecordEvidence for {re.escape(str(dropped))} "
+        r"was not closed; call close\(\)",
+        warned[0],
+    ), done.stderr
+    for path, steps in ((dropped, 5), (kept, 5)):
+        result = check([path])
+        codes = {f.code for f in result.findings}
+        assert "file_unfinished" not in codes and not result.warnings, (path, codes)
+        assert episode_audit.open_evidence(path).steps(columns=["episode"]).num_rows == steps

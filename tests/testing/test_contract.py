@@ -348,6 +348,48 @@ def test_a_game_checks_each_agents_ending(tmp_path: Path) -> None:
         check_game_contract(wrong, tmp_path)
 
 
+@pytest.mark.parametrize(
+    ("fields", "match"),
+    [
+        ({"env": 3}, r"^GameCase: env: expected a factory returning a pettingzoo ParallelEnv, "),
+        ({"id": 7}, r"^GameCase: id: expected a str or None, got 7 \(int\)$"),
+        ({"seed": "0"}, r"^WalkGame-seed0: seed: expected an int in 0 \.\. .*, got '0' \(str\)$"),
+        ({"seed": -1}, r": seed: expected an int in 0 \.\. 9223372036854775807, got -1 \(int\)$"),
+        ({"max_steps": 0}, r": max_steps: expected an int >= 1, got 0 \(int\)$"),
+        ({"max_steps": "5"}, r": max_steps: expected an int >= 1, got '5' \(str\)$"),
+        ({"atol": -1.0}, r": atol: expected a finite number >= 0, got -1\.0 \(float\)$"),
+        ({"replay": "yes"}, r": replay: expected True or False, got 'yes' \(str\)$"),
+        ({"require_terms": 1}, r": require_terms: expected True or False, got 1 \(int\)$"),
+        ({"env_kwargs": [1]}, r": env_kwargs: expected a dict of keyword arguments"),
+        ({"recorder_options": None}, r": recorder_options: expected a dict .*None \(NoneType\)$"),
+        (
+            {"actions": 5},
+            r": actions: expected joint actions, a policy or 'random', got 5 \(int\)$",
+        ),
+        ({"actions": [{"left": 1}, 0]}, r": actions: expected a dict .*, got 0 \(int\) at step 1$"),
+        ({"expect": ["success"]}, r": expect: expected a dict of each agent's ending"),
+        (
+            {"expect": {"left": 3}},
+            r": expect: expected agent names .*, got 'left' \(str\): 3 \(int",
+        ),
+    ],
+)
+def test_a_game_case_with_a_bad_field_is_a_configuration_error(
+    fields: dict[str, Any], match: str
+) -> None:
+    from tests.support.walk_game import WalkGame
+
+    with pytest.raises(ConfigurationError, match=match):
+        GameCase(**{"env": WalkGame, **fields})
+
+
+def test_a_game_case_s_numpy_integers_are_kept_as_ints() -> None:
+    from tests.support.walk_game import WalkGame
+
+    case = GameCase(WalkGame, seed=np.int64(3), max_steps=np.int32(60))
+    assert (type(case.seed), type(case.max_steps)) == (int, int)
+
+
 def test_a_game_case_that_cannot_run_is_a_configuration_error(tmp_path: Path) -> None:
     from tests.support.walk_game import WalkGame
 

@@ -27,7 +27,7 @@ from ..file import EvidenceFile, FileRecorder
 from ..gym import warn_unrestorable
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..vector.infos import env_infos
-from ..vector.recorder import sub_wrappers, vector_layout
+from ..vector.recorder import vector_layout
 from ..vector.resets import recorded_per_env, shared_changed
 from ..vector.rng import SubEnvRng
 from ..vector.steps import VectorSteps
@@ -132,9 +132,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
                 RecorderWarning,
                 stacklevel=2,
             )
-        warn_unrestorable(
-            type(self).__name__, sub_wrappers(stack.local, spec), self.run_info.layout
-        )
+        warn_unrestorable(type(self).__name__, stack.sub_wrappers(spec), self.run_info.layout)
         self._file = EvidenceFile(path, self.run_info, settings, owner=self)
         self.path = self._file.path
         codecs = (

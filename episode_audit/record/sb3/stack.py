@@ -26,7 +26,7 @@ from stable_baselines3.common.vec_env import (
 from ...format.wrappers import REWARD_CHANGING
 from ..gym import entry_point, info_entry_point
 from ..time_limits import counted_limits, limited_spec, unread_limits
-from ..vector.recorder import sub_reward_wrappers
+from ..vector.recorder import sub_reward_wrappers, sub_wrappers
 from ..vector.rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, ResetRngInfo
 
 __all__ = ["TRANSPARENT", "VecStack"]
@@ -68,6 +68,7 @@ class VecStack:
         """The base if its sub-envs live in this process (``DummyVecEnv``)."""
         self.direct = not wrappers
         """Whether the recorder wraps the base itself."""
+        self._asked: list[str] | None = None  # (the workers' reward wrappers, once asked)
 
     def notes(self) -> list[str]:
         """Run notes on the stack: the wrappers under the recorder, and what they change."""
@@ -100,8 +101,28 @@ class VecStack:
         """
         inner = sub_reward_wrappers(self.local, spec)
         if not inner and self.local is None:
-            inner = worker_reward_wrappers(self.base)
+            inner = self._asked_reward_wrappers()
         return inner + self.rewards
+
+    def sub_wrappers(self, spec: Any) -> list[str]:
+        """The entry points of a sub-env's wrappers, as far as they are known.
+
+        Walked in this process, else named by its ``spec``
+        (:func:`~..vector.recorder.sub_wrappers`); when the spec names no reward-changing
+        wrapper (or is unknown), with those the workers say their sub-envs have
+        (:func:`worker_reward_wrappers`, their order unknown), so a ``NormalizeReward`` in a
+        worker is warned of as one the spec names is.
+        """
+        known = sub_wrappers(self.local, spec)
+        if self.local is None and not sub_reward_wrappers(None, spec):
+            known += self._asked_reward_wrappers()
+        return known
+
+    def _asked_reward_wrappers(self) -> list[str]:
+        """:func:`worker_reward_wrappers` of the base, asked once."""
+        if self._asked is None:
+            self._asked = worker_reward_wrappers(self.base)
+        return list(self._asked)
 
     def info_of(self) -> str:
         """The entry point of the object whose infos the recorder reads the terms from."""
