@@ -150,6 +150,7 @@ class RecorderTroubleWarning(EpisodeAuditWarning, RuntimeWarning):
 class UnclosedRecorderWarning(EpisodeAuditWarning, ResourceWarning):
     """A recorder was collected without ``close()``: close it, or use it as a context manager.
 
+    Its file is finished then (open episodes ``incomplete``), as ``close()`` would have done.
     Also a ``ResourceWarning``: hidden unless those are shown (``python -X dev``, pytest).
     """
 
