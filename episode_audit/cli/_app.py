@@ -28,7 +28,7 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup
 
 from .._jobs import sigint_held
 from .._version import __version__
-from ..errors import ConfigurationError, EpisodeAuditError, WorkerWarning
+from ..errors import ConfigurationError, EpisodeAuditError, EpisodeAuditWarning
 from ..read.arguments import episode_index
 from ..read.inputs import Unreadable, evidence_files, open_all
 from ..read.opening import broken_link
@@ -357,22 +357,26 @@ def main_options(
 
 @contextmanager
 def _warning_lines() -> Iterator[None]:
-    """Meanwhile a :class:`~episode_audit.errors.WorkerWarning` is one ``warning:`` line.
+    """Meanwhile every :class:`~episode_audit.errors.EpisodeAuditWarning` is one ``warning:`` line.
 
-    (:func:`warn`'s; Python's own form is two lines naming the library's source.) Other
-    warnings are left as they are.
+    (:func:`warn`'s, without the ``episode-audit:`` a recorder's message starts with; Python's
+    own form is two lines naming the library's source.) Other libraries' warnings are left as
+    they are.
     """
     with warnings.catch_warnings():
         shown = warnings.showwarning
 
         def show(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
-            if issubclass(category, WorkerWarning):
-                warn(str(message))
+            if issubclass(category, EpisodeAuditWarning):
+                warn(str(message).removeprefix(_OURS))
             else:
                 shown(message, category, *args, **kwargs)
 
         warnings.showwarning = show
         yield
+
+
+_OURS = "episode-audit: "
 
 
 FormatOption = Annotated[
