@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import sys
 import tempfile
 import threading
 import time
@@ -276,8 +277,6 @@ def _refuse_a_long_temporary_directory() -> None:
     could not start, and that came back as a worker that ended before its results.
     """
     import multiprocessing.util
-    import sys
-    import tempfile
 
     if hasattr(multiprocessing.util, "_get_base_temp_dir"):
         return
@@ -415,8 +414,27 @@ def _pool(processes: int) -> ProcessPoolExecutor:
             initializer=_start_worker,
             initargs=(dict(os.environ), os.getpid()),
         )
-    except OSError as exc:  # (a read-only /dev/shm: their semaphores)
-        raise _NotStarted(f"creating their queues: {_cause(exc)}") from exc
+    except OSError as exc:  # (a read-only or missing /dev/shm: their semaphores)
+        raise _NotStarted(f"creating their queues: {_queues_cause(exc)}") from exc
+
+
+_SEMAPHORES = "/dev/shm"
+"""Where Linux makes the POSIX semaphores of multiprocessing's queues and locks."""
+
+
+def _queues_cause(exc: OSError) -> str:
+    """Why the pool's queues could not be made, in a few words: ``/dev/shm`` when it is why.
+
+    The error of a semaphore not made names no file (``Read-only file system``, ``No such
+    file or directory``): on Linux, a ``/dev/shm`` that is not a writable folder is named, and
+    what to do.
+    """
+    if sys.platform.startswith("linux") and not exc.filename:
+        shm = _SEMAPHORES
+        if not (os.path.isdir(shm) and os.access(shm, os.W_OK)):
+            said = exc.strerror or str(exc) or type(exc).__name__
+            return f"{shm}: {said}: their semaphores need a writable {shm} (mount a tmpfs there)"
+    return _cause(exc)
 
 
 _RUNNABLE: set[str] = set()
@@ -433,7 +451,6 @@ def _runnable() -> None:
     """
     import multiprocessing.spawn
     import subprocess
-    import sys
 
     executable = os.fsdecode(multiprocessing.spawn.get_executable())
     if executable in _RUNNABLE or getattr(sys, "frozen", False):

@@ -698,36 +698,60 @@ def test_the_library_warns_and_does_the_work_itself_when_workers_cannot_be_start
     assert "Traceback" not in done.stderr and "resource_tracker" not in done.stderr
 
 
-def _read_only_shm(command: list[str]) -> list[str]:
-    """``command`` where ``/dev/shm`` is read-only (a mount namespace of its own, as in some
-    containers and AWS Lambda); skips the test where one cannot be made here."""
+_NO_DEV_SHM = {
+    # where POSIX semaphores go on Linux: read-only, as in some containers and AWS Lambda
+    "read-only": "mount -t tmpfs -o ro tmpfs /dev/shm",
+    # or not there at all (a /dev of its own holding only the devices a command needs)
+    "missing": (
+        "mkdir -p {tmp}/dev && mount --bind /dev {tmp}/dev && mount -t tmpfs tmpfs /dev && "
+        "for n in null zero random urandom; do touch /dev/$n && mount --bind {tmp}/dev/$n "
+        "/dev/$n || exit 1; done && ln -s /proc/self/fd /dev/fd"
+    ),
+}
+
+
+def _no_dev_shm(how: str, command: list[str], tmp: Path) -> list[str]:
+    """``command`` where ``/dev/shm`` is ``how`` (read-only or missing: a mount namespace of
+    its own); skips the test where one cannot be made here."""
     unshare = shutil.which("unshare")
     if unshare is None or sys.platform != "linux":
         pytest.skip("needs Linux's unshare(1) to mount a read-only /dev/shm")
     user = [] if os.geteuid() == 0 else ["--map-root-user"]
-    mount = "mount -t tmpfs -o ro tmpfs /dev/shm"
+    mount = _NO_DEV_SHM[how].format(tmp=tmp)
     tried = subprocess.run(
         [unshare, *user, "--mount", "sh", "-c", f"{mount} && touch /dev/shm/x"],
         capture_output=True, text=True, timeout=30,
     )  # fmt: skip
-    if "Read-only file system" not in tried.stderr:
-        pytest.skip(f"cannot mount a read-only /dev/shm here: {tried.stderr.strip()[:200]}")
+    said = {"read-only": "Read-only file system", "missing": "No such file or directory"}[how]
+    if said not in tried.stderr:
+        pytest.skip(f"cannot make a {how} /dev/shm here: {tried.stderr.strip()[:200]}")
     return [unshare, *user, "--mount", "sh", "-c", f'{mount} && exec "$@"', "sh", *command]
 
 
-def test_a_read_only_dev_shm_leaves_the_work_to_this_process(campaign: Path) -> None:
+@pytest.mark.parametrize(
+    ("how", "said"),
+    [("read-only", "Read-only file system"), ("missing", "No such file or directory")],
+)
+def test_without_a_writable_dev_shm_the_work_is_left_to_this_process(
+    how: str, said: str, campaign: Path, tmp_path: Path
+) -> None:
     # multiprocessing's queues need semaphores in /dev/shm: the pool could not be made, and
-    # the command said only "Read-only file system", with no results
+    # the command said only "Read-only file system", with no results; then that without
+    # naming /dev/shm, which is what to fix
     code, one, err = run("report", str(campaign), "-f", "json", "--jobs", "1")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     command = [sys.executable, "-m", "episode_audit", "report", str(campaign), "-f", "json"]
     done = subprocess.run(
-        _read_only_shm([*command, "--jobs", "2"]),
+        _no_dev_shm(how, [*command, "--jobs", "2"], tmp_path),
         cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert (done.returncode, done.stdout) == (code, one), done.stderr
     first, *rest = done.stderr.splitlines()
-    assert re.match(_NOT_STARTED.format("creating their queues: Read-only file system"), first)
+    cause = (
+        f"creating their queues: /dev/shm: {said}: their semaphores need a writable /dev/shm "
+        "(mount a tmpfs there)"
+    )
+    assert re.match(_NOT_STARTED.format(re.escape(cause)), first), first
     assert rest == err.splitlines()
 
 

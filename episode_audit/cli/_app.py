@@ -28,7 +28,7 @@ from typer.core import TyperArgument, TyperCommand, TyperGroup
 
 from .._jobs import sigint_held
 from .._version import __version__
-from ..errors import ConfigurationError, EpisodeAuditError, WorkerWarning
+from ..errors import ConfigurationError, EpisodeAuditError, EpisodeAuditWarning
 from ..read.arguments import episode_index
 from ..read.inputs import Unreadable, evidence_files, open_all
 from ..read.opening import broken_link
@@ -71,16 +71,38 @@ app = typer.Typer(
 EXIT_CLEAN, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 
 
+class _Console(Console):
+    """A Rich console whose stream, once its reader has gone (``| head -1``), is left silent.
+
+    Rich's own exits 1 there, which a CI job with ``set -o pipefail`` reads as findings. Here
+    the stream's file descriptor becomes ``/dev/null`` (so nothing more is said, and the
+    interpreter's flush at exit does not fail again): the command finishes its work and exits
+    with its verdict's code.
+    """
+
+    def on_broken_pipe(self) -> None:
+        self.quiet = True
+        try:
+            fd = self.file.fileno()
+        except (AttributeError, OSError, ValueError):  # (no descriptor: nothing to keep quiet)
+            return
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, fd)
+        finally:
+            os.close(null)
+
+
 def _stdout() -> Console:
     # Plain output when not a terminal: no colour, and wide enough for CI logs (200 columns,
     # unless COLUMNS says otherwise); no emoji codes (a label ``:warning:`` prints as written,
     # not as an emoji)
     sized = sys.stdout.isatty() or os.environ.get("COLUMNS", "").isdigit()
-    return Console(highlight=False, emoji=False, width=None if sized else 200)
+    return _Console(highlight=False, emoji=False, width=None if sized else 200)
 
 
 def _stderr() -> Console:
-    return Console(stderr=True, highlight=False, emoji=False)
+    return _Console(stderr=True, highlight=False, emoji=False)
 
 
 def _say(kind: str, message: object) -> None:
@@ -335,22 +357,26 @@ def main_options(
 
 @contextmanager
 def _warning_lines() -> Iterator[None]:
-    """Meanwhile a :class:`~episode_audit.errors.WorkerWarning` is one ``warning:`` line.
+    """Meanwhile every :class:`~episode_audit.errors.EpisodeAuditWarning` is one ``warning:`` line.
 
-    (:func:`warn`'s; Python's own form is two lines naming the library's source.) Other
-    warnings are left as they are.
+    (:func:`warn`'s, without the ``episode-audit:`` a recorder's message starts with; Python's
+    own form is two lines naming the library's source.) Other libraries' warnings are left as
+    they are.
     """
     with warnings.catch_warnings():
         shown = warnings.showwarning
 
         def show(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
-            if issubclass(category, WorkerWarning):
-                warn(str(message))
+            if issubclass(category, EpisodeAuditWarning):
+                warn(str(message).removeprefix(_OURS))
             else:
                 shown(message, category, *args, **kwargs)
 
         warnings.showwarning = show
         yield
+
+
+_OURS = "episode-audit: "
 
 
 FormatOption = Annotated[

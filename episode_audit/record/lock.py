@@ -4,8 +4,9 @@
 ``{time}``), creates the file and takes its writer's lock (:mod:`episode_audit.format.locking`)
 before a byte is written. A path another live recorder holds, in this process or another, is
 refused with a :class:`~episode_audit.errors.ConfigurationError` naming the holder;
-``overwrite`` truncates only once the lock is held, and is refused with ``{index}``
-(:func:`refuse_indexed_overwrite`, for a caller that checks before recording). Where the
+``overwrite`` truncates only once the lock is held, and is refused with ``{index}``; a caller
+that checks before recording and names ``overwrite`` otherwise (``--overwrite``) has
+:func:`refuse_indexed_overwrite` and :func:`refuse_existing`. Where the
 filesystem has no locks the recorder records anyway and warns once. :class:`LockedStream` is
 the file the writer writes; closing it releases the lock.
 """
@@ -34,6 +35,7 @@ __all__ = [
     "claim_output",
     "make_folder",
     "output_kind",
+    "refuse_existing",
     "refuse_indexed_overwrite",
 ]
 
@@ -194,6 +196,29 @@ def refuse_indexed_overwrite(
     text = os.fspath(path_argument("path", path))
     if "index" in PathTemplate(text).fields:
         raise _indexed_overwrite(text, overwrite_option)
+
+
+def refuse_existing(
+    path: str | os.PathLike[str], *, overwrite_option: str = "overwrite=True"
+) -> None:
+    """Refuse a path that is taken, as :func:`claim_output` does without ``overwrite``.
+
+    For a caller that takes ``overwrite`` under another name and checks before recording:
+    the error names it ``overwrite_option`` (``--overwrite`` on the command line). A path
+    template with fields is left to :func:`claim_output` (its path is known only then).
+
+    Raises:
+        ConfigurationError: The path exists (a file, or a directory or device:
+            :func:`check_output_path`), or is a bad template.
+    """
+    text = os.fspath(path_argument("path", path))
+    template = PathTemplate(text)
+    if template.fields:
+        return
+    resolved = Path(template.render(0))
+    check_output_path(resolved)
+    if os.path.lexists(resolved):
+        raise _exists(resolved, overwrite_option)
 
 
 def _indexed_overwrite(text: str, overwrite_option: str) -> ConfigurationError:
@@ -359,8 +384,12 @@ def _held(path: Path, who: Holder) -> ConfigurationError:
     )
 
 
-def _exists(path: Path) -> ConfigurationError:
-    """The error for an existing file: held by a live recorder, or just there."""
+def _exists(path: Path, overwrite_option: str = "overwrite=True") -> ConfigurationError:
+    """The error for an existing file: held by a live recorder, or just there.
+
+    ``overwrite_option`` is how the caller names ``overwrite`` (``--overwrite`` on the command
+    line: :func:`refuse_existing`).
+    """
     who = None
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
@@ -374,10 +403,12 @@ def _exists(path: Path) -> ConfigurationError:
     if who is not None:
         return _held(path, who)
     template = f"{path.stem}-{{index}}{path.suffix}"
+    option = overwrite_option
+    if option == "overwrite=True":
+        option += " (--overwrite on the command line)"
     return ConfigurationError(
         f"{path}: file exists; evidence is never overwritten — choose another path (the "
-        f"template '{template}' takes the first free one), or pass overwrite=True "
-        "(--overwrite on the command line)"
+        f"template '{template}' takes the first free one), or pass {option}"
     )
 
 

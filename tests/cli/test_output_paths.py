@@ -114,3 +114,20 @@ def test_a_directory_given_for_one_file_gets_command_line_advice(
     empty.mkdir()
     code, said = _invoke(command, str(empty), *extra)
     assert said.endswith(f"{command} reads one evidence file: name one of its .mcap files\n")
+
+
+def test_an_existing_recording_asks_for_the_command_line_s_own_flag(tmp_path: Path) -> None:
+    """``record`` said "pass overwrite=True (--overwrite on the command line)"."""
+    out = tmp_path / "run.mcap"
+    out.write_bytes(b"keep")
+    args = ["record", "CartPole-v1", "-o", str(out), "--episodes", "1"]
+    code, said = _invoke(*args)
+    assert code == 2
+    assert said == (
+        f"episode-audit: error: {out}: file exists; evidence is never overwritten — choose "
+        "another path (the template 'run-{index}.mcap' takes the first free one), or pass "
+        "--overwrite\n"
+    )
+    assert out.read_bytes() == b"keep"
+    assert _invoke(*args, "--overwrite")[0] == 0
+    assert out.stat().st_size > 4
