@@ -20,7 +20,7 @@ from ._usercode import import_modules, load_callable
 from .errors import ConfigurationError, EpisodeAuditError, RecorderError
 from .format.columns import counted, error_text
 from .record.gym import RecordEvidence
-from .record.lock import check_output_path, refuse_indexed_overwrite
+from .record.lock import check_output_path, refuse_existing, refuse_indexed_overwrite
 
 __all__ = ["RecordSummary", "RecordingError", "record_episodes"]
 
@@ -96,7 +96,8 @@ def record_episodes(
     """Record ``episodes`` episodes of ``env_id`` to ``out``.
 
     ``out`` may be a path template (``run-{index}.mcap``: the first free one), never with
-    ``overwrite``: the error names it ``overwrite_option`` (``--overwrite`` on the command line).
+    ``overwrite``; without it, a file at ``out`` is refused before the env is made. The errors
+    name it ``overwrite_option`` (``--overwrite`` on the command line).
 
     >>> import tempfile, pathlib
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "cp.mcap"
@@ -109,6 +110,8 @@ def record_episodes(
     check_output_path(out)  # (a FIFO would block the recorder, /dev/null lose the evidence)
     if overwrite:
         refuse_indexed_overwrite(out, overwrite_option=overwrite_option)
+    else:
+        refuse_existing(out, overwrite_option=overwrite_option)
     env = _make_env(env_id, env_kwargs, max_episode_steps)
     # Everything that can be wrong with the arguments is found before the file is touched:
     # a usage error never leaves a file behind, nor replaces one (--overwrite).

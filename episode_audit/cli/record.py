@@ -90,8 +90,6 @@ def record(
 
     kwargs, tags = _env_kwargs(env_kwargs), _tags(tag or [])
     target = None if upload_to is None else _upload_target(upload_to, out)
-    if not overwrite:
-        _refuse_existing_out(out)
     if target is not None and not overwrite:
         _refuse_existing(target)
     try:
@@ -136,19 +134,6 @@ def _upload_target(url: str, out: Path) -> RemoteFile:
         )
     try:
         return remote_file(url + out.name if url.endswith("/") else url)
-    except EpisodeAuditError as exc:
-        fail(str(exc))
-
-
-def _refuse_existing_out(out: Path) -> None:
-    """``--out`` without ``--overwrite``: refuse a file that is there, naming ``--overwrite``.
-
-    (The recorder would refuse it too, in the words of its Python argument.)
-    """
-    from ..record.lock import refuse_existing
-
-    try:
-        refuse_existing(out, overwrite_option="--overwrite")
     except EpisodeAuditError as exc:
         fail(str(exc))
 

@@ -129,5 +129,12 @@ def test_an_existing_recording_asks_for_the_command_line_s_own_flag(tmp_path: Pa
         "--overwrite\n"
     )
     assert out.read_bytes() == b"keep"
+    from episode_audit.rollout import record_episodes
+
+    with pytest.raises(ConfigurationError, match=r"or pass overwrite=True \(--overwrite on the"):
+        record_episodes("CartPole-v1", out, episodes=1)
+    with pytest.raises(ConfigurationError, match=r"or pass --overwrite$"):
+        record_episodes("CartPole-v1", out, episodes=1, overwrite_option="--overwrite")
+    assert out.read_bytes() == b"keep"
     assert _invoke(*args, "--overwrite")[0] == 0
     assert out.stat().st_size > 4
