@@ -333,8 +333,8 @@ def test_times_no_foxglove_timestamp_holds_are_left_out_and_said(tmp_path: Path)
 
 
 def test_an_export_given_as_evidence_is_named_and_what_to_do_said(tmp_path: Path) -> None:
-    """A Foxglove export in a folder given to `check` is an MCAP file but not evidence: the
-    error says it is our viewer export, of which file, and to keep exports apart."""
+    """A Foxglove export named to `check` is an MCAP file but not evidence: the error says it
+    is our viewer export, of which file, and what to pass. In a folder given it is left out."""
     folder = tmp_path / "vdir"
     folder.mkdir()
     source = folder / "run.mcap"
@@ -343,11 +343,13 @@ def test_an_export_given_as_evidence_is_named_and_what_to_do_said(tmp_path: Path
     export([source], out, to="foxglove")
     problem = (
         f"episode-audit's Foxglove export of {str(source)!r} (a viewer file), not evidence: "
-        "keep viewer exports out of the folders given to check, report and replay, or pass "
-        "the evidence files"
+        "pass the evidence files, or their directory (its viewer exports are left out)"
     )
     with pytest.raises(NotEvidenceError, match=f"^{re.escape(f'{out}: {problem}')}$"):
         open_evidence(out)
-    result = CliRunner().invoke(app, ["check", str(folder), "--format", "json"])
+    result = CliRunner().invoke(app, ["check", str(out), "--format", "json"])
     assert result.exit_code == 2
     assert f"episode-audit: error: {out}: {problem}\n" in result.stderr
+    result = CliRunner().invoke(app, ["check", str(folder), "--format", "json"])
+    assert result.exit_code == 0, result.stderr
+    assert json.loads(result.stdout)["files"] == [str(source)]

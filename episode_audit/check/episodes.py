@@ -260,11 +260,12 @@ def _lengths(records: _Records, endings: EndingChecks, ended: BoolArray) -> None
 
 
 def _seedless(records: _Records) -> None:
+    """The episodes with neither a seed nor an RNG state (unstarted ones left out: no replay)."""
     rows = records.rows
     seedless = pc.and_(pc.is_null(rows.column("seed")), pc.is_null(rows.column("rng_state")))
     records.finding_over(
         NOT_REPLAYABLE,
-        seedless.to_numpy(zero_copy_only=False),
+        seedless.to_numpy(zero_copy_only=False) & ~records.unstarted,
         lambda eps: (
             f"{len(eps)} episode(s) have neither a reset seed nor an RNG state "
             f"and cannot be replayed (episodes {listing(eps)})"
@@ -277,6 +278,7 @@ def _unsaved(records: _Records) -> None:
 
     (Those with neither a seed nor an RNG state are :func:`_seedless`'s.) A seeded reset sets
     that state anew; when every episode needs it, it is a cause of ``check_state_causes``.
+    Unstarted episodes are left out: there is nothing of them to replay.
     """
     unsaved = unsaved_state(records.state.ev.run.layout)
     if unsaved is None or unsaved[1]:
@@ -285,7 +287,7 @@ def _unsaved(records: _Records) -> None:
     unseeded = pc.and_(pc.is_null(rows.column("seed")), pc.is_valid(rows.column("rng_state")))
     records.finding_over(
         NOT_REPLAYABLE,
-        unseeded.to_numpy(zero_copy_only=False),
+        unseeded.to_numpy(zero_copy_only=False) & ~records.unstarted,
         lambda eps: (
             f"{len(eps)} episode(s) began with an unseeded reset and cannot be replayed "
             f"(episodes {listing(eps)}): {unsaved[0]}"

@@ -397,14 +397,15 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         NOT_REPLAYABLE,
         "warning",
         "Episodes that cannot be replayed.",
-        "Episodes with neither a reset seed nor an RNG state, one finding per file listing up "
-        "to five; a vector file whose vector env had no sub-envs, so no episode can be "
-        "replayed on its own; or, one finding per cause, state replay cannot restore: a "
-        "recorded wrapper that keeps state across episodes (running statistics) without a "
-        "state snapshot, or a vector wrapper the vector recorder wrapped; or a vector file "
-        "whose sub-envs ran in `AsyncVectorEnv` / `SubprocVecEnv` workers under a "
-        "frame-skipping wrapper, where the spec cannot tell whether its `TimeLimit`s sat over "
-        "the frame skip or under it (replay needs `--env-factory` there).",
+        "Episodes with neither a reset seed nor an RNG state, one finding per file listing up to "
+        "five (an unstarted episode, reset and never stepped, is not one of them: there is nothing "
+        "of it to replay); a vector file whose vector env had no sub-envs, so no episode can be "
+        "replayed on its own; or, one finding per cause, state replay cannot restore: a recorded "
+        "wrapper that keeps state across episodes (running statistics) without a state snapshot, "
+        "or a vector wrapper the vector recorder wrapped; or a vector file whose sub-envs ran in "
+        "`AsyncVectorEnv` / `SubprocVecEnv` workers under a frame-skipping wrapper, where the spec "
+        "cannot tell whether its `TimeLimit`s sat over the frame skip or under it (replay needs "
+        "`--env-factory` there).",
         "`replay` cannot re-run them, so nothing confirms that their steps are what the env does.",
         "Reset before stepping, with a seed (`env.reset(seed=...)`) where you can; put the "
         "recorder innermost, directly around the env (or the vector env), under wrappers that "

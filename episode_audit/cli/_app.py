@@ -30,8 +30,8 @@ from .._jobs import sigint_held
 from .._version import __version__
 from ..errors import ConfigurationError, EpisodeAuditError, EpisodeAuditWarning
 from ..read.arguments import episode_index
-from ..read.inputs import Unreadable, evidence_files, open_all
-from ..read.opening import broken_link
+from ..read.inputs import Inputs, Unreadable, evidence_files, listed_inputs, open_all
+from ..read.opening import broken_link, viewer_export
 from ..read.storage import Source, is_url
 from .render import OutputFormat, safe
 
@@ -151,8 +151,9 @@ def existing(path: str | Path, command: str) -> str | Path:
             raise
         fail(f"{path}: {why or 'no such file or directory'}")
     if Path(path).is_dir():
-        some = sorted(Path(path).glob("*.mcap"))
-        example = f" (e.g. {shlex.quote(str(some[0]))})" if some else ""
+        some = (p for p in sorted(Path(path).glob("*.mcap")) if not viewer_export(p))
+        first = next(some, None)
+        example = f" (e.g. {shlex.quote(str(first))})" if first is not None else ""
         fail(
             f"{path}: a directory; {command} reads one evidence file: name one of its .mcap "
             f"files{example}"
@@ -163,12 +164,22 @@ def existing(path: str | Path, command: str) -> str | Path:
 def collect(paths: Sequence[str | Path]) -> list[Source]:
     """The evidence files ``paths`` name (see :func:`~episode_audit.read.evidence_files`).
 
-    URLs (``s3://`` …) are listed through ``fsspec`` (``docs/storage.md``).
+    URLs (``s3://`` …) are listed through ``fsspec`` (``docs/storage.md``). The viewer
+    exports found in directories are left out, and a note line says how many.
     """
     try:
-        return evidence_files(paths)
+        inputs = listed_inputs(paths)
     except ConfigurationError as exc:
         fail(str(exc))
+    exports_note(inputs.exports)
+    return inputs.files
+
+
+def exports_note(exports: Sequence[Source]) -> None:
+    """The note line saying how many viewer exports a listing left out, if it left any."""
+    line = Inputs([], list(exports)).exports_note()
+    if line is not None:
+        note(line)
 
 
 def lister(paths: Sequence[str]) -> Callable[[], list[Source] | None]:

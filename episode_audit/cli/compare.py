@@ -21,6 +21,7 @@ from ._app import (
     _format,
     app,
     emit,
+    exports_note,
     fail,
     failure_document,
     interruptible,
@@ -224,6 +225,7 @@ def compare(
         except EpisodeAuditError as exc:
             fail(str(exc))
     comparison = result.comparison
+    exports_note(result.exports)
     for mismatch in comparison.mismatches:
         warn(str(mismatch))
     for name, why in comparison.unfinished:

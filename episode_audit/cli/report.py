@@ -21,6 +21,7 @@ from ._app import (
     _format,
     app,
     emit,
+    exports_note,
     fail,
     failure_document,
     interruptible,
@@ -145,6 +146,7 @@ def report(
                 )
         except EpisodeAuditError as exc:
             fail(str(exc))
+        exports_note(result.exports)
         if not result.readable and fmt not in ("json", "junit"):  # (still one document: the errors)
             raise typer.Exit(EXIT_USAGE)
         emit(report_output(result.report, fmt, unreadable=result.unreadable))

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import open_evidence
-from ..read.inputs import Unreadable, evidence_files
+from ..read.inputs import Unreadable, listed_inputs
 from ..read.storage import Source
 from ..report.gates import is_rate
 from .core import (
@@ -40,6 +40,8 @@ class InputsComparison:
 
     comparison: Comparison
     unreadable: list[Unreadable]
+    exports: list[Source] = field(default_factory=list)
+    """The viewer exports found in the directories given, left out (not evidence)."""
 
 
 def compare_inputs(
@@ -79,7 +81,8 @@ def compare_inputs(
     if not candidate:
         raise ConfigurationError("--candidate: expected at least one file or directory")
     check_compare_by(by)
-    files = [evidence_files(list(paths)) for paths in (baseline, candidate)]
+    inputs = [listed_inputs(list(paths)) for paths in (baseline, candidate)]
+    files = [side.files for side in inputs]
     check_apart(*files)
     one = partial(_side_file, by=by)
     read = iter(
@@ -114,7 +117,7 @@ def compare_inputs(
         different_tasks=different_tasks,
         rate_margin=rate_margin,
     )
-    return InputsComparison(comparison, unreadable)
+    return InputsComparison(comparison, unreadable, inputs[0].exports + inputs[1].exports)
 
 
 def _side_file(

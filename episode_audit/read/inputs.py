@@ -1,6 +1,7 @@
 """The inputs of a command: evidence files named directly or found in directories.
 
-:func:`evidence_files` expands paths (directories searched for ``*.mcap``); :func:`open_all`
+:func:`evidence_files` expands paths (directories searched for ``*.mcap``, viewer exports left
+out; :func:`listed_inputs` also says which were); :func:`open_all`
 opens them, keeping going past the ones that cannot be read (each an :class:`Unreadable`), so
 one bad file costs the others nothing; :func:`steps_total` sums the steps finished files
 declare (a torn file's estimated from its size), for progress bars.
@@ -17,10 +18,18 @@ from typing import Any
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
 from .arguments import path_list
 from .evidence import Evidence
-from .opening import broken_link, declared_steps, open_evidence
+from .opening import broken_link, declared_steps, open_evidence, viewer_export
 from .storage import RemoteFile, Source, as_source, list_remote
 
-__all__ = ["Unreadable", "evidence_files", "open_all", "skipped", "steps_total"]
+__all__ = [
+    "Inputs",
+    "Unreadable",
+    "evidence_files",
+    "listed_inputs",
+    "open_all",
+    "skipped",
+    "steps_total",
+]
 
 
 @dataclass(frozen=True)
@@ -55,6 +64,30 @@ def skipped(
     return Unreadable.of(os.fspath(path), exc)
 
 
+@dataclass(frozen=True)
+class Inputs:
+    """A command's input files (:func:`listed_inputs`), and the viewer exports left out."""
+
+    files: list[Source]
+    exports: list[Source]
+    """The viewer exports (``episode-audit export --to foxglove``) found in the directories
+    given: not evidence, so not inputs (one named as a file is an input, and unreadable)."""
+
+    def exports_note(self) -> str | None:
+        """One line saying how many viewer exports were left out, and the first; else ``None``.
+
+        >>> print(Inputs([], [Path("runs/a.foxglove.mcap"), Path("b.mcap")]).exports_note())
+        left out 2 viewer export(s) found in the directories given (runs/a.foxglove.mcap, ...)
+        """
+        if not self.exports:
+            return None
+        more = ", ..." if len(self.exports) > 1 else ""
+        return (
+            f"left out {len(self.exports)} viewer export(s) found in the directories given "
+            f"({self.exports[0]}{more})"
+        )
+
+
 def evidence_files(
     paths: Sequence[str | os.PathLike[str]],
     *,
@@ -63,14 +96,31 @@ def evidence_files(
 ) -> list[Source]:
     """Files as given and ``*.mcap`` files under directories (recursively, sorted).
 
-    A file reached twice (named twice, or also found in a directory given) counts once.
-    URLs (``s3://bucket/prefix`` …) are listed the same way, through ``filesystem`` or one
-    made with ``storage_options`` (see :func:`open_evidence`); each is a
-    :class:`~episode_audit.read.storage.RemoteFile` that carries its filesystem.
+    The files of :func:`listed_inputs` (which also says which viewer exports it left out).
+    """
+    return listed_inputs(paths, filesystem=filesystem, storage_options=storage_options).files
+
+
+def listed_inputs(
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
+) -> Inputs:
+    """Files as given and ``*.mcap`` files under directories (recursively, sorted).
+
+    A file reached twice (named twice, or also found in a directory given) counts once. A
+    viewer export found in a directory (:func:`~.opening.viewer_export`: what ``export --to
+    foxglove`` writes) is left out, and listed in :attr:`Inputs.exports`; one named as a file
+    is kept (opening it says it is an export). URLs (``s3://bucket/prefix`` …) are listed the
+    same way, through ``filesystem`` or one made with ``storage_options`` (see
+    :func:`open_evidence`); each is a :class:`~episode_audit.read.storage.RemoteFile` that
+    carries its filesystem (their exports are not looked for: that would read each file).
     Raises :class:`~episode_audit.errors.ConfigurationError` for a path that does not exist,
     a directory without evidence files, or one that cannot be listed.
     """
     out: list[Source] = []
+    exports: list[Source] = []
     seen: set[object] = set()
     for given in path_list(paths):
         path = as_source(given, filesystem=filesystem, storage_options=storage_options)
@@ -82,9 +132,9 @@ def evidence_files(
             continue
         try:
             if path.is_dir():
-                found = sorted(_searched(path))
+                found = _not_exports(sorted(_searched(path)), exports)
                 if not found:
-                    raise ConfigurationError(f"{path}: no *.mcap files in this directory")
+                    raise ConfigurationError(f"{path}: {_nothing_in(path, exports)}")
             else:
                 os.stat(path)  # (a link that leads nowhere: said below)
                 found = [path]
@@ -99,7 +149,30 @@ def evidence_files(
             if real not in seen:
                 seen.add(real)
                 out.append(file)
-    return out
+    return Inputs(out, exports)
+
+
+def _not_exports(found: list[Path], exports: list[Source]) -> list[Path]:
+    """``found`` (a directory's files) but its viewer exports, which go to ``exports`` (once)."""
+    kept = []
+    listed = {os.path.realpath(e) for e in exports}
+    for file in found:
+        if not viewer_export(file):
+            kept.append(file)
+        elif os.path.realpath(file) not in listed:
+            exports.append(file)
+    return kept
+
+
+def _nothing_in(directory: Path, exports: Sequence[Source]) -> str:
+    """Why ``directory`` gives no input: no ``*.mcap`` file, or only viewer exports."""
+    held = [e for e in exports if Path(e).is_relative_to(directory)]
+    if not held:
+        return "no *.mcap files in this directory"
+    return (
+        f"no evidence files in this directory: its {len(held)} *.mcap file(s) are viewer "
+        f"exports (episode-audit export --to foxglove), not evidence (e.g. {held[0]})"
+    )
 
 
 def _searched(directory: Path) -> list[Path]:

@@ -188,8 +188,31 @@ def _other_mcap(header: Header, metadata: dict[str, dict[str, str]]) -> str:
     source = export.get("source")
     of = f" of {source!r}" if source else ""
     return (
-        f"episode-audit's Foxglove export{of} (a viewer file), not evidence: keep viewer "
-        "exports out of the folders given to check, report and replay, or pass the evidence files"
+        f"episode-audit's Foxglove export{of} (a viewer file), not evidence: pass the evidence "
+        "files, or their directory (its viewer exports are left out)"
+    )
+
+
+def viewer_export(path: str | os.PathLike[str]) -> bool:
+    """Whether the local file ``path`` is a viewer export of episode-audit's, not evidence.
+
+    The Foxglove export (``export --to foxglove``) is MCAP without our profile, and its summary
+    lists the :data:`~episode_audit.format.names.METADATA_EXPORT` record. An evidence file's
+    header says so at once (its first bytes are read, nothing more). A file that cannot be
+    opened or is not that is not one: opening it as evidence says what it is.
+    """
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # (a FIFO would block)
+            return False
+        with open(path, "rb") as f:
+            reader = SeekingReader(f, record_size_limit=chunks.MAX_RECORD_BYTES)
+            if reader.get_header().profile == fmt.MCAP_PROFILE:
+                return False
+            summary = reader.get_summary()
+    except Exception:  # (not MCAP, unreadable, torn: not an export that can be skipped)
+        return False
+    return summary is not None and any(
+        index.name == fmt.METADATA_EXPORT for index in summary.metadata_indexes
     )
 
 

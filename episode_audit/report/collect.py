@@ -35,6 +35,7 @@ __all__ = [
     "SUCCESS_KEY",
     "check_by",
     "collect",
+    "file_key",
     "file_rows",
     "is_by",
     "joined",
@@ -195,25 +196,38 @@ def joined(rows: Iterable[FileRows]) -> tuple[pa.Table, pa.Table]:
     return pa.concat_tables(parts), terms_table
 
 
+def file_key(name: str, ev: Evidence, by: str) -> str | None:
+    """The group key every episode of the file ``name`` has for ``by``, if its run says it.
+
+    By file, env, ``tag:NAME`` and all; ``None`` for the groupings each episode has its own
+    key for (label, env index, agent).
+    """
+    if by == "file":
+        return name
+    if by == "env":
+        return ev.run.env_id or NONE_KEY
+    if by == "all":
+        return "all"
+    if by.startswith("tag:"):
+        value = (ev.run.tags or {}).get(by[4:])
+        return NONE_KEY if value is None else str(value)
+    return None
+
+
 def _keys(name: str, ev: Evidence, table: pa.Table, by: str, games: bool) -> pa.Array:
     """Per episode of ``table`` (of the file ``name``), its group key for ``by``."""
     n = table.num_rows
-    if by == "file":
-        return pa.array([name] * n, pa.string())
-    if by == "env":
-        return pa.array([ev.run.env_id or NONE_KEY] * n, pa.string())
-    if by == "all":
-        return pa.array(["all"] * n, pa.string())
+    key = file_key(name, ev, by)
+    if key is not None:
+        return pa.array([key] * n, pa.string())
     if by == "label":
         return _label_keys(table)
     if by == "env_index":  # vector files: one group per sub-env index
         return pc.cast(table.column("env_index"), pa.string()).combine_chunks()
-    if by == "agent":  # PettingZoo files: one group per agent
-        if games:
-            raise ConfigurationError("by='agent' and games=True: a game has many agents")
-        return pc.fill_null(table.column("agent"), NONE_KEY).combine_chunks()
-    value = (ev.run.tags or {}).get(by[4:])
-    return pa.array([NONE_KEY if value is None else str(value)] * n, pa.string())
+    # by agent: PettingZoo files, one group per agent
+    if games:
+        raise ConfigurationError("by='agent' and games=True: a game has many agents")
+    return pc.fill_null(table.column("agent"), NONE_KEY).combine_chunks()
 
 
 def _label_keys(table: pa.Table) -> pa.Array:

@@ -17,7 +17,7 @@ from .._jobs import map_ordered
 from ..format.run_end import RunEnd
 from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
-from .collect import NONE_KEY, FileRows, check_by, file_rows, joined
+from .collect import NONE_KEY, FileRows, check_by, file_key, file_rows, joined
 from .gates import GateResult, Gates, check_gateable, check_gates, unmatched_labels, unmatched_why
 from .groups import GroupReport, group_reports
 from .wrapped import Chain, Wrapped, file_chain
@@ -176,6 +176,9 @@ class FilePart:
     """The reward wrappers the file was recorded over (:func:`~.wrapped.file_chain`)."""
     dropped: str | None = None
     """What the file's recorder dropped, in words (``None``: nothing)."""
+    key: str | None = None
+    """The group every episode of the file is in, when the grouping gives a file one
+    (:func:`~.collect.file_key`): a file that holds none is a group of 0 episodes then."""
 
 
 def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart:
@@ -191,7 +194,7 @@ def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart
         if lost
         else None
     )
-    return FilePart(name, rows, unfinished, tags, file_chain(ev), dropped)
+    return FilePart(name, rows, unfinished, tags, file_chain(ev), dropped, file_key(name, ev, by))
 
 
 LOST = "no recorder is writing it and it holds no complete chunk: no episode survives"
@@ -214,13 +217,17 @@ def report_parts(
     check_by(by)
     check_gateable(by, gates)
     unfinished = [(p.name, p.unfinished) for p in parts if p.unfinished is not None]
-    groups = group_reports(*joined(p.rows for p in parts), one_outcome=by == "label")
-    keys = {group.key for group in groups}
-    empty = [p.name for p in parts if p.name not in keys] if by == "file" else []
+    groups = group_reports(
+        *joined(p.rows for p in parts),
+        one_outcome=by == "label",
+        empty=[p.key for p in parts if p.key is not None],  # (those of files without episodes)
+    )
     return Report(
         by,
         groups,
-        check_gates(gates, groups, empty) if gates is not None else [],
+        check_gates(gates, groups, "file" if by == "file" else "group")
+        if gates is not None
+        else [],
         unfinished,
         "game" if games else "episode",
         unmatched_labels(gates, groups),

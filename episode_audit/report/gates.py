@@ -108,14 +108,13 @@ class GateResult:
 
 
 def check_gates(
-    gates: Gates, groups: Sequence[GroupReport], empty: Sequence[str] = ()
+    gates: Gates, groups: Sequence[GroupReport], unit: str = "group"
 ) -> list[GateResult]:
     """Check every gate that is on against every group, group by group.
 
     Gates over no group at all fail (gate ``episodes``): nothing evaluated is not a pass. So
-    do they over each of ``empty``, the files of a report by file that hold no episode (a
-    torn file that lost them all): each is a group of its own, gated as one without ended
-    episodes is.
+    do they over a group of 0 episodes (its files hold none: a torn file that lost them all),
+    with one ``episodes`` result saying so of the ``unit`` (``file`` when grouped by file).
     """
     if not gates.any:
         return []
@@ -126,11 +125,19 @@ def check_gates(
             )
         ]
     unmatched = set(unmatched_labels(gates, groups))
-    results = [result for group in groups for result in _group_gates(gates, group, unmatched)]
-    return results + [
-        GateResult("episodes", name, False, "no episodes in this file: no gate could be checked")
-        for name in empty
+    return [
+        result
+        for group in groups
+        for result in (
+            _group_gates(gates, group, unmatched) if group.episodes else [_no_episodes(group, unit)]
+        )
     ]
+
+
+def _no_episodes(group: GroupReport, unit: str) -> GateResult:
+    """The gate result of a group of 0 episodes: no gate could be checked, a failure."""
+    why = f"no episodes in this {unit}: no gate could be checked"
+    return GateResult("episodes", group.key, False, why)
 
 
 def unmatched_labels(gates: Gates | None, groups: Sequence[GroupReport]) -> list[str]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from itertools import pairwise
 from typing import Any
@@ -117,7 +118,11 @@ def _interval(ci: Interval | None) -> dict[str, float] | None:
 
 
 def group_reports(
-    episodes: pa.Table, terms: pa.Table, *, one_outcome: bool = False
+    episodes: pa.Table,
+    terms: pa.Table,
+    *,
+    one_outcome: bool = False,
+    empty: Iterable[str] = (),
 ) -> list[GroupReport]:
     """One report per group key of ``episodes`` (:func:`natural` order), with its ``terms`` rows.
 
@@ -125,19 +130,29 @@ def group_reports(
     label), so its rates would be 0 or 1 whatever the episodes, and its incentive warnings,
     which set a group's outcomes against each other, would compare nothing: neither is
     computed (rates and intervals ``None``, no warnings); the counts and statistics stay.
+
+    ``empty``: keys of groups whose files hold no episode (a torn file that lost them all),
+    each a group of 0 episodes among the others, unless no group holds any episode.
     """
     if not episodes.num_rows:
         return []
     return [
-        _group(key, rows, key_terms, one_outcome) for key, rows, key_terms in keyed(episodes, terms)
+        _group(key, rows, key_terms, one_outcome)
+        for key, rows, key_terms in keyed(episodes, terms, empty)
     ]
 
 
-def keyed(episodes: pa.Table, terms: pa.Table) -> list[tuple[str, pa.Table, pa.Table]]:
-    """Each key of ``episodes``, in :func:`natural` order, with its rows and ``terms`` rows."""
+def keyed(
+    episodes: pa.Table, terms: pa.Table, empty: Iterable[str] = ()
+) -> list[tuple[str, pa.Table, pa.Table]]:
+    """Each key of ``episodes``, in :func:`natural` order, with its rows and ``terms`` rows.
+
+    Each of ``empty`` that is no key of ``episodes`` too, with no rows.
+    """
     rows, term_rows = by_key(episodes), by_key(terms)
-    no_terms = terms.slice(0, 0)
-    return [(key, rows[key], term_rows.get(key, no_terms)) for key in sorted(rows, key=natural)]
+    no_rows, no_terms = episodes.slice(0, 0), terms.slice(0, 0)
+    keys = sorted({*rows, *empty}, key=natural)
+    return [(key, rows.get(key, no_rows), term_rows.get(key, no_terms)) for key in keys]
 
 
 def natural(key: str) -> tuple[tuple[int, int, str], ...]:
@@ -225,7 +240,7 @@ def _group(key: str, rows: pa.Table, terms: pa.Table, one_outcome: bool) -> Grou
         warnings=[],
         failure_ci=wilson_interval(failure, ended) if ended else None,
         truncation_ci=wilson_interval(truncated, ended) if ended else None,
-        success_signal=bool(pc.any(rows.column("success_signal")).as_py()),
+        success_signal=bool(pc.any(rows.column("success_signal")).as_py() is not False),
         nonfinite_returns=int((~np.isfinite(returns[ended_mask])).sum()),
         mixed_rewards=mixed,
     )

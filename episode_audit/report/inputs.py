@@ -17,7 +17,7 @@ from typing import Any
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import open_evidence
-from ..read.inputs import Unreadable, evidence_files
+from ..read.inputs import Unreadable, listed_inputs
 from ..read.storage import Source
 from .collect import is_by
 from .core import FilePart, Report, file_part, report_parts
@@ -39,6 +39,8 @@ class InputsReport:
     parts: list[FilePart] = field(default_factory=list)
     """What the report took from each input read, in order (the HTML report's episodes:
     :func:`~.html.write_report_html` lists them without reading a file again)."""
+    exports: list[Source] = field(default_factory=list)
+    """The viewer exports found in the directories given, left out (not evidence)."""
 
 
 def report_inputs(
@@ -60,6 +62,7 @@ def report_inputs(
 ) -> InputsReport:
     """Report the evidence files ``paths`` name (directories are searched for ``*.mcap``).
 
+    The viewer exports found in directories are left out (:attr:`InputsReport.exports`).
     ``paths`` may be URLs, read through ``filesystem`` or ``storage_options``
     (:func:`~episode_audit.read.evidence_files`).
 
@@ -84,7 +87,8 @@ def report_inputs(
         fail_on_incentive_warning=fail_on_incentive_warning,
     )
     check_gateable(by, gates)
-    files = evidence_files(paths, filesystem=filesystem, storage_options=storage_options)
+    inputs = listed_inputs(paths, filesystem=filesystem, storage_options=storage_options)
+    files = inputs.files
     parts: list[FilePart] = []
     read_files: list[Source] = []
     unreadable: list[Unreadable] = []
@@ -104,7 +108,7 @@ def report_inputs(
         for part, kind in zip(parts, kinds, strict=True):
             _check_games_fit(part.name, kind)
     result = report_parts(parts, by=by, gates=gates, games=games)
-    return InputsReport(result, unreadable, len(parts), read_files, parts)
+    return InputsReport(result, unreadable, len(parts), read_files, parts, inputs.exports)
 
 
 def _file_part(

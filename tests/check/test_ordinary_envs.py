@@ -145,3 +145,58 @@ def test_a_file_a_crash_tore_still_warns() -> None:
     assert cut.severity == "warning"
     assert "cut off by the torn end of the file" in cut.message
     assert _strict(FIXTURES / "torn.mcap")[0] == 1
+
+
+def test_an_unstarted_episode_is_not_called_unreplayable(tmp_path: Path) -> None:
+    """Under ``SAME_STEP`` in an ``AsyncVectorEnv`` an autoreset episode has neither a seed
+    nor an RNG state: not replayable. Sub-env 1's, reset as the loop stopped and never
+    stepped, has nothing to replay: it was listed too (2 episodes, ``episodes 2, 3``)."""
+    path = tmp_path / "async.mcap"
+    envs = gym.make_vec(
+        "CartPole-v1",
+        2,
+        vectorization_mode="async",
+        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP},
+    )
+    with RecordVectorEvidence(envs, path) as recorder:
+        recorder.reset(seed=2)
+        pushes = np.array([0, 1])  # sub-env 0 falls at step 9, sub-env 1 at step 10
+        while True:
+            _, _, terminated, truncated, _ = recorder.step(pushes)
+            if terminated[1] or truncated[1]:
+                break
+    episodes = open_evidence(path).episodes().to_pylist()
+    assert [(e["episode"], e["length"] == 0) for e in episodes if e["seed"] is None] == [
+        (2, False),
+        (3, True),
+    ]
+    (found,) = [f for f in check([path]).findings if f.code == "not_replayable"]
+    assert (found.message, found.episode) == (
+        "1 episode(s) have neither a reset seed nor an RNG state and cannot be replayed "
+        "(episodes 2)",
+        2,
+    )
+
+
+def test_an_unstarted_episode_of_unsaved_sub_env_state_is_not_listed(tmp_path: Path) -> None:
+    """ALE's emulator state in workers no ResetRngInfo snapshots: the episodes an unseeded
+    reset began cannot be replayed; the unseeded reset the loop ended with began episodes it
+    never stepped, which were listed too (``4 episode(s) ... (episodes 2, 3, 4, 5)``)."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    from tests.support.unsaved import short_pong
+
+    path = tmp_path / "pong.mcap"
+    with pytest.warns(UserWarning, match="cannot be replayed"):
+        recorder = RecordVectorEvidence(AsyncVectorEnv([short_pong] * 2), path)
+    with recorder:
+        recorder.reset(seed=3)
+        recorder.step(np.array([0, 1]))
+        recorder.reset()
+        recorder.step(np.array([0, 1]))
+        recorder.reset()  # (then close: episodes 4 and 5 are never stepped)
+    (found,) = [f for f in check([path]).findings if f.code == "not_replayable"]
+    assert found.message.startswith(
+        "2 episode(s) began with an unseeded reset and cannot be replayed (episodes 2, 3): the "
+        "sub-envs' AtariEnv keeps state a seed does not set (ale_py.AtariEnv)"
+    ), found.message

@@ -10,6 +10,7 @@ import pytest
 
 from episode_audit import ConfigurationError, EvidenceError, open_evidence
 from episode_audit.read import evidence_files, steps_total
+from episode_audit.read.inputs import listed_inputs
 from tests.read.helpers import record_cartpole
 
 
@@ -102,3 +103,34 @@ def test_an_unreadable_file_counts_no_steps(finished: Path, tmp_path: Path) -> N
     declared = open_evidence(finished).run_end
     assert declared is not None
     assert steps_total([finished, empty]) == int(declared["steps"])
+
+
+@pytest.fixture(scope="module")
+def with_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``runs/`` holds a CartPole recording and, in ``viewer/``, its Foxglove export."""
+    from episode_audit.export import export
+
+    runs = tmp_path_factory.mktemp("exports") / "runs"
+    (runs / "viewer").mkdir(parents=True)
+    record_cartpole(runs / "run.mcap", episodes=2)
+    export([runs / "run.mcap"], runs / "viewer" / "run.foxglove.mcap", to="foxglove")
+    return runs
+
+
+def test_a_folder_s_viewer_exports_are_left_out_and_listed(with_export: Path) -> None:
+    """The export was listed as an input, which then could not be read (not evidence)."""
+    export = with_export / "viewer" / "run.foxglove.mcap"
+    inputs = listed_inputs([with_export])
+    assert (inputs.files, inputs.exports) == ([with_export / "run.mcap"], [export])
+    assert inputs.exports_note() == (
+        f"left out 1 viewer export(s) found in the directories given ({export})"
+    )
+    assert evidence_files([with_export]) == [with_export / "run.mcap"]
+    # named, it is an input, and opening it says what it is
+    named = listed_inputs([export, with_export])
+    assert (named.files, named.exports) == ([export, with_export / "run.mcap"], [export])
+    with pytest.raises(EvidenceError, match=r"Foxglove export of .* \(a viewer file\), not evid"):
+        open_evidence(export)
+    with pytest.raises(ConfigurationError, match=r"viewer: no evidence files in this directory: "):
+        listed_inputs([with_export / "viewer"])
+    assert listed_inputs([with_export / "run.mcap"]).exports == []

@@ -693,9 +693,66 @@ def test_by_file_a_file_that_lost_all_its_episodes_fails_its_gates(tmp_path: Pat
         ("episodes", str(lost), False, "no episodes in this file: no gate could be checked"),
     ]
     assert not result.passed
+    assert [(g.key, g.episodes) for g in result.groups] == [(str(good), 2), (str(lost), 0)]
     assert report([good, lost]).passed  # (no gates: nothing to fail)
     # grouped otherwise, the file adds nothing to its group, whose gates are its other files'
     assert report([good, lost], by="env", gates=gates).passed
+
+
+def _torn_before_its_first_chunk(path: Path) -> Path:
+    """``path`` cut where its first chunk began: what a recorder killed as it started leaves
+    (run metadata, no episode)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    first = min(c.chunk_start_offset for c in summary.chunk_indexes)
+    path.write_bytes(path.read_bytes()[:first])
+    return path
+
+
+@pytest.mark.parametrize(
+    ("by", "keys"),
+    [("env", ["Acrobot-v1", "CartPole-v1"]), ("tag:policy", ["ppo", "sac"])],
+)
+def test_a_group_whose_files_lost_all_their_episodes_is_shown_and_fails_its_gates(
+    tmp_path: Path, by: str, keys: list[str]
+) -> None:
+    """An Acrobot file (policy ``sac``) torn before its first chunk beside a CartPole one
+    (policy ``ppo``): its group was left out of the report, so its gates were never checked
+    and the report passed."""
+    good = tmp_path / "cartpole.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), good, tags={"policy": "ppo"}) as env:
+        for seed in range(2):
+            env.reset(seed=seed)
+            while not any(env.step(0)[2:4]):
+                pass
+    lost = tmp_path / "acrobot.mcap"
+    with RecordEvidence(gym.make("Acrobot-v1"), lost, tags={"policy": "sac"}) as env:
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(0)
+    _torn_before_its_first_chunk(lost)
+    result = report([good, lost], by=by, gates=Gates(max_failure_rate=1.0))
+    episodes = {keys[0]: 0, keys[1]: 2} if by == "env" else {keys[0]: 2, keys[1]: 0}
+    assert [(g.key, g.episodes) for g in result.groups] == list(episodes.items())
+    empty = next(g for g in result.groups if not g.episodes)
+    assert (empty.ended, empty.success_rate, empty.failure_rate, empty.return_mean) == (
+        0,
+        None,
+        None,
+        None,
+    )
+    assert [(g.gate, g.group, g.passed) for g in result.gates] == [
+        ("episodes", key, False) if not n else ("max_failure_rate", key, True)
+        for key, n in episodes.items()
+    ]
+    (no_gate,) = [g.message for g in result.gates if g.gate == "episodes"]
+    assert no_gate == "no episodes in this group: no gate could be checked"
+    assert not result.passed
+    assert [name for name, _ in result.unfinished] == [str(lost)]
+    assert [g.key for g in report([good, lost], by="all").groups] == ["all"]
 
 
 def test_a_tag_no_file_has_is_said(tmp_path: Path) -> None:

@@ -126,7 +126,7 @@ def table(
     """A Rich table of plain text: title, headers and cells are never parsed as markup.
 
     It fits the console (:class:`FittedTable`): no header or cell word is broken (one wider
-    than the console is broken after ``=``, ``(``, ``,``, ``/``, ``:`` or ``;``), and with
+    than the console is broken where it reads on, :func:`soft_broken`), and with
     ``whole_cells`` no cell is wrapped side by side.
     """
     rows = [[safe(cell) for cell in row] for row in rows]
@@ -299,19 +299,28 @@ _SOFT_BREAK = re.compile(r"[=(,/:;](?=[^\s=(,/:;])|\.(?=[A-Za-z_])")
 not a number's)."""
 
 
+_WEAK_BREAK = re.compile(r"(?<=[^\W_])[-_](?=[^\W_])")
+"""Where a word too long for its column is broken when no :data:`_SOFT_BREAK` point fits: after
+a ``-`` or ``_`` between two letters or digits (``cartpole-evaluation-`` / ``runs``)."""
+
+
 def soft_broken(text: str, width: int) -> str:
     """``text`` with each word wider than ``width`` broken onto lines at :data:`_SOFT_BREAK`.
 
-    A line ends at the last such point that fits; where none fits, the word is cut at
-    ``width``, and the rest of it is broken the same way. The text still wraps at spaces.
+    A line ends at the last such point that fits, else at the last :data:`_WEAK_BREAK` point
+    that fits; where none fits, the word is cut at ``width``, and the rest of it is broken the
+    same way. The text still wraps at spaces.
 
     >>> print(soft_broken("record with ending_rules=EndingRules(success_fn=...) or x", 30))
     record with ending_rules=EndingRules(
     success_fn=...) or x
     >>> print(soft_broken("runs/2026-11-29/counting-environment-run.mcap", 20))
     runs/2026-11-29/
-    counting-environment
-    -run.mcap
+    counting-
+    environment-run.mcap
+    >>> print(soft_broken("cartpole-evaluation-runs-november29/a.mcap", 33))
+    cartpole-evaluation-runs-
+    november29/a.mcap
     """
     if width < 1:
         return text
@@ -320,12 +329,18 @@ def soft_broken(text: str, width: int) -> str:
         lines = []
         while cell_len(word) > width:
             fits = _fitting(word, width)
-            ends = (m.end() for m in _SOFT_BREAK.finditer(word, 0, fits + 1))
-            cut = max((end for end in ends if end <= fits), default=0) or fits
+            cut = _last_break(_SOFT_BREAK, word, fits) or _last_break(_WEAK_BREAK, word, fits)
+            cut = cut or fits
             lines.append(word[:cut])
             word = word[cut:]
         pieces[i] = "\n".join([*lines, word])
     return "".join(pieces)
+
+
+def _last_break(points: re.Pattern[str], word: str, fits: int) -> int:
+    """The last point of ``points`` in ``word`` within its first ``fits`` characters, else 0."""
+    ends = (m.end() for m in points.finditer(word, 0, fits + 1))
+    return max((end for end in ends if end <= fits), default=0)
 
 
 def _widest_piece(text: str) -> int:
