@@ -22,6 +22,7 @@ import pyarrow as pa
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
+from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ..read.arguments import non_negative, path_list
 from ..read.inputs import skipped
@@ -137,6 +138,12 @@ class _FileCheck:
         """The reset observations against their space, and the resets' recorder notes."""
         # block by block: one column of every reset observation, and what checking it against
         # its space makes, would take several times their memory (image observations)
+        records = self.state.ev.episodes()
+        never_ran = frozenset(
+            records.column("episode").filter(unstarted(records)).to_pylist()
+            if records.num_rows
+            else ()
+        )
         for resets in self.state.ev.resets().to_batches():
             if resets.num_rows == 0:
                 continue
@@ -145,7 +152,7 @@ class _FileCheck:
                 obs = resets.column(fmt.COL_OBSERVATION)
                 self.spaces.column(fmt.COL_OBSERVATION, obs, episode, None)
             if fmt.COL_NOTES in resets.schema.names:
-                recorder_notes(self.state, reset_notes(resets), episode, None)
+                recorder_notes(self.state, reset_notes(resets, never_ran), episode, None)
 
     def report_hits(self) -> None:
         """The per-episode findings, from the hits merged over the blocks.

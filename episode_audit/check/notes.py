@@ -3,7 +3,8 @@
 :func:`recorder_notes` turns a column of notes into per-episode hits (a ``step_after_end`` note
 is handed back to the ending rules); :func:`note_finding` and :func:`notes_summary` word them,
 the latter for one note repeated in many episodes. :func:`reset_notes` leaves out the notes
-that are for readers without a column the file has.
+that are for readers without a column the file has, and those on replaying an episode that
+never ran.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ _PREFIX = RECORDER_NOTE + ":"
 _ERROR_NOTES = frozenset({f"{RECORDER_NOTE}:env_raised"})
 """Recorder notes that say what an ``error`` outcome says elsewhere: the env raised."""
 _OPTIONS_NOTE = "options_unserializable"
+_REPLAY_NOTES = ("seed_out_of_range", "rng_state_unavailable", _OPTIONS_NOTE, "state_unavailable")
+"""Reset notes on what replaying the episode needs (its seed, RNG state, options, state)."""
 
 
 def is_note(code: str) -> bool:
@@ -72,25 +75,40 @@ def recorder_notes(
     return after_end
 
 
-def reset_notes(resets: pa.RecordBatch) -> pa.Array:
-    """The ``notes`` of reset rows, without ``options_unserializable`` where the options are held.
+def reset_notes(resets: pa.RecordBatch, unstarted: frozenset[int] = frozenset()) -> pa.Array:
+    """The ``notes`` of reset rows, without the notes that say nothing wrong.
 
-    The recorder notes options plain JSON does not hold exactly for readers without the
-    ``options_typed`` column; a row that has its options there holds them exactly (replay
-    resets with them), and that note says nothing wrong.
+    Left out: ``options_unserializable`` where the options are held (the recorder notes
+    options plain JSON does not hold exactly for readers without the ``options_typed``
+    column; a row that has its options there holds them exactly, and replay resets with
+    them), and the notes on what a replay needs (:data:`_REPLAY_NOTES`: no seed nor RNG state,
+    no state snapshot) at the resets of the ``unstarted`` episodes, reset and never stepped:
+    there is nothing of them to replay.
     """
     notes = resets.column(fmt.COL_NOTES)
-    if fmt.COL_OPTIONS_TYPED not in resets.schema.names:
-        return notes
-    typed = resets.column(fmt.COL_OPTIONS_TYPED)
-    if typed.null_count == len(typed):
+    typed = (
+        resets.column(fmt.COL_OPTIONS_TYPED)
+        if fmt.COL_OPTIONS_TYPED in resets.schema.names
+        else None
+    )
+    held = (
+        np.zeros(len(notes), dtype=np.bool_)
+        if typed is None or typed.null_count == len(typed)
+        else np.asarray(typed.is_valid(), dtype=np.bool_)
+    )
+    moot = np.zeros(len(notes), dtype=np.bool_)
+    if unstarted:
+        episodes = resets.column(fmt.COL_EPISODE).to_numpy(zero_copy_only=False)
+        moot = np.isin(episodes, np.fromiter(unstarted, dtype=np.int64))
+    if not (held.any() or moot.any()):
         return notes
     values = notes.to_pylist()
-    for row in np.flatnonzero(np.asarray(typed.is_valid())).tolist():
+    for row in np.flatnonzero(held | moot).tolist():
         items = note_items(values[row]) if values[row] else None
         if items is None:
             continue  # (none, or garbled: said as it is)
-        kept = [item for item in items if item.partition(":")[0].strip() != _OPTIONS_NOTE]
+        left_out = (_OPTIONS_NOTE,) * bool(held[row]) + _REPLAY_NOTES * bool(moot[row])
+        kept = [item for item in items if item.partition(":")[0].strip() not in left_out]
         values[row] = json.dumps(kept) if kept else None
     return pa.array(values, pa.string())
 

@@ -310,7 +310,9 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "`reward_not_numeric`). One finding per episode and code; a note with the same message "
         "in more than five episodes (e.g. every autoreset of a vector env) is one finding "
         "naming them. `env_raised` is a PettingZoo AEC env that raised after every "
-        "agent-episode had ended.",
+        "agent-episode had ended. The notes on what a replay needs (`seed_out_of_range`, "
+        "`rng_state_unavailable`, `options_unserializable`, `state_unavailable`) are left out "
+        "at the reset of an unstarted episode (reset, never stepped): nothing of it to replay.",
         "The recorder keeps what the env returned and never raises into the training loop; "
         "the note is how it says the env returned something malformed.",
         "Fix what the note names in the env (docs/cli.md lists what the env did for each "

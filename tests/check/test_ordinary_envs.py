@@ -200,3 +200,28 @@ def test_an_unstarted_episode_of_unsaved_sub_env_state_is_not_listed(tmp_path: P
         "2 episode(s) began with an unseeded reset and cannot be replayed (episodes 2, 3): the "
         "sub-envs' AtariEnv keeps state a seed does not set (ale_py.AtariEnv)"
     ), found.message
+
+
+def test_an_unstarted_episode_s_replay_notes_are_not_findings(tmp_path: Path) -> None:
+    """The same ``SAME_STEP`` file: the reset of episode 3 (never stepped) carries the note
+    ``rng_state_unavailable``, which was a ``recorder_note`` warning for it (so ``--strict``
+    failed over an episode that never ran); episode 2's, which ran, still is one."""
+    path = tmp_path / "async.mcap"
+    envs = gym.make_vec(
+        "CartPole-v1",
+        2,
+        vectorization_mode="async",
+        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP},
+    )
+    with RecordVectorEvidence(envs, path) as recorder:
+        recorder.reset(seed=2)
+        while True:
+            _, _, terminated, truncated, _ = recorder.step(np.array([0, 1]))
+            if terminated[1] or truncated[1]:
+                break
+    noted = [
+        (f.episode, f.step)
+        for f in check([path]).findings
+        if f.code == "recorder_note:rng_state_unavailable"
+    ]
+    assert noted == [(2, None)]
