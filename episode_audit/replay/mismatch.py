@@ -182,7 +182,7 @@ def _same_class(entry_point: str, cls: type) -> bool:
     )
 
 
-def unverified_match(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool) -> str | None:
+def unverified_match(run: RunInfo, env: Any, *, factory: bool) -> str | None:
     """Why a matching env the user's factory built cannot be verified to be the recorded one.
 
     Asked of an env :func:`env_mismatch` found no difference in (``None`` when ``factory`` is
@@ -192,13 +192,17 @@ def unverified_match(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool) -> 
     whose constructor's arguments and wrappers cannot be compared with the recording's; or
     wrappers that record no arguments (their spec's ``kwargs`` null: not deriving from
     ``gymnasium.utils.RecordConstructorArgs``, as SB3's Atari wrappers) on either side, whose
-    constructor takes any besides the env. Replay then gives an episode that differs
+    constructor takes any besides the env; a PettingZoo env, whose constructor arguments
+    cannot be compared with the recorded ``env_kwargs`` (:func:`_unverified_game`). Replay then
+    gives an episode that differs
     ``not_replayable`` with this cause, not ``diverged`` (``results.not_told_unverified``).
     Never raises.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
     if not factory:
         return None
+    if str(run.layout.get("kind", "")).startswith("pettingzoo_"):
+        return _unverified_game(run.layout)
     if not spec:
         return _NO_SPEC
     try:
@@ -538,9 +542,10 @@ def agents_mismatch(
 ) -> str | None:
     """How a rebuilt PettingZoo env differs from the recording, or ``None``.
 
-    Its agents, its ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped``
-    have one), and the first agent's observation and action spaces. ``factory``: the user's
-    env factory built it. Never raises: what cannot be read of the rebuilt env is not compared.
+    Its PettingZoo env module and its name (:func:`_game_difference`), its agents, its
+    ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped`` have one), and the
+    first agent's observation and action spaces. ``factory``: the user's env factory built it.
+    Never raises: what cannot be read of the rebuilt env is not compared.
     """
     advice = (
         _as_recorded(factory)
@@ -548,6 +553,9 @@ def agents_mismatch(
         else "the file holds no env_kwargs (the env's constructor arguments, which "
         "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
     )
+    named = _game_difference(layout, env)
+    if named is not None:
+        return f"{_MISMATCH}{named}; {advice}"
     try:
         agents = [str(a) for a in env.possible_agents]
         recorded = layout.get("agents")
@@ -576,6 +584,59 @@ def agents_mismatch(
     except Exception:  # the env's own attributes: compare nothing more
         return None
     return None
+
+
+def _game_difference(layout: Mapping[str, Any], env: Any) -> str | None:
+    """How a rebuilt PettingZoo env's module and name differ from the layout's, or ``None``.
+
+    Its module, when both the layout's ``env_module`` and the rebuilt env's (``env_module_of``:
+    its ``unwrapped`` class's PettingZoo family and its name) are PettingZoo's own; then its
+    name (``metadata["name"]`` of its ``unwrapped``, else the name of its class or of a class it
+    derives from, as the recorder takes it) against ``env_name``. Never raises.
+    """
+    from ..record.pettingzoo import env_module_of
+
+    try:
+        module, now = layout.get("env_module"), env_module_of(env)
+        if (
+            isinstance(module, str)
+            and module.startswith("pettingzoo.")
+            and now not in (None, module)
+        ):
+            return f"env module {_shown(module[:200])} recorded vs {_shown(now)} rebuilt"
+        name, base = layout.get("env_name"), env.unwrapped
+        if not isinstance(name, str):
+            return None
+        named = (getattr(base, "metadata", None) or {}).get("name")
+        if isinstance(named, str):
+            same = named == name
+        else:
+            named, same = type(base).__name__, any(c.__name__ == name for c in type(base).__mro__)
+    except Exception:  # the env's own attributes
+        return None
+    return None if same else f"env name {_shown(name[:200])} recorded vs {_shown(named)} rebuilt"
+
+
+def _unverified_game(layout: Mapping[str, Any]) -> str:
+    """Why a PettingZoo env the user's factory built cannot be verified to be the recorded one.
+
+    A factory's constructor arguments are not known: they cannot be compared with the layout's
+    ``env_kwargs`` (nor with none, when the recording holds none).
+    """
+    kwargs = layout.get("env_kwargs")
+    if kwargs is None:
+        return (
+            "the recording holds no env_kwargs (the env's constructor arguments, which the "
+            "recorder takes as env_kwargs=) to verify the env factory's env against; record "
+            "with them"
+        )
+    said = (
+        f"the env factory's env cannot be verified to be built with the recorded env_kwargs "
+        f"{_shown(kwargs)}"
+    )
+    if isinstance(layout.get("env_id"), str) or isinstance(layout.get("env_module"), str):
+        return f"{said}; replay without --env-factory to build it with them"
+    return said
 
 
 def _described(space: Any) -> Any:

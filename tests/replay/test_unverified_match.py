@@ -6,11 +6,14 @@ they differ with nothing wrong. Nor can any factory's env be held to a recording
 spec (its env was not made with ``gym.make``). An episode that differs in such an env is
 ``not_replayable`` naming why, never ``diverged``; one that replays the same is ``identical``.
 Without a spec, a class that is not the recorded entry point's (or, with no recorded spec, not
-the class the recorder wrapped) does not match.
+the class the recorder wrapped) does not match. A PettingZoo factory's env cannot be held to
+the recorded ``env_kwargs``: unverified in the same way, unless its name or PettingZoo module
+is not the recorded one.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, SupportsFloat
@@ -22,7 +25,14 @@ from gymnasium.envs.classic_control.pendulum import PendulumEnv
 from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv
 from gymnasium.wrappers import ClipAction, TimeLimit
 
-from episode_audit import RecordEvidence, RecordVectorEvidence, replay
+from episode_audit import (
+    RecordAECEvidence,
+    RecordEvidence,
+    RecordParallelEvidence,
+    RecordVectorEvidence,
+    replay,
+)
+from tests.support.walk_game import WalkGame
 
 _UNVERIFIED = "in an env whose match with the recording could not be verified: "
 
@@ -166,3 +176,95 @@ def test_wrappers_that_record_no_arguments_and_differ_are_not_replayable(tmp_pat
         "gymnasium.utils.RecordConstructorArgs), so the rebuilt ones' cannot be compared with "
         "the recording's"
     )
+
+
+# --------------------------------------------------------------------------------------------
+# PettingZoo: what a game's layout records of its env (env_name, env_module, env_kwargs)
+# --------------------------------------------------------------------------------------------
+
+
+def _pistonball(**kwargs: Any) -> Any:
+    """Four pistons, five cycles: each cycle pays every piston ``time_penalty`` and its move."""
+    with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
+        warnings.simplefilter("ignore", DeprecationWarning)
+        pistonball = pytest.importorskip("pettingzoo.butterfly.pistonball_v6")
+    return pistonball.parallel_env(n_pistons=4, max_cycles=5, **kwargs)
+
+
+def _record_game(path: Path, env: Any, env_kwargs: dict[str, Any] | None) -> Path:
+    """Two games (seeds 0 and 1), every agent taking its action space's first sample."""
+    with RecordParallelEvidence(env, path, env_kwargs=env_kwargs) as game:
+        for seed in (0, 1):
+            game.reset(seed=seed)
+            while game.agents:
+                game.step({a: game.action_space(a).sample() * 0 for a in game.agents})
+    return path
+
+
+def test_a_factory_game_env_that_differs_is_not_replayable(tmp_path: Path) -> None:
+    """The factory's constructor arguments cannot be compared with the recorded env_kwargs."""
+    kwargs = {"n_pistons": 4, "max_cycles": 5}
+    path = _record_game(tmp_path / "pistons.mcap", _pistonball(), kwargs)
+    assert _verdicts(path, _pistonball) == {("identical", None)}
+    assert {e.status for e in replay([path]).episodes} == {"identical"}  # (from env_kwargs)
+    other = replay([path], env_factory=lambda: _pistonball(time_penalty=-0.5)).episodes
+    assert [e.status for e in other] == ["not_replayable"] * 8
+    assert all(e.divergence is not None for e in other)  # (its difference kept)
+    assert other[0].reason == (
+        f"differed at step 0 (reward) {_UNVERIFIED}the env factory's env cannot be verified to "
+        'be built with the recorded env_kwargs {"max_cycles": 5, "n_pistons": 4}; replay '
+        "without --env-factory to build it with them"
+    )
+
+
+def test_a_factory_game_env_of_a_recording_without_env_kwargs_is_unverified(
+    tmp_path: Path,
+) -> None:
+    path = _record_game(tmp_path / "pistons.mcap", _pistonball(), None)
+    other = replay([path], env_factory=lambda: _pistonball(time_penalty=-0.5)).episodes
+    assert {e.status for e in other} == {"not_replayable"}
+    assert other[0].reason is not None and other[0].reason.endswith(
+        f"{_UNVERIFIED}the recording holds no env_kwargs (the env's constructor arguments, "
+        "which the recorder takes as env_kwargs=) to verify the env factory's env against; "
+        "record with them"
+    )
+
+
+class _WalkGameV1(WalkGame):
+    """The next version of the walk game."""
+
+    metadata: dict[str, Any] = {"name": "walk_game_v1"}
+
+
+def test_a_factory_game_env_of_another_name_does_not_match(tmp_path: Path) -> None:
+    path = _record_game(tmp_path / "walk.mcap", WalkGame(max_cycles=4), {"max_cycles": 4})
+    assert _verdicts(path, lambda: WalkGame(max_cycles=4)) == {("identical", None)}
+    assert _verdicts(path, lambda: _WalkGameV1(max_cycles=4)) == {
+        (
+            "not_replayable",
+            'the rebuilt env does not match the recording: env name "walk_game_v0" recorded vs '
+            '"walk_game_v1" rebuilt; make the --env-factory build the env as recorded',
+        )
+    }
+
+
+def test_a_factory_game_env_of_another_pettingzoo_module_does_not_match(tmp_path: Path) -> None:
+    """(Tic-tac-toe and connect four: the same agents; the env module is the first difference.)"""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.classic import connect_four_v3, tictactoe_v3
+    path = tmp_path / "ttt.mcap"
+    with RecordAECEvidence(tictactoe_v3.env(), path) as game:
+        game.reset(seed=0)
+        for agent in game.agent_iter():
+            _, _, terminated, truncated, _ = game.last()
+            mask = game.observe(agent)["action_mask"]
+            game.step(None if terminated or truncated else int(mask.argmax()))
+    assert _verdicts(path, connect_four_v3.env) == {
+        (
+            "not_replayable",
+            "the rebuilt env does not match the recording: env module "
+            '"pettingzoo.classic.tictactoe_v3" recorded vs "pettingzoo.classic.connect_four_v3" '
+            "rebuilt; make the --env-factory build the env as recorded",
+        )
+    }
