@@ -1,9 +1,10 @@
 """How the env replay built differs from the recording's description, if it does.
 
 :func:`env_mismatch` (single-env and vector files): its spaces, its step limits, its env kwargs
-and, for an env the user's factory built, its wrappers (without a spec, its class);
-:func:`unverified_match`: why a factory's env that matched cannot be verified to be the recorded
-one (no spec, wrappers that record no arguments); :func:`agents_mismatch` (PettingZoo).
+and, for an env the user's factory built, its wrappers (without a spec, its class; without a
+recorded spec, the class the recorder wrapped); :func:`unverified_match`: why a factory's env
+that matched cannot be verified to be the recorded one (no spec on either side, wrappers that
+record no arguments); :func:`agents_mismatch` (PettingZoo).
 An argument one spec names and the other does not has the other's default (the signature of
 the callable its entry point names, read from a module this process has already imported:
 nothing a file names is imported here); one whose default cannot be read does not match.
@@ -85,6 +86,8 @@ def _spec_differences(
     placeholders only.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
+    if not spec:  # (nothing recorded of its arguments and wrappers)
+        return _wrapped_class_difference(run, env)
     try:
         rebuilt = env.spec
     except Exception:  # the env's own attribute
@@ -127,22 +130,81 @@ def _class_difference(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[t
     return [(f"env entry point {_shown(entry)} recorded vs class {_shown(now)} rebuilt", False)]
 
 
-def unverified_match(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool) -> str | None:
+def _wrapped_class_difference(run: RunInfo, env: gym.Env[Any, Any]) -> list[tuple[str, bool]]:
+    """A recording without a spec: the class the recorder wrapped against the rebuilt env's.
+
+    The run names it (``reward_terms.info_of``, with terms read automatically): the env, or the
+    outermost wrapper under the recorder. A difference when no layer of the rebuilt env (its
+    wrappers, its ``unwrapped``) is of that class or a subclass (:func:`_same_class`). Not
+    compared: a wrapper that never changes a step (the factory may leave it out), and, in a
+    vector file, a class that is not a ``gymnasium.Env`` of a module this process has imported
+    (it may be the vector env itself: an ``AsyncVectorEnv``'s sub-envs are not read).
+    """
+    terms = run.reward_terms if isinstance(run.reward_terms, Mapping) else {}
+    wrapped = terms.get("info_of")
+    if not isinstance(wrapped, str) or ":" not in wrapped:
+        return []
+    rule = RECORDED_WRAPPERS.get(wrapped)
+    if rule.kind == "transparent" if rule else wrapped in declared_transparent(run.recorder):
+        return []
+    loaded = _loaded(wrapped)
+    if run.layout.get("kind") != "single" and not (
+        isinstance(loaded, type) and issubclass(loaded, gym.Env)
+    ):
+        return []
+    try:
+        layers: list[Any] = [env]
+        while isinstance(layers[-1], gym.Wrapper) and len(layers) < 64:
+            layers.append(layers[-1].env)
+        if any(_same_class(wrapped, cls) for layer in layers for cls in type(layer).__mro__):
+            return []
+        now = f"{type(env.unwrapped).__module__}:{type(env.unwrapped).__qualname__}"
+    except Exception:  # the env's own attributes
+        return []
+    return [
+        (
+            f"the recorder wrapped {_shown(wrapped[:200])} (the recording holds no env spec), "
+            f"which the rebuilt env ({_shown(now[:200])}) neither is nor wraps",
+            False,
+        )
+    ]
+
+
+def _same_class(entry_point: str, cls: type) -> bool:
+    """Whether ``entry_point`` (``module:qualname``) names ``cls``.
+
+    Gymnasium's wrappers by their package (:func:`_entry`); a class of ``__main__`` (a script's
+    own, which the factory imports by its module's name) by its qualified name.
+    """
+    named = f"{getattr(cls, '__module__', '')}:{getattr(cls, '__qualname__', '')}"
+    return _entry(entry_point) == _entry(named) or _same_placeholder(
+        f"class {entry_point}", f"class {named}"
+    )
+
+
+def unverified_match(run: RunInfo, env: Any, *, factory: bool) -> str | None:
     """Why a matching env the user's factory built cannot be verified to be the recorded one.
 
-    Asked of an env :func:`env_mismatch` found no difference in, with a recorded spec (``None``
-    otherwise, and when ``factory`` is false: replay built the env from the file's own
-    description). Unverified: an env without a spec (built by its class, not ``gym.make``),
+    Asked of an env :func:`env_mismatch` found no difference in (``None`` when ``factory`` is
+    false: replay built the env from the file's own description). Unverified: any env, where
+    the recording holds no spec (nothing recorded says how its env was built); an env without a
+    spec (built by its class, not ``gym.make``),
     whose constructor's arguments and wrappers cannot be compared with the recording's; or
     wrappers that record no arguments (their spec's ``kwargs`` null: not deriving from
     ``gymnasium.utils.RecordConstructorArgs``, as SB3's Atari wrappers) on either side, whose
-    constructor takes any besides the env. Replay then gives an episode that differs
+    constructor takes any besides the env; a PettingZoo env, whose constructor arguments
+    cannot be compared with the recorded ``env_kwargs`` (:func:`_unverified_game`). Replay then
+    gives an episode that differs
     ``not_replayable`` with this cause, not ``diverged`` (``results.not_told_unverified``).
     Never raises.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
-    if not factory or not spec:
+    if not factory:
         return None
+    if str(run.layout.get("kind", "")).startswith("pettingzoo_"):
+        return _unverified_game(run.layout)
+    if not spec:
+        return _NO_SPEC
     try:
         rebuilt = env.spec
     except Exception:  # the env's own attribute
@@ -170,6 +232,12 @@ def unverified_match(run: RunInfo, env: gym.Env[Any, Any], *, factory: bool) -> 
         "gymnasium.utils.RecordConstructorArgs), so the rebuilt ones' cannot be compared with "
         "the recording's"
     )
+
+
+_NO_SPEC = (
+    "the recording holds no env spec (its env was not made with gymnasium.make) to verify the "
+    "env factory's env against; record an env made with gymnasium.make so it can be"
+)
 
 
 def _takes_arguments(entry_point: str) -> bool:
@@ -474,9 +542,10 @@ def agents_mismatch(
 ) -> str | None:
     """How a rebuilt PettingZoo env differs from the recording, or ``None``.
 
-    Its agents, its ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped``
-    have one), and the first agent's observation and action spaces. ``factory``: the user's
-    env factory built it. Never raises: what cannot be read of the rebuilt env is not compared.
+    Its PettingZoo env module and its name (:func:`_game_difference`), its agents, its
+    ``max_cycles`` (when both the layout and the rebuilt env's ``unwrapped`` have one), and the
+    first agent's observation and action spaces. ``factory``: the user's env factory built it.
+    Never raises: what cannot be read of the rebuilt env is not compared.
     """
     advice = (
         _as_recorded(factory)
@@ -484,6 +553,9 @@ def agents_mismatch(
         else "the file holds no env_kwargs (the env's constructor arguments, which "
         "the recorder takes as env_kwargs=): record with them, or " + _BUILD_AS_RECORDED
     )
+    named = _game_difference(layout, env)
+    if named is not None:
+        return f"{_MISMATCH}{named}; {advice}"
     try:
         agents = [str(a) for a in env.possible_agents]
         recorded = layout.get("agents")
@@ -512,6 +584,59 @@ def agents_mismatch(
     except Exception:  # the env's own attributes: compare nothing more
         return None
     return None
+
+
+def _game_difference(layout: Mapping[str, Any], env: Any) -> str | None:
+    """How a rebuilt PettingZoo env's module and name differ from the layout's, or ``None``.
+
+    Its module, when both the layout's ``env_module`` and the rebuilt env's (``env_module_of``:
+    its ``unwrapped`` class's PettingZoo family and its name) are PettingZoo's own; then its
+    name (``metadata["name"]`` of its ``unwrapped``, else the name of its class or of a class it
+    derives from, as the recorder takes it) against ``env_name``. Never raises.
+    """
+    from ..record.pettingzoo import env_module_of
+
+    try:
+        module, now = layout.get("env_module"), env_module_of(env)
+        if (
+            isinstance(module, str)
+            and module.startswith("pettingzoo.")
+            and now not in (None, module)
+        ):
+            return f"env module {_shown(module[:200])} recorded vs {_shown(now)} rebuilt"
+        name, base = layout.get("env_name"), env.unwrapped
+        if not isinstance(name, str):
+            return None
+        named = (getattr(base, "metadata", None) or {}).get("name")
+        if isinstance(named, str):
+            same = named == name
+        else:
+            named, same = type(base).__name__, any(c.__name__ == name for c in type(base).__mro__)
+    except Exception:  # the env's own attributes
+        return None
+    return None if same else f"env name {_shown(name[:200])} recorded vs {_shown(named)} rebuilt"
+
+
+def _unverified_game(layout: Mapping[str, Any]) -> str:
+    """Why a PettingZoo env the user's factory built cannot be verified to be the recorded one.
+
+    A factory's constructor arguments are not known: they cannot be compared with the layout's
+    ``env_kwargs`` (nor with none, when the recording holds none).
+    """
+    kwargs = layout.get("env_kwargs")
+    if kwargs is None:
+        return (
+            "the recording holds no env_kwargs (the env's constructor arguments, which the "
+            "recorder takes as env_kwargs=) to verify the env factory's env against; record "
+            "with them"
+        )
+    said = (
+        f"the env factory's env cannot be verified to be built with the recorded env_kwargs "
+        f"{_shown(kwargs)}"
+    )
+    if isinstance(layout.get("env_id"), str) or isinstance(layout.get("env_module"), str):
+        return f"{said}; replay without --env-factory to build it with them"
+    return said
 
 
 def _described(space: Any) -> Any:

@@ -26,7 +26,7 @@ from ..record.rules import EndingRules, RewardTerms
 from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
 from .envs import build_pettingzoo_env
-from .mismatch import agents_mismatch
+from .mismatch import agents_mismatch, unverified_match
 from .recorded import cast_actions, reset_options, row_ranges, rules_of, unrecorded_options
 from .results import (
     RESET_RAISED,
@@ -35,6 +35,7 @@ from .results import (
     env_error,
     none_replayable,
     not_told_from_cast,
+    not_told_unverified,
     options_not_held,
     restored_state,
     short,
@@ -286,16 +287,19 @@ def replay_agents_evidence(
         )
     except ReplayError as exc:
         return none_replayable(path, records, str(exc))
-    why = agents_mismatch(ev.run.layout or {}, ev.run, env, factory=env_factory is not None)
+    factory = env_factory is not None
+    why = agents_mismatch(ev.run.layout or {}, ev.run, env, factory=factory)
     if why is not None:
         env.close()
         return none_replayable(path, records, why)
+    cause = unverified_match(ev.run, env, factory=factory)
     file = _File.read(ev, obs_codec, act_codec, atol)
     try:
         done = _replay_games(env, file, records, progress)
     finally:
         env.close()
-    return [done[int(r["episode"])] for r in records if int(r["episode"]) in done]
+    results = [done[int(r["episode"])] for r in records if int(r["episode"]) in done]
+    return results if cause is None else not_told_unverified(results, cause)
 
 
 _DAMAGED_GAME = "an agent-episode of its game lost evidence in a damaged chunk (skipped by recover)"

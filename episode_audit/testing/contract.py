@@ -26,6 +26,7 @@ from ..format.columns import error_text
 from ..read import open_evidence
 from ..record import RecordEvidence
 from ..replay import EpisodeReplay, replay
+from ..replay.results import unverified_difference
 from ..report import report
 from .cases import ContractCase, Expected, Policy, evidence_actions, evidence_folder
 from .command import replay_command
@@ -327,7 +328,9 @@ def replay_file(case: CaseLike, path: Path, result: ContractResult) -> EpisodeRe
     factory = None if isinstance(case.env, str) else case.make_env
     episodes = replay([path], env_factory=factory).episodes
     replayed = next((e for e in episodes if e.status != "identical"), episodes[0])
-    if replayed.status == "diverged" and replayed.divergence is not None:
+    # (the factory is the recording's: a difference its match could not verify is the env's)
+    differed = replayed.status == "diverged" or unverified_difference(replayed)
+    if differed and replayed.divergence is not None:
         result.problems.append(
             f"replay: not reproducible in a fresh env with seed {case.seed}: "
             f"{replayed.divergence.describe()}"

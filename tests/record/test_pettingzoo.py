@@ -298,9 +298,10 @@ def test_an_aec_game_ended_before_its_dead_steps_replays_identically(tmp_path: P
                 env.step(move)
     result = replay([path], env_factory=tictactoe_v3.env)
     assert [r.status for r in result.episodes] == ["identical"] * 4, result.episodes
-    # a game that replays otherwise still differs (its rewards, as text, are no numbers)
+    # a game that replays otherwise still differs (its rewards, as text, are no numbers; a
+    # factory's env, unverified: not_replayable, its difference kept)
     changed = replay([path], env_factory=lambda: _TextRewards(tictactoe_v3.env()))
-    assert [r.status for r in changed.episodes] == ["diverged"] * 4
+    assert [r.status for r in changed.episodes] == ["not_replayable"] * 4
     assert {r.divergence.field for r in changed.episodes if r.divergence} == {"reward"}
 
 
@@ -567,11 +568,11 @@ def test_an_aec_replay_that_raises_where_the_recording_did_not_diverges_there(
     early = replay([path], env_factory=_crashing_ttt(2))
     assert _statuses(early) == [
         (
-            "diverged",
+            "not_replayable",
             "step 0: step expected a step, got RuntimeError: engine crashed "
             "(raised in player_2's step 0)",
         ),
-        ("diverged", "step 0: step expected a step, got RuntimeError: engine crashed"),
+        ("not_replayable", "step 0: step expected a step, got RuntimeError: engine crashed"),
         ("identical", None),
         ("identical", None),
     ]
@@ -583,12 +584,12 @@ def test_an_aec_replay_that_raises_where_the_recording_did_not_diverges_there(
     assert _statuses(dead) == [
         ("identical", None),
         (
-            "diverged",
+            "not_replayable",
             "step 0: step expected a step, got RuntimeError: dead step broke "
             "(raised in a's dead step)",
         ),
         (
-            "diverged",
+            "not_replayable",
             "step 0: step expected a step, got RuntimeError: dead step broke "
             "(raised in a's dead step)",
         ),
@@ -597,7 +598,7 @@ def test_an_aec_replay_that_raises_where_the_recording_did_not_diverges_there(
     reset = replay([leaving], env_factory=lambda: _Leaving(broken_reset=True))
     assert (
         _statuses(reset)
-        == [("diverged", "reset: reset expected a reset, got RuntimeError: no board")] * 3
+        == [("not_replayable", "reset: reset expected a reset, got RuntimeError: no board")] * 3
     )
 
 
@@ -810,7 +811,7 @@ def test_replay_reports_where_a_game_diverged(tmp_path: Path) -> None:
                 env.step({a: 2 for a in env.agents})
     result = replay([path], env_factory=_PaysAtStep2)
     first = result.episodes[0]
-    assert first.status == "diverged" and first.divergence is not None
+    assert first.status == "not_replayable" and first.divergence is not None
     assert (first.divergence.step, first.divergence.field) == (2, "reward")
     assert [e.restored for e in result.episodes] == [
         "seed 3; first game in this env",

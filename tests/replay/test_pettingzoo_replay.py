@@ -116,7 +116,7 @@ def test_a_value_the_replayed_game_returns_that_raises_is_a_divergence_not_a_tra
     rps: Path, field: str, described: str
 ) -> None:
     first, *_ = replay([rps], env_factory=lambda: _Spoiled(field)).episodes
-    assert first.status == "diverged" and first.divergence is not None
+    assert first.status == "not_replayable" and first.divergence is not None
     assert first.divergence.describe().startswith(described)
 
 
