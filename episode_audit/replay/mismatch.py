@@ -183,26 +183,25 @@ def _same_class(entry_point: str, cls: type) -> bool:
 
 
 def unverified_match(run: RunInfo, env: Any, *, factory: bool) -> str | None:
-    """Why a matching env the user's factory built cannot be verified to be the recorded one.
+    """Why a matching rebuilt env cannot be verified to be the recorded one, or ``None``.
 
-    Asked of an env :func:`env_mismatch` found no difference in (``None`` when ``factory`` is
-    false: replay built the env from the file's own description). Unverified: any env, where
-    the recording holds no spec (nothing recorded says how its env was built); an env without a
-    spec (built by its class, not ``gym.make``),
-    whose constructor's arguments and wrappers cannot be compared with the recording's; or
-    wrappers that record no arguments (their spec's ``kwargs`` null: not deriving from
-    ``gymnasium.utils.RecordConstructorArgs``, as SB3's Atari wrappers) on either side, whose
-    constructor takes any besides the env; a PettingZoo env, whose constructor arguments
-    cannot be compared with the recorded ``env_kwargs`` (:func:`_unverified_game`). Replay then
-    gives an episode that differs
-    ``not_replayable`` with this cause, not ``diverged`` (``results.not_told_unverified``).
-    Never raises.
+    Asked of an env :func:`env_mismatch` (or :func:`agents_mismatch`) found no difference in.
+    Unverified, when the user's ``factory`` built it: any env, where the recording holds no
+    spec (nothing recorded says how its env was built); an env without a spec (built by its
+    class, not ``gym.make``), whose constructor's arguments and wrappers cannot be compared
+    with the recording's; wrappers that record no arguments (their spec's ``kwargs`` null: not
+    deriving from ``gymnasium.utils.RecordConstructorArgs``, as SB3's Atari wrappers) on either
+    side, whose constructor takes any besides the env; a PettingZoo env, whose constructor
+    arguments cannot be compared with the recorded ``env_kwargs``. And a PettingZoo env replay
+    built from the file with its defaults, the recording holding no ``env_kwargs``
+    (:func:`_unverified_game`). Replay then gives an episode that differs ``not_replayable``
+    with this cause, not ``diverged`` (``results.not_told_unverified``). Never raises.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
+    if str(run.layout.get("kind", "")).startswith("pettingzoo_"):
+        return _unverified_game(run.layout, factory=factory)
     if not factory:
         return None
-    if str(run.layout.get("kind", "")).startswith("pettingzoo_"):
-        return _unverified_game(run.layout)
     if not spec:
         return _NO_SPEC
     try:
@@ -617,13 +616,24 @@ def _game_difference(layout: Mapping[str, Any], env: Any) -> str | None:
     return None if same else f"env name {_shown(name[:200])} recorded vs {_shown(named)} rebuilt"
 
 
-def _unverified_game(layout: Mapping[str, Any]) -> str:
-    """Why a PettingZoo env the user's factory built cannot be verified to be the recorded one.
+def _unverified_game(layout: Mapping[str, Any], *, factory: bool) -> str | None:
+    """Why a rebuilt PettingZoo env cannot be verified to be the recorded one, or ``None``.
 
     A factory's constructor arguments are not known: they cannot be compared with the layout's
-    ``env_kwargs`` (nor with none, when the recording holds none).
+    ``env_kwargs`` (nor with none, when the recording holds none). Built from the file, it is
+    the recorded env when the recording holds its ``env_kwargs``; without them (``null``: the
+    recorder was not given ``env_kwargs=``), it is built with its defaults, which the recorded
+    env may not have had.
     """
     kwargs = layout.get("env_kwargs")
+    if not factory:
+        if kwargs is not None:
+            return None
+        return (
+            "the recording holds no env_kwargs (the env's constructor arguments, which the "
+            "recorder takes as env_kwargs=): the env was rebuilt with its defaults, which may "
+            "not be the recorded env's; record with env_kwargs= (env_kwargs={} for the defaults)"
+        )
     if kwargs is None:
         return (
             "the recording holds no env_kwargs (the env's constructor arguments, which the "

@@ -230,6 +230,41 @@ def test_a_factory_game_env_of_a_recording_without_env_kwargs_is_unverified(
     )
 
 
+def _three_cycles(path: Path, **kwargs: Any) -> Path:
+    """Three cycles of pistonball (20 pistons) with ``kwargs``, recorded without env_kwargs=."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from pettingzoo.butterfly import pistonball_v6
+
+        env = pistonball_v6.parallel_env(**kwargs)
+    with RecordParallelEvidence(env, path) as game:
+        game.reset(seed=0)
+        for _ in range(3):
+            game.step({a: game.action_space(a).sample() * 0 for a in game.agents})
+    return path
+
+
+def test_a_game_env_rebuilt_with_its_defaults_without_env_kwargs_is_unverified(
+    tmp_path: Path,
+) -> None:
+    """Recorded without env_kwargs=, replay builds pistonball with its defaults: a recording
+    of ``time_penalty=-0.5`` said ``diverged``; one made with its defaults is identical."""
+    path = _three_cycles(tmp_path / "pistons.mcap", time_penalty=-0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        other = replay([path]).episodes
+        same = replay([_three_cycles(tmp_path / "defaults.mcap")]).episodes
+    assert {e.status for e in other} == {"not_replayable"}
+    assert all(e.divergence is not None for e in other)  # (its difference kept)
+    assert other[0].reason is not None and other[0].reason.endswith(
+        f"{_UNVERIFIED}the recording holds no env_kwargs (the env's constructor arguments, "
+        "which the recorder takes as env_kwargs=): the env was rebuilt with its defaults, "
+        "which may not be the recorded env's; record with env_kwargs= (env_kwargs={} for the "
+        "defaults)"
+    )
+    assert {e.status for e in same} == {"identical"}
+
+
 class _WalkGameV1(WalkGame):
     """The next version of the walk game."""
 
