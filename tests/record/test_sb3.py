@@ -51,6 +51,7 @@ from tests.support.unsaved import (  # noqa: E402
     assert_unseeded_episodes_are_not_replayable,
     short_pong,
 )
+from tests.support.worker_rng import LIMIT, rng_locked_rng, rng_raising_rng  # noqa: E402
 
 torch.set_num_threads(1)
 N = 4
@@ -975,3 +976,20 @@ def test_record_eval_callback_refuses_an_earlier_runs_files_before_training(
         "eval-128.mcap",
         "eval-64.mcap",
     ]
+
+
+@pytest.mark.parametrize("make", [rng_locked_rng, rng_raising_rng])
+def test_reset_rng_info_in_subproc_workers_answers_for_an_rng_they_cannot_send(
+    tmp_path: Path, make: Any
+) -> None:
+    """An unseeded reset() reads each sub-env's RNG state first: asked of its ResetRngInfo, not
+    for its ``np_random``, which would end a worker when it raises or does not pickle."""
+    path = tmp_path / "subproc.mcap"
+    with RecordVecEnvEvidence(SubprocVecEnv([make] * 2, start_method=START), path) as venv:
+        venv.seed(1)
+        venv.reset()
+        venv.reset()  # unseeded, before any autoreset's info had a state: read from the workers
+        for _ in range(2 * LIMIT):
+            venv.step(np.zeros(2, np.int64))
+    unseeded = [e for e in open_evidence(path).episodes().to_pylist() if e["seed"] is None]
+    assert len(unseeded) >= 4 and all(e["rng_state"] for e in unseeded)

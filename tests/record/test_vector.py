@@ -47,6 +47,7 @@ from tests.support.unsaved import (
     assert_unseeded_episodes_are_not_replayable,
     short_pong,
 )
+from tests.support.worker_rng import LIMIT, rng_locked_rng, rng_raising_rng
 
 N = 4
 STEPS = 2000
@@ -1434,3 +1435,20 @@ def test_steps_with_reward_terms_are_batched_as_sub_envs_would_record_them(
     assert len(totals) >= 9 and all(
         dict(t).keys() == {"reward_dist", "reward_ctrl"} for t in totals
     )
+
+
+@pytest.mark.parametrize("make", [rng_locked_rng, rng_raising_rng])
+def test_reset_rng_info_in_async_workers_answers_for_an_rng_they_cannot_send(
+    tmp_path: Path, make: Any
+) -> None:
+    """A worker asked for an ``np_random`` that raises or does not pickle ends; the recorder
+    asks the sub-env's ResetRngInfo instead, which answers JSON text (or why not)."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "async.mcap"
+    with RecordVectorEvidence(AsyncVectorEnv([make] * 2), path) as rec:
+        rec.reset(seed=1)
+        for _ in range(3 * LIMIT + 1):
+            rec.step(np.zeros(2, np.int64))
+    autoreset = [e for e in open_evidence(path).episodes().to_pylist() if e["seed"] is None]
+    assert len(autoreset) >= 4 and all(e["rng_state"] for e in autoreset)

@@ -92,7 +92,10 @@ class Autoreset:
         notes: list[str] = [] if noted is None else [noted]
         if seed is None and rng_state is None:
             notes.append(
-                note("rng_state_unavailable", why_no_rng or self._no_rng_note or "no np_random")
+                note(
+                    "rng_state_unavailable",
+                    why_no_rng or self.rng.unread.get(i) or self._no_rng_note or "no np_random",
+                )
             )
         state, state_note = self.rng.state_from_info(info)
         if state_note is not None:

@@ -4,8 +4,9 @@
   reset into the reset's info (for ``SAME_STEP`` autoresets, which run inside ``step()``), and
   the state snapshot of the wrappers below it (:mod:`..state`) before every reset.
 - :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (in this process:
-  ``SyncVectorEnv``, SB3's ``DummyVecEnv``; in workers through ``get_attr``: ``AsyncVectorEnv``,
-  SB3's ``SubprocVecEnv``) or from the reset infos.
+  ``SyncVectorEnv``, SB3's ``DummyVecEnv``; in workers, ``AsyncVectorEnv``, SB3's
+  ``SubprocVecEnv``, through their :class:`ResetRngInfo`, whose answer cannot end a worker, else
+  through ``get_attr("np_random")``) or from the reset infos.
 
 Which mode reads them when, and why: ``docs/format.md``, "Vector files".
 """
@@ -29,6 +30,7 @@ from ..state import StateTargets, adapter_for_entry_point
 
 __all__ = [
     "FUNCTION_WRAPPERS",
+    "RNG_STATE_IF_READABLE",
     "SPEC_IF_SENDABLE",
     "LocalSubEnvs",
     "RemoteSubEnvs",
@@ -40,6 +42,9 @@ RngState = dict[str, Any]
 
 SPEC_IF_SENDABLE = "episode_audit_spec"
 """The method of :class:`ResetRngInfo` giving the sub-env's spec when a worker can send it."""
+
+RNG_STATE_IF_READABLE = "episode_audit_rng_state"
+"""The method of :class:`ResetRngInfo` giving the sub-env's RNG state as JSON text, or why not."""
 
 FUNCTION_WRAPPERS: dict[type[gym.Wrapper[Any, Any, Any, Any]], tuple[str, ...]] = {
     gym.wrappers.TransformObservation: ("func",),
@@ -160,6 +165,21 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
             return False, None
         return True, spec
 
+    def episode_audit_rng_state(self) -> tuple[str | None, str | None]:
+        """``(state, None)``: the env's RNG state now as JSON text; else ``(None, why)``.
+
+        What a recorder asks a worker's sub-env (:data:`RNG_STATE_IF_READABLE`) rather than
+        ``np_random``, whose answer may raise or not pickle, either of which ends the worker.
+        Never raises; the answer is two strings or ``None``s, which always pickle.
+        """
+        try:
+            state = self.env.unwrapped.np_random.bit_generator.state
+            if not isinstance(state, dict):
+                return None, "its np_random's bit_generator.state is not a dict"
+            return self._rng_json(state).decode(), None
+        except Exception as exc:
+            return None, f"reading its np_random raised {type(exc).__name__}"
+
     def _issued_state(self, text: str) -> RngState | None:
         """The state this wrapper wrote as ``text`` into its last reset's info (taken once).
 
@@ -195,6 +215,43 @@ def _all_have(remote: Any, name: str) -> bool:
     return call is not None and all(call("has_wrapper_attr", name))
 
 
+def _remote_reads(remote: Any) -> bool:
+    """Whether every worker's sub-env of ``remote`` has :data:`RNG_STATE_IF_READABLE`."""
+    try:
+        return remote is not None and _all_have(remote, RNG_STATE_IF_READABLE)
+    except Exception:
+        return False
+
+
+def _ask_remote(remote: Any, indices: Sequence[int]) -> dict[int, tuple[Any, Any]]:
+    """Each of sub-envs ``indices``' answer to :data:`RNG_STATE_IF_READABLE`.
+
+    SB3's ``env_method`` asks those only; Gymnasium's ``AsyncVectorEnv.call`` asks every one.
+    """
+    env_method = getattr(remote, "env_method", None)
+    if env_method is not None:
+        return dict(
+            zip(indices, env_method(RNG_STATE_IF_READABLE, indices=list(indices)), strict=True)
+        )
+    return dict(enumerate(remote.call(RNG_STATE_IF_READABLE)))
+
+
+def _np_randoms(remote: Any, indices: Sequence[int]) -> dict[int, RngState | None]:
+    """The RNG states of sub-envs ``indices`` from each worker's ``np_random``."""
+    try:
+        generators = remote.get_attr("np_random")
+    except Exception:
+        return dict.fromkeys(indices)
+    out: dict[int, RngState | None] = {}
+    for i in indices:
+        try:
+            state = generators[i].bit_generator.state
+            out[i] = state if isinstance(state, dict) else None
+        except Exception:
+            out[i] = None
+    return out
+
+
 class SubEnvRng:
     """Where a vector recorder reads its sub-envs' RNG states (``None`` where unknown).
 
@@ -208,6 +265,10 @@ class SubEnvRng:
         # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
         self._sync_unwrapped = [] if sync is None else [e.unwrapped for e in sync.envs]
         self.in_info = False
+        # why the states last read from workers are unknown, by sub-env
+        self.unread: dict[int, str] = {}
+        # whether the workers' sub-envs answer RNG_STATE_IF_READABLE (a ResetRngInfo)
+        self._remote_reads = _remote_reads(async_env)
         # each sub-env's ResetRngInfo (Sync only, once installed): its states need no parsing
         self._issuers: list[ResetRngInfo | None] = []
 
@@ -289,19 +350,35 @@ class SubEnvRng:
             envs = self._sync_unwrapped
             return {i: capture_rng_state(envs[i]) for i in indices}
         if self._async is not None:
-            try:
-                generators = self._async.get_attr("np_random")
-            except Exception:
-                return dict.fromkeys(indices)
-            out: dict[int, RngState | None] = {}
-            for i in indices:
-                try:
-                    state = generators[i].bit_generator.state
-                    out[i] = state if isinstance(state, dict) else None
-                except Exception:
-                    out[i] = None
-            return out
+            return self._remote_capture(indices)
         return dict.fromkeys(indices)
+
+    def _remote_capture(self, indices: Sequence[int]) -> dict[int, RngState | None]:
+        """The RNG states of workers' sub-envs ``indices``, asked of their :class:`ResetRngInfo`.
+
+        It answers JSON text or why not, never raising, where ``np_random`` may raise or not
+        pickle, either of which ends the worker. Why a state is unknown goes to :attr:`unread`.
+        """
+        self.unread = {}
+        if not self._remote_reads:
+            return _np_randoms(self._async, indices)
+        out: dict[int, RngState | None] = dict.fromkeys(indices)
+        try:
+            answers = _ask_remote(self._async, indices)
+        except Exception as exc:
+            self.unread = dict.fromkeys(indices, f"asking its worker raised {type(exc).__name__}")
+            return out
+        for i in indices:
+            text, why = answers[i]
+            try:
+                state = json.loads(text) if isinstance(text, str) else None
+            except ValueError:
+                state = None
+            if isinstance(state, dict):
+                out[i] = state
+            else:
+                self.unread[i] = f"ResetRngInfo could not read it: {why}"
+        return out
 
     def from_info(self, info: Any, i: int | None = None) -> RngState | None:
         """The state :class:`ResetRngInfo` put in a reset info (then it is always used).
