@@ -47,7 +47,7 @@ from tests.support.unsaved import (
     assert_unseeded_episodes_are_not_replayable,
     short_pong,
 )
-from tests.support.worker_rng import LIMIT, rng_locked_rng, rng_raising_rng
+from tests.support.worker_rng import LIMIT, rng_locked_rng, rng_raising_rng, rng_sealed_rng
 
 N = 4
 STEPS = 2000
@@ -1452,3 +1452,25 @@ def test_reset_rng_info_in_async_workers_answers_for_an_rng_they_cannot_send(
             rec.step(np.zeros(2, np.int64))
     autoreset = [e for e in open_evidence(path).episodes().to_pylist() if e["seed"] is None]
     assert len(autoreset) >= 4 and all(e["rng_state"] for e in autoreset)
+
+
+def test_an_rng_state_reset_rng_info_cannot_read_in_a_worker_is_noted_with_why(
+    tmp_path: Path,
+) -> None:
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "async.mcap"
+    with RecordVectorEvidence(AsyncVectorEnv([rng_sealed_rng] * 2), path) as rec:
+        rec.reset(seed=1)
+        for _ in range(LIMIT + 1):
+            rec.step(np.zeros(2, np.int64))
+    resets = open_evidence(path).resets().to_pylist()
+    notes = [json.loads(r["notes"]) for r in resets if r["seed"] is None]
+    assert len(notes) == 2 and all(
+        n
+        == [
+            "rng_state_unavailable: its ResetRngInfo could not read it: reading its np_random "
+            "raised RuntimeError"
+        ]
+        for n in notes
+    ), notes

@@ -39,6 +39,25 @@ class LockedRngCartPole(CartPoleEnv):
         return result
 
 
+class SealedGenerator(LockedGenerator):
+    """A :class:`LockedGenerator` whose ``bit_generator`` (and so its state) cannot be read."""
+
+    @property
+    def bit_generator(self) -> Any:
+        raise RuntimeError("sealed")
+
+
+class SealedRngCartPole(CartPoleEnv):
+    """CartPole drawing from a :class:`SealedGenerator`: its RNG state cannot be read at all."""
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
+        if isinstance(self._np_random, LockedGenerator):
+            self._np_random = self._np_random.generator
+        result = super().reset(seed=seed, options=options)
+        self._np_random = SealedGenerator(self._np_random)  # type: ignore[assignment]
+        return result
+
+
 class RaisingRng(gym.Wrapper[Any, Any, Any, Any]):
     """A wrapper whose ``np_random`` raises (the env below it draws from its own)."""
 
@@ -65,3 +84,8 @@ def rng_locked_rng() -> gym.Env[Any, Any]:
 def rng_raising_rng() -> gym.Env[Any, Any]:
     """:func:`raising_rng` in :class:`ResetRngInfo`."""
     return ResetRngInfo(raising_rng())
+
+
+def rng_sealed_rng() -> gym.Env[Any, Any]:
+    """:class:`SealedRngCartPole` in a limit of :data:`LIMIT`, in :class:`ResetRngInfo`."""
+    return ResetRngInfo(gym.wrappers.TimeLimit(SealedRngCartPole(), LIMIT))

@@ -377,7 +377,7 @@ class SubEnvRng:
             if isinstance(state, dict):
                 out[i] = state
             else:
-                self.unread[i] = f"ResetRngInfo could not read it: {why}"
+                self.unread[i] = f"its ResetRngInfo could not read it: {why}"
         return out
 
     def from_info(self, info: Any, i: int | None = None) -> RngState | None:
