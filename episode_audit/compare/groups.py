@@ -10,6 +10,7 @@ one.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -380,8 +381,26 @@ def _whose(chains: frozenset[str]) -> str:
     return named[0] if len(named) == 1 else "a mix of " + " and ".join(named)
 
 
+NONFINITE = (
+    "a return is not finite (NaN or infinite), so the mean return is undefined and more "
+    "episodes would not help"
+)
+"""Why a return gate on returns that are not finite cannot be verified."""
+
+
+def _nonfinite(metric: MetricComparison) -> bool:
+    """Whether a mean's sides hold a value that is not finite (its mean is then undefined)."""
+    means = (metric.baseline, metric.candidate)
+    return metric.kind == "mean" and not all(m is not None and math.isfinite(m) for m in means)
+
+
 def _unbounded(returns: MetricComparison) -> list[str]:
-    """The note on a return whose interval too few episodes leave unbounded, if it is so."""
+    """The note on a return whose interval too few episodes leave unbounded, if it is so.
+
+    None on returns that are not finite: more episodes would not bound those (their own note).
+    """
+    if _nonfinite(returns):
+        return []
     why = unverifiable(returns)
     if why is None:
         return []
@@ -422,9 +441,10 @@ def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
 def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
     """Each gate that is on, checked against the group's metric: its interval's worse end.
 
-    A return gate on too few episodes to bound the difference (:func:`unverifiable`), or on
-    returns of different reward wrappers (``not_comparable``), fails saying it cannot be
-    verified, not that the interval is beyond it.
+    A return gate on returns of different reward wrappers (``not_comparable``), on returns
+    that are not finite (whatever the number of episodes), or on too few episodes to bound the
+    difference (:func:`unverifiable`), fails saying it cannot be verified, and why, not that
+    the interval is beyond it.
 
     With ``fail_on_new_incentive_warning``, last, the gate ``new_incentive_warnings``.
     """
@@ -437,6 +457,10 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
             continue
         if metric.not_comparable is not None:
             message = f"{name}: cannot be verified, {metric.not_comparable} (group {group.key})"
+            out.append(GateResult(_gate_name(name), group.key, False, message))
+            continue
+        if _nonfinite(metric):
+            message = f"{name}: cannot be verified, {NONFINITE} (group {group.key})"
             out.append(GateResult(_gate_name(name), group.key, False, message))
             continue
         why = unverifiable(metric)

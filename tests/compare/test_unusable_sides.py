@@ -1,0 +1,56 @@
+"""Sides a metric cannot use: returns that are not finite, a group one side lacks, a side whose
+every episode raised. Real recorded files, the library and the command line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from episode_audit import CompareGates, RecordEvidence, compare
+
+
+class NanReward(gym.Env[Any, Any]):
+    """Four steps an episode; the second step's reward is NaN, so every return is NaN."""
+
+    observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action: Any) -> Any:
+        self.t += 1
+        reward = float("nan") if self.t == 2 else 1.0
+        return np.zeros(2, np.float32), reward, False, self.t >= 4, {}
+
+
+def _nan_returns(path: Path, episodes: int) -> Path:
+    with RecordEvidence(NanReward(), path) as env:
+        for seed in range(episodes):
+            env.reset(seed=seed)
+            for _ in range(4):
+                env.step(0)
+    return path
+
+
+@pytest.mark.parametrize("episodes", [2, 10])
+def test_a_return_gate_on_nan_returns_says_more_episodes_would_not_help(
+    tmp_path: Path, episodes: int
+) -> None:
+    base = _nan_returns(tmp_path / "a.mcap", episodes)
+    cand = _nan_returns(tmp_path / "b.mcap", episodes)
+    result = compare([base], [cand], gates=CompareGates(max_return_drop=1.0))
+    (gate,) = result.groups[0].gates
+    assert not gate.passed and not result.passed
+    assert gate.message == (
+        "return: cannot be verified, a return is not finite (NaN or infinite), so the mean "
+        "return is undefined and more episodes would not help (group all)"
+    )
+    assert result.groups[0].metric("return").verdict == "inconclusive"
+    assert not any("record more" in note for note in result.notes), result.notes
