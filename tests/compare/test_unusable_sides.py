@@ -9,8 +9,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
 from episode_audit import CompareGates, RecordEvidence, compare
+from episode_audit.cli import app
+from episode_audit.rollout import record_episodes
+
+runner = CliRunner()
 
 
 class NanReward(gym.Env[Any, Any]):
@@ -54,3 +59,18 @@ def test_a_return_gate_on_nan_returns_says_more_episodes_would_not_help(
     )
     assert result.groups[0].metric("return").verdict == "inconclusive"
     assert not any("record more" in note for note in result.notes), result.notes
+
+
+def test_the_one_side_table_title_is_one_line_when_it_fits(tmp_path: Path) -> None:
+    files = {}
+    for name, config in [("b_short", "short"), ("b_long", "long"), ("c_short", "short")]:
+        files[name] = str(tmp_path / f"{name}.mcap")
+        record_episodes("CartPole-v1", files[name], episodes=4, max_episode_steps=10,
+                        tags={"config": config})  # fmt: skip
+    args = ["compare", files["b_short"], files["b_long"], "--candidate", files["c_short"]]
+    for columns in ("200", "80"):
+        result = runner.invoke(app, [*args, "--by", "tag:config"], env={"COLUMNS": columns})
+        assert result.exit_code == 0, result.output
+        lines = [line.rstrip() for line in result.stdout.splitlines()]
+        assert "Groups on one side only (not compared)" in lines, result.stdout
+        assert max(len(line) for line in lines) <= int(columns)
