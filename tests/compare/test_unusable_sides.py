@@ -3,6 +3,7 @@ every episode raised. Real recorded files, the library and the command line."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -14,8 +15,10 @@ from typer.testing import CliRunner
 from episode_audit import CompareGates, RecordEvidence, compare
 from episode_audit.cli import app
 from episode_audit.rollout import record_episodes
+from tests.support.crashing import crashing_cartpole
 
 runner = CliRunner()
+REPO = Path(__file__).resolve().parents[2]
 
 
 class NanReward(gym.Env[Any, Any]):
@@ -74,3 +77,36 @@ def test_the_one_side_table_title_is_one_line_when_it_fits(tmp_path: Path) -> No
         lines = [line.rstrip() for line in result.stdout.splitlines()]
         assert "Groups on one side only (not compared)" in lines, result.stdout
         assert max(len(line) for line in lines) <= int(columns)
+
+
+def test_every_candidate_episode_raised_exits_1_in_every_output(tmp_path: Path) -> None:
+    import jsonschema
+    import junitparser
+
+    base = str(crashing_cartpole(tmp_path / "clean.mcap", 30))
+    crashed = str(crashing_cartpole(tmp_path / "crashed.mcap", 30, lambda seed: True))
+    args = ["compare", base, "--candidate", crashed, "--max-error-increase", "0.05"]
+    result = runner.invoke(app, [*args, "-f", "json"])
+    assert result.exit_code == 1, result.output
+    data = json.loads(result.stdout)
+    schema = json.loads((REPO / "docs" / "schemas" / "compare.json").read_text())
+    jsonschema.validate(data, schema, jsonschema.Draft202012Validator)
+    assert data["verdict"] == "regressed" and data["passed"] is False
+    (gate,) = data["groups"][0]["gates"]
+    assert (gate["gate"], gate["passed"]) == ("max_error_increase", False)
+    result = runner.invoke(app, [*args, "-f", "junit"])
+    xml = tmp_path / "compare.xml"
+    xml.write_text(result.stdout)
+    outcomes = {
+        case.name: type(case.result[0]).__name__ if case.result else "passed"
+        for suite in junitparser.JUnitXml.fromfile(str(xml))
+        for case in suite
+    }
+    assert result.exit_code == 1
+    assert outcomes["error_rate"] == "Failure" and outcomes["gate:max_error_increase"] == "Failure"
+    assert outcomes["failure_rate"] == "Skipped" and "Error" not in outcomes.values()
+    result = runner.invoke(app, args, env={"COLUMNS": "200"})
+    assert result.exit_code == 1
+    row = next(line for line in result.stdout.splitlines() if " failure_rate " in line)
+    assert row.split()[4:8] == ["30)", "-", "(n", "0)"] and row.split()[8] == "-", row
+    assert "other units" not in row and "not compared" in row

@@ -47,8 +47,8 @@ def _value(m: MetricComparison, value: float | None) -> str:
 
 
 def _difference(m: MetricComparison) -> str:
-    if m.not_comparable is not None:
-        return "- (other units)"
+    if m.not_comparable is not None:  # (a side without an ended episode has no value)
+        return "-" if m.baseline is None or m.candidate is None else "- (other units)"
     if m.kind == "rate":
         return f"{m.difference:+.1%} [{m.interval.low:+.1%}, {m.interval.high:+.1%}]"
     return (
