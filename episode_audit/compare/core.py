@@ -141,8 +141,8 @@ class Comparison:
         notes += [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
         notes += [
             f"group {key}: only the baseline has episodes that ended or raised in it: not "
-            "compared, so the "
-            "verdict is at best inconclusive, and a gate there cannot be verified (fails)"
+            "compared, so the verdict is at best inconclusive, and a gate there cannot be "
+            "verified (fails)"
             for key in self.only_baseline
         ]
         return notes + [
