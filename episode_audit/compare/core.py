@@ -140,8 +140,9 @@ class Comparison:
         ]
         notes += [f"group {g.key}: {note}" for g in self.groups for note in g.notes]
         notes += [
-            f"group {key}: only the baseline has ended episodes in it: not compared, so the "
-            "verdict is at best inconclusive, and a gate there cannot be verified (fails)"
+            f"group {key}: only the baseline has episodes that ended or raised in it: not "
+            "compared, so the verdict is at best inconclusive, and a gate there cannot be "
+            "verified (fails)"
             for key in self.only_baseline
         ]
         return notes + [
@@ -416,12 +417,18 @@ def _keys(found: dict[str, Any]) -> str:
 
 
 def _check_sides(found: dict[str, Any], side: str, episodes: pa.Table) -> None:
-    """Refuse a side without an ended episode, saying how its episodes ended instead."""
+    """Refuse a side without an episode that ended or raised, saying how its episodes went.
+
+    Its episodes are then all ``incomplete`` (the recording stopped inside them), or none
+    began: no metric has a value of it. A side whose episodes all raised is compared (its
+    error rate is measured).
+    """
     if not found:
         counts = Counter(episodes.column("outcome").to_pylist()) if episodes.num_rows else {}
         how = ", ".join(f"{outcome} {n}" for outcome, n in sorted(counts.items()))
         raise ConfigurationError(
-            f"the {side} has no ended episode (success, failure or truncated) to compare"
+            f"the {side} has no episode that ended or raised (success, failure, truncated or "
+            "error) to compare"
             + (f" (its {counted(episodes.num_rows, 'episode')}: {how})" if how else "")
             + ": record some, or check its files with `episode-audit report`"
         )

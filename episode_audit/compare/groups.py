@@ -10,6 +10,8 @@ one.
 
 from __future__ import annotations
 
+import math
+from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -18,11 +20,19 @@ import numpy as np
 
 from ..errors import ConfigurationError
 from ..format import names as fmt
+from ..format.columns import counted
 from ..read.arguments import non_negative
 from ..report import GateResult, IncentiveWarning
 from ..report.gates import is_rate
-from .metrics import MetricComparison, Verdict, mean_metric, not_compared, rate_metric
-from .sides import Array, Side, pair
+from .metrics import (
+    MetricComparison,
+    Verdict,
+    mean_metric,
+    not_compared,
+    not_computable,
+    rate_metric,
+)
+from .sides import Array, Pairs, Side, pair
 from .stats import too_few
 
 __all__ = [
@@ -213,13 +223,18 @@ def compare_group(
 
     A rate is ``held`` within its gate, or ``rate_margin`` when it has none. The error rate is
     over every episode started (:attr:`~.sides.Side.everything`), paired as those pair; it is
-    there when a side has an error episode or ``max_error_increase`` is on.
+    there when a side has an error episode or ``max_error_increase`` is on. Where a side has
+    no ended episode (every one raised), the metrics over ended episodes are not computed
+    (:func:`~.metrics.not_computable`): only the error rate is.
     """
     pairs = pair(base, cand)
     limits = gates.limits()
+    unended = _unended(base, cand)
 
     def rate(name: str, b: Any, c: Any, better: Any) -> MetricComparison:
         margin = limits.get(name, rate_margin)
+        if unended is not None:
+            return not_computable(name, "rate", better, b, c, margin, unended)
         return rate_metric(name, b, c, pairs, better=better, margin=margin)
 
     failed_b, failed_c = _is(base, cand, fmt.OUTCOME_FAILURE)
@@ -247,6 +262,32 @@ def compare_group(
                 margin=margin,
             )
         )  # fmt: skip
+    means, mean_notes = _means(base, cand, pairs, gates, unended)
+    notes = _mixed_tasks(base, cand) + _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
+    if unended is not None:
+        notes.append(
+            f"{unended}: the rates (but error_rate) and the return are not computed "
+            "(inconclusive), and a gate on them cannot be verified"
+        )
+    notes += mean_notes
+    return GroupComparison(
+        key, base.n, cand.n, len(pairs), metrics + means, new_warnings, notes=notes
+    )
+
+
+def _means(
+    base: Side, cand: Side, pairs: Pairs, gates: CompareGates, unended: str | None
+) -> tuple[list[MetricComparison], list[str]]:
+    """The return and each reward term's episode total, and the notes on the return."""
+    if unended is not None:
+        metrics = [
+            not_computable("return", "mean", "higher", base.returns, cand.returns,
+                           gates.max_return_drop, unended)
+        ]  # fmt: skip
+        for term in sorted(set(base.terms) & set(cand.terms)):
+            b, c = base.terms[term], cand.terms[term]
+            metrics.append(not_computable(f"term:{term}", "mean", "none", b, c, None, unended))
+        return metrics, []
     returns = mean_metric(
         "return", base.returns, cand.returns, pairs, better="higher",
         margin=gates.max_return_drop,
@@ -254,7 +295,7 @@ def compare_group(
     apart = _returns_apart(base, cand) or _terms_apart(base, cand)
     if apart is not None:  # (no test, no gate: a difference in other units says nothing)
         returns = not_compared(returns, apart)
-    metrics.append(returns)
+    metrics = [returns]
     for term in sorted(set(base.terms) & set(cand.terms)):
         metrics.append(
             mean_metric(
@@ -262,12 +303,42 @@ def compare_group(
                 margin=None,
             )
         )  # fmt: skip
-    notes = _mixed_tasks(base, cand) + _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
     if apart is not None:
-        notes.append(f"return: not compared (inconclusive), nor a max_return_drop gate: {apart}")
-    else:
-        notes += _unbounded(returns)
-    return GroupComparison(key, base.n, cand.n, len(pairs), metrics, new_warnings, notes=notes)
+        return metrics, [
+            f"return: not compared (inconclusive), nor a max_return_drop gate: {apart}"
+        ]
+    return metrics, _unbounded(returns)
+
+
+def _unended(base: Side, cand: Side) -> str | None:
+    """Why the metrics over ended episodes are not computed: a side has none (else ``None``).
+
+    >>> _unended(Side.of([]), Side.of(["success"]))
+    'the baseline has no ended episode'
+    """
+    empty = [name for name, side in (("baseline", base), ("candidate", cand)) if side.n == 0]
+    if not empty:
+        return None
+    if len(empty) == 2:
+        return (
+            f"neither side has an ended episode ({_how(base, 'the baseline')}; "
+            f"{_how(cand, 'the candidate')})"
+        )
+    side = base if empty[0] == "baseline" else cand
+    how = _how(side, "its")
+    return f"the {empty[0]} has no ended episode" + (f" ({how})" if how else "")
+
+
+def _how(side: Side, whose: str) -> str:
+    """How a side's episodes went, e.g. ``its 30 episodes: error 30`` (``""``: none began)."""
+    every = side.everything
+    if not every.n:
+        return ""
+    counts = Counter(every.outcome.tolist())
+    owner = whose if whose == "its" else f"{whose}'s"
+    return f"{owner} {counted(every.n, 'episode')}: " + ", ".join(
+        f"{outcome} {n}" for outcome, n in sorted(counts.items())
+    )
 
 
 def _mixed_tasks(base: Side, cand: Side) -> list[str]:
@@ -380,8 +451,26 @@ def _whose(chains: frozenset[str]) -> str:
     return named[0] if len(named) == 1 else "a mix of " + " and ".join(named)
 
 
+NONFINITE = (
+    "a return is not finite (NaN or infinite), so the mean return is undefined and more "
+    "episodes would not help"
+)
+"""Why a return gate on returns that are not finite cannot be verified."""
+
+
+def _nonfinite(metric: MetricComparison) -> bool:
+    """Whether a mean's sides hold a value that is not finite (its mean is then undefined)."""
+    means = (metric.baseline, metric.candidate)
+    return metric.kind == "mean" and not all(m is not None and math.isfinite(m) for m in means)
+
+
 def _unbounded(returns: MetricComparison) -> list[str]:
-    """The note on a return whose interval too few episodes leave unbounded, if it is so."""
+    """The note on a return whose interval too few episodes leave unbounded, if it is so.
+
+    None on returns that are not finite: more episodes would not bound those (their own note).
+    """
+    if _nonfinite(returns):
+        return []
     why = unverifiable(returns)
     if why is None:
         return []
@@ -422,9 +511,10 @@ def _is(base: Side, cand: Side, outcome: str) -> tuple[Any, Any]:
 def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]:
     """Each gate that is on, checked against the group's metric: its interval's worse end.
 
-    A return gate on too few episodes to bound the difference (:func:`unverifiable`), or on
-    returns of different reward wrappers (``not_comparable``), fails saying it cannot be
-    verified, not that the interval is beyond it.
+    A return gate on returns of different reward wrappers (``not_comparable``), on returns
+    that are not finite (whatever the number of episodes), or on too few episodes to bound the
+    difference (:func:`unverifiable`), fails saying it cannot be verified, and why, not that
+    the interval is beyond it.
 
     With ``fail_on_new_incentive_warning``, last, the gate ``new_incentive_warnings``.
     """
@@ -437,6 +527,10 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
             continue
         if metric.not_comparable is not None:
             message = f"{name}: cannot be verified, {metric.not_comparable} (group {group.key})"
+            out.append(GateResult(_gate_name(name), group.key, False, message))
+            continue
+        if _nonfinite(metric):
+            message = f"{name}: cannot be verified, {NONFINITE} (group {group.key})"
             out.append(GateResult(_gate_name(name), group.key, False, message))
             continue
         why = unverifiable(metric)
@@ -467,19 +561,16 @@ def check_gates(group: GroupComparison, gates: CompareGates) -> list[GateResult]
 
 
 def missing_gates(key: str, gates: CompareGates, base: Side, cand: Side | None) -> list[GateResult]:
-    """Each gate that is on, failed on group ``key``: the candidate has no ended episode there.
+    """Each gate that is on, failed on group ``key``: no candidate episode ended or raised there.
 
     ``base`` is the baseline's side of the group; ``cand`` every episode the candidate started
-    in it (:func:`~.sides.started`), ``None`` when it has none. No evidence is not a pass.
+    in it (:func:`~.sides.started`: all ``incomplete``), ``None`` when it has none. No evidence
+    is not a pass.
     """
-    why = f"the candidate has no ended episode in group {key} (the baseline has {base.n}"
+    why = f"the candidate has no episode that ended or raised in group {key} (the baseline has "
+    why += f"{base.everything.n}"
     if cand is not None:
-        counts = ", ".join(
-            f"{int((cand.outcome == o).sum())} {o}"
-            for o in (fmt.OUTCOME_ERROR, fmt.OUTCOME_INCOMPLETE)
-            if (cand.outcome == o).any()
-        )
-        why += f"; the candidate's {cand.n}: {counts}"
+        why += f"; the candidate's {cand.n}: {cand.n} {fmt.OUTCOME_INCOMPLETE}"
     why += "); record the candidate's episodes of it"
     names = [_gate_name(name) for name in gates.limits()]
     names += [NEW_WARNINGS_GATE] if gates.fail_on_new_incentive_warning else []

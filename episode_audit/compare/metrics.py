@@ -29,6 +29,7 @@ __all__ = [
     "decide",
     "interval_n_needed",
     "mean_metric",
+    "not_computable",
     "rate_metric",
     "settle",
 ]
@@ -79,8 +80,9 @@ class MetricComparison:
     can_reject: bool = True
     same_test_as: str | None = None
     not_comparable: str | None = None
-    """Why the sides' values are not in the same units (returns of other reward wrappers or terms):
-    then the verdict is ``inconclusive``, the test cannot reject, and a gate cannot be verified."""
+    """Why the sides' values are not compared: not in the same units (returns of other reward
+    wrappers or terms), or a side has no ended episode (:func:`not_computable`). Then the
+    verdict is ``inconclusive``, the test cannot reject, and a gate cannot be verified."""
 
     @property
     def analysed(self) -> int:
@@ -230,6 +232,32 @@ def not_compared(metric: MetricComparison, why: str) -> MetricComparison:
         metric, difference=nan, interval=Interval(nan, nan), test="none", p_value=nan, mde=nan,
         n_needed=stats.NEVER, can_reject=False,
         not_comparable=why,
+    )  # fmt: skip
+
+
+def not_computable(
+    name: str,
+    kind: Literal["rate", "mean"],
+    better: Literal["higher", "lower", "none"],
+    base: Array,
+    cand: Array,
+    margin: float | None,
+    why: str,
+) -> MetricComparison:
+    """A metric over ended episodes of which a side has none (``why``): no difference, no test.
+
+    The side that has some keeps its value; the other's is ``None``. As :func:`not_compared`
+    otherwise: the verdict will be ``inconclusive`` and a gate cannot be verified.
+    """
+    nan = math.nan
+
+    def value(values: Array) -> float | None:
+        return float(np.mean(values)) if len(values) else None
+
+    return MetricComparison(
+        name, kind, better, value(base), value(cand), len(base), len(cand), nan,
+        Interval(nan, nan), False, 0, "none", nan, nan if margin is None else margin, nan,
+        stats.NEVER, can_reject=False, not_comparable=why,
     )  # fmt: skip
 
 

@@ -1,8 +1,9 @@
 """One side of a comparison as per-episode arrays, and the pairs two sides share.
 
 :func:`sides` splits the tables :func:`~episode_audit.report.collect.collect` returns into one
-:class:`Side` per group key: the side's ended episodes (success, failure, truncated; the
-denominator of every rate but the error rate), their returns, reward-term totals, reset seeds
+:class:`Side` per group key an episode of which ended or raised: the side's ended episodes
+(success, failure, truncated; the denominator of every rate but the error rate; none when
+every one raised), their returns, reward-term totals, reset seeds
 and RNG states, the task (env id) of each; and (``Side.started``) every episode it started,
 errors and incomplete ones too (the error rate's denominator, as report's).
 :func:`pair` matches two sides' episodes on how they began (the k-th episode of a task seeded
@@ -142,14 +143,20 @@ class Pairs:
 def sides(episodes: pa.Table, terms: pa.Table) -> dict[str, Side]:
     """One :class:`Side` per group key of ``collect``'s tables, of its ended episodes.
 
-    Each side's :attr:`Side.started` holds all its group's episodes when some did not end.
+    A key is there when an episode of it ended or raised (``error``): a group whose episodes
+    all raised has a side of no ended episode, its error rate still measured. Each side's
+    :attr:`Side.started` holds all its group's episodes when some did not end.
     """
     ended = episodes.filter(pc.is_in(episodes.column("outcome"), pa.array(ENDED)))
     found = {key: _side(rows, key_terms) for key, rows, key_terms in keyed(ended, terms)}
-    if ended.num_rows < episodes.num_rows:
-        for key, side in started(episodes, terms).items():
-            if key in found:
-                found[key].started = side
+    if ended.num_rows == episodes.num_rows:
+        return found
+    for key, every in started(episodes, terms).items():
+        side = found.get(key)
+        if side is None and (every.outcome == fmt.OUTCOME_ERROR).any():
+            side = found[key] = every.take(np.zeros(0, dtype=np.int64))
+        if side is not None:
+            side.started = every
     return found
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import inspect
 import io
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -38,6 +39,8 @@ MAX_DOTS = 200
 """The most episodes a distribution row draws as dots (the box is of them all)."""
 OUTCOME_COLOURS = {"success": "#2e7d32", "failure": "#c62828", "truncated": "#f9a825"}
 _MAX_LABEL = 40
+_MISSING_GLYPH = r"Glyph \d+ .* missing from font"
+"""matplotlib's warning on a character its fonts lack (the SVG still holds it as text)."""
 _RC: dict[Any, Any] = {
     "svg.fonttype": "none",  # text as <text>, escaped by matplotlib's XML writer
     "svg.hashsalt": "episode-audit",  # the same ids for the same report
@@ -79,7 +82,10 @@ def _svg(fig: Figure) -> str:
     import matplotlib
 
     buf = io.StringIO()
-    with matplotlib.rc_context(_RC):
+    with matplotlib.rc_context(_RC), warnings.catch_warnings():
+        # text is written as <text> (svg.fonttype "none"): the browser draws a glyph matplotlib's
+        # font lacks (an emoji in a file name), only matplotlib's measuring of it warns
+        warnings.filterwarnings("ignore", _MISSING_GLYPH, UserWarning)
         # no <metadata> block: no date (the same report, the same page), no RDF namespaces
         fig.savefig(
             buf, format="svg", metadata=dict.fromkeys(("Date", "Creator", "Format", "Type"))

@@ -14,7 +14,7 @@ from episode_audit.compare.groups import compare_group
 from episode_audit.compare.sides import Side
 from episode_audit.errors import ConfigurationError
 from episode_audit.rollout import record_episodes
-from tests.support.crashing import crashing_cartpole
+from tests.support.crashing import Crashing, crashing_cartpole
 
 
 @pytest.fixture(scope="module")
@@ -132,15 +132,54 @@ def test_a_group_only_the_candidate_has_is_a_note_not_a_failure(
     assert any(n.startswith("group new: only the candidate") for n in result.notes), result.notes
 
 
-def test_a_candidate_whose_every_episode_raised_says_so(tmp_path: Path) -> None:
-    crashed = crashing_cartpole(tmp_path / "crashed.mcap", 6, lambda seed: True)
-    base = crashing_cartpole(tmp_path / "clean.mcap", 6)
-    with pytest.raises(
-        ConfigurationError,
-        match=r"^the candidate has no ended episode \(success, failure or truncated\) to compare "
-        r"\(its 6 episodes: error 6\): record some",
-    ):
-        compare([base], [crashed])
+def test_a_candidate_whose_every_episode_raised_regresses_on_error_rate(tmp_path: Path) -> None:
+    """Its error rate is over every episode begun, so it is measured; the metrics over ended
+    episodes have no value of the candidate and say why; a gate on them cannot be verified."""
+    crashed = crashing_cartpole(tmp_path / "crashed.mcap", 30, lambda seed: True)
+    base = crashing_cartpole(tmp_path / "clean.mcap", 30)
+    gates = CompareGates(max_error_increase=0.05, max_failure_increase=0.05)
+    result = compare([base], [crashed], gates=gates)
+    (group,) = result.groups
+    errors = group.metric("error_rate")
+    assert (errors.baseline, errors.candidate, errors.verdict) == (0.0, 1.0, "regressed")
+    assert result.verdict == "regressed" and not result.passed
+    why = "the candidate has no ended episode (its 30 episodes: error 30)"
+    for name in ("failure_rate", "truncation_rate", "return"):
+        metric = group.metric(name)
+        assert metric.candidate is None and metric.candidate_n == 0, name
+        assert metric.not_comparable == why and metric.test == "none", name
+    assert group.metric("return").verdict == "inconclusive"
+    assert {g.gate: (g.passed, g.message) for g in group.gates} == {
+        "max_failure_increase": (False, f"failure_rate: cannot be verified, {why} (group all)"),
+        "max_error_increase": (
+            False,
+            "error_rate: the 95 % interval allows an increase of up to 1, beyond 0.05 (group all)",
+        ),
+    }
+    assert any(n.startswith(f"group all: {why}: the rates (but error_rate)") for n in result.notes)
+
+
+def test_a_group_whose_candidate_episodes_all_raised_is_compared(tmp_path: Path) -> None:
+    def record(name: str, config: str, crash: bool) -> Path:
+        env = Crashing(gym.make("CartPole-v1", max_episode_steps=20), lambda seed: crash)
+        with RecordEvidence(env, tmp_path / name, tags={"config": config}) as recorded:
+            for seed in range(10):
+                recorded.reset(seed=seed)
+                try:
+                    while not any(recorded.step(0)[2:4]):
+                        pass
+                except RuntimeError:
+                    pass
+        return tmp_path / name
+
+    baseline = [record("b_short.mcap", "short", False), record("b_long.mcap", "long", False)]
+    candidate = [record("c_short.mcap", "short", False), record("c_long.mcap", "long", True)]
+    result = compare(baseline, candidate, by="tag:config")
+    assert result.only_baseline == [] and [g.key for g in result.groups] == ["long", "short"]
+    long = result.groups[0]
+    assert long.verdict == "regressed" and long.metric("error_rate").candidate == 1.0
+    assert long.metric("failure_rate").not_comparable is not None
+    assert result.verdict == "regressed" and not result.passed
 
 
 def test_a_side_of_one_unended_episode_says_it_in_the_singular(tmp_path: Path) -> None:
@@ -150,7 +189,8 @@ def test_a_side_of_one_unended_episode_says_it_in_the_singular(tmp_path: Path) -
     base = record_episodes("CartPole-v1", tmp_path / "base.mcap", episodes=2).path
     with pytest.raises(
         ConfigurationError,
-        match=r"^the baseline has no ended episode \(success, failure or truncated\) to compare "
+        match=r"^the baseline has no episode that ended or raised \(success, failure, truncated "
+        r"or error\) to compare "
         r"\(its 1 episode: incomplete 1\): record some",
     ):
         compare([tmp_path / "one.mcap"], [base])

@@ -3,6 +3,7 @@ from __future__ import annotations
 import html
 import html.parser
 import re
+import warnings
 from pathlib import Path
 
 import pytest
@@ -348,3 +349,16 @@ def test_html_report_says_which_files_are_unfinished(tmp_path: Path) -> None:
     finished = report_inputs([fixtures / "clean.mcap"], by="file")
     clean = write_report_html(finished.report, finished.parts, tmp_path / "clean.html")
     assert "Unfinished files" not in clean.read_text(encoding="utf-8")
+
+
+def test_a_label_with_a_glyph_the_font_lacks_is_drawn_without_a_warning(tmp_path: Path) -> None:
+    """A file name with an emoji: the SVG holds it as text (the browser draws it), and
+    matplotlib's missing-glyph warning is not printed (once per chart, with a source line)."""
+    path = _record_plans(tmp_path / "pölé 🚀.mcap", [Plan("success"), Plan("failure:fell")])
+    result = report_inputs([path], by="file")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = write_report_html(result.report, result.parts, tmp_path / "report.html")
+    assert [str(w.message) for w in caught if "Glyph" in str(w.message)] == []
+    labels = re.findall(r"<text [^>]*>([^<]*🚀[^<]*)</text>", out.read_text(encoding="utf-8"))
+    assert labels and all("pölé 🚀" in label for label in labels), labels

@@ -16,6 +16,7 @@ from .common import (
     fmt_number,
     markdown_table,
     markdown_text,
+    safe,
     table,
     to_json,
     unreadable_json,
@@ -46,8 +47,8 @@ def _value(m: MetricComparison, value: float | None) -> str:
 
 
 def _difference(m: MetricComparison) -> str:
-    if m.not_comparable is not None:
-        return "- (other units)"
+    if m.not_comparable is not None:  # (a side without an ended episode has no value)
+        return "-" if m.baseline is None or m.candidate is None else "- (other units)"
     if m.kind == "rate":
         return f"{m.difference:+.1%} [{m.interval.low:+.1%}, {m.interval.high:+.1%}]"
     return (
@@ -149,7 +150,10 @@ def compare_output(
     # no table; else the vertical layout)
     out: list[RenderableType] = []
     for title, headers, body in sections:
-        out.append(table(title, headers, body, whole_cells=headers is COMPARE_HEADERS))
+        # (the title a line of its own, wrapped at the console's width, not at the table's: a
+        # two-column table's would break over three lines)
+        out.append(Text(safe(title), style="table.title"))
+        out.append(table(None, headers, body, whole_cells=headers is COMPARE_HEADERS))
         if headers is COMPARE_HEADERS and result.reward_notes:  # (a blank line, as a table's)
             out.append(Text("\n".join(result.reward_notes) + "\n"))
     return Group(*out)
