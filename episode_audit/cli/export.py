@@ -56,7 +56,7 @@ def export(
         typer.Option(
             "--overwrite",
             help="Replace the export in --out (its *.steps.parquet files this export does not "
-            "write are removed).",
+            "write are removed); never an evidence file or a live recorder's.",
         ),
     ] = False,
     jobs: JobsOption = None,

@@ -4,6 +4,8 @@
 unless ``overwrite``), creates its folder if missing, yields a temporary file there (unnamed
 where the OS has them, so that even a killed export leaves nothing) and gives it the output's
 name only when the export finished, so a failed export leaves nothing that looks complete.
+:func:`refuse_evidence` keeps every export off a live recorder's file and off evidence, with
+or without ``overwrite``.
 :class:`ViewerExport` says what was written; :func:`missing` is the error naming the extra a
 viewer library needs, :func:`need_pillow` the same for the camera frames' PNG encoder.
 """
@@ -18,8 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from mcap.reader import SeekingReader
+
 from ..errors import ConfigurationError
+from ..format import names as fmt
 from ..format.columns import counted
+from ..read.liveness import still_written, writer_of
 from ..record.lock import output_kind
 from ..record.published import Temporary
 from ._values import SMALL, has_frames
@@ -27,7 +33,7 @@ from ._values import SMALL, has_frames
 if TYPE_CHECKING:
     from ..read import Evidence
 
-__all__ = ["ViewerExport", "missing", "need_pillow", "staged"]
+__all__ = ["ViewerExport", "missing", "need_pillow", "refuse_evidence", "staged"]
 
 
 @dataclass
@@ -137,6 +143,31 @@ def need_pillow(ev: Evidence, extra: str) -> None:
         raise missing("pillow", extra, why="to write camera frames") from None
 
 
+def refuse_evidence(path: Path) -> None:
+    """Refuse to write over ``path`` if it is a live recorder's file or an evidence file.
+
+    An export replaces (with ``overwrite``) an earlier export or any other file, never evidence
+    (MCAP with episode-audit's profile: a finished, torn or recovered file alike), and never a
+    file a live recorder holds. Only the header's first bytes are read.
+    """
+    writer = writer_of(path)
+    if writer is not None:
+        raise ConfigurationError(
+            f"{path}: is {still_written(writer)}; an export never replaces a live recorder's "
+            "file — choose another output path"
+        )
+    try:
+        with open(path, "rb") as f:
+            profile = SeekingReader(f).get_header().profile
+    except Exception:  # (not MCAP, unreadable, empty: not evidence)
+        return
+    if profile == fmt.MCAP_PROFILE:
+        raise ConfigurationError(
+            f"{path}: is an evidence file; an export never replaces evidence — choose another "
+            "output path"
+        )
+
+
 @contextmanager
 def staged(
     source: Path,
@@ -162,6 +193,7 @@ def staged(
     if out.exists():
         if out.resolve() == source.resolve():
             raise ConfigurationError(f"{out}: is the input; --out names a new file to write")
+        refuse_evidence(out)
         if not overwrite:
             raise ConfigurationError(f"{out}: {exists}")
     temporary = Temporary(out, exists=exists, suffix=".partial")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Container, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -27,6 +27,7 @@ from ..read import open_evidence
 from ..read.arguments import path_list
 from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
 from ..record.lock import output_kind
+from ._output import refuse_evidence
 
 __all__ = ["ExportResult", "export"]
 
@@ -153,6 +154,9 @@ def _export_local(
     result = ExportResult(episodes_file)
     targets = [out / f"{name}.steps.parquet" for name in _step_file_names(sources)]
     _check_outputs([episodes_file, *targets], overwrite, overwrite_option)
+    if overwrite:  # (the earlier export's steps files this one removes)
+        for stale in _stale(out, set(targets)):
+            refuse_evidence(stale)
     episode_tables: list[pa.Table] = []
     pairs = list(zip(sources, targets, strict=True))
     done = map_ordered(_export_pair, pairs, jobs=jobs, ray_address=ray_address, progress=progress)
@@ -182,12 +186,17 @@ def _export_local(
 
 
 def _check_outputs(files: list[Path], overwrite: bool, option: str) -> None:
-    """Refuse outputs that are special files, or that exist when not to be overwritten.
+    """Refuse outputs that are special files, evidence, or exist when not to be overwritten.
+
+    Evidence: an evidence file or a live recorder's (:func:`._output.refuse_evidence`).
 
     ``option``: how the error names the ``overwrite`` option (``--overwrite`` on the command
     line).
     """
     _refuse_special_files(files)
+    for file in files:
+        if file.exists():
+            refuse_evidence(file)
     if not overwrite:
         existing = [f for f in files if f.exists()]
         if existing:
@@ -318,13 +327,21 @@ def _step_file_names(sources: Sequence[Source]) -> list[str]:
     return names
 
 
-def _remove_stale(out: Path, written: set[Source]) -> list[Source]:
+def _stale(out: Path, written: Container[Source]) -> list[Path]:
+    """The ``*.steps.parquet`` files in ``out`` other than ``written``."""
+    return [
+        stale
+        for stale in sorted(out.glob("*.steps.parquet"))
+        if stale not in written and stale.is_file()
+    ]
+
+
+def _remove_stale(out: Path, written: Container[Source]) -> list[Source]:
     """Remove the ``*.steps.parquet`` files in ``out`` this export did not write."""
     removed: list[Source] = []
-    for stale in sorted(out.glob("*.steps.parquet")):
-        if stale not in written and stale.is_file():
-            stale.unlink()
-            removed.append(stale)
+    for stale in _stale(out, written):
+        stale.unlink()
+        removed.append(stale)
     return removed
 
 
