@@ -39,6 +39,7 @@ from ._values import (
     chunk_blocks,
     ending_text,
     finite,
+    frame_names,
     json_rows,
     json_schema,
     split_batch,
@@ -151,6 +152,7 @@ class _Steps:
         none = pa.RecordBatch.from_pylist([], schema=ev.steps_schema)
         action, observation = split_batch(none, "action"), split_batch(none, "observation")
         self.schema = json.dumps(_step_schema(self.terms, action, observation)).encode()
+        self.frame_names = frame_names(ev.steps_schema)
         self.channels: dict[str, Any] = {}
         self.images: dict[str, Any] = {}
 
@@ -276,7 +278,7 @@ class _Steps:
         messages = self.fg.messages
         episodes = batch.column("episode").to_pylist()
         times = batch.column("time_ns").to_pylist()
-        name = ".".join(frames.path)
+        name = self.frame_names.get(frames.path) or ".".join(frames.path)
         every_time_fits = _all_in_range(batch.column("time_ns"))
         for i in np.flatnonzero(frames.present).tolist():
             if not every_time_fits and not _in_range(times[i]):  # (counted with its step)
