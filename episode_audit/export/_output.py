@@ -86,7 +86,9 @@ class ViewerExport:
         """One line for people: what was written where, and how to look at it."""
         frames = f", {self.frames} camera frames" if self.frames else ""
         out = shlex.quote(str(self.path))
-        if self.viewer == "foxglove":
+        if self.viewer == "foxglove" and not any(p.endswith("/steps") for p in self.paths):
+            look = "open it in Foxglove; no steps or resets, so no layout"
+        elif self.viewer == "foxglove":
             look = (
                 f"open it in Foxglove; a layout for it: python -m episode_audit.export.layout "
                 f"{out} > layout.json"
