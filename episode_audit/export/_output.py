@@ -33,7 +33,7 @@ from ._values import SMALL, has_frames
 if TYPE_CHECKING:
     from ..read import Evidence
 
-__all__ = ["ViewerExport", "missing", "need_pillow", "refuse_evidence", "staged"]
+__all__ = ["ViewerExport", "episode_count", "missing", "need_pillow", "refuse_evidence", "staged"]
 
 
 @dataclass
@@ -46,6 +46,9 @@ class ViewerExport:
     viewer: str
     """``"foxglove"`` or ``"rerun"``."""
     episodes: int = 0
+    """Episodes written, unstarted ones too."""
+    unstarted: int = 0
+    """Of them, episodes reset and never stepped (``show`` and ``report`` count them apart)."""
     steps: int = 0
     resets: int = 0
     """Reset frames written: each episode's observation from ``reset()``, before its steps."""
@@ -96,10 +99,21 @@ class ViewerExport:
         else:
             look = f"open it with: rerun {out}"
         return (
-            f"wrote {counted(self.episodes, 'episode')}, {counted(self.steps, 'step')}{frames} "
+            f"wrote {episode_count(self.episodes, self.unstarted)}, "
+            f"{counted(self.steps, 'step')}{frames} "
             f"of {self.source} "
             f"to {self.path} ({look})"
         )
+
+
+def episode_count(episodes: int, unstarted: int) -> str:
+    """``episodes`` (``unstarted`` of them) as ``show`` counts them: the unstarted apart.
+
+    >>> episode_count(3, 0), episode_count(3, 2), episode_count(2, 2)
+    ('3 episodes', '1 episode (+2 unstarted)', '0 episodes (+2 unstarted)')
+    """
+    started = counted(episodes - unstarted, "episode")
+    return f"{started} (+{unstarted} unstarted)" if unstarted else started
 
 
 def missing(

@@ -23,11 +23,12 @@ import pyarrow.parquet as pq
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EvidenceError
 from ..format.columns import counted
+from ..format.records import unstarted
 from ..read import open_evidence
 from ..read.arguments import path_list
 from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
 from ..record.lock import output_kind
-from ._output import refuse_evidence
+from ._output import episode_count, refuse_evidence
 
 __all__ = ["ExportResult", "export"]
 
@@ -39,6 +40,7 @@ class ExportResult:
     episodes_file: Source
     steps_files: list[Source] = field(default_factory=list)
     episodes: int = 0
+    """Rows of ``episodes.parquet``: every episode, unstarted ones too."""
     steps: int = 0
     failed: list[Source] = field(default_factory=list)
     """Inputs that could not be read to the end (only with ``on_error``); nothing of theirs
@@ -48,25 +50,43 @@ class ExportResult:
     write, removed so that ``read_parquet('DIR/*.steps.parquet')`` reads this export only."""
     unfinished: list[tuple[Source, str]] = field(default_factory=list)
     """Inputs exported while unfinished (still being written, or torn), and why."""
+    cut_off: dict[Source, int] = field(default_factory=dict)
+    """Per unfinished input, its episodes the file cut off (no end record): ``incomplete``."""
+    unstarted: int = 0
+    """Of :attr:`episodes`, those reset and never stepped (``show`` and ``report`` count them
+    apart)."""
 
     @property
     def notes(self) -> list[str]:
         """A line for each unfinished input: what of it was exported."""
         return [
-            f"{path} is unfinished ({why}): exported what it holds, its cut-off episode as "
-            "incomplete"
+            f"{path} is unfinished ({why}): exported what it holds{_as_incomplete(cut)}"
             for path, why in self.unfinished
+            for cut in [self.cut_off.get(path, 0)]
         ]
 
     def summary(self) -> str:
         """One line for people: what was written where."""
         removed = f"; removed {len(self.removed)} from an earlier export" if self.removed else ""
         return (
-            f"wrote {counted(self.episodes, 'episode')} to {self.episodes_file} and "
+            f"wrote {episode_count(self.episodes, self.unstarted)} to {self.episodes_file} and "
             f"{counted(self.steps, 'step')} "
             f"to {len(self.steps_files)} *.steps.parquet file(s) in {self.episodes_file.parent}"
             f"{removed}"
         )
+
+
+def _as_incomplete(cut: int) -> str:
+    """How a note says what became of an unfinished input's ``cut`` cut-off episodes.
+
+    >>> _as_incomplete(0), _as_incomplete(1), _as_incomplete(2)
+    ('', ', its cut-off episode as incomplete', ', its 2 cut-off episodes as incomplete')
+    """
+    if cut == 0:
+        return ""
+    if cut == 1:
+        return ", its cut-off episode as incomplete"
+    return f", its {cut} cut-off episodes as incomplete"
 
 
 class _Exported(NamedTuple):
@@ -76,6 +96,8 @@ class _Exported(NamedTuple):
     steps: int
     unfinished: str | None
     """Why the input is unfinished (``None``: finished)."""
+    cut_off: int
+    """Episodes without an end record (a torn or live file's last ones)."""
 
 
 def export(
@@ -172,6 +194,7 @@ def _export_local(
         result.steps_files.append(target)
         if exported.unfinished is not None:
             result.unfinished.append((source, exported.unfinished))
+            result.cut_off[source] = exported.cut_off
     # files with different tags: a tag column a file lacks is null for its episodes
     episodes = (
         pa.concat_tables(episode_tables, promote_options="default")
@@ -180,6 +203,7 @@ def _export_local(
     )
     pq.write_table(episodes, episodes_file, compression="zstd")
     result.episodes = episodes.num_rows
+    result.unstarted = int(unstarted(episodes).sum()) if episodes.num_rows else 0
     if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
         result.removed = _remove_stale(out, set(result.steps_files))
     return result
@@ -252,6 +276,8 @@ def _export_to_url(
         local.steps,
         local.failed,
         unfinished=local.unfinished,
+        cut_off=local.cut_off,
+        unstarted=local.unstarted,
     )
     if overwrite:
         result.removed = _remove_stale_remote(out, written)
@@ -393,7 +419,10 @@ def _export_one(source: Source, target: Path, progress: Callable[[int], None] | 
     else:  # no steps at all: still write an empty, typed file
         empty = _with_file(ev.steps_schema.empty_table(), label)
         pq.write_table(_with_run(empty, run_columns), target)
-    return _Exported(_with_run(_with_file(episodes, label), run_columns), steps, unfinished)
+    cut_off = episodes.column("ended").to_pylist().count(False) if unfinished else 0
+    return _Exported(
+        _with_run(_with_file(episodes, label), run_columns), steps, unfinished, cut_off
+    )
 
 
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:

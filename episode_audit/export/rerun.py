@@ -24,6 +24,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
+from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, need_pillow, staged
 from ._values import (
@@ -106,6 +107,7 @@ def _write(
             if progress is not None and not reset:
                 progress(batch.num_rows)
         result.episodes = writer.endings()
+        result.unstarted = int(unstarted(ev.episodes()).sum())
     finally:
         rec.flush()
         rec.disconnect()
