@@ -105,7 +105,8 @@ def export(
         fail(str(exc))
     for line in result.notes:
         note(line)
-    emit(safe(result.summary()))
+    for line in result.summary().splitlines():
+        emit(safe(line))
     if unreadable or result.failed:
         raise typer.Exit(EXIT_USAGE)
 
@@ -142,4 +143,5 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
         fail(str(exc))
     for line in result.notes:
         note(line)
-    emit(safe(result.summary()))
+    for line in result.summary().splitlines():
+        emit(safe(line))

@@ -86,24 +86,23 @@ class ViewerExport:
         return lines
 
     def summary(self) -> str:
-        """One line for people: what was written where, and how to look at it."""
+        """Lines for people: what was written where, then how to look at it.
+
+        A command to run is a line of its own, indented, whole however long (to copy).
+        """
         frames = f", {self.frames} camera frames" if self.frames else ""
         out = shlex.quote(str(self.path))
         if self.viewer == "foxglove" and not any(p.endswith("/steps") for p in self.paths):
-            look = "open it in Foxglove; no steps or resets, so no layout"
+            look = "open it in Foxglove (no steps or resets: no layout)"
         elif self.viewer == "foxglove":
             look = (
-                f"open it in Foxglove; a layout for it: python -m episode_audit.export.layout "
-                f"{out} > layout.json"
+                "open it in Foxglove; a layout for it:\n"
+                f"  python -m episode_audit.export.layout {out} > layout.json"
             )
         else:
             look = f"open it with: rerun {out}"
-        return (
-            f"wrote {episode_count(self.episodes, self.unstarted)}, "
-            f"{counted(self.steps, 'step')}{frames} "
-            f"of {self.source} "
-            f"to {self.path} ({look})"
-        )
+        counts = f"{episode_count(self.episodes, self.unstarted)}, {counted(self.steps, 'step')}"
+        return f"wrote {counts}{frames} of {self.source} to {self.path}\n{look}"
 
 
 def episode_count(episodes: int, unstarted: int) -> str:

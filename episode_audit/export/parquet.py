@@ -66,13 +66,16 @@ class ExportResult:
         ]
 
     def summary(self) -> str:
-        """One line for people: what was written where."""
-        removed = f"; removed {len(self.removed)} from an earlier export" if self.removed else ""
+        """Lines for people: what was written where (episodes, then steps)."""
+        removed = (
+            f"\nremoved {len(self.removed)} *.steps.parquet file(s) of an earlier export"
+            if self.removed
+            else ""
+        )
         return (
-            f"wrote {episode_count(self.episodes, self.unstarted)} to {self.episodes_file} and "
-            f"{counted(self.steps, 'step')} "
-            f"to {len(self.steps_files)} *.steps.parquet file(s) in {self.episodes_file.parent}"
-            f"{removed}"
+            f"wrote {episode_count(self.episodes, self.unstarted)} to {self.episodes_file}\n"
+            f"and {counted(self.steps, 'step')} to {len(self.steps_files)} *.steps.parquet "
+            f"file(s) in {self.episodes_file.parent}{removed}"
         )
 
 

@@ -254,10 +254,10 @@ def test_the_export_suggests_the_layout_only_where_there_is_one(
     assert result.exit_code == 0, result.output
     line = result.output.strip().splitlines()[-1]
     if reset:
-        assert "a layout for it: python -m episode_audit.export.layout" in line
+        assert line.startswith("  python -m episode_audit.export.layout ")
         assert '"configById"' in foxglove_layout_of(out)
         return
-    assert line.endswith("(open it in Foxglove; no steps or resets, so no layout)"), line
+    assert line == "open it in Foxglove (no steps or resets: no layout)", line
     expected = "a Foxglove export of a file with no steps or resets: nothing for a layout to show"
     with pytest.raises(ConfigurationError, match=expected):
         foxglove_layout_of(out)
