@@ -53,7 +53,7 @@ def test_the_result_names_unfinished_inputs_and_sums_up(tmp_path: Path) -> None:
         "its cut-off episode as incomplete"
     ]
     assert result.summary() == (
-        f"wrote {result.episodes} episodes to {out / 'episodes.parquet'} and {result.steps} "
+        f"wrote {result.episodes} episodes to {out / 'episodes.parquet'}\nand {result.steps} "
         f"steps to 2 *.steps.parquet file(s) in {out}"
     )
 

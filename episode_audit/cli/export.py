@@ -56,7 +56,7 @@ def export(
         typer.Option(
             "--overwrite",
             help="Replace the export in --out (its *.steps.parquet files this export does not "
-            "write are removed).",
+            "write are removed); never an evidence file or a live recorder's.",
         ),
     ] = False,
     jobs: JobsOption = None,
@@ -105,7 +105,8 @@ def export(
         fail(str(exc))
     for line in result.notes:
         note(line)
-    emit(safe(result.summary()))
+    for line in result.summary().splitlines():
+        emit(safe(line))
     if unreadable or result.failed:
         raise typer.Exit(EXIT_USAGE)
 
@@ -142,4 +143,5 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
         fail(str(exc))
     for line in result.notes:
         note(line)
-    emit(safe(result.summary()))
+    for line in result.summary().splitlines():
+        emit(safe(line))

@@ -4,6 +4,8 @@
 unless ``overwrite``), creates its folder if missing, yields a temporary file there (unnamed
 where the OS has them, so that even a killed export leaves nothing) and gives it the output's
 name only when the export finished, so a failed export leaves nothing that looks complete.
+:func:`refuse_evidence` keeps every export off a live recorder's file and off evidence, with
+or without ``overwrite``.
 :class:`ViewerExport` says what was written; :func:`missing` is the error naming the extra a
 viewer library needs, :func:`need_pillow` the same for the camera frames' PNG encoder.
 """
@@ -18,8 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from mcap.reader import SeekingReader
+
 from ..errors import ConfigurationError
+from ..format import names as fmt
 from ..format.columns import counted
+from ..read.liveness import still_written, writer_of
 from ..record.lock import output_kind
 from ..record.published import Temporary
 from ._values import SMALL, has_frames
@@ -27,7 +33,7 @@ from ._values import SMALL, has_frames
 if TYPE_CHECKING:
     from ..read import Evidence
 
-__all__ = ["ViewerExport", "missing", "need_pillow", "staged"]
+__all__ = ["ViewerExport", "episode_count", "missing", "need_pillow", "refuse_evidence", "staged"]
 
 
 @dataclass
@@ -40,6 +46,9 @@ class ViewerExport:
     viewer: str
     """``"foxglove"`` or ``"rerun"``."""
     episodes: int = 0
+    """Episodes written, unstarted ones too."""
+    unstarted: int = 0
+    """Of them, episodes reset and never stepped (``show`` and ``report`` count them apart)."""
     steps: int = 0
     resets: int = 0
     """Reset frames written: each episode's observation from ``reset()``, before its steps."""
@@ -77,21 +86,33 @@ class ViewerExport:
         return lines
 
     def summary(self) -> str:
-        """One line for people: what was written where, and how to look at it."""
+        """Lines for people: what was written where, then how to look at it.
+
+        A command to run is a line of its own, indented, whole however long (to copy).
+        """
         frames = f", {self.frames} camera frames" if self.frames else ""
         out = shlex.quote(str(self.path))
-        if self.viewer == "foxglove":
+        if self.viewer == "foxglove" and not any(p.endswith("/steps") for p in self.paths):
+            look = "open it in Foxglove (no steps or resets: no layout)"
+        elif self.viewer == "foxglove":
             look = (
-                f"open it in Foxglove; a layout for it: python -m episode_audit.export.layout "
-                f"{out} > layout.json"
+                "open it in Foxglove; a layout for it:\n"
+                f"  python -m episode_audit.export.layout {out} > layout.json"
             )
         else:
             look = f"open it with: rerun {out}"
-        return (
-            f"wrote {counted(self.episodes, 'episode')}, {counted(self.steps, 'step')}{frames} "
-            f"of {self.source} "
-            f"to {self.path} ({look})"
-        )
+        counts = f"{episode_count(self.episodes, self.unstarted)}, {counted(self.steps, 'step')}"
+        return f"wrote {counts}{frames} of {self.source} to {self.path}\n{look}"
+
+
+def episode_count(episodes: int, unstarted: int) -> str:
+    """``episodes`` (``unstarted`` of them) as ``show`` counts them: the unstarted apart.
+
+    >>> episode_count(3, 0), episode_count(3, 2), episode_count(2, 2)
+    ('3 episodes', '1 episode (+2 unstarted)', '0 episodes (+2 unstarted)')
+    """
+    started = counted(episodes - unstarted, "episode")
+    return f"{started} (+{unstarted} unstarted)" if unstarted else started
 
 
 def missing(
@@ -137,6 +158,31 @@ def need_pillow(ev: Evidence, extra: str) -> None:
         raise missing("pillow", extra, why="to write camera frames") from None
 
 
+def refuse_evidence(path: Path) -> None:
+    """Refuse to write over ``path`` if it is a live recorder's file or an evidence file.
+
+    An export replaces (with ``overwrite``) an earlier export or any other file, never evidence
+    (MCAP with episode-audit's profile: a finished, torn or recovered file alike), and never a
+    file a live recorder holds. Only the header's first bytes are read.
+    """
+    writer = writer_of(path)
+    if writer is not None:
+        raise ConfigurationError(
+            f"{path}: is {still_written(writer)}; an export never replaces a live recorder's "
+            "file — choose another output path"
+        )
+    try:
+        with open(path, "rb") as f:
+            profile = SeekingReader(f).get_header().profile
+    except Exception:  # (not MCAP, unreadable, empty: not evidence)
+        return
+    if profile == fmt.MCAP_PROFILE:
+        raise ConfigurationError(
+            f"{path}: is an evidence file; an export never replaces evidence — choose another "
+            "output path"
+        )
+
+
 @contextmanager
 def staged(
     source: Path,
@@ -162,6 +208,7 @@ def staged(
     if out.exists():
         if out.resolve() == source.resolve():
             raise ConfigurationError(f"{out}: is the input; --out names a new file to write")
+        refuse_evidence(out)
         if not overwrite:
             raise ConfigurationError(f"{out}: {exists}")
     temporary = Temporary(out, exists=exists, suffix=".partial")

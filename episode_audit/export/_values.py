@@ -6,8 +6,10 @@ each on their own) and :class:`Frames`: ``uint8`` arrays shaped ``(H, W)`` or ``
 ``C`` in 1, 3, 4, both sides at least :data:`IMAGE_MIN_SIDE`. :func:`json_rows` and
 :func:`json_schema` give the leaves of a column as per-row JSON values and their JSON Schema;
 :func:`streams` names each stream's topics and entity paths (:func:`agent_prefixes`: one per
-PettingZoo agent, distinct); :func:`blocks` reads a file's reset and step blocks chunk by chunk
-(:func:`chunk_blocks`: as one list a chunk); :func:`ending_text` says how an episode ended.
+PettingZoo agent, distinct) and :func:`frame_names` each camera field's (:func:`dotted_names`:
+distinct for distinct fields); :func:`blocks` reads a file's reset and step blocks chunk by
+chunk (:func:`chunk_blocks`: as one list a chunk); :func:`ending_text` says how an episode
+ended.
 """
 
 from __future__ import annotations
@@ -38,8 +40,10 @@ __all__ = [
     "agent_prefixes",
     "blocks",
     "chunk_blocks",
+    "dotted_names",
     "ending_text",
     "finite",
+    "frame_names",
     "has_frames",
     "json_rows",
     "json_schema",
@@ -202,6 +206,48 @@ def has_frames(schema: pa.Schema) -> bool:
     """
     none = pa.RecordBatch.from_pylist([], schema=schema)
     return any(split_batch(none, name).images for name in ("action", "observation"))
+
+
+def frame_names(schema: pa.Schema) -> dict[tuple[str, ...], str]:
+    """Each camera field of step blocks of ``schema``: its name in topics and entity paths.
+
+    The names are :func:`dotted_names` of the fields' paths, distinct for distinct fields; a
+    path not here (none in a file's schema) is named ``".".join(path)``.
+    """
+    none = pa.RecordBatch.from_pylist([], schema=schema)
+    return dotted_names(
+        frames.path
+        for name in ("action", "observation")
+        for frames in split_batch(none, name).images
+    )
+
+
+def dotted_names(paths: Iterable[tuple[str, ...]]) -> dict[tuple[str, ...], str]:
+    """Each field path's name, its parts joined with ``.``: distinct for distinct paths.
+
+    Where that makes one name of several paths (a Dict key ``"cam.left"`` and the key
+    ``"left"`` of the Dict ``"cam"``), the path none of whose parts holds a ``.`` keeps it and
+    the others, in sorted order, take the first free ``-2``, ``-3`` … after it, as PettingZoo
+    agents' prefixes do (:func:`agent_prefixes`). The same paths always get the same names.
+
+    >>> dotted_names([("o", "cam.left"), ("o", "cam", "left"), ("o", "eye")])
+    {('o', 'cam', 'left'): 'o.cam.left', ('o', 'eye'): 'o.eye', ('o', 'cam.left'): 'o.cam.left-2'}
+    """
+    unique = sorted(set(paths))
+    # (paths whose parts hold no "." join to distinct names: those keep theirs)
+    names = {path: ".".join(path) for path in unique if not any("." in part for part in path)}
+    taken = set(names.values())
+    for path in unique:
+        if path in names:
+            continue
+        name = base = ".".join(path)
+        k = 1
+        while name in taken:
+            k += 1
+            name = f"{base}-{k}"
+        names[path] = name
+        taken.add(name)
+    return names
 
 
 def split_column(path: tuple[str, ...], array: pa.Array, field_: pa.Field) -> Split:

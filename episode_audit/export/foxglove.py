@@ -28,6 +28,7 @@ import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
 from ..format import names as fmt
+from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, need_pillow, staged
 from ._values import (
@@ -39,6 +40,7 @@ from ._values import (
     chunk_blocks,
     ending_text,
     finite,
+    frame_names,
     json_rows,
     json_schema,
     split_batch,
@@ -151,6 +153,7 @@ class _Steps:
         none = pa.RecordBatch.from_pylist([], schema=ev.steps_schema)
         action, observation = split_batch(none, "action"), split_batch(none, "observation")
         self.schema = json.dumps(_step_schema(self.terms, action, observation)).encode()
+        self.frame_names = frame_names(ev.steps_schema)
         self.channels: dict[str, Any] = {}
         self.images: dict[str, Any] = {}
 
@@ -276,7 +279,7 @@ class _Steps:
         messages = self.fg.messages
         episodes = batch.column("episode").to_pylist()
         times = batch.column("time_ns").to_pylist()
-        name = ".".join(frames.path)
+        name = self.frame_names.get(frames.path) or ".".join(frames.path)
         every_time_fits = _all_in_range(batch.column("time_ns"))
         for i in np.flatnonzero(frames.present).tolist():
             if not every_time_fits and not _in_range(times[i]):  # (counted with its step)
@@ -351,15 +354,16 @@ def _endings(
 
     As ``(time, log, message)`` to write: the event at the episode's start, the log at its end.
 
-    Counted in ``result.episodes``; an episode without a time, or whose times no Foxglove
-    timestamp holds (a file not from our recorder), is left out and counted in
-    ``result.out_of_range``.
+    Counted in ``result.episodes`` (and ``result.unstarted``); an episode without a time, or
+    whose times no Foxglove timestamp holds (a file not from our recorder), is left out and
+    counted in ``result.out_of_range``.
     """
     messages, channels = foxglove.messages, foxglove.channels
     events = _log_of(channels.EventChannel("/episodes", context=context))
     logs = _log_of(channels.LogChannel("/log", context=context))
     out: list[tuple[int, Callable[[Any, int], None], Any]] = []
-    for record in ev.episodes().to_pylist():
+    table = ev.episodes()
+    for record, idle in zip(table.to_pylist(), unstarted(table).tolist(), strict=True):
         start, end = record.get("start_time_ns"), record.get("end_time_ns")
         end = end if end is not None else start
         start = start if start is not None else end
@@ -393,6 +397,7 @@ def _endings(
         )
         out += [(start, events, event), (end, logs, ending)]
         result.episodes += 1
+        result.unstarted += idle
     return out
 
 

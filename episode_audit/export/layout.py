@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 from ..errors import ConfigurationError, EpisodeAuditError
+from ..format import names as fmt
 
 __all__ = ["REFERENCE_TERMS", "foxglove_layout", "foxglove_layout_of", "main"]
 
@@ -168,8 +169,13 @@ def foxglove_layout_of(path: str | os.PathLike[str], stream: str | None = None) 
     topic, if any. Raises :class:`~episode_audit.errors.ConfigurationError` for a file that is
     not a Foxglove export of episode-audit, or a ``stream`` it does not hold.
     """
-    topics = _export_topics(path)
+    topics, marked = _export_topics(path)
     steps = sorted(t for t, (schema, _) in topics.items() if schema == _STEP_SCHEMA)
+    if not steps and marked:
+        raise ConfigurationError(
+            f"{path}: a Foxglove export of a file with no steps or resets: nothing for a layout "
+            "to show"
+        )
     if not steps:
         raise ConfigurationError(
             f"{path}: not a Foxglove export of episode-audit (no {_STEP_SCHEMA} topic); make "
@@ -191,8 +197,14 @@ def foxglove_layout_of(path: str | os.PathLike[str], stream: str | None = None) 
     return foxglove_layout(terms, prefix=stream, image_topic=cameras[0] if cameras else None)
 
 
-def _export_topics(path: str | os.PathLike[str]) -> dict[str, tuple[str, dict[str, Any]]]:
-    """Each topic of the MCAP file ``path``: its schema's name and (JSON Schema) content."""
+def _export_topics(
+    path: str | os.PathLike[str],
+) -> tuple[dict[str, tuple[str, dict[str, Any]]], bool]:
+    """Each topic of the MCAP file ``path`` (schema name, JSON Schema); whether it is marked.
+
+    The mark of episode-audit's export is its metadata record
+    (:data:`~episode_audit.format.names.METADATA_EXPORT`).
+    """
     from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
@@ -217,7 +229,8 @@ def _export_topics(path: str | os.PathLike[str]) -> dict[str, tuple[str, dict[st
             except ValueError:
                 content = {}
         out[channel.topic] = (schema.name if schema is not None else "", content)
-    return out
+    marked = any(index.name == fmt.METADATA_EXPORT for index in summary.metadata_indexes)
+    return out, marked
 
 
 def main(argv: Sequence[str] | None = None) -> int:

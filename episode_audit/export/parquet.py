@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Container, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -23,10 +23,12 @@ import pyarrow.parquet as pq
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EvidenceError
 from ..format.columns import counted
+from ..format.records import unstarted
 from ..read import open_evidence
 from ..read.arguments import path_list
 from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
 from ..record.lock import output_kind
+from ._output import episode_count, refuse_evidence
 
 __all__ = ["ExportResult", "export"]
 
@@ -38,6 +40,7 @@ class ExportResult:
     episodes_file: Source
     steps_files: list[Source] = field(default_factory=list)
     episodes: int = 0
+    """Rows of ``episodes.parquet``: every episode, unstarted ones too."""
     steps: int = 0
     failed: list[Source] = field(default_factory=list)
     """Inputs that could not be read to the end (only with ``on_error``); nothing of theirs
@@ -47,25 +50,46 @@ class ExportResult:
     write, removed so that ``read_parquet('DIR/*.steps.parquet')`` reads this export only."""
     unfinished: list[tuple[Source, str]] = field(default_factory=list)
     """Inputs exported while unfinished (still being written, or torn), and why."""
+    cut_off: dict[Source, int] = field(default_factory=dict)
+    """Per unfinished input, its episodes the file cut off (no end record): ``incomplete``."""
+    unstarted: int = 0
+    """Of :attr:`episodes`, those reset and never stepped (``show`` and ``report`` count them
+    apart)."""
 
     @property
     def notes(self) -> list[str]:
         """A line for each unfinished input: what of it was exported."""
         return [
-            f"{path} is unfinished ({why}): exported what it holds, its cut-off episode as "
-            "incomplete"
+            f"{path} is unfinished ({why}): exported what it holds{_as_incomplete(cut)}"
             for path, why in self.unfinished
+            for cut in [self.cut_off.get(path, 0)]
         ]
 
     def summary(self) -> str:
-        """One line for people: what was written where."""
-        removed = f"; removed {len(self.removed)} from an earlier export" if self.removed else ""
-        return (
-            f"wrote {counted(self.episodes, 'episode')} to {self.episodes_file} and "
-            f"{counted(self.steps, 'step')} "
-            f"to {len(self.steps_files)} *.steps.parquet file(s) in {self.episodes_file.parent}"
-            f"{removed}"
+        """Lines for people: what was written where (episodes, then steps)."""
+        removed = (
+            f"\nremoved {len(self.removed)} *.steps.parquet file(s) of an earlier export"
+            if self.removed
+            else ""
         )
+        return (
+            f"wrote {episode_count(self.episodes, self.unstarted)} to {self.episodes_file}\n"
+            f"and {counted(self.steps, 'step')} to {len(self.steps_files)} *.steps.parquet "
+            f"file(s) in {self.episodes_file.parent}{removed}"
+        )
+
+
+def _as_incomplete(cut: int) -> str:
+    """How a note says what became of an unfinished input's ``cut`` cut-off episodes.
+
+    >>> _as_incomplete(0), _as_incomplete(1), _as_incomplete(2)
+    ('', ', its cut-off episode as incomplete', ', its 2 cut-off episodes as incomplete')
+    """
+    if cut == 0:
+        return ""
+    if cut == 1:
+        return ", its cut-off episode as incomplete"
+    return f", its {cut} cut-off episodes as incomplete"
 
 
 class _Exported(NamedTuple):
@@ -75,6 +99,8 @@ class _Exported(NamedTuple):
     steps: int
     unfinished: str | None
     """Why the input is unfinished (``None``: finished)."""
+    cut_off: int
+    """Episodes without an end record (a torn or live file's last ones)."""
 
 
 def export(
@@ -153,6 +179,9 @@ def _export_local(
     result = ExportResult(episodes_file)
     targets = [out / f"{name}.steps.parquet" for name in _step_file_names(sources)]
     _check_outputs([episodes_file, *targets], overwrite, overwrite_option)
+    if overwrite:  # (the earlier export's steps files this one removes)
+        for stale in _stale(out, set(targets)):
+            refuse_evidence(stale)
     episode_tables: list[pa.Table] = []
     pairs = list(zip(sources, targets, strict=True))
     done = map_ordered(_export_pair, pairs, jobs=jobs, ray_address=ray_address, progress=progress)
@@ -168,6 +197,7 @@ def _export_local(
         result.steps_files.append(target)
         if exported.unfinished is not None:
             result.unfinished.append((source, exported.unfinished))
+            result.cut_off[source] = exported.cut_off
     # files with different tags: a tag column a file lacks is null for its episodes
     episodes = (
         pa.concat_tables(episode_tables, promote_options="default")
@@ -176,18 +206,24 @@ def _export_local(
     )
     pq.write_table(episodes, episodes_file, compression="zstd")
     result.episodes = episodes.num_rows
+    result.unstarted = int(unstarted(episodes).sum()) if episodes.num_rows else 0
     if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
         result.removed = _remove_stale(out, set(result.steps_files))
     return result
 
 
 def _check_outputs(files: list[Path], overwrite: bool, option: str) -> None:
-    """Refuse outputs that are special files, or that exist when not to be overwritten.
+    """Refuse outputs that are special files, evidence, or exist when not to be overwritten.
+
+    Evidence: an evidence file or a live recorder's (:func:`._output.refuse_evidence`).
 
     ``option``: how the error names the ``overwrite`` option (``--overwrite`` on the command
     line).
     """
     _refuse_special_files(files)
+    for file in files:
+        if file.exists():
+            refuse_evidence(file)
     if not overwrite:
         existing = [f for f in files if f.exists()]
         if existing:
@@ -243,6 +279,8 @@ def _export_to_url(
         local.steps,
         local.failed,
         unfinished=local.unfinished,
+        cut_off=local.cut_off,
+        unstarted=local.unstarted,
     )
     if overwrite:
         result.removed = _remove_stale_remote(out, written)
@@ -318,13 +356,21 @@ def _step_file_names(sources: Sequence[Source]) -> list[str]:
     return names
 
 
-def _remove_stale(out: Path, written: set[Source]) -> list[Source]:
+def _stale(out: Path, written: Container[Source]) -> list[Path]:
+    """The ``*.steps.parquet`` files in ``out`` other than ``written``."""
+    return [
+        stale
+        for stale in sorted(out.glob("*.steps.parquet"))
+        if stale not in written and stale.is_file()
+    ]
+
+
+def _remove_stale(out: Path, written: Container[Source]) -> list[Source]:
     """Remove the ``*.steps.parquet`` files in ``out`` this export did not write."""
     removed: list[Source] = []
-    for stale in sorted(out.glob("*.steps.parquet")):
-        if stale not in written and stale.is_file():
-            stale.unlink()
-            removed.append(stale)
+    for stale in _stale(out, written):
+        stale.unlink()
+        removed.append(stale)
     return removed
 
 
@@ -376,7 +422,10 @@ def _export_one(source: Source, target: Path, progress: Callable[[int], None] | 
     else:  # no steps at all: still write an empty, typed file
         empty = _with_file(ev.steps_schema.empty_table(), label)
         pq.write_table(_with_run(empty, run_columns), target)
-    return _Exported(_with_run(_with_file(episodes, label), run_columns), steps, unfinished)
+    cut_off = episodes.column("ended").to_pylist().count(False) if unfinished else 0
+    return _Exported(
+        _with_run(_with_file(episodes, label), run_columns), steps, unfinished, cut_off
+    )
 
 
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:

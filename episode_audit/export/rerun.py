@@ -24,6 +24,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..errors import ConfigurationError
+from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ._output import ViewerExport, missing, need_pillow, staged
 from ._values import (
@@ -32,6 +33,7 @@ from ._values import (
     Split,
     blocks,
     ending_text,
+    frame_names,
     split_batch,
     streams,
 )
@@ -105,6 +107,7 @@ def _write(
             if progress is not None and not reset:
                 progress(batch.num_rows)
         result.episodes = writer.endings()
+        result.unstarted = int(unstarted(ev.episodes()).sum())
     finally:
         rec.flush()
         rec.disconnect()
@@ -132,6 +135,8 @@ class _Writer:
     def __init__(self, rr: Any, rec: Any, ev: Evidence, result: ViewerExport) -> None:
         self.rr, self.rec, self.ev, self.result = rr, rec, ev, result
         self.named = streams(ev)
+        self.frame_names = frame_names(ev.steps_schema)
+        self.part = rr.escape_entity_path_part  # (a "/" or a space in a name is the name's)
         self.prefix_of = self.named.prefix_of
         self.paths: set[str] = set()
         self.left_out: set[str] = set()
@@ -214,11 +219,12 @@ class _Writer:
                 if value is not None:
                     present.append(rows[i])
                     values.append(value)
-            self._send(f"{prefix}/steps/terms/{name}", batch, np.array(present), np.array(values))
+            path = f"{prefix}/steps/terms/{self.part(name)}"
+            self._send(path, batch, np.array(present), np.array(values))
 
     def _leaf(self, prefix: str, batch: pa.RecordBatch, rows: npt.NDArray[Any], leaf: Leaf) -> None:
         keep = rows[leaf.present[rows]]
-        path = "/".join(leaf.path)
+        path = "/".join(self.part(part) for part in leaf.path)
         values = leaf.numbers[keep].astype(np.float64)
         self._send(f"{prefix}/steps/{path}", batch, keep, values[:, 0] if leaf.scalar else values)
 
@@ -241,7 +247,8 @@ class _Writer:
             png = io.BytesIO()
             Image.fromarray(pixels[i].squeeze()).save(png, format="png")
             blobs.append(png.getvalue())
-        entity = f"{prefix}/camera/{'.'.join(path)}"
+        name = self.frame_names.get(path) or ".".join(path)
+        entity = f"{prefix}/camera/{self.part(name)}"
         self.rec.send_columns(
             entity,
             indexes=self._times(batch, keep),

@@ -232,3 +232,33 @@ def test_the_module_has_a_help_and_says_what_is_wrong(tmp_path: Path) -> None:
         foxglove_layout_of(evidence)
     assert main([str(evidence)]) == 2
     assert main([str(tmp_path / "none.mcap")]) == 2
+
+
+@pytest.mark.parametrize("reset", [False, True], ids=["empty", "reset-only"])
+def test_the_export_suggests_the_layout_only_where_there_is_one(
+    tmp_path: Path, reset: bool
+) -> None:
+    """Exporting a file with no episodes suggested ``python -m episode_audit.export.layout
+    OUT``, which then said OUT was not a Foxglove export of episode-audit."""
+    pytest.importorskip("foxglove")
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    source = tmp_path / "run.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), source) as env:
+        if reset:  # (a reset alone is on the steps topic, at step -1: a layout shows it)
+            env.reset(seed=0)
+    out = tmp_path / "run.foxglove.mcap"
+    result = CliRunner().invoke(app, ["export", str(source), "--to", "foxglove", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    line = result.output.strip().splitlines()[-1]
+    if reset:
+        assert line.startswith("  python -m episode_audit.export.layout ")
+        assert '"configById"' in foxglove_layout_of(out)
+        return
+    assert line == "open it in Foxglove (no steps or resets: no layout)", line
+    expected = "a Foxglove export of a file with no steps or resets: nothing for a layout to show"
+    with pytest.raises(ConfigurationError, match=expected):
+        foxglove_layout_of(out)
+    assert main([str(out)]) == 2

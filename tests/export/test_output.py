@@ -187,22 +187,23 @@ def test_the_success_line_says_how_to_look_at_the_file(tmp_path: Path, to: str, 
     out = tmp_path / "a b" / name
     result = CliRunner().invoke(app, ["export", str(CLEAN), "--to", to, "-o", str(out)])
     assert result.exit_code == 0, result.output
-    line = result.output.strip().splitlines()[-1]
-    assert "docs/" not in line.replace(str(CLEAN), "").replace(str(out), "")  # (the paths may)
+    lines = result.output.strip().splitlines()
+    text = "\n".join(lines).replace(str(CLEAN), "").replace(str(out), "")
+    assert "docs/" not in text  # (the paths may)
     quoted = shlex.quote(str(out))
     if to == "foxglove":
-        assert line.endswith(
-            f"(open it in Foxglove; a layout for it: python -m episode_audit.export.layout "
-            f"{quoted} > layout.json)"
-        )
-        command = line.split("a layout for it: ", 1)[1].rstrip(")").split(" > ")[0]
+        assert lines[-2:] == [
+            "open it in Foxglove; a layout for it:",
+            f"  python -m episode_audit.export.layout {quoted} > layout.json",
+        ]
+        command = lines[-1].strip().split(" > ")[0]
         args = shlex.split(command)
         done = subprocess.run(
             [sys.executable, *args[1:]], capture_output=True, text=True, cwd=ROOT, check=True
         )
         assert '"configById"' in done.stdout
     else:
-        assert line.endswith(f"(open it with: rerun {quoted})")
+        assert lines[-1] == f"open it with: rerun {quoted}"
 
 
 def test_rerun_rows_have_the_episodes_timelines_only(
@@ -245,3 +246,24 @@ def test_camera_frames_without_pillow_are_one_error_line_naming_the_extra(
     assert re.fullmatch(rf"episode-audit: error: {expected}", line), line
     assert list(tmp_path.iterdir()) == [source]
     assert export([CLEAN], out, to=to).frames == 0  # type: ignore[call-overload]
+
+
+@pytest.mark.parametrize(("to", "name"), [*VIEWERS, pytest.param("parquet", "pq", id="parquet")])
+def test_the_result_fits_80_columns(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, to: str, name: str
+) -> None:
+    """At COLUMNS=80 the Foxglove result line was ~180 characters: the counts, the output and
+    the layout command in one line."""
+    if to != "parquet":
+        _viewer(to)
+    monkeypatch.chdir(tmp_path)
+    source = Path("run.mcap")
+    camera_file(source)
+    (Path("out") / "old.steps.parquet").parent.mkdir()
+    (Path("out") / "old.steps.parquet").write_bytes(b"")  # (removed: one more line)
+    out = f"out/{name}"
+    args = ["export", str(source), "--to", to, "-o", out, "--overwrite"]
+    result = CliRunner().invoke(app, args, env={"COLUMNS": "80"})
+    assert result.exit_code == 0, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) >= 2 and max(len(line) for line in lines) <= 80, lines
