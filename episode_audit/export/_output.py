@@ -47,8 +47,6 @@ class ViewerExport:
     """``"foxglove"`` or ``"rerun"``."""
     episodes: int = 0
     """Episodes written, unstarted ones too."""
-    unstarted: int = 0
-    """Of them, episodes reset and never stepped (``show`` and ``report`` count them apart)."""
     steps: int = 0
     resets: int = 0
     """Reset frames written: each episode's observation from ``reset()``, before its steps."""
@@ -65,6 +63,9 @@ class ViewerExport:
     """Steps, resets and episodes left out: their times are missing or outside what the
     viewer's timestamps hold (1970 to 2106 for Foxglove; only a file not from our recorder has
     such)."""
+    unstarted: int = 0
+    """Of :attr:`episodes`, those reset and never stepped (``show`` and ``report`` count them
+    apart)."""
 
     @property
     def notes(self) -> list[str]:
