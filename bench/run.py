@@ -527,12 +527,14 @@ def bench_export(steps: int, rounds: int) -> dict[str, Any]:
 
 class Playback(gym.Env[Any, Any]):
     """Hands back a file's recorded resets and steps, whatever the action: an env whose own
-    cost is next to nothing, so that replaying in it times replay's own work."""
+    cost is next to nothing, so that replaying in it times replay's own work. Its spec is the
+    recorded env's, so replay takes it as that env."""
 
     def __init__(self, path: Path, env_id: str) -> None:
         ev = open_evidence(path)
         real = gym.make(env_id)
         self.observation_space, self.action_space = real.observation_space, real.action_space
+        self.spec = gym.spec(env_id)  # (replay verifies a factory's env by its spec)
         obs_codec = ev.observation_codec
         assert obs_codec is not None
         steps = ev.steps()
