@@ -20,12 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from mcap.reader import SeekingReader
-
 from ..errors import ConfigurationError
-from ..format import names as fmt
 from ..format.columns import counted
 from ..read.liveness import still_written, writer_of
+from ..read.opening import evidence_header
 from ..record.lock import output_kind
 from ..record.published import Temporary
 from ._values import SMALL, has_frames
@@ -172,12 +170,7 @@ def refuse_evidence(path: Path) -> None:
             f"{path}: is {still_written(writer)}; an export never replaces a live recorder's "
             "file — choose another output path"
         )
-    try:
-        with open(path, "rb") as f:
-            profile = SeekingReader(f).get_header().profile
-    except Exception:  # (not MCAP, unreadable, empty: not evidence)
-        return
-    if profile == fmt.MCAP_PROFILE:
+    if evidence_header(path):
         raise ConfigurationError(
             f"{path}: is an evidence file; an export never replaces evidence — choose another "
             "output path"

@@ -201,19 +201,40 @@ def viewer_export(path: str | os.PathLike[str]) -> bool:
     header says so at once (its first bytes are read, nothing more). A file that cannot be
     opened or is not that is not one: opening it as evidence says what it is.
     """
-    try:
-        if not stat.S_ISREG(os.stat(path).st_mode):  # (a FIFO would block)
-            return False
-        with open(path, "rb") as f:
-            reader = SeekingReader(f, record_size_limit=chunks.MAX_RECORD_BYTES)
-            if reader.get_header().profile == fmt.MCAP_PROFILE:
-                return False
-            summary = reader.get_summary()
-    except Exception:  # (not MCAP, unreadable, torn: not an export that can be skipped)
+    head = _head(path, summary=True)
+    if head is None or head[0]:
         return False
+    summary = head[1]
     return summary is not None and any(
         index.name == fmt.METADATA_EXPORT for index in summary.metadata_indexes
     )
+
+
+def evidence_header(path: str | os.PathLike[str]) -> bool:
+    """Whether the local file ``path`` starts as evidence: MCAP with episode-audit's profile.
+
+    Only its header is read: a finished, torn or recovered evidence file alike. A file that is
+    not a regular file, not MCAP or cannot be read is not.
+    """
+    head = _head(path, summary=False)
+    return head is not None and head[0]
+
+
+def _head(path: str | os.PathLike[str], *, summary: bool) -> tuple[bool, Any] | None:
+    """Whether the MCAP header of the regular file ``path`` names our profile; its summary.
+
+    The summary is read only when asked (``summary``) and the profile is not ours. ``None``:
+    not a regular file, not MCAP, or unreadable.
+    """
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # (a FIFO would block)
+            return None
+        with open(path, "rb") as f:
+            reader = SeekingReader(f, record_size_limit=chunks.MAX_RECORD_BYTES)
+            ours = reader.get_header().profile == fmt.MCAP_PROFILE
+            return ours, (reader.get_summary() if summary and not ours else None)
+    except Exception:  # (not MCAP, unreadable, torn)
+        return None
 
 
 def _parse_run(
