@@ -616,6 +616,12 @@ def _game_difference(layout: Mapping[str, Any], env: Any) -> str | None:
     return None if same else f"env name {_shown(name[:200])} recorded vs {_shown(named)} rebuilt"
 
 
+_NO_KWARGS = (
+    "the recording holds no env_kwargs (the env's constructor arguments, which the recorder "
+    "takes as env_kwargs=)"
+)
+
+
 def _unverified_game(layout: Mapping[str, Any], *, factory: bool) -> str | None:
     """Why a rebuilt PettingZoo env cannot be verified to be the recorded one, or ``None``.
 
@@ -630,16 +636,11 @@ def _unverified_game(layout: Mapping[str, Any], *, factory: bool) -> str | None:
         if kwargs is not None:
             return None
         return (
-            "the recording holds no env_kwargs (the env's constructor arguments, which the "
-            "recorder takes as env_kwargs=): the env was rebuilt with its defaults, which may "
-            "not be the recorded env's; record with env_kwargs= (env_kwargs={} for the defaults)"
+            f"{_NO_KWARGS}: the env was rebuilt with its defaults, which may not be the "
+            "recorded env's; record with env_kwargs= (env_kwargs={} for the defaults)"
         )
     if kwargs is None:
-        return (
-            "the recording holds no env_kwargs (the env's constructor arguments, which the "
-            "recorder takes as env_kwargs=) to verify the env factory's env against; record "
-            "with them"
-        )
+        return f"{_NO_KWARGS} to verify the env factory's env against; record with them"
     said = (
         f"the env factory's env cannot be verified to be built with the recorded env_kwargs "
         f"{_shown(kwargs)}"
