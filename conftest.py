@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import tempfile
 from collections.abc import Generator, Iterator
 from importlib.util import find_spec
@@ -22,6 +23,11 @@ from pathlib import Path
 import pytest
 
 import episode_audit
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    # started in the background (`make test &`: a shell ignores Ctrl-C there, and Python then
+    # leaves it ignored): the Ctrl-C tests need it raised as KeyboardInterrupt, as at a terminal
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 _PACKAGE = Path(episode_audit.__file__).resolve().parent
 _NEEDS = {
