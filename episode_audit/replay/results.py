@@ -30,7 +30,6 @@ __all__ = [
     "not_told_from_history",
     "not_told_from_versions",
     "not_told_unverified",
-    "unverified_difference",
     "options_not_held",
     "restored_state",
     "short",
@@ -111,6 +110,10 @@ class EpisodeReplay:
     restored: str | None = None
     """For an episode that differed: the state replay restored before its reset, e.g.
     ``"seed 7; 2 earlier episodes in this env"`` (:func:`restored_state`)."""
+    unverified: str | None = None
+    """For an episode ``not_replayable`` because it differed in an env whose match with the
+    recording could not be verified: why not (:func:`not_told_unverified`); its difference
+    is kept in :attr:`divergence`."""
 
 
 @dataclass
@@ -357,25 +360,12 @@ verified: the env factory's env has no spec
         if e.status == "diverged":
             reason = f"differed{_where(e.divergence)}{_UNVERIFIED}{cause}"
             note = "" if e.reason is None else f" ({e.reason})"
-            e = replace(e, status="not_replayable", reason=reason + note)
+            e = replace(e, status="not_replayable", reason=reason + note, unverified=cause)
         out.append(e)
     return out
 
 
 _UNVERIFIED = " in an env whose match with the recording could not be verified: "
-
-
-def unverified_difference(episode: EpisodeReplay) -> bool:
-    """Whether ``episode`` differed in an env of unverified match (:func:`not_told_unverified`).
-
-    A caller that knows the env factory is the one the file was recorded with (an environment
-    contract) reads such an episode's difference as the env's own.
-    """
-    return (
-        episode.status == "not_replayable"
-        and episode.divergence is not None
-        and (episode.reason or "").startswith(f"differed{_where(episode.divergence)}{_UNVERIFIED}")
-    )
 
 
 def _where(d: Divergence | None) -> str:

@@ -26,7 +26,6 @@ from ..format.columns import error_text
 from ..read import open_evidence
 from ..record import RecordEvidence
 from ..replay import EpisodeReplay, replay
-from ..replay.results import unverified_difference
 from ..report import report
 from .cases import ContractCase, Expected, Policy, evidence_actions, evidence_folder
 from .command import replay_command
@@ -329,7 +328,7 @@ def replay_file(case: CaseLike, path: Path, result: ContractResult) -> EpisodeRe
     episodes = replay([path], env_factory=factory).episodes
     replayed = next((e for e in episodes if e.status != "identical"), episodes[0])
     # (the factory is the recording's: a difference its match could not verify is the env's)
-    differed = replayed.status == "diverged" or unverified_difference(replayed)
+    differed = replayed.status == "diverged" or replayed.unverified is not None
     if differed and replayed.divergence is not None:
         result.problems.append(
             f"replay: not reproducible in a fresh env with seed {case.seed}: "

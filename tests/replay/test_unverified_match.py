@@ -115,6 +115,12 @@ def test_a_recording_without_a_spec_that_differs_from_a_factory_env_is_not_repla
     assert [e.status for e in other.episodes] == ["not_replayable"] * 2
     assert all(e.divergence is not None for e in other.episodes)  # (its difference kept)
     assert other.episodes[0].reason == f"differed at step 0 (reward) {_UNVERIFIED}{_NO_SPEC}"
+    assert [e.unverified for e in other.episodes] == [_NO_SPEC] * 2
+    assert other.to_dict()["episodes"][0]["unverified"] == _NO_SPEC
+    assert {
+        e.unverified
+        for e in replay([path], env_factory=lambda: TimeLimit(HalfCheetahEnv(), 10)).episodes
+    } == {None}
 
 
 def test_a_vector_recording_without_a_spec_that_differs_is_not_replayable(tmp_path: Path) -> None:
