@@ -33,7 +33,9 @@ __all__ = [
     "EnvFactory",
     "build_env",
     "build_pettingzoo_env",
+    "nesting_depth",
     "replay_notes",
+    "shown_value",
 ]
 
 EnvFactory = Callable[[], gym.Env[Any, Any]]
@@ -204,7 +206,7 @@ def _wrapped(
         name = str(wrapper["entry_point"]).rpartition(":")[2][:80]
         raise ReplayError(
             f"cannot rebuild the recorded wrapper {name} with its recorded arguments "
-            f"{_shown(kwargs)}: {error_text(exc)}; {_WAY_AROUND}"
+            f"{shown_value(kwargs)}: {error_text(exc)}; {_WAY_AROUND}"
         ) from None
 
 
@@ -255,7 +257,7 @@ def _check_env_kwargs(kwargs: Any, what: str = "env kwarg") -> None:
 def _check_depths(kwargs: Mapping[Any, Any], what: str) -> None:
     """Refuse recorded kwargs one of which is nested deeper than replay builds an env from."""
     for name, value in kwargs.items():
-        depth = _depth(value)
+        depth = nesting_depth(value)
         if depth > MAX_ENV_KWARGS_DEPTH:
             raise ReplayError(
                 f"the recorded {what} {str(name)[:80]!r} is nested {depth} deep, more than the "
@@ -277,7 +279,7 @@ def _refuse_placeholders(kwargs: Mapping[str, Any], what: str) -> None:
             )
 
 
-def _depth(value: Any) -> int:
+def nesting_depth(value: Any) -> int:
     """How deeply lists, tuples and dicts nest in a value (a scalar: 0), without recursion."""
     deepest, level = 0, [value]
     while True:
@@ -420,7 +422,7 @@ def _from_pettingzoo_module(
         ) from None
 
 
-def _shown(value: Any) -> str:
+def shown_value(value: Any) -> str:
     """A value in a mismatch reason: JSON, cut to 120 characters."""
     try:
         text = json.dumps(value, sort_keys=True)

@@ -34,7 +34,9 @@ from ..format.wrappers import (
     worker_sub_envs,
 )
 from ..record.time_limits import limit_places, step_limit
-from .envs import MAX_ENV_KWARGS_DEPTH, _depth, _shown
+from .envs import MAX_ENV_KWARGS_DEPTH
+from .envs import nesting_depth as _depth
+from .envs import shown_value as _shown
 
 __all__ = ["agents_mismatch", "env_mismatch", "unverified_match"]
 
