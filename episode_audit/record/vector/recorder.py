@@ -40,7 +40,7 @@ from ..time_limits import counted_limits, limited_spec, time_limits, unread_limi
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
-from .rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, LocalSubEnvs, ResetRngInfo, SubEnvRng
+from .rng import SPEC_IF_SENDABLE, LocalSubEnvs, ResetRngInfo, SubEnvRng
 from .steps import VectorSteps
 
 __all__ = ["RecordVectorEvidence", "sub_reward_wrappers", "sub_wrappers", "vector_layout"]
@@ -108,7 +108,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
                 "cannot be replayed on their own"
             )
             notes.append(no_rng_note)
-        self._rng = SubEnvRng(sync, async_env)
+        self._rng = SubEnvRng(sync, async_env, sub_spec)
         snapshots = self._rng.snapshots(installing=install_rng_info)
         same_step = mode is AutoresetMode.SAME_STEP
         if (same_step or snapshots) and sync is not None and install_rng_info:
@@ -369,13 +369,13 @@ def _sub_spec(
 def _worker_spec(async_env: AsyncVectorEnv) -> Any:
     """Sub-env 0's spec, asked of a worker only when it can send it.
 
-    A worker that fails to pickle its answer (a lambda in a wrapper's kwargs,
-    ``TransformObservation(env, lambda o: ...)``) ends, which breaks the vector env. So the
-    workers are asked first what they answer safely (``has_wrapper_attr``, a bool):
-    :class:`~.rng.ResetRngInfo` outermost gives the spec when it pickles; a sub-env without a
-    wrapper that takes functions (:data:`~.rng.FUNCTION_WRAPPERS`) sends its spec. Otherwise
-    the spec is read off a sub-env built here by the first env function, then closed
-    (``AsyncVectorEnv``'s constructor builds one here too, for its spaces).
+    A worker that fails in answering (its spec does not pickle: a lambda among the env's
+    ``make()`` kwargs or a wrapper's, ``TransformObservation(env, lambda o: ...)``; or reading
+    it raises) ends, which breaks the vector env. So the workers are asked first what they
+    answer safely (``has_wrapper_attr``, a bool): :class:`~.rng.ResetRngInfo` outermost gives
+    the spec when it pickles. Otherwise the spec is read off a sub-env built here by the first
+    env function, then closed (``AsyncVectorEnv``'s constructor builds one here too, for its
+    spaces).
     """
     call = async_env.call
     if all(call("has_wrapper_attr", SPEC_IF_SENDABLE)) and call("class_name")[0] == (
@@ -384,14 +384,7 @@ def _worker_spec(async_env: AsyncVectorEnv) -> Any:
         sendable, spec = call(SPEC_IF_SENDABLE)[0]
         if sendable:
             return spec
-    elif not any(any(call("has_wrapper_attr", name)) for name in _function_attributes()):
-        return async_env.get_attr("spec")[0]
     return _built_spec(async_env)
-
-
-def _function_attributes() -> list[str]:
-    """The attributes holding functions of :data:`~.rng.FUNCTION_WRAPPERS`, each once."""
-    return sorted({name for names in FUNCTION_WRAPPERS.values() for name in names})
 
 
 def _built_spec(async_env: AsyncVectorEnv) -> Any:
