@@ -67,6 +67,14 @@ def rng_unaskable(spec: Any) -> str | None:
         wrappers = [_loaded(w.entry_point) for w in spec.additional_wrappers or ()]
     except Exception:
         return "a class its spec names cannot be loaded here"
+    try:
+        return _unaskable_classes(env, wrappers)
+    except Exception:  # (a class's own attribute machinery): unknown
+        return "its classes cannot be looked at here"
+
+
+def _unaskable_classes(env: Any, wrappers: list[Any]) -> str | None:
+    """:func:`rng_unaskable` of an env class and its wrapper classes (innermost first)."""
     if not (isinstance(env, type) and issubclass(env, gym.Env)):
         return "its spec's entry point is not a gymnasium.Env class"
     if not env.__module__.startswith(_GYMNASIUM_ENVS):
@@ -125,15 +133,17 @@ def unsendable(base: Any, probe: type, indices: Sequence[int]) -> dict[int, str 
     """
     ask = list(indices)
     try:
-        answering = base.env_is_wrapped(Answering, indices=ask)
-        failing = base.env_is_wrapped(probe, indices=ask)
+        answering = list(base.env_is_wrapped(Answering, indices=ask))
+        failing = list(base.env_is_wrapped(probe, indices=ask))
+        if not len(answering) == len(failing) == len(ask):
+            raise ValueError("an answer per sub-env")
     except Exception as exc:
         return dict.fromkeys(ask, f"asking its worker first raised {type(exc).__name__}")
     out: dict[int, str | None] = {}
     for i, says, fails in zip(ask, answering, failing, strict=True):
-        if not says:
+        if says is not True:
             out[i] = "no wrapper in it answers whether it can be sent"
-        elif fails:
+        elif fails is not False:
             out[i] = "reading it raises or it does not pickle"
         else:
             out[i] = None
