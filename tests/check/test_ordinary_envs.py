@@ -181,22 +181,16 @@ def test_an_unstarted_episode_is_not_called_unreplayable(tmp_path: Path) -> None
 def test_an_unstarted_episode_of_unsaved_sub_env_state_is_not_listed(tmp_path: Path) -> None:
     """ALE's emulator state in workers no ResetRngInfo snapshots: the episodes an unseeded
     reset began cannot be replayed; the unseeded reset the loop ended with began episodes it
-    never stepped, which were listed too (``4 episode(s) ... (episodes 2, 3, 4, 5)``).
+    never stepped, which were listed too (``4 episode(s) ... (episodes 2, 3, 4, 5)``)."""
+    from gymnasium.vector import AsyncVectorEnv
 
-    In ``SubprocVecEnv`` workers, which say they can send their RNG state (an
-    ``AsyncVectorEnv``'s are not asked for an ALE env's: it is not one of Gymnasium's own)."""
-    pytest.importorskip("stable_baselines3")
-    from stable_baselines3.common.vec_env import SubprocVecEnv
-
-    from episode_audit.record.sb3 import RecordVecEnvEvidence
     from tests.support.unsaved import short_pong
 
     path = tmp_path / "pong.mcap"
     with pytest.warns(UserWarning, match="cannot be replayed"):
-        recorder = RecordVecEnvEvidence(SubprocVecEnv([short_pong] * 2, start_method="fork"), path)
+        recorder = RecordVectorEvidence(AsyncVectorEnv([short_pong] * 2), path)
     with recorder:
-        recorder.seed(3)
-        recorder.reset()
+        recorder.reset(seed=3)
         recorder.step(np.array([0, 1]))
         recorder.reset()
         recorder.step(np.array([0, 1]))

@@ -28,7 +28,7 @@ from ..notes import note
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets, adapter_for_entry_point
-from .workers import RngUnsendable, rng_unaskable, unsendable
+from .workers import RngUnsendable, unsendable
 
 __all__ = [
     "RNG_STATE_IF_READABLE",
@@ -264,7 +264,10 @@ class SubEnvRng:
     """
 
     def __init__(
-        self, sync: LocalSubEnvs | None, async_env: RemoteSubEnvs | None, spec: Any = None
+        self,
+        sync: LocalSubEnvs | None,
+        async_env: RemoteSubEnvs | None,
+        unaskable: str | None = None,
     ) -> None:
         self.sync = sync
         self._async = async_env
@@ -275,9 +278,9 @@ class SubEnvRng:
         self.unread: dict[int, str] = {}
         # whether the workers' sub-envs answer RNG_STATE_IF_READABLE (a ResetRngInfo)
         self._remote_reads = _remote_reads(async_env)
-        # why a Gymnasium worker may not be asked for np_random, read off ``spec`` (SB3's are
-        # asked first: :func:`~.workers.unsendable`)
-        self._unaskable = None if async_env is None else rng_unaskable(spec)
+        # why an AsyncVectorEnv's workers may not be asked for np_random, from a sub-env built
+        # here (:func:`~.workers.rng_unaskable`; SB3's are asked first: ``unsendable``)
+        self._unaskable = unaskable
         # each sub-env's ResetRngInfo (Sync only, once installed): its states need no parsing
         self._issuers: list[ResetRngInfo | None] = []
 
@@ -394,7 +397,7 @@ class SubEnvRng:
 
         A worker is asked for ``np_random`` only when the answer is known to be safe: an SB3
         VecEnv's workers are asked first (:func:`~.workers.unsendable`), an ``AsyncVectorEnv``'s
-        are known by the sub-env's spec (:func:`~.workers.rng_unaskable`). Why a state is not
+        are known by a sub-env built here (:func:`~.workers.rng_unaskable`). Why a state is not
         asked for goes to :attr:`unread`.
         """
         remote = self._async

@@ -5,10 +5,12 @@ ends when reading it raises or its value does not pickle (the worker sends it pi
 user's loop dies with it. Sub-envs with :class:`~.rng.ResetRngInfo` outermost answer safely
 through it; for the others the recorder asks only when it knows the answer is safe:
 
-- :func:`rng_unaskable` — for an ``AsyncVectorEnv``, from the sub-env's spec, read in this
-  process: ``np_random`` is asked for only when the spec names every class in the sub-env and
-  each keeps Gymnasium's own ``np_random`` and attribute lookup, and the env is one of
-  Gymnasium's own (whose generator is always one ``seeding.np_random`` made, which pickles).
+- :func:`rng_unaskable` — for an ``AsyncVectorEnv``, from a sub-env built in this process by
+  the same env function: ``np_random`` is asked for only when every class in its chain keeps
+  Gymnasium's own ``np_random`` and attribute lookup (the answer is then the generator
+  ``reset(seed=...)`` made, which pickles). A class that puts something else in Gymnasium's
+  private ``_np_random`` (an object that does not pickle) is not seen: such a sub-env needs
+  :class:`~.rng.ResetRngInfo` (docs/recording.md).
 - :func:`unsendable` — for an SB3 ``VecEnv``, asked of the workers: SB3's ``env_is_wrapped``
   walks a worker's wrappers calling ``isinstance(wrapper, cls)`` and sends a bool; the classes
   here (:class:`Answering`, :class:`SpecUnsendable`, :class:`RngUnsendable`) answer that
@@ -22,7 +24,6 @@ from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import gymnasium as gym
-from gymnasium.envs.registration import load_env_creator
 
 from ..._jobs import unpicklable
 
@@ -30,12 +31,6 @@ __all__ = ["Answering", "RngUnsendable", "SpecUnsendable", "rng_unaskable", "uns
 
 _LOOKUPS = ("np_random", "get_wrapper_attr", "has_wrapper_attr", "__getattr__", "__getattribute__")
 """What a worker runs to answer ``np_random``: a class replacing any of them runs its own code."""
-
-_GYMNASIUM_ENVS = "gymnasium.envs."
-
-
-def _loaded(entry_point: Any) -> Any:
-    return load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
 
 
 def _replaced(cls: type, base: type) -> str | None:
@@ -46,45 +41,41 @@ def _replaced(cls: type, base: type) -> str | None:
     return None
 
 
-def rng_unaskable(spec: Any) -> str | None:
-    """Why a worker's sub-env made by ``spec`` could end if asked for ``np_random``; else ``None``.
+def rng_unaskable(env: Any) -> str | None:
+    """Why a worker's sub-env like ``env`` could end if asked for ``np_random``; else ``None``.
 
-    Read in this process from the classes the spec names (its entry point, its
-    ``additional_wrappers``; those ``gym.make`` adds are Gymnasium's): each must keep
-    Gymnasium's ``np_random`` and attribute lookup, and the env must be one of Gymnasium's own.
-    A class of one's own may put anything in ``np_random`` (a generator holding a lock).
+    ``env``: a sub-env built in this process by the worker's env function (``None``: none
+    could be). Read off the classes of its chain, outermost first: each wrapper must keep
+    ``gymnasium.Wrapper``'s ``np_random`` and attribute lookup, and the env
+    ``gymnasium.Env``'s.
 
     >>> import gymnasium as gym
-    >>> rng_unaskable(gym.spec("CartPole-v1")) is None
+    >>> rng_unaskable(gym.make("CartPole-v1")) is None
     True
     >>> rng_unaskable(None)
-    'its spec is unknown'
+    'no sub-env could be built here to look at its classes'
     """
-    if spec is None:
-        return "its spec is unknown"
+    if env is None:
+        return "no sub-env could be built here to look at its classes"
     try:
-        env = _loaded(spec.entry_point)
-        wrappers = [_loaded(w.entry_point) for w in spec.additional_wrappers or ()]
-    except Exception:
-        return "a class its spec names cannot be loaded here"
-    try:
-        return _unaskable_classes(env, wrappers)
+        chain: list[tuple[type, type]] = []
+        while isinstance(env, gym.Wrapper):
+            chain.append((type(env), gym.Wrapper))
+            env = env.env
+        chain.append((type(env), gym.Env))
+        return _unaskable_classes(chain)
     except Exception:  # (a class's own attribute machinery): unknown
         return "its classes cannot be looked at here"
 
 
-def _unaskable_classes(env: Any, wrappers: list[Any]) -> str | None:
-    """:func:`rng_unaskable` of an env class and its wrapper classes (innermost first)."""
-    if not (isinstance(env, type) and issubclass(env, gym.Env)):
-        return "its spec's entry point is not a gymnasium.Env class"
-    if not env.__module__.startswith(_GYMNASIUM_ENVS):
-        return f"{env.__name__} is not one of Gymnasium's own envs"
-    for cls, base in [(env, gym.Env), *((w, gym.Wrapper) for w in wrappers)]:
-        if not (isinstance(cls, type) and issubclass(cls, base)):
-            return f"{getattr(cls, '__name__', cls)!s:.60} is not a {base.__name__} class"
+def _unaskable_classes(chain: list[tuple[type, type]]) -> str | None:
+    """:func:`rng_unaskable` of a sub-env's classes, each with the Gymnasium class it must keep."""
+    for cls, base in chain:
+        if not issubclass(cls, base):
+            return f"{cls.__name__:.60} is not a {base.__name__}"
         name = _replaced(cls, base)
         if name is not None:
-            return f"{cls.__name__} replaces Gymnasium's {name}"
+            return f"{cls.__name__:.60} replaces Gymnasium's {name}"
     return None
 
 
