@@ -20,6 +20,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.envs.classic_control import CartPoleEnv
 
 pytest.importorskip("stable_baselines3")
 torch = pytest.importorskip("torch")
@@ -51,7 +52,14 @@ from tests.support.unsaved import (  # noqa: E402
     assert_unseeded_episodes_are_not_replayable,
     short_pong,
 )
-from tests.support.worker_rng import LIMIT, rng_locked_rng, rng_raising_rng  # noqa: E402
+from tests.support.worker_rng import (  # noqa: E402
+    LIMIT,
+    lambda_kwarg,
+    locked_rng_made,
+    raising_rng_made,
+    rng_locked_rng,
+    rng_raising_rng,
+)
 
 torch.set_num_threads(1)
 N = 4
@@ -993,3 +1001,46 @@ def test_reset_rng_info_in_subproc_workers_answers_for_an_rng_they_cannot_send(
             venv.step(np.zeros(2, np.int64))
     unseeded = [e for e in open_evidence(path).episodes().to_pylist() if e["seed"] is None]
     assert len(unseeded) >= 4 and all(e["rng_state"] for e in unseeded)
+
+
+_NOT_SENT = (
+    "rng_state_unavailable: its worker was not asked for its np_random, which could end it: "
+    "{why}; wrap each sub-env in episode_audit.ResetRngInfo"
+)
+_UNSENDABLE = "reading it raises or it does not pickle"
+
+
+@pytest.mark.parametrize(
+    ("make", "whys"),
+    [
+        (lambda_kwarg, [None, None]),  # (its spec does not pickle: not asked for)
+        (raising_rng_made, [_UNSENDABLE, _UNSENDABLE]),
+        (locked_rng_made, [None, _UNSENDABLE]),  # (a locked generator from its first reset)
+        (CartPoleEnv, ["no wrapper in it answers whether it can be sent"] * 2),
+    ],
+)
+def test_subproc_workers_are_asked_only_what_they_can_send(
+    tmp_path: Path, make: Any, whys: list[str | None]
+) -> None:
+    """A worker asked for a spec or an ``np_random`` it cannot send (reading it raises, or it
+    does not pickle) ended, and the loop with it: the workers are asked first, in a bool,
+    whether they can send it (SB3's ``env_is_wrapped``); those that cannot are not asked, and
+    the unseeded resets' episodes say why their RNG state is unknown."""
+    path = tmp_path / "subproc.mcap"
+    with RecordVecEnvEvidence(SubprocVecEnv([make] * 2, start_method=START), path) as venv:
+        for _ in range(2):  # unseeded resets, each reading the RNG states first
+            venv.reset()
+            for _ in range(LIMIT + 1):
+                venv.step(np.zeros(2, np.int64))
+    assert not check([path]).unreadable
+    spec = open_evidence(path).run.env_spec
+    assert (spec is None) == (make in (lambda_kwarg, CartPoleEnv))
+    resets = open_evidence(path).resets().to_pylist()
+    first = [r for r in resets if "inside its worker" not in (r["notes"] or "")]  # reset()'s
+    first.sort(key=lambda r: r["episode"])
+    assert len(first) == 4
+    for r, why in zip(first, [whys[0]] * 2 + [whys[1]] * 2, strict=True):
+        notes = json.loads(r["notes"]) if r["notes"] else []
+        asked = why is None
+        assert (r["rng_state"] is not None) == asked
+        assert asked or _NOT_SENT.format(why=why) in notes, notes

@@ -47,7 +47,14 @@ from tests.support.unsaved import (
     assert_unseeded_episodes_are_not_replayable,
     short_pong,
 )
-from tests.support.worker_rng import LIMIT, rng_locked_rng, rng_raising_rng, rng_sealed_rng
+from tests.support.worker_rng import (
+    LIMIT,
+    lambda_kwarg,
+    raising_rng_made,
+    rng_locked_rng,
+    rng_raising_rng,
+    rng_sealed_rng,
+)
 
 N = 4
 STEPS = 2000
@@ -1043,7 +1050,11 @@ class _Exclusive(gym.Wrapper[Any, Any, Any, Any]):
         with open(lock + ".pids", "a") as pids:
             pids.write(f"{os.getpid()}\n")
         self._held = open(lock, "w")  # noqa: SIM115 (held until close)
-        fcntl.flock(self._held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        try:
+            fcntl.flock(self._held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._held.close()
+            raise
 
     def close(self) -> None:
         self._held.close()
@@ -1065,7 +1076,9 @@ def _exclusive_no_spec(index: int, folder: str) -> Any:
 
 @pytest.mark.parametrize("kind", ["plain", "reset_rng_info", "no_spec"])
 def test_an_async_sub_env_that_sends_its_spec_is_not_built_here(tmp_path: Path, kind: str) -> None:
-    """Its worker is asked for the spec; a copy built here would fail on the lock (it did)."""
+    """With ResetRngInfo outermost its worker is asked for the spec; a copy built here would
+    fail on the lock. Without it (``plain``) the worker is not asked (its spec might not
+    pickle): the copy built here fails, and the spec is unknown."""
     from functools import partial
 
     from gymnasium.vector import AsyncVectorEnv
@@ -1082,9 +1095,10 @@ def test_an_async_sub_env_that_sends_its_spec_is_not_built_here(tmp_path: Path, 
         rec.reset(seed=1)
         rec.step(np.ones(2, np.int64))
     built_here = (tmp_path / "0.lock.pids").read_text().split().count(str(os.getpid()))
-    assert built_here == 1  # (AsyncVectorEnv's own, for its spaces, closed before its workers)
+    # (AsyncVectorEnv's own, for its spaces, closed before its workers; plain: the recorder's)
+    assert built_here == (2 if kind == "plain" else 1)
     spec = open_evidence(path).run.env_spec
-    assert (spec or {}).get("id") == (None if kind == "no_spec" else "CartPole-v1")
+    assert (spec or {}).get("id") == ("CartPole-v1" if kind == "reset_rng_info" else None)
 
 
 # ---------------------------------------------------------------- info without masks
@@ -1474,3 +1488,55 @@ def test_an_rng_state_reset_rng_info_cannot_read_in_a_worker_is_noted_with_why(
         ]
         for n in notes
     ), notes
+
+
+# ---------------------------------------------------------------- what workers are asked
+
+_NOT_ASKED = (
+    "rng_state_unavailable: its worker was not asked for its np_random, which could end it: "
+    "{why}; wrap each sub-env in episode_audit.ResetRngInfo"
+)
+
+
+@pytest.mark.parametrize(
+    ("make", "why"),
+    [
+        (lambda_kwarg, None),
+        (raising_rng_made, "RaisingRng replaces Gymnasium's np_random"),
+    ],
+)
+def test_async_workers_are_asked_only_what_they_can_send(
+    tmp_path: Path, make: Any, why: str | None
+) -> None:
+    """A worker whose spec does not pickle (a lambda among the env's kwargs) or whose
+    ``np_random`` raises ended when asked for it, and the loop with it: the spec is read off a
+    sub-env built here, ``np_random`` asked only when the classes of that sub-env keep
+    Gymnasium's own, else why the autoreset episodes' RNG state is unknown is noted."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "async.mcap"
+    with RecordVectorEvidence(AsyncVectorEnv([make] * 2), path) as rec:
+        rec.reset(seed=1)
+        for _ in range(3 * LIMIT + 1):
+            rec.step(np.zeros(2, np.int64))
+    assert not check([path]).unreadable
+    resets = open_evidence(path).resets().to_pylist()
+    auto = [json.loads(r["notes"] or "[]") for r in resets if r["seed"] is None]
+    assert len(resets) == 6  # (both sub-envs recorded to the end)
+    expected = [] if why is None else [_NOT_ASKED.format(why=why)]
+    assert len(auto) == 4 and all(n == expected for n in auto), auto
+
+
+def test_async_workers_of_a_gymnasium_env_are_asked_their_rng_and_replay(tmp_path: Path) -> None:
+    """The common case: Gymnasium's own env made by ``gym.make``, no ResetRngInfo: the workers
+    are asked for ``np_random`` after each ending, and every autoreset episode replays."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "async.mcap"
+    fns = [lambda: gym.make("CartPole-v1", max_episode_steps=LIMIT)] * 2
+    with RecordVectorEvidence(AsyncVectorEnv(fns), path) as rec:
+        rec.reset()
+        for _ in range(3 * LIMIT + 1):
+            rec.step(np.zeros(2, np.int64))
+    result = replay([path])
+    assert len(result.episodes) == 6 and result.count("identical") == 6

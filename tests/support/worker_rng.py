@@ -89,3 +89,40 @@ def rng_raising_rng() -> gym.Env[Any, Any]:
 def rng_sealed_rng() -> gym.Env[Any, Any]:
     """:class:`SealedRngCartPole` in a limit of :data:`LIMIT`, in :class:`ResetRngInfo`."""
     return ResetRngInfo(gym.wrappers.TimeLimit(SealedRngCartPole(), LIMIT))
+
+
+class KwargCartPole(CartPoleEnv):
+    """CartPole taking any keyword argument (kept in its spec's kwargs, as ``gym.make`` keeps
+    them): ``gym.make(KWARG_ID, lock=lambda: 1)`` makes a spec that does not pickle."""
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        super().__init__(render_mode=render_mode)
+        self.kwargs = kwargs
+
+
+KWARG_ID = "EpisodeAuditKwargCartPole-v0"
+""":class:`KwargCartPole`, registered with a limit of :data:`LIMIT`."""
+
+if KWARG_ID not in gym.registry:
+    gym.register(KWARG_ID, entry_point=KwargCartPole, max_episode_steps=LIMIT)
+
+
+def lambda_kwarg() -> gym.Env[Any, Any]:
+    """:class:`KwargCartPole` made with a lambda among its kwargs: its spec does not pickle."""
+    return gym.make(KWARG_ID, lock=lambda: 1)
+
+
+def raising_rng_made() -> gym.Env[Any, Any]:
+    """CartPole made by ``gym.make`` under a wrapper whose ``np_random`` raises."""
+    return RaisingRng(gym.make("CartPole-v1", max_episode_steps=LIMIT))
+
+
+def locked_rng_made() -> gym.Env[Any, Any]:
+    """:class:`LockedRngCartPole` made by ``gym.make``: a generator that does not pickle."""
+    return gym.make(LOCKED_ID)
+
+
+LOCKED_ID = "EpisodeAuditLockedRngCartPole-v0"
+
+if LOCKED_ID not in gym.registry:
+    gym.register(LOCKED_ID, entry_point=LockedRngCartPole, max_episode_steps=LIMIT)

@@ -27,7 +27,8 @@ from ...format.wrappers import REWARD_CHANGING
 from ..gym import entry_point, info_entry_point
 from ..time_limits import counted_limits, limited_spec, unread_limits
 from ..vector.recorder import sub_reward_wrappers, sub_wrappers
-from ..vector.rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, ResetRngInfo
+from ..vector.rng import SPEC_IF_SENDABLE, ResetRngInfo
+from ..vector.workers import SpecUnsendable, unsendable
 
 __all__ = ["TRANSPARENT", "VecStack"]
 
@@ -208,15 +209,13 @@ def worker_reward_wrappers(base: VecEnv) -> list[str]:
 def worker_spec(base: VecEnv) -> Any:
     """Sub-env 0's spec, asked of a worker only when it can send it; else ``None``.
 
-    A ``SubprocVecEnv``'s worker that fails in answering (it cannot pickle a lambda in a
-    wrapper's kwargs, ``TransformObservation(env, lambda o: ...)``, or an attribute raises)
-    ends, breaking the VecEnv. So it is asked what it answers safely first (SB3's
-    ``env_is_wrapped``, a walk of the chain giving a bool). Outermost in the sub-env,
+    A ``SubprocVecEnv``'s worker that fails in answering (it cannot pickle a lambda among the
+    env's ``make()`` kwargs or a wrapper's, ``TransformObservation(env, lambda o: ...)``, or
+    reading the spec raises) ends, breaking the VecEnv. So it is asked first what it answers
+    safely (SB3's ``env_is_wrapped``, a bool). Outermost in the sub-env,
     :class:`~..vector.rng.ResetRngInfo` says whether the spec pickles (``episode_audit_spec``);
-    else the spec is not asked for when the sub-env has one of
-    :data:`~..vector.rng.FUNCTION_WRAPPERS`. What
-    does not pickle among the env's own kwargs, or in the kwargs of a wrapper of one's own, is
-    not seen (docs/recording.md).
+    else the wrappers say it in the worker (:func:`~..vector.workers.unsendable`: a sub-env
+    without wrappers is not asked).
     """
 
     def wrapped(kind: type[gym.Wrapper[Any, Any, Any, Any]]) -> bool:
@@ -227,6 +226,6 @@ def worker_spec(base: VecEnv) -> Any:
     )
     if outermost == ResetRngInfo.__name__:
         return base.env_method(SPEC_IF_SENDABLE, indices=[0])[0][1]
-    if any(wrapped(kind) for kind in FUNCTION_WRAPPERS):
+    if unsendable(base, SpecUnsendable, [0])[0] is not None:
         return None
-    return base.get_attr("spec", indices=[0])[0] if base.has_attr("spec") else None
+    return base.get_attr("spec", indices=[0])[0]

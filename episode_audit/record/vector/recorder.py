@@ -40,8 +40,9 @@ from ..time_limits import counted_limits, limited_spec, time_limits, unread_limi
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
-from .rng import FUNCTION_WRAPPERS, SPEC_IF_SENDABLE, LocalSubEnvs, ResetRngInfo, SubEnvRng
+from .rng import SPEC_IF_SENDABLE, LocalSubEnvs, ResetRngInfo, SubEnvRng
 from .steps import VectorSteps
+from .workers import rng_unaskable
 
 __all__ = ["RecordVectorEvidence", "sub_reward_wrappers", "sub_wrappers", "vector_layout"]
 
@@ -99,7 +100,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         self._sub_envs = sync is not None or async_env is not None
         n = int(env.num_envs)
         self._n = n
-        sub_spec = _sub_spec(env, sync, async_env)
+        sub_spec, rng_unasked = _sub_spec(env, sync, async_env)
         notes: list[str] = []
         no_rng_note: str | None = None
         if not self._sub_envs:
@@ -108,7 +109,7 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
                 "cannot be replayed on their own"
             )
             notes.append(no_rng_note)
-        self._rng = SubEnvRng(sync, async_env)
+        self._rng = SubEnvRng(sync, async_env, rng_unasked)
         snapshots = self._rng.snapshots(installing=install_rng_info)
         same_step = mode is AutoresetMode.SAME_STEP
         if (same_step or snapshots) and sync is not None and install_rng_info:
@@ -344,18 +345,22 @@ def vector_layout(
 
 def _sub_spec(
     env: VectorEnv[Any, Any, Any], sync: SyncVectorEnv | None, async_env: AsyncVectorEnv | None
-) -> Any:
-    """The spec of one sub-env (what replay rebuilds), or ``None``."""
+) -> tuple[Any, str | None]:
+    """The spec of one sub-env (what replay rebuilds), or ``None``; and a why.
+
+    The why: for an ``AsyncVectorEnv``, why its workers may not be asked for ``np_random``
+    (:func:`_worker_spec`); else ``None``.
+    """
     try:
         if sync is not None:
-            return limited_spec(sync.envs[0].spec, sync.envs[0])
+            return limited_spec(sync.envs[0].spec, sync.envs[0]), None
         if async_env is not None:
             return _worker_spec(async_env)
-    except Exception:
-        return None
+    except Exception as exc:
+        return None, f"its sub-env could not be looked at here ({type(exc).__name__})"
     spec = env.spec
     if spec is None:
-        return None
+        return None, None
     kwargs = {
         k: v
         for k, v in spec.kwargs.items()
@@ -363,19 +368,23 @@ def _sub_spec(
     }
     limit = _own_limit(env.unwrapped, spec)
     spec = dataclasses.replace(spec, kwargs=kwargs)
-    return spec if limit is None else dataclasses.replace(spec, max_episode_steps=limit)
+    return (spec if limit is None else dataclasses.replace(spec, max_episode_steps=limit)), None
 
 
-def _worker_spec(async_env: AsyncVectorEnv) -> Any:
-    """Sub-env 0's spec, asked of a worker only when it can send it.
+def _worker_spec(async_env: AsyncVectorEnv) -> tuple[Any, str | None]:
+    """Sub-env 0's spec, asked of a worker only when it can send it; and a why.
 
-    A worker that fails to pickle its answer (a lambda in a wrapper's kwargs,
-    ``TransformObservation(env, lambda o: ...)``) ends, which breaks the vector env. So the
-    workers are asked first what they answer safely (``has_wrapper_attr``, a bool):
-    :class:`~.rng.ResetRngInfo` outermost gives the spec when it pickles; a sub-env without a
-    wrapper that takes functions (:data:`~.rng.FUNCTION_WRAPPERS`) sends its spec. Otherwise
-    the spec is read off a sub-env built here by the first env function, then closed
-    (``AsyncVectorEnv``'s constructor builds one here too, for its spaces).
+    The why: why the workers may not be asked for ``np_random`` (``None``: they may;
+    :func:`~.workers.rng_unaskable`).
+
+    A worker that fails in answering (its spec does not pickle: a lambda among the env's
+    ``make()`` kwargs or a wrapper's, ``TransformObservation(env, lambda o: ...)``; or reading
+    it raises) ends, which breaks the vector env. So the workers are asked first what they
+    answer safely (``has_wrapper_attr``, a bool): :class:`~.rng.ResetRngInfo` outermost gives
+    the spec when it pickles (and the RNG states, safely). Otherwise the spec is read off a
+    sub-env built here by the first env function, whose classes say whether ``np_random`` may
+    be asked, then closed (``AsyncVectorEnv``'s constructor builds one here too, for its
+    spaces).
     """
     call = async_env.call
     if all(call("has_wrapper_attr", SPEC_IF_SENDABLE)) and call("class_name")[0] == (
@@ -383,25 +392,22 @@ def _worker_spec(async_env: AsyncVectorEnv) -> Any:
     ):
         sendable, spec = call(SPEC_IF_SENDABLE)[0]
         if sendable:
-            return spec
-    elif not any(any(call("has_wrapper_attr", name)) for name in _function_attributes()):
-        return async_env.get_attr("spec")[0]
+            return spec, None
     return _built_spec(async_env)
 
 
-def _function_attributes() -> list[str]:
-    """The attributes holding functions of :data:`~.rng.FUNCTION_WRAPPERS`, each once."""
-    return sorted({name for names in FUNCTION_WRAPPERS.values() for name in names})
+def _built_spec(async_env: AsyncVectorEnv) -> tuple[Any, str | None]:
+    """The spec of a sub-env built here by the first env function, then closed; and a why.
 
-
-def _built_spec(async_env: AsyncVectorEnv) -> Any:
-    """The spec of a sub-env built here by the vector env's first env function, then closed."""
+    The why: why the workers may not be asked for ``np_random``, read off that sub-env's
+    classes (:func:`~.workers.rng_unaskable`).
+    """
     env_fns = getattr(async_env, "env_fns", None)
     if not env_fns:
-        return None
+        return None, rng_unaskable(None)
     env = env_fns[0]()
     try:
-        return env.spec
+        return env.spec, rng_unaskable(env)
     finally:
         with contextlib.suppress(Exception):
             env.close()

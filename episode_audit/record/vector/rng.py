@@ -6,7 +6,8 @@
 - :class:`SubEnvRng` — where the recorder reads the states: from the sub-envs (in this process:
   ``SyncVectorEnv``, SB3's ``DummyVecEnv``; in workers, ``AsyncVectorEnv``, SB3's
   ``SubprocVecEnv``, through their :class:`ResetRngInfo`, whose answer cannot end a worker, else
-  through ``get_attr("np_random")``) or from the reset infos.
+  through ``get_attr("np_random")`` when it is known to be safe: :mod:`.workers`) or from the
+  reset infos.
 
 Which mode reads them when, and why: ``docs/format.md``, "Vector files".
 """
@@ -27,9 +28,9 @@ from ..notes import note
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
 from ..state import StateTargets, adapter_for_entry_point
+from .workers import RngUnsendable, unsendable
 
 __all__ = [
-    "FUNCTION_WRAPPERS",
     "RNG_STATE_IF_READABLE",
     "SPEC_IF_SENDABLE",
     "LocalSubEnvs",
@@ -45,15 +46,6 @@ SPEC_IF_SENDABLE = "episode_audit_spec"
 
 RNG_STATE_IF_READABLE = "episode_audit_rng_state"
 """The method of :class:`ResetRngInfo` giving the sub-env's RNG state as JSON text, or why not."""
-
-FUNCTION_WRAPPERS: dict[type[gym.Wrapper[Any, Any, Any, Any]], tuple[str, ...]] = {
-    gym.wrappers.TransformObservation: ("func",),
-    gym.wrappers.TransformAction: ("func",),
-    gym.wrappers.TransformReward: ("func",),
-    gym.wrappers.RecordVideo: ("episode_trigger", "step_trigger"),
-}
-"""Gymnasium's wrappers that take functions (often lambdas, which do not pickle), which their
-spec's kwargs hold, and the attributes that hold them: a worker sending such a spec ends."""
 
 
 class LocalSubEnvs(Protocol):
@@ -236,14 +228,26 @@ def _ask_remote(remote: Any, indices: Sequence[int]) -> dict[int, tuple[Any, Any
     return dict(enumerate(remote.call(RNG_STATE_IF_READABLE)))
 
 
-def _np_randoms(remote: Any, indices: Sequence[int]) -> dict[int, RngState | None]:
-    """The RNG states of sub-envs ``indices`` from each worker's ``np_random``."""
+def _np_randoms(
+    remote: Any, indices: Sequence[int], whys: dict[int, str | None]
+) -> dict[int, RngState | None]:
+    """The RNG states of sub-envs ``indices`` from each worker's ``np_random``.
+
+    Only those whose ``whys`` is ``None`` (known safe to ask) are asked: SB3's ``get_attr``
+    asks those only, Gymnasium's asks every one (each is then safe to ask).
+    """
+    ask = [i for i in indices if whys.get(i) is None]
+    out: dict[int, RngState | None] = dict.fromkeys(indices)
+    if not ask:
+        return out
     try:
-        generators = remote.get_attr("np_random")
+        if hasattr(remote, "env_is_wrapped"):  # (an SB3 VecEnv)
+            generators = dict(zip(ask, remote.get_attr("np_random", indices=ask), strict=True))
+        else:
+            generators = dict(enumerate(remote.get_attr("np_random")))
     except Exception:
-        return dict.fromkeys(indices)
-    out: dict[int, RngState | None] = {}
-    for i in indices:
+        return out
+    for i in ask:
         try:
             state = generators[i].bit_generator.state
             out[i] = state if isinstance(state, dict) else None
@@ -259,7 +263,12 @@ class SubEnvRng:
     (:meth:`from_info`, :class:`ResetRngInfo`); from then on only from the infos (``in_info``).
     """
 
-    def __init__(self, sync: LocalSubEnvs | None, async_env: RemoteSubEnvs | None) -> None:
+    def __init__(
+        self,
+        sync: LocalSubEnvs | None,
+        async_env: RemoteSubEnvs | None,
+        unaskable: str | None = None,
+    ) -> None:
         self.sync = sync
         self._async = async_env
         # the sub-envs' unwrapped envs, whose np_random resets draw from (Sync only)
@@ -269,6 +278,9 @@ class SubEnvRng:
         self.unread: dict[int, str] = {}
         # whether the workers' sub-envs answer RNG_STATE_IF_READABLE (a ResetRngInfo)
         self._remote_reads = _remote_reads(async_env)
+        # why an AsyncVectorEnv's workers may not be asked for np_random, from a sub-env built
+        # here (:func:`~.workers.rng_unaskable`; SB3's are asked first: ``unsendable``)
+        self._unaskable = unaskable
         # each sub-env's ResetRngInfo (Sync only, once installed): its states need no parsing
         self._issuers: list[ResetRngInfo | None] = []
 
@@ -361,7 +373,7 @@ class SubEnvRng:
         """
         self.unread = {}
         if not self._remote_reads:
-            return _np_randoms(self._async, indices)
+            return self._unwrapped_capture(indices)
         out: dict[int, RngState | None] = dict.fromkeys(indices)
         try:
             answers = _ask_remote(self._async, indices)
@@ -379,6 +391,27 @@ class SubEnvRng:
             else:
                 self.unread[i] = f"its ResetRngInfo could not read it: {why}"
         return out
+
+    def _unwrapped_capture(self, indices: Sequence[int]) -> dict[int, RngState | None]:
+        """The RNG states of workers' sub-envs ``indices`` without a :class:`ResetRngInfo`.
+
+        A worker is asked for ``np_random`` only when the answer is known to be safe: an SB3
+        VecEnv's workers are asked first (:func:`~.workers.unsendable`), an ``AsyncVectorEnv``'s
+        are known by a sub-env built here (:func:`~.workers.rng_unaskable`). Why a state is not
+        asked for goes to :attr:`unread`.
+        """
+        remote = self._async
+        if hasattr(remote, "env_is_wrapped"):
+            whys = unsendable(remote, RngUnsendable, indices)
+        else:
+            whys = dict.fromkeys(indices, self._unaskable)
+        self.unread = {
+            i: f"its worker was not asked for its np_random, which could end it: {why}; wrap "
+            "each sub-env in episode_audit.ResetRngInfo"
+            for i, why in whys.items()
+            if why is not None
+        }
+        return _np_randoms(remote, indices, whys)
 
     def from_info(self, info: Any, i: int | None = None) -> RngState | None:
         """The state :class:`ResetRngInfo` put in a reset info (then it is always used).
