@@ -159,6 +159,34 @@ def test_a_candidate_whose_every_episode_raised_regresses_on_error_rate(tmp_path
     assert any(n.startswith(f"group all: {why}: the rates (but error_rate)") for n in result.notes)
 
 
+def test_sides_whose_every_episode_raised_are_compared_on_error_rate_alone(
+    tmp_path: Path,
+) -> None:
+    """Both sides all errors: no regression to find (the rates are the same), the metrics over
+    ended episodes are not computed on either side, and a gate on them cannot be verified."""
+    base = crashing_cartpole(tmp_path / "base.mcap", 30, lambda seed: True)
+    crashed = crashing_cartpole(tmp_path / "crashed.mcap", 30, lambda seed: True)
+    result = compare([base], [crashed], gates=CompareGates(max_failure_increase=0.05))
+    (group,) = result.groups
+    errors = group.metric("error_rate")
+    assert (errors.baseline, errors.candidate, errors.verdict) == (1.0, 1.0, "underpowered")
+    why = (
+        "neither side has an ended episode (the baseline's 30 episodes: error 30; the "
+        "candidate's 30 episodes: error 30)"
+    )
+    for name in ("failure_rate", "truncation_rate", "return"):
+        metric = group.metric(name)
+        assert metric.baseline is None and metric.candidate is None, name
+        assert metric.not_comparable == why, name
+    (gate,) = group.gates
+    assert (
+        not gate.passed and gate.message == f"failure_rate: cannot be verified, {why} (group all)"
+    )
+    assert result.verdict == "underpowered" and not result.passed
+    ungated = compare([base], [crashed])
+    assert ungated.passed and ungated.verdict == "underpowered"
+
+
 def test_a_group_whose_candidate_episodes_all_raised_is_compared(tmp_path: Path) -> None:
     def record(name: str, config: str, crash: bool) -> Path:
         env = Crashing(gym.make("CartPole-v1", max_episode_steps=20), lambda seed: crash)
