@@ -33,7 +33,7 @@ from ..read.arguments import episode_index
 from ..read.inputs import Inputs, Unreadable, evidence_files, listed_inputs, open_all
 from ..read.opening import broken_link, viewer_export
 from ..read.storage import Source, is_url
-from .render import OutputFormat, safe
+from .render import OutputFormat, safe, wrapped
 
 if TYPE_CHECKING:
     from ..read import Evidence
@@ -135,13 +135,24 @@ def _stderr() -> Console:
 
 
 def _say(kind: str, message: object) -> None:
-    """One line on stderr: ``episode-audit: KIND: message`` (control characters escaped).
+    """A line on stderr: ``episode-audit: KIND: message`` (control characters escaped).
 
-    While a progress bar is shown, through its console: the line goes above the bar, on a line
-    of its own (another console would write it after the bar's text).
+    Wrapped at the terminal's width (or ``COLUMNS``'), never inside a word (:func:`wrapped`);
+    one line in a log. While a progress bar is shown, through its console: the line goes above
+    the bar, on a line of its own (another console would write it after the bar's text).
     """
     console = _live[-1] if _live else _stderr()
-    console.print(f"episode-audit: {kind}: {safe(message)}", markup=False, soft_wrap=True)
+    text = wrapped(f"episode-audit: {kind}: {safe(message)}", _text_width(console))
+    console.print(text, markup=False, soft_wrap=True)
+
+
+def _text_width(console: Console) -> int | None:
+    """The width text for people is wrapped at on ``console``: a terminal's, or ``COLUMNS``.
+
+    ``None`` (not wrapped) otherwise: a log's line is a message.
+    """
+    sized = console.is_terminal or os.environ.get("COLUMNS", "").isdigit()
+    return console.width if sized else None
 
 
 _live: list[Console] = []
@@ -373,6 +384,15 @@ def emit(output: Any) -> None:
         console.print(output, markup=False, highlight=False, soft_wrap=True)
     else:  # (not cropped: a renderable's text that must stay whole, e.g. JSON, says no_wrap)
         console.print(output, crop=False)
+
+
+def said(text: str) -> None:
+    """Print ``text``, a result's summary for people, on stdout, wrapped as :func:`note`'s.
+
+    Each line made safe; one that starts indented (a command to copy) kept whole.
+    """
+    lines = "\n".join(safe(line) for line in text.split("\n"))
+    emit(wrapped(lines, _text_width(_stdout())))
 
 
 def _version(ctx: typer.Context, value: bool) -> None:

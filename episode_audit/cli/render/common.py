@@ -51,6 +51,7 @@ __all__ = [
     "to_json",
     "unreadable_json",
     "versioned",
+    "wrapped",
 ]
 
 OutputFormat = Literal["table", "markdown", "json", "junit"]
@@ -335,6 +336,42 @@ def soft_broken(text: str, width: int) -> str:
             word = word[cut:]
         pieces[i] = "\n".join([*lines, word])
     return "".join(pieces)
+
+
+def wrapped(text: str, width: int | None) -> str:
+    r"""``text``'s lines wrapped at spaces to ``width`` cells, each next line indented two.
+
+    Words are never broken. A line with a word no line holds (a long path) stays one line, as
+    is a line that starts indented (a command to copy). ``None``: as it was.
+
+    >>> print(wrapped("episode-audit: note: a.mcap is unfinished: exported what it holds", 36))
+    episode-audit: note: a.mcap is
+      unfinished: exported what it holds
+    >>> print(wrapped("error: runs/a-very-long-folder/run.mcap: no such file", 24))
+    error: runs/a-very-long-folder/run.mcap: no such file
+    >>> print(wrapped("open it in Foxglove; a layout for it:\n  python -m layout run.mcap", 20))
+    open it in Foxglove;
+      a layout for it:
+      python -m layout run.mcap
+    """
+    if width is None:
+        return text
+    return "\n".join(_wrapped_line(line, width) for line in text.split("\n"))
+
+
+def _wrapped_line(line: str, width: int) -> str:
+    """One line of text as :func:`wrapped` makes it."""
+    indent, words = "  ", line.split()
+    if line[:1].isspace() or any(cell_len(indent + word) > width for word in words):
+        return line
+    lines = [""]
+    for word in words:
+        joined = f"{lines[-1]} {word}" if lines[-1].strip() else lines[-1] + word
+        if cell_len(joined) <= width:
+            lines[-1] = joined
+        else:
+            lines.append(indent + word)
+    return "\n".join(lines)
 
 
 def _last_break(points: re.Pattern[str], word: str, fits: int) -> int:
