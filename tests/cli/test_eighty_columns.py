@@ -6,6 +6,7 @@ A line may be longer only for a word no line holds (a long path), which is never
 from __future__ import annotations
 
 import shutil
+from itertools import pairwise
 from pathlib import Path
 
 import gymnasium as gym
@@ -97,3 +98,29 @@ def test_a_line_naming_a_path_no_line_holds_stays_one_line(here: Path) -> None:
     missing = deep / "cartpole_evaluation_run.mcap"
     _, err = _run(["check", str(missing)], 2)
     assert err == f"episode-audit: error: {missing}: no such file or directory\n"
+
+
+def test_a_table_s_title_wraps_at_the_terminal_s_width(here: Path) -> None:
+    """``show --episode``'s title was wrapped at its table's width (49 columns) at 80."""
+    _run(["record", "episode_audit/DoorOpen-v0", "--policy", "hacker", "--episodes", "1",
+          "--seed", "100", "--out", "door.mcap"], 0)  # fmt: skip
+    out, _ = _run(["show", "door.mcap", "--episode", "0", "--steps", "0:2"], 0)
+    title = out.splitlines()[0]
+    assert title.startswith("episode 0: failure (") and title.endswith(", seed 100"), out
+    assert max(map(cell_len, out.splitlines()[1:])) < cell_len(title), out  # (narrower table)
+
+
+NO_BREAK = "EvaluationOfTheCartPoleAgentTrainedWithProximalPolicyOptimisationOnNovemberTwentyNinth"
+
+
+def test_a_file_name_with_no_break_point_is_broken_between_words_whole(here: Path) -> None:
+    """A name with no space, ``-``, ``_``, ``/`` or ``.`` was cut where the column ended
+    (``EvaluationOfTheCartPoleAgentTrai`` / ``nedWith...``): it breaks between a small and a
+    capital letter now, every character kept."""
+    shutil.copy("base.mcap", f"{NO_BREAK}.mcap")
+    out, _ = _run(["report", f"{NO_BREAK}.mcap", "--by", "file"], 0)
+    lines = out.splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith(" Evaluation"))
+    pieces = [line.split()[0] for line in lines[at : at + 4]]
+    assert "".join(pieces) == f"{NO_BREAK}.mcap", out
+    assert all(a[-1].islower() and b[0].isupper() for a, b in pairwise(pieces)), pieces

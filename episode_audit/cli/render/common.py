@@ -135,8 +135,9 @@ def table(
 
 
 class FittedTable:
-    """A table that fits its console's width without breaking a word.
+    """A table that fits its console's width without breaking a word, under its title.
 
+    The title is a line of its own, wrapped at the console's width.
     Side by side when every column can keep its longest word (header included): columns wider
     than that are narrowed first, wrapping at spaces. With ``whole_cells``, side by side only
     when every cell keeps its line (a value such as ``13 (100.0% [77.2, 100.0])`` read in
@@ -160,9 +161,7 @@ class FittedTable:
 
     def _table(self, headers: Sequence[str], rows: Sequence[Sequence[str]]) -> Table:
         out = Table(
-            title=None if self.title is None else Text(safe(self.title), style="table.title"),
             box=box.SIMPLE_HEAD,
-            title_justify="left",
             pad_edge=False,
             collapse_padding=True,  # two spaces between columns, not three
         )
@@ -181,6 +180,9 @@ class FittedTable:
         ]
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        if self.title is not None:  # (a line of its own, wrapped at the console's width: as
+            # the table's title it was wrapped at the table's, a narrow one's over lines)
+            yield Text(safe(self.title), style="table.title")
         wide = self._table(self.headers, self.rows)
         if _fit(wide, console, options, self.whole_cells):
             yield wide
@@ -205,7 +207,11 @@ class FittedTable:
         yield out
 
     def __rich_measure__(self, console: Console, options: ConsoleOptions) -> Measurement:
-        return Measurement.get(console, options, self._table(self.headers, self.rows))
+        table = Measurement.get(console, options, self._table(self.headers, self.rows))
+        if self.title is None:
+            return table
+        title = Measurement.get(console, options, Text(safe(self.title)))
+        return Measurement(max(table.minimum, title.minimum), max(table.maximum, title.maximum))
 
 
 _FOLDED = 12
@@ -300,9 +306,10 @@ _SOFT_BREAK = re.compile(r"[=(,/:;](?=[^\s=(,/:;])|\.(?=[A-Za-z_])")
 not a number's)."""
 
 
-_WEAK_BREAK = re.compile(r"(?<=[^\W_])[-_](?=[^\W_])")
+_WEAK_BREAK = re.compile(r"(?<=[^\W_])[-_](?=[^\W_])|(?<=[a-z])(?=[A-Z])")
 """Where a word too long for its column is broken when no :data:`_SOFT_BREAK` point fits: after
-a ``-`` or ``_`` between two letters or digits (``cartpole-evaluation-`` / ``runs``)."""
+a ``-`` or ``_`` between two letters or digits (``cartpole-evaluation-`` / ``runs``), or between
+a small and a capital letter (``EvaluationOfCartPole`` / ``Agent``)."""
 
 
 def soft_broken(text: str, width: int) -> str:
@@ -310,7 +317,8 @@ def soft_broken(text: str, width: int) -> str:
 
     A line ends at the last such point that fits, else at the last :data:`_WEAK_BREAK` point
     that fits; where none fits, the word is cut at ``width``, and the rest of it is broken the
-    same way. The text still wraps at spaces.
+    same way: no character is left out (two file names that differ in the middle still read
+    apart). The text still wraps at spaces.
 
     >>> print(soft_broken("record with ending_rules=EndingRules(success_fn=...) or x", 30))
     record with ending_rules=EndingRules(
@@ -322,6 +330,9 @@ def soft_broken(text: str, width: int) -> str:
     >>> print(soft_broken("cartpole-evaluation-runs-november29/a.mcap", 33))
     cartpole-evaluation-runs-
     november29/a.mcap
+    >>> print(soft_broken("EvaluationOfCartPoleAgentTrainedWithPPO.mcap", 24))
+    EvaluationOfCartPole
+    AgentTrainedWithPPO.mcap
     """
     if width < 1:
         return text
