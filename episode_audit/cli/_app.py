@@ -33,7 +33,7 @@ from ..read.arguments import episode_index
 from ..read.inputs import Inputs, Unreadable, evidence_files, listed_inputs, open_all
 from ..read.opening import broken_link, viewer_export
 from ..read.storage import Source, is_url
-from .render import OutputFormat, safe
+from .render import OutputFormat, safe, wrapped
 
 if TYPE_CHECKING:
     from ..read import Evidence
@@ -42,15 +42,39 @@ if TYPE_CHECKING:
 class _Group(TyperGroup):
     """The command group; an argument with a metavar shows just that in ``--help``.
 
-    (Typer adds the Python type to an argument's name: ``paths <list[Path]>``.)
+    (Typer adds the Python type to an argument's name: ``paths <list[Path]>``.) Every
+    ``--help`` exits 0 when its reader has gone (:func:`_help_option`).
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        for command in self.commands.values():
+        for command in [self, *self.commands.values()]:
+            command.get_help_option = partial(_help_option, command.get_help_option)  # type: ignore[method-assign]
             for param in command.params:
                 if isinstance(param, TyperArgument) and param.metavar:
                     param.display_type_rich = lambda ctx: None  # type: ignore[method-assign]
+
+
+def _help_option(get: Callable[[Any], Any], ctx: Any) -> Any:
+    """A command's ``--help`` option (``get`` makes it) whose help, into a closed pipe, exits 0.
+
+    (``episode-audit --help | head -3``: Click exits 1 when stdout's reader has gone, which a
+    shell with ``set -o pipefail`` reads as a failure.)
+    """
+    option = get(ctx)
+    if option is not None and not getattr(option, "_quiet_when_closed", False):
+        option.callback = partial(_shown_or_closed, option.callback)
+        option._quiet_when_closed = True
+    return option
+
+
+def _shown_or_closed(show: Callable[..., Any], ctx: Any, *args: Any) -> Any:
+    """``show(ctx, ...)`` (it prints on stdout and exits 0); its reader gone: silent, exit 0."""
+    try:
+        return show(ctx, *args)
+    except BrokenPipeError:
+        _silenced(sys.stdout)
+        ctx.exit(0)
 
 
 app = typer.Typer(
@@ -82,15 +106,20 @@ class _Console(Console):
 
     def on_broken_pipe(self) -> None:
         self.quiet = True
-        try:
-            fd = self.file.fileno()
-        except (AttributeError, OSError, ValueError):  # (no descriptor: nothing to keep quiet)
-            return
-        null = os.open(os.devnull, os.O_WRONLY)
-        try:
-            os.dup2(null, fd)
-        finally:
-            os.close(null)
+        _silenced(self.file)
+
+
+def _silenced(stream: Any) -> None:
+    """``stream``'s file descriptor becomes ``/dev/null``: what is still written goes nowhere."""
+    try:
+        fd = stream.fileno()
+    except (AttributeError, OSError, ValueError):  # (no descriptor: nothing to keep quiet)
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, fd)
+    finally:
+        os.close(null)
 
 
 def _stdout() -> Console:
@@ -106,13 +135,24 @@ def _stderr() -> Console:
 
 
 def _say(kind: str, message: object) -> None:
-    """One line on stderr: ``episode-audit: KIND: message`` (control characters escaped).
+    """A line on stderr: ``episode-audit: KIND: message`` (control characters escaped).
 
-    While a progress bar is shown, through its console: the line goes above the bar, on a line
-    of its own (another console would write it after the bar's text).
+    Wrapped at the terminal's width (or ``COLUMNS``'), never inside a word (:func:`wrapped`);
+    one line in a log. While a progress bar is shown, through its console: the line goes above
+    the bar, on a line of its own (another console would write it after the bar's text).
     """
     console = _live[-1] if _live else _stderr()
-    console.print(f"episode-audit: {kind}: {safe(message)}", markup=False, soft_wrap=True)
+    text = wrapped(f"episode-audit: {kind}: {safe(message)}", _text_width(console))
+    console.print(text, markup=False, soft_wrap=True)
+
+
+def _text_width(console: Console) -> int | None:
+    """The width text for people is wrapped at on ``console``: a terminal's, or ``COLUMNS``.
+
+    ``None`` (not wrapped) otherwise: a log's line is a message.
+    """
+    sized = console.is_terminal or os.environ.get("COLUMNS", "").isdigit()
+    return console.width if sized else None
 
 
 _live: list[Console] = []
@@ -346,9 +386,18 @@ def emit(output: Any) -> None:
         console.print(output, crop=False)
 
 
-def _version(value: bool) -> None:
+def said(text: str) -> None:
+    """Print ``text``, a result's summary for people, on stdout, wrapped as :func:`note`'s.
+
+    Each line made safe; one that starts indented (a command to copy) kept whole.
+    """
+    lines = "\n".join(safe(line) for line in text.split("\n"))
+    emit(wrapped(lines, _text_width(_stdout())))
+
+
+def _version(ctx: typer.Context, value: bool) -> None:
     if value:
-        typer.echo(f"episode-audit {__version__}")
+        _shown_or_closed(lambda ctx: typer.echo(f"episode-audit {__version__}"), ctx)
         raise typer.Exit()
 
 

@@ -19,14 +19,13 @@ from ._app import (
     _readable,
     app,
     collect,
-    emit,
     fail,
     interruptible,
     jobs_for,
     note,
     progress_bar,
+    said,
 )
-from .render import safe
 
 
 @app.command()
@@ -105,8 +104,7 @@ def export(
         fail(str(exc))
     for line in result.notes:
         note(line)
-    for line in result.summary().splitlines():
-        emit(safe(line))
+    said(result.summary())
     if unreadable or result.failed:
         raise typer.Exit(EXIT_USAGE)
 
@@ -143,5 +141,4 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
         fail(str(exc))
     for line in result.notes:
         note(line)
-    for line in result.summary().splitlines():
-        emit(safe(line))
+    said(result.summary())

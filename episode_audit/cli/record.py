@@ -9,8 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import ImportOption, app, emit, fail, interruptible, progress_bar
-from .render import safe
+from ._app import ImportOption, app, fail, interruptible, progress_bar, said
 
 if TYPE_CHECKING:
     from ..read.storage import RemoteFile
@@ -110,7 +109,7 @@ def record(
             )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    emit(safe(summary))
+    said(str(summary))
     if target is not None:
         from ..read.storage import upload
 
@@ -118,7 +117,7 @@ def record(
             upload(out, target)
         except EpisodeAuditError as exc:
             fail(f"{exc} (the recording is kept in {out})")
-        emit(safe(f"uploaded {out} to {target}"))
+        said(f"uploaded {out} to {target}")
 
 
 def _upload_target(url: str, out: Path) -> RemoteFile:

@@ -7,8 +7,7 @@ from typing import Annotated
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import EXIT_FINDINGS, app, emit, existing, fail, interruptible
-from .render import safe
+from ._app import EXIT_FINDINGS, app, existing, fail, interruptible, said
 
 
 @app.command()
@@ -45,6 +44,6 @@ def recover(
             result = run_recover(path, out, overwrite=overwrite, overwrite_option="--overwrite")
         except EpisodeAuditError as exc:
             fail(str(exc))
-    emit(safe(result.summary()))
+    said(result.summary())
     if result.lost:
         raise typer.Exit(EXIT_FINDINGS)

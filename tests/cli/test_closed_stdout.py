@@ -65,3 +65,13 @@ def test_a_closed_stdout_with_an_unreadable_input_exits_2(tmp_path: Path) -> Non
     assert code == 2
     assert [line.partition(":")[0] for line in err.splitlines()] == ["episode-audit"], err
     assert "bogus.mcap" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["--help"], ["--version"], ["check", "--help"], ["compare", "--help"], ["record", "--help"]],
+    ids=" ".join,
+)
+def test_help_into_a_closed_pipe_exits_0(args: list[str], tmp_path: Path) -> None:
+    """``episode-audit --help | true`` exited 1 (Click's own handling of a broken pipe)."""
+    assert _closed_stdout(args, tmp_path / "summary.md") == (0, "")

@@ -16,6 +16,7 @@ from .common import (
     to_json,
     unreadable_json,
     versioned,
+    wrapped,
 )
 from .junit import JUnitCase, JUnitStatus, junit_xml
 from .replay import replay_cases, replay_output
@@ -46,4 +47,5 @@ __all__ = [
     "to_json",
     "unreadable_json",
     "versioned",
+    "wrapped",
 ]

@@ -51,6 +51,7 @@ __all__ = [
     "to_json",
     "unreadable_json",
     "versioned",
+    "wrapped",
 ]
 
 OutputFormat = Literal["table", "markdown", "json", "junit"]
@@ -134,8 +135,9 @@ def table(
 
 
 class FittedTable:
-    """A table that fits its console's width without breaking a word.
+    """A table that fits its console's width without breaking a word, under its title.
 
+    The title is a line of its own, wrapped at the console's width.
     Side by side when every column can keep its longest word (header included): columns wider
     than that are narrowed first, wrapping at spaces. With ``whole_cells``, side by side only
     when every cell keeps its line (a value such as ``13 (100.0% [77.2, 100.0])`` read in
@@ -159,9 +161,7 @@ class FittedTable:
 
     def _table(self, headers: Sequence[str], rows: Sequence[Sequence[str]]) -> Table:
         out = Table(
-            title=None if self.title is None else Text(safe(self.title), style="table.title"),
             box=box.SIMPLE_HEAD,
-            title_justify="left",
             pad_edge=False,
             collapse_padding=True,  # two spaces between columns, not three
         )
@@ -180,6 +180,9 @@ class FittedTable:
         ]
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        if self.title is not None:  # (a line of its own, wrapped at the console's width: as
+            # the table's title it was wrapped at the table's, a narrow one's over lines)
+            yield Text(safe(self.title), style="table.title")
         wide = self._table(self.headers, self.rows)
         if _fit(wide, console, options, self.whole_cells):
             yield wide
@@ -204,7 +207,11 @@ class FittedTable:
         yield out
 
     def __rich_measure__(self, console: Console, options: ConsoleOptions) -> Measurement:
-        return Measurement.get(console, options, self._table(self.headers, self.rows))
+        table = Measurement.get(console, options, self._table(self.headers, self.rows))
+        if self.title is None:
+            return table
+        title = Measurement.get(console, options, Text(safe(self.title)))
+        return Measurement(max(table.minimum, title.minimum), max(table.maximum, title.maximum))
 
 
 _FOLDED = 12
@@ -299,9 +306,10 @@ _SOFT_BREAK = re.compile(r"[=(,/:;](?=[^\s=(,/:;])|\.(?=[A-Za-z_])")
 not a number's)."""
 
 
-_WEAK_BREAK = re.compile(r"(?<=[^\W_])[-_](?=[^\W_])")
+_WEAK_BREAK = re.compile(r"(?<=[^\W_])[-_](?=[^\W_])|(?<=[a-z])(?=[A-Z])")
 """Where a word too long for its column is broken when no :data:`_SOFT_BREAK` point fits: after
-a ``-`` or ``_`` between two letters or digits (``cartpole-evaluation-`` / ``runs``)."""
+a ``-`` or ``_`` between two letters or digits (``cartpole-evaluation-`` / ``runs``), or between
+a small and a capital letter (``EvaluationOfCartPole`` / ``Agent``)."""
 
 
 def soft_broken(text: str, width: int) -> str:
@@ -309,7 +317,8 @@ def soft_broken(text: str, width: int) -> str:
 
     A line ends at the last such point that fits, else at the last :data:`_WEAK_BREAK` point
     that fits; where none fits, the word is cut at ``width``, and the rest of it is broken the
-    same way. The text still wraps at spaces.
+    same way: no character is left out (two file names that differ in the middle still read
+    apart). The text still wraps at spaces.
 
     >>> print(soft_broken("record with ending_rules=EndingRules(success_fn=...) or x", 30))
     record with ending_rules=EndingRules(
@@ -321,6 +330,9 @@ def soft_broken(text: str, width: int) -> str:
     >>> print(soft_broken("cartpole-evaluation-runs-november29/a.mcap", 33))
     cartpole-evaluation-runs-
     november29/a.mcap
+    >>> print(soft_broken("EvaluationOfCartPoleAgentTrainedWithPPO.mcap", 24))
+    EvaluationOfCartPole
+    AgentTrainedWithPPO.mcap
     """
     if width < 1:
         return text
@@ -335,6 +347,42 @@ def soft_broken(text: str, width: int) -> str:
             word = word[cut:]
         pieces[i] = "\n".join([*lines, word])
     return "".join(pieces)
+
+
+def wrapped(text: str, width: int | None) -> str:
+    r"""``text``'s lines wrapped at spaces to ``width`` cells, each next line indented two.
+
+    Words are never broken. A line with a word no line holds (a long path) stays one line, as
+    is a line that starts indented (a command to copy). ``None``: as it was.
+
+    >>> print(wrapped("episode-audit: note: a.mcap is unfinished: exported what it holds", 36))
+    episode-audit: note: a.mcap is
+      unfinished: exported what it holds
+    >>> print(wrapped("error: runs/a-very-long-folder/run.mcap: no such file", 24))
+    error: runs/a-very-long-folder/run.mcap: no such file
+    >>> print(wrapped("open it in Foxglove; a layout for it:\n  python -m layout run.mcap", 20))
+    open it in Foxglove;
+      a layout for it:
+      python -m layout run.mcap
+    """
+    if width is None:
+        return text
+    return "\n".join(_wrapped_line(line, width) for line in text.split("\n"))
+
+
+def _wrapped_line(line: str, width: int) -> str:
+    """One line of text as :func:`wrapped` makes it."""
+    indent, words = "  ", line.split()
+    if line[:1].isspace() or any(cell_len(indent + word) > width for word in words):
+        return line
+    lines = [""]
+    for word in words:
+        joined = f"{lines[-1]} {word}" if lines[-1].strip() else lines[-1] + word
+        if cell_len(joined) <= width:
+            lines[-1] = joined
+        else:
+            lines.append(indent + word)
+    return "\n".join(lines)
 
 
 def _last_break(points: re.Pattern[str], word: str, fits: int) -> int:

@@ -16,7 +16,6 @@ from .common import (
     fmt_number,
     markdown_table,
     markdown_text,
-    safe,
     table,
     to_json,
     unreadable_json,
@@ -150,10 +149,7 @@ def compare_output(
     # no table; else the vertical layout)
     out: list[RenderableType] = []
     for title, headers, body in sections:
-        # (the title a line of its own, wrapped at the console's width, not at the table's: a
-        # two-column table's would break over three lines)
-        out.append(Text(safe(title), style="table.title"))
-        out.append(table(None, headers, body, whole_cells=headers is COMPARE_HEADERS))
+        out.append(table(title, headers, body, whole_cells=headers is COMPARE_HEADERS))
         if headers is COMPARE_HEADERS and result.reward_notes:  # (a blank line, as a table's)
             out.append(Text("\n".join(result.reward_notes) + "\n"))
     return Group(*out)
