@@ -10,6 +10,7 @@ Run it with ``python -m episode_audit.demo [OUT_DIR]``.
 
 from __future__ import annotations
 
+import argparse
 import shlex
 import shutil
 import sys
@@ -69,8 +70,21 @@ def _made_before(folder: Path) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the demo; returns 0 when every step behaved as the demo expects (2: a bad folder)."""
-    args = sys.argv[1:] if argv is None else argv
-    out = Path(args[0] if args else "demo-out")
+    parser = argparse.ArgumentParser(
+        prog="python -m episode_audit.demo",
+        description=(
+            "Record the reference MuJoCo tasks with a competent and a reward-hacking policy, "
+            "then check, replay, report and export the files, through the real CLI."
+        ),
+    )
+    parser.add_argument(
+        "out",
+        nargs="?",
+        default="demo-out",
+        metavar="OUT_DIR",
+        help="the folder for the evidence files (default: demo-out; OUT_DIR-viewers too)",
+    )
+    out = Path(parser.parse_args(sys.argv[1:] if argv is None else argv).out)
     viewers = out.parent / f"{out.name}-viewers"
     for folder in (out, viewers):
         why = fresh(folder)

@@ -93,3 +93,18 @@ def test_the_demo_deletes_only_its_own_folders(
     assert [p.name for p in older.iterdir()] == [demo.MARK]
     (older / "grasp-hacker.mcap").write_bytes(b"")
     assert demo.fresh(older) is None and [p.name for p in older.iterdir()] == [demo.MARK]
+
+
+def test_the_demo_s_help_is_help_not_a_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``python -m episode_audit.demo --help`` took ``--help`` for its folder and recorded."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as shown:
+        demo.main(["--help"])
+    assert shown.value.code == 0
+    assert capsys.readouterr().out.startswith("usage: python -m episode_audit.demo [-h] [OUT_DIR]")
+    with pytest.raises(SystemExit) as refused:
+        demo.main(["a", "b"])
+    assert refused.value.code == 2 and "unrecognized arguments: b" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
