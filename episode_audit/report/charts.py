@@ -39,8 +39,9 @@ MAX_DOTS = 200
 """The most episodes a distribution row draws as dots (the box is of them all)."""
 OUTCOME_COLOURS = {"success": "#2e7d32", "failure": "#c62828", "truncated": "#f9a825"}
 _MAX_LABEL = 40
-_MISSING_GLYPH = r"Glyph \d+ .* missing from font"
-"""matplotlib's warning on a character its fonts lack (the SVG still holds it as text)."""
+_MISSING_GLYPH = r"Glyph \d+ .* missing from (current )?font"
+"""matplotlib's warning on a character its fonts lack (the SVG still holds it as text): "missing
+from font(s) ..." in matplotlib 3.9 and later, "missing from current font." before."""
 _RC: dict[Any, Any] = {
     "svg.fonttype": "none",  # text as <text>, escaped by matplotlib's XML writer
     "svg.hashsalt": "episode-audit",  # the same ids for the same report
