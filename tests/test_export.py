@@ -10,7 +10,9 @@ import pytest
 
 from episode_audit import ConfigurationError, NotEvidenceError, open_evidence
 from episode_audit.export import export
+from tests.support.disk import fill_disk
 from tests.support.mypy_run import mypy_output
+from tests.support.viewer_files import random_cartpole_file
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
@@ -138,6 +140,30 @@ def test_a_failed_export_leaves_no_folder_it_made(tmp_path: Path) -> None:
     with pytest.raises(NotEvidenceError, match=rf"^{re.escape(str(bad))}: "):
         export([FIXTURES / "clean.mcap", bad], tmp_path / "partial")
     assert [p.name for p in (tmp_path / "partial").iterdir()] == ["clean.steps.parquet"]
+
+
+def test_a_full_disk_is_one_error_naming_the_file_and_leaves_nothing(
+    small_disk: Path, tmp_path: Path
+) -> None:
+    source = random_cartpole_file(tmp_path / "run.mcap", 400)
+    filler = fill_disk(small_disk)
+    for out in (small_disk / "exp", small_disk / "new" / "exp"):
+        with pytest.raises(
+            ConfigurationError,
+            match=rf"^{re.escape(str(out / 'run.steps.parquet'))}: cannot write it: No space "
+            "left on device; free some space there or choose another output path$",
+        ):
+            export([source], out)
+        assert sorted(small_disk.iterdir()) == [filler]  # no half-written file, no folder
+    filler.unlink()
+    # the episodes file refused (the steps files took the last of the disk): none of it left
+    exported = export([source], tmp_path / "exp")
+    steps_size = exported.steps_files[0].stat().st_size
+    with open(filler, "wb") as f:
+        f.write(b"\0" * (2 * 2**20 - steps_size - 4096))
+    with pytest.raises(ConfigurationError, match=r"episodes\.parquet: cannot write it: No space"):
+        export([source], small_disk / "exp")
+    assert not (small_disk / "exp" / "episodes.parquet").exists()
 
 
 def test_mypy_takes_a_target_held_in_a_str(tmp_path: Path) -> None:

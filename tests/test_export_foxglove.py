@@ -20,10 +20,12 @@ from episode_audit import ConfigurationError, EvidenceError, NotEvidenceError, o
 from episode_audit.cli import app
 from episode_audit.export import export
 from episode_audit.export._values import NONFINITE_NULL
+from tests.support.disk import fill_disk
 from tests.support.viewer_files import (
     aec_file,
     camera_file,
     leaves,
+    random_cartpole_file,
     recorded_resets,
     vector_file,
 )
@@ -353,3 +355,18 @@ def test_an_export_given_as_evidence_is_named_and_what_to_do_said(tmp_path: Path
     result = CliRunner().invoke(app, ["check", str(folder), "--format", "json"])
     assert result.exit_code == 0, result.stderr
     assert json.loads(result.stdout)["files"] == [str(source)]
+
+
+def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: Path) -> None:
+    source = random_cartpole_file(tmp_path / "run.mcap", 400)
+    filler = fill_disk(small_disk)
+    for out in (small_disk / "run.fox.mcap", small_disk / "new" / "run.fox.mcap"):
+        with pytest.raises(
+            ConfigurationError,
+            match=rf"^{re.escape(str(out))}: cannot write it: No space left on device; free "
+            "some space there or choose another output path$",
+        ):
+            export([source], out, to="foxglove")
+        assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
+    result = CliRunner().invoke(app, ["export", str(source), "--to", "foxglove", "-o", str(out)])
+    assert result.exit_code == 2 and "Traceback" not in result.output

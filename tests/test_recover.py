@@ -37,6 +37,7 @@ from episode_audit.read import iter_records
 from episode_audit.recover.files import temporary
 from episode_audit.replay import replay as replay_files
 from tests import kill_harness
+from tests.support.disk import fill_disk
 from tests.support.hostile import replace_column, rewrite
 from tests.support.killing import how_long, killed_midway
 from tests.support.viewer_files import random_cartpole_file
@@ -876,3 +877,21 @@ def test_a_torn_file_with_nothing_to_recover_writes_no_output(tmp_path: Path) ->
     code, _, err = run("recover", str(torn), "-o", str(kept), "--overwrite")
     assert code == 2 and kept.read_bytes() == b"an earlier output", err
     assert sorted(p.name for p in tmp_path.iterdir()) == [kept.name, torn.name]
+
+
+def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: Path) -> None:
+    finished = random_cartpole_file(tmp_path / "run.mcap", 2000, block_steps=64)
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(finished.read_bytes()[:-100])  # (no footer, no summary: rewritten)
+    filler = fill_disk(small_disk)
+    for src in (finished, torn):  # copied unchanged; rewritten
+        for out in (small_disk / "fixed.mcap", small_disk / "new" / "fixed.mcap"):
+            with pytest.raises(
+                ConfigurationError,
+                match=rf"^{re.escape(str(out))}: cannot write it: No space left on device; "
+                "free some space there or choose another output path$",
+            ):
+                recover(src, out)
+            assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
+    result = CliRunner().invoke(app, ["recover", str(torn), "-o", str(out)])
+    assert result.exit_code == 2 and "Traceback" not in result.output

@@ -30,6 +30,7 @@ from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import unstarted
 from ..read import Evidence, open_evidence
+from ..record.published import no_space
 from ._output import ViewerExport, missing, need_pillow, staged
 from ._values import (
     NONFINITE_NULL,
@@ -88,15 +89,45 @@ def export_foxglove(
         options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
         writer = _open(foxglove, temporary, out, context, options)
         try:
-            writer.write_metadata(fmt.METADATA_EXPORT, _metadata(ev, source))
-            named = streams(ev)
-            order = _InOrder(_endings(foxglove, context, ev, named, result))
-            _Steps(foxglove, context, ev, named, result, order).write(progress)
-            result.paths += ["/episodes", "/log"]
-        finally:
+            try:
+                writer.write_metadata(fmt.METADATA_EXPORT, _metadata(ev, source))
+                named = streams(ev)
+                order = _InOrder(_endings(foxglove, context, ev, named, result))
+                _Steps(foxglove, context, ev, named, result, order).write(progress)
+                result.paths += ["/episodes", "/log"]
+            except BaseException:
+                _close_after(writer)
+                raise
             writer.close()
+        except RuntimeError as exc:
+            failure = _sdk_failure(out, exc)
+            if failure is None:
+                raise
+            raise failure from None
     result.paths.sort()
     return result
+
+
+def _sdk_failure(out: Path, exc: RuntimeError) -> ConfigurationError | None:
+    """The one-line error for foxglove-sdk's own error ``exc`` (``FoxgloveError``) writing ``out``.
+
+    A disk with no space left says so (:func:`~episode_audit.record.published.no_space`); any
+    other failure of the SDK's is said as the SDK says it. ``None``: not the SDK's error.
+    """
+    if not str(exc).startswith("FoxgloveError"):
+        return None
+    return no_space(out, exc) or ConfigurationError(f"{out}: foxglove-sdk cannot write it: {exc}")
+
+
+def _close_after(writer: Any) -> None:
+    """Close ``writer`` after a failure (else the SDK panics as it drops it at exit).
+
+    The SDK's error closing it (the same failure, again) is not raised.
+    """
+    try:
+        writer.close()
+    except RuntimeError:
+        pass
 
 
 def _open(foxglove: Any, temporary: Path, out: Path, context: Any, options: Any) -> Any:

@@ -9,9 +9,11 @@ input paths only, never from file content. Columns and queries: ``docs/cli.md`` 
 
 from __future__ import annotations
 
+import itertools
 import os
 import tempfile
-from collections.abc import Callable, Container, Iterable, Sequence
+from collections.abc import Callable, Container, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -27,7 +29,8 @@ from ..format.records import unstarted
 from ..read import open_evidence
 from ..read.arguments import path_list
 from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
-from ..record.lock import output_kind
+from ..record.lock import output_kind, remove_empty
+from ..record.published import no_space
 from ._output import episode_count, refuse_evidence
 
 __all__ = ["ExportResult", "export"]
@@ -160,7 +163,7 @@ def export(
             sources, out, overwrite, overwrite_option, progress, on_error, jobs, ray_address
         )
     except BaseException:
-        _remove_empty(made)  # (a failed export leaves no folder of its own making behind)
+        remove_empty(made)  # (a failed export leaves no folder of its own making behind)
         raise
 
 
@@ -204,7 +207,8 @@ def _export_local(
         if episode_tables
         else pa.table({})
     )
-    pq.write_table(episodes, episodes_file, compression="zstd")
+    with _written(episodes_file):
+        pq.write_table(episodes, episodes_file, compression="zstd")
     result.episodes = episodes.num_rows
     result.unstarted = int(unstarted(episodes).sum()) if episodes.num_rows else 0
     if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
@@ -313,15 +317,6 @@ def _output_directory(out: Path) -> tuple[Path, list[Path]]:
     return out, made
 
 
-def _remove_empty(made: list[Path]) -> None:
-    """Remove the folders ``made`` (outermost first) that are empty, innermost first."""
-    for folder in reversed(made):
-        try:
-            folder.rmdir()
-        except OSError:  # not empty (an input exported before the failure), or gone
-            return
-
-
 def _refuse_special_files(targets: Sequence[Path]) -> None:
     """An output name taken by a directory, FIFO, device or socket is a usage error.
 
@@ -400,32 +395,58 @@ def _export_one(source: Source, target: Path, progress: Callable[[int], None] | 
     agent = episodes.column("agent").combine_chunks()
     writer: pq.ParquetWriter | None = None
     steps = 0
-    try:
-        for batch in ev.iter_step_batches():
+    batches = ev.iter_step_batches()
+    first = next(batches, None)  # (read before the target is touched: a bad input leaves it)
+    with _written(target):
+        for batch in batches if first is None else itertools.chain([first], batches):
             table = _with_file(batch, label)
             if multi:
                 table = _with_stream(table, episodes, env_index, agent)
             table = _with_run(table, run_columns)
             if writer is None:
                 writer = pq.ParquetWriter(target, table.schema, compression="zstd")
-            writer.write_table(table)
+            try:
+                writer.write_table(table)
+            except BaseException:
+                _close_quietly(writer)
+                raise
             steps += table.num_rows
             if progress is not None:
                 progress(table.num_rows)
-    except BaseException:
         if writer is not None:
             writer.close()
-            target.unlink(missing_ok=True)
-        raise
-    if writer is not None:
-        writer.close()
-    else:  # no steps at all: still write an empty, typed file
-        empty = _with_file(ev.steps_schema.empty_table(), label)
-        pq.write_table(_with_run(empty, run_columns), target)
+        else:  # no steps at all: still write an empty, typed file
+            empty = _with_file(ev.steps_schema.empty_table(), label)
+            pq.write_table(_with_run(empty, run_columns), target)
     cut_off = episodes.column("ended").to_pylist().count(False) if unfinished else 0
     return _Exported(
         _with_run(_with_file(episodes, label), run_columns), steps, unfinished, cut_off
     )
+
+
+@contextmanager
+def _written(target: Path) -> Iterator[None]:
+    """Write ``target`` in the block: on any failure no ``target`` is left behind.
+
+    A disk with no space left is a :class:`~episode_audit.errors.ConfigurationError` naming
+    ``target`` (:func:`~episode_audit.record.published.no_space`).
+    """
+    try:
+        yield
+    except BaseException as exc:
+        target.unlink(missing_ok=True)  # (half written: it must not look complete)
+        full = no_space(target, exc) if isinstance(exc, OSError) else None
+        if full is None:
+            raise
+        raise full from None
+
+
+def _close_quietly(writer: pq.ParquetWriter) -> None:
+    """Close ``writer`` after a failure; its own failure then (the same, again) is not raised."""
+    try:
+        writer.close()
+    except OSError:
+        pass
 
 
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:

@@ -16,6 +16,7 @@ import struct
 import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import IO, Any, Final, NamedTuple
 
 import pyarrow as pa
@@ -45,6 +46,7 @@ from .layout import (
     _Unreadable,
 )
 from .liveness import Holder, probe, still_written
+from .resync import next_intact
 from .storage import RemoteFile, Source, as_source, file_size, open_source
 
 
@@ -72,13 +74,27 @@ def open_evidence(
     episode_audit.errors.EvidenceError: no/such/file.mcap: cannot open: No such file or directory
     """
     path = path_argument("path", path)
-    p = as_source(path, filesystem=filesystem, storage_options=storage_options)
+    return _open(as_source(path, filesystem=filesystem, storage_options=storage_options))
+
+
+def open_own_output(path: Path) -> Evidence:
+    """Open the unfinished file this process is writing itself (a recovery's output).
+
+    As :func:`open_evidence`, but the file's lock is this process's own writer, never told as
+    a live recorder's: the file reads as the torn file it would be if the writer stopped now.
+    """
+    return _open(as_source(path), live=False)
+
+
+def _open(p: Source, *, live: bool = True) -> Evidence:
+    """:func:`open_evidence` of ``p``; ``live``: a file without a summary may be a recorder's."""
     with _open_mcap(p) as f:
         damage = _summary_damage(f)
         f.seek(0)
         indexed = None if damage else _open_indexed(f, p)
         if indexed is None:
-            writer = _writer(f, p)  # a file without a summary: torn, or still being written
+            # a file without a summary: torn, or still being written
+            writer = _writer(f, p) if live else None
             f.seek(0)
             ev = _open_linear(f, p, past_data_end=damage is None, writer=writer)
             ev.summary_damage = damage
@@ -308,15 +324,10 @@ def _open_indexed(f: IO[bytes], path: Source) -> Evidence | None:
             continue
         if not _footer_crc(f):  # a summary nothing vouches for: scan the data section instead
             return None
-        what = f"the {index.name} metadata record at byte {index.offset} is garbled"
         if index.name == fmt.METADATA_RUN:
-            raise CorruptEvidenceError(
-                path,
-                f"{what}: the spaces, env and settings of the run it held are lost, so the "
-                "file cannot be read as evidence",
-            )
+            raise _garbled_run(path, index.offset)
         if index.name == fmt.METADATA_RUN_END:
-            run_end_damage = what
+            run_end_damage = f"the {index.name} metadata record at byte {index.offset} is garbled"
     run, run_end = _parse_run(path, metadata, header)
     refs = sorted(
         (
@@ -341,6 +352,15 @@ def _open_indexed(f: IO[bytes], path: Source) -> Evidence | None:
     )
     ev.run_end_damage = run_end_damage
     return ev
+
+
+def _garbled_run(path: Source, offset: int) -> CorruptEvidenceError:
+    """The error for a file whose run metadata record, at byte ``offset``, is garbled."""
+    return CorruptEvidenceError(
+        path,
+        f"the {fmt.METADATA_RUN} metadata record at byte {offset} is garbled: the spaces, env "
+        "and settings of the run it held are lost, so the file cannot be read as evidence",
+    )
 
 
 def _metadata_at(f: IO[bytes], offset: int, name: str) -> Metadata | None:
@@ -507,20 +527,72 @@ def _open_linear(
         except StopIteration:
             break
         except _CUT_SHORT:
+            _refuse_garbled_run(f, scan, start, size)
             scan.torn = _cut_short(start, size, scan.footer)
             break
         except Exception:
+            _refuse_garbled_run(f, scan, start, size)
             scan.torn = (
                 f"torn at byte {start} of {size}: the record there is cut short or garbled; "
                 "the rest was dropped"
             )
             break
         good_end = f.tell()
+        if isinstance(record, Metadata) and _declared_end(f, start, good_end) != good_end:
+            # (read from fewer bytes than its length declares: the file ends inside it)
+            _refuse_garbled_run(f, scan, start, size)
+            scan.torn = _cut_short(start, size, scan.footer)
+            break
         if isinstance(record, DataEnd) and not past_data_end:
             scan.footer = True  # (the footer was found already, behind the damaged summary)
             break
         scan.add(record, start)
     return _scanned_evidence(scan, size, writer)
+
+
+def _declared_end(f: IO[bytes], start: int, at: int) -> int:
+    """Where the record at ``start`` ends by its declared length (``f`` is left at ``at``)."""
+    f.seek(start)
+    head = f.read(_RECORD_HEAD.size)
+    f.seek(at)
+    if len(head) < _RECORD_HEAD.size:
+        return -1
+    length: int = _RECORD_HEAD.unpack(head)[1]
+    return start + _RECORD_HEAD.size + length
+
+
+def _refuse_garbled_run(f: IO[bytes], scan: _Scan, start: int, size: int) -> None:
+    """Raise when the record at ``start`` that a scan cannot read is a garbled run metadata record.
+
+    It is one when it is a metadata record where the run metadata goes (before any other
+    metadata or chunk; or named so) and an intact record follows it: then the file was not torn
+    there (a recorder killed as it started leaves nothing after it), its length or fields are
+    garbled.
+    """
+    if fmt.METADATA_RUN in scan.metadata:
+        return
+    at = f.tell()
+    try:
+        f.seek(start)
+        head = f.read(_RECORD_HEAD.size + 4)
+        if len(head) < _RECORD_HEAD.size or head[0] != _OP_METADATA:
+            return
+        first = not scan.metadata and not scan.chunks
+        if not (first or _named(f, head, fmt.METADATA_RUN)):
+            return
+        if next_intact(f, Path(str(scan.path)), start + 1, size) is None:
+            return  # torn there: nothing intact after it
+    finally:
+        f.seek(at)
+    raise _garbled_run(scan.path, start)
+
+
+def _named(f: IO[bytes], head: bytes, name: str) -> bool:
+    """Whether the metadata record whose head (and name length) is ``head`` is named ``name``."""
+    if len(head) < _RECORD_HEAD.size + 4:
+        return False
+    (length,) = struct.unpack_from("<I", head, _RECORD_HEAD.size)
+    return length == len(name) and f.read(length) == name.encode()
 
 
 def _cut_short(start: int, size: int, footer: bool) -> str | None:

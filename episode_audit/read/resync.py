@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import IO
 
 from ..errors import CorruptEvidenceError
-from .chunks import MAX_RECORD_BYTES, _ChunkRef, _decompress, _read_chunk_record
+from . import chunks
+from .chunks import _ChunkRef, _decompress, _read_chunk_record
 from .layout import _OP_CHUNK, _OP_METADATA, _RECORD_HEAD, _top_level, _Unreadable
 
 __all__ = ["Resync", "index_framing_holds", "next_intact"]
@@ -88,7 +89,7 @@ def _intact(f: IO[bytes], path: Path, pos: int, size: int) -> bool:
     if len(head) < _RECORD_HEAD.size:
         return False
     opcode, length = _RECORD_HEAD.unpack(head)
-    if length > MAX_RECORD_BYTES or pos + _RECORD_HEAD.size + length > size:
+    if length > chunks.MAX_RECORD_BYTES or pos + _RECORD_HEAD.size + length > size:
         return False
     if opcode == _OP_CHUNK:
         return _chunk_holds(f, path, pos, length)

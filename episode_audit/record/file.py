@@ -337,6 +337,11 @@ class EvidenceFile:
         self.troubles = 0  # the recorder's own failures, said in the run-end record
         self.first_trouble: str | None = None
         self.pid = os.getpid()  # the process recording: a fork of it writes nothing here
+        # held: a recorder is amid the rows of one env step (a Parallel step's agents), whose
+        # auto_flush() waits for its end, so a torn file never splits the step; flush_wanted:
+        # the auto_flush() it then makes (its `background`; None: none)
+        self.held = False
+        self.flush_wanted: bool | None = None
         if owner is not None:
             _OPEN_RECORDERS.add(owner)
         self._owner = owner
@@ -516,8 +521,15 @@ class EvidenceFile:
         """:meth:`flush` because a block filled or ``flush_every_s`` passed (``background``).
 
         This runs inside the training loop: a failure is the recorder's trouble (warned once),
-        never the loop's.
+        never the loop's. While :attr:`held`, it only notes that it is wanted (``flush_wanted``,
+        in the background only if every call wanted it so): the recorder holding it calls it
+        again once its step's rows are all in.
         """
+        if self.held:
+            wanted = self.flush_wanted
+            self.flush_wanted = background and wanted is not False
+            return
+        self.flush_wanted = None
         try:
             self.flush(background=background)
         except Exception as exc:

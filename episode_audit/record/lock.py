@@ -37,6 +37,7 @@ __all__ = [
     "output_kind",
     "refuse_existing",
     "refuse_indexed_overwrite",
+    "remove_empty",
 ]
 
 FIELDS = ("index", "pid", "time")
@@ -230,15 +231,16 @@ def _indexed_overwrite(text: str, overwrite_option: str) -> ConfigurationError:
     )
 
 
-def make_folder(path: Path) -> None:
+def make_folder(path: Path) -> list[Path]:
     """Create the folder ``path`` goes in, with its parents, when it is missing.
 
+    Returns the folders made (outermost first; :func:`remove_empty` takes them away again).
     A :class:`~episode_audit.errors.ConfigurationError` names ``path`` when it cannot be: one
     of the folders it is in is a file, or the OS refuses.
     """
     folder = path.parent
     if folder.is_dir():
-        return
+        return []
     for above in (folder, *folder.parents):
         if above.is_dir():
             break
@@ -247,12 +249,26 @@ def make_folder(path: Path) -> None:
             raise ConfigurationError(
                 f"{path}: {above} is {kind}, not a folder; give a path in a folder"
             )
+    made = [above for above in (folder, *folder.parents) if not above.exists()][::-1]
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigurationError(
             f"{path}: cannot create its folder {folder}: {exc.strerror or exc}"
         ) from None
+    return made
+
+
+def remove_empty(made: list[Path]) -> None:
+    """Remove the folders ``made`` (outermost first) that are empty, innermost first.
+
+    What a failed command does with the folders it made for its output (:func:`make_folder`).
+    """
+    for folder in reversed(made):
+        try:
+            folder.rmdir()
+        except OSError:  # not empty (something else was written there), or gone
+            return
 
 
 def _names_in(directory: str) -> frozenset[str]:

@@ -22,9 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import ConfigurationError
-from .lock import make_folder
+from .lock import make_folder, remove_empty
 
-__all__ = ["Temporary", "fsync", "publish"]
+__all__ = ["Temporary", "fsync", "no_space", "publish"]
 
 _EXISTS = "exists; pass overwrite=True to replace it"
 """What an existing output is told (after its path), by default."""
@@ -74,6 +74,36 @@ def _sync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+_NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT})
+"""A write refused because the disk is full, or the user's quota used up."""
+
+
+def no_space(dst: Path, exc: BaseException) -> ConfigurationError | None:
+    """The error naming ``dst`` for ``exc``, raised writing it, when its disk has no space left.
+
+    ``exc`` says so by its ``errno`` (``OSError``, pyarrow's too); one without (a library's
+    own I/O error, as foxglove-sdk's) does when the disk ``dst`` is on has no block left for
+    this user. ``None``: ``exc`` is something else.
+    """
+    code = getattr(exc, "errno", None)
+    if code is None and _disk_full(dst.parent):
+        code = errno.ENOSPC
+    if code not in _NO_SPACE:
+        return None
+    return ConfigurationError(
+        f"{dst}: cannot write it: {os.strerror(code)}; free some space there or choose "
+        "another output path"
+    )
+
+
+def _disk_full(folder: Path) -> bool:
+    """Whether the disk ``folder`` is on has no block left for this user."""
+    try:
+        return os.statvfs(folder).f_bavail == 0
+    except (OSError, AttributeError):  # (AttributeError: no statvfs, Windows)
+        return False
+
+
 def _unwritable(dst: Path, exc: OSError) -> ConfigurationError:
     return ConfigurationError(
         f"{dst}: cannot create a file in {dst.parent}: {exc.strerror or exc}; give a path in a "
@@ -97,7 +127,8 @@ class Temporary:
 
     def __init__(self, dst: Path, *, exists: str = _EXISTS, suffix: str = ".partial") -> None:
         self.dst, self._exists, self._suffix = dst, exists, suffix
-        make_folder(dst)
+        self._made = make_folder(dst)  # (removed again by discard() unless published)
+        self._published = False
         self._fd: int | None = None
         flag = getattr(os, "O_TMPFILE", 0)
         if flag and Path("/proc/self/fd").is_dir():
@@ -120,8 +151,19 @@ class Temporary:
         return self.dst.with_name(f".{self.dst.name}.{secrets.token_hex(4)}{self._suffix}")
 
     def publish(self, overwrite: bool) -> None:
-        """Flush the finished file to the disk and give it its name, ``dst``, atomically."""
-        fsync(self.path)
+        """Flush the finished file to the disk and give it its name, ``dst``, atomically.
+
+        A disk with no space left is a :class:`~episode_audit.errors.ConfigurationError`
+        naming ``dst`` (:func:`no_space`).
+        """
+        try:
+            fsync(self.path)
+        except OSError as exc:
+            raise no_space(self.dst, exc) or exc from None
+        self._publish(overwrite)
+        self._published = True
+
+    def _publish(self, overwrite: bool) -> None:
         if self._fd is None:
             publish(self.path, self.dst, overwrite, self._exists)
             return
@@ -158,9 +200,14 @@ class Temporary:
             os.close(proc)
 
     def discard(self) -> None:
-        """Remove the file (published or not: its name is ``dst`` then)."""
+        """Remove the file (published or not: its name is ``dst`` then).
+
+        Unpublished, the folders made for ``dst`` go too when nothing else is in them.
+        """
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
         elif not self.unnamed:
             self.path.unlink(missing_ok=True)
+        if not self._published:
+            remove_empty(self._made)

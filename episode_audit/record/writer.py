@@ -602,7 +602,11 @@ class EvidenceWriter:
         self.lost_messages: Counter[int] = self._staging.lost_messages
         """Messages dropped after the OS refused them, by channel."""
         self._thread = _WriterThread()
-        self.flush()
+        try:
+            self.flush()
+        except BaseException:  # (a full disk): the file is closed, its lock released
+            self.abandon()
+            raise
 
     @property
     def finished(self) -> bool:

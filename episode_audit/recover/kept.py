@@ -12,7 +12,8 @@ import pyarrow as pa
 from ..format import names as fmt
 from ..format.records import EpisodeRanges
 from ..format.run_end import RunEnd
-from ..read import Evidence, open_evidence
+from ..read import Evidence
+from ..read.opening import open_own_output
 
 __all__ = ["Damage", "Kept"]
 
@@ -45,7 +46,7 @@ class Kept:
         off, when the input was ``closed`` (``close()`` wrote every end record) or the
         ``damage`` comes after the last intact chunk.
         """
-        ev = open_evidence(path)
+        ev = open_own_output(path)  # (locked by this process's writer: not a live recorder)
         table = ev.episodes()
         index = table.column(fmt.COL_EPISODE).to_pylist()
         ended = table.column("ended").to_pylist()

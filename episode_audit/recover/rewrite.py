@@ -20,6 +20,7 @@ from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records,
 from ..read.layout import _MAGIC
 from ..read.liveness import still_written, writer_of
 from ..read.storage import is_url
+from ..record.published import no_space
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
 from .files import Temporary, check_paths, temporary
@@ -92,6 +93,11 @@ def recover(
             if not check.finished:  # pragma: no cover - the writer finished it just now
                 raise CorruptEvidenceError(dst, f"the recovered file is unfinished: {check.torn}")
         tmp.publish(overwrite)
+    except OSError as exc:
+        full = no_space(dst, exc)
+        if full is None:
+            raise
+        raise full from None
     finally:
         tmp.discard()
     return result
@@ -157,7 +163,8 @@ def _copy_unchanged(src: Path, ev: Evidence, tmp: Path, dst: Path) -> RecoveryRe
     try:
         shutil.copyfile(src, tmp)
     except OSError as exc:
-        raise ConfigurationError(f"{dst}: cannot write: {exc.strerror}") from None
+        full = no_space(dst, exc)
+        raise full or ConfigurationError(f"{dst}: cannot write: {exc.strerror}") from None
     lengths = ev.episodes()["length"]
     steps = int(pc.sum(lengths).as_py() or 0)
     size = src.stat().st_size

@@ -86,7 +86,8 @@ class _Game:
         # AEC: rows and reset rows made at real turns, before the game was cut (None: not cut)
         self.turned: dict[str, int] | None = None
         self.started: set[str] = set()
-        # AEC: (agent, its action index) where the recorded actions ran out
+        # (agent, its action index) where the recorded actions ran out (Parallel: the first
+        # live agent without one)
         self.stopped: tuple[str, int] | None = None
         # AEC: (agent, its action index) of the last recorded action the replay took
         self.last: tuple[str, int] | None = None
@@ -189,8 +190,13 @@ def _run_parallel(env: Any, game: _Game, queues: dict[str, list[Any]], limit: in
         game.on_reset(agent, obs.get(agent), infos.get(agent, {}))
     for _ in range(limit):
         live = list(env.agents)
-        if not live or any(not queues.get(str(a)) for a in live):
-            break  # the game is over, or the recording stopped here
+        if not live:
+            break  # the game is over
+        out = next((str(a) for a in live if not queues.get(str(a))), None)
+        if out is not None:  # the recording stopped here (a torn file: maybe amid this step)
+            game.cut()
+            game.stopped = (out, len(game.rows.get(out, ())))
+            break
         actions = {agent: queues[str(agent)].pop(0) for agent in live}
         try:
             obs, rewards, term, trunc, infos = env.step(actions)
@@ -610,13 +616,14 @@ class _AgentEpisode:
     def _cut_off(self, what: str, step: int) -> EpisodeReplay:
         assert self.game.stopped is not None
         who, action = self.game.stopped
+        when = "after" if self.file.aec else "in the same step() as"
         return EpisodeReplay(
             self.file.path,
             self.index,
             "not_replayable",
             step,
             reason=(
-                f"cut off by the torn file: {what} was recorded after {who}'s step {action}, "
+                f"cut off by the torn file: {what} was recorded {when} {who}'s step {action}, "
                 "whose action is not in the file, so the replay cannot reach it "
                 "(what comes before it replays identical)"
             ),

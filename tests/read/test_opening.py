@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import re
 import struct
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import pyarrow.compute as pc
 import pytest
 from mcap.reader import make_reader
@@ -15,8 +17,11 @@ from episode_audit import (
     CorruptEvidenceError,
     EvidenceError,
     NotEvidenceError,
+    RecordEvidence,
     UnsupportedVersionError,
+    check,
     open_evidence,
+    recover,
 )
 from episode_audit.format import names as fmt
 from tests.read.helpers import patched
@@ -272,6 +277,47 @@ def test_a_garbled_run_metadata_record_is_named(recorded: Path, tmp_path: Path) 
         "spaces, env and settings of the run it held are lost",
     ):
         open_evidence(damaged)
+
+
+@pytest.mark.parametrize("byte", [2, 4])  # its length grows past the end, or past the cap
+def test_a_garbled_run_metadata_length_in_a_torn_file_is_named(
+    recorded: Path, tmp_path: Path, byte: int
+) -> None:
+    """Not "torn before its run metadata", nor "no complete chunk": intact chunks follow it."""
+    data = recorded.read_bytes()
+    offset, _ = _metadata_offset(recorded, "episode_audit.run")
+    torn = data[: len(data) // 2]  # no summary: read by a scan
+    damaged = tmp_path / "damaged.mcap"
+    at = offset + 1 + byte  # (a byte of the record's length)
+    damaged.write_bytes(patched(torn, at, bytes([torn[at] ^ 0x40])))
+    garbled = (
+        rf"^{re.escape(str(damaged))}: the episode_audit.run metadata record at byte {offset} "
+        "is garbled: the spaces, env and settings of the run it held are lost, so the file "
+        "cannot be read as evidence$"
+    )
+    with pytest.raises(CorruptEvidenceError, match=garbled):
+        open_evidence(damaged)
+    with pytest.raises(CorruptEvidenceError, match=garbled):
+        recover(damaged, tmp_path / "fixed.mcap")
+    assert not (tmp_path / "fixed.mcap").exists()
+    with pytest.raises(CorruptEvidenceError, match=garbled):
+        check([damaged])  # (the command line: a file_unreadable finding saying so)
+
+
+def test_recovery_reads_its_own_unfinished_output_as_torn_not_as_a_live_recorders(
+    tmp_path: Path,
+) -> None:
+    from episode_audit.read.opening import open_own_output
+
+    path = tmp_path / "run.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=0)
+        env.step(0)
+        env.flush()
+        assert open_evidence(path).torn.startswith("still being written by this process")
+        own = open_own_output(path)
+        assert own.torn is not None and own.torn.startswith("ends at byte")
+        assert own.writer is None
 
 
 def test_one_assignment_lowers_the_record_cap_everywhere(

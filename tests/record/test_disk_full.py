@@ -22,6 +22,7 @@ import pytest
 from mcap.reader import make_reader
 
 from episode_audit import check, open_evidence, recover
+from tests.support.disk import fill_disk
 
 pytestmark = pytest.mark.skipif(
     not hasattr(signal, "SIGXFSZ"), reason="needs RLIMIT_FSIZE and SIGXFSZ (POSIX)"
@@ -232,24 +233,6 @@ def test_record_that_cannot_finish_the_file_says_how_to_recover_it(
     assert recover(out, tmp_path / "fixed.mcap").episodes == 3
 
 
-@pytest.fixture
-def small_disk(tmp_path: Path) -> Any:
-    """A 2 MiB tmpfs mounted for the test (root only; skipped where it cannot be mounted)."""
-    mnt = tmp_path / "mnt"
-    mnt.mkdir()
-    try:
-        mounted = subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
-            capture_output=True, text=True, check=False, timeout=30,
-        )  # fmt: skip
-    except OSError as exc:
-        pytest.skip(f"cannot run mount: {exc}")
-    if mounted.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs (needs root): {mounted.stderr.strip()}")
-    yield mnt
-    subprocess.run(["umount", "-l", str(mnt)], check=True, timeout=30)
-
-
 def test_a_real_full_disk_then_space_again_loses_no_row(small_disk: Path, tmp_path: Path) -> None:
     """ENOSPC from a full tmpfs (partial writes included): held, retried, every row reads."""
     import gymnasium as gym
@@ -271,15 +254,7 @@ def test_a_real_full_disk_then_space_again_loses_no_row(small_disk: Path, tmp_pa
                 env.reset(seed=episode)
 
     run(2000)
-    filler = small_disk / "filler"
-    fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
-    try:  # the disk fills up (a few bytes may be left)
-        while os.write(fd, b"\0" * 4096):
-            pass
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+    filler = fill_disk(small_disk)  # (a few bytes may be left)
     with pytest.warns(RuntimeWarning, match=r"run\.mcap failed \(OSError: \[Errno 28\] No space"):
         run(6000)
     filler.unlink()  # space returns

@@ -13,6 +13,7 @@ import math
 import re
 import shutil
 import sys
+import time
 import warnings
 from collections import defaultdict
 from pathlib import Path
@@ -727,6 +728,95 @@ def test_aec_files_torn_after_any_turn_never_diverge(tmp_path: Path, module: Any
 
 
 # ------------------------------------------------------------------------------- Parallel
+
+
+def _rps_step(t: int, agents: list[Any]) -> dict[Any, int]:
+    return {agent: (t + i) % 3 for i, agent in enumerate(agents)}
+
+
+def test_a_parallel_step_is_never_split_by_a_flush_due_amid_its_agents_rows(
+    tmp_path: Path,
+) -> None:
+    path, torn = tmp_path / "rps.mcap", tmp_path / "torn.mcap"
+    kwargs = {"max_cycles": 50}
+    with RecordParallelEvidence(
+        rps_v2.parallel_env(**kwargs), path, env_kwargs=kwargs, block_steps=8, flush_every_s=3600
+    ) as env:
+        head = path.stat().st_size
+        env.reset(seed=3)
+        for t in range(10):  # the 8th step fills player_0's block before player_1's row
+            env.step(_rps_step(t, env.agents))
+        deadline = time.monotonic() + 30
+        while path.stat().st_size == head and time.monotonic() < deadline:
+            time.sleep(0.01)  # (the flush's chunk is written by the writer thread)
+        _torn_copy(path, torn)  # what a SIGKILL now leaves on disk
+    rows = open_evidence(torn).episodes().to_pylist()
+    assert [(r["agent"], r["length"], r["ended"]) for r in rows] == [
+        ("player_0", 8, False),
+        ("player_1", 8, False),
+    ]
+    assert replay([torn]).count("identical") == 2
+
+
+class _FlushAmidStep(BaseParallelWrapper):  # type: ignore[misc]
+    """rps whose step ``flush_at`` has its recorder's file flushed after player_0's row.
+
+    The recorder reads each agent's share of a step's result as it records that agent's row
+    (``obs.get(agent)``): the file's flush then writes the rows recorded so far, as recorders
+    that flushed when a block filled amid a step's rows did (files they wrote are out there).
+    """
+
+    recorder: Any = None
+    flush_at = -1
+
+    def __init__(self) -> None:
+        super().__init__(rps_v2.parallel_env(max_cycles=50))
+        self.steps = 0
+
+    def step(self, actions: Any) -> Any:
+        obs, *rest = super().step(actions)
+        self.steps += 1
+        if self.steps == self.flush_at:
+            obs = _FlushingObs(obs, self.recorder, self.possible_agents[1])
+        return (obs, *rest)
+
+
+class _FlushingObs(dict):  # type: ignore[type-arg]
+    def __init__(self, obs: Any, recorder: Any, agent: Any) -> None:
+        super().__init__(obs)
+        self.recorder, self.agent = recorder, agent
+
+    def get(self, key: Any, default: Any = None) -> Any:
+        if key == self.agent:
+            self.recorder._file.flush()
+        return super().get(key, default)
+
+
+def test_a_parallel_game_torn_amid_a_step_is_cut_off_not_diverged(tmp_path: Path) -> None:
+    path, torn, recovered = tmp_path / "rps.mcap", tmp_path / "torn.mcap", tmp_path / "rec.mcap"
+    inner = _FlushAmidStep()
+    inner.flush_at = 8
+    with RecordParallelEvidence(inner, path, env_kwargs={"max_cycles": 50}) as env:
+        inner.recorder = env
+        env.reset(seed=3)
+        for t in range(8):
+            env.step(_rps_step(t, env.agents))
+        _torn_copy(path, torn)
+    rows = open_evidence(torn).episodes().to_pylist()
+    assert [(r["agent"], r["length"], r["ended"]) for r in rows] == [
+        ("player_0", 8, False),
+        ("player_1", 7, False),
+    ]
+    assert recover(torn, recovered).cut_off_episodes == (0, 1)
+    for file in (torn, recovered):
+        first, second = replay([file]).episodes
+        assert (first.status, first.steps) == ("not_replayable", 7)
+        assert first.reason == (
+            "cut off by the torn file: its step 7 was recorded in the same step() as "
+            "player_1's step 7, whose action is not in the file, so the replay cannot reach it "
+            "(what comes before it replays identical)"
+        )
+        assert (second.status, second.steps) == ("identical", 7)
 
 
 def _play_parallel(env: Any, seed: int) -> list[dict[str, Any]]:

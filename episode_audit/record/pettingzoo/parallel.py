@@ -100,6 +100,8 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
         except Exception as exc:
             rec.error(exc, "step")
             raise
+        file = rec.file
+        file.held = True  # a flush due amid the agents' rows waits for the last: the step whole
         try:
             obs, rewards, terminated, truncated, infos = result
             streams = rec.streams
@@ -110,5 +112,9 @@ class RecordParallelEvidence(AgentRecorder, BaseParallelWrapper):  # type: ignor
                 stream.step(action, agent_result(agent, obs, rewards, terminated, truncated, infos))
             self._join(obs, infos)
         except Exception as exc:  # never break the training loop over recording trouble
-            rec.file.trouble(exc)
+            file.trouble(exc)
+        finally:
+            file.held = False
+        if file.flush_wanted is not None:
+            file.auto_flush(background=file.flush_wanted)  # (never raises)
         return result  # type: ignore[no-any-return]
