@@ -999,8 +999,9 @@ def test_an_env_s_own_state_in_async_workers_without_reset_rng_info_is_warned_of
     from gymnasium.vector import AsyncVectorEnv
 
     path = tmp_path / "pong.mcap"
+    envs = AsyncVectorEnv([short_pong] * 2)  # (its fork outside: Python 3.12 warns of one)
     with pytest.warns(UserWarning, match=UNSAVED_WARNING):
-        rec = RecordVectorEvidence(AsyncVectorEnv([short_pong] * 2), path)
+        rec = RecordVectorEvidence(envs, path)
     with rec:
         rec.reset(seed=3)
         rec.step(np.array([0, 1]))
