@@ -532,6 +532,30 @@ def test_over_vec_normalize_is_recorded_and_says_it_cannot_replay(tmp_path: Path
     assert any(f.code == "not_replayable" for f in check([path]).findings)
 
 
+@pytest.mark.parametrize("norm_obs", [True, False])
+def test_over_vec_normalize_the_normalised_observations_are_not_blamed_on_the_env(
+    tmp_path: Path, norm_obs: bool
+) -> None:
+    """VecNormalize keeps CartPole's bounded space: the space recorded is its ±clip_obs."""
+    path = tmp_path / "over.mcap"
+    stack = VecNormalize(DummyVecEnv([cartpole] * 2), norm_obs=norm_obs, clip_obs=5.0)
+    with pytest.warns(UserWarning, match="VecNormalize under the recorder"):
+        venv = RecordVecEnvEvidence(stack, path)
+    step_random(venv, 300)
+    assert venv.observation_space == stack.observation_space  # (the loop's is VecNormalize's)
+    venv.close()
+    run = open_evidence(path).run
+    codes = {f.code for f in check([path]).findings}
+    assert "observation_out_of_space" not in codes
+    if norm_obs:
+        assert run.observation_space["low"] == -5.0 and run.observation_space["high"] == 5.0
+        assert "the space recorded is its range, [-5, 5], float32" in " ".join(
+            run.recorder["notes"]
+        )
+    else:  # (the env's own space: nothing normalised it)
+        assert run.observation_space["dtype"] == "float32" and "[-5, 5]" not in str(run.recorder)
+
+
 def test_over_vec_normalize_of_reacher_names_it_and_leaves_the_terms_unchecked(
     tmp_path: Path,
 ) -> None:
