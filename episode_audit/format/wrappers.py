@@ -796,8 +796,8 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
             name = entry.rpartition(":")[2]
             causes.append(
                 f"the recorded wrapper {name} {why.removeprefix('it ')} (no state snapshot): "
-                f"its episodes cannot begin in the state they were recorded in; record with the "
-                f"recorder inside {name} (innermost)"
+                f"its episodes cannot begin in the state they were recorded in; "
+                f"{_unrestorable_fix(name, entry, layout)}"
             )
     vector = layout.get(LAYOUT_VECTOR_WRAPPERS) if isinstance(layout, Mapping) else None
     causes += [c for entry in _listed(vector) if (c := vector_wrapper_cause(str(entry)))]
@@ -805,6 +805,22 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
     if unsaved is not None and unsaved[1]:  # (else only unseeded episodes: check says which)
         causes.append(unsaved[0])
     return causes
+
+
+def _unrestorable_fix(name: str, entry_point: str, layout: Any) -> str:
+    """What makes a recorded wrapper's state restorable, as advice.
+
+    The recorder inside it; in a vector file's sub-envs (a vector recorder cannot sit inside a
+    sub-env's wrapper), a ``ResetRngInfo`` outermost, which snapshots those with an adapter.
+    """
+    vector = isinstance(layout, Mapping) and layout.get("kind") == "vector"
+    rule = RECORDED_WRAPPERS.get(entry_point)
+    if not vector or rule is None or rule.kind != "snapshot":
+        return f"record with the recorder inside {name} (innermost)"
+    return (
+        "wrap each sub-env in episode_audit.ResetRngInfo (outermost, in the env function), "
+        f"which snapshots {name}"
+    )
 
 
 def _listed(value: Any) -> Iterable[Any]:

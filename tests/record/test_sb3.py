@@ -330,7 +330,8 @@ def test_sub_envs_whose_state_is_not_snapshot_are_warned_of_and_checked(
         UserWarning,
         match=r"^episode-audit: RecordVecEnvEvidence: the recorded wrapper NormalizeObservation "
         r"keeps running statistics across episodes, which the file does not hold \(no state "
-        r"snapshot\)",
+        r"snapshot\).* wrap each sub-env in episode_audit\.ResetRngInfo \(outermost, in the env "
+        r"function\), which snapshots NormalizeObservation$",
     ):
         venv = RecordVecEnvEvidence(base, path, **kwargs)
     with venv:
