@@ -461,6 +461,25 @@ def _holds_placeholder(wrapper: Any) -> bool:
     return isinstance(kwargs, Mapping) and any(unrecorded(v) is not None for v in kwargs.values())
 
 
+def unrecorded_arguments(recorded: Sequence[Any], transparent: Collection[str] = ()) -> str | None:
+    """The class name of the first recorded wrapper whose arguments the spec lacks, or ``None``.
+
+    A wrapper not deriving from ``gymnasium.utils.RecordConstructorArgs`` (SB3's
+    ``AtariWrapper``, one of one's own) is in the spec with ``kwargs`` null: rebuilt with its
+    defaults it may be another env, so ``--trust-entry-points`` refuses it. Wrappers that never
+    change a step (the registry's ``transparent``, or declared so: ``transparent``) are left
+    aside.
+    """
+    for wrapper in recorded:
+        if not isinstance(wrapper, Mapping) or wrapper.get("kwargs") is not None:
+            continue
+        entry = str(wrapper.get("entry_point"))
+        rule = RECORDED_WRAPPERS.get(entry)
+        if not (rule.kind == "transparent" if rule else entry in transparent):
+            return entry.rpartition(":")[2][:80]
+    return None
+
+
 def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) -> WrapperPlan:
     """What to do with a spec's ``additional_wrappers`` (see :data:`RECORDED_WRAPPERS`).
 
@@ -504,8 +523,9 @@ def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) ->
             f"{renders[0]} made in each step, and replay leaves {renders[0]} out (it has side "
             "effects)"
         )
-    if plan.refused is not None:
-        plan.refused += f"; {_WAY_AROUND}"
+    if plan.refused is not None:  # (--trust-entry-points only where it would not be refused)
+        untrusted = unrecorded_arguments(recorded, transparent) is not None
+        plan.refused += f"; {_FACTORY_ONLY if untrusted else _WAY_AROUND}"
     return plan
 
 

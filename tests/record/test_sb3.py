@@ -37,6 +37,7 @@ from stable_baselines3.common.vec_env import (  # noqa: E402
 from episode_audit import (  # noqa: E402
     ConfigurationError,
     RecorderWarning,
+    RecordEvidence,
     ResetRngInfo,
     check,
     open_evidence,
@@ -662,6 +663,23 @@ def test_normalize_reward_in_subproc_workers_is_warned_of_with_or_without_a_spec
     ), said
     run = open_evidence(path).run
     assert (run.env_spec is None) == (make is not normalized_rewards)
+
+
+def test_a_trusted_monitor_over_an_unregistered_id_is_put_on_as_recorded(tmp_path: Path) -> None:
+    """Gymnasium's make refuses a spec naming Monitor (kwargs null, no RecordConstructorArgs);
+    trusted, the env is made from its entry point and Monitor put on, as for a registered id."""
+    path = tmp_path / "monitor.mcap"
+    gym.register("Unregistered-v0", entry_point="gymnasium.envs.classic_control:CartPoleEnv")
+    try:
+        with RecordEvidence(Monitor(gym.make("Unregistered-v0")), path) as env:
+            for seed in (0, 1):
+                env.reset(seed=seed)
+                for _ in range(5):
+                    env.step(1)
+    finally:
+        del gym.registry["Unregistered-v0"]
+    result = replay([path], trust_entry_points=True)
+    assert {(e.status, e.reason) for e in result.episodes} == {("identical", None)}
 
 
 def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:
