@@ -411,7 +411,9 @@ KINDS: Final[tuple[FindingKind, ...]] = (
         "`replay` cannot re-run them, so nothing confirms that their steps are what the env does.",
         "Reset before stepping, with a seed (`env.reset(seed=...)`) where you can; put the "
         "recorder innermost, directly around the env (or the vector env), under wrappers that "
-        "keep state; record sub-envs under a frame skip with `SyncVectorEnv` / `DummyVecEnv`, "
+        "keep state (a vector recorder cannot sit inside its sub-envs' wrappers: wrap each "
+        "sub-env in `ResetRngInfo`, outermost, which snapshots those with a state adapter); "
+        "record sub-envs under a frame skip with `SyncVectorEnv` / `DummyVecEnv`, "
         "or replay such a file with `--env-factory` building the sub-env as recorded.",
     ),
     FindingKind(

@@ -461,6 +461,25 @@ def _holds_placeholder(wrapper: Any) -> bool:
     return isinstance(kwargs, Mapping) and any(unrecorded(v) is not None for v in kwargs.values())
 
 
+def unrecorded_arguments(recorded: Sequence[Any], transparent: Collection[str] = ()) -> str | None:
+    """The class name of the first recorded wrapper whose arguments the spec lacks, or ``None``.
+
+    A wrapper not deriving from ``gymnasium.utils.RecordConstructorArgs`` (SB3's
+    ``AtariWrapper``, one of one's own) is in the spec with ``kwargs`` null: rebuilt with its
+    defaults it may be another env, so ``--trust-entry-points`` refuses it. Wrappers that never
+    change a step (the registry's ``transparent``, or declared so: ``transparent``) are left
+    aside.
+    """
+    for wrapper in recorded:
+        if not isinstance(wrapper, Mapping) or wrapper.get("kwargs") is not None:
+            continue
+        entry = str(wrapper.get("entry_point"))
+        rule = RECORDED_WRAPPERS.get(entry)
+        if not (rule.kind == "transparent" if rule else entry in transparent):
+            return entry.rpartition(":")[2][:80]
+    return None
+
+
 def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) -> WrapperPlan:
     """What to do with a spec's ``additional_wrappers`` (see :data:`RECORDED_WRAPPERS`).
 
@@ -504,8 +523,9 @@ def plan_wrappers(recorded: Sequence[Any], transparent: Collection[str] = ()) ->
             f"{renders[0]} made in each step, and replay leaves {renders[0]} out (it has side "
             "effects)"
         )
-    if plan.refused is not None:
-        plan.refused += f"; {_WAY_AROUND}"
+    if plan.refused is not None:  # (--trust-entry-points only where it would not be refused)
+        untrusted = unrecorded_arguments(recorded, transparent) is not None
+        plan.refused += f"; {_FACTORY_ONLY if untrusted else _WAY_AROUND}"
     return plan
 
 
@@ -796,8 +816,8 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
             name = entry.rpartition(":")[2]
             causes.append(
                 f"the recorded wrapper {name} {why.removeprefix('it ')} (no state snapshot): "
-                f"its episodes cannot begin in the state they were recorded in; record with the "
-                f"recorder inside {name} (innermost)"
+                f"its episodes cannot begin in the state they were recorded in; "
+                f"{_unrestorable_fix(name, entry, layout)}"
             )
     vector = layout.get(LAYOUT_VECTOR_WRAPPERS) if isinstance(layout, Mapping) else None
     causes += [c for entry in _listed(vector) if (c := vector_wrapper_cause(str(entry)))]
@@ -805,6 +825,22 @@ def state_causes(env_spec: Any, layout: Any) -> list[str]:
     if unsaved is not None and unsaved[1]:  # (else only unseeded episodes: check says which)
         causes.append(unsaved[0])
     return causes
+
+
+def _unrestorable_fix(name: str, entry_point: str, layout: Any) -> str:
+    """What makes a recorded wrapper's state restorable, as advice.
+
+    The recorder inside it; in a vector file's sub-envs (a vector recorder cannot sit inside a
+    sub-env's wrapper), a ``ResetRngInfo`` outermost, which snapshots those with an adapter.
+    """
+    vector = isinstance(layout, Mapping) and layout.get("kind") == "vector"
+    rule = RECORDED_WRAPPERS.get(entry_point)
+    if not vector or rule is None or rule.kind != "snapshot":
+        return f"record with the recorder inside {name} (innermost)"
+    return (
+        "wrap each sub-env in episode_audit.ResetRngInfo (outermost, in the env function), "
+        f"which snapshots {name}"
+    )
 
 
 def _listed(value: Any) -> Iterable[Any]:

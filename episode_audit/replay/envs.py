@@ -25,7 +25,11 @@ from ..format.columns import error_text
 from ..format.options import decode_typed
 from ..format.records import RunInfo
 from ..format.unrecorded import unrecorded
-from ..format.wrappers import RECORDED_WRAPPERS, declared_transparent, plan_wrappers
+from ..format.wrappers import (
+    declared_transparent,
+    plan_wrappers,
+    unrecorded_arguments,
+)
 
 __all__ = [
     "MAX_ENV_KWARGS_BYTES",
@@ -74,28 +78,50 @@ def build_env(
         for wrapper in recorded:
             if isinstance(wrapper, Mapping) and isinstance(wrapper.get("kwargs"), Mapping):
                 _refuse_placeholders(wrapper["kwargs"], f"{str(wrapper.get('name'))[:80]} argument")
-    if registered and trust_entry_points:
+    transparent = declared_transparent(run.recorder)
+    if trust_entry_points:
         trusted = [w for w in recorded if isinstance(w, Mapping)]
-        _refuse_unrecorded_arguments(trusted, declared_transparent(run.recorder))
-        return _from_registry(env_id, spec, trusted, _load_wrapper)
+        _refuse_unrecorded_arguments(trusted, transparent)
+        if registered:
+            return _from_registry(env_id, spec, trusted, _load_wrapper)
+        return _from_recorded_spec(spec, trusted)
     if registered:
-        plan = plan_wrappers(recorded, declared_transparent(run.recorder))
+        plan = plan_wrappers(recorded, transparent)
         if plan.refused is not None:
             raise ReplayError(plan.refused)
         rebuilt = [{"entry_point": name, "kwargs": kwargs} for name, kwargs in plan.rebuild]
         return _from_registry(env_id, spec, rebuilt, _gymnasium_wrapper)
-    entry = spec.get("entry_point")
-    if trust_entry_points:
-        try:
-            recorded_spec = gym.envs.registration.EnvSpec.from_json(json.dumps(spec))
-            return gym.make(_without_checks(recorded_spec))
-        except Exception as exc:
-            raise ReplayError(f"cannot make the env from the recorded spec: {exc}") from None
+    entry = spec.get("entry_point") if unrecorded_arguments(recorded, transparent) is None else None
     raise ReplayError(
         f"env id {env_id!r} is not registered in this process; pass --import MODULE that "
-        "registers it, --env-factory MODULE:CALLABLE"
-        + (f", or --trust-entry-points to import {entry!r} named in the file" if entry else "")
+        "registers it, "
+        + (
+            f"--env-factory MODULE:CALLABLE, or --trust-entry-points to import {entry!r} named "
+            "in the file"
+            if entry
+            else "or --env-factory MODULE:CALLABLE"
+        )
     )
+
+
+def _from_recorded_spec(
+    spec: Mapping[str, Any], wrappers: Sequence[Mapping[str, Any]]
+) -> gym.Env[Any, Any]:
+    """The env an unregistered id's recorded spec names, in its ``wrappers`` (trusted).
+
+    The wrappers are put on as :func:`_from_registry` does (Gymnasium's ``make`` refuses one
+    without recorded arguments, e.g. SB3's transparent ``Monitor``).
+    """
+    try:
+        bare = {**spec, "additional_wrappers": []}
+        recorded_spec = gym.envs.registration.EnvSpec.from_json(json.dumps(bare))
+        env = gym.make(_without_checks(recorded_spec))
+    except Exception as exc:  # the env's own code, or an entry point that does not import
+        raise ReplayError(
+            f"cannot make the env from the recorded spec: {error_text(exc)}; {_WAY_AROUND}, "
+            "or --import MODULE that registers its id"
+        ) from None
+    return _put_on(env, wrappers, _load_wrapper)
 
 
 def _refuse_unrecorded_arguments(
@@ -103,20 +129,13 @@ def _refuse_unrecorded_arguments(
 ) -> None:
     """Refuse to rebuild a recorded wrapper whose arguments the file does not hold.
 
-    A wrapper that does not record its constructor's arguments (one not deriving from
-    ``gymnasium.utils.RecordConstructorArgs``, e.g. SB3's ``AtariWrapper``) is in the spec with
-    ``kwargs`` null: rebuilt with its defaults it may be another env (Gymnasium's ``make``
-    refuses such a spec too). Wrappers that never change a step are left aside.
+    (:func:`~episode_audit.format.wrappers.unrecorded_arguments`; Gymnasium's ``make`` refuses
+    such a spec too.)
     """
-    for wrapper in wrappers:
-        entry = str(wrapper.get("entry_point"))
-        rule = RECORDED_WRAPPERS.get(entry)
-        if wrapper.get("kwargs") is not None or (
-            rule.kind == "transparent" if rule else entry in transparent
-        ):
-            continue
+    name = unrecorded_arguments(wrappers, transparent)
+    if name is not None:
         raise ReplayError(
-            f"the recorded wrapper {entry.rpartition(':')[2][:80]} did not record its arguments "
+            f"the recorded wrapper {name} did not record its arguments "
             "(it does not derive from gymnasium.utils.RecordConstructorArgs), so it cannot be "
             "rebuilt as recorded; pass --env-factory MODULE:CALLABLE that builds the env"
         )
@@ -178,14 +197,7 @@ def _from_registry(
         if "max_episode_steps" in spec:  # null: no TimeLimit (not the registered one)
             kwargs.pop("max_episode_steps", None)
             registered = replace(registered, max_episode_steps=spec["max_episode_steps"])
-        env = gym.make(registered, **kwargs)
-        for wrapper in wrappers:
-            cls = load(str(wrapper["entry_point"]))
-            if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
-                raise ReplayError(
-                    f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
-                )
-            env = _wrapped(cls, env, wrapper)
+        env = _put_on(gym.make(registered, **kwargs), wrappers, load)
     except (ConfigurationError, ReplayError):
         raise
     except Exception as exc:  # the env's own code, given what the file recorded
@@ -193,6 +205,20 @@ def _from_registry(
             f"cannot make {env_id!r} with the recorded kwargs: {error_text(exc)}"
         ) from None
     return env
+
+
+def _put_on(
+    env: Any, wrappers: Sequence[Mapping[str, Any]], load: Callable[[str], Any]
+) -> gym.Env[Any, Any]:
+    """``env`` in ``wrappers`` (innermost first), each class loaded by ``load``."""
+    for wrapper in wrappers:
+        cls = load(str(wrapper["entry_point"]))
+        if not (isinstance(cls, type) and issubclass(cls, gym.Wrapper)):
+            raise ReplayError(
+                f"the recorded wrapper {wrapper['entry_point']!r} is not a Wrapper class"
+            )
+        env = _wrapped(cls, env, wrapper)
+    return env  # type: ignore[no-any-return]
 
 
 def _wrapped(

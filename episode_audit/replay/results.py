@@ -85,7 +85,7 @@ class Divergence:
         shown = short(expected), short(got)
         cut = any("..." in text for text in shown)
         if max_abs_diff is not None and np.isinf(max_abs_diff):
-            kinds = (Mapping, tuple, str)
+            kinds = (Mapping, tuple, str, bytes)  # (bytes: a digest, shown in hex)
             if any(isinstance(expected, k) and isinstance(got, k) for k in kinds):
                 max_abs_diff = _numeric_difference(expected, got, atol)
         return cls(
@@ -383,12 +383,37 @@ def env_error(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {error_message(exc)}"
 
 
+class _Digest(str):
+    """A digest-mode observation's BLAKE2b digest (``bytes`` decoded), shown in hex."""
+
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return f"digest {self}"
+
+
+def _hex_digests(value: Any) -> Any:
+    """``value`` with each ``bytes`` (a digest: no other observation decodes to bytes) in hex."""
+    if isinstance(value, bytes):
+        return _Digest(value.hex())
+    if isinstance(value, Mapping):
+        return {k: _hex_digests(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return tuple(_hex_digests(v) for v in value)
+    return value
+
+
 def short(value: Any) -> str:
     """A value as a divergence shows it: its ``repr``, cut to 80 characters.
 
-    Never raises: a value whose ``repr()`` raises (an env's own object) is named by its type.
+    A frame stored as its digest is shown as ``digest`` and the digest in hex. Never raises: a
+    value whose ``repr()`` raises (an env's own object) is named by its type.
+
+    >>> short({"frame": bytes(range(16)), "x": 1})
+    "{'frame': digest 000102030405060708090a0b0c0d0e0f, 'x': 1}"
     """
     try:
+        value = _hex_digests(value)
         if isinstance(value, np.ndarray) and value.size > 16:
             # (a camera frame's list would be millions of characters)
             text = np.array2string(value, threshold=16, edgeitems=2, separator=", ")

@@ -38,6 +38,7 @@ from stable_baselines3.common.vec_env import (  # noqa: E402
 from episode_audit import (  # noqa: E402
     ConfigurationError,
     RecorderWarning,
+    RecordEvidence,
     ResetRngInfo,
     check,
     open_evidence,
@@ -338,7 +339,8 @@ def test_sub_envs_whose_state_is_not_snapshot_are_warned_of_and_checked(
         UserWarning,
         match=r"^episode-audit: RecordVecEnvEvidence: the recorded wrapper NormalizeObservation "
         r"keeps running statistics across episodes, which the file does not hold \(no state "
-        r"snapshot\)",
+        r"snapshot\).* wrap each sub-env in episode_audit\.ResetRngInfo \(outermost, in the env "
+        r"function\), which snapshots NormalizeObservation$",
     ):
         venv = RecordVecEnvEvidence(base, path, **kwargs)
     with venv:
@@ -540,6 +542,30 @@ def test_over_vec_normalize_is_recorded_and_says_it_cannot_replay(tmp_path: Path
     assert any(f.code == "not_replayable" for f in check([path]).findings)
 
 
+@pytest.mark.parametrize("norm_obs", [True, False])
+def test_over_vec_normalize_the_normalised_observations_are_not_blamed_on_the_env(
+    tmp_path: Path, norm_obs: bool
+) -> None:
+    """VecNormalize keeps CartPole's bounded space: the space recorded is its ±clip_obs."""
+    path = tmp_path / "over.mcap"
+    stack = VecNormalize(DummyVecEnv([cartpole] * 2), norm_obs=norm_obs, clip_obs=5.0)
+    with pytest.warns(UserWarning, match="VecNormalize under the recorder"):
+        venv = RecordVecEnvEvidence(stack, path)
+    step_random(venv, 300)
+    assert venv.observation_space == stack.observation_space  # (the loop's is VecNormalize's)
+    venv.close()
+    run = open_evidence(path).run
+    codes = {f.code for f in check([path]).findings}
+    assert "observation_out_of_space" not in codes
+    if norm_obs:
+        assert run.observation_space["low"] == -5.0 and run.observation_space["high"] == 5.0
+        assert "the space recorded is its range, [-5, 5], float32" in " ".join(
+            run.recorder["notes"]
+        )
+    else:  # (the env's own space: nothing normalised it)
+        assert run.observation_space["dtype"] == "float32" and "[-5, 5]" not in str(run.recorder)
+
+
 def test_over_vec_normalize_of_reacher_names_it_and_leaves_the_terms_unchecked(
     tmp_path: Path,
 ) -> None:
@@ -645,6 +671,23 @@ def test_normalize_reward_in_subproc_workers_is_warned_of_with_or_without_a_spec
     ), said
     run = open_evidence(path).run
     assert (run.env_spec is None) == (make is not normalized_rewards)
+
+
+def test_a_trusted_monitor_over_an_unregistered_id_is_put_on_as_recorded(tmp_path: Path) -> None:
+    """Gymnasium's make refuses a spec naming Monitor (kwargs null, no RecordConstructorArgs);
+    trusted, the env is made from its entry point and Monitor put on, as for a registered id."""
+    path = tmp_path / "monitor.mcap"
+    gym.register("Unregistered-v0", entry_point="gymnasium.envs.classic_control:CartPoleEnv")
+    try:
+        with RecordEvidence(Monitor(gym.make("Unregistered-v0")), path) as env:
+            for seed in (0, 1):
+                env.reset(seed=seed)
+                for _ in range(5):
+                    env.step(1)
+    finally:
+        del gym.registry["Unregistered-v0"]
+    result = replay([path], trust_entry_points=True)
+    assert {(e.status, e.reason) for e in result.episodes} == {("identical", None)}
 
 
 def test_over_transparent_wrappers_replays_identical(tmp_path: Path) -> None:

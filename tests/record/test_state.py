@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -12,9 +13,11 @@ import pytest
 
 from episode_audit import (
     ConfigurationError,
+    RecorderWarning,
     RecordEvidence,
     RecordVectorEvidence,
     StateAdapter,
+    check,
     open_evidence,
     register_state_adapter,
 )
@@ -343,3 +346,27 @@ def test_vector_sub_envs_are_snapshot_at_every_reset(tmp_path: Path) -> None:
     assert len(states) > 3 and None not in states
     first = {i: decode_snapshot(s)[0][1] for i, s in zip(resets["env_index"].to_pylist(), states)}
     assert set(first) == {0, 1, 2}
+
+
+@pytest.mark.parametrize("mode", ["async", "sync"])
+def test_unsnapshot_sub_envs_are_told_to_wrap_them_in_reset_rng_info(
+    tmp_path: Path, mode: str
+) -> None:
+    """A vector recorder cannot sit inside a sub-env's NormalizeObservation: the warning and
+    check's not_replayable say what works, ResetRngInfo outermost in each sub-env."""
+    path = tmp_path / "vec.mcap"
+    envs = gym.make_vec(
+        "CartPole-v1", 2, vectorization_mode=mode, wrappers=[gym.wrappers.NormalizeObservation]
+    )
+    fix = (
+        "wrap each sub-env in episode_audit.ResetRngInfo (outermost, in the env function), "
+        "which snapshots NormalizeObservation"
+    )
+    with pytest.warns(RecorderWarning, match=re.escape(fix)):
+        rec = RecordVectorEvidence(envs, path, install_rng_info=False)
+    with rec:
+        rec.reset(seed=1)
+        for _ in range(30):
+            rec.step(rec.action_space.sample())
+    (found,) = [f.message for f in check([path]).findings if f.code == "not_replayable"]
+    assert found.endswith(fix) and "recorder inside" not in found, found

@@ -528,31 +528,62 @@ def test_same_step_endings_are_batched_as_the_row_by_row_path_records_them(
     assert resets_a.sort_by("episode").equals(resets_b.sort_by("episode"))
 
 
-def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path) -> None:
+def _normalized_cartpole() -> gym.Env[Any, Any]:
+    return gym.wrappers.NormalizeObservation(gym.make("CartPole-v1"))
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path, mode: str) -> None:
+    """The ResetRngInfo the recorder installs (snapshotting NormalizeObservation, putting the RNG
+    state of each autoreset) adds nothing to the infos the loop gets."""
     from gymnasium.utils.env_checker import check_env, data_equivalence
 
-    for mode in ("NextStep", "SameStep"):
+    def make() -> Any:
+        return SyncVectorEnv([_normalized_cartpole] * 3, autoreset_mode=AutoresetMode(mode))
 
-        def make(mode: str = mode) -> Any:
-            return gym.make_vec(
-                "CartPole-v1", 3, vectorization_mode="sync", vector_kwargs={"autoreset_mode": mode}
-            )
-
-        bare = make()
-        rec = RecordVectorEvidence(make(), tmp_path / f"{mode}.mcap")
-        assert data_equivalence(bare.reset(seed=2), rec.reset(seed=2))
-        for action in np.random.default_rng(1).integers(0, 2, size=(120, 3)):
-            got, want = rec.step(action), bare.step(action)
-            info = dict(got[4])
-            # SAME_STEP: the sub-envs' ResetRngInfo adds its one key to the autoresets' info
-            info.pop("episode_audit.rng_state", None)
-            info.pop("_episode_audit.rng_state", None)
-            assert data_equivalence(got[:4], want[:4]) and data_equivalence(info, want[4])
-        rec.close()
-        bare.close()
+    bare = make()
+    rec = RecordVectorEvidence(make(), tmp_path / f"{mode}.mcap")
+    assert data_equivalence(bare.reset(seed=2), rec.reset(seed=2))
+    assert data_equivalence(bare.reset(), rec.reset())  # (unseeded: an RNG state too)
+    for action in np.random.default_rng(1).integers(0, 2, size=(120, 3)):
+        got, want = rec.step(action), bare.step(action)
+        assert data_equivalence(got, want)
+    rec.close()
+    bare.close()
+    resets = open_evidence(tmp_path / f"{mode}.mcap").resets().to_pylist()
+    assert len(resets) > 9  # (the recorder still read the keys: states and snapshots)
+    assert all(r["seed"] is not None or r["rng_state"] is not None for r in resets)
+    assert all(r["state"] is not None for r in resets)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         check_env(ResetRngInfo(gym.make("CartPole-v1")), skip_render_check=True)
+
+
+def test_a_reset_rng_info_of_one_s_own_keeps_its_keys_in_the_infos(tmp_path: Path) -> None:
+    """Sub-env 0 has the user's ResetRngInfo, the others the recorder's: only sub-env 0's keys
+    reach the loop, as they do without the recorder."""
+    thunks = [lambda: ResetRngInfo(gym.make("CartPole-v1"))] + [lambda: gym.make("CartPole-v1")] * 2
+    bare = SyncVectorEnv(thunks, autoreset_mode=AutoresetMode.SAME_STEP)
+    rec = RecordVectorEvidence(
+        SyncVectorEnv(thunks, autoreset_mode=AutoresetMode.SAME_STEP), tmp_path / "own.mcap"
+    )
+    rec.reset(seed=2)
+    bare.reset(seed=2)
+    seen = 0
+    for action in np.random.default_rng(1).integers(0, 2, size=(200, 3)):
+        got, want = rec.step(action)[4], bare.step(action)[4]
+        assert got.keys() == want.keys()
+        if "_episode_audit.rng_state" in want:
+            seen += 1
+            assert got["_episode_audit.rng_state"].tolist() == (
+                want["_episode_audit.rng_state"].tolist()
+            )
+            assert got["episode_audit.rng_state"].tolist() == (
+                want["episode_audit.rng_state"].tolist()
+            )
+    rec.close()
+    bare.close()
+    assert seen > 0
 
 
 def test_reset_rng_info_hands_the_recorder_its_state_unparsed() -> None:

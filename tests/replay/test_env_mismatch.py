@@ -310,6 +310,27 @@ def test_a_trusted_wrapper_that_did_not_record_its_arguments_is_not_rebuilt_with
     }
 
 
+def test_a_wrapper_trust_would_refuse_is_not_told_to_be_trusted(tmp_path: Path) -> None:
+    """A wrapper without recorded arguments is refused with --trust-entry-points too: replay
+    does not suggest the flag, for a registered id or an unregistered one."""
+    path = _record(tmp_path / "shift.mcap", _Shift(gym.make("CartPole-v1"), by=0.5))
+    ((status, reason),) = {(e.status, e.reason) for e in replay([path]).episodes}
+    assert status == "not_replayable" and "--trust-entry-points" not in reason, reason
+    assert reason.endswith(
+        "is not one replay knows; pass --env-factory MODULE:CALLABLE that builds the env"
+    ), reason
+    gym.register("Unregistered-v0", entry_point="gymnasium.envs.classic_control:CartPoleEnv")
+    try:
+        path = _record(tmp_path / "u.mcap", _Shift(gym.make("Unregistered-v0"), by=0.5))
+    finally:
+        del gym.registry["Unregistered-v0"]
+    ((status, reason),) = {(e.status, e.reason) for e in replay([path]).episodes}
+    assert reason == (
+        "env id 'Unregistered-v0' is not registered in this process; pass --import MODULE that "
+        "registers it, or --env-factory MODULE:CALLABLE"
+    )
+
+
 def test_a_trusted_wrapper_that_adds_its_own_wrappers_is_not_applied_twice_unnoticed(
     tmp_path: Path,
 ) -> None:

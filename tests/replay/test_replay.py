@@ -1141,3 +1141,24 @@ def test_max_abs_diff_of_a_dict_observation_is_its_numbers_not_its_text(
     assert episode.status == "not_replayable" and episode.divergence is not None  # (no spec)
     assert episode.divergence.field == "reset_observation"
     assert episode.divergence.max_abs_diff == max_abs_diff
+
+
+def _heavier_cartpole() -> gym.Env[Any, Any]:
+    """CartPole-v1 as recorded (its spec unchanged), its gravity changed after it was made."""
+    env = gym.make("CartPole-v1")
+    env.unwrapped.gravity = 20.0  # type: ignore[attr-defined]
+    return env
+
+
+def test_a_divergence_of_digested_observations_shows_the_digests_in_hex(tmp_path: Path) -> None:
+    path = tmp_path / "digests.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path, digest_min_bytes=16) as env:
+        env.reset(seed=0)
+        for _ in range(3):
+            env.step(0)
+    (episode,) = replay([path], env_factory=_heavier_cartpole).episodes
+    assert episode.status == "diverged" and episode.divergence is not None
+    text = episode.divergence.describe()
+    assert re.fullmatch(
+        r"step 0: observation expected digest [0-9a-f]{32}, got digest [0-9a-f]{32}", text
+    ), text

@@ -13,6 +13,7 @@ import threading
 import warnings
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space, iterate
@@ -124,8 +125,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             self._rng.install_wrappers()
         self._float_rewards = self._widen_rewards(stack)
         spec = stack.sub_env_spec()
-        obs_space, act_space = venv.observation_space, venv.action_space
-        self.run_info = self._describe(stack, settings, spec, snapshots)
+        obs_space, act_space = stack.observation_space(venv.observation_space), venv.action_space
+        self.run_info = self._describe(stack, settings, spec, snapshots, obs_space)
         if stack.changing:  # (as RecordVectorEvidence warns of what it cannot replay)
             warnings.warn(
                 f"episode-audit: {type(self).__name__}: {stack.replay_note()}",
@@ -166,11 +167,17 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         self._opened()
 
     def _describe(
-        self, stack: VecStack, settings: RecorderSettings, spec: Any, snapshots: bool
+        self,
+        stack: VecStack,
+        settings: RecorderSettings,
+        spec: Any,
+        snapshots: bool,
+        obs_space: gym.Space[Any],
     ) -> RunInfo:
         """The run's metadata: the sub-envs' spec, the spaces, the stack's layout and notes.
 
-        ``snapshots``: the sub-envs' resets are snapshot (:class:`~..vector.rng.ResetRngInfo`).
+        ``snapshots``: the sub-envs' resets are snapshot (:class:`~..vector.rng.ResetRngInfo`);
+        ``obs_space``: the space of the observations recorded (:meth:`VecStack.observation_space`).
         """
         notes = stack.notes()
         if self._float_rewards is None and stack.local is not None:
@@ -194,7 +201,7 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
         return run_info(
             settings=settings,
             spec=spec,
-            observation_space=describe_space(self.venv.observation_space),
+            observation_space=describe_space(obs_space),
             action_space=describe_space(self.venv.action_space),
             layout=layout,
             notes=notes,

@@ -65,6 +65,8 @@ class VecStack:
             entry_point(w) for w in wrappers[::-1] if isinstance(w, VecNormalize) and w.norm_reward
         ]
         """The entry points of those of them that change the reward, innermost first."""
+        self._normalizers = [w for w in wrappers if isinstance(w, VecNormalize) and w.norm_obs]
+        """The ``VecNormalize`` wrappers that normalise observations, outermost first."""
         self.local = env if isinstance(env, DummyVecEnv) else None
         """The base if its sub-envs live in this process (``DummyVecEnv``)."""
         self.direct = not wrappers
@@ -81,7 +83,35 @@ class VecStack:
         ]
         if self.changing:
             out.append(self.replay_note())
+        if self._normalizers:
+            clip = max(float(w.clip_obs) for w in self._normalizers)
+            out.append(
+                "VecNormalize normalises the observations and keeps the env's observation "
+                f"space: the space recorded is its range, [-{clip:g}, {clip:g}], float32"
+            )
         return out
+
+    def observation_space(self, space: gym.Space[Any]) -> gym.Space[Any]:
+        """The space of the observations the recorder receives, declared ``space`` or not.
+
+        ``VecNormalize`` (normalising observations) keeps the env's ``observation_space`` while
+        returning float32 values clipped to ``±clip_obs``: the Box it normalises (each Box of a
+        Dict among its ``norm_obs_keys``) becomes that range, as Gymnasium's
+        ``NormalizeObservation`` widens its space, so that ``check`` does not blame the env for
+        values the env never returned.
+        """
+        if not self._normalizers:
+            return space
+        clip = max(float(w.clip_obs) for w in self._normalizers)
+        keys = self._normalizers[0].norm_obs_keys
+        if isinstance(space, gym.spaces.Dict):
+            return gym.spaces.Dict(
+                {
+                    k: _clipped_box(s, clip) if keys is None or k in keys else s
+                    for k, s in space.spaces.items()
+                }
+            )
+        return _clipped_box(space, clip)
 
     def replay_note(self) -> str:
         """Why the file's episodes cannot be replayed on their own (wrappers that change steps)."""
@@ -176,6 +206,13 @@ class VecStack:
             if isinstance(limit, (int, np.integer)) and not isinstance(limit, bool):
                 limits[i] = int(limit)
         return limits
+
+
+def _clipped_box(space: gym.Space[Any], clip: float) -> gym.Space[Any]:
+    """A float32 Box of ``space``'s shape within ``±clip`` (``space`` itself if not a Box)."""
+    if not isinstance(space, gym.spaces.Box):
+        return space
+    return gym.spaces.Box(-clip, clip, space.shape, np.float32)
 
 
 _REWARD_KINDS: tuple[type[gym.Wrapper[Any, Any, Any, Any]], ...] = (

@@ -40,7 +40,14 @@ from ..time_limits import counted_limits, limited_spec, time_limits, unread_limi
 from .infos import env_infos
 from .modes import autoreset_mode, autoreset_strategy
 from .resets import recorded_per_env, refused, reset_targets, seeds_of, shared_changed
-from .rng import SPEC_IF_SENDABLE, LocalSubEnvs, ResetRngInfo, SubEnvRng
+from .rng import (
+    SPEC_IF_SENDABLE,
+    LocalSubEnvs,
+    ResetRngInfo,
+    SubEnvRng,
+    has_own_keys,
+    without_installed,
+)
 from .steps import VectorSteps
 from .workers import rng_unaskable
 
@@ -114,6 +121,9 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
         same_step = mode is AutoresetMode.SAME_STEP
         if (same_step or snapshots) and sync is not None and install_rng_info:
             self._rng.install_wrappers()
+        self._installed = any(self._rng.installed)
+        """Whether the recorder put a :class:`ResetRngInfo` on a sub-env (whose info keys the
+        loop does not get: :func:`~.rng.without_installed`)."""
         obs_space, act_space = env.single_observation_space, env.single_action_space
         layout = _layout(env, mode, sync, sub_spec, snapshots, no_rng_note)
         layout.update(self._rng.unsaved_state(sub_spec, snapshots))
@@ -204,6 +214,8 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             )
         except Exception as exc:  # never break the training loop over recording trouble
             file.trouble(exc)
+        if self._installed and has_own_keys(infos):
+            infos = without_installed(infos, self._rng.installed)
         return obs, infos
 
     def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
@@ -224,6 +236,8 @@ class RecordVectorEvidence(FileRecorder, gym.vector.VectorWrapper):
             except Exception as exc:  # never break the training loop over recording trouble
                 self._steps.idle = None
                 self._file.trouble(exc)
+            if self._installed and has_own_keys(result[4]):  # (an autoreset's: hidden)
+                return (*result[:4], without_installed(result[4], self._rng.installed))
             return result
         finally:
             self._busy = False

@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 import gymnasium as gym
+import numpy as np
 
 from ..._jobs import unpicklable
 from ...format import names as fmt
@@ -283,6 +284,9 @@ class SubEnvRng:
         self._unaskable = unaskable
         # each sub-env's ResetRngInfo (Sync only, once installed): its states need no parsing
         self._issuers: list[ResetRngInfo | None] = []
+        self.installed = [False] * (0 if sync is None else len(sync.envs))
+        """Per sub-env, whether :meth:`install_wrappers` put its :class:`ResetRngInfo` there
+        (whose info keys the training loop must not see: :func:`without_installed`)."""
 
     def snapshots(self, *, installing: bool) -> bool:
         """Whether a sub-env's resets are snapshot (:mod:`..state`), by a :class:`ResetRngInfo`.
@@ -351,6 +355,7 @@ class SubEnvRng:
         for i, sub in enumerate(envs):
             if find_wrapper(sub, ResetRngInfo) is None:
                 envs[i] = ResetRngInfo(sub)
+                self.installed[i] = True
         self._issuers = [find_wrapper(sub, ResetRngInfo) for sub in envs]
         self.in_info = True
 
@@ -451,3 +456,39 @@ class SubEnvRng:
             if failed is not None:
                 out[i] = failed
         return out
+
+
+OWN_INFO_KEYS = (fmt.INFO_RNG_STATE, fmt.INFO_STATE, fmt.INFO_STATE_NOTE)
+"""The info keys :class:`ResetRngInfo` adds to a reset's info."""
+
+
+def has_own_keys(infos: Any) -> bool:
+    """Whether a vector env's ``infos`` dict holds a key of :data:`OWN_INFO_KEYS` (three looks)."""
+    return type(infos) is dict and (
+        fmt.INFO_RNG_STATE in infos or fmt.INFO_STATE in infos or fmt.INFO_STATE_NOTE in infos
+    )
+
+
+def without_installed(infos: dict[str, Any], installed: Sequence[bool]) -> dict[str, Any]:
+    """A copy of a vector env's ``infos`` without what the recorder's own wrappers put there.
+
+    ``installed``: per sub-env, whether its :class:`ResetRngInfo` is the recorder's
+    (:attr:`SubEnvRng.installed`). A key (and its ``_`` mask) goes when only those sub-envs have
+    it; one that a user's own :class:`ResetRngInfo` also wrote stays, for those sub-envs only.
+    """
+    out = dict(infos)
+    mine = np.asarray(installed, dtype=bool)
+    for key in OWN_INFO_KEYS:
+        if key not in out:
+            continue
+        mask = out.get(f"_{key}")
+        known = isinstance(mask, np.ndarray) and mask.shape == mine.shape
+        theirs = (np.asarray(mask, dtype=bool) if known else np.ones_like(mine)) & ~mine
+        if not theirs.any():
+            del out[key]
+            out.pop(f"_{key}", None)
+            continue
+        values = np.array(out[key], dtype=object)
+        values[mine] = None
+        out[key], out[f"_{key}"] = values, theirs
+    return out
