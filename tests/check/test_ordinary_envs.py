@@ -178,6 +178,8 @@ def test_an_unstarted_episode_is_not_called_unreplayable(tmp_path: Path) -> None
     )
 
 
+# (AsyncVectorEnv forks; Python 3.12+ warns when a thread is running then, e.g. ALE's)
+@pytest.mark.filterwarnings("ignore:This process .* is multi-threaded:DeprecationWarning")
 def test_an_unstarted_episode_of_unsaved_sub_env_state_is_not_listed(tmp_path: Path) -> None:
     """ALE's emulator state in workers no ResetRngInfo snapshots: the episodes an unseeded
     reset began cannot be replayed; the unseeded reset the loop ended with began episodes it
@@ -187,7 +189,7 @@ def test_an_unstarted_episode_of_unsaved_sub_env_state_is_not_listed(tmp_path: P
     from tests.support.unsaved import short_pong
 
     path = tmp_path / "pong.mcap"
-    envs = AsyncVectorEnv([short_pong] * 2)  # (its fork outside: Python 3.12 warns of one)
+    envs = AsyncVectorEnv([short_pong] * 2)
     with pytest.warns(UserWarning, match="cannot be replayed"):
         recorder = RecordVectorEvidence(envs, path)
     with recorder:

@@ -1022,6 +1022,8 @@ def test_a_spec_that_does_not_pickle_leaves_async_workers_alive(tmp_path: Path, 
     assert {e["env_index"] for e in open_evidence(path).episodes().to_pylist()} == {0, 1}
 
 
+# (AsyncVectorEnv forks; Python 3.12+ warns when a thread is running then, e.g. ALE's)
+@pytest.mark.filterwarnings("ignore:This process .* is multi-threaded:DeprecationWarning")
 def test_an_env_s_own_state_in_async_workers_without_reset_rng_info_is_warned_of(
     tmp_path: Path,
 ) -> None:
@@ -1030,7 +1032,7 @@ def test_an_env_s_own_state_in_async_workers_without_reset_rng_info_is_warned_of
     from gymnasium.vector import AsyncVectorEnv
 
     path = tmp_path / "pong.mcap"
-    envs = AsyncVectorEnv([short_pong] * 2)  # (its fork outside: Python 3.12 warns of one)
+    envs = AsyncVectorEnv([short_pong] * 2)
     with pytest.warns(UserWarning, match=UNSAVED_WARNING):
         rec = RecordVectorEvidence(envs, path)
     with rec:
