@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import os
 import re
 import subprocess
@@ -142,5 +143,7 @@ def test_recording_lists_every_recorder_option() -> None:
     listed = re.search(r"All four take the same keyword options \((.*?)\), declared", doc, re.S)
     assert listed is not None, "docs/recording.md lost its sentence listing the options"
     assert re.findall(r"`(\w+)`", listed[1]) == declared
-    args = (RecorderSettings.__doc__ or "").split("Args:", 1)[1].split("Raises:", 1)[0]
-    assert re.findall(r"^        (\w+):", args, flags=re.M) == declared
+    # (cleandoc: Python 3.13 strips docstrings' indentation itself, earlier ones do not)
+    doc = inspect.cleandoc(RecorderSettings.__doc__ or "")
+    args = doc.split("Args:", 1)[1].split("Raises:", 1)[0]
+    assert re.findall(r"^    (\w+):", args, flags=re.M) == declared
