@@ -13,6 +13,7 @@ warnings, successes as info). Topics, the layout file and why this library: docs
 from __future__ import annotations
 
 import bisect
+import contextlib
 import heapq
 import io
 import json
@@ -96,7 +97,10 @@ def export_foxglove(
                 _Steps(foxglove, context, ev, named, result, order).write(progress)
                 result.paths += ["/episodes", "/log"]
             except BaseException:
-                _close_after(writer)
+                # closed (else the SDK panics as it drops it at exit); its error in closing,
+                # the same failure again, is not raised
+                with contextlib.suppress(RuntimeError):
+                    writer.close()
                 raise
             writer.close()
         except RuntimeError as exc:
@@ -117,17 +121,6 @@ def _sdk_failure(out: Path, exc: RuntimeError) -> ConfigurationError | None:
     if not str(exc).startswith("FoxgloveError"):
         return None
     return no_space(out, exc) or ConfigurationError(f"{out}: foxglove-sdk cannot write it: {exc}")
-
-
-def _close_after(writer: Any) -> None:
-    """Close ``writer`` after a failure (else the SDK panics as it drops it at exit).
-
-    The SDK's error closing it (the same failure, again) is not raised.
-    """
-    try:
-        writer.close()
-    except RuntimeError:
-        pass
 
 
 def _open(foxglove: Any, temporary: Path, out: Path, context: Any, options: Any) -> Any:

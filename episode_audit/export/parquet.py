@@ -13,7 +13,7 @@ import itertools
 import os
 import tempfile
 from collections.abc import Callable, Container, Iterable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -408,7 +408,8 @@ def _export_one(source: Source, target: Path, progress: Callable[[int], None] | 
             try:
                 writer.write_table(table)
             except BaseException:
-                _close_quietly(writer)
+                with suppress(OSError):  # (its error in closing: the same failure, again)
+                    writer.close()
                 raise
             steps += table.num_rows
             if progress is not None:
@@ -439,14 +440,6 @@ def _written(target: Path) -> Iterator[None]:
         if full is None:
             raise
         raise full from None
-
-
-def _close_quietly(writer: pq.ParquetWriter) -> None:
-    """Close ``writer`` after a failure; its own failure then (the same, again) is not raised."""
-    try:
-        writer.close()
-    except OSError:
-        pass
 
 
 def _with_file(batch: pa.RecordBatch | pa.Table, name: str) -> pa.Table:

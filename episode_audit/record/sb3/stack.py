@@ -254,12 +254,9 @@ def worker_spec(base: VecEnv) -> Any:
     else the wrappers say it in the worker (:func:`~..vector.workers.unsendable`: a sub-env
     without wrappers is not asked).
     """
-
-    def wrapped(kind: type[gym.Wrapper[Any, Any, Any, Any]]) -> bool:
-        return bool(base.env_is_wrapped(kind, indices=[0])[0])
-
+    has_rng_info = bool(base.env_is_wrapped(ResetRngInfo, indices=[0])[0])
     outermost = (  # (with ResetRngInfo in it, the outermost is a wrapper: it has class_name)
-        base.env_method("class_name", indices=[0])[0] if wrapped(ResetRngInfo) else None
+        base.env_method("class_name", indices=[0])[0] if has_rng_info else None
     )
     if outermost == ResetRngInfo.__name__:
         return base.env_method(SPEC_IF_SENDABLE, indices=[0])[0][1]

@@ -230,19 +230,19 @@ def _ask_remote(remote: Any, indices: Sequence[int]) -> dict[int, tuple[Any, Any
 
 
 def _np_randoms(
-    remote: Any, indices: Sequence[int], whys: dict[int, str | None]
+    remote: Any, indices: Sequence[int], whys: dict[int, str | None], *, sb3: bool
 ) -> dict[int, RngState | None]:
     """The RNG states of sub-envs ``indices`` from each worker's ``np_random``.
 
-    Only those whose ``whys`` is ``None`` (known safe to ask) are asked: SB3's ``get_attr``
-    asks those only, Gymnasium's asks every one (each is then safe to ask).
+    Only those whose ``whys`` is ``None`` (known safe to ask) are asked: an ``sb3`` VecEnv's
+    ``get_attr`` asks those only, Gymnasium's asks every one (each is then safe to ask).
     """
     ask = [i for i in indices if whys.get(i) is None]
     out: dict[int, RngState | None] = dict.fromkeys(indices)
     if not ask:
         return out
     try:
-        if hasattr(remote, "env_is_wrapped"):  # (an SB3 VecEnv)
+        if sb3:
             generators = dict(zip(ask, remote.get_attr("np_random", indices=ask), strict=True))
         else:
             generators = dict(enumerate(remote.get_attr("np_random")))
@@ -406,7 +406,8 @@ class SubEnvRng:
         asked for goes to :attr:`unread`.
         """
         remote = self._async
-        if hasattr(remote, "env_is_wrapped"):
+        sb3 = hasattr(remote, "env_is_wrapped")  # (an SB3 VecEnv)
+        if sb3:
             whys = unsendable(remote, RngUnsendable, indices)
         else:
             whys = dict.fromkeys(indices, self._unaskable)
@@ -416,7 +417,7 @@ class SubEnvRng:
             for i, why in whys.items()
             if why is not None
         }
-        return _np_randoms(remote, indices, whys)
+        return _np_randoms(remote, indices, whys, sb3=sb3)
 
     def from_info(self, info: Any, i: int | None = None) -> RngState | None:
         """The state :class:`ResetRngInfo` put in a reset info (then it is always used).
