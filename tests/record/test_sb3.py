@@ -645,6 +645,35 @@ def specless_normalized_rewards() -> gym.Env[Any, Any]:
     return gym.wrappers.NormalizeReward(gym.wrappers.TimeLimit(CartPoleEnv(), 50))
 
 
+def clipped_normalized_rewards() -> gym.Env[Any, Any]:
+    """No spec (not made by gym.make): NormalizeReward inside ClipReward, ResetRngInfo over them."""
+    from gymnasium.envs.classic_control import CartPoleEnv
+
+    env = gym.wrappers.NormalizeReward(gym.wrappers.TimeLimit(CartPoleEnv(), 50))
+    return ResetRngInfo(gym.wrappers.ClipReward(env, -1.0, 1.0))
+
+
+@pytest.mark.parametrize("vec_env", ["dummy", "subproc"])
+def test_reward_wrappers_of_sub_envs_are_listed_in_their_order(
+    tmp_path: Path, vec_env: str
+) -> None:
+    """Innermost first, whether walked here or, without a spec, by ResetRngInfo in a worker
+    (clip then normalise is not normalise then clip)."""
+    path = tmp_path / "clipped.mcap"
+    base = (
+        DummyVecEnv([clipped_normalized_rewards] * 2)
+        if vec_env == "dummy"
+        else SubprocVecEnv([clipped_normalized_rewards] * 2, start_method=START)
+    )
+    with warnings.catch_warnings():  # (NormalizeReward's statistics are not snapshot: said)
+        warnings.simplefilter("ignore", UserWarning)
+        RecordVecEnvEvidence(base, path).close()
+    assert open_evidence(path).run.layout["reward_wrappers"] == [
+        "gymnasium.wrappers.stateful_reward:NormalizeReward",
+        "gymnasium.wrappers.transform_reward:ClipReward",
+    ]
+
+
 @pytest.mark.parametrize(
     "make", [normalized_rewards, hidden_normalized_rewards, specless_normalized_rewards]
 )

@@ -25,6 +25,7 @@ from ..._jobs import unpicklable
 from ...format import names as fmt
 from ...format.wrappers import LAYOUT_UNSAVED_STATE
 from .. import native
+from ..gym import reward_wrappers
 from ..notes import note
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
@@ -32,6 +33,7 @@ from ..state import StateTargets, adapter_for_entry_point
 from .workers import RngUnsendable, unsendable
 
 __all__ = [
+    "REWARD_WRAPPERS",
     "RNG_STATE_IF_READABLE",
     "SPEC_IF_SENDABLE",
     "LocalSubEnvs",
@@ -44,6 +46,9 @@ RngState = dict[str, Any]
 
 SPEC_IF_SENDABLE = "episode_audit_spec"
 """The method of :class:`ResetRngInfo` giving the sub-env's spec when a worker can send it."""
+
+REWARD_WRAPPERS = "episode_audit_reward_wrappers"
+"""The method of :class:`ResetRngInfo` naming the reward-changing wrappers below it, in order."""
 
 RNG_STATE_IF_READABLE = "episode_audit_rng_state"
 """The method of :class:`ResetRngInfo` giving the sub-env's RNG state as JSON text, or why not."""
@@ -157,6 +162,15 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         if unpicklable(spec) is not None:  # (as a worker's pipe sends it)
             return False, None
         return True, spec
+
+    def episode_audit_reward_wrappers(self) -> list[str]:
+        """The entry points of the wrappers below it that change the reward, innermost first.
+
+        What a recorder asks a worker's sub-env (:data:`REWARD_WRAPPERS`) whose spec does not
+        name them: walked in the worker, in their order (``record.gym.reward_wrappers``, as a
+        sub-env in the recorder's process is). Never raises; strings always pickle.
+        """
+        return reward_wrappers(self.env)
 
     def episode_audit_rng_state(self) -> tuple[str | None, str | None]:
         """``(state, None)``: the env's RNG state now as JSON text; else ``(None, why)``.
