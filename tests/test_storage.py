@@ -541,3 +541,34 @@ def test_record_uploads_the_finished_file(s3: Any, tmp_path: Path) -> None:
     code, _, err = run("record", "CartPole-v1", "--out", str(again), *args)
     assert code == 0, err
     assert s3.cat_file(f"{BUCKET}/rec/rec.mcap") == again.read_bytes()
+
+
+@pytest.mark.parametrize("command", ["check", "report", "replay"])
+def test_a_viewer_export_under_a_prefix_is_left_out_in_one_line(
+    runs: Path, s3: Any, tmp_path: Path, command: str
+) -> None:
+    """As in a local folder: the export was read as an unreadable input (exit 2)."""
+    pytest.importorskip("foxglove")
+    from episode_audit.export import export
+
+    viewer = tmp_path / "a.foxglove.mcap"
+    export([runs / "a.mcap"], viewer, to="foxglove")
+    for name in ("a.mcap", "a.foxglove.mcap"):
+        s3.put_file(str(runs / name if name == "a.mcap" else viewer), f"{BUCKET}/mixed/{name}")
+    s3.put_file(str(viewer), f"{BUCKET}/viewers/a.foxglove.mcap")
+    url = f"s3://{BUCKET}/mixed"
+    code, out, err = run(command, url, "--format", "json")
+    assert code == 0, err
+    assert err == (
+        "episode-audit: note: left out 1 viewer export(s) found in the directories given "
+        f"({url}/a.foxglove.mcap)\n"
+    )
+    assert json.loads(out)["unreadable"] == []
+    code, _, err = run(command, f"s3://{BUCKET}/viewers")
+    assert code == 2
+    assert err.startswith(
+        f"episode-audit: error: s3://{BUCKET}/viewers: no evidence files under this prefix: its "
+        "1 *.mcap file(s) are viewer exports"
+    ), err
+    code, _, err = run(command, f"{url}/a.foxglove.mcap")  # named, it is still refused
+    assert code == 2 and "(a viewer file), not evidence" in err, err

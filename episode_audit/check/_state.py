@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -15,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from ..format.records import unstarted
 from ..read import Evidence
 from .findings import Finding
 from .registry import SEVERITY, Severity
@@ -93,6 +95,11 @@ class FileState:
         self.hits = Hits()
         self.steps = 0
         self.episodes = 0
+
+    @functools.cached_property
+    def unstarted(self) -> BoolArray:
+        """Which rows of the file's episodes table are unstarted episodes (computed once)."""
+        return unstarted(self.ev.episodes())
 
     def finding(
         self,

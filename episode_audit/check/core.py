@@ -22,7 +22,6 @@ import pyarrow as pa
 from .._jobs import map_ordered
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
-from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ..read.arguments import non_negative, path_list
 from ..read.inputs import skipped
@@ -140,7 +139,7 @@ class _FileCheck:
         # its space makes, would take several times their memory (image observations)
         records = self.state.ev.episodes()
         never_ran = frozenset(
-            records.column("episode").filter(unstarted(records)).to_pylist()
+            records.column("episode").filter(self.state.unstarted).to_pylist()
             if records.num_rows
             else ()
         )

@@ -15,7 +15,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..format import names as fmt
-from ..format.records import listing, unstarted
+from ..format.records import listing
 from ..format.run_end import RunEnd
 from ..format.wrappers import unsaved_state
 from ..record.rules import EndingRules
@@ -62,7 +62,7 @@ class _Records:
         self.rows = rows
         self.episode: IntArray = rows.column("episode").to_numpy()
         self.outcome = rows.column("outcome")
-        self.unstarted = unstarted(rows)
+        self.unstarted = state.unstarted  # (rows: the episodes table's, in its order)
 
     def listed(self, mask: Any) -> list[int]:
         """The episodes of the records ``mask`` selects, in order."""

@@ -18,7 +18,13 @@ from typing import Any
 from ..errors import ConfigurationError, EpisodeAuditError, EvidenceError
 from .arguments import path_list
 from .evidence import Evidence
-from .opening import broken_link, declared_steps, open_evidence, viewer_export
+from .opening import (
+    broken_link,
+    declared_steps,
+    open_evidence,
+    remote_viewer_exports,
+    viewer_export,
+)
 from .storage import RemoteFile, Source, as_source, list_remote
 
 __all__ = [
@@ -115,7 +121,9 @@ def listed_inputs(
     is kept (opening it says it is an export). URLs (``s3://bucket/prefix`` …) are listed the
     same way, through ``filesystem`` or one made with ``storage_options`` (see
     :func:`open_evidence`); each is a :class:`~episode_audit.read.storage.RemoteFile` that
-    carries its filesystem (their exports are not looked for: that would read each file).
+    carries its filesystem; a prefix's viewer exports are left out as a directory's are
+    (the first bytes of its files read together, the summary only of MCAP files of another
+    profile: :func:`~.opening.remote_viewer_exports`).
     Raises :class:`~episode_audit.errors.ConfigurationError` for a path that does not exist,
     a directory without evidence files, or one that cannot be listed.
     """
@@ -125,7 +133,7 @@ def listed_inputs(
     for given in path_list(paths):
         path = as_source(given, filesystem=filesystem, storage_options=storage_options)
         if isinstance(path, RemoteFile):
-            for remote in list_remote(path):
+            for remote in _remote_not_exports(path, exports):
                 if remote.url not in seen:
                     seen.add(remote.url)
                     out.append(remote)
@@ -164,13 +172,41 @@ def _not_exports(found: list[Path], exports: list[Source]) -> list[Path]:
     return kept
 
 
-def _nothing_in(directory: Path, exports: Sequence[Source]) -> str:
-    """Why ``directory`` gives no input: no ``*.mcap`` file, or only viewer exports."""
-    held = [e for e in exports if Path(e).is_relative_to(directory)]
+def _remote_not_exports(path: RemoteFile, exports: list[Source]) -> list[RemoteFile]:
+    """The files of URL ``path`` (:func:`~.storage.list_remote`), a prefix's but its exports.
+
+    Its viewer exports (:func:`~.opening.remote_viewer_exports`) go to ``exports`` (once).
+    """
+    found = list_remote(path)
+    if found == [path]:  # (a file named: kept, as a local one)
+        return found
+    listed = {e.url for e in exports if isinstance(e, RemoteFile)}
+    kept = []
+    for file, export in zip(found, remote_viewer_exports(found), strict=True):
+        if not export:
+            kept.append(file)
+        elif file.url not in listed:
+            exports.append(file)
+    if not kept:
+        raise ConfigurationError(f"{path}: {_nothing_in(path, exports)}")
+    return kept
+
+
+def _nothing_in(directory: Source, exports: Sequence[Source]) -> str:
+    """Why ``directory`` (or a URL prefix) gives no input: no ``*.mcap`` file, or only exports."""
+    if isinstance(directory, RemoteFile):
+        where = "under this prefix"
+        prefix = directory.url.rstrip("/") + "/"
+        held: list[Source] = [
+            e for e in exports if isinstance(e, RemoteFile) and e.url.startswith(prefix)
+        ]
+    else:
+        where = "in this directory"
+        held = [e for e in exports if Path(e).is_relative_to(directory)]
     if not held:
-        return "no *.mcap files in this directory"
+        return f"no *.mcap files {where}"
     return (
-        f"no evidence files in this directory: its {len(held)} *.mcap file(s) are viewer "
+        f"no evidence files {where}: its {len(held)} *.mcap file(s) are viewer "
         f"exports (episode-audit export --to foxglove), not evidence (e.g. {held[0]})"
     )
 

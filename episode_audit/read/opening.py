@@ -10,6 +10,7 @@ metadata (:func:`_parse_run`) and return an :class:`~episode_audit.read.evidence
 from __future__ import annotations
 
 import errno
+import io
 import os
 import stat
 import struct
@@ -47,7 +48,7 @@ from .layout import (
 )
 from .liveness import Holder, probe, still_written
 from .resync import next_intact
-from .storage import RemoteFile, Source, as_source, file_size, open_source
+from .storage import RemoteFile, Source, as_source, file_size, first_bytes, open_source
 
 
 def open_evidence(
@@ -210,7 +211,7 @@ def _other_mcap(header: Header, metadata: dict[str, dict[str, str]]) -> str:
 
 
 def viewer_export(path: str | os.PathLike[str]) -> bool:
-    """Whether the local file ``path`` is a viewer export of episode-audit's, not evidence.
+    """Whether the file ``path`` is a viewer export of episode-audit's, not evidence.
 
     The Foxglove export (``export --to foxglove``) is MCAP without our profile, and its summary
     lists the :data:`~episode_audit.format.names.METADATA_EXPORT` record. An evidence file's
@@ -236,6 +237,31 @@ def evidence_header(path: str | os.PathLike[str]) -> bool:
     return head is not None and head[0]
 
 
+def remote_viewer_exports(files: list[RemoteFile]) -> list[bool]:
+    """:func:`viewer_export` of each of ``files`` (one listing's), reading little of each.
+
+    Their first bytes are read together (:func:`~.storage.first_bytes`); only an MCAP file
+    whose header names another profile is opened for its summary.
+    """
+    heads = first_bytes(files, _HEAD_BYTES)
+    return [
+        head is not None and _other_profile(head) and viewer_export(file)
+        for file, head in zip(files, heads, strict=True)
+    ]
+
+
+_HEAD_BYTES = 4096  # (the magic and the header record: a profile and a library name)
+
+
+def _other_profile(head: bytes) -> bool:
+    """Whether ``head`` (a file's first bytes) starts an MCAP file of another profile than ours."""
+    try:
+        record = next(iter(StreamReader(io.BytesIO(head), record_size_limit=len(head)).records))
+    except Exception:  # (not MCAP, or a header longer than ``head``: not looked at further)
+        return False
+    return isinstance(record, Header) and record.profile != fmt.MCAP_PROFILE
+
+
 def _head(path: str | os.PathLike[str], *, summary: bool) -> tuple[bool, Any] | None:
     """Whether the MCAP header of the regular file ``path`` names our profile; its summary.
 
@@ -243,9 +269,9 @@ def _head(path: str | os.PathLike[str], *, summary: bool) -> tuple[bool, Any] | 
     not a regular file, not MCAP, or unreadable.
     """
     try:
-        if not stat.S_ISREG(os.stat(path).st_mode):  # (a FIFO would block)
-            return None
-        with open(path, "rb") as f:
+        if not isinstance(path, RemoteFile) and not stat.S_ISREG(os.stat(path).st_mode):
+            return None  # (a FIFO would block)
+        with open_source(path) if isinstance(path, RemoteFile) else open(path, "rb") as f:
             reader = SeekingReader(f, record_size_limit=chunks.MAX_RECORD_BYTES)
             ours = reader.get_header().profile == fmt.MCAP_PROFILE
             return ours, (reader.get_summary() if summary and not ours else None)

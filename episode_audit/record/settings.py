@@ -440,9 +440,10 @@ def _spec_json(spec: Any) -> tuple[dict[str, Any], list[str]]:
         pass
     wrappers = tuple(
         dataclasses.replace(
-            w,
-            kwargs=placeholders(w.kwargs or {}, dtype_names=w.entry_point in RECORDED_WRAPPERS)[0],
+            w, kwargs=placeholders(w.kwargs, dtype_names=w.entry_point in RECORDED_WRAPPERS)[0]
         )
+        if w.kwargs is not None  # (None: the wrapper records no arguments, and stays so)
+        else w
         for w in spec.additional_wrappers or ()
     )
     kwargs = placeholders(spec.kwargs or {})[0]

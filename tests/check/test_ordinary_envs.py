@@ -228,3 +228,33 @@ def test_an_unstarted_episode_s_replay_notes_are_not_findings(tmp_path: Path) ->
         if f.code == "recorder_note:rng_state_unavailable"
     ]
     assert noted == [(2, None)]
+
+
+def test_the_unstarted_episodes_are_found_once_per_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The resets' notes and the episode records both leave them out, from one mask."""
+    import importlib
+    import pkgutil
+
+    import episode_audit.format.records as records
+
+    path = tmp_path / "cartpole.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        env.reset(seed=0)
+        env.step(0)
+        env.reset(seed=1)  # (then close: episode 1 is never stepped)
+    found: list[int] = []
+
+    def counted(table: Any) -> Any:
+        found.append(table.num_rows)
+        return records.unstarted(table)
+
+    package = importlib.import_module("episode_audit.check")
+    for module in pkgutil.iter_modules(package.__path__):
+        named = importlib.import_module(f"episode_audit.check.{module.name}")
+        if hasattr(named, "unstarted"):
+            monkeypatch.setattr(named, "unstarted", counted)
+    result = check([path])
+    assert (result.ok, result.episodes) == (True, 1)
+    assert found == [2]

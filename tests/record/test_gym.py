@@ -25,6 +25,7 @@ from episode_audit import (
     RecordVectorEvidence,
     open_evidence,
 )
+from episode_audit.format.unrecorded import placeholder
 from tests.support.envs import ScriptedEnv
 from tests.support.limits import record_two_episodes, skipping_pendulum
 
@@ -437,6 +438,30 @@ def test_a_time_limit_over_a_frame_skip_is_recorded_where_it_counts(
     assert [{k: w[k] for k in ("name", "kwargs")} for w in spec["additional_wrappers"]] == wrappers
     rebuilt = gym.make(gym.envs.registration.EnvSpec.from_json(json.dumps(spec)))
     assert str(rebuilt) == str(skipping_pendulum(limit))
+
+
+class _Unrecorded(gym.Wrapper[Any, Any, Any, Any]):
+    """A wrapper that records no arguments (not ``RecordConstructorArgs``: ``kwargs`` null)."""
+
+    def __init__(self, env: gym.Env[Any, Any], k: int = 1) -> None:
+        super().__init__(env)
+        self.k = k
+
+
+def test_a_spec_with_placeholders_keeps_a_wrapper_that_records_no_arguments_null(
+    tmp_path: Path,
+) -> None:
+    """Null says its arguments are unknown; ``{}`` would say it had none."""
+    env = _Unrecorded(gym.wrappers.TransformReward(gym.make("CartPole-v1"), lambda r: 2 * r))
+    path = tmp_path / "cartpole.mcap"
+    with RecordEvidence(env, path) as rec:
+        rec.reset(seed=0)
+    spec = open_evidence(path).run.env_spec
+    assert spec is not None
+    assert [(w["name"], w["kwargs"]) for w in spec["additional_wrappers"]] == [
+        ("TransformReward", {"func": placeholder(env.env.func)}),
+        ("_Unrecorded", None),
+    ]
 
 
 def _autoreset_pendulum(limit: int = 30) -> gym.Env[Any, Any]:

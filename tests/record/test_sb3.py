@@ -144,6 +144,28 @@ def test_ppo_on_dummy_vec_env_replays_identical(tmp_path: Path) -> None:
     assert_checks_clean(path)
 
 
+def test_dummy_vec_env_reset_infos_are_what_they_are_without_the_recorder(tmp_path: Path) -> None:
+    """The ResetRngInfo the recorder installs puts the RNG state of each unseeded reset and
+    autoreset in its info: the VecEnv's reset_infos, which a loop may read, lose that key once
+    it is recorded; a ResetRngInfo of one's own (sub-env 0) keeps it."""
+    thunks = [rng_cartpole, cartpole, cartpole]
+    bare, base = DummyVecEnv(thunks), DummyVecEnv(thunks)
+    venv = RecordVecEnvEvidence(base, tmp_path / "infos.mcap")
+    for reset in (bare.reset, venv.reset):
+        reset()
+    assert [i.keys() for i in base.reset_infos] == [i.keys() for i in bare.reset_infos]
+    assert "episode_audit.rng_state" in base.reset_infos[0]
+    for actions in np.random.default_rng(1).integers(0, 2, size=(120, 3)):
+        bare.step(actions)
+        venv.step(actions)
+        assert [i.keys() for i in base.reset_infos] == [i.keys() for i in bare.reset_infos]
+    venv.close()
+    bare.close()
+    resets = open_evidence(tmp_path / "infos.mcap").resets().to_pylist()
+    assert len(resets) > 9 and all(r["rng_state"] is not None for r in resets)
+    assert_replays_identical(tmp_path / "infos.mcap")
+
+
 def test_a_file_recorded_in_an_sb3_run_says_sb3_s_version(tmp_path: Path) -> None:
     """compare's version check flags an SB3 upgrade only if files say its version; recording
     never imports it (a process without SB3 records no version of it)."""
@@ -643,6 +665,35 @@ def specless_normalized_rewards() -> gym.Env[Any, Any]:
     from gymnasium.envs.classic_control import CartPoleEnv
 
     return gym.wrappers.NormalizeReward(gym.wrappers.TimeLimit(CartPoleEnv(), 50))
+
+
+def clipped_normalized_rewards() -> gym.Env[Any, Any]:
+    """No spec (not made by gym.make): NormalizeReward inside ClipReward, ResetRngInfo over them."""
+    from gymnasium.envs.classic_control import CartPoleEnv
+
+    env = gym.wrappers.NormalizeReward(gym.wrappers.TimeLimit(CartPoleEnv(), 50))
+    return ResetRngInfo(gym.wrappers.ClipReward(env, -1.0, 1.0))
+
+
+@pytest.mark.parametrize("vec_env", ["dummy", "subproc"])
+def test_reward_wrappers_of_sub_envs_are_listed_in_their_order(
+    tmp_path: Path, vec_env: str
+) -> None:
+    """Innermost first, whether walked here or, without a spec, by ResetRngInfo in a worker
+    (clip then normalise is not normalise then clip)."""
+    path = tmp_path / "clipped.mcap"
+    base = (
+        DummyVecEnv([clipped_normalized_rewards] * 2)
+        if vec_env == "dummy"
+        else SubprocVecEnv([clipped_normalized_rewards] * 2, start_method=START)
+    )
+    with warnings.catch_warnings():  # (NormalizeReward's statistics are not snapshot: said)
+        warnings.simplefilter("ignore", UserWarning)
+        RecordVecEnvEvidence(base, path).close()
+    assert open_evidence(path).run.layout["reward_wrappers"] == [
+        "gymnasium.wrappers.stateful_reward:NormalizeReward",
+        "gymnasium.wrappers.transform_reward:ClipReward",
+    ]
 
 
 @pytest.mark.parametrize(

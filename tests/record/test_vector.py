@@ -559,6 +559,32 @@ def test_the_recorder_returns_what_the_vector_env_returns(tmp_path: Path, mode: 
         check_env(ResetRngInfo(gym.make("CartPole-v1")), skip_render_check=True)
 
 
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_the_recorder_over_dict_info_to_list_returns_what_it_returns(
+    tmp_path: Path, mode: str
+) -> None:
+    """Infos as a list of dicts: those of the sub-envs the recorder gave a ResetRngInfo lose its
+    keys too."""
+    from gymnasium.utils.env_checker import data_equivalence
+    from gymnasium.wrappers.vector import DictInfoToList
+
+    def make() -> Any:
+        envs = SyncVectorEnv([_normalized_cartpole] * 3, autoreset_mode=AutoresetMode(mode))
+        return DictInfoToList(envs)
+
+    bare = make()
+    rec = RecordVectorEvidence(make(), tmp_path / f"{mode}.mcap")
+    assert data_equivalence(bare.reset(seed=2), rec.reset(seed=2))
+    assert data_equivalence(bare.reset(), rec.reset())  # (unseeded: an RNG state too)
+    for action in np.random.default_rng(1).integers(0, 2, size=(120, 3)):
+        assert data_equivalence(rec.step(action), bare.step(action))
+    rec.close()
+    bare.close()
+    resets = open_evidence(tmp_path / f"{mode}.mcap").resets().to_pylist()
+    assert len(resets) > 9  # (the recorder still read the keys: states and snapshots)
+    assert all(r["seed"] is not None or r["rng_state"] is not None for r in resets)
+
+
 def test_a_reset_rng_info_of_one_s_own_keeps_its_keys_in_the_infos(tmp_path: Path) -> None:
     """Sub-env 0 has the user's ResetRngInfo, the others the recorder's: only sub-env 0's keys
     reach the loop, as they do without the recorder."""

@@ -184,6 +184,50 @@ def test_wrappers_that_record_no_arguments_and_differ_are_not_replayable(tmp_pat
     )
 
 
+class _Scale(gym.RewardWrapper[Any, Any], gym.utils.RecordConstructorArgs):
+    """Rewards times ``k``, its arguments recorded in the spec."""
+
+    def __init__(self, env: gym.Env[Any, Any], k: float = 1.0) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, k=k)
+        gym.RewardWrapper.__init__(self, env)
+        self.k = k
+
+    def reward(self, reward: SupportsFloat) -> float:
+        return self.k * float(reward)
+
+
+class _ScaleUnrecorded(gym.RewardWrapper[Any, Any]):
+    """The same wrapper in another release, which records no arguments (``kwargs`` null)."""
+
+    def __init__(self, env: gym.Env[Any, Any], k: float = 1.0) -> None:
+        super().__init__(env)
+        self.k = k
+
+    def reward(self, reward: SupportsFloat) -> float:
+        return self.k * float(reward)
+
+
+_ScaleUnrecorded.__name__ = _ScaleUnrecorded.__qualname__ = "_Scale"  # (its entry point)
+
+
+@pytest.mark.parametrize("recorded", [_Scale, _ScaleUnrecorded], ids=["kwargs", "null"])
+def test_wrapper_arguments_recorded_on_one_side_only_are_unverified(
+    tmp_path: Path, recorded: Callable[..., gym.Env[Any, Any]]
+) -> None:
+    """Not a mismatch: what one side did not record cannot be compared with the other's."""
+    path = _record(tmp_path / "cartpole.mcap", recorded(gym.make("CartPole-v1"), k=2.0))
+    rebuilt = _ScaleUnrecorded if recorded is _Scale else _Scale
+    same = _verdicts(path, lambda: rebuilt(gym.make("CartPole-v1"), k=2.0))
+    assert same == {("identical", None)}
+    other = replay([path], env_factory=lambda: rebuilt(gym.make("CartPole-v1"), k=3.0)).episodes
+    assert [e.status for e in other] == ["not_replayable"] * 2
+    assert other[0].reason == (
+        f"differed at step 0 (reward) {_UNVERIFIED}the arguments of wrapper(s) _Scale are not "
+        "recorded (they do not derive from gymnasium.utils.RecordConstructorArgs), so the "
+        "rebuilt ones' cannot be compared with the recording's"
+    )
+
+
 # --------------------------------------------------------------------------------------------
 # PettingZoo: what a game's layout records of its env (env_name, env_module, env_kwargs)
 # --------------------------------------------------------------------------------------------

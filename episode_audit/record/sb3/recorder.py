@@ -30,7 +30,7 @@ from ..settings import RecorderOptions, RecorderSettings, check_options, run_inf
 from ..vector.infos import env_infos
 from ..vector.recorder import vector_layout
 from ..vector.resets import recorded_per_env, shared_changed
-from ..vector.rng import SubEnvRng
+from ..vector.rng import SubEnvRng, without_installed
 from ..vector.steps import VectorSteps
 from .results import Sb3SameStep, StepReader
 from .stack import VecStack
@@ -162,7 +162,11 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             (obs_space, act_space),
             settings.track_info,
         )
-        self._reader = StepReader(n, lambda: base.reset_infos)
+        installed = self._rng.installed if any(self._rng.installed) else None
+        self._installed = installed
+        """Per sub-env, whether the recorder put its ResetRngInfo there (``None``: on none):
+        the VecEnv's ``reset_infos`` of those lose its keys once recorded."""
+        self._reader = StepReader(n, lambda: base.reset_infos, installed)
         self._actions: Any = None
         self._opened()
 
@@ -263,6 +267,8 @@ class RecordVecEnvEvidence(FileRecorder, VecEnvWrapper):
             self._steps.record_reset(indices, seeds, options, states, self._rng, result, start)
         except Exception as exc:  # never break the training loop over recording trouble
             file.trouble(exc)
+        if self._installed is not None and type(base.reset_infos) is list:
+            base.reset_infos[:] = without_installed(base.reset_infos, self._installed)
         return obs
 
     def step_async(self, actions: np.ndarray[Any, Any]) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..vector.infos import EMPTY
 from ..vector.modes import SameStep
+from ..vector.rng import without_own_keys
 
 __all__ = ["TERMINAL_OBSERVATION", "TIME_LIMIT_TRUNCATED", "Sb3SameStep", "StepReader"]
 
@@ -44,12 +45,20 @@ class StepReader:
     """Read SB3 VecEnv steps as Gymnasium ``SAME_STEP`` vector steps.
 
     ``reset_infos`` gives the VecEnv's ``reset_infos`` after the step (the reset infos of the
-    sub-envs it reset inside the step).
+    sub-envs it reset inside the step). ``installed``: per sub-env, whether the recorder put
+    its :class:`~..vector.rng.ResetRngInfo` there (``None``: on none); a reset info of such a
+    sub-env loses that wrapper's keys once read, in the VecEnv's list, which the loop may read.
     """
 
-    def __init__(self, n: int, reset_infos: Callable[[], Sequence[Any]]) -> None:
+    def __init__(
+        self,
+        n: int,
+        reset_infos: Callable[[], Sequence[Any]],
+        installed: Sequence[bool] | None = None,
+    ) -> None:
         self._n = n
         self._reset_infos = reset_infos
+        self._installed = installed
         self._false = np.zeros(n, dtype=np.bool_)
         self._false.flags.writeable = False
         self._plain = [EMPTY] * n
@@ -92,6 +101,8 @@ class StepReader:
                 terminated[i], truncated[i] = False, True
             reset_info = reset_infos[i] if i < len(reset_infos) else EMPTY
             ending = {**reset_info, "final_info": subs[i]}
+            if self._installed is not None and type(reset_infos) is list and self._installed[i]:
+                reset_infos[i] = without_own_keys(reset_info)
             if TERMINAL_OBSERVATION in info:
                 ending["final_obs"] = info[TERMINAL_OBSERVATION]
             subs[i] = ending

@@ -27,7 +27,7 @@ from ...format.wrappers import REWARD_CHANGING
 from ..gym import entry_point, info_entry_point
 from ..time_limits import counted_limits, limited_spec, unread_limits
 from ..vector.recorder import sub_reward_wrappers, sub_wrappers
-from ..vector.rng import SPEC_IF_SENDABLE, ResetRngInfo
+from ..vector.rng import REWARD_WRAPPERS, SPEC_IF_SENDABLE, ResetRngInfo
 from ..vector.workers import SpecUnsendable, unsendable
 
 __all__ = ["TRANSPARENT", "VecStack"]
@@ -228,14 +228,19 @@ _REWARD_KINDS: tuple[type[gym.Wrapper[Any, Any, Any, Any]], ...] = (
 
 
 def worker_reward_wrappers(base: VecEnv) -> list[str]:
-    """The entry points of the :data:`_REWARD_KINDS` any sub-env of ``base`` is wrapped in.
+    """The entry points of the reward-changing wrappers of ``base``'s sub-envs, as known.
 
-    Asked with SB3's ``env_is_wrapped`` (a walk of each worker's chain giving a bool: never an
-    object, which a worker that cannot pickle it dies of). A class found stands for its bases
-    (``ClipReward`` is a ``TransformReward``, each a ``RewardWrapper``); their order in the
-    chain is unknown. None when the workers cannot be asked.
+    With :class:`~..vector.rng.ResetRngInfo` outermost in sub-env 0, it names them, innermost
+    first (:data:`~..vector.rng.REWARD_WRAPPERS`). Otherwise asked with SB3's
+    ``env_is_wrapped`` (a walk of each worker's chain giving a bool: never an object, which a
+    worker that cannot pickle it dies of): the :data:`_REWARD_KINDS` any sub-env is wrapped in.
+    A class found stands for its bases (``ClipReward`` is a ``TransformReward``, each a
+    ``RewardWrapper``); their order in the chain is unknown. None when the workers cannot be
+    asked.
     """
     try:
+        if _rng_info_outermost(base):
+            return [str(w) for w in base.env_method(REWARD_WRAPPERS, indices=[0])[0]]
         found = [kind for kind in _REWARD_KINDS if any(base.env_is_wrapped(kind))]
     except Exception:  # a VecEnv that cannot say: none known
         return []
@@ -254,12 +259,19 @@ def worker_spec(base: VecEnv) -> Any:
     else the wrappers say it in the worker (:func:`~..vector.workers.unsendable`: a sub-env
     without wrappers is not asked).
     """
-    has_rng_info = bool(base.env_is_wrapped(ResetRngInfo, indices=[0])[0])
-    outermost = (  # (with ResetRngInfo in it, the outermost is a wrapper: it has class_name)
-        base.env_method("class_name", indices=[0])[0] if has_rng_info else None
-    )
-    if outermost == ResetRngInfo.__name__:
+    if _rng_info_outermost(base):
         return base.env_method(SPEC_IF_SENDABLE, indices=[0])[0][1]
     if unsendable(base, SpecUnsendable, [0])[0] is not None:
         return None
     return base.get_attr("spec", indices=[0])[0]
+
+
+def _rng_info_outermost(base: VecEnv) -> bool:
+    """Whether sub-env 0 of ``base`` is a :class:`~..vector.rng.ResetRngInfo` (it answers safely).
+
+    Asked with ``env_is_wrapped`` first: with ResetRngInfo in it, the outermost is a wrapper,
+    which has ``class_name``.
+    """
+    if not base.env_is_wrapped(ResetRngInfo, indices=[0])[0]:
+        return False
+    return bool(base.env_method("class_name", indices=[0])[0] == ResetRngInfo.__name__)

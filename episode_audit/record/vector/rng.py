@@ -25,6 +25,7 @@ from ..._jobs import unpicklable
 from ...format import names as fmt
 from ...format.wrappers import LAYOUT_UNSAVED_STATE
 from .. import native
+from ..gym import reward_wrappers
 from ..notes import note
 from ..rules import find_wrapper
 from ..seeding import capture_rng_state
@@ -32,6 +33,7 @@ from ..state import StateTargets, adapter_for_entry_point
 from .workers import RngUnsendable, unsendable
 
 __all__ = [
+    "REWARD_WRAPPERS",
     "RNG_STATE_IF_READABLE",
     "SPEC_IF_SENDABLE",
     "LocalSubEnvs",
@@ -44,6 +46,9 @@ RngState = dict[str, Any]
 
 SPEC_IF_SENDABLE = "episode_audit_spec"
 """The method of :class:`ResetRngInfo` giving the sub-env's spec when a worker can send it."""
+
+REWARD_WRAPPERS = "episode_audit_reward_wrappers"
+"""The method of :class:`ResetRngInfo` naming the reward-changing wrappers below it, in order."""
 
 RNG_STATE_IF_READABLE = "episode_audit_rng_state"
 """The method of :class:`ResetRngInfo` giving the sub-env's RNG state as JSON text, or why not."""
@@ -157,6 +162,15 @@ class ResetRngInfo(gym.Wrapper[Any, Any, Any, Any]):
         if unpicklable(spec) is not None:  # (as a worker's pipe sends it)
             return False, None
         return True, spec
+
+    def episode_audit_reward_wrappers(self) -> list[str]:
+        """The entry points of the wrappers below it that change the reward, innermost first.
+
+        What a recorder asks a worker's sub-env (:data:`REWARD_WRAPPERS`) whose spec does not
+        name them: walked in the worker, in their order (``record.gym.reward_wrappers``, as a
+        sub-env in the recorder's process is). Never raises; strings always pickle.
+        """
+        return reward_wrappers(self.env)
 
     def episode_audit_rng_state(self) -> tuple[str | None, str | None]:
         """``(state, None)``: the env's RNG state now as JSON text; else ``(None, why)``.
@@ -464,19 +478,47 @@ OWN_INFO_KEYS = (fmt.INFO_RNG_STATE, fmt.INFO_STATE, fmt.INFO_STATE_NOTE)
 
 
 def has_own_keys(infos: Any) -> bool:
-    """Whether a vector env's ``infos`` dict holds a key of :data:`OWN_INFO_KEYS` (three looks)."""
-    return type(infos) is dict and (
-        fmt.INFO_RNG_STATE in infos or fmt.INFO_STATE in infos or fmt.INFO_STATE_NOTE in infos
+    """Whether a vector env's ``infos`` hold a key of :data:`OWN_INFO_KEYS`.
+
+    ``infos``: a dict (three looks), or ``DictInfoToList``'s list of a dict per sub-env.
+    """
+    if type(infos) is list:
+        return any(_has_own(info) for info in infos)
+    return _has_own(infos)
+
+
+def _has_own(info: Any) -> bool:
+    """Whether ``info`` is a dict holding a key of :data:`OWN_INFO_KEYS` (three looks)."""
+    return type(info) is dict and (
+        fmt.INFO_RNG_STATE in info or fmt.INFO_STATE in info or fmt.INFO_STATE_NOTE in info
     )
 
 
-def without_installed(infos: dict[str, Any], installed: Sequence[bool]) -> dict[str, Any]:
+def without_own_keys(info: Any) -> Any:
+    """``info`` without the keys of :data:`OWN_INFO_KEYS` (a copy), or itself when it has none.
+
+    >>> without_own_keys({"episode_audit.rng_state": "{}", "x": 1}), without_own_keys(None)
+    ({'x': 1}, None)
+    """
+    if not _has_own(info):
+        return info
+    return {k: v for k, v in info.items() if k not in OWN_INFO_KEYS}
+
+
+def without_installed(infos: Any, installed: Sequence[bool]) -> Any:
     """A copy of a vector env's ``infos`` without what the recorder's own wrappers put there.
 
     ``installed``: per sub-env, whether its :class:`ResetRngInfo` is the recorder's
-    (:attr:`SubEnvRng.installed`). A key (and its ``_`` mask) goes when only those sub-envs have
-    it; one that a user's own :class:`ResetRngInfo` also wrote stays, for those sub-envs only.
+    (:attr:`SubEnvRng.installed`). A list (``DictInfoToList``'s) loses those keys from the
+    dicts of those sub-envs. Of a dict, a key (and its ``_`` mask) goes when only those
+    sub-envs have it; one that a user's own :class:`ResetRngInfo` also wrote stays, for those
+    sub-envs only.
     """
+    if type(infos) is list:
+        return [
+            without_own_keys(info) if i < len(installed) and installed[i] else info
+            for i, info in enumerate(infos)
+        ]
     out = dict(infos)
     mine = np.asarray(installed, dtype=bool)
     for key in OWN_INFO_KEYS:
