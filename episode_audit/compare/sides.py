@@ -52,8 +52,9 @@ class Side:
     rng: Array | None = None
     success_signal: bool = True
     reward_wrappers: frozenset[str] = frozenset()
-    """The reward wrappers the side's episodes were recorded over, a chain each
-    (:func:`~episode_audit.report.wrapped.chain_text`; ``""``: none, the env's own rewards)."""
+    """The reward wrappers the side's episodes were recorded over, with their settings, a chain
+    each (:func:`~episode_audit.report.wrapped.file_setup`; ``""``: none, the env's own
+    rewards)."""
     started: Side | None = None
     reported: dict[str, Array] = field(default_factory=dict)
     """Per term, whether each episode reported it at all (absent: every episode did)."""

@@ -109,8 +109,8 @@ class Report:
             if group.mixed_rewards:
                 notes.append(
                     f"group {group.key}: its files were recorded over different reward wrappers "
-                    "(or some over none), so its returns are in different units: no return "
-                    "mean, and no incentive warning that compares returns"
+                    "or settings (or some over none), so its returns are in different units: no "
+                    "return mean, and no incentive warning that compares returns"
                 )
             if group.nonfinite_returns:
                 notes.append(
