@@ -58,7 +58,7 @@ def _difference(m: MetricComparison) -> str:
 def _test(m: MetricComparison) -> str:
     if m.not_comparable is not None:
         return "not compared"
-    how = f"{m.pairs} pairs" if m.paired else f"unpaired: {m.pairs} pairs, too few"
+    how = f"{m.pairs} pairs" if m.paired else f"unpaired: {m.pairs} pairs"
     return f"{m.test} ({how})"
 
 
