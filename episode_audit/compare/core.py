@@ -28,7 +28,7 @@ from ..read.arguments import path_list
 from ..read.storage import is_url
 from ..report import GateResult
 from ..report.collect import check_by, joined
-from ..report.core import FilePart, file_part
+from ..report.core import FilePart, check_runs_apart, file_part
 from ..report.gates import unmatched_why
 from ..report.groups import group_reports
 from ..report.wrapped import Wrapped
@@ -274,6 +274,8 @@ def compare_parts(
     """Compare the sides' files from their parts (:func:`side_file`), as :func:`compare_tables`."""
     check_compare_by(by)
     _check_options(baseline, candidate, gates, rate_margin)
+    check_runs_apart([f.part for f in baseline], "the baseline's ")
+    check_runs_apart([f.part for f in candidate], "the candidate's ")
     found = check_tasks(baseline, candidate, different_tasks)
     gates = gates or CompareGates()
     tables_b = _tasked(baseline, joined(f.part.rows for f in baseline))

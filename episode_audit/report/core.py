@@ -7,6 +7,8 @@ opened; both return a :class:`Report`. Rates, denominators, warnings and the JSO
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -14,6 +16,7 @@ from functools import partial
 from typing import Any
 
 from .._jobs import map_ordered
+from ..errors import ConfigurationError
 from ..format.run_end import RunEnd
 from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
@@ -28,10 +31,12 @@ __all__ = [
     "UNFINISHED_TITLE",
     "FilePart",
     "Report",
+    "check_runs_apart",
     "file_part",
     "report",
     "report_parts",
     "report_tables",
+    "run_identity",
 ]
 
 
@@ -179,6 +184,8 @@ class FilePart:
     key: str | None = None
     """The group every episode of the file is in, when the grouping gives a file one
     (:func:`~.collect.file_key`): a file that holds none is a group of 0 episodes then."""
+    run: str = ""
+    """The identity of the file's run (:func:`run_identity`; ``""``: unknown)."""
 
 
 def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart:
@@ -194,7 +201,43 @@ def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart
         if lost
         else None
     )
-    return FilePart(name, rows, unfinished, tags, file_chain(ev), dropped, file_key(name, ev, by))
+    return FilePart(
+        name, rows, unfinished, tags, file_chain(ev), dropped, file_key(name, ev, by),
+        run_identity(ev),
+    )  # fmt: skip
+
+
+def run_identity(ev: Evidence) -> str:
+    """The identity of the run ``ev`` recorded: a digest of its run metadata (``""``: unknown).
+
+    The recorder writes the run metadata once, with the time it began to the microsecond; a
+    copy of the file, and a copy ``episode-audit recover`` made of it, keep it as it was. Two
+    files of one identity hold the same run: counted together, its episodes count twice
+    (:func:`check_runs_apart`). A file without a start time (another writer's) has none.
+    """
+    if not ev.run.start_time:
+        return ""
+    metadata = json.dumps(ev.run.to_metadata(), sort_keys=True)
+    return hashlib.sha256(metadata.encode()).hexdigest()[:32]
+
+
+def check_runs_apart(parts: Sequence[FilePart], whose: str = "") -> None:
+    """Refuse two files of one run (:class:`ConfigurationError`): their episodes would count twice.
+
+    A torn file and the copy ``episode-audit recover`` made of it, or a plain copy; ``whose``
+    (``"the baseline's "``) says where they were given.
+    """
+    first: dict[str, str] = {}
+    for part in parts:
+        if not part.run:
+            continue
+        seen = first.setdefault(part.run, part.name)
+        if seen != part.name:
+            raise ConfigurationError(
+                f"{whose}{seen} and {part.name} hold the same run (the same run metadata: a "
+                "copy, or a recovered copy beside its torn original), whose episodes would "
+                "count twice; pass one of them"
+            )
 
 
 LOST = "no recorder is writing it and it holds no complete chunk: no episode survives"
@@ -216,6 +259,7 @@ def report_parts(
     """Report files from their parts (:func:`file_part`), as :func:`report_tables` does."""
     check_by(by)
     check_gateable(by, gates)
+    check_runs_apart(parts)
     unfinished = [(p.name, p.unfinished) for p in parts if p.unfinished is not None]
     groups = group_reports(
         *joined(p.rows for p in parts),
