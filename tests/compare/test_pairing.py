@@ -57,3 +57,19 @@ def test_pairs_that_leave_episodes_out_say_how_many(files: dict[str, Path]) -> N
         "candidate episodes have no pair (no episode of the other side began as they did) and "
         "are left out of it"
     ]
+
+
+def test_a_gate_on_a_label_no_failure_has_is_checked_on_0_against_0(
+    files: dict[str, Path],
+) -> None:
+    # docs/compare.md said such a gate passes; 0 against 0 over 8 pairs allows an increase
+    # beyond 0.1, and a gate of 0.1 fails (as it would on a label that exists)
+    tight = CompareGates(max_failure_increase_by_label={"fel": 0.1})
+    (gate,) = compare([files["cart"]], [files["cart_more"]], gates=tight).groups[0].gates
+    assert not gate.passed and gate.message.startswith(
+        "failure_rate:fel: the 95 % interval allows an increase of up to 0.3"
+    )
+    assert gate.message.endswith("beyond 0.1 (group all)")
+    loose = CompareGates(max_failure_increase_by_label={"fel": 0.5})
+    result = compare([files["cart"]], [files["cart_more"]], gates=loose)
+    assert result.passed and result.unmatched_labels == ["fel"]
