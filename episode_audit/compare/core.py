@@ -28,7 +28,7 @@ from ..read.arguments import path_list
 from ..read.storage import is_url
 from ..report import GateResult
 from ..report.collect import check_by, joined
-from ..report.core import FilePart, check_runs_apart, file_part
+from ..report.core import FilePart, check_runs_apart, file_part, missing_tag, missing_tag_note
 from ..report.gates import unmatched_why
 from ..report.groups import group_reports
 from ..report.wrapped import Wrapped
@@ -107,6 +107,8 @@ class Comparison:
     """Each gate that is on, failed on each group only the baseline has: it cannot be verified."""
     limits_note: str | None = None
     """Why the sides' time limits were not compared (:func:`~.spec.limits_note`), if so."""
+    missing_tag: str | None = None
+    """The tag of ``by="tag:NAME"`` when no file of either side has it (a misspelling, maybe)."""
 
     @property
     def reward_notes(self) -> list[str]:
@@ -128,12 +130,14 @@ class Comparison:
     def notes(self) -> list[str]:
         """What the options matched nothing of, and what the comparison could not use, a line each.
 
-        Time limits not compared; a per-label failure gate on a label no failure of either side
-        has; a group's notes (error episodes, returns that are not finite), naming the group; a
-        group on one side only.
+        Time limits not compared; ``by="tag:NAME"`` with a tag no file has; a per-label failure
+        gate on a label no failure of either side has; a group's notes (error episodes, returns
+        that are not finite), naming the group; a group on one side only.
         """
         seen = ", ".join(map(repr, self.seen_labels)) or "none"
         notes = [] if self.limits_note is None else [self.limits_note]
+        if self.missing_tag is not None:
+            notes.append(missing_tag_note(self.missing_tag))
         notes += [
             f"gate max_failure_increase:{label}: {unmatched_why(label)} (labels seen: {seen})"
             for label in self.unmatched_labels
@@ -327,6 +331,7 @@ def compare_parts(
         Wrapped.of(f.part.reward_wrappers for f in candidate),
         unverified,
         limits_note([f.fields for f in baseline], [f.fields for f in candidate]),
+        missing_tag(by, parts),
     )
 
 

@@ -33,6 +33,8 @@ __all__ = [
     "Report",
     "check_runs_apart",
     "file_part",
+    "missing_tag",
+    "missing_tag_note",
     "report",
     "report_parts",
     "report_tables",
@@ -106,10 +108,7 @@ class Report:
         if self.by == "label":
             notes.append(BY_LABEL_NOTE)
         if self.missing_tag is not None:
-            notes.append(
-                f"by tag:{self.missing_tag}: no file has the tag {self.missing_tag!r}, so every "
-                f"episode is in the group {NONE_KEY!r}: is the tag spelt as recorded?"
-            )
+            notes.append(missing_tag_note(self.missing_tag))
         for group in self.groups:
             if group.mixed_rewards:
                 notes.append(
@@ -275,13 +274,21 @@ def report_parts(
         unfinished,
         "game" if games else "episode",
         unmatched_labels(gates, groups),
-        _missing_tag(by, parts),
+        missing_tag(by, parts),
         Wrapped.of(p.reward_wrappers for p in parts),
         [(p.name, p.dropped) for p in parts if p.dropped is not None],
     )
 
 
-def _missing_tag(by: str, parts: Sequence[FilePart]) -> str | None:
+def missing_tag_note(tag: str) -> str:
+    """The note on a ``by="tag:NAME"`` whose tag no file has (:func:`missing_tag`)."""
+    return (
+        f"by tag:{tag}: no file has the tag {tag!r}, so every episode is in the group "
+        f"{NONE_KEY!r}: is the tag spelt as recorded?"
+    )
+
+
+def missing_tag(by: str, parts: Sequence[FilePart]) -> str | None:
     """The tag of ``by="tag:NAME"`` when no file has it (every episode would be ``(none)``)."""
     if not by.startswith("tag:") or not parts:
         return None

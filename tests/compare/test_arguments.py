@@ -87,3 +87,14 @@ def test_a_side_without_files_is_said_so(sides: tuple[Path, Path], empty: str) -
     given = {"baseline": [sides[0]], "candidate": [sides[1]], empty: []}
     with pytest.raises(ConfigurationError, match=rf"^no {empty} files: expected at least one"):
         compare(given["baseline"], given["candidate"])
+
+
+def test_a_tag_no_file_has_is_said_as_report_says_it(sides: tuple[Path, Path]) -> None:
+    # report warned of a misspelt tag; compare put every episode in '(none)' and said nothing
+    result = compare([sides[0]], [sides[1]], by="tag:confg")
+    note = (
+        "by tag:confg: no file has the tag 'confg', so every episode is in the group '(none)': "
+        "is the tag spelt as recorded?"
+    )
+    assert result.notes[0] == note and result.to_dict()["notes"][0] == note
+    assert note not in compare([sides[0]], [sides[1]], by="env").notes
