@@ -27,7 +27,7 @@ from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
 from ..read.storage import is_url
 from ..report import GateResult
-from ..report.collect import check_by, joined
+from ..report.collect import is_by, joined
 from ..report.core import FilePart, check_runs_apart, file_part, missing_tag, missing_tag_note
 from ..report.gates import unmatched_why
 from ..report.groups import group_reports
@@ -240,16 +240,16 @@ def compare_tables(
 
 
 def check_compare_by(by: str) -> None:
-    """``by`` checked: a report's grouping (:func:`~.report.collect.check_by`) two sides share."""
-    check_by(by)
+    """``by`` checked: a report's grouping (:func:`~.report.collect.is_by`) two sides share."""
+    groupings = "'all', 'env', 'env_index', 'agent' or 'tag:NAME'"
+    if not is_by(by):
+        raise ConfigurationError(f"by: expected {groupings}, actually: {by!r}")
     if by in ("file", "label"):
         why = {
             "file": "the two sides have different files, so no group would match",
             "label": "each group would hold one outcome, so every rate would be 0 or 1",
         }[by]
-        raise ConfigurationError(
-            f"by={by!r}: {why}; group by 'all', 'env', 'env_index', 'agent' or 'tag:NAME'"
-        )
+        raise ConfigurationError(f"by={by!r}: {why}; group by {groupings}")
 
 
 @dataclass(frozen=True)

@@ -130,3 +130,17 @@ def test_a_gate_given_twice_is_refused_naming_both_values(sides: tuple[Path, Pat
         report_inputs([base], max_failure_rate=both)
     other_labels = compare_inputs([base], [cand], max_failure_increase=["a=0.1", "b=0.1", "0.2"])
     assert other_labels.comparison.groups  # (one gate a label, and one overall: accepted)
+
+
+def test_an_unknown_grouping_lists_only_those_compare_takes(sides: tuple[Path, Path]) -> None:
+    # the list was report's, with 'file' and 'label', which compare then refused
+    line = "by: expected 'all', 'env', 'env_index', 'agent' or 'tag:NAME', actually: 'foo'"
+    with pytest.raises(ConfigurationError, match=f"^{line}$"):
+        compare([sides[0]], [sides[1]], by="foo")
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    args = ["compare", str(sides[0]), "--candidate", str(sides[1]), "--by", "foo", "-j", "1"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and result.stderr == f"episode-audit: error: {line}\n"
