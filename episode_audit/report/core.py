@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
+import pyarrow.compute as pc
+
 from .._jobs import map_ordered
 from ..errors import ConfigurationError
 from ..format.run_end import RunEnd
@@ -207,17 +209,22 @@ def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart
 
 
 def run_identity(ev: Evidence) -> str:
-    """The identity of the run ``ev`` recorded: a digest of its run metadata (``""``: unknown).
+    """The identity of the run ``ev`` recorded (``""``: unknown, or nothing to count twice).
 
-    The recorder writes the run metadata once, with the time it began to the microsecond; a
-    copy of the file, and a copy ``episode-audit recover`` made of it, keep it as it was. Two
-    files of one identity hold the same run: counted together, its episodes count twice
-    (:func:`check_runs_apart`). A file without a start time (another writer's) has none.
+    A digest of its run metadata (written once, with the time the run began to the
+    microsecond) and of its first episode's start time in nanoseconds: a copy of the file, and
+    a copy ``episode-audit recover`` made of it, keep both as they were; runs that workers
+    started at once with one configuration (the same metadata to the microsecond) do not
+    share the nanosecond their first episode began. Two files of one identity hold the same
+    run: counted together, its episodes count twice (:func:`check_runs_apart`). A file without
+    a start time (another writer's), or without an episode, has none.
     """
-    if not ev.run.start_time:
+    episodes = ev.episodes()
+    if not ev.run.start_time or not episodes.num_rows:
         return ""
+    first = pc.min(episodes.column("start_time_ns")).as_py()
     metadata = json.dumps(ev.run.to_metadata(), sort_keys=True)
-    return hashlib.sha256(metadata.encode()).hexdigest()[:32]
+    return hashlib.sha256(f"{metadata}\n{first}".encode()).hexdigest()[:32]
 
 
 def check_runs_apart(parts: Sequence[FilePart], whose: str = "") -> None:

@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import pytest
 from typer.testing import CliRunner
 
-from episode_audit import ConfigurationError, RecordEvidence, compare, recover, report
+from episode_audit import (
+    ConfigurationError,
+    RecordEvidence,
+    compare,
+    open_evidence,
+    recover,
+    report,
+)
 from episode_audit.cli import app
 from episode_audit.rollout import record_episodes
 
@@ -66,3 +74,24 @@ def test_the_command_line_refuses_them_in_one_line(files: dict[str, Path], tmp_p
         result = runner.invoke(app, [*args, "-j", "1"])
         assert result.exit_code == 2 and "Traceback" not in result.stderr
         assert "hold the same run" in result.stderr and "pass one of them" in result.stderr
+
+
+def test_runs_begun_in_one_microsecond_with_one_configuration_are_two_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # (workers a scheduler starts at once: the same run metadata, to the microsecond)
+    from datetime import datetime, timezone
+
+    import episode_audit.record.settings as settings
+
+    class OneInstant(datetime):
+        @classmethod
+        def now(cls, tz: Any = None) -> OneInstant:
+            return cls(2026, 11, 29, 12, 0, 0, 123456, tzinfo=timezone.utc)
+
+    monkeypatch.setattr(settings, "datetime", OneInstant)
+    paths = [tmp_path / "worker-0.mcap", tmp_path / "worker-1.mcap"]
+    for path in paths:
+        record_episodes("CartPole-v1", path, episodes=3)
+    assert open_evidence(paths[0]).run.to_metadata() == open_evidence(paths[1]).run.to_metadata()
+    assert report(paths, by="all").groups[0].episodes == 6
