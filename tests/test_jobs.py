@@ -869,7 +869,8 @@ def test_report_and_compare_read_in_this_process_below_their_own_size(tmp_path: 
 def test_the_library_report_takes_jobs(campaign: Path) -> None:
     from episode_audit.report import report
 
-    files = sorted(p for p in campaign.glob("*.mcap") if "unreadable" not in p.name)[:40]
+    # (one copy of each recorded file: copies of one run would count its episodes twice)
+    files = sorted(p for p in campaign.glob("*.mcap") if "unreadable" not in p.name)[:11]
     assert report(files, by="env", jobs=2).to_dict() == report(files, by="env").to_dict()
 
 

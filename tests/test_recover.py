@@ -40,6 +40,7 @@ from tests import kill_harness
 from tests.support.disk import fill_disk
 from tests.support.hostile import replace_column, rewrite
 from tests.support.killing import how_long, killed_midway
+from tests.support.rewards import record_cartpole
 from tests.support.viewer_files import random_cartpole_file
 
 runner = CliRunner()
@@ -336,7 +337,7 @@ def test_a_damaged_file_among_good_ones_costs_them_nothing(recorded: Path, tmp_p
     inputs.mkdir()
     shutil.copy(recorded, inputs / "a.mcap")
     damaged_copy(recorded, tmp_path, offset + length - 20).rename(inputs / "b.mcap")
-    shutil.copy(recorded, inputs / "c.mcap")
+    record_cartpole(inputs / "c.mcap", episodes=6)  # (another run: a copy is the same run)
     good = [str(inputs / "a.mcap"), str(inputs / "c.mcap")]
     for command in ("check", "replay", "report", "export"):
         if command == "export":

@@ -233,7 +233,9 @@ def compare(
     emit(compare_output(comparison, fmt, unreadable=result.unreadable))
     for line in comparison.notes:
         warn(line)
-    markdown = lambda: str(compare_output(comparison, "markdown"))  # noqa: E731
+    markdown = lambda: str(  # noqa: E731
+        compare_output(comparison, "markdown", unreadable=result.unreadable)
+    )
     append_step_summary(markdown, off=no_step_summary)
     if result.unreadable:
         raise typer.Exit(EXIT_USAGE)

@@ -153,7 +153,9 @@ def report(
         if html is not None:
             _write_html(result, html, games)
         if result.readable:
-            markdown = lambda: str(report_output(result.report, "markdown"))  # noqa: E731
+            markdown = lambda: str(  # noqa: E731
+                report_output(result.report, "markdown", unreadable=result.unreadable)
+            )
             append_step_summary(markdown, off=no_step_summary)
         for line in result.report.notes:
             warn(line)

@@ -27,8 +27,8 @@ from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
 from ..read.storage import is_url
 from ..report import GateResult
-from ..report.collect import check_by, joined
-from ..report.core import FilePart, file_part
+from ..report.collect import is_by, joined
+from ..report.core import FilePart, check_runs_apart, file_part, missing_tag, missing_tag_note
 from ..report.gates import unmatched_why
 from ..report.groups import group_reports
 from ..report.wrapped import Wrapped
@@ -107,6 +107,8 @@ class Comparison:
     """Each gate that is on, failed on each group only the baseline has: it cannot be verified."""
     limits_note: str | None = None
     """Why the sides' time limits were not compared (:func:`~.spec.limits_note`), if so."""
+    missing_tag: str | None = None
+    """The tag of ``by="tag:NAME"`` when no file of either side has it (a misspelling, maybe)."""
 
     @property
     def reward_notes(self) -> list[str]:
@@ -128,12 +130,14 @@ class Comparison:
     def notes(self) -> list[str]:
         """What the options matched nothing of, and what the comparison could not use, a line each.
 
-        Time limits not compared; a per-label failure gate on a label no failure of either side
-        has; a group's notes (error episodes, returns that are not finite), naming the group; a
-        group on one side only.
+        Time limits not compared; ``by="tag:NAME"`` with a tag no file has; a per-label failure
+        gate on a label no failure of either side has; a group's notes (error episodes, returns
+        that are not finite), naming the group; a group on one side only.
         """
         seen = ", ".join(map(repr, self.seen_labels)) or "none"
         notes = [] if self.limits_note is None else [self.limits_note]
+        if self.missing_tag is not None:
+            notes.append(missing_tag_note(self.missing_tag))
         notes += [
             f"gate max_failure_increase:{label}: {unmatched_why(label)} (labels seen: {seen})"
             for label in self.unmatched_labels
@@ -236,16 +240,16 @@ def compare_tables(
 
 
 def check_compare_by(by: str) -> None:
-    """``by`` checked: a report's grouping (:func:`~.report.collect.check_by`) two sides share."""
-    check_by(by)
+    """``by`` checked: a report's grouping (:func:`~.report.collect.is_by`) two sides share."""
+    groupings = "'all', 'env', 'env_index', 'agent' or 'tag:NAME'"
+    if not is_by(by):
+        raise ConfigurationError(f"by: expected {groupings}, actually: {by!r}")
     if by in ("file", "label"):
         why = {
             "file": "the two sides have different files, so no group would match",
             "label": "each group would hold one outcome, so every rate would be 0 or 1",
         }[by]
-        raise ConfigurationError(
-            f"by={by!r}: {why}; group by 'all', 'env', 'env_index', 'agent' or 'tag:NAME'"
-        )
+        raise ConfigurationError(f"by={by!r}: {why}; group by {groupings}")
 
 
 @dataclass(frozen=True)
@@ -274,6 +278,8 @@ def compare_parts(
     """Compare the sides' files from their parts (:func:`side_file`), as :func:`compare_tables`."""
     check_compare_by(by)
     _check_options(baseline, candidate, gates, rate_margin)
+    check_runs_apart([f.part for f in baseline], "the baseline's ")
+    check_runs_apart([f.part for f in candidate], "the candidate's ")
     found = check_tasks(baseline, candidate, different_tasks)
     gates = gates or CompareGates()
     tables_b = _tasked(baseline, joined(f.part.rows for f in baseline))
@@ -325,6 +331,7 @@ def compare_parts(
         Wrapped.of(f.part.reward_wrappers for f in candidate),
         unverified,
         limits_note([f.fields for f in baseline], [f.fields for f in candidate]),
+        missing_tag(by, parts),
     )
 
 

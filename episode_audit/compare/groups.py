@@ -254,16 +254,18 @@ def compare_group(
     _mark_repeats(metrics, [(b, c) for _, b, c, _ in rates])
     all_b, all_c = base.everything, cand.everything
     errors_b, errors_c = _is(all_b, all_c, fmt.OUTCOME_ERROR)
+    notes = _mixed_tasks(base, cand)
+    if unended is None:
+        notes += pairs.left_out("the rates and the return")
     if errors_b.any() or errors_c.any() or "error_rate" in limits:
         margin = limits.get("error_rate", rate_margin)
+        began = pair(all_b, all_c)
         metrics.append(
-            rate_metric(
-                "error_rate", errors_b, errors_c, pair(all_b, all_c), better="lower",
-                margin=margin,
-            )
-        )  # fmt: skip
+            rate_metric("error_rate", errors_b, errors_c, began, better="lower", margin=margin)
+        )
+        notes += began.left_out("error_rate")
     means, mean_notes = _means(base, cand, pairs, gates, unended)
-    notes = _mixed_tasks(base, cand) + _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
+    notes += _errors(errors_b, errors_c) + _nonfinite_returns(base, cand)
     if unended is not None:
         notes.append(
             f"{unended}: the rates (but error_rate) and the return are not computed "

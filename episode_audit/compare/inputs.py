@@ -19,7 +19,7 @@ from ..errors import ConfigurationError, EpisodeAuditError
 from ..read import open_evidence
 from ..read.inputs import Unreadable, listed_inputs
 from ..read.storage import Source
-from ..report.gates import is_rate
+from ..report.inputs import failure_rates
 from .core import (
     Comparison,
     SideFile,
@@ -157,28 +157,7 @@ def gates_from_options(
     check_limit("--max-success-drop", max_success_drop, "rate")
     check_limit("--max-return-drop", max_return_drop, "amount")
     check_limit("--max-error-increase", max_error_increase, "rate")
-    overall: float | None = None
-    by_label: dict[str, float] = {}
-    for value in max_failure_increase:
-        label, sep, rate = value.rpartition("=")
-        try:
-            number = float(rate)
-        except ValueError:
-            raise ConfigurationError(
-                f"--max-failure-increase: expected RATE or LABEL=RATE, got {value!r}"
-            ) from None
-        if not is_rate(number):
-            raise ConfigurationError(
-                f"--max-failure-increase: expected a rate between 0 and 1, got {rate!r}"
-            )
-        if sep and not label:
-            raise ConfigurationError(
-                f"--max-failure-increase: expected RATE or LABEL=RATE, got {value!r} (no label)"
-            )
-        if sep:
-            by_label[label] = number
-        else:
-            overall = number
+    overall, by_label = failure_rates(max_failure_increase, "--max-failure-increase")
     return CompareGates(
         max_success_drop,
         overall,

@@ -3,8 +3,8 @@
 :func:`rate_metric` compares a rate (success, failure, one label's failure, truncation,
 error);
 :func:`mean_metric` a mean (return, a reward term's episode total). Both are paired on matched
-reset seeds when at least half of the smaller side's episodes found a pair
-(:data:`PAIRED_SHARE`), else unpaired over every ended episode. :func:`decide` gives the
+reset seeds when the pairs are usable (:func:`~.sides.pair`: enough of each task found a pair,
+:data:`PAIRED_SHARE`), else unpaired over every ended episode. :func:`decide` gives the
 verdict once the p-values are Holm-adjusted (:func:`settle` with an n needed that agrees with
 the interval). The formulas: ``docs/compare.md``.
 """
@@ -19,7 +19,7 @@ import numpy as np
 
 from ..report.stats import Interval
 from . import stats
-from .sides import Pairs
+from .sides import PAIRED_SHARE, Pairs
 
 __all__ = [
     "PAIRED_SHARE",
@@ -36,8 +36,6 @@ __all__ = [
 
 Verdict = Literal["regressed", "improved", "held", "inconclusive", "underpowered"]
 VERDICTS: tuple[Verdict, ...] = ("regressed", "improved", "held", "inconclusive", "underpowered")
-PAIRED_SHARE = 0.5
-"""Paired when the matched pairs are at least this share of the smaller side's episodes."""
 
 Array = np.ndarray[Any, Any]
 
@@ -126,11 +124,6 @@ def _finite(value: float | None) -> float | None:
     return value if value is not None and math.isfinite(value) else None
 
 
-def use_pairs(pairs: Pairs, nb: int, nc: int) -> bool:
-    """Whether to compare paired: enough of the smaller side found a pair (and at least two)."""
-    return len(pairs) >= 2 and len(pairs) >= PAIRED_SHARE * min(nb, nc)
-
-
 def rate_metric(
     name: str,
     base: Array,
@@ -147,7 +140,7 @@ def rate_metric(
     timeout).
     """
     nb, nc = len(base), len(cand)
-    if use_pairs(pairs, nb, nc):
+    if pairs.usable:
         x, y = base[pairs.base], cand[pairs.cand]
         n = len(x)
         a, b = int(np.sum(x & y)), int(np.sum(x & ~y))
@@ -194,7 +187,7 @@ def mean_metric(
     (:func:`~.stats.too_few`).
     """
     nb, nc = len(base), len(cand)
-    paired = use_pairs(pairs, nb, nc)
+    paired = pairs.usable
     if paired:
         x, y = base[pairs.base], cand[pairs.cand]
         variance = float(np.var(y - x, ddof=1))

@@ -25,7 +25,7 @@ from ..format import names as fmt
 from ..report.collect import ENDED
 from ..report.groups import keyed
 
-__all__ = ["Pairs", "Side", "pair", "sides", "started"]
+__all__ = ["PAIRED_SHARE", "Pairs", "Side", "pair", "sides", "started"]
 
 Array = np.ndarray[Any, Any]
 
@@ -52,8 +52,9 @@ class Side:
     rng: Array | None = None
     success_signal: bool = True
     reward_wrappers: frozenset[str] = frozenset()
-    """The reward wrappers the side's episodes were recorded over, a chain each
-    (:func:`~episode_audit.report.wrapped.chain_text`; ``""``: none, the env's own rewards)."""
+    """The reward wrappers the side's episodes were recorded over, with their settings, a chain
+    each (:func:`~episode_audit.report.wrapped.file_setup`; ``""``: none, the env's own
+    rewards)."""
     started: Side | None = None
     reported: dict[str, Array] = field(default_factory=dict)
     """Per term, whether each episode reported it at all (absent: every episode did)."""
@@ -129,15 +130,37 @@ class Side:
         return [] if self.task is None else sorted(set(self.task.tolist()))
 
 
+PAIRED_SHARE = 0.5
+"""Paired when the matched pairs of each task are at least this share of its smaller side's
+episodes (:func:`pair`)."""
+
+
 @dataclass(frozen=True)
 class Pairs:
-    """The episodes two sides share a reset seed with: ``base[i]`` pairs with ``cand[i]``."""
+    """The episodes two sides share a reset seed with: ``base[i]`` pairs with ``cand[i]``.
+
+    ``usable``: whether to compare paired (:func:`pair` says when); ``unpaired``: how many
+    episodes of each side (baseline, candidate) found no pair, left out when paired.
+    """
 
     base: Array
     cand: Array
+    usable: bool = False
+    unpaired: tuple[int, int] = (0, 0)
 
     def __len__(self) -> int:
         return len(self.base)
+
+    def left_out(self, what: str) -> list[str]:
+        """The note on the episodes a paired comparison of ``what`` leaves out, if it does."""
+        b, c = self.unpaired
+        if not self.usable or not b + c:
+            return []
+        return [
+            f"{what} compared paired on {len(self)} pairs: {b} baseline and {c} candidate "
+            "episodes have no pair (no episode of the other side began as they did) and are "
+            "left out of it"
+        ]
 
 
 def sides(episodes: pa.Table, terms: pa.Table) -> dict[str, Side]:
@@ -210,6 +233,12 @@ def pair(base: Side, cand: Side) -> Pairs:
     the k-th of one side with the k-th of the other. An episode with neither matches nothing.
     Two sides of one task each (the same, or two versions compared with ``different_tasks``)
     pair across them.
+
+    The pairs are ``usable`` when they number at least 2 and, for each task of either side, at
+    least :data:`PAIRED_SHARE` of its smaller side's episodes, and one: a paired comparison
+    leaves the episodes without a pair out, and must not leave out a task (whose episodes
+    would then be in no comparison), nor most of one. Else the comparison is unpaired, over
+    every episode.
     """
     by_task = len(base.tasks()) > 1 or len(cand.tasks()) > 1
     waiting: dict[tuple[str, int, str | None], list[int]] = defaultdict(list)
@@ -223,7 +252,25 @@ def pair(base: Side, cand: Side) -> Pairs:
         if queue:
             b.append(queue.pop(0))
             c.append(j)
-    return Pairs(np.array(b, dtype=np.int64), np.array(c, dtype=np.int64))
+    found_b, found_c = np.array(b, dtype=np.int64), np.array(c, dtype=np.int64)
+    usable = len(b) >= 2 and _each_task_paired(base, cand, found_b, by_task)
+    return Pairs(found_b, found_c, usable, (base.n - len(b), cand.n - len(c)))
+
+
+def _each_task_paired(base: Side, cand: Side, paired: Array, by_task: bool) -> bool:
+    """Whether each task has pairs, at least :data:`PAIRED_SHARE` of its smaller side's episodes.
+
+    ``paired``: the baseline's episodes that found a pair. One task when not ``by_task``.
+    """
+    if not by_task or base.task is None or cand.task is None:
+        return len(paired) >= PAIRED_SHARE * min(base.n, cand.n)
+    tasks_b, tasks_c = base.task.tolist(), cand.task.tolist()
+    of_pairs = base.task[paired].tolist()
+    for task in set(tasks_b) | set(tasks_c):
+        n = of_pairs.count(task)
+        if n < max(1, PAIRED_SHARE * min(tasks_b.count(task), tasks_c.count(task))):
+            return False
+    return True
 
 
 def _starts(side: Side, by_task: bool) -> list[tuple[str, int, str | None] | None]:

@@ -1,6 +1,7 @@
 """What differs between the runs of the two sides: task, env kwargs, time limit, versions.
 
-Reward wrappers under the recorder too: where they differ, the returns are in other units.
+Reward wrappers under the recorder too, with their recorded settings: where they differ, the
+returns are in other units.
 
 :func:`mismatches` lists each difference as a :class:`Mismatch`; a different env id means a
 different task, which :func:`~.core.compare` refuses unless told ``different_tasks=True``.
@@ -15,7 +16,7 @@ from typing import Any
 
 from ..format.wrappers import limits_text, worker_sub_envs
 from ..read import Evidence
-from ..report.wrapped import chain_text, file_chain
+from ..report.wrapped import file_setup
 
 __all__ = [
     "UNREAD_LIMITS",
@@ -61,7 +62,7 @@ def run_fields(ev: Evidence) -> dict[str, str]:
         "env_id": str(run.env_id),
         "env_kwargs": json.dumps(spec.get("kwargs") or {}, sort_keys=True, default=str),
         _LIMITS: limits_text(spec),
-        "reward_wrappers": chain_text(file_chain(ev)) or "(none)",
+        "reward_wrappers": file_setup(ev) or "(none)",
     }
     if worker_sub_envs(run.layout) is not None:
         out[UNREAD_LIMITS] = str(run.layout.get("vector_class"))[:80]

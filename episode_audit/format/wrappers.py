@@ -19,6 +19,7 @@ declared transparent, which replay leaves out as it does the registry's.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -51,6 +52,7 @@ __all__ = [
     "placed_limits",
     "plan_wrappers",
     "reward_wrapper_names",
+    "reward_wrapper_setups",
     "state_causes",
     "stateful_wrapper",
     "unplaced_limits",
@@ -759,6 +761,41 @@ def reward_wrapper_names(layout: Any) -> list[str]:
     """
     listed = layout.get(LAYOUT_REWARD_WRAPPERS) if isinstance(layout, Mapping) else None
     return [str(e).rpartition(":")[2][:80] for e in _listed(listed)]
+
+
+def reward_wrapper_setups(layout: Any, env_spec: Any) -> list[str]:
+    """:func:`reward_wrapper_names` with the settings the spec recorded of each, as text.
+
+    Each wrapper of the layout is matched, in order, with the spec's ``additional_wrappers``
+    entry of its entry point, whose ``kwargs`` are its settings: ``ClipReward(max_reward=1.0,
+    min_reward=-1.0)``. A setting the spec does not hold (no entry, no kwargs, or a placeholder:
+    ``TransformReward``'s function) is not there to differ: such a wrapper is its name alone.
+
+    >>> spec = {"additional_wrappers": [{"entry_point": "g:TimeLimit", "kwargs": {}},
+    ...     {"entry_point": "g:ClipReward", "kwargs": {"min_reward": -1, "max_reward": 0.5}}]}
+    >>> reward_wrapper_setups({"reward_wrappers": ["g:ClipReward", "g:NormalizeReward"]}, spec)
+    ['ClipReward(max_reward=0.5, min_reward=-1)', 'NormalizeReward']
+    """
+    listed = layout.get(LAYOUT_REWARD_WRAPPERS) if isinstance(layout, Mapping) else None
+    spec_wrappers = env_spec.get("additional_wrappers") if isinstance(env_spec, Mapping) else None
+    entries = [w for w in _listed(spec_wrappers) if isinstance(w, Mapping)]
+    out: list[str] = []
+    at = 0
+    for entry_point in map(str, _listed(listed)):
+        found = next(
+            (i for i in range(at, len(entries)) if entries[i].get("entry_point") == entry_point),
+            None,
+        )
+        kwargs = entries[found].get("kwargs") if found is not None else None
+        at = at if found is None else found + 1
+        settings = ", ".join(
+            f"{key}={json.dumps(value, sort_keys=True, default=str)[:_MAX_TEXT]}"
+            for key, value in sorted(kwargs.items() if isinstance(kwargs, Mapping) else ())
+            if unrecorded(value) is None
+        )
+        name = entry_point.rpartition(":")[2][:80]
+        out.append(f"{name}({settings})" if settings else name)
+    return out
 
 
 def stateful_wrapper(entry_point: str, *, snapshots: bool = False) -> str | None:

@@ -4,8 +4,8 @@
 row per (ended episode, reward term) with the term's episode total; ``row`` numbers the episodes
 (it joins the two tables), ``episode`` is an episode's index in its file (a game's, with games),
 ``seed`` is an episode's reset seed, ``reward_wrappers`` the reward wrappers its file was
-recorded over (:func:`~.wrapped.chain_text`; null: none) and ``rng`` a digest of the RNG
-state an unseeded reset began from. The key comes from ``by``:
+recorded over, with their settings (:func:`~.wrapped.file_setup`; null: none) and ``rng`` a
+digest of the RNG state an unseeded reset began from. The key comes from ``by``:
 :data:`BY_KEYS` or ``tag:NAME`` (:func:`is_by`, :func:`check_by`); an episode without a value
 for it is in the group :data:`NONE_KEY`.
 """
@@ -24,7 +24,7 @@ from ..format import names as fmt
 from ..format.records import unstarted
 from ..read import Evidence
 from .games import OUTCOME_FIELDS, game_table
-from .wrapped import chain_text, file_chain
+from .wrapped import file_setup
 
 __all__ = [
     "BY_KEYS",
@@ -151,7 +151,7 @@ def file_rows(name: str, ev: Evidence, by: str, games: bool = False) -> FileRows
         .append_column("rng", _rng_digests(table, n))
         .append_column("row", row)
         .append_column("episode", pc.cast(table.column("episode"), pa.int64()))
-        .append_column("reward_wrappers", pa.array([chain_text(file_chain(ev))] * n, pa.string()))
+        .append_column("reward_wrappers", pa.array([file_setup(ev)] * n, pa.string()))
     )
     return episodes, _term_rows(table, key, row, ev)
 

@@ -7,13 +7,18 @@ opened; both return a :class:`Report`. Rates, denominators, warnings and the JSO
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
+import pyarrow.compute as pc
+
 from .._jobs import map_ordered
+from ..errors import ConfigurationError
 from ..format.run_end import RunEnd
 from ..read import Evidence, open_evidence
 from ..read.arguments import path_list
@@ -28,10 +33,14 @@ __all__ = [
     "UNFINISHED_TITLE",
     "FilePart",
     "Report",
+    "check_runs_apart",
     "file_part",
+    "missing_tag",
+    "missing_tag_note",
     "report",
     "report_parts",
     "report_tables",
+    "run_identity",
 ]
 
 
@@ -101,16 +110,13 @@ class Report:
         if self.by == "label":
             notes.append(BY_LABEL_NOTE)
         if self.missing_tag is not None:
-            notes.append(
-                f"by tag:{self.missing_tag}: no file has the tag {self.missing_tag!r}, so every "
-                f"episode is in the group {NONE_KEY!r}: is the tag spelt as recorded?"
-            )
+            notes.append(missing_tag_note(self.missing_tag))
         for group in self.groups:
             if group.mixed_rewards:
                 notes.append(
                     f"group {group.key}: its files were recorded over different reward wrappers "
-                    "(or some over none), so its returns are in different units: no return "
-                    "mean, and no incentive warning that compares returns"
+                    "or settings (or some over none), so its returns are in different units: no "
+                    "return mean, and no incentive warning that compares returns"
                 )
             if group.nonfinite_returns:
                 notes.append(
@@ -179,6 +185,8 @@ class FilePart:
     key: str | None = None
     """The group every episode of the file is in, when the grouping gives a file one
     (:func:`~.collect.file_key`): a file that holds none is a group of 0 episodes then."""
+    run: str = ""
+    """The identity of the file's run (:func:`run_identity`; ``""``: unknown)."""
 
 
 def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart:
@@ -194,7 +202,48 @@ def file_part(name: str, ev: Evidence, by: str, games: bool = False) -> FilePart
         if lost
         else None
     )
-    return FilePart(name, rows, unfinished, tags, file_chain(ev), dropped, file_key(name, ev, by))
+    return FilePart(
+        name, rows, unfinished, tags, file_chain(ev), dropped, file_key(name, ev, by),
+        run_identity(ev),
+    )  # fmt: skip
+
+
+def run_identity(ev: Evidence) -> str:
+    """The identity of the run ``ev`` recorded (``""``: unknown, or nothing to count twice).
+
+    A digest of its run metadata (written once, with the time the run began to the
+    microsecond) and of its first episode's start time in nanoseconds: a copy of the file, and
+    a copy ``episode-audit recover`` made of it, keep both as they were; runs that workers
+    started at once with one configuration (the same metadata to the microsecond) do not
+    share the nanosecond their first episode began. Two files of one identity hold the same
+    run: counted together, its episodes count twice (:func:`check_runs_apart`). A file without
+    a start time (another writer's), or without an episode, has none.
+    """
+    episodes = ev.episodes()
+    if not ev.run.start_time or not episodes.num_rows:
+        return ""
+    first = pc.min(episodes.column("start_time_ns")).as_py()
+    metadata = json.dumps(ev.run.to_metadata(), sort_keys=True)
+    return hashlib.sha256(f"{metadata}\n{first}".encode()).hexdigest()[:32]
+
+
+def check_runs_apart(parts: Sequence[FilePart], whose: str = "") -> None:
+    """Refuse two files of one run (:class:`ConfigurationError`): their episodes would count twice.
+
+    A torn file and the copy ``episode-audit recover`` made of it, or a plain copy; ``whose``
+    (``"the baseline's "``) says where they were given.
+    """
+    first: dict[str, str] = {}
+    for part in parts:
+        if not part.run:
+            continue
+        seen = first.setdefault(part.run, part.name)
+        if seen != part.name:
+            raise ConfigurationError(
+                f"{whose}{seen} and {part.name} hold the same run (the same run metadata: a "
+                "copy, or a recovered copy beside its torn original), whose episodes would "
+                "count twice; pass one of them"
+            )
 
 
 LOST = "no recorder is writing it and it holds no complete chunk: no episode survives"
@@ -216,6 +265,7 @@ def report_parts(
     """Report files from their parts (:func:`file_part`), as :func:`report_tables` does."""
     check_by(by)
     check_gateable(by, gates)
+    check_runs_apart(parts)
     unfinished = [(p.name, p.unfinished) for p in parts if p.unfinished is not None]
     groups = group_reports(
         *joined(p.rows for p in parts),
@@ -231,13 +281,21 @@ def report_parts(
         unfinished,
         "game" if games else "episode",
         unmatched_labels(gates, groups),
-        _missing_tag(by, parts),
+        missing_tag(by, parts),
         Wrapped.of(p.reward_wrappers for p in parts),
         [(p.name, p.dropped) for p in parts if p.dropped is not None],
     )
 
 
-def _missing_tag(by: str, parts: Sequence[FilePart]) -> str | None:
+def missing_tag_note(tag: str) -> str:
+    """The note on a ``by="tag:NAME"`` whose tag no file has (:func:`missing_tag`)."""
+    return (
+        f"by tag:{tag}: no file has the tag {tag!r}, so every episode is in the group "
+        f"{NONE_KEY!r}: is the tag spelt as recorded?"
+    )
+
+
+def missing_tag(by: str, parts: Sequence[FilePart]) -> str | None:
     """The tag of ``by="tag:NAME"`` when no file has it (every episode would be ``(none)``)."""
     if not by.startswith("tag:") or not parts:
         return None

@@ -66,9 +66,9 @@ class GroupReport:
     """Whether the task reports success: some file of the group says its task did (a success
     key in an episode's final info, or a ``success_fn``), or does not say (torn, or older)."""
     mixed_rewards: bool = False
-    """Whether the group's files were recorded over different reward wrappers (or some over
-    none): their returns are in different units, so the group has no return statistics and no
-    incentive warning that compares returns."""
+    """Whether the group's files were recorded over different reward wrappers or settings (or
+    some over none): their returns are in different units, so the group has no return
+    statistics and no incentive warning that compares returns."""
 
     @property
     def failure(self) -> int:
@@ -259,7 +259,7 @@ def _group(key: str, rows: pa.Table, terms: pa.Table, one_outcome: bool) -> Grou
 
 
 def _mixed_rewards(rows: pa.Table) -> bool:
-    """Whether ``rows`` (a group's episodes) come from files of different reward wrappers."""
+    """Whether ``rows`` (a group's episodes) come from files of other reward wrappers or setups."""
     if "reward_wrappers" not in rows.column_names or rows.num_rows < 2:
         return False
     chains = pc.count_distinct(rows.column("reward_wrappers"), mode="all").as_py()

@@ -23,7 +23,7 @@ from .collect import is_by
 from .core import FilePart, Report, file_part, report_parts
 from .gates import Gates, check_gateable, is_rate
 
-__all__ = ["InputsReport", "gates_from_options", "report_inputs"]
+__all__ = ["InputsReport", "failure_rates", "gates_from_options", "report_inputs"]
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,7 @@ def gates_from_options(
     ...     print(exc)
     --max-failure-rate: expected RATE or LABEL=RATE, got '=0.1' (no label)
     """
-    overall, by_label = _failure_rates(max_failure_rate)
+    overall, by_label = failure_rates(max_failure_rate)
     return Gates(
         min_success_rate=_rate_option("--min-success-rate", min_success_rate),
         max_failure_rate=overall,
@@ -163,8 +163,21 @@ def gates_from_options(
     )
 
 
-def _failure_rates(values: Sequence[str]) -> tuple[float | None, dict[str, float]]:
-    """``--max-failure-rate`` values: the overall rate (the last given) and those by label."""
+def failure_rates(
+    values: Sequence[str], option: str = "--max-failure-rate"
+) -> tuple[float | None, dict[str, float]]:
+    """``option``'s values (``RATE`` or ``LABEL=RATE``): the overall rate and those by label.
+
+    Each checked in the option's words; a rate given twice (overall, or for one label) is
+    refused, naming both values: the second would silently replace the first.
+
+    >>> failure_rates(["0.1", "fell=0.2", "fell=0.5"])
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: --max-failure-rate: given twice for the label \
+'fell' ('fell=0.2' and 'fell=0.5'); give each gate once
+    """
+    given: dict[str, str] = {}
     overall: float | None = None
     by_label: dict[str, float] = {}
     for value in values:
@@ -173,16 +186,21 @@ def _failure_rates(values: Sequence[str]) -> tuple[float | None, dict[str, float
             number = float(rate)
         except ValueError:
             raise ConfigurationError(
-                f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r}"
+                f"{option}: expected RATE or LABEL=RATE, got {value!r}"
             ) from None
         if not is_rate(number):
-            raise ConfigurationError(
-                f"--max-failure-rate: expected a rate between 0 and 1, got {rate!r}"
-            )
+            raise ConfigurationError(f"{option}: expected a rate between 0 and 1, got {rate!r}")
         if sep and not label:
             raise ConfigurationError(
-                f"--max-failure-rate: expected RATE or LABEL=RATE, got {value!r} (no label)"
+                f"{option}: expected RATE or LABEL=RATE, got {value!r} (no label)"
             )
+        what = f"the label {label!r}" if sep else "all failures"
+        if what in given:
+            raise ConfigurationError(
+                f"{option}: given twice for {what} ({given[what]!r} and {value!r}); give each "
+                "gate once"
+            )
+        given[what] = value
         if sep:
             by_label[label] = number
         else:

@@ -4,7 +4,9 @@ A file recorded over ``NormalizeReward``, ``TransformReward``, ``ClipReward`` or
 ``VecNormalize`` holds that wrapper's rewards (``check``'s ``rewards_changed`` note), so the
 returns ``report`` and ``compare`` read from it are not the env's. :func:`file_chain` names a
 file's wrappers; :class:`Wrapped` counts the files of each chain of them, says so in one line
-(:meth:`Wrapped.note`) and as JSON (:meth:`Wrapped.to_json`).
+(:meth:`Wrapped.note`) and as JSON (:meth:`Wrapped.to_json`). :func:`file_setup` adds
+the settings each wrapper was recorded with: returns under a ``ClipReward`` to 1 and one to 0.5
+are in different units too.
 """
 
 from __future__ import annotations
@@ -13,10 +15,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..format.wrappers import reward_wrapper_names
+from ..format.wrappers import reward_wrapper_names, reward_wrapper_setups
 from ..read import Evidence
 
-__all__ = ["NOTE_WIDTH", "Chain", "Wrapped", "chain_text", "file_chain"]
+__all__ = ["NOTE_WIDTH", "Chain", "Wrapped", "chain_text", "file_chain", "file_setup"]
 
 Chain = tuple[str, ...]
 """The class names of a file's reward wrappers, innermost first (``()``: none)."""
@@ -28,6 +30,16 @@ NOTE_WIDTH = 80
 def file_chain(ev: Evidence) -> Chain:
     """The reward wrappers the recorder of ``ev`` sat over (the run layout's)."""
     return tuple(reward_wrapper_names(ev.run.layout))
+
+
+def file_setup(ev: Evidence) -> str | None:
+    """The reward wrappers of ``ev`` with their recorded settings, as one string (``None``: none).
+
+    Files of the same setup have returns in the same units, as far as the files tell
+    (:func:`~episode_audit.format.wrappers.reward_wrapper_setups`: a setting the spec did not
+    record is not there to differ).
+    """
+    return chain_text(tuple(reward_wrapper_setups(ev.run.layout, ev.run.env_spec)))
 
 
 def chain_text(chain: Chain) -> str | None:

@@ -474,3 +474,34 @@ def test_a_json_schema_rejects_what_it_does_not_describe() -> None:
     del data["findings"][0]["step"]
     with pytest.raises(jsonschema.ValidationError, match="'step' is a required property"):
         jsonschema.validate(data, schema)
+
+
+def test_the_summary_names_the_unreadable_and_unfinished_files(tmp_path: Path) -> None:
+    # compare's Markdown (and the step summary) named neither the inputs it could not read
+    # (exit 2) nor the torn ones it compared; report's Markdown left the unreadable out
+    base = record_cartpole(tmp_path / "base.mcap")
+    cand = tmp_path / "cand"
+    cand.mkdir()
+    record_cartpole(cand / "good.mcap")
+    (cand / "garbage.mcap").write_text("garbage\n")
+    env = RecordEvidence(gym.make("CartPole-v1"), tmp_path / "whole.mcap", block_steps=16)
+    for seed in range(4):
+        env.reset(seed=seed)
+        while not any(env.step(0)[2:4]):
+            pass
+    env.flush()
+    (cand / "torn.mcap").write_bytes((tmp_path / "whole.mcap").read_bytes()[:-10])
+    env.close()
+    summary = tmp_path / "summary.md"
+    args = ["compare", str(base), "--candidate", str(cand), "-j", "1", "--format", "junit"]
+    assert run(*args, env={"GITHUB_STEP_SUMMARY": str(summary)})[0] == 2
+    text = summary.read_text()
+    assert "#### Unreadable files (not counted)" in text
+    assert f"| {cand / 'garbage.mcap'} | not an MCAP file (wrong magic bytes) |" in text
+    assert "#### Unfinished files (still being written, or torn): counts so far" in text
+    assert f"| {cand / 'torn.mcap'} | torn at byte " in text
+    code, out, _ = run("report", str(base), str(cand), "-j", "1", "--format", "markdown")
+    assert code == 2 and "#### Unreadable files (not counted)" in out
+    assert f"| {cand / 'garbage.mcap'} | not an MCAP file (wrong magic bytes) |" in out
+    code, out, _ = run("compare", str(base), "--candidate", str(cand), "-j", "1")
+    assert code == 2 and "Unreadable files (not counted)" in out and "Unfinished files" in out

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.rewards import record_cartpole
+
 REPO = Path(__file__).resolve().parents[2]
 FIXTURES = REPO / "fixtures"
 
@@ -59,9 +61,9 @@ def on_a_terminal(*args: str, columns: int = 80) -> list[str]:
 
 @pytest.fixture
 def campaign(tmp_path: Path) -> Path:
-    """Twenty readable files, then an unreadable one (last in sorted order)."""
+    """Twenty readable files (twenty runs), then an unreadable one (last in sorted order)."""
     for i in range(20):
-        shutil.copy(FIXTURES / "clean.mcap", tmp_path / f"{i:02d}.mcap")
+        record_cartpole(tmp_path / f"{i:02d}.mcap", episodes=2, seed=i)
     (tmp_path / "zz-bad.mcap").write_bytes(b"")
     return tmp_path
 

@@ -8,6 +8,8 @@ from typing import Any
 import pytest
 
 from episode_audit import CompareGates, ConfigurationError, Gates, compare
+from episode_audit.compare.inputs import compare_inputs
+from episode_audit.report import report_inputs
 from episode_audit.rollout import record_episodes
 
 
@@ -87,3 +89,58 @@ def test_a_side_without_files_is_said_so(sides: tuple[Path, Path], empty: str) -
     given = {"baseline": [sides[0]], "candidate": [sides[1]], empty: []}
     with pytest.raises(ConfigurationError, match=rf"^no {empty} files: expected at least one"):
         compare(given["baseline"], given["candidate"])
+
+
+def test_a_tag_no_file_has_is_said_as_report_says_it(sides: tuple[Path, Path]) -> None:
+    # report warned of a misspelt tag; compare put every episode in '(none)' and said nothing
+    result = compare([sides[0]], [sides[1]], by="tag:confg")
+    note = (
+        "by tag:confg: no file has the tag 'confg', so every episode is in the group '(none)': "
+        "is the tag spelt as recorded?"
+    )
+    assert result.notes[0] == note and result.to_dict()["notes"][0] == note
+    assert note not in compare([sides[0]], [sides[1]], by="env").notes
+
+
+def test_a_gate_given_twice_is_refused_naming_both_values(sides: tuple[Path, Path]) -> None:
+    # the last value was kept silently: 0.9 replaced 0.1, and the run passed
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    base, cand = map(str, sides)
+    runner = CliRunner()
+    for args, line in [
+        (
+            ["report", base, "--max-failure-rate", "0.1", "--max-failure-rate", "0.9"],
+            "--max-failure-rate: given twice for all failures ('0.1' and '0.9'); give each "
+            "gate once",
+        ),
+        (
+            ["compare", base, "--candidate", cand, "--max-failure-increase", "fell=0.05",
+             "--max-failure-increase", "fell=0.5"],
+            "--max-failure-increase: given twice for the label 'fell' ('fell=0.05' and "
+            "'fell=0.5'); give each gate once",
+        ),
+    ]:  # fmt: skip
+        result = runner.invoke(app, [*args, "-j", "1"])
+        assert result.exit_code == 2 and result.stderr == f"episode-audit: error: {line}\n"
+    both = ["0.1", "fell=0.2", "0.1"]
+    with pytest.raises(ConfigurationError, match=r"^--max-failure-rate: given twice for all"):
+        report_inputs([base], max_failure_rate=both)
+    other_labels = compare_inputs([base], [cand], max_failure_increase=["a=0.1", "b=0.1", "0.2"])
+    assert other_labels.comparison.groups  # (one gate a label, and one overall: accepted)
+
+
+def test_an_unknown_grouping_lists_only_those_compare_takes(sides: tuple[Path, Path]) -> None:
+    # the list was report's, with 'file' and 'label', which compare then refused
+    line = "by: expected 'all', 'env', 'env_index', 'agent' or 'tag:NAME', actually: 'foo'"
+    with pytest.raises(ConfigurationError, match=f"^{line}$"):
+        compare([sides[0]], [sides[1]], by="foo")
+    from typer.testing import CliRunner
+
+    from episode_audit.cli import app
+
+    args = ["compare", str(sides[0]), "--candidate", str(sides[1]), "--by", "foo", "-j", "1"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and result.stderr == f"episode-audit: error: {line}\n"

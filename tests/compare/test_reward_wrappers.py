@@ -20,6 +20,9 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     made = {w: record_cartpole(out / f"{w}.mcap", w) for w in ("plain", "normalized", "scaled")}
     made["plain_again"] = record_cartpole(out / "plain_again.mcap")
     made["normalized_again"] = record_cartpole(out / "normalized_again.mcap", "normalized")
+    for wrap in ("halved", "clipped", "clipped_half"):
+        made[wrap] = record_cartpole(out / f"{wrap}.mcap", wrap)
+    made["clipped_again"] = record_cartpole(out / "clipped_again.mcap", "clipped")
     return made
 
 
@@ -69,7 +72,7 @@ def test_a_return_gate_cannot_be_verified_and_outcome_gates_still_are(
     assert not by_gate["max_return_drop"].passed and not result.passed
     assert by_gate["max_return_drop"].message == (
         "return: cannot be verified, the baseline's returns are the env's and the candidate's "
-        f"NormalizeReward's; {NOT_COMPARED} (group all)"
+        f"NormalizeReward(epsilon=1e-08, gamma=0.99)'s; {NOT_COMPARED} (group all)"
     )
 
 
@@ -94,8 +97,9 @@ def test_sides_that_mix_wrapped_and_plain_files_are_not_compared(files: dict[str
     ret = result.groups[0].metric("return")
     assert ret.verdict == "inconclusive"
     assert ret.not_comparable is not None and ret.not_comparable.startswith(
-        "the baseline's returns are a mix of the env's and NormalizeReward's and the "
-        "candidate's a mix of the env's and NormalizeReward's;"
+        "the baseline's returns are a mix of the env's and NormalizeReward(epsilon=1e-08, "
+        "gamma=0.99)'s and the candidate's a mix of the env's and NormalizeReward(epsilon=1e-08, "
+        "gamma=0.99)'s;"
     )
 
 
@@ -107,3 +111,32 @@ def test_groups_whose_sides_share_their_wrappers_are_compared(files: dict[str, P
         "baseline": [],
         "candidate": [],
     }
+
+
+def test_the_same_wrapper_set_up_otherwise_is_other_units_not_a_regression(
+    files: dict[str, Path],
+) -> None:
+    # the same episodes under ClipReward to 1 and to 0.5 (recorded in the env spec): the
+    # returns halve; the wrappers were compared by name only, and it was `regressed` (exit 1)
+    result = compare([files["clipped"]], [files["clipped_half"]])
+    ret = result.groups[0].metric("return")
+    assert ret.candidate == pytest.approx(0.5 * ret.baseline) and ret.pairs == 8
+    assert ret.verdict == "inconclusive" and ret.test == "none" and result.passed
+    assert ret.not_comparable == (
+        "the baseline's returns are ClipReward(max_reward=1.0, min_reward=-1.0)'s and the "
+        "candidate's ClipReward(max_reward=0.5, min_reward=-1.0)'s; " + NOT_COMPARED
+    )
+    assert [str(m) for m in result.mismatches] == [
+        "reward_wrappers differs: baseline ClipReward(max_reward=1.0, min_reward=-1.0); "
+        "candidate ClipReward(max_reward=0.5, min_reward=-1.0)"
+    ]
+    same = compare([files["clipped"]], [files["clipped_again"]])
+    assert not same.mismatches and same.groups[0].metric("return").not_comparable is None
+
+
+def test_settings_no_file_holds_say_nothing_new(files: dict[str, Path]) -> None:
+    # x10 and x0.5 by lambdas: the files hold a placeholder for each function, alike, so
+    # nothing tells them apart (as before: by the wrapper's name)
+    result = compare([files["scaled"]], [files["halved"]])
+    ret = result.groups[0].metric("return")
+    assert ret.not_comparable is None and not result.mismatches

@@ -44,14 +44,14 @@ def test_options_are_checked_in_the_command_line_words(
 def test_gates_from_options_parse_rate_and_label_rate() -> None:
     gates = gates_from_options(
         min_success_rate=0.9,
-        max_failure_rate=["0.3", "collision=0.1", "drop=0", "0.2"],
+        max_failure_rate=["collision=0.1", "drop=0", "0.2"],
         max_truncation_rate=0.5,
         max_error_rate=0.0,
         fail_on_incentive_warning=True,
     )
     assert gates == Gates(
         min_success_rate=0.9,
-        max_failure_rate=0.2,  # the last RATE given
+        max_failure_rate=0.2,
         max_failure_rate_by_label={"collision": 0.1, "drop": 0.0},
         max_truncation_rate=0.5,
         fail_on_incentive_warning=True,

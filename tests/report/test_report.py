@@ -685,7 +685,8 @@ def test_by_file_a_file_that_lost_all_its_episodes_fails_its_gates(tmp_path: Pat
     passed; one that kept an incomplete episode failed them (no ended episodes)."""
     good = _record_plans(tmp_path / "good.mcap", [Plan("success"), Plan("failure:fell")])
     lost = tmp_path / "lost.mcap"
-    lost.write_bytes(good.read_bytes()[:1500])  # (run metadata, no complete chunk)
+    other = _record_plans(tmp_path / "other.mcap", [Plan("success")])  # (another run)
+    lost.write_bytes(other.read_bytes()[:1500])  # (run metadata, no complete chunk)
     gates = Gates(max_failure_rate=1.0)
     result = report([good, lost], gates=gates)
     assert [(g.gate, g.group, g.passed, g.message) for g in result.gates] == [

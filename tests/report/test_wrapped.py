@@ -82,10 +82,22 @@ def test_a_group_of_files_over_different_reward_wrappers_has_no_return_to_mix(
     assert group.to_dict()["return_mean"] is None
     assert group.length_mean is not None and group.failure_rate is not None
     assert result.notes == [
-        "group all: its files were recorded over different reward wrappers (or some over "
-        "none), so its returns are in different units: no return mean, and no incentive "
-        "warning that compares returns"
+        "group all: its files were recorded over different reward wrappers or settings (or "
+        "some over none), so its returns are in different units: no return mean, and no "
+        "incentive warning that compares returns"
     ]
     same = report_inputs([files["scaled"], files["scaled"]], by="all").report
     assert not same.groups[0].mixed_rewards and same.groups[0].return_mean is not None
     assert same.notes == []
+
+
+def test_a_group_of_files_over_one_wrapper_set_up_otherwise_has_no_return_to_mix(
+    tmp_path: Path,
+) -> None:
+    # ClipReward to 1 and to 0.5: the same wrapper, returns in different units
+    paths = [record_cartpole(tmp_path / f"{w}.mcap", w) for w in ("clipped", "clipped_half")]
+    (group,) = report_inputs(paths, by="all").report.groups
+    assert group.mixed_rewards and group.return_mean is None
+    again = record_cartpole(tmp_path / "again.mcap", "clipped")
+    (same,) = report_inputs([paths[0], again], by="all").report.groups
+    assert not same.mixed_rewards and same.return_mean is not None

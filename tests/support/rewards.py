@@ -20,8 +20,13 @@ WRAPS: dict[str, Wrap | None] = {
     "plain": None,
     "normalized": lambda env: gym.wrappers.NormalizeReward(env),
     "scaled": lambda env: gym.wrappers.TransformReward(env, lambda r: 10.0 * float(r)),
+    "halved": lambda env: gym.wrappers.TransformReward(env, lambda r: 0.5 * float(r)),
+    "clipped": lambda env: gym.wrappers.ClipReward(env, -1.0, 1.0),
+    "clipped_half": lambda env: gym.wrappers.ClipReward(env, -1.0, 0.5),
 }
-"""The envs under the recorder, by name: CartPole alone, under NormalizeReward, TransformReward."""
+"""The envs under the recorder, by name: CartPole alone, under NormalizeReward, TransformReward
+(by a lambda: the file cannot say which), ClipReward to 1 (CartPole's rewards unchanged) and to
+0.5 (halved)."""
 
 
 def record_cartpole(path: Path, wrap: str = "plain", episodes: int = 8, seed: int = 0) -> Path:

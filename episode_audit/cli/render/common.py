@@ -37,6 +37,7 @@ from ...read.inputs import Unreadable
 
 __all__ = [
     "JSON_SCHEMA_VERSION",
+    "UNREADABLE_TITLE",
     "WORD_JOINER",
     "FittedTable",
     "Output",
@@ -50,6 +51,7 @@ __all__ = [
     "table",
     "to_json",
     "unreadable_json",
+    "unreadable_section",
     "versioned",
     "wrapped",
 ]
@@ -476,6 +478,17 @@ def to_json(data: Any) -> str:
 
 
 _JSON_CI_COMMAND = re.compile(r"##([\[A-Za-z])")
+
+
+UNREADABLE_TITLE = "Unreadable files (not counted)"
+"""The title of the table of the inputs a command could not read (terminal and Markdown)."""
+
+
+def unreadable_section(
+    unreadable: Iterable[Unreadable],
+) -> tuple[str, list[str], list[list[str]]]:
+    """The table of the inputs a command could not read, as (title, headers, rows)."""
+    return (UNREADABLE_TITLE, ["file", "why"], [[u.file, u.why] for u in unreadable])
 
 
 def unreadable_json(unreadable: Iterable[Unreadable]) -> list[dict[str, str]]:

@@ -10,6 +10,7 @@ from rich.text import Text
 from ...compare import Comparison, MetricComparison
 from ...compare.stats import NEVER
 from ...read.inputs import Unreadable
+from ...report.core import UNFINISHED_TITLE
 from .common import (
     Output,
     OutputFormat,
@@ -19,6 +20,7 @@ from .common import (
     table,
     to_json,
     unreadable_json,
+    unreadable_section,
     versioned,
 )
 from .junit import JUnitCase, JUnitStatus, junit_xml
@@ -58,7 +60,7 @@ def _difference(m: MetricComparison) -> str:
 def _test(m: MetricComparison) -> str:
     if m.not_comparable is not None:
         return "not compared"
-    how = f"{m.pairs} pairs" if m.paired else f"unpaired: {m.pairs} pairs, too few"
+    how = f"{m.pairs} pairs" if m.paired else f"unpaired: {m.pairs} pairs"
     return f"{m.test} ({how})"
 
 
@@ -102,8 +104,9 @@ def compare_output(
 ) -> Output:
     """The mismatches, the metrics with their verdicts, new warnings, gates and the verdict.
 
-    ``unreadable``: the inputs that could not be read, listed in JSON, where ``passed`` is then
-    false: the command fails (exit 2), whatever the comparison of the files read says.
+    ``unreadable``: the inputs that could not be read, listed (a table of their own, as the
+    unfinished files; in JSON, where ``passed`` is then false): the command fails (exit 2),
+    whatever the comparison of the files read says.
     """
     if output == "json":
         data = {**result.to_dict(), "unreadable": unreadable_json(unreadable)}
@@ -136,6 +139,11 @@ def compare_output(
     alone += [[k, "candidate"] for k in result.only_candidate]
     if alone:
         sections.append(("Groups on one side only (not compared)", ["group", "side"], alone))
+    files = [
+        (UNFINISHED_TITLE, ["file", "why"], [[name, why] for name, why in result.unfinished]),
+        unreadable_section(unreadable),
+    ]
+    sections += [section for section in files if section[2]]
     verdicts = [[g.key, g.verdict] for g in result.groups] + [["overall", result.verdict]]
     sections.append(("Verdict", ["group", "verdict"], verdicts))
     if output == "markdown":

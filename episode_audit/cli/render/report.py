@@ -13,6 +13,7 @@ from ...report import GroupReport, Report
 from ...report.core import DROPPED_TITLE, UNFINISHED_TITLE
 from ...report.stats import rate_text
 from .common import (
+    UNREADABLE_TITLE,
     Output,
     OutputFormat,
     fmt_number,
@@ -21,6 +22,7 @@ from .common import (
     table,
     to_json,
     unreadable_json,
+    unreadable_section,
     versioned,
 )
 from .junit import JUnitCase, junit_xml
@@ -76,9 +78,9 @@ def report_output(
 ) -> Output:
     """The success / failure / truncation table, term breakdown, warnings and gates.
 
-    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed in JSON,
-    where ``passed`` is then false: the command fails (exit 2), whatever the gates said of the
-    files it read.
+    ``unreadable``: ``(file, why)`` of the inputs that could not be read, listed (a table of
+    their own; in JSON, where ``passed`` is then false): the command fails (exit 2), whatever
+    the gates said of the files it read.
     """
     if output == "json":
         data = {**result.to_dict(), "unreadable": unreadable_json(unreadable)}
@@ -87,7 +89,7 @@ def report_output(
     if output == "junit":
         return junit_xml(report_cases(result, unreadable), name="episode-audit report")
     rows = [_group_row(g) for g in result.groups]
-    sections = [s for s in _sections(result) if s[2]]
+    sections = [s for s in [*_sections(result), unreadable_section(unreadable)] if s[2]]
     if output == "markdown":
         parts = [
             f"### episode-audit report (by {markdown_text(result.by)}{_unit(result)})\n",
@@ -99,7 +101,7 @@ def report_output(
             parts += [f"#### {title}\n", markdown_table(headers, section_rows) + "\n"]
         return "\n".join(parts)
     if not result.groups:  # (an empty table's title would wrap in its one column)
-        kept = [table(*s) for s in sections if s[0] in (_GATES, UNFINISHED_TITLE, DROPPED_TITLE)]
+        kept = [table(*s) for s in sections if s[0] in _KEPT]
         return Group(Text(NO_EPISODES + ("\n" if kept else "")), *kept)
     # The terminal keeps labels and reasons in a table of their own, each label on its own
     # line; the outcomes are side by side when no cell wraps (about 150 columns), else vertical
@@ -128,6 +130,8 @@ def report_output(
 
 
 _GATES = "Gates"
+_KEPT = (_GATES, UNFINISHED_TITLE, DROPPED_TITLE, UNREADABLE_TITLE)
+"""The tables a report without episodes still shows."""
 
 
 def _sections(result: Report) -> list[tuple[str, list[str], list[list[str]]]]:
