@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import contextvars
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -20,6 +21,7 @@ __all__ = [
     "map_column",
     "null_mask",
     "one_array",
+    "prepare_pyarrow",
     "terms_column",
     "terms_matrix_column",
     "error_message",
@@ -29,6 +31,26 @@ __all__ = [
     "text",
     "text_array",
 ]
+
+
+def prepare_pyarrow() -> None:
+    """Make pyarrow's first conversion now, before an env steps, in a context of its own.
+
+    pyarrow imports pandas (when installed) at its first conversion: 0.3-1 s, paid here rather
+    than amid the env's steps. The import sets ``decimal``'s context variable, and once the
+    running context holds a variable, numpy reads its own context variables more slowly at
+    each array made and each ufunc called: ~1.7 k instructions more a Reacher-v5 step
+    (``bench/instructions.py``). Run in a new, empty context, the import leaves the caller's
+    context as it was.
+
+    >>> import contextvars
+    >>> before = list(contextvars.copy_context())
+    >>> prepare_pyarrow()
+    >>> list(contextvars.copy_context()) == before
+    True
+    """
+    contextvars.Context().run(pa.array, [0])
+
 
 TERMS_TYPE = pa.map_(pa.string(), pa.float64())
 """Arrow type of the ``terms`` column: term name -> value, null when a step has no terms."""

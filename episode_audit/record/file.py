@@ -22,7 +22,6 @@ from collections.abc import Callable, Iterable, Sequence
 from types import FrameType
 from typing import Any, Protocol
 
-import pyarrow as pa
 from gymnasium.wrappers import TimeLimit
 
 from .._version import __version__
@@ -33,7 +32,7 @@ from ..errors import (
     UnclosedRecorderWarning,
 )
 from ..format import names as fmt
-from ..format.columns import error_text
+from ..format.columns import error_text, prepare_pyarrow
 from ..format.records import MAX_JSON_TEXT, RunInfo
 from ..format.spaces import SpaceCodec
 from . import native, signals
@@ -372,9 +371,7 @@ class EvidenceFile:
         """
         if self.started:
             raise RecorderError(f"{self.path}: the evidence file is already started")
-        # pyarrow imports pandas (when installed) at its first conversion: 0.3-1 s, paid here
-        # rather than in the training loop at the first flush
-        pa.array([0])
+        prepare_pyarrow()  # (not amid the loop's steps, nor in the loop's context)
         writer = self.writer
         try:
             self.records.register(writer)

@@ -19,6 +19,7 @@ from .._jobs import check_jobs, map_ordered, pooled, unpicklable, workers
 from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
+from ..format.columns import prepare_pyarrow
 from ..read import Evidence, open_evidence
 from ..read.arguments import episode_indices, name_list, non_negative, path_list
 from ..read.inputs import skipped
@@ -42,6 +43,7 @@ def replay_evidence(
     progress: Callable[[int], None] | None = None,
 ) -> list[EpisodeReplay]:
     """Replay the episodes of one open evidence file (see :func:`replay`)."""
+    prepare_pyarrow()  # (before the env steps, and not in its context)
     run = (
         replay_agents_evidence
         if str(ev.run.layout.get("kind", "")).startswith("pettingzoo_")
