@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from functools import partial
-from pathlib import Path
 from typing import Annotated, Literal, cast
 
 import typer
@@ -112,10 +111,12 @@ def export(
 def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> None:
     """``--to foxglove`` / ``--to rerun``: one input, one output file (a local one)."""
     from ..export import export as run_export
-    from ..read.storage import is_url
+    from ..export import viewer_output
 
-    if is_url(out):
-        fail(f"--to {to}: --out must be a local file path, got the URL {out!r}; export, then copy")
+    try:
+        target = viewer_output(to, out)  # (refused before the input is read)
+    except EpisodeAuditError as exc:
+        fail(str(exc))
 
     readable, unreadable = _readable(collect(paths))
     if unreadable or not readable:
@@ -131,7 +132,7 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
             viewer = cast(Literal["foxglove", "rerun"], to)
             result = run_export(
                 files,
-                Path(out),
+                target,
                 to=viewer,
                 overwrite=overwrite,
                 overwrite_option="--overwrite",

@@ -12,6 +12,7 @@ viewer library needs, :func:`need_pillow` the same for the camera frames' PNG en
 
 from __future__ import annotations
 
+import os
 import shlex
 import sys
 from collections.abc import Iterator, Sequence
@@ -24,6 +25,7 @@ from ..errors import ConfigurationError
 from ..format.columns import counted
 from ..read.liveness import still_written, writer_of
 from ..read.opening import evidence_header
+from ..read.storage import Source, is_url
 from ..record.lock import output_kind
 from ..record.published import Temporary
 from ._values import SMALL, has_frames
@@ -31,7 +33,15 @@ from ._values import SMALL, has_frames
 if TYPE_CHECKING:
     from ..read import Evidence
 
-__all__ = ["ViewerExport", "episode_count", "missing", "need_pillow", "refuse_evidence", "staged"]
+__all__ = [
+    "ViewerExport",
+    "episode_count",
+    "local_file",
+    "missing",
+    "need_pillow",
+    "refuse_evidence",
+    "staged",
+]
 
 
 @dataclass
@@ -40,7 +50,8 @@ class ViewerExport:
 
     path: Path
     """The file written."""
-    source: Path
+    source: Source
+    """The evidence file read: a local path or a URL (:class:`~episode_audit.read.RemoteFile`)."""
     viewer: str
     """``"foxglove"`` or ``"rerun"``."""
     episodes: int = 0
@@ -157,6 +168,20 @@ def need_pillow(ev: Evidence, extra: str) -> None:
         raise missing("pillow", extra, why="to write camera frames") from None
 
 
+def local_file(out: str | os.PathLike[str], viewer: str) -> Path:
+    """``out`` as the local file a viewer export writes; a URL is refused (export, then copy).
+
+    >>> local_file("viewers/run.rrd", "rerun")
+    PosixPath('viewers/run.rrd')
+    """
+    if is_url(os.fspath(out)):
+        raise ConfigurationError(
+            f"--to {viewer}: --out must be a local file path, got the URL {os.fspath(out)!r}; "
+            "export, then copy"
+        )
+    return Path(out)
+
+
 def refuse_evidence(path: Path) -> None:
     """Refuse to write over ``path`` if it is a live recorder's file or an evidence file.
 
@@ -179,7 +204,7 @@ def refuse_evidence(path: Path) -> None:
 
 @contextmanager
 def staged(
-    source: Path,
+    source: Source,
     out: Path,
     *,
     overwrite: bool,
@@ -200,7 +225,7 @@ def staged(
         )
     exists = f"exists; pass {overwrite_option} to replace it"
     if out.exists():
-        if out.resolve() == source.resolve():
+        if isinstance(source, Path) and out.resolve() == source.resolve():
             raise ConfigurationError(f"{out}: is the input; --out names a new file to write")
         refuse_evidence(out)
         if not overwrite:

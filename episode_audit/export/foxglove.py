@@ -31,8 +31,9 @@ from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import unstarted
 from ..read import Evidence, open_evidence
+from ..read.storage import Source, as_source
 from ..record.published import no_space
-from ._output import ViewerExport, missing, need_pillow, staged
+from ._output import ViewerExport, local_file, missing, need_pillow, staged
 from ._values import (
     NONFINITE_NULL,
     RESET_STEP,
@@ -69,19 +70,23 @@ def export_foxglove(
     overwrite: bool = False,
     overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to ``out`` for Foxglove.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``foxglove-sdk`` is not
     installed (or Pillow, for a file with camera frames) or ``out`` cannot be written,
     :class:`~episode_audit.errors.EvidenceError` when ``source`` cannot be read; either way no
-    ``out`` is left behind.
+    ``out`` is left behind. ``source`` may be a URL (``s3://…``), read through ``filesystem``
+    or one made with ``storage_options`` (``docs/storage.md``); ``out`` is a local path.
     """
     try:
         import foxglove
     except ImportError:
         raise missing("foxglove", "foxglove") from None
-    source, out = Path(source), Path(out)
+    source = as_source(source, filesystem=filesystem, storage_options=storage_options)
+    out = local_file(out, "foxglove")
     ev = open_evidence(source)
     need_pillow(ev, "foxglove")
     result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))
@@ -138,7 +143,7 @@ def _unfinished(ev: Evidence) -> str | None:
     return None if ev.finished else ev.torn or "no run-end record"
 
 
-def _metadata(ev: Evidence, source: Path) -> dict[str, str]:
+def _metadata(ev: Evidence, source: Source) -> dict[str, str]:
     run = ev.run
     return {
         "source": str(source),

@@ -26,7 +26,8 @@ import pyarrow.compute as pc
 from ..errors import ConfigurationError
 from ..format.records import unstarted
 from ..read import Evidence, open_evidence
-from ._output import ViewerExport, missing, need_pillow, staged
+from ..read.storage import as_source
+from ._output import ViewerExport, local_file, missing, need_pillow, staged
 from ._values import (
     RESET_STEP,
     Leaf,
@@ -50,19 +51,23 @@ def export_rerun(
     overwrite: bool = False,
     overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to the Rerun recording ``out``.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``rerun-sdk`` is not
     installed (or Pillow, for a file with camera frames) or ``out`` cannot be written,
     :class:`~episode_audit.errors.EvidenceError` when ``source`` cannot be read; either way no
-    ``out`` is left behind.
+    ``out`` is left behind. ``source`` may be a URL (``s3://…``), read through ``filesystem``
+    or one made with ``storage_options`` (``docs/storage.md``); ``out`` is a local path.
     """
     try:
         import rerun as rr
     except ImportError:
         raise missing("rerun-sdk", "rerun", needs=(3, 11)) from None
-    source, out = Path(source), Path(out)
+    source = as_source(source, filesystem=filesystem, storage_options=storage_options)
+    out = local_file(out, "rerun")
     ev = open_evidence(source)
     need_pillow(ev, "rerun")
     unfinished = None if ev.finished else ev.torn or "no run-end record"
