@@ -25,7 +25,7 @@ from ..errors import ConfigurationError
 from ..format.columns import counted
 from ..read.liveness import still_written, writer_of
 from ..read.opening import evidence_header
-from ..read.storage import Source, is_url
+from ..read.storage import RemoteFile, Source, as_output
 from ..record.lock import output_kind
 from ..record.published import Temporary
 from ._values import SMALL, has_frames
@@ -171,15 +171,18 @@ def need_pillow(ev: Evidence, extra: str) -> None:
 def local_file(out: str | os.PathLike[str], viewer: str) -> Path:
     """``out`` as the local file a viewer export writes; a URL is refused (export, then copy).
 
+    What is a URL is :func:`~episode_audit.read.storage.as_output`'s to say.
+
     >>> local_file("viewers/run.rrd", "rerun")
     PosixPath('viewers/run.rrd')
     """
-    if is_url(os.fspath(out)):
+    target = as_output(out)
+    if isinstance(target, RemoteFile):
         raise ConfigurationError(
             f"--to {viewer}: --out must be a local file path, got the URL {os.fspath(out)!r}; "
             "export, then copy"
         )
-    return Path(out)
+    return target
 
 
 def refuse_evidence(path: Path) -> None:
