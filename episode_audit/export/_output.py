@@ -27,7 +27,7 @@ from ..read.liveness import still_written, writer_of
 from ..read.opening import evidence_header
 from ..read.storage import RemoteFile, Source, as_output
 from ..record.lock import output_kind
-from ..record.published import Temporary
+from ..record.published import Temporary, no_space
 from ._values import SMALL, has_frames
 
 if TYPE_CHECKING:
@@ -40,6 +40,7 @@ __all__ = [
     "missing",
     "need_pillow",
     "refuse_evidence",
+    "sdk_failure",
     "staged",
 ]
 
@@ -166,6 +167,19 @@ def need_pillow(ev: Evidence, extra: str) -> None:
         import PIL.Image  # noqa: F401 (imported where the frames are written)
     except ImportError:
         raise missing("pillow", extra, why="to write camera frames") from None
+
+
+def sdk_failure(
+    out: Path, library: str, exc: Exception, doing: str = "write", why: str | None = None
+) -> ConfigurationError:
+    """The one-line error for the viewer ``library``'s own error ``exc`` in writing ``out``.
+
+    A disk with no space left says so (:func:`~episode_audit.record.published.no_space`); any
+    other failure as the library says it (or ``why``), after ``{out}: {library} cannot {doing}
+    it``.
+    """
+    said = exc if why is None else why
+    return no_space(out, exc) or ConfigurationError(f"{out}: {library} cannot {doing} it: {said}")
 
 
 def local_file(out: str | os.PathLike[str], viewer: str) -> Path:

@@ -32,8 +32,7 @@ from ..format import names as fmt
 from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ..read.storage import Source, as_source
-from ..record.published import no_space
-from ._output import ViewerExport, local_file, missing, need_pillow, staged
+from ._output import ViewerExport, local_file, missing, need_pillow, sdk_failure, staged
 from ._values import (
     NONFINITE_NULL,
     RESET_STEP,
@@ -125,7 +124,7 @@ def _sdk_failure(out: Path, exc: RuntimeError) -> ConfigurationError | None:
     """
     if not str(exc).startswith("FoxgloveError"):
         return None
-    return no_space(out, exc) or ConfigurationError(f"{out}: foxglove-sdk cannot write it: {exc}")
+    return sdk_failure(out, "foxglove-sdk", exc)
 
 
 def _open(foxglove: Any, temporary: Path, out: Path, context: Any, options: Any) -> Any:
