@@ -17,8 +17,9 @@ import contextlib
 import heapq
 import io
 import json
+import logging
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from operator import itemgetter
 from pathlib import Path
 from typing import Any, Final
@@ -89,7 +90,8 @@ def export_foxglove(
     ev = open_evidence(source)
     need_pillow(ev, "foxglove")
     result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))
-    with staged(source, out, overwrite=overwrite, overwrite_option=overwrite_option) as temporary:
+    staging = staged(source, out, overwrite=overwrite, overwrite_option=overwrite_option)
+    with staging as temporary, _failed_writes() as failed:
         context = foxglove.Context()
         options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
         writer = _open(foxglove, temporary, out, context, options)
@@ -97,7 +99,7 @@ def export_foxglove(
             try:
                 writer.write_metadata(fmt.METADATA_EXPORT, _metadata(ev, source))
                 named = streams(ev)
-                order = _InOrder(_endings(foxglove, context, ev, named, result))
+                order = _InOrder(_endings(foxglove, context, ev, named, result), failed)
                 _Steps(foxglove, context, ev, named, result, order).write(progress)
                 result.paths += ["/episodes", "/log"]
             except BaseException:
@@ -117,14 +119,58 @@ def export_foxglove(
 
 
 def _sdk_failure(out: Path, exc: RuntimeError) -> ConfigurationError | None:
-    """The one-line error for foxglove-sdk's own error ``exc`` (``FoxgloveError``) writing ``out``.
+    """The one-line error for foxglove-sdk's own error ``exc`` writing ``out``.
 
-    A disk with no space left says so (:func:`~episode_audit.record.published.no_space`); any
+    The SDK's error is a ``FoxgloveError``, or a write it failed (:class:`_WriteFailed`). A
+    disk with no space left says so (:func:`~episode_audit.record.published.no_space`); any
     other failure of the SDK's is said as the SDK says it. ``None``: not the SDK's error.
     """
-    if not str(exc).startswith("FoxgloveError"):
+    if not isinstance(exc, _WriteFailed) and not str(exc).startswith("FoxgloveError"):
         return None
     return sdk_failure(out, "foxglove-sdk", exc)
+
+
+class _WriteFailed(RuntimeError):
+    """A message foxglove-sdk failed to write (its log line is the error's text)."""
+
+
+class _FailedWrites(logging.Filter):
+    """foxglove-sdk's log records of messages it failed to write: kept, not printed.
+
+    The SDK does not raise a failed write: it logs it (``error logging message: McapError(…)``,
+    on its ``foxglove.log_sink_set`` logger, a warning), for every message after it too —
+    hundreds of lines on a full disk. :meth:`check` raises the first, as :class:`_WriteFailed`.
+    """
+
+    LOGGER: Final = "foxglove.log_sink_set"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.first: str | None = None
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        if self.first is None:
+            self.first = record.getMessage()
+        return False
+
+    def check(self) -> None:
+        """Raise :class:`_WriteFailed` if a write failed."""
+        if self.first is not None:
+            raise _WriteFailed(self.first)
+
+
+@contextlib.contextmanager
+def _failed_writes() -> Iterator[_FailedWrites]:
+    """Keep foxglove-sdk's failed-write lines while in the block (:class:`_FailedWrites`)."""
+    logger = logging.getLogger(_FailedWrites.LOGGER)
+    failed = _FailedWrites()
+    logger.addFilter(failed)
+    try:
+        yield failed
+    finally:
+        logger.removeFilter(failed)
 
 
 def _open(foxglove: Any, temporary: Path, out: Path, context: Any, options: Any) -> Any:
@@ -452,7 +498,12 @@ class _InOrder:
     other. One chunk's messages are held at a time.
     """
 
-    def __init__(self, endings: list[tuple[int, Callable[[Any, int], None], Any]]) -> None:
+    def __init__(
+        self,
+        endings: list[tuple[int, Callable[[Any, int], None], Any]],
+        failed: _FailedWrites,
+    ) -> None:
+        self.failed = failed
         self.endings = sorted(
             ((time, k, log, message) for k, (time, log, message) in enumerate(endings)),
             key=_BY_TIME,
@@ -479,3 +530,4 @@ class _InOrder:
         for time, _, log, message in heapq.merge(due, self.held, key=itemgetter(0)):
             log(message, time)
         self.held.clear()
+        self.failed.check()  # (the SDK logs a failed write: the export stops at the first)
