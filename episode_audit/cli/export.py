@@ -105,7 +105,7 @@ def export(
         fail(str(exc))
     for line in result.notes:
         note(line)
-    said(result.summary())
+    said(result.summary(), [result.episodes_file, result.episodes_file.parent])
     if unreadable or result.failed:
         raise typer.Exit(EXIT_USAGE)
 
@@ -146,7 +146,7 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
         fail(str(exc))
     for line in result.notes:
         note(line)
-    said(result.summary())
+    said(result.summary(), [result.source, result.path])
 
 
 RERUN_QUIET = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
