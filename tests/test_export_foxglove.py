@@ -6,7 +6,6 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ from episode_audit import ConfigurationError, EvidenceError, NotEvidenceError, o
 from episode_audit.cli import app
 from episode_audit.export import export
 from episode_audit.export._values import NONFINITE_NULL
-from tests.support.disk import fill_disk
+from tests.support.disk import export_stderr, fill_disk
 from tests.support.viewer_files import (
     aec_file,
     camera_file,
@@ -375,11 +374,7 @@ def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: 
                 export([source], out, to="foxglove")
             assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
     # one line: not foxglove-sdk's own line for each message it failed to write (hundreds)
-    command = [sys.executable, "-m", "episode_audit", "export", str(source), "--to", "foxglove"]
-    done = subprocess.run(
-        [*command, "-o", str(out)], capture_output=True, text=True, check=False, timeout=300
-    )
-    assert (done.returncode, done.stderr) == (
+    assert export_stderr(source, "foxglove", out) == (
         2,
         f"episode-audit: error: {out}: cannot write it: No space left on device; free some "
         "space there or choose another output path\n",

@@ -237,7 +237,7 @@ def test_a_rerun_export_given_as_evidence_says_what_it_is(tmp_path: Path) -> Non
 def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: Path) -> None:
     """Full before the export (the SDK cannot create its file) or midway (its writer fails)."""
     from episode_audit import ConfigurationError
-    from tests.support.disk import fill_disk
+    from tests.support.disk import export_stderr, fill_disk
     from tests.support.viewer_files import random_cartpole_file
 
     source = random_cartpole_file(tmp_path / "run.mcap", 400)  # (an .rrd of about 60 KB)
@@ -250,12 +250,8 @@ def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: 
             with pytest.raises(ConfigurationError, match=rf"^{re.escape(f'{out}: {error}')}"):
                 export([source], out, to="rerun")
             assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
-    command = [sys.executable, "-m", "episode_audit", "export", str(source), "--to", "rerun"]
-    done = subprocess.run(
-        [*command, "-o", str(out)], capture_output=True, text=True, check=False, timeout=300
-    )
     # one line: neither a traceback nor rerun-sdk's own log lines
-    assert (done.returncode, done.stderr) == (
+    assert export_stderr(source, "rerun", out) == (
         2,
         f"episode-audit: error: {out}: {error}output path\n",
     )

@@ -136,20 +136,10 @@ def export(
             "export them one at a time"
         )
     if to == "foxglove":
-        from .foxglove import export_foxglove
-
-        return export_foxglove(
-            sources[0],
-            out,
-            overwrite=overwrite,
-            overwrite_option=overwrite_option,
-            progress=progress,
-            filesystem=filesystem,
-            storage_options=storage_options,
-        )
-    from .rerun import export_rerun
-
-    return export_rerun(
+        from .foxglove import export_foxglove as write
+    else:
+        from .rerun import export_rerun as write
+    return write(
         sources[0],
         out,
         overwrite=overwrite,
