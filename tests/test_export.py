@@ -7,8 +7,10 @@ from pathlib import Path
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
+from typer.testing import CliRunner
 
 from episode_audit import ConfigurationError, NotEvidenceError, open_evidence
+from episode_audit.cli import app
 from episode_audit.export import export
 from tests.support.disk import fill_disk
 from tests.support.mypy_run import mypy_output
@@ -164,6 +166,48 @@ def test_a_full_disk_is_one_error_naming_the_file_and_leaves_nothing(
     with pytest.raises(ConfigurationError, match=r"episodes\.parquet: cannot write it: No space"):
         export([source], small_disk / "exp")
     assert not (small_disk / "exp" / "episodes.parquet").exists()
+
+
+@pytest.mark.parametrize("out", ["exp-12:30-out", "file:out", "mock:x", "hdfs:x", "a:b/c:d"])
+def test_a_local_out_with_a_colon_is_written_there(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, out: str
+) -> None:
+    """Only ``SCHEME://`` is a URL: any other ``:`` in a path is a character of a name."""
+    source = shutil.copy(FIXTURES / "clean.mcap", tmp_path / "run.mcap")
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["export", str(source), "--out", out])
+    assert (result.exit_code, result.stderr) == (0, "")
+    assert sorted(p.name for p in (tmp_path / out).iterdir()) == [
+        "episodes.parquet",
+        "run.steps.parquet",
+    ]
+    assert pq.read_table(tmp_path / out / "run.steps.parquet").num_rows > 0
+
+
+def test_a_file_url_out_is_its_local_path(tmp_path: Path) -> None:
+    source = shutil.copy(FIXTURES / "clean.mcap", tmp_path / "run.mcap")
+    result = export([source], f"file://{tmp_path}/out")
+    assert result.episodes_file == tmp_path / "out" / "episodes.parquet"
+    assert result.episodes_file.is_file()
+
+
+@pytest.mark.parametrize("to", ["parquet", "foxglove", "rerun"])
+def test_a_url_missing_a_slash_is_one_line_and_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, to: str
+) -> None:
+    source = shutil.copy(FIXTURES / "clean.mcap", tmp_path / "run.mcap")
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(
+        app, ["export", str(source), "--to", to, "--out", "s3:/bucket-a/x.out"]
+    )
+    assert (result.exit_code, result.stderr) == (
+        2,
+        "episode-audit: error: --out s3:/bucket-a/x.out: a URL takes two slashes: "
+        "s3://bucket-a/x.out; a local path: ./s3:/bucket-a/x.out\n",
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
+    with pytest.raises(ConfigurationError, match=r"^--out s3:/b: a URL takes two slashes"):
+        export([source], "s3:/b", to=to)
 
 
 def test_mypy_takes_a_target_held_in_a_str(tmp_path: Path) -> None:

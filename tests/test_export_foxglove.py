@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -20,7 +21,7 @@ from episode_audit import ConfigurationError, EvidenceError, NotEvidenceError, o
 from episode_audit.cli import app
 from episode_audit.export import export
 from episode_audit.export._values import NONFINITE_NULL
-from tests.support.disk import fill_disk
+from tests.support.disk import export_stderr, fill_disk
 from tests.support.viewer_files import (
     aec_file,
     camera_file,
@@ -358,15 +359,24 @@ def test_an_export_given_as_evidence_is_named_and_what_to_do_said(tmp_path: Path
 
 
 def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: Path) -> None:
-    source = random_cartpole_file(tmp_path / "run.mcap", 400)
+    """Full before the export or midway (the SDK logs each message it fails to write)."""
+    source = random_cartpole_file(tmp_path / "run.mcap", 2000)  # (more than a chunk)
     filler = fill_disk(small_disk)
-    for out in (small_disk / "run.fox.mcap", small_disk / "new" / "run.fox.mcap"):
-        with pytest.raises(
-            ConfigurationError,
-            match=rf"^{re.escape(str(out))}: cannot write it: No space left on device; free "
-            "some space there or choose another output path$",
-        ):
-            export([source], out, to="foxglove")
-        assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
-    result = CliRunner().invoke(app, ["export", str(source), "--to", "foxglove", "-o", str(out)])
-    assert result.exit_code == 2 and "Traceback" not in result.output
+    full = filler.stat().st_size
+    for free in (0, 16 * 1024):
+        os.truncate(filler, full - free)
+        for out in (small_disk / "run.fox.mcap", small_disk / "new" / "run.fox.mcap"):
+            with pytest.raises(
+                ConfigurationError,
+                match=rf"^{re.escape(str(out))}: cannot write it: No space left on device; free "
+                "some space there or choose another output path$",
+            ):
+                export([source], out, to="foxglove")
+            assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
+    # one line: not foxglove-sdk's own line for each message it failed to write (hundreds)
+    assert export_stderr(source, "foxglove", out) == (
+        2,
+        f"episode-audit: error: {out}: cannot write it: No space left on device; free some "
+        "space there or choose another output path\n",
+    )
+    assert sorted(small_disk.iterdir()) == [filler]

@@ -232,3 +232,27 @@ def test_a_rerun_export_given_as_evidence_says_what_it_is(tmp_path: Path) -> Non
         r"not evidence: pass the evidence files \(\*\.mcap\) instead$",
     ):
         open_evidence(out)
+
+
+def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: Path) -> None:
+    """Full before the export (the SDK cannot create its file) or midway (its writer fails)."""
+    from episode_audit import ConfigurationError
+    from tests.support.disk import export_stderr, fill_disk
+    from tests.support.viewer_files import random_cartpole_file
+
+    source = random_cartpole_file(tmp_path / "run.mcap", 400)  # (an .rrd of about 60 KB)
+    filler = fill_disk(small_disk)
+    full = filler.stat().st_size
+    error = "cannot write it: No space left on device; free some space there or choose another "
+    for free in (0, 16 * 1024):
+        os.truncate(filler, full - free)
+        for out in (small_disk / "run.rrd", small_disk / "new" / "run.rrd"):
+            with pytest.raises(ConfigurationError, match=rf"^{re.escape(f'{out}: {error}')}"):
+                export([source], out, to="rerun")
+            assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
+    # one line: neither a traceback nor rerun-sdk's own log lines
+    assert export_stderr(source, "rerun", out) == (
+        2,
+        f"episode-audit: error: {out}: {error}output path\n",
+    )
+    assert sorted(small_disk.iterdir()) == [filler]

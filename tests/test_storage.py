@@ -27,7 +27,7 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from episode_audit import RecordEvidence, check, open_evidence, replay
+from episode_audit import RecordEvidence, check, export, open_evidence, replay
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError, EvidenceError
 from episode_audit.read import evidence_files, steps_total
@@ -199,6 +199,39 @@ def test_export_reads_s3_and_writes_locally_or_to_s3(runs: Path, s3: Any, tmp_pa
     code, _, err = run("export", f"{url}/a.mcap", "--out", out, "--overwrite")
     assert code == 0, err
     assert f"{BUCKET}/export/b.steps.parquet" not in s3.ls(f"{BUCKET}/export", refresh=True)
+
+
+@pytest.mark.parametrize(("viewer", "name"), [("foxglove", "a.foxglove.mcap"), ("rerun", "a.rrd")])
+def test_viewer_exports_read_s3_and_refuse_a_url_output(
+    runs: Path, endpoint: str, tmp_path: Path, viewer: str, name: str
+) -> None:
+    if viewer == "rerun":
+        pytest.importorskip("rerun")
+    pytest.importorskip("foxglove")
+    url = f"s3://{BUCKET}/runs/a.mcap"
+    code, text, err = run("export", url, "--to", viewer, "-o", str(tmp_path / name))
+    assert code == 0, err
+    local = export([runs / "a.mcap"], tmp_path / "local" / name, to=viewer)
+    assert f"of {url} to {tmp_path / name}" in text
+    remote = export(
+        [url], tmp_path / "lib" / name, to=viewer, storage_options={"endpoint_url": endpoint}
+    )
+    assert remote.source == url
+    assert (remote.episodes, remote.steps, remote.resets, remote.paths) == (
+        local.episodes,
+        local.steps,
+        local.resets,
+        local.paths,
+    )
+    out = f"s3://{BUCKET}/viewers/{name}"
+    code, _, err = run("export", url, "--to", viewer, "-o", out)
+    assert (code, err) == (
+        2,
+        f"episode-audit: error: --to {viewer}: --out must be a local file path, got the URL "
+        f"{out!r}; export, then copy\n",
+    )
+    with pytest.raises(ConfigurationError, match=rf"^--to {viewer}: --out must be a local file"):
+        export([url], out, to=viewer)
 
 
 def test_recover_reads_and_writes_s3(s3: Any, tmp_path: Path) -> None:

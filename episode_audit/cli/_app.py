@@ -14,7 +14,7 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
@@ -386,13 +386,14 @@ def emit(output: Any) -> None:
         console.print(output, crop=False)
 
 
-def said(text: str) -> None:
+def said(text: str, paths: Iterable[object] = ()) -> None:
     """Print ``text``, a result's summary for people, on stdout, wrapped as :func:`note`'s.
 
-    Each line made safe; one that starts indented (a command to copy) kept whole.
+    Each line made safe; one that starts indented (a command to copy) kept whole, and so is
+    each of ``paths`` (the files it names: not broken at a space of theirs).
     """
     lines = "\n".join(safe(line) for line in text.split("\n"))
-    emit(wrapped(lines, _text_width(_stdout())))
+    emit(wrapped(lines, _text_width(_stdout()), [safe(str(path)) for path in paths]))
 
 
 def _version(ctx: typer.Context, value: bool) -> None:

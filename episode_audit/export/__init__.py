@@ -15,14 +15,30 @@ from typing import Any, Final, Literal, overload
 from ..errors import ConfigurationError, EvidenceError
 from ..format.paths import path_argument
 from ..read.arguments import path_list
-from ._output import ViewerExport
+from ._output import ViewerExport, local_file
 from .parquet import ExportResult
 from .parquet import export as _export_parquet
 
-__all__ = ["TARGETS", "ExportResult", "ViewerExport", "export"]
+__all__ = ["TARGETS", "ExportResult", "ViewerExport", "export", "viewer_output"]
 
 TARGETS: Final = ("parquet", "foxglove", "rerun")
 """What :func:`export` writes, by its ``to``."""
+
+
+def viewer_output(to: str, out: str | os.PathLike[str]) -> Path:
+    """The local file ``to="foxglove"`` / ``to="rerun"`` writes for ``out``, or why not.
+
+    A URL is refused (the viewer file is written locally: export, then copy), and so is an
+    ``.mcap`` name for a Rerun recording (it would read as an evidence file).
+    """
+    path = local_file(out, to)
+    if to == "rerun" and path.suffix.lower() == ".mcap":
+        raise ConfigurationError(
+            f"--out {out}: --to rerun writes an .rrd recording, not MCAP; name it "
+            f"{path.with_suffix('.rrd').name} (an .mcap name reads as an evidence file to "
+            "check, replay and report)"
+        )
+    return path
 
 
 @overload
@@ -89,11 +105,12 @@ def export(
     ``to="parquet"`` (default): ``out`` is a directory, see :func:`.parquet.export`.
     ``to="foxglove"`` / ``to="rerun"``: ``out`` is the one file to write (an MCAP file for
     Foxglove, an ``.rrd`` recording for Rerun) from exactly one input; ``on_error`` is not used
-    (an unreadable input raises :class:`~episode_audit.errors.EvidenceError`). An existing
-    ``out`` is replaced only with ``overwrite=True``; a failed export leaves no ``out``.
-    ``overwrite_option``: how the error for an existing output names that option (``--overwrite``
-    on the command line). ``jobs`` / ``ray_address`` (workers) and ``filesystem`` /
-    ``storage_options`` (URLs) are the Parquet export's (:func:`.parquet.export`).
+    (an unreadable input raises :class:`~episode_audit.errors.EvidenceError`); the input may
+    be a URL, ``out`` is a local path. An existing ``out`` is replaced only with
+    ``overwrite=True``; a failed export leaves no ``out``. ``overwrite_option``: how the error
+    for an existing output names that option (``--overwrite`` on the command line).
+    ``jobs`` / ``ray_address`` (workers) are the Parquet export's (:func:`.parquet.export`);
+    ``filesystem`` / ``storage_options`` reach URLs (``docs/storage.md``).
     """
     out = path_argument("out", out)
     if to == "parquet":
@@ -111,6 +128,7 @@ def export(
         )
     if to not in TARGETS:
         raise ConfigurationError(f"--to: expected one of {', '.join(TARGETS)}, got {to!r}")
+    viewer_output(to, out)
     sources = path_list(paths)
     if len(sources) != 1:
         raise ConfigurationError(
@@ -118,23 +136,15 @@ def export(
             "export them one at a time"
         )
     if to == "foxglove":
-        from .foxglove import export_foxglove
-
-        return export_foxglove(
-            sources[0],
-            out,
-            overwrite=overwrite,
-            overwrite_option=overwrite_option,
-            progress=progress,
-        )
-    from .rerun import export_rerun
-
-    if Path(out).suffix.lower() == ".mcap":
-        raise ConfigurationError(
-            f"--out {out}: --to rerun writes an .rrd recording, not MCAP; name it "
-            f"{Path(out).with_suffix('.rrd').name} (an .mcap name reads as an evidence file to "
-            "check, replay and report)"
-        )
-    return export_rerun(
-        sources[0], out, overwrite=overwrite, overwrite_option=overwrite_option, progress=progress
+        from .foxglove import export_foxglove as write
+    else:
+        from .rerun import export_rerun as write
+    return write(
+        sources[0],
+        out,
+        overwrite=overwrite,
+        overwrite_option=overwrite_option,
+        progress=progress,
+        filesystem=filesystem,
+        storage_options=storage_options,
     )

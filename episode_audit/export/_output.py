@@ -12,6 +12,7 @@ viewer library needs, :func:`need_pillow` the same for the camera frames' PNG en
 
 from __future__ import annotations
 
+import os
 import shlex
 import sys
 from collections.abc import Iterator, Sequence
@@ -24,14 +25,24 @@ from ..errors import ConfigurationError
 from ..format.columns import counted
 from ..read.liveness import still_written, writer_of
 from ..read.opening import evidence_header
+from ..read.storage import RemoteFile, Source, as_output
 from ..record.lock import output_kind
-from ..record.published import Temporary
+from ..record.published import Temporary, no_space
 from ._values import SMALL, has_frames
 
 if TYPE_CHECKING:
     from ..read import Evidence
 
-__all__ = ["ViewerExport", "episode_count", "missing", "need_pillow", "refuse_evidence", "staged"]
+__all__ = [
+    "ViewerExport",
+    "episode_count",
+    "local_file",
+    "missing",
+    "need_pillow",
+    "refuse_evidence",
+    "sdk_failure",
+    "staged",
+]
 
 
 @dataclass
@@ -40,7 +51,8 @@ class ViewerExport:
 
     path: Path
     """The file written."""
-    source: Path
+    source: Source
+    """The evidence file read: a local path or a URL (:class:`~episode_audit.read.RemoteFile`)."""
     viewer: str
     """``"foxglove"`` or ``"rerun"``."""
     episodes: int = 0
@@ -157,6 +169,36 @@ def need_pillow(ev: Evidence, extra: str) -> None:
         raise missing("pillow", extra, why="to write camera frames") from None
 
 
+def sdk_failure(
+    out: Path, library: str, exc: Exception, doing: str = "write", why: str | None = None
+) -> ConfigurationError:
+    """The one-line error for the viewer ``library``'s own error ``exc`` in writing ``out``.
+
+    A disk with no space left says so (:func:`~episode_audit.record.published.no_space`); any
+    other failure as the library says it (or ``why``), after ``{out}: {library} cannot {doing}
+    it``.
+    """
+    said = exc if why is None else why
+    return no_space(out, exc) or ConfigurationError(f"{out}: {library} cannot {doing} it: {said}")
+
+
+def local_file(out: str | os.PathLike[str], viewer: str) -> Path:
+    """``out`` as the local file a viewer export writes; a URL is refused (export, then copy).
+
+    What is a URL is :func:`~episode_audit.read.storage.as_output`'s to say.
+
+    >>> local_file("viewers/run.rrd", "rerun")
+    PosixPath('viewers/run.rrd')
+    """
+    target = as_output(out)
+    if isinstance(target, RemoteFile):
+        raise ConfigurationError(
+            f"--to {viewer}: --out must be a local file path, got the URL {os.fspath(out)!r}; "
+            "export, then copy"
+        )
+    return target
+
+
 def refuse_evidence(path: Path) -> None:
     """Refuse to write over ``path`` if it is a live recorder's file or an evidence file.
 
@@ -179,7 +221,7 @@ def refuse_evidence(path: Path) -> None:
 
 @contextmanager
 def staged(
-    source: Path,
+    source: Source,
     out: Path,
     *,
     overwrite: bool,
@@ -200,7 +242,7 @@ def staged(
         )
     exists = f"exists; pass {overwrite_option} to replace it"
     if out.exists():
-        if out.resolve() == source.resolve():
+        if isinstance(source, Path) and out.resolve() == source.resolve():
             raise ConfigurationError(f"{out}: is the input; --out names a new file to write")
         refuse_evidence(out)
         if not overwrite:

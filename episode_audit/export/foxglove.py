@@ -17,8 +17,9 @@ import contextlib
 import heapq
 import io
 import json
+import logging
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from operator import itemgetter
 from pathlib import Path
 from typing import Any, Final
@@ -31,8 +32,8 @@ from ..errors import ConfigurationError
 from ..format import names as fmt
 from ..format.records import unstarted
 from ..read import Evidence, open_evidence
-from ..record.published import no_space
-from ._output import ViewerExport, missing, need_pillow, staged
+from ..read.storage import Source, as_source
+from ._output import ViewerExport, local_file, missing, need_pillow, sdk_failure, staged
 from ._values import (
     NONFINITE_NULL,
     RESET_STEP,
@@ -69,23 +70,28 @@ def export_foxglove(
     overwrite: bool = False,
     overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to ``out`` for Foxglove.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``foxglove-sdk`` is not
     installed (or Pillow, for a file with camera frames) or ``out`` cannot be written,
     :class:`~episode_audit.errors.EvidenceError` when ``source`` cannot be read; either way no
-    ``out`` is left behind.
+    ``out`` is left behind. ``source`` may be a URL (``s3://…``), read through ``filesystem``
+    or one made with ``storage_options`` (``docs/storage.md``); ``out`` is a local path.
     """
     try:
         import foxglove
     except ImportError:
         raise missing("foxglove", "foxglove") from None
-    source, out = Path(source), Path(out)
+    source = as_source(source, filesystem=filesystem, storage_options=storage_options)
+    out = local_file(out, "foxglove")
     ev = open_evidence(source)
     need_pillow(ev, "foxglove")
     result = ViewerExport(out, source, "foxglove", unfinished=_unfinished(ev))
-    with staged(source, out, overwrite=overwrite, overwrite_option=overwrite_option) as temporary:
+    staging = staged(source, out, overwrite=overwrite, overwrite_option=overwrite_option)
+    with staging as temporary, _failed_writes() as failed:
         context = foxglove.Context()
         options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)
         writer = _open(foxglove, temporary, out, context, options)
@@ -93,7 +99,7 @@ def export_foxglove(
             try:
                 writer.write_metadata(fmt.METADATA_EXPORT, _metadata(ev, source))
                 named = streams(ev)
-                order = _InOrder(_endings(foxglove, context, ev, named, result))
+                order = _InOrder(_endings(foxglove, context, ev, named, result), failed)
                 _Steps(foxglove, context, ev, named, result, order).write(progress)
                 result.paths += ["/episodes", "/log"]
             except BaseException:
@@ -113,14 +119,58 @@ def export_foxglove(
 
 
 def _sdk_failure(out: Path, exc: RuntimeError) -> ConfigurationError | None:
-    """The one-line error for foxglove-sdk's own error ``exc`` (``FoxgloveError``) writing ``out``.
+    """The one-line error for foxglove-sdk's own error ``exc`` writing ``out``.
 
-    A disk with no space left says so (:func:`~episode_audit.record.published.no_space`); any
+    The SDK's error is a ``FoxgloveError``, or a write it failed (:class:`_WriteFailed`). A
+    disk with no space left says so (:func:`~episode_audit.record.published.no_space`); any
     other failure of the SDK's is said as the SDK says it. ``None``: not the SDK's error.
     """
-    if not str(exc).startswith("FoxgloveError"):
+    if not isinstance(exc, _WriteFailed) and not str(exc).startswith("FoxgloveError"):
         return None
-    return no_space(out, exc) or ConfigurationError(f"{out}: foxglove-sdk cannot write it: {exc}")
+    return sdk_failure(out, "foxglove-sdk", exc)
+
+
+class _WriteFailed(RuntimeError):
+    """A message foxglove-sdk failed to write (its log line is the error's text)."""
+
+
+class _FailedWrites(logging.Filter):
+    """foxglove-sdk's log records of messages it failed to write: kept, not printed.
+
+    The SDK does not raise a failed write: it logs it (``error logging message: McapError(…)``,
+    on its ``foxglove.log_sink_set`` logger, a warning), for every message after it too —
+    hundreds of lines on a full disk. :meth:`check` raises the first, as :class:`_WriteFailed`.
+    """
+
+    LOGGER: Final = "foxglove.log_sink_set"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.first: str | None = None
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        if self.first is None:
+            self.first = record.getMessage()
+        return False
+
+    def check(self) -> None:
+        """Raise :class:`_WriteFailed` if a write failed."""
+        if self.first is not None:
+            raise _WriteFailed(self.first)
+
+
+@contextlib.contextmanager
+def _failed_writes() -> Iterator[_FailedWrites]:
+    """Keep foxglove-sdk's failed-write lines while in the block (:class:`_FailedWrites`)."""
+    logger = logging.getLogger(_FailedWrites.LOGGER)
+    failed = _FailedWrites()
+    logger.addFilter(failed)
+    try:
+        yield failed
+    finally:
+        logger.removeFilter(failed)
 
 
 def _open(foxglove: Any, temporary: Path, out: Path, context: Any, options: Any) -> Any:
@@ -138,7 +188,7 @@ def _unfinished(ev: Evidence) -> str | None:
     return None if ev.finished else ev.torn or "no run-end record"
 
 
-def _metadata(ev: Evidence, source: Path) -> dict[str, str]:
+def _metadata(ev: Evidence, source: Source) -> dict[str, str]:
     run = ev.run
     return {
         "source": str(source),
@@ -448,7 +498,12 @@ class _InOrder:
     other. One chunk's messages are held at a time.
     """
 
-    def __init__(self, endings: list[tuple[int, Callable[[Any, int], None], Any]]) -> None:
+    def __init__(
+        self,
+        endings: list[tuple[int, Callable[[Any, int], None], Any]],
+        failed: _FailedWrites,
+    ) -> None:
+        self.failed = failed
         self.endings = sorted(
             ((time, k, log, message) for k, (time, log, message) in enumerate(endings)),
             key=_BY_TIME,
@@ -475,3 +530,4 @@ class _InOrder:
         for time, _, log, message in heapq.merge(due, self.held, key=itemgetter(0)):
             log(message, time)
         self.held.clear()
+        self.failed.check()  # (the SDK logs a failed write: the export stops at the first)

@@ -20,6 +20,7 @@ from typing import Any, NamedTuple
 
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
 from .._jobs import map_ordered
@@ -28,7 +29,7 @@ from ..format.columns import counted
 from ..format.records import unstarted
 from ..read import open_evidence
 from ..read.arguments import path_list
-from ..read.storage import RemoteFile, Source, as_source, exists, is_url, remote_file, upload
+from ..read.storage import RemoteFile, Source, as_output, as_source, exists, upload
 from ..record.lock import output_kind, remove_empty
 from ..record.published import no_space
 from ._output import episode_count, refuse_evidence
@@ -152,12 +153,12 @@ def export(
     """
     options = {"filesystem": filesystem, "storage_options": storage_options}
     sources = [as_source(p, **options) for p in path_list(paths)]
-    if is_url(out_dir):
-        out_url = remote_file(os.fspath(out_dir), **options)
+    target = as_output(out_dir, **options)
+    if isinstance(target, RemoteFile):
         return _export_to_url(
-            sources, out_url, overwrite, overwrite_option, progress, on_error, jobs, ray_address
+            sources, target, overwrite, overwrite_option, progress, on_error, jobs, ray_address
         )
-    out, made = _output_directory(Path(out_dir))
+    out, made = _output_directory(target)
     try:
         return _export_local(
             sources, out, overwrite, overwrite_option, progress, on_error, jobs, ray_address
@@ -208,7 +209,7 @@ def _export_local(
         else pa.table({})
     )
     with _written(episodes_file):
-        pq.write_table(episodes, episodes_file, compression="zstd")
+        pq.write_table(episodes, _local(episodes_file), compression="zstd", filesystem=_LOCAL)
     result.episodes = episodes.num_rows
     result.unstarted = int(unstarted(episodes).sum()) if episodes.num_rows else 0
     if overwrite:  # the export in out_dir is this one: an earlier one's steps files go
@@ -404,7 +405,9 @@ def _export_one(source: Source, target: Path, progress: Callable[[int], None] | 
                 table = _with_stream(table, episodes, env_index, agent)
             table = _with_run(table, run_columns)
             if writer is None:
-                writer = pq.ParquetWriter(target, table.schema, compression="zstd")
+                writer = pq.ParquetWriter(
+                    _local(target), table.schema, compression="zstd", filesystem=_LOCAL
+                )
             try:
                 writer.write_table(table)
             except BaseException:
@@ -418,11 +421,24 @@ def _export_one(source: Source, target: Path, progress: Callable[[int], None] | 
             writer.close()
         else:  # no steps at all: still write an empty, typed file
             empty = _with_file(ev.steps_schema.empty_table(), label)
-            pq.write_table(_with_run(empty, run_columns), target)
+            pq.write_table(_with_run(empty, run_columns), _local(target), filesystem=_LOCAL)
     cut_off = episodes.column("ended").to_pylist().count(False) if unfinished else 0
     return _Exported(
         _with_run(_with_file(episodes, label), run_columns), steps, unfinished, cut_off
     )
+
+
+_LOCAL = pafs.LocalFileSystem()
+"""The file system pyarrow writes the tables to, given explicitly: see :func:`_local`."""
+
+
+def _local(path: Path) -> str:
+    """``path`` as pyarrow's local file system takes it: absolute.
+
+    Given a relative path such as ``exp-12:30/run.steps.parquet``, pyarrow reads a URI of the
+    scheme ``exp-12``, even with ``filesystem=``.
+    """
+    return os.path.abspath(path)
 
 
 @contextmanager

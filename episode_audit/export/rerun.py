@@ -12,6 +12,7 @@ fields) and images ``camera/FIELD`` (PNG). For the file: ``/log``, a text log li
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 from collections.abc import Callable
@@ -26,7 +27,8 @@ import pyarrow.compute as pc
 from ..errors import ConfigurationError
 from ..format.records import unstarted
 from ..read import Evidence, open_evidence
-from ._output import ViewerExport, missing, need_pillow, staged
+from ..read.storage import as_source
+from ._output import ViewerExport, local_file, missing, need_pillow, sdk_failure, staged
 from ._values import (
     RESET_STEP,
     Leaf,
@@ -50,19 +52,23 @@ def export_rerun(
     overwrite: bool = False,
     overwrite_option: str = "overwrite=True",
     progress: Callable[[int], None] | None = None,
+    filesystem: Any = None,
+    storage_options: dict[str, Any] | None = None,
 ) -> ViewerExport:
     """Write ``source``'s steps, endings and camera frames to the Rerun recording ``out``.
 
     Raises :class:`~episode_audit.errors.ConfigurationError` when ``rerun-sdk`` is not
     installed (or Pillow, for a file with camera frames) or ``out`` cannot be written,
     :class:`~episode_audit.errors.EvidenceError` when ``source`` cannot be read; either way no
-    ``out`` is left behind.
+    ``out`` is left behind. ``source`` may be a URL (``s3://…``), read through ``filesystem``
+    or one made with ``storage_options`` (``docs/storage.md``); ``out`` is a local path.
     """
     try:
         import rerun as rr
     except ImportError:
         raise missing("rerun-sdk", "rerun", needs=(3, 11)) from None
-    source, out = Path(source), Path(out)
+    source = as_source(source, filesystem=filesystem, storage_options=storage_options)
+    out = local_file(out, "rerun")
     ev = open_evidence(source)
     need_pillow(ev, "rerun")
     unfinished = None if ev.finished else ev.torn or "no run-end record"
@@ -71,7 +77,10 @@ def export_rerun(
         with staged(
             source, out, overwrite=overwrite, overwrite_option=overwrite_option
         ) as temporary:
-            writer = _write(rr, temporary, ev, result, progress)
+            try:
+                writer = _write(rr, temporary, ev, result, progress)
+            except RuntimeError as exc:  # the SDK's (its file writer failed: a full disk …)
+                raise sdk_failure(out, "rerun-sdk", exc) from None
             if temporary.stat().st_size == 0:  # a disabled SDK (RERUN=off in the environment)
                 raise ConfigurationError(
                     f"{out}: rerun-sdk wrote nothing; is logging turned off (RERUN=off)?"
@@ -96,9 +105,9 @@ def _write(
     rec.set_log_tick_enabled(False)
     try:
         rec.save(str(path))
-    except (OSError, RuntimeError) as exc:  # (the folder was checked: rare)
+    except (OSError, RuntimeError) as exc:  # (the folder was checked: a full disk, or rare)
         why = str(exc).split(", path:")[0]  # (the path is the temporary file's)
-        raise ConfigurationError(f"{result.path}: rerun-sdk cannot create it: {why}") from None
+        raise sdk_failure(result.path, "rerun-sdk", exc, "create", why) from None
     rec.send_recording_name(result.source.name)
     writer = _Writer(rr, rec, ev, result)
     try:
@@ -108,11 +117,22 @@ def _write(
                 progress(batch.num_rows)
         result.episodes = writer.endings()
         result.unstarted = int(unstarted(ev.episodes()).sum())
+    except BaseException:
+        with contextlib.suppress(RuntimeError):  # (the same failure, again, in closing)
+            _close(rec)
+        raise
     finally:
-        rec.flush()
-        rec.disconnect()
         writer.rec = None  # (the stream is dropped with the last reference: _free_dropped_...)
+    _close(rec)  # (a failed write of the SDK's file writer is raised here: RuntimeError)
     return writer
+
+
+def _close(rec: Any) -> None:
+    """Write what ``rec`` holds to its file, then end its file writer."""
+    try:
+        rec.flush()
+    finally:
+        rec.disconnect()
 
 
 def _free_dropped_recordings() -> None:
@@ -126,7 +146,8 @@ def _free_dropped_recordings() -> None:
         from rerun_bindings import flush_and_cleanup_orphaned_recordings
     except ImportError:  # (another layout of rerun-sdk: its threads stay until the process ends)
         return
-    flush_and_cleanup_orphaned_recordings()
+    with contextlib.suppress(RuntimeError):  # (a failed stream's flush: its export said so)
+        flush_and_cleanup_orphaned_recordings()
 
 
 class _Writer:

@@ -30,6 +30,7 @@ __all__ = [
     "RETRIES",
     "RemoteFile",
     "Source",
+    "as_output",
     "as_source",
     "download",
     "exists",
@@ -54,6 +55,8 @@ BLOCK_BYTES = 1 << 16
 """Bytes a ranged read fetches past what it asks for (64 KiB: the next small records)."""
 
 _URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
+_SLASH_SHORT = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*):/(?!/)")
+"""``SCHEME:/`` not followed by a second ``/``: a URL one slash short (:func:`as_output`)."""
 _FSSPEC_PROTOCOL = {"s3a": "s3", "gs": "gcs", "az": "abfs", "abfss": "abfs"}
 _EXTRA = {"gcs": "gcs", "abfs": "azure", "https": "http"}
 _EXTRAS = frozenset({"s3", "gcs", "azure", "http"})
@@ -249,6 +252,43 @@ def as_source(
     if isinstance(path, str) and path.lower().startswith("file://"):
         return Path(urlsplit(path).path)
     return Path(path)
+
+
+def as_output(
+    path: str | os.PathLike[str],
+    *,
+    name: str = "--out",
+    filesystem: Any = None,
+    storage_options: Mapping[str, Any] | None = None,
+) -> Source:
+    """The output ``path`` names: a :class:`RemoteFile` for a URL, else a local path.
+
+    A URL is as for inputs (:func:`is_url`: ``SCHEME://…``; ``file://`` is its local path);
+    any other ``:`` is part of a local name (``exp-12:30``, ``mock:x``). ``SCHEME:/…``, one
+    slash short of a URL, is refused rather than made a local folder ``SCHEME:``; the error,
+    naming the argument ``name``, says how to write either. See :func:`remote_file` for
+    ``filesystem`` and ``storage_options``.
+
+    >>> as_output("exp-12:30"), as_output("file:///data/out")
+    (PosixPath('exp-12:30'), PosixPath('/data/out'))
+    >>> as_output("s3:/bucket/out")
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: --out s3:/bucket/out: a URL takes two slashes: \
+s3://bucket/out; a local path: ./s3:/bucket/out
+    """
+    if is_url(path):
+        return remote_file(os.fspath(path), filesystem=filesystem, storage_options=storage_options)
+    text = os.fspath(path)
+    short = _SLASH_SHORT.match(text)
+    if short is not None:
+        scheme, rest = short.group(1), text[short.end() :]
+        root = "/" if scheme.lower() == "file" else ""  # (file:///data/out)
+        raise ConfigurationError(
+            f"{name} {text}: a URL takes two slashes: {scheme}://{root}{rest}; "
+            f"a local path: ./{text}"
+        )
+    return as_source(text)
 
 
 def _why(exc: BaseException) -> str:

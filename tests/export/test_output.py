@@ -248,6 +248,29 @@ def test_camera_frames_without_pillow_are_one_error_line_naming_the_extra(
     assert export([CLEAN], out, to=to).frames == 0  # type: ignore[call-overload]
 
 
+@pytest.mark.parametrize(("to", "name"), [*VIEWERS, pytest.param("parquet", "p q", id="parquet")])
+def test_a_path_with_spaces_stays_whole_in_the_result(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, to: str, name: str
+) -> None:
+    """The result broke ``ev/ünïcødé run ✓.foxglove.mcap`` at its space (COLUMNS=80)."""
+    if to != "parquet":
+        _viewer(to)
+    monkeypatch.chdir(tmp_path)
+    source = Path("edge/ünïcødé run ✓.mcap")
+    source.parent.mkdir()
+    random_cartpole_file(source, 5)
+    out = f"ev/ünïcødé run ✓ of a longer name {name}"
+    args = ["export", str(source), "--to", to, "-o", out]
+    result = CliRunner().invoke(app, args, env={"COLUMNS": "80"})
+    assert result.exit_code == 0, result.output
+    unwrapped = result.output.replace("\n  ", " ")  # (a path broken at a space made whole)
+    assert out in result.output
+    for path in (str(source), out):
+        assert result.output.count(path) == unwrapped.count(path), result.output
+    lines = result.output.splitlines()
+    assert all(len(line) <= 80 for line in lines if not line.startswith("  python")), lines
+
+
 @pytest.mark.parametrize(("to", "name"), [*VIEWERS, pytest.param("parquet", "pq", id="parquet")])
 def test_the_result_fits_80_columns(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, to: str, name: str

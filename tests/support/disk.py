@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 
@@ -18,3 +20,15 @@ def fill_disk(folder: Path) -> Path:
     finally:
         os.close(fd)
     return filler
+
+
+def export_stderr(source: Path, to: str, out: Path) -> tuple[int, str]:
+    """``episode-audit export SOURCE --to TO -o OUT`` in a process of its own: exit code, stderr.
+
+    Its own process: a viewer library's lines on the process's stderr are in it too.
+    """
+    command = [sys.executable, "-m", "episode_audit", "export", str(source), "--to", to]
+    done = subprocess.run(
+        [*command, "-o", str(out)], capture_output=True, text=True, check=False, timeout=300
+    )
+    return done.returncode, done.stderr

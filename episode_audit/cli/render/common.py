@@ -351,11 +351,12 @@ def soft_broken(text: str, width: int) -> str:
     return "".join(pieces)
 
 
-def wrapped(text: str, width: int | None) -> str:
+def wrapped(text: str, width: int | None, whole: Iterable[str] = ()) -> str:
     r"""``text``'s lines wrapped at spaces to ``width`` cells, each next line indented two.
 
-    Words are never broken. A line with a word no line holds (a long path) stays one line, as
-    is a line that starts indented (a command to copy). ``None``: as it was.
+    Words are never broken, nor is any of ``whole`` (paths: ``a run.mcap`` is one word). A
+    line with a word no line holds (a long path) stays one line, as is a line that starts
+    indented (a command to copy). ``None``: as it was.
 
     >>> print(wrapped("episode-audit: note: a.mcap is unfinished: exported what it holds", 36))
     episode-audit: note: a.mcap is
@@ -366,10 +367,23 @@ def wrapped(text: str, width: int | None) -> str:
     open it in Foxglove;
       a layout for it:
       python -m layout run.mcap
+    >>> print(wrapped("wrote 5 steps to ev/a run.rrd", 20, whole=["ev/a run.rrd"]))
+    wrote 5 steps to
+      ev/a run.rrd
     """
     if width is None:
         return text
-    return "\n".join(_wrapped_line(line, width) for line in text.split("\n"))
+    held = sorted({part for part in whole if " " in part}, key=len, reverse=True)
+    if _HELD_SPACE in text:  # (a space of ``whole``'s could not be told from this one)
+        held = []
+    for part in held:
+        text = text.replace(part, part.replace(" ", _HELD_SPACE))
+    lines = "\n".join(_wrapped_line(line, width) for line in text.split("\n"))
+    return lines.replace(_HELD_SPACE, " ")
+
+
+_HELD_SPACE = "\ue000"
+"""A space of :func:`wrapped`'s ``whole`` while it wraps: no whitespace, one cell (private use)."""
 
 
 def _wrapped_line(line: str, width: int) -> str:
