@@ -896,3 +896,30 @@ def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: 
             assert sorted(small_disk.iterdir()) == [filler]  # no output, no folder it made
     result = CliRunner().invoke(app, ["recover", str(torn), "-o", str(out)])
     assert result.exit_code == 2 and "Traceback" not in result.output
+
+
+def test_an_out_a_slash_short_of_a_url_is_one_line_and_writes_nothing(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # (it made a local folder "s3:" and wrote the file there)
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run("recover", str(recorded), "--out", "s3:/bucket/fixed.mcap")
+    assert code == 2 and not out
+    assert err.strip().splitlines() == [
+        "episode-audit: error: --out s3:/bucket/fixed.mcap: a URL takes two slashes: "
+        "s3://bucket/fixed.mcap; a local path: ./s3:/bucket/fixed.mcap"
+    ]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_paths_with_spaces_stay_whole_in_the_result(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    torn = torn_copy(recorded, tmp_path, len(recorded.read_bytes()) - 10)
+    source = tmp_path / "a run of a longer name.mcap"
+    torn.rename(source)
+    out = "recovered runs/the run of a longer name, recovered.mcap"
+    Path("recovered runs").mkdir()
+    result = CliRunner().invoke(app, ["recover", source.name, "-o", out], env={"COLUMNS": "80"})
+    assert out in result.output and source.name in result.output, result.output

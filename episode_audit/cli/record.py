@@ -109,7 +109,7 @@ def record(
             )
     except EpisodeAuditError as exc:
         fail(str(exc))
-    said(str(summary))
+    said(str(summary), [out])
     if target is not None:
         from ..read.storage import upload
 
@@ -117,7 +117,7 @@ def record(
             upload(out, target)
         except EpisodeAuditError as exc:
             fail(f"{exc} (the recording is kept in {out})")
-        said(f"uploaded {out} to {target}")
+        said(f"uploaded {out} to {target}", [out, target])
 
 
 def _upload_target(url: str, out: Path) -> RemoteFile:

@@ -44,6 +44,6 @@ def recover(
             result = run_recover(path, out, overwrite=overwrite, overwrite_option="--overwrite")
         except EpisodeAuditError as exc:
             fail(str(exc))
-    said(result.summary())
+    said(result.summary(), [result.source, result.output])
     if result.lost:
         raise typer.Exit(EXIT_FINDINGS)

@@ -19,7 +19,7 @@ from ..format.run_end import RunEnd
 from ..read import RECOVER_HINT, DamagedRegion, Evidence, FileEnd, iter_records, open_evidence
 from ..read.layout import _MAGIC
 from ..read.liveness import still_written, writer_of
-from ..read.storage import is_url
+from ..read.storage import RemoteFile, as_output, is_url
 from ..record.published import no_space
 from ..record.writer import EvidenceWriter
 from .copying import RecordCopy
@@ -77,9 +77,10 @@ def recover(
     'recovered'
     """
     path, out = path_argument("path", path), path_argument("out", out)
-    if is_url(path) or is_url(out):  # object storage: through a local temporary copy
+    target = as_output(out)  # (``s3:/b/x``, a slash short of a URL, refused)
+    if is_url(path) or isinstance(target, RemoteFile):  # (through a local temporary copy)
         return recover_remote(path, out, overwrite, recover, overwrite_option)
-    src, dst = Path(path), Path(out)
+    src, dst = Path(path), Path(target)
     check_paths(src, dst, overwrite, overwrite_option)
     ev = _open_input(src)
     _refuse_live(ev, dst)

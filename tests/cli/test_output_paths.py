@@ -138,3 +138,14 @@ def test_an_existing_recording_asks_for_the_command_line_s_own_flag(tmp_path: Pa
     assert out.read_bytes() == b"keep"
     assert _invoke(*args, "--overwrite")[0] == 0
     assert out.stat().st_size > 4
+
+
+def test_record_keeps_a_path_with_spaces_whole_in_its_result(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    out = "recorded runs/cart pole, the first of a longer series of runs.mcap"
+    args = ["record", "CartPole-v1", "--episodes", "2", "--out", out]
+    result = CliRunner().invoke(app, args, env={"COLUMNS": "80"})
+    assert result.exit_code == 0, result.output
+    assert out in result.output, result.output
