@@ -189,11 +189,13 @@ def _from_registry(
 ) -> gym.Env[Any, Any]:
     """The registered ``env_id`` made with the recorded kwargs, in its wrappers.
 
-    ``wrappers`` innermost first, each class loaded by ``load`` from its entry point.
+    ``wrappers`` innermost first, each class loaded by ``load`` from its entry point. A
+    recorded kwarg the file holds as the registered one's JSON is the registered value
+    (:func:`_as_registered`).
     """
     try:
-        kwargs = dict(spec.get("kwargs") or {})
         registered = _without_checks(gym.spec(env_id))
+        kwargs = _as_registered(dict(spec.get("kwargs") or {}), registered.kwargs)
         if "max_episode_steps" in spec:  # null: no TimeLimit (not the registered one)
             kwargs.pop("max_episode_steps", None)
             registered = replace(registered, max_episode_steps=spec["max_episode_steps"])
@@ -205,6 +207,26 @@ def _from_registry(
             f"cannot make {env_id!r} with the recorded kwargs: {error_text(exc)}"
         ) from None
     return env
+
+
+def _as_registered(kwargs: dict[str, Any], registered: Mapping[str, Any]) -> dict[str, Any]:
+    """``kwargs`` with each one whose JSON the registered kwarg of that name has replaced by it.
+
+    The file holds kwargs as JSON: a tuple as a list, which an env may refuse (ALE's v0 / v4
+    ids register ``frameskip=(2, 5)``, and ALE takes no list). Where the recorded value is the
+    registered one as JSON, the registered value is what the recorded env was given.
+    """
+    out = dict(kwargs)
+    for name, value in kwargs.items():
+        if name not in registered or registered[name] is value:
+            continue
+        try:
+            held = json.loads(json.dumps(registered[name]))
+        except (TypeError, ValueError, RecursionError):
+            continue
+        if held == value and type(held) is type(value):
+            out[name] = registered[name]
+    return out
 
 
 def _put_on(

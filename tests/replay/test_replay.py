@@ -216,6 +216,23 @@ def test_a_wrapper_argument_that_must_be_a_tuple_is_rebuilt_as_one(
     assert [e.status for e in replay([path]).episodes] == ["identical"] * 2
 
 
+def test_a_registered_tuple_kwarg_is_rebuilt_as_the_registry_gives_it(tmp_path: Path) -> None:
+    """ALE's v0 / v4 ids register ``frameskip=(2, 5)``; the file holds it as a JSON list,
+    which ALE refuses ("Invalid frameskip type")."""
+    ale_py = pytest.importorskip("ale_py")
+    gym.register_envs(ale_py)
+    path = tmp_path / "b.mcap"
+    with RecordEvidence(gym.make("Breakout-v4", obs_type="ram", max_episode_steps=15), path) as rec:
+        rec.action_space.seed(0)
+        for seed in (1, 2):
+            rec.reset(seed=seed)
+            for _ in range(15):
+                rec.step(rec.action_space.sample())
+    run = open_evidence(path).run
+    assert run.env_spec is not None and run.env_spec["kwargs"]["frameskip"] == [2, 5]
+    assert [(e.status, e.reason) for e in replay([path]).episodes] == [("identical", None)] * 2
+
+
 @pytest.mark.parametrize("dtype", [np.float32, np.dtype("float32")], ids=["type", "dtype"])
 def test_a_dtype_observation_is_recorded_by_its_dtype_name_and_rebuilt(
     tmp_path: Path, dtype: Any
