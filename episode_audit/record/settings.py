@@ -57,11 +57,12 @@ KNOWN_TERMS: Mapping[str, RewardTerms] = {
     ),
     # reward = uph_cost + 1 - quad_ctrl_cost - quad_impact_cost: the 1 is in no info key
     "HumanoidStandup-v5": RewardTerms("auto", {"constant_bonus": 1.0}),
+    "HumanoidStandup-v4": RewardTerms("auto", {"constant_bonus": 1.0}),
 }
 """The reward terms of the Gymnasium envs whose ``info["reward_*"]`` keys alone do not sum to
 their reward, by env id: a recorder given no ``reward_terms`` nor ``constant_terms`` reads
-these (:meth:`RecorderSettings.use_known_terms`). Every other MuJoCo v5 env's keys sum to its
-reward (``tests/record/test_known_terms.py`` checks them all)."""
+these (:meth:`RecorderSettings.use_known_terms`). Every other MuJoCo v5 and v4 env's keys sum
+to its reward, or it has none (``tests/record/test_known_terms.py`` checks them all)."""
 
 
 class RecorderOptions(TypedDict, total=False):
