@@ -27,6 +27,7 @@ from typing_extensions import Unpack
 from .._version import __version__
 from ..errors import ConfigurationError
 from ..format import names as fmt
+from ..format.options import LAYOUT_SPEC_KWARGS_TYPED, typed_spec_kwargs
 from ..format.records import MAX_JSON_TEXT, RunInfo, to_json
 from ..format.unrecorded import placeholders, spec_placeholders
 from ..format.wrappers import RECORDED_WRAPPERS, RUN_TRANSPARENT_WRAPPERS
@@ -396,6 +397,10 @@ def run_info(
                     f"env spec not recorded: {size} bytes of JSON, over the {MAX_JSON_TEXT} "
                     "readers accept (large make() arguments); not replayable"
                 )
+            else:  # the kwargs its JSON changes (a tuple), exactly: replay makes the env with them
+                typed = typed_spec_kwargs(spec.kwargs or {}, spec_json.get("kwargs") or {})
+                if typed is not None:
+                    layout = {**layout, LAYOUT_SPEC_KWARGS_TYPED: typed}
     command_line = settings.command_line
     return RunInfo(
         format_version=fmt.FORMAT_VERSION,
