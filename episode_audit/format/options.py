@@ -372,9 +372,10 @@ _TAGS: dict[str, Callable[[Any], Any]] = {
 
 
 LAYOUT_SPEC_KWARGS_TYPED = "spec_kwargs_typed"
-"""Layout key of a single-env or vector file: the env spec's kwargs that its JSON gives back as
-other values than they were (a tuple as a list, an int key as text), as typed text (absent
-when there are none): :func:`typed_spec_kwargs` writes it, :func:`spec_kwargs` reads it."""
+"""Layout key of a single-env or vector file with an env spec: the spec's kwargs that its JSON
+gives back as other values than they were (a tuple as a list, an int key as text), as typed
+text, ``{}`` when there are none (absent in files of older recorders, or when the typed form
+cannot hold them): :func:`typed_spec_kwargs` writes it, :func:`spec_kwargs` reads it."""
 MAX_SPEC_KWARGS_TYPED = 64 << 10
 """The largest :data:`LAYOUT_SPEC_KWARGS_TYPED` text a recorder writes (replay builds an env
 from no more); larger, it is left out and the spec's JSON is the record."""
@@ -384,11 +385,13 @@ def typed_spec_kwargs(kwargs: Mapping[str, Any], held: Mapping[str, Any]) -> str
     """The typed text of the env ``kwargs`` that ``held`` (the spec's JSON kwargs) changed.
 
     A kwarg JSON gives back as is, or that ``held`` keeps as a placeholder, is not in it, nor
-    one the typed form cannot hold; ``None`` when none is left, or the text would be larger
-    than :data:`MAX_SPEC_KWARGS_TYPED`.
+    one the typed form cannot hold (``{}`` when none is left); ``None`` when the text would be
+    larger than :data:`MAX_SPEC_KWARGS_TYPED`, or two kwargs share a value.
 
     >>> typed_spec_kwargs({"frameskip": (2, 5), "mode": 4}, {"frameskip": [2, 5], "mode": 4})
     '{"frameskip":{"$tuple":[2,5]}}'
+    >>> typed_spec_kwargs({"mode": 4}, {"mode": 4})
+    '{}'
     """
     changed: dict[str, Any] = {}
     for name, value in kwargs.items():
@@ -401,8 +404,6 @@ def typed_spec_kwargs(kwargs: Mapping[str, Any], held: Mapping[str, Any]) -> str
         except (TypeError, ValueError, RecursionError):
             continue
         changed[name] = value
-    if not changed:
-        return None
     try:
         text = encode_typed(changed)
     except (TypeError, ValueError, RecursionError):  # (a value shared by two kwargs)

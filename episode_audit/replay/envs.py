@@ -194,14 +194,18 @@ def _from_registry(
     """The registered ``env_id`` made with the recorded kwargs, in its wrappers.
 
     ``wrappers`` innermost first, each class loaded by ``load`` from its entry point. The
-    kwargs are exact where the layout holds them typed (``spec_kwargs_typed``); one the file
-    holds only as the registered one's JSON is the registered value (:func:`_as_registered`).
+    kwargs are exact where the layout holds them typed (``spec_kwargs_typed``); in a file
+    without it, one held as the registered one's JSON is the registered value
+    (:func:`_as_registered`).
     """
     try:
         registered = _without_checks(gym.spec(env_id))
+        held = dict(spec.get("kwargs") or {})
         typed = layout.get(LAYOUT_SPEC_KWARGS_TYPED)
-        kwargs = spec_kwargs(spec.get("kwargs") or {}, typed)
-        kwargs = _as_registered(kwargs, registered.kwargs)
+        if typed is None:
+            kwargs = _as_registered(held, registered.kwargs)
+        else:
+            kwargs = spec_kwargs(held, typed)
         if "max_episode_steps" in spec:  # null: no TimeLimit (not the registered one)
             kwargs.pop("max_episode_steps", None)
             registered = replace(registered, max_episode_steps=spec["max_episode_steps"])

@@ -217,9 +217,13 @@ def test_a_wrapper_argument_that_must_be_a_tuple_is_rebuilt_as_one(
     assert [e.status for e in replay([path]).episodes] == ["identical"] * 2
 
 
-def test_a_registered_tuple_kwarg_is_rebuilt_as_the_registry_gives_it(tmp_path: Path) -> None:
-    """ALE's v0 / v4 ids register ``frameskip=(2, 5)``; the file holds it as a JSON list,
-    which ALE refuses ("Invalid frameskip type")."""
+@pytest.mark.parametrize("typed", [True, False], ids=["typed", "older-file"])
+def test_a_registered_tuple_kwarg_is_rebuilt_as_the_registry_gives_it(
+    tmp_path: Path, typed: bool
+) -> None:
+    """ALE's v0 / v4 ids register ``frameskip=(2, 5)``; the spec's JSON holds it as a list,
+    which ALE refuses ("Invalid frameskip type"). A file of an older recorder, without the
+    layout's ``spec_kwargs_typed``, takes the registered value."""
     ale_py = pytest.importorskip("ale_py")
     gym.register_envs(ale_py)
     path = tmp_path / "b.mcap"
@@ -229,8 +233,17 @@ def test_a_registered_tuple_kwarg_is_rebuilt_as_the_registry_gives_it(tmp_path: 
             rec.reset(seed=seed)
             for _ in range(15):
                 rec.step(rec.action_space.sample())
+    if not typed:
+
+        def older(meta: dict[str, str]) -> dict[str, str]:
+            layout = json.loads(meta["layout"])
+            del layout["spec_kwargs_typed"]
+            return {**meta, "layout": json.dumps(layout)}
+
+        path = rewrite(path, tmp_path / "older.mcap", run=older)
     run = open_evidence(path).run
     assert run.env_spec is not None and run.env_spec["kwargs"]["frameskip"] == [2, 5]
+    assert ("spec_kwargs_typed" in run.layout) is typed
     assert [(e.status, e.reason) for e in replay([path]).episodes] == [("identical", None)] * 2
 
 
