@@ -43,14 +43,25 @@ import base64
 import binascii
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from .records import MAX_JSON_TEXT, from_json
+from .unrecorded import unrecorded
 
-__all__ = ["MAX_TYPED_TEXT", "TYPED_KINDS", "decode_typed", "encode_typed", "json_loss"]
+__all__ = [
+    "LAYOUT_SPEC_KWARGS_TYPED",
+    "MAX_SPEC_KWARGS_TYPED",
+    "MAX_TYPED_TEXT",
+    "TYPED_KINDS",
+    "decode_typed",
+    "encode_typed",
+    "json_loss",
+    "spec_kwargs",
+    "typed_spec_kwargs",
+]
 
 MAX_TYPED_TEXT = MAX_JSON_TEXT
 """Largest typed options text, 1 MiB: the recorder holds no larger, a reader parses no larger."""
@@ -358,3 +369,77 @@ _TAGS: dict[str, Callable[[Any], Any]] = {
     "$array": _array,
     "$scalar": _scalar,
 }
+
+
+LAYOUT_SPEC_KWARGS_TYPED = "spec_kwargs_typed"
+"""Layout key of a single-env or vector file with an env spec: the spec's kwargs that its JSON
+gives back as other values than they were (a tuple as a list, an int key as text), as typed
+text, ``{}`` when there are none (absent in files of older recorders, or when the typed form
+cannot hold them): :func:`typed_spec_kwargs` writes it, :func:`spec_kwargs` reads it."""
+MAX_SPEC_KWARGS_TYPED = 64 << 10
+"""The largest :data:`LAYOUT_SPEC_KWARGS_TYPED` text a recorder writes (replay builds an env
+from no more); larger, it is left out and the spec's JSON is the record."""
+
+
+def typed_spec_kwargs(kwargs: Mapping[str, Any], held: Mapping[str, Any]) -> str | None:
+    """The typed text of the env ``kwargs`` that ``held`` (the spec's JSON kwargs) changed.
+
+    A kwarg JSON gives back as is, or that ``held`` keeps as a placeholder, is not in it, nor
+    one the typed form cannot hold (``{}`` when none is left); ``None`` when the text would be
+    larger than :data:`MAX_SPEC_KWARGS_TYPED`, or two kwargs share a value.
+
+    >>> typed_spec_kwargs({"frameskip": (2, 5), "mode": 4}, {"frameskip": [2, 5], "mode": 4})
+    '{"frameskip":{"$tuple":[2,5]}}'
+    >>> typed_spec_kwargs({"mode": 4}, {"mode": 4})
+    '{}'
+    """
+    changed: dict[str, Any] = {}
+    for name, value in kwargs.items():
+        if not isinstance(name, str) or unrecorded(held.get(name)) is not None:
+            continue
+        try:
+            if json_loss(value) is None:
+                continue
+            encode_typed(value)
+        except (TypeError, ValueError, RecursionError):
+            continue
+        changed[name] = value
+    try:
+        text = encode_typed(changed)
+    except (TypeError, ValueError, RecursionError):  # (a value shared by two kwargs)
+        return None
+    return text if len(text) <= MAX_SPEC_KWARGS_TYPED else None
+
+
+def spec_kwargs(held: Mapping[str, Any], typed: Any) -> dict[str, Any]:
+    """The env spec's kwargs to build the env with, exact where ``typed`` holds them.
+
+    ``held``: the spec's JSON kwargs; ``typed``: the layout's :data:`LAYOUT_SPEC_KWARGS_TYPED`.
+    A typed kwarg replaces the held one only where JSON gives it back as the held value; typed
+    text that does not decode, or is larger than :data:`MAX_SPEC_KWARGS_TYPED`, is left out:
+    the spec's JSON is the record.
+
+    >>> spec_kwargs({"frameskip": [2, 5], "mode": 4}, '{"frameskip":{"$tuple":[2,5]}}')
+    {'frameskip': (2, 5), 'mode': 4}
+    >>> spec_kwargs({"frameskip": [3, 5]}, '{"frameskip":{"$tuple":[2,5]}}')
+    {'frameskip': [3, 5]}
+    """
+    kwargs = dict(held)
+    if not isinstance(typed, str) or len(typed) > MAX_SPEC_KWARGS_TYPED:
+        return kwargs
+    try:
+        exact = decode_typed(typed)
+    except ValueError:
+        return kwargs
+    if not isinstance(exact, dict):
+        return kwargs
+    for name, value in exact.items():
+        if not isinstance(name, str) or name not in kwargs:
+            continue
+        try:
+            as_held = json.loads(json.dumps(value))
+        except (TypeError, ValueError, RecursionError):
+            continue
+        if as_held == kwargs[name]:
+            kwargs[name] = value
+    return kwargs

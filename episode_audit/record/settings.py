@@ -27,6 +27,7 @@ from typing_extensions import Unpack
 from .._version import __version__
 from ..errors import ConfigurationError
 from ..format import names as fmt
+from ..format.options import LAYOUT_SPEC_KWARGS_TYPED, typed_spec_kwargs
 from ..format.records import MAX_JSON_TEXT, RunInfo, to_json
 from ..format.unrecorded import placeholders, spec_placeholders
 from ..format.wrappers import RECORDED_WRAPPERS, RUN_TRANSPARENT_WRAPPERS
@@ -57,11 +58,12 @@ KNOWN_TERMS: Mapping[str, RewardTerms] = {
     ),
     # reward = uph_cost + 1 - quad_ctrl_cost - quad_impact_cost: the 1 is in no info key
     "HumanoidStandup-v5": RewardTerms("auto", {"constant_bonus": 1.0}),
+    "HumanoidStandup-v4": RewardTerms("auto", {"constant_bonus": 1.0}),
 }
 """The reward terms of the Gymnasium envs whose ``info["reward_*"]`` keys alone do not sum to
 their reward, by env id: a recorder given no ``reward_terms`` nor ``constant_terms`` reads
-these (:meth:`RecorderSettings.use_known_terms`). Every other MuJoCo v5 env's keys sum to its
-reward (``tests/record/test_known_terms.py`` checks them all)."""
+these (:meth:`RecorderSettings.use_known_terms`). Every other MuJoCo v5 and v4 env's keys sum
+to its reward, or it has none (``tests/record/test_known_terms.py`` checks them all)."""
 
 
 class RecorderOptions(TypedDict, total=False):
@@ -395,6 +397,10 @@ def run_info(
                     f"env spec not recorded: {size} bytes of JSON, over the {MAX_JSON_TEXT} "
                     "readers accept (large make() arguments); not replayable"
                 )
+            else:  # the kwargs its JSON changes (a tuple), exactly: replay makes the env with them
+                typed = typed_spec_kwargs(spec.kwargs or {}, spec_json.get("kwargs") or {})
+                if typed is not None:
+                    layout = {**layout, LAYOUT_SPEC_KWARGS_TYPED: typed}
     command_line = settings.command_line
     return RunInfo(
         format_version=fmt.FORMAT_VERSION,

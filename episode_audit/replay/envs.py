@@ -22,7 +22,7 @@ import gymnasium as gym
 from .._usercode import load_callable
 from ..errors import ConfigurationError, ReplayError
 from ..format.columns import error_text
-from ..format.options import decode_typed
+from ..format.options import LAYOUT_SPEC_KWARGS_TYPED, decode_typed, spec_kwargs
 from ..format.records import RunInfo
 from ..format.unrecorded import unrecorded
 from ..format.wrappers import (
@@ -83,14 +83,14 @@ def build_env(
         trusted = [w for w in recorded if isinstance(w, Mapping)]
         _refuse_unrecorded_arguments(trusted, transparent)
         if registered:
-            return _from_registry(env_id, spec, trusted, _load_wrapper)
-        return _from_recorded_spec(spec, trusted)
+            return _from_registry(env_id, spec, trusted, _load_wrapper, run.layout)
+        return _from_recorded_spec(spec, trusted, run.layout)
     if registered:
         plan = plan_wrappers(recorded, transparent)
         if plan.refused is not None:
             raise ReplayError(plan.refused)
         rebuilt = [{"entry_point": name, "kwargs": kwargs} for name, kwargs in plan.rebuild]
-        return _from_registry(env_id, spec, rebuilt, _gymnasium_wrapper)
+        return _from_registry(env_id, spec, rebuilt, _gymnasium_wrapper, run.layout)
     entry = spec.get("entry_point") if unrecorded_arguments(recorded, transparent) is None else None
     raise ReplayError(
         f"env id {env_id!r} is not registered in this process; pass --import MODULE that "
@@ -105,16 +105,19 @@ def build_env(
 
 
 def _from_recorded_spec(
-    spec: Mapping[str, Any], wrappers: Sequence[Mapping[str, Any]]
+    spec: Mapping[str, Any], wrappers: Sequence[Mapping[str, Any]], layout: Mapping[str, Any]
 ) -> gym.Env[Any, Any]:
     """The env an unregistered id's recorded spec names, in its ``wrappers`` (trusted).
 
     The wrappers are put on as :func:`_from_registry` does (Gymnasium's ``make`` refuses one
-    without recorded arguments, e.g. SB3's transparent ``Monitor``).
+    without recorded arguments, e.g. SB3's transparent ``Monitor``); the kwargs are the
+    recorded ones, exactly where the layout holds them typed (``spec_kwargs_typed``).
     """
     try:
         bare = {**spec, "additional_wrappers": []}
         recorded_spec = gym.envs.registration.EnvSpec.from_json(json.dumps(bare))
+        typed = layout.get(LAYOUT_SPEC_KWARGS_TYPED)
+        recorded_spec = replace(recorded_spec, kwargs=spec_kwargs(recorded_spec.kwargs, typed))
         env = gym.make(_without_checks(recorded_spec))
     except Exception as exc:  # the env's own code, or an entry point that does not import
         raise ReplayError(
@@ -186,14 +189,23 @@ def _from_registry(
     spec: Mapping[str, Any],
     wrappers: Sequence[Mapping[str, Any]],
     load: Callable[[str], Any],
+    layout: Mapping[str, Any],
 ) -> gym.Env[Any, Any]:
     """The registered ``env_id`` made with the recorded kwargs, in its wrappers.
 
-    ``wrappers`` innermost first, each class loaded by ``load`` from its entry point.
+    ``wrappers`` innermost first, each class loaded by ``load`` from its entry point. The
+    kwargs are exact where the layout holds them typed (``spec_kwargs_typed``); in a file
+    without it, one held as the registered one's JSON is the registered value
+    (:func:`_as_registered`).
     """
     try:
-        kwargs = dict(spec.get("kwargs") or {})
         registered = _without_checks(gym.spec(env_id))
+        held = dict(spec.get("kwargs") or {})
+        typed = layout.get(LAYOUT_SPEC_KWARGS_TYPED)
+        if typed is None:
+            kwargs = _as_registered(held, registered.kwargs)
+        else:
+            kwargs = spec_kwargs(held, typed)
         if "max_episode_steps" in spec:  # null: no TimeLimit (not the registered one)
             kwargs.pop("max_episode_steps", None)
             registered = replace(registered, max_episode_steps=spec["max_episode_steps"])
@@ -205,6 +217,26 @@ def _from_registry(
             f"cannot make {env_id!r} with the recorded kwargs: {error_text(exc)}"
         ) from None
     return env
+
+
+def _as_registered(kwargs: dict[str, Any], registered: Mapping[str, Any]) -> dict[str, Any]:
+    """``kwargs`` with each one whose JSON the registered kwarg of that name has replaced by it.
+
+    The file holds kwargs as JSON: a tuple as a list, which an env may refuse (ALE's v0 / v4
+    ids register ``frameskip=(2, 5)``, and ALE takes no list). Where the recorded value is the
+    registered one as JSON, the registered value is what the recorded env was given.
+    """
+    out = dict(kwargs)
+    for name, value in kwargs.items():
+        if name not in registered or registered[name] is value:
+            continue
+        try:
+            held = json.loads(json.dumps(registered[name]))
+        except (TypeError, ValueError, RecursionError):
+            continue
+        if held == value and type(held) is type(value):
+            out[name] = registered[name]
+    return out
 
 
 def _put_on(

@@ -18,11 +18,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from episode_audit import RecordEvidence, open_evidence
+from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
 from episode_audit._usercode import load_callable
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError, ReplayError
 from episode_audit.format.columns import TERMS_TYPE
+from episode_audit.format.options import decode_typed
 from episode_audit.record.time_limits import plain_time_limit
 from episode_audit.replay import build_env, replay
 from episode_audit.replay.compare import _terms_rows_equal
@@ -214,6 +215,65 @@ def test_a_wrapper_argument_that_must_be_a_tuple_is_rebuilt_as_one(
             for _ in range(4):
                 rec.step(rec.action_space.sample())
     assert [e.status for e in replay([path]).episodes] == ["identical"] * 2
+
+
+@pytest.mark.parametrize("typed", [True, False], ids=["typed", "older-file"])
+def test_a_registered_tuple_kwarg_is_rebuilt_as_the_registry_gives_it(
+    tmp_path: Path, typed: bool
+) -> None:
+    """ALE's v0 / v4 ids register ``frameskip=(2, 5)``; the spec's JSON holds it as a list,
+    which ALE refuses ("Invalid frameskip type"). A file of an older recorder, without the
+    layout's ``spec_kwargs_typed``, takes the registered value."""
+    ale_py = pytest.importorskip("ale_py")
+    gym.register_envs(ale_py)
+    path = tmp_path / "b.mcap"
+    with RecordEvidence(gym.make("Breakout-v4", obs_type="ram", max_episode_steps=15), path) as rec:
+        rec.action_space.seed(0)
+        for seed in (1, 2):
+            rec.reset(seed=seed)
+            for _ in range(15):
+                rec.step(rec.action_space.sample())
+    if not typed:
+
+        def older(meta: dict[str, str]) -> dict[str, str]:
+            layout = json.loads(meta["layout"])
+            del layout["spec_kwargs_typed"]
+            return {**meta, "layout": json.dumps(layout)}
+
+        path = rewrite(path, tmp_path / "older.mcap", run=older)
+    run = open_evidence(path).run
+    assert run.env_spec is not None and run.env_spec["kwargs"]["frameskip"] == [2, 5]
+    assert ("spec_kwargs_typed" in run.layout) is typed
+    assert [(e.status, e.reason) for e in replay([path]).episodes] == [("identical", None)] * 2
+
+
+@pytest.mark.parametrize("vector", [False, True], ids=["single", "vector"])
+def test_a_tuple_kwarg_given_to_make_is_rebuilt_as_one(tmp_path: Path, vector: bool) -> None:
+    """``frameskip=(2, 5)`` given to ``gym.make``: the spec's JSON holds a list, which ALE
+    refuses; the layout's ``spec_kwargs_typed`` holds the tuple."""
+    ale_py = pytest.importorskip("ale_py")
+    gym.register_envs(ale_py)
+    path = tmp_path / "b.mcap"
+    kwargs: dict[str, Any] = {"frameskip": (2, 5), "obs_type": "ram", "max_episode_steps": 15}
+    if vector:
+        envs = gym.make_vec("ALE/Breakout-v5", 2, vectorization_mode="sync", **kwargs)
+        with RecordVectorEvidence(envs, path) as rec:
+            rec.action_space.seed(0)
+            rec.reset(seed=1)
+            for _ in range(20):
+                rec.step(rec.action_space.sample())
+    else:
+        with RecordEvidence(gym.make("ALE/Breakout-v5", **kwargs), path) as single:
+            single.action_space.seed(0)
+            for seed in (1, 2):
+                single.reset(seed=seed)
+                for _ in range(15):
+                    single.step(single.action_space.sample())
+    run = open_evidence(path).run
+    assert run.env_spec is not None and run.env_spec["kwargs"]["frameskip"] == [2, 5]
+    assert decode_typed(run.layout["spec_kwargs_typed"]) == {"frameskip": (2, 5)}
+    replays = replay([path]).episodes
+    assert [(e.status, e.reason) for e in replays] == [("identical", None)] * len(replays) != []
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.dtype("float32")], ids=["type", "dtype"])
