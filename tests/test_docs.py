@@ -1,7 +1,9 @@
-"""The docs stay true to the code: README's Python examples run as written."""
+"""The docs stay true to the code: README's Python examples and docs/viewers.md's commands run
+as written."""
 
 from __future__ import annotations
 
+import importlib.util
 import inspect
 import os
 import re
@@ -35,6 +37,45 @@ def test_readme_python_example_runs(tmp_path: Path, block: str) -> None:
         [sys.executable, "-c", block], cwd=tmp_path, env=env, capture_output=True, text=True
     )
     assert done.returncode == 0, f"exit {done.returncode}:\n{done.stderr[-4000:]}"
+
+
+VIEWERS_BASH = re.findall(
+    r"```bash\n(.*?)```", (REPO / "docs" / "viewers.md").read_text(), flags=re.S
+)
+
+
+def test_viewers_commands_run(tmp_path: Path) -> None:
+    """docs/viewers.md's commands run as written, in order, beside a ``run.mcap`` and README's
+    ``vec.mcap``: its layout command named a ``viewers/vec.foxglove.mcap`` no command made.
+    (``pip install`` is left out, and so is ``rerun FILE``, which opens the viewer.)"""
+    import gymnasium as gym
+
+    from episode_audit import RecordEvidence, RecordVectorEvidence
+
+    pytest.importorskip("foxglove")
+    has_rerun = importlib.util.find_spec("rerun") is not None
+    with RecordEvidence(gym.make("CartPole-v1"), tmp_path / "run.mcap") as env:
+        env.reset(seed=0)
+        for _ in range(30):
+            if any(env.step(env.action_space.sample())[2:4]):
+                env.reset()
+    vec = gym.make_vec("CartPole-v1", 2, vectorization_mode="sync")
+    with RecordVectorEvidence(vec, tmp_path / "vec.mcap") as envs:
+        envs.reset(seed=0)
+        for _ in range(30):
+            envs.step(envs.action_space.sample())
+    lines = [line.split("  #")[0].strip() for block in VIEWERS_BASH for line in block.splitlines()]
+    commands = [c for c in lines if c and not c.startswith(("pip ", "rerun "))]
+    assert len(commands) >= 4, commands  # (export, export, layout, layout)
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    for command in commands:
+        if "rerun" in command and not has_rerun:
+            continue  # (rerun-sdk: Python >= 3.11, and the rerun extra)
+        done = subprocess.run(
+            command, shell=True, cwd=tmp_path, env=env, capture_output=True, text=True
+        )
+        assert done.returncode == 0, f"{command}: exit {done.returncode}:\n{done.stderr}"
+    assert (tmp_path / "env_1.layout.json").read_text().count('"/env_1/steps.reward"') >= 1
 
 
 _ONLY_THESE = """

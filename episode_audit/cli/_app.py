@@ -160,7 +160,13 @@ _live: list[Console] = []
 
 
 def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
-    """Print one line on stderr and exit."""
+    """Print one line on stderr and exit.
+
+    After a Ctrl-C or ``SIGTERM`` the work swallowed, the failure is the stop's doing (the
+    workers a process group's ``SIGTERM`` ended): :func:`interruptible` says the stop instead.
+    """
+    if _stopped:
+        raise KeyboardInterrupt
     _said["failure"] = message
     _say("error", message)
     raise typer.Exit(code)
@@ -539,12 +545,14 @@ def interruptible() -> Iterator[None]:
     ``SIGTERM`` (a CI job's timeout, ``timeout``, ``docker stop``) stops the command as Ctrl-C
     does: Python's default would end it at once, its worker processes left waiting for work
     and multiprocessing's folder left in the temporary directory. So even when the work
-    swallowed the ``KeyboardInterrupt`` (:func:`_pressed`). pyarrow imports pandas (when
-    installed) the first time it converts a column, and a Ctrl-C during that import is lost,
-    or leaves pandas half-imported (a traceback): it is imported first here, with Ctrl-C held
-    meanwhile (:func:`~episode_audit._jobs.sigint_held`).
+    swallowed the ``KeyboardInterrupt`` (:func:`_pressed`), or then failed for it (a
+    ``SIGTERM`` to the process group ends the workers too: a ``WorkerError``). pyarrow
+    imports pandas (when installed) the first time it converts a column, and a Ctrl-C during
+    that import is lost, or leaves pandas half-imported (a traceback): it is imported first
+    here, with Ctrl-C held meanwhile (:func:`~episode_audit._jobs.sigint_held`).
     """
-    pressed: list[int] = []
+    pressed = _stopped
+    pressed.clear()
     main = threading.current_thread() is threading.main_thread()
     # a signal a library turns into another error still stops the command; one whose handler
     # is not Python's default (the caller's own, or ignored) is left as it is
@@ -557,7 +565,10 @@ def interruptible() -> Iterator[None]:
         yield
         if pressed:
             raise KeyboardInterrupt
-    except KeyboardInterrupt:
+    except BaseException as exc:
+        # (an error a swallowed stop led to, a WorkerError of the workers it ended: the stop)
+        if not pressed and not isinstance(exc, KeyboardInterrupt):
+            raise
         if signal.SIGTERM in pressed:
             _say("error", "terminated (SIGTERM): stopped")
             raise typer.Exit(EXIT_TERMINATED) from None
@@ -567,6 +578,11 @@ def interruptible() -> Iterator[None]:
         for signum, default in _STOPPING:
             if signum in watched:
                 signal.signal(signum, default)
+        pressed.clear()
+
+
+_stopped: list[int] = []
+"""The stopping signals noted while :func:`interruptible`'s work runs (:func:`_pressed`)."""
 
 
 _STOPPING: tuple[tuple[int, Any], ...] = (

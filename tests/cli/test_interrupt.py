@@ -190,3 +190,29 @@ def test_a_ctrl_c_the_work_swallowed_still_stops_the_command() -> None:
     assert said == ["not installed (KeyboardInterrupt)"]
     assert stopped.value.exit_code == 130
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_stop_whose_work_then_failed_is_the_stop_in_one_line(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """SIGTERM to the whole process group (`timeout`, systemd) reaches the workers too: the
+    interrupt landed in an import of this process's share of the work, which swallowed it, then
+    the dead workers made a WorkerError, and replay said that and exited 2, not 143."""
+    import typer
+
+    from episode_audit.cli._app import fail, interruptible
+
+    def work() -> None:
+        with interruptible():
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(1)
+            except BaseException:
+                pass  # (swallowed)
+            fail("a worker process ended before it returned its results")
+
+    with pytest.raises(typer.Exit) as stopped:
+        work()
+    assert stopped.value.exit_code == 143
+    assert capsys.readouterr().err == "episode-audit: error: terminated (SIGTERM): stopped\n"
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
