@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from episode_audit import RecordEvidence, open_evidence
+from episode_audit import RecordEvidence, RecordVectorEvidence, open_evidence
 from episode_audit.cli import app
 from episode_audit.report.core import BY_LABEL_NOTE as REPORT_BY_LABEL_NOTE
 from tests.support.rewards import record_cartpole
@@ -1148,3 +1148,14 @@ def test_show_episode_prints_tuple_actions_item_by_item() -> None:
     action = (2, np.array([0.078, -0.485], np.float32))
     assert _cell(action) == "(2, [ 0.078 -0.485])"
     assert _cell({"mode": np.int64(1), "x": np.zeros(2)}) == "{mode: 1, x: [0. 0.]}"
+
+
+def test_show_counts_one_sub_env_in_the_singular(tmp_path: Path) -> None:
+    path = tmp_path / "one.mcap"
+    envs = gym.make_vec("CartPole-v1", 1, vectorization_mode="sync")
+    with RecordVectorEvidence(envs, path) as rec:
+        rec.reset(seed=0)
+        for _ in range(5):
+            rec.step(rec.action_space.sample())
+    code, out, _ = run("show", str(path))
+    assert code == 0 and "vector: 1 sub-env (" in out, out

@@ -24,6 +24,7 @@ from rich.text import Text
 
 from ...errors import EvidenceError
 from ...format import names as fmt
+from ...format.columns import counted
 from ...format.options import decode_typed
 from ...format.records import from_json, to_jsonable
 from ...format.run_end import RunEnd
@@ -88,7 +89,9 @@ def _layout_text(layout: dict[str, Any]) -> str:
     kind = str(layout.get("kind", "single"))
     if kind == "single":
         return kind
-    parts = [f"{layout.get('num_envs', '?')} sub-envs"] if kind == "vector" else []
+    n = layout.get("num_envs")
+    count = counted(n, "sub-env") if isinstance(n, int) else f"{n if n else '?'} sub-envs"
+    parts = [count] if kind == "vector" else []
     if layout.get("agents"):
         parts.append("agents " + ", ".join(str(a) for a in layout["agents"]))
     extra = [str(layout[k]) for k in ("vector_class", "autoreset_mode") if layout.get(k)]
