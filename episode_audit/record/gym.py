@@ -103,6 +103,8 @@ class RecordEvidence(
             :class:`~episode_audit.record.settings.RecorderSettings`.
     """
 
+    __slots__ = ("_busy", "_gated")  # (FileRecorder's flags: the compiled step reads slots)
+
     _compiled_step: WrapperStep | None = None  # (the instance's step, when compiled)
 
     def __init__(
