@@ -211,8 +211,14 @@ def test_a_stop_whose_work_then_failed_is_the_stop_in_one_line(
                 pass  # (swallowed)
             fail("a worker process ended before it returned its results")
 
-    with pytest.raises(typer.Exit) as stopped:
-        work()
+    # (the command watches SIGTERM only where its handler is the default one; a test run
+    # earlier in this process may have left another)
+    previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        with pytest.raises(typer.Exit) as stopped:
+            work()
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     assert stopped.value.exit_code == 143
     assert capsys.readouterr().err == "episode-audit: error: terminated (SIGTERM): stopped\n"
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL

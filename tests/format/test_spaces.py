@@ -4,6 +4,7 @@ import hashlib
 import inspect
 import io
 import json
+import warnings
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ import pyarrow as pa
 import pytest
 from gymnasium import spaces
 from gymnasium.utils.env_checker import data_equivalence
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -1000,6 +1001,11 @@ def test_random_samples_of_random_spaces_round_trip_exactly(
 ) -> None:
     codec = codec_for(space)
     values: list[Any] = samples(space, n, seed)
+    # (Gymnasium 1.2's Box(126, 126, (), int8).sample() gives 125 under numpy 2.5: its own
+    # space refuses it; a sample the space itself holds is what this is about)
+    with warnings.catch_warnings():  # (Box.contains warns of a numpy scalar it casts)
+        warnings.simplefilter("ignore")
+        assume(all(space.contains(value) for value in values))
     if null_at is not None and null_at < n:
         values[null_at] = None
     buffer = codec.new_buffer()
