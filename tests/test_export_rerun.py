@@ -256,3 +256,40 @@ def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: 
         f"episode-audit: error: {out}: {error}output path\n",
     )
     assert sorted(small_disk.iterdir()) == [filler]
+
+
+_FILLING_DISK = """
+import sys
+from pathlib import Path
+from episode_audit import ConfigurationError
+from episode_audit.export import export
+source, out = sys.argv[1], Path(sys.argv[2])
+for k in range(int(sys.argv[3])):
+    try:
+        export([source], out, to="rerun")
+    except ConfigurationError as exc:
+        assert "No space left on device" in str(exc), exc
+    else:
+        raise SystemExit(f"export {k} succeeded")
+print("done")
+"""
+
+
+def test_a_disk_filling_midway_never_leaves_the_export_waiting(
+    small_disk: Path, tmp_path: Path
+) -> None:
+    """rerun-sdk's file writer, failing midway, could leave its flush waiting forever (~1 in 10).
+
+    In a process of its own, so that a wait is a failed test, not a stopped suite.
+    """
+    from tests.support.disk import fill_disk
+    from tests.support.viewer_files import random_cartpole_file
+
+    source = random_cartpole_file(tmp_path / "run.mcap", 400)  # (an .rrd of about 60 KB)
+    filler = fill_disk(small_disk)
+    os.truncate(filler, filler.stat().st_size - 16 * 1024)
+    out = small_disk / "new" / "run.rrd"
+    command = [sys.executable, "-c", _FILLING_DISK, str(source), str(out), "100"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert (done.returncode, done.stdout) == (0, "done\n"), done.stderr[-2000:]
+    assert sorted(small_disk.iterdir()) == [filler]

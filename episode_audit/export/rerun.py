@@ -28,6 +28,7 @@ from ..errors import ConfigurationError
 from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ..read.storage import as_source
+from ._copied import CopiedPipe
 from ._output import ViewerExport, local_file, missing, need_pillow, sdk_failure, staged
 from ._values import (
     RESET_STEP,
@@ -79,7 +80,7 @@ def export_rerun(
         ) as temporary:
             try:
                 writer = _write(rr, temporary, ev, result, progress)
-            except RuntimeError as exc:  # the SDK's (its file writer failed: a full disk …)
+            except (OSError, RuntimeError) as exc:  # (a failed write: a full disk …; the SDK's)
                 raise sdk_failure(out, "rerun-sdk", exc) from None
             if temporary.stat().st_size == 0:  # a disabled SDK (RERUN=off in the environment)
                 raise ConfigurationError(
@@ -99,20 +100,33 @@ def _write(
     result: ViewerExport,
     progress: Callable[[int], None] | None,
 ) -> _Writer:
-    """Write ``ev`` to a new recording saved at ``path``; the writer, which keeps no stream."""
+    """Write ``ev`` to a new recording saved at ``path``; the writer, which keeps no stream.
+
+    The SDK's file writer writes into a pipe a thread of ours copies to ``path``
+    (:class:`~._copied.CopiedPipe`): a failed write of its own (a full disk) can leave its
+    flush waiting forever; ours is an ``OSError`` raised here.
+    """
     rec = rr.RecordingStream("episode-audit", send_properties=False)
     rec.set_log_time_enabled(False)  # (the export's wall clock: no timeline of the episodes)
     rec.set_log_tick_enabled(False)
+    copy = None
     try:
-        rec.save(str(path))
-    except (OSError, RuntimeError) as exc:  # (the folder was checked: a full disk, or rare)
-        why = str(exc).split(", path:")[0]  # (the path is the temporary file's)
+        copy = CopiedPipe(path)
+        rec.save(copy.path)
+    except (OSError, RuntimeError) as exc:  # (the folder was checked: rare)
+        if copy is not None:
+            with contextlib.suppress(OSError):
+                copy.close()
+        # (the path is the temporary file's or the pipe's)
+        why = getattr(exc, "strerror", None) or str(exc).split(", path:")[0]
         raise sdk_failure(result.path, "rerun-sdk", exc, "create", why) from None
+    copy.opened()
     rec.send_recording_name(result.source.name)
     writer = _Writer(rr, rec, ev, result)
     try:
         for reset, batch in blocks(ev):
             writer.batch(batch, reset=reset)
+            copy.check()
             if progress is not None and not reset:
                 progress(batch.num_rows)
         result.episodes = writer.endings()
@@ -120,10 +134,15 @@ def _write(
     except BaseException:
         with contextlib.suppress(RuntimeError):  # (the same failure, again, in closing)
             _close(rec)
+        with contextlib.suppress(OSError):
+            copy.close()
         raise
     finally:
         writer.rec = None  # (the stream is dropped with the last reference: _free_dropped_...)
-    _close(rec)  # (a failed write of the SDK's file writer is raised here: RuntimeError)
+    try:
+        _close(rec)
+    finally:
+        copy.close()  # (a failed write: OSError)
     return writer
 
 
