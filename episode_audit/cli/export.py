@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import sys
 from functools import partial
 from typing import Annotated, Literal, cast
 
@@ -119,8 +117,6 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
         target = viewer_output(to, out)  # (refused before the input is read)
     except EpisodeAuditError as exc:
         fail(str(exc))
-    if to == "rerun":
-        _quiet_rerun_file_writer()
 
     readable, unreadable = _readable(collect(paths))
     if unreadable or not readable:
@@ -147,25 +143,3 @@ def _export_for_viewer(paths: list[str], out: str, to: str, overwrite: bool) -> 
     for line in result.notes:
         note(line)
     said(result.summary(), [result.source, result.path])
-
-
-RERUN_QUIET = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
-"""``RUST_LOG`` for ``--to rerun``: rerun-sdk's log lines about its file writer turned off."""
-
-
-def _quiet_rerun_file_writer() -> None:
-    """Keep rerun-sdk's own lines about a failed write (a full disk) off stderr.
-
-    The command's error line says it (naming the output); rerun-sdk would add its ERROR and
-    WARN lines on the same failure. It reads ``RUST_LOG`` once, as it is imported: set for the
-    import only, unless the user set it.
-    """
-    if "rerun" in sys.modules or "RUST_LOG" in os.environ:
-        return
-    os.environ["RUST_LOG"] = RERUN_QUIET
-    try:
-        import rerun  # noqa: F401 (reads RUST_LOG)
-    except ImportError:
-        pass  # (the export names the extra to install)
-    finally:
-        del os.environ["RUST_LOG"]
