@@ -55,6 +55,10 @@ def _odd_env() -> ScriptedEnv:
             obs = [0.1, 0.2, 0.3]  # converted, noted
         if t % 13 == 0:
             reward = np.float32(0.5)
+        if t % 3 == 0:  # numpy scalars read in place: float32, float64; others as float() does
+            info["reward_ctrl"], reward = np.float32(0.01 * t), np.float64(reward)
+        if t % 5 == 0:
+            info["reward_dist"] = [np.float64(-0.1 * t), np.float16(0.3), 2, np.bool_(True)][t % 4]
         if t % 17 == 0:
             reward = "1.5"  # not a number: recorded as null, noted
         if t % 19 == 0:

@@ -201,28 +201,33 @@ static int read_terms(StepRecorder *self, PyObject *info, double *values, Py_ssi
     if (keys == NULL || !PyTuple_CheckExact(keys) ||
         PyTuple_GET_SIZE(keys) != PyDict_GET_SIZE(info))
         goto done;
-    Py_ssize_t pos = 0, i = 0;
-    PyObject *key, *value;
+    Py_ssize_t pos = 0, i = 0, n = PyTuple_GET_SIZE(keys);
+    PyObject *key, *value, *seen[MAX_TERMS]; /* (the values in the keys' order) */
     while (PyDict_Next(info, &pos, &key, &value)) {
-        PyObject *planned = PyTuple_GET_ITEM(keys, i++);
+        PyObject *planned = PyTuple_GET_ITEM(keys, i);
         if (key != planned) {
             int same = PyObject_RichCompareBool(key, planned, Py_EQ);
             if (same != 1)
                 goto done;
         }
+        if (i < MAX_TERMS)
+            seen[i] = value;
+        i++;
     }
     names = stream_attr(self, S_TERMS_NAMES);
     if (names == NULL || !PyTuple_CheckExact(names) || PyTuple_GET_SIZE(names) > MAX_TERMS)
         goto done;
     Py_ssize_t k = PyTuple_GET_SIZE(names);
     for (Py_ssize_t j = 0; j < k; j++) {
-        PyObject *term = PyDict_GetItemWithError(info, PyTuple_GET_ITEM(names, j));
-        if (term == NULL || !plain_number(term)) /* (an array, a tensor: number() decides) */
+        PyObject *name = PyTuple_GET_ITEM(names, j), *term = NULL;
+        for (Py_ssize_t at = 0; at < n && at < MAX_TERMS && term == NULL; at++)
+            if (PyTuple_GET_ITEM(keys, at) == name) /* (the plan's own strings: no hashing) */
+                term = seen[at];
+        if (term == NULL)
+            term = PyDict_GetItemWithError(info, name);
+        /* (an array, a tensor: number() decides) */
+        if (term == NULL || number_value(term, &values[j]) != 1)
             goto done;
-        double number = PyFloat_AsDouble(term);
-        if (number == -1.0 && PyErr_Occurred())
-            goto done;
-        values[j] = number;
     }
     *count = k;
     *names_out = names; /* a new reference, the caller's */
@@ -443,10 +448,8 @@ static PyObject *step_impl(StepRecorder *self, PyObject *action, PyObject *resul
     if (nterms && (!array_room(term_vals, nterms, 8) || !array_room(term_rows, 1, 8) ||
                    !array_room(term_counts, 1, 8) || !PyList_CheckExact(term_keys)))
         goto python;
-    if (!plain_number(reward)) /* (an array, a tensor: number() decides) */
-        goto python;
-    double r = PyFloat_AsDouble(reward);
-    if (r == -1.0 && PyErr_Occurred())
+    double r;
+    if (number_value(reward, &r) != 1) /* (an array, a tensor: number() decides) */
         goto python;
     if (!plan_value(SLOT(block, off_obs), obs, &obs_p) ||
         !plan_value(SLOT(block, off_act), action, &act_p))

@@ -84,6 +84,30 @@ static inline int plain_number(PyObject *x)
            PyArray_IsScalar(x, Bool);
 }
 
+/* `x` as float() reads it, into *out: 1; 0 when it is not a plain number (the Python path
+   decides); -1 on an error (set). A float, a numpy float64 (a float subclass with float's
+   layout) or float32 (what float() gives: its value, exactly) is read in place: no call, no
+   walk of its type's bases. */
+static inline int number_value(PyObject *x, double *out)
+{
+    PyTypeObject *type = Py_TYPE(x);
+    if (type == &PyFloat_Type || type == &PyDoubleArrType_Type) {
+        *out = PyFloat_AS_DOUBLE(x);
+        return 1;
+    }
+    if (type == &PyFloatArrType_Type) {
+        *out = (double)PyArrayScalar_VAL(x, Float);
+        return 1;
+    }
+    if (!plain_number(x))
+        return 0;
+    double value = PyFloat_AsDouble(x);
+    if (value == -1.0 && PyErr_Occurred())
+        return -1;
+    *out = value;
+    return 1;
+}
+
 static inline void array_push_q(PyObject *a, long long value)
 {
     ArrayObject *arr = (ArrayObject *)a;
