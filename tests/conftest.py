@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import subprocess
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -61,19 +64,48 @@ def _no_columns(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("COLUMNS", raising=False)
 
 
+_SMALL_DISK = "episode-audit-small-disk-"
+
+
 @pytest.fixture
-def small_disk(tmp_path: Path) -> Any:
-    """A 2 MiB tmpfs mounted for the test (root only; skipped where it cannot be mounted)."""
-    mnt = tmp_path / "mnt"
-    mnt.mkdir()
+def small_disk() -> Any:
+    """A 2 MiB tmpfs mounted for the test (root only; skipped where it cannot be mounted).
+
+    Mounted in ``/tmp``, outside pytest's temporary folders (the session's ``$TMPDIR`` is one
+    of them): a run killed midway leaves its mount behind, which in there would make the next
+    run's clean-up of those folders fail ("Device or resource busy"). Such mounts, of
+    processes that are gone, are unmounted here first.
+    """
+    _unmount_left_behind()
+    mnt = Path(tempfile.mkdtemp(prefix=f"{_SMALL_DISK}{os.getpid()}-", dir="/tmp"))
     try:
         mounted = subprocess.run(
             ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
             capture_output=True, text=True, check=False, timeout=30,
         )  # fmt: skip
     except OSError as exc:
+        mnt.rmdir()
         pytest.skip(f"cannot run mount: {exc}")
     if mounted.returncode != 0:
+        mnt.rmdir()
         pytest.skip(f"cannot mount a small tmpfs (needs root): {mounted.stderr.strip()}")
-    yield mnt
-    subprocess.run(["umount", "-l", str(mnt)], check=True, timeout=30)
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=True, timeout=30)
+        mnt.rmdir()
+
+
+def _unmount_left_behind() -> None:
+    """Unmount and remove the small disks of test processes that no longer run."""
+    prefix = f"/tmp/{_SMALL_DISK}"
+    if not Path("/proc/mounts").is_file():
+        return
+    with open("/proc/mounts", encoding="utf-8") as mounts:
+        points = [line.split()[1] for line in mounts if line.split()[1].startswith(prefix)]
+    for point in points:
+        pid = point[len(prefix) :].split("-")[0]
+        if pid.isdigit() and not Path(f"/proc/{pid}").exists():
+            subprocess.run(["umount", "-l", point], check=False, timeout=30)
+            with contextlib.suppress(OSError):
+                os.rmdir(point)

@@ -25,10 +25,16 @@ def fill_disk(folder: Path) -> Path:
 def export_stderr(source: Path, to: str, out: Path) -> tuple[int, str]:
     """``episode-audit export SOURCE --to TO -o OUT`` in a process of its own: exit code, stderr.
 
-    Its own process: a viewer library's lines on the process's stderr are in it too.
+    Its own process: a viewer library's lines on the process's stderr are in it too. Wide
+    (``COLUMNS``): the error is one line however long its path.
     """
     command = [sys.executable, "-m", "episode_audit", "export", str(source), "--to", to]
     done = subprocess.run(
-        [*command, "-o", str(out)], capture_output=True, text=True, check=False, timeout=300
+        [*command, "-o", str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=300,
+        env={**os.environ, "COLUMNS": "1000"},
     )
     return done.returncode, done.stderr
