@@ -131,4 +131,4 @@ def replay(
         if result.count("diverged"):
             raise typer.Exit(EXIT_FINDINGS)
         if not result.verified and not allow_unverified:
-            fail(unverified(result.count("not_replayable")), EXIT_FINDINGS)
+            fail(unverified(result), EXIT_FINDINGS)
