@@ -39,17 +39,24 @@ def load_callable(spec: str) -> Callable[..., Any]:
     return target  # type: ignore[no-any-return]
 
 
-def import_modules(modules: Sequence[str]) -> None:
-    """Import each module the user named with ``--import`` (e.g. one that registers envs).
+def import_modules(modules: Sequence[str], *, option: str = "imports") -> None:
+    """Import each module the user named (e.g. one that registers envs).
 
     Anything that goes wrong — no such module, an empty name, a module that raises on import —
-    is a :class:`~episode_audit.errors.ConfigurationError` naming the module.
+    is a :class:`~episode_audit.errors.ConfigurationError` naming the module and ``option``,
+    where the user named it: the library's ``imports=`` argument, the command's ``--import``.
+
+    >>> try:
+    ...     import_modules(["no_such_module_here"])
+    ... except ConfigurationError as exc:
+    ...     print(exc)
+    imports 'no_such_module_here': ModuleNotFoundError: No module named 'no_such_module_here'
     """
     for module in modules:
         try:
             _import(module)
         except Exception as exc:
-            raise ConfigurationError(f"--import {module!r}: {error_text(exc)}") from None
+            raise ConfigurationError(f"{option} {module!r}: {error_text(exc)}") from None
 
 
 def _import(name: str) -> Any:

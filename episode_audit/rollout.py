@@ -92,12 +92,15 @@ def record_episodes(
     overwrite: bool = False,
     on_episode: Callable[[], None] | None = None,
     overwrite_option: str = "overwrite=True",
+    imports_option: str = "imports=['{module}']",
 ) -> RecordSummary:
     """Record ``episodes`` episodes of ``env_id`` to ``out``.
 
     ``out`` may be a path template (``run-{index}.mcap``: the first free one), never with
     ``overwrite``; without it, a file at ``out`` is refused before the env is made. The errors
-    name it ``overwrite_option`` (``--overwrite`` on the command line).
+    name it ``overwrite_option`` (``--overwrite`` on the command line). An ``env_id`` whose
+    namespace no imported module registered (``ALE/Pong-v5`` without ``ale_py``) is refused
+    saying what to import, as ``imports_option`` (``--import {module}`` on the command line).
 
     >>> import tempfile, pathlib
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "cp.mcap"
@@ -112,7 +115,7 @@ def record_episodes(
         refuse_indexed_overwrite(out, overwrite_option=overwrite_option)
     else:
         refuse_existing(out, overwrite_option=overwrite_option)
-    env = _make_env(env_id, env_kwargs, max_episode_steps)
+    env = _make_env(env_id, env_kwargs, max_episode_steps, imports_option)
     # Everything that can be wrong with the arguments is found before the file is touched:
     # a usage error never leaves a file behind, nor replaces one (--overwrite).
     try:
@@ -173,15 +176,43 @@ def _check_counts(episodes: int, seed: int, max_episode_steps: int | None) -> No
         )
 
 
+_NAMESPACES = {"ALE": "ale_py"}
+"""The module whose import registers an env namespace (Gymnasium no longer imports it)."""
+
+
+def _registered_by(env_id: str) -> str | None:
+    """The module registering ``env_id``'s namespace, when it is one :data:`_NAMESPACES` knows.
+
+    >>> _registered_by("ALE/Pong-v5"), _registered_by("Mine/Craft-v0")
+    ('ale_py', None)
+    """
+    namespace = env_id.partition("/")[0] if "/" in env_id else None
+    return _NAMESPACES.get(namespace or "")
+
+
 def _make_env(
-    env_id: str, env_kwargs: Mapping[str, Any] | None, max_episode_steps: int | None
+    env_id: str,
+    env_kwargs: Mapping[str, Any] | None,
+    max_episode_steps: int | None,
+    imports_option: str,
 ) -> gym.Env[Any, Any]:
-    """``gym.make(env_id, ...)``; anything that goes wrong is a configuration error."""
+    """``gym.make(env_id, ...)``; anything that goes wrong is a configuration error.
+
+    An unregistered namespace says which module to import (:func:`_registered_by`).
+    """
     kwargs = dict(env_kwargs or {})
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = max_episode_steps
     try:
         return gym.make(env_id, **kwargs)
+    except gym.error.NamespaceNotFound:
+        namespace, module = env_id.partition("/")[0], _registered_by(env_id)
+        fix = imports_option.format(module=module or "MODULE")
+        whose = ", which registers it" if module else " naming the package that registers it"
+        raise ConfigurationError(
+            f"cannot make {env_id!r}: no env is registered in namespace {namespace[:80]!r}; "
+            f"pass {fix}{whose}"
+        ) from None
     except gym.error.Error as exc:
         raise ConfigurationError(f"cannot make {env_id!r}: {exc}") from None
     except Exception as exc:  # the env's own constructor: a bad kwarg, a missing file, ...

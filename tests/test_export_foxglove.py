@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import os
 import re
 import shutil
@@ -356,6 +357,33 @@ def test_an_export_given_as_evidence_is_named_and_what_to_do_said(tmp_path: Path
     result = CliRunner().invoke(app, ["check", str(folder), "--format", "json"])
     assert result.exit_code == 0, result.stderr
     assert json.loads(result.stdout)["files"] == [str(source)]
+
+
+def test_another_warning_on_the_sdk_s_write_logger_is_no_failed_write(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Only the SDK's failed writes (``error logging message: McapError(…)`` and
+    ``SinkClosed``: the full-disk test below) fail the export; another warning on that logger
+    (another sink's, a later SDK's own) is passed on, and the export finishes."""
+    source = random_cartpole_file(tmp_path / "run.mcap", 2000)
+    logger = logging.getLogger("foxglove.log_sink_set")
+    said = [
+        "error logging message: SendError { sink: 7 }",  # (another sink's, not ours)
+        "a later release's note",
+    ]
+
+    def warn(_: int) -> None:  # (while the export writes)
+        while said:
+            logger.warning(said.pop())
+
+    out = tmp_path / "run.fox.mcap"
+    with caplog.at_level(logging.WARNING, logger=logger.name):
+        result = export([source], out, to="foxglove", progress=warn)
+    assert not said and out.exists() and result.steps == 2000
+    assert [r.getMessage() for r in caplog.records if r.name == logger.name] == [
+        "a later release's note",
+        "error logging message: SendError { sink: 7 }",
+    ]
 
 
 def test_a_full_disk_is_one_error_naming_the_output(small_disk: Path, tmp_path: Path) -> None:

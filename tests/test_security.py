@@ -718,8 +718,14 @@ def test_hostile_step_cells_are_bounded_in_check(
     assert len(found[0].message) < 300
 
 
-def test_hostile_reset_json_is_not_replayable_not_a_crash(plain: Path, tmp_path: Path) -> None:
+def test_hostile_reset_json_is_not_replayable_not_a_crash(tmp_path: Path) -> None:
     deep = "[" * 100_000
+    plain = tmp_path / "two.mcap"  # (two episodes stepped: replay lists no unstarted one)
+    with RecordEvidence(gym.make("CartPole-v1", max_episode_steps=4), plain) as env:
+        for seed in (0, None):
+            env.reset(seed=seed)
+            for _ in range(4):
+                env.step(0)
 
     def episodes(batch: pa.RecordBatch) -> pa.RecordBatch:
         batch = replace_column(batch, "rng_state", [None, deep][: batch.num_rows])

@@ -485,6 +485,23 @@ ImportOption = Annotated[
     ),
 ]
 
+
+def imported(modules: list[str] | None) -> tuple[str, ...]:
+    """The modules ``--import`` names, imported here first, so that an error names ``--import``.
+
+    The library imports them again (already imported: nothing to do), its own errors naming
+    its ``imports=`` argument.
+    """
+    from .._usercode import import_modules
+
+    named = tuple(modules or ())
+    try:
+        import_modules(named, option="--import")
+    except ConfigurationError as exc:
+        fail(str(exc))
+    return named
+
+
 JobsOption = Annotated[
     int | None,
     typer.Option(

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from ..errors import EpisodeAuditError
-from ._app import ImportOption, app, fail, interruptible, progress_bar, said
+from ._app import ImportOption, app, fail, imported, interruptible, progress_bar, said
 
 if TYPE_CHECKING:
     from ..read.storage import RemoteFile
@@ -102,10 +102,11 @@ def record(
                 env_kwargs=kwargs,
                 max_episode_steps=max_episode_steps,
                 tags=tags,
-                imports=import_ or (),
+                imports=imported(import_),
                 overwrite=overwrite,
                 on_episode=lambda: advance(1),
                 overwrite_option="--overwrite",
+                imports_option="--import {module}",
             )
     except EpisodeAuditError as exc:
         fail(str(exc))

@@ -26,6 +26,7 @@ from ._app import (
     emit,
     fail,
     failure_document,
+    imported,
     interruptible,
     jobs_for,
     progress_bar,
@@ -108,7 +109,7 @@ def replay(
                     episodes=episodes,
                     atol=atol,
                     env_factory=env_factory,
-                    imports=import_ or (),
+                    imports=imported(import_),
                     trust_entry_points=trust_entry_points,
                     progress=advance,
                     keep_going=True,
@@ -131,4 +132,4 @@ def replay(
         if result.count("diverged"):
             raise typer.Exit(EXIT_FINDINGS)
         if not result.verified and not allow_unverified:
-            fail(unverified(result.count("not_replayable")), EXIT_FINDINGS)
+            fail(unverified(result), EXIT_FINDINGS)

@@ -137,12 +137,16 @@ class _WriteFailed(RuntimeError):
 class _FailedWrites(logging.Filter):
     """foxglove-sdk's log records of messages it failed to write: kept, not printed.
 
-    The SDK does not raise a failed write: it logs it (``error logging message: McapError(…)``,
-    on its ``foxglove.log_sink_set`` logger, a warning), for every message after it too —
-    hundreds of lines on a full disk. :meth:`check` raises the first, as :class:`_WriteFailed`.
+    The SDK does not raise a failed write: it logs it, for every message after it too —
+    hundreds of lines on a full disk — on its ``foxglove.log_sink_set`` logger, a warning:
+    ``error logging message: {error:?}`` (``rust/foxglove/src/log_sink_set.rs``), the error
+    of an MCAP writer's sink being ``McapError(…)`` (``McapError(Io(Os { code: 28, kind:
+    StorageFull, … }))``) or ``SinkClosed`` (:data:`FAILED`). :meth:`check` raises the first,
+    as :class:`_WriteFailed`. Any other record on that logger is passed on as it is.
     """
 
     LOGGER: Final = "foxglove.log_sink_set"
+    FAILED: Final = ("error logging message: McapError(", "error logging message: SinkClosed")
 
     def __init__(self) -> None:
         super().__init__()
@@ -151,8 +155,14 @@ class _FailedWrites(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
         if record.levelno < logging.WARNING:
             return True
+        try:
+            message = record.getMessage()
+        except Exception:  # (a record whose arguments do not format: not the SDK's)
+            return True
+        if not message.startswith(self.FAILED):
+            return True
         if self.first is None:
-            self.first = record.getMessage()
+            self.first = message
         return False
 
     def check(self) -> None:

@@ -22,6 +22,7 @@ _P = TypeVar("_P", bound="str | os.PathLike[str]")
 
 _SHOWN = reprlib.Repr()
 _SHOWN.maxstring = _SHOWN.maxother = 60
+_PASS = "pass a file's path, e.g. 'runs/run.mcap'"
 
 
 def path_argument(name: str, path: _P) -> _P:
@@ -33,15 +34,20 @@ def path_argument(name: str, path: _P) -> _P:
     Traceback (most recent call last):
     ...
     episode_audit.errors.ConfigurationError: paths[1]: expected a path (a str or pathlib.Path), \
-got b'runs/run.mcap' (bytes)
+got b'runs/run.mcap' (bytes); pass a file's path, e.g. 'runs/run.mcap'
+    >>> path_argument("paths", "")
+    Traceback (most recent call last):
+    ...
+    episode_audit.errors.ConfigurationError: paths: expected a path, got an empty string; pass \
+a file's path, e.g. 'runs/run.mcap'
     """
     given: object = path  # (typed as a path; at run time, whatever the caller passed)
     text = os.fspath(given) if isinstance(given, (str, os.PathLike)) else None
     if not isinstance(text, str):
         raise ConfigurationError(
             f"{name}: expected a path (a str or pathlib.Path), got {_SHOWN.repr(path)} "
-            f"({type(path).__name__})"
+            f"({type(path).__name__}); {_PASS}"
         )
     if not text:
-        raise ConfigurationError(f"{name}: expected a path, got an empty string")
+        raise ConfigurationError(f"{name}: expected a path, got an empty string; {_PASS}")
     return path

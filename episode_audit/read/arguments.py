@@ -37,7 +37,7 @@ def path_list(paths: _P | Iterable[_P], name: str = "paths") -> list[_P]:
     Traceback (most recent call last):
     ...
     episode_audit.errors.ConfigurationError: baseline[1]: expected a path (a str or \
-pathlib.Path), got None (NoneType)
+pathlib.Path), got None (NoneType); pass a file's path, e.g. 'runs/run.mcap'
     """
     if isinstance(paths, (str, os.PathLike)):
         return [path_argument(name, paths)]

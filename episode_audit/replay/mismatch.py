@@ -4,12 +4,13 @@
 and, for an env the user's factory built, its wrappers (without a spec, its class; without a
 recorded spec, the class the recorder wrapped); :func:`unverified_match`: why a factory's env
 that matched cannot be verified to be the recorded one (no spec on either side, wrappers that
-record no arguments); :func:`agents_mismatch` (PettingZoo).
+record no arguments, a value held only as a placeholder); :func:`agents_mismatch` (PettingZoo).
 An argument one spec names and the other does not has the other's default (the signature of
 the callable its entry point names, read from a module this process has already imported:
 nothing a file names is imported here); one whose default cannot be read does not match.
 Values are compared as a file holds them (:func:`_held`): a function is its placeholder, its
-type and qualified name (``format/unrecorded.py``). What is compared: docs/replay.md.
+type and qualified name (``format/unrecorded.py``); a value's placeholder, only its type, is
+never told from another value (:func:`_difference`). What is compared: docs/replay.md.
 """
 
 from __future__ import annotations
@@ -19,14 +20,14 @@ import json
 import sys
 from collections.abc import Iterable, Mapping
 from itertools import zip_longest
-from typing import Any, Final
+from typing import Any, Final, Literal
 
 import gymnasium as gym
 import numpy as np
 
 from ..format.records import RunInfo
 from ..format.spaces import describe_space
-from ..format.unrecorded import UNRECORDED, placeholder, unrecorded
+from ..format.unrecorded import placeholder, unrecorded
 from ..format.wrappers import (
     RECORDED_WRAPPERS,
     declared_transparent,
@@ -74,18 +75,22 @@ def env_mismatch(
     )
     if said is None:
         found = _spec_differences(run, env, factory or wrappers)
-        said = next((text for text, held in found if not held), None)
-        said = said or next((text for text, _ in found), None)
+        said = next((text for text, kind in found if kind == "differs"), None)
+        said = said or next((text for text, kind in found if kind == "functions"), None)
     return None if said is None else f"{_MISMATCH}{said}; {_as_recorded(factory)}"
+
+
+Difference = Literal["differs", "functions", "untold"]
+"""How an argument differs: in value, between two functions' placeholders (said only when
+nothing else differs), or not to be told (a placeholder of a value: :func:`unverified_match`)."""
 
 
 def _spec_differences(
     run: RunInfo, env: gym.Env[Any, Any], wrappers: bool
-) -> list[tuple[str, bool]]:
+) -> list[tuple[str, Difference]]:
     """How the rebuilt env's spec differs from the recorded one, each difference said.
 
-    Its kwargs, then (``wrappers``) its wrappers; each with whether it is between two
-    placeholders only.
+    Its kwargs, then (``wrappers``) its wrappers; each with how it differs (:data:`Difference`).
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
     if not spec:  # (nothing recorded of its arguments and wrappers)
@@ -96,7 +101,7 @@ def _spec_differences(
         return []
     if rebuilt is None:
         return _class_difference(spec, env)
-    found: list[tuple[str, bool]] = []
+    found: list[tuple[str, Difference]] = []
     try:
         recorded, now = spec.get("kwargs"), rebuilt.kwargs
         if isinstance(recorded, Mapping) and isinstance(now, Mapping):
@@ -112,7 +117,9 @@ def _spec_differences(
     return found
 
 
-def _class_difference(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[tuple[str, bool]]:
+def _class_difference(
+    spec: Mapping[str, Any], env: gym.Env[Any, Any]
+) -> list[tuple[str, Difference]]:
     """A rebuilt env without a spec: its class against the class the recorded entry point names.
 
     Said only when that entry point names a class of a module this process has imported
@@ -129,10 +136,10 @@ def _class_difference(spec: Mapping[str, Any], env: gym.Env[Any, Any]) -> list[t
         now = f"{cls.__module__}:{cls.__qualname__}"
     except Exception:  # the env's own attribute
         return []
-    return [(f"env entry point {_shown(entry)} recorded vs class {_shown(now)} rebuilt", False)]
+    return [(f"env entry point {_shown(entry)} recorded vs class {_shown(now)} rebuilt", "differs")]
 
 
-def _wrapped_class_difference(run: RunInfo, env: gym.Env[Any, Any]) -> list[tuple[str, bool]]:
+def _wrapped_class_difference(run: RunInfo, env: gym.Env[Any, Any]) -> list[tuple[str, Difference]]:
     """A recording without a spec: the class the recorder wrapped against the rebuilt env's.
 
     The run names it (``reward_terms.info_of``, with terms read automatically): the env, or the
@@ -167,7 +174,7 @@ def _wrapped_class_difference(run: RunInfo, env: gym.Env[Any, Any]) -> list[tupl
         (
             f"the recorder wrapped {_shown(wrapped[:200])} (the recording holds no env spec), "
             f"which the rebuilt env ({_shown(now[:200])}) neither is nor wraps",
-            False,
+            "differs",
         )
     ]
 
@@ -193,7 +200,8 @@ def unverified_match(run: RunInfo, env: Any, *, factory: bool) -> str | None:
     class, not ``gym.make``), whose constructor's arguments and wrappers cannot be compared
     with the recording's; wrappers that record no arguments (their spec's ``kwargs`` null: not
     deriving from ``gymnasium.utils.RecordConstructorArgs``, as SB3's Atari wrappers) on either
-    side, whose constructor takes any besides the env; a PettingZoo env, whose constructor
+    side, whose constructor takes any besides the env; an argument either side holds only as
+    a value's placeholder (:func:`_untold`); a PettingZoo env, whose constructor
     arguments cannot be compared with the recorded ``env_kwargs``. And a PettingZoo env replay
     built from the file with its defaults, the recording holding no ``env_kwargs``
     (:func:`_unverified_game`). Replay then gives an episode that differs ``not_replayable``
@@ -227,13 +235,25 @@ def unverified_match(run: RunInfo, env: Any, *, factory: bool) -> str | None:
     except Exception:  # the env's own values
         return None
     if not unknown:
-        return None
+        return _untold(run, env)
     listed = ", ".join(unknown[:6]) + (f" and {len(unknown) - 6} more" if len(unknown) > 6 else "")
     return (
         f"the arguments of wrapper(s) {listed} are not recorded (they do not derive from "
         "gymnasium.utils.RecordConstructorArgs), so the rebuilt ones' cannot be compared with "
         "the recording's"
     )
+
+
+def _untold(run: RunInfo, env: Any) -> str | None:
+    """Why a rebuilt env's spec cannot be told from the recorded one, or ``None``.
+
+    The first argument either spec holds only as a value's placeholder (:func:`_difference`):
+    whether the two values differ is unknown.
+    """
+    said = next((t for t, kind in _spec_differences(run, env, True) if kind == "untold"), None)
+    if said is None:
+        return None
+    return f"{said}, and a placeholder (a value JSON cannot hold) keeps only its type"
 
 
 _NO_SPEC = (
@@ -292,7 +312,7 @@ def _arguments(
     now: Mapping[Any, Any],
     entries: tuple[Any, Any],
     dtype_names: bool = False,
-) -> list[tuple[str, bool]]:
+) -> list[tuple[str, Difference]]:
     """How the recorded arguments of a callable differ from those it was rebuilt with.
 
     ``entries``: each side's entry point (whose signature gives an argument that side does not
@@ -305,7 +325,7 @@ def _arguments(
         {str(k): v for k, v in recorded.items()},
         {str(k): _held(v, dtype_names) for k, v in now.items()},
     )
-    found: list[tuple[str, bool]] = []
+    found: list[tuple[str, Difference]] = []
     for name in dict.fromkeys([*sides[0], *sides[1]]):
         if name in _UNCOMPARED or not all(_compared(side.get(name)) for side in sides):
             continue
@@ -316,13 +336,13 @@ def _arguments(
         named = f"{what} {name[:80]!r}"
         unnamed = next((i for i, side in enumerate(sides) if name not in side), None)
         if unnamed is not None and values[unnamed] is _UNKNOWN:
-            found.append((_unknown_default(named, values[1 - unnamed], unnamed == 1), False))
+            found.append((_unknown_default(named, values[1 - unnamed], unnamed == 1), "differs"))
             continue
-        same = _same(values[0], values[1])
-        if same is not True:
+        kind = _difference(values[0], values[1])
+        if kind is not None:
             note = "" if unnamed is None else f" ({_SPECS[unnamed]} does not name it: its default)"
             said = f"{named} {_shown(values[0])} recorded vs {_shown(values[1])} rebuilt{note}"
-            found.append((said, same is None))
+            found.append((said, kind))
     return found
 
 
@@ -370,26 +390,37 @@ def _held(value: Any, dtype_names: bool = False) -> Any:
         return placeholder(value)
 
 
-def _same(recorded: Any, rebuilt: Any) -> bool | None:
-    """Whether two held values are the same: ``None`` when both are placeholders that differ.
+def _difference(recorded: Any, rebuilt: Any) -> Difference | None:
+    """How two held values differ (:data:`Difference`), or ``None`` when they are the same.
 
-    Numbers by value (``1`` is ``1.0``, NaN is NaN). A placeholder is the same as another of
-    the same type and qualified name, the module too unless one is ``__main__`` (a script's own
-    function, which the factory imports by its module's name), or as a value JSON holds only
-    with NaN or infinity that has that placeholder (the recorder keeps one for such a value
-    when the spec needed placeholders).
+    Numbers by value (``1`` is ``1.0``, NaN is NaN). A function's or a class's placeholder is
+    the same as another of the same type and qualified name, the module too unless one is
+    ``__main__`` (a script's own function, which the factory imports by its module's name),
+    and differs from another's. Any other placeholder keeps only a type (a value JSON cannot
+    hold, ``np.float32(2.0)``; NaN or infinity where the spec needed placeholders): against
+    anything, it cannot be told whether the values differ.
+
+    >>> _difference({"episode_audit.unrecorded": "float32"}, 2.0)
+    'untold'
+    >>> _difference(2, 2.0), _difference(2, 3)
+    (None, 'differs')
     """
     a, b = unrecorded(recorded), unrecorded(rebuilt)
     if a is None and b is None:
-        return bool(recorded == rebuilt) or _text(recorded) == _text(rebuilt)
-    if a is not None and b is not None:
-        return True if _same_placeholder(a, b) else None
-    plain = rebuilt if a is not None else recorded
-    try:
-        json.dumps(plain, allow_nan=False)
-    except ValueError:  # NaN or infinity: the recorder may have kept a placeholder
-        return placeholder(plain)[UNRECORDED] == (a or b)
-    return False
+        same = bool(recorded == rebuilt) or _text(recorded) == _text(rebuilt)
+        return None if same else "differs"
+    if a is None or b is None or not (_names_one(a) and _names_one(b)):
+        return "untold"
+    return None if _same_placeholder(a, b) else "functions"
+
+
+def _names_one(held: str) -> bool:
+    """Whether a placeholder names a function or a class (``type module:qualname``).
+
+    >>> _names_one("function train:clip"), _names_one("float32")
+    (True, False)
+    """
+    return ":" in held.partition(" ")[2]
 
 
 def _text(value: Any) -> str:
@@ -456,7 +487,7 @@ def _loaded(entry_point: Any) -> Any:
 
 def _wrappers(
     spec: Mapping[str, Any], rebuilt: gym.envs.registration.EnvSpec, transparent: frozenset[str]
-) -> list[tuple[str, bool]]:
+) -> list[tuple[str, Difference]]:
     """How the rebuilt env's wrappers differ from the recorded spec's ``additional_wrappers``.
 
     Their classes, in order (innermost first), then each one's arguments (:func:`_arguments`).
@@ -471,9 +502,9 @@ def _wrappers(
     for r, n in zip_longest(*compared):
         if r is None or n is None or _entry(r[0]) != _entry(n[0]):
             names = [_shown(_name(w[0])) if w is not None else "none" for w in (r, n)]
-            return [(f"{below}: {names[0]} recorded vs {names[1]} rebuilt", False)]
+            return [(f"{below}: {names[0]} recorded vs {names[1]} rebuilt", "differs")]
         below = f"the wrapper over {_shown(_name(r[0]))}"
-    found: list[tuple[str, bool]] = []
+    found: list[tuple[str, Difference]] = []
     for (entry, recorded_kwargs), (now_entry, now_kwargs) in zip(*compared, strict=True):
         name = _name(entry)
         if isinstance(recorded_kwargs, Mapping) and isinstance(now_kwargs, Mapping):

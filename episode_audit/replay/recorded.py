@@ -5,6 +5,7 @@
 repeat), :func:`cast_actions` (episodes whose actions the recorder cast), :func:`replay_actions`
 (the actions to step with), :func:`rules_of` (the recorded ending rules and reward terms),
 :func:`unrecorded_options` and :func:`reset_options` (the options an episode's reset had),
+:func:`unread_rng_states` (why the recorder could not read an unseeded reset's RNG state),
 :func:`layout_not_replayable` and :func:`state_not_restorable`.
 """
 
@@ -36,6 +37,7 @@ __all__ = [
     "rules_of",
     "state_not_restorable",
     "to_end",
+    "unread_rng_states",
     "unrecorded_options",
     "unrepeated",
 ]
@@ -126,6 +128,7 @@ def to_end(
 
 _ACTION_CAST = "action_cast"
 _OPTIONS_UNRECORDED = "options_unserializable"
+_RNG_UNREAD = "rng_state_unavailable"
 
 
 def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
@@ -166,6 +169,17 @@ def unrecorded_options(resets: pa.Table) -> dict[int, str]:
         return {e: message for e, (_, message) in noted.items()}
     typed = resets.column(fmt.COL_OPTIONS_TYPED)
     return {e: message for e, (row, message) in noted.items() if not typed[row].is_valid}
+
+
+def unread_rng_states(resets: pa.Table) -> dict[int, str]:
+    """The episodes of ``resets`` whose RNG state the recorder noted it could not read, and why.
+
+    >>> import pyarrow as pa
+    >>> notes = [None, '["rng_state_unavailable: its np_random raised"]']
+    >>> unread_rng_states(pa.table({"episode": [0, 1], "notes": notes}))
+    {1: 'its np_random raised'}
+    """
+    return {e: message for e, (_, message) in _first_noted(resets, _RNG_UNREAD).items()}
 
 
 def reset_options(options: str | None, typed: str | None) -> Any:

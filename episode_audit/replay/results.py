@@ -124,7 +124,9 @@ class ReplayResult:
     ``missing``: the selected episode indices that no file replayed had; ``notes``: by file,
     what its env was replayed without (recorded wrappers that never change a step, and why);
     ``live``: the files a live recorder is still writing, and by whom (their flushed steps were
-    replayed).
+    replayed); ``unstarted``: how many episodes were reset and never stepped (no episode to
+    verify, as ``check`` and ``report`` count them): not in :attr:`episodes` (their resets were
+    replayed, in order; one whose reset differed is listed).
     """
 
     episodes: list[EpisodeReplay] = field(default_factory=list)
@@ -133,6 +135,7 @@ class ReplayResult:
     missing: list[int] = field(default_factory=list)
     notes: dict[str, list[str]] = field(default_factory=dict)
     live: list[tuple[str, str]] = field(default_factory=list)
+    unstarted: int = 0
 
     def count(self, status: Status) -> int:
         """How many episodes ended with ``status``."""
@@ -171,6 +174,7 @@ class ReplayResult:
                 "identical": self.count("identical"),
                 "diverged": self.count("diverged"),
                 "not_replayable": self.count("not_replayable"),
+                "unstarted": self.unstarted,
             },
             "episodes": [asdict(e) for e in self.episodes],
             "version_differences": {

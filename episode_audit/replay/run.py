@@ -20,6 +20,7 @@ from .._usercode import import_modules
 from ..errors import ConfigurationError, EpisodeAuditError
 from ..format import names as fmt
 from ..format.columns import prepare_pyarrow
+from ..format.records import unstarted
 from ..read import Evidence, open_evidence
 from ..read.arguments import episode_indices, name_list, non_negative, path_list
 from ..read.inputs import skipped
@@ -125,6 +126,7 @@ def replay(
         one, batches, jobs=jobs, ray_address=ray_address, progress=progress, costs=costs or None
     )
     result = ReplayResult()
+    found: set[int] = set()  # the selected episodes unstarted, found too
     for k, parts in _by_file(batches, done):
         path = files[k]
         errors = [part for part in parts if isinstance(part, EpisodeAuditError)]
@@ -136,8 +138,10 @@ def replay(
         replayed = [p for p in parts if not isinstance(p, EpisodeAuditError)]
         selections = [b[2] for b in batches if b[0] == k]
         _add_file(_in_recorded_order(one, (k, path, selected), selections, replayed), result)
+        found.update(*(part.unstarted for part in replayed))
     if selected is not None:
-        result.missing = sorted(set(selected) - {e.episode for e in result.episodes})
+        found.update(e.episode for e in result.episodes)
+        result.missing = sorted(set(selected) - found)
     return result
 
 
@@ -162,6 +166,8 @@ class _Replayed:
     notes: list[str]
     live: str | None
     versions: dict[str, tuple[str, str]]
+    unstarted: frozenset[int] = frozenset()
+    """The batch's episodes reset and never stepped, left out of :attr:`episodes`."""
 
 
 def _replay_batch(
@@ -194,7 +200,27 @@ def _replay_batch(
     live = None if ev.writer is None else ev.torn or still_written(ev.writer)
     versions = _version_differences(ev)
     replayed = not_told_from_versions(replayed, _env_libraries(versions))
-    return _Replayed(str(ev.path), replayed, notes, live, versions)
+    replayed, idle = _without_unstarted(ev, replayed)
+    return _Replayed(str(ev.path), replayed, notes, live, versions, idle)
+
+
+def _without_unstarted(
+    ev: Evidence, replayed: list[EpisodeReplay]
+) -> tuple[list[EpisodeReplay], frozenset[int]]:
+    """``replayed`` without the file's unstarted episodes, and those left out.
+
+    An unstarted episode (reset and never stepped: :func:`~episode_audit.format.records.
+    unstarted`) is no episode to verify, as ``check`` and ``report`` count them; its reset
+    was replayed, in order, for the episodes after it. One whose reset differed stays.
+    """
+    table = ev.episodes()
+    if not table.num_rows:
+        return replayed, frozenset()
+    idle = frozenset(table.column(fmt.COL_EPISODE).filter(unstarted(table)).to_pylist())
+    if not idle:
+        return replayed, idle
+    left = frozenset(e.episode for e in replayed if e.episode in idle and e.divergence is None)
+    return [e for e in replayed if e.episode not in left], left
 
 
 def _in_recorded_order(
@@ -281,6 +307,7 @@ def _add_file(parts: Sequence[_Replayed], result: ReplayResult) -> None:
     first = parts[0]
     replayed = [e for part in parts for e in part.episodes]
     result.episodes.extend(replayed)
+    result.unstarted += len(frozenset().union(*(part.unstarted for part in parts)))
     if any(e.status != "not_replayable" for e in replayed) and first.notes:
         result.notes[first.file] = first.notes
     if first.live is not None:

@@ -25,7 +25,14 @@ from ..record.seeding import restore_rng_state
 from ..record.state import StateTargets, restore_snapshot
 from ..record.time_limits import plain_time_limit, time_limit_hit, time_limits
 from .compare import Comparison
-from .recorded import ordinal, replay_actions, reset_options, rules_of, unrecorded_options
+from .recorded import (
+    ordinal,
+    replay_actions,
+    reset_options,
+    rules_of,
+    unread_rng_states,
+    unrecorded_options,
+)
 from .results import (
     RESET_RAISED,
     Divergence,
@@ -106,6 +113,7 @@ class EpisodeRunner:
         self._raising: dict[int, Any] = {}  # by error episode: its recorded action that raised
         self._not_raised: dict[int, str] = {}  # by error episode: how its raising step differed
         self._unset_options: dict[int, str] = {}  # by episode: options the file does not hold
+        self._unread_rng: dict[int, str] = {}  # by episode: why its RNG state was not recorded
 
     def _not_replayable(self, index: int, steps: int, reason: str) -> EpisodeReplay:
         return EpisodeReplay(self.file, index, "not_replayable", steps, reason=reason)
@@ -138,6 +146,7 @@ class EpisodeRunner:
         typed = fmt.COL_OPTIONS_TYPED
         self.typed_options = resets.column(typed) if typed in names else None
         self._unset_options = unrecorded_options(resets)
+        self._unread_rng = unread_rng_states(resets)
         self._raising = self._raising_actions(records)
         ran, returned, got_obs, got_reset = self._step_all(
             records, actions, null_rows, rows, reset_rows, done
@@ -311,8 +320,11 @@ class EpisodeRunner:
         seed = record.get("seed")
         rng_state = record.get("rng_state")
         if seed is None and rng_state is None:
+            why = self._unread_rng.get(index)
             done[index] = self._not_replayable(
-                index, 0, "no seed or RNG state recorded for its reset"
+                index,
+                0,
+                "no seed or RNG state recorded for its reset" + ("" if why is None else f": {why}"),
             )
             return _SKIPPED
         if damaged is not None and index in damaged:

@@ -1051,6 +1051,37 @@ def test_a_file_without_read_permission_is_one_line_and_the_others_go_on(
         assert (tmp_path / "out" / "episodes.parquet").exists()
 
 
+def test_record_of_an_ale_game_without_its_import_says_which_to_import(tmp_path: Path) -> None:
+    """Gymnasium registers no ALE env until ``ale_py`` is imported (a process of its own: this
+    one may have imported it); the command says ``--import ale_py``, the library ``imports=``."""
+    out = tmp_path / "pong.mcap"
+    record = [sys.executable, "-m", "episode_audit", "record", "ALE/Pong-v5", "--out", str(out)]
+    library = (
+        "from episode_audit.rollout import record_episodes\n"
+        f"record_episodes('ALE/Pong-v5', {str(out)!r})"
+    )
+    done = [
+        subprocess.run(args, capture_output=True, text=True, cwd=REPO, timeout=120)
+        for args in (record, [sys.executable, "-c", library])
+    ]
+    said = "cannot make 'ALE/Pong-v5': no env is registered in namespace 'ALE'; pass "
+    assert done[0].returncode == 2, done[0]
+    assert " ".join(done[0].stderr.split()) == (  # (wrapped at 80 columns)
+        f"episode-audit: error: {said}--import ale_py, which registers it"
+    )
+    assert done[1].returncode == 1 and done[1].stderr.splitlines()[-1] == (
+        f"episode_audit.errors.ConfigurationError: {said}imports=['ale_py'], which registers it"
+    )
+    assert not out.exists()
+    code, _, err = run("record", "Unknown/Game-v0", "--out", str(out))
+    assert code == 2
+    one_error_line(
+        err,
+        "cannot make 'Unknown/Game-v0': no env is registered in namespace 'Unknown'; pass "
+        "--import MODULE naming the package that registers it",
+    )
+
+
 def test_record_says_when_the_policy_raised(tmp_path: Path) -> None:
     """Not "recorded as error" (that is the env raising): the env's episode is left open."""
     out = tmp_path / "pol.mcap"

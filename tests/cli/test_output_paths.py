@@ -77,7 +77,9 @@ def test_an_empty_output_path_is_refused(
         2,
         "episode-audit: error: --out: expected a path, got an empty string\n",
     )
-    with pytest.raises(ConfigurationError, match=r"^out: expected a path, got an empty string$"):
+    with pytest.raises(
+        ConfigurationError, match=r"^out: expected a path, got an empty string; pass a file's path"
+    ):
         export([CLEAN], "", to=to)  # type: ignore[call-overload]
     assert list(tmp_path.iterdir()) == []
 
@@ -90,7 +92,9 @@ def test_an_empty_recovery_output_path_is_refused(
         2,
         "episode-audit: error: --out: expected a path, got an empty string\n",
     )
-    with pytest.raises(ConfigurationError, match=r"^out: expected a path, got an empty string$"):
+    with pytest.raises(
+        ConfigurationError, match=r"^out: expected a path, got an empty string; pass a file's path"
+    ):
         recover(FIXTURES / "torn.mcap", "")
     assert list(tmp_path.iterdir()) == []
 

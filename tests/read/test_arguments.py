@@ -56,26 +56,42 @@ def test_a_path_list_refuses_what_is_no_path() -> None:
         path_list("")  # (it was the current folder: check("") said '.: a directory')
 
 
+def test_an_empty_path_says_what_to_pass() -> None:
+    with pytest.raises(
+        ConfigurationError,
+        match=r"^paths: expected a path, got an empty string; pass a file's path, "
+        r"e\.g\. 'runs/run\.mcap'$",
+    ):
+        check("")
+
+
 _NO_PATH = r": expected a path \(a str or pathlib\.Path\), got "
+_PASS = r"; pass a file's path, e\.g\. 'runs/run\.mcap'$"
 
 
 @pytest.mark.parametrize(
     ("call", "message"),
     [
-        (lambda a: check([b"a.mcap"]), r"^paths\[0\]" + _NO_PATH + r"b'a\.mcap' \(bytes\)$"),
-        (lambda a: check([a, None]), r"^paths\[1\]" + _NO_PATH + r"None \(NoneType\)$"),
-        (lambda a: replay([3]), r"^paths\[0\]" + _NO_PATH + r"3 \(int\)$"),
-        (lambda a: report([None]), r"^paths\[0\]" + _NO_PATH + r"None \(NoneType\)$"),
-        (lambda a: compare([a], [3]), r"^candidate\[0\]" + _NO_PATH + r"3 \(int\)$"),
-        (lambda a: compare([""], [a]), r"^baseline\[0\]: expected a path, got an empty string$"),
-        (lambda a: export([a], b"out"), r"^out" + _NO_PATH + r"b'out' \(bytes\)$"),
-        (lambda a: open_evidence(b"a.mcap"), r"^path" + _NO_PATH + r"b'a\.mcap' \(bytes\)$"),
-        (lambda a: open_evidence(None), r"^path" + _NO_PATH + r"None \(NoneType\)$"),
-        (lambda a: open_evidence(""), r"^path: expected a path, got an empty string$"),
-        (lambda a: recover(None, "x.mcap"), r"^path" + _NO_PATH + r"None \(NoneType\)$"),
-        (lambda a: recover([a], "x.mcap"), r"^path" + _NO_PATH + r"\['.*a\.mcap'\] \(list\)$"),
-        (lambda a: recover("", "x.mcap"), r"^path: expected a path, got an empty string$"),
-        (lambda a: recover(a, b"x.mcap"), r"^out" + _NO_PATH + r"b'x\.mcap' \(bytes\)$"),
+        (lambda a: check([b"a.mcap"]), r"^paths\[0\]" + _NO_PATH + r"b'a\.mcap' \(bytes\)" + _PASS),
+        (lambda a: check([a, None]), r"^paths\[1\]" + _NO_PATH + r"None \(NoneType\)" + _PASS),
+        (lambda a: replay([3]), r"^paths\[0\]" + _NO_PATH + r"3 \(int\)" + _PASS),
+        (lambda a: report([None]), r"^paths\[0\]" + _NO_PATH + r"None \(NoneType\)" + _PASS),
+        (lambda a: compare([a], [3]), r"^candidate\[0\]" + _NO_PATH + r"3 \(int\)" + _PASS),
+        (
+            lambda a: compare([""], [a]),
+            r"^baseline\[0\]: expected a path, got an empty string" + _PASS,
+        ),
+        (lambda a: export([a], b"out"), r"^out" + _NO_PATH + r"b'out' \(bytes\)" + _PASS),
+        (lambda a: open_evidence(b"a.mcap"), r"^path" + _NO_PATH + r"b'a\.mcap' \(bytes\)" + _PASS),
+        (lambda a: open_evidence(None), r"^path" + _NO_PATH + r"None \(NoneType\)" + _PASS),
+        (lambda a: open_evidence(""), r"^path: expected a path, got an empty string" + _PASS),
+        (lambda a: recover(None, "x.mcap"), r"^path" + _NO_PATH + r"None \(NoneType\)" + _PASS),
+        (
+            lambda a: recover([a], "x.mcap"),
+            r"^path" + _NO_PATH + r"\['.*a\.mcap'\] \(list\)" + _PASS,
+        ),
+        (lambda a: recover("", "x.mcap"), r"^path: expected a path, got an empty string" + _PASS),
+        (lambda a: recover(a, b"x.mcap"), r"^out" + _NO_PATH + r"b'x\.mcap' \(bytes\)" + _PASS),
     ],
 )
 def test_a_path_of_the_wrong_type_is_a_configuration_error(

@@ -535,10 +535,13 @@ def test_wrong_arguments_are_configuration_errors(tmp_path: Path) -> None:
     [
         (
             b"a.mcap",
-            r"^path: expected a path \(a str or pathlib\.Path\), got b'a\.mcap' \(bytes\)$",
+            r"^path: expected a path \(a str or pathlib\.Path\), got b'a\.mcap' \(bytes\); pass",
         ),
-        (None, r"^path: expected a path \(a str or pathlib\.Path\), got None \(NoneType\)$"),
-        ("", r"^path: expected a path, got an empty string$"),  # (not the current folder)
+        (None, r"^path: expected a path \(a str or pathlib\.Path\), got None \(NoneType\); pass"),
+        (
+            "",
+            r"^path: expected a path, got an empty string; pass a file's path",
+        ),  # (not the current folder)
     ],
 )
 def test_a_path_that_is_not_one_is_a_configuration_error(

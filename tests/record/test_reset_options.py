@@ -83,7 +83,7 @@ def test_a_vector_reset_with_empty_options_records_them_empty(tmp_path: Path) ->
         envs.reset(options={"reset_mask": np.array([False, True])})
         envs.step(np.ones(2, np.int64))
     assert open_evidence(path).resets().column(fmt.COL_OPTIONS).to_pylist() == ["{}"] * 3
-    assert [status for status, _ in _statuses(path, NoneOrEmpty)] == ["identical"] * 3
+    assert [status for status, _ in _statuses(path, NoneOrEmpty)] == ["identical"] * 2
 
 
 def test_a_list_held_twice_in_the_options_is_not_replayable(tmp_path: Path) -> None:

@@ -50,6 +50,7 @@ from tests.support.unsaved import (
 from tests.support.worker_rng import (
     LIMIT,
     lambda_kwarg,
+    locked_rng_made,
     raising_rng_made,
     rng_locked_rng,
     rng_raising_rng,
@@ -178,7 +179,8 @@ def test_every_sub_env_episode_replays_identically_on_its_own(
     _, _, path = recorded
     result = replay([path])
     statuses = Counter(e.status for e in result.episodes)
-    assert statuses == {"identical": open_evidence(path).episodes().num_rows}, [
+    rows = open_evidence(path).episodes().num_rows  # (unstarted ones counted apart)
+    assert statuses == {"identical": rows - result.unstarted}, [
         (e.episode, e.reason) for e in result.episodes if e.status != "identical"
     ][:3]
 
@@ -1585,6 +1587,33 @@ def test_async_workers_are_asked_only_what_they_can_send(
     assert len(resets) == 6  # (both sub-envs recorded to the end)
     expected = [] if why is None else [_NOT_ASKED.format(why=why)]
     assert len(auto) == 4 and all(n == expected for n in auto), auto
+
+
+def test_async_workers_whose_env_puts_an_unpicklable_rng_are_not_asked_for_it(
+    tmp_path: Path,
+) -> None:
+    """An env class keeping Gymnasium's ``np_random`` but putting an object that does not
+    pickle in its private ``_np_random`` (at every reset) ended its worker when asked for it,
+    and the loop with it: the sub-env built here is reset once and its ``np_random`` pickled,
+    so the workers are not asked, and replay says why those episodes are not replayable."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    path = tmp_path / "async.mcap"
+    with RecordVectorEvidence(AsyncVectorEnv([locked_rng_made] * 2), path) as rec:
+        rec.reset(seed=1)
+        for _ in range(3 * LIMIT + 1):
+            rec.step(np.zeros(2, np.int64))
+    resets = open_evidence(path).resets().to_pylist()
+    auto = [json.loads(r["notes"] or "[]") for r in resets if r["seed"] is None]
+    why = "its np_random does not pickle (cannot pickle '_thread.lock' object)"
+    assert len(resets) == 6 and len(auto) == 4
+    assert all(n == [_NOT_ASKED.format(why=why)] for n in auto), auto
+    result = replay([path])
+    assert result.count("identical") == 2 and result.count("not_replayable") == 4
+    cause = "no seed or RNG state recorded for its reset: " + _NOT_ASKED.format(
+        why=why
+    ).removeprefix("rng_state_unavailable: ")
+    assert {e.reason for e in result.episodes if e.status == "not_replayable"} == {cause}
 
 
 def test_async_workers_of_a_gymnasium_env_are_asked_their_rng_and_replay(tmp_path: Path) -> None:

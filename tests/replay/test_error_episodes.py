@@ -288,10 +288,8 @@ def test_an_action_the_file_cannot_hold_is_not_repeated_and_said_so(tmp_path: Pa
     ev = open_evidence(path)
     assert ev.error_actions().to_pylist() == [{"episode": 0, "action": None}]
     result = replay([path], env_factory=lambda: Picky(persist=False))
-    assert [(e.episode, e.status) for e in result.episodes] == [
-        (0, "identical"),
-        (1, "identical"),
-    ]
+    assert [(e.episode, e.status) for e in result.episodes] == [(0, "identical")]
+    assert result.unstarted == 1  # (episode 1: reset, never stepped)
     assert result.episodes[0].reason == (
         "not repeated by replay: episode 0's 1st step, which raised ValueError"
     )

@@ -477,8 +477,8 @@ def test_replay_streams_in_windows_of_whole_episodes(
         env.reset(seed=99)  # an episode with no steps: closed as incomplete
     monkeypatch.setattr(replay_module, "REPLAY_WINDOW_ROWS", window)
     result = replay([path])
-    assert [e.episode for e in result.episodes] == list(range(13))
-    assert result.count("identical") == 13, [e for e in result.episodes if e.status != "identical"]
+    assert [e.episode for e in result.episodes] == list(range(12)) and result.unstarted == 1
+    assert result.count("identical") == 12, [e for e in result.episodes if e.status != "identical"]
     assert replay([path], episodes=[3, 11]).count("identical") == 2
 
 
@@ -1071,7 +1071,13 @@ def test_cli_says_why_a_file_whose_wrapper_took_a_function_is_not_replayable_and
     result = CliRunner().invoke(app, ["replay", str(path), "--format", "json"])
     assert result.exit_code == 1, result.output  # nothing was verified
     data = json.loads(result.stdout)
-    assert data["summary"] == {"verified": 0, "identical": 0, "diverged": 0, "not_replayable": 2}
+    assert data["summary"] == {
+        "verified": 0,
+        "identical": 0,
+        "diverged": 0,
+        "not_replayable": 2,
+        "unstarted": 0,
+    }
     assert data["episodes"][0]["reason"] == _WRAPPER_FUNCTION
     assert result.stderr == (
         "episode-audit: error: replay verified no episode: all 2 episode(s) are not replayable "

@@ -12,6 +12,7 @@ import pytest
 from episode_audit.errors import ConfigurationError, EpisodeAuditError, EvidenceError
 from episode_audit.read.inputs import Unreadable
 from episode_audit.replay import replay, replay_options
+from episode_audit.rollout import record_episodes
 
 FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
 CLEAN = FIXTURES / "clean.mcap"
@@ -81,6 +82,18 @@ def test_keep_going_does_not_hide_a_usage_error(tmp_path: Path) -> None:
         replay([CLEAN], imports=["no_such_module_for_test"], keep_going=True)
     with pytest.raises(ConfigurationError, match="it raised RuntimeError: boom from factory"):
         replay([CLEAN], env_factory="tests.support.factories:raises", keep_going=True)
+
+
+def test_a_module_the_library_cannot_import_is_named_by_its_imports_argument() -> None:
+    """The library's argument is ``imports=``; ``--import`` is the command's (test_cli.py)."""
+    message = (
+        r"^imports 'no_such_module_for_test': ModuleNotFoundError: No module named "
+        r"'no_such_module_for_test'$"
+    )
+    with pytest.raises(ConfigurationError, match=message):
+        replay([CLEAN], imports=["no_such_module_for_test"])
+    with pytest.raises(ConfigurationError, match=message):
+        record_episodes("CartPole-v1", "never.mcap", imports=["no_such_module_for_test"])
 
 
 def test_missing_lists_the_selected_episodes_no_file_had() -> None:

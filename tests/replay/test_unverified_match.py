@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
+import numpy as np
 import pytest
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
@@ -132,7 +133,7 @@ def test_a_vector_recording_without_a_spec_that_differs_is_not_replayable(tmp_pa
             rec.step(rec.action_space.sample())
     assert _verdicts(path, lambda: TimeLimit(PendulumEnv(), 5)) == {("identical", None)}
     other = replay([path], env_factory=lambda: TimeLimit(PendulumEnv(g=5.0), 5)).episodes
-    assert [e.status for e in other] == ["not_replayable"] * 2 + ["identical"] * 2  # (0 steps)
+    assert [e.status for e in other] == ["not_replayable"] * 2  # (and 2 unstarted, apart)
     assert other[0].reason is not None and other[0].reason.endswith(f"{_UNVERIFIED}{_NO_SPEC}")
 
 
@@ -249,6 +250,31 @@ def _record_game(path: Path, env: Any, env_kwargs: dict[str, Any] | None) -> Pat
             while game.agents:
                 game.step({a: game.action_space(a).sample() * 0 for a in game.agents})
     return path
+
+
+def _clipped(low: Any) -> gym.Env[Any, Any]:
+    """Pendulum (rewards in [-16.3, 0]) with its rewards clipped below at ``low``."""
+    return gym.wrappers.ClipReward(gym.make("Pendulum-v1", max_episode_steps=10), min_reward=low)
+
+
+def test_a_wrapper_argument_held_only_as_a_placeholder_is_unverified(tmp_path: Path) -> None:
+    """``np.float32(-2.0)`` is not JSON: the file keeps its placeholder, its type only. Against
+    a plain ``-2.0`` (or another float32) nothing says whether the values differ: the env's
+    match is unverified, not a difference; an episode that differs is not ``diverged``."""
+    path = _record(tmp_path / "clipped.mcap", _clipped(np.float32(-2.0)))
+    assert _verdicts(path, lambda: _clipped(-2.0)) == {("identical", None)}
+    assert _verdicts(path, lambda: _clipped(np.float32(-2.0))) == {("identical", None)}
+    held = '{"episode_audit.unrecorded": "float32"}'
+    for rebuilt, shown in ((-1.0, "-1.0"), (np.float32(-1.0), held)):
+        cause = (
+            f"ClipReward's argument 'min_reward' {held} recorded vs {shown} rebuilt, and a "
+            "placeholder (a value JSON cannot hold) keeps only its type"
+        )
+        other = replay([path], env_factory=lambda low=rebuilt: _clipped(low)).episodes
+        assert [e.status for e in other] == ["not_replayable"] * 2
+        assert [e.unverified for e in other] == [cause] * 2
+        assert other[0].reason is not None
+        assert other[0].reason.endswith(f"(reward) {_UNVERIFIED}{cause}")
 
 
 def test_a_factory_game_env_that_differs_is_not_replayable(tmp_path: Path) -> None:

@@ -94,13 +94,41 @@ def test_an_episode_reset_and_never_stepped_replays_in_recorded_order(tmp_path: 
         env.reset(seed=3)
         env.step(1)
     result = replay([path], env_factory=counted_cartpole)
-    assert [(e.episode, e.status) for e in result.episodes] == [
-        (0, "identical"),
-        (1, "identical"),
-        (2, "identical"),
-    ]
+    assert [(e.episode, e.status) for e in result.episodes] == [(1, "identical"), (2, "identical")]
+    assert result.unstarted == 1  # (listed apart, as check and report count it)
     alone = replay([path], episodes=[2], env_factory=counted_cartpole)
     assert [(e.episode, e.status) for e in alone.episodes] == [(2, "identical")]
+
+
+def test_a_file_ending_in_a_reset_counts_that_episode_apart_as_check_does(
+    tmp_path: Path,
+) -> None:
+    """A reset the loop never stepped (then closed) is no episode to verify: ``check`` and
+    ``show`` count it apart, and so does replay, which listed it as replayed."""
+    path = tmp_path / "ends-in-a-reset.mcap"
+    with RecordEvidence(gym.make("CartPole-v1"), path) as env:
+        for seed in (0, 1):
+            env.reset(seed=seed)
+            for _ in range(5):
+                env.step(0)
+        env.reset(seed=2)  # never stepped
+    assert check([path]).episodes == 2
+    result = replay([path])
+    assert [(e.episode, e.status) for e in result.episodes] == [(0, "identical"), (1, "identical")]
+    assert result.unstarted == 1 and result.ok and not result.missing
+    shown = CliRunner().invoke(app, ["replay", str(path)])
+    assert shown.exit_code == 0, shown.output
+    assert shown.stdout.strip() == (
+        "2 identical, 0 diverged, 0 not replayable: 2 episode(s) verified (+1 unstarted)"
+    )
+    data = json.loads(CliRunner().invoke(app, ["replay", str(path), "--format", "json"]).stdout)
+    assert data["summary"]["unstarted"] == 1 and len(data["episodes"]) == 2
+    alone = CliRunner().invoke(app, ["replay", str(path), "--episode", "2"])
+    assert alone.exit_code == 1
+    assert alone.stderr.strip() == (
+        "episode-audit: error: replay verified no episode: the file(s) hold no episode but 1 "
+        "unstarted (reset and never stepped); pass --allow-unverified when that is expected"
+    )
 
 
 def cartpole_counted_afresh() -> gym.Env[Any, Any]:
@@ -610,8 +638,8 @@ def test_a_file_from_async_workers_without_the_layout_key_says_the_same(tmp_path
     old = rewrite(ev.path, tmp_path / "old.mcap", run=unsaid)
     assert "unread_time_limits" not in open_evidence(old).run.layout
     result = replay([old])
-    assert [e.status for e in result.episodes] == ["not_replayable"] * 2 + ["identical"] * 2
-    assert (result.episodes[0].reason or "").endswith(_ASYNC)
+    assert [e.status for e in result.episodes] == ["not_replayable"] * 2
+    assert result.unstarted == 2 and (result.episodes[0].reason or "").endswith(_ASYNC)
 
 
 def test_a_same_step_autoreset_hiding_a_time_limit_under_a_frame_skip_is_said(

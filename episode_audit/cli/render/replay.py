@@ -45,6 +45,7 @@ def replay_output(
     summary = (
         f"{result.count('identical')} identical, {result.count('diverged')} diverged, "
         f"{result.count('not_replayable')} not replayable: {result.verified} episode(s) verified"
+        + (f" (+{result.unstarted} unstarted)" if result.unstarted else "")
     )
     versions = [
         [file, lib, recorded, current]
@@ -112,12 +113,18 @@ def _rows(episodes: list[EpisodeReplay]) -> list[list[object]]:
     return rows
 
 
-def unverified(not_replayable: int) -> str:
+def unverified(result: ReplayResult) -> str:
     """Why a replay that compared no episode fails."""
+    not_replayable = result.count("not_replayable")
     what = (
         f"all {not_replayable} episode(s) are not replayable (the output says why)"
         if not_replayable
         else "the file(s) hold no episode"
+        + (
+            f" but {result.unstarted} unstarted (reset and never stepped)"
+            if result.unstarted
+            else ""
+        )
     )
     return f"replay verified no episode: {what}; pass --allow-unverified when that is expected"
 
@@ -169,6 +176,6 @@ def replay_cases(result: ReplayResult, *, allow_unverified: bool = False) -> lis
         for n in result.missing
     ]
     if not result.verified and not allow_unverified:
-        why = unverified(result.count("not_replayable"))
+        why = unverified(result)
         cases.append(JUnitCase(REPLAY_SUITE, "verified", "failed", why))
     return cases

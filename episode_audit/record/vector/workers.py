@@ -8,9 +8,10 @@ through it; for the others the recorder asks only when it knows the answer is sa
 - :func:`rng_unaskable` — for an ``AsyncVectorEnv``, from a sub-env built in this process by
   the same env function: ``np_random`` is asked for only when every class in its chain keeps
   Gymnasium's own ``np_random`` and attribute lookup (the answer is then the generator
-  ``reset(seed=...)`` made, which pickles). A class that puts something else in Gymnasium's
-  private ``_np_random`` (an object that does not pickle) is not seen: such a sub-env needs
-  :class:`~.rng.ResetRngInfo` (docs/recording.md).
+  ``reset(seed=...)`` made, which pickles), and when that sub-env's ``np_random`` pickles, as
+  built and after a seeded reset (a class may put an object of its own in Gymnasium's private
+  ``_np_random``). One that puts it there only later (at a step, at an unseeded reset) is not
+  seen: such a sub-env needs :class:`~.rng.ResetRngInfo` (docs/recording.md).
 - :func:`unsendable` — for an SB3 ``VecEnv``, asked of the workers: SB3's ``env_is_wrapped``
   walks a worker's wrappers calling ``isinstance(wrapper, cls)`` and sends a bool; the classes
   here (:class:`Answering`, :class:`SpecUnsendable`, :class:`RngUnsendable`) answer that
@@ -20,6 +21,7 @@ through it; for the others the recorder asks only when it knows the answer is sa
 from __future__ import annotations
 
 import inspect
+import warnings
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -57,15 +59,39 @@ def rng_unaskable(env: Any) -> str | None:
     """
     if env is None:
         return "no sub-env could be built here to look at its classes"
+    top = env
     try:
         chain: list[tuple[type, type]] = []
         while isinstance(env, gym.Wrapper):
             chain.append((type(env), gym.Wrapper))
             env = env.env
         chain.append((type(env), gym.Env))
-        return _unaskable_classes(chain)
+        why = _unaskable_classes(chain)
     except Exception:  # (a class's own attribute machinery): unknown
         return "its classes cannot be looked at here"
+    return why if why is not None else _unsendable_rng(top)
+
+
+def _unsendable_rng(env: Any) -> str | None:
+    """Why ``env``'s ``np_random`` would not reach this process from a worker; else ``None``.
+
+    Read as a worker reads it (``get_wrapper_attr``), once as built and once after a seeded
+    reset (an env may put its own object in Gymnasium's private ``_np_random`` in either), and
+    pickled as its pipe pickles it. The reset's warnings (Gymnasium's env checker) are the
+    worker's to give, not repeated here.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for reset in (False, True):
+                if reset:
+                    env.reset(seed=0)
+                why = unpicklable(env.get_wrapper_attr("np_random"))
+                if why is not None:
+                    return f"its np_random does not pickle ({why:.60})"
+    except Exception as exc:  # (the env's own code): unknown
+        return f"reading its np_random after a reset here raised {type(exc).__name__}"
+    return None
 
 
 def _unaskable_classes(chain: list[tuple[type, type]]) -> str | None:
