@@ -14,10 +14,10 @@ from typing import Any
 
 import pyarrow as pa
 import pytest
-from pettingzoo.utils.wrappers import BaseParallelWrapper
+from pettingzoo.utils.wrappers import BaseParallelWrapper, MultiEpisodeEnv
 from typer.testing import CliRunner
 
-from episode_audit import RecordParallelEvidence, replay
+from episode_audit import RecordAECEvidence, RecordParallelEvidence, open_evidence, replay
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError
 from episode_audit.format import names as fmt
@@ -26,7 +26,7 @@ from tests.support.hostile import replace_column, rewrite
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
     warnings.simplefilter("ignore", DeprecationWarning)
-    from pettingzoo.classic import rps_v2
+    from pettingzoo.classic import rps_v2, tictactoe_v3
 
 DEEP = "[" * 100_000
 
@@ -176,3 +176,70 @@ def test_an_env_factory_of_the_other_api_is_not_replayable(rps: Path) -> None:
             "the env factory returned OrderEnforcingWrapper, not a PettingZoo ParallelEnv",
         )
     }
+
+
+class _Doubled(BaseParallelWrapper):  # type: ignore[misc]
+    """A reward wrapper of one's own: each reward doubled."""
+
+    def step(self, actions: dict[str, Any]) -> tuple[Any, ...]:
+        obs, rewards, term, trunc, infos = super().step(actions)
+        return obs, {a: 2 * r for a, r in rewards.items()}, term, trunc, infos
+
+
+def _doubled_rps() -> Any:
+    return _Doubled(rps_v2.parallel_env(max_cycles=3))
+
+
+WRAPPED = (
+    "differed at step 0 (reward) in an env whose match with the recording could not be "
+    'verified: the recorded env\'s wrappers ("_Doubled", "aec_to_parallel_wrapper") are not '
+    'the rebuilt env\'s ("aec_to_parallel_wrapper"), and may change a step; pass --env-factory '
+    "MODULE:CALLABLE that builds the env with them"
+)
+
+
+def test_a_game_recorded_over_a_wrapper_replay_does_not_rebuild_is_not_diverged(
+    tmp_path: Path,
+) -> None:
+    """Replay builds rps from its id and kwargs, without the user's reward wrapper.
+
+    The layout names the wrappers; the rebuilt env lacks one, so its rewards differing says
+    nothing of the env: not_replayable, naming both sides' wrappers. The user's factory with the
+    wrapper replays it identical.
+    """
+    path = tmp_path / "doubled.mcap"
+    with RecordParallelEvidence(_doubled_rps(), path, env_kwargs={"max_cycles": 3}) as env:
+        env.reset(seed=0)
+        while env.agents:
+            env.step({"player_0": 1, "player_1": 2})  # paper against scissors: rewards -2, 2
+    assert open_evidence(path).run.layout["wrappers"] == [
+        f"{__name__}._Doubled",
+        "pettingzoo.utils.conversions.aec_to_parallel_wrapper",
+        "pettingzoo.utils.wrappers.order_enforcing.OrderEnforcingWrapper",
+        "pettingzoo.utils.wrappers.assert_out_of_bounds.AssertOutOfBoundsWrapper",
+    ]
+    result = replay([path])
+    assert [(e.status, e.reason) for e in result.episodes] == [("not_replayable", WRAPPED)] * 2
+    assert result.episodes[0].divergence is not None
+    assert result.episodes[0].divergence.describe().startswith("step 0: reward expected -2.0")
+    assert replay([path], env_factory=_doubled_rps).count("identical") == 2
+
+
+def test_an_aec_game_recorded_over_multi_episode_env_is_not_diverged(tmp_path: Path) -> None:
+    """MultiEpisodeEnv plays two tictactoe games as one; replay's tictactoe plays one."""
+    path = tmp_path / "multi.mcap"
+    with RecordAECEvidence(
+        MultiEpisodeEnv(tictactoe_v3.env(), num_episodes=2), path, env_kwargs={}
+    ) as env:
+        env.reset(seed=0)
+        moves = iter([0, 3, 1, 4, 2] * 2)  # player_1 completes the top row, twice
+        for _agent in env.agent_iter():
+            _, _, terminated, truncated, _ = env.last()
+            env.step(None if terminated or truncated else next(moves))
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert all(
+        '("MultiEpisodeEnv", "TerminateIllegalWrapper") are not the rebuilt env\'s '
+        '("TerminateIllegalWrapper")' in str(e.reason)
+        for e in result.episodes
+    ), result.to_dict()

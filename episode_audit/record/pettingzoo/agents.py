@@ -27,7 +27,7 @@ from ..seeding import capture_rng_state
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..stream import Stream
 from ..values import RecordedOptions, recordable_options
-from .registry import checked_env_id, env_id_of, env_module_of
+from .registry import checked_env_id, env_id_of, env_module_of, wrappers_of
 
 __all__ = ["ARGS_DOC", "AgentRecorder", "AgentStreams", "agent_result"]
 
@@ -184,6 +184,7 @@ def _layout(
         "env_kwargs": kwargs_json,
         **({} if kwargs_typed is None else {"env_kwargs_typed": kwargs_typed}),
         "max_cycles": getattr(base, "max_cycles", None),
+        "wrappers": wrappers_of(env),
         "notes": layout_notes,
     }
 
