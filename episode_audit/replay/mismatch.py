@@ -579,10 +579,7 @@ def agents_mismatch(
             ):
                 if rec != _described(space):
                     shown = _shown(_described(space))
-                    return (
-                        f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; "
-                        f"{_as_recorded(factory)}"
-                    )
+                    return f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; {advice}"
     except Exception:  # the env's own attributes: compare nothing more
         return None
     return None

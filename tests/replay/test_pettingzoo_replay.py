@@ -26,7 +26,7 @@ from tests.support.hostile import replace_column, rewrite
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
     warnings.simplefilter("ignore", DeprecationWarning)
-    from pettingzoo.classic import rps_v2, tictactoe_v3
+    from pettingzoo.classic import go_v5, rps_v2, tictactoe_v3
 
 DEEP = "[" * 100_000
 
@@ -243,3 +243,22 @@ def test_an_aec_game_recorded_over_multi_episode_env_is_not_diverged(tmp_path: P
         '("TerminateIllegalWrapper")' in str(e.reason)
         for e in result.episodes
     ), result.to_dict()
+
+
+def test_other_spaces_in_a_game_recorded_without_env_kwargs_say_to_record_them(
+    tmp_path: Path,
+) -> None:
+    """go's board_size changes its spaces; the recorder was not told it (no env_kwargs=)."""
+    path = tmp_path / "go.mcap"
+    with RecordAECEvidence(go_v5.env(board_size=5), path) as env:
+        env.reset(seed=0)
+        env.step(0)
+    reasons = {e.reason for e in replay([path]).episodes}
+    assert len(reasons) == 1
+    assert re.fullmatch(
+        r"the rebuilt env does not match the recording: observation space .* recorded vs .* "
+        r"rebuilt; the file holds no env_kwargs \(the env's constructor arguments, which the "
+        r"recorder takes as env_kwargs=\): record with them, or pass --env-factory "
+        r"MODULE:CALLABLE that builds the env as recorded",
+        reasons.pop() or "",
+    )
