@@ -12,12 +12,19 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pytest
 from pettingzoo.utils.wrappers import BaseParallelWrapper, MultiEpisodeEnv
 from typer.testing import CliRunner
 
-from episode_audit import RecordAECEvidence, RecordParallelEvidence, open_evidence, replay
+from episode_audit import (
+    RecordAECEvidence,
+    RecordParallelEvidence,
+    check,
+    open_evidence,
+    replay,
+)
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError
 from episode_audit.format import names as fmt
@@ -26,6 +33,7 @@ from tests.support.hostile import replace_column, rewrite
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
     warnings.simplefilter("ignore", DeprecationWarning)
+    from pettingzoo.butterfly import pistonball_v6
     from pettingzoo.classic import go_v5, rps_v2, tictactoe_v3
 
 DEEP = "[" * 100_000
@@ -262,3 +270,44 @@ def test_other_spaces_in_a_game_recorded_without_env_kwargs_say_to_record_them(
         r"MODULE:CALLABLE that builds the env as recorded",
         reasons.pop() or "",
     )
+
+
+def test_games_after_the_recording_called_render_are_not_diverged(tmp_path: Path) -> None:
+    """Pistonball's observations are its screen, which render() redraws; replay never renders.
+
+    The loop renders after each step of game 0: from its 8th step on, the replay's
+    observations differ, and it says why they cannot be compared instead of calling them
+    diverged.
+    """
+    kwargs = {"n_pistons": 4, "max_cycles": 10, "render_mode": "rgb_array"}
+    path = tmp_path / "rendered.mcap"
+    with RecordParallelEvidence(
+        pistonball_v6.parallel_env(**kwargs), path, env_kwargs=kwargs
+    ) as env:
+        for seed in (0, 1):
+            env.reset(seed=seed)
+            step = 0
+            while env.agents:
+                env.step(
+                    {
+                        agent: np.full(1, (-1.0) ** (step + i), dtype=np.float32)
+                        for i, agent in enumerate(env.agents)
+                    }
+                )
+                step += 1
+                if seed == 0:
+                    env.render()
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"identical", "not_replayable"}
+    why = (
+        " in an env whose match with the recording could not be verified: the recording called "
+        "render() (first in game 0), which replay does not: an env's steps may depend on it "
+        "(pistonball's observations are the screen render() redraws); record without render() "
+        "calls to verify them"
+    )
+    assert all(
+        str(e.reason).startswith("differed at step ") and str(e.reason).endswith(why)
+        for e in result.episodes
+        if e.status != "identical"
+    ), result.to_dict()
+    assert "recorder_note:rendered" in {f.code for f in check([path]).findings}
