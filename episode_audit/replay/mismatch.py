@@ -203,13 +203,14 @@ def unverified_match(run: RunInfo, env: Any, *, factory: bool) -> str | None:
     side, whose constructor takes any besides the env; an argument either side holds only as
     a value's placeholder (:func:`_untold`); a PettingZoo env, whose constructor
     arguments cannot be compared with the recorded ``env_kwargs``. And a PettingZoo env replay
-    built from the file with its defaults, the recording holding no ``env_kwargs``
-    (:func:`_unverified_game`). Replay then gives an episode that differs ``not_replayable``
-    with this cause, not ``diverged`` (``results.not_told_unverified``). Never raises.
+    built from the file with its defaults, the recording holding no ``env_kwargs``, or one whose
+    wrappers are not the recorded env's (:func:`_unverified_game`). Replay then gives an episode
+    that differs ``not_replayable`` with this cause, not ``diverged``
+    (``results.not_told_unverified``). Never raises.
     """
     spec = run.env_spec if isinstance(run.env_spec, Mapping) else {}
     if str(run.layout.get("kind", "")).startswith("pettingzoo_"):
-        return _unverified_game(run.layout, factory=factory)
+        return _unverified_game(run.layout, env, factory=factory)
     if not factory:
         return None
     if not spec:
@@ -609,10 +610,7 @@ def agents_mismatch(
             ):
                 if rec != _described(space):
                     shown = _shown(_described(space))
-                    return (
-                        f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; "
-                        f"{_as_recorded(factory)}"
-                    )
+                    return f"{_MISMATCH}{what} {_shown(rec)} recorded vs {shown} rebuilt; {advice}"
     except Exception:  # the env's own attributes: compare nothing more
         return None
     return None
@@ -655,15 +653,19 @@ _NO_KWARGS = (
 )
 
 
-def _unverified_game(layout: Mapping[str, Any], *, factory: bool) -> str | None:
+def _unverified_game(layout: Mapping[str, Any], env: Any, *, factory: bool) -> str | None:
     """Why a rebuilt PettingZoo env cannot be verified to be the recorded one, or ``None``.
 
-    A factory's constructor arguments are not known: they cannot be compared with the layout's
+    Its wrappers, when they are not the recorded env's (:func:`_wrapper_difference`). A
+    factory's constructor arguments are not known: they cannot be compared with the layout's
     ``env_kwargs`` (nor with none, when the recording holds none). Built from the file, it is
     the recorded env when the recording holds its ``env_kwargs``; without them (``null``: the
     recorder was not given ``env_kwargs=``), it is built with its defaults, which the recorded
     env may not have had.
     """
+    wrapped = _wrapper_difference(layout, env, factory=factory)
+    if wrapped is not None:
+        return wrapped
     kwargs = layout.get("env_kwargs")
     if not factory:
         if kwargs is not None:
@@ -681,6 +683,49 @@ def _unverified_game(layout: Mapping[str, Any], *, factory: bool) -> str | None:
     if isinstance(layout.get("env_id"), str) or isinstance(layout.get("env_module"), str):
         return f"{said}; replay without --env-factory to build it with them"
     return said
+
+
+_STEP_PRESERVING = frozenset(
+    f"pettingzoo.utils.wrappers.{name}"
+    for name in (
+        "order_enforcing.OrderEnforcingWrapper",
+        "assert_out_of_bounds.AssertOutOfBoundsWrapper",
+        "capture_stdout.CaptureStdoutWrapper",
+    )
+)
+"""PettingZoo's wrappers that only refuse misuse or capture printing: never a step's values."""
+
+
+def _wrapper_difference(layout: Mapping[str, Any], env: Any, *, factory: bool) -> str | None:
+    """How the rebuilt env's wrappers differ from the recorded env's (layout ``wrappers``).
+
+    Compared outermost first, leaving out PettingZoo's wrappers that never change a step
+    (:data:`_STEP_PRESERVING`). ``None`` when they are the same, or either side's cannot be
+    read (a file without ``wrappers``: recorded before the recorder wrote them). Never raises.
+    """
+    from ..record.pettingzoo import wrappers_of
+
+    recorded, rebuilt = layout.get("wrappers"), wrappers_of(env)
+    if not isinstance(recorded, list) or rebuilt is None:
+        return None
+    mine = [str(w) for w in recorded if str(w) not in _STEP_PRESERVING]
+    now = [w for w in rebuilt if w not in _STEP_PRESERVING]
+    if mine == now:
+        return None
+
+    def names(layers: list[str]) -> str:
+        short = [_shown(w.rpartition(".")[2][:60]) for w in layers[:4]]
+        return ", ".join(short) + (f" and {len(layers) - 4} more" if len(layers) > 4 else "")
+
+    return (
+        f"the recorded env's wrappers ({names(mine) or 'none'}) are not the rebuilt env's "
+        f"({names(now) or 'none'}), and may change a step; "
+        + (
+            "make the --env-factory build the env with the recorded wrappers"
+            if factory
+            else "pass --env-factory MODULE:CALLABLE that builds the env with them"
+        )
+    )
 
 
 def _described(space: Any) -> Any:

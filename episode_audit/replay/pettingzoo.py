@@ -229,6 +229,7 @@ class _File:
     max_cycles: int | None
     atol: float
     unset_options: dict[int, str]  # by agent-episode: reset options the file does not hold
+    rendered_from: int | None  # the first game whose rows are noted ``rendered``
 
     def typed_options(self, episode: int) -> str | None:
         """The typed form of ``episode``'s reset options (its reset row's), if any."""
@@ -266,7 +267,38 @@ class _File:
             max_cycles if isinstance(max_cycles, int) else None,
             atol,
             unrecorded_options(resets),
+            _rendered_from(games, (steps, resets)),
         )
+
+
+def _rendered_from(
+    games: Mapping[int, Mapping[str, Mapping[str, Any]]], tables: Iterable[pa.Table]
+) -> int | None:
+    """The first game a row or reset row of which is noted ``rendered``, or ``None``."""
+    game_of = {int(r["episode"]): g for g, members in games.items() for r in members.values()}
+    found: list[int] = []
+    for table in tables:
+        if fmt.COL_NOTES not in table.column_names:
+            continue
+        episodes = table.column(fmt.COL_EPISODE).to_pylist()
+        for episode, notes in zip(episodes, table.column(fmt.COL_NOTES).to_pylist(), strict=True):
+            items = (note_items(notes) if notes else None) or ()  # (garbled: no note in it)
+            if any(item.partition(":")[0] == _RENDERED for item in items):
+                game = game_of.get(int(episode))
+                if game is not None:
+                    found.append(game)
+    return min(found, default=None)
+
+
+_RENDERED = "rendered"
+
+
+def _render_cause(game: int) -> str:
+    return (
+        f"the recording called render() (first in game {game}), which replay does not: an "
+        "env's steps may depend on it (pistonball's observations are the screen render() "
+        "redraws); record without render() calls to verify them"
+    )
 
 
 def replay_agents_evidence(
@@ -346,6 +378,8 @@ def _replay_games(
         if any(r.status == "diverged" for r in results):
             cast = cast_actions(file.steps) if cast is None else cast
             results = _cast_explains(cast, members, results)
+        if file.rendered_from is not None and int(record["game"]) >= file.rendered_from:
+            results = not_told_unverified(results, _render_cause(file.rendered_from))
         for result in results:
             done[result.episode] = result
             if progress is not None:

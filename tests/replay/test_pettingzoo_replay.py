@@ -12,12 +12,19 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pytest
-from pettingzoo.utils.wrappers import BaseParallelWrapper
+from pettingzoo.utils.wrappers import BaseParallelWrapper, MultiEpisodeEnv
 from typer.testing import CliRunner
 
-from episode_audit import RecordParallelEvidence, replay
+from episode_audit import (
+    RecordAECEvidence,
+    RecordParallelEvidence,
+    check,
+    open_evidence,
+    replay,
+)
 from episode_audit.cli import app
 from episode_audit.errors import ConfigurationError
 from episode_audit.format import names as fmt
@@ -26,7 +33,8 @@ from tests.support.hostile import replace_column, rewrite
 
 with warnings.catch_warnings():  # PettingZoo 1.27 deprecates the env modules (for make())
     warnings.simplefilter("ignore", DeprecationWarning)
-    from pettingzoo.classic import rps_v2
+    from pettingzoo.butterfly import pistonball_v6
+    from pettingzoo.classic import go_v5, rps_v2, tictactoe_v3
 
 DEEP = "[" * 100_000
 
@@ -176,3 +184,130 @@ def test_an_env_factory_of_the_other_api_is_not_replayable(rps: Path) -> None:
             "the env factory returned OrderEnforcingWrapper, not a PettingZoo ParallelEnv",
         )
     }
+
+
+class _Doubled(BaseParallelWrapper):  # type: ignore[misc]
+    """A reward wrapper of one's own: each reward doubled."""
+
+    def step(self, actions: dict[str, Any]) -> tuple[Any, ...]:
+        obs, rewards, term, trunc, infos = super().step(actions)
+        return obs, {a: 2 * r for a, r in rewards.items()}, term, trunc, infos
+
+
+def _doubled_rps() -> Any:
+    return _Doubled(rps_v2.parallel_env(max_cycles=3))
+
+
+WRAPPED = (
+    "differed at step 0 (reward) in an env whose match with the recording could not be "
+    'verified: the recorded env\'s wrappers ("_Doubled", "aec_to_parallel_wrapper") are not '
+    'the rebuilt env\'s ("aec_to_parallel_wrapper"), and may change a step; pass --env-factory '
+    "MODULE:CALLABLE that builds the env with them"
+)
+
+
+def test_a_game_recorded_over_a_wrapper_replay_does_not_rebuild_is_not_diverged(
+    tmp_path: Path,
+) -> None:
+    """Replay builds rps from its id and kwargs, without the user's reward wrapper.
+
+    The layout names the wrappers; the rebuilt env lacks one, so its rewards differing says
+    nothing of the env: not_replayable, naming both sides' wrappers. The user's factory with the
+    wrapper replays it identical.
+    """
+    path = tmp_path / "doubled.mcap"
+    with RecordParallelEvidence(_doubled_rps(), path, env_kwargs={"max_cycles": 3}) as env:
+        env.reset(seed=0)
+        while env.agents:
+            env.step({"player_0": 1, "player_1": 2})  # paper against scissors: rewards -2, 2
+    assert open_evidence(path).run.layout["wrappers"] == [
+        f"{__name__}._Doubled",
+        "pettingzoo.utils.conversions.aec_to_parallel_wrapper",
+        "pettingzoo.utils.wrappers.order_enforcing.OrderEnforcingWrapper",
+        "pettingzoo.utils.wrappers.assert_out_of_bounds.AssertOutOfBoundsWrapper",
+    ]
+    result = replay([path])
+    assert [(e.status, e.reason) for e in result.episodes] == [("not_replayable", WRAPPED)] * 2
+    assert result.episodes[0].divergence is not None
+    assert result.episodes[0].divergence.describe().startswith("step 0: reward expected -2.0")
+    assert replay([path], env_factory=_doubled_rps).count("identical") == 2
+
+
+def test_an_aec_game_recorded_over_multi_episode_env_is_not_diverged(tmp_path: Path) -> None:
+    """MultiEpisodeEnv plays two tictactoe games as one; replay's tictactoe plays one."""
+    path = tmp_path / "multi.mcap"
+    with RecordAECEvidence(
+        MultiEpisodeEnv(tictactoe_v3.env(), num_episodes=2), path, env_kwargs={}
+    ) as env:
+        env.reset(seed=0)
+        moves = iter([0, 3, 1, 4, 2] * 2)  # player_1 completes the top row, twice
+        for _agent in env.agent_iter():
+            _, _, terminated, truncated, _ = env.last()
+            env.step(None if terminated or truncated else next(moves))
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"not_replayable"}
+    assert all(
+        '("MultiEpisodeEnv", "TerminateIllegalWrapper") are not the rebuilt env\'s '
+        '("TerminateIllegalWrapper")' in str(e.reason)
+        for e in result.episodes
+    ), result.to_dict()
+
+
+def test_other_spaces_in_a_game_recorded_without_env_kwargs_say_to_record_them(
+    tmp_path: Path,
+) -> None:
+    """go's board_size changes its spaces; the recorder was not told it (no env_kwargs=)."""
+    path = tmp_path / "go.mcap"
+    with RecordAECEvidence(go_v5.env(board_size=5), path) as env:
+        env.reset(seed=0)
+        env.step(0)
+    reasons = {e.reason for e in replay([path]).episodes}
+    assert len(reasons) == 1
+    assert re.fullmatch(
+        r"the rebuilt env does not match the recording: observation space .* recorded vs .* "
+        r"rebuilt; the file holds no env_kwargs \(the env's constructor arguments, which the "
+        r"recorder takes as env_kwargs=\): record with them, or pass --env-factory "
+        r"MODULE:CALLABLE that builds the env as recorded",
+        reasons.pop() or "",
+    )
+
+
+def test_games_after_the_recording_called_render_are_not_diverged(tmp_path: Path) -> None:
+    """Pistonball's observations are its screen, which render() redraws; replay never renders.
+
+    The loop renders after each step of game 0: from its 8th step on, the replay's
+    observations differ, and it says why they cannot be compared instead of calling them
+    diverged.
+    """
+    kwargs = {"n_pistons": 4, "max_cycles": 10, "render_mode": "rgb_array"}
+    path = tmp_path / "rendered.mcap"
+    with RecordParallelEvidence(
+        pistonball_v6.parallel_env(**kwargs), path, env_kwargs=kwargs
+    ) as env:
+        for seed in (0, 1):
+            env.reset(seed=seed)
+            step = 0
+            while env.agents:
+                env.step(
+                    {
+                        agent: np.full(1, (-1.0) ** (step + i), dtype=np.float32)
+                        for i, agent in enumerate(env.agents)
+                    }
+                )
+                step += 1
+                if seed == 0:
+                    env.render()
+    result = replay([path])
+    assert {e.status for e in result.episodes} == {"identical", "not_replayable"}
+    why = (
+        " in an env whose match with the recording could not be verified: the recording called "
+        "render() (first in game 0), which replay does not: an env's steps may depend on it "
+        "(pistonball's observations are the screen render() redraws); record without render() "
+        "calls to verify them"
+    )
+    assert all(
+        str(e.reason).startswith("differed at step ") and str(e.reason).endswith(why)
+        for e in result.episodes
+        if e.status != "identical"
+    ), result.to_dict()
+    assert "recorder_note:rendered" in {f.code for f in check([path]).findings}

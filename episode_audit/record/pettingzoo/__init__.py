@@ -4,7 +4,7 @@
 - :class:`RecordAECEvidence` — a ``BaseWrapper`` over an ``AECEnv``; :class:`AECTurns`, its turn
   accounting, is shared with replay.
 - :func:`env_id_of`, :func:`env_module_of`, :func:`is_pettingzoo_module`, :func:`is_registered`,
-  :func:`make_registered` — how a recorded env is named and rebuilt.
+  :func:`make_registered`, :func:`wrappers_of` — how a recorded env is named and rebuilt.
 
 This package is the only place that imports ``pettingzoo`` (``episode_audit`` imports it lazily,
 so PettingZoo stays optional). Layout and AEC accounting: ``docs/format.md``, "PettingZoo files".
@@ -23,6 +23,7 @@ from .registry import (
     is_pettingzoo_module,
     is_registered,
     make_registered,
+    wrappers_of,
 )
 from .turns import AECTurns
 
@@ -38,4 +39,5 @@ __all__ = [
     "is_pettingzoo_module",
     "is_registered",
     "make_registered",
+    "wrappers_of",
 ]

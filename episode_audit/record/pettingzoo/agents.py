@@ -23,11 +23,12 @@ from ...format.spaces import codec_for, describe_space
 from ...format.unrecorded import UNRECORDED
 from ..block import Episode
 from ..file import EvidenceFile, FileRecorder
+from ..notes import note
 from ..seeding import capture_rng_state
 from ..settings import RecorderOptions, RecorderSettings, check_options, run_info
 from ..stream import Stream
 from ..values import RecordedOptions, recordable_options
-from .registry import checked_env_id, env_id_of, env_module_of
+from .registry import checked_env_id, env_id_of, env_module_of, wrappers_of
 
 __all__ = ["ARGS_DOC", "AgentRecorder", "AgentStreams", "agent_result"]
 
@@ -98,6 +99,9 @@ class AgentStreams:
         self.options: RecordedOptions | None = None
         self.rng: dict[str, Any] | None = None
         self.in_game: set[Any] = set()
+        self.rendered = False  # render() was called
+        self.render_note: str | None = None  # for the reset rows of the current game
+        self._render_pending: str | None = None  # for those of the next game
 
     def new_game(self, seed: Any, options: Any) -> None:
         """End every open episode (``incomplete``) and note what the coming reset uses."""
@@ -108,6 +112,7 @@ class AgentStreams:
         self.options = recordable_options(options)  # (before the reset, which may change them)
         self.rng = capture_rng_state(self.unwrapped) if seed is None else None
         self.in_game = set()
+        self.render_note, self._render_pending = self._render_pending, None
 
     def begin(self, agent: Any) -> Begun | None:
         """Begin ``agent``'s episode of the current game; return it (``None`` if not recorded)."""
@@ -115,7 +120,7 @@ class AgentStreams:
         if stream is None or agent in self.in_game:
             return None
         self.in_game.add(agent)
-        notes: list[str] = []
+        notes: list[str] = [] if self.render_note is None else [self.render_note]
         return stream.begin(self.seed, self.options, self.rng, notes, game=self.game), notes
 
     def reset_row(self, agent: Any, begun: Begun | None, obs: Any, info: Any) -> None:
@@ -128,6 +133,23 @@ class AgentStreams:
     def error(self, exc: Exception, during: str) -> None:
         """The env raised ``exc``: every open agent-episode ends ``error``."""
         self.file.end_with_error(self.streams.values(), exc, during)
+
+    def note_render(self) -> None:
+        """Note the recording's first ``render()`` (``rendered``) on the rows that follow it.
+
+        On the next row of each of the game's agent-episodes, and on the reset rows of the next
+        game (the call may have been the game's last). Replay does not render, and an env's
+        steps may depend on it (pistonball's observations are the screen ``render()``
+        redraws): a game that differs from then on is not a verdict on the env.
+        """
+        if self.rendered:
+            return
+        self.rendered = True
+        when = f"in game {self.game}" if self.game >= 0 else "before the first reset()"
+        text = note("rendered", f"render() called {when}; replay does not render")
+        for agent in self.in_game:
+            self.streams[agent].note_next_row([text])
+        self._render_pending = text
 
 
 def _shared_spaces(env: Any) -> tuple[list[str], dict[str, Any], dict[str, Any]]:
@@ -184,6 +206,7 @@ def _layout(
         "env_kwargs": kwargs_json,
         **({} if kwargs_typed is None else {"env_kwargs_typed": kwargs_typed}),
         "max_cycles": getattr(base, "max_cycles", None),
+        "wrappers": wrappers_of(env),
         "notes": layout_notes,
     }
 
@@ -279,6 +302,11 @@ class AgentRecorder(FileRecorder):
 
     def _started(self, env: Any) -> None:
         """Called at the end of ``__init__``, the file started (a wrapper's own state)."""
+
+    def render(self) -> Any:
+        """Render the env; the first call is noted ``rendered`` (replay does not render)."""
+        self._rec.note_render()
+        return self.env.render()
 
     def flush(self) -> None:
         """Write everything recorded so far to the file now (open AEC rows stay open)."""

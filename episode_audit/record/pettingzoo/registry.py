@@ -27,6 +27,7 @@ __all__ = [
     "is_pettingzoo_module",
     "is_registered",
     "make_registered",
+    "wrappers_of",
 ]
 
 KIND_PARALLEL = "pettingzoo_parallel"
@@ -71,6 +72,38 @@ def env_module_of(env: Any) -> str | None:
         return None
     module = f"pettingzoo.{parts[1]}.{name}"
     return module if is_pettingzoo_module(module) else None
+
+
+_MOST_WRAPPERS = 64
+
+
+def wrappers_of(env: Any) -> list[str] | None:
+    """The wrappers around ``env``'s unwrapped env, outermost first (``module.QualName`` each).
+
+    PettingZoo's wrappers, its API conversions and a user's own alike: each layer down to
+    ``env.unwrapped``, through ``env`` (``BaseWrapper``, ``BaseParallelWrapper``,
+    ``parallel_to_aec_wrapper``) or ``aec_env`` (``aec_to_parallel_wrapper``). ``None`` when the
+    chain cannot be read to its end (a layer that names no inner env, or past 64 layers).
+    Never raises.
+
+    >>> import pettingzoo
+    >>> wrappers_of(pettingzoo.make("aec", "classic/tictactoe-v3"))[0]
+    'pettingzoo.utils.wrappers.order_enforcing.OrderEnforcingWrapper'
+    """
+    try:
+        base = env.unwrapped
+        layers: list[str] = []
+        while env is not base:
+            if len(layers) >= _MOST_WRAPPERS:
+                return None
+            layers.append(f"{type(env).__module__}.{type(env).__qualname__}")
+            inner = getattr(env, "env", None)
+            env = inner if inner is not None else getattr(env, "aec_env", None)
+            if env is None:
+                return None
+    except Exception:  # the env's own attributes
+        return None
+    return layers
 
 
 def _registry(kind: str) -> Mapping[str, Any] | None:
