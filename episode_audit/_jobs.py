@@ -139,11 +139,13 @@ def pooled(items: int, jobs: int | None, ray_address: str | None) -> bool:
     return ray_address is None and min(check_jobs(jobs), items) > 1
 
 
-def unpicklable(value: object) -> str | None:
+def unpicklable(value: object, *, back: bool = False) -> str | None:
     """Why ``value`` cannot be sent to another process, or ``None`` if it can; never raises.
 
     As :mod:`multiprocessing` sends it: to a pooled worker (:func:`pooled`), or through a
-    vector env's worker pipe.
+    vector env's worker pipe. ``back``: also read back from its bytes, as the receiving end
+    does (an object can pickle and not unpickle: its class's ``__getattr__`` answering
+    ``__getstate__`` for another object, before Python 3.11).
 
     >>> unpicklable(usable_cores) is None, unpicklable(lambda: 1) is None
     (True, False)
@@ -151,7 +153,9 @@ def unpicklable(value: object) -> str | None:
     from multiprocessing.reduction import ForkingPickler
 
     try:
-        ForkingPickler.dumps(value)
+        data = ForkingPickler.dumps(value)
+        if back:
+            ForkingPickler.loads(data)
     except Exception as exc:  # (pickle raises what the object's reduction raises)
         try:
             return str(exc) or type(exc).__name__

@@ -77,7 +77,7 @@ def _unsendable_rng(env: Any) -> str | None:
 
     Read as a worker reads it (``get_wrapper_attr``), once as built and once after a seeded
     reset (an env may put its own object in Gymnasium's private ``_np_random`` in either), and
-    pickled as its pipe pickles it. The reset's warnings (Gymnasium's env checker) are the
+    pickled and read back as its pipe does. The reset's warnings (Gymnasium's env checker) are the
     worker's to give, not repeated here.
     """
     try:
@@ -86,7 +86,7 @@ def _unsendable_rng(env: Any) -> str | None:
             for reset in (False, True):
                 if reset:
                     env.reset(seed=0)
-                why = unpicklable(env.get_wrapper_attr("np_random"))
+                why = unpicklable(env.get_wrapper_attr("np_random"), back=True)
                 if why is not None:
                     return f"its np_random does not pickle ({why:.60})"
     except Exception as exc:  # (the env's own code): unknown
