@@ -27,7 +27,14 @@ from ..record.seeding import restore_rng_state
 from .compare import outcome_difference, terms_equal
 from .envs import build_pettingzoo_env
 from .mismatch import agents_mismatch, unverified_match
-from .recorded import cast_actions, reset_options, row_ranges, rules_of, unrecorded_options
+from .recorded import (
+    cast_actions,
+    first_noted,
+    reset_options,
+    row_ranges,
+    rules_of,
+    unrecorded_options,
+)
 from .results import (
     RESET_RAISED,
     Divergence,
@@ -276,18 +283,8 @@ def _rendered_from(
 ) -> int | None:
     """The first game a row or reset row of which is noted ``rendered``, or ``None``."""
     game_of = {int(r["episode"]): g for g, members in games.items() for r in members.values()}
-    found: list[int] = []
-    for table in tables:
-        if fmt.COL_NOTES not in table.column_names:
-            continue
-        episodes = table.column(fmt.COL_EPISODE).to_pylist()
-        for episode, notes in zip(episodes, table.column(fmt.COL_NOTES).to_pylist(), strict=True):
-            items = (note_items(notes) if notes else None) or ()  # (garbled: no note in it)
-            if any(item.partition(":")[0] == _RENDERED for item in items):
-                game = game_of.get(int(episode))
-                if game is not None:
-                    found.append(game)
-    return min(found, default=None)
+    found = [game_of.get(e) for table in tables for e in first_noted(table, _RENDERED)]
+    return min((game for game in found if game is not None), default=None)
 
 
 _RENDERED = "rendered"

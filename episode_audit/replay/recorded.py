@@ -29,6 +29,7 @@ from ..record.rules import EndingRules, RewardTerms
 __all__ = [
     "cast_actions",
     "episode_records",
+    "first_noted",
     "layout_not_replayable",
     "ordinal",
     "replay_actions",
@@ -143,7 +144,7 @@ def cast_actions(steps: pa.Table) -> dict[int, tuple[int, str]]:
     >>> cast_actions(pa.table({"episode": [0, 1, 1], "step": [0, 0, 1], "notes": notes}))
     {1: (0, 'dtype float64 cast to float32')}
     """
-    found = _first_noted(steps, _ACTION_CAST)
+    found = first_noted(steps, _ACTION_CAST)
     if not found:
         return {}
     step = steps.column(fmt.COL_STEP)
@@ -164,7 +165,7 @@ def unrecorded_options(resets: pa.Table) -> dict[int, str]:
     >>> unrecorded_options(pa.table({"episode": [0, 1], "notes": notes}))
     {1: '{1: f} (JSON has no function values)'}
     """
-    noted = _first_noted(resets, _OPTIONS_UNRECORDED)
+    noted = first_noted(resets, _OPTIONS_UNRECORDED)
     if not noted or fmt.COL_OPTIONS_TYPED not in resets.column_names:
         return {e: message for e, (_, message) in noted.items()}
     typed = resets.column(fmt.COL_OPTIONS_TYPED)
@@ -179,7 +180,7 @@ def unread_rng_states(resets: pa.Table) -> dict[int, str]:
     >>> unread_rng_states(pa.table({"episode": [0, 1], "notes": notes}))
     {1: 'its np_random raised'}
     """
-    return {e: message for e, (_, message) in _first_noted(resets, _RNG_UNREAD).items()}
+    return {e: message for e, (_, message) in first_noted(resets, _RNG_UNREAD).items()}
 
 
 def reset_options(options: str | None, typed: str | None) -> Any:
@@ -199,7 +200,7 @@ def reset_options(options: str | None, typed: str | None) -> Any:
     return from_json(options, "options") if options else None
 
 
-def _first_noted(table: pa.Table, code: str) -> dict[int, tuple[int, str]]:
+def first_noted(table: pa.Table, code: str) -> dict[int, tuple[int, str]]:
     """By episode: the position of its first row of ``table`` noted ``code``, and the note.
 
     Only the distinct notes values are parsed.
